@@ -1,0 +1,15 @@
+"""Estimators: the shared block Levenberg-Marquardt and the calibration methods built on it."""
+
+from .constraint_link import (
+    METHODS,
+    ConstraintLinkFK,
+    ConstraintLinkIK,
+    ConstraintLinkML,
+    calibrate_constraint_link,
+    solve_sphere_poses,
+)
+from .estimator import BlockProblem, CalibrationResult, levenberg_marquardt, reduce_local
+
+__all__ = ["METHODS", "BlockProblem", "CalibrationResult", "ConstraintLinkFK",
+           "ConstraintLinkIK", "ConstraintLinkML", "calibrate_constraint_link",
+           "levenberg_marquardt", "reduce_local", "solve_sphere_poses"]

@@ -1,0 +1,343 @@
+"""Self-calibration with a constraint link (seed 000, SPEC 2.1): three methods.
+
+``ml`` (default)
+    Maximum likelihood, implicit loop: unknowns = geometry + one pose per measurement on the
+    sphere ``|P| = Lc`` (2 tangent + 3 rotation coordinates); residuals = all six readings
+    divided by their noise. Solved by :func:`~pkmcal.calibration.estimator.levenberg_marquardt`
+    with the per-pose unknowns eliminated (Schur complement). Treats every encoder as noisy.
+``ik``
+    The paper's inverse-kinematics method (3.4.1): the pose follows from the five active
+    readings and the constraint (forward kinematics), the residual is the passive reading minus
+    its inverse kinematics. Needs the ``passive`` column and the exact ``Lc``. ``per_chain=True``
+    runs the paper's algorithm literally (chain by chain, only that chain's 9 parameters, in
+    sweeps); the default solves all chains jointly with the total derivative
+    ``dq_p/du + dq_p/dx dx/du`` (``dx/du`` by implicit differentiation of the active loop).
+``fk``
+    The paper's forward-kinematics method (3.4.2): the pose follows from all six readings, the
+    residual is ``|P| - Lc`` with ``Lc`` estimated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..identifiability import CONSTRAINT_LINK_GAUGES, gauge_generators, name_null_space
+from ..kinematics import matrix_from_rotvec
+from ..machines.base import Machine, newton_pose_solve
+from ..measurements.constraint_link import ConstraintLinkData
+from ..parameters import ParameterSet
+from .estimator import CalibrationResult, levenberg_marquardt
+
+LINK = "link.length"
+METHODS = ("ml", "ik", "fk")
+
+
+def sphere_tangents(P):
+    """Orthonormal tangent basis (K, 3, 2) of the sphere through ``P`` (K, 3), and ``P/|P|``."""
+    n = P / np.linalg.norm(P, axis=-1, keepdims=True)
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    t1 = np.cross(n, helper)
+    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
+    t2 = np.cross(n, t1)
+    return np.stack([t1, t2], -1), n
+
+
+def solve_sphere_poses(machine: Machine, u, q, link_length, passive=None, start=None,
+                       tol=1e-13, max_iter=60):
+    """Poses on ``|P| = link_length`` that reproduce the readings ``q`` (K, 6).
+
+    With ``passive`` (K,) the passive reading is ignored and the five active ones plus the
+    constraint give a square system (the paper's FK of step iii); without it all six readings
+    and the constraint are solved in the least-squares sense.
+    """
+    K = len(q)
+    if start is None:
+        P0, R0 = machine.home
+        P0 = np.asarray(P0, float)
+        norm = np.linalg.norm(P0)
+        P0 = link_length * (P0 / norm if norm > 0 else np.array([0, 0, 1.0]))
+        start = (np.broadcast_to(P0, (K, 3)).copy(), np.broadcast_to(R0, (K, 3, 3)).copy())
+    P, R = (np.array(start[0], float), np.array(start[1], float))
+    scale = machine.characteristic_length()
+
+    def system(idx, P, R):
+        qc, J, _ = machine.ik_jacobians(P, R, u, want_du=False)
+        r = qc - q[idx]
+        norm = np.linalg.norm(P, axis=-1)
+        rc = norm - link_length
+        Jc = np.concatenate([P / norm[:, None], np.zeros_like(P)], -1)
+        if passive is None:
+            return (np.concatenate([r, rc[:, None]], -1),
+                    np.concatenate([J, Jc[:, None, :]], -2))
+        rows = np.arange(len(idx))
+        r[rows, passive[idx]] = rc
+        J[rows, passive[idx]] = Jc
+        return r, J
+
+    return newton_pose_solve(system, P, R, tol * scale, max_iter,
+                             step_tol=None if passive is not None else 1e-14 * scale)
+
+
+@dataclass
+class SphereState:
+    """Estimator state: global values and the per-measurement poses."""
+
+    u: np.ndarray
+    P: np.ndarray
+    R: np.ndarray
+
+
+class _ConstraintLinkProblem:
+    """What the three methods share: parameters = machine's + ``link.length``."""
+
+    local_dof = 0
+
+    def __init__(self, machine: Machine, data: ConstraintLinkData, sigma_m=1e-6,
+                 estimate_link_length: bool = False):
+        if data.q.shape[1] != machine.n_joints:
+            raise InputError(f"{data.source}: {data.q.shape[1]} joint columns, the machine has "
+                             f"{machine.n_joints} actuators")
+        self.machine = machine
+        self.data = data
+        self.sigma = np.broadcast_to(np.asarray(sigma_m, float), (machine.n_joints,))
+        link = ParameterSet([LINK], ["length"], [data.link_length],
+                            fixed=[not estimate_link_length])
+        self.parameters = machine.parameters.concat(link)
+        self.scales = self.parameters.scales(machine.characteristic_length())
+        self.n_machine = len(machine.parameters)
+
+    def global_values(self, state):
+        return state.u
+
+    def split(self, u):
+        return u[:self.n_machine], u[self.n_machine]
+
+    def start_poses(self, passive=None):
+        um, Lc = self.split(self.parameters.values)
+        fk = solve_sphere_poses(self.machine, um, self.data.q, Lc, passive)
+        bad = ~fk.converged
+        if bad.any():
+            rows = self.data.rows[bad]
+            shown = ", ".join(map(str, rows[:10])) + (" ..." if len(rows) > 10 else "")
+            raise InputError(
+                f"{self.data.source}: no pose on the constraint sphere (Lc = "
+                f"{Lc * 1e3:.6g} mm) reproduces the readings of {bad.sum()} row(s): {shown}")
+        return fk.P, fk.R
+
+
+class ConstraintLinkML(_ConstraintLinkProblem):
+    """Maximum likelihood with per-pose unknowns (implicit loop); 5 local unknowns per pose."""
+
+    local_dof = 5
+
+    def initial_state(self):
+        # all six readings + the constraint in the least-squares sense: robust to a far start
+        P, R = self.start_poses(None)
+        Lc = self.split(self.parameters.values)[1]
+        P *= (Lc / np.linalg.norm(P, axis=-1))[:, None]   # exactly on the sphere
+        return SphereState(self.parameters.values.copy(), P, R)
+
+    def evaluate(self, state, jacobian=True):
+        um, Lc = self.split(state.u)
+        q, Jx, Ju = self.machine.ik_jacobians(state.P, state.R, um, want_du=jacobian)
+        r = (q - self.data.q) / self.sigma
+        if not jacobian:
+            return r, None, None
+        T, n = sphere_tangents(state.P)
+        JP = Jx[..., :3]
+        dLc = np.einsum("kji,ki->kj", JP, n)[..., None]
+        Jg = np.concatenate([Ju, dLc], -1) / self.sigma[:, None]
+        Jl = np.concatenate([JP @ T, Jx[..., 3:]], -1) / self.sigma[:, None]
+        return r, Jg, Jl
+
+    def retract(self, state, du, dl):
+        u = state.u + du
+        T, _ = sphere_tangents(state.P)
+        P = state.P + np.einsum("kij,kj->ki", T, dl[:, :2])
+        P *= (u[self.n_machine] / np.linalg.norm(P, axis=-1))[:, None]
+        R = matrix_from_rotvec(dl[:, 2:]) @ state.R
+        return SphereState(u, P, R)
+
+
+class _ImplicitPoseProblem(_ConstraintLinkProblem):
+    """Methods whose poses are functions of the readings (solved inside each evaluation)."""
+
+    def initial_state(self):
+        P, R = self.start_poses(None)
+        return SphereState(self.parameters.values.copy(), P, R)
+
+    def retract(self, state, du, dl):
+        return SphereState(state.u + du, state.P, state.R)
+
+    def _poses(self, state, constrained: bool):
+        um, Lc = self.split(state.u)
+        if constrained:
+            fk = solve_sphere_poses(self.machine, um, self.data.q, Lc, self.data.passive,
+                                    start=(state.P, state.R))
+        else:
+            fk = self.machine.fk(self.data.q, um, start=(state.P, state.R))
+        state.P, state.R = fk.P, fk.R          # warm start for the next evaluation
+        return fk
+
+
+class ConstraintLinkIK(_ImplicitPoseProblem):
+    """The paper's inverse-kinematics method: residual = passive reading - its IK."""
+
+    def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=False, start=None):
+        if data.passive is None:
+            raise InputError(f"{data.source}: the inverse-kinematics method needs the "
+                             "'passive' column (which actuator was passive at each row)")
+        super().__init__(machine, data, sigma_m, estimate_link_length)
+        # the five active readings + the constraint may have no solution with the start
+        # geometry (seed 000's method needs a start close enough): such rows are left out
+        um, Lc = self.split(self.parameters.values)
+        P, R = self.start_poses(None) if start is None else start
+        fk = solve_sphere_poses(machine, um, data.q, Lc, data.passive, start=(P, R))
+        self.dropped_rows = data.rows[~fk.converged]
+        self._start = (fk.P[fk.converged], fk.R[fk.converged])
+        if self.dropped_rows.size:
+            self.data = data.subset(fk.converged)
+
+    def initial_state(self):
+        return SphereState(self.parameters.values.copy(), *self._start)
+
+    def evaluate(self, state, jacobian=True):
+        fk = self._poses(state, constrained=True)
+        um, Lc = self.split(state.u)
+        K = len(self.data)
+        rows = np.arange(K)
+        p = self.data.passive
+        q, Jx, Ju = self.machine.ik_jacobians(fk.P, fk.R, um, want_du=jacobian)
+        sig = self.sigma[p]
+        r = ((q[rows, p] - self.data.q[rows, p]) / sig)[:, None]
+        r = np.where(fk.converged[:, None], r, np.nan)
+        if not jacobian:
+            return r, None, None
+        # loop equations F(x, u) = [IK_active(x, u) - q_active; |P| - Lc] = 0 (square, 6x6)
+        Fx = Jx.copy()
+        norm = np.linalg.norm(fk.P, axis=-1)
+        Fx[rows, p] = np.concatenate([fk.P / norm[:, None], np.zeros((K, 3))], -1)
+        Fu = np.concatenate([Ju, np.zeros((K, 6, 1))], -1)
+        Fu[rows, p] = 0.0
+        Fu[rows, p, -1] = -1.0
+        dx_du = -np.linalg.solve(Fx, Fu)                                   # (K, 6, n)
+        Jp = np.concatenate([Ju[rows, p], np.zeros((K, 1))], -1)
+        Jg = (Jp + np.einsum("ki,kin->kn", Jx[rows, p], dx_du)) / sig[:, None]
+        return r, Jg[:, None, :], None
+
+
+class ConstraintLinkFK(_ImplicitPoseProblem):
+    """The paper's forward-kinematics method: residual = ``|FK(q)| - Lc``, ``Lc`` estimated."""
+
+    def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=True):
+        super().__init__(machine, data, sigma_m, estimate_link_length)
+
+    def evaluate(self, state, jacobian=True):
+        fk = self._poses(state, constrained=False)
+        um, Lc = self.split(state.u)
+        K = len(self.data)
+        norm = np.linalg.norm(fk.P, axis=-1)
+        sig = float(np.mean(self.sigma))
+        r = ((norm - Lc) / sig)[:, None]
+        r = np.where(fk.converged[:, None], r, np.nan)
+        if not jacobian:
+            return r, None, None
+        _, Jx, Ju = self.machine.ik_jacobians(fk.P, fk.R, um)
+        dx_du = -np.linalg.solve(Jx, Ju)                                   # (K, 6, n_m)
+        n = fk.P / norm[:, None]
+        dnorm = np.einsum("ki,kin->kn", n, dx_du[:, :3])
+        Jg = np.concatenate([dnorm, -np.ones((K, 1))], -1) / sig
+        return r, Jg[:, None, :], None
+
+
+PROBLEMS = {"ml": ConstraintLinkML, "ik": ConstraintLinkIK, "fk": ConstraintLinkFK}
+
+
+def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method: str = "ml",
+                              sigma_m=1e-6, estimate_link_length: bool | None = None,
+                              per_chain: bool = False, max_sweeps: int = 200, rtol: float = 1e-7,
+                              **options) -> CalibrationResult:
+    """Calibrate ``machine`` from constraint-link data.
+
+    Parameters
+    ----------
+    method : ``'ml'`` (default), ``'ik'`` or ``'fk'`` (see the module docstring).
+    sigma_m : encoder noise standard deviation(s), m (scalar or per actuator).
+    estimate_link_length : estimate ``Lc`` too (default: only for ``'fk'``).
+    per_chain : ``'ik'`` only: the paper's chain-by-chain sweeps.
+    options : passed to :func:`levenberg_marquardt` (``xtol``, ``ftol``, ``max_iter``).
+
+    Returns
+    -------
+    CalibrationResult with ``extras``: ``method``, ``machine`` (calibrated machine),
+    ``unidentifiable`` (named null directions), ``link_length``.
+    """
+    if method not in PROBLEMS:
+        raise InputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if per_chain and method != "ik":
+        raise InputError("per_chain applies to the inverse-kinematics method (method='ik')")
+    kwargs = {} if estimate_link_length is None else {"estimate_link_length":
+                                                       estimate_link_length}
+    problem = PROBLEMS[method](machine, data, sigma_m, **kwargs)
+    n_id = int(problem.parameters.free.sum()) - 6
+    n_rows = len(data) * (machine.n_joints - 5 if method == "ml" else 1)
+    if n_rows < n_id:
+        raise InputError(f"{data.source}: {len(data)} measurements give {n_rows} independent "
+                         f"equations, fewer than the {n_id} identifiable parameters")
+    if per_chain:
+        result = _per_chain_sweeps(problem, max_sweeps, rtol, **options)
+    else:
+        result = levenberg_marquardt(problem, rtol=rtol, **options)
+    um, Lc = problem.split(result.x)
+    calibrated = machine.with_parameters(um)
+    calibrated.constraint_link_length = float(Lc)
+    if getattr(result.state, "P", None) is not None:
+        calibrated.home = (Lc * result.state.P[0] / np.linalg.norm(result.state.P[0]),
+                           result.state.R[0])
+    gen = gauge_generators(machine, um, CONSTRAINT_LINK_GAUGES)
+    gen = np.vstack([gen, np.zeros((1, gen.shape[1]))]) / result.scales[:, None]
+    result.extras.update(
+        dropped_rows=getattr(problem, "dropped_rows", np.array([], int)),
+        method=method, machine=calibrated, link_length=float(Lc),
+        unidentifiable=name_null_space(result.null_space, problem.parameters,
+                                       CONSTRAINT_LINK_GAUGES, gen),
+    )
+    return result
+
+
+def _per_chain_sweeps(problem: ConstraintLinkIK, max_sweeps, rtol, **options):
+    """Seed 000 3.4.1 literally: for each chain, fit its 9 parameters to the rows where it was
+    passive, poses from the other five; repeat sweeps until no parameter moves."""
+    base = problem.parameters
+    machine, data = problem.machine, problem.data
+    u = base.values.copy()
+    state = problem.initial_state()
+    P, R = state.P, state.R
+    data = problem.data
+    result = None
+    for sweep in range(1, max_sweeps + 1):
+        u_before = u.copy()
+        for i in range(machine.n_joints):
+            rows = data.passive == i
+            if not rows.any():
+                continue
+            sub = ConstraintLinkIK(machine.with_parameters(u[:-1]), data.subset(rows),
+                                   problem.sigma, start=(P[rows], R[rows]))
+            free = np.zeros(len(base), bool)
+            free[base.indices(f"chain{i + 1}")] = True
+            sub.parameters = ParameterSet(base.names, base.kinds, u, ~free)
+            result = levenberg_marquardt(sub, rtol=rtol, **options)
+            u = result.x.copy()
+        if np.max(np.abs((u - u_before) / problem.scales)) < options.get("xtol", 1e-12):
+            break
+    full = ConstraintLinkIK(machine.with_parameters(u[:-1]), data, problem.sigma)
+    full.parameters = base.with_values(u)
+    final = levenberg_marquardt(full, rtol=rtol, max_iter=1)  # statistics at the solution
+    final.x, final.parameters = u, base.with_values(u)
+    final.extras["sweeps"] = sweep
+    final.success = sweep < max_sweeps
+    final.message = f"per-chain sweeps: {sweep}"
+    return final

@@ -1,0 +1,24 @@
+"""What data can and cannot identify: gauges, rank, named null directions, observability."""
+
+from .analysis import (
+    IdentifiabilityReport,
+    NullDirection,
+    analyze,
+    name_null_space,
+    observability_indices,
+)
+from .gauge import (
+    BASE_ROTATION_ABOUT_O,
+    CONSTRAINT_LINK_GAUGES,
+    PLATFORM_ROTATION_ABOUT_P,
+    Gauge,
+    align_gauge,
+    apply_gauges,
+    gauge_generators,
+)
+
+__all__ = [
+    "BASE_ROTATION_ABOUT_O", "CONSTRAINT_LINK_GAUGES", "Gauge", "IdentifiabilityReport",
+    "NullDirection", "PLATFORM_ROTATION_ABOUT_P", "align_gauge", "analyze", "apply_gauges",
+    "gauge_generators", "name_null_space", "observability_indices",
+]

@@ -1,0 +1,125 @@
+"""Identifiability of parameters from a (reduced, scaled) identification Jacobian (SPEC 3)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..parameters import ParameterSet
+from .gauge import Gauge
+
+
+@dataclass
+class NullDirection:
+    """One explained group of unidentifiable directions, or one unexplained direction."""
+
+    name: str
+    dimension: int
+    description: str
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "dimension": self.dimension, "description": self.description}
+
+
+@dataclass
+class IdentifiabilityReport:
+    """Rank, named unidentifiable directions and observability indices (SPEC 3)."""
+
+    parameters: int
+    identifiable: int
+    singular_values: np.ndarray
+    unidentifiable: list[NullDirection] = field(default_factory=list)
+    observability: dict = field(default_factory=dict)
+    condition_number: float = float("nan")
+
+    def as_dict(self) -> dict:
+        return {
+            "parameters": self.parameters,
+            "identifiable": self.identifiable,
+            "unidentifiable": [d.as_dict() for d in self.unidentifiable],
+            "observability": self.observability,
+            "condition_number": self.condition_number,
+        }
+
+    def summary(self) -> str:
+        """The report in words."""
+        lines = [f"{self.identifiable} of {self.parameters} free parameter directions are "
+                 "identifiable from these data."]
+        for d in self.unidentifiable:
+            lines.append(f"  - {d.dimension} x {d.name}: {d.description}")
+        return "\n".join(lines)
+
+
+def observability_indices(singular_values, n_rows: int = 1) -> dict:
+    """O1..O5 of SPEC 3 on the nonzero singular values ``s1 >= ... >= sL`` of scaled J.
+
+    ``O1 = (s1...sL)^(1/L) / sqrt(m)`` (D-optimality, ``m = n_rows``), ``O2 = sL/s1``,
+    ``O3 = sL``, ``O4 = sL^2/s1``, ``O5 = 1 / sum(1/si)``.
+    """
+    s = np.asarray(singular_values, float)
+    s = s[s > 0]
+    if s.size == 0:
+        return {k: 0.0 for k in ("O1", "O2", "O3", "O4", "O5")}
+    return {
+        "O1": float(np.exp(np.mean(np.log(s))) / np.sqrt(n_rows)),
+        "O2": float(s[-1] / s[0]),
+        "O3": float(s[-1]),
+        "O4": float(s[-1] ** 2 / s[0]),
+        "O5": float(1.0 / np.sum(1.0 / s)),
+    }
+
+
+def name_null_space(null_space, parameters: ParameterSet, gauges: Sequence[Gauge] = (),
+                    generators=None, tol: float = 1e-6) -> list[NullDirection]:
+    """Explain unidentifiable directions by gauges first, then in named parameters.
+
+    ``null_space``: (n, k) orthonormal directions in scaled coordinates. ``generators``:
+    (n, 3 * len(gauges)) gauge tangents in the same scaled coordinates.
+    """
+    N = np.asarray(null_space, float)
+    out: list[NullDirection] = []
+    if N.shape[1] == 0:
+        return out
+    remaining = N
+    if gauges and generators is not None:
+        for i, gauge in enumerate(gauges):
+            Gi = generators[:, 3 * i:3 * i + 3]
+            Qg, _ = np.linalg.qr(Gi)
+            # how many directions of this gauge lie in the null space
+            s = np.linalg.svd(N.T @ Qg, compute_uv=False)
+            dim = int(np.sum(s > 1 - tol * 1e3))
+            if dim:
+                out.append(NullDirection(gauge.name, dim, gauge.description))
+        Qall, _ = np.linalg.qr(generators)
+        P = remaining - Qall @ (Qall.T @ remaining)
+        U, s, _ = np.linalg.svd(P, full_matrices=False)
+        remaining = U[:, s > 1e-3]
+    for k in range(remaining.shape[1]):
+        words = parameters.describe_direction(remaining[:, k])
+        out.append(NullDirection(words, 1, "this combination of parameters changes no "
+                                 "measurement: only the others can be identified"))
+    return out
+
+
+def analyze(jacobian_scaled, parameters: ParameterSet, rtol: float = 1e-7,
+            gauges: Sequence[Gauge] = (), generators=None) -> IdentifiabilityReport:
+    """Identifiability of the free parameters from a scaled (reduced) Jacobian (M, n_free)."""
+    J = np.asarray(jacobian_scaled, float)
+    m = max(J.shape[0], 1)
+    _, s, Vt = np.linalg.svd(J, full_matrices=True)
+    rank = int(np.sum(s > rtol * s[0])) if s.size else 0
+    free_idx = np.flatnonzero(parameters.free)
+    N = np.zeros((len(parameters), J.shape[1] - rank))
+    N[free_idx] = Vt[rank:].T
+    gen = None
+    if generators is not None:
+        gen = generators
+    report = IdentifiabilityReport(
+        parameters=int(J.shape[1]), identifiable=rank, singular_values=s,
+        unidentifiable=name_null_space(N, parameters, gauges, gen),
+        observability=observability_indices(s[:rank], m),
+        condition_number=float(s[0] / s[rank - 1]) if rank else float("inf"),
+    )
+    return report

@@ -1,0 +1,89 @@
+"""Gauge freedoms: frame changes that no measurement of a given type can see.
+
+With constraint-link data the base frame can be rotated about O and the platform frame
+re-oriented about P without changing any joint reading (SPEC 2.1): 6 of the 54 Hexa Slide
+parameter directions are unidentifiable. Each :class:`Gauge` is a 3-parameter group of such
+frame changes, defined through the machine's :meth:`~pkmcal.machines.Machine.transform_base` /
+:meth:`~pkmcal.machines.Machine.transform_platform`, so every machine gets them for free.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..kinematics import matrix_from_rotvec
+
+
+@dataclass(frozen=True)
+class Gauge:
+    """A 3-dimensional group of frame rotations that leaves the data unchanged."""
+
+    name: str
+    description: str
+    apply: Callable  # (machine, u_machine, G (3,3)) -> u_machine'
+
+
+BASE_ROTATION_ABOUT_O = Gauge(
+    "rotation of the base frame about O",
+    "turning every base-side element (rail starts A0 and rail directions) together about the "
+    "base point O of the constraint link changes no joint reading: the data fix the base frame's "
+    "origin but not its orientation",
+    lambda m, u, G: m.transform_base(u, G),
+)
+PLATFORM_ROTATION_ABOUT_P = Gauge(
+    "re-orientation of the platform frame about P",
+    "turning every platform joint B together about the platform point P changes no joint "
+    "reading: the data fix the platform frame's origin but not its orientation",
+    lambda m, u, G: m.transform_platform(u, G),
+)
+CONSTRAINT_LINK_GAUGES = (BASE_ROTATION_ABOUT_O, PLATFORM_ROTATION_ABOUT_P)
+
+
+def apply_gauges(machine, u_machine, gauges: Sequence[Gauge], g) -> np.ndarray:
+    """Apply the rotations ``g`` (3 per gauge, rotation vectors) to machine parameters."""
+    u = np.array(u_machine, float)
+    for i, gauge in enumerate(gauges):
+        u = gauge.apply(machine, u, matrix_from_rotvec(np.asarray(g[3 * i:3 * i + 3], float)))
+    return u
+
+
+def gauge_generators(machine, u_machine, gauges: Sequence[Gauge], eps: float = 1e-6):
+    """Tangent directions (n_machine, 3 * len(gauges)) of the gauges at ``u_machine``.
+
+    Central differences of the exact frame transforms (their only use is to *name* null
+    directions, so finite-difference precision is ample).
+    """
+    cols = []
+    for j in range(3 * len(gauges)):
+        e = np.zeros(3 * len(gauges))
+        e[j] = eps
+        diff = (apply_gauges(machine, u_machine, gauges, e)
+                - apply_gauges(machine, u_machine, gauges, -e))
+        cols.append(diff / (2 * eps))
+    return np.column_stack(cols) if cols else np.zeros((len(u_machine), 0))
+
+
+def align_gauge(machine, u_est, u_ref, gauges: Sequence[Gauge], scales, max_iter: int = 20):
+    """The member of ``u_est``'s gauge orbit closest to ``u_ref`` (scaled least squares).
+
+    Returns ``(u_aligned, g)``; ``g`` are the gauge rotation vectors. Used to compare an
+    estimate with a known truth gauge-free (SPEC 5).
+    """
+    g = np.zeros(3 * len(gauges))
+    scales = np.asarray(scales, float)
+    for _ in range(max_iter):
+        u = apply_gauges(machine, u_est, gauges, g)
+        r = (u - u_ref) / scales
+        # Jacobian by central differences of the transforms at g
+        J = np.column_stack([
+            (apply_gauges(machine, u_est, gauges, g + e) - apply_gauges(machine, u_est, gauges,
+                                                                        g - e)) / (2e-7)
+            for e in np.eye(len(g)) * 1e-7]) / scales[:, None]
+        step = np.linalg.lstsq(J, -r, rcond=None)[0]
+        g = g + step
+        if np.max(np.abs(step)) < 1e-15:
+            break
+    return apply_gauges(machine, u_est, gauges, g), g

@@ -1,0 +1,178 @@
+"""Rotations, batch first: every function takes arrays of shape ``(..., 3)`` or ``(..., 3, 3)``.
+
+Conventions (SPEC 1, seed 000 section 2): the platform orientation is
+``R = RY(theta) @ RX(psi) @ RZ(phi)`` and a pose vector is ``[px, py, pz, psi, theta, phi]``.
+Small orientation changes are rotation vectors ``dOmega`` about the *base* axes, applied on the
+left: ``R_new = exp(dOmega) @ R``. Quaternions are stored scalar-last ``(qx, qy, qz, qw)``, as in
+the CSV files.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def rot_x(angle):
+    """Rotation about X by ``angle`` (rad), shape ``(..., 3, 3)``."""
+    c, s = np.cos(angle), np.sin(angle)
+    o, z = np.ones_like(c), np.zeros_like(c)
+    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1),
+                     np.stack([z, s, c], -1)], -2)
+
+
+def rot_y(angle):
+    """Rotation about Y by ``angle`` (rad), shape ``(..., 3, 3)``."""
+    c, s = np.cos(angle), np.sin(angle)
+    o, z = np.ones_like(c), np.zeros_like(c)
+    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1),
+                     np.stack([-s, z, c], -1)], -2)
+
+
+def rot_z(angle):
+    """Rotation about Z by ``angle`` (rad), shape ``(..., 3, 3)``."""
+    c, s = np.cos(angle), np.sin(angle)
+    o, z = np.ones_like(c), np.zeros_like(c)
+    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1),
+                     np.stack([z, z, o], -1)], -2)
+
+
+def matrix_from_euler(angles):
+    """``R = RY(theta) RX(psi) RZ(phi)`` from ``angles = [psi, theta, phi]`` (..., 3) in rad."""
+    angles = np.asarray(angles, dtype=float)
+    psi, theta, phi = angles[..., 0], angles[..., 1], angles[..., 2]
+    cps, sps = np.cos(psi), np.sin(psi)
+    cth, sth = np.cos(theta), np.sin(theta)
+    cph, sph = np.cos(phi), np.sin(phi)
+    R = np.empty(angles.shape[:-1] + (3, 3))
+    R[..., 0, 0] = cth * cph + sth * sps * sph
+    R[..., 0, 1] = -cth * sph + sth * sps * cph
+    R[..., 0, 2] = sth * cps
+    R[..., 1, 0] = cps * sph
+    R[..., 1, 1] = cps * cph
+    R[..., 1, 2] = -sps
+    R[..., 2, 0] = -sth * cph + cth * sps * sph
+    R[..., 2, 1] = sth * sph + cth * sps * cph
+    R[..., 2, 2] = cth * cps
+    return R
+
+
+def euler_from_matrix(R):
+    """Inverse of :func:`matrix_from_euler`: ``[psi, theta, phi]`` with ``psi`` in [-pi/2, pi/2].
+
+    Singular at ``psi = +/-90 deg`` (gimbal lock), where ``theta + phi`` alone is defined.
+    """
+    R = np.asarray(R, dtype=float)
+    psi = np.arcsin(np.clip(-R[..., 1, 2], -1.0, 1.0))
+    theta = np.arctan2(R[..., 0, 2], R[..., 2, 2])
+    phi = np.arctan2(R[..., 1, 0], R[..., 1, 1])
+    return np.stack([psi, theta, phi], -1)
+
+
+def skew(v):
+    """Cross-product matrix ``[v]x`` with ``skew(v) @ w == cross(v, w)``, shape ``(..., 3, 3)``."""
+    v = np.asarray(v, dtype=float)
+    z = np.zeros(v.shape[:-1])
+    x, y, w = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1),
+                     np.stack([-y, x, z], -1)], -2)
+
+
+def matrix_from_rotvec(v):
+    """Rodrigues: rotation matrix of the rotation vector ``v`` (..., 3), angle = ``|v|`` rad."""
+    v = np.asarray(v, dtype=float)
+    theta2 = np.einsum("...i,...i->...", v, v)
+    theta = np.sqrt(theta2)
+    small = theta < 1e-4
+    safe = np.where(small, 1.0, theta)
+    # series for small angles keep full precision
+    a = np.where(small, 1.0 - theta2 / 6.0 + theta2**2 / 120.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta2 / 24.0 + theta2**2 / 720.0,
+                 (1.0 - np.cos(safe)) / np.where(small, 1.0, theta2))
+    K = skew(v)
+    eye = np.broadcast_to(np.eye(3), K.shape)
+    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def rotvec_from_matrix(R):
+    """Rotation vector of ``R`` (..., 3, 3); angle in [0, pi]."""
+    R = np.asarray(R, dtype=float)
+    return rotvec_from_quaternion(quaternion_from_matrix(R))
+
+
+def quaternion_from_matrix(R):
+    """Unit quaternion ``(qx, qy, qz, qw)`` with ``qw >= 0`` from ``R`` (..., 3, 3).
+
+    Uses the largest of the four candidate denominators (Shepperd) for full precision.
+    """
+    R = np.asarray(R, dtype=float)
+    tr = R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2]
+    cand = np.stack([tr, R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]], -1)
+    k = np.argmax(cand, -1)
+    q = np.empty(R.shape[:-2] + (4,))
+    # case qw largest
+    s = np.sqrt(np.maximum(1.0 + cand[..., 0], 1e-300)) * 2
+    qa = np.stack([(R[..., 2, 1] - R[..., 1, 2]) / s, (R[..., 0, 2] - R[..., 2, 0]) / s,
+                   (R[..., 1, 0] - R[..., 0, 1]) / s, 0.25 * s], -1)
+    s = np.sqrt(np.maximum(1.0 + R[..., 0, 0] - R[..., 1, 1] - R[..., 2, 2], 1e-300)) * 2
+    qb = np.stack([0.25 * s, (R[..., 0, 1] + R[..., 1, 0]) / s, (R[..., 0, 2] + R[..., 2, 0]) / s,
+                   (R[..., 2, 1] - R[..., 1, 2]) / s], -1)
+    s = np.sqrt(np.maximum(1.0 - R[..., 0, 0] + R[..., 1, 1] - R[..., 2, 2], 1e-300)) * 2
+    qc = np.stack([(R[..., 0, 1] + R[..., 1, 0]) / s, 0.25 * s, (R[..., 1, 2] + R[..., 2, 1]) / s,
+                   (R[..., 0, 2] - R[..., 2, 0]) / s], -1)
+    s = np.sqrt(np.maximum(1.0 - R[..., 0, 0] - R[..., 1, 1] + R[..., 2, 2], 1e-300)) * 2
+    qd = np.stack([(R[..., 0, 2] + R[..., 2, 0]) / s, (R[..., 1, 2] + R[..., 2, 1]) / s, 0.25 * s,
+                   (R[..., 1, 0] - R[..., 0, 1]) / s], -1)
+    q = np.where((k == 0)[..., None], qa,
+                 np.where((k == 1)[..., None], qb, np.where((k == 2)[..., None], qc, qd)))
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., 3:4] < 0, -q, q)
+
+
+def matrix_from_quaternion(q):
+    """Rotation matrix from ``(qx, qy, qz, qw)`` (..., 4); the quaternion is normalised first."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    R = np.empty(q.shape[:-1] + (3, 3))
+    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    R[..., 0, 1] = 2 * (x * y - z * w)
+    R[..., 0, 2] = 2 * (x * z + y * w)
+    R[..., 1, 0] = 2 * (x * y + z * w)
+    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    R[..., 1, 2] = 2 * (y * z - x * w)
+    R[..., 2, 0] = 2 * (x * z - y * w)
+    R[..., 2, 1] = 2 * (y * z + x * w)
+    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
+def rotvec_from_quaternion(q):
+    """Rotation vector from ``(qx, qy, qz, qw)``; angle in [0, pi]."""
+    q = np.asarray(q, dtype=float)
+    q = np.where(q[..., 3:4] < 0, -q, q)
+    v = q[..., :3]
+    sin_half = np.linalg.norm(v, axis=-1)
+    angle = 2.0 * np.arctan2(sin_half, q[..., 3])
+    small = sin_half < 1e-12
+    scale = np.where(small, 2.0, angle / np.where(small, 1.0, sin_half))
+    return v * scale[..., None]
+
+
+def rotation_angle(R):
+    """Angle (rad) of the rotation ``R`` (..., 3, 3), accurate for tiny angles."""
+    return np.linalg.norm(rotvec_from_matrix(R), axis=-1)
+
+
+def kabsch(source, target, weights=None):
+    """Rotation ``G`` minimising ``sum w |G @ source_k - target_k|^2`` (no translation).
+
+    ``source``, ``target``: (K, 3). Returns a proper rotation (det = +1), via SVD.
+    """
+    source = np.asarray(source, dtype=float)
+    target = np.asarray(target, dtype=float)
+    w = np.ones(len(source)) if weights is None else np.asarray(weights, dtype=float)
+    H = (source * w[:, None]).T @ target
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    D = np.diag([1.0, 1.0, d])
+    return Vt.T @ D @ U.T

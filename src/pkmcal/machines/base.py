@@ -1,0 +1,208 @@
+"""The machine abstraction shared by every parallel kinematic machine.
+
+A :class:`Machine` knows its geometric parameters (a :class:`~pkmcal.parameters.ParameterSet`),
+its inverse kinematics and their derivatives. Everything else — forward kinematics by Newton,
+measurement models, estimators, identifiability, accuracy — is written once against this
+interface, so adding a machine touches none of it.
+
+Poses are ``(P, R)``: position ``P`` (..., 3) in m of the platform origin in the base frame and
+orientation ``R`` (..., 3, 3). Pose derivatives are taken with respect to ``[dP, dOmega]``, where
+``dOmega`` is a small rotation about the base axes applied on the left (``R <- exp(dOmega) R``).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConvergenceError
+from ..kinematics import matrix_from_rotvec
+from ..parameters import ParameterSet
+
+
+@dataclass
+class FKResult:
+    """Batch forward kinematics: poses, per-pose convergence and iteration count.
+
+    Attributes
+    ----------
+    P : (K, 3) positions, m.   R : (K, 3, 3) orientations.
+    converged : (K,) bool.     residual : (K,) max |joint residual| in internal units.
+    iterations : int, Newton iterations used for the slowest pose.
+    """
+
+    P: np.ndarray
+    R: np.ndarray
+    converged: np.ndarray
+    residual: np.ndarray
+    iterations: int
+
+    def raise_if_failed(self, what: str = "forward kinematics", rows=None) -> None:
+        """Raise :class:`ConvergenceError` naming (1-based) rows that did not converge."""
+        bad = np.flatnonzero(~self.converged)
+        if bad.size:
+            labels = (np.asarray(rows)[bad] if rows is not None else bad + 1).tolist()
+            shown = ", ".join(map(str, labels[:10])) + (" ..." if len(labels) > 10 else "")
+            raise ConvergenceError(
+                f"{what} did not converge for {bad.size} pose(s), row(s) {shown}: "
+                "the readings may be outside the workspace or on another assembly mode"
+            )
+
+
+class Machine(ABC):
+    """A parallel kinematic machine with geometric error parameters.
+
+    Subclasses implement :meth:`ik_jacobians` (closed-form inverse kinematics with analytic
+    derivatives), :meth:`transform_base` and :meth:`transform_platform` (re-expressing the
+    geometry in rotated frames, which defines gauge freedoms), and the file schema.
+    """
+
+    #: machine type as written in files (``machine: hexaslide``)
+    kind: str = ""
+    #: number of actuated joints
+    n_joints: int = 6
+    #: pose degrees of freedom of the platform (6 = full pose, 3 = translation only)
+    pose_dof: int = 6
+
+    def __init__(self, parameters: ParameterSet, home=None, name: str = ""):
+        self.parameters = parameters
+        self.name = name
+        self._home = None if home is None else (np.asarray(home[0], float),
+                                                np.asarray(home[1], float))
+
+    # -- geometry -------------------------------------------------------------------------
+    @property
+    def u(self) -> np.ndarray:
+        """Current parameter vector (internal units)."""
+        return self.parameters.values
+
+    def with_parameters(self, values) -> Machine:
+        """A copy of this machine with new parameter values (same names, home, name)."""
+        new = self.__class__.__new__(self.__class__)
+        new.__dict__.update(self.__dict__)
+        new.parameters = self.parameters.with_values(values)
+        return new
+
+    @property
+    def home(self) -> tuple[np.ndarray, np.ndarray]:
+        """A pose of the working assembly mode ``(P, R)``: the file's, or one found."""
+        if self._home is None:
+            self._home = self.default_home()
+        return self._home
+
+    @home.setter
+    def home(self, pose) -> None:
+        self._home = (np.asarray(pose[0], float), np.asarray(pose[1], float))
+
+    @abstractmethod
+    def default_home(self) -> tuple[np.ndarray, np.ndarray]:
+        """A start pose of the working assembly mode when the file gives none."""
+
+    @abstractmethod
+    def characteristic_length(self) -> float:
+        """Length (m) used to scale length parameters against angles."""
+
+    # -- kinematics -----------------------------------------------------------------------
+    @abstractmethod
+    def ik_jacobians(self, P, R, u=None, want_du: bool = True):
+        """Joint values and derivatives at poses ``(P, R)``.
+
+        Returns ``q`` (..., n_joints), ``dq_dpose`` (..., n_joints, 6) with respect to
+        ``[dP, dOmega]`` and, when ``want_du``, ``dq_du`` (..., n_joints, n_params); else None.
+        ``q`` is NaN where a pose cannot be reached.
+        """
+
+    def ik(self, P, R, u=None) -> np.ndarray:
+        """Joint values (..., n_joints) at poses; NaN where the pose is not reachable."""
+        return self.ik_jacobians(P, R, u, want_du=False)[0]
+
+    def fk(self, q, u=None, start=None, tol: float = 1e-12, max_iter: int = 50,
+           raise_on_failure: bool = False) -> FKResult:
+        """Forward kinematics by Newton on the inverse kinematics, all poses at once.
+
+        Parameters
+        ----------
+        q : (K, n_joints) joint values (internal units).
+        start : ``(P0, R0)`` broadcastable to the batch; default: :attr:`home`.
+        tol : convergence when the largest joint residual is below ``tol`` times the
+            characteristic length.
+        """
+        q = np.atleast_2d(np.asarray(q, float))
+        K = q.shape[0]
+        P0, R0 = self.home if start is None else start
+        P = np.broadcast_to(np.asarray(P0, float), (K, 3)).copy()
+        R = np.broadcast_to(np.asarray(R0, float), (K, 3, 3)).copy()
+        return newton_pose_solve(lambda idx, P, R: self._fk_system(q[idx], P, R, u), P, R,
+                                 tol * self.characteristic_length(), max_iter,
+                                 raise_on_failure)
+
+    def _fk_system(self, q, P, R, u):
+        qc, J, _ = self.ik_jacobians(P, R, u, want_du=False)
+        return qc - q, J
+
+    # -- frames (gauge) -------------------------------------------------------------------
+    @abstractmethod
+    def transform_base(self, u, G) -> np.ndarray:
+        """Parameters of the same machine expressed in a base frame rotated by ``G``.
+
+        A base-frame vector ``v`` becomes ``G @ v``; the rotation is about the base origin O.
+        """
+
+    @abstractmethod
+    def transform_platform(self, u, C) -> np.ndarray:
+        """Parameters with the platform frame re-oriented: ``R' = R C``, ``p' = C^T p``."""
+
+
+def newton_pose_solve(system, P, R, tol, max_iter, raise_on_failure=False,
+                      max_step=0.05, max_rot=0.2, step_tol=None) -> FKResult:
+    """Batched (Gauss-)Newton over full poses.
+
+    ``system(idx, P, R) -> (residual (k,m), J (k,m,6))`` evaluates the poses ``idx`` of the batch.
+
+    Each pose is updated ``P += dP``, ``R <- exp(dOmega) R``; steps are limited to ``max_step``
+    (m) and ``max_rot`` (rad) so a far start does not jump to another assembly mode. Poses stop
+    iterating once converged; NaN residuals (unreachable) mark the pose as failed.
+    Over-determined systems (least squares) converge on the step: ``|dx| < step_tol``.
+    """
+    K = P.shape[0]
+    active = np.arange(K)
+    converged = np.zeros(K, bool)
+    res = np.full(K, np.inf)
+    it = 0
+    for it in range(1, max_iter + 1):  # noqa: B007
+        r, J = system(active, P[active], R[active])
+        err = np.max(np.abs(r), axis=-1)
+        res[active] = err
+        ok = err < tol
+        converged[active[ok]] = True
+        bad = ~np.isfinite(err)
+        keep = ~ok & ~bad
+        active, r, J = active[keep], r[keep], J[keep]
+        if active.size == 0:
+            break
+        if J.shape[-2] == J.shape[-1]:
+            try:
+                dx = -np.linalg.solve(J, r[..., None])[..., 0]
+            except np.linalg.LinAlgError:  # a singular pose in the batch
+                dx = -(np.linalg.pinv(J) @ r[..., None])[..., 0]
+        else:
+            dx = -(np.linalg.pinv(J) @ r[..., None])[..., 0]
+        dp, dw = dx[:, :3], dx[:, 3:]
+        sp = np.linalg.norm(dp, axis=-1, keepdims=True)
+        sw = np.linalg.norm(dw, axis=-1, keepdims=True)
+        dp = dp * np.minimum(1.0, max_step / np.maximum(sp, 1e-300))
+        dw = dw * np.minimum(1.0, max_rot / np.maximum(sw, 1e-300))
+        P[active] = P[active] + dp
+        R[active] = matrix_from_rotvec(dw) @ R[active]
+        if step_tol is not None:
+            small = np.max(np.abs(dx), axis=-1) < step_tol
+            converged[active[small]] = True
+            active = active[~small]
+            if active.size == 0:
+                break
+    result = FKResult(P, R, converged, res, it)
+    if raise_on_failure:
+        result.raise_if_failed()
+    return result

@@ -1,0 +1,175 @@
+"""Hexa Slide Mechanism, 6-PUS (seed 000, SPEC 2.1).
+
+Chain i: a slider moves along a straight rail from ``A0_i`` (base frame) in the direction
+``a_i = [cos(alpha) cos(beta), sin(alpha) cos(beta), sin(beta)]``; the slider's universal joint
+carries a link of length ``l_i`` to the spherical joint ``B_i`` (platform frame). Joint value
+``q_i`` = slider travel from ``A0_i``. Nine parameters per chain, 54 in all, registered as
+``chain{i}.b.x/y/z``, ``chain{i}.a0.x/y/z``, ``chain{i}.alpha``, ``chain{i}.beta``, ``chain{i}.l``.
+
+Inverse kinematics (seed 000 eq. 1-9), with ``d = P + R B - A0``::
+
+    q = a.d - sqrt(l^2 - |d|^2 + (a.d)^2)
+
+Derivatives (SPEC appendix A), with link vector ``n = d - q a`` and ``s = a.n`` (> 0 on the
+working branch): ``dq/dP = n/s``, ``dq/dOmega = (R B) x n / s``, ``dq/dB = R^T n / s``,
+``dq/dA0 = -n/s``, ``dq/dl = -l/s``, ``dq/da = -q d/s`` (projected on ``da/dalpha``,
+``da/dbeta``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..parameters import ParameterSet
+from .base import Machine
+
+CHAIN_FIELDS = ("b.x", "b.y", "b.z", "a0.x", "a0.y", "a0.z", "alpha", "beta", "l")
+CHAIN_KINDS = ("length",) * 6 + ("angle", "angle", "length")
+
+
+def hexaslide_parameters(b, a0, alpha, beta, l) -> ParameterSet:
+    """Registry of a Hexa Slide from per-chain arrays (internal units: m, rad).
+
+    ``b``, ``a0``: (6, 3); ``alpha``, ``beta``, ``l``: (6,).
+    """
+    b, a0 = np.asarray(b, float).reshape(6, 3), np.asarray(a0, float).reshape(6, 3)
+    values = np.column_stack([b, a0, np.asarray(alpha, float), np.asarray(beta, float),
+                              np.asarray(l, float)]).reshape(-1)
+    names = [f"chain{i + 1}.{f}" for i in range(6) for f in CHAIN_FIELDS]
+    return ParameterSet(names, CHAIN_KINDS * 6, values)
+
+
+def rail_direction(alpha, beta):
+    """Unit rail direction ``a`` (..., 3) of seed 000 eq. 3."""
+    ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
+    return np.stack([ca * cb, sa * cb, sb], -1)
+
+
+class HexaSlide(Machine):
+    """6-PUS Hexa Slide machine; see the module docstring for the model."""
+
+    kind = "hexaslide"
+    n_joints = 6
+    pose_dof = 6
+
+    def __init__(self, parameters: ParameterSet, home=None, name: str = "",
+                 constraint_link_length: float | None = None):
+        super().__init__(parameters, home, name)
+        self.constraint_link_length = constraint_link_length
+        p = parameters
+        self._ib = np.stack([p.indices(f"chain{i + 1}.b") for i in range(6)])
+        self._ia0 = np.stack([p.indices(f"chain{i + 1}.a0") for i in range(6)])
+        self._ial = np.array([p.index(f"chain{i + 1}.alpha") for i in range(6)])
+        self._ibe = np.array([p.index(f"chain{i + 1}.beta") for i in range(6)])
+        self._il = np.array([p.index(f"chain{i + 1}.l") for i in range(6)])
+
+    # -- geometry -------------------------------------------------------------------------
+    def chains(self, u=None):
+        """Per-chain arrays ``(b (6,3), a0 (6,3), alpha (6,), beta (6,), l (6,))``."""
+        u = self.u if u is None else np.asarray(u, float)
+        return u[self._ib], u[self._ia0], u[self._ial], u[self._ibe], u[self._il]
+
+    def characteristic_length(self) -> float:
+        return float(np.mean(self.chains()[4]))
+
+    def default_home(self):
+        """Platform origin above O on the constraint sphere (or at the mean link length)."""
+        b, a0, alpha, beta, l = self.chains()
+        height = self.constraint_link_length or float(np.mean(l))
+        P = np.array([0.0, 0.0, height])
+        return P, np.eye(3)
+
+    # -- kinematics -----------------------------------------------------------------------
+    def ik_jacobians(self, P, R, u=None, want_du: bool = True):
+        b, a0, alpha, beta, l = self.chains(u)
+        a = rail_direction(alpha, beta)                         # (6, 3)
+        P = np.asarray(P, float)
+        R = np.asarray(R, float)
+        Rb = np.einsum("...ij,kj->...ki", R, b)                 # (..., 6, 3) R B_i
+        d = P[..., None, :] + Rb - a0                           # (..., 6, 3)
+        ad = np.einsum("...ki,ki->...k", d, a)
+        rad = l**2 - np.einsum("...ki,...ki->...k", d, d) + ad**2
+        with np.errstate(invalid="ignore"):
+            s = np.sqrt(rad)                                    # = a.n
+        s = np.where(s > 0, s, np.nan)                          # singular or unreachable
+        q = ad - s
+        n = d - q[..., None] * a                                # link vector, |n| = l
+        ns = n / s[..., None]
+        dq_dpose = np.concatenate([ns, np.cross(Rb, ns)], -1)   # (..., 6, 6)
+        if not want_du:
+            return q, dq_dpose, None
+        ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
+        da_dal = np.stack([-sa * cb, ca * cb, np.zeros_like(ca)], -1)
+        da_dbe = np.stack([-ca * sb, -sa * sb, cb], -1)
+        dq_da = -q[..., None] * d / s[..., None]               # (..., 6, 3)
+        cols = np.concatenate([
+            np.einsum("...ji,...kj->...ki", R, ns),             # dq/dB = R^T n / s
+            -ns,                                                # dq/dA0
+            np.einsum("...ki,ki->...k", dq_da, da_dal)[..., None],
+            np.einsum("...ki,ki->...k", dq_da, da_dbe)[..., None],
+            (-l / s)[..., None],                                # dq/dl
+        ], -1)                                                  # (..., 6, 9)
+        dq_du = np.zeros(q.shape + (len(self.parameters),))
+        rows = np.arange(6)[:, None]
+        idx = np.concatenate([self._ib, self._ia0, self._ial[:, None], self._ibe[:, None],
+                              self._il[:, None]], -1)           # (6, 9) in CHAIN_FIELDS order
+        dq_du[..., rows, idx] = cols
+        return q, dq_dpose, dq_du
+
+    # -- frames ---------------------------------------------------------------------------
+    def transform_base(self, u, G):
+        u = np.array(u, float)
+        b, a0, alpha, beta, l = self.chains(u)
+        a = rail_direction(alpha, beta) @ np.asarray(G).T
+        u[self._ia0] = a0 @ np.asarray(G).T
+        new_alpha = np.arctan2(a[:, 1], a[:, 0])
+        u[self._ial] = alpha + (new_alpha - alpha + np.pi) % (2 * np.pi) - np.pi
+        u[self._ibe] = np.arcsin(np.clip(a[:, 2], -1, 1))
+        return u
+
+    def transform_platform(self, u, C):
+        u = np.array(u, float)
+        u[self._ib] = self.chains(u)[0] @ np.asarray(C)   # rows: (C^T b)^T = b^T C
+        return u
+
+
+def default_hexaslide() -> HexaSlide:
+    """The embedded default geometry of SPEC 2.1 (ours; the paper's figure is not in the text).
+
+    Chain ``2k + s + 1`` (k = 0, 1, 2; s = 0, 1): ``g = 120k -/+ 20``, ``gb = 120k -/+ 45`` deg
+    (minus for s = 0); ``A0 = (480 cos g, 480 sin g, -400)`` mm, ``alpha = g + 180``,
+    ``beta = 70`` deg, ``B = (120 cos gb, 120 sin gb, 0)`` mm, ``l = 450`` mm, ``Lc = 300`` mm,
+    home ``P = (0, 0, 300)`` mm, ``R = I``.
+    """
+    k = np.repeat(np.arange(3), 2)
+    sgn = np.tile([-1.0, 1.0], 3)
+    g = np.deg2rad(120 * k + sgn * 20)
+    gb = np.deg2rad(120 * k + sgn * 45)
+    a0 = np.column_stack([0.48 * np.cos(g), 0.48 * np.sin(g), np.full(6, -0.4)])
+    b = np.column_stack([0.12 * np.cos(gb), 0.12 * np.sin(gb), np.zeros(6)])
+    params = hexaslide_parameters(b, a0, g + np.pi, np.full(6, np.deg2rad(70)), np.full(6, 0.45))
+    return HexaSlide(params, home=(np.array([0, 0, 0.3]), np.eye(3)),
+                     name="pkmcal default Hexa Slide (SPEC 2.1)", constraint_link_length=0.3)
+
+
+#: Seed 000 Table 1: deviations of the true machine from nominal (m, rad), per chain 1..6.
+PAPER_TABLE1 = {
+    "l": [1.9e-3, 1.8e-3, 1.6e-3, -0.5e-3, -0.1e-3, -0.3e-3],
+    "b.x": [-1.1e-3, -1.2e-3, -1.2e-3, 1.3e-3, 1.9e-3, 1.6e-3],
+    "b.y": [-1.9e-3, 1.2e-3, 1.4e-3, 1.3e-3, 1.7e-3, -1.9e-3],
+    "b.z": [3.8e-3, 3.9e-3, 3.9e-3, 3.8e-3, 4.0e-3, 3.7e-3],
+    "a0.x": [-1.9e-3, -2.0e-3, -1.4e-3, 1.3e-3, -1.8e-3, -1.4e-3],
+    "a0.y": [-1.8e-3, 1.1e-3, -0.8e-3, -2.6e-3, -0.6e-3, -1.4e-3],
+    "a0.z": [-1.5e-3, -0.2e-3, -1.7e-3, -1.4e-3, 1.1e-3, -1.3e-3],
+    "alpha": [2.4e-2, 2.4e-2, -7.0e-2, -7.0e-2, 1.8e-2, 1.8e-2],
+    "beta": [-2.4e-2] * 6,
+}
+
+
+def paper_table1_deviations(parameters: ParameterSet) -> np.ndarray:
+    """Seed 000 Table 1 as a deviation vector in the order of ``parameters``."""
+    du = np.zeros(len(parameters))
+    for field, values in PAPER_TABLE1.items():
+        for i, v in enumerate(values):
+            du[parameters.index(f"chain{i + 1}.{field}")] = v
+    return du

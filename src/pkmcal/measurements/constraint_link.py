@@ -1,0 +1,123 @@
+"""Constraint-link measurements (seed 000 section 3, SPEC 2.1).
+
+A bar of length ``Lc`` with ball joints joins the base point O (origin of the base frame) and the
+platform point P (origin of the platform frame), so ``|P| = Lc``. Five actuators drive, the sixth
+is passive and read as a sensor. One measurement = all six joint readings at a pose on the
+sphere, plus which actuator was passive (optional).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..kinematics import matrix_from_euler
+from ..machines.base import Machine
+
+
+@dataclass
+class ConstraintLinkData:
+    """Joint readings taken with the constraint link mounted.
+
+    Attributes
+    ----------
+    q : (K, 6) joint readings, internal units (m for sliders).
+    link_length : assumed constraint-link length ``Lc`` (m).
+    passive : (K,) 0-based index of the passive actuator, or None when not recorded.
+    rows : (K,) row numbers in the source file (1-based data rows) for messages.
+    source : file name, for messages.
+    true_P, true_R : poses of a simulation (for tests and plots), else None.
+    """
+
+    q: np.ndarray
+    link_length: float
+    passive: np.ndarray | None = None
+    rows: np.ndarray | None = None
+    source: str = "<data>"
+    true_P: np.ndarray | None = None
+    true_R: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.q = np.atleast_2d(np.asarray(self.q, float))
+        if self.rows is None:
+            self.rows = np.arange(1, len(self.q) + 1)
+        if self.passive is not None:
+            self.passive = np.asarray(self.passive, int)
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def subset(self, mask) -> ConstraintLinkData:
+        """The measurements selected by a boolean mask or index array."""
+        pick = (lambda a: None if a is None else a[mask])
+        return ConstraintLinkData(self.q[mask], self.link_length, pick(self.passive),
+                                  self.rows[mask], self.source, pick(self.true_P),
+                                  pick(self.true_R))
+
+
+def sample_sphere_poses(machine: Machine, link_length: float, n: int, rng=None,
+                        max_tilt: float = np.deg2rad(25.0),
+                        max_rotation: float = np.deg2rad(15.0), min_manipulability=0.02):
+    """``n`` reachable poses with ``|P| = link_length``: P in a cap of half-angle ``max_tilt``
+    around the machine's home direction, Euler angles uniform in ``+/- max_rotation``.
+
+    Poses whose inverse kinematics fail or whose joint Jacobian is badly conditioned (smallest
+    singular value below ``min_manipulability`` times the largest, rotation columns scaled by
+    the characteristic length) are redrawn.
+    Returns ``P`` (n, 3), ``R`` (n, 3, 3).
+    """
+    rng = np.random.default_rng(rng)
+    axis = np.asarray(machine.home[0], float)
+    axis = axis / np.linalg.norm(axis) if np.linalg.norm(axis) > 0 else np.array([0, 0, 1.0])
+    helper = np.array([1.0, 0, 0]) if abs(axis[0]) < 0.9 else np.array([0, 1.0, 0])
+    e1 = np.cross(axis, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    P_out, R_out = [], []
+    have = 0
+    for _ in range(50):
+        m = 2 * (n - have) + 16
+        cos_t = rng.uniform(np.cos(max_tilt), 1.0, m)          # uniform on the cap
+        az = rng.uniform(0, 2 * np.pi, m)
+        sin_t = np.sqrt(1 - cos_t**2)
+        dirs = (cos_t[:, None] * axis + (sin_t * np.cos(az))[:, None] * e1
+                + (sin_t * np.sin(az))[:, None] * e2)
+        P = link_length * dirs
+        R = matrix_from_euler(rng.uniform(-max_rotation, max_rotation, (m, 3)))
+        q, J, _ = machine.ik_jacobians(P, R, want_du=False)
+        ok = np.all(np.isfinite(q), -1)
+        sv = np.full((m, 6), np.nan)
+        J[..., 3:] /= machine.characteristic_length()        # rotations as lengths
+        sv[ok] = np.linalg.svd(J[ok], compute_uv=False)
+        ok &= sv[:, -1] > min_manipulability * sv[:, 0]
+        P_out.append(P[ok])
+        R_out.append(R[ok])
+        have += int(ok.sum())
+        if have >= n:
+            break
+    if have < n:
+        raise InputError(f"only {have} of {n} sphere poses are reachable: reduce max_tilt or "
+                         "max_rotation, or check the constraint-link length")
+    return np.concatenate(P_out)[:n], np.concatenate(R_out)[:n]
+
+
+def simulate_constraint_link(true_machine: Machine, n_poses: int = 150, noise_m: float = 0.0,
+                             link_length: float | None = None, link_length_error: float = 0.0,
+                             rng=None, max_tilt: float = np.deg2rad(25.0),
+                             max_rotation: float = np.deg2rad(15.0)) -> ConstraintLinkData:
+    """Simulate a constraint-link experiment on ``true_machine``.
+
+    The true link has length ``link_length`` (default: the machine's); the data record the
+    assumed length ``link_length + link_length_error``. Every reading gets Gaussian noise of
+    standard deviation ``noise_m``; the passive actuator cycles 1..6.
+    """
+    rng = np.random.default_rng(rng)
+    Lc = link_length if link_length is not None else true_machine.constraint_link_length
+    if Lc is None:
+        raise InputError("the machine has no constraint_link length: give link_length")
+    P, R = sample_sphere_poses(true_machine, Lc, n_poses, rng, max_tilt, max_rotation)
+    q = true_machine.ik(P, R) + noise_m * rng.standard_normal((n_poses, true_machine.n_joints))
+    return ConstraintLinkData(q, Lc + link_length_error, np.arange(n_poses) % 6,
+                              source="<simulated>", true_P=P, true_R=R)
