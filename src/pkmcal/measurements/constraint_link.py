@@ -58,8 +58,8 @@ class ConstraintLinkData:
 
 
 def sample_sphere_poses(machine: Machine, link_length: float, n: int, rng=None,
-                        max_tilt: float = np.deg2rad(25.0),
-                        max_rotation: float = np.deg2rad(15.0), min_manipulability=0.02):
+                        max_tilt: float = np.deg2rad(35.0),
+                        max_rotation: float = np.deg2rad(25.0), min_manipulability=0.02):
     """``n`` reachable poses with ``|P| = link_length``: P in a cap of half-angle ``max_tilt``
     around the machine's home direction, Euler angles uniform in ``+/- max_rotation``.
 
@@ -105,8 +105,8 @@ def sample_sphere_poses(machine: Machine, link_length: float, n: int, rng=None,
 
 def simulate_constraint_link(true_machine: Machine, n_poses: int = 150, noise_m: float = 0.0,
                              link_length: float | None = None, link_length_error: float = 0.0,
-                             rng=None, max_tilt: float = np.deg2rad(25.0),
-                             max_rotation: float = np.deg2rad(15.0)) -> ConstraintLinkData:
+                             rng=None, max_tilt: float = np.deg2rad(35.0),
+                             max_rotation: float = np.deg2rad(25.0)) -> ConstraintLinkData:
     """Simulate a constraint-link experiment on ``true_machine``.
 
     The true link has length ``link_length`` (default: the machine's); the data record the

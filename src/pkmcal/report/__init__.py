@@ -1,1 +1,1 @@
-"""report."""
+"""Reports and plots. Plotting lives in :mod:`pkmcal.report.plots` (imports matplotlib)."""
