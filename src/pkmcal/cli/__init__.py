@@ -1,1 +1,239 @@
-"""cli."""
+"""The ``pkmcal`` command (SPEC 6): one sub-command per task, a thin layer over the library.
+
+Start-up cost matters (``pkmcal calibrate`` must finish in well under a second), so this module
+imports only typer; numpy, PyYAML, pydantic and the library are imported inside the commands
+(:mod:`pkmcal.cli._commands`), and neither scipy nor matplotlib is imported here.
+
+Exit codes: 0 success; 1 the computation ran but did not succeed (e.g. calibration did not
+converge, a benchmark missed its target); 2 bad input (a file, row, column, key or option is
+named on one line on stderr; no traceback, no output file written).
+"""
+
+from __future__ import annotations
+
+import enum
+import os
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ..errors import ConvergenceError, InputError
+
+app = typer.Typer(
+    name="pkmcal",
+    help="Calibration, identifiability and error analysis of parallel kinematic machines.\n\n"
+         "MACHINE arguments are a machine file (YAML, SPEC 6) or the word 'default' for the "
+         "embedded Hexa Slide. Numbers on the command line take a unit suffix (2um, 300mm, "
+         "10deg); a bare number is SI.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode="markdown",
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+
+class Scenario(enum.StrEnum):
+    constraint_link = "constraint-link"
+    tracker = "tracker"
+    pose = "pose"
+
+
+class Deviations(enum.StrEnum):
+    paper_table1 = "paper-table1"
+    none = "none"
+    random = "random"
+
+
+class Method(enum.StrEnum):
+    ml = "ml"
+    ik = "ik"
+    fk = "fk"
+
+
+MachineArg = Annotated[str, typer.Argument(
+    metavar="MACHINE", help="Machine file (YAML) or 'default' for the embedded Hexa Slide.",
+    show_default=False)]
+OutFile = Annotated[Path, typer.Option("-o", "--output", help="Output file (written atomically).",
+                                       show_default=False, dir_okay=False)]
+
+
+def _version(value: bool) -> None:
+    if value:
+        from importlib.metadata import version
+
+        typer.echo(f"pkmcal {version('pkmcal')}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True,
+                                          help="Show the version and exit.")] = False,
+) -> None:
+    """Calibration, identifiability and error analysis of parallel kinematic machines."""
+
+
+@app.command()
+def demo(
+    output: Annotated[Path, typer.Option("-o", "--output", file_okay=False,
+                                         help="Directory for the demo's files.")]
+    = Path("pkmcal-demo"),
+) -> None:
+    """Run the main job on the embedded defaults: simulate, calibrate, compare. No input needed.
+
+    Example: `pkmcal demo -o demo-out`
+    """
+    from ._commands import run_demo
+
+    run_demo(output)
+
+
+@app.command()
+def simulate(
+    machine: MachineArg,
+    output: OutFile,
+    scenario: Annotated[Scenario, typer.Option(help="Measurement scenario.")]
+    = Scenario.constraint_link,
+    poses: Annotated[int, typer.Option(min=1, help="Number of measurement poses.")] = 150,
+    noise: Annotated[str, typer.Option(help="Encoder noise, standard deviation (e.g. 2um).")]
+    = "2um",
+    lc_error: Annotated[str, typer.Option(
+        "--lc-error", help="Error of the constraint-link length in the machine file: the true "
+                           "link is the file's length minus this.")] = "0um",
+    seed: Annotated[int, typer.Option(help="Random seed (poses, noise, random deviations).")]
+    = 0,
+    deviations: Annotated[Deviations, typer.Option(
+        help="True machine = MACHINE + deviations: paper-table1 (seed 000 Table 1), none, or "
+             "random (lengths +/-2 mm, angles +/-0.02 rad, uniform).")]
+    = Deviations.paper_table1,
+    truth: Annotated[Path | None, typer.Option(
+        dir_okay=False, help="Also save the simulated true machine here (YAML).")] = None,
+) -> None:
+    """Simulate measurements of a true machine (MACHINE + deviations); write a data file.
+
+    The data file has the joint readings q1..q6 in the machine file's length unit and the
+    passive actuator (1..6) of each pose.
+
+    Example: `pkmcal simulate default --poses 150 --noise 1um --truth true.yaml -o data.csv`
+    """
+    from ._commands import run_simulate
+
+    run_simulate(machine, output, scenario.value, poses, noise, lc_error, seed,
+                 deviations.value, truth)
+
+
+@app.command()
+def calibrate(
+    machine: MachineArg,
+    data: Annotated[Path, typer.Argument(metavar="DATA", help="Measurement file (CSV).",
+                                         show_default=False)],
+    output: OutFile,
+    method: Annotated[Method, typer.Option(
+        help="ml: maximum likelihood, every reading noisy (default); ik: the paper's inverse-"
+             "kinematics method (needs the passive column); fk: the paper's forward-kinematics "
+             "method (estimates Lc).")] = Method.ml,
+    noise: Annotated[str, typer.Option(help="Encoder noise, standard deviation (e.g. 1um).")]
+    = "1um",
+    estimate_lc: Annotated[bool | None, typer.Option(
+        "--estimate-lc/--no-estimate-lc",
+        help="Estimate the constraint-link length too (default: only with --method fk).",
+        show_default=False)] = None,
+    json_output: Annotated[bool, typer.Option(
+        "--json", help="Print the JSON report on stdout instead of the summary.")] = False,
+) -> None:
+    """Identify the geometry from measurements; write the calibrated machine and a report.
+
+    The measurement type follows from the columns (q1..q6 [+ passive] with a machine file that
+    has constraint_link: constraint-link self-calibration). Writes the calibrated machine file
+    (-o) and a JSON report beside it (same name, .json).
+
+    Example: `pkmcal calibrate default data.csv -o calibrated.yaml`
+    """
+    from ._commands import run_calibrate
+
+    raise typer.Exit(run_calibrate(machine, data, output, method.value, noise, estimate_lc,
+                                   json_output))
+
+
+@app.command()
+def fk(
+    machine: MachineArg,
+    joints: Annotated[Path, typer.Argument(metavar="JOINTS.csv", show_default=False,
+                                           help="Joint readings q1_<unit>..q6_<unit>.")],
+    output: OutFile,
+) -> None:
+    """Forward kinematics: poses from joint readings, in the machine file's units.
+
+    Writes x, y, z and psi, theta, phi (R = RY(theta) RX(psi) RZ(phi)) per row.
+
+    Example: `pkmcal fk calibrated.yaml joints.csv -o poses.csv`
+    """
+    from ._commands import run_fk
+
+    run_fk(machine, joints, output)
+
+
+@app.command()
+def ik(
+    machine: MachineArg,
+    poses: Annotated[Path, typer.Argument(
+        metavar="POSES.csv", show_default=False,
+        help="Poses x_<unit>, y_<unit>, z_<unit> + psi/theta/phi_<unit> or qx, qy, qz, qw.")],
+    output: OutFile,
+) -> None:
+    """Inverse kinematics: joint values that put the platform at the given poses.
+
+    Example: `pkmcal ik calibrated.yaml poses.csv -o joints.csv`
+    """
+    from ._commands import run_ik
+
+    run_ik(machine, poses, output)
+
+
+@app.command()
+def bench(
+    json_output: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")]
+    = False,
+) -> None:
+    """Run the benchmarks (accuracy and speed targets) and print a table.
+
+    Exit code 1 when a benchmark misses its target.
+
+    Example: `pkmcal bench`
+    """
+    from ._commands import run_bench
+
+    raise typer.Exit(run_bench(json_output))
+
+
+def _one_line(message: str) -> str:
+    return " ".join(str(message).split()) if "\n" in str(message) else str(message)
+
+
+def _fail(message: str, code: int = 2) -> None:
+    from ._console import error
+
+    error(_one_line(message))
+    sys.exit(code)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the ``pkmcal`` console script."""
+    # Batched small matrices: threaded BLAS costs ~10x in start-up and synchronisation.
+    for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    try:
+        app(args=argv, prog_name="pkmcal")
+    except (InputError, ConvergenceError) as exc:
+        _fail(str(exc))
+    except FileNotFoundError as exc:
+        _fail(f"{exc.filename}: file not found" if exc.filename else str(exc))
+    except OSError as exc:
+        if exc.filename:
+            _fail(f"{exc.filename}: {exc.strerror or exc}")
+        _fail(str(exc))
+    except KeyboardInterrupt:
+        _fail("interrupted", 130)

@@ -1,0 +1,537 @@
+"""Machine files (YAML, SPEC 6): load, validate, save.
+
+A machine file states its format version, machine type and units, then the geometry::
+
+    pkmcal: 1
+    machine: hexaslide
+    name: any text
+    units: {length: mm, angle: deg}
+    constraint_link: {length: 300.0}
+    home: [0.0, 0.0, 300.0, 0.0, 0.0, 0.0]      # x, y, z, psi, theta, phi (file units)
+    chains:                                    # hexaslide: exactly 6
+      - {a0: [451.05, -164.17, -400.0], alpha: 160.0, beta: 70.0, b: [84.85, -84.85, 0.0], l: 450.0}
+    calibration: {...}                         # optional metadata written by `pkmcal calibrate`
+
+Loading dispatches on ``machine:`` through :data:`MACHINE_FORMATS` (one entry per machine
+type: a pydantic schema, a builder and a dumper), so Delta and Stewart files are added there
+without touching the loader. Every problem is an :class:`~pkmcal.errors.InputError` whose
+message reads ``FILE: key.path: what is wrong (line N)``, e.g.
+``machine.yaml: chains[3].alpha: not a number: 'abc' (line 12)``; list indices are 0-based.
+
+Values are converted to internal units (m, rad) on loading; the file's units are kept on the
+machine as ``machine.file_units`` so outputs use them. Saving writes every float with ``repr``
+(shortest round-trip form), so ``load_machine(save_machine(m))`` reproduces the parameters to
+a few ulp, and writes atomically (:func:`~pkmcal.io.atomic.atomic_write_text`).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import re
+import types
+import typing
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError
+
+from ..errors import InputError
+from ..kinematics import euler_from_matrix, matrix_from_euler
+from ..machines import HexaSlide, hexaslide_parameters
+from ..machines.base import Machine
+from ..units import ANGLE, LENGTH
+from .atomic import atomic_write_text
+
+FORMAT_VERSION = 1
+LENGTH_UNITS = ("mm", "m")
+ANGLE_UNITS = ("deg", "rad")
+DEFAULT_UNITS = {"length": "mm", "angle": "deg"}
+
+# --------------------------------------------------------------------------------------------
+# YAML reading: floats such as 1e-3 (YAML 1.1 wants 1.0e-3), duplicate keys, line numbers
+# --------------------------------------------------------------------------------------------
+
+
+class _DuplicateKey(yaml.MarkedYAMLError):
+    pass
+
+
+class _Loader(yaml.SafeLoader):
+    """Safe loader that reads ``1e-3`` as a float and refuses duplicate keys."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[Any, Any] = {}
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    hash(key)
+                except TypeError:
+                    continue  # the base class reports unhashable keys
+                if key in seen:
+                    raise _DuplicateKey(None, None, f"duplicate key {key!r}",
+                                        key_node.start_mark)
+                seen[key] = True
+        return super().construct_mapping(node, deep=deep)
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+
+def _line_map(node, path=(), out=None) -> dict[tuple, int]:
+    """1-based line of every key path in a composed YAML node tree."""
+    out = {} if out is None else out
+    out[path] = node.start_mark.line + 1
+    if isinstance(node, yaml.MappingNode):
+        for key_node, value_node in node.value:
+            key = key_node.value if isinstance(key_node, yaml.ScalarNode) else None
+            _line_map(value_node, path + (key,), out)
+            out[path + (key,)] = key_node.start_mark.line + 1
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            _line_map(item, path + (i,), out)
+    return out
+
+
+def _parse_yaml(text: str, source: str):
+    """``(document, line_map)``; YAML syntax errors become :class:`InputError` with a line."""
+    loader = _Loader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            raise InputError(f"{source}: the file is empty (expected a machine description "
+                             "starting with 'pkmcal: 1')")
+        data = loader.construct_document(node)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        what = exc.problem or exc.context or "invalid YAML"
+        raise InputError(f"{source}: {where}YAML syntax error: {what}") from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"{source}: YAML syntax error: {exc}") from None
+    finally:
+        loader.dispose()
+    return data, _line_map(node)
+
+
+# --------------------------------------------------------------------------------------------
+# Schemas (pydantic v2): strict numbers, no unknown keys
+# --------------------------------------------------------------------------------------------
+
+#: a finite number (int or float; not a string, not a bool, not NaN/inf)
+Number = Annotated[float, Strict(), Field(allow_inf_nan=False)]
+Positive = Annotated[float, Strict(), Field(allow_inf_nan=False, gt=0)]
+Vector3 = Annotated[list[Number], Field(min_length=3, max_length=3)]
+Pose6 = Annotated[list[Number], Field(min_length=6, max_length=6)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+class Units(_Strict):
+    """Units of the numbers in this file."""
+
+    length: Literal["mm", "m"]
+    angle: Literal["deg", "rad"]
+
+
+class ConstraintLink(_Strict):
+    """Constraint link between base point O and platform point P (SPEC 2.1)."""
+
+    length: Positive
+
+
+class HexaSlideChain(_Strict):
+    """One 6-PUS chain: rail start ``a0``, rail angles, platform joint ``b``, link length."""
+
+    a0: Vector3
+    alpha: Number
+    beta: Number
+    b: Vector3
+    l: Positive
+
+
+class HexaSlideFile(_Strict):
+    """``machine: hexaslide`` (SPEC 6)."""
+
+    pkmcal: Literal[1]
+    machine: Literal["hexaslide"]
+    name: str | None = None
+    units: Units
+    constraint_link: ConstraintLink | None = None
+    home: Pose6 | None = None
+    chains: Annotated[list[HexaSlideChain], Field(min_length=6, max_length=6)]
+    calibration: dict[str, Any] | None = None
+
+
+# --------------------------------------------------------------------------------------------
+# Machine formats: schema + builder + dumper per machine type
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class MachineFormat:
+    """How one machine type is read from and written to a file."""
+
+    schema: type[BaseModel]
+    #: ``build(document, source) -> Machine`` (document validated, file units)
+    build: Callable[[Any, str], Machine]
+    #: ``dump(machine, units) -> dict`` of the machine-specific keys, in file order
+    dump: Callable[[Machine, dict], dict]
+    #: how a list of this many entries is called in messages (``chains``)
+    counts: dict[str, int]
+
+
+def _factors(units) -> tuple[float, float]:
+    return LENGTH[units["length"]], ANGLE[units["angle"]]
+
+
+def _home_pose(home, fl: float, fa: float):
+    if home is None:
+        return None
+    h = np.asarray(home, float)
+    return h[:3] * fl, matrix_from_euler(h[3:] * fa)
+
+
+def _build_hexaslide(doc: HexaSlideFile, source: str) -> HexaSlide:
+    fl, fa = _factors(doc.units.model_dump())
+    ch = doc.chains
+    params = hexaslide_parameters(
+        b=np.array([c.b for c in ch]) * fl,
+        a0=np.array([c.a0 for c in ch]) * fl,
+        alpha=np.array([c.alpha for c in ch]) * fa,
+        beta=np.array([c.beta for c in ch]) * fa,
+        l=np.array([c.l for c in ch]) * fl,
+    )
+    lc = doc.constraint_link.length * fl if doc.constraint_link is not None else None
+    machine = HexaSlide(params, home=_home_pose(doc.home, fl, fa), name=doc.name or "",
+                        constraint_link_length=lc)
+    if doc.home is not None:
+        q = machine.ik(*machine.home)
+        bad = np.flatnonzero(~np.isfinite(q))
+        if bad.size:
+            raise InputError(f"{source}: home: the pose cannot be reached by chain(s) "
+                             f"{', '.join(str(i + 1) for i in bad)} (link too short for the "
+                             "distance between rail and platform joint); check home and chains")
+    return machine
+
+
+def _fmt(x: float) -> str:
+    """Shortest round-trip text of a float that YAML 1.1 also reads as a float."""
+    x = float(x)
+    if x == 0.0:
+        return "0.0"
+    s = repr(x)
+    if "e" in s and "." not in s:
+        mant, exp = s.split("e")
+        s = f"{mant}.0e{exp}"
+    return s
+
+
+def _dump_hexaslide(machine: HexaSlide, units: dict) -> dict:
+    fl, fa = _factors(units)
+    b, a0, alpha, beta, l = machine.chains()
+    out: dict[str, Any] = {}
+    if machine.constraint_link_length is not None:
+        out["constraint_link"] = {"length": float(machine.constraint_link_length) / fl}
+    out["chains"] = [
+        {"a0": [float(v) / fl for v in a0[i]], "alpha": float(alpha[i]) / fa,
+         "beta": float(beta[i]) / fa, "b": [float(v) / fl for v in b[i]],
+         "l": float(l[i]) / fl}
+        for i in range(6)
+    ]
+    return out
+
+
+#: machine type (``machine:`` in files) -> format; add Delta and Stewart here
+MACHINE_FORMATS: dict[str, MachineFormat] = {
+    "hexaslide": MachineFormat(HexaSlideFile, _build_hexaslide, _dump_hexaslide,
+                               {"chains": 6}),
+}
+
+
+# --------------------------------------------------------------------------------------------
+# Validation errors in words
+# --------------------------------------------------------------------------------------------
+
+
+def _key_path(loc) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+def _unwrap(annotation):
+    """The model class or list item type inside Optional/Annotated/list annotations."""
+    while True:
+        origin = typing.get_origin(annotation)
+        if origin is Annotated:
+            annotation = typing.get_args(annotation)[0]
+        elif origin in (typing.Union, types.UnionType):
+            args = [a for a in typing.get_args(annotation) if a is not type(None)]
+            annotation = args[0]
+        else:
+            return annotation
+
+
+def _model_at(model: type[BaseModel], loc) -> type[BaseModel] | None:
+    """The pydantic model that describes the mapping at key path ``loc``."""
+    current: Any = model
+    for part in loc:
+        if isinstance(part, int):
+            if typing.get_origin(current) is not list:
+                return None
+            current = _unwrap(typing.get_args(current)[0])
+        else:
+            if not (isinstance(current, type) and issubclass(current, BaseModel)):
+                return None
+            field = current.model_fields.get(part)
+            if field is None:
+                return None
+            current = _unwrap(field.annotation)
+    return current if isinstance(current, type) and issubclass(current, BaseModel) else None
+
+
+def _show(value) -> str:
+    text = repr(value) if not isinstance(value, bool) else str(value).lower()
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+_HINTS = {
+    "units": "every machine file states its units, e.g. units: {length: mm, angle: deg}",
+    "pkmcal": "the file format version; write pkmcal: 1",
+    "chains": "a list of 6 chains {a0: [x, y, z], alpha, beta, b: [x, y, z], l}",
+}
+
+
+def _describe(err: dict, schema: type[BaseModel], counts: dict[str, int]) -> str:
+    kind, loc, value = err["type"], err["loc"], err.get("input")
+    ctx = err.get("ctx") or {}
+    last = loc[-1] if loc else None
+    if kind == "missing":
+        hint = _HINTS.get(last) if isinstance(last, str) else None
+        return "missing key" + (f" ({hint})" if hint else "")
+    if kind == "extra_forbidden":
+        model = _model_at(schema, loc[:-1])
+        allowed = f" (allowed here: {', '.join(model.model_fields)})" if model else ""
+        return "unknown key" + allowed
+    if kind in ("float_type", "float_parsing", "int_type"):
+        return f"not a number: {_show(value)}"
+    if kind == "finite_number":
+        return f"must be a finite number, got {_show(value)}"
+    if kind == "greater_than":
+        return f"must be > {ctx.get('gt')}, got {_show(value)}"
+    if kind == "literal_error":
+        if loc and loc[0] == "units" and isinstance(last, str):
+            return (f"unknown {last} unit {_show(value)} (accepted: "
+                    f"{', '.join(LENGTH_UNITS if last == 'length' else ANGLE_UNITS)})")
+        return f"got {_show(value)}, expected {ctx.get('expected')}"
+    if kind in ("too_short", "too_long"):
+        n = ctx.get("min_length") if kind == "too_short" else ctx.get("max_length")
+        actual = ctx.get("actual_length")
+        if isinstance(last, str) and last in counts:
+            return f"expected exactly {counts[last]} {last}, got {actual}"
+        if last == "home":
+            return f"expected 6 numbers [x, y, z, psi, theta, phi], got {actual}"
+        return f"expected {n} numbers, got {actual}"
+    if kind == "list_type":
+        if last == "home":
+            return f"expected a list [x, y, z, psi, theta, phi], got {_show(value)}"
+        if isinstance(last, str) and last in counts:
+            return f"expected a list of {counts[last]} entries, got {_show(value)}"
+        return f"expected a list [x, y, z], got {_show(value)}"
+    if kind in ("model_type", "dict_type", "model_attributes_type"):
+        return f"expected a mapping (key: value), got {_show(value)}"
+    if kind == "string_type":
+        return f"expected text, got {_show(value)}"
+    return err.get("msg", kind)
+
+
+def _validation_message(exc: ValidationError, source: str, lines: dict, schema,
+                        counts) -> str:
+    parts = []
+    errors = exc.errors()
+    for err in errors[:3]:
+        loc = tuple(err["loc"])
+        line = None
+        for k in range(len(loc), -1, -1):  # deepest key that exists in the file
+            if loc[:k] in lines:
+                line = lines[loc[:k]]
+                break
+        where = f" (line {line})" if line else ""
+        parts.append(f"{_key_path(loc)}: {_describe(err, schema, counts)}{where}")
+    more = f"; and {len(errors) - 3} more problem(s)" if len(errors) > 3 else ""
+    return f"{source}: " + "; ".join(parts) + more
+
+
+# --------------------------------------------------------------------------------------------
+# Public API
+# --------------------------------------------------------------------------------------------
+
+
+def parse_machine(text: str, source: str = "<machine>") -> Machine:
+    """Machine from the text of a machine file; ``source`` names it in messages."""
+    data, lines = _parse_yaml(text, source)
+    if not isinstance(data, dict):
+        raise InputError(f"{source}: expected a mapping of keys (pkmcal: 1, machine: ..., "
+                         f"units: ...), got {type(data).__name__}")
+    if "pkmcal" not in data:
+        raise InputError(f"{source}: pkmcal: missing key ({_HINTS['pkmcal']})")
+    version = data["pkmcal"]
+    if type(version) is not int or version != FORMAT_VERSION:
+        raise InputError(f"{source}: pkmcal: unsupported file format version {_show(version)} "
+                         f"(line {lines.get(('pkmcal',), '?')}); this pkmcal reads version "
+                         f"{FORMAT_VERSION}")
+    known = ", ".join(MACHINE_FORMATS)
+    if "machine" not in data:
+        raise InputError(f"{source}: machine: missing key (the machine type, one of: {known})")
+    kind = data["machine"]
+    if not isinstance(kind, str) or kind not in MACHINE_FORMATS:
+        raise InputError(f"{source}: machine: unknown machine type {_show(kind)} (line "
+                         f"{lines.get(('machine',), '?')}); known types: {known}")
+    fmt = MACHINE_FORMATS[kind]
+    try:
+        doc = fmt.schema.model_validate(data)
+    except ValidationError as exc:
+        raise InputError(_validation_message(exc, source, lines, fmt.schema,
+                                             fmt.counts)) from None
+    machine = fmt.build(doc, source)
+    machine.file_units = doc.units.model_dump()
+    machine.source = source
+    machine.calibration_info = doc.calibration
+    return machine
+
+
+def load_machine(path) -> Machine:
+    """Load a machine file (SPEC 6) into a machine in internal units (m, rad).
+
+    The returned machine carries ``file_units`` (``{"length": "mm", "angle": "deg"}``),
+    ``source`` (the path) and ``calibration_info`` (the file's ``calibration:`` mapping or
+    None). Raises :class:`~pkmcal.errors.InputError` naming the file, key path and line.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise InputError(f"{path}: machine file not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a directory, expected a machine file") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a text file (UTF-8): {exc.reason}") from None
+    return parse_machine(text, str(path))
+
+
+def _plain(value):
+    """Metadata made of YAML/JSON-safe Python values (numpy, paths and dates converted)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return [_plain(v) for v in value.tolist()]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value)
+    if isinstance(value, (_dt.datetime, _dt.date)):
+        return value.isoformat()
+    if value is None or isinstance(value, str):
+        return value
+    return str(value)
+
+
+_PLAIN = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+_YAML_WORDS = {"true", "false", "yes", "no", "on", "off", "null", "y", "n"}
+
+
+def _flow(value) -> str:
+    """One-line YAML of scalars, lists and mappings (numbers at full precision)."""
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_flow(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, list):
+        return "[" + ", ".join(_flow(v) for v in value) + "]"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return _fmt(value)
+    if value is None:
+        return "null"
+    text = str(value)
+    if _PLAIN.match(text) and text.lower() not in _YAML_WORDS:
+        return text
+    return json.dumps(text, ensure_ascii=False)
+
+
+def machine_to_text(machine: Machine, units: dict | None = None,
+                    calibration: dict | None = None) -> str:
+    """Text of the machine file of ``machine`` (see :func:`save_machine`)."""
+    kind = getattr(machine, "kind", "")
+    if kind not in MACHINE_FORMATS:
+        raise InputError(f"cannot save machine type {kind!r}; known: {', '.join(MACHINE_FORMATS)}")
+    units = dict(units or getattr(machine, "file_units", None) or DEFAULT_UNITS)
+    if set(units) != {"length", "angle"} or units["length"] not in LENGTH_UNITS \
+            or units["angle"] not in ANGLE_UNITS:
+        raise InputError(f"units must be {{length: mm|m, angle: deg|rad}}, got {units}")
+    fl, fa = _factors(units)
+    body = MACHINE_FORMATS[kind].dump(machine, units)
+    P, R = machine.home
+    home = [float(v) / fl for v in np.asarray(P, float)] + \
+           [float(v) / fa for v in euler_from_matrix(np.asarray(R, float))]
+    lines = [f"pkmcal: {FORMAT_VERSION}", f"machine: {kind}"]
+    if getattr(machine, "name", ""):
+        lines.append(f"name: {_flow(str(machine.name))}")
+    lines.append(f"units: {_flow(units)}")
+    for key, value in body.items():
+        if isinstance(value, list) and value and isinstance(value[0], dict):
+            lines.append(f"{key}:")
+            lines.extend(f"  - {_flow(item)}" for item in value)
+        else:
+            lines.append(f"{key}: {_flow(value)}")
+    lines.append(f"home: {_flow(home)}   # x, y, z, psi, theta, phi")
+    if calibration is not None:
+        meta = _plain(calibration)
+        if not isinstance(meta, dict):
+            raise InputError("calibration metadata must be a mapping")
+        dumped = yaml.safe_dump(meta, sort_keys=False, allow_unicode=True, width=100,
+                                default_flow_style=False)
+        lines.append("calibration:")
+        lines.extend("  " + line for line in dumped.rstrip("\n").splitlines())
+    return "\n".join(lines) + "\n"
+
+
+def save_machine(machine: Machine, path, units: dict | None = None,
+                 calibration: dict | None = None) -> Path:
+    """Write ``machine`` as a machine file (same schema as :func:`load_machine` reads).
+
+    Parameters
+    ----------
+    units : ``{"length": "mm"|"m", "angle": "deg"|"rad"}``; default ``machine.file_units``
+        or mm/deg.
+    calibration : optional metadata mapping written as the ``calibration:`` section.
+
+    The file always carries ``home`` (``machine.home``); floats are written at full precision;
+    the file is checked by parsing it back, then written atomically.
+    """
+    path = Path(path)
+    text = machine_to_text(machine, units, calibration)
+    parse_machine(text, str(path))  # never write a file we could not read back
+    atomic_write_text(path, text)
+    return path
