@@ -46,7 +46,7 @@ def sphere_tangents(P):
 
 
 def solve_sphere_poses(machine: Machine, u, q, link_length, passive=None, start=None,
-                       tol=1e-13, max_iter=60):
+                       tol=1e-13, max_iter=100):
     """Poses on ``|P| = link_length`` that reproduce the readings ``q`` (K, 6).
 
     With ``passive`` (K,) the passive reading is ignored and the five active ones plus the
@@ -78,7 +78,7 @@ def solve_sphere_poses(machine: Machine, u, q, link_length, passive=None, start=
         return r, J
 
     return newton_pose_solve(system, P, R, tol * scale, max_iter,
-                             step_tol=None if passive is not None else 1e-14 * scale)
+                             step_tol=None if passive is not None else 1e-9 * scale)
 
 
 @dataclass
@@ -118,7 +118,9 @@ class _ConstraintLinkProblem:
     def start_poses(self, passive=None):
         um, Lc = self.split(self.parameters.values)
         fk = solve_sphere_poses(self.machine, um, self.data.q, Lc, passive)
-        bad = ~fk.converged
+        # a start pose need not be exact (the estimator refines it); it must exist and
+        # explain the readings to within the size of plausible geometric errors
+        bad = ~(fk.converged | (fk.residual < 0.05 * self.machine.characteristic_length()))
         if bad.any():
             rows = self.data.rows[bad]
             shown = ", ".join(map(str, rows[:10])) + (" ..." if len(rows) > 10 else "")
@@ -165,9 +167,20 @@ class ConstraintLinkML(_ConstraintLinkProblem):
 class _ImplicitPoseProblem(_ConstraintLinkProblem):
     """Methods whose poses are functions of the readings (solved inside each evaluation)."""
 
+    def _keep_solved_rows(self, fk):
+        """Keep the rows whose poses the start geometry can solve (seed 000's methods need
+        a start close enough); the others are left out and reported as ``dropped_rows``."""
+        data = self.data
+        self.dropped_rows = data.rows[~fk.converged]
+        self._start = (fk.P[fk.converged], fk.R[fk.converged])
+        if self.dropped_rows.size:
+            self.data = data.subset(fk.converged)
+        if len(self.data) == 0:
+            raise InputError(f"{data.source}: no row can be solved for a pose with the "
+                             "start geometry")
+
     def initial_state(self):
-        P, R = self.start_poses(None)
-        return SphereState(self.parameters.values.copy(), P, R)
+        return SphereState(self.parameters.values.copy(), *self._start)
 
     def retract(self, state, du, dl):
         return SphereState(state.u + du, state.P, state.R)
@@ -195,14 +208,8 @@ class ConstraintLinkIK(_ImplicitPoseProblem):
         # geometry (seed 000's method needs a start close enough): such rows are left out
         um, Lc = self.split(self.parameters.values)
         P, R = self.start_poses(None) if start is None else start
-        fk = solve_sphere_poses(machine, um, data.q, Lc, data.passive, start=(P, R))
-        self.dropped_rows = data.rows[~fk.converged]
-        self._start = (fk.P[fk.converged], fk.R[fk.converged])
-        if self.dropped_rows.size:
-            self.data = data.subset(fk.converged)
-
-    def initial_state(self):
-        return SphereState(self.parameters.values.copy(), *self._start)
+        self._keep_solved_rows(solve_sphere_poses(machine, um, data.q, Lc, data.passive,
+                                                  start=(P, R)))
 
     def evaluate(self, state, jacobian=True):
         fk = self._poses(state, constrained=True)
@@ -234,6 +241,8 @@ class ConstraintLinkFK(_ImplicitPoseProblem):
 
     def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=True):
         super().__init__(machine, data, sigma_m, estimate_link_length)
+        um, _ = self.split(self.parameters.values)
+        self._keep_solved_rows(machine.fk(data.q, um, start=self.start_poses(None)))
 
     def evaluate(self, state, jacobian=True):
         fk = self._poses(state, constrained=False)
@@ -294,9 +303,12 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
     um, Lc = problem.split(result.x)
     calibrated = machine.with_parameters(um)
     calibrated.constraint_link_length = float(Lc)
-    if getattr(result.state, "P", None) is not None:
-        calibrated.home = (Lc * result.state.P[0] / np.linalg.norm(result.state.P[0]),
-                           result.state.R[0])
+    # keep the user's working pose as home (the FK start) when the calibrated machine
+    # reaches it; a measured pose may lie at the edge of the workspace
+    calibrated.home = machine.home
+    if not np.all(np.isfinite(calibrated.ik(*machine.home))):
+        i = int(np.argmin(np.linalg.norm(result.state.P - machine.home[0], axis=-1)))
+        calibrated.home = (result.state.P[i], result.state.R[i])
     gen = gauge_generators(machine, um, CONSTRAINT_LINK_GAUGES)
     gen = np.vstack([gen, np.zeros((1, gen.shape[1]))]) / result.scales[:, None]
     result.extras.update(

@@ -133,7 +133,8 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
     rtol : relative tolerance on singular values of the scaled reduced Jacobian; directions
         with ``s_i < rtol * s_1`` are unidentifiable and never stepped along.
     xtol : stop when the largest component of the (undamped) Gauss-Newton step, in scaled
-        coordinates, is below ``xtol``.
+        coordinates, is below ``xtol``, or when that step would lower the cost by less than
+        ``1e-12`` of it (the optimum of noisy data).
     ftol : stop when the relative cost decrease of an accepted step is below ``ftol``.
     absolute_sigma : residuals are whitened by true standard deviations: report the
         covariance without rescaling by the residual variance.
@@ -161,8 +162,12 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
         rank = int(np.sum(s > rtol * s[0])) if s.size else 0
         Ur, sr, Vr = U[:, :rank], s[:rank], Vt[:rank].T
         g = Ur.T @ er
-        if nit > 1 and np.max(np.abs(Vr @ (g / sr)), initial=0.0) < xtol:
-            status, message = 1, "Gauss-Newton step below xtol"   # stationary point
+        # stationary point: the Gauss-Newton step is negligible, or could lower the cost by
+        # no more than rounding (noisy data: the cost stays near dof/2 at the optimum)
+        predicted = 0.5 * float(g @ g)
+        if nit > 1 and (np.max(np.abs(Vr @ (g / sr)), initial=0.0) < xtol
+                        or predicted <= 1e-12 * cost):
+            status, message = 1, "Gauss-Newton step negligible (converged)"
             break
         accepted = False
         for _ in range(30):
@@ -179,7 +184,10 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
                 break
             lam = max(lam * 10.0, 1e-6 * sr[0] ** 2 if rank else 1.0)
         if not accepted:
-            status, message = 3, "no step reduces the cost (stuck at a local minimum?)"
+            if predicted <= 1e-8 * cost:   # only rounding left to gain: converged
+                status, message = 2, "cost cannot decrease beyond rounding (converged)"
+            else:
+                status, message = 3, "no step reduces the cost (stuck at a local minimum?)"
             break
         decrease = (cost - new_cost) / max(cost, 1e-300)
         lam_used = lam
