@@ -207,14 +207,14 @@ def test_bad_data_file(run_dir, tmp_path, cli, command, make, words):
 
 BAD_MACHINE = [
     ("wrong number of chains",
-     lambda t: "\n".join(x for x in t.splitlines() if "alpha: 200.0" not in x) + "\n",
+     lambda t: "\n".join(x for x in t.splitlines() if "alpha: -160.0" not in x) + "\n",
      ["m.yaml", "chains", "exactly 6 chains, got 5"]),
     ("unknown key", lambda t: t.replace("beta: 70.0", "beta: 70.0, gamma: 1", 1),
      ["m.yaml", "chains[0].gamma", "unknown key"]),
     ("missing units", lambda t: "\n".join(x for x in t.splitlines()
                                           if not x.startswith("units")) + "\n",
      ["m.yaml", "units", "missing key"]),
-    ("non-number", lambda t: t.replace("alpha: 320.0", "alpha: 32O.0"),
+    ("non-number", lambda t: t.replace("alpha: -40.0", "alpha: -4O.0"),
      ["m.yaml", "chains[3].alpha", "not a number"]),
     ("no constraint link", lambda t: "\n".join(x for x in t.splitlines()
                                                if not x.startswith("constraint_link")) + "\n",

@@ -103,7 +103,7 @@ def test_numbers_without_decimal_point_and_exponents_are_read():
 
 BAD_MACHINES = [
     # (description, edit of the example text, words the message must contain)
-    ("yaml syntax", lambda t: t.replace("alpha: 280.0,", "alpha: [280.0,"),
+    ("yaml syntax", lambda t: t.replace("alpha: -80.0,", "alpha: [-80.0,"),
      ["YAML syntax error", "line 9"]),
     ("not a mapping", lambda t: "- 1\n- 2\n", ["expected a mapping"]),
     ("empty", lambda t: "", ["empty"]),
@@ -111,18 +111,18 @@ BAD_MACHINES = [
     ("unknown key", lambda t: t.replace("name:", "nmae:"), ["nmae", "unknown key", "line 3"]),
     ("unknown nested key", lambda t: t.replace("l: 450.0}", "l: 450.0, lenght: 1}", 1),
      ["chains[0].lenght", "unknown key", "a0, alpha, beta, b, l"]),
-    ("five chains", lambda t: "\n".join(x for x in t.splitlines() if "alpha: 440.0" not in x),
+    ("five chains", lambda t: "\n".join(x for x in t.splitlines() if "alpha: 80.0" not in x),
      ["chains", "exactly 6 chains, got 5"]),
     ("seven chains", lambda t: t.replace("home:", "  - {a0: [0, 0, 0], alpha: 0, beta: 1, "
                                          "b: [0, 0, 0], l: 450}\nhome:"),
      ["chains", "exactly 6 chains, got 7"]),
-    ("text number", lambda t: t.replace("alpha: 280.0", "alpha: abc"),
+    ("text number", lambda t: t.replace("alpha: -80.0", "alpha: abc"),
      ["chains[2].alpha", "not a number", "'abc'", "line 9"]),
-    ("quoted number", lambda t: t.replace("alpha: 280.0", 'alpha: "280"'),
+    ("quoted number", lambda t: t.replace("alpha: -80.0", 'alpha: "280"'),
      ["chains[2].alpha", "not a number"]),
     ("bool", lambda t: t.replace("beta: 70.0", "beta: true", 1), ["chains[0].beta",
                                                                   "not a number"]),
-    ("nan", lambda t: t.replace("alpha: 280.0", "alpha: .nan"),
+    ("nan", lambda t: t.replace("alpha: -80.0", "alpha: .nan"),
      ["chains[2].alpha", "finite number"]),
     ("inf", lambda t: t.replace("l: 450.0}", "l: .inf}", 1), ["chains[0].l", "finite"]),
     ("negative length", lambda t: t.replace("l: 450.0}", "l: -450.0}", 1),

@@ -62,6 +62,8 @@ class HexaSlide(Machine):
         self._ial = np.array([p.index(f"chain{i + 1}.alpha") for i in range(6)])
         self._ibe = np.array([p.index(f"chain{i + 1}.beta") for i in range(6)])
         self._il = np.array([p.index(f"chain{i + 1}.l") for i in range(6)])
+        self._chain_index = np.concatenate(                     # (6, 9) in CHAIN_FIELDS order
+            [self._ib, self._ia0, self._ial[:, None], self._ibe[:, None], self._il[:, None]], -1)
 
     # -- geometry -------------------------------------------------------------------------
     def chains(self, u=None):
@@ -82,39 +84,57 @@ class HexaSlide(Machine):
     # -- kinematics -----------------------------------------------------------------------
     def ik_jacobians(self, P, R, u=None, want_du: bool = True):
         b, a0, alpha, beta, l = self.chains(u)
-        a = rail_direction(alpha, beta)                         # (6, 3)
+        ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
+        ax, ay, az = (ca * cb)[:, None], (sa * cb)[:, None], sb[:, None]   # rail a, (6, 1)
         P = np.asarray(P, float)
         R = np.asarray(R, float)
-        Rb = np.einsum("...ij,kj->...ki", R, b)                 # (..., 6, 3) R B_i
-        d = P[..., None, :] + Rb - a0                           # (..., 6, 3)
-        ad = np.einsum("...ki,ki->...k", d, a)
-        rad = l**2 - np.einsum("...ki,...ki->...k", d, d) + ad**2
+        shape = np.broadcast_shapes(P.shape[:-1], R.shape[:-2])
+        N = int(np.prod(shape))
+        # Chain-first layout: every per-chain quantity is a contiguous (6, N) array, so the
+        # arithmetic runs on long vectors without einsum or cross-product overhead.
+        Pt = np.broadcast_to(P, shape + (3,)).reshape(N, 3).T
+        R2 = np.broadcast_to(R, shape + (3, 3)).reshape(N, 3, 3)
+        rbx, rby, rbz = (b @ R2[:, i, :].T for i in range(3))   # R B_i, (6, N) each
+        dx = rbx + (Pt[0] - a0[:, 0:1])                          # d = P + R B - A0
+        dy = rby + (Pt[1] - a0[:, 1:2])
+        dz = rbz + (Pt[2] - a0[:, 2:3])
+        ad = dx * ax
+        ad += dy * ay
+        ad += dz * az
+        rad = (l * l)[:, None] + ad * ad
+        rad -= dx * dx
+        rad -= dy * dy
+        rad -= dz * dz
         with np.errstate(invalid="ignore"):
             s = np.sqrt(rad)                                    # = a.n
-        s = np.where(s > 0, s, np.nan)                          # singular or unreachable
+        s[~(s > 0)] = np.nan                                    # singular or unreachable
         q = ad - s
-        n = d - q[..., None] * a                                # link vector, |n| = l
-        ns = n / s[..., None]
-        dq_dpose = np.concatenate([ns, np.cross(Rb, ns)], -1)   # (..., 6, 6)
+        inv_s = 1.0 / s
+        nx = (dx - q * ax) * inv_s                              # n / s, link vector n = d - q a
+        ny = (dy - q * ay) * inv_s
+        nz = (dz - q * az) * inv_s
+        Jt = np.empty((6, 6, N))                                # (chain, [dP, dOmega], pose)
+        Jt[:, 0], Jt[:, 1], Jt[:, 2] = nx, ny, nz
+        np.subtract(rby * nz, rbz * ny, out=Jt[:, 3])           # (R B) x n / s
+        np.subtract(rbz * nx, rbx * nz, out=Jt[:, 4])
+        np.subtract(rbx * ny, rby * nx, out=Jt[:, 5])
+        q_out = q.T.reshape(shape + (6,))
+        dq_dpose = Jt.transpose(2, 0, 1).reshape(shape + (6, 6))
         if not want_du:
-            return q, dq_dpose, None
-        ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
-        da_dal = np.stack([-sa * cb, ca * cb, np.zeros_like(ca)], -1)
-        da_dbe = np.stack([-ca * sb, -sa * sb, cb], -1)
-        dq_da = -q[..., None] * d / s[..., None]               # (..., 6, 3)
-        cols = np.concatenate([
-            np.einsum("...ji,...kj->...ki", R, ns),             # dq/dB = R^T n / s
-            -ns,                                                # dq/dA0
-            np.einsum("...ki,ki->...k", dq_da, da_dal)[..., None],
-            np.einsum("...ki,ki->...k", dq_da, da_dbe)[..., None],
-            (-l / s)[..., None],                                # dq/dl
-        ], -1)                                                  # (..., 6, 9)
-        dq_du = np.zeros(q.shape + (len(self.parameters),))
-        rows = np.arange(6)[:, None]
-        idx = np.concatenate([self._ib, self._ia0, self._ial[:, None], self._ibe[:, None],
-                              self._il[:, None]], -1)           # (6, 9) in CHAIN_FIELDS order
-        dq_du[..., rows, idx] = cols
-        return q, dq_dpose, dq_du
+            return q_out, dq_dpose, None
+        cols = np.empty((N, 6, 9))                              # CHAIN_FIELDS order
+        for j in range(3):                                      # dq/dB = R^T n / s
+            cols[:, :, j] = (R2[:, 0, j:j + 1] * nx.T + R2[:, 1, j:j + 1] * ny.T
+                             + R2[:, 2, j:j + 1] * nz.T)
+        cols[:, :, 3], cols[:, :, 4], cols[:, :, 5] = -nx.T, -ny.T, -nz.T   # dq/dA0
+        f = -q * inv_s                                          # dq/da = -q d / s
+        cols[:, :, 6] = (f * (dy * (ca * cb)[:, None] - dx * (sa * cb)[:, None])).T
+        cols[:, :, 7] = (f * (dz * cb[:, None] - (dx * (ca * sb)[:, None]
+                                                  + dy * (sa * sb)[:, None]))).T
+        cols[:, :, 8] = (-l[:, None] * inv_s).T                 # dq/dl
+        dq_du = np.zeros((N, 6, len(self.parameters)))
+        dq_du[:, np.arange(6)[:, None], self._chain_index] = cols
+        return q_out, dq_dpose, dq_du.reshape(shape + (6, len(self.parameters)))
 
     # -- frames ---------------------------------------------------------------------------
     def transform_base(self, u, G):
@@ -147,7 +167,9 @@ def default_hexaslide() -> HexaSlide:
     gb = np.deg2rad(120 * k + sgn * 45)
     a0 = np.column_stack([0.48 * np.cos(g), 0.48 * np.sin(g), np.full(6, -0.4)])
     b = np.column_stack([0.12 * np.cos(gb), 0.12 * np.sin(gb), np.zeros(6)])
-    params = hexaslide_parameters(b, a0, g + np.pi, np.full(6, np.deg2rad(70)), np.full(6, 0.45))
+    alpha_deg = (120 * k + sgn * 20 + 360) % 360 - 180          # g + 180 in [-180, 180)
+    alpha = np.deg2rad(alpha_deg)
+    params = hexaslide_parameters(b, a0, alpha, np.full(6, np.deg2rad(70)), np.full(6, 0.45))
     return HexaSlide(params, home=(np.array([0, 0, 0.3]), np.eye(3)),
                      name="pkmcal default Hexa Slide (SPEC 2.1)", constraint_link_length=0.3)
 
