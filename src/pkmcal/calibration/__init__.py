@@ -4,6 +4,7 @@ from .constraint_link import (
     METHODS,
     ConstraintLinkFK,
     ConstraintLinkIK,
+    ConstraintLinkIKExplicit,
     ConstraintLinkML,
     calibrate_constraint_link,
     solve_sphere_poses,
@@ -11,5 +12,6 @@ from .constraint_link import (
 from .estimator import BlockProblem, CalibrationResult, levenberg_marquardt, reduce_local
 
 __all__ = ["METHODS", "BlockProblem", "CalibrationResult", "ConstraintLinkFK",
-           "ConstraintLinkIK", "ConstraintLinkML", "calibrate_constraint_link",
-           "levenberg_marquardt", "reduce_local", "solve_sphere_poses"]
+           "ConstraintLinkIK", "ConstraintLinkIKExplicit", "ConstraintLinkML",
+           "calibrate_constraint_link", "levenberg_marquardt", "reduce_local",
+           "solve_sphere_poses"]

@@ -6,12 +6,13 @@
     divided by their noise. Solved by :func:`~pkmcal.calibration.estimator.levenberg_marquardt`
     with the per-pose unknowns eliminated (Schur complement). Treats every encoder as noisy.
 ``ik``
-    The paper's inverse-kinematics method (3.4.1): the pose follows from the five active
-    readings and the constraint (forward kinematics), the residual is the passive reading minus
-    its inverse kinematics. Needs the ``passive`` column and the exact ``Lc``. ``per_chain=True``
-    runs the paper's algorithm literally (chain by chain, only that chain's 9 parameters, in
-    sweeps); the default solves all chains jointly with the total derivative
-    ``dq_p/du + dq_p/dx dx/du`` (``dx/du`` by implicit differentiation of the active loop).
+    The paper's inverse-kinematics method (3.4.1): the five active readings and the link fix
+    the pose, the residual is the passive reading minus its inverse kinematics. Needs the
+    ``passive`` column and the exact ``Lc``. By default all chains are solved jointly, with the
+    active readings as (heavily weighted) equations of the implicit loop
+    (:class:`ConstraintLinkIK`); ``per_chain=True`` runs the paper's algorithm literally
+    (:class:`ConstraintLinkIKExplicit`: forward kinematics of the five active readings, chain
+    by chain, only that chain's 9 parameters, in sweeps).
 ``fk``
     The paper's forward-kinematics method (3.4.2): the pose follows from all six readings, the
     residual is ``|P| - Lc`` with ``Lc`` estimated.
@@ -145,15 +146,20 @@ class ConstraintLinkML(_ConstraintLinkProblem):
     def evaluate(self, state, jacobian=True):
         um, Lc = self.split(state.u)
         q, Jx, Ju = self.machine.ik_jacobians(state.P, state.R, um, want_du=jacobian)
-        r = (q - self.data.q) / self.sigma
+        sigma = self.reading_sigma()
+        r = (q - self.data.q) / sigma
         if not jacobian:
             return r, None, None
         T, n = sphere_tangents(state.P)
         JP = Jx[..., :3]
         dLc = np.einsum("kji,ki->kj", JP, n)[..., None]
-        Jg = np.concatenate([Ju, dLc], -1) / self.sigma[:, None]
-        Jl = np.concatenate([JP @ T, Jx[..., 3:]], -1) / self.sigma[:, None]
+        Jg = np.concatenate([Ju, dLc], -1) / sigma[..., None]
+        Jl = np.concatenate([JP @ T, Jx[..., 3:]], -1) / sigma[..., None]
         return r, Jg, Jl
+
+    def reading_sigma(self):
+        """Standard deviation of every reading, (K, n_joints) or broadcastable."""
+        return self.sigma
 
     def retract(self, state, du, dl):
         u = state.u + du
@@ -162,6 +168,33 @@ class ConstraintLinkML(_ConstraintLinkProblem):
         P *= (u[self.n_machine] / np.linalg.norm(P, axis=-1))[:, None]
         R = matrix_from_rotvec(dl[:, 2:]) @ state.R
         return SphereState(u, P, R)
+
+
+class ConstraintLinkIK(ConstraintLinkML):
+    """The paper's inverse-kinematics method, all chains jointly.
+
+    The five active readings are taken as exact and the passive one carries the residual.
+    Solving the five-active-plus-link loop for the pose at every step (the paper's step iii)
+    fails wherever that loop has no solution for the current geometry, which stalls the
+    iteration from the paper's Table 1 errors. Here the poses stay unknowns, as in ``ml``, and
+    the active readings are weighted ``active_weight`` (1e3) times more than the passive one:
+    the estimate equals the exact method's to a relative ``1/active_weight^2`` and the problem
+    is feasible at every step. :class:`ConstraintLinkIKExplicit` is the literal form.
+    """
+
+    active_weight = 1e3
+
+    def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=False):
+        if data.passive is None:
+            raise InputError(f"{data.source}: the inverse-kinematics method needs the "
+                             "'passive' column (which actuator was passive at each row)")
+        super().__init__(machine, data, sigma_m, estimate_link_length)
+        weights = np.full(data.q.shape, self.active_weight)
+        weights[np.arange(len(data)), data.passive] = 1.0
+        self._reading_sigma = self.sigma / weights
+
+    def reading_sigma(self):
+        return self._reading_sigma
 
 
 class _ImplicitPoseProblem(_ConstraintLinkProblem):
@@ -196,8 +229,10 @@ class _ImplicitPoseProblem(_ConstraintLinkProblem):
         return fk
 
 
-class ConstraintLinkIK(_ImplicitPoseProblem):
-    """The paper's inverse-kinematics method: residual = passive reading - its IK."""
+class ConstraintLinkIKExplicit(_ImplicitPoseProblem):
+    """The paper's inverse-kinematics method literally: the pose from the five active readings
+    and the link (forward kinematics), residual = passive reading - its inverse kinematics,
+    Jacobian = total derivative ``dq_p/du + dq_p/dx dx/du`` (implicit differentiation)."""
 
     def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=False, start=None):
         if data.passive is None:
@@ -320,7 +355,7 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
     return result
 
 
-def _per_chain_sweeps(problem: ConstraintLinkIK, max_sweeps, rtol, **options):
+def _per_chain_sweeps(problem, max_sweeps, rtol, **options):
     """Seed 000 3.4.1 literally: for each chain, fit its 9 parameters to the rows where it was
     passive, poses from the other five; repeat sweeps until no parameter moves."""
     base = problem.parameters
@@ -336,7 +371,7 @@ def _per_chain_sweeps(problem: ConstraintLinkIK, max_sweeps, rtol, **options):
             rows = data.passive == i
             if not rows.any():
                 continue
-            sub = ConstraintLinkIK(machine.with_parameters(u[:-1]), data.subset(rows),
+            sub = ConstraintLinkIKExplicit(machine.with_parameters(u[:-1]), data.subset(rows),
                                    problem.sigma, start=(P[rows], R[rows]))
             free = np.zeros(len(base), bool)
             free[base.indices(f"chain{i + 1}")] = True
@@ -345,7 +380,7 @@ def _per_chain_sweeps(problem: ConstraintLinkIK, max_sweeps, rtol, **options):
             u = result.x.copy()
         if np.max(np.abs((u - u_before) / problem.scales)) < options.get("xtol", 1e-12):
             break
-    full = ConstraintLinkIK(machine.with_parameters(u[:-1]), data, problem.sigma)
+    full = ConstraintLinkIKExplicit(machine.with_parameters(u[:-1]), data, problem.sigma)
     full.parameters = base.with_values(u)
     final = levenberg_marquardt(full, rtol=rtol, max_iter=1)  # statistics at the solution
     final.x, final.parameters = u, base.with_values(u)
