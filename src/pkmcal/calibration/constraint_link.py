@@ -200,6 +200,15 @@ class ConstraintLinkIK(ConstraintLinkML):
 class _ImplicitPoseProblem(_ConstraintLinkProblem):
     """Methods whose poses are functions of the readings (solved inside each evaluation)."""
 
+    #: forward kinematics inside each evaluation converge to this (times the machine's
+    #: characteristic length); residuals are no more precise than that
+    fk_tol = 1e-13
+
+    @property
+    def cost_floor(self):
+        precision = self.fk_tol * self.machine.characteristic_length()
+        return 0.5 * len(self.data) * float(np.max(precision / self.sigma)) ** 2
+
     def _keep_solved_rows(self, fk):
         """Keep the rows whose poses the start geometry can solve (seed 000's methods need
         a start close enough); the others are left out and reported as ``dropped_rows``."""
@@ -222,9 +231,9 @@ class _ImplicitPoseProblem(_ConstraintLinkProblem):
         um, Lc = self.split(state.u)
         if constrained:
             fk = solve_sphere_poses(self.machine, um, self.data.q, Lc, self.data.passive,
-                                    start=(state.P, state.R))
+                                    start=(state.P, state.R), tol=self.fk_tol)
         else:
-            fk = self.machine.fk(self.data.q, um, start=(state.P, state.R))
+            fk = self.machine.fk(self.data.q, um, start=(state.P, state.R), tol=self.fk_tol)
         state.P, state.R = fk.P, fk.R          # warm start for the next evaluation
         return fk
 
@@ -341,7 +350,7 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
     # keep the user's working pose as home (the FK start) when the calibrated machine
     # reaches it; a measured pose may lie at the edge of the workspace
     calibrated.home = machine.home
-    if not np.all(np.isfinite(calibrated.ik(*machine.home))):
+    if not np.all(np.isfinite(calibrated.ik(*machine.home))) and result.state is not None:
         i = int(np.argmin(np.linalg.norm(result.state.P - machine.home[0], axis=-1)))
         calibrated.home = (result.state.P[i], result.state.R[i])
     gen = gauge_generators(machine, um, CONSTRAINT_LINK_GAUGES)
@@ -363,28 +372,55 @@ def _per_chain_sweeps(problem, max_sweeps, rtol, **options):
     u = base.values.copy()
     state = problem.initial_state()
     P, R = state.P, state.R
-    data = problem.data
-    result = None
+    step = np.inf
     for sweep in range(1, max_sweeps + 1):
         u_before = u.copy()
-        for i in range(machine.n_joints):
-            rows = data.passive == i
-            if not rows.any():
-                continue
-            sub = ConstraintLinkIKExplicit(machine.with_parameters(u[:-1]), data.subset(rows),
-                                   problem.sigma, start=(P[rows], R[rows]))
-            free = np.zeros(len(base), bool)
-            free[base.indices(f"chain{i + 1}")] = True
-            sub.parameters = ParameterSet(base.names, base.kinds, u, ~free)
-            result = levenberg_marquardt(sub, rtol=rtol, **options)
-            u = result.x.copy()
-        if np.max(np.abs((u - u_before) / problem.scales)) < options.get("xtol", 1e-12):
+        try:
+            u = _one_sweep(problem, base, u, P, R, rtol, **options)
+        except (ValueError, InputError) as exc:   # a chain's rows became unsolvable
+            return _failed_sweeps(problem, u_before, sweep, f"sweep {sweep} failed: {exc}")
+        previous, step = step, np.max(np.abs((u - u_before) / problem.scales))
+        if step < options.get("xtol", 1e-12):
             break
+        if sweep >= 3 and step > previous:
+            return _failed_sweeps(problem, u, sweep,
+                                  f"per-chain sweeps diverge (scaled change {step:.2e} after "
+                                  f"{previous:.2e}): each chain's fit absorbs the other chains' "
+                                  "errors through the forward kinematics of its rows; use the "
+                                  "joint methods (ml, ik)")
     full = ConstraintLinkIKExplicit(machine.with_parameters(u[:-1]), data, problem.sigma)
     full.parameters = base.with_values(u)
     final = levenberg_marquardt(full, rtol=rtol, max_iter=1)  # statistics at the solution
     final.x, final.parameters = u, base.with_values(u)
     final.extras["sweeps"] = sweep
-    final.success = sweep < max_sweeps
+    final.success = step < options.get("xtol", 1e-12)
     final.message = f"per-chain sweeps: {sweep}"
     return final
+
+
+def _failed_sweeps(problem, u, sweep, message):
+    """A result object for sweeps that cannot go on: nothing identified, reason given."""
+    base = problem.parameters
+    n = len(base)
+    return CalibrationResult(
+        x=u, parameters=base.with_values(u), cost=float("nan"), residuals=np.zeros((0, 1)),
+        success=False, status=3, message=message, nit=sweep, nfev=0, rank=0,
+        singular_values=np.zeros(0), null_space=np.zeros((n, 0)), scales=problem.scales,
+        covariance=np.zeros((n, n)), std=np.zeros(n), residual_variance=float("nan"), dof=0,
+        state=None, extras={"sweeps": sweep})
+
+
+def _one_sweep(problem, base, u, P, R, rtol, **options):
+    """One pass over the chains: each chain's 9 parameters from the rows where it was passive."""
+    machine, data = problem.machine, problem.data
+    for i in range(machine.n_joints):
+        rows = data.passive == i
+        if not rows.any():
+            continue
+        sub = ConstraintLinkIKExplicit(machine.with_parameters(u[:-1]), data.subset(rows),
+                                       problem.sigma, start=(P[rows], R[rows]))
+        free = np.zeros(len(base), bool)
+        free[base.indices(f"chain{i + 1}")] = True
+        sub.parameters = ParameterSet(base.names, base.kinds, u, ~free)
+        u = levenberg_marquardt(sub, rtol=rtol, **options).x.copy()
+    return u

@@ -41,6 +41,9 @@ class BlockProblem(Protocol):
     scales: np.ndarray
     #: number of local unknowns per measurement (0 when there are none)
     local_dof: int
+    #: optional: cost at the numerical precision of the residuals (inner solves such as
+    #: forward kinematics converge to a tolerance); the estimator stops below it
+    cost_floor: float
 
     def initial_state(self) -> Any: ...
 
@@ -147,6 +150,7 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
     params = problem.parameters
     free = params.free
     scales = np.asarray(problem.scales, float)
+    cost_floor = float(getattr(problem, "cost_floor", 0.0))
     state = problem.initial_state() if state is None else state
     r, Jg, Jl = problem.evaluate(state)
     nfev = 1
@@ -166,7 +170,7 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
         # no more than rounding (noisy data: the cost stays near dof/2 at the optimum)
         predicted = 0.5 * float(g @ g)
         if nit > 1 and (np.max(np.abs(Vr @ (g / sr)), initial=0.0) < xtol
-                        or predicted <= 1e-12 * cost):
+                        or predicted <= 1e-12 * cost or cost <= cost_floor):
             status, message = 1, "Gauss-Newton step negligible (converged)"
             break
         accepted = False

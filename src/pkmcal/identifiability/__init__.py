@@ -15,10 +15,11 @@ from .gauge import (
     align_gauge,
     apply_gauges,
     gauge_generators,
+    transport_covariance,
 )
 
 __all__ = [
     "BASE_ROTATION_ABOUT_O", "CONSTRAINT_LINK_GAUGES", "Gauge", "IdentifiabilityReport",
     "NullDirection", "PLATFORM_ROTATION_ABOUT_P", "align_gauge", "analyze", "apply_gauges",
-    "gauge_generators", "name_null_space", "observability_indices",
+    "gauge_generators", "name_null_space", "observability_indices", "transport_covariance",
 ]

@@ -87,3 +87,23 @@ def align_gauge(machine, u_est, u_ref, gauges: Sequence[Gauge], scales, max_iter
         if np.max(np.abs(step)) < 1e-15:
             break
     return apply_gauges(machine, u_est, gauges, g), g
+
+
+def transport_covariance(machine, u_machine, gauges: Sequence[Gauge], g, covariance,
+                         eps: float = 1e-7):
+    """Covariance of ``apply_gauges(u, g)`` given that of ``u``: ``T C T^T``.
+
+    A covariance is expressed in the frames of its estimate; once the estimate is aligned to
+    another member of its gauge orbit (:func:`align_gauge`), its covariance must follow, or a
+    rotation of ~1 deg mixes weakly and strongly determined directions.
+    ``T`` is the Jacobian of the frame transform by central differences.
+    """
+    u = np.asarray(u_machine, float)
+    n = len(u)
+    T = np.empty((n, n))
+    for j in range(n):
+        du = np.zeros(n)
+        du[j] = eps * max(1.0, abs(u[j]))
+        T[:, j] = (apply_gauges(machine, u + du, gauges, g)
+                   - apply_gauges(machine, u - du, gauges, g)) / (2 * du[j])
+    return T @ np.asarray(covariance, float) @ T.T

@@ -80,17 +80,31 @@ def skew(v):
 def matrix_from_rotvec(v):
     """Rodrigues: rotation matrix of the rotation vector ``v`` (..., 3), angle = ``|v|`` rad."""
     v = np.asarray(v, dtype=float)
-    theta2 = np.einsum("...i,...i->...", v, v)
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    theta2 = x * x + y * y + z * z
     theta = np.sqrt(theta2)
     small = theta < 1e-4
     safe = np.where(small, 1.0, theta)
     # series for small angles keep full precision
     a = np.where(small, 1.0 - theta2 / 6.0 + theta2**2 / 120.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - theta2 / 24.0 + theta2**2 / 720.0,
-                 (1.0 - np.cos(safe)) / np.where(small, 1.0, theta2))
-    K = skew(v)
-    eye = np.broadcast_to(np.eye(3), K.shape)
-    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    # (1 - cos t) / t^2 = 2 sin^2(t/2) / t^2, free of the cancellation in 1 - cos t
+    half = np.sin(0.5 * safe) / safe
+    b = np.where(small, 0.5 - theta2 / 24.0 + theta2**2 / 720.0, 2.0 * half * half)
+    # I + a [v]x + b [v]x^2 with [v]x^2 = v v^T - |v|^2 I, written out element by element
+    c = 1.0 - b * theta2
+    bx, by, bz = b * x, b * y, b * z
+    ax, ay, az = a * x, a * y, a * z
+    R = np.empty(v.shape[:-1] + (3, 3))
+    R[..., 0, 0] = c + bx * x
+    R[..., 0, 1] = bx * y - az
+    R[..., 0, 2] = bx * z + ay
+    R[..., 1, 0] = bx * y + az
+    R[..., 1, 1] = c + by * y
+    R[..., 1, 2] = by * z - ax
+    R[..., 2, 0] = bx * z - ay
+    R[..., 2, 1] = by * z + ax
+    R[..., 2, 2] = c + bz * z
+    return R
 
 
 def rotvec_from_matrix(R):

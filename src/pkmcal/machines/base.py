@@ -65,6 +65,8 @@ class Machine(ABC):
     n_joints: int = 6
     #: pose degrees of freedom of the platform (6 = full pose, 3 = translation only)
     pose_dof: int = 6
+    #: poses per forward-kinematics chunk (temporaries stay in cache)
+    fk_chunk: int = 8192
 
     def __init__(self, parameters: ParameterSet, home=None, name: str = ""):
         self.parameters = parameters
@@ -132,11 +134,40 @@ class Machine(ABC):
         q = np.atleast_2d(np.asarray(q, float))
         K = q.shape[0]
         P0, R0 = self.home if start is None else start
-        P = np.broadcast_to(np.asarray(P0, float), (K, 3)).copy()
-        R = np.broadcast_to(np.asarray(R0, float), (K, 3, 3)).copy()
-        return newton_pose_solve(lambda idx, P, R: self._fk_system(q[idx], P, R, u), P, R,
-                                 tol * self.characteristic_length(), max_iter,
-                                 raise_on_failure)
+        P0, R0 = np.asarray(P0, float), np.asarray(R0, float)
+        tol_q = tol * self.characteristic_length()
+        # One start pose for the whole batch: Newton's first step uses the same Jacobian for
+        # every pose, so it is computed once (same step, same clamping as the first iteration
+        # of newton_pose_solve).
+        shared = None
+        if P0.ndim == 1 and R0.ndim == 2 and max_iter >= 2 and K > 1:
+            q0, J0, _ = self.ik_jacobians(P0, R0, u, want_du=False)
+            if np.all(np.isfinite(q0)) and np.all(np.isfinite(J0)) \
+                    and np.linalg.matrix_rank(J0) == J0.shape[-1] == J0.shape[-2]:
+                shared = (q0, J0)
+        parts = []
+        # chunks keep the temporaries in cache: large batches are much faster this way
+        for lo in range(0, K, self.fk_chunk) if K else [0]:
+            qc = q[lo:lo + self.fk_chunk]
+            k = len(qc)
+            P = np.broadcast_to(P0, (K, 3))[lo:lo + k].copy()
+            R = np.broadcast_to(R0, (K, 3, 3))[lo:lo + k].copy()
+            iters = max_iter
+            if shared is not None:
+                _shared_first_step(shared, qc, P, R, tol_q)
+                iters -= 1
+            part = newton_pose_solve(lambda idx, P, R, qc=qc: self._fk_system(qc[idx], P, R, u),
+                                     P, R, tol_q, iters)
+            if shared is not None:
+                part.iterations += 1
+            parts.append(part)
+        result = parts[0] if len(parts) == 1 else FKResult(
+            np.concatenate([p.P for p in parts]), np.concatenate([p.R for p in parts]),
+            np.concatenate([p.converged for p in parts]),
+            np.concatenate([p.residual for p in parts]), max(p.iterations for p in parts))
+        if raise_on_failure:
+            result.raise_if_failed()
+        return result
 
     def _fk_system(self, q, P, R, u):
         qc, J, _ = self.ik_jacobians(P, R, u, want_du=False)
@@ -172,30 +203,35 @@ def newton_pose_solve(system, P, R, tol, max_iter, raise_on_failure=False,
     res = np.full(K, np.inf)
     it = 0
     for it in range(1, max_iter + 1):  # noqa: B007
-        r, J = system(active, P[active], R[active])
+        everyone = active.size == K              # no gather/scatter while all poses iterate
+        Pa, Ra = (P, R) if everyone else (P[active], R[active])
+        r, J = system(active, Pa, Ra)
         err = np.max(np.abs(r), axis=-1)
         res[active] = err
         ok = err < tol
         converged[active[ok]] = True
-        bad = ~np.isfinite(err)
-        keep = ~ok & ~bad
-        active, r, J = active[keep], r[keep], J[keep]
+        keep = ~ok & np.isfinite(err)
+        if not keep.all():
+            everyone = False
+            active, r, J, Pa, Ra = active[keep], r[keep], J[keep], Pa[keep], Ra[keep]
         if active.size == 0:
             break
         if J.shape[-2] == J.shape[-1]:
-            try:
-                dx = -np.linalg.solve(J, r[..., None])[..., 0]
-            except np.linalg.LinAlgError:  # a singular pose in the batch
-                dx = -(np.linalg.pinv(J) @ r[..., None])[..., 0]
-        else:
-            dx = -(np.linalg.pinv(J) @ r[..., None])[..., 0]
+            dx = -solve_batched(J, r)
+        else:   # least squares by the normal equations (Newton corrects any rounding)
+            Jt = np.swapaxes(J, -1, -2)
+            dx = -solve_batched(Jt @ J, (Jt @ r[..., None])[..., 0])
         dp, dw = dx[:, :3], dx[:, 3:]
-        sp = np.linalg.norm(dp, axis=-1, keepdims=True)
-        sw = np.linalg.norm(dw, axis=-1, keepdims=True)
+        sp = np.sqrt(np.sum(dp * dp, axis=-1, keepdims=True))
+        sw = np.sqrt(np.sum(dw * dw, axis=-1, keepdims=True))
         dp = dp * np.minimum(1.0, max_step / np.maximum(sp, 1e-300))
         dw = dw * np.minimum(1.0, max_rot / np.maximum(sw, 1e-300))
-        P[active] = P[active] + dp
-        R[active] = matrix_from_rotvec(dw) @ R[active]
+        if everyone:
+            P += dp
+            R[...] = matrix_from_rotvec(dw) @ R
+        else:
+            P[active] = Pa + dp
+            R[active] = matrix_from_rotvec(dw) @ Ra
         if step_tol is not None:
             small = np.max(np.abs(dx), axis=-1) < step_tol
             converged[active[small]] = True
@@ -206,3 +242,85 @@ def newton_pose_solve(system, P, R, tol, max_iter, raise_on_failure=False,
     if raise_on_failure:
         result.raise_if_failed()
     return result
+
+
+def _shared_first_step(shared, q, P, R, tol, max_step=0.05, max_rot=0.2):
+    """First Newton step of :meth:`Machine.fk` when every pose starts from the same pose.
+
+    ``shared = (q0, J0)``: joints and Jacobian at the start pose. Updates ``P``, ``R`` in place
+    exactly as the first iteration of :func:`newton_pose_solve` would (poses already within
+    ``tol`` do not move).
+    """
+    q0, J0 = shared
+    r = q0 - q                                                     # (k, n)
+    dx = -np.linalg.solve(J0, r.T).T
+    dx[np.max(np.abs(r), axis=-1) < tol] = 0.0
+    dp, dw = dx[:, :3], dx[:, 3:]
+    sp = np.sqrt(np.sum(dp * dp, axis=-1, keepdims=True))
+    sw = np.sqrt(np.sum(dw * dw, axis=-1, keepdims=True))
+    P += dp * np.minimum(1.0, max_step / np.maximum(sp, 1e-300))
+    R[...] = matrix_from_rotvec(dw * np.minimum(1.0, max_rot / np.maximum(sw, 1e-300))) @ R
+
+
+def solve_batched(J, r, min_pivot: float = 1e-6) -> np.ndarray:
+    """Solve ``J[k] x[k] = r[k]`` for a batch of small square systems ``J`` (k, m, m).
+
+    Large batches: Gaussian elimination vectorised over the batch (each step is one operation
+    on contiguous arrays of all systems), with one pivot order for the whole batch (complete
+    pivoting on the mean of a sample of it). A system whose pivots are not all within
+    ``min_pivot`` of its largest one, or with a non-finite solution, is solved again by LAPACK.
+    Small batches go to LAPACK (``numpy.linalg.solve``) directly. A singular system gets the
+    minimum-norm least-squares solution.
+    """
+    J = np.asarray(J, float)
+    r = np.asarray(r, float)
+    k, m = r.shape
+    if k < 256 or m < 2:
+        return _lapack_solve(J, r)
+    rows, cols = _pivot_order(np.mean(J[::max(1, k // 64)], axis=0))
+    A = J.transpose(1, 2, 0)[rows[:, None], cols]                   # (m, m, k), permuted copy
+    b = r.T[rows]                                                   # (m, k)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for i in range(m - 1):
+            f = A[i + 1:, i] / A[i, i]
+            A[i + 1:, i + 1:] -= f[:, None] * A[i, i + 1:]
+            b[i + 1:] -= f * b[i]
+        x = np.empty((m, k))
+        for i in range(m - 1, -1, -1):
+            acc = b[i].copy()
+            for j in range(i + 1, m):
+                acc -= A[i, j] * x[j]
+            x[i] = acc / A[i, i]
+        pivots = np.abs(A[np.arange(m), np.arange(m)])              # (m, k)
+        bad = ~(np.min(pivots, axis=0) >= min_pivot * np.max(pivots, axis=0))
+        bad |= ~np.all(np.isfinite(x), axis=0)
+    out = np.empty((k, m))
+    out[:, cols] = x.T
+    if bad.any():
+        out[bad] = _lapack_solve(J[bad], r[bad])
+    return out
+
+
+def _lapack_solve(J, r):
+    try:
+        return np.linalg.solve(J, r[..., None])[..., 0]
+    except np.linalg.LinAlgError:  # a singular system in the batch
+        return (np.linalg.pinv(J) @ r[..., None])[..., 0]
+
+
+def _pivot_order(A):
+    """Row and column order of Gaussian elimination with complete pivoting on ``A`` (m, m)."""
+    A = np.array(A, float)
+    m = len(A)
+    rows, cols = np.arange(m), np.arange(m)
+    for i in range(m):
+        sub = np.abs(A[i:, i:])
+        if not np.all(np.isfinite(sub)):
+            break
+        a, c = np.unravel_index(np.argmax(sub), sub.shape)
+        a, c = a + i, c + i
+        A[[i, a]], rows[[i, a]] = A[[a, i]], rows[[a, i]]
+        A[:, [i, c]], cols[[i, c]] = A[:, [c, i]], cols[[c, i]]
+        if A[i, i] != 0:
+            A[i + 1:] -= np.outer(A[i + 1:, i] / A[i, i], A[i])
+    return rows, cols

@@ -57,15 +57,39 @@ class ConstraintLinkData:
                                   pick(self.true_R))
 
 
+def loop_conditioning(machine: Machine, P, J):
+    """Inverse condition number (K, n_joints) of the constrained loop for each passive choice.
+
+    ``J`` (K, n, 6) is the joint Jacobian at poses with positions ``P`` (K, 3); for passive
+    actuator p its row is replaced by the link's row ``[P/|P|, 0]``.
+    """
+    n = J.shape[-2]
+    Js = np.array(J, float)
+    Js[..., 3:] /= machine.characteristic_length()          # rotations as lengths
+    link = np.concatenate([P / np.linalg.norm(P, axis=-1, keepdims=True),
+                           np.zeros_like(P)], -1)
+    loops = np.repeat(Js[:, None], n, axis=1)               # (K, p, n, 6)
+    idx = np.arange(n)
+    loops[:, idx, idx, :] = link[:, None, :]
+    sv = np.linalg.svd(loops, compute_uv=False)
+    return sv[..., -1] / sv[..., 0]
+
+
 def sample_sphere_poses(machine: Machine, link_length: float, n: int, rng=None,
                         max_tilt: float = np.deg2rad(35.0),
-                        max_rotation: float = np.deg2rad(25.0), min_manipulability=0.02):
+                        max_rotation: float = np.deg2rad(25.0), min_manipulability=0.02,
+                        min_loop_conditioning=2e-3):
     """``n`` reachable poses with ``|P| = link_length``: P in a cap of half-angle ``max_tilt``
     around the machine's home direction, Euler angles uniform in ``+/- max_rotation``.
 
-    Poses whose inverse kinematics fail or whose joint Jacobian is badly conditioned (smallest
-    singular value below ``min_manipulability`` times the largest, rotation columns scaled by
-    the characteristic length) are redrawn.
+    Poses are redrawn where the inverse kinematics fail, where the joint Jacobian is badly
+    conditioned (smallest singular value below ``min_manipulability`` times the largest,
+    rotation columns scaled by the characteristic length), or where the machine cannot be
+    driven with the link mounted: for some choice of passive actuator, the loop of the five
+    active actuators and the link has an inverse condition number below
+    ``min_loop_conditioning`` (about a tenth of its value at home on the default machine).
+    Near such poses the five actuators do not hold the platform, and the pose moves far for a
+    small geometry error.
     Returns ``P`` (n, 3), ``R`` (n, 3, 3).
     """
     rng = np.random.default_rng(rng)
@@ -88,10 +112,12 @@ def sample_sphere_poses(machine: Machine, link_length: float, n: int, rng=None,
         R = matrix_from_euler(rng.uniform(-max_rotation, max_rotation, (m, 3)))
         q, J, _ = machine.ik_jacobians(P, R, want_du=False)
         ok = np.all(np.isfinite(q), -1)
-        sv = np.full((m, 6), np.nan)
-        J[..., 3:] /= machine.characteristic_length()        # rotations as lengths
-        sv[ok] = np.linalg.svd(J[ok], compute_uv=False)
-        ok &= sv[:, -1] > min_manipulability * sv[:, 0]
+        Js = J[ok].copy()
+        Js[..., 3:] /= machine.characteristic_length()        # rotations as lengths
+        sv = np.linalg.svd(Js, compute_uv=False)
+        good = sv[:, -1] > min_manipulability * sv[:, 0]
+        good &= loop_conditioning(machine, P[ok], J[ok]).min(-1) > min_loop_conditioning
+        ok[ok] = good
         P_out.append(P[ok])
         R_out.append(R[ok])
         have += int(ok.sum())
