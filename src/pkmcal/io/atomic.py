@@ -1,4 +1,5 @@
-"""Atomic file output: a reader never sees a half-written file, a failure leaves no file.
+"""File access: atomic output (a reader never sees a half-written file, a failure leaves no
+file) and input text with clear errors.
 
 Every file the toolkit writes goes through :func:`atomic_write_text`: the text is written to a
 temporary file in the destination directory, flushed to disk, then moved over the destination
@@ -10,6 +11,8 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
+
+from ..errors import InputError
 
 
 def _default_mode() -> int:
@@ -51,3 +54,17 @@ def atomic_write_text(path, text: str, encoding: str = "utf-8") -> Path:
             pass
         raise
     return path
+
+
+def read_input_text(path, kind: str) -> str:
+    """Text of an input file (UTF-8, BOM allowed); :class:`InputError` naming the file when it
+    is missing, a directory or not text. ``kind`` says what was expected ("machine file")."""
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise InputError(f"{path}: {kind} not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a directory, expected a {kind}") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a text file (UTF-8): {exc.reason}") from None

@@ -26,7 +26,7 @@ from ..errors import InputError
 from ..kinematics import euler_from_matrix, matrix_from_euler, matrix_from_quaternion
 from ..measurements import ConstraintLinkData
 from ..units import COLUMN_SUFFIXES, QUANTITIES
-from .atomic import atomic_write_text
+from .atomic import atomic_write_text, read_input_text
 
 Row = tuple[int, list[str]]
 
@@ -44,14 +44,7 @@ def read_table(path) -> tuple[list[str], list[Row]]:
     wrong number of fields, or no data rows.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(f"{path}: data file not found") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a directory, expected a CSV file") from None
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not a text file (UTF-8): {exc.reason}") from None
+    text = read_input_text(path, "data file")
     reader = csv.reader(io.StringIO(text, newline=""))
     header: list[str] | None = None
     header_line = 0

@@ -45,7 +45,7 @@ from ..kinematics import euler_from_matrix, matrix_from_euler
 from ..machines import HexaSlide, hexaslide_parameters
 from ..machines.base import Machine
 from ..units import ANGLE, LENGTH
-from .atomic import atomic_write_text
+from .atomic import atomic_write_text, read_input_text
 
 FORMAT_VERSION = 1
 LENGTH_UNITS = ("mm", "m")
@@ -424,14 +424,7 @@ def load_machine(path) -> Machine:
     None). Raises :class:`~pkmcal.errors.InputError` naming the file, key path and line.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(f"{path}: machine file not found") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a directory, expected a machine file") from None
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not a text file (UTF-8): {exc.reason}") from None
+    text = read_input_text(path, "machine file")
     return parse_machine(text, str(path))
 
 
