@@ -95,3 +95,15 @@ def test_paper_per_chain_sweeps_report_their_divergence(case):
     assert not res.success
     assert "diverge" in res.message or "failed" in res.message
     assert "ml" in res.message or "failed" in res.message
+
+
+def test_everything_fixed_is_a_valid_evaluation(case):
+    """Regression: with every parameter fixed (rank 0) the damping used the largest singular
+    value of an empty set and raised IndexError."""
+    nominal, true, _ = case
+    data = simulate_constraint_link(true, 60, rng=2)
+    frozen = nominal.with_parameters(nominal.u)
+    frozen.parameters = nominal.parameters.with_fixed(list(nominal.parameters.names))
+    res = calibrate_constraint_link(frozen, data)
+    assert res.rank == 0
+    np.testing.assert_array_equal(res.x[:-1], nominal.u)

@@ -325,8 +325,10 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
 
     Returns
     -------
-    CalibrationResult with ``extras``: ``method``, ``machine`` (calibrated machine),
-    ``unidentifiable`` (named null directions), ``link_length``.
+    CalibrationResult with ``extras``: ``method``, ``machine`` (calibrated machine, home kept
+    from ``machine`` when reachable), ``unidentifiable`` (named null directions),
+    ``link_length``, ``dropped_rows`` (file rows the paper's methods could not solve for a
+    pose with the start geometry and left out).
     """
     if method not in PROBLEMS:
         raise InputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")

@@ -137,7 +137,8 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
         with ``s_i < rtol * s_1`` are unidentifiable and never stepped along.
     xtol : stop when the largest component of the (undamped) Gauss-Newton step, in scaled
         coordinates, is below ``xtol``, or when that step would lower the cost by less than
-        ``1e-12`` of it (the optimum of noisy data).
+        ``1e-12`` of it (the optimum of noisy data), or when the cost is below the problem's
+        ``cost_floor`` (the precision of residuals computed by an inner solve).
     ftol : stop when the relative cost decrease of an accepted step is below ``ftol``.
     absolute_sigma : residuals are whitened by true standard deviations: report the
         covariance without rescaling by the residual variance.
@@ -166,6 +167,7 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
         rank = int(np.sum(s > rtol * s[0])) if s.size else 0
         Ur, sr, Vr = U[:, :rank], s[:rank], Vt[:rank].T
         g = Ur.T @ er
+        s1 = float(sr[0]) if rank else 1.0
         # stationary point: the Gauss-Newton step is negligible, or could lower the cost by
         # no more than rounding (noisy data: the cost stays near dof/2 at the optimum)
         predicted = 0.5 * float(g @ g)
@@ -186,7 +188,7 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
             if new_cost <= cost:
                 accepted = True
                 break
-            lam = max(lam * 10.0, 1e-6 * sr[0] ** 2 if rank else 1.0)
+            lam = max(lam * 10.0, 1e-6 * s1**2)
         if not accepted:
             if predicted <= 1e-8 * cost:   # only rounding left to gain: converged
                 status, message = 2, "cost cannot decrease beyond rounding (converged)"
@@ -196,7 +198,7 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
         decrease = (cost - new_cost) / max(cost, 1e-300)
         lam_used = lam
         state, r, Jg, Jl, cost = new_state, new_r, new_Jg, new_Jl, new_cost
-        lam = lam / 10.0 if lam > 1e-12 * sr[0] ** 2 else 0.0
+        lam = lam / 10.0 if lam > 1e-12 * s1**2 else 0.0
         if decrease < ftol and cost > 0 and lam_used == 0.0:
             status, message = 2, "relative cost decrease below ftol"
             break
