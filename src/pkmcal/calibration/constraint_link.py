@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..identifiability import CONSTRAINT_LINK_GAUGES, gauge_generators, name_null_space
+from ..identifiability import CONSTRAINT_LINK_GAUGES, gauge_groups, name_null_space
 from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine, newton_pose_solve
 from ..measurements.constraint_link import ConstraintLinkData
@@ -355,13 +355,12 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
     if not np.all(np.isfinite(calibrated.ik(*machine.home))) and result.state is not None:
         i = int(np.argmin(np.linalg.norm(result.state.P - machine.home[0], axis=-1)))
         calibrated.home = (result.state.P[i], result.state.R[i])
-    gen = gauge_generators(machine, um, CONSTRAINT_LINK_GAUGES)
-    gen = np.vstack([gen, np.zeros((1, gen.shape[1]))]) / result.scales[:, None]
+    groups = gauge_groups(machine, um, CONSTRAINT_LINK_GAUGES, result.scales,
+                          len(problem.parameters))
     result.extras.update(
         dropped_rows=getattr(problem, "dropped_rows", np.array([], int)),
         method=method, machine=calibrated, link_length=float(Lc),
-        unidentifiable=name_null_space(result.null_space, problem.parameters,
-                                       CONSTRAINT_LINK_GAUGES, gen),
+        unidentifiable=name_null_space(result.null_space, problem.parameters, groups),
     )
     return result
 

@@ -3,6 +3,7 @@
 from .analysis import (
     IdentifiabilityReport,
     NullDirection,
+    NullGroup,
     analyze,
     name_null_space,
     observability_indices,
@@ -15,11 +16,13 @@ from .gauge import (
     align_gauge,
     apply_gauges,
     gauge_generators,
+    gauge_groups,
     transport_covariance,
 )
 
 __all__ = [
     "BASE_ROTATION_ABOUT_O", "CONSTRAINT_LINK_GAUGES", "Gauge", "IdentifiabilityReport",
-    "NullDirection", "PLATFORM_ROTATION_ABOUT_P", "align_gauge", "analyze", "apply_gauges",
-    "gauge_generators", "name_null_space", "observability_indices", "transport_covariance",
+    "NullDirection", "NullGroup", "PLATFORM_ROTATION_ABOUT_P", "align_gauge", "analyze",
+    "apply_gauges", "gauge_generators", "gauge_groups", "name_null_space",
+    "observability_indices", "transport_covariance",
 ]

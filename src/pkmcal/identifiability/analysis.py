@@ -8,7 +8,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..parameters import ParameterSet
-from .gauge import Gauge
 
 
 @dataclass
@@ -71,28 +70,41 @@ def observability_indices(singular_values, n_rows: int = 1) -> dict:
     }
 
 
-def name_null_space(null_space, parameters: ParameterSet, gauges: Sequence[Gauge] = (),
-                    generators=None, tol: float = 1e-6) -> list[NullDirection]:
-    """Explain unidentifiable directions by gauges first, then in named parameters.
+@dataclass(frozen=True)
+class NullGroup:
+    """A known group of unidentifiable directions, in words, with its tangent vectors.
 
-    ``null_space``: (n, k) orthonormal directions in scaled coordinates. ``generators``:
-    (n, 3 * len(gauges)) gauge tangents in the same scaled coordinates.
+    ``tangents`` (n, k) are directions of the full parameter vector in *scaled* coordinates
+    (the estimator's). A gauge of frame rotations gives 3 of them; "only ``db - da`` enters"
+    gives one per coordinate.
+    """
+
+    name: str
+    description: str
+    tangents: np.ndarray
+
+
+def name_null_space(null_space, parameters: ParameterSet,
+                    groups: Sequence[NullGroup] = ()) -> list[NullDirection]:
+    """Explain unidentifiable directions by known groups first, then in named parameters.
+
+    ``null_space``: (n, k) orthonormal directions in scaled coordinates. A group is reported
+    with the number of its directions that lie in the null space; directions no group explains
+    are described by their largest parameter components (``"leg2.dl1 - 0.8 leg2.dtheta"``).
     """
     N = np.asarray(null_space, float)
     out: list[NullDirection] = []
     if N.shape[1] == 0:
         return out
     remaining = N
-    if gauges and generators is not None:
-        for i, gauge in enumerate(gauges):
-            Gi = generators[:, 3 * i:3 * i + 3]
-            Qg, _ = np.linalg.qr(Gi)
-            # how many directions of this gauge lie in the null space
-            s = np.linalg.svd(N.T @ Qg, compute_uv=False)
-            dim = int(np.sum(s > 1 - tol * 1e3))
+    if groups:
+        for group in groups:
+            Q, _ = np.linalg.qr(np.asarray(group.tangents, float))
+            s = np.linalg.svd(N.T @ Q, compute_uv=False)   # cosines of principal angles
+            dim = int(np.sum(s > 1 - 1e-3))
             if dim:
-                out.append(NullDirection(gauge.name, dim, gauge.description))
-        Qall, _ = np.linalg.qr(generators)
+                out.append(NullDirection(group.name, dim, group.description))
+        Qall, _ = np.linalg.qr(np.column_stack([g.tangents for g in groups]))
         P = remaining - Qall @ (Qall.T @ remaining)
         U, s, _ = np.linalg.svd(P, full_matrices=False)
         remaining = U[:, s > 1e-3]
@@ -104,7 +116,7 @@ def name_null_space(null_space, parameters: ParameterSet, gauges: Sequence[Gauge
 
 
 def analyze(jacobian_scaled, parameters: ParameterSet, rtol: float = 1e-7,
-            gauges: Sequence[Gauge] = (), generators=None) -> IdentifiabilityReport:
+            groups: Sequence[NullGroup] = ()) -> IdentifiabilityReport:
     """Identifiability of the free parameters from a scaled (reduced) Jacobian (M, n_free)."""
     J = np.asarray(jacobian_scaled, float)
     m = max(J.shape[0], 1)
@@ -113,12 +125,9 @@ def analyze(jacobian_scaled, parameters: ParameterSet, rtol: float = 1e-7,
     free_idx = np.flatnonzero(parameters.free)
     N = np.zeros((len(parameters), J.shape[1] - rank))
     N[free_idx] = Vt[rank:].T
-    gen = None
-    if generators is not None:
-        gen = generators
     report = IdentifiabilityReport(
         parameters=int(J.shape[1]), identifiable=rank, singular_values=s,
-        unidentifiable=name_null_space(N, parameters, gauges, gen),
+        unidentifiable=name_null_space(N, parameters, groups),
         observability=observability_indices(s[:rank], m),
         condition_number=float(s[0] / s[rank - 1]) if rank else float("inf"),
     )

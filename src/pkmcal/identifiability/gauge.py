@@ -66,6 +66,19 @@ def gauge_generators(machine, u_machine, gauges: Sequence[Gauge], eps: float = 1
     return np.column_stack(cols) if cols else np.zeros((len(u_machine), 0))
 
 
+def gauge_groups(machine, u_machine, gauges: Sequence[Gauge], scales, n_total=None):
+    """The gauges as :class:`~pkmcal.identifiability.analysis.NullGroup` in scaled coordinates
+    of a parameter vector of length ``n_total`` whose first entries are the machine's."""
+    from .analysis import NullGroup
+
+    gen = gauge_generators(machine, u_machine, gauges)
+    n_total = len(u_machine) if n_total is None else n_total
+    gen = np.vstack([gen, np.zeros((n_total - gen.shape[0], gen.shape[1]))])
+    gen = gen / np.asarray(scales, float)[:, None]
+    return [NullGroup(g.name, g.description, gen[:, 3 * i:3 * i + 3])
+            for i, g in enumerate(gauges)]
+
+
 def align_gauge(machine, u_est, u_ref, gauges: Sequence[Gauge], scales, max_iter: int = 20):
     """The member of ``u_est``'s gauge orbit closest to ``u_ref`` (scaled least squares).
 
