@@ -10,8 +10,17 @@ from .constraint_link import (
     solve_sphere_poses,
 )
 from .estimator import BlockProblem, CalibrationResult, levenberg_marquardt, reduce_local
+from .registration import register_points
+from .tracker import (
+    TrackerProblem,
+    calibrate_tracker,
+    distance_ratios,
+    predict_tracker_points,
+    prediction_covariance,
+)
 
 __all__ = ["METHODS", "BlockProblem", "CalibrationResult", "ConstraintLinkFK",
            "ConstraintLinkIK", "ConstraintLinkIKExplicit", "ConstraintLinkML",
            "calibrate_constraint_link", "levenberg_marquardt", "reduce_local",
-           "solve_sphere_poses"]
+           "solve_sphere_poses", "TrackerProblem", "calibrate_tracker", "distance_ratios",
+           "predict_tracker_points", "prediction_covariance", "register_points"]

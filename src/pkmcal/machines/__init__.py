@@ -1,7 +1,9 @@
 """Machines: the shared :class:`Machine` interface and one module per machine type."""
 
 from .base import FKResult, Machine, newton_pose_solve
+from .delta import Delta, default_delta, delta_parameters
 from .hexaslide import HexaSlide, default_hexaslide, hexaslide_parameters, paper_table1_deviations
 
-__all__ = ["FKResult", "HexaSlide", "Machine", "default_hexaslide", "hexaslide_parameters",
-           "newton_pose_solve", "paper_table1_deviations"]
+__all__ = ["Delta", "FKResult", "HexaSlide", "Machine", "default_delta", "default_hexaslide",
+           "delta_parameters", "hexaslide_parameters", "newton_pose_solve",
+           "paper_table1_deviations"]

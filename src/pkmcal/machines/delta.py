@@ -1,0 +1,218 @@
+"""Delta robot with revolute actuators and parallelogram forearms (seed 001, SPEC 2.2).
+
+Leg i stands at angle ``phi_i`` about Z (default 90, 180, -90 deg; any angles work, e.g. the
+classic 120-degree Delta). Nominal dimensions: base radius ``a``, platform radius ``b``, upper
+arm ``l1``, forearm ``l2``. The platform translates only. Simplified error model (seed 001
+eq. 3): per leg ``da`` (3, base joint position), ``dtheta`` (actuator offset), ``dl1``,
+``dl2``, ``db`` (3, platform joint position), all in the leg frame: 27 parameters,
+``leg{i}.da.x`` ... ``leg{i}.db.z``. The nominal dimensions are constants, not parameters.
+
+Leg equation (eq. 4-5), in the leg frame ``Rphi_i = [[c, s, 0], [-s, c, 0], [0, 0, 1]]``::
+
+    | Rphi_i p + d_i | = l2 + dl2_i
+    d_x = -(l1 + dl1) cos(theta + dtheta) - (a + da_x) + (b + db_x)
+    d_y = -da_y + db_y
+    d_z = -(l1 + dl1) sin(theta + dtheta) - da_z + db_z
+
+so the platform point lies on a sphere of radius ``l2 + dl2_i`` about ``c_i = -Rphi_i^T d_i``.
+Forward kinematics (eq. 6-11) intersects the three spheres in closed form: subtracting pairs
+gives two planes (eq. 8), whose line is intersected with the first sphere (eq. 9-11, written
+with the line's direction so no 2x2 sub-determinant can vanish). Of the two roots the one on
+the platform side is taken: the lower one (Z up, the platform hangs below the base).
+Inverse kinematics: ``w_x cos(t) + w_z sin(t) = K`` per leg, elbow-out root.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from ..parameters import ParameterSet
+from .base import FKResult, Machine
+
+LEG_FIELDS = ("da.x", "da.y", "da.z", "dtheta", "dl1", "dl2", "db.x", "db.y", "db.z")
+LEG_KINDS = ("length",) * 3 + ("angle",) + ("length",) * 5
+DEFAULT_LEG_ANGLES = np.deg2rad([90.0, 180.0, -90.0])
+
+
+def delta_parameters(values=None, n_legs: int = 3) -> ParameterSet:
+    """Registry of the 9 error parameters per leg (zeros unless ``values`` (n_legs*9) given)."""
+    names = [f"leg{i + 1}.{f}" for i in range(n_legs) for f in LEG_FIELDS]
+    v = np.zeros(len(names)) if values is None else np.asarray(values, float)
+    return ParameterSet(names, LEG_KINDS * n_legs, v)
+
+
+class Delta(Machine):
+    """3-leg Delta robot with the simplified error model of seed 001; see the module doc."""
+
+    kind = "delta"
+    n_joints = 3
+    pose_dof = 3
+
+    def __init__(self, base_radius: float, platform_radius: float, upper_arm: float,
+                 forearm: float, leg_angles=DEFAULT_LEG_ANGLES, parameters=None,
+                 smr_offset: float = 0.0, home=None, name: str = ""):
+        leg_angles = np.asarray(leg_angles, float)
+        if leg_angles.shape != (3,):
+            raise InputError(f"a Delta has 3 legs: got {leg_angles.size} leg angles")
+        super().__init__(delta_parameters() if parameters is None else parameters, home, name)
+        self.a, self.b = float(base_radius), float(platform_radius)
+        self.l1, self.l2 = float(upper_arm), float(forearm)
+        self.leg_angles = leg_angles
+        self.smr_offset = float(smr_offset)
+        c, s = np.cos(leg_angles), np.sin(leg_angles)
+        z, o = np.zeros(3), np.ones(3)
+        #: leg frames: Rphi_i (3, 3, 3), a base vector v becomes Rphi_i @ v in leg i's frame
+        self.Rphi = np.stack([np.stack([c, s, z], -1), np.stack([-s, c, z], -1),
+                              np.stack([z, z, o], -1)], -2)
+        self._idx = np.stack([self.parameters.indices(f"leg{i + 1}") for i in range(3)])
+
+    # -- geometry -------------------------------------------------------------------------
+    def legs(self, u=None):
+        """Per-leg error arrays ``(da (3,3), dtheta (3,), dl1 (3,), dl2 (3,), db (3,3))``."""
+        u = self.u if u is None else np.asarray(u, float)
+        e = u[self._idx]                                           # (3 legs, 9) LEG_FIELDS
+        return e[:, 0:3], e[:, 3], e[:, 4], e[:, 5], e[:, 6:9]
+
+    def characteristic_length(self) -> float:
+        return self.l1
+
+    def default_home(self):
+        """Below the base, at the depth where the arms are horizontal (theta = 0)."""
+        reach = self.l2**2 - (self.a + self.l1 - self.b) ** 2
+        depth = np.sqrt(reach) if reach > 0 else self.l2
+        return np.array([0.0, 0.0, -depth]), np.eye(3)
+
+    def _offsets(self, theta, u):
+        """``d_i`` (..., 3 legs, 3) of eq. 5 and the leg lengths ``L2`` (3,)."""
+        da, dth, dl1, dl2, db = self.legs(u)
+        t = theta + dth
+        L1 = self.l1 + dl1
+        d = np.stack([-L1 * np.cos(t) - (self.a + da[:, 0]) + (self.b + db[:, 0]),
+                      np.broadcast_to(-da[:, 1] + db[:, 1], t.shape),
+                      -L1 * np.sin(t) - da[:, 2] + db[:, 2]], -1)
+        return d, self.l2 + dl2
+
+    # -- kinematics -----------------------------------------------------------------------
+    def ik_jacobians(self, P, R=None, u=None, want_du: bool = True):
+        """Actuator angles (..., 3) for platform positions ``P`` (..., 3); ``R`` is ignored
+        (translation-only platform). ``dq_dpose`` (..., 3, 6) has zero rotation columns."""
+        P = np.asarray(P, float)
+        da, dth, dl1, dl2, db = self.legs(u)
+        L1, L2 = self.l1 + dl1, self.l2 + dl2
+        Rp = np.einsum("lij,...j->...li", self.Rphi, P)          # (..., 3, 3) Rphi_i p
+        # w = Rphi p + d_i without the arm: |w - L1 (cos t, 0, sin t)| = L2
+        w = Rp + np.stack([-(self.a + da[:, 0]) + (self.b + db[:, 0]),
+                           -da[:, 1] + db[:, 1], -da[:, 2] + db[:, 2]], -1)
+        K = (np.einsum("...i,...i->...", w, w) + L1**2 - L2**2) / (2 * L1)
+        rho = np.hypot(w[..., 0], w[..., 2])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = np.arctan2(w[..., 2], w[..., 0]) + np.arccos(K / rho)   # elbow out
+        q = t - dth
+        # implicit derivatives of f_i = |v_i|^2 - L2^2 with v_i = w - L1 (cos t, 0, sin t)
+        ct, st = np.cos(t), np.sin(t)
+        v = w - L1[:, None] * np.stack([ct, np.zeros_like(ct), st], -1)
+        df_dt = 2 * L1 * (v[..., 0] * st - v[..., 2] * ct)         # (..., 3)
+        df_dp = 2 * np.einsum("...li,lij->...lj", v, self.Rphi)    # (..., 3, 3)
+        dq_dpose = np.concatenate([-df_dp / df_dt[..., None], np.zeros(df_dp.shape)], -1)
+        if not want_du:
+            return q, dq_dpose, None
+        dq_du = np.zeros(q.shape + (len(self.parameters),))
+        legs = np.arange(3)
+        # f depends on da, db through w (dw/dda = -I, dw/ddb = +I), on dl1 through L1,
+        # on dl2 through L2; q = t - dtheta with t fixed by f
+        df_dda = -2 * v
+        df_ddb = 2 * v
+        df_dl1 = -2 * (v[..., 0] * ct + v[..., 2] * st)
+        df_dl2 = np.broadcast_to(-2 * L2, df_dl1.shape)
+        cols = np.concatenate([
+            -df_dda / df_dt[..., None],
+            np.broadcast_to(-1.0, df_dt.shape)[..., None],        # dq/ddtheta
+            (-df_dl1 / df_dt)[..., None],
+            (-df_dl2 / df_dt)[..., None],
+            -df_ddb / df_dt[..., None],
+        ], -1)                                                    # (..., 3, 9) LEG_FIELDS
+        dq_du[..., legs[:, None], self._idx] = cols
+        return q, dq_dpose, dq_du
+
+    def ik(self, P, R=None, u=None) -> np.ndarray:
+        """Actuator angles (..., 3) at positions ``P`` (..., 3); NaN where unreachable."""
+        return self.ik_jacobians(P, R, u, want_du=False)[0]
+
+    def sphere_centres(self, q, u=None):
+        """Centres ``c_i = -Rphi_i^T d_i`` (..., 3, 3) and radii ``L2`` (3,) (eq. 6)."""
+        d, L2 = self._offsets(np.asarray(q, float), u)
+        return -np.einsum("lji,...lj->...li", self.Rphi, d), L2
+
+    def fk(self, q, u=None, start=None, tol: float = 1e-9, max_iter: int = 0,
+           raise_on_failure: bool = False) -> FKResult:
+        """Closed-form forward kinematics (seed 001 eq. 6-11), vectorized over rows of ``q``.
+
+        Returns positions (K, 3) with ``R = I``; ``converged`` is False where the spheres do
+        not meet (unreachable) or their centres are collinear (degenerate).
+        """
+        q = np.atleast_2d(np.asarray(q, float))
+        P, ok = self.fk_positions(q, u)
+        K = len(q)
+        result = FKResult(P, np.broadcast_to(np.eye(3), (K, 3, 3)).copy(), ok,
+                          np.where(ok, 0.0, np.inf), 0)
+        if raise_on_failure:
+            result.raise_if_failed()
+        return result
+
+    def fk_positions(self, q, u=None):
+        """Platform positions (..., 3) and a validity mask from the three-sphere intersection."""
+        c, L2 = self.sphere_centres(q, u)
+        c1, c2, c3 = c[..., 0, :], c[..., 1, :], c[..., 2, :]
+        # planes (eq. 8): 2 (c_j - c_1) . p = |c_j|^2 - |c_1|^2 - L2_j^2 + L2_1^2
+        n2, n3 = c2 - c1, c3 - c1
+        s1 = np.einsum("...i,...i->...", c1, c1) - L2[0] ** 2
+        b2 = 0.5 * (np.einsum("...i,...i->...", c2, c2) - L2[1] ** 2 - s1)
+        b3 = 0.5 * (np.einsum("...i,...i->...", c3, c3) - L2[2] ** 2 - s1)
+        line = np.cross(n2, n3)                                 # direction of the line
+        g = np.einsum("...i,...i->...", line, line)
+        # point on the line: p0 = (b2 (n3 x line) + b3 (line x n2)) / |line|^2
+        with np.errstate(invalid="ignore", divide="ignore"):
+            p0 = (b2[..., None] * np.cross(n3, line) + b3[..., None] * np.cross(line, n2)) \
+                / g[..., None]
+            # sphere 1 (eq. 10-11): |p0 + t line - c1|^2 = L2_1^2
+            e = p0 - c1
+            B = np.einsum("...i,...i->...", line, e)
+            C = np.einsum("...i,...i->...", e, e) - L2[0] ** 2
+            disc = B**2 - g * C
+            root = np.sqrt(disc)
+            t_a, t_b = (-B + root) / g, (-B - root) / g
+        pa = p0 + t_a[..., None] * line
+        pb = p0 + t_b[..., None] * line
+        P = np.where((pa[..., 2] <= pb[..., 2])[..., None], pa, pb)   # platform side: lower
+        scale = np.einsum("...i,...i->...", n2, n2) + np.einsum("...i,...i->...", n3, n3)
+        ok = (g > 1e-12 * scale**2) & (disc >= 0) & np.all(np.isfinite(P), -1)
+        return np.where(ok[..., None], P, np.nan), ok
+
+    def fk_numerical(self, q, u=None, start=None, tol: float = 1e-13, max_iter: int = 50):
+        """Newton on the three leg equations (3 unknowns), as a cross-check of :meth:`fk`."""
+        q = np.atleast_2d(np.asarray(q, float))
+        P = np.broadcast_to(self.home[0] if start is None else start, q.shape).copy()
+        for _ in range(max_iter):
+            qc, J, _ = self.ik_jacobians(P, want_du=False, u=u)
+            r = qc - q
+            if np.all(np.abs(r) < tol):
+                break
+            P = P - np.linalg.solve(J[..., :3], r[..., None])[..., 0]
+        return P
+
+    # -- frames ---------------------------------------------------------------------------
+    def transform_base(self, u, G):
+        raise NotImplementedError("the Delta error model has no base-frame parameters: a "
+                                  "rotated base frame is not representable")
+
+    def transform_platform(self, u, C):
+        raise NotImplementedError("the Delta platform does not rotate")
+
+
+def default_delta() -> Delta:
+    """The embedded default of SPEC 2.2 (ours): a = 200, b = 50, l1 = 300, l2 = 800 mm,
+    legs at 90/180/-90 deg, SMR 30 mm below the platform point, home (0, 0, -750) mm."""
+    return Delta(0.2, 0.05, 0.3, 0.8, DEFAULT_LEG_ANGLES, smr_offset=0.03,
+                 home=(np.array([0.0, 0.0, -0.75]), np.eye(3)),
+                 name="pkmcal default 90-degree Delta (SPEC 2.2)")

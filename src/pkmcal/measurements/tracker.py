@@ -1,0 +1,134 @@
+"""Laser-tracker measurements of a reflector (SMR) on the platform (seed 001 section 3).
+
+The tracker measures the SMR centre, ``h_M`` below the platform point, in its own frame:
+``m = R^T (p + (0, 0, -h_M) - t)`` with ``(R, t)`` = base_from_tracker (a base vector
+``x_base = R m + t``). One measurement = the actuator readings and the measured point.
+
+Noise model (documented, Leica-type): the maximum permissible error (MPE) is
+``+/-(15 um + 6 um/m * range)`` transverse to the beam and ``+/-10 um`` along it; the typical
+error is about half the MPE, so the standard deviations are half these values. The noise is
+anisotropic: each point has its own 3x3 covariance in the tracker frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..machines.base import Machine
+
+
+@dataclass(frozen=True)
+class TrackerNoise:
+    """Standard deviations of a laser tracker (half the MPE by default), SI units."""
+
+    distance: float = 5e-6            # along the beam
+    transverse: float = 7.5e-6        # across the beam, constant part
+    transverse_per_m: float = 3e-6    # across the beam, per metre of range
+
+    def covariance(self, m):
+        """Per-point covariance (K, 3, 3) in the tracker frame for tracker points ``m``."""
+        m = np.asarray(m, float)
+        rng = np.linalg.norm(m, axis=-1)
+        r = m / np.where(rng > 0, rng, 1.0)[..., None]
+        rr = r[..., :, None] * r[..., None, :]
+        st = self.transverse + self.transverse_per_m * rng
+        return self.distance**2 * rr + (st**2)[..., None, None] * (np.eye(3) - rr)
+
+    def whitening(self, m):
+        """``W`` (K, 3, 3) with ``W^T W = Cov^-1``: ``r/s_d`` along the beam, ``1/s_t`` across."""
+        m = np.asarray(m, float)
+        rng = np.linalg.norm(m, axis=-1)
+        r = m / np.where(rng > 0, rng, 1.0)[..., None]
+        rr = r[..., :, None] * r[..., None, :]
+        st = self.transverse + self.transverse_per_m * rng
+        return rr / self.distance + (np.eye(3) - rr) / st[..., None, None]
+
+    def sample(self, m, rng):
+        """Noise vectors (K, 3) for tracker points ``m``."""
+        m = np.asarray(m, float)
+        L = np.linalg.cholesky(self.covariance(m))
+        return np.einsum("kij,kj->ki", L, rng.standard_normal(m.shape))
+
+
+@dataclass
+class TrackerData:
+    """Actuator readings and tracker points.
+
+    q : (K, n_joints) joint readings (rad). m : (K, 3) SMR positions in the tracker frame (m).
+    rows : file row numbers for messages. true_P : simulated platform positions (base frame).
+    outliers : (K,) bool, rows a simulation corrupted on purpose (None for real data).
+    """
+
+    q: np.ndarray
+    m: np.ndarray
+    rows: np.ndarray | None = None
+    source: str = "<data>"
+    true_P: np.ndarray | None = None
+    outliers: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.q = np.atleast_2d(np.asarray(self.q, float))
+        self.m = np.atleast_2d(np.asarray(self.m, float))
+        if self.rows is None:
+            self.rows = np.arange(1, len(self.q) + 1)
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def subset(self, mask) -> TrackerData:
+        def pick(a):
+            return None if a is None else a[mask]
+
+        return TrackerData(self.q[mask], self.m[mask], self.rows[mask], self.source,
+                           pick(self.true_P), pick(self.outliers))
+
+
+def grid_points(center, spacing=(0.15, 0.15, 0.04), shape=(3, 3, 3)):
+    """Points of a regular grid (seed 001: 3x3x3, dx = dy = 150 mm, dz = 40 mm), (N, 3)."""
+    axes = [(np.arange(n) - (n - 1) / 2) * d for n, d in zip(shape, spacing, strict=True)]
+    X, Y, Z = np.meshgrid(*axes, indexing="ij")
+    return np.asarray(center, float) + np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+
+
+def neighbour_pairs(shape=(3, 3, 3)):
+    """Index pairs of grid points that are neighbours along one axis (for distance ratios)."""
+    idx = np.arange(int(np.prod(shape))).reshape(shape)
+    pairs = []
+    for axis in range(3):
+        a = np.moveaxis(idx, axis, 0)
+        pairs.append(np.stack([a[:-1].ravel(), a[1:].ravel()], -1))
+    return np.concatenate(pairs)
+
+
+def simulate_tracker(true_machine: Machine, nominal_machine: Machine, targets,
+                     base_from_tracker, noise: TrackerNoise | None = TrackerNoise(),
+                     outliers: int = 0, outlier_size: float = 1e-3, rng=None) -> TrackerData:
+    """The experiment of seed 001: command ``targets`` (N, 3) with the *nominal* model, the
+    *true* machine goes elsewhere, the tracker measures the SMR there (with noise).
+
+    ``base_from_tracker = (R, t)``; ``outliers`` rows get an extra error of ``outlier_size``
+    (m) in a random direction (beam breaks, a mis-seated SMR); they are flagged in
+    ``outliers``.
+    """
+    rng = np.random.default_rng(rng)
+    q = nominal_machine.ik(np.asarray(targets, float))
+    if not np.all(np.isfinite(q)):
+        bad = np.flatnonzero(~np.all(np.isfinite(q), -1)) + 1
+        raise InputError(f"targets {bad.tolist()} are outside the nominal workspace")
+    fk = true_machine.fk(q)
+    if not fk.converged.all():
+        raise InputError("the true machine cannot reach some commanded points")
+    R, t = base_from_tracker
+    smr = fk.P - np.array([0.0, 0.0, true_machine.smr_offset])
+    m = (smr - t) @ np.asarray(R)            # R^T (x - t) for each row
+    if noise is not None:
+        m = m + noise.sample(m, rng)
+    flagged = np.zeros(len(m), bool)
+    if outliers:
+        flagged[rng.choice(len(m), size=outliers, replace=False)] = True
+        d = rng.standard_normal((outliers, 3))
+        m[flagged] += outlier_size * d / np.linalg.norm(d, axis=-1, keepdims=True)
+    return TrackerData(q, m, source="<simulated>", true_P=fk.P, outliers=flagged)
