@@ -2,7 +2,7 @@
 
 Usage (from the repository root)::
 
-    .venv/bin/python benchmarks/run_benchmarks.py            # full: ~30 s
+    .venv/bin/python benchmarks/run_benchmarks.py            # full: ~35-50 s
     .venv/bin/python benchmarks/run_benchmarks.py --quick    # fewer repeats, 50 MC runs
     .venv/bin/python benchmarks/run_benchmarks.py -o other.json
 

@@ -10,6 +10,11 @@ name      what is measured                                                      
 (c)       ``pkmcal calibrate default DATA -o OUT.yaml`` as a whole process        <= 1 s
 (d)       Cramer-Rao efficiency: >= 200 noisy ML calibrations; RMS error in the   within 10 %
           identifiable directions against the CRB prediction
+(e)       analytical forward kinematics of 1 000 000 Delta readings (seed 001)   >= 1e6 /s
+(f)       Delta laser-tracker calibration, 27 grid points, in process            <= 50 ms
+(g)       Delta tracker Monte Carlo (200 runs, Leica-type noise): held-out         within 1.3 x
+          validation RMS of the joint fit against its Cramer-Rao prediction;
+          the paper's two-step method against the joint fit                     (figure)
 ========  ====================================================================  ==========
 
 :func:`run_all` returns one dict per figure (``name, value, unit, target, ok, detail``);
@@ -32,14 +37,22 @@ import numpy as np
 
 from .calibration import calibrate_constraint_link, levenberg_marquardt
 from .calibration.constraint_link import ConstraintLinkML, SphereState, sphere_tangents
+from .calibration.tracker import (
+    calibrate_tracker,
+    distance_ratios,
+    predict_tracker_points,
+    prediction_covariance,
+)
 from .identifiability import CONSTRAINT_LINK_GAUGES, align_gauge
 from .kinematics import matrix_from_euler, matrix_from_rotvec, rotation_angle
-from .machines import default_hexaslide, paper_table1_deviations
+from .machines import default_delta, default_hexaslide, paper_table1_deviations
+from .machines.delta import LEG_FIELDS
 from .measurements.constraint_link import (
     ConstraintLinkData,
     sample_sphere_poses,
     simulate_constraint_link,
 )
+from .measurements.tracker import TrackerNoise, grid_points, neighbour_pairs, simulate_tracker
 
 
 def _paper_case():
@@ -298,6 +311,115 @@ def cramer_rao_entry(runs: int = 200, **kwargs) -> dict:
         f"{out['seconds']:.1f} s")
 
 
+# -- (e)-(g) Delta robot and laser tracker (seed 001) ---------------------------------------------
+
+#: base_from_tracker of the Delta simulations: the tracker ~2.5 m away, turned ~115 deg about Z
+DELTA_TRACKER_POSE = (matrix_from_rotvec([0.1, -0.2, 2.0]), np.array([1.5, -2.0, 0.3]))
+
+
+def _delta_case(rng=1):
+    """Nominal default Delta and the true machine: da, dl1, dl2, db ~ N(0, 0.5 mm), dtheta ~
+    N(0, 2 mrad) (seeded; the case of ``tests/test_tracker.py``)."""
+    rng = np.random.default_rng(rng)
+    nominal = default_delta()
+    u = rng.normal(0.0, 0.5e-3, 27)
+    u[LEG_FIELDS.index("dtheta")::9] = rng.normal(0.0, 2e-3, 3)
+    return nominal, nominal.with_parameters(u), rng
+
+
+def delta_fk_throughput(n_readings: int = 1_000_000, repeats: int = 3, rng=4) -> dict:
+    """(e): :meth:`Delta.fk` (closed form, eq. 6-11) on ``n_readings`` readings of the true
+    machine (positions in a 0.3 x 0.3 x 0.1 m box around home); checks the round trip."""
+    _, true, _ = _delta_case()
+    rng = np.random.default_rng(rng)
+    P = true.home[0] + rng.uniform(-1, 1, (n_readings, 3)) * [0.15, 0.15, 0.05]
+    q = true.ik(P)
+    seconds, median, res = _best_time(lambda: true.fk(q), repeats)
+    err = float(np.max(np.linalg.norm(res.P - P, axis=-1)))
+    rate = n_readings / seconds
+    converged = bool(res.converged.all())
+    return _entry(
+        f"(e) Delta FK, {n_readings} readings", rate, "1/s", ">= 1e6 /s",
+        rate >= 1e6 and converged and err < 1e-12,
+        f"best of {repeats}: {seconds:.3f} s (median {median:.3f} s); all converged: "
+        f"{converged}; max |fk(ik(p)) - p| {err:.1e} m")
+
+
+def delta_tracker_time(repeats: int = 20, rng=5) -> dict:
+    """(f): :func:`calibrate_tracker` (joint with the registration) on the 27-point grid of
+    seed 001 with Leica-type noise, in process; best of ``repeats``."""
+    nominal, true, _ = _delta_case()
+    data = simulate_tracker(true, nominal, grid_points(nominal.home[0]), DELTA_TRACKER_POSE,
+                            rng=rng)
+    seconds, median, res = _best_time(lambda: calibrate_tracker(nominal, data), repeats)
+    return _entry(
+        "(f) Delta tracker calibration, 27 points", seconds * 1e3, "ms", "<= 50 ms",
+        seconds <= 0.05 and res.success,
+        f"best of {repeats} (median {median * 1e3:.1f} ms); {res.nit} iterations, "
+        f"{res.nfev} evaluations, rank {res.rank} of {int(res.parameters.free.sum())} "
+        f"({res.message})")
+
+
+def delta_tracker_monte_carlo(runs: int = 200, rng=6) -> dict:
+    """(g): ``runs`` simulated experiments (27-point grid, Leica-type noise), each calibrated
+    jointly and by the paper's two-step method; validation at 200 held-out readings (the
+    calibrated model with its identified registration against the true machine's exact tracker
+    points). The Cramer-Rao prediction is ``sqrt(mean trace J C J^T)`` with ``C`` the
+    estimator's covariance at the truth (``absolute_sigma``). Also the distance-ratio spread
+    (seed 001 Fig. 6) before and after the joint calibration."""
+    nominal, true, case_rng = _delta_case()
+    centre = nominal.home[0]
+    targets = grid_points(centre)
+    q_val = nominal.ik(centre + case_rng.uniform(-1, 1, (200, 3)) * [0.15, 0.15, 0.04])
+    m_val = predict_tracker_points(true, q_val, DELTA_TRACKER_POSE)
+    exact = simulate_tracker(true, nominal, targets, DELTA_TRACKER_POSE, noise=None)
+    C = prediction_covariance(calibrate_tracker(true, exact, absolute_sigma=True), q_val)
+    crb = float(np.sqrt(np.mean(np.trace(C, axis1=1, axis2=2))))
+    pairs = neighbour_pairs()
+    rng = np.random.default_rng(rng)
+    sq = {True: [], False: []}
+    spread, success = [], []
+    t0 = time.perf_counter()
+    for _ in range(runs):
+        data = simulate_tracker(true, nominal, targets, DELTA_TRACKER_POSE, TrackerNoise(),
+                                rng=rng)
+        for joint in (True, False):
+            res = calibrate_tracker(nominal, data, joint=joint)
+            m = predict_tracker_points(res.extras["machine"], q_val,
+                                       res.extras["registration"])
+            sq[joint].append(np.sum((m - m_val) ** 2, -1))
+            success.append(res.success)
+            if joint:
+                spread.append([np.std(distance_ratios(model, data.q, data.m, pairs))
+                               for model in (nominal, res.extras["machine"])])
+    seconds = time.perf_counter() - t0
+    joint_rms = float(np.sqrt(np.mean(sq[True])))
+    two_rms = float(np.sqrt(np.mean(sq[False])))
+    before, after = np.array(spread).mean(0)
+    return {"runs": runs, "crb_rms": crb, "joint_rms": joint_rms, "two_step_rms": two_rms,
+            "spread_before": float(before), "spread_after": float(after),
+            "success": np.array(success), "seconds": seconds}
+
+
+def delta_tracker_entries(runs: int = 200) -> list[dict]:
+    out = delta_tracker_monte_carlo(runs)
+    ratio = out["joint_rms"] / out["crb_rms"]
+    factor = out["two_step_rms"] / out["joint_rms"]
+    converged = f"{int(out['success'].sum())}/{out['success'].size} fits converged"
+    return [
+        _entry(f"(g) Delta tracker: joint RMS / CRB, {runs} runs", ratio, "x CRB",
+               "within 1.3 x", 1 / 1.3 <= ratio <= 1.3 and out["success"].all(),
+               f"held-out validation RMS {out['joint_rms'] * 1e6:.2f} um vs Cramer-Rao "
+               f"{out['crb_rms'] * 1e6:.2f} um; distance-ratio spread (std) "
+               f"{out['spread_before']:.3f} % before, {out['spread_after']:.3f} % after; "
+               f"{converged}; {out['seconds']:.1f} s"),
+        _entry("(g) Delta tracker: two-step RMS / joint RMS", factor, "x", "(figure)",
+               factor > 1,
+               f"seed 001's register-then-identify {out['two_step_rms'] * 1e6:.1f} um vs joint "
+               f"{out['joint_rms'] * 1e6:.2f} um (held-out validation RMS)"),
+    ]
+
+
 # -- all -------------------------------------------------------------------------------------------
 
 def run_all(quick: bool = False) -> list[dict]:
@@ -308,4 +430,7 @@ def run_all(quick: bool = False) -> list[dict]:
     results += ml_vs_scipy(repeats=2 if quick else 5)
     results.append(cli_calibrate(repeats=repeats))
     results.append(cramer_rao_entry(runs=50 if quick else 200))
+    results.append(delta_fk_throughput(repeats=repeats))
+    results.append(delta_tracker_time(repeats=5 if quick else 20))
+    results += delta_tracker_entries(runs=50 if quick else 200)
     return results

@@ -199,7 +199,8 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
         lam_used = lam
         state, r, Jg, Jl, cost = new_state, new_r, new_Jg, new_Jl, new_cost
         lam = lam / 10.0 if lam > 1e-12 * s1**2 else 0.0
-        if decrease < ftol and cost > 0 and lam_used == 0.0:
+        if (decrease < ftol and cost > 0 and lam_used == 0.0) or decrease <= 0.0:
+            # an accepted step that gains exactly nothing: rounding has the last word
             status, message = 2, "relative cost decrease below ftol"
             break
     # final statistics at the solution

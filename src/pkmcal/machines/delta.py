@@ -149,11 +149,16 @@ class Delta(Machine):
         """Closed-form forward kinematics (seed 001 eq. 6-11), vectorized over rows of ``q``.
 
         Returns positions (K, 3) with ``R = I``; ``converged`` is False where the spheres do
-        not meet (unreachable) or their centres are collinear (degenerate).
+        not meet (unreachable) or their centres are collinear (degenerate). ``start``, ``tol``
+        and ``max_iter`` are accepted for the :class:`Machine` interface and unused.
         """
         q = np.atleast_2d(np.asarray(q, float))
-        P, ok = self.fk_positions(q, u)
         K = len(q)
+        P, ok = np.empty((K, 3)), np.empty(K, bool)
+        # chunks keep the temporaries in cache (~20 % faster on 1e6 rows)
+        for lo in range(0, K, self.fk_chunk):
+            P[lo:lo + self.fk_chunk], ok[lo:lo + self.fk_chunk] = \
+                self.fk_positions(q[lo:lo + self.fk_chunk], u)
         result = FKResult(P, np.broadcast_to(np.eye(3), (K, 3, 3)).copy(), ok,
                           np.where(ok, 0.0, np.inf), 0)
         if raise_on_failure:
@@ -161,31 +166,53 @@ class Delta(Machine):
         return result
 
     def fk_positions(self, q, u=None):
-        """Platform positions (..., 3) and a validity mask from the three-sphere intersection."""
-        c, L2 = self.sphere_centres(q, u)
-        c1, c2, c3 = c[..., 0, :], c[..., 1, :], c[..., 2, :]
-        # planes (eq. 8): 2 (c_j - c_1) . p = |c_j|^2 - |c_1|^2 - L2_j^2 + L2_1^2
-        n2, n3 = c2 - c1, c3 - c1
-        s1 = np.einsum("...i,...i->...", c1, c1) - L2[0] ** 2
-        b2 = 0.5 * (np.einsum("...i,...i->...", c2, c2) - L2[1] ** 2 - s1)
-        b3 = 0.5 * (np.einsum("...i,...i->...", c3, c3) - L2[2] ** 2 - s1)
-        line = np.cross(n2, n3)                                 # direction of the line
-        g = np.einsum("...i,...i->...", line, line)
-        # point on the line: p0 = (b2 (n3 x line) + b3 (line x n2)) / |line|^2
+        """Platform positions (..., 3) and a validity mask from the three-sphere intersection.
+
+        The sphere centres ``c_i = -Rphi_i^T d_i`` (eq. 6) are formed per component with the
+        legs as the leading axis (contiguous, no small-axis ``einsum``). Subtracting sphere 1
+        from spheres 2 and 3 gives the planes ``(c_j - c_1) . p = b_j`` (eq. 8); their line
+        ``p0 + s l`` with ``l = n2 x n3`` is intersected with sphere 1 (eq. 9-11). The paper
+        solves eq. 8 for ``px, py`` through the 2x2 determinant ``q2``, which is ``l_z`` up to a
+        factor: it vanishes exactly when both roots are at the same height. Of the two roots
+        the lower one is returned (platform side).
+        """
+        q = np.asarray(q, float)
+        da, dth, dl1, dl2, db = self.legs(u)
+        L2 = self.l2 + dl2
+        # legs first, each leg's values contiguous: (3, ...)
+        t = np.ascontiguousarray(np.moveaxis(q + dth, -1, 0))
+        col = (3,) + (1,) * (t.ndim - 1)
+        L1 = (self.l1 + dl1).reshape(col)
+        cphi, sphi = self.Rphi[:, 0, 0].reshape(col), self.Rphi[:, 0, 1].reshape(col)
+        dx = ((self.b + db[:, 0]) - (self.a + da[:, 0])).reshape(col) - L1 * np.cos(t)
+        dy = (db[:, 1] - da[:, 1]).reshape(col)
+        dz = (db[:, 2] - da[:, 2]).reshape(col) - L1 * np.sin(t)
+        cx = sphi * dy - cphi * dx                              # c = -Rphi^T d
+        cy = -sphi * dx - cphi * dy
+        cz = -dz
+        x1, y1, z1 = cx[0], cy[0], cz[0]
+        ax, ay, az = cx[1] - x1, cy[1] - y1, cz[1] - z1          # n2 = c2 - c1
+        bx, by, bz = cx[2] - x1, cy[2] - y1, cz[2] - z1          # n3 = c3 - c1
+        r1 = L2[0] ** 2
+        # planes (eq. 8): n_j . p = b_j = (|c_j|^2 - L2_j^2 - |c_1|^2 + L2_1^2) / 2
+        s1 = x1 * x1 + y1 * y1 + z1 * z1 - r1
+        b2 = 0.5 * (cx[1] ** 2 + cy[1] ** 2 + cz[1] ** 2 - L2[1] ** 2 - s1)
+        b3 = 0.5 * (cx[2] ** 2 + cy[2] ** 2 + cz[2] ** 2 - L2[2] ** 2 - s1)
+        lx, ly, lz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx   # l = n2 x n3
+        g = lx * lx + ly * ly + lz * lz
         with np.errstate(invalid="ignore", divide="ignore"):
-            p0 = (b2[..., None] * np.cross(n3, line) + b3[..., None] * np.cross(line, n2)) \
-                / g[..., None]
-            # sphere 1 (eq. 10-11): |p0 + t line - c1|^2 = L2_1^2
-            e = p0 - c1
-            B = np.einsum("...i,...i->...", line, e)
-            C = np.einsum("...i,...i->...", e, e) - L2[0] ** 2
-            disc = B**2 - g * C
-            root = np.sqrt(disc)
-            t_a, t_b = (-B + root) / g, (-B - root) / g
-        pa = p0 + t_a[..., None] * line
-        pb = p0 + t_b[..., None] * line
-        P = np.where((pa[..., 2] <= pb[..., 2])[..., None], pa, pb)   # platform side: lower
-        scale = np.einsum("...i,...i->...", n2, n2) + np.einsum("...i,...i->...", n3, n3)
+            # e = p0 - c1 with p0 = (b2 (n3 x l) + b3 (l x n2)) / |l|^2 on both planes
+            ex = (b2 * (by * lz - bz * ly) + b3 * (ly * az - lz * ay)) / g - x1
+            ey = (b2 * (bz * lx - bx * lz) + b3 * (lz * ax - lx * az)) / g - y1
+            ez = (b2 * (bx * ly - by * lx) + b3 * (lx * ay - ly * ax)) / g - z1
+            # sphere 1 (eq. 10-11): |e + s l|^2 = L2_1^2, i.e. g s^2 + 2 B s + C = 0
+            B = lx * ex + ly * ey + lz * ez
+            C = ex * ex + ey * ey + ez * ez - r1
+            disc = B * B - g * C
+            # the root with the smaller z = z1 + ez + s lz: the sign of sqrt opposite to lz
+            s = (-B - np.copysign(np.sqrt(disc), lz)) / g
+            P = np.stack([x1 + ex + s * lx, y1 + ey + s * ly, z1 + ez + s * lz], -1)
+        scale = ax * ax + ay * ay + az * az + bx * bx + by * by + bz * bz
         ok = (g > 1e-12 * scale**2) & (disc >= 0) & np.all(np.isfinite(P), -1)
         return np.where(ok[..., None], P, np.nan), ok
 
