@@ -291,3 +291,209 @@ def test_poses_need_an_orientation(tmp_path):
     path.write_text("x_mm,y_mm,z_mm,qx,qy,qz,qw\n0,0,300,0,0,0,0\n")
     with pytest.raises(InputError, match="row 2.*quaternion is zero"):
         read_poses(path)
+
+
+# -- Delta machine files and laser-tracker data (SPEC 2.2, 6) --------------------------------
+
+DELTA_EXAMPLE = EXAMPLE.parent / "delta_default.yaml"
+
+
+def perturbed_delta():
+    from pkmcal.kinematics import matrix_from_rotvec
+    from pkmcal.machines import default_delta
+
+    m = default_delta()
+    rng = np.random.default_rng(11)
+    m = m.with_parameters(m.u + 1e-3 * rng.standard_normal(len(m.u)))
+    m.home = (np.array([0.012, -0.034, -0.7612345678901234]), np.eye(3))
+    m.base_from_tracker = (matrix_from_rotvec([0.1, -0.2, 2.3]), np.array([2.1, -1.3, -1.41]))
+    return m
+
+
+def assert_same_delta(a, b, rtol=1e-15):
+    assert a.kind == b.kind == "delta"
+    assert a.parameters.names == b.parameters.names
+    np.testing.assert_allclose(a.u, b.u, rtol=rtol, atol=1e-18)
+    for attr in ("a", "b", "l1", "l2", "smr_offset"):
+        assert getattr(a, attr) == pytest.approx(getattr(b, attr), rel=rtol)
+    np.testing.assert_allclose(a.leg_angles, b.leg_angles, rtol=rtol)
+    np.testing.assert_allclose(a.home[0], b.home[0], rtol=rtol, atol=1e-17)
+    ta, tb = a.base_from_tracker, b.base_from_tracker
+    assert (ta is None) == (tb is None)
+    if ta is not None:
+        np.testing.assert_allclose(ta[0], tb[0], rtol=0, atol=1e-16)
+        np.testing.assert_allclose(ta[1], tb[1], rtol=rtol)
+
+
+def test_delta_example_file_is_the_default_delta():
+    from pkmcal.machines import default_delta
+
+    loaded = load_machine(DELTA_EXAMPLE)
+    default = default_delta()
+    default.base_from_tracker = None
+    assert_same_delta(loaded, default, rtol=0)
+    assert loaded.name == default.name and loaded.file_units == {"length": "mm", "angle": "deg"}
+    assert machine_to_text(default_delta(), loaded.file_units) == DELTA_EXAMPLE.read_text()
+    np.testing.assert_allclose(loaded.fk(loaded.ik(loaded.home[0])).P[0], [0, 0, -0.75],
+                               atol=1e-12)
+
+
+@pytest.mark.parametrize("units", [{"length": "mm", "angle": "deg"},
+                                   {"length": "m", "angle": "rad"}])
+def test_delta_save_load_round_trip_is_lossless(tmp_path, units):
+    m = perturbed_delta()
+    loaded = load_machine(save_machine(m, tmp_path / "d.yaml", units=units,
+                                       calibration={"method": "tracker-joint"}))
+    assert_same_delta(loaded, m)
+    assert loaded.calibration_info == {"method": "tracker-joint"}
+    text = (tmp_path / "d.yaml").read_text()
+    assert "tracker: {rotation: [[" in text and "home: [" in text and "# x, y, z\n" in text
+    again = load_machine(save_machine(loaded, tmp_path / "d2.yaml"))
+    assert_same_delta(again, m)
+    assert sorted(os.listdir(tmp_path)) == ["d.yaml", "d2.yaml"]
+
+
+def test_delta_optional_keys():
+    text = "\n".join(line for line in DELTA_EXAMPLE.read_text().splitlines()
+                     if not line.startswith(("legs:", "  - ", "smr_offset", "home", "name")))
+    m = parse_machine(text, "d.yaml")
+    assert m.smr_offset == 0.0 and m.base_from_tracker is None and not np.any(m.u)
+    assert np.all(np.isfinite(m.ik(m.home[0])))
+    # every key of a leg is optional; a six-number home with zero angles is accepted
+    m = parse_machine(DELTA_EXAMPLE.read_text().replace(
+        "{da: [0.0, 0.0, 0.0], dtheta: 0.0,", "{dtheta: 0.5,", 1).replace(
+        "home: [0.0, 0.0, -750.0]", "home: [0.0, 0.0, -740.0, 0, 0, 0]"), "d.yaml")
+    assert m.u[3] == pytest.approx(np.deg2rad(0.5)) and m.home[0][2] == pytest.approx(-0.74)
+    # a rotation with 6 digits is accepted and made orthonormal
+    m = parse_machine(DELTA_EXAMPLE.read_text() + "tracker: {rotation: [[0.866025, -0.5, 0], "
+                      "[0.5, 0.866025, 0], [0, 0, 1]], translation: [2000, 0, 0]}\n", "d.yaml")
+    R, t = m.base_from_tracker
+    np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-15)
+    np.testing.assert_allclose(t, [2.0, 0, 0])
+
+
+TRACKER_LINE = "tracker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [2000, 0, 0]}"
+LEG0 = "  - {da: [0.0, 0.0, 0.0], dtheta: 0.0, dl1: 0.0, dl2: 0.0, db: [0.0, 0.0, 0.0]}\n"
+BAD_DELTAS = [
+    ("two legs", lambda t: t.replace(LEG0, "", 1), ["legs", "exactly 3 legs, got 2", "line 11"]),
+    ("four legs", lambda t: t.replace(LEG0, LEG0 + LEG0, 1), ["exactly 3 legs, got 4"]),
+    ("text dtheta", lambda t: t.replace("dtheta: 0.0", "dtheta: abc", 2),
+     ["legs[0].dtheta", "not a number: 'abc'", "line 12", "legs[1].dtheta"]),
+    ("unknown leg key", lambda t: t.replace("dl2: 0.0,", "dl3: 0.0,", 1),
+     ["legs[0].dl3", "unknown key", "da, dtheta, dl1, dl2, db"]),
+    ("short da", lambda t: t.replace("da: [0.0, 0.0, 0.0]", "da: [0.0, 0.0]", 1),
+     ["legs[0].da", "expected 3 numbers, got 2"]),
+    ("missing forearm", lambda t: t.replace("forearm: 800.0\n", ""),
+     ["forearm", "missing key", "l2"]),
+    ("negative arm", lambda t: t.replace("upper_arm: 300.0", "upper_arm: -300.0"),
+     ["upper_arm", "> 0", "line 7"]),
+    ("nan radius", lambda t: t.replace("base_radius: 200.0", "base_radius: .nan"),
+     ["base_radius", "finite"]),
+    ("two leg angles", lambda t: t.replace("[90.0, 180.0, -90.0]", "[90.0, 180.0]"),
+     ["leg_angles", "expected 3 numbers, got 2"]),
+    ("quoted smr offset", lambda t: t.replace("smr_offset: 30.0", "smr_offset: '30'"),
+     ["smr_offset", "not a number"]),
+    ("home with rotation", lambda t: t.replace("-750.0]", "-750.0, 1.0, 0, 0]"),
+     ["home", "does not rotate", "line 15"]),
+    ("home of 4", lambda t: t.replace("-750.0]", "-750.0, 0]"),
+     ["home", "expected 3 numbers [x, y, z]", "got 4"]),
+    ("home unreachable", lambda t: t.replace("-750.0]", "-2750.0]"),
+     ["home", "cannot be reached by leg(s) 1, 2, 3"]),
+    ("not a rotation", lambda t: t + TRACKER_LINE.replace("[0, 1, 0]", "[0, 2, 0]") + "\n",
+     ["tracker.rotation", "not a rotation matrix", "line 16"]),
+    ("reflection", lambda t: t + TRACKER_LINE.replace("[0, 0, 1]]", "[0, 0, -1]]") + "\n",
+     ["tracker.rotation", "determinant +1"]),
+    ("two rows", lambda t: t + TRACKER_LINE.replace(", [0, 0, 1]]", "]") + "\n",
+     ["tracker.rotation", "3x3 matrix", "got 2 rows"]),
+    ("no translation", lambda t: t + TRACKER_LINE.replace(", translation: [2000, 0, 0]", "")
+     + "\n", ["tracker.translation", "missing key"]),
+    ("hexaslide key", lambda t: t.replace("legs:", "chains:"), ["chains", "unknown key"]),
+    ("unknown unit", lambda t: t.replace("angle: deg", "angle: grad"),
+     ["units.angle", "'grad'"]),
+]
+
+
+@pytest.mark.parametrize("edit, words", [b[1:] for b in BAD_DELTAS],
+                         ids=[b[0] for b in BAD_DELTAS])
+def test_bad_delta_file_names_key_and_problem(tmp_path, edit, words):
+    path = tmp_path / "bad.yaml"
+    text = edit(DELTA_EXAMPLE.read_text())
+    path.write_text(text)
+    with pytest.raises(InputError) as info:
+        load_machine(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: ")
+    for w in words:
+        assert w in message, message
+    assert path.read_text() == text
+
+
+@pytest.mark.parametrize("units", [("deg", "mm"), ("rad", "m"), ("urad", "um")])
+def test_tracker_data_round_trip(tmp_path, units):
+    from pkmcal.io import joint_quantity, read_tracker, write_tracker
+    from pkmcal.machines import default_delta
+
+    m = default_delta()
+    assert joint_quantity(m) == "angle" and joint_quantity(default_hexaslide()) == "length"
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-0.5, 0.5, (12, 3))
+    pts = rng.uniform(-3, 3, (12, 3))
+    write_tracker(tmp_path / "t.csv", q, pts, *units)
+    header = read_table(tmp_path / "t.csv")[0]
+    assert header == [f"q{i}_{units[0]}" for i in (1, 2, 3)] + \
+        [f"m{c}_{units[1]}" for c in "xyz"]
+    data = read_tracker(tmp_path / "t.csv", m)
+    np.testing.assert_allclose(data.q, q, rtol=1e-15)
+    np.testing.assert_allclose(data.m, pts, rtol=1e-15)
+    assert data.rows.tolist() == list(range(2, 14)) and data.source == str(tmp_path / "t.csv")
+
+
+def test_positions_for_a_platform_that_does_not_rotate(tmp_path):
+    from pkmcal.io import read_positions, write_positions
+
+    P = np.array([[0.1, -0.2, -0.75], [0.0, 0.05, -0.7]])
+    write_positions(tmp_path / "p.csv", P, "mm")
+    assert (tmp_path / "p.csv").read_text().startswith("x_mm,y_mm,z_mm\n")
+    P2, rows = read_positions(tmp_path / "p.csv")
+    np.testing.assert_allclose(P2, P, rtol=1e-15)
+    assert rows.tolist() == [2, 3]
+    write_poses(tmp_path / "z.csv", P, np.broadcast_to(np.eye(3), (2, 3, 3)))
+    np.testing.assert_allclose(read_positions(tmp_path / "z.csv")[0], P, rtol=1e-15)
+    write_poses(tmp_path / "r.csv", P, matrix_from_euler([[0, 0, 0], [0.1, 0, 0]]))
+    with pytest.raises(InputError, match=r"r.csv: row 3: .*does not rotate"):
+        read_positions(tmp_path / "r.csv")
+
+
+TRACKER_GOOD = ("q1_deg,q2_deg,q3_deg,mx_mm,my_mm,mz_mm\n"
+                "-10,-20,-30,2500,200,600\n-11,-21,-31,2510,210,610\n")
+BAD_TRACKER_CSV = [
+    ("missing mx", TRACKER_GOOD.replace("mx_mm", "nx_mm"), ["missing column mx_<unit>",
+                                                           "mx_mm"]),
+    ("unknown unit", TRACKER_GOOD.replace("mz_mm", "mz_in"), ["'mz_in'", "unknown unit"]),
+    ("length unit for an arm", TRACKER_GOOD.replace("q2_deg", "q2_mm"),
+     ["'q2_mm'", "length unit", "q2 is an angle"]),
+    ("angle unit for a point", TRACKER_GOOD.replace("my_mm", "my_deg"),
+     ["'my_deg'", "angle unit"]),
+    ("no unit", TRACKER_GOOD.replace("q3_deg", "q3"), ["'q3'", "no unit suffix", "q3_rad"]),
+    ("nan", TRACKER_GOOD.replace("2510", "nan"), ["row 3, column mx_mm", "not a finite"]),
+    ("text", TRACKER_GOOD.replace("-21", "x"), ["row 3, column q2_deg", "not a number: 'x'"]),
+    ("empty value", TRACKER_GOOD.replace(",610", ","), ["row 3, column mz_mm", "empty value"]),
+    ("short row", TRACKER_GOOD.replace(",210,610", ""), ["row 3", "4 field(s)", "6 columns"]),
+]
+
+
+@pytest.mark.parametrize("text, words", [b[1:] for b in BAD_TRACKER_CSV],
+                         ids=[b[0] for b in BAD_TRACKER_CSV])
+def test_bad_tracker_file_names_file_row_and_column(tmp_path, text, words):
+    from pkmcal.io import read_tracker
+    from pkmcal.machines import default_delta
+
+    path = tmp_path / "t.csv"
+    path.write_text(text)
+    with pytest.raises(InputError) as info:
+        read_tracker(path, default_delta())
+    message = str(info.value)
+    assert message.startswith(f"{path}: ")
+    for w in words:
+        assert w in message, message
+    assert path.read_text() == text

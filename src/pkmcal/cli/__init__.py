@@ -24,9 +24,10 @@ from ..errors import ConvergenceError, InputError
 app = typer.Typer(
     name="pkmcal",
     help="Calibration, identifiability and error analysis of parallel kinematic machines.\n\n"
-         "MACHINE arguments are a machine file (YAML, SPEC 6) or the word 'default' for the "
-         "embedded Hexa Slide. Numbers on the command line take a unit suffix (2um, 300mm, "
-         "10deg); a bare number is SI.",
+         "MACHINE arguments are a machine file (YAML, SPEC 6: hexaslide or delta) or the word "
+         "'default' for the embedded Hexa Slide (examples/delta_default.yaml is the default "
+         "Delta). Numbers on the command line take a unit suffix (2um, 300mm, 10deg); a bare "
+         "number is SI.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -54,7 +55,8 @@ class Method(enum.StrEnum):
 
 
 MachineArg = Annotated[str, typer.Argument(
-    metavar="MACHINE", help="Machine file (YAML) or 'default' for the embedded Hexa Slide.",
+    metavar="MACHINE", help="Machine file (YAML: hexaslide or delta) or 'default' for the "
+                            "embedded Hexa Slide.",
     show_default=False)]
 OutFile = Annotated[Path, typer.Option("-o", "--output", help="Output file (written atomically).",
                                        show_default=False, dir_okay=False)]
@@ -95,34 +97,59 @@ def demo(
 def simulate(
     machine: MachineArg,
     output: OutFile,
-    scenario: Annotated[Scenario, typer.Option(help="Measurement scenario.")]
-    = Scenario.constraint_link,
-    poses: Annotated[int, typer.Option(min=1, help="Number of measurement poses.")] = 150,
-    noise: Annotated[str, typer.Option(help="Encoder noise, standard deviation (e.g. 2um).")]
-    = "2um",
+    scenario: Annotated[Scenario | None, typer.Option(
+        help="Measurement scenario: constraint-link (hexaslide; default there) or tracker "
+             "(delta; default there).", show_default=False)] = None,
+    poses: Annotated[int | None, typer.Option(
+        min=1, help="Number of measurement poses (constraint-link; default 150).",
+        show_default=False)] = None,
+    noise: Annotated[str | None, typer.Option(
+        help="Measurement noise. constraint-link: encoder noise, standard deviation (default "
+             "2um). tracker: leica (default; 5 um along the beam, 7.5 um + 3 um/m across), "
+             "none, or a length for isotropic noise (e.g. 10um).", show_default=False)] = None,
     lc_error: Annotated[str, typer.Option(
         "--lc-error", help="Error of the constraint-link length in the machine file: the true "
                            "link is the file's length minus this.")] = "0um",
     seed: Annotated[int, typer.Option(help="Random seed (poses, noise, random deviations).")]
     = 0,
-    deviations: Annotated[Deviations, typer.Option(
-        help="True machine = MACHINE + deviations: paper-table1 (seed 000 Table 1), none, or "
-             "random (lengths +/-2 mm, angles +/-0.02 rad, uniform).")]
-    = Deviations.paper_table1,
+    deviations: Annotated[Deviations | None, typer.Option(
+        help="True machine = MACHINE + deviations: paper-table1 (seed 000 Table 1; default for "
+             "a hexaslide), none, or random (uniform; hexaslide: lengths +/-2 mm, angles "
+             "+/-0.02 rad; delta: +/-1 mm, +/-0.5 deg per error; default for a delta).",
+        show_default=False)] = None,
+    grid: Annotated[str | None, typer.Option(
+        help="tracker: points commanded on an NXxNYxNZ grid with dx = dy = 150 mm, dz = 40 mm, "
+             "centred at the machine's home (default 3x3x3, seed 001).",
+        show_default=False)] = None,
+    outliers: Annotated[int, typer.Option(
+        min=0, help="tracker: corrupt this many random points by 1 mm (beam breaks, a "
+                    "mis-seated reflector); their rows are printed.")] = 0,
     truth: Annotated[Path | None, typer.Option(
-        dir_okay=False, help="Also save the simulated true machine here (YAML).")] = None,
+        dir_okay=False, help="Also save the simulated true machine here (YAML; for a tracker "
+                             "scenario with the true tracker pose).")] = None,
 ) -> None:
     """Simulate measurements of a true machine (MACHINE + deviations); write a data file.
 
-    The data file has the joint readings q1..q6 in the machine file's length unit and the
-    passive actuator (1..6) of each pose.
+    constraint-link (Hexa Slide): joint readings q1..q6 in the machine file's length unit and
+    the passive actuator (1..6) of each pose.
+
+    tracker (Delta, seed 001): the nominal model commands the grid points, the true machine
+    goes elsewhere, a laser tracker measures the reflector (smr_offset below the platform
+    point). Columns q1..q3 (arm angles, the file's angle unit) and mx, my, mz (tracker frame,
+    the file's length unit). The true tracker pose is the machine file's `tracker` section,
+    else the default: 2.5 m from the robot's axis at (2.0, -1.5, -1.4) m in the base frame,
+    turned 143.13 deg about Z to face the robot and tilted 1 deg.
 
     Example: `pkmcal simulate default --poses 150 --noise 1um --truth true.yaml -o data.csv`
+
+    Example: `pkmcal simulate examples/delta_default.yaml --scenario tracker --seed 1
+    --truth true.yaml -o tracker.csv`
     """
     from ._commands import run_simulate
 
-    run_simulate(machine, output, scenario.value, poses, noise, lc_error, seed,
-                 deviations.value, truth)
+    run_simulate(machine, output, scenario.value if scenario else None, poses, noise,
+                 lc_error, seed, deviations.value if deviations else None, truth, grid,
+                 outliers)
 
 
 @app.command()
@@ -131,43 +158,59 @@ def calibrate(
     data: Annotated[Path, typer.Argument(metavar="DATA", help="Measurement file (CSV).",
                                          show_default=False)],
     output: OutFile,
-    method: Annotated[Method, typer.Option(
-        help="ml: maximum likelihood, every reading noisy (default); ik: the paper's inverse-"
-             "kinematics method (needs the passive column); fk: the paper's forward-kinematics "
-             "method (estimates Lc).")] = Method.ml,
-    noise: Annotated[str, typer.Option(help="Encoder noise, standard deviation (e.g. 1um).")]
-    = "1um",
+    method: Annotated[Method | None, typer.Option(
+        help="constraint-link data: ml maximum likelihood, every reading noisy (default); ik "
+             "the paper's inverse-kinematics method (needs the passive column); fk the paper's "
+             "forward-kinematics method (estimates Lc).", show_default=False)] = None,
+    noise: Annotated[str | None, typer.Option(
+        help="Measurement noise. constraint-link: encoder noise, standard deviation (default "
+             "1um). tracker: leica (default) or a length for isotropic noise (e.g. 10um).",
+        show_default=False)] = None,
     estimate_lc: Annotated[bool | None, typer.Option(
         "--estimate-lc/--no-estimate-lc",
         help="Estimate the constraint-link length too (default: only with --method fk).",
         show_default=False)] = None,
+    two_step: Annotated[bool, typer.Option(
+        "--two-step", help="tracker data: the paper's method, registration first (closed form "
+                           "with the nominal model) and then the errors with the registration "
+                           "fixed. Default: errors and registration together.")] = False,
+    robust: Annotated[bool, typer.Option(
+        "--robust", help="tracker data: find and leave out outlier rows (printed by row "
+                         "number).")] = False,
     json_output: Annotated[bool, typer.Option(
         "--json", help="Print the JSON report on stdout instead of the summary.")] = False,
 ) -> None:
     """Identify the geometry from measurements; write the calibrated machine and a report.
 
-    The measurement type follows from the columns (q1..q6 [+ passive] with a machine file that
-    has constraint_link: constraint-link self-calibration). Writes the calibrated machine file
+    The measurement type follows from the columns: q1..q6 [+ passive] with a Hexa Slide file
+    that has constraint_link -> constraint-link self-calibration; q1..q3 + mx, my, mz with a
+    Delta file -> laser-tracker calibration (seed 001; the tracker pose is estimated and
+    written to the calibrated file's `tracker` section). Writes the calibrated machine file
     (-o) and a JSON report beside it (same name, .json).
 
     Example: `pkmcal calibrate default data.csv -o calibrated.yaml`
+
+    Example: `pkmcal calibrate examples/delta_default.yaml tracker.csv --robust -o cal.yaml`
     """
     from ._commands import run_calibrate
 
-    raise typer.Exit(run_calibrate(machine, data, output, method.value, noise, estimate_lc,
-                                   json_output))
+    raise typer.Exit(run_calibrate(machine, data, output, method.value if method else None,
+                                   noise, estimate_lc, json_output, two_step, robust))
 
 
 @app.command()
 def fk(
     machine: MachineArg,
-    joints: Annotated[Path, typer.Argument(metavar="JOINTS.csv", show_default=False,
-                                           help="Joint readings q1_<unit>..q6_<unit>.")],
+    joints: Annotated[Path, typer.Argument(
+        metavar="JOINTS.csv", show_default=False,
+        help="Joint readings q1_<unit>..q6_<unit> (Delta: q1_deg..q3_deg; other columns are "
+             "ignored).")],
     output: OutFile,
 ) -> None:
     """Forward kinematics: poses from joint readings, in the machine file's units.
 
-    Writes x, y, z and psi, theta, phi (R = RY(theta) RX(psi) RZ(phi)) per row.
+    Writes x, y, z and psi, theta, phi (R = RY(theta) RX(psi) RZ(phi)) per row; for a Delta
+    (the platform only translates) x, y, z of the platform point in the base frame.
 
     Example: `pkmcal fk calibrated.yaml joints.csv -o poses.csv`
     """
@@ -181,10 +224,14 @@ def ik(
     machine: MachineArg,
     poses: Annotated[Path, typer.Argument(
         metavar="POSES.csv", show_default=False,
-        help="Poses x_<unit>, y_<unit>, z_<unit> + psi/theta/phi_<unit> or qx, qy, qz, qw.")],
+        help="Poses x_<unit>, y_<unit>, z_<unit> + psi/theta/phi_<unit> or qx, qy, qz, qw "
+             "(Delta: x, y, z only).")],
     output: OutFile,
 ) -> None:
     """Inverse kinematics: joint values that put the platform at the given poses.
+
+    Writes q1..q6 in the machine file's length unit (Delta: arm angles q1..q3 in its angle
+    unit).
 
     Example: `pkmcal ik calibrated.yaml poses.csv -o joints.csv`
     """

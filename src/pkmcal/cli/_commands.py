@@ -18,15 +18,20 @@ import numpy as np
 from ..errors import InputError
 from ..io import (
     atomic_write_text,
+    joint_quantity,
     load_machine,
     machine_to_text,
     parse_machine,
     read_constraint_link,
     read_joints,
     read_poses,
+    read_positions,
     read_table,
+    read_tracker,
     write_joints,
     write_poses,
+    write_positions,
+    write_tracker,
 )
 from ..io.machine_file import DEFAULT_UNITS
 from ..units import ANGLE, LENGTH, parse_quantity
@@ -137,7 +142,7 @@ def run_demo(outdir: Path) -> None:
     result = module.run_demo(outdir)
     out = console()
     table = _table("quantity", "before calibration", "after calibration",
-                   title="pkmcal demo (embedded Hexa Slide)")
+                   title="pkmcal demo (embedded Hexa Slide and Delta)")
     for row in result.rows:
         table.add_row(*map(str, row))
     out.print(table)
@@ -175,6 +180,12 @@ def run_bench(json_output: bool) -> int:
 # simulate
 # --------------------------------------------------------------------------------------------
 
+#: default scenario and deviations per machine type
+DEFAULT_SCENARIO = {"hexaslide": "constraint-link", "delta": "tracker"}
+DEFAULT_DEVIATIONS = {"hexaslide": "paper-table1", "delta": "random"}
+#: scenarios each machine type can simulate
+SCENARIOS = {"hexaslide": ("constraint-link",), "delta": ("tracker",)}
+
 
 def _deviations(machine, which: str, rng) -> np.ndarray:
     params = machine.parameters
@@ -182,27 +193,81 @@ def _deviations(machine, which: str, rng) -> np.ndarray:
         return np.zeros(len(params))
     if which == "paper-table1":
         if machine.kind != "hexaslide":
-            raise InputError(f"--deviations paper-table1 applies to hexaslide machines, not "
-                             f"{machine.kind}")
+            raise InputError(f"--deviations paper-table1 applies to hexaslide machines (seed "
+                             f"000 Table 1), not {machine.kind}; use random or none")
         from ..machines import paper_table1_deviations
 
         return paper_table1_deviations(params)
-    kinds = np.array(params.kinds)
-    size = np.where(kinds == "length", 2e-3, np.where(kinds == "angle", 0.02, 1e-3))
-    return rng.uniform(-1.0, 1.0, len(params)) * size
+    from ..demo import random_deviations
+
+    return random_deviations(machine, rng)
 
 
-def run_simulate(machine_spec: str, output: Path, scenario: str, poses: int, noise: str,
-                 lc_error: str, seed: int, deviations: str, truth: Path | None) -> None:
+def parse_grid(text: str) -> tuple[int, int, int]:
+    """``"3x3x3"`` -> ``(3, 3, 3)``; :class:`InputError` naming ``--grid`` otherwise."""
+    parts = str(text).lower().replace("*", "x").split("x")
+    try:
+        shape = tuple(int(p) for p in parts)
+    except ValueError:
+        shape = ()
+    if len(shape) != 3 or min(shape) < 1:
+        raise InputError(f"--grid: expected NXxNYxNZ with positive whole numbers (e.g. 3x3x3), "
+                         f"got {text!r}")
+    return shape
+
+
+def tracker_noise_arg(text: str | None, allow_none: bool):
+    """The tracker noise model of ``--noise``: leica (default), none, or a length (isotropic)."""
+    from ..measurements import TrackerNoise
+
+    if text is None or text.strip().lower() == "leica":
+        return TrackerNoise(), "leica (5 um along the beam, 7.5 um + 3 um/m across)"
+    if text.strip().lower() == "none":
+        if not allow_none:
+            raise InputError("--noise none: the calibration weighs the points by their noise; "
+                             "give leica or a length such as 10um")
+        return None, "none"
+    sigma = parse_quantity(text, "length", "--noise")
+    if not sigma > 0:
+        raise InputError(f"--noise: must be > 0 (a standard deviation), leica or none; got "
+                         f"{text}")
+    return TrackerNoise(sigma, sigma, 0.0), f"isotropic {sigma * 1e6:.4g} um"
+
+
+def run_simulate(machine_spec: str, output: Path, scenario: str | None, poses: int | None,
+                 noise: str | None, lc_error: str, seed: int, deviations: str | None,
+                 truth: Path | None, grid: str | None = None, outliers: int = 0) -> None:
+    machine = load_machine_arg(machine_spec)
+    kind = machine.kind
+    scenario = scenario or DEFAULT_SCENARIO.get(kind, "constraint-link")
+    available = SCENARIOS.get(kind, ())
+    if scenario not in available:
+        raise InputError(f"--scenario {scenario}: not available for {kind} machines (available: "
+                         f"{', '.join(available) or 'none yet'})")
+    deviations = deviations or DEFAULT_DEVIATIONS.get(kind, "random")
+    check_outputs([output] + ([truth] if truth else []), _machine_inputs(machine_spec))
+    if scenario == "tracker":
+        if poses is not None:
+            raise InputError("--poses: applies to --scenario constraint-link; a tracker "
+                             "scenario measures a grid (--grid NXxNYxNZ)")
+        if lc_error.strip() not in ("0", "0um", "0mm", "0m"):
+            raise InputError("--lc-error: applies to --scenario constraint-link")
+        _simulate_tracker(machine, output, noise, seed, deviations, truth,
+                          parse_grid(grid or "3x3x3"), outliers)
+        return
+    if grid is not None or outliers:
+        raise InputError(f"--{'grid' if grid is not None else 'outliers'}: applies to "
+                         "--scenario tracker")
+    _simulate_constraint_link(machine, output, poses or 150, noise or "2um", lc_error, seed,
+                              deviations, truth)
+
+
+def _simulate_constraint_link(machine, output: Path, poses: int, noise: str, lc_error: str,
+                              seed: int, deviations: str, truth: Path | None) -> None:
     noise_m = parse_quantity(noise, "length", "--noise")
     if not noise_m >= 0:
         raise InputError(f"--noise: must be >= 0, got {noise}")
     lc_error_m = parse_quantity(lc_error, "length", "--lc-error")
-    machine = load_machine_arg(machine_spec)
-    check_outputs([output] + ([truth] if truth else []), _machine_inputs(machine_spec))
-    if scenario != "constraint-link":
-        raise InputError(f"--scenario {scenario}: not available for {machine.kind} machines yet "
-                         "(available: constraint-link)")
     lc = machine.constraint_link_length
     if lc is None:
         raise InputError(f"{machine.source}: constraint_link: the machine has no constraint-link "
@@ -231,8 +296,8 @@ def run_simulate(machine_spec: str, output: Path, scenario: str, poses: int, noi
     out = console()
     table = _table("", "", title="pkmcal simulate", show_header=False)
     table.add_row("machine", f"{machine.source} ({machine.kind})")
-    table.add_row("scenario", f"{scenario}, {poses} poses on |P| = {lc_true / LENGTH['mm']:.6g} "
-                  "mm (true link)")
+    table.add_row("scenario", f"constraint-link, {poses} poses on |P| = "
+                  f"{lc_true / LENGTH['mm']:.6g} mm (true link)")
     table.add_row("deviations", deviations)
     table.add_row("encoder noise", f"{noise_m * 1e6:.4g} um (seed {seed})")
     if lc_error_m:
@@ -242,14 +307,89 @@ def run_simulate(machine_spec: str, output: Path, scenario: str, poses: int, noi
     out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
 
 
+def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, deviations: str,
+                      truth: Path | None, shape: tuple[int, int, int], outliers: int) -> None:
+    from ..demo import TRACKER_GRID_SPACING, default_tracker_pose
+    from ..measurements import grid_points, simulate_tracker
+
+    noise_model, noise_text = tracker_noise_arg(noise, allow_none=True)
+    n_points = int(np.prod(shape))
+    if outliers > n_points:
+        raise InputError(f"--outliers: {outliers} outliers among {n_points} grid points")
+    rng = np.random.default_rng(seed)
+    du = _deviations(machine, deviations, rng)
+    true = machine.with_parameters(machine.u + du)
+    pose = getattr(machine, "base_from_tracker", None)
+    pose_from = "the machine file's tracker section"
+    if pose is None:
+        pose, pose_from = default_tracker_pose(), "default"
+    true.base_from_tracker = pose
+    true.name = f"simulated true machine ({deviations} deviations) of {machine.name or 'MACHINE'}"
+    centre = machine.home[0]
+    targets = grid_points(centre, TRACKER_GRID_SPACING, shape)
+    bad = np.flatnonzero(~np.all(np.isfinite(machine.ik(targets)), axis=-1))
+    if bad.size:
+        raise InputError(f"--grid {'x'.join(map(str, shape))}: {bad.size} grid point(s) "
+                         f"outside the workspace of {machine.source} (e.g. "
+                         f"{_mm(targets[bad[0]])} mm); use a smaller grid or another home")
+    try:
+        data = simulate_tracker(true, machine, targets, pose, noise_model, outliers=outliers,
+                                outlier_size=1e-3, rng=rng)
+    except InputError as exc:
+        raise InputError(f"--deviations {deviations} (seed {seed}): {exc}; use a smaller grid "
+                         "or another seed") from None
+    units = _units(machine)
+    truth_text = None
+    if truth is not None:
+        truth_text = machine_to_text(true, units)
+        parse_machine(truth_text, str(truth))
+    # outputs, at the very end
+    write_tracker(output, data.q, data.m, joint_unit=units["angle"],
+                  length_unit=units["length"])
+    if truth is not None:
+        atomic_write_text(truth, truth_text)
+    R, t = pose
+    out = console()
+    table = _table("", "", title="pkmcal simulate", show_header=False)
+    table.add_row("machine", f"{machine.source} ({machine.kind})")
+    dx, dy, dz = (v * 1e3 for v in TRACKER_GRID_SPACING)
+    table.add_row("scenario", f"tracker, {'x'.join(map(str, shape))} grid (dx = {dx:g}, dy = "
+                  f"{dy:g}, dz = {dz:g} mm) centred at home {_mm(centre)} mm: {n_points} points")
+    table.add_row("deviations", deviations + (f" (seed {seed})" if deviations == "random"
+                                              else ""))
+    table.add_row("tracker noise", f"{noise_text} (seed {seed})")
+    table.add_row("tracker pose", f"{pose_from}: at {_mm(t)} mm in the base frame, rotated "
+                  f"{np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))):.4g} deg "
+                  "relative to it")
+    if outliers:
+        rows = data.rows[data.outliers] + 1          # file lines: header = 1
+        table.add_row("outliers", f"rows {_rows_text(rows, limit=50)} moved by 1 mm")
+    out.print(table)
+    out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
+
+
+def _mm(v) -> str:
+    return "(" + ", ".join(f"{x * 1e3:.6g}" for x in np.asarray(v, float)) + ")"
+
+
 # --------------------------------------------------------------------------------------------
 # calibrate
 # --------------------------------------------------------------------------------------------
 
+#: measurement types each machine type can be calibrated from, with the columns they need
+CALIBRATIONS = {
+    "hexaslide": {"constraint-link": "q1_mm..q6_mm (optionally passive) with a constraint_link "
+                                     "in the machine file"},
+    "delta": {"tracker": "q1_deg..q3_deg and the tracker points mx_mm, my_mm, mz_mm"},
+}
+
 
 def measurement_kind(path: Path, header: list[str], machine) -> str:
-    """Measurement type from the columns of a data file."""
-    has = lambda base: any(n == base or n.startswith(base + "_") for n in header)
+    """Measurement type from the columns of a data file (and whether ``machine`` can be
+    calibrated from it)."""
+    has = lambda base: any(n == base or n.startswith(base + "_") for n in header)  # noqa: E731
+    supported = CALIBRATIONS.get(machine.kind, {})
+    need = "; ".join(f"{k}: {v}" for k, v in supported.items()) or "none yet"
     if has("mx") or has("my") or has("mz"):
         kind = "tracker"
     elif has("x") or has("y") or has("z") or "qw" in header:
@@ -258,20 +398,21 @@ def measurement_kind(path: Path, header: list[str], machine) -> str:
         kind = "constraint-link"
     else:
         raise InputError(f"{path}: cannot tell the measurement type from the columns "
-                         f"({', '.join(header)}): constraint-link data need q1_mm..q"
-                         f"{machine.n_joints}_mm (and optionally passive)")
-    if kind != "constraint-link":
+                         f"({', '.join(header)}); a {machine.kind} is calibrated from {need}")
+    if kind not in supported:
+        if machine.kind == "delta" and kind == "constraint-link":
+            raise InputError(f"{path}: missing columns mx_<unit>, my_<unit>, mz_<unit> (e.g. "
+                             f"mx_mm): a delta is calibrated from laser-tracker points ({need}); "
+                             f"columns found: {', '.join(header)}")
         raise InputError(f"{path}: {kind} measurements of a {machine.kind} cannot be calibrated "
-                         "yet; this version calibrates from constraint-link data (q1..q"
-                         f"{machine.n_joints} readings, optional passive column)")
+                         f"yet; this version calibrates a {machine.kind} from {need}")
     return kind
 
 
-def _parameter_table(result, machine, link_length, units):
-    """Rows of the report's parameter list, in the machine file's units."""
+def _parameter_table(result, nominal_of: dict, units):
+    """Rows of the report's parameter list, in the machine file's units; ``nominal_of`` maps
+    parameter names to their start (nominal) values."""
     fl, fa = LENGTH[units["length"]], ANGLE[units["angle"]]
-    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
-    nominal_of["link.length"] = link_length
     rows = []
     params = result.parameters
     for i, (name, kind) in enumerate(zip(params.names, params.kinds, strict=True)):
@@ -291,12 +432,9 @@ def _parameter_table(result, machine, link_length, units):
     return rows
 
 
-def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str, noise: str,
-                  estimate_lc: bool | None, json_output: bool) -> int:
-    sigma = parse_quantity(noise, "length", "--noise")
-    if not sigma > 0:
-        raise InputError(f"--noise: must be > 0 (the standard deviation of the encoder "
-                         f"noise), got {noise}")
+def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str | None,
+                  noise: str | None, estimate_lc: bool | None, json_output: bool,
+                  two_step: bool = False, robust: bool = False) -> int:
     if output.suffix.lower() == ".json":
         raise InputError(f"{output}: the calibrated machine is a YAML file; choose a name "
                          "ending in .yaml (the JSON report is written beside it)")
@@ -305,6 +443,30 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str,
     check_outputs([output, report_path], [data_path] + _machine_inputs(machine_spec))
     header, _ = read_table(data_path)
     kind = measurement_kind(data_path, header, machine)
+    if kind == "tracker":
+        for option, given in (("--method", method is not None),
+                              ("--estimate-lc", estimate_lc is not None)):
+            if given:
+                raise InputError(f"{option}: applies to constraint-link data; {data_path} has "
+                                 "tracker points (see --two-step, --robust)")
+        return _calibrate_tracker(machine, machine_spec, data_path, output, report_path, noise,
+                                  two_step, robust, json_output)
+    for option, given in (("--two-step", two_step), ("--robust", robust)):
+        if given:
+            raise InputError(f"{option}: applies to laser-tracker data (mx, my, mz columns); "
+                             f"{data_path} has {kind} data")
+    return _calibrate_constraint_link(machine, machine_spec, data_path, output, report_path,
+                                      method or "ml", noise or "1um", estimate_lc, json_output)
+
+
+def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, output: Path,
+                               report_path: Path, method: str, noise: str,
+                               estimate_lc: bool | None, json_output: bool) -> int:
+    sigma = parse_quantity(noise, "length", "--noise")
+    if not sigma > 0:
+        raise InputError(f"--noise: must be > 0 (the standard deviation of the encoder "
+                         f"noise), got {noise}")
+    kind = "constraint-link"
     data = read_constraint_link(data_path, machine)
 
     from ..calibration import calibrate_constraint_link
@@ -331,7 +493,9 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str,
     if np.all(np.isfinite(calibrated.ik(home_P, home_R))):
         calibrated.home = (home_P, home_R)
     date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
-    params = _parameter_table(result, machine, data.link_length, units)
+    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
+    nominal_of["link.length"] = data.link_length
+    params = _parameter_table(result, nominal_of, units)
     r = np.asarray(result.residuals, float)
     r_m = r * sigma
     rank = int(result.rank)
@@ -444,7 +608,18 @@ def _print_calibration(report, params, data_path, output, report_path, machine) 
         table.add_row("link length Lc", f"{lc['value']:.9g} {lc['unit']} (fixed: machine file)")
     out.print(table)
 
-    top = sorted((p for p in params if not p["fixed"]), key=lambda p: -p["scaled_change"])[:10]
+    _print_changes(params)
+    if ident["unidentifiable"]:
+        out.print("note: the data do not fix the directions listed as not identifiable; the "
+                  "changes are the smallest ones (scaled) that fit the data, and std is for "
+                  "the identifiable part.", markup=False)
+    out.print(f"wrote {output} and {report_path}", markup=False)
+
+
+def _print_changes(params, limit: int = 10) -> None:
+    """The largest parameter changes (scaled), in um / urad."""
+    out = console()
+    top = sorted((p for p in params if not p["fixed"]), key=lambda p: -p["scaled_change"])[:limit]
     changes = _table("parameter", "nominal", "identified", "change", "std", "",
                      title="largest parameter changes", justify={1: "right", 2: "right",
                                                                  3: "right", 4: "right"})
@@ -457,10 +632,314 @@ def _print_calibration(report, params, data_path, output, report_path, machine) 
                         f"{p['identified']:.6f} {p['unit']}", f"{p['change'] * f:+.4g}", std,
                         micro)
     out.print(changes)
+
+
+def grid_neighbour_pairs(P, abs_tol: float = 1e-4, rel_tol: float = 0.01) -> np.ndarray:
+    """Index pairs (n, 2) of neighbouring points of an axis-aligned grid in positions ``P``.
+
+    ``j`` is the neighbour of ``i`` along an axis when ``P_j - P_i`` points along the positive
+    axis (off-axis part within ``abs_tol + rel_tol * distance``) and no closer point lies that
+    way; missing grid points are allowed. Seed 001 Fig. 6 compares such pairs.
+    """
+    P = np.asarray(P, float)
+    K = len(P)
+    pairs = []
+    for start in range(0, K, 512):                       # K x K temporaries in blocks
+        D = P[None, :, :] - P[start:start + 512, None, :]   # (B, K, 3) P_j - P_i
+        for axis in range(3):
+            along = D[..., axis]
+            off = np.linalg.norm(np.delete(D, axis, axis=-1), axis=-1)
+            dist = np.where((along > abs_tol) & (off <= abs_tol + rel_tol * along), along,
+                            np.inf)
+            j = np.argmin(dist, axis=1)
+            i = np.flatnonzero(np.isfinite(dist[np.arange(len(D)), j]))
+            pairs.append(np.stack([i + start, j[i]], -1))
+    return np.concatenate(pairs) if pairs else np.zeros((0, 2), int)
+
+
+def distance_ratio_pairs(machine, q) -> tuple[np.ndarray, str]:
+    """Pairs for the distance ratio: neighbours of the grid the readings were commanded to
+    (``machine``'s forward kinematics of them, i.e. the commanded points when ``machine`` is
+    the controller's model); nearest neighbours when the points form no grid."""
+    P = machine.fk(q).P
+    ok = np.all(np.isfinite(P), axis=-1)
+    pairs = grid_neighbour_pairs(np.where(ok[:, None], P, 1e9))
+    pairs = pairs[ok[pairs].all(axis=1)] if len(pairs) else pairs
+    if len(pairs):
+        return pairs, "neighbours on the commanded grid"
+    D = np.linalg.norm(P[:, None] - P[None], axis=-1)
+    np.fill_diagonal(D, np.inf)
+    j = np.argmin(np.where(np.isfinite(D), D, np.inf), axis=1)
+    pairs = np.unique(np.sort(np.stack([np.arange(len(P)), j], -1), axis=1), axis=0)
+    return pairs[ok[pairs].all(axis=1)], "nearest neighbours (the points form no grid)"
+
+
+def _ratio_stats(r) -> dict:
+    r = np.asarray(r, float)
+    r = r[np.isfinite(r)]
+    if not r.size:
+        return {"mean": None, "std": None, "min": None, "max": None}
+    return {"mean": float(r.mean()), "std": float(r.std()), "min": float(r.min()),
+            "max": float(r.max())}
+
+
+def _check_spread(data, noise_model) -> None:
+    """Refuse (nearly) collinear tracker points: the registration's rotation about their line
+    would be fixed only by the noise. Also fewer than 4 points (seed 001 eq. 12-14)."""
+    K = len(data)
+    if K < 4:
+        raise InputError(f"{data.source}: {K} point(s): the tracker registration needs at "
+                         "least 4 points that are not on one line (seed 001 uses a 3x3x3 grid)")
+    m = data.m - data.m.mean(0)
+    sv = np.linalg.svd(m, compute_uv=False)
+    off_line = sv[1] / math.sqrt(K)                       # RMS distance from the best line
+    sigma = float(np.sqrt(np.max(np.trace(noise_model.covariance(data.m), axis1=1, axis2=2))))
+    if off_line <= max(20 * sigma, 1e-6 * sv[0]):
+        raise InputError(f"{data.source}: the {K} tracker points lie on one line or nearly (RMS "
+                         f"distance from the best line {off_line * 1e6:.3g} um, tracker noise "
+                         f"{sigma * 1e6:.3g} um): the "
+                         "rotation of the tracker about that line cannot be found; measure "
+                         "points spread in 2-3 directions (e.g. a 3x3x3 grid)")
+
+
+def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path,
+                       report_path: Path, noise: str | None, two_step: bool, robust: bool,
+                       json_output: bool) -> int:
+    from ..calibration import calibrate_tracker, distance_ratios, predict_tracker_points
+
+    noise_model, noise_text = tracker_noise_arg(noise, allow_none=False)
+    data = read_tracker(data_path, machine)
+    _check_spread(data, noise_model)
+    fk = machine.fk(data.q)
+    if not fk.converged.all():
+        raise InputError(f"{data_path}: row(s) {_rows_text(data.rows[~fk.converged])}: no "
+                         f"platform position of {machine.source} reproduces these arm angles "
+                         "(outside the workspace, or a wrong angle unit or zero)")
+    try:
+        result = calibrate_tracker(machine, data, noise_model, joint=not two_step,
+                                   robust=robust)
+    except InputError:
+        raise
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise InputError(f"{data_path}: calibration failed: {exc}") from None
+    if not result.success or not np.all(np.isfinite(result.x)):
+        sv = np.asarray(result.singular_values, float)
+        weak = sv[result.rank - 1] / sv[0] if result.rank and sv.size else float("nan")
+        hint = (f"; the points determine some directions poorly (smallest identified singular "
+                f"value {weak:.2g} of the largest): spread them in all three directions, e.g. a "
+                "3x3x3 grid" if weak < 1e-4 else "")
+        error(f"calibration did not converge: {result.message} (after {result.nit} "
+              f"iterations){hint}; no file written")
+        return 1
+
+    units = _units(machine)
+    fl = LENGTH[units["length"]]
+    method = "two-step" if two_step else "joint"
+    calibrated = result.extras["machine"]
+    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
+    # FK start of the calibrated file: the input machine's home, else the measured position
+    # closest to the middle of the data that the calibrated model reaches
+    P_cal = calibrated.fk(data.q).P
+    order = np.argsort(np.linalg.norm(P_cal - np.nanmean(P_cal, axis=0), axis=1))
+    for P_home in [machine.home[0], *P_cal[order]]:
+        if np.all(np.isfinite(calibrated.ik(P_home))):
+            calibrated.home = (np.asarray(P_home, float), np.eye(3))
+            break
+    R, t = result.extras["registration"]
+    R0, t0 = result.extras["start_registration"]
+    kept = np.asarray(result.extras["kept"], bool)
+    outlier_rows = [int(v) for v in result.extras["outlier_rows"]]
+    date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+
+    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
+    nominal_of.update(zip(("tracker.rx", "tracker.ry", "tracker.rz"), (0.0, 0.0, 0.0),
+                          strict=True))
+    nominal_of.update(zip(("tracker.x", "tracker.y", "tracker.z"), t0, strict=True))
+    params = _parameter_table(result, nominal_of, units)
+
+    # residuals in the tracker frame (m); before = nominal model + closed-form registration
+    r = data.m - predict_tracker_points(calibrated, data.q, (R, t))
+    r0 = data.m - predict_tracker_points(machine, data.q, (R0, t0))
+    norm, norm0 = np.linalg.norm(r, axis=1), np.linalg.norm(r0, axis=1)
+    rms = lambda v: float(np.sqrt(np.mean(v**2)) * 1e6) if v.size else None
+    # distance ratio (seed 001 Fig. 6) over pairs of kept rows
+    pairs, pairs_from = distance_ratio_pairs(machine, data.q)
+    pairs = pairs[kept[pairs].all(axis=1)] if len(pairs) else pairs
+    d_meas = np.linalg.norm(data.m[pairs[:, 0]] - data.m[pairs[:, 1]], axis=-1) \
+        if len(pairs) else np.zeros(0)
+    pairs = pairs[d_meas > 1e-9] if len(pairs) else pairs
+    ratio_before = distance_ratios(machine, data.q, data.m, pairs) if len(pairs) else []
+    ratio_after = distance_ratios(calibrated, data.q, data.m, pairs) if len(pairs) else []
+    before, after = _ratio_stats(ratio_before), _ratio_stats(ratio_after)
+
+    rank = int(result.rank)
+    n_free = int(np.sum(result.parameters.free))
+    s = np.asarray(result.singular_values, float)
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    da, _, _, _, db = calibrated.legs()
+    rot_change = float(np.degrees(np.linalg.norm(_rotvec(R @ R0.T))))
+    report = {
+        "pkmcal_report": 1,
+        "command": "calibrate",
+        "date": date,
+        "machine_file": str(getattr(machine, "source", machine_spec)),
+        "data_file": str(data_path),
+        "calibrated_file": str(output),
+        "measurement": "tracker",
+        "method": method,
+        "robust": robust,
+        "units": units,
+        "measurements": len(data),
+        "used": int(kept.sum()),
+        "outlier_rows": outlier_rows,
+        "noise": noise_text,
+        "smr_offset": machine.smr_offset / fl,
+        "registration": {
+            "estimated": not two_step,
+            "rotation": R.tolist(), "translation": (np.asarray(t) / fl).tolist(),
+            "unit": units["length"],
+            "start": {"rotation": R0.tolist(), "translation": (np.asarray(t0) / fl).tolist(),
+                      "method": "closed form (SVD) with the nominal model"},
+            "rotation_change_deg": rot_change,
+            "translation_change": float(np.linalg.norm(t - t0) / fl),
+        },
+        "convergence": {"success": bool(result.success), "status": int(result.status),
+                        "message": result.message, "iterations": int(result.nit),
+                        "evaluations": int(result.nfev)},
+        "residuals": {
+            "of": "tracker points, measured - predicted (3-D distance, tracker frame)",
+            "count": int(kept.sum()),
+            "rms_um": rms(norm[kept]),
+            "max_um": float(norm[kept].max() * 1e6) if kept.any() else None,
+            "rms_per_axis_um": (np.sqrt(np.mean(r[kept] ** 2, axis=0)) * 1e6).tolist(),
+            "before_rms_um": rms(norm0[kept]),
+            "before": "machine file's model, closed-form registration",
+            "residual_variance": float(result.residual_variance),
+            "noise_scale": float(np.sqrt(result.residual_variance))
+            if np.isfinite(result.residual_variance) else None,
+            "dof": int(result.dof),
+            "outliers": [{"row": int(row), "residual_um": float(v * 1e6)} for row, v in
+                         zip(data.rows[~kept], norm[~kept], strict=True)],
+        },
+        "distance_ratio": {
+            "unit": "%", "pairs": int(len(pairs)), "pairs_from": pairs_from,
+            "before": before, "after": after,
+        },
+        "identifiability": {
+            "free_parameters": n_free,
+            "identifiable": rank,
+            "unidentifiable": [d.as_dict() for d in unidentifiable],
+            "condition_number": float(s[0] / s[rank - 1]) if rank else None,
+            "singular_values": s.tolist(),
+        },
+        "identifiable_combinations": {
+            "description": "db - da per leg (leg frame, file length unit): only this "
+                           "difference enters the model" + (
+                               "; with the tracker pose estimated it is fixed only up to one "
+                               "common translation v of the platform (db_i - da_i + Rphi_i v "
+                               "fits equally well)" if not two_step else ""),
+            **{f"leg{i + 1}.db - leg{i + 1}.da": ((db[i] - da[i]) / fl).tolist()
+               for i in range(3)}},
+        "parameters": [{k: v for k, v in p.items() if k != "scaled_change"} for p in params],
+    }
+    metadata = {
+        "method": f"tracker-{method}",
+        "date": date,
+        "data": str(data_path),
+        "machine": str(getattr(machine, "source", machine_spec)),
+        "measurements": len(data),
+        "outlier_rows": outlier_rows,
+        "rms_residual_um": report["residuals"]["rms_um"],
+        "identifiable": rank,
+        "free_parameters": n_free,
+        "unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable],
+        "distance_ratio_std_percent": {"before": before["std"], "after": after["std"]},
+        "report": report_path.name,
+    }
+    yaml_text = machine_to_text(calibrated, units, calibration=metadata)
+    parse_machine(yaml_text, str(output))   # the calibrated file must load back
+    json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
+    # outputs, at the very end
+    atomic_write_text(report_path, json_text)
+    atomic_write_text(output, yaml_text)
+
+    if json_output:
+        print(json_text, end="")
+    else:
+        _print_tracker_calibration(report, params, data_path, output, report_path, machine)
+    return 0
+
+
+def _rotvec(R):
+    from ..kinematics import rotvec_from_matrix
+
+    return rotvec_from_matrix(R)
+
+
+def _print_tracker_calibration(report, params, data_path, output, report_path, machine):
+    out = console()
+    res, ident, conv = report["residuals"], report["identifiability"], report["convergence"]
+    reg, dr = report["registration"], report["distance_ratio"]
+    unit = report["units"]["length"]
+    table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
+                   show_header=False)
+    table.add_row("measurement", f"laser tracker, {report['measurements']} points (reflector "
+                  f"{report['smr_offset']:.6g} {unit} below the platform point)")
+    table.add_row("method", "joint: the leg errors and the tracker pose together"
+                  if report["method"] == "joint" else
+                  "two-step (seed 001): tracker registered first with the nominal model, then "
+                  "the leg errors with the registration fixed")
+    table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
+                  "parameter directions")
+    groups: dict[str, list[str]] = {}                 # one line per description
+    for d in ident["unidentifiable"]:
+        groups.setdefault(d["description"], []).append(f"{d['dimension']} x {d['name']}")
+    for description, names in groups.items():
+        table.add_row("not identifiable", f"{', '.join(names)}: {description}")
+    scale = res["noise_scale"]
+    table.add_row("RMS residual", f"{res['rms_um']:.4g} um over {res['count']} points (3-D, "
+                  f"measured - predicted tracker point); before calibration "
+                  f"{res['before_rms_um']:.4g} um ({res['before']})")
+    table.add_row("noise", f"{report['noise']}" + (f"; residuals / assumed noise = {scale:.3g}"
+                                                   if scale is not None else ""))
+    if report["robust"]:
+        if res["outliers"]:
+            worst = ", ".join(f"row {o['row']}: {o['residual_um']:.4g} um"
+                              for o in res["outliers"][:10])
+            table.add_row("outliers", f"{len(res['outliers'])} row(s) left out (--robust): "
+                          f"{worst}")
+        else:
+            table.add_row("outliers", "none found (--robust)")
+    if dr["pairs"] and dr["before"]["std"] is not None:
+        b, a = dr["before"], dr["after"]
+        change = 100 * (1 - a["std"] / b["std"]) if b["std"] > 0 else 0.0
+        change_text = f"{change:.3g} % smaller" if change >= 0 else f"{-change:.3g} % larger"
+        table.add_row("distance ratio", f"spread (std) {b['std']:.4g} % before, {a['std']:.4g} % "
+                      f"after ({change_text}); range {b['min']:.3f}..{b['max']:.3f} % -> "
+                      f"{a['min']:.3f}..{a['max']:.3f} %; {dr['pairs']} pairs "
+                      f"({dr['pairs_from']})")
+    t = reg["translation"]
+    table.add_row("tracker pose", f"base_from_tracker: tracker origin at ({t[0]:.6g}, "
+                  f"{t[1]:.6g}, {t[2]:.6g}) {unit}; "
+                  + ("estimated: " if reg["estimated"] else "fixed: ")
+                  + f"{reg['rotation_change_deg']:.3g} deg and {reg['translation_change']:.3g} "
+                  f"{unit} from the closed-form registration")
+    table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
+    out.print(table)
+    _print_changes(params)
+    if scale is not None and scale > 3:
+        causes = ["outliers (try --robust)" if not report["robust"] else None,
+                  "a registration biased by the nominal model (drop --two-step)"
+                  if report["method"] == "two-step" else None,
+                  "a wrong smr_offset or noise model", "errors the model does not have"]
+        out.print(f"note: the residuals are {scale:.3g} times the assumed noise: "
+                  f"{', '.join(c for c in causes if c)}.", markup=False)
     if ident["unidentifiable"]:
-        out.print("note: the data do not fix the directions listed as not identifiable; the "
-                  "changes are the smallest ones (scaled) that fit the data, and std is for "
-                  "the identifiable part.", markup=False)
+        origin = (" and, with the tracker pose unknown, not the origin of the base frame"
+                  if report["registration"]["estimated"] else "")
+        out.print(f"note: the data fix only db - da of each leg{origin}; the "
+                  "changes are the smallest ones (scaled) that fit the data, and std is for the "
+                  "identifiable part.", markup=False)
     out.print(f"wrote {output} and {report_path}", markup=False)
 
 
@@ -472,10 +951,15 @@ def _print_calibration(report, params, data_path, output, report_path, machine) 
 def run_fk(machine_spec: str, joints: Path, output: Path) -> None:
     machine = load_machine_arg(machine_spec)
     check_outputs([output], [joints] + _machine_inputs(machine_spec))
-    q, rows, _ = read_joints(joints, machine.n_joints)
+    q, rows, _ = read_joints(joints, machine.n_joints, joint_quantity(machine))
     result = machine.fk(q)
     result.raise_if_failed(what=f"{joints}: forward kinematics", rows=rows)
     units = _units(machine)
+    if machine.pose_dof == 3:
+        write_positions(output, result.P, units["length"])
+        console().print(f"{len(q)} position(s) of the platform point, base frame, written to "
+                        f"{output} ({units['length']})", markup=False)
+        return
     write_poses(output, result.P, result.R, units["length"], units["angle"])
     console().print(f"{len(q)} pose(s) written to {output} ({units['length']}, "
                     f"{units['angle']})", markup=False)
@@ -484,15 +968,30 @@ def run_fk(machine_spec: str, joints: Path, output: Path) -> None:
 def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
     machine = load_machine_arg(machine_spec)
     check_outputs([output], [poses] + _machine_inputs(machine_spec))
-    P, R, rows = read_poses(poses)
+    if machine.pose_dof == 3:
+        P, rows = read_positions(poses)
+        R = None
+    else:
+        P, R, rows = read_poses(poses)
     q = machine.ik(P, R)
     bad = ~np.all(np.isfinite(q), axis=1)
+    what = "leg" if machine.kind == "delta" else "chain"
     if bad.any():
         chains = np.flatnonzero((~np.isfinite(q[bad])).any(axis=0)) + 1
         raise InputError(f"{poses}: {int(bad.sum())} pose(s) cannot be reached by the machine "
-                         f"(no real inverse kinematics, chain(s) {', '.join(map(str, chains))})"
-                         f", row(s) {_rows_text(rows[bad])}")
+                         f"(no real inverse kinematics, {what}(s) "
+                         f"{', '.join(map(str, chains))}), row(s) {_rows_text(rows[bad])}")
+    if machine.pose_dof == 3:
+        # the closed-form FK takes the working assembly mode (platform below the base): a
+        # position the arms reach only on the other mode cannot be commanded back
+        back = machine.fk(q).P
+        off = ~(np.linalg.norm(back - P, axis=1) <= 1e-9 + 1e-9 * np.linalg.norm(P, axis=1))
+        if off.any():
+            raise InputError(f"{poses}: {int(off.sum())} position(s) outside the working "
+                             f"assembly mode (the platform must hang below the base), row(s) "
+                             f"{_rows_text(rows[off])}")
     units = _units(machine)
-    write_joints(output, q, unit=units["length"])
-    console().print(f"{len(q)} joint vector(s) written to {output} ({units['length']})",
-                    markup=False)
+    quantity = joint_quantity(machine)
+    unit = units["length"] if quantity == "length" else units["angle"]
+    write_joints(output, q, unit=unit, quantity=quantity)
+    console().print(f"{len(q)} joint vector(s) written to {output} ({unit})", markup=False)

@@ -3,9 +3,13 @@
 Columns read here:
 
 - joint readings ``q1_<unit> ... qn_<unit>`` (Hexa Slide: slider travel, ``_m``, ``_mm``,
-  ``_um``), optional ``passive`` (1..6: which actuator was passive);
+  ``_um``; Delta: arm angles ``_deg``, ``_rad``, ``_urad``), optional ``passive`` (1..6:
+  which actuator was passive); :func:`joint_quantity` says which a machine has;
 - poses ``x_<len>, y_<len>, z_<len>`` with either ``psi_<ang>, theta_<ang>, phi_<ang>``
-  (``R = RY(theta) RX(psi) RZ(phi)``, SPEC 1) or a quaternion ``qx, qy, qz, qw``.
+  (``R = RY(theta) RX(psi) RZ(phi)``, SPEC 1) or a quaternion ``qx, qy, qz, qw``; positions
+  only (``x, y, z``) for a machine whose platform does not rotate (Delta);
+- laser-tracker points ``mx_<len>, my_<len>, mz_<len>`` (the reflector in the tracker frame)
+  beside the readings (:func:`read_tracker`).
 
 Row numbers in messages and in the ``rows`` arrays returned are *line numbers of the file*
 (header = line 1), i.e. the row numbers a spreadsheet shows. Blank lines and lines starting
@@ -24,7 +28,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..kinematics import euler_from_matrix, matrix_from_euler, matrix_from_quaternion
-from ..measurements import ConstraintLinkData
+from ..measurements import ConstraintLinkData, TrackerData
 from ..units import COLUMN_SUFFIXES, QUANTITIES
 from .atomic import atomic_write_text, read_input_text
 
@@ -81,6 +85,10 @@ def read_table(path) -> tuple[list[str], list[Row]]:
     return header, rows
 
 
+def _a(word: str) -> str:
+    return "an" if word[:1] in "aeiou" else "a"
+
+
 def find_column(path, header: list[str], base: str, quantity: str | None,
                 required: bool = True) -> tuple[int, float] | None:
     """Position and SI factor of the column ``base_<unit>`` (or ``base`` when ``quantity`` is
@@ -113,8 +121,10 @@ def find_column(path, header: list[str], base: str, quantity: str | None,
         raise InputError(f"{path}: column {name!r}: unknown unit suffix {unit!r} (accepted "
                          f"for {quantity}: {', '.join(accepted)})")
     if COLUMN_SUFFIXES[unit] != quantity:
-        raise InputError(f"{path}: column {name!r}: {unit!r} is a {COLUMN_SUFFIXES[unit]} unit, "
-                         f"{base} is a {quantity} (accepted: {', '.join(accepted)})")
+        other = COLUMN_SUFFIXES[unit]
+        raise InputError(f"{path}: column {name!r}: {unit!r} is {_a(other)} {other} unit, "
+                         f"{base} is {_a(quantity)} {quantity} (accepted: "
+                         f"{', '.join(accepted)})")
     return i, QUANTITIES[quantity][unit]
 
 
@@ -137,6 +147,16 @@ def parse_number(path, line: int, column: str, text: str) -> float:
 def _column_values(path, header, rows: list[Row], index: int, factor: float) -> np.ndarray:
     name = header[index]
     return np.array([parse_number(path, line, name, f[index]) for line, f in rows]) * factor
+
+
+#: what the joint readings of each machine type measure (prismatic: length, revolute: angle)
+JOINT_QUANTITY = {"hexaslide": "length", "delta": "angle"}
+
+
+def joint_quantity(machine) -> str:
+    """``"length"`` or ``"angle"``: the quantity of ``machine``'s joint readings."""
+    return getattr(machine, "joint_quantity", None) or JOINT_QUANTITY.get(
+        getattr(machine, "kind", ""), "length")
 
 
 def read_joints(path, n_joints: int, quantity: str = "length"):
@@ -186,6 +206,50 @@ def read_constraint_link(path, machine) -> ConstraintLinkData:
     passive = read_passive(path, extra, rows, machine.n_joints)
     return ConstraintLinkData(q, float(machine.constraint_link_length), passive, rows,
                               source=str(path))
+
+
+def read_tracker(path, machine) -> TrackerData:
+    """Laser-tracker data (SPEC 2.2) for ``machine``: readings ``q1..q<n>`` (the machine's
+    joint quantity, e.g. ``q1_deg`` for a Delta) and tracker points ``mx, my, mz`` (any
+    length unit) per row. Other columns are ignored."""
+    header, rows = read_table(path)
+    quantity = joint_quantity(machine)
+    q_cols = [find_column(path, header, f"q{j + 1}", quantity)
+              for j in range(machine.n_joints)]
+    m_cols = [find_column(path, header, c, "length") for c in ("mx", "my", "mz")]
+    q = np.column_stack([_column_values(path, header, rows, i, f) for i, f in q_cols])
+    m = np.column_stack([_column_values(path, header, rows, i, f) for i, f in m_cols])
+    return TrackerData(q, m, np.array([line for line, _ in rows]), source=str(path))
+
+
+ORIENTATION_COLUMNS = ("psi", "theta", "phi", "qx", "qy", "qz", "qw")
+
+
+def has_orientation(header: list[str]) -> bool:
+    """True when a header has orientation columns (Euler angles or a quaternion)."""
+    return any(n == c or n.startswith(c + "_") for n in header for c in ORIENTATION_COLUMNS)
+
+
+def read_positions(path, orientation_tol: float = 1e-9):
+    """Positions ``(P (K, 3) m, rows (K,))`` from ``x, y, z`` columns, for a platform that does
+    not rotate. Orientation columns, when present, must describe no rotation (angle below
+    ``orientation_tol`` rad); otherwise :class:`InputError` names the row."""
+    header, rows = read_table(path)
+    lines = np.array([line for line, _ in rows])
+    if has_orientation(header):
+        P, R, lines = read_poses(path)
+        angle = np.arccos(np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1, 1))
+        bad = np.flatnonzero(angle > orientation_tol)
+        if bad.size:
+            raise InputError(f"{path}: row {lines[bad[0]]}: the orientation columns describe a "
+                             f"rotation of {np.degrees(angle[bad[0]]):.6g} deg, but this "
+                             "platform does not rotate (translation only): give x, y, z only "
+                             "or zero angles")
+        return P, lines
+    P = np.column_stack([_column_values(path, header, rows, *find_column(path, header, c,
+                                                                         "length"))
+                         for c in ("x", "y", "z")])
+    return P, lines
 
 
 def read_poses(path):
@@ -267,6 +331,34 @@ def write_joints(path, q, unit: str = "mm", extra: dict | None = None,
     f = _unit_factor(unit, quantity)
     header = [f"q{j + 1}_{unit}" for j in range(q.shape[1])]
     columns = [q[:, j] / f for j in range(q.shape[1])]
+    for name, values in (extra or {}).items():
+        header.append(name)
+        columns.append(list(values))
+    return write_table(path, header, columns)
+
+
+def write_positions(path, P, length_unit: str = "mm", extra: dict | None = None) -> Path:
+    """Write positions as ``x_<len>, y_<len>, z_<len>`` (a platform that does not rotate)."""
+    P = np.atleast_2d(np.asarray(P, float))
+    fl = _unit_factor(length_unit, "length")
+    header = [f"{c}_{length_unit}" for c in "xyz"]
+    columns = [P[:, j] / fl for j in range(3)]
+    for name, values in (extra or {}).items():
+        header.append(name)
+        columns.append(list(values))
+    return write_table(path, header, columns)
+
+
+def write_tracker(path, q, m, joint_unit: str = "deg", length_unit: str = "mm",
+                  quantity: str = "angle", extra: dict | None = None) -> Path:
+    """Write tracker data: readings ``q`` (K, n) as ``q1_<joint_unit> ...`` and tracker points
+    ``m`` (K, 3) as ``mx_<len>, my_<len>, mz_<len>`` (internal units in, file units out)."""
+    q = np.atleast_2d(np.asarray(q, float))
+    m = np.atleast_2d(np.asarray(m, float))
+    fq, fl = _unit_factor(joint_unit, quantity), _unit_factor(length_unit, "length")
+    header = [f"q{j + 1}_{joint_unit}" for j in range(q.shape[1])] + \
+             [f"m{c}_{length_unit}" for c in "xyz"]
+    columns = [q[:, j] / fq for j in range(q.shape[1])] + [m[:, j] / fl for j in range(3)]
     for name, values in (extra or {}).items():
         header.append(name)
         columns.append(list(values))

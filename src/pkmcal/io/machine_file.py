@@ -12,8 +12,31 @@ A machine file states its format version, machine type and units, then the geome
       - {a0: [451.05, -164.17, -400.0], alpha: 160.0, beta: 70.0, b: [84.85, -84.85, 0.0], l: 450.0}
     calibration: {...}                         # optional metadata written by `pkmcal calibrate`
 
+A Delta robot (SPEC 2.2) is described by its nominal dimensions, its error parameters per leg
+(optional, default 0) and, optionally, the pose of a laser tracker::
+
+    pkmcal: 1
+    machine: delta
+    units: {length: mm, angle: deg}
+    base_radius: 200.0
+    platform_radius: 50.0
+    upper_arm: 300.0
+    forearm: 800.0
+    leg_angles: [90.0, 180.0, -90.0]
+    smr_offset: 30.0                           # optional: reflector below the platform point
+    legs:                                      # optional: exactly 3, every key optional (0)
+      - {da: [0.0, 0.0, 0.0], dtheta: 0.0, dl1: 0.0, dl2: 0.0, db: [0.0, 0.0, 0.0]}
+    tracker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0]}
+    home: [0.0, 0.0, -750.0]                   # x, y, z (the platform does not rotate)
+
+``tracker`` is ``base_from_tracker`` (``x_base = rotation @ m + translation``), kept on the
+machine as ``machine.base_from_tracker = (R, t)`` (None without the key); a calibrated Delta
+file carries the identified errors in ``legs``, the identified registration in ``tracker``,
+and ``home``. A Delta ``home`` may also be written with six numbers when the three angles are
+zero.
+
 Loading dispatches on ``machine:`` through :data:`MACHINE_FORMATS` (one entry per machine
-type: a pydantic schema, a builder and a dumper), so Delta and Stewart files are added there
+type: a pydantic schema, a builder and a dumper), so a new machine type is added there
 without touching the loader. Every problem is an :class:`~pkmcal.errors.InputError` whose
 message reads ``FILE: key.path: what is wrong (line N)``, e.g.
 ``machine.yaml: chains[3].alpha: not a number: 'abc' (line 12)``; list indices are 0-based.
@@ -38,12 +61,14 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, field_validator
+from pydantic_core import PydanticCustomError
 
 from ..errors import InputError
 from ..kinematics import euler_from_matrix, matrix_from_euler
-from ..machines import HexaSlide, hexaslide_parameters
+from ..machines import Delta, HexaSlide, delta_parameters, hexaslide_parameters
 from ..machines.base import Machine
+from ..machines.delta import LEG_FIELDS
 from ..units import ANGLE, LENGTH
 from .atomic import atomic_write_text, read_input_text
 
@@ -174,6 +199,80 @@ class HexaSlideFile(_Strict):
     calibration: dict[str, Any] | None = None
 
 
+NonNegative = Annotated[float, Strict(), Field(allow_inf_nan=False, ge=0)]
+Matrix3 = Annotated[list[Vector3], Field(min_length=3, max_length=3)]
+
+#: a rotation matrix read from a file may deviate from orthonormal by this much (6-digit
+#: exports); it is then replaced by the nearest rotation. Within 1e-12 it is kept as written.
+ROTATION_TOL = 1e-5
+
+
+class DeltaLeg(_Strict):
+    """Error parameters of one Delta leg (seed 001 eq. 3, leg frame); every key defaults to 0."""
+
+    da: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+    dtheta: Number = 0.0
+    dl1: Number = 0.0
+    dl2: Number = 0.0
+    db: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+class TrackerPose(_Strict):
+    """``base_from_tracker``: a tracker point ``m`` is ``rotation @ m + translation`` in the
+    base frame."""
+
+    rotation: Matrix3
+    translation: Vector3
+
+    @field_validator("rotation")
+    @classmethod
+    def _proper_rotation(cls, value):
+        R = np.asarray(value, float)
+        dev = float(np.max(np.abs(R.T @ R - np.eye(3))))
+        det = float(np.linalg.det(R))
+        if dev > ROTATION_TOL or det <= 0:
+            raise PydanticCustomError(
+                "rotation_matrix",
+                "not a rotation matrix (rows must be orthonormal with determinant +1; "
+                "|R^T R - I| = {dev}, det = {det})",
+                {"dev": f"{dev:.3g}", "det": f"{det:.6g}"})
+        return value
+
+
+class DeltaFile(_Strict):
+    """``machine: delta`` (SPEC 6)."""
+
+    pkmcal: Literal[1]
+    machine: Literal["delta"]
+    name: str | None = None
+    units: Units
+    base_radius: Positive
+    platform_radius: NonNegative
+    upper_arm: Positive
+    forearm: Positive
+    leg_angles: Vector3
+    smr_offset: Number = 0.0
+    legs: Annotated[list[DeltaLeg], Field(min_length=3, max_length=3)] | None = None
+    tracker: TrackerPose | None = None
+    home: list[Number] | None = None
+    calibration: dict[str, Any] | None = None
+
+    @field_validator("home")
+    @classmethod
+    def _position_home(cls, value):
+        if value is None:
+            return value
+        if len(value) not in (3, 6):
+            raise PydanticCustomError(
+                "home_length", "expected 3 numbers [x, y, z] (the Delta platform does not "
+                "rotate), got {n}", {"n": len(value)})
+        if len(value) == 6 and any(abs(v) > 1e-9 for v in value[3:]):
+            raise PydanticCustomError(
+                "home_rotation", "the Delta platform does not rotate: psi, theta, phi must be "
+                "0, got {angles}; write home: [x, y, z]", {"angles": value[3:]})
+        return value
+
+
 # --------------------------------------------------------------------------------------------
 # Machine formats: schema + builder + dumper per machine type
 # --------------------------------------------------------------------------------------------
@@ -190,6 +289,10 @@ class MachineFormat:
     dump: Callable[[Machine, dict], dict]
     #: how a list of this many entries is called in messages (``chains``)
     counts: dict[str, int]
+    #: what ``home`` holds, for messages
+    home_text: str = "[x, y, z, psi, theta, phi]"
+    #: hints shown with a missing key of this machine type
+    hints: dict[str, str] | None = None
 
 
 def _factors(units) -> tuple[float, float]:
@@ -253,10 +356,84 @@ def _dump_hexaslide(machine: HexaSlide, units: dict) -> dict:
     return out
 
 
-#: machine type (``machine:`` in files) -> format; add Delta and Stewart here
+def _rotation(value) -> np.ndarray:
+    """A rotation matrix from a file: kept as written when orthonormal to 1e-12, else the
+    nearest rotation (the schema has checked it is within :data:`ROTATION_TOL`)."""
+    R = np.asarray(value, float)
+    if np.max(np.abs(R.T @ R - np.eye(3))) <= 1e-12:
+        return R
+    U, _, Vt = np.linalg.svd(R)
+    return U @ Vt
+
+
+def _build_delta(doc: DeltaFile, source: str) -> Delta:
+    fl, fa = _factors(doc.units.model_dump())
+    legs = doc.legs if doc.legs is not None else [DeltaLeg() for _ in range(3)]
+    factor = {"da": fl, "dtheta": fa, "dl1": fl, "dl2": fl, "db": fl}
+    values = []
+    for leg in legs:
+        for field in LEG_FIELDS:                 # da.x, ..., dtheta, dl1, dl2, db.x, ...
+            key, _, axis = field.partition(".")
+            v = getattr(leg, key)
+            values.append((v["xyz".index(axis)] if axis else v) * factor[key])
+    home = None
+    if doc.home is not None:
+        home = (np.asarray(doc.home[:3], float) * fl, np.eye(3))
+    machine = Delta(doc.base_radius * fl, doc.platform_radius * fl, doc.upper_arm * fl,
+                    doc.forearm * fl, np.asarray(doc.leg_angles, float) * fa,
+                    parameters=delta_parameters(values), smr_offset=doc.smr_offset * fl,
+                    home=home, name=doc.name or "")
+    machine.base_from_tracker = None if doc.tracker is None else (
+        _rotation(doc.tracker.rotation), np.asarray(doc.tracker.translation, float) * fl)
+    q = machine.ik(machine.home[0])
+    bad = np.flatnonzero(~np.isfinite(q))
+    if bad.size:
+        key, what = (("home", "the position") if doc.home is not None else
+                     ("legs", "the default home (arms horizontal)"))
+        raise InputError(f"{source}: {key}: {what} cannot be reached by leg(s) "
+                         f"{', '.join(str(i + 1) for i in bad)} "
+                         "(the forearm cannot span the distance from the arm's circle to the "
+                         "platform joint); check home, the dimensions and legs")
+    return machine
+
+
+def _dump_delta(machine: Delta, units: dict) -> dict:
+    fl, fa = _factors(units)
+    da, dth, dl1, dl2, db = machine.legs()
+    out: dict[str, Any] = {
+        "base_radius": machine.a / fl,
+        "platform_radius": machine.b / fl,
+        "upper_arm": machine.l1 / fl,
+        "forearm": machine.l2 / fl,
+        "leg_angles": [float(v) / fa for v in machine.leg_angles],
+        "smr_offset": machine.smr_offset / fl,
+        "legs": [{"da": [float(v) / fl for v in da[i]], "dtheta": float(dth[i]) / fa,
+                  "dl1": float(dl1[i]) / fl, "dl2": float(dl2[i]) / fl,
+                  "db": [float(v) / fl for v in db[i]]} for i in range(3)],
+    }
+    pose = getattr(machine, "base_from_tracker", None)
+    if pose is not None:
+        R, t = pose
+        out["tracker"] = {"rotation": [[float(v) for v in row] for row in np.asarray(R)],
+                          "translation": [float(v) / fl for v in np.asarray(t)]}
+    return out
+
+
+_DELTA_HINTS = {
+    "base_radius": "the radius a of the actuator axes, e.g. base_radius: 200.0",
+    "platform_radius": "the radius b of the platform joints, e.g. platform_radius: 50.0",
+    "upper_arm": "the upper-arm length l1, e.g. upper_arm: 300.0",
+    "forearm": "the parallelogram forearm length l2, e.g. forearm: 800.0",
+    "leg_angles": "the azimuths of the 3 legs, e.g. leg_angles: [90.0, 180.0, -90.0]",
+    "legs": "a list of 3 legs {da: [x, y, z], dtheta, dl1, dl2, db: [x, y, z]}",
+}
+
+#: machine type (``machine:`` in files) -> format; add new machine types here
 MACHINE_FORMATS: dict[str, MachineFormat] = {
     "hexaslide": MachineFormat(HexaSlideFile, _build_hexaslide, _dump_hexaslide,
                                {"chains": 6}),
+    "delta": MachineFormat(DeltaFile, _build_delta, _dump_delta, {"legs": 3},
+                           home_text="[x, y, z]", hints=_DELTA_HINTS),
 }
 
 
@@ -318,12 +495,14 @@ _HINTS = {
 }
 
 
-def _describe(err: dict, schema: type[BaseModel], counts: dict[str, int]) -> str:
+def _describe(err: dict, fmt: MachineFormat) -> str:
+    schema, counts = fmt.schema, fmt.counts
     kind, loc, value = err["type"], err["loc"], err.get("input")
     ctx = err.get("ctx") or {}
     last = loc[-1] if loc else None
     if kind == "missing":
-        hint = _HINTS.get(last) if isinstance(last, str) else None
+        hints = {**_HINTS, **(fmt.hints or {})} if len(loc) == 1 else {}
+        hint = hints.get(last) if isinstance(last, str) else None
         return "missing key" + (f" ({hint})" if hint else "")
     if kind == "extra_forbidden":
         model = _model_at(schema, loc[:-1])
@@ -335,6 +514,8 @@ def _describe(err: dict, schema: type[BaseModel], counts: dict[str, int]) -> str
         return f"must be a finite number, got {_show(value)}"
     if kind == "greater_than":
         return f"must be > {ctx.get('gt')}, got {_show(value)}"
+    if kind == "greater_than_equal":
+        return f"must be >= {ctx.get('ge')}, got {_show(value)}"
     if kind == "literal_error":
         if loc and loc[0] == "units" and isinstance(last, str):
             return (f"unknown {last} unit {_show(value)} (accepted: "
@@ -346,11 +527,14 @@ def _describe(err: dict, schema: type[BaseModel], counts: dict[str, int]) -> str
         if isinstance(last, str) and last in counts:
             return f"expected exactly {counts[last]} {last}, got {actual}"
         if last == "home":
-            return f"expected 6 numbers [x, y, z, psi, theta, phi], got {actual}"
+            return f"expected {fmt.home_text.count(',') + 1} numbers {fmt.home_text}, got " \
+                   f"{actual}"
+        if last == "rotation":
+            return f"expected a 3x3 matrix (3 rows of 3 numbers), got {actual} rows"
         return f"expected {n} numbers, got {actual}"
     if kind == "list_type":
         if last == "home":
-            return f"expected a list [x, y, z, psi, theta, phi], got {_show(value)}"
+            return f"expected a list {fmt.home_text}, got {_show(value)}"
         if isinstance(last, str) and last in counts:
             return f"expected a list of {counts[last]} entries, got {_show(value)}"
         return f"expected a list [x, y, z], got {_show(value)}"
@@ -361,8 +545,8 @@ def _describe(err: dict, schema: type[BaseModel], counts: dict[str, int]) -> str
     return err.get("msg", kind)
 
 
-def _validation_message(exc: ValidationError, source: str, lines: dict, schema,
-                        counts) -> str:
+def _validation_message(exc: ValidationError, source: str, lines: dict,
+                        fmt: MachineFormat) -> str:
     parts = []
     errors = exc.errors()
     for err in errors[:3]:
@@ -373,7 +557,7 @@ def _validation_message(exc: ValidationError, source: str, lines: dict, schema,
                 line = lines[loc[:k]]
                 break
         where = f" (line {line})" if line else ""
-        parts.append(f"{_key_path(loc)}: {_describe(err, schema, counts)}{where}")
+        parts.append(f"{_key_path(loc)}: {_describe(err, fmt)}{where}")
     more = f"; and {len(errors) - 3} more problem(s)" if len(errors) > 3 else ""
     return f"{source}: " + "; ".join(parts) + more
 
@@ -407,8 +591,7 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     try:
         doc = fmt.schema.model_validate(data)
     except ValidationError as exc:
-        raise InputError(_validation_message(exc, source, lines, fmt.schema,
-                                             fmt.counts)) from None
+        raise InputError(_validation_message(exc, source, lines, fmt)) from None
     machine = fmt.build(doc, source)
     machine.file_units = doc.units.model_dump()
     machine.source = source
@@ -486,8 +669,11 @@ def machine_to_text(machine: Machine, units: dict | None = None,
     fl, fa = _factors(units)
     body = MACHINE_FORMATS[kind].dump(machine, units)
     P, R = machine.home
-    home = [float(v) / fl for v in np.asarray(P, float)] + \
-           [float(v) / fa for v in euler_from_matrix(np.asarray(R, float))]
+    home = [float(v) / fl for v in np.asarray(P, float)]
+    home_text = "x, y, z"
+    if getattr(machine, "pose_dof", 6) == 6:
+        home += [float(v) / fa for v in euler_from_matrix(np.asarray(R, float))]
+        home_text += ", psi, theta, phi"
     lines = [f"pkmcal: {FORMAT_VERSION}", f"machine: {kind}"]
     if getattr(machine, "name", ""):
         lines.append(f"name: {_flow(str(machine.name))}")
@@ -498,7 +684,7 @@ def machine_to_text(machine: Machine, units: dict | None = None,
             lines.extend(f"  - {_flow(item)}" for item in value)
         else:
             lines.append(f"{key}: {_flow(value)}")
-    lines.append(f"home: {_flow(home)}   # x, y, z, psi, theta, phi")
+    lines.append(f"home: {_flow(home)}   # {home_text}")
     if calibration is not None:
         meta = _plain(calibration)
         if not isinstance(meta, dict):

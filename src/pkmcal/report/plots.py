@@ -75,3 +75,26 @@ def plot_parameter_errors(names, before, after, std, path, unit_scale, unit_labe
     ax.set_ylabel(unit_label)
     ax.legend(fontsize=8)
     return _save(fig, path)
+
+
+def plot_distance_ratio(panels, path, title: str = "distance ratio of neighbouring points"):
+    """Seed 001 Fig. 6: distance ratio [%] (model distance / tracker distance x 100) of
+    neighbouring grid points, per pair, before (dashed) and after (solid) calibration.
+
+    ``panels``: list of ``(panel title, {label: (ratios, style)})``; styles such as ``"--"``
+    (before) and ``"-"`` (after). The 100 % line is drawn for reference.
+    """
+    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4), squeeze=False)
+    for ax, (panel_title, curves) in zip(axes[0], panels, strict=True):
+        for label, (ratios, style) in curves.items():
+            r = np.asarray(ratios, float)
+            ax.plot(np.arange(1, r.size + 1), r, style, lw=1.2, marker=".", ms=4,
+                    label=f"{label} (std {np.std(r):.3g} %)")
+        ax.axhline(100.0, color="k", lw=0.6, alpha=0.5)
+        ax.set_xlabel("pair of neighbouring points")
+        ax.set_ylabel("distance ratio [%]")
+        ax.set_title(panel_title, fontsize=10)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(title)
+    return _save(fig, path)
