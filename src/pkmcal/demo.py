@@ -36,44 +36,6 @@ class DemoResult:
 NOISE_LEVELS = (0.1e-6, 0.3e-6, 1e-6, 3e-6, 10e-6)
 LC_ERRORS = (1e-6, 3e-6, 10e-6, 30e-6, 100e-6)
 
-# --------------------------------------------------------------------------------------------
-# Simulation defaults shared with `pkmcal simulate`
-# --------------------------------------------------------------------------------------------
-
-#: half-widths of the uniform random deviations per machine type: (length m, angle rad)
-RANDOM_DEVIATION = {"hexaslide": (2e-3, 0.02), "delta": (1e-3, np.deg2rad(0.5))}
-#: seed 001's measurement grid: dx = dy = 150 mm, dz = 40 mm
-TRACKER_GRID_SPACING = (0.15, 0.15, 0.04)
-#: where the simulated tracker stands in the base frame (m): 2.5 m from the robot's axis,
-#: on the floor 1.4 m below the base plane
-TRACKER_POSITION = (2.0, -1.5, -1.4)
-#: its tilt about its own y axis (rad)
-TRACKER_TILT = np.deg2rad(1.0)
-
-
-def random_deviations(machine, rng) -> np.ndarray:
-    """Uniform random errors of every parameter (:data:`RANDOM_DEVIATION` for the machine
-    type; lengths and angles, other kinds +/-1e-3)."""
-    params = machine.parameters
-    length, angle = RANDOM_DEVIATION.get(getattr(machine, "kind", ""), (2e-3, 0.02))
-    kinds = np.array(params.kinds)
-    size = np.where(kinds == "length", length, np.where(kinds == "angle", angle, 1e-3))
-    return rng.uniform(-1.0, 1.0, len(params)) * size
-
-
-def default_tracker_pose() -> tuple[np.ndarray, np.ndarray]:
-    """The true ``base_from_tracker = (R, t)`` of simulations without a tracker in the machine
-    file: the tracker stands at :data:`TRACKER_POSITION` (2.5 m from the robot's axis), its x
-    axis turned about Z toward the robot's axis (143.13 deg) and tilted by
-    :data:`TRACKER_TILT` (1 deg) about its y axis."""
-    from .kinematics import matrix_from_rotvec
-
-    t = np.array(TRACKER_POSITION, float)
-    yaw = np.arctan2(-t[1], -t[0])
-    R = matrix_from_rotvec([0.0, 0.0, yaw]) @ matrix_from_rotvec([0.0, TRACKER_TILT, 0.0])
-    return R, t
-
-
 def run_demo(outdir: Path, quick: bool = False, rng=0,
              progress: Callable[[str, int], Callable[[], None]] | None = None) -> DemoResult:
     """Run the demo, write its files to ``outdir`` and return the summary.
@@ -204,7 +166,15 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
     from .io.csv_io import write_tracker
     from .io.machine_file import save_machine
     from .machines import default_delta
-    from .measurements import TrackerNoise, grid_points, neighbour_pairs, simulate_tracker
+    from .measurements import (
+        TRACKER_GRID_SPACING,
+        TrackerNoise,
+        default_tracker_pose,
+        grid_points,
+        neighbour_pairs,
+        random_deviations,
+        simulate_tracker,
+    )
     from .report import plots
 
     rng = np.random.default_rng(seed)

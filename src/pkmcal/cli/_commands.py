@@ -198,7 +198,7 @@ def _deviations(machine, which: str, rng) -> np.ndarray:
         from ..machines import paper_table1_deviations
 
         return paper_table1_deviations(params)
-    from ..demo import random_deviations
+    from ..measurements import random_deviations
 
     return random_deviations(machine, rng)
 
@@ -309,8 +309,12 @@ def _simulate_constraint_link(machine, output: Path, poses: int, noise: str, lc_
 
 def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, deviations: str,
                       truth: Path | None, shape: tuple[int, int, int], outliers: int) -> None:
-    from ..demo import TRACKER_GRID_SPACING, default_tracker_pose
-    from ..measurements import grid_points, simulate_tracker
+    from ..measurements import (
+        TRACKER_GRID_SPACING,
+        default_tracker_pose,
+        grid_points,
+        simulate_tracker,
+    )
 
     noise_model, noise_text = tracker_noise_arg(noise, allow_none=True)
     n_points = int(np.prod(shape))

@@ -149,14 +149,10 @@ def _column_values(path, header, rows: list[Row], index: int, factor: float) -> 
     return np.array([parse_number(path, line, name, f[index]) for line, f in rows]) * factor
 
 
-#: what the joint readings of each machine type measure (prismatic: length, revolute: angle)
-JOINT_QUANTITY = {"hexaslide": "length", "delta": "angle"}
-
-
 def joint_quantity(machine) -> str:
-    """``"length"`` or ``"angle"``: the quantity of ``machine``'s joint readings."""
-    return getattr(machine, "joint_quantity", None) or JOINT_QUANTITY.get(
-        getattr(machine, "kind", ""), "length")
+    """``"length"`` or ``"angle"``: the quantity of ``machine``'s joint readings (declared by
+    the machine class: prismatic actuators read lengths, revolute ones angles)."""
+    return machine.joint_quantity
 
 
 def read_joints(path, n_joints: int, quantity: str = "length"):

@@ -65,6 +65,8 @@ class Machine(ABC):
     n_joints: int = 6
     #: pose degrees of freedom of the platform (6 = full pose, 3 = translation only)
     pose_dof: int = 6
+    #: what the joint readings measure: "length" (prismatic) or "angle" (revolute)
+    joint_quantity: str = "length"
     #: poses per forward-kinematics chunk (temporaries stay in cache)
     fk_chunk: int = 8192
 

@@ -48,6 +48,7 @@ class Delta(Machine):
     kind = "delta"
     n_joints = 3
     pose_dof = 3
+    joint_quantity = "angle"
 
     def __init__(self, base_radius: float, platform_radius: float, upper_arm: float,
                  forearm: float, leg_angles=DEFAULT_LEG_ANGLES, parameters=None,
@@ -60,6 +61,8 @@ class Delta(Machine):
         self.l1, self.l2 = float(upper_arm), float(forearm)
         self.leg_angles = leg_angles
         self.smr_offset = float(smr_offset)
+        #: ``(R, t)`` with a tracker point ``m`` at ``R m + t`` in the base frame, or None
+        self.base_from_tracker = None
         c, s = np.cos(leg_angles), np.sin(leg_angles)
         z, o = np.zeros(3), np.ones(3)
         #: leg frames: Rphi_i (3, 3, 3), a base vector v becomes Rphi_i @ v in leg i's frame

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine
 
 
@@ -86,7 +87,27 @@ class TrackerData:
                            pick(self.true_P), pick(self.outliers))
 
 
-def grid_points(center, spacing=(0.15, 0.15, 0.04), shape=(3, 3, 3)):
+#: seed 001's measurement grid: dx = dy = 150 mm, dz = 40 mm
+TRACKER_GRID_SPACING = (0.15, 0.15, 0.04)
+#: where simulations put the tracker in the base frame (m): 2.5 m from the robot's axis, on
+#: the floor 1.4 m below the base plane
+TRACKER_POSITION = (2.0, -1.5, -1.4)
+#: its tilt about its own y axis (rad)
+TRACKER_TILT = np.deg2rad(1.0)
+
+
+def default_tracker_pose() -> tuple[np.ndarray, np.ndarray]:
+    """The true ``base_from_tracker = (R, t)`` of simulations without a tracker in the machine
+    file: the tracker stands at :data:`TRACKER_POSITION` (2.5 m from the robot's axis), its x
+    axis turned about Z toward the robot's axis (143.13 deg) and tilted by
+    :data:`TRACKER_TILT` (1 deg) about its y axis."""
+    t = np.array(TRACKER_POSITION, float)
+    yaw = np.arctan2(-t[1], -t[0])
+    R = matrix_from_rotvec([0.0, 0.0, yaw]) @ matrix_from_rotvec([0.0, TRACKER_TILT, 0.0])
+    return R, t
+
+
+def grid_points(center, spacing=TRACKER_GRID_SPACING, shape=(3, 3, 3)):
     """Points of a regular grid (seed 001: 3x3x3, dx = dy = 150 mm, dz = 40 mm), (N, 3)."""
     axes = [(np.arange(n) - (n - 1) / 2) * d for n, d in zip(shape, spacing, strict=True)]
     X, Y, Z = np.meshgrid(*axes, indexing="ij")
