@@ -341,3 +341,25 @@ def test_any_120_degree_delta_calibrates_equally_well(name):
               for _ in range(40)]
     ratio = rms(np.array(errors)) / np.sqrt(np.mean(np.trace(C, axis1=1, axis2=2)))
     assert 1 / 1.3 <= ratio <= 1.3, ratio
+
+
+def test_planar_grid_converges_and_reports_its_weak_directions():
+    """Regression: a 1x3x3 grid (one plane) left three directions with standard deviations
+    of 0.17-2.8 (scaled: up to 0.85 m) counted as identifiable; stepping along them stalled
+    LM for 100 iterations. They are now reported as weakly identifiable and not adjusted."""
+    from pkmcal.measurements import default_tracker_pose, random_deviations
+
+    nominal = default_delta()
+    true = nominal.with_parameters(random_deviations(nominal, 1))
+    data = simulate_tracker(true, nominal, grid_points(nominal.home[0], shape=(1, 3, 3)),
+                            default_tracker_pose(), noise=None, rng=2)
+    res = calibrate_tracker(nominal, data)
+    assert res.success, res.message
+    assert res.rank == 18 and res.weak_space.shape[1] == 3
+    assert np.all(res.weak_std > 0.1)
+    weak = [d for d in res.extras["unidentifiable"] if d.description.startswith("weakly")]
+    assert len(weak) == 3
+    # the full grid has none
+    full = calibrate_tracker(nominal, simulate_tracker(
+        true, nominal, grid_points(nominal.home[0]), default_tracker_pose(), noise=None))
+    assert full.rank == 21 and full.weak_space.shape[1] == 0

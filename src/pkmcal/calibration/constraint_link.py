@@ -25,12 +25,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..identifiability import CONSTRAINT_LINK_GAUGES, gauge_groups, name_null_space
+from ..identifiability import (
+    CONSTRAINT_LINK_GAUGES,
+    gauge_groups,
+    name_null_space,
+    name_weak_directions,
+)
 from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine, newton_pose_solve
 from ..measurements.constraint_link import ConstraintLinkData
 from ..parameters import ParameterSet
-from .estimator import CalibrationResult, levenberg_marquardt
+from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt
 
 LINK = "link.length"
 METHODS = ("ml", "ik", "fk")
@@ -345,7 +350,7 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
     if per_chain:
         result = _per_chain_sweeps(problem, max_sweeps, rtol, **options)
     else:
-        result = levenberg_marquardt(problem, rtol=rtol, **options)
+        result = levenberg_marquardt(problem, rtol=rtol, **{"max_std": MAX_STD, **options})
     um, Lc = problem.split(result.x)
     calibrated = machine.with_parameters(um)
     calibrated.constraint_link_length = float(Lc)
@@ -360,7 +365,8 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
     result.extras.update(
         dropped_rows=getattr(problem, "dropped_rows", np.array([], int)),
         method=method, machine=calibrated, link_length=float(Lc),
-        unidentifiable=name_null_space(result.null_space, problem.parameters, groups),
+        unidentifiable=name_null_space(result.null_space, problem.parameters, groups)
+        + name_weak_directions(result, problem.parameters),
     )
     return result
 
@@ -407,6 +413,7 @@ def _failed_sweeps(problem, u, sweep, message):
         x=u, parameters=base.with_values(u), cost=float("nan"), residuals=np.zeros((0, 1)),
         success=False, status=3, message=message, nit=sweep, nfev=0, rank=0,
         singular_values=np.zeros(0), null_space=np.zeros((n, 0)), scales=problem.scales,
+        weak_space=np.zeros((n, 0)), weak_std=np.zeros(0),
         covariance=np.zeros((n, n)), std=np.zeros(n), residual_variance=float("nan"), dof=0,
         state=None, extras={"sweeps": sweep})
 

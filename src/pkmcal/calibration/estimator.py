@@ -68,9 +68,12 @@ class CalibrationResult:
     success, status, message : convergence; ``status`` 1 Gauss-Newton step small, 2 cost flat,
         3 no step reduces the cost, 0 maximum iterations.
     nit, nfev : iterations and residual evaluations.
-    rank : number of identifiable directions among the free parameters.
+    rank : number of directions identified (stepped along) among the free parameters.
     singular_values : of the scaled reduced Jacobian of the free parameters.
-    null_space : (n, n_free - rank) unidentifiable directions in scaled coordinates.
+    null_space : (n, k) unidentifiable directions (numerically null) in scaled coordinates.
+    weak_space : (n, w) weakly identifiable directions: not null, but with a standard
+        deviation above ``max_std`` (scaled units) under the assumed noise; not adjusted.
+    weak_std : (w,) their standard deviations (scaled units).
     covariance : (n, n) of ``x`` (zeros for fixed parameters), minimum-norm (pseudo-inverse)
         covariance, multiplied by ``residual_variance`` unless ``absolute_sigma``.
     std : (n,) standard deviations, ``sqrt(diag(covariance))``.
@@ -92,6 +95,8 @@ class CalibrationResult:
     singular_values: np.ndarray
     null_space: np.ndarray
     scales: np.ndarray
+    weak_space: np.ndarray
+    weak_std: np.ndarray
     covariance: np.ndarray
     std: np.ndarray
     residual_variance: float
@@ -101,6 +106,10 @@ class CalibrationResult:
 
     def __getitem__(self, key):  # scipy-style access: result["x"]
         return getattr(self, key)
+
+
+#: default ``max_std`` of the machine calibrations (scaled units, see levenberg_marquardt)
+MAX_STD = 0.1
 
 
 def reduce_local(r, Jg, Jl):
@@ -128,7 +137,8 @@ def reduce_local(r, Jg, Jl):
 
 def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float = 1e-12,
                         ftol: float = 1e-14, max_iter: int = 100,
-                        absolute_sigma: bool = False, state=None) -> CalibrationResult:
+                        absolute_sigma: bool = False, state=None,
+                        max_std: float | None = None) -> CalibrationResult:
     """Solve a :class:`BlockProblem` by Levenberg-Marquardt on the reduced (Schur) system.
 
     Parameters
@@ -142,12 +152,26 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
     ftol : stop when the relative cost decrease of an accepted step is below ``ftol``.
     absolute_sigma : residuals are whitened by true standard deviations: report the
         covariance without rescaling by the residual variance.
+    max_std : a direction whose standard deviation under the assumed noise exceeds this, in
+        scaled units (0.1 = 10 % of the characteristic length, or 5.7 deg), is not determined
+        by the data in any useful sense: it is neither stepped along (stepping along it stalls
+        the iteration in a curved valley) nor counted as identified, and it is returned in
+        ``weak_space``. None (default): numerical rank only; the machine calibrations pass
+        :data:`MAX_STD`, where scaled units have that meaning.
     """
     for name, v in (("rtol", rtol), ("xtol", xtol), ("ftol", ftol)):
         if not (np.isfinite(v) and 0 <= v < 1):
             raise ValueError(f"{name} must be in [0, 1), got {v}")
     if max_iter < 1:
         raise ValueError(f"max_iter must be >= 1, got {max_iter}")
+    if max_std is not None and not max_std > 0:
+        raise ValueError(f"max_std must be positive or None, got {max_std}")
+    min_s = 0.0 if max_std is None else 1.0 / max_std
+
+    def ranks(s):
+        numerical = int(np.sum(s > rtol * s[0])) if s.size else 0
+        return numerical, min(numerical, int(np.sum(s > min_s)))
+
     params = problem.parameters
     free = params.free
     scales = np.asarray(problem.scales, float)
@@ -164,7 +188,7 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
     for nit in range(1, max_iter + 1):  # noqa: B007
         Jr, er, back = reduce_local(r, Jg[..., free] * scales[free], Jl)
         U, s, Vt = np.linalg.svd(Jr, full_matrices=False)
-        rank = int(np.sum(s > rtol * s[0])) if s.size else 0
+        _, rank = ranks(s)
         Ur, sr, Vr = U[:, :rank], s[:rank], Vt[:rank].T
         g = Ur.T @ er
         s1 = float(sr[0]) if rank else 1.0
@@ -206,11 +230,14 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
     # final statistics at the solution
     Jr, er, _ = reduce_local(r, Jg[..., free] * scales[free], Jl)
     U, s, Vt = np.linalg.svd(Jr, full_matrices=False)
-    rank = int(np.sum(s > rtol * s[0])) if s.size else 0
+    numerical, rank = ranks(s)
     n_free = int(free.sum())
-    null_free = Vt[rank:].T if Vt.shape[0] >= n_free else _complete_null(Vt[:rank], n_free)
+    null_free = (Vt[numerical:].T if Vt.shape[0] >= n_free
+                 else _complete_null(Vt[:numerical], n_free))
     null_space = np.zeros((len(params), null_free.shape[1]))
     null_space[free] = null_free
+    weak_space = np.zeros((len(params), numerical - rank))
+    weak_space[free] = Vt[rank:numerical].T
     cov_free_scaled = (Vt[:rank].T / s[:rank] ** 2) @ Vt[:rank]
     d = Jl.shape[-1] if Jl is not None else 0
     dof = int(r.size - rank - d * r.shape[0])
@@ -223,7 +250,8 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
     return CalibrationResult(
         x=x, parameters=params.with_values(x), cost=cost, residuals=r,
         success=status in (1, 2), status=status, message=message, nit=nit, nfev=nfev,
-        rank=rank, singular_values=s, null_space=null_space, scales=scales, covariance=cov,
+        rank=rank, singular_values=s, null_space=null_space, scales=scales,
+        weak_space=weak_space, weak_std=1.0 / s[rank:numerical], covariance=cov,
         std=np.sqrt(np.clip(np.diag(cov), 0, None)), residual_variance=variance, dof=dof,
         state=state,
     )

@@ -22,12 +22,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..identifiability import NullGroup, name_null_space
+from ..identifiability import NullGroup, name_null_space, name_weak_directions
 from ..kinematics import matrix_from_rotvec, rotvec_from_matrix, skew
 from ..machines.base import Machine
 from ..measurements.tracker import TrackerData, TrackerNoise
 from ..parameters import ParameterSet
-from .estimator import CalibrationResult, levenberg_marquardt
+from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt
 from .registration import register_points
 
 TRACKER = ("tracker.rx", "tracker.ry", "tracker.rz", "tracker.x", "tracker.y", "tracker.z")
@@ -163,7 +163,7 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
         if 3 * len(sub) < n_id:
             raise InputError(f"{data.source}: {len(sub)} points give {3 * len(sub)} "
                              f"equations, fewer than the {n_id} identifiable parameters")
-        result = levenberg_marquardt(problem, rtol=rtol, **options)
+        result = levenberg_marquardt(problem, rtol=rtol, **{"max_std": MAX_STD, **options})
         if not robust:
             break
         e_all, _, _ = TrackerProblem(machine, data, noise, registration, joint).evaluate(
@@ -183,7 +183,8 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
         registration=(state.R, state.t), start_registration=registration,
         outlier_rows=data.rows[~keep], kept=keep,
         unidentifiable=name_null_space(result.null_space, problem.parameters,
-                                       problem.null_groups(result.scales)),
+                                       problem.null_groups(result.scales))
+        + name_weak_directions(result, problem.parameters),
     )
     return result
 

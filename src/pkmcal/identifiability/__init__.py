@@ -6,6 +6,7 @@ from .analysis import (
     NullGroup,
     analyze,
     name_null_space,
+    name_weak_directions,
     observability_indices,
 )
 from .gauge import (
@@ -24,5 +25,6 @@ __all__ = [
     "BASE_ROTATION_ABOUT_O", "CONSTRAINT_LINK_GAUGES", "Gauge", "IdentifiabilityReport",
     "NullDirection", "NullGroup", "PLATFORM_ROTATION_ABOUT_P", "align_gauge", "analyze",
     "apply_gauges", "gauge_generators", "gauge_groups", "name_null_space",
+    "name_weak_directions",
     "observability_indices", "transport_covariance",
 ]

@@ -115,6 +115,19 @@ def name_null_space(null_space, parameters: ParameterSet,
     return out
 
 
+def name_weak_directions(result, parameters: ParameterSet) -> list[NullDirection]:
+    """The weakly identifiable directions of a calibration result, in words with their
+    standard deviations (scaled units: a fraction of the characteristic length, or rad)."""
+    out = []
+    for k in range(result.weak_space.shape[1]):
+        out.append(NullDirection(
+            parameters.describe_direction(result.weak_space[:, k]), 1,
+            f"weakly identifiable: standard deviation {result.weak_std[k]:.2g} (scaled) with "
+            "these measurements, so it is left unadjusted; spread the measurements more "
+            "(all three directions, wider orientations)"))
+    return out
+
+
 def analyze(jacobian_scaled, parameters: ParameterSet, rtol: float = 1e-7,
             groups: Sequence[NullGroup] = ()) -> IdentifiabilityReport:
     """Identifiability of the free parameters from a scaled (reduced) Jacobian (M, n_free)."""
