@@ -2,21 +2,16 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-from pathlib import Path
-
 import pytest
 
-PKMCAL = Path(sys.executable).parent / "pkmcal"
+from clitools import run
 
 
 @pytest.fixture
 def cli(tmp_path):
     """``cli(*args, cwd=tmp_path) -> CompletedProcess`` running the ``pkmcal`` command."""
 
-    def run(*args, cwd=tmp_path):
-        return subprocess.run([str(PKMCAL), *map(str, args)], cwd=cwd, capture_output=True,
-                              text=True, timeout=120)
+    def run_here(*args, cwd=tmp_path):
+        return run(*args, cwd=cwd)
 
-    return run
+    return run_here

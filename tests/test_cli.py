@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 import subprocess
 import sys
@@ -11,27 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from clitools import PKMCAL, assert_input_error, digest
 from pkmcal.io import load_machine, read_joints, read_poses, write_poses
 from pkmcal.kinematics import kabsch, matrix_from_euler
 from pkmcal.machines import default_hexaslide
 
-PKMCAL = Path(sys.executable).parent / "pkmcal"
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "hexaslide_default.yaml"
 COMMANDS = ["demo", "simulate", "calibrate", "fk", "ik", "bench"]
 
 
-def digest(path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def assert_input_error(proc, *words):
-    """Exit 2, one line on stderr naming the problem, no traceback."""
-    assert proc.returncode == 2, proc.stdout + proc.stderr
-    err = proc.stderr.strip()
-    assert err.startswith("error: "), err
-    assert "Traceback" not in err and len(err.splitlines()) == 1, err
-    for w in words:
-        assert w in err, err
 
 
 @pytest.fixture(scope="module")

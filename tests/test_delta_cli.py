@@ -3,42 +3,23 @@ subprocess: simulate -> calibrate -> fk/ik, the calibrated file, and bad input."
 
 from __future__ import annotations
 
-import hashlib
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from clitools import assert_input_error, digest, run
 from pkmcal.calibration import predict_tracker_points
 from pkmcal.io import load_machine, read_joints, read_positions, read_tracker, write_positions
 from pkmcal.machines import default_delta
 from pkmcal.measurements import grid_points, neighbour_pairs
 
-PKMCAL = Path(sys.executable).parent / "pkmcal"
 DELTA = Path(__file__).resolve().parents[1] / "examples" / "delta_default.yaml"
 
 
-def digest(path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
-
-def run(*args, cwd):
-    return subprocess.run([str(PKMCAL), *map(str, args)], cwd=cwd, capture_output=True,
-                          text=True, timeout=120)
-
-
-def assert_input_error(proc, *words):
-    """Exit 2, one line on stderr naming the problem, no traceback."""
-    assert proc.returncode == 2, proc.stdout + proc.stderr
-    err = proc.stderr.strip()
-    assert err.startswith("error: "), err
-    assert "Traceback" not in err and len(err.splitlines()) == 1, err
-    for w in words:
-        assert w in err, err
 
 
 @pytest.fixture(scope="module")

@@ -566,12 +566,7 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
         "link_length_estimated": lc_estimated,
         "report": report_path.name,
     }
-    yaml_text = machine_to_text(calibrated, units, calibration=metadata)
-    parse_machine(yaml_text, str(output))   # the calibrated file must load back
-    json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
-    # outputs, at the very end
-    atomic_write_text(report_path, json_text)
-    atomic_write_text(output, yaml_text)
+    json_text = _write_calibration(calibrated, units, metadata, report, output, report_path)
 
     if dropped:
         warning(f"{data_path}: {len(dropped)} row(s) left out (no pose from the five active "
@@ -581,6 +576,17 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
     else:
         _print_calibration(report, params, data_path, output, report_path, machine)
     return 0
+
+
+def _write_calibration(calibrated, units, metadata, report, output, report_path) -> str:
+    """Write the calibrated machine file and its JSON report, at the very end and atomically;
+    the machine file is checked to load back first. Returns the JSON text."""
+    yaml_text = machine_to_text(calibrated, units, calibration=metadata)
+    parse_machine(yaml_text, str(output))   # the calibrated file must load back
+    json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
+    atomic_write_text(report_path, json_text)
+    atomic_write_text(output, yaml_text)
+    return json_text
 
 
 def _print_calibration(report, params, data_path, output, report_path, machine) -> None:
@@ -860,12 +866,7 @@ def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path
         "distance_ratio_std_percent": {"before": before["std"], "after": after["std"]},
         "report": report_path.name,
     }
-    yaml_text = machine_to_text(calibrated, units, calibration=metadata)
-    parse_machine(yaml_text, str(output))   # the calibrated file must load back
-    json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
-    # outputs, at the very end
-    atomic_write_text(report_path, json_text)
-    atomic_write_text(output, yaml_text)
+    json_text = _write_calibration(calibrated, units, metadata, report, output, report_path)
 
     if json_output:
         print(json_text, end="")

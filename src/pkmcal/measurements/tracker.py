@@ -29,22 +29,21 @@ class TrackerNoise:
     transverse: float = 7.5e-6        # across the beam, constant part
     transverse_per_m: float = 3e-6    # across the beam, per metre of range
 
-    def covariance(self, m):
-        """Per-point covariance (K, 3, 3) in the tracker frame for tracker points ``m``."""
+    def _beam(self, m):
+        """Projector on the beam ``rr`` (K, 3, 3) and the transverse std ``st`` (K,)."""
         m = np.asarray(m, float)
         rng = np.linalg.norm(m, axis=-1)
         r = m / np.where(rng > 0, rng, 1.0)[..., None]
-        rr = r[..., :, None] * r[..., None, :]
-        st = self.transverse + self.transverse_per_m * rng
+        return r[..., :, None] * r[..., None, :], self.transverse + self.transverse_per_m * rng
+
+    def covariance(self, m):
+        """Per-point covariance (K, 3, 3) in the tracker frame for tracker points ``m``."""
+        rr, st = self._beam(m)
         return self.distance**2 * rr + (st**2)[..., None, None] * (np.eye(3) - rr)
 
     def whitening(self, m):
         """``W`` (K, 3, 3) with ``W^T W = Cov^-1``: ``r/s_d`` along the beam, ``1/s_t`` across."""
-        m = np.asarray(m, float)
-        rng = np.linalg.norm(m, axis=-1)
-        r = m / np.where(rng > 0, rng, 1.0)[..., None]
-        rr = r[..., :, None] * r[..., None, :]
-        st = self.transverse + self.transverse_per_m * rng
+        rr, st = self._beam(m)
         return rr / self.distance + (np.eye(3) - rr) / st[..., None, None]
 
     def sample(self, m, rng):
