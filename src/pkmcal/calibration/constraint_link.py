@@ -112,7 +112,7 @@ class _ConstraintLinkProblem:
         link = ParameterSet([LINK], ["length"], [data.link_length],
                             fixed=[not estimate_link_length])
         self.parameters = machine.parameters.concat(link)
-        self.scales = self.parameters.scales(machine.characteristic_length())
+        self.scales = machine.scales_with(link)
         self.n_machine = len(machine.parameters)
 
     def global_values(self, state):

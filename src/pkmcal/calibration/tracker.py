@@ -62,7 +62,7 @@ class TrackerProblem:
         tracker = ParameterSet(TRACKER, ("angle",) * 3 + ("length",) * 3,
                                np.concatenate([np.zeros(3), self.t0]), fixed=[not joint] * 6)
         self.parameters = machine.parameters.concat(tracker)
-        self.scales = self.parameters.scales(machine.characteristic_length())
+        self.scales = machine.scales_with(tracker)
         self.n_machine = len(machine.parameters)
         fk = machine.fk(data.q)
         if not fk.converged.all():

@@ -108,6 +108,17 @@ class Machine(ABC):
     def characteristic_length(self) -> float:
         """Length (m) used to scale length parameters against angles."""
 
+    def parameter_scales(self) -> np.ndarray:
+        """Column scale of every parameter in identification Jacobians: lengths by the
+        characteristic length, angles by 1 (machines with other kinds override this)."""
+        return self.parameters.scales(self.characteristic_length())
+
+    def scales_with(self, extra) -> np.ndarray:
+        """Scales of the machine's parameters followed by those of ``extra`` (a ParameterSet
+        of measurement-model parameters: link length, tracker pose, frames)."""
+        return np.concatenate([self.parameter_scales(),
+                               extra.scales(self.characteristic_length())])
+
     # -- kinematics -----------------------------------------------------------------------
     @abstractmethod
     def ik_jacobians(self, P, R, u=None, want_du: bool = True):
