@@ -10,6 +10,16 @@ from .constraint_link import (
     solve_sphere_poses,
 )
 from .estimator import BlockProblem, CalibrationResult, levenberg_marquardt, reduce_local
+from .full_pose import (
+    FullPoseErrors,
+    FullPoseIK,
+    FullPoseML,
+    align_to,
+    calibrate_full_pose,
+    estimate_frames,
+    full_pose_errors,
+    gauge_free_error,
+)
 from .registration import register_points
 from .tracker import (
     TrackerProblem,
@@ -20,7 +30,9 @@ from .tracker import (
 )
 
 __all__ = ["METHODS", "BlockProblem", "CalibrationResult", "ConstraintLinkFK",
-           "ConstraintLinkIK", "ConstraintLinkIKExplicit", "ConstraintLinkML",
+           "ConstraintLinkIK", "ConstraintLinkIKExplicit", "ConstraintLinkML", "FullPoseErrors",
+           "FullPoseIK", "FullPoseML", "align_to", "calibrate_full_pose", "estimate_frames",
+           "full_pose_errors", "gauge_free_error",
            "calibrate_constraint_link", "levenberg_marquardt", "reduce_local",
            "solve_sphere_poses", "TrackerProblem", "calibrate_tracker", "distance_ratios",
            "predict_tracker_points", "prediction_covariance", "register_points"]

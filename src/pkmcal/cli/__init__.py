@@ -24,10 +24,10 @@ from ..errors import ConvergenceError, InputError
 app = typer.Typer(
     name="pkmcal",
     help="Calibration, identifiability and error analysis of parallel kinematic machines.\n\n"
-         "MACHINE arguments are a machine file (YAML, SPEC 6: hexaslide or delta) or the word "
-         "'default' for the embedded Hexa Slide (examples/delta_default.yaml is the default "
-         "Delta). Numbers on the command line take a unit suffix (2um, 300mm, 10deg); a bare "
-         "number is SI.",
+         "MACHINE arguments are a machine file (YAML, SPEC 6: hexaslide, delta or stewart) or "
+         "the word 'default' for the embedded Hexa Slide (examples/delta_default.yaml is the "
+         "default Delta). Numbers on the command line take a unit suffix (2um, 300mm, 10deg); "
+         "a bare number is SI.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -55,8 +55,8 @@ class Method(enum.StrEnum):
 
 
 MachineArg = Annotated[str, typer.Argument(
-    metavar="MACHINE", help="Machine file (YAML: hexaslide or delta) or 'default' for the "
-                            "embedded Hexa Slide.",
+    metavar="MACHINE", help="Machine file (YAML: hexaslide, delta or stewart) or 'default' "
+                            "for the embedded Hexa Slide.",
     show_default=False)]
 OutFile = Annotated[Path, typer.Option("-o", "--output", help="Output file (written atomically).",
                                        show_default=False, dir_okay=False)]
@@ -98,15 +98,20 @@ def simulate(
     machine: MachineArg,
     output: OutFile,
     scenario: Annotated[Scenario | None, typer.Option(
-        help="Measurement scenario: constraint-link (hexaslide; default there) or tracker "
-             "(delta; default there).", show_default=False)] = None,
-    poses: Annotated[int | None, typer.Option(
-        min=1, help="Number of measurement poses (constraint-link; default 150).",
+        help="Measurement scenario: constraint-link (hexaslide; default there), tracker "
+             "(delta; default there) or pose (stewart: full-pose measurements; default there).",
         show_default=False)] = None,
+    poses: Annotated[int | None, typer.Option(
+        min=1, help="Number of measurement poses (constraint-link: default 150; pose: default "
+                    "60).", show_default=False)] = None,
     noise: Annotated[str | None, typer.Option(
         help="Measurement noise. constraint-link: encoder noise, standard deviation (default "
              "2um). tracker: leica (default; 5 um along the beam, 7.5 um + 3 um/m across), "
-             "none, or a length for isotropic noise (e.g. 10um).", show_default=False)] = None,
+             "none, or a length for isotropic noise (e.g. 10um). pose: noise of the leg "
+             "readings, as a leg length (default 2um).", show_default=False)] = None,
+    pose_noise: Annotated[str | None, typer.Option(
+        "--pose-noise", help="pose: noise of the measured poses, POSITION,ORIENTATION with "
+                             "units (default 20um,50urad).", show_default=False)] = None,
     lc_error: Annotated[str, typer.Option(
         "--lc-error", help="Error of the constraint-link length in the machine file: the true "
                            "link is the file's length minus this.")] = "0um",
@@ -144,12 +149,22 @@ def simulate(
 
     Example: `pkmcal simulate examples/delta_default.yaml --scenario tracker --seed 1
     --truth true.yaml -o tracker.csv`
+
+    pose (six-leg platform, SPEC 2.4): random platform poses in the 0.1 m cube around home
+    with Euler angles within +/-10 deg; the legs' readings q1..q6 (the machine's reading unit)
+    and the marker pose measured by a motion-capture system, x, y, z (the file's length unit)
+    and qx, qy, qz, qw, in the measurement frame. The true frames are the machine file's
+    measurement_frames, else the default (measurement origin at (1200, -400, -300) mm, turned
+    30 deg about Z and tilted 2 deg; marker 25 mm off the platform origin, turned 90 deg).
+
+    Example: `pkmcal simulate examples/cubic_6upu.yaml --scenario pose --poses 60 --truth
+    true.yaml -o poses.csv`
     """
     from ._commands import run_simulate
 
     run_simulate(machine, output, scenario.value if scenario else None, poses, noise,
                  lc_error, seed, deviations.value if deviations else None, truth, grid,
-                 outliers)
+                 outliers, pose_noise=pose_noise)
 
 
 @app.command()
@@ -161,11 +176,22 @@ def calibrate(
     method: Annotated[Method | None, typer.Option(
         help="constraint-link data: ml maximum likelihood, every reading noisy (default); ik "
              "the paper's inverse-kinematics method (needs the passive column); fk the paper's "
-             "forward-kinematics method (estimates Lc).", show_default=False)] = None,
+             "forward-kinematics method (estimates Lc). pose data: ml maximum likelihood, "
+             "readings and measured poses noisy (default); ik inverse-kinematic residuals "
+             "(Zhuang, Yan & Masory 1998), measured poses exact.", show_default=False)] = None,
     noise: Annotated[str | None, typer.Option(
         help="Measurement noise. constraint-link: encoder noise, standard deviation (default "
-             "1um). tracker: leica (default) or a length for isotropic noise (e.g. 10um).",
+             "1um). tracker: leica (default) or a length for isotropic noise (e.g. 10um). pose: "
+             "noise of the leg readings, as a leg length (default 2um).",
         show_default=False)] = None,
+    pose_noise: Annotated[str | None, typer.Option(
+        "--pose-noise", help="pose data: noise of the measured poses, POSITION,ORIENTATION "
+                             "with units (default 20um,50urad).", show_default=False)] = None,
+    fix_frames: Annotated[bool, typer.Option(
+        "--fix-frames", help="pose data: hold the measurement frames (mocap_from_base, "
+                             "platform_from_marker) at the machine file's measurement_frames "
+                             "(identity without that section) instead of estimating them.")]
+    = False,
     estimate_lc: Annotated[bool | None, typer.Option(
         "--estimate-lc/--no-estimate-lc",
         help="Estimate the constraint-link length too (default: only with --method fk).",
@@ -191,11 +217,19 @@ def calibrate(
     Example: `pkmcal calibrate default data.csv -o calibrated.yaml`
 
     Example: `pkmcal calibrate examples/delta_default.yaml tracker.csv --robust -o cal.yaml`
+
+    q1..q6 + a pose (x, y, z with qx, qy, qz, qw or psi, theta, phi) with a Stewart file ->
+    full-pose calibration (SPEC 2.4): the legs and, unless --fix-frames, the measurement frames
+    (written to the calibrated file's measurement_frames section). The summary compares the
+    machine file's legs (frames fitted alone) with the calibrated ones.
+
+    Example: `pkmcal calibrate examples/cubic_6upu.yaml poses.csv --method ik -o cal.yaml`
     """
     from ._commands import run_calibrate
 
     raise typer.Exit(run_calibrate(machine, data, output, method.value if method else None,
-                                   noise, estimate_lc, json_output, two_step, robust))
+                                   noise, estimate_lc, json_output, two_step, robust,
+                                   pose_noise=pose_noise, fix_frames=fix_frames))
 
 
 @app.command()
@@ -203,8 +237,8 @@ def fk(
     machine: MachineArg,
     joints: Annotated[Path, typer.Argument(
         metavar="JOINTS.csv", show_default=False,
-        help="Joint readings q1_<unit>..q6_<unit> (Delta: q1_deg..q3_deg; other columns are "
-             "ignored).")],
+        help="Joint readings q1_<unit>..q6_<unit> (Delta: q1_deg..q3_deg; Stewart: the legs' "
+             "reading unit, e.g. q1_rev; other columns are ignored).")],
     output: OutFile,
 ) -> None:
     """Forward kinematics: poses from joint readings, in the machine file's units.
@@ -231,13 +265,88 @@ def ik(
     """Inverse kinematics: joint values that put the platform at the given poses.
 
     Writes q1..q6 in the machine file's length unit (Delta: arm angles q1..q3 in its angle
-    unit).
+    unit; Stewart: leg readings in its reading unit, e.g. q1_rev).
 
     Example: `pkmcal ik calibrated.yaml poses.csv -o joints.csv`
     """
     from ._commands import run_ik
 
     run_ik(machine, poses, output)
+
+
+class Trajectory(enum.StrEnum):
+    circle = "circle"
+    file = "file"
+
+
+@app.command("errors")
+def errors_command(
+    machine: Annotated[str, typer.Argument(
+        metavar="MACHINE", help="Six-leg machine file (YAML, machine: stewart) or 'cubic' for "
+                                "the embedded cubic 6-UPU device of seed 003.",
+        show_default=False)],
+    output: OutFile,
+    trajectory: Annotated[Trajectory | None, typer.Option(
+        help="circle (seed 003 case study; default) or file (poses and times from "
+             "--trajectory-file).", show_default=False)] = None,
+    trajectory_file: Annotated[Path | None, typer.Option(
+        "--trajectory-file", dir_okay=False, show_default=False,
+        help="Poses over time (CSV): t_s, x_mm, y_mm, z_mm and psi/theta/phi_deg or qx, qy, "
+             "qz, qw (no orientation columns: no rotation); accelerations by finite "
+             "differences.")] = None,
+    radius: Annotated[str | None, typer.Option(
+        help="circle: radius [default 100mm].", show_default=False)] = None,
+    height: Annotated[str | None, typer.Option(
+        help="circle: height z of the platform origin [default 410mm].",
+        show_default=False)] = None,
+    omega: Annotated[str | None, typer.Option(
+        help="circle: angular speed, counter-clockwise from +X [default 10rad/s].",
+        show_default=False)] = None,
+    samples: Annotated[int | None, typer.Option(
+        help="circle: samples, sample k at 360 k / samples deg [default 360].",
+        show_default=False)] = None,
+    clearance: Annotated[str, typer.Option(
+        help="Radius of the sphere each universal-joint centre can sit in (clearance).")]
+    = "10um",
+    platform_clearance: Annotated[str | None, typer.Option(
+        "--platform-clearance", help="Clearance of the platform joints when it differs from "
+                                     "the base joints' (default: --clearance).",
+        show_default=False)] = None,
+    mass: Annotated[str, typer.Option(help="Platform mass (centre of mass at its origin).")]
+    = "4.8kg",
+    cutting_force: Annotated[str, typer.Option(
+        "--cutting-force", help="Force on the platform at its origin, base frame: fx,fy,fz "
+                                "with a unit.")] = "0,0,-500N",
+    screw_error: Annotated[str, typer.Option(
+        "--screw-error", help="Ball-screw backlash: the leg acts this much longer in tension "
+                              "and shorter in compression.")] = "0um",
+    force_tol: Annotated[str, typer.Option(
+        "--force-tol", help="A leg force within this of zero leaves the side of its joints "
+                            "undetermined: the envelope of both sides is reported.")] = "1N",
+    plot: Annotated[Path | None, typer.Option(
+        file_okay=False, show_default=False,
+        help="Directory for plots: leg forces (seed 003 Fig. 6), pose errors (Fig. 7) and "
+             "an error map over the workspace slice.")] = None,
+) -> None:
+    """Leg forces and pose errors from joint clearance under loads along a trajectory
+    (seed 003).
+
+    The loads act at the platform origin: weight, cutting force and inertia. Leg forces are
+    tension positive; in tension a leg's joints act 2 x clearance farther apart, in
+    compression nearer. Where a leg force is within --force-tol of zero the side is
+    undetermined and the envelope of both sides is written. Columns: angle_deg (t_s for a
+    file trajectory), f1_N..f6_N, dx_um, dy_um, dz_um, drx_urad, dry_urad, drz_urad, then the
+    envelope (dx_min_um, dx_max_um, ...) and the undetermined legs.
+
+    Example: `pkmcal errors cubic --radius 100mm --height 410mm --omega 10rad/s -o errors.csv`
+
+    Example: `pkmcal errors machine.yaml --trajectory-file path.csv --plot plots -o errors.csv`
+    """
+    from ._commands import run_errors
+
+    run_errors(machine, output, trajectory.value if trajectory else None, trajectory_file,
+               radius, height, omega, samples, clearance, platform_clearance, mass,
+               cutting_force, screw_error, force_tol, plot)
 
 
 @app.command()

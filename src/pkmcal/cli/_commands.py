@@ -23,14 +23,18 @@ from ..io import (
     machine_to_text,
     parse_machine,
     read_constraint_link,
+    read_full_pose,
     read_joints,
     read_poses,
     read_positions,
+    read_readings,
     read_table,
     read_tracker,
+    write_full_pose,
     write_joints,
     write_poses,
     write_positions,
+    write_readings,
     write_tracker,
 )
 from ..io.machine_file import DEFAULT_UNITS
@@ -181,10 +185,10 @@ def run_bench(json_output: bool) -> int:
 # --------------------------------------------------------------------------------------------
 
 #: default scenario and deviations per machine type
-DEFAULT_SCENARIO = {"hexaslide": "constraint-link", "delta": "tracker"}
-DEFAULT_DEVIATIONS = {"hexaslide": "paper-table1", "delta": "random"}
+DEFAULT_SCENARIO = {"hexaslide": "constraint-link", "delta": "tracker", "stewart": "pose"}
+DEFAULT_DEVIATIONS = {"hexaslide": "paper-table1", "delta": "random", "stewart": "random"}
 #: scenarios each machine type can simulate
-SCENARIOS = {"hexaslide": ("constraint-link",), "delta": ("tracker",)}
+SCENARIOS = {"hexaslide": ("constraint-link",), "delta": ("tracker",), "stewart": ("pose",)}
 
 
 def _deviations(machine, which: str, rng) -> np.ndarray:
@@ -236,7 +240,8 @@ def tracker_noise_arg(text: str | None, allow_none: bool):
 
 def run_simulate(machine_spec: str, output: Path, scenario: str | None, poses: int | None,
                  noise: str | None, lc_error: str, seed: int, deviations: str | None,
-                 truth: Path | None, grid: str | None = None, outliers: int = 0) -> None:
+                 truth: Path | None, grid: str | None = None, outliers: int = 0,
+                 pose_noise: str | None = None) -> None:
     machine = load_machine_arg(machine_spec)
     kind = machine.kind
     scenario = scenario or DEFAULT_SCENARIO.get(kind, "constraint-link")
@@ -246,10 +251,20 @@ def run_simulate(machine_spec: str, output: Path, scenario: str | None, poses: i
                          f"{', '.join(available) or 'none yet'})")
     deviations = deviations or DEFAULT_DEVIATIONS.get(kind, "random")
     check_outputs([output] + ([truth] if truth else []), _machine_inputs(machine_spec))
+    if pose_noise is not None and scenario != "pose":
+        raise InputError("--pose-noise: applies to --scenario pose")
+    if scenario == "pose":
+        for option, given in (("--grid", grid is not None), ("--outliers", bool(outliers)),
+                              ("--lc-error", lc_error.strip() not in ("0", "0um", "0mm", "0m"))):
+            if given:
+                raise InputError(f"{option}: does not apply to --scenario pose")
+        _simulate_full_pose(machine, output, poses or 60, noise, pose_noise, seed, deviations,
+                            truth)
+        return
     if scenario == "tracker":
         if poses is not None:
-            raise InputError("--poses: applies to --scenario constraint-link; a tracker "
-                             "scenario measures a grid (--grid NXxNYxNZ)")
+            raise InputError("--poses: applies to --scenario constraint-link or pose; a "
+                             "tracker scenario measures a grid (--grid NXxNYxNZ)")
         if lc_error.strip() not in ("0", "0um", "0mm", "0m"):
             raise InputError("--lc-error: applies to --scenario constraint-link")
         _simulate_tracker(machine, output, noise, seed, deviations, truth,
@@ -372,6 +387,93 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
     out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
 
 
+def full_pose_noise_arg(noise: str | None, pose_noise: str | None, strict: bool):
+    """The full-pose noise model of ``--noise`` (readings, as a leg length) and
+    ``--pose-noise`` (POSITION,ORIENTATION). ``strict``: every standard deviation must be > 0
+    (a calibration weighs by them); else >= 0 (a simulation may be exact)."""
+    from ..measurements import FullPoseNoise
+
+    default = FullPoseNoise()
+    reading = default.reading_m if noise is None else parse_quantity(noise, "length", "--noise")
+    if pose_noise is None:
+        position, orientation = default.position_m, default.orientation_rad
+    else:
+        parts = [p.strip() for p in str(pose_noise).split(",")]
+        if len(parts) != 2:
+            raise InputError(f"--pose-noise: expected POSITION,ORIENTATION with units (e.g. "
+                             f"20um,50urad), got {pose_noise!r}")
+        position = parse_quantity(parts[0], "length", "--pose-noise (position)")
+        orientation = parse_quantity(parts[1], "angle", "--pose-noise (orientation)")
+    for option, value, text in (("--noise", reading, noise),
+                                ("--pose-noise", position, pose_noise),
+                                ("--pose-noise", orientation, pose_noise)):
+        if not (math.isfinite(value) and (value > 0 if strict else value >= 0)):
+            need = ("must be > 0 (a standard deviation that weighs the residuals)" if strict
+                    else "must be >= 0")
+            raise InputError(f"{option}: {need}, got {text}")
+    return FullPoseNoise(reading, position, orientation)
+
+
+def _noise_text(noise) -> str:
+    return (f"readings {noise.reading_m * 1e6:.4g} um (as leg length), position "
+            f"{noise.position_m * 1e6:.4g} um, orientation {noise.orientation_rad * 1e6:.4g} "
+            "urad")
+
+
+def _stewart_deviations(machine, which: str, rng) -> np.ndarray:
+    """Deviations of a simulated true Stewart: gains relative (a random deviation of a gain is
+    +/-0.1 % of it, whatever its unit)."""
+    du = _deviations(machine, which, rng)
+    ig = machine.parameters.indices([f"leg{i + 1}.gain" for i in range(6)])
+    du[ig] *= np.abs(machine.u[ig])
+    return du
+
+
+def _simulate_full_pose(machine, output: Path, n_poses: int, noise: str | None,
+                        pose_noise: str | None, seed: int, deviations: str,
+                        truth: Path | None) -> None:
+    from ..measurements import (
+        default_measurement_frames,
+        sample_platform_poses,
+        simulate_full_pose,
+    )
+
+    noise_model = full_pose_noise_arg(noise, pose_noise, strict=False)
+    rng = np.random.default_rng(seed)
+    du = _stewart_deviations(machine, deviations, rng)
+    true = machine.with_parameters(machine.u + du)
+    frames = getattr(machine, "measurement_frames", None)
+    frames_from = "the machine file's measurement_frames"
+    if frames is None:
+        frames, frames_from = default_measurement_frames(), "default"
+    true.measurement_frames = frames
+    true.name = f"simulated true machine ({deviations} deviations) of {machine.name or 'MACHINE'}"
+    poses = sample_platform_poses(true, n_poses, rng)
+    data = simulate_full_pose(true, poses, frames, noise_model, rng)
+    units = _units(machine)
+    truth_text = None
+    if truth is not None:
+        truth_text = machine_to_text(true, units)
+        parse_machine(truth_text, str(truth))
+    # outputs, at the very end
+    write_full_pose(output, data, machine, units["length"])
+    if truth is not None:
+        atomic_write_text(truth, truth_text)
+    out = console()
+    table = _table("", "", title="pkmcal simulate", show_header=False)
+    table.add_row("machine", f"{machine.source} ({machine.kind})")
+    table.add_row("scenario", f"pose, {n_poses} random poses in the 100 mm cube around home "
+                  f"{_mm(machine.home[0])} mm, Euler angles within +/-10 deg")
+    table.add_row("deviations", deviations + (f" (seed {seed})" if deviations == "random"
+                                              else ""))
+    table.add_row("noise", f"{_noise_text(noise_model)} (seed {seed})")
+    table.add_row("frames", f"{frames_from}: measurement origin at "
+                  f"{_mm(frames.mocap_from_base[1])} mm; marker origin at "
+                  f"{_mm(frames.platform_from_marker[1])} mm in the platform frame")
+    out.print(table)
+    out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
+
+
 def _mm(v) -> str:
     return "(" + ", ".join(f"{x * 1e3:.6g}" for x in np.asarray(v, float)) + ")"
 
@@ -385,6 +487,9 @@ CALIBRATIONS = {
     "hexaslide": {"constraint-link": "q1_mm..q6_mm (optionally passive) with a constraint_link "
                                      "in the machine file"},
     "delta": {"tracker": "q1_deg..q3_deg and the tracker points mx_mm, my_mm, mz_mm"},
+    "stewart": {"pose": "the leg readings q1_<unit>..q6_<unit> (the machine's reading unit) "
+                        "and the measured pose x_mm, y_mm, z_mm with qx, qy, qz, qw or "
+                        "psi_deg, theta_deg, phi_deg"},
 }
 
 
@@ -438,7 +543,8 @@ def _parameter_table(result, nominal_of: dict, units):
 
 def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str | None,
                   noise: str | None, estimate_lc: bool | None, json_output: bool,
-                  two_step: bool = False, robust: bool = False) -> int:
+                  two_step: bool = False, robust: bool = False, pose_noise: str | None = None,
+                  fix_frames: bool = False) -> int:
     if output.suffix.lower() == ".json":
         raise InputError(f"{output}: the calibrated machine is a YAML file; choose a name "
                          "ending in .yaml (the JSON report is written beside it)")
@@ -447,6 +553,22 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
     check_outputs([output, report_path], [data_path] + _machine_inputs(machine_spec))
     header, _ = read_table(data_path)
     kind = measurement_kind(data_path, header, machine)
+    for option, given in (("--pose-noise", pose_noise is not None),
+                          ("--fix-frames", fix_frames)):
+        if given and kind != "pose":
+            raise InputError(f"{option}: applies to full-pose data (a Stewart with x, y, z "
+                             f"and orientation columns); {data_path} has {kind} data")
+    if kind == "pose":
+        for option, given in (("--estimate-lc", estimate_lc is not None),
+                              ("--two-step", two_step), ("--robust", robust)):
+            if given:
+                raise InputError(f"{option}: does not apply to full-pose data ({data_path}); "
+                                 "see --method ml|ik, --fix-frames, --noise, --pose-noise")
+        if method not in (None, "ml", "ik"):
+            raise InputError(f"--method {method}: full-pose data are calibrated by ml "
+                             "(maximum likelihood, default) or ik (inverse-kinematic residuals)")
+        return _calibrate_full_pose(machine, machine_spec, data_path, output, report_path,
+                                    method or "ml", noise, pose_noise, fix_frames, json_output)
     if kind == "tracker":
         for option, given in (("--method", method is not None),
                               ("--estimate-lc", estimate_lc is not None)):
@@ -637,6 +759,9 @@ def _print_changes(params, limit: int = 10) -> None:
         micro = "um" if p["kind"] == "length" else "urad"
         f = (1e3 if p["unit"] == "mm" else 1e6) if p["kind"] == "length" else \
             (math.pi / 180 * 1e6 if p["unit"] == "deg" else 1e6)
+        if p["kind"] not in ("length", "angle"):     # a gain: relative change
+            micro = "ppm"
+            f = 1e6 / abs(p["nominal"]) if p["nominal"] else 1e6
         std = f"{p['std'] * f:.3g}" if p["std"] is not None else "fixed"
         changes.add_row(p["name"], f"{p['nominal']:.6f} {p['unit']}",
                         f"{p['identified']:.6f} {p['unit']}", f"{p['change'] * f:+.4g}", std,
@@ -948,6 +1073,215 @@ def _print_tracker_calibration(report, params, data_path, output, report_path, m
     out.print(f"wrote {output} and {report_path}", markup=False)
 
 
+def _frame_report(frame, fl: float, unit: str) -> dict:
+    R, t = frame
+    from ..kinematics import rotation_angle
+
+    return {"rotation": np.asarray(R, float).tolist(),
+            "translation": (np.asarray(t, float) / fl).tolist(), "unit": unit,
+            "rotation_angle_deg": float(np.degrees(rotation_angle(np.asarray(R, float))))}
+
+
+def _errors_report(errors, fl: float) -> dict:
+    s = errors.summary()
+    return {"leg_length_rms": s["leg_length_rms"] / fl, "leg_length_max": s["leg_length_max"] / fl,
+            "leg_length_rms_per_leg": [v / fl for v in s["leg_length_rms_per_leg"]],
+            "position_rms": s["position_rms"] / fl, "position_max": s["position_max"] / fl,
+            "orientation_rms_deg": float(np.degrees(s["orientation_rms"])),
+            "orientation_max_deg": float(np.degrees(s["orientation_max"])),
+            "fk_failed": s["fk_failed"]}
+
+
+def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Path,
+                         report_path: Path, method: str, noise: str | None,
+                         pose_noise: str | None, fix_frames: bool, json_output: bool) -> int:
+    from ..calibration import calibrate_full_pose, full_pose_errors
+    from ..measurements import MeasurementFrames
+
+    noise_model = full_pose_noise_arg(noise, pose_noise, strict=True)
+    if method == "ik" and pose_noise is not None:
+        raise InputError("--pose-noise: the ik method takes the measured poses as exact; use "
+                         "--method ml to weigh them by their noise")
+    data = read_full_pose(data_path, machine)
+    file_frames = getattr(machine, "measurement_frames", None)
+    if fix_frames:
+        frames = file_frames if file_frames is not None else MeasurementFrames.identity()
+        frames_from = ("the machine file's measurement_frames" if file_frames is not None
+                       else "identity (the machine file has no measurement_frames)")
+    else:
+        frames = file_frames
+        frames_from = ("start: the machine file's measurement_frames" if file_frames is not None
+                       else "start: closed form from the design model")
+    try:
+        result = calibrate_full_pose(machine, data, method=method, noise=noise_model,
+                                     frames=frames, fix_frames=fix_frames)
+        # the machine file's legs with the frames fitted alone: "before calibration"
+        before = calibrate_full_pose(machine, data, method=method, noise=noise_model,
+                                     frames=frames if fix_frames else result.extras[
+                                         "start_frames"], fix_frames=fix_frames,
+                                     fit_machine=False)
+    except InputError:
+        raise
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise InputError(f"{data_path}: calibration failed: {exc}") from None
+    if not result.success or not np.all(np.isfinite(result.x)):
+        error(f"calibration did not converge: {result.message} (after {result.nit} "
+              "iterations); no file written")
+        return 1
+
+    units = _units(machine)
+    fl = LENGTH[units["length"]]
+    calibrated = result.extras["machine"]
+    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
+    calibrated.home = machine.home
+    frames_id = result.extras["frames"]
+    err_after = full_pose_errors(calibrated, frames_id, data)
+    err_before = full_pose_errors(machine, before.extras["frames"], data)
+    date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+
+    from ..io.machine_file import reading_factor
+
+    reading_unit = machine.reading_unit
+    gain_factor = fl / reading_factor(reading_unit)         # internal gain -> file gain
+    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
+    start = result.extras["start_frames"]
+    for name, (R, t) in (("mocap_from_base", start.mocap_from_base),
+                         ("platform_from_marker", start.platform_from_marker)):
+        nominal_of.update({f"{name}.r{c}": 0.0 for c in "xyz"})
+        nominal_of.update({f"{name}.{c}": v for c, v in zip("xyz", t, strict=True)})
+    params = _parameter_table(result, nominal_of, units)
+    for p in params:
+        if p["name"].endswith(".gain"):
+            for key in ("nominal", "identified", "change", "std"):
+                if p[key] is not None:
+                    p[key] = p[key] / gain_factor
+            p["unit"] = f"{units['length']}/{reading_unit}"
+    rank = int(result.rank)
+    n_free = int(np.sum(result.parameters.free))
+    s = np.asarray(result.singular_values, float)
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    variance = float(result.residual_variance)
+    after, before_rep = _errors_report(err_after, fl), _errors_report(err_before, fl)
+    report = {
+        "pkmcal_report": 1,
+        "command": "calibrate",
+        "date": date,
+        "machine_file": str(getattr(machine, "source", machine_spec)),
+        "data_file": str(data_path),
+        "calibrated_file": str(output),
+        "measurement": "pose",
+        "method": method,
+        "units": units,
+        "reading_unit": reading_unit,
+        "measurements": len(data),
+        "noise": {"reading_um": noise_model.reading_m * 1e6,
+                  "position_um": noise_model.position_m * 1e6,
+                  "orientation_urad": noise_model.orientation_rad * 1e6},
+        "frames": {
+            "fixed": bool(fix_frames), "from": frames_from,
+            "mocap_from_base": _frame_report(frames_id.mocap_from_base, fl, units["length"]),
+            "platform_from_marker": _frame_report(frames_id.platform_from_marker, fl,
+                                                  units["length"]),
+        },
+        "convergence": {"success": bool(result.success), "status": int(result.status),
+                        "message": result.message, "iterations": int(result.nit),
+                        "evaluations": int(result.nfev)},
+        "residuals": {
+            "unit": units["length"],
+            "leg_length": "l0 + gain q minus the leg length at the measured pose (through the "
+                          "frames)",
+            "pose": "measured marker pose minus the one forward kinematics of the readings "
+                    "predict (through the frames)",
+            "before": "the machine file's legs, frames fitted alone",
+            "before_calibration": before_rep,
+            "after_calibration": after,
+            "residual_variance": variance,
+            "noise_scale": math.sqrt(variance) if math.isfinite(variance) else None,
+            "dof": int(result.dof),
+        },
+        "identifiability": {
+            "free_parameters": n_free,
+            "identifiable": rank,
+            "unidentifiable": [d.as_dict() for d in unidentifiable],
+            "condition_number": float(s[0] / s[rank - 1]) if rank else None,
+            "singular_values": s.tolist(),
+        },
+        "parameters": [{k: v for k, v in p.items() if k != "scaled_change"} for p in params],
+    }
+    metadata = {
+        "method": f"full-pose-{method}",
+        "date": date,
+        "data": str(data_path),
+        "machine": str(getattr(machine, "source", machine_spec)),
+        "measurements": len(data),
+        "leg_length_rms": {"before": before_rep["leg_length_rms"],
+                           "after": after["leg_length_rms"], "unit": units["length"]},
+        "frames_fixed": bool(fix_frames),
+        "identifiable": rank,
+        "free_parameters": n_free,
+        "unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable],
+        "report": report_path.name,
+    }
+    json_text = _write_calibration(calibrated, units, metadata, report, output, report_path)
+    if json_output:
+        print(json_text, end="")
+    else:
+        _print_full_pose_calibration(report, params, data_path, output, report_path, machine)
+    return 0
+
+
+def _print_full_pose_calibration(report, params, data_path, output, report_path,
+                                 machine) -> None:
+    out = console()
+    res, ident, conv = report["residuals"], report["identifiability"], report["convergence"]
+    unit = report["units"]["length"]
+    b, a = res["before_calibration"], res["after_calibration"]
+    table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
+                   show_header=False)
+    table.add_row("measurement", f"full pose, {report['measurements']} poses (readings in "
+                  f"{report['reading_unit']}, marker pose in the measurement frame)")
+    table.add_row("method", {"ml": "ml (maximum likelihood: readings and measured poses "
+                                   "noisy, one pose unknown per measurement)",
+                             "ik": "ik (inverse-kinematic residuals, Zhuang, Yan & Masory "
+                                   "1998: measured poses exact)"}[report["method"]])
+    table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
+                  "parameter directions")
+    for d in ident["unidentifiable"]:
+        table.add_row("not identifiable", f"{d['dimension']} x {d['name']}: {d['description']}")
+    table.add_row("leg-length RMS", f"{b['leg_length_rms']:.4g} {unit} before, "
+                  f"{a['leg_length_rms']:.4g} {unit} after ({res['before']})")
+    table.add_row("pose error RMS", f"position {b['position_rms']:.4g} -> "
+                  f"{a['position_rms']:.4g} {unit}, orientation "
+                  f"{b['orientation_rms_deg']:.4g} -> {a['orientation_rms_deg']:.4g} deg "
+                  "(forward kinematics of the readings vs measured)")
+    n = report["noise"]
+    scale = res["noise_scale"]
+    table.add_row("noise", f"readings {n['reading_um']:.4g} um, position "
+                  f"{n['position_um']:.4g} um, orientation {n['orientation_urad']:.4g} urad"
+                  + (f"; residuals / assumed noise = {scale:.3g}" if scale is not None
+                     else ""))
+    fr = report["frames"]
+    m, k = fr["mocap_from_base"], fr["platform_from_marker"]
+    table.add_row("frames", ("fixed: " if fr["fixed"] else f"estimated ({fr['from']}): ")
+                  + "mocap_from_base turned "
+                  f"{m['rotation_angle_deg']:.4g} deg, base origin at "
+                  f"({', '.join(f'{v:.6g}' for v in m['translation'])}) {unit} measured; "
+                  f"platform_from_marker turned {k['rotation_angle_deg']:.4g} deg, marker at "
+                  f"({', '.join(f'{v:.6g}' for v in k['translation'])}) {unit}")
+    table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
+    out.print(table)
+    _print_changes(params)
+    if scale is not None and scale > 3:
+        out.print(f"note: the residuals are {scale:.3g} times the assumed noise: give the real "
+                  "noise (--noise, --pose-noise), or the model lacks errors the machine has.",
+                  markup=False)
+    if ident["unidentifiable"]:
+        out.print("note: the data fix the legs only relative to the measurement frames; the "
+                  "changes are the smallest ones (scaled) that fit the data, and std is for "
+                  "the identifiable part.", markup=False)
+    out.print(f"wrote {output} and {report_path}", markup=False)
+
+
 # --------------------------------------------------------------------------------------------
 # fk, ik
 # --------------------------------------------------------------------------------------------
@@ -956,7 +1290,10 @@ def _print_tracker_calibration(report, params, data_path, output, report_path, m
 def run_fk(machine_spec: str, joints: Path, output: Path) -> None:
     machine = load_machine_arg(machine_spec)
     check_outputs([output], [joints] + _machine_inputs(machine_spec))
-    q, rows, _ = read_joints(joints, machine.n_joints, joint_quantity(machine))
+    if machine.kind == "stewart":
+        q, rows = read_readings(joints, machine)
+    else:
+        q, rows, _ = read_joints(joints, machine.n_joints, joint_quantity(machine))
     result = machine.fk(q)
     result.raise_if_failed(what=f"{joints}: forward kinematics", rows=rows)
     units = _units(machine)
@@ -980,7 +1317,7 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
         P, R, rows = read_poses(poses)
     q = machine.ik(P, R)
     bad = ~np.all(np.isfinite(q), axis=1)
-    what = "leg" if machine.kind == "delta" else "chain"
+    what = "leg" if machine.kind in ("delta", "stewart") else "chain"
     if bad.any():
         chains = np.flatnonzero((~np.isfinite(q[bad])).any(axis=0)) + 1
         raise InputError(f"{poses}: {int(bad.sum())} pose(s) cannot be reached by the machine "
@@ -996,7 +1333,265 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
                              f"assembly mode (the platform must hang below the base), row(s) "
                              f"{_rows_text(rows[off])}")
     units = _units(machine)
+    if machine.kind == "stewart":
+        unit = machine.reading_unit
+        write_readings(output, q, machine)
+        console().print(f"{len(q)} leg reading vector(s) written to {output} ({unit})",
+                        markup=False)
+        return
     quantity = joint_quantity(machine)
     unit = units["length"] if quantity == "length" else units["angle"]
     write_joints(output, q, unit=unit, quantity=quantity)
     console().print(f"{len(q)} joint vector(s) written to {output} ({unit})", markup=False)
+
+
+# --------------------------------------------------------------------------------------------
+# errors (seed 003: joint clearance under loads along a trajectory)
+# --------------------------------------------------------------------------------------------
+
+#: columns of ``pkmcal errors`` (SPEC 6), after the first (angle_deg or t_s)
+ERRORS_FORCE_COLUMNS = tuple(f"f{i}_N" for i in range(1, 7))
+ERRORS_POSE_COLUMNS = ("dx_um", "dy_um", "dz_um", "drx_urad", "dry_urad", "drz_urad")
+
+
+def _errors_machine(spec: str):
+    """MACHINE of ``pkmcal errors``: a stewart machine file, or ``cubic`` (seed 003 device)."""
+    if spec == "cubic":
+        from ..machines import cubic_6upu
+
+        machine = cubic_6upu()
+        machine.file_units = dict(DEFAULT_UNITS)
+        machine.source = "cubic"
+        return machine
+    machine = load_machine_arg(spec)
+    if getattr(machine, "kind", "") != "stewart":
+        raise InputError(f"{spec}: pkmcal errors needs a six-leg machine (machine: stewart; "
+                         f"or 'cubic' for the embedded seed 003 device), not "
+                         f"{getattr(machine, 'kind', 'this machine')}")
+    return machine
+
+
+def _nonnegative(text: str, quantity: str, option: str) -> float:
+    value = parse_quantity(text, quantity, option)
+    if not (math.isfinite(value) and value >= 0):
+        raise InputError(f"{option}: must be >= 0, got {text}")
+    return value
+
+
+def _read_trajectory_file(path: Path):
+    """Times (s), positions (m) and orientations of a trajectory CSV, with the file's lines."""
+    from ..io.csv_io import has_orientation, parse_number, read_poses, read_positions
+    from ..units import TIME
+
+    header, rows = read_table(path)
+    t_cols = [i for i, n in enumerate(header) if n == "t" or n.startswith("t_")]
+    if not t_cols:
+        raise InputError(f"{path}: missing column t_s (time of each pose); columns found: "
+                         f"{', '.join(header)}")
+    if len(t_cols) > 1:
+        raise InputError(f"{path}: more than one time column: "
+                         f"{', '.join(header[i] for i in t_cols)}; keep one")
+    name = header[t_cols[0]]
+    unit = name[2:]
+    if unit not in TIME:
+        raise InputError(f"{path}: column {name!r}: "
+                         + ("no unit suffix" if not unit else f"unknown time unit {unit!r}")
+                         + f" (write t_s; accepted: {', '.join('t_' + u for u in TIME)})")
+    t = np.array([parse_number(path, line, name, f[t_cols[0]]) for line, f in rows]) * TIME[unit]
+    if has_orientation(header):
+        P, R, lines = read_poses(path)
+    else:
+        P, lines = read_positions(path)
+        R = np.broadcast_to(np.eye(3), (len(P), 3, 3)).copy()
+    if len(t) < 3:
+        raise InputError(f"{path}: {len(t)} pose(s); a trajectory needs at least 3 to give "
+                         "accelerations")
+    h = np.diff(t)
+    if not np.all(h > 0):
+        k = int(np.flatnonzero(~(h > 0))[0])
+        raise InputError(f"{path}: row {lines[k + 1]}, column {name}: times must increase "
+                         f"strictly ({t[k + 1] / TIME[unit]:g} after {t[k] / TIME[unit]:g})")
+    return t, P, R, lines
+
+
+def run_errors(machine_spec: str, output: Path, trajectory: str | None,
+               trajectory_file: Path | None, radius: str | None, height: str | None,
+               omega: str | None, samples: int | None, clearance: str,
+               platform_clearance: str | None, mass: str, cutting_force: str,
+               screw_error: str, force_tol: str, plot: Path | None) -> None:
+    from ..analysis import errors as err
+    from ..units import parse_vector
+
+    # -- options, all checked before any computation ---------------------------------------
+    if trajectory is None:
+        trajectory = "file" if trajectory_file is not None else "circle"
+    if trajectory == "file" and trajectory_file is None:
+        raise InputError("--trajectory file: give the poses with --trajectory-file POSES.csv")
+    if trajectory == "circle" and trajectory_file is not None:
+        raise InputError("--trajectory-file: applies to --trajectory file, not circle")
+    if trajectory == "file":
+        given = [o for o, v in (("--radius", radius), ("--height", height), ("--omega", omega),
+                                ("--samples", samples)) if v is not None]
+        if given:
+            raise InputError(f"{given[0]}: applies to --trajectory circle; the file gives "
+                             "the poses and times")
+    c_base = _nonnegative(clearance, "length", "--clearance")
+    c_platform = c_base if platform_clearance is None else _nonnegative(
+        platform_clearance, "length", "--platform-clearance")
+    mass_kg = _nonnegative(mass, "mass", "--mass")
+    f_cut = np.array(parse_vector(cutting_force, "force", 3, "--cutting-force"))
+    if not np.all(np.isfinite(f_cut)):
+        raise InputError(f"--cutting-force: must be finite, got {cutting_force}")
+    backlash = _nonnegative(screw_error, "length", "--screw-error")
+    tol_n = _nonnegative(force_tol, "force", "--force-tol")
+    if plot is not None and plot.exists() and not plot.is_dir():
+        raise InputError(f"--plot {plot}: exists and is not a directory")
+    machine = _errors_machine(machine_spec)
+    inputs = _machine_inputs(machine_spec) if machine_spec != "cubic" else []
+    check_outputs([output], inputs + ([trajectory_file] if trajectory_file else []))
+
+    if trajectory == "circle":
+        r_m = _nonnegative(radius or "100mm", "length", "--radius")
+        z_m = parse_quantity(height or "410mm", "length", "--height")
+        w = parse_quantity(omega or "10rad/s", "angular_speed", "--omega")
+        if not (math.isfinite(z_m) and math.isfinite(w)):
+            raise InputError("--height, --omega: must be finite")
+        n = 360 if samples is None else samples
+        if n < 1:
+            raise InputError(f"--samples: must be >= 1, got {n}")
+        path = err.circle_trajectory(r_m, z_m, w, n)
+        where = (f"circle r = {r_m * 1e3:.6g} mm at z = {z_m * 1e3:.6g} mm, "
+                 f"{w:.6g} rad/s counter-clockwise from +X, {n} samples")
+    else:
+        t, P, R, lines = _read_trajectory_file(trajectory_file)
+        path = err.trajectory_from_poses(t, P, R)
+        where = f"{trajectory_file}: {len(t)} poses over {t[-1] - t[0]:.6g} s"
+    try:
+        if trajectory == "file":
+            err.check_poses(machine, path.P, path.R, lines, "row")
+        else:
+            err.check_poses(machine, path.P, path.R, np.arange(len(path)), "sample")
+    except InputError as exc:
+        raise InputError(f"{trajectory_file}: {exc}" if trajectory == "file" else
+                         f"the circle has {exc}; change --radius or --height") from None
+
+    result = err.trajectory_errors(machine, path, mass_kg, f_cut, c_base, c_platform, backlash,
+                                   tol_n)
+    e = result.errors
+    first = ("angle_deg", np.degrees(path.angle)) if trajectory == "circle" else \
+        ("t_s", path.t)
+    scale = 1e6                                              # m -> um, rad -> urad
+    undetermined = [" ".join(str(i + 1) for i in np.flatnonzero(row)) for row in e.undetermined]
+    header = [first[0], *ERRORS_FORCE_COLUMNS, *ERRORS_POSE_COLUMNS]
+    columns = [first[1], *(result.forces.T + 0.0), *(e.dx * scale).T + 0.0]
+    for j, name in enumerate(ERRORS_POSE_COLUMNS):
+        base, unit = name.rsplit("_", 1)
+        header += [f"{base}_min_{unit}", f"{base}_max_{unit}"]
+        columns += [e.dx_min[:, j] * 1e6 + 0.0, e.dx_max[:, j] * 1e6 + 0.0]
+    header.append("undetermined_legs")
+    columns.append(undetermined)
+
+    # -- outputs, at the very end -----------------------------------------------------------
+    plots = []
+    if plot is not None:
+        plots = _errors_plots(plot, machine, path, result, trajectory, mass_kg, f_cut, c_base,
+                              c_platform, backlash, tol_n)
+    from ..io import write_table
+
+    write_table(output, header, columns)
+    _print_errors(machine, where, result, trajectory, mass_kg, f_cut, c_base, c_platform,
+                  backlash, tol_n, output, plots)
+
+
+def _errors_plots(outdir: Path, machine, path, result, trajectory, mass_kg, f_cut, c_base,
+                  c_platform, backlash, tol_n) -> list[Path]:
+    from ..analysis.errors import clearance_map
+    from ..report import plots
+
+    outdir.mkdir(parents=True, exist_ok=True)
+    e = result.errors
+    if trajectory == "circle":
+        x, xlabel = np.degrees(path.angle), "angle [deg]"
+    else:
+        x, xlabel = path.t, "time [s]"
+    files = [
+        plots.plot_link_forces(x, result.forces, outdir / "link_forces.png", xlabel,
+                               undetermined=e.undetermined),
+        plots.plot_pose_errors(x, e.dx, e.dx_min, e.dx_max, outdir / "pose_errors.png", xlabel,
+                               title=f"pose error from joint clearance {c_base * 1e6:.3g} um"
+                                     + (f" (platform {c_platform * 1e6:.3g} um)"
+                                        if c_platform != c_base else "")
+                                     + (f", backlash {backlash * 1e6:.3g} um" if backlash
+                                        else "")),
+    ]
+    lo, hi = path.P[:, :2].min(axis=0), path.P[:, :2].max(axis=0)
+    mid, half = (lo + hi) / 2, np.max(hi - lo) * 0.75
+    half = half if half > 0 else 0.05
+    gx = np.linspace(mid[0] - half, mid[0] + half, 41)
+    gy = np.linspace(mid[1] - half, mid[1] + half, 41)
+    z = float(np.mean(path.P[:, 2]))
+    cmap = clearance_map(machine, gx, gy, z, path.R[0], mass_kg, f_cut, c_base, c_platform,
+                         backlash, tol_n)
+    norm = lambda v: np.linalg.norm(v, axis=-1)   # noqa: E731
+    panels = [
+        ("|dp| at rest under weight and cutting force", norm(cmap.dx[..., :3]) * 1e6, "um"),
+        ("|dOmega| at rest under weight and cutting force", norm(cmap.dx[..., 3:]) * 1e6,
+         "urad"),
+        ("bound of |dp|, any force direction", norm(cmap.bound[..., :3]) * 1e6, "um"),
+        ("bound of |dOmega|, any force direction", norm(cmap.bound[..., 3:]) * 1e6, "urad"),
+    ]
+    files.append(plots.plot_error_map(gx * 1e3, gy * 1e3, panels, outdir / "error_map.png",
+                                      title=f"clearance errors at z = {z * 1e3:.6g} mm "
+                                            "(platform orientation of the first pose)",
+                                      overlay=path.P[:, :2] * 1e3))
+    return files
+
+
+def _print_errors(machine, where, result, trajectory, mass_kg, f_cut, c_base, c_platform,
+                  backlash, tol_n, output, plots) -> None:
+    from ..analysis.errors import ERROR_COMPONENTS, STANDARD_GRAVITY, zero_crossings
+
+    path, e, f = result.trajectory, result.errors, result.forces
+    if trajectory == "circle":
+        x, period, unit = np.degrees(path.angle), 360.0, "deg"
+    else:
+        x, period, unit = path.t, None, "s"
+    out = console()
+    table = _table("", "", title=f"pkmcal errors: {machine.source}", show_header=False)
+    table.add_row("trajectory", where)
+    inertia = mass_kg * np.max(np.linalg.norm(path.acceleration, axis=1))
+    table.add_row("loads", f"weight {mass_kg * STANDARD_GRAVITY:.5g} N ({mass_kg:.6g} kg), "
+                  f"cutting force ({', '.join(f'{v:.6g}' for v in f_cut)}) N, inertia up to "
+                  f"{inertia:.5g} N")
+    table.add_row("clearance", f"{c_base * 1e6:.6g} um (base joints), {c_platform * 1e6:.6g} um "
+                  f"(platform joints); backlash {backlash * 1e6:.6g} um; side undetermined "
+                  f"below {tol_n:.6g} N")
+    out.print(table)
+    forces = _table("leg", "min [N]", "max [N]", "changes side at [" + unit + "]",
+                    title="leg forces (tension positive)", justify={1: "right", 2: "right"})
+    for i in range(6):
+        cross = zero_crossings(x, f[:, i], period)
+        forces.add_row(str(i + 1), f"{f[:, i].min():.5g}", f"{f[:, i].max():.5g}",
+                       ", ".join(f"{c:.4g}" for c in cross) if cross.size else "-")
+    out.print(forces)
+    errors = _table("error", "min", "max", "envelope", "changes sign at [" + unit + "]",
+                    title="pose error (um, urad)", justify={1: "right", 2: "right"})
+    for j, name in enumerate(ERROR_COMPONENTS):
+        v = e.dx[:, j] * 1e6
+        cross = zero_crossings(x, v, period)
+        errors.add_row(name, f"{v.min():.4g}", f"{v.max():.4g}",
+                       f"{e.dx_min[:, j].min() * 1e6:.4g} .. {e.dx_max[:, j].max() * 1e6:.4g}",
+                       ", ".join(f"{c:.4g}" for c in cross[:8])
+                       + (" ..." if cross.size > 8 else "") if cross.size else "-")
+    out.print(errors)
+    n_und = int(np.any(e.undetermined, axis=1).sum())
+    if n_und:
+        out.print(f"note: at {n_und} of {len(path)} samples a leg force is within "
+                  f"{tol_n:.6g} N of zero: the envelope of both sides is written "
+                  "(*_min_*, *_max_* columns; the main columns take those joints centred).",
+                  markup=False)
+    if trajectory == "file" and np.any(np.abs(np.diff(path.R, axis=0)) > 1e-12):
+        out.print("note: the orientation changes along the path; the platform's rotational "
+                  "inertia is not modelled (translation inertia only).", markup=False)
+    out.print(f"wrote {output}" + (" and " + ", ".join(map(str, plots)) if plots else ""),
+              markup=False)

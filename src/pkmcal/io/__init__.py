@@ -4,15 +4,19 @@ from .atomic import atomic_write_text
 from .csv_io import (
     joint_quantity,
     read_constraint_link,
+    read_full_pose,
     read_joints,
     read_passive,
     read_poses,
     read_positions,
+    read_readings,
     read_table,
     read_tracker,
+    write_full_pose,
     write_joints,
     write_poses,
     write_positions,
+    write_readings,
     write_table,
     write_tracker,
 )
@@ -27,7 +31,8 @@ from .machine_file import (
 
 __all__ = [
     "MACHINE_FORMATS", "MachineFormat", "atomic_write_text", "joint_quantity", "load_machine",
-    "machine_to_text", "parse_machine", "read_constraint_link", "read_joints", "read_passive",
-    "read_poses", "read_positions", "read_table", "read_tracker", "save_machine",
-    "write_joints", "write_poses", "write_positions", "write_table", "write_tracker",
+    "machine_to_text", "parse_machine", "read_constraint_link", "read_full_pose", "read_joints",
+    "read_passive", "read_poses", "read_positions", "read_readings", "read_table",
+    "read_tracker", "save_machine", "write_full_pose", "write_joints", "write_poses",
+    "write_positions", "write_readings", "write_table", "write_tracker",
 ]

@@ -9,7 +9,10 @@ Columns read here:
   (``R = RY(theta) RX(psi) RZ(phi)``, SPEC 1) or a quaternion ``qx, qy, qz, qw``; positions
   only (``x, y, z``) for a machine whose platform does not rotate (Delta);
 - laser-tracker points ``mx_<len>, my_<len>, mz_<len>`` (the reflector in the tracker frame)
-  beside the readings (:func:`read_tracker`).
+  beside the readings (:func:`read_tracker`);
+- Stewart leg readings ``q1_<unit> ... q6_<unit>`` in the machine's reading unit (``q1_rev``;
+  any length suffix when the legs read lengths) beside a measured pose (full-pose data,
+  :func:`read_full_pose`).
 
 Row numbers in messages and in the ``rows`` arrays returned are *line numbers of the file*
 (header = line 1), i.e. the row numbers a spreadsheet shows. Blank lines and lines starting
@@ -29,7 +32,8 @@ import numpy as np
 from ..errors import InputError
 from ..kinematics import euler_from_matrix, matrix_from_euler, matrix_from_quaternion
 from ..measurements import ConstraintLinkData, TrackerData
-from ..units import COLUMN_SUFFIXES, QUANTITIES
+from ..measurements.full_pose import FullPoseData
+from ..units import COLUMN_SUFFIXES, LENGTH, QUANTITIES
 from .atomic import atomic_write_text, read_input_text
 
 Row = tuple[int, list[str]]
@@ -218,6 +222,45 @@ def read_tracker(path, machine) -> TrackerData:
     return TrackerData(q, m, np.array([line for line, _ in rows]), source=str(path))
 
 
+def _reading_columns(path, header: list[str], machine) -> list[tuple[int, float]]:
+    """Positions and factors of a Stewart's reading columns ``q1_<unit> ... q6_<unit>``."""
+    unit = getattr(machine, "reading_unit", "m")
+    if unit in LENGTH:
+        return [find_column(path, header, f"q{j + 1}", "length")
+                for j in range(machine.n_joints)]
+    source = getattr(machine, "source", "the machine file")
+    out = []
+    for j in range(machine.n_joints):
+        name = f"q{j + 1}_{unit}"
+        if name in header:
+            out.append((header.index(name), 1.0))
+            continue
+        others = [n for n in header if n == f"q{j + 1}" or n.startswith(f"q{j + 1}_")]
+        found = f" (found {', '.join(others)})" if others else ""
+        raise InputError(f"{path}: missing column {name}{found}: the legs of {source} read in "
+                         f"{unit} (machine file key readings: {{unit: {unit}}}); columns found: "
+                         f"{', '.join(header)}")
+    return out
+
+
+def read_readings(path, machine):
+    """Stewart leg readings ``(q (K, 6), rows (K,))`` in internal units: metres for length
+    readings (any length suffix), else as read in the machine's reading unit (``q1_rev``)."""
+    header, rows = read_table(path)
+    cols = _reading_columns(path, header, machine)
+    q = np.column_stack([_column_values(path, header, rows, i, f) for i, f in cols])
+    return q, np.array([line for line, _ in rows])
+
+
+def read_full_pose(path, machine) -> FullPoseData:
+    """Full-pose data (SPEC 2.4) for a Stewart ``machine``: readings ``q1..q6`` (its reading
+    unit) and the measured pose ``x, y, z`` + ``psi, theta, phi`` or ``qx, qy, qz, qw`` per
+    row (the marker frame in the measurement frame). Other columns are ignored."""
+    q, rows = read_readings(path, machine)
+    P, R, _ = read_poses(path)
+    return FullPoseData(q, P, R, rows, source=str(path))
+
+
 ORIENTATION_COLUMNS = ("psi", "theta", "phi", "qx", "qy", "qz", "qw")
 
 
@@ -374,3 +417,29 @@ def write_poses(path, P, R, length_unit: str = "mm", angle_unit: str = "deg",
         header.append(name)
         columns.append(list(values))
     return write_table(path, header, columns)
+
+
+def write_readings(path, q, machine, extra: dict | None = None) -> Path:
+    """Write Stewart readings ``q`` (K, 6, internal units) as ``q1_<unit> ...`` in the
+    machine's reading unit."""
+    q = np.atleast_2d(np.asarray(q, float))
+    unit = getattr(machine, "reading_unit", "m")
+    f = LENGTH[unit] if unit in LENGTH else 1.0
+    header = [f"q{j + 1}_{unit}" for j in range(q.shape[1])]
+    columns = [q[:, j] / f for j in range(q.shape[1])]
+    for name, values in (extra or {}).items():
+        header.append(name)
+        columns.append(list(values))
+    return write_table(path, header, columns)
+
+
+def write_full_pose(path, data: FullPoseData, machine, length_unit: str = "mm") -> Path:
+    """Write full-pose data: readings in ``machine``'s reading unit, then the measured pose as
+    ``x_<len>, y_<len>, z_<len>, qx, qy, qz, qw``."""
+    from ..kinematics import quaternion_from_matrix
+
+    fl = _unit_factor(length_unit, "length")
+    Q = quaternion_from_matrix(data.R)
+    extra = {f"{c}_{length_unit}": data.P[:, j] / fl for j, c in enumerate("xyz")}
+    extra.update({name: Q[:, j] for j, name in enumerate(("qx", "qy", "qz", "qw"))})
+    return write_readings(path, data.q, machine, extra)

@@ -35,6 +35,26 @@ file carries the identified errors in ``legs``, the identified registration in `
 and ``home``. A Delta ``home`` may also be written with six numbers when the three angles are
 zero.
 
+A six-leg platform (SPEC 2.4) lists its legs; ``gain`` is the file's length unit per reading
+unit, ``readings`` (optional, default: the file's length unit) names what the legs report::
+
+    pkmcal: 1
+    machine: stewart
+    units: {length: mm, angle: deg}
+    readings: {unit: rev}                      # optional: mm, m, um or any word (rev, counts)
+    legs:                                      # exactly 6: L = l0 + gain * reading
+      - {base: [-385.3, -140.2, 0.0], platform: [-197.4, 95.0, 0.0], l0: 640.2, gain: 75.7}
+    measurement_frames:                        # optional: frames of full-pose measurements
+      mocap_from_base: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0]}
+      platform_from_marker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0]}
+    home: [0.0, 0.0, 565.0, 0.0, 0.0, 0.0]
+
+Readings in a length unit are converted to metres (the gain is then a ratio); readings in any
+other unit are kept as read and the gain carries metres per unit. ``measurement_frames`` are
+kept on the machine as ``machine.measurement_frames``
+(:class:`~pkmcal.measurements.full_pose.MeasurementFrames`, None without the key); a
+calibration from full-pose data writes the identified frames there.
+
 Loading dispatches on ``machine:`` through :data:`MACHINE_FORMATS` (one entry per machine
 type: a pydantic schema, a builder and a dumper), so a new machine type is added there
 without touching the loader. Every problem is an :class:`~pkmcal.errors.InputError` whose
@@ -66,7 +86,14 @@ from pydantic_core import PydanticCustomError
 
 from ..errors import InputError
 from ..kinematics import euler_from_matrix, matrix_from_euler
-from ..machines import Delta, HexaSlide, delta_parameters, hexaslide_parameters
+from ..machines import (
+    Delta,
+    HexaSlide,
+    Stewart,
+    delta_parameters,
+    hexaslide_parameters,
+    stewart_parameters,
+)
 from ..machines.base import Machine
 from ..machines.delta import LEG_FIELDS
 from ..units import ANGLE, LENGTH
@@ -273,6 +300,73 @@ class DeltaFile(_Strict):
         return value
 
 
+#: units a Stewart leg may read in and that are converted to metres (data-file suffixes)
+READING_LENGTH_UNITS = ("mm", "m", "um")
+_READING_UNIT = re.compile(r"^[A-Za-z][A-Za-z0-9]*$")
+
+
+class Readings(_Strict):
+    """What a Stewart leg reports: ``unit`` is a length unit (mm, m, um: the reading is a
+    length, converted to metres) or any other word (rev, counts, deg: kept as read; the gain
+    converts it)."""
+
+    unit: str
+
+    @field_validator("unit")
+    @classmethod
+    def _unit_word(cls, value):
+        if not _READING_UNIT.match(value):
+            raise PydanticCustomError(
+                "reading_unit", "a reading unit is one word of letters and digits (mm, rev, "
+                "counts), got {value}", {"value": repr(value)})
+        if value in LENGTH and value not in READING_LENGTH_UNITS:
+            raise PydanticCustomError(
+                "reading_unit", "{value} is a length unit the data files do not use: readings "
+                "in a length unit are mm, m or um", {"value": repr(value)})
+        return value
+
+
+class StewartLeg(_Strict):
+    """One leg: base joint (base frame), platform joint (platform frame), length at zero
+    reading ``l0`` and ``gain`` (file length unit per reading unit): ``L = l0 + gain r``."""
+
+    base: Vector3
+    platform: Vector3
+    l0: Number
+    gain: Number
+
+    @field_validator("gain")
+    @classmethod
+    def _nonzero_gain(cls, value):
+        if value == 0:
+            raise PydanticCustomError("zero_gain", "must not be 0 (length per reading unit)")
+        return value
+
+
+class MeasurementFramesSection(_Strict):
+    """Frames of full-pose measurements (SPEC 2.4): ``mocap_from_base`` (a base point ``x`` is
+    ``rotation @ x + translation`` in the measurement frame) and ``platform_from_marker`` (a
+    marker point ``y`` is ``rotation @ y + translation`` in the platform frame)."""
+
+    mocap_from_base: TrackerPose
+    platform_from_marker: TrackerPose
+
+
+class StewartFile(_Strict):
+    """``machine: stewart`` (SPEC 6)."""
+
+    pkmcal: Literal[1]
+    machine: Literal["stewart"]
+    name: str | None = None
+    units: Units
+    readings: Readings | None = None
+    constraint_link: ConstraintLink | None = None
+    legs: Annotated[list[StewartLeg], Field(min_length=6, max_length=6)]
+    measurement_frames: MeasurementFramesSection | None = None
+    home: Pose6 | None = None
+    calibration: dict[str, Any] | None = None
+
+
 # --------------------------------------------------------------------------------------------
 # Machine formats: schema + builder + dumper per machine type
 # --------------------------------------------------------------------------------------------
@@ -419,6 +513,83 @@ def _dump_delta(machine: Delta, units: dict) -> dict:
     return out
 
 
+def reading_factor(unit: str) -> float:
+    """SI factor of a Stewart reading unit: a length unit's factor, 1 for any other word."""
+    return LENGTH[unit] if unit in LENGTH else 1.0
+
+
+def _build_stewart(doc: StewartFile, source: str) -> Stewart:
+    fl, fa = _factors(doc.units.model_dump())
+    unit = doc.readings.unit if doc.readings is not None else doc.units.length
+    gain_factor = fl / reading_factor(unit)          # file gain -> internal gain
+    legs = doc.legs
+    params = stewart_parameters(
+        base=np.array([leg.base for leg in legs]) * fl,
+        platform=np.array([leg.platform for leg in legs]) * fl,
+        l0=np.array([leg.l0 for leg in legs]) * fl,
+        gain=np.array([leg.gain for leg in legs]) * gain_factor,
+    )
+    machine = Stewart(params, home=_home_pose(doc.home, fl, fa), name=doc.name or "",
+                      reading_unit=unit)
+    machine.constraint_link_length = (doc.constraint_link.length * fl
+                                      if doc.constraint_link is not None else None)
+    frames = doc.measurement_frames
+    if frames is None:
+        machine.measurement_frames = None
+    else:
+        from ..measurements.full_pose import MeasurementFrames
+
+        machine.measurement_frames = MeasurementFrames(
+            (_rotation(frames.mocap_from_base.rotation),
+             np.asarray(frames.mocap_from_base.translation, float) * fl),
+            (_rotation(frames.platform_from_marker.rotation),
+             np.asarray(frames.platform_from_marker.translation, float) * fl))
+    # the legs must hold the platform at home (FK starts there): a full-rank leg Jacobian
+    _, J, _ = machine.ik_jacobians(*machine.home, want_du=False)
+    Js = np.array(J, float)
+    Js[:, 3:] /= machine.characteristic_length()
+    sv = np.linalg.svd(Js, compute_uv=False)
+    if not (np.all(np.isfinite(sv)) and sv[-1] > 1e-9 * sv[0]):
+        key, what = ("home", "at home") if doc.home is not None else \
+            ("legs", "at the default home (platform centred above the base)")
+        raise InputError(f"{source}: {key}: the six legs do not hold the platform {what} (their "
+                         "directions are linearly dependent); check the joint coordinates and "
+                         "home")
+    return machine
+
+
+def _frame_text(pose, fl: float) -> dict:
+    R, t = pose
+    return {"rotation": [[float(v) for v in row] for row in np.asarray(R, float)],
+            "translation": [float(v) / fl for v in np.asarray(t, float)]}
+
+
+def _dump_stewart(machine: Stewart, units: dict) -> dict:
+    fl, _ = _factors(units)
+    unit = getattr(machine, "reading_unit", units["length"])
+    gain_factor = fl / reading_factor(unit)
+    b, p, l0, g = machine.legs()
+    out: dict[str, Any] = {"readings": {"unit": unit}}
+    lc = getattr(machine, "constraint_link_length", None)
+    if lc is not None:
+        out["constraint_link"] = {"length": float(lc) / fl}
+    out["legs"] = [
+        {"base": [float(v) / fl for v in b[i]], "platform": [float(v) / fl for v in p[i]],
+         "l0": float(l0[i]) / fl, "gain": float(g[i]) / gain_factor}
+        for i in range(6)
+    ]
+    frames = getattr(machine, "measurement_frames", None)
+    if frames is not None:
+        out["measurement_frames"] = {
+            "mocap_from_base": _frame_text(frames.mocap_from_base, fl),
+            "platform_from_marker": _frame_text(frames.platform_from_marker, fl)}
+    return out
+
+
+_STEWART_HINTS = {
+    "legs": "a list of 6 legs {base: [x, y, z], platform: [x, y, z], l0, gain}",
+}
+
 _DELTA_HINTS = {
     "base_radius": "the radius a of the actuator axes, e.g. base_radius: 200.0",
     "platform_radius": "the radius b of the platform joints, e.g. platform_radius: 50.0",
@@ -434,6 +605,8 @@ MACHINE_FORMATS: dict[str, MachineFormat] = {
                                {"chains": 6}),
     "delta": MachineFormat(DeltaFile, _build_delta, _dump_delta, {"legs": 3},
                            home_text="[x, y, z]", hints=_DELTA_HINTS),
+    "stewart": MachineFormat(StewartFile, _build_stewart, _dump_stewart, {"legs": 6},
+                             hints=_STEWART_HINTS),
 }
 
 
@@ -682,6 +855,10 @@ def machine_to_text(machine: Machine, units: dict | None = None,
         if isinstance(value, list) and value and isinstance(value[0], dict):
             lines.append(f"{key}:")
             lines.extend(f"  - {_flow(item)}" for item in value)
+        elif isinstance(value, dict) and value and all(isinstance(v, dict)
+                                                      for v in value.values()):
+            lines.append(f"{key}:")                     # e.g. measurement_frames
+            lines.extend(f"  {k}: {_flow(v)}" for k, v in value.items())
         else:
             lines.append(f"{key}: {_flow(value)}")
     lines.append(f"home: {_flow(home)}   # {home_text}")

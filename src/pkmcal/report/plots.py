@@ -98,3 +98,88 @@ def plot_distance_ratio(panels, path, title: str = "distance ratio of neighbouri
         ax.legend(fontsize=8)
     fig.suptitle(title)
     return _save(fig, path)
+
+
+def _shade_envelope(ax, x, lo, hi, color, label=None):
+    """Fill between ``lo`` and ``hi`` where they differ (an undetermined side)."""
+    wide = np.asarray(hi) > np.asarray(lo)
+    if np.any(wide):
+        ax.fill_between(x, lo, hi, where=wide, color=color, alpha=0.25, lw=0, label=label,
+                        step=None, interpolate=False)
+
+
+def plot_link_forces(x, forces, path, xlabel: str = "angle [deg]",
+                     title: str = "leg forces (tension positive)", undetermined=None):
+    """Seed 003 Fig. 6: the six leg forces [N] (tension positive) along the trajectory; samples
+    where a force is within the tolerance of zero (side undetermined) are marked."""
+    x = np.asarray(x, float)
+    f = np.asarray(forces, float)
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for i in range(f.shape[1]):
+        (line,) = ax.plot(x, f[:, i], lw=1.4, label=f"f{i + 1}")
+        if undetermined is not None:
+            m = np.asarray(undetermined)[:, i]
+            if np.any(m):
+                ax.plot(x[m], f[m, i], "o", ms=4, mfc="none", color=line.get_color())
+    ax.axhline(0.0, color="k", lw=0.6, alpha=0.6)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("leg force [N]  (+ tension, - compression)")
+    ax.set_title(title + ("; o = side undetermined" if undetermined is not None
+                          and np.any(undetermined) else ""), fontsize=10)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, ncol=6)
+    if xlabel.startswith("angle"):
+        ax.set_xticks(np.arange(0, 361, 45))
+    return _save(fig, path)
+
+
+def plot_pose_errors(x, dx, dx_min, dx_max, path, xlabel: str = "angle [deg]",
+                     title: str = "pose error from joint clearance"):
+    """Seed 003 Fig. 7: position errors dx, dy, dz [um] and orientation errors drx, dry, drz
+    [urad] along the trajectory; where a leg force is near zero the envelope of both sides is
+    shaded (the line is the value with those joints centred)."""
+    x = np.asarray(x, float)
+    dx, lo, hi = (np.asarray(v, float) * 1e6 for v in (dx, dx_min, dx_max))
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, cols, names, unit in ((ax1, range(3), ("dx", "dy", "dz"), "um"),
+                                  (ax2, range(3, 6), ("drx", "dry", "drz"), "urad")):
+        for c, name, color in zip(cols, names, colors, strict=False):
+            ax.plot(x, dx[:, c], lw=1.4, color=color, label=name)
+            _shade_envelope(ax, x, lo[:, c], hi[:, c], color,
+                            label=f"{name} envelope" if np.any(hi[:, c] > lo[:, c]) else None)
+        ax.axhline(0.0, color="k", lw=0.6, alpha=0.6)
+        ax.set_ylabel(f"{'position' if unit == 'um' else 'orientation'} error [{unit}]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8, ncol=3)
+    ax2.set_xlabel(xlabel)
+    if xlabel.startswith("angle"):
+        ax2.set_xticks(np.arange(0, 361, 45))
+    ax1.set_title(title, fontsize=10)
+    return _save(fig, path)
+
+
+def plot_error_map(x, y, panels, path, title: str = "pose error over the workspace",
+                   overlay=None):
+    """Error maps over a horizontal workspace slice: one panel per
+    ``(panel title, values (ny, nx), colour-bar label)``; ``x``, ``y`` in mm; ``overlay``
+    (K, 2) in mm (e.g. the trajectory) is drawn on every panel."""
+    n = len(panels)
+    cols = min(n, 2)
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(6 * cols, 4.8 * rows), squeeze=False,
+                             layout="constrained")
+    for ax in axes.flat[n:]:
+        ax.set_visible(False)
+    for ax, (panel_title, values, label) in zip(axes.flat, panels, strict=False):
+        mesh = ax.pcolormesh(x, y, np.asarray(values, float), shading="auto", cmap="viridis")
+        fig.colorbar(mesh, ax=ax, label=label)
+        if overlay is not None:
+            o = np.asarray(overlay, float)
+            ax.plot(o[:, 0], o[:, 1], "w-", lw=1.2)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [mm]")
+        ax.set_ylabel("y [mm]")
+        ax.set_title(panel_title, fontsize=9)
+    fig.suptitle(title)
+    return _save(fig, path)

@@ -1,0 +1,234 @@
+"""Tolerance analysis: how manufacturing tolerances of the geometry move the platform.
+
+The machine is built with parameters ``u + du`` (joint positions, leg offsets, ...) and
+commanded with the nominal model: the readings are the nominal ``q = IK(x; u)``, and the
+platform goes to ``x + dx``. To first order (seed 003 eq. 9-10 for a six-leg platform, the
+same for every machine through :meth:`~pkmcal.machines.Machine.ik_jacobians`)
+
+``dq/dx dx + dq/du du = 0``, so ``dx = S du`` with the sensitivity ``S = -(dq/dx)^-1 dq/du``.
+
+For a Stewart platform ``dq/dx = J_p / gain`` and, on the joint errors of one leg,
+``dq/du = J_s / gain``: ``S = -J_p^-1 J_s`` (eq. 10), and a leg-offset error ``dl0`` gives
+``J_p^-1 dl0``.
+
+Tolerances are **half-widths** ``t`` of the tolerance bands of named parameters (SI units):
+``uniform`` errors lie in ``[-t, t]`` (standard deviation ``t / sqrt(3)``), ``normal`` errors have
+standard deviation ``t / 3`` (the band is ``+/- 3 sigma``). From them:
+
+- the worst case ``|S| t`` per pose-error component (every error at its band edge, the signs
+  that add up; exact for the linear model);
+- the linear covariance ``S diag(sigma^2) S^T`` (Masory & Wang 1993 style);
+- a Monte Carlo over the exact closure (Stewart platforms; all samples at once) or over the
+  linear model (any machine).
+
+Pose errors are ``[dp (m), dOmega (rad)]``, ``dOmega`` the rotation vector about the base axes.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from .errors import SINGULAR_RTOL, closure_pose, pose_difference
+
+DISTRIBUTIONS = ("uniform", "normal")
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Tolerance half-widths of every parameter of a machine (SI), and their distribution.
+
+    Attributes
+    ----------
+    names : parameter names (the machine's registry order).
+    band : (n,) half-widths ``t`` (0 for parameters without a tolerance).
+    distribution : "uniform" (``[-t, t]``) or "normal" (``sigma = t / 3``).
+    """
+
+    names: tuple[str, ...]
+    band: np.ndarray
+    distribution: str = "uniform"
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """Standard deviation of each parameter error."""
+        return self.band / (np.sqrt(3.0) if self.distribution == "uniform" else 3.0)
+
+    def sample(self, n: int, rng=None) -> np.ndarray:
+        """``n`` error vectors (n, len(names)), seeded through a numpy Generator."""
+        rng = np.random.default_rng(rng)
+        if self.distribution == "uniform":
+            return rng.uniform(-1.0, 1.0, (n, self.band.size)) * self.band
+        return rng.standard_normal((n, self.band.size)) * self.sigma
+
+
+def tolerances(machine, bands: Mapping[str, float],
+               distribution: str = "uniform") -> Tolerances:
+    """Tolerances of ``machine`` from ``{name pattern: half-width}``.
+
+    Patterns are shell patterns on the parameter names (:mod:`fnmatch`), e.g. for a Stewart
+    platform ``{"leg*.base.*": 10e-6, "leg*.platform.*": 10e-6, "leg*.l0": 5e-6}``; later
+    patterns override earlier ones. A pattern that names no parameter, a negative or non-finite
+    band, or an unknown distribution raises :class:`~pkmcal.errors.InputError`.
+    """
+    if distribution not in DISTRIBUTIONS:
+        raise InputError(f"distribution: {distribution!r} is not one of "
+                         f"{', '.join(DISTRIBUTIONS)}")
+    names = tuple(machine.parameters.names)
+    band = np.zeros(len(names))
+    for pattern, value in bands.items():
+        value = float(value)
+        if not (np.isfinite(value) and value >= 0):
+            raise InputError(f"tolerance {pattern}: must be finite and >= 0, got {value}")
+        hit = [i for i, n in enumerate(names) if fnmatch.fnmatchcase(n, pattern)]
+        if not hit:
+            raise InputError(f"tolerance {pattern}: no parameter of the {machine.kind} machine "
+                             f"matches (e.g. {names[0]}, {names[-1]})")
+        band[hit] = value
+    return Tolerances(names, band, distribution)
+
+
+def stewart_tolerances(machine, joint: float = 10e-6, length: float = 0.0,
+                       distribution: str = "uniform") -> Tolerances:
+    """Every joint coordinate (base and platform) within ``+/- joint`` and every leg offset
+    ``l0`` within ``+/- length`` (m)."""
+    return tolerances(machine, {"leg*.base.*": joint, "leg*.platform.*": joint,
+                                "leg*.l0": length}, distribution)
+
+
+def sensitivity(machine, P, R=None, u=None) -> np.ndarray:
+    """``S = dx/du`` (..., 6, n_params) with the readings held at their nominal values
+    (``S = -(dq/dx)^-1 dq/du``); NaN at unreachable poses. Rows ``[dp, dOmega]``."""
+    q, dq_dx, dq_du = machine.ik_jacobians(P, R, u, want_du=True)
+    ok = np.all(np.isfinite(q), axis=-1) & np.all(np.isfinite(dq_dx), axis=(-1, -2))
+    scale = np.ones(dq_dx.shape[-1])
+    scale[3:] = 1.0 / machine.characteristic_length()      # rotations: per unit length
+    sv = np.linalg.svd(np.where(ok[..., None, None], dq_dx, 0.0) * scale, compute_uv=False)
+    ok &= sv[..., -1] > SINGULAR_RTOL * sv[..., 0]
+    safe = np.where(ok[..., None, None], dq_dx, np.eye(dq_dx.shape[-1]))
+    S = -np.linalg.solve(safe, np.where(ok[..., None, None], dq_du, 0.0))
+    return np.where(ok[..., None, None], S, np.nan)
+
+
+def worst_case(S, tol: Tolerances) -> np.ndarray:
+    """Worst-case bound ``|S| t`` (..., 6) of each pose-error component."""
+    return np.abs(S) @ tol.band
+
+
+def linear_covariance(S, tol: Tolerances) -> np.ndarray:
+    """Linear covariance ``S diag(sigma^2) S^T`` (..., 6, 6) of the pose error."""
+    return (S * tol.sigma**2) @ np.swapaxes(S, -1, -2)
+
+
+@dataclass
+class MonteCarloResult:
+    """Pose errors of ``n`` machines built within the tolerances, at one pose.
+
+    Attributes
+    ----------
+    dx : (n, 6) pose errors ``[dp, dOmega]``.
+    mean, cov : (6,), (6, 6) sample mean and covariance.
+    linear_cov : (6, 6) the linear prediction; ``worst_case`` (6,) the linear bound.
+    exact : True when the errors come from the exact closure (else the linear model).
+    converged : (n,) bool, closure converged (all True for the linear model).
+    """
+
+    dx: np.ndarray
+    mean: np.ndarray
+    cov: np.ndarray
+    linear_cov: np.ndarray
+    worst_case: np.ndarray
+    exact: bool
+    converged: np.ndarray
+
+    @property
+    def std(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.cov))
+
+
+def monte_carlo(machine, P, R, tol: Tolerances, samples: int = 10000, rng=None,
+                exact: bool | None = None) -> MonteCarloResult:
+    """Monte Carlo of the pose error at the pose ``(P (3,), R (3, 3))``.
+
+    Each sample is a machine ``u + du`` with ``du`` drawn from ``tol``, commanded with the
+    nominal readings. ``exact`` (default: True for a Stewart platform) solves the perturbed
+    closure for all samples at once (:func:`~pkmcal.analysis.errors.closure_pose`); otherwise
+    ``dx = S du`` (any machine).
+    """
+    if not (isinstance(samples, (int, np.integer)) and samples >= 2):
+        raise InputError(f"samples: must be a whole number >= 2, got {samples}")
+    P = np.asarray(P, float)
+    R = np.eye(3) if R is None else np.asarray(R, float)
+    S = sensitivity(machine, P, R)
+    if not np.all(np.isfinite(S)):
+        raise InputError("the pose cannot be reached by the nominal machine")
+    du = tol.sample(int(samples), rng)
+    is_stewart = getattr(machine, "kind", "") == "stewart"
+    exact = is_stewart if exact is None else bool(exact)
+    if exact and not is_stewart:
+        raise InputError(f"exact Monte Carlo is implemented for stewart machines, not "
+                         f"{machine.kind}; use exact=False (linear model)")
+    if exact:
+        dx, converged = _stewart_closure_errors(machine, P, R, du)
+    else:
+        dx, converged = du @ S.T, np.ones(len(du), bool)
+    good = dx[converged]
+    return MonteCarloResult(dx, good.mean(axis=0), np.cov(good, rowvar=False),
+                            linear_covariance(S, tol), worst_case(S, tol), exact, converged)
+
+
+def _stewart_closure_errors(machine, P, R, du):
+    names = machine.parameters
+    idx = lambda field: np.stack([names.indices(f"leg{i + 1}.{field}") for i in range(6)])
+    ib, ip = idx("base"), idx("platform")
+    il0 = np.array([names.index(f"leg{i + 1}.l0") for i in range(6)])
+    ig = np.array([names.index(f"leg{i + 1}.gain") for i in range(6)])
+    q = machine.ik(P, R)                                   # nominal readings, held
+    u = machine.u + du                                     # (n, n_params)
+    lengths = u[:, il0] + u[:, ig] * q
+    sol = closure_pose(P, R, u[:, ib], u[:, ip], lengths)
+    return pose_difference(sol.P, sol.R, P, R), sol.converged
+
+
+@dataclass
+class ErrorMap:
+    """Tolerance pose errors over a horizontal workspace slice.
+
+    Attributes
+    ----------
+    x, y : (nx,), (ny,) grid, m; ``z`` height, m.
+    worst : (ny, nx, 6) worst-case bound per component; ``std`` (ny, nx, 6) linear standard
+        deviation. NaN where the pose is unreachable (``valid`` False).
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    z: float
+    worst: np.ndarray
+    std: np.ndarray
+    valid: np.ndarray
+
+
+def error_map(machine, x, y, z: float, tol: Tolerances, R=None) -> ErrorMap:
+    """Worst-case bound and linear standard deviation of the pose error from ``tol`` on the
+    grid ``x`` by ``y`` (m) at height ``z`` (m), orientation ``R`` (default identity); all grid
+    points at once."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    X, Y = np.meshgrid(x, y)
+    P = np.stack([X, Y, np.full_like(X, float(z))], axis=-1)
+    R = np.broadcast_to(np.eye(3) if R is None else np.asarray(R, float), X.shape + (3, 3))
+    S = sensitivity(machine, P, R)
+    valid = np.all(np.isfinite(S), axis=(-1, -2))
+    cov = linear_covariance(np.where(valid[..., None, None], S, 0.0), tol)
+    std = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
+    return ErrorMap(x, y, float(z), worst_case(S, tol), np.where(valid[..., None], std, np.nan),
+                    valid)
+
+
+__all__ = ["DISTRIBUTIONS", "ErrorMap", "MonteCarloResult", "Tolerances", "error_map",
+           "linear_covariance", "monte_carlo", "sensitivity", "stewart_tolerances",
+           "tolerances", "worst_case"]

@@ -1,0 +1,530 @@
+"""Calibration of a six-leg platform from full-pose measurements (SPEC 2.4).
+
+The measured marker pose is ``mocap_from_base * base_from_platform(q; u) * platform_from_marker``
+(:mod:`pkmcal.measurements.full_pose`). Unknowns: the 48 leg parameters and, unless the user
+fixes them, the two measurement frames, 6 each (``mocap_from_base.rx/ry/rz``: rotation
+increments about the measurement axes, applied on the left of the start value;
+``mocap_from_base.x/y/z``: the translation ``a``; ``platform_from_marker.rx/ry/rz/x/y/z``
+likewise for ``(B, c)``, rotations about the platform axes). Two methods share the estimator
+(:func:`~pkmcal.calibration.estimator.levenberg_marquardt`):
+
+``ik`` (Zhuang, Yan & Masory 1998)
+    Inverse-kinematic residuals: each measured pose is mapped through the frames to a platform
+    pose, ``e_k = (q_k - IK(A^T (Pm - a) - R c, A^T Rm B^T; u)) / sigma_q``. No per-pose
+    unknowns; the measured poses are taken as exact.
+``ml`` (default)
+    Maximum likelihood: the platform pose of every measurement is an unknown (6 per pose,
+    eliminated by the estimator's Schur machinery); residuals are the six readings
+    ``(q - IK(x_k; u)) / sigma_q``, the measured position ``(Pm - A (P_k + R_k c) - a) /
+    sigma_p`` and orientation ``log(Rm (A R_k B)^T) / sigma_o``. Every measured quantity is
+    noisy.
+
+``sigma_q = noise.reading_m / |gain|`` per leg (nominal gains): the reading noise is stated as
+a leg length.
+
+Identifiability. Moving every base joint by one rigid motion and ``mocap_from_base`` by its
+inverse changes nothing measured (6 directions); so does moving every platform joint by a rigid
+motion and ``platform_from_marker`` by its inverse (6): with both frames unknown 48 of the 60
+directions are identifiable. A frame the user fixes breaks its gauge, and all 48 leg
+parameters become identifiable by themselves. Both gauges are named in words
+(:meth:`FullPoseProblem.null_groups`); anything else the data cannot fix (e.g. ``l0`` against
+``gain`` when a leg's readings barely vary) is named by its parameters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..identifiability import NullGroup, name_null_space, name_weak_directions
+from ..kinematics import matrix_from_rotvec, rotvec_from_matrix, skew
+from ..machines.base import Machine
+from ..measurements.full_pose import FullPoseData, FullPoseNoise, MeasurementFrames
+from ..parameters import ParameterSet
+from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt, reduce_local
+from .registration import register_points
+
+FRAME_NAMES = ("mocap_from_base", "platform_from_marker")
+FRAME_FIELDS = ("rx", "ry", "rz", "x", "y", "z")
+METHODS = ("ml", "ik")
+
+
+def frame_parameters(frames: MeasurementFrames, fixed=(False, False)) -> ParameterSet:
+    """Registry of the two frames: rotation increments (0 at ``frames``) and translations."""
+    (_, a), (_, c) = frames.mocap_from_base, frames.platform_from_marker
+    names = [f"{f}.{k}" for f in FRAME_NAMES for k in FRAME_FIELDS]
+    kinds = (("angle",) * 3 + ("length",) * 3) * 2
+    values = np.concatenate([np.zeros(3), a, np.zeros(3), c])
+    return ParameterSet(names, kinds, values, fixed=[fixed[0]] * 6 + [fixed[1]] * 6)
+
+
+@dataclass
+class FullPoseState:
+    """Estimator state: leg parameters, the two frames and (``ml``) the platform poses."""
+
+    u: np.ndarray
+    A: np.ndarray
+    a: np.ndarray
+    B: np.ndarray
+    c: np.ndarray
+    P: np.ndarray | None = None
+    R: np.ndarray | None = None
+
+    def frames(self) -> MeasurementFrames:
+        return MeasurementFrames((self.A, self.a), (self.B, self.c))
+
+
+def right_jacobian_inverse(phi):
+    """``Jr^-1(phi)`` (..., 3, 3): ``log(exp(phi) exp(eps)) = phi + Jr^-1(phi) eps + O(eps^2)``.
+
+    ``Jr^-1 = I + [phi]x / 2 + (1/t^2 - (1 + cos t) / (2 t sin t)) [phi]x^2``, ``t = |phi|``.
+    """
+    phi = np.asarray(phi, float)
+    t2 = np.sum(phi * phi, axis=-1)
+    t = np.sqrt(t2)
+    small = t < 1e-4
+    ts = np.where(small, 1.0, t)
+    coef = np.where(small, 1.0 / 12.0 + t2 / 720.0,
+                    1.0 / ts**2 - (1.0 + np.cos(ts)) / (2.0 * ts * np.sin(ts)))
+    K = skew(phi)
+    return np.eye(3) + 0.5 * K + coef[..., None, None] * (K @ K)
+
+
+class FullPoseProblem:
+    """What both methods share: parameters = the machine's + the two frames."""
+
+    local_dof = 0
+
+    def __init__(self, machine: Machine, data: FullPoseData, noise: FullPoseNoise,
+                 frames: MeasurementFrames, fixed_frames=(False, False),
+                 fit_machine: bool = True):
+        if getattr(machine, "kind", "") != "stewart":
+            raise InputError(f"full-pose calibration is for six-leg platforms (stewart), not "
+                             f"{getattr(machine, 'kind', type(machine).__name__)}")
+        if data.q.shape[1] != machine.n_joints:
+            raise InputError(f"{data.source}: {data.q.shape[1]} reading columns, the machine has "
+                             f"{machine.n_joints} legs")
+        if not noise.reading_m > 0:
+            raise InputError("the reading noise must be > 0: it weighs the residuals")
+        self.machine, self.data, self.noise = machine, data, noise
+        self.frames0 = frames
+        mp = machine.parameters if fit_machine else machine.parameters.with_fixed(
+            list(machine.parameters.names))
+        fp = frame_parameters(frames, tuple(bool(f) for f in fixed_frames))
+        self.parameters = mp.concat(fp)
+        self.scales = machine.scales_with(fp)
+        self.n_machine = len(mp)
+        self.fixed_frames = tuple(bool(f) for f in fixed_frames)
+        self.fit_machine = fit_machine
+        self.sigma_q = noise.reading_m / np.abs(machine.legs()[3])
+
+    # -- state ----------------------------------------------------------------------------
+    def _start(self) -> FullPoseState:
+        (A, a), (B, c) = self.frames0.mocap_from_base, self.frames0.platform_from_marker
+        return FullPoseState(self.machine.u.copy(), np.array(A, float), np.array(a, float),
+                             np.array(B, float), np.array(c, float))
+
+    def initial_state(self):
+        return self._start()
+
+    def global_values(self, state):
+        (A0, _), (B0, _) = self.frames0.mocap_from_base, self.frames0.platform_from_marker
+        return np.concatenate([state.u, rotvec_from_matrix(state.A @ A0.T), state.a,
+                               rotvec_from_matrix(state.B @ B0.T), state.c])
+
+    def _retract_global(self, state, du) -> FullPoseState:
+        n = self.n_machine
+        return FullPoseState(state.u + du[:n], matrix_from_rotvec(du[n:n + 3]) @ state.A,
+                             state.a + du[n + 3:n + 6],
+                             matrix_from_rotvec(du[n + 6:n + 9]) @ state.B,
+                             state.c + du[n + 9:n + 12], state.P, state.R)
+
+    def retract(self, state, du, dl):
+        return self._retract_global(state, du)
+
+    def platform_poses(self, state):
+        """Measured poses mapped to platform poses in the base frame through the frames."""
+        return state.frames().platform(self.data.P, self.data.R)
+
+    # -- words ----------------------------------------------------------------------------
+    def gauge_tangents(self, state):
+        """Tangents (n, 6) of the base-frame and of the platform-frame gauge at ``state``, in
+        the estimator's increment coordinates (unscaled): rotation (3) then translation (3).
+
+        Base: ``b_i' = G b_i + g``, ``mocap_from_base' = mocap_from_base (G, g)^-1``.
+        Platform: ``p_i' = C^T (p_i - c0)``, ``platform_from_marker' = (C, c0)^-1
+        platform_from_marker``."""
+        p, n = self.parameters, len(self.parameters)
+        m = self.machine
+        b, pl, _, _ = m.legs(state.u)
+        base, plat = np.zeros((n, 6)), np.zeros((n, 6))
+        i_rm = p.indices([f"mocap_from_base.{k}" for k in ("rx", "ry", "rz")])
+        i_tm = p.indices([f"mocap_from_base.{k}" for k in ("x", "y", "z")])
+        i_rp = p.indices([f"platform_from_marker.{k}" for k in ("rx", "ry", "rz")])
+        i_tp = p.indices([f"platform_from_marker.{k}" for k in ("x", "y", "z")])
+        for i in range(6):
+            ib = p.indices(f"leg{i + 1}.base")
+            ip = p.indices(f"leg{i + 1}.platform")
+            base[ib, :3] = -skew(b[i])            # d b = omega x b
+            base[ib, 3:] = np.eye(3)              # d b = g
+            plat[ip, :3] = skew(pl[i])            # d p = p x omega
+            plat[ip, 3:] = -np.eye(3)             # d p = -c0
+        base[i_rm, :3] = -state.A                 # A' = exp(-A omega) A
+        base[i_tm, 3:] = -state.A                 # a' = a - A g
+        plat[i_rp, :3] = -np.eye(3)               # B' = exp(-omega) B
+        plat[i_tp, :3] = skew(state.c)            # c' = c + c x omega - c0
+        plat[i_tp, 3:] = -np.eye(3)
+        return base, plat
+
+    def null_groups(self, state, scales):
+        """The two frame gauges in words (only where the leg parameters and the frame are
+        both free)."""
+        if not self.fit_machine:
+            return []
+        base, plat = self.gauge_tangents(state)
+        groups = []
+        if not self.fixed_frames[0]:
+            groups.append(NullGroup(
+                "rigid motion of the base frame",
+                "moving every base joint by one rigid motion (3 rotations, 3 translations) and "
+                "mocap_from_base by its inverse changes no reading and no measured pose: the "
+                "data fix the base joints only relative to the measurement frame (fix "
+                "mocap_from_base to fix them)", base / scales[:, None]))
+        if not self.fixed_frames[1]:
+            groups.append(NullGroup(
+                "rigid motion of the platform frame",
+                "moving every platform joint by one rigid motion and platform_from_marker by "
+                "its inverse changes no reading and no measured pose: the data fix the "
+                "platform joints only relative to the marker frame (fix platform_from_marker "
+                "to fix them)", plat / scales[:, None]))
+        return groups
+
+
+class FullPoseIK(FullPoseProblem):
+    """Inverse-kinematic residuals (Zhuang, Yan & Masory 1998); no per-pose unknowns."""
+
+    local_dof = 0
+
+    def evaluate(self, state, jacobian=True):
+        P, R = self.platform_poses(state)
+        q, Jx, Ju = self.machine.ik_jacobians(P, R, state.u, want_du=jacobian)
+        sig = self.sigma_q
+        r = (self.data.q - q) / sig
+        if not jacobian:
+            return r, None, None
+        A, c = state.A, state.c
+        K = len(P)
+        At = np.broadcast_to(A.T, (K, 3, 3))
+        Rc = np.einsum("kij,j->ki", R, c)
+        D = np.zeros((K, 6, 12))                       # d[P, Omega] / d frames
+        D[:, :3, 0:3] = skew(P) @ A.T                  # mocap rotation w: dP = P x (A^T w)
+        D[:, 3:, 0:3] = -At                            #                   dOmega = -A^T w
+        D[:, :3, 3:6] = -At                            # mocap translation
+        D[:, :3, 6:9] = -skew(Rc) @ R                  # marker rotation: dP = (R w) x (R c)
+        D[:, 3:, 6:9] = -R                             #                  dOmega = -R w
+        D[:, :3, 9:12] = -R                            # marker translation
+        Jg = -np.concatenate([Ju, Jx @ D], -1) / sig[:, None]
+        return r, Jg, None
+
+
+class FullPoseML(FullPoseProblem):
+    """Maximum likelihood with the platform pose of every measurement unknown (6 per pose)."""
+
+    local_dof = 6
+
+    def __init__(self, machine, data, noise, frames, fixed_frames=(False, False),
+                 fit_machine=True):
+        super().__init__(machine, data, noise, frames, fixed_frames, fit_machine)
+        if not (noise.position_m > 0 and noise.orientation_rad > 0):
+            raise InputError("the maximum-likelihood method weighs the measured poses by their "
+                             "noise: position and orientation noise must be > 0 (use the ik "
+                             "method for exact poses)")
+
+    def initial_state(self):
+        state = self._start()
+        state.P, state.R = self.platform_poses(state)
+        return state
+
+    def retract(self, state, du, dl):
+        new = self._retract_global(state, du)
+        new.P = state.P + dl[:, :3]
+        new.R = matrix_from_rotvec(dl[:, 3:]) @ state.R
+        return new
+
+    def evaluate(self, state, jacobian=True):
+        P, R, A, a, B, c = state.P, state.R, state.A, state.a, state.B, state.c
+        q, Jx, Ju = self.machine.ik_jacobians(P, R, state.u, want_du=jacobian)
+        sq, sp, so = self.sigma_q, self.noise.position_m, self.noise.orientation_rad
+        Rc = np.einsum("kij,j->ki", R, c)
+        y = P + Rc
+        Pm_pred = y @ A.T + a
+        Rm_pred = A @ R @ B
+        e_rot = rotvec_from_matrix(self.data.R @ np.swapaxes(Rm_pred, -1, -2))
+        r = np.concatenate([(self.data.q - q) / sq, (self.data.P - Pm_pred) / sp,
+                            e_rot / so], -1)
+        if not jacobian:
+            return r, None, None
+        K = len(P)
+        nm = Ju.shape[-1]
+        Jri = right_jacobian_inverse(e_rot)                              # (K, 3, 3)
+        # global: machine (nm) then frames (12)
+        Jg = np.zeros((K, 12, nm + 12))
+        Jg[:, :6, :nm] = -Ju / sq[:, None]
+        Jg[:, 6:9, nm:nm + 3] = skew(y @ A.T) / sp                       # mocap rotation
+        Jg[:, 6:9, nm + 3:nm + 6] = -np.eye(3) / sp                      # mocap translation
+        Jg[:, 6:9, nm + 9:nm + 12] = -(A @ R) / sp                       # marker translation
+        Jg[:, 9:, nm:nm + 3] = -Jri / so                                 # mocap rotation
+        Jg[:, 9:, nm + 6:nm + 9] = -(Jri @ A @ R) / so                   # marker rotation
+        # local: [dP, dOmega] of the platform pose
+        Jl = np.zeros((K, 12, 6))
+        Jl[:, :6] = -Jx / sq[:, None]
+        Jl[:, 6:9, :3] = -np.broadcast_to(A, (K, 3, 3)) / sp
+        Jl[:, 6:9, 3:] = (A @ skew(Rc)) / sp
+        Jl[:, 9:, 3:] = -(Jri @ A) / so
+        return r, Jg, Jl
+
+
+PROBLEMS = {"ml": FullPoseML, "ik": FullPoseIK}
+
+
+def _fixed_pair(fix_frames) -> tuple[bool, bool]:
+    """``fix_frames``: a bool (both), or frame names."""
+    if isinstance(fix_frames, (bool, np.bool_)):
+        return bool(fix_frames), bool(fix_frames)
+    names = [fix_frames] if isinstance(fix_frames, str) else list(fix_frames)
+    bad = [n for n in names if n not in FRAME_NAMES]
+    if bad:
+        raise InputError(f"unknown measurement frame(s) {bad}; the frames are "
+                         f"{', '.join(FRAME_NAMES)}")
+    return FRAME_NAMES[0] in names, FRAME_NAMES[1] in names
+
+
+def estimate_frames(machine: Machine, data: FullPoseData, max_passes: int = 100,
+                    rcond: float = 1e-6) -> MeasurementFrames:
+    """Closed-form start of the two frames from the machine's model.
+
+    The platform poses follow from the readings (forward kinematics); the measurement frame's
+    rotation and origin from the positions (Horn, with the marker offset ``c`` of the last
+    pass), the marker frame's rotation as the mean of ``R_k^T A^T Rm_k``, and ``(c, a)`` by
+    linear least squares of ``A R_k c + a = Pm_k - A P_k``; passes until ``c`` settles (exact
+    for exact data and the true model).
+    Raises :class:`InputError` naming the rows the model cannot reach.
+    """
+    fk = machine.fk(data.q)
+    if not fk.converged.all():
+        rows = data.rows[~fk.converged]
+        shown = ", ".join(map(str, rows[:10].tolist())) + (" ..." if len(rows) > 10 else "")
+        raise InputError(f"{data.source}: no platform pose of the model reproduces the readings "
+                         f"of {len(rows)} row(s): {shown} (outside the workspace, or a wrong "
+                         "reading unit, gain or l0)")
+    P, R = fk.P, fk.R
+    c = np.zeros(3)
+    K = len(P)
+    sv = np.linalg.svd(data.P - data.P.mean(0), compute_uv=False)
+    if K < 4 or sv[1] <= 1e-6 * max(sv[0], 1e-300):
+        raise InputError(f"{data.source}: the {K} measured positions coincide or lie on one "
+                         "line (degenerate poses): the measurement frame cannot be found; "
+                         "measure poses spread over the workspace: positions along all three "
+                         "axes and rotations about all three axes")
+    scale = machine.characteristic_length()
+    for _ in range(max_passes):
+        y = P + np.einsum("kij,j->ki", R, c)
+        A, a = register_points(y, data.P, f"{data.source}: start of mocap_from_base")
+        M = np.einsum("kji,lj,klm->im", R, A, data.R)      # sum_k R_k^T A^T Rm_k
+        U, _, Vt = np.linalg.svd(M)
+        B = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+        lhs = np.concatenate([A @ R, np.broadcast_to(np.eye(3), (K, 3, 3))], -1).reshape(
+            3 * K, 6)
+        rhs = (data.P - P @ A.T).reshape(-1)
+        sol = np.linalg.lstsq(lhs, rhs, rcond=rcond)[0]
+        c, c_before = sol[:3], c
+        if np.max(np.abs(c - c_before)) < 1e-14 * scale:
+            break
+    a = sol[3:]
+    return MeasurementFrames((A, a), (B, c))
+
+
+def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml",
+                        noise: FullPoseNoise | None = None,
+                        frames: MeasurementFrames | None = None, fix_frames=False,
+                        fit_machine: bool = True, rtol: float = 1e-7,
+                        require_identifiable: bool = True, **options) -> CalibrationResult:
+    """Identify the leg parameters (and the measurement frames) from full-pose data.
+
+    Parameters
+    ----------
+    method : ``'ml'`` (default, every measured quantity noisy, poses unknown) or ``'ik'``
+        (inverse-kinematic residuals, measured poses exact); see the module docstring.
+    noise : :class:`~pkmcal.measurements.FullPoseNoise` (default values when None).
+    frames : start (or fixed) values of the frames; None: closed form
+        (:func:`estimate_frames`).
+    fix_frames : True (both), False (none), or frame names (``"mocap_from_base"``,
+        ``"platform_from_marker"``) held at ``frames``.
+    fit_machine : False keeps the leg parameters and fits the frames only (the baseline
+        "before calibration" of a model whose frames are unknown).
+    require_identifiable : raise :class:`InputError` when the poses leave directions other
+        than the frame gauges undetermined (degenerate poses: all alike, or no rotation),
+        naming them; False returns the fit with those directions reported instead.
+    options : passed to :func:`levenberg_marquardt` (``xtol``, ``ftol``, ``max_iter``, ...).
+
+    Returns
+    -------
+    CalibrationResult with ``extras``: ``method``, ``machine`` (calibrated, with
+    ``measurement_frames``), ``frames``, ``start_frames``, ``unidentifiable`` (named null and
+    weak directions), ``problem``.
+    """
+    if method not in PROBLEMS:
+        raise InputError(f"unknown method {method!r} for full-pose data; choose one of "
+                         f"{', '.join(METHODS)}")
+    if getattr(machine, "kind", "") != "stewart":
+        raise InputError(f"full-pose calibration is for six-leg platforms (stewart), not "
+                         f"{getattr(machine, 'kind', type(machine).__name__)}")
+    noise = FullPoseNoise() if noise is None else noise
+    fixed = _fixed_pair(fix_frames)
+    if any(fixed) and frames is None:
+        raise InputError("fixed measurement frames need values: pass frames=")
+    if len(data) < 4:
+        raise InputError(f"{data.source}: {len(data)} pose(s); full-pose calibration needs "
+                         "many poses spread over the workspace (at least 4 for the frames, "
+                         "more than 8 for the legs)")
+    start = estimate_frames(machine, data) if frames is None else frames
+    problem = PROBLEMS[method](machine, data, noise, start, fixed, fit_machine)
+    n_gauge = 6 * sum(not f for f in fixed) if fit_machine else 0
+    n_id = int(problem.parameters.free.sum()) - n_gauge
+    if 6 * len(data) < n_id:
+        raise InputError(f"{data.source}: {len(data)} poses give {6 * len(data)} independent "
+                         f"equations, fewer than the {n_id} identifiable parameters")
+    if require_identifiable:
+        _check_identifiable(problem, n_id, rtol, options.get("max_std", MAX_STD))
+    result = levenberg_marquardt(problem, rtol=rtol, **{"max_std": MAX_STD, **options})
+    state = result.state
+    calibrated = machine.with_parameters(state.u)
+    calibrated.measurement_frames = state.frames()
+    calibrated.home = machine.home
+    groups = problem.null_groups(state, result.scales)
+    result.extras.update(
+        problem=problem, method=method, machine=calibrated, frames=state.frames(),
+        start_frames=start, fixed_frames=fixed,
+        unidentifiable=name_null_space(result.null_space, problem.parameters, groups)
+        + name_weak_directions(result, problem.parameters),
+    )
+    return result
+
+
+def _check_identifiable(problem: FullPoseProblem, n_id: int, rtol: float, max_std) -> None:
+    """Refuse poses that leave more than the frame gauges undetermined, in words."""
+    state = problem.initial_state()
+    r, Jg, Jl = problem.evaluate(state)
+    if not np.all(np.isfinite(r)):
+        raise InputError(f"{problem.data.source}: the residuals are not finite at the start "
+                         "(check the readings and poses)")
+    free = problem.parameters.free
+    Jr, _, _ = reduce_local(r, Jg[..., free] * problem.scales[free], Jl)
+    _, s, Vt = np.linalg.svd(Jr, full_matrices=True)
+    floor = rtol * s[0] if s.size else 0.0
+    if max_std is not None:
+        floor = max(floor, 1.0 / max_std)
+    rank = int(np.sum(s > floor))
+    if rank >= n_id:
+        return
+    N = np.zeros((len(problem.parameters), Vt.shape[0] - rank))
+    N[free] = Vt[rank:].T
+    named = name_null_space(N, problem.parameters,
+                            problem.null_groups(state, problem.scales))
+    gauge = {"rigid motion of the base frame", "rigid motion of the platform frame"}
+    words = [d.name for d in named if d.name not in gauge] or ["(several combinations)"]
+    shown = "; ".join(words[:3]) + (f"; and {len(words) - 3} more" if len(words) > 3 else "")
+    raise InputError(
+        f"{problem.data.source}: the {len(problem.data)} poses determine only {rank} of the "
+        f"{n_id} identifiable parameter directions (degenerate poses); undetermined: {shown}. "
+        "Measure poses spread over the workspace: positions along all three axes and "
+        "rotations about all three axes")
+
+
+@dataclass
+class FullPoseErrors:
+    """How well a model with its frames explains full-pose data.
+
+    leg_length : (K, 6) m, ``l0 + gain q`` minus the leg length at the measured pose (mapped
+        through the frames): the inverse-kinematic residual as a length.
+    position : (K,) m, distance between the measured marker position and the one predicted by
+        forward kinematics of the readings (NaN where it did not converge).
+    orientation : (K,) rad, angle between the measured and the predicted marker orientation.
+    converged : (K,) bool, forward kinematics converged.
+    """
+
+    leg_length: np.ndarray
+    position: np.ndarray
+    orientation: np.ndarray
+    converged: np.ndarray
+
+    def summary(self) -> dict:
+        """RMS and maximum of each error (SI units), over the converged rows for poses."""
+        ok = self.converged
+
+        def rms(v):
+            return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
+
+        return {
+            "leg_length_rms": rms(self.leg_length),
+            "leg_length_max": float(np.max(np.abs(self.leg_length))),
+            "leg_length_rms_per_leg": np.sqrt(np.mean(self.leg_length**2, axis=0)).tolist(),
+            "position_rms": rms(self.position[ok]),
+            "position_max": float(np.max(self.position[ok])) if ok.any() else float("nan"),
+            "orientation_rms": rms(self.orientation[ok]),
+            "orientation_max": float(np.max(self.orientation[ok])) if ok.any()
+            else float("nan"),
+            "poses": int(len(ok)), "fk_failed": int((~ok).sum()),
+        }
+
+
+def full_pose_errors(machine: Machine, frames: MeasurementFrames,
+                     data: FullPoseData) -> FullPoseErrors:
+    """Leg-length residuals and pose errors of ``machine`` with ``frames`` on ``data``."""
+    P, R = frames.platform(data.P, data.R)
+    _, _, L = machine.leg_vectors(P, R)
+    leg = machine.lengths(data.q) - L
+    fk = machine.fk(data.q)
+    Pm, Rm = frames.measured(fk.P, fk.R)
+    pos = np.linalg.norm(Pm - data.P, axis=-1)
+    ang = np.linalg.norm(rotvec_from_matrix(Rm @ np.swapaxes(data.R, -1, -2)), axis=-1)
+    ok = fk.converged
+    return FullPoseErrors(leg, np.where(ok, pos, np.nan), np.where(ok, ang, np.nan), ok)
+
+
+def align_to(machine: Machine, u, frames: MeasurementFrames, u_ref):
+    """The member of the gauge orbit of ``(u, frames)`` closest to ``u_ref``.
+
+    The base joints are moved by the rigid motion that best fits them to ``u_ref``'s (Horn),
+    the platform joints likewise, and the frames by the inverse motions, so the aligned pair
+    predicts exactly the same data. Returns ``(u_aligned, frames_aligned)``; used to compare
+    an estimate with a known truth (SPEC 5) when the frames were unknown.
+    """
+    b, p, _, _ = machine.legs(u)
+    b_ref, p_ref, _, _ = machine.legs(u_ref)
+    G, g = register_points(b, b_ref, "base joints")
+    H, h = register_points(p, p_ref, "platform joints")      # p' = H p + h = C^T (p - c0)
+    C, c0 = H.T, -H.T @ h
+    u1 = machine.transform_platform(machine.transform_base(u, G, g), C, c0)
+    (A, a), (B, c) = frames.mocap_from_base, frames.platform_from_marker
+    return u1, MeasurementFrames((A @ G.T, a - A @ G.T @ g), (C.T @ B, C.T @ (c - c0)))
+
+
+def gauge_free_error(machine: Machine, result: CalibrationResult, u_true,
+                     frames_true: MeasurementFrames) -> np.ndarray:
+    """Error of a full-pose estimate against a known truth in the estimator's scaled increment
+    coordinates at the truth: leg parameters after :func:`align_to` (when the frames were
+    estimated), then the frames as rotation increments and translations."""
+    problem = result.extras["problem"]
+    frames = result.extras["frames"]
+    u = result.x[:problem.n_machine]
+    if problem.fit_machine and not all(problem.fixed_frames):
+        u, frames = align_to(machine, u, frames, u_true)
+    (A, a), (B, c) = frames.mocap_from_base, frames.platform_from_marker
+    (At, at), (Bt, ct) = frames_true.mocap_from_base, frames_true.platform_from_marker
+    e = np.concatenate([u - u_true, rotvec_from_matrix(A @ At.T), a - at,
+                        rotvec_from_matrix(B @ Bt.T), c - ct])
+    return e / result.scales
+

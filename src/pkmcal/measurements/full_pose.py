@@ -1,0 +1,197 @@
+"""Full-pose measurements of a six-leg platform (SPEC 2.4): leg readings + a measured pose.
+
+A motion-capture system (or a 6-D tracker) measures the pose of a *marker frame* fixed to the
+platform, in its own *measurement frame*. Neither frame is the machine's: the measured pose is ::
+
+    mocap_from_marker = mocap_from_base * base_from_platform(q; u) * platform_from_marker
+
+with ``mocap_from_base = (A, a)`` (a base-frame point ``x`` is ``A x + a`` in the measurement
+frame) and ``platform_from_marker = (B, c)`` (a marker-frame point ``y`` is ``B y + c`` in the
+platform frame). One measurement = the six leg readings and the measured pose ``(Pm, Rm)``.
+
+Noise model (:class:`FullPoseNoise`): every reading has a standard deviation given as a leg
+length (``reading_m``; the reading's own standard deviation is ``reading_m / |gain|``), the
+measured position an isotropic ``position_m``, the measured orientation an isotropic
+``orientation_rad`` (a small rotation about the measurement axes, applied on the left).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..kinematics import matrix_from_euler, matrix_from_rotvec
+from ..machines.base import Machine
+
+Frame = tuple[np.ndarray, np.ndarray]
+
+
+@dataclass(frozen=True)
+class FullPoseNoise:
+    """Standard deviations of full-pose data, SI units.
+
+    reading_m : of a leg reading, expressed as a leg length (m).
+    position_m : of each coordinate of the measured position (m).
+    orientation_rad : of each component of the measured orientation (small rotation, rad).
+    """
+
+    reading_m: float = 2e-6
+    position_m: float = 20e-6
+    orientation_rad: float = 50e-6
+
+    def __post_init__(self):
+        for name in ("reading_m", "position_m", "orientation_rad"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise InputError(f"noise {name}: must be a finite number >= 0, got {value}")
+
+
+@dataclass(frozen=True)
+class MeasurementFrames:
+    """The two frames that separate the measured poses from the machine's.
+
+    mocap_from_base : ``(A (3, 3), a (3,))``, a base point ``x`` is ``A x + a`` measured.
+    platform_from_marker : ``(B (3, 3), c (3,))``, a marker point ``y`` is ``B y + c`` in the
+        platform frame.
+    """
+
+    mocap_from_base: Frame
+    platform_from_marker: Frame
+
+    @classmethod
+    def identity(cls) -> MeasurementFrames:
+        return cls((np.eye(3), np.zeros(3)), (np.eye(3), np.zeros(3)))
+
+    def measured(self, P, R):
+        """Measured marker poses ``(Pm, Rm)`` of platform poses ``(P, R)`` (base frame)."""
+        (A, a), (B, c) = self.mocap_from_base, self.platform_from_marker
+        P, R = np.asarray(P, float), np.asarray(R, float)
+        Pm = (P + np.einsum("...ij,j->...i", R, c)) @ A.T + a
+        return Pm, A @ R @ B
+
+    def platform(self, Pm, Rm):
+        """Platform poses ``(P, R)`` in the base frame of measured marker poses ``(Pm, Rm)``:
+        ``R = A^T Rm B^T``, ``P = A^T (Pm - a) - R c``."""
+        (A, a), (B, c) = self.mocap_from_base, self.platform_from_marker
+        Pm, Rm = np.asarray(Pm, float), np.asarray(Rm, float)
+        R = A.T @ Rm @ B.T
+        P = (Pm - a) @ A - np.einsum("...ij,j->...i", R, c)
+        return P, R
+
+
+@dataclass
+class FullPoseData:
+    """Leg readings and measured marker poses.
+
+    q : (K, 6) readings, internal units (m for length readings, else the reading unit).
+    P : (K, 3) measured marker positions, measurement frame (m).
+    R : (K, 3, 3) measured marker orientations.
+    rows : (K,) row numbers in the source file, for messages.
+    true_P, true_R : platform poses of a simulation (base frame), else None.
+    """
+
+    q: np.ndarray
+    P: np.ndarray
+    R: np.ndarray
+    rows: np.ndarray | None = None
+    source: str = "<data>"
+    true_P: np.ndarray | None = None
+    true_R: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.q = np.atleast_2d(np.asarray(self.q, float))
+        self.P = np.atleast_2d(np.asarray(self.P, float))
+        self.R = np.asarray(self.R, float).reshape(-1, 3, 3)
+        if self.rows is None:
+            self.rows = np.arange(1, len(self.q) + 1)
+        self.rows = np.asarray(self.rows)
+        if not (len(self.q) == len(self.P) == len(self.R) == len(self.rows)):
+            raise InputError(f"{self.source}: readings, positions and orientations have "
+                             f"different lengths ({len(self.q)}, {len(self.P)}, {len(self.R)})")
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def subset(self, mask) -> FullPoseData:
+        """The measurements selected by a boolean mask or index array."""
+        pick = (lambda a: None if a is None else a[mask])
+        return FullPoseData(self.q[mask], self.P[mask], self.R[mask], self.rows[mask],
+                            self.source, pick(self.true_P), pick(self.true_R))
+
+
+def default_measurement_frames() -> MeasurementFrames:
+    """The true frames of simulations without ``measurement_frames`` in the machine file: the
+    motion-capture origin 1.2 m to the side and 0.3 m below the base centre, its axes turned
+    30 deg about Z and tilted 2 deg; the marker frame 25 mm off the platform origin (mostly
+    above it), turned 90 deg about X (a Y-up marker body) and 3 deg about Z."""
+    A = matrix_from_rotvec([0.0, 0.0, np.deg2rad(30.0)]) @ matrix_from_rotvec(
+        [np.deg2rad(2.0), 0.0, 0.0])
+    B = matrix_from_rotvec([np.deg2rad(90.0), 0.0, 0.0]) @ matrix_from_rotvec(
+        [0.0, 0.0, np.deg2rad(3.0)])
+    return MeasurementFrames((A, np.array([1.2, -0.4, -0.3])),
+                             (B, np.array([0.01, -0.005, 0.025])))
+
+
+#: default pose set of simulations (SPEC 5 workspace): a 0.1 m cube around home, Euler angles
+#: within +/-10 deg
+POSE_HALF_RANGE = 0.05
+POSE_MAX_ANGLE = np.deg2rad(10.0)
+
+
+def sample_platform_poses(machine: Machine, n: int, rng=None, half_range=POSE_HALF_RANGE,
+                          max_angle=POSE_MAX_ANGLE, min_conditioning: float = 0.05):
+    """``n`` platform poses around the machine's home: position uniform in a cube of
+    half-width ``half_range`` (m), Euler angles uniform in ``+/- max_angle`` (rad) about the
+    home orientation. Poses whose leg Jacobian is badly conditioned (smallest singular value
+    below ``min_conditioning`` times the largest, rotation columns scaled by the
+    characteristic length) or whose legs would be shorter than a tenth of their home length
+    are drawn again. Returns ``P`` (n, 3), ``R`` (n, 3, 3)."""
+    if n < 1:
+        raise InputError(f"the number of poses must be >= 1, got {n}")
+    rng = np.random.default_rng(rng)
+    P0, R0 = machine.home
+    _, _, L0 = machine.leg_vectors(P0, R0)
+    P_out, R_out = [], []
+    have = 0
+    for _ in range(50):
+        m = 2 * (n - have) + 16
+        P = P0 + rng.uniform(-half_range, half_range, (m, 3))
+        R = matrix_from_euler(rng.uniform(-max_angle, max_angle, (m, 3))) @ R0
+        _, J, _ = machine.ik_jacobians(P, R, want_du=False)
+        _, _, L = machine.leg_vectors(P, R)
+        Js = J.copy()
+        Js[..., 3:] /= machine.characteristic_length()
+        sv = np.linalg.svd(Js, compute_uv=False)
+        ok = (sv[:, -1] > min_conditioning * sv[:, 0]) & np.all(L > 0.1 * L0, axis=-1)
+        P_out.append(P[ok])
+        R_out.append(R[ok])
+        have += int(ok.sum())
+        if have >= n:
+            break
+    if have < n:
+        raise InputError(f"only {have} of {n} random poses around home are well conditioned: "
+                         "reduce the pose range or check the geometry and home")
+    return np.concatenate(P_out)[:n], np.concatenate(R_out)[:n]
+
+
+def simulate_full_pose(true_machine: Machine, poses, frames: MeasurementFrames | None = None,
+                       noise: FullPoseNoise | None = FullPoseNoise(), rng=None) -> FullPoseData:
+    """Full-pose data of ``true_machine`` at platform poses ``poses = (P, R)`` (or a number of
+    random poses, :func:`sample_platform_poses`): exact readings and measured marker poses
+    through ``frames`` (default :func:`default_measurement_frames`), plus Gaussian noise
+    (``noise=None``: none)."""
+    rng = np.random.default_rng(rng)
+    if isinstance(poses, (int, np.integer)):
+        poses = sample_platform_poses(true_machine, int(poses), rng)
+    P, R = (np.asarray(poses[0], float), np.asarray(poses[1], float))
+    frames = default_measurement_frames() if frames is None else frames
+    q = true_machine.ik(P, R)
+    Pm, Rm = frames.measured(P, R)
+    if noise is not None:
+        gain = np.abs(true_machine.legs()[3])
+        q = q + noise.reading_m / gain * rng.standard_normal(q.shape)
+        Pm = Pm + noise.position_m * rng.standard_normal(Pm.shape)
+        Rm = matrix_from_rotvec(noise.orientation_rad * rng.standard_normal(Pm.shape)) @ Rm
+    return FullPoseData(q, Pm, Rm, source="<simulated>", true_P=P, true_R=R)
