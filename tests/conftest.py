@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
-import pytest
+import os
 
-from clitools import run
+# one BLAS thread (before numpy loads): many small SVDs, which threads slow down on 2 cores
+for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import pytest  # noqa: E402
+
+from clitools import run  # noqa: E402
 
 
 @pytest.fixture

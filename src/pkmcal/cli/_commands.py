@@ -420,15 +420,6 @@ def _noise_text(noise) -> str:
             "urad")
 
 
-def _stewart_deviations(machine, which: str, rng) -> np.ndarray:
-    """Deviations of a simulated true Stewart: gains relative (a random deviation of a gain is
-    +/-0.1 % of it, whatever its unit)."""
-    du = _deviations(machine, which, rng)
-    ig = machine.parameters.indices([f"leg{i + 1}.gain" for i in range(6)])
-    du[ig] *= np.abs(machine.u[ig])
-    return du
-
-
 def _simulate_full_pose(machine, output: Path, n_poses: int, noise: str | None,
                         pose_noise: str | None, seed: int, deviations: str,
                         truth: Path | None) -> None:
@@ -440,7 +431,7 @@ def _simulate_full_pose(machine, output: Path, n_poses: int, noise: str | None,
 
     noise_model = full_pose_noise_arg(noise, pose_noise, strict=False)
     rng = np.random.default_rng(seed)
-    du = _stewart_deviations(machine, deviations, rng)
+    du = _deviations(machine, deviations, rng)
     true = machine.with_parameters(machine.u + du)
     frames = getattr(machine, "measurement_frames", None)
     frames_from = "the machine file's measurement_frames"
@@ -1482,14 +1473,18 @@ def run_errors(machine_spec: str, output: Path, trajectory: str | None,
         ("t_s", path.t)
     scale = 1e6                                              # m -> um, rad -> urad
     undetermined = [" ".join(str(i + 1) for i in np.flatnonzero(row)) for row in e.undetermined]
+    # the SPEC 6 columns exactly; the envelope (where a link force is too small to tell the
+    # clearance side) goes to a second file beside it
     header = [first[0], *ERRORS_FORCE_COLUMNS, *ERRORS_POSE_COLUMNS]
     columns = [first[1], *(result.forces.T + 0.0), *(e.dx * scale).T + 0.0]
+    env_header, env_columns = [first[0]], [first[1]]
     for j, name in enumerate(ERRORS_POSE_COLUMNS):
         base, unit = name.rsplit("_", 1)
-        header += [f"{base}_min_{unit}", f"{base}_max_{unit}"]
-        columns += [e.dx_min[:, j] * 1e6 + 0.0, e.dx_max[:, j] * 1e6 + 0.0]
-    header.append("undetermined_legs")
-    columns.append(undetermined)
+        env_header += [f"{base}_min_{unit}", f"{base}_max_{unit}"]
+        env_columns += [e.dx_min[:, j] * 1e6 + 0.0, e.dx_max[:, j] * 1e6 + 0.0]
+    env_header.append("undetermined_legs")
+    env_columns.append(undetermined)
+    envelope_path = output.with_name(output.stem + "_envelope" + output.suffix)
 
     # -- outputs, at the very end -----------------------------------------------------------
     plots = []
@@ -1498,6 +1493,7 @@ def run_errors(machine_spec: str, output: Path, trajectory: str | None,
                               c_platform, backlash, tol_n)
     from ..io import write_table
 
+    write_table(envelope_path, env_header, env_columns)
     write_table(output, header, columns)
     _print_errors(machine, where, result, trajectory, mass_kg, f_cut, c_base, c_platform,
                   backlash, tol_n, output, plots)
@@ -1587,11 +1583,13 @@ def _print_errors(machine, where, result, trajectory, mass_kg, f_cut, c_base, c_
     n_und = int(np.any(e.undetermined, axis=1).sum())
     if n_und:
         out.print(f"note: at {n_und} of {len(path)} samples a leg force is within "
-                  f"{tol_n:.6g} N of zero: the envelope of both sides is written "
-                  "(*_min_*, *_max_* columns; the main columns take those joints centred).",
+                  f"{tol_n:.6g} N of zero: the main columns take those joints centred, the "
+                  "envelope of both sides is in "
+                  f"{output.with_name(output.stem + '_envelope' + output.suffix)}.",
                   markup=False)
     if trajectory == "file" and np.any(np.abs(np.diff(path.R, axis=0)) > 1e-12):
         out.print("note: the orientation changes along the path; the platform's rotational "
                   "inertia is not modelled (translation inertia only).", markup=False)
-    out.print(f"wrote {output}" + (" and " + ", ".join(map(str, plots)) if plots else ""),
-              markup=False)
+    envelope = output.with_name(output.stem + "_envelope" + output.suffix)
+    out.print(f"wrote {output}, {envelope}" + (" and " + ", ".join(map(str, plots))
+                                               if plots else ""), markup=False)
