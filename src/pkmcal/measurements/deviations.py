@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 #: half-widths of the uniform random deviations per machine type: (length m, angle rad)
-RANDOM_DEVIATION = {"hexaslide": (2e-3, 0.02), "delta": (1e-3, np.deg2rad(0.5)),
-                    "stewart": (1e-3, np.deg2rad(0.5))}
+RANDOM_DEVIATION = {"hexaslide": (2e-3, 0.02), "delta": (1e-3, np.deg2rad(0.5))}
 
 
 #: half-width of random deviations of ratio parameters (gains), relative to their value
@@ -15,8 +14,8 @@ RATIO_DEVIATION = 1e-3
 
 def random_deviations(machine, rng) -> np.ndarray:
     """Uniform random errors of every parameter: lengths and angles within
-    :data:`RANDOM_DEVIATION` for the machine type, ratios (a leg's gain, in whatever reading
-    unit) within :data:`RATIO_DEVIATION` of their own value."""
+    :data:`RANDOM_DEVIATION` for the machine type (else 2 mm / 0.02 rad), ratios (a leg's
+    gain, in whatever reading unit) within :data:`RATIO_DEVIATION` of their own value."""
     params = machine.parameters
     length, angle = RANDOM_DEVIATION.get(getattr(machine, "kind", ""), (2e-3, 0.02))
     kinds = np.array(params.kinds)
