@@ -588,16 +588,9 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
 
     from ..calibration import calibrate_constraint_link
 
-    try:
-        result = calibrate_constraint_link(machine, data, method=method, sigma_m=sigma,
-                                           estimate_link_length=estimate_lc)
-    except InputError:
-        raise
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        raise InputError(f"{data_path}: calibration failed: {exc}") from None
-    if not result.success or not np.all(np.isfinite(result.x)):
-        error(f"calibration did not converge: {result.message} (after {result.nit} "
-              "iterations); no file written")
+    result = _solve(data_path, calibrate_constraint_link, machine, data, method=method,
+                    sigma_m=sigma, estimate_link_length=estimate_lc)
+    if not _converged(result):
         return 1
 
     units = _units(machine)
@@ -689,6 +682,26 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
     else:
         _print_calibration(report, params, data_path, output, report_path, machine)
     return 0
+
+
+def _solve(data_path, calibrate, *args, **kwargs):
+    """Run a calibration; numerical failures caused by the data become an InputError naming
+    the data file (exit 2)."""
+    try:
+        return calibrate(*args, **kwargs)
+    except InputError:
+        raise
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise InputError(f"{data_path}: calibration failed: {exc}") from None
+
+
+def _converged(result, advice: str = "") -> bool:
+    """True when the calibration converged; else says why (and what to try) on stderr."""
+    if result.success and np.all(np.isfinite(result.x)):
+        return True
+    error(f"calibration did not converge: {result.message} (after {result.nit} iterations)"
+          + (f"; {advice}" if advice else "") + "; no file written")
+    return False
 
 
 def _write_calibration(calibrated, units, metadata, report, output, report_path) -> str:
@@ -841,21 +854,9 @@ def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path
         raise InputError(f"{data_path}: row(s) {_rows_text(data.rows[~fk.converged])}: no "
                          f"platform position of {machine.source} reproduces these arm angles "
                          "(outside the workspace, or a wrong angle unit or zero)")
-    try:
-        result = calibrate_tracker(machine, data, noise_model, joint=not two_step,
-                                   robust=robust)
-    except InputError:
-        raise
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        raise InputError(f"{data_path}: calibration failed: {exc}") from None
-    if not result.success or not np.all(np.isfinite(result.x)):
-        sv = np.asarray(result.singular_values, float)
-        weak = sv[result.rank - 1] / sv[0] if result.rank and sv.size else float("nan")
-        hint = (f"; the points determine some directions poorly (smallest identified singular "
-                f"value {weak:.2g} of the largest): spread them in all three directions, e.g. a "
-                "3x3x3 grid" if weak < 1e-4 else "")
-        error(f"calibration did not converge: {result.message} (after {result.nit} "
-              f"iterations){hint}; no file written")
+    result = _solve(data_path, calibrate_tracker, machine, data, noise_model,
+                    joint=not two_step, robust=robust)
+    if not _converged(result, "spread the points in all three directions, e.g. a 3x3x3 grid"):
         return 1
 
     units = _units(machine)
@@ -1103,21 +1104,14 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
         frames = file_frames
         frames_from = ("start: the machine file's measurement_frames" if file_frames is not None
                        else "start: closed form from the design model")
-    try:
-        result = calibrate_full_pose(machine, data, method=method, noise=noise_model,
-                                     frames=frames, fix_frames=fix_frames)
-        # the machine file's legs with the frames fitted alone: "before calibration"
-        before = calibrate_full_pose(machine, data, method=method, noise=noise_model,
-                                     frames=frames if fix_frames else result.extras[
-                                         "start_frames"], fix_frames=fix_frames,
-                                     fit_machine=False)
-    except InputError:
-        raise
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        raise InputError(f"{data_path}: calibration failed: {exc}") from None
-    if not result.success or not np.all(np.isfinite(result.x)):
-        error(f"calibration did not converge: {result.message} (after {result.nit} "
-              "iterations); no file written")
+    result = _solve(data_path, calibrate_full_pose, machine, data, method=method,
+                    noise=noise_model, frames=frames, fix_frames=fix_frames)
+    # the machine file's legs with the frames fitted alone: "before calibration"
+    before = _solve(data_path, calibrate_full_pose, machine, data, method=method,
+                    noise=noise_model, frames=frames if fix_frames
+                    else result.extras["start_frames"], fix_frames=fix_frames,
+                    fit_machine=False)
+    if not _converged(result):
         return 1
 
     units = _units(machine)

@@ -129,6 +129,14 @@ class Machine(ABC):
         ``q`` is NaN where a pose cannot be reached.
         """
 
+    def pose_conditioning(self, P, R, u=None) -> np.ndarray:
+        """Inverse condition number (...,) of the joint Jacobian at poses, its rotation columns
+        scaled by the characteristic length (rotations as lengths): near 0 at a singularity."""
+        J = np.array(self.ik_jacobians(P, R, u, want_du=False)[1], float)
+        J[..., 3:] /= self.characteristic_length()
+        sv = np.linalg.svd(J, compute_uv=False)
+        return sv[..., -1] / sv[..., 0]
+
     def ik(self, P, R, u=None) -> np.ndarray:
         """Joint values (..., n_joints) at poses; NaN where the pose is not reachable."""
         return self.ik_jacobians(P, R, u, want_du=False)[0]

@@ -112,10 +112,7 @@ def sample_sphere_poses(machine: Machine, link_length: float, n: int, rng=None,
         R = matrix_from_euler(rng.uniform(-max_rotation, max_rotation, (m, 3)))
         q, J, _ = machine.ik_jacobians(P, R, want_du=False)
         ok = np.all(np.isfinite(q), -1)
-        Js = J[ok].copy()
-        Js[..., 3:] /= machine.characteristic_length()        # rotations as lengths
-        sv = np.linalg.svd(Js, compute_uv=False)
-        good = sv[:, -1] > min_manipulability * sv[:, 0]
+        good = machine.pose_conditioning(P[ok], R[ok]) > min_manipulability
         good &= loop_conditioning(machine, P[ok], J[ok]).min(-1) > min_loop_conditioning
         ok[ok] = good
         P_out.append(P[ok])

@@ -159,12 +159,8 @@ def sample_platform_poses(machine: Machine, n: int, rng=None, half_range=POSE_HA
         m = 2 * (n - have) + 16
         P = P0 + rng.uniform(-half_range, half_range, (m, 3))
         R = matrix_from_euler(rng.uniform(-max_angle, max_angle, (m, 3))) @ R0
-        _, J, _ = machine.ik_jacobians(P, R, want_du=False)
         _, _, L = machine.leg_vectors(P, R)
-        Js = J.copy()
-        Js[..., 3:] /= machine.characteristic_length()
-        sv = np.linalg.svd(Js, compute_uv=False)
-        ok = (sv[:, -1] > min_conditioning * sv[:, 0]) & np.all(L > 0.1 * L0, axis=-1)
+        ok = (machine.pose_conditioning(P, R) > min_conditioning) & np.all(L > 0.1 * L0, axis=-1)
         P_out.append(P[ok])
         R_out.append(R[ok])
         have += int(ok.sum())
