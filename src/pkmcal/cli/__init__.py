@@ -233,6 +233,35 @@ def calibrate(
 
 
 @app.command()
+def identifiability(
+    machine: MachineArg,
+    data: Annotated[Path, typer.Argument(metavar="DATA", help="Measurement file (CSV).",
+                                         show_default=False)],
+    json_output: Annotated[bool, typer.Option(
+        "--json", help="Print the report as JSON (keys parameters, identifiable, "
+                       "unidentifiable, observability, condition_number, hold_fixed, "
+                       "correlated, singular_values).")] = False,
+) -> None:
+    """What the measurements can identify, before calibrating (SPEC 3).
+
+    The measurement type follows from the columns, as in `pkmcal calibrate` (constraint link
+    on a Hexa Slide, laser tracker on a Delta, full pose on a Stewart). The problem is
+    evaluated at the machine file's geometry and the data's poses; on its scaled reduced
+    Jacobian: the number of identifiable parameter directions, the unidentifiable ones in
+    words (frame gauges first, then parameter combinations), observability indices O1..O5,
+    the condition number, a minimal identifiable set (parameters to hold fixed; QR with
+    column pivoting) and parameter pairs correlated beyond 0.9. Writes no file.
+
+    Example: `pkmcal identifiability default data.csv`
+
+    Example: `pkmcal identifiability examples/delta_default.yaml tracker.csv --json`
+    """
+    from ._commands import run_identifiability
+
+    raise typer.Exit(run_identifiability(machine, data, json_output))
+
+
+@app.command()
 def fk(
     machine: MachineArg,
     joints: Annotated[Path, typer.Argument(

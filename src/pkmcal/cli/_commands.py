@@ -1587,3 +1587,106 @@ def _print_errors(machine, where, result, trajectory, mass_kg, f_cut, c_base, c_
     envelope = output.with_name(output.stem + "_envelope" + output.suffix)
     out.print(f"wrote {output}, {envelope}" + (" and " + ", ".join(map(str, plots))
                                                if plots else ""), markup=False)
+
+
+# --------------------------------------------------------------------------------------------
+# identifiability
+# --------------------------------------------------------------------------------------------
+
+_MEASUREMENT_WORDS = {
+    "constraint-link": "constraint link (maximum likelihood: every reading noisy, 1 um; one "
+                       "pose on the sphere per measurement)",
+    "tracker": "laser tracker (Leica noise; tracker pose estimated jointly)",
+    "pose": "full pose (maximum likelihood, default noise; both measurement frames estimated)",
+}
+
+
+def _identifiability_problem(machine, data_path: Path, kind: str):
+    """The calibration problem ``pkmcal calibrate`` would solve (default method), unsolved."""
+    if kind == "constraint-link":
+        from ..calibration import ConstraintLinkML
+
+        data = read_constraint_link(data_path, machine)
+        return ConstraintLinkML(machine, data, 1e-6), data
+    if kind == "tracker":
+        from ..calibration import TrackerProblem, register_points
+        from ..measurements import TrackerNoise
+
+        data = read_tracker(data_path, machine)
+        fk = machine.fk(data.q)
+        if not fk.converged.all():
+            raise InputError(f"{data_path}: row(s) {_rows_text(data.rows[~fk.converged])}: no "
+                             f"platform position of {machine.source} reproduces these arm "
+                             "angles (outside the workspace, or a wrong angle unit or zero)")
+        smr = fk.P - np.array([0.0, 0.0, machine.smr_offset])
+        registration = register_points(data.m, smr, f"{data_path}: tracker registration")
+        return TrackerProblem(machine, data, TrackerNoise(), registration), data
+    from ..calibration import FullPoseML, estimate_frames
+    from ..measurements import FullPoseNoise
+
+    data = read_full_pose(data_path, machine)
+    if len(data) < 4:
+        raise InputError(f"{data_path}: {len(data)} pose(s); the measurement frames need at "
+                         "least 4")
+    frames = getattr(machine, "measurement_frames", None)
+    if frames is None:
+        frames = estimate_frames(machine, data)
+    return FullPoseML(machine, data, FullPoseNoise(), frames), data
+
+
+def run_identifiability(machine_spec: str, data_path: Path, json_output: bool) -> int:
+    from ..identifiability import identifiability_report
+
+    machine = load_machine_arg(machine_spec)
+    header, _ = read_table(data_path)
+    kind = measurement_kind(data_path, header, machine)
+    try:
+        problem, data = _identifiability_problem(machine, data_path, kind)
+        rep = identifiability_report(problem)
+    except InputError:
+        raise
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise InputError(f"{data_path}: identifiability analysis failed: {exc}") from None
+    s = np.asarray(rep.singular_values, float)
+    report = {
+        "pkmcal_report": 1,
+        "command": "identifiability",
+        "machine_file": str(getattr(machine, "source", machine_spec)),
+        "data_file": str(data_path),
+        "measurement": kind,
+        "measurements": len(data),
+        **rep.as_dict(),
+        "singular_values": s.tolist(),
+    }
+    if json_output:
+        print(json.dumps(_finite_or_none(report), indent=2))
+        return 0
+    out = console()
+    table = _table("", "", title=f"pkmcal identifiability: {report['machine_file']} with "
+                   f"{data_path}", show_header=False)
+    table.add_row("measurement", f"{_MEASUREMENT_WORDS[kind]}, {len(data)} measurements")
+    table.add_row("identifiable", f"{rep.identifiable} of {rep.parameters} free parameter "
+                  "directions")
+    for d in rep.unidentifiable:
+        table.add_row("not identifiable", f"{d.dimension} x {d.name}: {d.description}")
+    table.add_row("condition number", f"{rep.condition_number:.4g} (scaled Jacobian, "
+                  "identifiable part)")
+    o = rep.observability
+    table.add_row("observability", ", ".join(f"{k} = {o[k]:.4g}" for k in sorted(o)))
+    if rep.hold_fixed:
+        table.add_row("minimal set", f"hold {len(rep.hold_fixed)} parameters at their nominal "
+                      f"values and identify the other {rep.identifiable}: "
+                      + ", ".join(rep.hold_fixed))
+    out.print(table)
+    if rep.correlated:
+        pairs = _table("parameter", "parameter", "correlation",
+                       title=f"{len(rep.correlated)} pair(s) with |correlation| > 0.9 "
+                       "(identifiable part)", justify={2: "right"})
+        for a, b, c in rep.correlated[:10]:
+            pairs.add_row(a, b, f"{c:+.3f}")
+        if len(rep.correlated) > 10:
+            pairs.add_row("...", f"{len(rep.correlated) - 10} more", "")
+        out.print(pairs)
+    else:
+        out.print("no parameter pair correlated beyond 0.9 (identifiable part)", markup=False)
+    return 0

@@ -20,6 +20,12 @@ from .gauge import (
     gauge_groups,
     transport_covariance,
 )
+from .report import (
+    correlated_pairs,
+    identifiability_report,
+    minimal_identifiable_set,
+    problem_null_groups,
+)
 
 __all__ = [
     "BASE_ROTATION_ABOUT_O", "CONSTRAINT_LINK_GAUGES", "Gauge", "IdentifiabilityReport",
@@ -27,4 +33,6 @@ __all__ = [
     "apply_gauges", "gauge_generators", "gauge_groups", "name_null_space",
     "name_weak_directions",
     "observability_indices", "transport_covariance",
+    "correlated_pairs", "identifiability_report", "minimal_identifiable_set",
+    "problem_null_groups",
 ]

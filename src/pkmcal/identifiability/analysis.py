@@ -32,6 +32,12 @@ class IdentifiabilityReport:
     unidentifiable: list[NullDirection] = field(default_factory=list)
     observability: dict = field(default_factory=dict)
     condition_number: float = float("nan")
+    #: a minimal identifiable set: hold these (free) parameters at their nominal values and
+    #: the others are identifiable (QR with column pivoting; empty when not computed)
+    hold_fixed: list[str] = field(default_factory=list)
+    #: parameter pairs ``(a, b, correlation)`` with ``|correlation| > 0.9`` in the
+    #: pseudo-inverse covariance (identifiable part), largest first
+    correlated: list[tuple[str, str, float]] = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {
@@ -40,14 +46,26 @@ class IdentifiabilityReport:
             "unidentifiable": [d.as_dict() for d in self.unidentifiable],
             "observability": self.observability,
             "condition_number": self.condition_number,
+            "hold_fixed": list(self.hold_fixed),
+            "correlated": [{"a": a, "b": b, "correlation": c} for a, b, c in self.correlated],
         }
 
-    def summary(self) -> str:
+    def summary(self, max_pairs: int = 10) -> str:
         """The report in words."""
         lines = [f"{self.identifiable} of {self.parameters} free parameter directions are "
                  "identifiable from these data."]
         for d in self.unidentifiable:
             lines.append(f"  - {d.dimension} x {d.name}: {d.description}")
+        if self.hold_fixed:
+            lines.append(f"A minimal identifiable set: hold these {len(self.hold_fixed)} "
+                         "parameters at their nominal values and identify the others: "
+                         + ", ".join(self.hold_fixed))
+        if self.correlated:
+            lines.append(f"{len(self.correlated)} parameter pair(s) correlated beyond 0.9:")
+            for a, b, c in self.correlated[:max_pairs]:
+                lines.append(f"  - {a} ~ {b}: {c:+.3f}")
+            if len(self.correlated) > max_pairs:
+                lines.append(f"  ... and {len(self.correlated) - max_pairs} more")
         return "\n".join(lines)
 
 
