@@ -650,13 +650,7 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
             if np.isfinite(result.residual_variance) else None,
             "dof": int(result.dof),
         },
-        "identifiability": {
-            "free_parameters": n_free,
-            "identifiable": rank,
-            "unidentifiable": [d.as_dict() for d in unidentifiable],
-            "condition_number": float(s[0] / s[rank - 1]) if rank else None,
-            "singular_values": s.tolist(),
-        },
+        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
         "parameters": [{k: v for k, v in p.items() if k != "scaled_change"} for p in params],
     }
     metadata = {
@@ -702,6 +696,17 @@ def _converged(result, advice: str = "") -> bool:
     error(f"calibration did not converge: {result.message} (after {result.nit} iterations)"
           + (f"; {advice}" if advice else "") + "; no file written")
     return False
+
+
+def _identifiability_json(n_free, rank, unidentifiable, s) -> dict:
+    """The identifiability section of a calibration report."""
+    return {
+        "free_parameters": n_free,
+        "identifiable": rank,
+        "unidentifiable": [d.as_dict() for d in unidentifiable],
+        "condition_number": float(s[0] / s[rank - 1]) if rank else None,
+        "singular_values": s.tolist(),
+    }
 
 
 def _write_calibration(calibrated, units, metadata, report, output, report_path) -> str:
@@ -952,13 +957,7 @@ def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path
             "unit": "%", "pairs": int(len(pairs)), "pairs_from": pairs_from,
             "before": before, "after": after,
         },
-        "identifiability": {
-            "free_parameters": n_free,
-            "identifiable": rank,
-            "unidentifiable": [d.as_dict() for d in unidentifiable],
-            "condition_number": float(s[0] / s[rank - 1]) if rank else None,
-            "singular_values": s.tolist(),
-        },
+        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
         "identifiable_combinations": {
             "description": "db - da per leg (leg frame, file length unit): only this "
                            "difference enters the model" + (
@@ -1184,13 +1183,7 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
             "noise_scale": math.sqrt(variance) if math.isfinite(variance) else None,
             "dof": int(result.dof),
         },
-        "identifiability": {
-            "free_parameters": n_free,
-            "identifiable": rank,
-            "unidentifiable": [d.as_dict() for d in unidentifiable],
-            "condition_number": float(s[0] / s[rank - 1]) if rank else None,
-            "singular_values": s.tolist(),
-        },
+        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
         "parameters": [{k: v for k, v in p.items() if k != "scaled_change"} for p in params],
     }
     metadata = {
