@@ -191,6 +191,13 @@ DEFAULT_DEVIATIONS = {"hexaslide": "paper-table1", "delta": "random", "stewart":
 SCENARIOS = {"hexaslide": ("constraint-link",), "delta": ("tracker",), "stewart": ("pose",)}
 
 
+def _true_machine(machine, deviations: str, rng):
+    """The simulated true machine: ``machine`` plus ``--deviations``, named as such."""
+    true = machine.with_parameters(machine.u + _deviations(machine, deviations, rng))
+    true.name = f"simulated true machine ({deviations} deviations) of {machine.name or 'MACHINE'}"
+    return true
+
+
 def _deviations(machine, which: str, rng) -> np.ndarray:
     params = machine.parameters
     if which == "none":
@@ -292,10 +299,8 @@ def _simulate_constraint_link(machine, output: Path, poses: int, noise: str, lc_
         raise InputError(f"--lc-error: the true link length {lc_true * 1e3:.6g} mm is not "
                          "positive")
     rng = np.random.default_rng(seed)
-    du = _deviations(machine, deviations, rng)
-    true = machine.with_parameters(machine.u + du)
+    true = _true_machine(machine, deviations, rng)
     true.constraint_link_length = lc_true
-    true.name = f"simulated true machine ({deviations} deviations) of {machine.name or 'MACHINE'}"
     from ..measurements import simulate_constraint_link
 
     data = simulate_constraint_link(true, poses, noise_m, link_length=lc_true, rng=rng)
@@ -336,14 +341,12 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
     if outliers > n_points:
         raise InputError(f"--outliers: {outliers} outliers among {n_points} grid points")
     rng = np.random.default_rng(seed)
-    du = _deviations(machine, deviations, rng)
-    true = machine.with_parameters(machine.u + du)
+    true = _true_machine(machine, deviations, rng)
     pose = getattr(machine, "base_from_tracker", None)
     pose_from = "the machine file's tracker section"
     if pose is None:
         pose, pose_from = default_tracker_pose(), "default"
     true.base_from_tracker = pose
-    true.name = f"simulated true machine ({deviations} deviations) of {machine.name or 'MACHINE'}"
     centre = machine.home[0]
     targets = grid_points(centre, TRACKER_GRID_SPACING, shape)
     bad = np.flatnonzero(~np.all(np.isfinite(machine.ik(targets)), axis=-1))
@@ -431,14 +434,12 @@ def _simulate_full_pose(machine, output: Path, n_poses: int, noise: str | None,
 
     noise_model = full_pose_noise_arg(noise, pose_noise, strict=False)
     rng = np.random.default_rng(seed)
-    du = _deviations(machine, deviations, rng)
-    true = machine.with_parameters(machine.u + du)
+    true = _true_machine(machine, deviations, rng)
     frames = getattr(machine, "measurement_frames", None)
     frames_from = "the machine file's measurement_frames"
     if frames is None:
         frames, frames_from = default_measurement_frames(), "default"
     true.measurement_frames = frames
-    true.name = f"simulated true machine ({deviations} deviations) of {machine.name or 'MACHINE'}"
     poses = sample_platform_poses(true, n_poses, rng)
     data = simulate_full_pose(true, poses, frames, noise_model, rng)
     units = _units(machine)

@@ -129,10 +129,12 @@ class Machine(ABC):
         ``q`` is NaN where a pose cannot be reached.
         """
 
-    def pose_conditioning(self, P, R, u=None) -> np.ndarray:
+    def pose_conditioning(self, P, R, u=None, dq_dpose=None) -> np.ndarray:
         """Inverse condition number (...,) of the joint Jacobian at poses, its rotation columns
-        scaled by the characteristic length (rotations as lengths): near 0 at a singularity."""
-        J = np.array(self.ik_jacobians(P, R, u, want_du=False)[1], float)
+        scaled by the characteristic length (rotations as lengths): near 0 at a singularity.
+        Pass ``dq_dpose`` when it is already computed at these poses."""
+        J = np.array(self.ik_jacobians(P, R, u, want_du=False)[1] if dq_dpose is None
+                     else dq_dpose, float)
         J[..., 3:] /= self.characteristic_length()
         sv = np.linalg.svd(J, compute_uv=False)
         return sv[..., -1] / sv[..., 0]

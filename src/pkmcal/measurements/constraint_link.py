@@ -15,6 +15,7 @@ import numpy as np
 from ..errors import InputError
 from ..kinematics import matrix_from_euler
 from ..machines.base import Machine
+from .deviations import draw_accepted
 
 
 @dataclass
@@ -99,10 +100,8 @@ def sample_sphere_poses(machine: Machine, link_length: float, n: int, rng=None,
     e1 = np.cross(axis, helper)
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(axis, e1)
-    P_out, R_out = [], []
-    have = 0
-    for _ in range(50):
-        m = 2 * (n - have) + 16
+
+    def draw(m, rng):
         cos_t = rng.uniform(np.cos(max_tilt), 1.0, m)          # uniform on the cap
         az = rng.uniform(0, 2 * np.pi, m)
         sin_t = np.sqrt(1 - cos_t**2)
@@ -112,18 +111,13 @@ def sample_sphere_poses(machine: Machine, link_length: float, n: int, rng=None,
         R = matrix_from_euler(rng.uniform(-max_rotation, max_rotation, (m, 3)))
         q, J, _ = machine.ik_jacobians(P, R, want_du=False)
         ok = np.all(np.isfinite(q), -1)
-        good = machine.pose_conditioning(P[ok], R[ok]) > min_manipulability
+        good = machine.pose_conditioning(P[ok], R[ok], dq_dpose=J[ok]) > min_manipulability
         good &= loop_conditioning(machine, P[ok], J[ok]).min(-1) > min_loop_conditioning
         ok[ok] = good
-        P_out.append(P[ok])
-        R_out.append(R[ok])
-        have += int(ok.sum())
-        if have >= n:
-            break
-    if have < n:
-        raise InputError(f"only {have} of {n} sphere poses are reachable: reduce max_tilt or "
-                         "max_rotation, or check the constraint-link length")
-    return np.concatenate(P_out)[:n], np.concatenate(R_out)[:n]
+        return P, R, ok
+
+    return draw_accepted(draw, n, rng, "only {have} of {n} sphere poses are reachable: reduce "
+                         "max_tilt or max_rotation, or check the constraint-link length")
 
 
 def simulate_constraint_link(true_machine: Machine, n_poses: int = 150, noise_m: float = 0.0,

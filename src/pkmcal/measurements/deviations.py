@@ -1,4 +1,4 @@
-"""Deviations of a simulated true machine from its nominal geometry."""
+"""Simulation helpers: deviations of a true machine, rejection sampling of poses."""
 
 from __future__ import annotations
 
@@ -22,3 +22,24 @@ def random_deviations(machine, rng) -> np.ndarray:
     ratio = RATIO_DEVIATION * np.abs(params.values)
     size = np.where(kinds == "length", length, np.where(kinds == "angle", angle, ratio))
     return np.random.default_rng(rng).uniform(-1.0, 1.0, len(params)) * size
+
+
+def draw_accepted(draw, n: int, rng, failure: str, rounds: int = 50):
+    """``n`` poses from ``draw(m, rng) -> (P (m,3), R (m,3,3), ok (m,))``, drawing batches
+    (about twice what is still missing) until enough are accepted.
+
+    Raises :class:`~pkmcal.errors.InputError` with ``failure`` (formatted with ``have`` and
+    ``n``) when ``rounds`` batches do not give ``n``.
+    """
+    from ..errors import InputError
+
+    P_out, R_out = [], []
+    have = 0
+    for _ in range(rounds):
+        P, R, ok = draw(2 * (n - have) + 16, rng)
+        P_out.append(P[ok])
+        R_out.append(R[ok])
+        have += int(ok.sum())
+        if have >= n:
+            return np.concatenate(P_out)[:n], np.concatenate(R_out)[:n]
+    raise InputError(failure.format(have=have, n=n))

@@ -24,6 +24,7 @@ import numpy as np
 from ..errors import InputError
 from ..kinematics import matrix_from_euler, matrix_from_rotvec
 from ..machines.base import Machine
+from .deviations import draw_accepted
 
 Frame = tuple[np.ndarray, np.ndarray]
 
@@ -153,23 +154,17 @@ def sample_platform_poses(machine: Machine, n: int, rng=None, half_range=POSE_HA
     rng = np.random.default_rng(rng)
     P0, R0 = machine.home
     _, _, L0 = machine.leg_vectors(P0, R0)
-    P_out, R_out = [], []
-    have = 0
-    for _ in range(50):
-        m = 2 * (n - have) + 16
+
+    def draw(m, rng):
         P = P0 + rng.uniform(-half_range, half_range, (m, 3))
         R = matrix_from_euler(rng.uniform(-max_angle, max_angle, (m, 3))) @ R0
-        _, _, L = machine.leg_vectors(P, R)
-        ok = (machine.pose_conditioning(P, R) > min_conditioning) & np.all(L > 0.1 * L0, axis=-1)
-        P_out.append(P[ok])
-        R_out.append(R[ok])
-        have += int(ok.sum())
-        if have >= n:
-            break
-    if have < n:
-        raise InputError(f"only {have} of {n} random poses around home are well conditioned: "
-                         "reduce the pose range or check the geometry and home")
-    return np.concatenate(P_out)[:n], np.concatenate(R_out)[:n]
+        q, J, _ = machine.ik_jacobians(P, R, want_du=False)
+        ok = (machine.pose_conditioning(P, R, dq_dpose=J) > min_conditioning) \
+            & np.all(machine.lengths(q) > 0.1 * L0, axis=-1)
+        return P, R, ok
+
+    return draw_accepted(draw, n, rng, "only {have} of {n} random poses around home are well "
+                         "conditioned: reduce the pose range or check the geometry and home")
 
 
 def simulate_full_pose(true_machine: Machine, poses, frames: MeasurementFrames | None = None,
