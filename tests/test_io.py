@@ -150,19 +150,25 @@ BAD_MACHINES = [
 ]
 
 
-@pytest.mark.parametrize("edit, words", [b[1:] for b in BAD_MACHINES],
-                         ids=[b[0] for b in BAD_MACHINES])
-def test_bad_machine_file_names_key_and_problem(tmp_path, edit, words):
+def assert_bad_machine_file(tmp_path, example, edit, words):
+    """An edited example file: InputError naming the file and ``words``; input unchanged."""
     path = tmp_path / "bad.yaml"
-    text = edit(EXAMPLE.read_text())
+    text = edit(example.read_text())
+    assert text != example.read_text(), "the edit did not apply"
     path.write_text(text)
     with pytest.raises(InputError) as info:
         load_machine(path)
     message = str(info.value)
     assert message.startswith(f"{path}: ")
     for w in words:
-        assert w in message
+        assert w in message, message
     assert path.read_text() == text   # input never modified
+
+
+@pytest.mark.parametrize("edit, words", [b[1:] for b in BAD_MACHINES],
+                         ids=[b[0] for b in BAD_MACHINES])
+def test_bad_machine_file_names_key_and_problem(tmp_path, edit, words):
+    assert_bad_machine_file(tmp_path, EXAMPLE, edit, words)
 
 
 def test_missing_machine_file(tmp_path):
@@ -416,16 +422,7 @@ BAD_DELTAS = [
 @pytest.mark.parametrize("edit, words", [b[1:] for b in BAD_DELTAS],
                          ids=[b[0] for b in BAD_DELTAS])
 def test_bad_delta_file_names_key_and_problem(tmp_path, edit, words):
-    path = tmp_path / "bad.yaml"
-    text = edit(DELTA_EXAMPLE.read_text())
-    path.write_text(text)
-    with pytest.raises(InputError) as info:
-        load_machine(path)
-    message = str(info.value)
-    assert message.startswith(f"{path}: ")
-    for w in words:
-        assert w in message, message
-    assert path.read_text() == text
+    assert_bad_machine_file(tmp_path, DELTA_EXAMPLE, edit, words)
 
 
 @pytest.mark.parametrize("units", [("deg", "mm"), ("rad", "m"), ("urad", "um")])
