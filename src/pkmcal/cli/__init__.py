@@ -235,30 +235,122 @@ def calibrate(
 @app.command()
 def identifiability(
     machine: MachineArg,
-    data: Annotated[Path, typer.Argument(metavar="DATA", help="Measurement file (CSV).",
-                                         show_default=False)],
+    data: Annotated[Path | None, typer.Argument(
+        metavar="[DATA]", show_default=False,
+        help="Measurement file (CSV); with --planned a plan (poses only); without it, random "
+             "planned poses.")] = None,
+    planned: Annotated[bool, typer.Option(
+        "--planned", help="DATA holds planned poses (x, y, z and psi, theta, phi or qx..qw; "
+                          "other columns ignored), not measurements: analyse the measurements "
+                          "the machine file's geometry would give there (e.g. the output of "
+                          "select-poses).")] = False,
+    poses: Annotated[int | None, typer.Option(
+        help="Without DATA: the number of random planned poses (default: 150 constraint-link, "
+             "27 tracker, 60 pose).", show_default=False)] = None,
+    seed: Annotated[int, typer.Option(help="Seed of random planned poses and of the "
+                                           "workspace sample.")] = 0,
+    noise: Annotated[str | None, typer.Option(
+        help="Measurement noise of the prediction, as in calibrate (constraint-link: encoder "
+             "std, default 1um; tracker: leica or a length; pose: leg readings, default 2um).",
+        show_default=False)] = None,
+    pose_noise: Annotated[str | None, typer.Option(
+        "--pose-noise", help="pose measurements: noise of the measured poses, "
+                             "POSITION,ORIENTATION (default 20um,50urad).",
+        show_default=False)] = None,
+    map_path: Annotated[Path | None, typer.Option(
+        "--map", help="Write a map (PNG) of the predicted position error over two workspace "
+                      "slices through home.", show_default=False)] = None,
     json_output: Annotated[bool, typer.Option(
         "--json", help="Print the report as JSON (keys parameters, identifiable, "
                        "unidentifiable, observability, condition_number, hold_fixed, "
-                       "correlated, singular_values).")] = False,
+                       "correlated, predicted_accuracy, singular_values).")] = False,
 ) -> None:
-    """What the measurements can identify, before calibrating (SPEC 3).
+    """What the measurements will identify and how accurate the calibration will be (SPEC 3).
 
-    The measurement type follows from the columns, as in `pkmcal calibrate` (constraint link
-    on a Hexa Slide, laser tracker on a Delta, full pose on a Stewart). The problem is
-    evaluated at the machine file's geometry and the data's poses; on its scaled reduced
-    Jacobian: the number of identifiable parameter directions, the unidentifiable ones in
-    words (frame gauges first, then parameter combinations), observability indices O1..O5,
-    the condition number, a minimal identifiable set (parameters to hold fixed; QR with
-    column pivoting) and parameter pairs correlated beyond 0.9. Writes no file.
+    From measurements (DATA; the type follows from the columns, as in `pkmcal calibrate`),
+    from planned poses (`--planned DATA`), or, without DATA, from random planned poses of the
+    machine's scenario (constraint link on a Hexa Slide, laser tracker on a Delta, full pose
+    on a Stewart). The problem is evaluated at the machine file's geometry; on its scaled
+    reduced Jacobian: the number of identifiable parameter directions, the unidentifiable
+    ones in words (frame gauges first, then parameter combinations), observability indices
+    O1..O5, the condition number, a minimal identifiable set (parameters to hold fixed; QR
+    with column pivoting), parameter pairs correlated beyond 0.9, and the predicted pose
+    accuracy after calibration (Cramer-Rao bound with the --noise model, propagated to the
+    0.1 m workspace cube around home; frame gauges removed by best fit as in SPEC 5).
 
     Example: `pkmcal identifiability default data.csv`
 
-    Example: `pkmcal identifiability examples/delta_default.yaml tracker.csv --json`
-    """
-    from ._commands import run_identifiability
+    Example: `pkmcal identifiability default --poses 60 --noise 2um --map predicted.png`
 
-    raise typer.Exit(run_identifiability(machine, data, json_output))
+    Example: `pkmcal identifiability examples/delta_default.yaml plan.csv --planned --json`
+    """
+    from ._planning import run_identifiability
+
+    raise typer.Exit(run_identifiability(machine, data, json_output, planned, poses, seed,
+                                         noise, pose_noise, map_path))
+
+
+class Criterion(enum.StrEnum):
+    d = "d"
+    a = "a"
+    pose = "pose"
+
+
+@app.command("select-poses")
+def select_poses(
+    machine: MachineArg,
+    output: OutFile,
+    n: Annotated[int, typer.Option("-n", "--poses", help="Number of poses to choose.")] = 0,
+    candidates: Annotated[int, typer.Option(
+        help="Number of random feasible candidates (constraint-link: on the sphere |P| = Lc; "
+             "tracker: in the box of the 3x3x3 grid around home; pose: the 0.1 m cube, +/-10 "
+             "deg).")] = 2000,
+    candidates_file: Annotated[Path | None, typer.Option(
+        "--from", help="Choose among the poses of this file instead (x, y, z + orientation; "
+                       "every pose must be reachable).", show_default=False)] = None,
+    criterion: Annotated[Criterion, typer.Option(
+        help="d: D-optimal (maximise det of the information, observability index O1); a: "
+             "A-optimal (mean parameter variance); pose: smallest predicted mean squared "
+             "position error over the workspace.")] = Criterion.d,
+    random_sets: Annotated[int, typer.Option(
+        help="Random sets of the same size to compare against.")] = 100,
+    noise: Annotated[str | None, typer.Option(
+        help="Measurement noise of the prediction (as in calibrate).", show_default=False)]
+    = None,
+    pose_noise: Annotated[str | None, typer.Option(
+        "--pose-noise", help="pose measurements: noise of the measured poses.",
+        show_default=False)] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the candidates, the workspace sample and "
+                                           "the random sets.")] = 0,
+    map_path: Annotated[Path | None, typer.Option(
+        "--map", help="Write a map (PNG) of the predicted position error with the chosen "
+                      "poses.", show_default=False)] = None,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")]
+    = False,
+) -> None:
+    """Choose N measurement poses that identify the machine best (SPEC 3).
+
+    Candidates are feasible poses of the machine's scenario (reachable, well conditioned;
+    constraint link: drivable with the link mounted) or the poses of --from. The choice
+    maximises a design criterion on the information of the scaled identification Jacobian
+    (greedy, then exchanges until none improves it), and the report compares its predicted
+    accuracy after calibration with random sets of the same size. Writes the chosen poses
+    (the file's units) with the joint values that reach them on the nominal machine and the
+    candidate row; `pkmcal identifiability MACHINE PLAN.csv --planned` analyses it again.
+
+    Example: `pkmcal select-poses default -n 60 -o plan.csv --map plan.png`
+
+    Example: `pkmcal select-poses examples/delta_default.yaml -n 27 --noise 10um -o plan.csv`
+    """
+    from ._planning import run_select_poses
+
+    if n < 1:
+        from ..errors import InputError
+
+        raise InputError(f"-n/--poses: give the number of poses to choose (>= 1), got {n}")
+    raise typer.Exit(run_select_poses(machine, output, n, candidates, candidates_file,
+                                      criterion.value, random_sets, noise, pose_noise, seed,
+                                      map_path, json_output))
 
 
 @app.command()

@@ -75,6 +75,14 @@ def correlated_pairs(jacobian_scaled, rank: int, names: Sequence[str],
         R = C / np.outer(d, d)
     iu, ju = np.triu_indices(len(d), 1)
     keep = ok[iu] & ok[ju] & (np.abs(R[iu, ju]) > threshold)
+    # parameters with parallel columns act as one (their combination is unidentifiable and
+    # named as such, e.g. a Delta leg's da + db): report pairs of the first of each class only
+    norms = np.linalg.norm(J, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = np.abs(J.T @ J) / np.outer(norms, norms)
+    parallel = np.triu(cos > 1.0 - 1e-9, 1)
+    first = ~parallel.any(axis=0)
+    keep &= first[iu] & first[ju]
     pairs = [(names[i], names[j], float(np.clip(R[i, j], -1.0, 1.0)))
              for i, j in zip(iu[keep], ju[keep], strict=True)]
     pairs.sort(key=lambda p: -abs(p[2]))

@@ -160,10 +160,11 @@ def plot_pose_errors(x, dx, dx_min, dx_max, path, xlabel: str = "angle [deg]",
 
 
 def plot_error_map(x, y, panels, path, title: str = "pose error over the workspace",
-                   overlay=None):
+                   overlay=None, markers=None, markers_label: str = ""):
     """Error maps over a horizontal workspace slice: one panel per
     ``(panel title, values (ny, nx), colour-bar label)``; ``x``, ``y`` in mm; ``overlay``
-    (K, 2) in mm (e.g. the trajectory) is drawn on every panel."""
+    (K, 2) in mm (e.g. the trajectory) is drawn as a line, ``markers`` (K, 2) in mm (e.g.
+    measurement positions) as points, on every panel."""
     n = len(panels)
     cols = min(n, 2)
     rows = (n + cols - 1) // cols
@@ -177,6 +178,11 @@ def plot_error_map(x, y, panels, path, title: str = "pose error over the workspa
         if overlay is not None:
             o = np.asarray(overlay, float)
             ax.plot(o[:, 0], o[:, 1], "w-", lw=1.2)
+        if markers is not None:
+            mk = np.asarray(markers, float)
+            ax.plot(mk[:, 0], mk[:, 1], "w.", ms=3, label=markers_label or None)
+            if markers_label:
+                ax.legend(fontsize=7, loc="upper right")
         ax.set_aspect("equal")
         ax.set_xlabel("x [mm]")
         ax.set_ylabel("y [mm]")

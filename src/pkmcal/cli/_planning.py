@@ -1,0 +1,402 @@
+"""``pkmcal identifiability`` and ``pkmcal select-poses``: what measurements will identify and
+how accurate the calibration will be, before and after measuring (SPEC 3)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..io import read_constraint_link, read_full_pose, read_table, read_tracker
+from ..units import parse_quantity
+from ._commands import (
+    _MEASUREMENT_WORDS,
+    _finite_or_none,
+    _rows_text,
+    _table,
+    _units,
+    check_outputs,
+    full_pose_noise_arg,
+    load_machine_arg,
+    measurement_kind,
+    tracker_noise_arg,
+)
+from ._console import console
+
+#: workspace poses of the predicted-accuracy summary (SPEC 5 cube) and of the map (per axis)
+WORKSPACE_POSES = 500
+MAP_STEPS = 31
+
+
+def noise_model(scenario: str, noise: str | None, pose_noise: str | None):
+    """The noise model of ``--noise`` / ``--pose-noise`` for a scenario (as in calibrate)."""
+    if pose_noise is not None and scenario != "pose":
+        raise InputError(f"--pose-noise applies to full-pose measurements, not {scenario}")
+    if scenario == "constraint-link":
+        sigma = 1e-6 if noise is None else parse_quantity(noise, "length", "--noise")
+        if not sigma > 0:
+            raise InputError(f"--noise: must be > 0 (the standard deviation of the encoder "
+                             f"noise), got {noise}")
+        return sigma
+    if scenario == "tracker":
+        return tracker_noise_arg(noise, allow_none=False)[0]
+    return full_pose_noise_arg(noise, pose_noise, strict=True)
+
+
+def measured_problem(machine, data_path: Path, kind: str, noise):
+    """The calibration problem ``pkmcal calibrate`` would solve (default method), unsolved."""
+    from ..planning import scenario_problem
+
+    if kind == "constraint-link":
+        data = read_constraint_link(data_path, machine)
+        return scenario_problem(machine, kind, data, noise), data
+    if kind == "tracker":
+        from ..calibration import register_points
+
+        data = read_tracker(data_path, machine)
+        fk = machine.fk(data.q)
+        if not fk.converged.all():
+            raise InputError(f"{data_path}: row(s) {_rows_text(data.rows[~fk.converged])}: no "
+                             f"platform position of {machine.source} reproduces these arm "
+                             "angles (outside the workspace, or a wrong angle unit or zero)")
+        smr = fk.P - np.array([0.0, 0.0, machine.smr_offset])
+        registration = register_points(data.m, smr, f"{data_path}: tracker registration")
+        return scenario_problem(machine, kind, data, noise, registration=registration), data
+    from ..calibration import estimate_frames
+
+    data = read_full_pose(data_path, machine)
+    if len(data) < 4:
+        raise InputError(f"{data_path}: {len(data)} pose(s); the measurement frames need at "
+                         "least 4")
+    frames = getattr(machine, "measurement_frames", None)
+    if frames is None:
+        frames = estimate_frames(machine, data)
+    return scenario_problem(machine, kind, data, noise, frames=frames), data
+
+
+def read_plan(path: Path, machine):
+    """Planned poses ``(P, R, rows)`` of a plan file (poses; other columns are ignored)."""
+    from ..io import read_poses, read_positions
+
+    if machine.pose_dof == 3:
+        P, rows = read_positions(path)
+        return P, np.broadcast_to(np.eye(3), (len(P), 3, 3)), rows
+    return read_poses(path)
+
+
+def workspace(machine, n: int = WORKSPACE_POSES, rng=0):
+    """The SPEC 5 workspace sample around home (translation only for 3-dof platforms)."""
+    from ..analysis import workspace_poses
+
+    P, R = workspace_poses(machine.home[0], n=n, rng=rng)
+    if machine.pose_dof == 3:
+        R = np.broadcast_to(np.eye(3), R.shape)
+    return P, R
+
+
+def _workspace_words(machine) -> str:
+    return ("0.1 m cube around home" if machine.pose_dof == 3
+            else "0.1 m cube around home, orientations within +/-10 deg")
+
+
+def prediction_report(machine, design, n_machine, M=None, rng=0) -> tuple[dict, object]:
+    """Predicted pose accuracy over the SPEC 5 workspace (JSON section) and the prediction."""
+    from ..analysis.prediction import predict_pose_accuracy
+
+    P, R = workspace(machine, rng=rng)
+    pred = predict_pose_accuracy(machine, design, P, R, M, n_machine)
+    s = pred.summary()
+    out = {"workspace": _workspace_words(machine), "poses": s["poses"],
+           "unbounded_directions": s["unbounded"]}
+    for key, scale, unit in (("position", 1e6, "um"), ("orientation", 1e6, "urad")):
+        if s[key] is not None:
+            for stat in ("rms", "p95", "max"):
+                out[f"{key}_{stat}_{unit}"] = s[key][stat] * scale
+    return out, pred
+
+
+def _prediction_rows(table, section: dict, noise_words: str) -> None:
+    if section["unbounded_directions"]:
+        table.add_row("predicted accuracy", f"unbounded: {section['unbounded_directions']} "
+                      "unidentifiable direction(s) move the platform relative to every frame; "
+                      "add measurements that see them")
+        return
+    text = (f"position {section['position_rms_um']:.3g} um RMS, "
+            f"{section['position_max_um']:.3g} um max")
+    if "orientation_rms_urad" in section:
+        text += (f"; orientation {section['orientation_rms_urad']:.3g} urad RMS, "
+                 f"{section['orientation_max_urad']:.3g} urad max")
+    table.add_row("predicted accuracy", f"{text} (1 sigma, Cramer-Rao, over the "
+                  f"{section['workspace']}; {noise_words})")
+
+
+def write_map(path: Path, machine, design, n_machine, M, plan_P, title: str) -> Path:
+    """Predicted position error (1 sigma) over two slices through home: x-y and x-z."""
+    from ..analysis.prediction import predict_pose_accuracy
+    from ..report import plots
+
+    c = machine.home[0]
+    g = np.linspace(-0.05, 0.05, MAP_STEPS)
+    A, B = np.meshgrid(g, g)
+    panels = []
+    for plane, (i, j) in (("x-y", (0, 1)), ("x-z", (0, 2))):
+        P = np.tile(c, (A.size, 1))
+        P[:, i] += A.ravel()
+        P[:, j] += B.ravel()
+        R = np.broadcast_to(machine.home[1] if machine.pose_dof == 6 else np.eye(3),
+                            (len(P), 3, 3))
+        pred = predict_pose_accuracy(machine, design, P, R, M, n_machine)
+        values = (pred.position * 1e6).reshape(A.shape)
+        other = "xyz"[3 - i - j]
+        panels.append((f"{plane} slice through home ({other} = {c[3 - i - j] * 1e3:.4g} mm), "
+                       "home orientation", values, "predicted position error, 1 sigma [um]"))
+    # both panels are drawn on axes relative to home (mm)
+    marks = None if plan_P is None else (np.asarray(plan_P)[:, :2] - c[:2]) * 1e3
+    return plots.plot_error_map(g * 1e3, g * 1e3, panels, path, title=title, markers=marks,
+                                markers_label="planned poses (x, y)" if marks is not None
+                                else "")
+
+
+def joint_columns(machine, q, units) -> dict:
+    """``q1_<unit> ...`` columns of joint values (K, n) as ``pkmcal ik`` writes them."""
+    from ..io import joint_quantity
+    from ..units import ANGLE, LENGTH
+
+    if machine.kind == "stewart":
+        unit = getattr(machine, "reading_unit", "m")
+        f = LENGTH.get(unit, 1.0)
+    elif joint_quantity(machine) == "angle":
+        unit = units["angle"]
+        f = ANGLE[unit]
+    else:
+        unit = units["length"]
+        f = LENGTH[unit]
+    return {f"q{j + 1}_{unit}": (q[:, j] / f).tolist() for j in range(q.shape[1])}
+
+
+def run_identifiability(machine_spec: str, data_path: Path | None, json_output: bool,
+                        planned: bool = False, poses: int | None = None, seed: int = 0,
+                        noise: str | None = None, pose_noise: str | None = None,
+                        map_path: Path | None = None) -> int:
+    from ..identifiability import identifiability_report
+    from ..planning import (
+        DEFAULT_PLAN_SIZE,
+        candidate_poses,
+        describe_noise,
+        design_from_problem,
+        planned_problem,
+        scenario_for,
+    )
+
+    machine = load_machine_arg(machine_spec)
+    if map_path is not None:
+        check_outputs([map_path], [p for p in (data_path,) if p is not None])
+    if data_path is None and planned:
+        raise InputError("--planned: give the plan file (DATA) with the planned poses")
+    if data_path is not None and poses is not None:
+        raise InputError("--poses: the number of random planned poses applies without DATA")
+    if poses is not None and poses < 1:
+        raise InputError(f"--poses: must be >= 1, got {poses}")
+    if data_path is not None and not planned:
+        header, _ = read_table(data_path)
+        kind = measurement_kind(data_path, header, machine)
+        model = noise_model(kind, noise, pose_noise)
+        source = f"{data_path}"
+    else:
+        kind = scenario_for(machine)
+        model = noise_model(kind, noise, pose_noise)
+        if data_path is None:
+            n = DEFAULT_PLAN_SIZE[kind] if poses is None else poses
+            P, R = candidate_poses(machine, kind, n, rng=seed)
+            rows, source = None, f"{n} random planned poses (seed {seed})"
+        else:
+            P, R, rows = read_plan(data_path, machine)
+            source = f"planned poses of {data_path}"
+    try:
+        if data_path is not None and not planned:
+            problem, data = measured_problem(machine, data_path, kind, model)
+        else:
+            problem = planned_problem(machine, kind, P, R, model, rows,
+                                      str(data_path or "<plan>"))
+            data = problem.data
+        rep = identifiability_report(problem)
+        design = design_from_problem(problem)
+        section, _ = prediction_report(machine, design, problem.n_machine, rng=seed)
+    except InputError:
+        raise
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise InputError(f"{data_path or 'plan'}: identifiability analysis failed: {exc}") \
+            from None
+    section["noise"] = describe_noise(kind, model)
+    s = np.asarray(rep.singular_values, float)
+    report = {
+        "pkmcal_report": 1,
+        "command": "identifiability",
+        "machine_file": str(getattr(machine, "source", machine_spec)),
+        "data_file": None if data_path is None else str(data_path),
+        "planned": bool(planned or data_path is None),
+        "measurement": kind,
+        "measurements": len(data),
+        **rep.as_dict(),
+        "predicted_accuracy": section,
+        "singular_values": s.tolist(),
+    }
+    if map_path is not None:
+        plan_P = getattr(data, "true_P", None)
+        write_map(map_path, machine, design, problem.n_machine, None, plan_P,
+                  f"predicted accuracy after calibration ({len(data)} measurements, "
+                  f"{section['noise']})")
+        report["map"] = str(map_path)
+    if json_output:
+        print(json.dumps(_finite_or_none(report), indent=2))
+        return 0
+    out = console()
+    table = _table("", "", title=f"pkmcal identifiability: {report['machine_file']} with "
+                   f"{source}", show_header=False)
+    table.add_row("measurement", f"{_MEASUREMENT_WORDS[kind]}, {len(data)} "
+                  f"{'planned ' if report['planned'] else ''}measurements")
+    table.add_row("identifiable", f"{rep.identifiable} of {rep.parameters} free parameter "
+                  "directions")
+    for d in rep.unidentifiable:
+        table.add_row("not identifiable", f"{d.dimension} x {d.name}: {d.description}")
+    table.add_row("condition number", f"{rep.condition_number:.4g} (scaled Jacobian, "
+                  "identifiable part)")
+    o = rep.observability
+    table.add_row("observability", ", ".join(f"{k} = {o[k]:.4g}" for k in sorted(o)))
+    if rep.hold_fixed:
+        table.add_row("minimal set", f"hold {len(rep.hold_fixed)} parameters at their nominal "
+                      f"values and identify the other {rep.identifiable}: "
+                      + ", ".join(rep.hold_fixed))
+    _prediction_rows(table, section, section["noise"])
+    if map_path is not None:
+        table.add_row("map", str(map_path))
+    out.print(table)
+    if rep.correlated:
+        pairs = _table("parameter", "parameter", "correlation",
+                       title=f"{len(rep.correlated)} pair(s) with |correlation| > 0.9 "
+                       "(identifiable part)", justify={2: "right"})
+        for a, b, c in rep.correlated[:10]:
+            pairs.add_row(a, b, f"{c:+.3f}")
+        if len(rep.correlated) > 10:
+            pairs.add_row("...", f"{len(rep.correlated) - 10} more", "")
+        out.print(pairs)
+    else:
+        out.print("no parameter pair correlated beyond 0.9 (identifiable part)", markup=False)
+    return 0
+
+
+def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
+                     candidates_path: Path | None, criterion: str, random_sets: int,
+                     noise: str | None, pose_noise: str | None, seed: int,
+                     map_path: Path | None, json_output: bool) -> int:
+    from ..analysis.prediction import pose_error_operator
+    from ..io import write_poses, write_positions
+    from ..planning import (
+        candidate_poses,
+        criterion_value,
+        describe_noise,
+        design_from_problem,
+        planned_problem,
+        random_values,
+        scenario_for,
+        select_poses,
+    )
+
+    machine = load_machine_arg(machine_spec)
+    inputs = [p for p in (candidates_path,) if p is not None]
+    check_outputs([output] + ([map_path] if map_path else []), inputs)
+    if n < 1:
+        raise InputError(f"-n/--poses: must be >= 1, got {n}")
+    if random_sets < 0:
+        raise InputError(f"--random-sets: must be >= 0, got {random_sets}")
+    kind = scenario_for(machine)
+    model = noise_model(kind, noise, pose_noise)
+    if candidates_path is not None:
+        P, R, rows = read_plan(candidates_path, machine)
+        source = str(candidates_path)
+    else:
+        if candidates < n:
+            raise InputError(f"--candidates: {candidates} candidate poses cannot give {n}")
+        P, R = candidate_poses(machine, kind, candidates, rng=seed)
+        rows, source = None, "<candidates>"
+    if len(P) < n:
+        raise InputError(f"{source}: {len(P)} candidate pose(s); cannot choose {n}")
+    problem = planned_problem(machine, kind, P, R, model, rows, source)
+    design = design_from_problem(problem)
+    op = pose_error_operator(machine, design, *workspace(machine, rng=seed), problem.n_machine)
+    if op.unbounded:
+        raise InputError(f"{source}: even all {len(P)} candidates leave {op.unbounded} "
+                         "direction(s) that move the platform unidentified; widen the "
+                         "candidate set")
+    per = design.F.shape[1]
+    if n * per < design.rank:
+        need = -(-design.rank // per)
+        raise InputError(f"-n/--poses: {n} {kind} measurement(s) give at most {n * per} "
+                         f"independent equations ({per} each) for the {design.rank} "
+                         f"identifiable parameter directions; choose at least {need}")
+    A = op.A
+    sel = select_poses(design, n, criterion, A=A)
+    idx = sel.index
+    M = design.information(idx)
+    rms = float(np.sqrt(criterion_value(M, "pose", A)))
+    baseline = np.sqrt(random_values(design, n, random_sets, "pose", A, rng=seed + 1)) \
+        if random_sets else np.zeros(0)
+    finite = baseline[np.isfinite(baseline)]
+    median = float(np.median(baseline)) if baseline.size else float("nan")
+    from ..identifiability import observability_indices
+
+    sv = np.linalg.svd(design.F[idx].reshape(-1, design.rank), compute_uv=False)
+    section, _ = prediction_report(machine, design, problem.n_machine, M, rng=seed)
+    section["noise"] = describe_noise(kind, model)
+    report = {
+        "pkmcal_report": 1,
+        "command": "select-poses",
+        "machine_file": str(getattr(machine, "source", machine_spec)),
+        "measurement": kind,
+        "candidates": int(len(P)),
+        "candidates_file": None if candidates_path is None else str(candidates_path),
+        "selected": int(n),
+        "criterion": criterion,
+        "exchanges": sel.exchanges,
+        "identifiable": design.rank,
+        "observability": observability_indices(sv),
+        "predicted_accuracy": section,
+        "random_sets": {"sets": int(random_sets), "singular": int(baseline.size - finite.size),
+                        "position_rms_median_um": median * 1e6,
+                        "position_rms_best_um": float(finite.min()) * 1e6 if finite.size
+                        else None,
+                        "ratio_median_to_selected": median / rms if rms > 0 else None},
+        "seed": seed,
+        "output": str(output),
+    }
+    units = _units(machine)
+    extra = {"candidate": (idx + 1 if rows is None else np.asarray(rows)[idx]).tolist()}
+    extra.update(joint_columns(machine, machine.ik(P[idx], R[idx]), units))
+    if machine.pose_dof == 3:
+        write_positions(output, P[idx], units["length"], extra=extra)
+    else:
+        write_poses(output, P[idx], R[idx], units["length"], units["angle"], extra=extra)
+    if map_path is not None:
+        write_map(map_path, machine, design, problem.n_machine, M, P[idx],
+                  f"predicted accuracy with the {n} selected poses ({section['noise']})")
+        report["map"] = str(map_path)
+    if json_output:
+        print(json.dumps(_finite_or_none(report), indent=2))
+        return 0
+    out = console()
+    table = _table("", "", title=f"pkmcal select-poses: {report['machine_file']}",
+                   show_header=False)
+    table.add_row("measurement", _MEASUREMENT_WORDS[kind])
+    table.add_row("selected", f"{n} of {len(P)} candidate poses by criterion {criterion} "
+                  f"(greedy + {sel.exchanges} exchanges); {design.rank} parameter directions "
+                  "identifiable")
+    _prediction_rows(table, section, section["noise"])
+    if random_sets:
+        table.add_row("random sets", f"median predicted position error {median * 1e6:.3g} um "
+                      f"RMS over {random_sets} random sets of {n} candidates: "
+                      f"{median / rms:.3g}x the selected set's {rms * 1e6:.3g} um")
+    table.add_row("written", str(output) + (f", {map_path}" if map_path else ""))
+    out.print(table)
+    return 0

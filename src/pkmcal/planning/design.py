@@ -1,0 +1,197 @@
+"""Optimal measurement design: which poses to measure (SPEC 3, ``pkmcal select-poses``).
+
+Each measurement k adds the information ``F_k^T F_k`` on the global parameters, where ``F_k``
+are its reduced rows: the whitened, column-scaled identification Jacobian with the pose's own
+unknowns eliminated (:func:`~pkmcal.calibration.estimator.reduce_local`; a constraint-link pose
+gives 6 readings - 5 pose unknowns = 1 row, a tracker point 3 rows). The information of a set
+S is ``M(S) = sum_k F_k^T F_k``; its inverse is the Cramer-Rao bound of the scaled parameters
+(identifiable part). Everything is expressed in an orthonormal basis ``V`` of the directions
+the whole candidate set identifies, so that gauges (rotating the base about O, ...) never
+enter the criteria.
+
+Criteria (smaller is better, as returned by :func:`criterion_value`):
+
+- ``d``: ``-log det M`` (D-optimality; maximises observability index O1),
+- ``a``: ``trace M^-1`` (A-optimality: mean variance of the scaled parameters),
+- ``pose``: ``trace(A M^-1)``, the mean predicted squared pose error over a workspace
+  (I-optimality; ``A`` from :func:`pkmcal.analysis.prediction.pose_error_operator`).
+
+Selection (:func:`select_poses`) is greedy from a tiny ridge, then exchanges (remove the
+member that costs least, add the candidate that gains most; kept when the criterion improves)
+until no exchange improves it - the DETMAX/Fedorov family, with rank-r updates evaluated for
+all candidates at once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+
+CRITERIA = ("d", "a", "pose")
+
+
+@dataclass
+class Design:
+    """Per-candidate information on the identifiable subspace of a candidate set.
+
+    F : (K, r, p) reduced rows of each candidate in the basis ``V``.
+    V : (n_free, p) orthonormal basis (scaled coordinates of the free parameters) of the
+        directions the whole candidate set identifies.
+    null : (n_free, z) the directions it does not identify (scaled coordinates).
+    free : (n,) mask of the free problem parameters; scales : (n,) their column scales.
+    """
+
+    F: np.ndarray
+    V: np.ndarray
+    null: np.ndarray
+    free: np.ndarray
+    scales: np.ndarray
+
+    @property
+    def rank(self) -> int:
+        return self.V.shape[1]
+
+    def __len__(self) -> int:
+        return len(self.F)
+
+    def information(self, idx=None) -> np.ndarray:
+        """``M(S)`` (p, p) of the candidates ``idx`` (all when None)."""
+        F = self.F if idx is None else self.F[np.asarray(idx)]
+        return np.einsum("kri,krj->ij", F, F)
+
+
+def design_from_problem(problem, rtol: float = 1e-7) -> Design:
+    """The :class:`Design` of a calibration problem's measurements, at its initial state."""
+    from ..calibration.estimator import reduce_local
+
+    state = problem.initial_state()
+    r, Jg, Jl = problem.evaluate(state)
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jg))):
+        raise InputError("the nominal machine cannot reproduce some planned measurements")
+    free = np.asarray(problem.parameters.free, bool)
+    scales = np.asarray(problem.scales, float)
+    Jr, _, _ = reduce_local(r, Jg[..., free] * scales[free], Jl)
+    K = r.shape[0]
+    _, s, Vt = np.linalg.svd(Jr, full_matrices=True)
+    rank = int(np.sum(s > rtol * s[0])) if s.size else 0
+    V, null = Vt[:rank].T, Vt[rank:].T
+    F = (Jr @ V).reshape(K, -1, rank)
+    return Design(F, V, null, free, scales)
+
+
+def criterion_value(M, criterion: str = "d", A=None) -> float:
+    """Value (smaller is better) of a criterion at information ``M``; inf when singular."""
+    try:
+        L = np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        return float("inf")
+    if criterion == "d":
+        return float(-2.0 * np.sum(np.log(np.diag(L))))
+    Linv = np.linalg.solve(L, np.eye(len(M)))
+    Minv = Linv.T @ Linv
+    if criterion == "a":
+        return float(np.trace(Minv))
+    if criterion == "pose":
+        return float(np.sum(A * Minv))
+    raise ValueError(f"unknown criterion {criterion!r}; use one of {', '.join(CRITERIA)}")
+
+
+def _gains(F, Minv, criterion, A, sign: float):
+    """Decrease of the criterion when each candidate is added (``sign=+1``) or removed
+    (``sign=-1``): rank-r updates of ``M^-1`` for all candidates at once."""
+    H = F @ Minv                                       # (K, r, p)
+    G = np.einsum("krp,ksp->krs", H, F)                # F M^-1 F^T
+    I = np.eye(F.shape[1])
+    S = I + sign * G
+    if criterion == "d":
+        sgn, logdet = np.linalg.slogdet(S)
+        # -log det(M + s F^T F) = -log det M - log det(I + s G)
+        return np.where(sgn > 0, logdet, -np.inf)
+    # trace(A (M + s F^T F)^-1) = trace(A M^-1) - s trace((I + s G)^-1 H A H^T)  (A = I: "a")
+    HA = H if criterion == "a" else H @ A
+    Q = np.einsum("krp,ksp->krs", HA, H)
+    try:
+        X = np.linalg.solve(S, Q)
+    except np.linalg.LinAlgError:
+        return np.full(len(F), -np.inf)
+    gain = sign * np.trace(X, axis1=1, axis2=2)
+    return np.where(np.isfinite(gain), gain, -np.inf)
+
+
+@dataclass
+class Selection:
+    """Result of :func:`select_poses`."""
+
+    index: np.ndarray          # (n,) chosen candidates, in the order chosen
+    value: float               # criterion value of the chosen set
+    criterion: str
+    exchanges: int
+
+
+def select_poses(design: Design, n: int, criterion: str = "d", A=None, max_exchanges=None,
+                 rng=None) -> Selection:
+    """Choose ``n`` of the candidates of ``design`` that minimise a criterion (module doc).
+
+    ``A`` (p, p) is required for ``criterion='pose'``. The greedy start uses a ridge of
+    ``1e-9`` of the mean candidate information so that the first picks are defined; exchanges
+    run until none improves the criterion (at most ``max_exchanges``, default ``10 n``).
+    """
+    if criterion not in CRITERIA:
+        raise InputError(f"unknown criterion {criterion!r}; use one of {', '.join(CRITERIA)}")
+    if criterion == "pose" and A is None:
+        raise ValueError("criterion 'pose' needs the workspace operator A")
+    K, p = len(design), design.rank
+    if not 1 <= n <= K:
+        raise InputError(f"cannot choose {n} of {K} candidate poses")
+    F = design.F
+    ridge = 1e-9 * np.trace(design.information()) / max(K * p, 1) * np.eye(p)
+    chosen: list[int] = []
+    free = np.ones(K, bool)
+    M = ridge.copy()
+    for _ in range(n):
+        gain = _gains(F[free], np.linalg.inv(M), criterion, A, +1.0)
+        j = int(np.flatnonzero(free)[int(np.argmax(gain))])
+        chosen.append(j)
+        free[j] = False
+        M += F[j].T @ F[j]
+    chosen_arr = np.array(chosen)
+    value = criterion_value(M - ridge, criterion, A)
+    max_exchanges = 10 * n if max_exchanges is None else max_exchanges
+    exchanges = 0
+    tries = min(n, 8)
+    while exchanges < max_exchanges:
+        Minv = np.linalg.inv(M)
+        loss = -_gains(F[chosen_arr], Minv, criterion, A, -1.0)      # increase on removal
+        improved = False
+        for i in np.argsort(loss)[:tries]:
+            out = int(chosen_arr[i])
+            M_out = M - F[out].T @ F[out]
+            cand = np.flatnonzero(free)
+            if cand.size == 0:
+                break
+            gain = _gains(F[cand], np.linalg.inv(M_out), criterion, A, +1.0)
+            j = int(cand[int(np.argmax(gain))])
+            M_new = M_out + F[j].T @ F[j]
+            new_value = criterion_value(M_new - ridge, criterion, A)
+            if new_value < value - 1e-12 * max(abs(value), 1.0):
+                chosen_arr[i] = j
+                free[out], free[j] = True, False
+                M, value = M_new, new_value
+                exchanges += 1
+                improved = True
+                break
+        if not improved:
+            break
+    return Selection(chosen_arr, value, criterion, exchanges)
+
+
+def random_values(design: Design, n: int, sets: int, criterion: str = "d", A=None,
+                  rng=None) -> np.ndarray:
+    """Criterion values of ``sets`` random subsets of ``n`` candidates (the baseline)."""
+    rng = np.random.default_rng(rng)
+    K = len(design)
+    return np.array([criterion_value(design.information(rng.choice(K, n, replace=False)),
+                                     criterion, A) for _ in range(sets)])

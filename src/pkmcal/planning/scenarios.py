@@ -1,0 +1,231 @@
+"""Measurement scenarios before any measurement: candidate poses and planned problems.
+
+A *plan* is a set of platform poses at which a machine will be measured. From a plan and the
+nominal machine we build exactly the calibration problem ``pkmcal calibrate`` would solve if
+the measurements came back noise-free (readings from the nominal inverse kinematics, measured
+points or poses through the nominal measurement frames). Its scaled, whitened identification
+Jacobian gives identifiability, the Cramer-Rao bound and the information each pose adds
+(:mod:`pkmcal.planning.design`), all without a measurement.
+
+Scenarios (one per measurement type, SPEC 2):
+
+- ``constraint-link`` (Hexa Slide, seed 000): poses with ``|P| = Lc``; six joint readings,
+  the encoder noise ``sigma`` (m) weighs them.
+- ``tracker`` (Delta, seed 001): platform points; a laser tracker measures the reflector;
+  :class:`~pkmcal.measurements.TrackerNoise` weighs them; the registration is estimated
+  jointly.
+- ``pose`` (six-leg platforms, SPEC 2.4): platform poses; leg readings and a motion-capture
+  pose through unknown measurement frames; :class:`~pkmcal.measurements.FullPoseNoise`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from ..machines.base import Machine
+
+#: the measurement type each machine kind is calibrated from
+SCENARIO_OF = {"hexaslide": "constraint-link", "delta": "tracker", "stewart": "pose"}
+SCENARIOS = ("constraint-link", "tracker", "pose")
+#: default plan sizes (seed 000: 150 poses; seed 001: a 3x3x3 grid; SPEC 2.4: 60 poses)
+DEFAULT_PLAN_SIZE = {"constraint-link": 150, "tracker": 27, "pose": 60}
+#: constraint-link plans: largest allowed deviation of |P| from Lc (m); poses within it are
+#: put on the sphere (rounding in a hand-made plan file)
+SPHERE_TOL = 1e-4
+
+
+def scenario_for(machine: Machine, scenario: str | None = None) -> str:
+    """The measurement type of ``machine`` (``scenario`` checked against it when given)."""
+    kind = getattr(machine, "kind", "")
+    own = SCENARIO_OF.get(kind)
+    if scenario is None:
+        if own is None:
+            raise InputError(f"no measurement scenario for machines of type {kind!r}")
+        return own
+    if scenario not in SCENARIOS:
+        raise InputError(f"unknown scenario {scenario!r}; use one of {', '.join(SCENARIOS)}")
+    if scenario != own:
+        raise InputError(f"a {kind} is calibrated from {own} measurements in this version, not "
+                         f"{scenario}")
+    return scenario
+
+
+def default_noise(scenario: str):
+    """The default noise model of a scenario (as ``pkmcal calibrate`` assumes)."""
+    if scenario == "constraint-link":
+        return 1e-6
+    if scenario == "tracker":
+        from ..measurements import TrackerNoise
+
+        return TrackerNoise()
+    from ..measurements import FullPoseNoise
+
+    return FullPoseNoise()
+
+
+def describe_noise(scenario: str, noise) -> str:
+    """The noise model in words, for reports."""
+    if scenario == "constraint-link":
+        return f"encoder noise {noise * 1e6:.4g} um (std)"
+    if scenario == "tracker":
+        return (f"laser tracker: {noise.distance * 1e6:.3g} um along the beam, "
+                f"{noise.transverse * 1e6:.3g} um + {noise.transverse_per_m * 1e6:.3g} um/m "
+                "across (std)")
+    return (f"leg readings {noise.reading_m * 1e6:.3g} um, poses {noise.position_m * 1e6:.3g} "
+            f"um / {noise.orientation_rad * 1e6:.3g} urad (std)")
+
+
+def candidate_poses(machine: Machine, scenario: str, n: int, rng=None):
+    """``n`` feasible candidate poses of a scenario, ``(P (n, 3), R (n, 3, 3))``.
+
+    constraint-link: the sphere ``|P| = Lc`` (cap of 35 deg around home, rotations within
+    +/-25 deg), reachable, well conditioned and drivable with the link mounted
+    (:func:`~pkmcal.measurements.sample_sphere_poses`). tracker: uniform in the box spanned by
+    seed 001's 3x3x3 grid around home, reachable and away from singular poses. pose: the SPEC 5
+    workspace (0.1 m cube around home, +/-10 deg), well conditioned
+    (:func:`~pkmcal.measurements.sample_platform_poses`).
+    """
+    if n < 1:
+        raise InputError(f"the number of candidate poses must be >= 1, got {n}")
+    rng = np.random.default_rng(rng)
+    if scenario == "constraint-link":
+        from ..measurements import sample_sphere_poses
+
+        return sample_sphere_poses(machine, link_length(machine), n, rng)
+    if scenario == "tracker":
+        from ..measurements import TRACKER_GRID_SPACING
+        from ..measurements.deviations import draw_accepted
+
+        half = np.asarray(TRACKER_GRID_SPACING, float)      # the 3x3x3 grid spans +/- spacing
+        centre = machine.home[0]
+
+        def draw(m, rng):
+            P = centre + rng.uniform(-1.0, 1.0, (m, 3)) * half
+            R = np.broadcast_to(np.eye(3), (m, 3, 3))
+            q, J, _ = machine.ik_jacobians(P, R, want_du=False)
+            ok = np.all(np.isfinite(q), -1)
+            ok[ok] = _translation_conditioning(J[ok]) > 0.05
+            return P, R, ok
+
+        return draw_accepted(draw, n, rng, "only {have} of {n} candidate points around home "
+                                           "are reachable and well conditioned")
+    from ..measurements import sample_platform_poses
+
+    return sample_platform_poses(machine, n, rng)
+
+
+def _translation_conditioning(J):
+    """Inverse condition number of the translation columns of joint Jacobians (K, n, 6)."""
+    sv = np.linalg.svd(np.asarray(J)[..., :3], compute_uv=False)
+    return sv[..., -1] / sv[..., 0]
+
+
+def link_length(machine: Machine) -> float:
+    Lc = getattr(machine, "constraint_link_length", None)
+    if Lc is None:
+        raise InputError(f"{getattr(machine, 'source', 'the machine file')}: no "
+                         "constraint_link length; constraint-link plans need it")
+    return float(Lc)
+
+
+def planned_data(machine: Machine, scenario: str, P, R=None, rows=None, source="<plan>"):
+    """Noise-free measurements of the *nominal* machine at planned poses.
+
+    Raises :class:`InputError` (naming ``rows``) for poses the machine cannot reach, and for
+    constraint-link plans off the sphere ``|P| = Lc``.
+    """
+    P = np.atleast_2d(np.asarray(P, float))
+    R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else np.asarray(R, float)
+    rows = np.arange(1, len(P) + 1) if rows is None else np.asarray(rows)
+    if scenario == "constraint-link":
+        P = _on_sphere(P, machine, rows, source)
+    q = machine.ik(P, R)
+    bad = ~np.all(np.isfinite(q), -1)
+    if bad.any():
+        raise InputError(f"{source}: row(s) {_rows(rows[bad])}: pose(s) the machine cannot "
+                         "reach")
+    if scenario == "constraint-link":
+        from ..measurements import ConstraintLinkData
+
+        return ConstraintLinkData(q, link_length(machine), np.arange(len(P)) % machine.n_joints,
+                                  rows, source, true_P=P, true_R=R)
+    if scenario == "tracker":
+        from ..measurements import TrackerData
+
+        Rt, t = tracker_pose(machine)
+        smr = P - np.array([0.0, 0.0, getattr(machine, "smr_offset", 0.0)])
+        return TrackerData(q, (smr - t) @ Rt, rows=rows, source=source, true_P=P)
+    from ..measurements import FullPoseData
+
+    Pm, Rm = measurement_frames(machine).measured(P, R)
+    return FullPoseData(q, Pm, Rm, rows, source, true_P=P, true_R=R)
+
+
+def _on_sphere(P, machine, rows, source):
+    """Constraint-link plan poses put exactly on ``|P| = Lc`` (refused beyond SPHERE_TOL)."""
+    Lc = link_length(machine)
+    norm = np.linalg.norm(P, axis=-1)
+    off = ~(np.abs(norm - Lc) <= SPHERE_TOL)
+    if off.any():
+        raise InputError(f"{source}: row(s) {_rows(rows[off])}: |P| differs from the "
+                         f"constraint-link length {Lc * 1e3:.6g} mm by more than "
+                         f"{SPHERE_TOL * 1e3:g} mm; a constraint-link plan has its poses on "
+                         "that sphere")
+    return P * (Lc / norm)[:, None]
+
+
+def tracker_pose(machine: Machine):
+    """``base_from_tracker`` of the machine file, else the simulations' default."""
+    pose = getattr(machine, "base_from_tracker", None)
+    if pose is None:
+        from ..measurements import default_tracker_pose
+
+        pose = default_tracker_pose()
+    return pose
+
+
+def measurement_frames(machine: Machine):
+    """``measurement_frames`` of the machine file, else the simulations' default."""
+    frames = getattr(machine, "measurement_frames", None)
+    if frames is None:
+        from ..measurements import default_measurement_frames
+
+        frames = default_measurement_frames()
+    return frames
+
+
+def scenario_problem(machine: Machine, scenario: str, data, noise=None, registration=None,
+                     frames=None):
+    """The calibration problem ``pkmcal calibrate`` solves by default for ``data`` (ML with the
+    per-pose unknowns for the constraint link; joint registration for the tracker; ML with the
+    measurement frames estimated for full poses), unsolved, at the nominal machine.
+
+    ``registration`` (tracker) and ``frames`` (pose) are the start values of the measurement
+    frames (default: the machine file's, else the simulations' defaults)."""
+    noise = default_noise(scenario) if noise is None else noise
+    if scenario == "constraint-link":
+        from ..calibration import ConstraintLinkML
+
+        return ConstraintLinkML(machine, data, noise)
+    if scenario == "tracker":
+        from ..calibration import TrackerProblem
+
+        return TrackerProblem(machine, data, noise,
+                              tracker_pose(machine) if registration is None else registration)
+    from ..calibration import FullPoseML
+
+    return FullPoseML(machine, data, noise,
+                      measurement_frames(machine) if frames is None else frames)
+
+
+def planned_problem(machine: Machine, scenario: str, P, R=None, noise=None, rows=None,
+                    source="<plan>"):
+    """:func:`scenario_problem` of the noise-free :func:`planned_data` at poses ``(P, R)``."""
+    return scenario_problem(machine, scenario,
+                            planned_data(machine, scenario, P, R, rows, source), noise)
+
+
+def _rows(rows, limit: int = 10) -> str:
+    rows = [int(r) for r in rows]
+    return ", ".join(map(str, rows[:limit])) + (" ..." if len(rows) > limit else "")
