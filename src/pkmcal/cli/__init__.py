@@ -246,7 +246,8 @@ def identifiability(
                           "select-poses).")] = False,
     poses: Annotated[int | None, typer.Option(
         help="Without DATA: the number of random planned poses (default: 150 constraint-link, "
-             "27 tracker, 60 pose).", show_default=False)] = None,
+             "60 pose; tracker: seed 001's 3x3x3 grid around home).", show_default=False)]
+    = None,
     seed: Annotated[int, typer.Option(help="Seed of random planned poses and of the "
                                            "workspace sample.")] = 0,
     noise: Annotated[str | None, typer.Option(

@@ -133,30 +133,29 @@ def _prediction_rows(table, section: dict, noise_words: str) -> None:
 
 
 def write_map(path: Path, machine, design, n_machine, M, plan_P, title: str) -> Path:
-    """Predicted position error (1 sigma) over two slices through home: x-y and x-z."""
+    """Predicted position error (1 sigma) over two slices through home (x-y and x-z, home
+    orientation) and the planned measurement positions."""
     from ..analysis.prediction import predict_pose_accuracy
     from ..report import plots
 
     c = machine.home[0]
     g = np.linspace(-0.05, 0.05, MAP_STEPS)
     A, B = np.meshgrid(g, g)
-    panels = []
-    for plane, (i, j) in (("x-y", (0, 1)), ("x-z", (0, 2))):
+    slices = []
+    for (i, j) in ((0, 1), (0, 2)):
         P = np.tile(c, (A.size, 1))
         P[:, i] += A.ravel()
         P[:, j] += B.ravel()
         R = np.broadcast_to(machine.home[1] if machine.pose_dof == 6 else np.eye(3),
                             (len(P), 3, 3))
         pred = predict_pose_accuracy(machine, design, P, R, M, n_machine)
-        values = (pred.position * 1e6).reshape(A.shape)
-        other = "xyz"[3 - i - j]
-        panels.append((f"{plane} slice through home ({other} = {c[3 - i - j] * 1e3:.4g} mm), "
-                       "home orientation", values, "predicted position error, 1 sigma [um]"))
-    # both panels are drawn on axes relative to home (mm)
-    marks = None if plan_P is None else (np.asarray(plan_P)[:, :2] - c[:2]) * 1e3
-    return plots.plot_error_map(g * 1e3, g * 1e3, panels, path, title=title, markers=marks,
-                                markers_label="planned poses (x, y)" if marks is not None
-                                else "")
+        k = 3 - i - j
+        a, b = "xyz"[i], "xyz"[j]
+        slices.append((f"{a}-{b} slice through home ({'xyz'[k]} = {c[k] * 1e3:.4g} mm)",
+                       (c[i] + g) * 1e3, (c[j] + g) * 1e3, (pred.position * 1e6).reshape(A.shape),
+                       f"{a} [mm]", f"{b} [mm]", "predicted position error, 1 sigma [um]"))
+    plan = None if plan_P is None else np.asarray(plan_P) * 1e3
+    return plots.plot_prediction_map(slices, path, title, plan, c * 1e3)
 
 
 def joint_columns(machine, q, units) -> dict:
@@ -207,7 +206,13 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
     else:
         kind = scenario_for(machine)
         model = noise_model(kind, noise, pose_noise)
-        if data_path is None:
+        if data_path is None and kind == "tracker" and poses is None:
+            from ..measurements import TRACKER_GRID_SPACING, grid_points
+
+            P = grid_points(machine.home[0], TRACKER_GRID_SPACING, (3, 3, 3))
+            R = np.broadcast_to(np.eye(3), (len(P), 3, 3))
+            rows, source = None, "the 3x3x3 grid of seed 001 around home (planned)"
+        elif data_path is None:
             n = DEFAULT_PLAN_SIZE[kind] if poses is None else poses
             P, R = candidate_poses(machine, kind, n, rng=seed)
             rows, source = None, f"{n} random planned poses (seed {seed})"

@@ -160,11 +160,10 @@ def plot_pose_errors(x, dx, dx_min, dx_max, path, xlabel: str = "angle [deg]",
 
 
 def plot_error_map(x, y, panels, path, title: str = "pose error over the workspace",
-                   overlay=None, markers=None, markers_label: str = ""):
+                   overlay=None):
     """Error maps over a horizontal workspace slice: one panel per
     ``(panel title, values (ny, nx), colour-bar label)``; ``x``, ``y`` in mm; ``overlay``
-    (K, 2) in mm (e.g. the trajectory) is drawn as a line, ``markers`` (K, 2) in mm (e.g.
-    measurement positions) as points, on every panel."""
+    (K, 2) in mm (e.g. the trajectory) is drawn on every panel."""
     n = len(panels)
     cols = min(n, 2)
     rows = (n + cols - 1) // cols
@@ -178,14 +177,42 @@ def plot_error_map(x, y, panels, path, title: str = "pose error over the workspa
         if overlay is not None:
             o = np.asarray(overlay, float)
             ax.plot(o[:, 0], o[:, 1], "w-", lw=1.2)
-        if markers is not None:
-            mk = np.asarray(markers, float)
-            ax.plot(mk[:, 0], mk[:, 1], "w.", ms=3, label=markers_label or None)
-            if markers_label:
-                ax.legend(fontsize=7, loc="upper right")
         ax.set_aspect("equal")
         ax.set_xlabel("x [mm]")
         ax.set_ylabel("y [mm]")
         ax.set_title(panel_title, fontsize=9)
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_prediction_map(slices, path, title: str, plan=None, centre=None):
+    """Predicted error over workspace slices and, optionally, where the planned measurements
+    are. ``slices``: ``(panel title, a (n,) mm, b (m,) mm, values (m, n), a label, b label,
+    colour-bar label)``; ``plan`` (K, 3) positions in mm, ``centre`` (3,) mm (home) drawn as
+    a cross with the 0.1 m workspace square."""
+    n = len(slices) + (plan is not None)
+    fig, axes = plt.subplots(1, n, figsize=(5.4 * n, 4.6), squeeze=False, layout="constrained")
+    for ax, (panel_title, a, b, values, la, lb, label) in zip(axes.flat, slices, strict=False):
+        mesh = ax.pcolormesh(a, b, np.asarray(values, float), shading="auto", cmap="viridis")
+        fig.colorbar(mesh, ax=ax, label=label)
+        ax.set_aspect("equal")
+        ax.set_xlabel(la)
+        ax.set_ylabel(lb)
+        ax.set_title(panel_title, fontsize=9)
+    if plan is not None:
+        ax = axes.flat[-1]
+        p = np.asarray(plan, float)
+        sc = ax.scatter(p[:, 0], p[:, 1], c=p[:, 2], s=10, cmap="plasma")
+        fig.colorbar(sc, ax=ax, label="z [mm]")
+        if centre is not None:
+            c = np.asarray(centre, float)
+            ax.plot(c[0], c[1], "k+", ms=10)
+            sq = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1], [-1, -1]]) * 50.0 + c[:2]
+            ax.plot(sq[:, 0], sq[:, 1], "k--", lw=1, label="workspace (x, y)")
+            ax.legend(fontsize=7, loc="upper right")
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [mm]")
+        ax.set_ylabel("y [mm]")
+        ax.set_title(f"{len(p)} planned measurement positions", fontsize=9)
     fig.suptitle(title)
     return _save(fig, path)
