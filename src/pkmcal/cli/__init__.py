@@ -396,6 +396,44 @@ def ik(
     run_ik(machine, poses, output)
 
 
+@app.command()
+def compensate(
+    machine: Annotated[str, typer.Argument(
+        metavar="CALIBRATED", show_default=False,
+        help="The calibrated machine file (from pkmcal calibrate).")],
+    targets: Annotated[Path, typer.Argument(
+        metavar="TARGETS.csv", show_default=False,
+        help="Target poses x_<unit>, y_<unit>, z_<unit> + psi/theta/phi_<unit> or qx..qw "
+             "(Delta: x, y, z), one per row: single poses or a whole trajectory.")],
+    output: OutFile,
+    report: Annotated[Path | None, typer.Option(
+        help="Calibration report (JSON) with the covariance (default: the one named in the "
+             "calibrated file, beside it).", show_default=False)] = None,
+    nominal: Annotated[str | None, typer.Option(
+        help="The machine file the controller used before (e.g. the nominal one): also "
+             "report how far its commands would leave the platform.", show_default=False)]
+    = None,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")]
+    = False,
+) -> None:
+    """Joint commands that put the real machine on the targets (SPEC 4).
+
+    The calibrated model's inverse kinematics gives the commands; writes the targets with
+    q1..qn (the file's units; Stewart: the reading unit) and, per target, the predicted
+    residual error of the compensated machine (1 sigma, from the calibration's parameter
+    covariance: predicted_position_um, predicted_orientation_urad) and, with --nominal, the
+    error the old commands would leave (uncompensated_position_um, ...).
+
+    Example: `pkmcal compensate calibrated.yaml targets.csv -o commands.csv`
+
+    Example: `pkmcal compensate delta_cal.yaml path.csv --nominal examples/delta_default.yaml
+    -o arms.csv`
+    """
+    from ._compensate import run_compensate
+
+    raise typer.Exit(run_compensate(machine, targets, output, report, nominal, json_output))
+
+
 class Trajectory(enum.StrEnum):
     circle = "circle"
     file = "file"

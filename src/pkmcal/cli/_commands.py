@@ -667,7 +667,8 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
         "link_length_estimated": lc_estimated,
         "report": report_path.name,
     }
-    json_text = _write_calibration(calibrated, units, metadata, report, output, report_path)
+    json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
+                                   result)
 
     if dropped:
         warning(f"{data_path}: {len(dropped)} row(s) left out (no pose from the five active "
@@ -710,9 +711,27 @@ def _identifiability_json(n_free, rank, unidentifiable, s) -> dict:
     }
 
 
-def _write_calibration(calibrated, units, metadata, report, output, report_path) -> str:
+def _write_calibration(calibrated, units, metadata, report, output, report_path,
+                       result=None) -> str:
     """Write the calibrated machine file and its JSON report, at the very end and atomically;
-    the machine file is checked to load back first. Returns the JSON text."""
+    the machine file is checked to load back first. Returns the JSON text.
+
+    With ``result`` the report carries the covariance of the machine's parameters (SI: m,
+    rad; the identifiable part, frames the data cannot fix held at the start values), which
+    ``pkmcal compensate`` propagates to the targets."""
+    if result is not None:
+        names = list(calibrated.parameters.names)
+        n = len(names)
+        report["covariance"] = {
+            "of": "machine parameters, SI units (m, rad, ratio), minimum-norm (identifiable "
+                  "part)",
+            "parameters": names,
+            "matrix": np.asarray(result.covariance, float)[:n, :n].tolist(),
+            # unidentifiable directions (columns, same units): pose changes along them are
+            # changes of frames the data cannot see, removed before predicting errors
+            "null_space": (np.asarray(result.null_space, float)
+                           * np.asarray(result.scales, float)[:, None])[:n].tolist(),
+        }
     yaml_text = machine_to_text(calibrated, units, calibration=metadata)
     parse_machine(yaml_text, str(output))   # the calibrated file must load back
     json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
@@ -983,7 +1002,8 @@ def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path
         "distance_ratio_std_percent": {"before": before["std"], "after": after["std"]},
         "report": report_path.name,
     }
-    json_text = _write_calibration(calibrated, units, metadata, report, output, report_path)
+    json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
+                                   result)
 
     if json_output:
         print(json_text, end="")
@@ -1201,7 +1221,8 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
         "unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable],
         "report": report_path.name,
     }
-    json_text = _write_calibration(calibrated, units, metadata, report, output, report_path)
+    json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
+                                   result)
     if json_output:
         print(json_text, end="")
     else:

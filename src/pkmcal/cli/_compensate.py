@@ -1,0 +1,151 @@
+"""``pkmcal compensate``: joint commands from a calibrated machine file (SPEC 4)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ._commands import _machine_inputs, _rows_text, _table, _units, check_outputs, load_machine_arg
+from ._console import console, warning
+
+
+def _report_path(machine, machine_spec: str, report: Path | None) -> Path | None:
+    """The calibration report: ``--report``, else the one the calibrated file names."""
+    if report is not None:
+        return report
+    info = getattr(machine, "calibration_info", None) or {}
+    name = info.get("report")
+    if not name:
+        return None
+    path = Path(machine_spec).parent / str(name)
+    return path if path.is_file() else None
+
+
+def read_covariance(path: Path, machine) -> tuple[np.ndarray, np.ndarray | None]:
+    """The machine-parameter covariance of a calibration report (JSON), checked against the
+    machine's parameter names, and the unidentifiable directions (n, k) when given."""
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read the calibration report: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not JSON (line {exc.lineno}): {exc.msg}") from None
+    cov = doc.get("covariance") if isinstance(doc, dict) else None
+    if not isinstance(cov, dict) or "matrix" not in cov or "parameters" not in cov:
+        raise InputError(f"{path}: no covariance section (written by pkmcal calibrate); "
+                         "calibrate again with this version or leave out --report")
+    names = list(machine.parameters.names)
+    if list(cov["parameters"]) != names:
+        raise InputError(f"{path}: the covariance is of other parameters than those of "
+                         f"{getattr(machine, 'source', 'the machine')} (another machine?)")
+    try:
+        C = np.asarray(cov["matrix"], float)
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: covariance.matrix is not a matrix of numbers") from None
+    if C.shape != (len(names), len(names)) or not np.all(np.isfinite(C)):
+        raise InputError(f"{path}: covariance.matrix must be {len(names)} x {len(names)} finite "
+                         "numbers")
+    N = None
+    if cov.get("null_space") is not None:
+        try:
+            N = np.asarray(cov["null_space"], float).reshape(len(names), -1)
+        except (TypeError, ValueError):
+            raise InputError(f"{path}: covariance.null_space is not a matrix of "
+                             f"{len(names)} rows") from None
+    return C, N
+
+
+def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path | None,
+                   nominal_spec: str | None, json_output: bool) -> int:
+    from ..compensation import compensate
+    from ._planning import joint_columns, read_plan
+
+    machine = load_machine_arg(machine_spec)
+    inputs = [targets] + _machine_inputs(machine_spec) + ([report] if report else [])
+    check_outputs([output], inputs)
+    nominal = None
+    if nominal_spec is not None:
+        nominal = load_machine_arg(nominal_spec)
+        if nominal.kind != machine.kind or \
+                list(nominal.parameters.names) != list(machine.parameters.names):
+            raise InputError(f"--nominal {nominal_spec}: a {nominal.kind} with other parameters "
+                             f"than the calibrated {machine.kind}")
+    report_path = _report_path(machine, machine_spec, report)
+    C, N = (None, None) if report_path is None else read_covariance(report_path, machine)
+    P, R, rows = read_plan(targets, machine)
+    if len(P) == 0:
+        raise InputError(f"{targets}: no target rows")
+    comp = compensate(machine, P, R, C, nominal, N)
+    if not comp.reachable.all():
+        raise InputError(f"{targets}: {int((~comp.reachable).sum())} target(s) cannot be reached "
+                         f"by the calibrated machine, row(s) "
+                         f"{_rows_text(rows[~comp.reachable])}")
+    units = _units(machine)
+    columns = joint_columns(machine, comp.q, units)
+    if comp.position_std is not None:
+        columns["predicted_position_um"] = (comp.position_std * 1e6).tolist()
+        if comp.orientation_std is not None:
+            columns["predicted_orientation_urad"] = (comp.orientation_std * 1e6).tolist()
+    if comp.uncompensated_position is not None:
+        columns["uncompensated_position_um"] = (comp.uncompensated_position * 1e6).tolist()
+        if comp.uncompensated_orientation is not None:
+            columns["uncompensated_orientation_urad"] = (
+                comp.uncompensated_orientation * 1e6).tolist()
+    from ..io import write_poses, write_positions
+
+    if machine.pose_dof == 3:
+        write_positions(output, P, units["length"], extra=columns)
+    else:
+        write_poses(output, P, R, units["length"], units["angle"], extra=columns)
+
+    def stats(v, scale):
+        if v is None:
+            return None
+        v = np.asarray(v, float) * scale
+        f = v[np.isfinite(v)]
+        return {"rms": float(np.sqrt(np.mean(f**2))) if f.size else None,
+                "max": float(f.max()) if f.size else None}
+
+    summary = {
+        "pkmcal_report": 1,
+        "command": "compensate",
+        "machine_file": str(getattr(machine, "source", machine_spec)),
+        "targets_file": str(targets),
+        "commands_file": str(output),
+        "targets": int(len(P)),
+        "covariance_from": None if report_path is None else str(report_path),
+        "nominal_file": nominal_spec,
+        "predicted_position_um": stats(comp.position_std, 1e6),
+        "predicted_orientation_urad": stats(comp.orientation_std, 1e6),
+        "uncompensated_position_um": stats(comp.uncompensated_position, 1e6),
+        "uncompensated_orientation_urad": stats(comp.uncompensated_orientation, 1e6),
+    }
+    if report_path is None:
+        warning("no calibration report (JSON with a covariance) beside the machine file: the "
+                "predicted residual error is not given; pass --report FILE.json")
+    if json_output:
+        print(json.dumps(summary, indent=2))
+        return 0
+    table = _table("", "", title=f"pkmcal compensate: {summary['machine_file']}",
+                   show_header=False)
+    table.add_row("targets", f"{len(P)} from {targets}")
+    table.add_row("commands", f"{output} ({', '.join(list(columns)[:machine.n_joints])})")
+    pp, po = summary["predicted_position_um"], summary["predicted_orientation_urad"]
+    if pp:
+        text = f"position {pp['rms']:.3g} um RMS, {pp['max']:.3g} um max"
+        if po:
+            text += f"; orientation {po['rms']:.3g} urad RMS, {po['max']:.3g} urad max"
+        table.add_row("predicted residual", f"{text} (1 sigma, from the calibration's "
+                      f"covariance in {report_path}; frames the data cannot fix aligned)")
+    up, uo = summary["uncompensated_position_um"], summary["uncompensated_orientation_urad"]
+    if up:
+        text = f"position {up['rms']:.4g} um RMS, {up['max']:.4g} um max"
+        if uo:
+            text += f"; orientation {uo['rms']:.4g} urad RMS, {uo['max']:.4g} urad max"
+        table.add_row("without compensation", f"{text} (commands of {nominal_spec}, as the "
+                      "calibrated model sees them)")
+    console().print(table)
+    return 0

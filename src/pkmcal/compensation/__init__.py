@@ -1,0 +1,85 @@
+"""Compensation (SPEC 4): joint commands from a calibrated model, and what is left.
+
+The calibrated model's inverse kinematics gives the commands that put the real machine on the
+targets. What is left is the calibration's own uncertainty: with the covariance ``C`` of the
+identified parameters, the pose error at a target is, to first order, ``S C S^T`` with the
+pose sensitivity ``S = -(dq/dx)^-1 dq/du`` at fixed joints
+(:func:`pkmcal.analysis.prediction.pose_sensitivity`). Directions the data cannot fix (e.g. the
+base orientation about O with a constraint link) keep the machine file's values: the targets
+are in the calibrated model's frames, and the pose changes along those directions (``null``)
+are removed from the predicted error by best fit over the targets, as in SPEC 5 - a machine
+tool's work offsets are set on the calibrated machine anyway.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..machines.base import Machine
+
+
+@dataclass
+class Compensation:
+    """Joint commands for targets and their predicted residual errors.
+
+    q : (K, n_joints) commands (internal units; NaN where a target is unreachable).
+    reachable : (K,) bool.
+    position_std, orientation_std : (K,) predicted 1-sigma residual error (m, rad) from the
+        calibration's covariance, or None without one (orientation: None for 3-dof
+        platforms).
+    uncompensated_position, uncompensated_orientation : (K,) how far the calibrated model says
+        the platform would be from the target when commanded with the ``nominal`` model
+        (m, rad), or None.
+    """
+
+    q: np.ndarray
+    reachable: np.ndarray
+    position_std: np.ndarray | None = None
+    orientation_std: np.ndarray | None = None
+    uncompensated_position: np.ndarray | None = None
+    uncompensated_orientation: np.ndarray | None = None
+
+
+def compensate(calibrated: Machine, P, R=None, covariance=None,
+               nominal: Machine | None = None, null=None) -> Compensation:
+    """Commands ``q = IK_calibrated(x)`` for targets ``(P, R)`` (R ignored by 3-dof
+    platforms), the predicted residual error with ``covariance`` (n, n) of the calibrated
+    machine's parameters (SI) - pose changes along the unidentifiable directions ``null``
+    (n, k) removed - and the error the ``nominal`` model's commands would leave."""
+    from ..analysis.prediction import align_out, pose_sensitivity
+    from ..kinematics import rotation_angle
+
+    P = np.atleast_2d(np.asarray(P, float))
+    R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else np.asarray(R, float)
+    q = calibrated.ik(P, R)
+    ok = np.all(np.isfinite(q), -1)
+    out = Compensation(q, ok)
+    if covariance is not None:
+        C = np.asarray(covariance, float)
+        S = pose_sensitivity(calibrated, P, R)
+        if null is not None and np.size(null):
+            S = align_out(S, S @ np.asarray(null, float))
+        var = np.einsum("kdi,ij,kdj->kd", S, C, S)
+        out.position_std = np.sqrt(np.clip(var[:, :3].sum(-1), 0, None))
+        if calibrated.pose_dof == 6:
+            out.orientation_std = np.sqrt(np.clip(var[:, 3:].sum(-1), 0, None))
+    if nominal is not None:
+        qn = nominal.ik(P, R)
+        good = ok & np.all(np.isfinite(qn), -1)
+        dp = np.full(len(P), np.nan)
+        dr = np.full(len(P), np.nan)
+        if good.any():
+            fk = calibrated.fk(qn[good], start=(P[good], R[good]))
+            conv = fk.converged
+            idx = np.flatnonzero(good)[conv]
+            dp[idx] = np.linalg.norm(fk.P[conv] - P[idx], axis=-1)
+            if calibrated.pose_dof == 6:
+                dr[idx] = rotation_angle(np.swapaxes(R[idx], -1, -2) @ fk.R[conv])
+        out.uncompensated_position = dp
+        out.uncompensated_orientation = dr if calibrated.pose_dof == 6 else None
+    return out
+
+
+__all__ = ["Compensation", "compensate"]
