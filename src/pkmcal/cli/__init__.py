@@ -187,6 +187,10 @@ def calibrate(
     pose_noise: Annotated[str | None, typer.Option(
         "--pose-noise", help="pose data: noise of the measured poses, POSITION,ORIENTATION "
                              "with units (default 20um,50urad).", show_default=False)] = None,
+    report: Annotated[Path | None, typer.Option(
+        "--report", metavar="DIR", file_okay=False,
+        help="Also write DIR/report.html (self-contained: tables and plots) and its JSON twin "
+             "DIR/report.json.", show_default=False)] = None,
     fix_frames: Annotated[bool, typer.Option(
         "--fix-frames", help="pose data: hold the measurement frames (mocap_from_base, "
                              "platform_from_marker) at the machine file's measurement_frames "
@@ -229,7 +233,8 @@ def calibrate(
 
     raise typer.Exit(run_calibrate(machine, data, output, method.value if method else None,
                                    noise, estimate_lc, json_output, two_step, robust,
-                                   pose_noise=pose_noise, fix_frames=fix_frames))
+                                   pose_noise=pose_noise, fix_frames=fix_frames,
+                                   report_dir=report))
 
 
 @app.command()
@@ -432,6 +437,32 @@ def compensate(
     from ._compensate import run_compensate
 
     raise typer.Exit(run_compensate(machine, targets, output, report, nominal, json_output))
+
+
+@app.command("report")
+def report_command(
+    result: Annotated[Path, typer.Argument(
+        metavar="RESULT", show_default=False,
+        help="A calibration report (the JSON pkmcal calibrate writes beside the calibrated "
+             "file) or the calibrated machine file (its report is found beside it).")],
+    output: Annotated[Path, typer.Option(
+        "-o", "--output", dir_okay=False, show_default=False,
+        help="The HTML file; its JSON twin is written beside it (same name, .json).")],
+) -> None:
+    """A self-contained HTML report of a calibration (no network: plots embedded).
+
+    Summary and convergence, identifiability in words with the singular values, residuals
+    (histogram of residual / assumed noise against N(0, 1)), before/after accuracy, distance
+    ratios (Delta), the measurement frames, the parameter table (nominal, identified, change,
+    standard deviation, unit) and the command and versions that produced it.
+
+    Example: `pkmcal report calibrated.json -o report.html`
+
+    Example: `pkmcal calibrate default data.csv -o cal.yaml --report out/` (the same, at once)
+    """
+    from ._compensate import run_report
+
+    run_report(result, output)
 
 
 class Trajectory(enum.StrEnum):

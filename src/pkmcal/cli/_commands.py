@@ -536,13 +536,20 @@ def _parameter_table(result, nominal_of: dict, units):
 def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str | None,
                   noise: str | None, estimate_lc: bool | None, json_output: bool,
                   two_step: bool = False, robust: bool = False, pose_noise: str | None = None,
-                  fix_frames: bool = False) -> int:
+                  fix_frames: bool = False, report_dir: Path | None = None) -> int:
     if output.suffix.lower() == ".json":
         raise InputError(f"{output}: the calibrated machine is a YAML file; choose a name "
                          "ending in .yaml (the JSON report is written beside it)")
     report_path = output.with_suffix(".json")
     machine = load_machine_arg(machine_spec)
-    check_outputs([output, report_path], [data_path] + _machine_inputs(machine_spec))
+    outputs = [output, report_path]
+    if report_dir is not None:
+        if not report_dir.is_dir():
+            raise InputError(f"--report {report_dir}: not a directory (create it first)")
+        outputs += [report_dir / "report.html", report_dir / "report.json"]
+    check_outputs(outputs, [data_path] + _machine_inputs(machine_spec))
+    global _REPORT_DIR
+    _REPORT_DIR = report_dir
     header, _ = read_table(data_path)
     kind = measurement_kind(data_path, header, machine)
     for option, given in (("--pose-noise", pose_noise is not None),
@@ -668,7 +675,7 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
         "report": report_path.name,
     }
     json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
-                                   result)
+                                   result, _REPORT_DIR)
 
     if dropped:
         warning(f"{data_path}: {len(dropped)} row(s) left out (no pose from the five active "
@@ -711,8 +718,26 @@ def _identifiability_json(n_free, rank, unidentifiable, s) -> dict:
     }
 
 
+#: ``--report DIR`` of the running calibrate command (one command per process)
+_REPORT_DIR: Path | None = None
+
+
+def provenance() -> dict:
+    """The command line and the versions that produce a report."""
+    import platform
+    import shlex
+    import sys
+    from importlib.metadata import version
+
+    import scipy
+
+    return {"command": "pkmcal " + shlex.join(sys.argv[1:]), "pkmcal": version("pkmcal"),
+            "python": platform.python_version(), "numpy": np.__version__,
+            "scipy": scipy.__version__, "platform": platform.platform()}
+
+
 def _write_calibration(calibrated, units, metadata, report, output, report_path,
-                       result=None) -> str:
+                       result=None, report_dir: Path | None = None) -> str:
     """Write the calibrated machine file and its JSON report, at the very end and atomically;
     the machine file is checked to load back first. Returns the JSON text.
 
@@ -732,11 +757,22 @@ def _write_calibration(calibrated, units, metadata, report, output, report_path,
             "null_space": (np.asarray(result.null_space, float)
                            * np.asarray(result.scales, float)[:, None])[:n].tolist(),
         }
+        # residual / assumed noise std of every residual, for the report's histogram
+        report["normalised_residuals"] = np.asarray(result.residuals, float).ravel().tolist()
+    report["provenance"] = provenance()
     yaml_text = machine_to_text(calibrated, units, calibration=metadata)
     parse_machine(yaml_text, str(output))   # the calibrated file must load back
     json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
+    html_text = None
+    if report_dir is not None:
+        from ..report.html import build_html
+
+        html_text = build_html(json.loads(json_text))
     atomic_write_text(report_path, json_text)
     atomic_write_text(output, yaml_text)
+    if html_text is not None:
+        atomic_write_text(report_dir / "report.json", json_text)
+        atomic_write_text(report_dir / "report.html", html_text)
     return json_text
 
 
@@ -1003,7 +1039,7 @@ def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path
         "report": report_path.name,
     }
     json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
-                                   result)
+                                   result, _REPORT_DIR)
 
     if json_output:
         print(json_text, end="")
@@ -1222,7 +1258,7 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
         "report": report_path.name,
     }
     json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
-                                   result)
+                                   result, _REPORT_DIR)
     if json_output:
         print(json_text, end="")
     else:

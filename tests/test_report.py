@@ -1,0 +1,74 @@
+"""HTML reports (issue 6, item 1): ``pkmcal calibrate --report DIR`` and ``pkmcal report``."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from clitools import assert_input_error, digest
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+CASES = {
+    "hexaslide": (EXAMPLES / "hexaslide_default.yaml", ["Residuals", "link length"]),
+    "delta": (EXAMPLES / "delta_default.yaml", ["Distance ratios", "Before / after"]),
+    "stewart": (EXAMPLES / "cubic_6upu.yaml", ["Before / after", "frames"]),
+}
+
+
+def _self_contained(page: str) -> None:
+    assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")
+    # nothing fetched: every src is an embedded image, no link to anywhere
+    assert all(s.startswith("data:image/png;base64,") for s in re.findall(r'src="([^"]*)"', page))
+    assert "http://" not in page and "https://" not in page and "<link" not in page
+
+
+@pytest.mark.parametrize("kind", list(CASES))
+def test_calibrate_report_dir_and_report_command(kind, cli, tmp_path):
+    machine, sections = CASES[kind]
+    assert cli("simulate", machine, "--seed", "4", "-o", "data.csv").returncode == 0
+    (tmp_path / "out").mkdir()
+    proc = cli("calibrate", machine, "data.csv", "-o", "cal.yaml", "--report", "out")
+    assert proc.returncode == 0, proc.stderr
+    page = (tmp_path / "out" / "report.html").read_text()
+    _self_contained(page)
+    for words in ["Summary", "Identifiability", "Parameters", "Provenance", *sections]:
+        assert f"<h2>{words}" in page, words
+    twin = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert twin == json.loads((tmp_path / "cal.json").read_text())
+    assert twin["provenance"]["command"].startswith("pkmcal calibrate")
+    assert {"numpy", "scipy", "python", "pkmcal"} <= set(twin["provenance"])
+    # every parameter is in the table, with its identified value
+    for p in twin["parameters"][:5]:
+        assert f"<td>{p['name']}</td>" in page
+    # the plots: singular values, normalised residuals, parameter changes (+ ratios, Delta)
+    assert page.count("data:image/png;base64,") >= 3
+    # the same report from the calibrated file, later
+    before = digest(tmp_path / "cal.yaml")
+    proc = cli("report", "cal.yaml", "-o", "again.html")
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "again.json").exists()
+    assert digest(tmp_path / "cal.yaml") == before
+    again = (tmp_path / "again.html").read_text()
+    _self_contained(again)
+    assert again.count("<h2>") == page.count("<h2>")
+
+
+def test_report_bad_input(cli, tmp_path):
+    machine = CASES["hexaslide"][0]
+    assert cli("simulate", machine, "--poses", "80", "-o", "data.csv").returncode == 0
+    # --report DIR must exist; nothing is written when it does not
+    assert_input_error(cli("calibrate", machine, "data.csv", "-o", "cal.yaml", "--report",
+                           "nodir"), "nodir")
+    assert not (tmp_path / "cal.yaml").exists() and not (tmp_path / "cal.json").exists()
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"command": "identifiability"}))
+    assert_input_error(cli("report", other, "-o", "r.html"), "other.json", "calibration report")
+    broken = tmp_path / "broken.json"
+    broken.write_text("{")
+    assert_input_error(cli("report", broken, "-o", "r.html"), "broken.json")
+    assert_input_error(cli("report", machine, "-o", "r.html"), "calibration report")
+    assert_input_error(cli("report", other, "-o", "r.json"), ".html")
+    assert not (tmp_path / "r.html").exists()
