@@ -653,6 +653,9 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
             "max_abs_um": float(np.max(np.abs(r_m)) * 1e6) if r.size else None,
             "rms_per_column_um": (np.sqrt(np.mean(r_m**2, axis=0)) * 1e6).tolist()
             if r.ndim == 2 and r.shape[1] > 1 else None,
+            "before_rms_um": _nominal_rms_um(machine, data, sigma),
+            "before": "machine file's geometry, all readings, poses fitted (maximum "
+                      "likelihood)",
             "residual_variance": float(result.residual_variance),
             "estimated_noise_um": float(np.sqrt(result.residual_variance) * sigma * 1e6)
             if np.isfinite(result.residual_variance) else None,
@@ -685,6 +688,21 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
     else:
         _print_calibration(report, params, data_path, output, report_path, machine)
     return 0
+
+
+def _nominal_rms_um(machine, data, sigma) -> float | None:
+    """RMS reading residual (um) of the machine file's geometry on constraint-link data, the
+    poses fitted: one Gauss-Newton pass of the calibration with the geometry held."""
+    from ..calibration import ConstraintLinkML, levenberg_marquardt
+
+    try:
+        problem = ConstraintLinkML(machine.with_parameters(machine.u), data, sigma)
+        problem.parameters = problem.parameters.with_fixed(list(problem.parameters.names))
+        res = levenberg_marquardt(problem, max_iter=20)
+    except (InputError, ValueError, np.linalg.LinAlgError):
+        return None
+    r = np.asarray(res.residuals, float) * sigma
+    return float(np.sqrt(np.mean(r**2)) * 1e6) if r.size and np.all(np.isfinite(r)) else None
 
 
 def _solve(data_path, calibrate, *args, **kwargs):
