@@ -74,8 +74,15 @@ def _version(value: bool) -> None:
 def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True,
                                           help="Show the version and exit.")] = False,
+    quiet: Annotated[bool, typer.Option(
+        "--quiet", "-q", help="Print nothing but errors and warnings (files are still "
+                              "written; --json output is still printed).")] = False,
 ) -> None:
     """Calibration, identifiability and error analysis of parallel kinematic machines."""
+    if quiet:
+        from ._console import set_quiet
+
+        set_quiet()
 
 
 @app.command()

@@ -6,12 +6,27 @@ import functools
 import sys
 
 
+_QUIET = False
+
+
+def set_quiet() -> None:
+    """``pkmcal --quiet``: the results console prints nothing (errors and warnings still do)."""
+    global _QUIET
+    _QUIET = True
+    console.cache_clear()
+
+
+def quiet() -> bool:
+    return _QUIET
+
+
 @functools.cache
 def console():
-    """Console on stdout; 120 columns when not a terminal (pipes, tests)."""
+    """Console on stdout; 120 columns when not a terminal (pipes, tests); silent with
+    ``--quiet``."""
     from rich.console import Console
 
-    return Console(highlight=False, width=None if sys.stdout.isatty() else 120)
+    return Console(highlight=False, width=None if sys.stdout.isatty() else 120, quiet=_QUIET)
 
 
 @functools.cache
