@@ -156,7 +156,11 @@ def _line_map(node, path=(), out=None) -> dict[tuple, int]:
 
 def _parse_yaml(text: str, source: str):
     """``(document, line_map)``; YAML syntax errors become :class:`InputError` with a line."""
-    loader = _Loader(text)
+    try:
+        loader = _Loader(text)
+    except yaml.YAMLError as exc:       # e.g. a control character: the reader refuses it
+        reason = " ".join(str(exc).split())
+        raise InputError(f"{source}: not a YAML text file: {reason}") from None
     try:
         node = loader.get_single_node()
         if node is None:
@@ -169,7 +173,7 @@ def _parse_yaml(text: str, source: str):
         what = exc.problem or exc.context or "invalid YAML"
         raise InputError(f"{source}: {where}YAML syntax error: {what}") from None
     except yaml.YAMLError as exc:
-        raise InputError(f"{source}: YAML syntax error: {exc}") from None
+        raise InputError(f"{source}: YAML syntax error: {' '.join(str(exc).split())}") from None
     finally:
         loader.dispose()
     return data, _line_map(node)
