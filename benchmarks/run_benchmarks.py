@@ -2,7 +2,7 @@
 
 Usage (from the repository root)::
 
-    .venv/bin/python benchmarks/run_benchmarks.py            # full: ~35-50 s
+    .venv/bin/python benchmarks/run_benchmarks.py            # full: ~80-100 s on 2 cores
     .venv/bin/python benchmarks/run_benchmarks.py --quick    # fewer repeats, 50 MC runs
     .venv/bin/python benchmarks/run_benchmarks.py -o other.json
 
@@ -47,7 +47,8 @@ def environment() -> dict:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true",
-                        help="fewer repeats and 50 instead of 200 Monte Carlo runs")
+                        help="fewer repeats, 50 instead of 200 Monte Carlo runs in (d) and "
+                             "(g), and a 50-run single-process baseline in (h)")
     parser.add_argument("-o", "--output", type=Path, default=HERE / "results.json",
                         help="JSON file to write (default: benchmarks/results.json)")
     args = parser.parse_args(argv)

@@ -114,7 +114,8 @@ CSV_CASES = [
      ["row 5: 5 field(s), the header (row 1) has 7 columns"]),
     ("passive out of range", "h", lambda ls: ls[:2] + [ls[2].rsplit(",", 1)[0] + ",7"]
      + ls[3:], ["row 3, column passive: must be an actuator number 1..6"]),
-    ("readings no pose explains", "h", lambda ls: ls[:2] + ["5000,5000,5000,5000,5000,5000,1"] + ls[3:],
+    ("readings no pose explains", "h",
+     lambda ls: ls[:2] + [",".join(["5000"] * 6) + ",1"] + ls[3:],
      ["no pose on the constraint sphere", "1 row(s): 3"]),
     ("three tracker points", "d", lambda ls: ls[:4],
      ["3 point(s): the tracker registration needs at least 4 points"]),

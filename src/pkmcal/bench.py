@@ -15,6 +15,9 @@ name      what is measured                                                      
 (g)       Delta tracker Monte Carlo (200 runs, Leica-type noise): held-out         within 1.3 x
           validation RMS of the joint fit against its Cramer-Rao prediction;
           the paper's two-step method against the joint fit                     (figure)
+(h)       ``pkmcal montecarlo`` engine: 1000 Hexa Slide calibrations (150 poses,    <= 60 s
+          2 um noise, each simulated, calibrated and evaluated) on all cores;
+          speed-up over one process (a timed subset, scaled)                    (figure)
 ========  ====================================================================  ==========
 
 :func:`run_all` returns one dict per figure (``name, value, unit, target, ok, detail``);
@@ -420,6 +423,56 @@ def delta_tracker_entries(runs: int = 200) -> list[dict]:
     ]
 
 
+# -- (h) Monte Carlo throughput ------------------------------------------------------------------
+
+def montecarlo_throughput(runs: int = 1000, baseline_runs: int = 100, n_poses: int = 150,
+                          noise_m: float = 2e-6, workers: int | None = None,
+                          seed: int = 8) -> dict:
+    """(h): wall time of ``runs`` runs of :func:`pkmcal.analysis.montecarlo.montecarlo` on the
+    default Hexa Slide (truth = nominal + Table 1, ``n_poses`` poses, ``noise_m`` encoder
+    noise; each run simulates, calibrates by maximum likelihood and evaluates the pose
+    accuracy over 300 workspace poses) with ``workers`` local processes (default: all cores),
+    process start included. The single-process figure times the first ``baseline_runs`` of
+    the same runs in this process and scales them to ``runs``; those runs must come out
+    bit-identical to their parallel twins."""
+    import os
+
+    from .analysis.montecarlo import MonteCarloSettings, montecarlo
+
+    settings = MonteCarloSettings(default_hexaslide(), "constraint-link", poses=n_poses,
+                                  noise=noise_m, deviations="paper-table1")
+    workers = workers or os.cpu_count() or 1
+    par = montecarlo(settings, "noise", [noise_m], runs, seed=seed, workers=workers)
+    one = montecarlo(settings, "noise", [noise_m], baseline_runs, seed=seed, workers=1)
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa
+    identical = strip(one.rows) == strip(par.rows[:baseline_runs])
+    single = one.seconds / baseline_runs * runs
+    converged = int(sum(p["converged"] for p in par.summary))
+    return {"runs": runs, "workers": par.workers, "seconds": par.seconds,
+            "single_seconds": single, "baseline_runs": baseline_runs,
+            "converged": converged, "identical": identical,
+            "position_mean": float(par.summary[0]["position_mean"]["mean"])}
+
+
+def montecarlo_entries(runs: int = 1000, baseline_runs: int = 100) -> list[dict]:
+    out = montecarlo_throughput(runs, baseline_runs)
+    seconds, single, w = out["seconds"], out["single_seconds"], out["workers"]
+    ok = seconds <= 60 and out["converged"] == runs and out["identical"]
+    return [
+        _entry(f"(h) Monte Carlo, {runs} Hexa Slide calibrations, {w} workers", seconds, "s",
+               "<= 60 s", ok,
+               f"150 poses, 2 um noise, Table 1 truth; simulate + ML calibration + accuracy "
+               f"over 300 workspace poses per run; {runs / seconds:.1f} runs/s on {w} local "
+               f"processes (start included); {out['converged']}/{runs} converged; mean "
+               f"position error {out['position_mean'] * 1e6:.2f} um; first {baseline_runs} "
+               f"runs bit-identical in one process: {out['identical']}"),
+        _entry("(h) Monte Carlo speed-up over one process", single / seconds, "x",
+               "(figure)", single > seconds,
+               f"one process: {runs / single:.1f} runs/s ({baseline_runs} runs timed, scaled "
+               f"to {runs}: {single:.1f} s) vs {runs / seconds:.1f} runs/s on {w} workers"),
+    ]
+
+
 # -- all -------------------------------------------------------------------------------------------
 
 def run_all(quick: bool = False) -> list[dict]:
@@ -433,4 +486,5 @@ def run_all(quick: bool = False) -> list[dict]:
     results.append(delta_fk_throughput(repeats=repeats))
     results.append(delta_tracker_time(repeats=5 if quick else 20))
     results += delta_tracker_entries(runs=50 if quick else 200)
+    results += montecarlo_entries(baseline_runs=50 if quick else 100)
     return results

@@ -1,4 +1,5 @@
-"""Accuracy after calibration as a function of a study variable (seed 000 Figs. 5 and 6)."""
+"""Accuracy after calibration as a function of a study variable (seed 000 Figs. 5 and 6),
+through the Monte-Carlo engine (:mod:`pkmcal.analysis.montecarlo`)."""
 
 from __future__ import annotations
 
@@ -7,10 +8,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..calibration import calibrate_constraint_link
 from ..machines.base import Machine
-from ..measurements import simulate_constraint_link
-from .accuracy import pose_accuracy, workspace_poses
+from .montecarlo import MonteCarloSettings, montecarlo
+
+#: the study variables of this module and the engine's names for them
+_VARIABLES = {"noise": "noise", "link_length_error": "lc-error"}
 
 
 @dataclass
@@ -28,32 +30,32 @@ class SweepPoint:
 def constraint_link_sweep(nominal: Machine, true: Machine, variable: str,
                           values: Sequence[float], n_poses: int = 150, seeds: int = 3,
                           noise_m: float = 0.0, estimate_link_length: bool = False,
-                          rng=0, progress: Callable[[], None] | None = None) -> list[SweepPoint]:
+                          rng=0, progress: Callable[[], None] | None = None,
+                          workers: int | None = 1) -> list[SweepPoint]:
     """Calibrate (maximum likelihood) on simulated constraint-link data while one setting
     varies, and measure the gauge-aligned pose accuracy over the workspace cube.
 
     ``variable``: ``'noise'`` (encoder noise std, m) or ``'link_length_error'`` (error of the
-    assumed ``Lc``, m). ``progress`` is called after every calibration.
+    assumed ``Lc``, m). ``seeds`` runs per value; ``rng`` the seed of the Monte Carlo (an
+    integer, or a Generator that draws one); ``workers`` as in
+    :func:`~pkmcal.analysis.montecarlo.montecarlo`. ``progress`` is called after every
+    calibration. Standard deviations are over the runs (``ddof=1``).
     """
-    if variable not in ("noise", "link_length_error"):
+    if variable not in _VARIABLES:
         raise ValueError(f"variable must be 'noise' or 'link_length_error', got {variable!r}")
-    rng = np.random.default_rng(rng)
-    P, R = workspace_poses(true.home[0], n=300, rng=rng)
+    seed = int(rng.integers(2**63)) if isinstance(rng, np.random.Generator) else int(rng)
+    settings = MonteCarloSettings(nominal, "constraint-link", poses=n_poses, noise=noise_m,
+                                  deviations=true.u - nominal.u,
+                                  estimate_lc=estimate_link_length)
+    tick = None if progress is None else (lambda n: [progress() for _ in range(n)])
+    result = montecarlo(settings, _VARIABLES[variable], values, runs=seeds, seed=seed,
+                        workers=workers, progress=tick)
+    def spread(std):                                    # one run: no spread
+        return std if np.isfinite(std) else 0.0
+
     out = []
-    for value in values:
-        pos, ori = [], []
-        for _ in range(seeds):
-            noise = value if variable == "noise" else noise_m
-            lc_err = value if variable == "link_length_error" else 0.0
-            data = simulate_constraint_link(true, n_poses, noise_m=noise,
-                                            link_length_error=lc_err, rng=rng)
-            res = calibrate_constraint_link(nominal, data, sigma_m=max(noise, 1e-7),
-                                            estimate_link_length=estimate_link_length)
-            acc = pose_accuracy(true, res.extras["machine"], P, R)
-            pos.append(acc.position_mean)
-            ori.append(acc.orientation_mean)
-            if progress:
-                progress()
-        out.append(SweepPoint(float(value), float(np.mean(pos)), float(np.std(pos)),
-                              float(np.mean(ori)), float(np.std(ori)), seeds))
+    for p in result.summary:
+        pos, ori = p["position_mean"], p["orientation_mean"]
+        out.append(SweepPoint(float(p["value"]), pos["mean"], spread(pos["std"]), ori["mean"],
+                              spread(ori["std"]), p["runs"]))
     return out

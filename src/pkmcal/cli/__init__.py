@@ -548,6 +548,88 @@ def errors_command(
 
 
 @app.command()
+def montecarlo(
+    machine: MachineArg,
+    vary: Annotated[str, typer.Option(
+        metavar="VARIABLE=V1,V2,...", show_default=False,
+        help="The setting to sweep and its values: noise (measurement noise std, as "
+             "--noise), lc-error (error of the assumed constraint-link length; hexaslide), "
+             "poses (number of measurements), tolerance (half-width of the random length "
+             "deviations; angles and gains in proportion). Values take a unit suffix, once at "
+             "the end for all (noise=0.1,1,10um) or each its own; bare numbers are SI.")],
+    output: Annotated[Path, typer.Option(
+        "-o", "--output", file_okay=False, show_default=False,
+        help="Output directory: runs.csv, summary.csv, summary.json, montecarlo.png "
+             "(created if missing; each file written atomically).")],
+    runs: Annotated[int, typer.Option(help="Simulated calibrations per value.")] = 20,
+    scenario: Annotated[Scenario | None, typer.Option(
+        help="Measurement scenario (default: the machine's: constraint-link for a hexaslide, "
+             "tracker for a delta, pose for a stewart).", show_default=False)] = None,
+    poses: Annotated[int | None, typer.Option(
+        help="Measurements per calibration when not swept (constraint-link 150, pose 60; "
+             "tracker: the 3x3x3 grid, or this many points uniform in its box).",
+        show_default=False)] = None,
+    noise: Annotated[str | None, typer.Option(
+        help="Measurement noise std when not swept: constraint-link encoder noise (default "
+             "2um); tracker leica (default) or a length (isotropic); pose: leg readings as a "
+             "length (default 2um; poses 20um, 50urad).", show_default=False)] = None,
+    lc_error: Annotated[str | None, typer.Option(
+        "--lc-error", help="constraint-link: the true link is the machine file's Lc minus "
+                           "this; the calibration assumes the file's (default 0).",
+        show_default=False)] = None,
+    tolerance: Annotated[str | None, typer.Option(
+        help="Half-width of the random length deviations of the true machines (default: "
+             "hexaslide 2mm, delta 1mm, stewart 2mm); implies --deviations random.",
+        show_default=False)] = None,
+    deviations: Annotated[Deviations | None, typer.Option(
+        help="True machine = MACHINE + deviations: paper-table1 (hexaslide default), random "
+             "(a new draw per run; delta and stewart default) or none.",
+        show_default=False)] = None,
+    estimate_lc: Annotated[bool, typer.Option(
+        "--estimate-lc", help="constraint-link: estimate Lc too (seed 000 Fig. 6, second "
+                              "curve).")] = False,
+    seed: Annotated[int, typer.Option(
+        help="Seed: run r at value i draws from SeedSequence(seed, spawn_key=(i, r)); the "
+             "same seed gives the same runs.csv whatever --workers or --scheduler.")] = 0,
+    workers: Annotated[int | None, typer.Option(
+        help="Local worker processes (default: all cores; 1 runs in this process).",
+        show_default=False)] = None,
+    scheduler: Annotated[str | None, typer.Option(
+        metavar="ADDRESS", help="Run on a Dask cluster instead: its scheduler address, e.g. "
+                                "tcp://10.0.0.5:8786 (needs pkmcal[distributed]).",
+        show_default=False)] = None,
+    quiet: Annotated[bool, typer.Option(
+        "--quiet", "-q", help="No progress bar (it is also off when stderr is not a "
+                              "terminal).")] = False,
+) -> None:
+    """Monte Carlo of simulated calibrations while one setting varies.
+
+    Each run: true machine = MACHINE + deviations, simulated data of the scenario, the
+    default calibration of `pkmcal calibrate`, and the accuracy of the result against the
+    truth where the data cannot fix the frames: constraint-link, the workspace pose error
+    after aligning the frames (SPEC 5); tracker, held-out tracker points through the
+    identified registration; pose, held-out poses through the identified frames and the
+    gauge-free parameter error. Per value: mean, 95 % confidence interval of the mean,
+    median and 5-95 % of the runs.
+
+    Example (seed 000 Fig. 5): `pkmcal montecarlo default --vary noise=0.1,0.3,1,3,10um -o fig5`
+
+    Example (Fig. 6): `pkmcal montecarlo default --vary lc-error=1,3,10,30,100um --noise 0
+    -o fig6`
+
+    Example: `pkmcal montecarlo examples/delta_default.yaml --vary poses=10,27,60 --runs 50
+    --scheduler tcp://127.0.0.1:8786 -o delta-poses`
+    """
+    from ._montecarlo import run_montecarlo
+
+    raise typer.Exit(run_montecarlo(
+        machine, vary, output, runs=runs, scenario=scenario.value if scenario else None,
+        poses=poses, noise=noise, lc_error=lc_error, tolerance=tolerance,
+        deviations=deviations.value if deviations else None, estimate_lc=estimate_lc,
+        seed=seed, workers=workers, scheduler=scheduler, quiet=quiet))
+
+
+@app.command()
 def bench(
     json_output: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")]
     = False,

@@ -38,6 +38,9 @@ from ..io import (
     write_tracker,
 )
 from ..io.machine_file import DEFAULT_UNITS
+from ..measurements.deviations import DEFAULT_DEVIATIONS
+from ..measurements.deviations import deviations as _deviations
+from ..planning.scenarios import SCENARIO_OF as DEFAULT_SCENARIO
 from ..units import ANGLE, LENGTH, parse_quantity
 from ._console import console, error, warning
 
@@ -143,7 +146,10 @@ def run_demo(outdir: Path) -> None:
     if outdir.exists() and not outdir.is_dir():
         raise InputError(f"{outdir}: exists and is not a directory")
     outdir.mkdir(parents=True, exist_ok=True)
-    result = module.run_demo(outdir)
+    from ._console import progress_tasks
+
+    with progress_tasks() as new:
+        result = module.run_demo(outdir, progress=new)
     out = console()
     table = _table("quantity", "before calibration", "after calibration",
                    title="pkmcal demo (embedded Hexa Slide and Delta)")
@@ -184,9 +190,6 @@ def run_bench(json_output: bool) -> int:
 # simulate
 # --------------------------------------------------------------------------------------------
 
-#: default scenario and deviations per machine type
-DEFAULT_SCENARIO = {"hexaslide": "constraint-link", "delta": "tracker", "stewart": "pose"}
-DEFAULT_DEVIATIONS = {"hexaslide": "paper-table1", "delta": "random", "stewart": "random"}
 #: scenarios each machine type can simulate
 SCENARIOS = {"hexaslide": ("constraint-link",), "delta": ("tracker",), "stewart": ("pose",)}
 
@@ -196,22 +199,6 @@ def _true_machine(machine, deviations: str, rng):
     true = machine.with_parameters(machine.u + _deviations(machine, deviations, rng))
     true.name = f"simulated true machine ({deviations} deviations) of {machine.name or 'MACHINE'}"
     return true
-
-
-def _deviations(machine, which: str, rng) -> np.ndarray:
-    params = machine.parameters
-    if which == "none":
-        return np.zeros(len(params))
-    if which == "paper-table1":
-        if machine.kind != "hexaslide":
-            raise InputError(f"--deviations paper-table1 applies to hexaslide machines (seed "
-                             f"000 Table 1), not {machine.kind}; use random or none")
-        from ..machines import paper_table1_deviations
-
-        return paper_table1_deviations(params)
-    from ..measurements import random_deviations
-
-    return random_deviations(machine, rng)
 
 
 def parse_grid(text: str) -> tuple[int, int, int]:

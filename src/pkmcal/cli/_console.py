@@ -5,7 +5,6 @@ from __future__ import annotations
 import functools
 import sys
 
-
 _QUIET = False
 
 
@@ -48,3 +47,42 @@ def warning(message: str) -> None:
     from rich.text import Text
 
     err_console().print(Text.assemble(("warning: ", "bold yellow"), message))
+
+
+class progress_tasks:
+    """Rich progress bars on stderr (done / total, elapsed, ETA); silent when stderr is not a
+    terminal, with ``pkmcal --quiet`` or ``quiet``. Entering gives
+    ``new(description, total) -> advance(n=1)``."""
+
+    def __init__(self, quiet: bool = False):
+        self.quiet = quiet
+        self.bar = None
+
+    def __enter__(self):
+        stream = err_console()
+        if self.quiet or _QUIET or not stream.is_terminal:
+            return lambda description, total: (lambda n=1: None)
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                            TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
+                            console=stream, transient=True)
+        self.bar.start()
+
+        def new(description: str, total: int):
+            task = self.bar.add_task(description, total=total)
+            return lambda n=1: self.bar.advance(task, n)
+
+        return new
+
+    def __exit__(self, *exc):
+        if self.bar is not None:
+            self.bar.stop()
+        return False

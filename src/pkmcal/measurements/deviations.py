@@ -11,6 +11,30 @@ RANDOM_DEVIATION = {"hexaslide": (2e-3, 0.02), "delta": (1e-3, np.deg2rad(0.5))}
 #: half-width of random deviations of ratio parameters (gains), relative to their value
 RATIO_DEVIATION = 1e-3
 
+#: deviations of simulated true machines by default, per machine type
+DEFAULT_DEVIATIONS = {"hexaslide": "paper-table1", "delta": "random", "stewart": "random"}
+
+
+def deviations(machine, which: str, rng) -> np.ndarray:
+    """Parameter errors of a simulated true machine: ``none``, ``paper-table1`` (seed 000
+    Table 1, Hexa Slide only) or ``random`` (:func:`random_deviations`)."""
+    from ..errors import InputError
+
+    params = machine.parameters
+    if which == "none":
+        return np.zeros(len(params))
+    if which == "paper-table1":
+        if machine.kind != "hexaslide":
+            raise InputError(f"--deviations paper-table1 applies to hexaslide machines (seed "
+                             f"000 Table 1), not {machine.kind}; use random or none")
+        from ..machines import paper_table1_deviations
+
+        return paper_table1_deviations(params)
+    if which != "random":
+        raise InputError(f"--deviations: unknown kind {which!r}; use random, paper-table1 or "
+                         "none")
+    return random_deviations(machine, rng)
+
 
 def random_deviations(machine, rng) -> np.ndarray:
     """Uniform random errors of every parameter: lengths and angles within

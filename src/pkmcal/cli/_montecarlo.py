@@ -1,0 +1,249 @@
+"""``pkmcal montecarlo``: simulated calibrations while one setting varies (issue 5, item 4).
+
+Validates everything first (exit 2 on bad input, nothing written), runs the Monte Carlo of
+:mod:`pkmcal.analysis.montecarlo` with a progress bar on stderr, then writes ``runs.csv``,
+``summary.csv``, ``summary.json`` and ``montecarlo.png`` into the output directory, each
+atomically, and prints a summary table.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import math
+import platform
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..units import parse_quantity
+from ._commands import _finite_or_none, _table, load_machine_arg
+from ._console import console, progress_tasks, warning
+
+#: files written into the output directory
+OUTPUT_FILES = ("runs.csv", "summary.csv", "summary.json", "montecarlo.png")
+
+
+def parse_vary(text: str) -> tuple[str, list]:
+    """``"noise=0.1,1,10um"`` -> ``("noise", [1e-7, 1e-6, 1e-5])`` (SI).
+
+    Each value may carry a unit suffix; values without one take the unit of the last value
+    (``0.1,1,10um``); a list without any unit is SI. ``poses`` takes whole numbers.
+    """
+    from ..analysis.montecarlo import VARIABLES, parse_values, variable_name
+
+    name, sep, rest = str(text).partition("=")
+    if not sep or not name.strip():
+        raise InputError(f"--vary {text}: expected VARIABLE=V1,V2,... (e.g. noise=0.1,1,10um; "
+                         f"variables: {', '.join(VARIABLES)})")
+    variable = variable_name(name)
+    parts = [p.strip() for p in rest.split(",")]
+    if not rest.strip() or any(not p for p in parts):
+        raise InputError(f"--vary {variable}: expected comma-separated values after '=', got "
+                         f"{rest!r}")
+    quantity = VARIABLES[variable][0]
+    if quantity == "count":
+        try:
+            numbers = [float(p) for p in parts]
+        except ValueError:
+            raise InputError(f"--vary {variable}: expected whole numbers, got {rest!r}") from None
+        return variable, parse_values(variable, numbers)
+    unit = re.match(r"^.*?([A-Za-z/]*)$", parts[-1]).group(1)
+    what = f"--vary {variable}"
+    values = [parse_quantity(p if re.search(r"[A-Za-z/]$", p) else p + unit, quantity, what)
+              for p in parts]
+    return variable, parse_values(variable, values)
+
+
+def _length_option(text: str | None, what: str, allow: tuple[str, ...] = ()):
+    """A length option (SI), or None when not given; ``allow`` words pass through."""
+    if text is None:
+        return None
+    if text.strip().lower() in allow:
+        return text.strip().lower()
+    value = parse_quantity(text, "length", what)
+    if not (math.isfinite(value) and value >= 0):
+        raise InputError(f"{what}: must be >= 0, got {text}")
+    return value
+
+
+def run_montecarlo(machine_spec: str, vary: str, output: Path, runs: int = 20,
+                   scenario: str | None = None, poses: int | None = None,
+                   noise: str | None = None, lc_error: str | None = None,
+                   tolerance: str | None = None, deviations: str | None = None,
+                   estimate_lc: bool = False, seed: int = 0, workers: int | None = None,
+                   scheduler: str | None = None, quiet: bool = False) -> int:
+    from ..analysis.montecarlo import MonteCarloSettings, montecarlo
+
+    if output.exists() and not output.is_dir():
+        raise InputError(f"{output}: exists and is not a directory")
+    if runs < 1:
+        raise InputError(f"--runs: must be >= 1, got {runs}")
+    if workers is not None and workers < 1:
+        raise InputError(f"--workers: must be >= 1, got {workers}")
+    if workers is not None and scheduler:
+        raise InputError("--workers: does not apply with --scheduler (the Dask cluster has "
+                         "its own workers)")
+    variable, values = parse_vary(vary)
+    machine = load_machine_arg(machine_spec)
+    noise_value = _length_option(noise, "--noise", allow=("leica",))
+    if noise_value == "leica":
+        if machine.kind != "delta":
+            raise InputError("--noise leica: applies to the tracker scenario (a delta)")
+        noise_value = None
+    if estimate_lc and machine.kind != "hexaslide":
+        raise InputError("--estimate-lc: applies to the constraint-link scenario (hexaslide)")
+    settings = MonteCarloSettings(
+        machine, scenario, poses=poses, noise=noise_value,
+        lc_error=_length_option(lc_error, "--lc-error") or 0.0,
+        deviations=deviations, tolerance=_length_option(tolerance, "--tolerance"),
+        estimate_lc=estimate_lc)
+    if lc_error is not None and settings.resolved().scenario != "constraint-link":
+        raise InputError(f"--lc-error: applies to the constraint-link scenario (hexaslide), not "
+                         f"{settings.resolved().scenario} ({machine.kind})")
+
+    total = len(values) * runs
+    with progress_tasks(quiet) as new:
+        advance = new("calibrations", total)
+        result = montecarlo(settings, variable, values, runs=runs, seed=seed, workers=workers,
+                            scheduler=scheduler, progress=advance)
+    files = _write_outputs(result, output, machine_spec)
+    _print_summary(result, files)
+    converged = sum(p["converged"] for p in result.summary)
+    failed = [row for row in result.rows if row["failure"]]
+    if failed:
+        warning(f"{len(failed)} of {total} runs failed (metrics NaN in runs.csv), e.g. "
+                f"{failed[0]['failure']}")
+    if converged == 0:
+        from ._console import error
+
+        error("no calibration converged; see the failure column of runs.csv")
+        return 1
+    return 0
+
+
+def _versions(dask: bool) -> dict:
+    from importlib.metadata import PackageNotFoundError, version
+
+    names = ["pkmcal", "numpy", "scipy"] + (["dask", "distributed"] if dask else [])
+    out = {"python": platform.python_version()}
+    for name in names:
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def _write_outputs(result, outdir: Path, machine_spec: str) -> list[Path]:
+    from ..analysis.montecarlo import (
+        STATISTICS,
+        VARIABLES,
+        plot_montecarlo,
+        runs_table,
+        summary_table,
+    )
+    from ..io import atomic_write_text, write_table
+
+    _, unit, factor = VARIABLES[result.variable]
+    display = (lambda v: int(v)) if result.variable == "poses" else (lambda v: v / factor)
+    wall = result.seconds
+    seconds = [row["seconds"] for row in result.rows]
+    report = {
+        "pkmcal_report": 1,
+        "command": "montecarlo",
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "machine_file": str(machine_spec),
+        "settings": result.settings.describe(),
+        "variable": result.variable,
+        "unit": unit or None,
+        "values": [display(v) for v in result.values],
+        "runs_per_value": result.runs,
+        "seed": result.seed,
+        "seeding": "run r at value i draws from numpy SeedSequence(seed, spawn_key=(i, r)) = "
+                   "SeedSequence(seed).spawn(n_values)[i].spawn(runs)[r]: the same seed gives "
+                   "the same runs whatever the workers or scheduler",
+        "executor": result.executor,
+        "workers": result.workers,
+        "timing": {"wall_seconds": wall,
+                   "runs_per_second": len(result.rows) / wall if wall > 0 else None,
+                   "run_seconds_mean": float(np.mean(seconds)),
+                   "run_seconds_max": float(np.max(seconds))},
+        "metrics": {name: {"unit": u or None, "description": words}
+                    for name, (u, _, words) in result.metrics.items()},
+        "statistics": "over the converged runs of each value: mean, std (ddof 1), 95 % "
+                      "confidence interval of the mean (Student t), median, 5 % and 95 % "
+                      "quantiles; in the units of 'metrics'",
+        "summary": [
+            {"value": display(p["value"]), "runs": p["runs"], "converged": p["converged"],
+             "failed": p["failed"],
+             **{name: {k: p[name][k] / scale for k in STATISTICS}
+                for name, (_, scale, _) in result.metrics.items()}}
+            for p in result.summary],
+        "versions": _versions(result.executor.startswith("dask")),
+    }
+    json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
+    # outputs, at the very end, each atomically
+    outdir.mkdir(parents=True, exist_ok=True)
+    paths = [outdir / name for name in OUTPUT_FILES]
+    write_table(paths[0], *runs_table(result))
+    write_table(paths[1], *summary_table(result))
+    atomic_write_text(paths[2], json_text)
+    plot_montecarlo(result, paths[3])
+    return paths
+
+
+def _print_summary(result, files) -> None:
+    from ..analysis.montecarlo import VARIABLES
+
+    _, unit, factor = VARIABLES[result.variable]
+    s = result.settings
+    out = console()
+    head = _table("", "", title="pkmcal montecarlo", show_header=False)
+    d = s.describe()
+    head.add_row("machine", f"{d['machine']} ({d['kind']}), scenario {d['scenario']}")
+    fixed = [f"poses {d['poses']}" if result.variable != "poses" else None,
+             (f"noise {_um(s.noise)}" if s.noise is not None else "noise default")
+             if result.variable != "noise" else None,
+             f"Lc error {_um(s.lc_error)}" if s.lc_error and result.variable != "lc-error"
+             else None,
+             f"deviations {d['deviations']}" + (f" +/-{s.tolerance * 1e3:.4g} mm"
+                                                 if s.tolerance is not None else ""),
+             "Lc estimated" if s.estimate_lc else None]
+    head.add_row("fixed", ", ".join(f for f in fixed if f))
+    wall = result.seconds
+    head.add_row("runs", f"{result.runs} per value x {len(result.values)} values, seed "
+                 f"{result.seed}; {result.executor}"
+                 + (f", {result.workers} workers" if result.executor == "local processes"
+                    else "")
+                 + f"; {wall:.3g} s ({len(result.rows) / wall:.3g} runs/s)")
+    out.print(head)
+    metrics = [n for n in result.metrics if n.endswith("_mean")]
+    col = f"{result.variable}" + (f" ({unit})" if unit else "")
+    cols = [col, "converged"]
+    for name in metrics:
+        u = result.metrics[name][0]
+        cols += [f"{name.removesuffix('_mean').replace('_', ' ')} ({u})", "5-95 %"]
+    table = _table(*cols, title="error after calibration: mean over the converged runs +/- "
+                   "half-width of its 95 % confidence interval; 5-95 % of the runs",
+                   justify={i: "right" for i in range(len(cols))})
+    for p in result.summary:
+        v = int(p["value"]) if result.variable == "poses" else p["value"] / factor
+        row = [f"{v:.4g}", f"{p['converged']}/{p['runs']}"]
+        for name in metrics:
+            scale = result.metrics[name][1]
+            st = {k: p[name][k] / scale for k in p[name]}
+            half = (st["ci95_high"] - st["ci95_low"]) / 2
+            row += [f"{st['mean']:.4g} +/- {half:.2g}" if math.isfinite(half) else
+                    f"{st['mean']:.4g}", f"{st['q05']:.3g}..{st['q95']:.3g}"]
+        table.add_row(*row)
+    out.print(table)
+    out.print("wrote " + ", ".join(map(str, files)), markup=False)
+    sys.stdout.flush()
+
+
+def _um(v: float) -> str:
+    return f"{v * 1e6:.4g} um"
