@@ -372,3 +372,20 @@ def test_cli_planning_bad_input(cli, tmp_path):
                            tmp_path / "o.csv"), "--candidates")
     assert_input_error(cli("select-poses", "default", "-o", tmp_path / "o.csv"), "-n")
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_cli_select_poses_within_joint_limits(cli, tmp_path):
+    plan = tmp_path / "plan.csv"
+    proc = cli("select-poses", "default", "-n", "60", "--candidates", "600", "--joint-range",
+               "250mm,450mm", "--random-sets", "10", "--json", "-o", plan)
+    assert proc.returncode == 0, proc.stderr
+    rep = json.loads(proc.stdout)
+    assert rep["outside_joint_range"] > 0
+    assert rep["candidates"] + rep["outside_joint_range"] == 600
+    data = np.genfromtxt(plan, delimiter=",", names=True)
+    q = np.array([data[f"q{i}_mm"] for i in range(1, 7)])
+    assert q.min() >= 250 and q.max() <= 450
+    assert_input_error(cli("select-poses", "default", "-n", "60", "--joint-range",
+                           "450mm,250mm", "-o", plan), "--joint-range")
+    assert_input_error(cli("select-poses", "default", "-n", "60", "--joint-range",
+                           "300mm,301mm", "-o", tmp_path / "x.csv"), "within --joint-range")

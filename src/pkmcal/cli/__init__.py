@@ -321,6 +321,10 @@ def select_poses(
     candidates_file: Annotated[Path | None, typer.Option(
         "--from", help="Choose among the poses of this file instead (x, y, z + orientation; "
                        "every pose must be reachable).", show_default=False)] = None,
+    joint_range: Annotated[str | None, typer.Option(
+        "--joint-range", metavar="MIN,MAX",
+        help="Joint limits, e.g. 100mm,600mm (slider travel) or -60deg,90deg (Delta arms): "
+             "candidates needing a joint outside are left out.", show_default=False)] = None,
     criterion: Annotated[Criterion, typer.Option(
         help="d: D-optimal (maximise det of the information, observability index O1); a: "
              "A-optimal (mean parameter variance); pose: smallest predicted mean squared "
@@ -344,7 +348,8 @@ def select_poses(
     """Choose N measurement poses that identify the machine best (SPEC 3).
 
     Candidates are feasible poses of the machine's scenario (reachable, well conditioned;
-    constraint link: drivable with the link mounted) or the poses of --from. The choice
+    constraint link: drivable with the link mounted; within --joint-range) or the poses of
+    --from. The choice
     maximises a design criterion on the information of the scaled identification Jacobian
     (greedy, then exchanges until none improves it), and the report compares its predicted
     accuracy after calibration with random sets of the same size. Writes the chosen poses
@@ -363,7 +368,7 @@ def select_poses(
         raise InputError(f"-n/--poses: give the number of poses to choose (>= 1), got {n}")
     raise typer.Exit(run_select_poses(machine, output, n, candidates, candidates_file,
                                       criterion.value, random_sets, noise, pose_noise, seed,
-                                      map_path, json_output))
+                                      map_path, json_output, joint_range))
 
 
 @app.command()

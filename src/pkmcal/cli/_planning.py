@@ -292,10 +292,31 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
     return 0
 
 
+def parse_joint_range(text: str, machine) -> tuple[float, float]:
+    """``MIN,MAX`` of ``--joint-range`` in the joints' quantity (length or angle), SI."""
+    from ..io import joint_quantity
+
+    quantity = "length" if machine.kind == "stewart" else joint_quantity(machine)
+    parts = [p.strip() for p in str(text).split(",")]
+    if len(parts) != 2:
+        raise InputError(f"--joint-range: expected MIN,MAX with units (e.g. 100mm,600mm or "
+                         f"-60deg,90deg), got {text!r}")
+    lo, hi = (parse_quantity(p, quantity, "--joint-range") for p in parts)
+    if not lo < hi:
+        raise InputError(f"--joint-range: MIN must be below MAX, got {text}")
+    if machine.kind == "stewart":
+        gain = np.abs(machine.legs()[3])
+        if not np.allclose(gain, 1.0):
+            raise InputError("--joint-range: this Stewart's readings are not lengths (gain "
+                             "!= 1); give candidates within its range with --from")
+    return lo, hi
+
+
 def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                      candidates_path: Path | None, criterion: str, random_sets: int,
                      noise: str | None, pose_noise: str | None, seed: int,
-                     map_path: Path | None, json_output: bool) -> int:
+                     map_path: Path | None, json_output: bool,
+                     joint_range: str | None = None) -> int:
     from ..analysis.prediction import pose_error_operator
     from ..io import write_poses, write_positions
     from ..planning import (
@@ -326,8 +347,20 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
             raise InputError(f"--candidates: {candidates} candidate poses cannot give {n}")
         P, R = candidate_poses(machine, kind, candidates, rng=seed)
         rows, source = None, "<candidates>"
+    dropped = 0
+    if joint_range is not None:
+        lo, hi = parse_joint_range(joint_range, machine)
+        q = machine.ik(P, R)
+        inside = np.all((q >= lo) & (q <= hi), axis=-1)      # NaN (unreachable) is outside
+        dropped = int((~inside).sum())
+        P, R = P[inside], R[inside]
+        rows = None if rows is None else np.asarray(rows)[inside]
+        if candidates_path is None:
+            rows = np.flatnonzero(inside) + 1
     if len(P) < n:
-        raise InputError(f"{source}: {len(P)} candidate pose(s); cannot choose {n}")
+        raise InputError(f"{source}: {len(P)} candidate pose(s)"
+                         + (f" within --joint-range ({dropped} outside)" if dropped else "")
+                         + f"; cannot choose {n}")
     problem = planned_problem(machine, kind, P, R, model, rows, source)
     design = design_from_problem(problem)
     op = pose_error_operator(machine, design, *workspace(machine, rng=seed), problem.n_machine)
@@ -361,6 +394,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
         "machine_file": str(getattr(machine, "source", machine_spec)),
         "measurement": kind,
         "candidates": int(len(P)),
+        "outside_joint_range": dropped,
         "candidates_file": None if candidates_path is None else str(candidates_path),
         "selected": int(n),
         "criterion": criterion,
