@@ -19,7 +19,7 @@ demo: $(STAMP)
 
 # one BLAS thread: the tests run many small SVDs, which threads slow down ~100x on 2 cores
 test: $(STAMP)
-	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/ruff check src tests benchmarks examples
 	OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q
 
 bench: $(STAMP)

@@ -56,25 +56,29 @@ def frame_motions(P, R, dof: int = 6) -> np.ndarray:
     return out[:, :dof]
 
 
-def align_out(E, Z):
+def align_out(E, Z, fit=None):
     """Remove from pose changes ``E`` (K, d, n) what the frame changes ``Z`` (K, d, z) explain:
     least squares on positions first, then on orientations with what positions left free.
-    Returns the aligned ``E`` (same shape)."""
+    ``fit`` (K,) bool: the poses the best fit is made over (default all); the fitted frame
+    change is removed from every pose. Returns the aligned ``E`` (same shape)."""
     K, d, n = E.shape
     if Z.shape[-1] == 0:
         return E
+    fit = np.ones(K, bool) if fit is None else np.asarray(fit, bool)
     Ep, Zp = E[:, :3].reshape(3 * K, n), Z[:, :3].reshape(3 * K, -1)
-    w1 = np.linalg.pinv(Zp, rcond=1e-10) @ Ep
+    fp = np.repeat(fit, 3)
+    Zf = Zp[fp]
+    w1 = np.linalg.pinv(Zf, rcond=1e-10) @ Ep[fp]
     out = np.array(E)
     out[:, :3] = (Ep - Zp @ w1).reshape(K, 3, n)
     if d == 6:
         Er, Zr = E[:, 3:].reshape(3 * K, n), Z[:, 3:].reshape(3 * K, -1)
-        _, s, Vt = np.linalg.svd(Zp, full_matrices=True)
+        _, s, Vt = np.linalg.svd(Zf, full_matrices=True)
         rank = int(np.sum(s > 1e-10 * s[0])) if s.size and s[0] > 0 else 0
         Np = Vt[rank:].T                                  # frame changes positions leave free
         T = Er - Zr @ w1
         B = Zr @ Np
-        w2 = np.linalg.pinv(B, rcond=1e-10) @ T if B.shape[1] else np.zeros((0, n))
+        w2 = np.linalg.pinv(B[fp], rcond=1e-10) @ T[fp] if B.shape[1] else np.zeros((0, n))
         out[:, 3:] = (T - B @ w2).reshape(K, 3, n)
     return out
 

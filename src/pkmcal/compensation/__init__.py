@@ -7,8 +7,9 @@ pose sensitivity ``S = -(dq/dx)^-1 dq/du`` at fixed joints
 (:func:`pkmcal.analysis.prediction.pose_sensitivity`). Directions the data cannot fix (e.g. the
 base orientation about O with a constraint link) keep the machine file's values: the targets
 are in the calibrated model's frames, and the pose changes along those directions (``null``)
-are removed from the predicted error by best fit over the targets, as in SPEC 5 - a machine
-tool's work offsets are set on the calibrated machine anyway.
+are removed from the predicted error by a best fit over the SPEC 5 workspace around home
+(not over the targets, which may be few) - a machine tool's work offsets are set on the
+calibrated machine anyway.
 """
 
 from __future__ import annotations
@@ -18,6 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..machines.base import Machine
+
+#: workspace poses (SPEC 5 cube around home) the unseen frames are fitted over
+WORKSPACE_FIT_POSES = 300
 
 
 @dataclass
@@ -60,7 +64,18 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
         C = np.asarray(covariance, float)
         S = pose_sensitivity(calibrated, P, R)
         if null is not None and np.size(null):
-            S = align_out(S, S @ np.asarray(null, float))
+            # the frames are fitted over the workspace (SPEC 5), not over the targets: a
+            # few targets would absorb real errors into the fit
+            from ..analysis.accuracy import workspace_poses
+
+            Pw, Rw = workspace_poses(calibrated.home[0], n=WORKSPACE_FIT_POSES, rng=0)
+            if calibrated.pose_dof == 3:
+                Rw = np.broadcast_to(np.eye(3), Rw.shape)
+            S_all = np.concatenate([pose_sensitivity(calibrated, Pw, Rw), S])
+            fit = np.arange(len(S_all)) < len(Pw)
+            fit &= np.all(np.isfinite(S_all), axis=(1, 2))
+            N = np.asarray(null, float)
+            S = align_out(np.nan_to_num(S_all), np.nan_to_num(S_all) @ N, fit)[len(Pw):]
         var = np.einsum("kdi,ij,kdj->kd", S, C, S)
         out.position_std = np.sqrt(np.clip(var[:, :3].sum(-1), 0, None))
         if calibrated.pose_dof == 6:
