@@ -42,7 +42,7 @@ def _other_hexaslide():
 
 
 def _setup(machine, n_candidates, noise=None, seed=1):
-    from pkmcal.analysis.accuracy import workspace_poses
+    from pkmcal.analysis.accuracy import machine_workspace
     from pkmcal.analysis.prediction import pose_error_operator
     from pkmcal.planning import (
         candidate_poses,
@@ -55,9 +55,7 @@ def _setup(machine, n_candidates, noise=None, seed=1):
     P, R = candidate_poses(machine, kind, n_candidates, rng=seed)
     problem = planned_problem(machine, kind, P, R, noise)
     design = design_from_problem(problem)
-    Pw, Rw = workspace_poses(machine.home[0], n=200, rng=seed + 1)
-    if machine.pose_dof == 3:
-        Rw = np.broadcast_to(np.eye(3), Rw.shape)
+    Pw, Rw = machine_workspace(machine, n=200, rng=seed + 1)
     op = pose_error_operator(machine, design, Pw, Rw, problem.n_machine)
     return P, R, problem, design, op
 
@@ -253,21 +251,21 @@ def test_selection_beats_random_sets_on_the_default_hexaslide():
 
 @pytest.mark.parametrize("which", ["other-hexaslide", "delta", "stewart"])
 def test_selection_beats_random_sets_elsewhere(which):
-    from pkmcal.planning import DEFAULT_PLAN_SIZE, criterion_value, random_values, select_poses
+    from pkmcal.planning import (
+        DEFAULT_PLAN_SIZE,
+        criterion_value,
+        random_values,
+        scenario_for,
+        select_poses,
+    )
 
     machine = _other_hexaslide() if which == "other-hexaslide" else _machine(which)
     _, _, problem, design, op = _setup(machine, 600)
-    n = 60 if which == "other-hexaslide" else DEFAULT_PLAN_SIZE[problem_kind(problem)]
+    n = 60 if which == "other-hexaslide" else DEFAULT_PLAN_SIZE[scenario_for(machine)]
     sel = select_poses(design, n, "d")
     rms = np.sqrt(criterion_value(design.information(sel.index), "pose", op.A))
     median = np.median(np.sqrt(random_values(design, n, 40, "pose", op.A, rng=1)))
     assert median / rms > 1.3
-
-
-def problem_kind(problem) -> str:
-    from pkmcal.planning import scenario_for
-
-    return scenario_for(problem.machine)
 
 
 def test_planned_and_measured_identifiability_agree(tmp_path):

@@ -1,7 +1,14 @@
 """Accuracy of a model over a workspace (SPEC 5); pose errors from joint clearance, leg errors
 and loads (SPEC 2.3, :mod:`.errors`); tolerance analysis (:mod:`.tolerance`)."""
 
-from .accuracy import AccuracyReport, align_poses, pose_accuracy, pose_errors, workspace_poses
+from .accuracy import (
+    AccuracyReport,
+    align_poses,
+    machine_workspace,
+    pose_accuracy,
+    pose_errors,
+    workspace_poses,
+)
 from .errors import (
     ClearanceErrors,
     Trajectory,
@@ -32,4 +39,5 @@ __all__ = [
     "link_forces", "linear_covariance", "monte_carlo", "platform_wrench", "pose_accuracy",
     "pose_error", "pose_errors", "sensitivity", "stewart_tolerances", "tolerances",
     "trajectory_errors", "trajectory_from_poses", "workspace_poses", "worst_case",
+    "machine_workspace",
 ]

@@ -28,6 +28,15 @@ def workspace_poses(center, half_size: float = 0.05, max_angle: float = np.deg2r
     return P, R
 
 
+def machine_workspace(machine: Machine, n: int = 500, rng=0):
+    """:func:`workspace_poses` around ``machine``'s home; the identity orientation for a
+    translation-only platform (``pose_dof == 3``)."""
+    P, R = workspace_poses(machine.home[0], n=n, rng=rng)
+    if machine.pose_dof == 3:
+        R = np.broadcast_to(np.eye(3), R.shape)
+    return P, R
+
+
 @dataclass
 class AccuracyReport:
     """Position (m) and orientation (rad) errors of a model over workspace poses."""

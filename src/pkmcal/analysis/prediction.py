@@ -156,11 +156,12 @@ class PosePrediction:
 
 
 def predict_pose_accuracy(machine: Machine, design, P, R, M=None,
-                          n_machine: int | None = None) -> PosePrediction:
+                          n_machine: int | None = None, op=None) -> PosePrediction:
     """Cramer-Rao predicted pose errors at ``(P, R)`` for the information ``M`` (default: the
-    whole design's). Infinite where the plan leaves a pose-moving direction unidentified."""
+    whole design's). Infinite where the plan leaves a pose-moving direction unidentified.
+    ``op``: the :func:`pose_error_operator` at these poses, when already computed."""
     M = design.information() if M is None else M
-    op = pose_error_operator(machine, design, P, R, n_machine)
+    op = pose_error_operator(machine, design, P, R, n_machine) if op is None else op
     try:
         C = np.linalg.inv(M)
     except np.linalg.LinAlgError:

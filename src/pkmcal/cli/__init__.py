@@ -472,7 +472,7 @@ def report_command(
 
     Example: `pkmcal calibrate default data.csv -o cal.yaml --report out/` (the same, at once)
     """
-    from ._compensate import run_report
+    from ._report import run_report
 
     run_report(result, output)
 

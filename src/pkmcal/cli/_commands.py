@@ -34,7 +34,7 @@ from ..io import (
     write_joints,
     write_poses,
     write_positions,
-    write_readings,
+    write_table,
     write_tracker,
 )
 from ..io.machine_file import DEFAULT_UNITS
@@ -535,8 +535,6 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
             raise InputError(f"--report {report_dir}: not a directory (create it first)")
         outputs += [report_dir / "report.html", report_dir / "report.json"]
     check_outputs(outputs, [data_path] + _machine_inputs(machine_spec))
-    global _REPORT_DIR
-    _REPORT_DIR = report_dir
     header, _ = read_table(data_path)
     kind = measurement_kind(data_path, header, machine)
     for option, given in (("--pose-noise", pose_noise is not None),
@@ -554,7 +552,8 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
             raise InputError(f"--method {method}: full-pose data are calibrated by ml "
                              "(maximum likelihood, default) or ik (inverse-kinematic residuals)")
         return _calibrate_full_pose(machine, machine_spec, data_path, output, report_path,
-                                    method or "ml", noise, pose_noise, fix_frames, json_output)
+                                    method or "ml", noise, pose_noise, fix_frames, json_output,
+                                    report_dir)
     if kind == "tracker":
         for option, given in (("--method", method is not None),
                               ("--estimate-lc", estimate_lc is not None)):
@@ -562,18 +561,20 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
                 raise InputError(f"{option}: applies to constraint-link data; {data_path} has "
                                  "tracker points (see --two-step, --robust)")
         return _calibrate_tracker(machine, machine_spec, data_path, output, report_path, noise,
-                                  two_step, robust, json_output)
+                                  two_step, robust, json_output, report_dir)
     for option, given in (("--two-step", two_step), ("--robust", robust)):
         if given:
             raise InputError(f"{option}: applies to laser-tracker data (mx, my, mz columns); "
                              f"{data_path} has {kind} data")
     return _calibrate_constraint_link(machine, machine_spec, data_path, output, report_path,
-                                      method or "ml", noise or "1um", estimate_lc, json_output)
+                                      method or "ml", noise or "1um", estimate_lc, json_output,
+                                      report_dir)
 
 
 def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, output: Path,
                                report_path: Path, method: str, noise: str,
-                               estimate_lc: bool | None, json_output: bool) -> int:
+                               estimate_lc: bool | None, json_output: bool,
+                               report_dir: Path | None = None) -> int:
     sigma = parse_quantity(noise, "length", "--noise")
     if not sigma > 0:
         raise InputError(f"--noise: must be > 0 (the standard deviation of the encoder "
@@ -665,7 +666,7 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
         "report": report_path.name,
     }
     json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
-                                   result, _REPORT_DIR)
+                                   result, report_dir)
 
     if dropped:
         warning(f"{data_path}: {len(dropped)} row(s) left out (no pose from the five active "
@@ -723,22 +724,28 @@ def _identifiability_json(n_free, rank, unidentifiable, s) -> dict:
     }
 
 
-#: ``--report DIR`` of the running calibrate command (one command per process)
-_REPORT_DIR: Path | None = None
+def versions(*extra: str) -> dict:
+    """Versions of Python, pkmcal, numpy, scipy and the ``extra`` packages (None: absent)."""
+    import platform
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for name in ("pkmcal", "numpy", "scipy", *extra):
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = None
+    return out
 
 
 def provenance() -> dict:
-    """The command line and the versions that produce a report."""
+    """The command line, the versions and the platform that produce a report."""
     import platform
     import shlex
     import sys
-    from importlib.metadata import version
 
-    import scipy
-
-    return {"command": "pkmcal " + shlex.join(sys.argv[1:]), "pkmcal": version("pkmcal"),
-            "python": platform.python_version(), "numpy": np.__version__,
-            "scipy": scipy.__version__, "platform": platform.platform()}
+    return {"command": "pkmcal " + shlex.join(sys.argv[1:]), **versions(),
+            "platform": platform.platform()}
 
 
 def _write_calibration(calibrated, units, metadata, report, output, report_path,
@@ -909,7 +916,7 @@ def _check_spread(data, noise_model) -> None:
 
 def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path,
                        report_path: Path, noise: str | None, two_step: bool, robust: bool,
-                       json_output: bool) -> int:
+                       json_output: bool, report_dir: Path | None = None) -> int:
     from ..calibration import calibrate_tracker, distance_ratios, predict_tracker_points
 
     noise_model, noise_text = tracker_noise_arg(noise, allow_none=False)
@@ -1044,7 +1051,7 @@ def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path
         "report": report_path.name,
     }
     json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
-                                   result, _REPORT_DIR)
+                                   result, report_dir)
 
     if json_output:
         print(json_text, end="")
@@ -1147,7 +1154,8 @@ def _errors_report(errors, fl: float) -> dict:
 
 def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Path,
                          report_path: Path, method: str, noise: str | None,
-                         pose_noise: str | None, fix_frames: bool, json_output: bool) -> int:
+                         pose_noise: str | None, fix_frames: bool, json_output: bool,
+                         report_dir: Path | None = None) -> int:
     from ..calibration import calibrate_full_pose, full_pose_errors
     from ..measurements import MeasurementFrames
 
@@ -1263,7 +1271,7 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
         "report": report_path.name,
     }
     json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
-                                   result, _REPORT_DIR)
+                                   result, report_dir)
     if json_output:
         print(json_text, end="")
     else:
@@ -1348,14 +1356,34 @@ def run_fk(machine_spec: str, joints: Path, output: Path) -> None:
                     f"{units['angle']})", markup=False)
 
 
+def read_poses_of(path: Path, machine):
+    """Poses ``(P, R, rows)`` of a file for ``machine``: x, y, z and an orientation (other
+    columns ignored); x, y, z only (R = I) for a translation-only platform."""
+    if machine.pose_dof == 3:
+        P, rows = read_positions(path)
+        return P, np.broadcast_to(np.eye(3), (len(P), 3, 3)), rows
+    return read_poses(path)
+
+
+def joint_columns(machine, q, units) -> dict:
+    """``q1_<unit> ...`` columns of joint values (K, n) in the file's units: the machine
+    file's length or angle unit, a Stewart's reading unit."""
+    if machine.kind == "stewart":
+        unit = getattr(machine, "reading_unit", "m")
+        f = LENGTH.get(unit, 1.0)
+    elif joint_quantity(machine) == "angle":
+        unit = units["angle"]
+        f = ANGLE[unit]
+    else:
+        unit = units["length"]
+        f = LENGTH[unit]
+    return {f"q{j + 1}_{unit}": (q[:, j] / f).tolist() for j in range(q.shape[1])}
+
+
 def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
     machine = load_machine_arg(machine_spec)
     check_outputs([output], [poses] + _machine_inputs(machine_spec))
-    if machine.pose_dof == 3:
-        P, rows = read_positions(poses)
-        R = None
-    else:
-        P, R, rows = read_poses(poses)
+    P, R, rows = read_poses_of(poses, machine)
     q = machine.ik(P, R)
     bad = ~np.all(np.isfinite(q), axis=1)
     what = "leg" if machine.kind in ("delta", "stewart") else "chain"
@@ -1373,17 +1401,11 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
             raise InputError(f"{poses}: {int(off.sum())} position(s) outside the working "
                              f"assembly mode (the platform must hang below the base), row(s) "
                              f"{_rows_text(rows[off])}")
-    units = _units(machine)
-    if machine.kind == "stewart":
-        unit = machine.reading_unit
-        write_readings(output, q, machine)
-        console().print(f"{len(q)} leg reading vector(s) written to {output} ({unit})",
-                        markup=False)
-        return
-    quantity = joint_quantity(machine)
-    unit = units["length"] if quantity == "length" else units["angle"]
-    write_joints(output, q, unit=unit, quantity=quantity)
-    console().print(f"{len(q)} joint vector(s) written to {output} ({unit})", markup=False)
+    columns = joint_columns(machine, q, _units(machine))
+    write_table(output, list(columns), list(columns.values()))
+    unit = next(iter(columns)).split("_", 1)[1]
+    console().print(f"{len(q)} {'leg reading' if machine.kind == 'stewart' else 'joint'} "
+                    f"vector(s) written to {output} ({unit})", markup=False)
 
 
 # --------------------------------------------------------------------------------------------

@@ -8,11 +8,20 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ._commands import _machine_inputs, _rows_text, _table, _units, check_outputs, load_machine_arg
+from ._commands import (
+    _machine_inputs,
+    _rows_text,
+    _table,
+    _units,
+    check_outputs,
+    joint_columns,
+    load_machine_arg,
+    read_poses_of,
+)
 from ._console import console, warning
 
 
-def _report_path(machine, machine_spec: str, report: Path | None) -> Path | None:
+def calibration_report_path(machine, machine_spec: str, report: Path | None) -> Path | None:
     """The calibration report: ``--report``, else the one the calibrated file names."""
     if report is not None:
         return report
@@ -61,7 +70,6 @@ def read_covariance(path: Path, machine) -> tuple[np.ndarray, np.ndarray | None]
 def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path | None,
                    nominal_spec: str | None, json_output: bool) -> int:
     from ..compensation import compensate
-    from ._planning import joint_columns, read_plan
 
     machine = load_machine_arg(machine_spec)
     inputs = [targets] + _machine_inputs(machine_spec) + ([report] if report else [])
@@ -73,9 +81,9 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
                 list(nominal.parameters.names) != list(machine.parameters.names):
             raise InputError(f"--nominal {nominal_spec}: a {nominal.kind} with other parameters "
                              f"than the calibrated {machine.kind}")
-    report_path = _report_path(machine, machine_spec, report)
+    report_path = calibration_report_path(machine, machine_spec, report)
     C, N = (None, None) if report_path is None else read_covariance(report_path, machine)
-    P, R, rows = read_plan(targets, machine)
+    P, R, rows = read_poses_of(targets, machine)
     if len(P) == 0:
         raise InputError(f"{targets}: no target rows")
     comp = compensate(machine, P, R, C, nominal, N)
@@ -150,36 +158,3 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
     console().print(table)
     return 0
 
-
-def run_report(result: Path, output: Path) -> None:
-    """``pkmcal report``: the HTML report and its JSON twin from a calibration report."""
-    from ..io import atomic_write_text
-    from ..io.atomic import read_input_text
-    from ..report.html import build_html
-
-    if output.suffix.lower() == ".json":
-        raise InputError(f"{output}: the report is an HTML file (its JSON twin is written "
-                         "beside it); choose a name ending in .html")
-    twin = output.with_suffix(".json")
-    source = result
-    if result.suffix.lower() in (".yaml", ".yml"):
-        machine = load_machine_arg(str(result))
-        found = _report_path(machine, str(result), None)
-        if found is None:
-            raise InputError(f"{result}: names no calibration report beside it (is it a "
-                             "calibrated file?); give the JSON report")
-        source = found
-    check_outputs([output, twin], [result, source])
-    text = read_input_text(source, "calibration report")
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{source}: not JSON (line {exc.lineno}): {exc.msg}") from None
-    if not (isinstance(doc, dict) and doc.get("command") == "calibrate"):
-        raise InputError(f"{source}: not a calibration report of pkmcal calibrate (no "
-                         "\"command\": \"calibrate\")")
-    page = build_html(doc)
-    atomic_write_text(twin, json.dumps(doc, indent=2) + "\n")
-    atomic_write_text(output, page)
-    console().print(f"wrote {output} ({len(page) // 1024} kB, self-contained) and {twin}",
-                    markup=False)

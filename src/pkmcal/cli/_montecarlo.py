@@ -11,7 +11,6 @@ from __future__ import annotations
 import datetime
 import json
 import math
-import platform
 import re
 import sys
 from pathlib import Path
@@ -20,7 +19,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..units import parse_quantity
-from ._commands import _finite_or_none, _table, load_machine_arg
+from ._commands import _finite_or_none, _table, load_machine_arg, versions
 from ._console import console, progress_tasks, warning
 
 #: files written into the output directory
@@ -125,19 +124,6 @@ def run_montecarlo(machine_spec: str, vary: str, output: Path, runs: int = 20,
     return 0
 
 
-def _versions(dask: bool) -> dict:
-    from importlib.metadata import PackageNotFoundError, version
-
-    names = ["pkmcal", "numpy", "scipy"] + (["dask", "distributed"] if dask else [])
-    out = {"python": platform.python_version()}
-    for name in names:
-        try:
-            out[name] = version(name)
-        except PackageNotFoundError:
-            out[name] = None
-    return out
-
-
 def _write_outputs(result, outdir: Path, machine_spec: str) -> list[Path]:
     from ..analysis.montecarlo import (
         STATISTICS,
@@ -183,7 +169,8 @@ def _write_outputs(result, outdir: Path, machine_spec: str) -> list[Path]:
              **{name: {k: p[name][k] / scale for k in STATISTICS}
                 for name, (_, scale, _) in result.metrics.items()}}
             for p in result.summary],
-        "versions": _versions(result.executor.startswith("dask")),
+        "versions": versions(*(("dask", "distributed")
+                                 if result.executor.startswith("dask") else ())),
     }
     json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
     # outputs, at the very end, each atomically

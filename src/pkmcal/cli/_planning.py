@@ -19,8 +19,10 @@ from ._commands import (
     _units,
     check_outputs,
     full_pose_noise_arg,
+    joint_columns,
     load_machine_arg,
     measurement_kind,
+    read_poses_of,
     tracker_noise_arg,
 )
 from ._console import console
@@ -76,37 +78,19 @@ def measured_problem(machine, data_path: Path, kind: str, noise):
     return scenario_problem(machine, kind, data, noise, frames=frames), data
 
 
-def read_plan(path: Path, machine):
-    """Planned poses ``(P, R, rows)`` of a plan file (poses; other columns are ignored)."""
-    from ..io import read_poses, read_positions
-
-    if machine.pose_dof == 3:
-        P, rows = read_positions(path)
-        return P, np.broadcast_to(np.eye(3), (len(P), 3, 3)), rows
-    return read_poses(path)
-
-
-def workspace(machine, n: int = WORKSPACE_POSES, rng=0):
-    """The SPEC 5 workspace sample around home (translation only for 3-dof platforms)."""
-    from ..analysis import workspace_poses
-
-    P, R = workspace_poses(machine.home[0], n=n, rng=rng)
-    if machine.pose_dof == 3:
-        R = np.broadcast_to(np.eye(3), R.shape)
-    return P, R
-
-
 def _workspace_words(machine) -> str:
     return ("0.1 m cube around home" if machine.pose_dof == 3
             else "0.1 m cube around home, orientations within +/-10 deg")
 
 
-def prediction_report(machine, design, n_machine, M=None, rng=0) -> tuple[dict, object]:
-    """Predicted pose accuracy over the SPEC 5 workspace (JSON section) and the prediction."""
+def prediction_report(machine, design, n_machine, M=None, rng=0, op=None) -> dict:
+    """Predicted pose accuracy over the SPEC 5 workspace (the JSON section); ``op``: the
+    pose-error operator at that workspace when already computed."""
+    from ..analysis.accuracy import machine_workspace
     from ..analysis.prediction import predict_pose_accuracy
 
-    P, R = workspace(machine, rng=rng)
-    pred = predict_pose_accuracy(machine, design, P, R, M, n_machine)
+    P, R = (op.P, op.R) if op is not None else machine_workspace(machine, WORKSPACE_POSES, rng)
+    pred = predict_pose_accuracy(machine, design, P, R, M, n_machine, op=op)
     s = pred.summary()
     out = {"workspace": _workspace_words(machine), "poses": s["poses"],
            "unbounded_directions": s["unbounded"]}
@@ -114,10 +98,10 @@ def prediction_report(machine, design, n_machine, M=None, rng=0) -> tuple[dict, 
         if s[key] is not None:
             for stat in ("rms", "p95", "max"):
                 out[f"{key}_{stat}_{unit}"] = s[key][stat] * scale
-    return out, pred
+    return out
 
 
-def _prediction_rows(table, section: dict, noise_words: str) -> None:
+def _prediction_rows(table, section: dict) -> None:
     if section["unbounded_directions"]:
         table.add_row("predicted accuracy", f"unbounded: {section['unbounded_directions']} "
                       "unidentifiable direction(s) move the platform relative to every frame; "
@@ -129,7 +113,7 @@ def _prediction_rows(table, section: dict, noise_words: str) -> None:
         text += (f"; orientation {section['orientation_rms_urad']:.3g} urad RMS, "
                  f"{section['orientation_max_urad']:.3g} urad max")
     table.add_row("predicted accuracy", f"{text} (1 sigma, Cramer-Rao, over the "
-                  f"{section['workspace']}; {noise_words})")
+                  f"{section['workspace']}; {section['noise']})")
 
 
 def write_map(path: Path, machine, design, n_machine, M, plan_P, title: str) -> Path:
@@ -156,23 +140,6 @@ def write_map(path: Path, machine, design, n_machine, M, plan_P, title: str) -> 
                        f"{a} [mm]", f"{b} [mm]", "predicted position error, 1 sigma [um]"))
     plan = None if plan_P is None else np.asarray(plan_P) * 1e3
     return plots.plot_prediction_map(slices, path, title, plan, c * 1e3)
-
-
-def joint_columns(machine, q, units) -> dict:
-    """``q1_<unit> ...`` columns of joint values (K, n) as ``pkmcal ik`` writes them."""
-    from ..io import joint_quantity
-    from ..units import ANGLE, LENGTH
-
-    if machine.kind == "stewart":
-        unit = getattr(machine, "reading_unit", "m")
-        f = LENGTH.get(unit, 1.0)
-    elif joint_quantity(machine) == "angle":
-        unit = units["angle"]
-        f = ANGLE[unit]
-    else:
-        unit = units["length"]
-        f = LENGTH[unit]
-    return {f"q{j + 1}_{unit}": (q[:, j] / f).tolist() for j in range(q.shape[1])}
 
 
 def run_identifiability(machine_spec: str, data_path: Path | None, json_output: bool,
@@ -217,7 +184,7 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
             P, R = candidate_poses(machine, kind, n, rng=seed)
             rows, source = None, f"{n} random planned poses (seed {seed})"
         else:
-            P, R, rows = read_plan(data_path, machine)
+            P, R, rows = read_poses_of(data_path, machine)
             source = f"planned poses of {data_path}"
     try:
         if data_path is not None and not planned:
@@ -228,7 +195,7 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
             data = problem.data
         rep = identifiability_report(problem)
         design = design_from_problem(problem)
-        section, _ = prediction_report(machine, design, problem.n_machine, rng=seed)
+        section = prediction_report(machine, design, problem.n_machine, rng=seed)
     except InputError:
         raise
     except (ValueError, np.linalg.LinAlgError) as exc:
@@ -274,7 +241,7 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
         table.add_row("minimal set", f"hold {len(rep.hold_fixed)} parameters at their nominal "
                       f"values and identify the other {rep.identifiable}: "
                       + ", ".join(rep.hold_fixed))
-    _prediction_rows(table, section, section["noise"])
+    _prediction_rows(table, section)
     if map_path is not None:
         table.add_row("map", str(map_path))
     out.print(table)
@@ -340,7 +307,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     kind = scenario_for(machine)
     model = noise_model(kind, noise, pose_noise)
     if candidates_path is not None:
-        P, R, rows = read_plan(candidates_path, machine)
+        P, R, rows = read_poses_of(candidates_path, machine)
         source = str(candidates_path)
     else:
         if candidates < n:
@@ -363,7 +330,10 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                          + f"; cannot choose {n}")
     problem = planned_problem(machine, kind, P, R, model, rows, source)
     design = design_from_problem(problem)
-    op = pose_error_operator(machine, design, *workspace(machine, rng=seed), problem.n_machine)
+    from ..analysis.accuracy import machine_workspace
+
+    op = pose_error_operator(machine, design, *machine_workspace(machine, WORKSPACE_POSES, seed),
+                             problem.n_machine)
     if op.unbounded:
         raise InputError(f"{source}: even all {len(P)} candidates leave {op.unbounded} "
                          "direction(s) that move the platform unidentified; widen the "
@@ -386,7 +356,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     from ..identifiability import observability_indices
 
     sv = np.linalg.svd(design.F[idx].reshape(-1, design.rank), compute_uv=False)
-    section, _ = prediction_report(machine, design, problem.n_machine, M, rng=seed)
+    section = prediction_report(machine, design, problem.n_machine, M, op=op)
     section["noise"] = describe_noise(kind, model)
     report = {
         "pkmcal_report": 1,
@@ -431,7 +401,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     table.add_row("selected", f"{n} of {len(P)} candidate poses by criterion {criterion} "
                   f"(greedy + {sel.exchanges} exchanges); {design.rank} parameter directions "
                   "identifiable")
-    _prediction_rows(table, section, section["noise"])
+    _prediction_rows(table, section)
     if random_sets:
         table.add_row("random sets", f"median predicted position error {median * 1e6:.3g} um "
                       f"RMS over {random_sets} random sets of {n} candidates: "

@@ -66,11 +66,9 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
         if null is not None and np.size(null):
             # the frames are fitted over the workspace (SPEC 5), not over the targets: a
             # few targets would absorb real errors into the fit
-            from ..analysis.accuracy import workspace_poses
+            from ..analysis.accuracy import machine_workspace
 
-            Pw, Rw = workspace_poses(calibrated.home[0], n=WORKSPACE_FIT_POSES, rng=0)
-            if calibrated.pose_dof == 3:
-                Rw = np.broadcast_to(np.eye(3), Rw.shape)
+            Pw, Rw = machine_workspace(calibrated, n=WORKSPACE_FIT_POSES)
             S_all = np.concatenate([pose_sensitivity(calibrated, Pw, Rw), S])
             fit = np.arange(len(S_all)) < len(Pw)
             fit &= np.all(np.isfinite(S_all), axis=(1, 2))

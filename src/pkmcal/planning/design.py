@@ -131,8 +131,8 @@ class Selection:
     exchanges: int
 
 
-def select_poses(design: Design, n: int, criterion: str = "d", A=None, max_exchanges=None,
-                 rng=None) -> Selection:
+def select_poses(design: Design, n: int, criterion: str = "d", A=None,
+                 max_exchanges=None) -> Selection:
     """Choose ``n`` of the candidates of ``design`` that minimise a criterion (module doc).
 
     ``A`` (p, p) is required for ``criterion='pose'``. The greedy start uses a ridge of

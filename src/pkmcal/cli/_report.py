@@ -1,0 +1,45 @@
+"""``pkmcal report``: the HTML report of a calibration and its JSON twin (issue 6)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..errors import InputError
+from ._commands import check_outputs, load_machine_arg
+from ._compensate import calibration_report_path
+from ._console import console
+
+
+def run_report(result: Path, output: Path) -> None:
+    """``pkmcal report``: the HTML report and its JSON twin from a calibration report."""
+    from ..io import atomic_write_text
+    from ..io.atomic import read_input_text
+    from ..report.html import build_html
+
+    if output.suffix.lower() == ".json":
+        raise InputError(f"{output}: the report is an HTML file (its JSON twin is written "
+                         "beside it); choose a name ending in .html")
+    twin = output.with_suffix(".json")
+    source = result
+    if result.suffix.lower() in (".yaml", ".yml"):
+        machine = load_machine_arg(str(result))
+        found = calibration_report_path(machine, str(result), None)
+        if found is None:
+            raise InputError(f"{result}: names no calibration report beside it (is it a "
+                             "calibrated file?); give the JSON report")
+        source = found
+    check_outputs([output, twin], [result, source])
+    text = read_input_text(source, "calibration report")
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{source}: not JSON (line {exc.lineno}): {exc.msg}") from None
+    if not (isinstance(doc, dict) and doc.get("command") == "calibrate"):
+        raise InputError(f"{source}: not a calibration report of pkmcal calibrate (no "
+                         "\"command\": \"calibrate\")")
+    page = build_html(doc)
+    atomic_write_text(twin, json.dumps(doc, indent=2) + "\n")
+    atomic_write_text(output, page)
+    console().print(f"wrote {output} ({len(page) // 1024} kB, self-contained) and {twin}",
+                    markup=False)
