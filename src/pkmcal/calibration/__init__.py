@@ -28,6 +28,7 @@ from .tracker import (
     predict_tracker_points,
     prediction_covariance,
 )
+from .validation import constraint_link_reading_rms, holdout_split
 
 __all__ = ["METHODS", "BlockProblem", "CalibrationResult", "ConstraintLinkFK",
            "ConstraintLinkIK", "ConstraintLinkIKExplicit", "ConstraintLinkML", "FullPoseErrors",
@@ -35,4 +36,5 @@ __all__ = ["METHODS", "BlockProblem", "CalibrationResult", "ConstraintLinkFK",
            "full_pose_errors", "gauge_free_error",
            "calibrate_constraint_link", "levenberg_marquardt", "reduce_local",
            "solve_sphere_poses", "TrackerProblem", "calibrate_tracker", "distance_ratios",
-           "predict_tracker_points", "prediction_covariance", "register_points"]
+           "predict_tracker_points", "prediction_covariance", "register_points",
+           "constraint_link_reading_rms", "holdout_split"]

@@ -214,6 +214,13 @@ def calibrate(
     robust: Annotated[bool, typer.Option(
         "--robust", help="tracker data: find and leave out outlier rows (printed by row "
                          "number).")] = False,
+    holdout: Annotated[str | None, typer.Option(
+        "--holdout", metavar="F",
+        help="Hold out a random share of the rows (0.2 or 20%) or a number of them (30): "
+             "calibrate on the rest and report the held-out residuals before and after "
+             "calibration (the report's validation section).", show_default=False)] = None,
+    seed: Annotated[int, typer.Option(
+        help="Seed of the random choice of held-out rows (--holdout).")] = 0,
     json_output: Annotated[bool, typer.Option(
         "--json", help="Print the JSON report on stdout instead of the summary.")] = False,
 ) -> None:
@@ -226,6 +233,8 @@ def calibrate(
     (-o) and a JSON report beside it (same name, .json).
 
     Example: `pkmcal calibrate default data.csv -o calibrated.yaml`
+
+    Example: `pkmcal calibrate default data.csv -o cal.yaml --holdout 0.2 --report rep/`
 
     Example: `pkmcal calibrate examples/delta_default.yaml tracker.csv --robust -o cal.yaml`
 
@@ -241,7 +250,7 @@ def calibrate(
     raise typer.Exit(run_calibrate(machine, data, output, method.value if method else None,
                                    noise, estimate_lc, json_output, two_step, robust,
                                    pose_noise=pose_noise, fix_frames=fix_frames,
-                                   report_dir=report))
+                                   report_dir=report, holdout=holdout, seed=seed))
 
 
 @app.command()
@@ -661,13 +670,27 @@ def _fail(message: str, code: int = 2) -> None:
     sys.exit(code)
 
 
+def _hoist_quiet(args: list[str]) -> list[str]:
+    """``pkmcal calibrate ... -q`` means ``pkmcal -q calibrate ...``: the global --quiet may be
+    written after the command too (montecarlo has its own --quiet and keeps it)."""
+    end = args.index("--") if "--" in args else len(args)
+    command = next((i for i, a in enumerate(args[:end]) if not a.startswith("-")), None)
+    if command is None or args[command] == "montecarlo":
+        return args
+    rest = [a for a in args[command + 1:end] if a not in ("-q", "--quiet")]
+    if len(rest) == end - command - 1:
+        return args
+    return ["--quiet", *args[:command + 1], *rest, *args[end:]]
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``pkmcal`` console script."""
     # Batched small matrices: threaded BLAS costs ~10x in start-up and synchronisation.
     for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
+    args = _hoist_quiet(list(sys.argv[1:] if argv is None else argv))
     try:
-        app(args=argv, prog_name="pkmcal")
+        app(args=args, prog_name="pkmcal")
     except (InputError, ConvergenceError) as exc:
         _fail(str(exc))
     except FileNotFoundError as exc:

@@ -7,6 +7,7 @@ only at the very end, atomically; problems are raised as :class:`~pkmcal.errors.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import json
 import math
@@ -523,7 +524,8 @@ def _parameter_table(result, nominal_of: dict, units):
 def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str | None,
                   noise: str | None, estimate_lc: bool | None, json_output: bool,
                   two_step: bool = False, robust: bool = False, pose_noise: str | None = None,
-                  fix_frames: bool = False, report_dir: Path | None = None) -> int:
+                  fix_frames: bool = False, report_dir: Path | None = None,
+                  holdout: str | None = None, seed: int = 0) -> int:
     if output.suffix.lower() == ".json":
         raise InputError(f"{output}: the calibrated machine is a YAML file; choose a name "
                          "ending in .yaml (the JSON report is written beside it)")
@@ -535,6 +537,7 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
             raise InputError(f"--report {report_dir}: not a directory (create it first)")
         outputs += [report_dir / "report.html", report_dir / "report.json"]
     check_outputs(outputs, [data_path] + _machine_inputs(machine_spec))
+    split = None if holdout is None else (holdout_arg(holdout), seed)
     header, _ = read_table(data_path)
     kind = measurement_kind(data_path, header, machine)
     for option, given in (("--pose-noise", pose_noise is not None),
@@ -553,7 +556,7 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
                              "(maximum likelihood, default) or ik (inverse-kinematic residuals)")
         return _calibrate_full_pose(machine, machine_spec, data_path, output, report_path,
                                     method or "ml", noise, pose_noise, fix_frames, json_output,
-                                    report_dir)
+                                    report_dir, split)
     if kind == "tracker":
         for option, given in (("--method", method is not None),
                               ("--estimate-lc", estimate_lc is not None)):
@@ -561,28 +564,28 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
                 raise InputError(f"{option}: applies to constraint-link data; {data_path} has "
                                  "tracker points (see --two-step, --robust)")
         return _calibrate_tracker(machine, machine_spec, data_path, output, report_path, noise,
-                                  two_step, robust, json_output, report_dir)
+                                  two_step, robust, json_output, report_dir, split)
     for option, given in (("--two-step", two_step), ("--robust", robust)):
         if given:
             raise InputError(f"{option}: applies to laser-tracker data (mx, my, mz columns); "
                              f"{data_path} has {kind} data")
     return _calibrate_constraint_link(machine, machine_spec, data_path, output, report_path,
                                       method or "ml", noise or "1um", estimate_lc, json_output,
-                                      report_dir)
+                                      report_dir, split)
 
 
 def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, output: Path,
                                report_path: Path, method: str, noise: str,
                                estimate_lc: bool | None, json_output: bool,
-                               report_dir: Path | None = None) -> int:
+                               report_dir: Path | None = None, split=None) -> int:
     sigma = parse_quantity(noise, "length", "--noise")
     if not sigma > 0:
         raise InputError(f"--noise: must be > 0 (the standard deviation of the encoder "
                          f"noise), got {noise}")
     kind = "constraint-link"
-    data = read_constraint_link(data_path, machine)
+    data, held = _split_rows(read_constraint_link(data_path, machine), split, data_path)
 
-    from ..calibration import calibrate_constraint_link
+    from ..calibration import calibrate_constraint_link, constraint_link_reading_rms
 
     result = _solve(data_path, calibrate_constraint_link, machine, data, method=method,
                     sigma_m=sigma, estimate_link_length=estimate_lc)
@@ -641,7 +644,7 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
             "max_abs_um": float(np.max(np.abs(r_m)) * 1e6) if r.size else None,
             "rms_per_column_um": (np.sqrt(np.mean(r_m**2, axis=0)) * 1e6).tolist()
             if r.ndim == 2 and r.shape[1] > 1 else None,
-            "before_rms_um": _nominal_rms_um(machine, data, sigma),
+            "before_rms_um": _um(constraint_link_reading_rms(machine, data, sigma)),
             "before": "machine file's geometry, all readings, poses fitted (maximum "
                       "likelihood)",
             "residual_variance": float(result.residual_variance),
@@ -652,6 +655,14 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
         "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
         "parameters": [{k: v for k, v in p.items() if k != "scaled_change"} for p in params],
     }
+    if held is not None:
+        report["validation"] = _validation(
+            split, held, "joint readings of the held-out rows (poses fitted, geometry and Lc "
+            "held); before: the machine file's geometry", "um",
+            _um(constraint_link_reading_rms(machine, held, sigma)),
+            _um(constraint_link_reading_rms(calibrated, dataclasses.replace(held, link_length=lc),
+                                            sigma)),
+            report["residuals"]["rms_um"])
     metadata = {
         "method": method,
         "date": date,
@@ -678,19 +689,57 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
     return 0
 
 
-def _nominal_rms_um(machine, data, sigma) -> float | None:
-    """RMS reading residual (um) of the machine file's geometry on constraint-link data, the
-    poses fitted: one Gauss-Newton pass of the calibration with the geometry held."""
-    from ..calibration import ConstraintLinkML, levenberg_marquardt
+def _um(value_m: float) -> float | None:
+    """Metres -> micrometres for a report; None when not finite."""
+    return float(value_m * 1e6) if np.isfinite(value_m) else None
+
+
+def holdout_arg(text: str) -> float:
+    """``--holdout``: a share (0.2 or 20%) or a whole number of rows (30)."""
+    t = text.strip()
+    try:
+        value = float(t[:-1]) / 100 if t.endswith("%") else float(t)
+    except ValueError:
+        value = float("nan")
+    if not np.isfinite(value) or value <= 0 or (value >= 1 and not value.is_integer()) \
+            or (t.endswith("%") and value >= 1):
+        raise InputError(f"--holdout {text}: give the share of rows to hold out (e.g. 0.2 or "
+                         "20%) or their number (e.g. 30)")
+    return value
+
+
+def _split_rows(data, split, data_path):
+    """``(calibration data, held-out data or None)`` for ``--holdout``/``--seed``."""
+    if split is None:
+        return data, None
+    from ..calibration import holdout_split
 
     try:
-        problem = ConstraintLinkML(machine.with_parameters(machine.u), data, sigma)
-        problem.parameters = problem.parameters.with_fixed(list(problem.parameters.names))
-        res = levenberg_marquardt(problem, max_iter=20)
-    except (InputError, ValueError, np.linalg.LinAlgError):
-        return None
-    r = np.asarray(res.residuals, float) * sigma
-    return float(np.sqrt(np.mean(r**2)) * 1e6) if r.size and np.all(np.isfinite(r)) else None
+        train, held = holdout_split(len(data), *split)
+    except ValueError as exc:
+        raise InputError(f"--holdout: {data_path}: {exc}") from None
+    return data.subset(train), data.subset(held)
+
+
+def _validation(split, held, of: str, unit: str, before, after, calibration, **extra) -> dict:
+    """The report's held-out validation section: RMS residuals of the held-out rows with the
+    machine file's and the calibrated model, next to the calibration rows' own RMS."""
+    ratio = after / calibration if after is not None and calibration else None
+    summary = (f"{len(held)} held-out rows: RMS {_fmt(before)} -> {_fmt(after)} {unit} "
+               f"(calibration rows {_fmt(calibration)} {unit}"
+               + (f"; held-out / calibration = {ratio:.3g}" if ratio is not None else "") + ")")
+    return {"summary": summary, "held_out": len(held), "rows": [int(r) for r in held.rows],
+            "holdout": split[0], "seed": split[1], "of": of, "unit": unit,
+            "before_rms": before, "after_rms": after, "calibration_rms": calibration,
+            "held_out_over_calibration": ratio, **extra}
+
+
+def _finite(value) -> float | None:
+    return float(value) if value is not None and np.isfinite(value) else None
+
+
+def _fmt(value) -> str:
+    return "n/a" if value is None else f"{value:.4g}"
 
 
 def _solve(data_path, calibrate, *args, **kwargs):
@@ -808,6 +857,8 @@ def _print_calibration(report, params, data_path, output, report_path, machine) 
     table.add_row("RMS residual", f"{rms:.4g} um ({res['of']}; assumed noise "
                   f"{report['noise_sigma_um']:.4g} um"
                   + (f", estimated {noise:.3g} um)" if noise is not None else ")"))
+    if "validation" in report:
+        table.add_row("held-out", report["validation"]["summary"])
     table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
     if lc["estimated"]:
         std = f" +/- {lc['std']:.3g} {lc['unit']}" if lc["std"] is not None else ""
@@ -916,11 +967,11 @@ def _check_spread(data, noise_model) -> None:
 
 def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path,
                        report_path: Path, noise: str | None, two_step: bool, robust: bool,
-                       json_output: bool, report_dir: Path | None = None) -> int:
+                       json_output: bool, report_dir: Path | None = None, split=None) -> int:
     from ..calibration import calibrate_tracker, distance_ratios, predict_tracker_points
 
     noise_model, noise_text = tracker_noise_arg(noise, allow_none=False)
-    data = read_tracker(data_path, machine)
+    data, held = _split_rows(read_tracker(data_path, machine), split, data_path)
     _check_spread(data, noise_model)
     fk = machine.fk(data.q)
     if not fk.converged.all():
@@ -1036,6 +1087,19 @@ def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path
                for i in range(3)}},
         "parameters": [{k: v for k, v in p.items() if k != "scaled_change"} for p in params],
     }
+    if held is not None:
+        d_after = np.linalg.norm(held.m - predict_tracker_points(calibrated, held.q, (R, t)),
+                                 axis=1)
+        d_before = np.linalg.norm(held.m - predict_tracker_points(machine, held.q, (R0, t0)),
+                                  axis=1)
+        ok = np.isfinite(d_after) & np.isfinite(d_before)
+        report["validation"] = _validation(
+            split, held, "tracker points of the held-out rows, measured - predicted (3-D "
+            "distance) with the identified tracker pose; before: the machine file's model and "
+            "the closed-form registration of the calibration rows", "um",
+            rms(d_before[ok]), rms(d_after[ok]), report["residuals"]["rms_um"],
+            max_after=float(d_after[ok].max() * 1e6) if ok.any() else None,
+            not_reached=[int(r) for r in held.rows[~ok]])
     metadata = {
         "method": f"tracker-{method}",
         "date": date,
@@ -1114,6 +1178,8 @@ def _print_tracker_calibration(report, params, data_path, output, report_path, m
                   + ("estimated: " if reg["estimated"] else "fixed: ")
                   + f"{reg['rotation_change_deg']:.3g} deg and {reg['translation_change']:.3g} "
                   f"{unit} from the closed-form registration")
+    if "validation" in report:
+        table.add_row("held-out", report["validation"]["summary"])
     table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
     out.print(table)
     _print_changes(params)
@@ -1155,7 +1221,7 @@ def _errors_report(errors, fl: float) -> dict:
 def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Path,
                          report_path: Path, method: str, noise: str | None,
                          pose_noise: str | None, fix_frames: bool, json_output: bool,
-                         report_dir: Path | None = None) -> int:
+                         report_dir: Path | None = None, split=None) -> int:
     from ..calibration import calibrate_full_pose, full_pose_errors
     from ..measurements import MeasurementFrames
 
@@ -1163,7 +1229,7 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
     if method == "ik" and pose_noise is not None:
         raise InputError("--pose-noise: the ik method takes the measured poses as exact; use "
                          "--method ml to weigh them by their noise")
-    data = read_full_pose(data_path, machine)
+    data, held = _split_rows(read_full_pose(data_path, machine), split, data_path)
     file_frames = getattr(machine, "measurement_frames", None)
     if fix_frames:
         frames = file_frames if file_frames is not None else MeasurementFrames.identity()
@@ -1256,6 +1322,16 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
         "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
         "parameters": [{k: v for k, v in p.items() if k != "scaled_change"} for p in params],
     }
+    if held is not None:
+        h_after = _errors_report(full_pose_errors(calibrated, frames_id, held), fl)
+        h_before = _errors_report(full_pose_errors(machine, before.extras["frames"], held), fl)
+        report["validation"] = _validation(
+            split, held, "pose error of the held-out rows: forward kinematics of the readings "
+            "(through the identified frames) vs the measured pose; before: the machine file's "
+            "legs, frames fitted alone on the calibration rows", units["length"],
+            _finite(h_before["position_rms"]), _finite(h_after["position_rms"]),
+            _finite(after["position_rms"]), before_calibration=h_before,
+            after_calibration=h_after)
     metadata = {
         "method": f"full-pose-{method}",
         "date": date,
@@ -1317,6 +1393,8 @@ def _print_full_pose_calibration(report, params, data_path, output, report_path,
                   f"({', '.join(f'{v:.6g}' for v in m['translation'])}) {unit} measured; "
                   f"platform_from_marker turned {k['rotation_angle_deg']:.4g} deg, marker at "
                   f"({', '.join(f'{v:.6g}' for v in k['translation'])}) {unit}")
+    if "validation" in report:
+        table.add_row("held-out", report["validation"]["summary"])
     table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
     out.print(table)
     _print_changes(params)
