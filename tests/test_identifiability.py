@@ -187,3 +187,23 @@ def test_cli_bad_input(data_files, cli, tmp_path):
     # a missing file
     proc = cli("identifiability", MACHINES["stewart"][0], tmp_path / "none.csv")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("shape", [(300, 12), (12, 12), (5, 12)])
+def test_right_singular_matches_full_svd(shape):
+    """s and the whole right basis as a full SVD gives them (tall: through the QR factor)."""
+    from pkmcal.identifiability.analysis import right_singular
+
+    rng = np.random.default_rng(1)
+    J = rng.normal(size=shape) @ np.diag(np.logspace(0, -4, shape[1]))   # graded columns
+    J[:, -1] = J[:, 0]                                                       # one null direction
+    s, Vt = right_singular(J)
+    _, s_ref, Vt_ref = np.linalg.svd(J, full_matrices=True)
+    assert np.allclose(s, s_ref, rtol=1e-10, atol=1e-14 * s_ref[0])
+    assert Vt.shape == (shape[1], shape[1])
+    assert np.allclose(Vt @ Vt.T, np.eye(shape[1]), atol=1e-12)
+    rank = int(np.sum(s > 1e-9 * s[0]))
+    assert rank == min(shape[0], shape[1] - 1)
+    # the null directions are null, and the row space is the full SVD's (same projector)
+    assert np.allclose(J @ Vt[rank:].T, 0, atol=1e-12 * s[0])
+    assert np.allclose(Vt[:rank].T @ Vt[:rank], Vt_ref[:rank].T @ Vt_ref[:rank], atol=1e-9)

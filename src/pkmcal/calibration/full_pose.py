@@ -39,6 +39,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..identifiability import NullGroup, name_null_space, name_weak_directions
+from ..identifiability.analysis import right_singular
 from ..kinematics import matrix_from_rotvec, rotvec_from_matrix, skew
 from ..machines.base import Machine
 from ..measurements.full_pose import FullPoseData, FullPoseNoise, MeasurementFrames
@@ -422,7 +423,7 @@ def _check_identifiable(problem: FullPoseProblem, n_id: int, rtol: float, max_st
                          "(check the readings and poses)")
     free = problem.parameters.free
     Jr, _, _ = reduce_local(r, Jg[..., free] * problem.scales[free], Jl)
-    _, s, Vt = np.linalg.svd(Jr, full_matrices=True)
+    s, Vt = right_singular(Jr)
     floor = rtol * s[0] if s.size else 0.0
     if max_std is not None:
         floor = max(floor, 1.0 / max_std)

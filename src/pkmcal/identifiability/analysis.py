@@ -146,12 +146,24 @@ def name_weak_directions(result, parameters: ParameterSet) -> list[NullDirection
     return out
 
 
+def right_singular(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Singular values ``s`` and all ``n`` right singular vectors ``Vt`` (n, n) of ``J`` (m, n).
+
+    For a tall ``J`` the SVD is taken of the triangular factor of its QR decomposition: the
+    same ``s`` and ``Vt``, without the (m, m) left factor a full SVD of ``J`` would build.
+    """
+    J = np.asarray(J, float)
+    R = np.linalg.qr(J, mode="r") if J.shape[0] > J.shape[1] else J
+    _, s, Vt = np.linalg.svd(R, full_matrices=True)
+    return s, Vt
+
+
 def analyze(jacobian_scaled, parameters: ParameterSet, rtol: float = 1e-7,
             groups: Sequence[NullGroup] = ()) -> IdentifiabilityReport:
     """Identifiability of the free parameters from a scaled (reduced) Jacobian (M, n_free)."""
     J = np.asarray(jacobian_scaled, float)
     m = max(J.shape[0], 1)
-    _, s, Vt = np.linalg.svd(J, full_matrices=True)
+    s, Vt = right_singular(J)
     rank = int(np.sum(s > rtol * s[0])) if s.size else 0
     free_idx = np.flatnonzero(parameters.free)
     N = np.zeros((len(parameters), J.shape[1] - rank))

@@ -66,6 +66,7 @@ class Design:
 def design_from_problem(problem, rtol: float = 1e-7) -> Design:
     """The :class:`Design` of a calibration problem's measurements, at its initial state."""
     from ..calibration.estimator import reduce_local
+    from ..identifiability.analysis import right_singular
 
     state = problem.initial_state()
     r, Jg, Jl = problem.evaluate(state)
@@ -75,7 +76,7 @@ def design_from_problem(problem, rtol: float = 1e-7) -> Design:
     scales = np.asarray(problem.scales, float)
     Jr, _, _ = reduce_local(r, Jg[..., free] * scales[free], Jl)
     K = r.shape[0]
-    _, s, Vt = np.linalg.svd(Jr, full_matrices=True)
+    s, Vt = right_singular(Jr)
     rank = int(np.sum(s > rtol * s[0])) if s.size else 0
     V, null = Vt[:rank].T, Vt[rank:].T
     F = (Jr @ V).reshape(K, -1, rank)
