@@ -475,16 +475,28 @@ def montecarlo_entries(runs: int = 1000, baseline_runs: int = 100) -> list[dict]
 
 # -- all -------------------------------------------------------------------------------------------
 
-def run_all(quick: bool = False) -> list[dict]:
+def run_all(quick: bool = False, progress=None) -> list[dict]:
     """Every benchmark; ``quick`` runs fewer repeats and 50 instead of 200 Monte Carlo runs
-    (the statistical figure is then coarser; the others are the same measurements)."""
+    (the statistical figure is then coarser; the others are the same measurements).
+    ``progress(done, total, description)``, when given, is called before each benchmark and
+    once at the end (``description`` None)."""
     repeats = 1 if quick else 3
-    results = [fk_batch(repeats=repeats)]
-    results += ml_vs_scipy(repeats=2 if quick else 5)
-    results.append(cli_calibrate(repeats=repeats))
-    results.append(cramer_rao_entry(runs=50 if quick else 200))
-    results.append(delta_fk_throughput(repeats=repeats))
-    results.append(delta_tracker_time(repeats=5 if quick else 20))
-    results += delta_tracker_entries(runs=50 if quick else 200)
-    results += montecarlo_entries(baseline_runs=50 if quick else 100)
+    steps = [
+        ("forward kinematics, 100k poses", lambda: [fk_batch(repeats=repeats)]),
+        ("ML calibration vs scipy", lambda: ml_vs_scipy(repeats=2 if quick else 5)),
+        ("pkmcal calibrate, whole process", lambda: [cli_calibrate(repeats=repeats)]),
+        ("Cramer-Rao efficiency", lambda: [cramer_rao_entry(runs=50 if quick else 200)]),
+        ("Delta forward kinematics", lambda: [delta_fk_throughput(repeats=repeats)]),
+        ("Delta tracker calibration", lambda: [delta_tracker_time(repeats=5 if quick else 20)]),
+        ("Delta tracker Monte Carlo", lambda: delta_tracker_entries(runs=50 if quick else 200)),
+        ("1000 Monte-Carlo calibrations",
+         lambda: montecarlo_entries(baseline_runs=50 if quick else 100)),
+    ]
+    results: list[dict] = []
+    for k, (description, run) in enumerate(steps):
+        if progress is not None:
+            progress(k, len(steps), description)
+        results += run()
+    if progress is not None:
+        progress(len(steps), len(steps), None)
     return results

@@ -170,7 +170,18 @@ def run_bench(json_output: bool) -> int:
     module = _optional_module("pkmcal.bench", "the benchmark suite")
     if module is None:
         return 1
-    results = list(module.run_all())
+    from ._console import progress_tasks
+
+    with progress_tasks() as new_task:
+        bar = {}
+
+        def progress(done: int, total: int, description: str | None):
+            if not bar:
+                bar["advance"], bar["done"] = new_task("bench", total), 0
+            bar["advance"](done - bar["done"], f"bench: {description}" if description else None)
+            bar["done"] = done
+
+        results = list(module.run_all(progress=progress))
     ok = all(bool(r.get("ok")) for r in results)
     if json_output:
         print(json.dumps(_finite_or_none(results), indent=2))

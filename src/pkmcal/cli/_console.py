@@ -52,7 +52,8 @@ def warning(message: str) -> None:
 class progress_tasks:
     """Rich progress bars on stderr (done / total, elapsed, ETA); silent when stderr is not a
     terminal, with ``pkmcal --quiet`` or ``quiet``. Entering gives
-    ``new(description, total) -> advance(n=1)``."""
+    ``new(description, total) -> advance(n=1, description=None)`` (a new description names
+    the stage now running)."""
 
     def __init__(self, quiet: bool = False):
         self.quiet = quiet
@@ -61,7 +62,7 @@ class progress_tasks:
     def __enter__(self):
         stream = err_console()
         if self.quiet or _QUIET or not stream.is_terminal:
-            return lambda description, total: (lambda n=1: None)
+            return lambda description, total: (lambda n=1, description=None: None)
         from rich.progress import (
             BarColumn,
             MofNCompleteColumn,
@@ -78,7 +79,8 @@ class progress_tasks:
 
         def new(description: str, total: int):
             task = self.bar.add_task(description, total=total)
-            return lambda n=1: self.bar.advance(task, n)
+            return lambda n=1, description=None: self.bar.update(task, advance=n,
+                                                                 description=description)
 
         return new
 

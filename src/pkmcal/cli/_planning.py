@@ -25,7 +25,7 @@ from ._commands import (
     read_poses_of,
     tracker_noise_arg,
 )
-from ._console import console
+from ._console import console, progress_tasks
 
 #: workspace poses of the predicted-accuracy summary (SPEC 5 cube) and of the map (per axis)
 WORKSPACE_POSES = 500
@@ -306,51 +306,58 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
         raise InputError(f"--random-sets: must be >= 0, got {random_sets}")
     kind = scenario_for(machine)
     model = noise_model(kind, noise, pose_noise)
-    if candidates_path is not None:
-        P, R, rows = read_poses_of(candidates_path, machine)
-        source = str(candidates_path)
-    else:
-        if candidates < n:
-            raise InputError(f"--candidates: {candidates} candidate poses cannot give {n}")
-        P, R = candidate_poses(machine, kind, candidates, rng=seed)
-        rows, source = None, "<candidates>"
-    dropped = 0
-    if joint_range is not None:
-        lo, hi = parse_joint_range(joint_range, machine)
-        q = machine.ik(P, R)
-        inside = np.all((q >= lo) & (q <= hi), axis=-1)      # NaN (unreachable) is outside
-        dropped = int((~inside).sum())
-        P, R = P[inside], R[inside]
-        rows = None if rows is None else np.asarray(rows)[inside]
-        if candidates_path is None:
-            rows = np.flatnonzero(inside) + 1
-    if len(P) < n:
-        raise InputError(f"{source}: {len(P)} candidate pose(s)"
-                         + (f" within --joint-range ({dropped} outside)" if dropped else "")
-                         + f"; cannot choose {n}")
-    problem = planned_problem(machine, kind, P, R, model, rows, source)
-    design = design_from_problem(problem)
-    from ..analysis.accuracy import machine_workspace
+    with progress_tasks() as new_task:
+        step = new_task("select-poses: candidate poses", 5)
+        if candidates_path is not None:
+            P, R, rows = read_poses_of(candidates_path, machine)
+            source = str(candidates_path)
+        else:
+            if candidates < n:
+                raise InputError(f"--candidates: {candidates} candidate poses cannot give {n}")
+            P, R = candidate_poses(machine, kind, candidates, rng=seed)
+            rows, source = None, "<candidates>"
+        dropped = 0
+        if joint_range is not None:
+            lo, hi = parse_joint_range(joint_range, machine)
+            q = machine.ik(P, R)
+            inside = np.all((q >= lo) & (q <= hi), axis=-1)      # NaN (unreachable) is outside
+            dropped = int((~inside).sum())
+            P, R = P[inside], R[inside]
+            rows = None if rows is None else np.asarray(rows)[inside]
+            if candidates_path is None:
+                rows = np.flatnonzero(inside) + 1
+        if len(P) < n:
+            raise InputError(f"{source}: {len(P)} candidate pose(s)"
+                             + (f" within --joint-range ({dropped} outside)" if dropped else "")
+                             + f"; cannot choose {n}")
+        step(1, "select-poses: information of each candidate")
+        problem = planned_problem(machine, kind, P, R, model, rows, source)
+        design = design_from_problem(problem)
+        step(1, "select-poses: pose-error operator over the workspace")
+        from ..analysis.accuracy import machine_workspace
 
-    op = pose_error_operator(machine, design, *machine_workspace(machine, WORKSPACE_POSES, seed),
-                             problem.n_machine)
-    if op.unbounded:
-        raise InputError(f"{source}: even all {len(P)} candidates leave {op.unbounded} "
-                         "direction(s) that move the platform unidentified; widen the "
-                         "candidate set")
-    per = design.F.shape[1]
-    if n * per < design.rank:
-        need = -(-design.rank // per)
-        raise InputError(f"-n/--poses: {n} {kind} measurement(s) give at most {n * per} "
-                         f"independent equations ({per} each) for the {design.rank} "
-                         f"identifiable parameter directions; choose at least {need}")
-    A = op.A
-    sel = select_poses(design, n, criterion, A=A)
-    idx = sel.index
-    M = design.information(idx)
-    rms = float(np.sqrt(criterion_value(M, "pose", A)))
-    baseline = np.sqrt(random_values(design, n, random_sets, "pose", A, rng=seed + 1)) \
-        if random_sets else np.zeros(0)
+        workspace = machine_workspace(machine, WORKSPACE_POSES, seed)
+        op = pose_error_operator(machine, design, *workspace, problem.n_machine)
+        if op.unbounded:
+            raise InputError(f"{source}: even all {len(P)} candidates leave {op.unbounded} "
+                             "direction(s) that move the platform unidentified; widen the "
+                             "candidate set")
+        per = design.F.shape[1]
+        if n * per < design.rank:
+            need = -(-design.rank // per)
+            raise InputError(f"-n/--poses: {n} {kind} measurement(s) give at most {n * per} "
+                             f"independent equations ({per} each) for the {design.rank} "
+                             f"identifiable parameter directions; choose at least {need}")
+        A = op.A
+        step(1, f"select-poses: choosing {n} of {len(P)} (greedy, then exchanges)")
+        sel = select_poses(design, n, criterion, A=A)
+        idx = sel.index
+        M = design.information(idx)
+        rms = float(np.sqrt(criterion_value(M, "pose", A)))
+        step(1, f"select-poses: {random_sets} random sets for comparison")
+        baseline = np.sqrt(random_values(design, n, random_sets, "pose", A, rng=seed + 1)) \
+            if random_sets else np.zeros(0)
+        step(1)
     finite = baseline[np.isfinite(baseline)]
     median = float(np.median(baseline)) if baseline.size else float("nan")
     from ..identifiability import observability_indices
