@@ -39,7 +39,22 @@ COLUMN_SUFFIXES: dict[str, str] = {
 def factor(unit: str, quantity: str) -> float:
     """Factor that converts a value in ``unit`` to SI for ``quantity``.
 
-    Raises :class:`InputError` naming the unit and the accepted ones.
+    Parameters
+    ----------
+    unit : str
+        Unit name, e.g. ``"mm"``.
+    quantity : str
+        A key of :data:`QUANTITIES` (``"length"``, ``"angle"``, ...).
+
+    Returns
+    -------
+    float
+        SI value of one ``unit``.
+
+    Raises
+    ------
+    InputError
+        When ``unit`` is not a unit of ``quantity``, naming the accepted ones.
     """
     table = QUANTITIES[quantity]
     try:
@@ -51,7 +66,18 @@ def factor(unit: str, quantity: str) -> float:
 
 
 def unit_of(unit: str) -> str | None:
-    """Quantity of a unit name (``'mm'`` -> ``'length'``), or None when not known."""
+    """Quantity of a unit name (``'mm'`` -> ``'length'``), or None when not known.
+
+    Parameters
+    ----------
+    unit : str
+        Unit name.
+
+    Returns
+    -------
+    str or None
+        A key of :data:`QUANTITIES`.
+    """
     for quantity, table in QUANTITIES.items():
         if unit in table:
             return quantity
@@ -65,6 +91,25 @@ def parse_quantity(text: str, quantity: str, what: str = "value") -> float:
     """Parse a command-line number with an optional unit suffix into SI.
 
     ``parse_quantity("100mm", "length") == 0.1``; a bare number is SI.
+
+    Parameters
+    ----------
+    text : str
+        The number, e.g. ``"2um"``, ``"10 deg"`` or ``"1e-3"``.
+    quantity : str
+        A key of :data:`QUANTITIES`.
+    what : str, optional
+        What the value is, the start of error messages.
+
+    Returns
+    -------
+    float
+        The value in SI units.
+
+    Raises
+    ------
+    InputError
+        When the text is not a number or the unit is not one of ``quantity``.
     """
     m = _NUMBER.match(str(text))
     if not m:
@@ -79,7 +124,29 @@ def parse_quantity(text: str, quantity: str, what: str = "value") -> float:
 
 
 def parse_vector(text: str, quantity: str, n: int, what: str = "value") -> list[float]:
-    """Parse ``"0,0,-500N"`` (the unit applies to every component) into SI."""
+    """Parse ``"0,0,-500N"`` (the unit applies to every component) into SI.
+
+    Parameters
+    ----------
+    text : str
+        ``n`` comma-separated numbers; a unit suffix on the last one applies to all.
+    quantity : str
+        A key of :data:`QUANTITIES`.
+    n : int
+        Number of components.
+    what : str, optional
+        What the value is, the start of error messages.
+
+    Returns
+    -------
+    list of float
+        The components in SI units.
+
+    Raises
+    ------
+    InputError
+        When there are not ``n`` components or one cannot be read.
+    """
     parts = [p.strip() for p in str(text).split(",")]
     if len(parts) != n:
         raise InputError(f"{what}: expected {n} comma-separated numbers, got {text!r}")

@@ -20,8 +20,29 @@ from ..machines.base import Machine
 
 def workspace_poses(center, half_size: float = 0.05, max_angle: float = np.deg2rad(10.0),
                     n: int = 500, rng=None):
-    """``n`` poses uniform in the cube ``center +/- half_size`` (m) with Euler angles uniform in
-    ``+/- max_angle`` (rad). Returns ``P`` (n, 3), ``R`` (n, 3, 3)."""
+    """``n`` poses uniform in the cube ``center +/- half_size`` with Euler angles uniform in
+    ``+/- max_angle``.
+
+    Parameters
+    ----------
+    center : array_like, shape (3,)
+        Centre of the cube, m.
+    half_size : float, optional
+        Half-width of the cube, m.
+    max_angle : float, optional
+        Bound of each Euler angle, rad.
+    n : int, optional
+        Number of poses.
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed.
+
+    Returns
+    -------
+    P : ndarray, shape (n, 3)
+        Positions, m.
+    R : ndarray, shape (n, 3, 3)
+        Orientations (about the identity).
+    """
     rng = np.random.default_rng(rng)
     P = np.asarray(center, float) + rng.uniform(-half_size, half_size, (n, 3))
     R = matrix_from_euler(rng.uniform(-max_angle, max_angle, (n, 3)))
@@ -29,8 +50,24 @@ def workspace_poses(center, half_size: float = 0.05, max_angle: float = np.deg2r
 
 
 def machine_workspace(machine: Machine, n: int = 500, rng=0):
-    """:func:`workspace_poses` around ``machine``'s home; the identity orientation for a
-    translation-only platform (``pose_dof == 3``)."""
+    """:func:`workspace_poses` around ``machine``'s home (SPEC 5 defaults).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine; its home position is the centre.
+    n : int, optional
+        Number of poses.
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed (default 0: the same poses every call).
+
+    Returns
+    -------
+    P : ndarray, shape (n, 3)
+        Positions, m.
+    R : ndarray, shape (n, 3, 3)
+        Orientations; the identity for a translation-only platform (``pose_dof == 3``).
+    """
     P, R = workspace_poses(machine.home[0], n=n, rng=rng)
     if machine.pose_dof == 3:
         R = np.broadcast_to(np.eye(3), R.shape)
@@ -39,7 +76,25 @@ def machine_workspace(machine: Machine, n: int = 500, rng=0):
 
 @dataclass
 class AccuracyReport:
-    """Position (m) and orientation (rad) errors of a model over workspace poses."""
+    """Position (m) and orientation (rad) errors of a model over workspace poses.
+
+    Attributes
+    ----------
+    position_mean, position_max : float
+        Mean and largest position error over the poses that converged, m.
+    orientation_mean, orientation_max : float
+        Mean and largest orientation error, rad.
+    n_poses : int
+        Number of poses.
+    n_failed : int
+        Poses the true machine cannot reach or the model's forward kinematics did not solve.
+    aligned : bool
+        Whether the model's frames were aligned to the truth first.
+    base_alignment_angle : float, optional
+        Angle of the best-fit base rotation about O, rad (0 without alignment).
+    platform_alignment_angle : float, optional
+        Angle of the best-fit platform re-orientation, rad.
+    """
 
     position_mean: float
     position_max: float
@@ -52,12 +107,39 @@ class AccuracyReport:
     platform_alignment_angle: float = 0.0
 
     def as_dict(self) -> dict:
+        """The report as a dict of its fields.
+
+        Returns
+        -------
+        dict
+            Field name to value (SI units).
+        """
         return dict(self.__dict__)
 
 
 def align_poses(P_hat, R_hat, P_true, R_true):
-    """Best-fit base rotation ``G`` about O and platform re-orientation ``C`` with
-    ``G P_hat ~ P_true`` and ``G R_hat C ~ R_true``."""
+    """Best-fit base rotation ``G`` about O and platform re-orientation ``C``.
+
+    ``G P_hat ~ P_true`` (Kabsch) and then ``G R_hat C ~ R_true``.
+
+    Parameters
+    ----------
+    P_hat : array_like, shape (K, 3)
+        Model positions, m.
+    R_hat : array_like, shape (K, 3, 3)
+        Model orientations.
+    P_true : array_like, shape (K, 3)
+        True positions, m.
+    R_true : array_like, shape (K, 3, 3)
+        True orientations.
+
+    Returns
+    -------
+    G : ndarray, shape (3, 3)
+        Base rotation.
+    C : ndarray, shape (3, 3)
+        Platform re-orientation.
+    """
     G = kabsch(P_hat, P_true)
     M = np.einsum("kji,kjl->il", G @ R_hat, R_true)        # sum (G R_hat)^T R_true
     U, _, Vt = np.linalg.svd(M)
@@ -66,9 +148,35 @@ def align_poses(P_hat, R_hat, P_true, R_true):
 
 
 def pose_errors(true_machine: Machine, model_machine: Machine, P, R, align: bool = True):
-    """Per-pose position (m) and orientation (rad) errors; NaN where FK fails.
+    """Per-pose position and orientation errors of a model against the truth.
 
-    Returns ``(dp, dr, converged, (G, C))``.
+    The true machine's joints at the poses, ``q = IK_true(P, R)``, are run through the model's
+    forward kinematics; with ``align`` (and at least 3 good poses) the model's frames are
+    aligned to the truth first (:func:`align_poses`).
+
+    Parameters
+    ----------
+    true_machine : Machine
+        The true machine.
+    model_machine : Machine
+        The model (e.g. a calibrated machine).
+    P : ndarray, shape (K, 3)
+        True poses' positions, m.
+    R : ndarray, shape (K, 3, 3)
+        True poses' orientations.
+    align : bool, optional
+        Align the frames before comparing.
+
+    Returns
+    -------
+    dp : ndarray, shape (K,)
+        Position errors, m; NaN where unreachable or the forward kinematics failed.
+    dr : ndarray, shape (K,)
+        Orientation errors, rad; NaN likewise.
+    converged : ndarray of bool, shape (K,)
+        Poses with a result.
+    alignment : tuple of ndarray
+        ``(G, C)`` used (identities without alignment).
     """
     q = true_machine.ik(P, R)
     reachable = np.all(np.isfinite(q), -1)
@@ -88,7 +196,28 @@ def pose_accuracy(true_machine: Machine, model_machine: Machine, P=None, R=None,
                   align: bool = True, n: int = 500, rng=0) -> AccuracyReport:
     """Mean and max position/orientation error of ``model_machine`` against the truth.
 
-    Poses default to :func:`workspace_poses` around the true machine's home.
+    Parameters
+    ----------
+    true_machine : Machine
+        The true machine.
+    model_machine : Machine
+        The model.
+    P : ndarray, shape (K, 3), optional
+        Positions, m; default :func:`workspace_poses` around the true machine's home (random
+        orientations, also for a translation-only platform).
+    R : ndarray, shape (K, 3, 3), optional
+        Orientations; ignored (replaced) when ``P`` is None.
+    align : bool, optional
+        Align the model's frames to the truth first.
+    n : int, optional
+        Number of default poses.
+    rng : int, numpy.random.Generator or None, optional
+        Seed of the default poses.
+
+    Returns
+    -------
+    AccuracyReport
+        Means and maxima over the poses that converged (NaN if none did).
     """
     if P is None:
         P, R = workspace_poses(true_machine.home[0], n=n, rng=rng)

@@ -72,17 +72,26 @@ SINGULAR_RTOL = 1e-9
 
 def platform_wrench(acceleration=None, mass: float = 4.8, cutting_force=(0.0, 0.0, -500.0),
                     gravity: float = STANDARD_GRAVITY) -> np.ndarray:
-    """The wrench the legs must balance, ``w = [m a - m g - F_C; 0]`` (..., 6), N and N m.
-
-    Parameters
-    ----------
-    acceleration : (..., 3) acceleration of the platform origin, m/s^2 (None: at rest).
-    mass : platform mass, kg (centre of mass at the platform origin).
-    cutting_force : (..., 3) force on the platform at its origin, N (default 500 N down).
-    gravity : magnitude of the gravity acceleration along -Z, m/s^2.
+    """The wrench the legs must balance, ``w = [m a - m g - F_C; 0]``.
 
     The loads act at the platform origin, so their moment about it is zero; the platform's
     rotational inertia is not modelled (no angular acceleration on a fixed orientation).
+
+    Parameters
+    ----------
+    acceleration : array_like, shape (..., 3), optional
+        Acceleration of the platform origin, m/s^2 (None: at rest).
+    mass : float, optional
+        Platform mass, kg (centre of mass at the platform origin).
+    cutting_force : array_like, shape (..., 3), optional
+        Force on the platform at its origin, N (default 500 N down).
+    gravity : float, optional
+        Magnitude of the gravity acceleration along -Z, m/s^2.
+
+    Returns
+    -------
+    ndarray, shape (..., 6)
+        Force (N) and moment (N m, zero).
     """
     a = np.zeros(3) if acceleration is None else np.asarray(acceleration, float)
     fc = np.asarray(cutting_force, float)
@@ -92,13 +101,21 @@ def platform_wrench(acceleration=None, mass: float = 4.8, cutting_force=(0.0, 0.
 
 
 def link_forces(Jp, wrench) -> np.ndarray:
-    """Leg forces (..., 6), N, **tension positive**, from ``J_p^T (-f) = w`` (seed 003 eq. 16
-    with the physical sign; see the module docstring).
+    """Leg forces, **tension positive**, from ``J_p^T (-f) = w``.
+
+    Seed 003 eq. 16 with the physical sign; see the module docstring.
 
     Parameters
     ----------
-    Jp : (..., 6, 6) ``J_p`` of :meth:`pkmcal.machines.Stewart.jacobians`.
-    wrench : (..., 6) from :func:`platform_wrench`.
+    Jp : array_like, shape (..., 6, 6)
+        ``J_p`` of :meth:`pkmcal.machines.Stewart.jacobians`.
+    wrench : array_like, shape (..., 6)
+        The load, from :func:`platform_wrench`.
+
+    Returns
+    -------
+    ndarray, shape (..., 6)
+        Leg forces, N.
     """
     Jp = np.asarray(Jp, float)
     w = np.broadcast_to(np.asarray(wrench, float), Jp.shape[:-1])
@@ -117,14 +134,29 @@ def force_residual(Jp, forces, wrench) -> np.ndarray:
 
 
 def pose_error(Jp, dl=None, Js=None, joint_errors=None) -> np.ndarray:
-    """Seed 003 eq. 10: ``dx = J_p^-1 (dl - J_s dp)`` (..., 6).
+    """Seed 003 eq. 10: ``dx = J_p^-1 (dl - J_s dp)``.
 
     Parameters
     ----------
-    Jp : (..., 6, 6).
-    dl : (..., 6) leg-length errors, m (the leg is ``dl`` longer than commanded).
-    Js : (..., 6, 6) per-leg ``[z_i^T R, -z_i^T]`` (:meth:`Stewart.jacobians`).
-    joint_errors : (..., 6, 6) per leg ``[dp_i (platform frame), db_i (base frame)]``, m.
+    Jp : array_like, shape (..., 6, 6)
+        ``J_p`` of :meth:`pkmcal.machines.Stewart.jacobians`.
+    dl : array_like, shape (..., 6), optional
+        Leg-length errors, m (the leg is ``dl`` longer than commanded).
+    Js : array_like, shape (..., 6, 6), optional
+        Per-leg ``[z_i^T R, -z_i^T]`` (:meth:`pkmcal.machines.Stewart.jacobians`); needed
+        with ``joint_errors``.
+    joint_errors : array_like, shape (..., 6, 6), optional
+        Per leg ``[dp_i (platform frame), db_i (base frame)]``, m.
+
+    Returns
+    -------
+    ndarray, shape (..., 6)
+        Pose errors ``[dp (m), dOmega (rad)]``.
+
+    Raises
+    ------
+    ValueError
+        When ``joint_errors`` are given without ``Js``.
     """
     Jp = np.asarray(Jp, float)
     rhs = np.zeros(Jp.shape[:-1])
@@ -160,11 +192,15 @@ class ClearanceErrors:
 
     Attributes
     ----------
-    dx : (..., 6) ``[dp (m), dOmega (rad)]``; where a side is undetermined, the value with
-        those joints centred (the middle of the envelope).
-    dx_min, dx_max : (..., 6) envelope; equal to ``dx`` where every side is determined.
-    side : (..., 6) int, per leg +1 tension, -1 compression, 0 undetermined.
-    force_tol : (...,) force tolerance used at each pose, N.
+    dx : ndarray, shape (..., 6)
+        ``[dp (m), dOmega (rad)]``; where a side is undetermined, the value with those joints
+        centred (the middle of the envelope).
+    dx_min, dx_max : ndarray, shape (..., 6)
+        Envelope; equal to ``dx`` where every side is determined.
+    side : ndarray of int, shape (..., 6)
+        Per leg +1 tension, -1 compression, 0 undetermined.
+    force_tol : ndarray, shape (...)
+        Force tolerance used at each pose, N.
     """
 
     dx: np.ndarray
@@ -190,20 +226,43 @@ def force_sides(forces, force_tol: float = 1.0):
 
 def clearance_errors(Jp, Js, z, R, forces, clearance_base, clearance_platform=None,
                      backlash=0.0, force_tol: float = 1.0) -> ClearanceErrors:
-    """Pose errors from joint clearance (eq. 17-18) and ball-screw backlash (eq. 10) under the
-    leg ``forces`` (tension positive), with the envelope where a force is near zero.
+    """Pose errors from joint clearance and ball-screw backlash under the leg forces.
+
+    Clearance of eq. 17-18 and backlash of eq. 10, tension positive, with the envelope where
+    a force is near zero (see the module docstring).
 
     Parameters
     ----------
-    Jp, Js, z : from :meth:`Stewart.jacobians` at the poses (..., 6, 6), (..., 6, 6), (..., 6, 3).
-    R : (..., 3, 3) platform orientations.
-    forces : (..., 6) leg forces, N, tension positive (:func:`link_forces`).
-    clearance_base, clearance_platform : sphere radii of the joint centres (scalar or (6,)),
-        m; ``clearance_platform`` defaults to ``clearance_base``.
-    backlash : ball-screw backlash (scalar or (6,)), m: the leg acts ``+backlash`` longer in
-        tension, shorter in compression.
-    force_tol : N; a leg force with ``|f| <= force_tol`` (or below ``FORCE_ROUNDOFF`` of the
-        largest leg force of the pose) leaves the side undetermined.
+    Jp : array_like, shape (..., 6, 6)
+        ``J_p`` of :meth:`pkmcal.machines.Stewart.jacobians` at the poses.
+    Js : array_like, shape (..., 6, 6)
+        ``J_s`` of the same.
+    z : array_like, shape (..., 6, 3)
+        Unit leg vectors of the same.
+    R : array_like, shape (..., 3, 3)
+        Platform orientations.
+    forces : array_like, shape (..., 6)
+        Leg forces, N, tension positive (:func:`link_forces`).
+    clearance_base : float or array_like, shape (6,)
+        Sphere radius of the base joint centres, m.
+    clearance_platform : float or array_like, shape (6,), optional
+        Sphere radius of the platform joint centres, m; default ``clearance_base``.
+    backlash : float or array_like, shape (6,), optional
+        Ball-screw backlash, m: the leg acts ``+backlash`` longer in tension, shorter in
+        compression.
+    force_tol : float, optional
+        A leg force with ``|f| <= force_tol`` (N, or below ``FORCE_ROUNDOFF`` of the largest leg
+        force of the pose) leaves the side undetermined.
+
+    Returns
+    -------
+    ClearanceErrors
+        Pose errors, envelope, sides and force tolerances.
+
+    Raises
+    ------
+    InputError
+        When a clearance, the backlash or ``force_tol`` is negative or not finite.
     """
     cb = np.broadcast_to(np.asarray(clearance_base, float), (6,))
     cp = cb if clearance_platform is None else np.broadcast_to(
@@ -233,8 +292,16 @@ class Trajectory:
 
     Attributes
     ----------
-    t : (K,) s.  P : (K, 3) m.  R : (K, 3, 3).  acceleration : (K, 3) m/s^2 of the origin.
-    angle : (K,) rad, position angle on a circle (None for other trajectories).
+    t : ndarray, shape (K,)
+        Times, s.
+    P : ndarray, shape (K, 3)
+        Positions, m.
+    R : ndarray, shape (K, 3, 3)
+        Orientations.
+    acceleration : ndarray, shape (K, 3)
+        Acceleration of the platform origin, m/s^2.
+    angle : ndarray, shape (K,), optional
+        Position angle on a circle, rad (None for other trajectories).
     """
 
     t: np.ndarray
@@ -249,12 +316,38 @@ class Trajectory:
 
 def circle_trajectory(radius: float = 0.1, height: float = 0.41, omega: float = 10.0,
                       samples: int = 360, centre=(0.0, 0.0), R=None) -> Trajectory:
-    """The case study of seed 003: the platform origin on a horizontal circle of ``radius`` (m)
-    about ``centre`` (x, y in m) at ``z = height`` (m), run counter-clockwise (seen from +Z) from
-    +X at constant angular speed ``omega`` (rad/s), orientation fixed (``R``, default identity).
+    """The case study of seed 003: the platform origin on a horizontal circle.
 
-    Sample k is at angle ``2 pi k / samples`` (``360 k / samples`` deg), time ``angle / omega``
-    (0 when ``omega = 0``); the acceleration is centripetal, ``-omega^2 (P - centre)``.
+    The circle has radius ``radius`` about ``centre`` at ``z = height`` and is run
+    counter-clockwise (seen from +Z) from +X at constant angular speed ``omega``, orientation
+    fixed. Sample k is at angle ``2 pi k / samples`` (``360 k / samples`` deg), time
+    ``angle / omega`` (0 when ``omega = 0``); the acceleration is centripetal,
+    ``-omega^2 (P - centre)``.
+
+    Parameters
+    ----------
+    radius : float, optional
+        Radius, m (>= 0).
+    height : float, optional
+        Height of the circle, m.
+    omega : float, optional
+        Angular speed, rad/s.
+    samples : int, optional
+        Number of poses (>= 1).
+    centre : array_like, shape (2,), optional
+        Centre x, y, m.
+    R : array_like, shape (3, 3), optional
+        Platform orientation; default identity.
+
+    Returns
+    -------
+    Trajectory
+        With ``angle`` set.
+
+    Raises
+    ------
+    InputError
+        When ``samples`` is not a whole number >= 1, a value is not finite, or ``radius < 0``.
     """
     if not (isinstance(samples, (int, np.integer)) and samples >= 1):
         raise InputError(f"samples: must be a whole number >= 1, got {samples}")
@@ -295,8 +388,29 @@ def acceleration_from_positions(t, P) -> np.ndarray:
 
 
 def trajectory_from_poses(t, P, R) -> Trajectory:
-    """A trajectory through given poses at times ``t`` (s); accelerations by finite differences
-    of the positions (:func:`acceleration_from_positions`)."""
+    """A trajectory through given poses; accelerations by finite differences of the positions.
+
+    See :func:`acceleration_from_positions`.
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Times, s, strictly increasing (K >= 3).
+    P : array_like, shape (K, 3)
+        Positions, m.
+    R : array_like, shape (K, 3, 3)
+        Orientations.
+
+    Returns
+    -------
+    Trajectory
+        Without ``angle``.
+
+    Raises
+    ------
+    InputError
+        When fewer than 3 poses are given or the times do not increase strictly.
+    """
     t = np.asarray(t, float)
     P = np.asarray(P, float)
     return Trajectory(t, P, np.asarray(R, float), acceleration_from_positions(t, P))
@@ -313,10 +427,14 @@ class TrajectoryErrors:
 
     Attributes
     ----------
-    trajectory : the :class:`Trajectory`.
-    forces : (K, 6) leg forces, N, tension positive.
-    wrench : (K, 6) the load the legs balance, ``[m a - m g - F_C; 0]``.
-    errors : :class:`ClearanceErrors` (``dx``, ``dx_min``, ``dx_max``, ``side``).
+    trajectory : Trajectory
+        The trajectory.
+    forces : ndarray, shape (K, 6)
+        Leg forces, N, tension positive.
+    wrench : ndarray, shape (K, 6)
+        The load the legs balance, ``[m a - m g - F_C; 0]``.
+    errors : ClearanceErrors
+        ``dx``, ``dx_min``, ``dx_max``, ``side``.
     """
 
     trajectory: Trajectory
@@ -381,13 +499,36 @@ def trajectory_errors(machine, trajectory: Trajectory, mass: float = 4.8,
 
     Parameters
     ----------
-    machine : a :class:`~pkmcal.machines.Stewart` (any six-leg geometry).
-    trajectory : :class:`Trajectory` (e.g. :func:`circle_trajectory`).
-    mass : kg.  cutting_force : (3,) or (K, 3), N.  gravity : m/s^2 along -Z.
-    clearance, clearance_platform : joint sphere radii (scalar or (6,)), m, base and platform
-        (platform defaults to base).
-    backlash : ball-screw backlash (scalar or (6,)), m.
-    force_tol : N, see :func:`clearance_errors`.
+    machine : Stewart
+        Any six-leg geometry.
+    trajectory : Trajectory
+        E.g. :func:`circle_trajectory`.
+    mass : float, optional
+        Platform mass, kg (>= 0).
+    cutting_force : array_like, shape (3,) or (K, 3), optional
+        Force on the platform, N.
+    clearance : float or array_like, shape (6,), optional
+        Sphere radius of the base joint centres, m.
+    clearance_platform : float or array_like, shape (6,), optional
+        Sphere radius of the platform joint centres, m; default ``clearance``.
+    backlash : float or array_like, shape (6,), optional
+        Ball-screw backlash, m.
+    force_tol : float, optional
+        N, see :func:`clearance_errors`.
+    gravity : float, optional
+        Gravity acceleration along -Z, m/s^2.
+    u : array_like, shape (48,), optional
+        Parameter vector; default: the machine's.
+
+    Returns
+    -------
+    TrajectoryErrors
+        Forces, wrenches and pose errors per pose.
+
+    Raises
+    ------
+    InputError
+        When ``mass`` or ``cutting_force`` is invalid, or a pose is singular (named).
     """
     if not (np.isfinite(mass) and mass >= 0):
         raise InputError(f"mass: must be finite and >= 0, got {mass}")
@@ -410,11 +551,18 @@ class ClearanceMap:
 
     Attributes
     ----------
-    x, y : (nx,), (ny,) grid, m; ``z`` the height, m.
-    dx : (ny, nx, 6) error under the given loads (joints centred where undetermined).
-    bound : (ny, nx, 6) worst case over every side of every joint (any load),
-        ``|J_p^-1| (c_b + c_p + e)``.
-    valid : (ny, nx) bool, False at singular poses (values NaN there).
+    x : ndarray, shape (nx,)
+        Grid, m.
+    y : ndarray, shape (ny,)
+        Grid, m.
+    z : float
+        Height, m.
+    dx : ndarray, shape (ny, nx, 6)
+        Error under the given loads (joints centred where undetermined).
+    bound : ndarray, shape (ny, nx, 6)
+        Worst case over every side of every joint (any load), ``|J_p^-1| (c_b + c_p + e)``.
+    valid : ndarray of bool, shape (ny, nx)
+        False at singular poses (values NaN there).
     """
 
     x: np.ndarray
@@ -429,9 +577,48 @@ def clearance_map(machine, x, y, z: float, R=None, mass: float = 4.8,
                   cutting_force=(0.0, 0.0, -500.0), clearance: float = 10e-6,
                   clearance_platform: float | None = None, backlash: float = 0.0,
                   force_tol: float = 1.0, gravity: float = STANDARD_GRAVITY) -> ClearanceMap:
-    """Clearance errors over the grid ``x`` by ``y`` (m) at height ``z`` (m), orientation ``R``
-    (default identity), platform at rest under its weight and the cutting force; and the
-    load-independent worst case ``|J_p^-1| (c_b + c_p + e)`` (every joint on its worst side)."""
+    """Clearance errors over a grid at one height, and their load-independent worst case.
+
+    The platform is at rest under its weight and the cutting force; the worst case
+    ``|J_p^-1| (c_b + c_p + e)`` has every joint on its worst side.
+
+    Parameters
+    ----------
+    machine : Stewart
+        Any six-leg geometry.
+    x : array_like, shape (nx,)
+        Grid positions along X, m.
+    y : array_like, shape (ny,)
+        Grid positions along Y, m.
+    z : float
+        Height, m.
+    R : array_like, shape (3, 3), optional
+        Platform orientation; default identity.
+    mass : float, optional
+        Platform mass, kg.
+    cutting_force : array_like, shape (3,), optional
+        Force on the platform, N.
+    clearance : float or array_like, shape (6,), optional
+        Sphere radius of the base joint centres, m.
+    clearance_platform : float or array_like, shape (6,), optional
+        Sphere radius of the platform joint centres, m; default ``clearance``.
+    backlash : float or array_like, shape (6,), optional
+        Ball-screw backlash, m.
+    force_tol : float, optional
+        N, see :func:`clearance_errors`.
+    gravity : float, optional
+        Gravity acceleration along -Z, m/s^2.
+
+    Returns
+    -------
+    ClearanceMap
+        The maps over the ``ny`` by ``nx`` grid.
+
+    Raises
+    ------
+    InputError
+        When a clearance, the backlash or ``force_tol`` is negative or not finite.
+    """
     x, y = np.asarray(x, float), np.asarray(y, float)
     X, Y = np.meshgrid(x, y)
     P = np.stack([X, Y, np.full_like(X, float(z))], axis=-1)

@@ -44,9 +44,12 @@ class Tolerances:
 
     Attributes
     ----------
-    names : parameter names (the machine's registry order).
-    band : (n,) half-widths ``t`` (0 for parameters without a tolerance).
-    distribution : "uniform" (``[-t, t]``) or "normal" (``sigma = t / 3``).
+    names : tuple of str
+        Parameter names (the machine's registry order).
+    band : ndarray, shape (n,)
+        Half-widths ``t``, internal units (0 for parameters without a tolerance).
+    distribution : {'uniform', 'normal'}, optional
+        ``"uniform"`` (``[-t, t]``) or ``"normal"`` (``sigma = t / 3``).
     """
 
     names: tuple[str, ...]
@@ -55,11 +58,24 @@ class Tolerances:
 
     @property
     def sigma(self) -> np.ndarray:
-        """Standard deviation of each parameter error."""
+        """Standard deviation of each parameter error, (n,): ``t / sqrt(3)`` or ``t / 3``."""
         return self.band / (np.sqrt(3.0) if self.distribution == "uniform" else 3.0)
 
     def sample(self, n: int, rng=None) -> np.ndarray:
-        """``n`` error vectors (n, len(names)), seeded through a numpy Generator."""
+        """Random parameter errors drawn from the tolerance bands.
+
+        Parameters
+        ----------
+        n : int
+            Number of error vectors.
+        rng : int, numpy.random.Generator or None, optional
+            Random generator or seed.
+
+        Returns
+        -------
+        ndarray, shape (n, len(names))
+            Errors, internal units.
+        """
         rng = np.random.default_rng(rng)
         if self.distribution == "uniform":
             return rng.uniform(-1.0, 1.0, (n, self.band.size)) * self.band
@@ -72,8 +88,27 @@ def tolerances(machine, bands: Mapping[str, float],
 
     Patterns are shell patterns on the parameter names (:mod:`fnmatch`), e.g. for a Stewart
     platform ``{"leg*.base.*": 10e-6, "leg*.platform.*": 10e-6, "leg*.l0": 5e-6}``; later
-    patterns override earlier ones. A pattern that names no parameter, a negative or non-finite
-    band, or an unknown distribution raises :class:`~pkmcal.errors.InputError`.
+    patterns override earlier ones.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine whose parameters get tolerances.
+    bands : mapping of str to float
+        Pattern to half-width, internal units (m, rad).
+    distribution : {'uniform', 'normal'}, optional
+        Distribution of the errors within the bands.
+
+    Returns
+    -------
+    Tolerances
+        One band per parameter (0 where no pattern matches).
+
+    Raises
+    ------
+    InputError
+        When a pattern names no parameter, a band is negative or not finite, or the
+        distribution is unknown.
     """
     if distribution not in DISTRIBUTIONS:
         raise InputError(f"distribution: {distribution!r} is not one of "
@@ -94,15 +129,56 @@ def tolerances(machine, bands: Mapping[str, float],
 
 def stewart_tolerances(machine, joint: float = 10e-6, length: float = 0.0,
                        distribution: str = "uniform") -> Tolerances:
-    """Every joint coordinate (base and platform) within ``+/- joint`` and every leg offset
-    ``l0`` within ``+/- length`` (m)."""
+    """Tolerances of a six-leg platform's joints and leg offsets.
+
+    Every joint coordinate (base and platform) within ``+/- joint`` and every leg offset
+    ``l0`` within ``+/- length``.
+
+    Parameters
+    ----------
+    machine : Stewart
+        The platform.
+    joint : float, optional
+        Half-width of each joint coordinate, m.
+    length : float, optional
+        Half-width of each leg offset ``l0``, m.
+    distribution : {'uniform', 'normal'}, optional
+        Distribution of the errors.
+
+    Returns
+    -------
+    Tolerances
+        The bands (gains have none).
+
+    Raises
+    ------
+    InputError
+        As :func:`tolerances`.
+    """
     return tolerances(machine, {"leg*.base.*": joint, "leg*.platform.*": joint,
                                 "leg*.l0": length}, distribution)
 
 
 def sensitivity(machine, P, R=None, u=None) -> np.ndarray:
-    """``S = dx/du`` (..., 6, n_params) with the readings held at their nominal values
-    (``S = -(dq/dx)^-1 dq/du``); NaN at unreachable poses. Rows ``[dp, dOmega]``."""
+    """``S = dx/du`` with the readings held at their nominal values: ``S = -(dq/dx)^-1 dq/du``.
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    P : array_like, shape (..., 3)
+        Platform positions, m.
+    R : array_like, shape (..., 3, 3), optional
+        Platform orientations (translation-only machines ignore them).
+    u : array_like, shape (n_params,), optional
+        Parameter vector; default: the machine's.
+
+    Returns
+    -------
+    ndarray, shape (..., 6, n_params)
+        Rows ``[dp (m), dOmega (rad)]`` per unit parameter error; NaN at unreachable or
+        singular poses.
+    """
     q, dq_dx, dq_du = machine.ik_jacobians(P, R, u, want_du=True)
     ok = np.all(np.isfinite(q), axis=-1) & np.all(np.isfinite(dq_dx), axis=(-1, -2))
     scale = np.ones(dq_dx.shape[-1])
@@ -115,12 +191,38 @@ def sensitivity(machine, P, R=None, u=None) -> np.ndarray:
 
 
 def worst_case(S, tol: Tolerances) -> np.ndarray:
-    """Worst-case bound ``|S| t`` (..., 6) of each pose-error component."""
+    """Worst-case bound ``|S| t`` of each pose-error component.
+
+    Parameters
+    ----------
+    S : array_like, shape (..., 6, n)
+        Sensitivity (:func:`sensitivity`).
+    tol : Tolerances
+        The tolerance bands.
+
+    Returns
+    -------
+    ndarray, shape (..., 6)
+        Bounds, m and rad.
+    """
     return np.abs(S) @ tol.band
 
 
 def linear_covariance(S, tol: Tolerances) -> np.ndarray:
-    """Linear covariance ``S diag(sigma^2) S^T`` (..., 6, 6) of the pose error."""
+    """Linear covariance ``S diag(sigma^2) S^T`` of the pose error.
+
+    Parameters
+    ----------
+    S : array_like, shape (..., 6, n)
+        Sensitivity (:func:`sensitivity`).
+    tol : Tolerances
+        The tolerance bands (their ``sigma``).
+
+    Returns
+    -------
+    ndarray, shape (..., 6, 6)
+        Covariance of ``[dp, dOmega]``.
+    """
     return (S * tol.sigma**2) @ np.swapaxes(S, -1, -2)
 
 
@@ -130,11 +232,20 @@ class MonteCarloResult:
 
     Attributes
     ----------
-    dx : (n, 6) pose errors ``[dp, dOmega]``.
-    mean, cov : (6,), (6, 6) sample mean and covariance.
-    linear_cov : (6, 6) the linear prediction; ``worst_case`` (6,) the linear bound.
-    exact : True when the errors come from the exact closure (else the linear model).
-    converged : (n,) bool, closure converged (all True for the linear model).
+    dx : ndarray, shape (n, 6)
+        Pose errors ``[dp (m), dOmega (rad)]``.
+    mean : ndarray, shape (6,)
+        Sample mean over the converged samples.
+    cov : ndarray, shape (6, 6)
+        Sample covariance over the converged samples.
+    linear_cov : ndarray, shape (6, 6)
+        The linear prediction.
+    worst_case : ndarray, shape (6,)
+        The linear worst-case bound.
+    exact : bool
+        True when the errors come from the exact closure (else the linear model).
+    converged : ndarray of bool, shape (n,)
+        Closure converged (all True for the linear model).
     """
 
     dx: np.ndarray
@@ -147,17 +258,46 @@ class MonteCarloResult:
 
     @property
     def std(self) -> np.ndarray:
+        """Sample standard deviation of each pose-error component, (6,)."""
         return np.sqrt(np.diag(self.cov))
 
 
 def monte_carlo(machine, P, R, tol: Tolerances, samples: int = 10000, rng=None,
                 exact: bool | None = None) -> MonteCarloResult:
-    """Monte Carlo of the pose error at the pose ``(P (3,), R (3, 3))``.
+    """Monte Carlo of the pose error at the pose ``(P, R)``.
 
     Each sample is a machine ``u + du`` with ``du`` drawn from ``tol``, commanded with the
     nominal readings. ``exact`` (default: True for a Stewart platform) solves the perturbed
     closure for all samples at once (:func:`~pkmcal.analysis.errors.closure_pose`); otherwise
     ``dx = S du`` (any machine).
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    P : array_like, shape (3,)
+        Platform position, m.
+    R : array_like, shape (3, 3) or None
+        Platform orientation; None for the identity.
+    tol : Tolerances
+        The tolerance bands.
+    samples : int, optional
+        Number of machines (>= 2).
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed.
+    exact : bool, optional
+        Solve the exact closure (Stewart platforms only).
+
+    Returns
+    -------
+    MonteCarloResult
+        The samples' pose errors and their statistics, with the linear predictions.
+
+    Raises
+    ------
+    InputError
+        When ``samples`` is not a whole number >= 2, the pose is unreachable or singular, or
+        ``exact`` is asked for a machine other than a Stewart platform.
     """
     if not (isinstance(samples, (int, np.integer)) and samples >= 2):
         raise InputError(f"samples: must be a whole number >= 2, got {samples}")
@@ -200,9 +340,18 @@ class ErrorMap:
 
     Attributes
     ----------
-    x, y : (nx,), (ny,) grid, m; ``z`` height, m.
-    worst : (ny, nx, 6) worst-case bound per component; ``std`` (ny, nx, 6) linear standard
-        deviation. NaN where the pose is unreachable (``valid`` False).
+    x : ndarray, shape (nx,)
+        Grid, m.
+    y : ndarray, shape (ny,)
+        Grid, m.
+    z : float
+        Height, m.
+    worst : ndarray, shape (ny, nx, 6)
+        Worst-case bound per component (NaN where unreachable).
+    std : ndarray, shape (ny, nx, 6)
+        Linear standard deviation per component (NaN where unreachable).
+    valid : ndarray of bool, shape (ny, nx)
+        False where the pose is unreachable or singular.
     """
 
     x: np.ndarray
@@ -214,9 +363,30 @@ class ErrorMap:
 
 
 def error_map(machine, x, y, z: float, tol: Tolerances, R=None) -> ErrorMap:
-    """Worst-case bound and linear standard deviation of the pose error from ``tol`` on the
-    grid ``x`` by ``y`` (m) at height ``z`` (m), orientation ``R`` (default identity); all grid
-    points at once."""
+    """Worst-case bound and linear standard deviation of the pose error over a grid.
+
+    All grid points at once.
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    x : array_like, shape (nx,)
+        Grid positions along X, m.
+    y : array_like, shape (ny,)
+        Grid positions along Y, m.
+    z : float
+        Height, m.
+    tol : Tolerances
+        The tolerance bands.
+    R : array_like, shape (3, 3), optional
+        Platform orientation; default identity.
+
+    Returns
+    -------
+    ErrorMap
+        The maps over the ``ny`` by ``nx`` grid.
+    """
     x, y = np.asarray(x, float), np.asarray(y, float)
     X, Y = np.meshgrid(x, y)
     P = np.stack([X, Y, np.full_like(X, float(z))], axis=-1)

@@ -53,11 +53,36 @@ def sphere_tangents(P):
 
 def solve_sphere_poses(machine: Machine, u, q, link_length, passive=None, start=None,
                        tol=1e-13, max_iter=100):
-    """Poses on ``|P| = link_length`` that reproduce the readings ``q`` (K, 6).
+    """Poses on ``|P| = link_length`` that reproduce the readings ``q``.
 
-    With ``passive`` (K,) the passive reading is ignored and the five active ones plus the
+    With ``passive`` the passive reading is ignored and the five active ones plus the
     constraint give a square system (the paper's FK of step iii); without it all six readings
-    and the constraint are solved in the least-squares sense.
+    and the constraint are solved in the least-squares sense (Gauss-Newton,
+    :func:`~pkmcal.machines.newton_pose_solve`).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (a Hexa Slide) whose inverse kinematics are used.
+    u : array_like, shape (n_params,) or None
+        Its parameter vector (internal units); None for the machine's own.
+    q : ndarray, shape (K, 6)
+        Joint readings, m.
+    link_length : float
+        Constraint-link length ``Lc``, m.
+    passive : ndarray of int, shape (K,), optional
+        0-based index of the passive actuator of each row.
+    start : tuple of array_like, optional
+        ``(P (K, 3), R (K, 3, 3))`` start poses; default: the home pose moved onto the sphere.
+    tol : float, optional
+        Convergence tolerance on the residuals, relative to the characteristic length.
+    max_iter : int, optional
+        Maximum Newton iterations.
+
+    Returns
+    -------
+    FKResult
+        The poses, per-row convergence and residuals (m).
     """
     K = len(q)
     if start is None:
@@ -116,12 +141,58 @@ class _ConstraintLinkProblem:
         self.n_machine = len(machine.parameters)
 
     def global_values(self, state):
+        """The global parameters of a state: machine parameters followed by ``link.length``.
+
+        Parameters
+        ----------
+        state : SphereState
+            An estimator state.
+
+        Returns
+        -------
+        ndarray, shape (n_machine + 1,)
+            Parameter values, internal units.
+        """
         return state.u
 
     def split(self, u):
+        """Split a global vector into the machine's parameters and the link length.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n_machine + 1,)
+            Global parameter vector.
+
+        Returns
+        -------
+        um : ndarray, shape (n_machine,)
+            Machine parameters.
+        Lc : float
+            Constraint-link length, m.
+        """
         return u[:self.n_machine], u[self.n_machine]
 
     def start_poses(self, passive=None):
+        """Start poses on the constraint sphere for the start geometry.
+
+        Parameters
+        ----------
+        passive : ndarray of int, shape (K,), optional
+            Passive actuator of each row (square systems); None: least squares on all readings.
+
+        Returns
+        -------
+        P : ndarray, shape (K, 3)
+            Positions, m.
+        R : ndarray, shape (K, 3, 3)
+            Orientations.
+
+        Raises
+        ------
+        InputError
+            When no pose on the sphere explains a row's readings to within 5 % of the
+            characteristic length; the rows are named.
+        """
         um, Lc = self.split(self.parameters.values)
         fk = solve_sphere_poses(self.machine, um, self.data.q, Lc, passive)
         # a start pose need not be exact (the estimator refines it); it must exist and
@@ -137,18 +208,69 @@ class _ConstraintLinkProblem:
 
 
 class ConstraintLinkML(_ConstraintLinkProblem):
-    """Maximum likelihood with per-pose unknowns (implicit loop); 5 local unknowns per pose."""
+    """Maximum likelihood with per-pose unknowns (implicit loop); 5 local unknowns per pose.
+
+    Global unknowns: the machine's parameters and ``link.length`` (fixed unless
+    ``estimate_link_length``); local unknowns: 2 tangent and 3 rotation coordinates of each
+    pose on the sphere. Residuals: all readings divided by their standard deviation.
+
+    Parameters
+    ----------
+    machine : Machine
+        Start geometry (a Hexa Slide); its fixed flags are kept.
+    data : ConstraintLinkData
+        Readings taken with the link mounted.
+    sigma_m : float or array_like, optional
+        Encoder noise standard deviation, m: one value or one per actuator.
+    estimate_link_length : bool, optional
+        Estimate ``Lc`` too (else held at ``data.link_length``).
+
+    Raises
+    ------
+    InputError
+        When the data's joint columns do not match the machine's actuators.
+    """
 
     local_dof = 5
 
     def initial_state(self):
         # all six readings + the constraint in the least-squares sense: robust to a far start
+        """Start state: the start geometry and poses fitted to all six readings, on the sphere.
+
+        Returns
+        -------
+        SphereState
+            Global values and poses.
+
+        Raises
+        ------
+        InputError
+            When a row's readings cannot be explained by any pose on the sphere.
+        """
         P, R = self.start_poses(None)
         Lc = self.split(self.parameters.values)[1]
         P *= (Lc / np.linalg.norm(P, axis=-1))[:, None]   # exactly on the sphere
         return SphereState(self.parameters.values.copy(), P, R)
 
     def evaluate(self, state, jacobian=True):
+        """Whitened reading residuals and their Jacobians (see :meth:`BlockProblem.evaluate`).
+
+        Parameters
+        ----------
+        state : SphereState
+            Global values and poses.
+        jacobian : bool, optional
+            Also compute the Jacobians.
+
+        Returns
+        -------
+        r : ndarray, shape (K, n_joints)
+            ``(IK(pose) - q) / sigma``.
+        J_g : ndarray, shape (K, n_joints, n_machine + 1) or None
+            Derivatives with respect to the machine parameters and ``Lc``.
+        J_l : ndarray, shape (K, n_joints, 5) or None
+            Derivatives with respect to the pose's tangent and rotation coordinates.
+        """
         um, Lc = self.split(state.u)
         q, Jx, Ju = self.machine.ik_jacobians(state.P, state.R, um, want_du=jacobian)
         sigma = self.reading_sigma()
@@ -163,10 +285,32 @@ class ConstraintLinkML(_ConstraintLinkProblem):
         return r, Jg, Jl
 
     def reading_sigma(self):
-        """Standard deviation of every reading, (K, n_joints) or broadcastable."""
+        """Standard deviation of every reading, (K, n_joints) or broadcastable.
+
+        Returns
+        -------
+        ndarray
+            Standard deviations, m: here one per actuator, shape (n_joints,).
+        """
         return self.sigma
 
     def retract(self, state, du, dl):
+        """The state after a step: poses moved on the sphere, then projected back onto it.
+
+        Parameters
+        ----------
+        state : SphereState
+            Current state.
+        du : ndarray, shape (n_machine + 1,)
+            Step of the global parameters.
+        dl : ndarray, shape (K, 5)
+            Step of each pose: 2 tangent (m) and 3 rotation (rad) coordinates.
+
+        Returns
+        -------
+        SphereState
+            The new state.
+        """
         u = state.u + du
         T, _ = sphere_tangents(state.P)
         P = state.P + np.einsum("kij,kj->ki", T, dl[:, :2])
@@ -185,6 +329,22 @@ class ConstraintLinkIK(ConstraintLinkML):
     the active readings are weighted ``active_weight`` (1e3) times more than the passive one:
     the estimate equals the exact method's to a relative ``1/active_weight^2`` and the problem
     is feasible at every step. :class:`ConstraintLinkIKExplicit` is the literal form.
+
+    Parameters
+    ----------
+    machine : Machine
+        Start geometry (a Hexa Slide).
+    data : ConstraintLinkData
+        Readings with the ``passive`` column.
+    sigma_m : float or array_like, optional
+        Encoder noise standard deviation, m: one value or one per actuator.
+    estimate_link_length : bool, optional
+        Estimate ``Lc`` too.
+
+    Raises
+    ------
+    InputError
+        When the data have no ``passive`` column or the wrong number of joint columns.
     """
 
     active_weight = 1e3
@@ -211,6 +371,9 @@ class _ImplicitPoseProblem(_ConstraintLinkProblem):
 
     @property
     def cost_floor(self):
+        """Cost at the precision of the inner forward kinematics (``fk_tol``); the estimator stops
+        below it.
+        """
         precision = self.fk_tol * self.machine.characteristic_length()
         return 0.5 * len(self.data) * float(np.max(precision / self.sigma)) ** 2
 
@@ -227,9 +390,32 @@ class _ImplicitPoseProblem(_ConstraintLinkProblem):
                              "start geometry")
 
     def initial_state(self):
+        """Start state: the start geometry and the poses solved for it.
+
+        Returns
+        -------
+        SphereState
+            Global values and the poses of the rows kept.
+        """
         return SphereState(self.parameters.values.copy(), *self._start)
 
     def retract(self, state, du, dl):
+        """The state after a global step (poses are recomputed in :meth:`evaluate`).
+
+        Parameters
+        ----------
+        state : SphereState
+            Current state.
+        du : ndarray, shape (n_machine + 1,)
+            Step of the global parameters.
+        dl : None
+            Unused (no local unknowns).
+
+        Returns
+        -------
+        SphereState
+            The new state, with the old poses as warm start.
+        """
         return SphereState(state.u + du, state.P, state.R)
 
     def _poses(self, state, constrained: bool):
@@ -244,9 +430,33 @@ class _ImplicitPoseProblem(_ConstraintLinkProblem):
 
 
 class ConstraintLinkIKExplicit(_ImplicitPoseProblem):
-    """The paper's inverse-kinematics method literally: the pose from the five active readings
-    and the link (forward kinematics), residual = passive reading - its inverse kinematics,
-    Jacobian = total derivative ``dq_p/du + dq_p/dx dx/du`` (implicit differentiation)."""
+    """The paper's inverse-kinematics method literally.
+
+    The pose comes from the five active readings and the link (forward kinematics), the
+    residual is the passive reading minus its inverse kinematics, and the Jacobian is the total
+    derivative ``dq_p/du + dq_p/dx dx/du`` (implicit differentiation). Rows whose pose the
+    start geometry cannot solve are left out and listed in ``dropped_rows``.
+
+    Parameters
+    ----------
+    machine : Machine
+        Start geometry (a Hexa Slide).
+    data : ConstraintLinkData
+        Readings with the ``passive`` column.
+    sigma_m : float or array_like, optional
+        Encoder noise standard deviation, m: one value or one per actuator.
+    estimate_link_length : bool, optional
+        Estimate ``Lc`` too.
+    start : tuple of ndarray, optional
+        ``(P (K, 3), R (K, 3, 3))`` start poses for the pose solves; default: fitted to all six
+        readings.
+
+    Raises
+    ------
+    InputError
+        When the data have no ``passive`` column, the wrong number of joint columns, or no row
+        can be solved.
+    """
 
     def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=False, start=None):
         if data.passive is None:
@@ -261,6 +471,24 @@ class ConstraintLinkIKExplicit(_ImplicitPoseProblem):
                                                   start=(P, R)))
 
     def evaluate(self, state, jacobian=True):
+        """Passive-reading residuals with the poses solved from the active readings and the link.
+
+        Parameters
+        ----------
+        state : SphereState
+            Global values; its poses are the warm start and are updated in place.
+        jacobian : bool, optional
+            Also compute the Jacobian.
+
+        Returns
+        -------
+        r : ndarray, shape (K, 1)
+            Whitened passive-reading residuals; NaN where the pose solve failed.
+        J_g : ndarray, shape (K, 1, n_machine + 1) or None
+            Total derivatives with respect to the global parameters.
+        J_l : None
+            No local unknowns.
+        """
         fk = self._poses(state, constrained=True)
         um, Lc = self.split(state.u)
         K = len(self.data)
@@ -286,7 +514,28 @@ class ConstraintLinkIKExplicit(_ImplicitPoseProblem):
 
 
 class ConstraintLinkFK(_ImplicitPoseProblem):
-    """The paper's forward-kinematics method: residual = ``|FK(q)| - Lc``, ``Lc`` estimated."""
+    """The paper's forward-kinematics method: residual = ``|FK(q)| - Lc``, ``Lc`` estimated.
+
+    Rows whose forward kinematics the start geometry cannot solve are left out and listed in
+    ``dropped_rows``.
+
+    Parameters
+    ----------
+    machine : Machine
+        Start geometry (a Hexa Slide).
+    data : ConstraintLinkData
+        Readings taken with the link mounted.
+    sigma_m : float or array_like, optional
+        Encoder noise standard deviation, m; the residuals are divided by its mean.
+    estimate_link_length : bool, optional
+        Estimate ``Lc`` too (default True: the method needs it).
+
+    Raises
+    ------
+    InputError
+        When the joint columns do not match the machine, start poses cannot be found, or no row
+        can be solved.
+    """
 
     def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=True):
         super().__init__(machine, data, sigma_m, estimate_link_length)
@@ -294,6 +543,24 @@ class ConstraintLinkFK(_ImplicitPoseProblem):
         self._keep_solved_rows(machine.fk(data.q, um, start=self.start_poses(None)))
 
     def evaluate(self, state, jacobian=True):
+        """Link-length residuals ``|FK(q)| - Lc`` of the forward kinematics of all six readings.
+
+        Parameters
+        ----------
+        state : SphereState
+            Global values; its poses are the warm start and are updated in place.
+        jacobian : bool, optional
+            Also compute the Jacobian.
+
+        Returns
+        -------
+        r : ndarray, shape (K, 1)
+            Residuals divided by the mean encoder noise; NaN where the forward kinematics failed.
+        J_g : ndarray, shape (K, 1, n_machine + 1) or None
+            Total derivatives with respect to the global parameters.
+        J_l : None
+            No local unknowns.
+        """
         fk = self._poses(state, constrained=False)
         um, Lc = self.split(state.u)
         K = len(self.data)
@@ -322,18 +589,42 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
 
     Parameters
     ----------
-    method : ``'ml'`` (default), ``'ik'`` or ``'fk'`` (see the module docstring).
-    sigma_m : encoder noise standard deviation(s), m (scalar or per actuator).
-    estimate_link_length : estimate ``Lc`` too (default: only for ``'fk'``).
-    per_chain : ``'ik'`` only: the paper's chain-by-chain sweeps.
-    options : passed to :func:`levenberg_marquardt` (``xtol``, ``ftol``, ``max_iter``).
+    machine : Machine
+        Start geometry (a Hexa Slide with ``constraint_link_length``); not modified.
+    data : ConstraintLinkData
+        Readings taken with the link mounted.
+    method : {'ml', 'ik', 'fk'}, optional
+        Maximum likelihood, the paper's inverse- or forward-kinematics method (see the module
+        docstring).
+    sigma_m : float or array_like, optional
+        Encoder noise standard deviation(s), m (scalar or per actuator).
+    estimate_link_length : bool, optional
+        Estimate ``Lc`` too (default: only for ``'fk'``).
+    per_chain : bool, optional
+        ``'ik'`` only: the paper's chain-by-chain sweeps.
+    max_sweeps : int, optional
+        ``per_chain`` only: maximum number of sweeps over the chains.
+    rtol : float, optional
+        Rank tolerance of :func:`levenberg_marquardt`.
+    **options
+        Passed to :func:`levenberg_marquardt` (``xtol``, ``ftol``, ``max_iter``, ``max_std``;
+        without ``per_chain``, ``max_std`` defaults to :data:`MAX_STD`).
 
     Returns
     -------
-    CalibrationResult with ``extras``: ``method``, ``machine`` (calibrated machine, home kept
-    from ``machine`` when reachable), ``unidentifiable`` (named null directions),
-    ``link_length``, ``dropped_rows`` (file rows the paper's methods could not solve for a
-    pose with the start geometry and left out).
+    CalibrationResult
+        With ``extras``: ``method``; ``machine``, the calibrated machine (home kept from
+        ``machine`` when reachable, else the nearest measured pose); ``link_length``;
+        ``unidentifiable``, the named null and weak directions; ``dropped_rows``, file rows the
+        paper's methods could not solve for a pose with the start geometry and left out; with
+        ``per_chain`` also ``sweeps``.
+
+    Raises
+    ------
+    InputError
+        When ``method`` is unknown, ``per_chain`` is used without ``'ik'``, the data give fewer
+        equations than identifiable parameters, or the problem cannot be set up (see the
+        problem classes).
     """
     if method not in PROBLEMS:
         raise InputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")

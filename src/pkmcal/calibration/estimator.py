@@ -33,53 +33,143 @@ from ..parameters import ParameterSet
 
 
 class BlockProblem(Protocol):
-    """What the estimator needs from a calibration problem."""
+    """What the estimator needs from a calibration problem (a structural protocol).
 
-    #: global unknowns, start values and fixed flags
+    Attributes
+    ----------
+    parameters : ParameterSet
+        Global unknowns, start values and fixed flags.
+    scales : ndarray, shape (n,)
+        Column scale of each global parameter (lengths by a characteristic length, angles by 1).
+    local_dof : int
+        Number of local unknowns per measurement (0 when there are none).
+    cost_floor : float
+        Optional: cost at the numerical precision of the residuals (inner solves such as
+        forward kinematics converge to a tolerance); the estimator stops below it.
+    """
+
     parameters: ParameterSet
-    #: column scale of each global parameter (lengths by a characteristic length, angles by 1)
     scales: np.ndarray
-    #: number of local unknowns per measurement (0 when there are none)
     local_dof: int
-    #: optional: cost at the numerical precision of the residuals (inner solves such as
-    #: forward kinematics converge to a tolerance); the estimator stops below it
     cost_floor: float
 
-    def initial_state(self) -> Any: ...
+    def initial_state(self) -> Any:
+        """The start state (global values and any per-measurement unknowns).
 
-    def global_values(self, state) -> np.ndarray: ...
+        Returns
+        -------
+        object
+            A problem-specific state, passed to :meth:`evaluate` and :meth:`retract`.
+        """
+
+    def global_values(self, state) -> np.ndarray:
+        """The global parameter values of a state.
+
+        Parameters
+        ----------
+        state : object
+            A state of this problem.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            Global parameters, internal units.
+        """
 
     def evaluate(self, state, jacobian: bool = True):
-        """``(r (K,m), J_g (K,m,n) or None, J_l (K,m,d) or None)``; NaN in r = infeasible."""
+        """Whitened residuals and Jacobians at a state.
 
-    def retract(self, state, du: np.ndarray, dl: np.ndarray | None) -> Any: ...
+        Parameters
+        ----------
+        state : object
+            A state of this problem.
+        jacobian : bool, optional
+            Also compute the Jacobians.
+
+        Returns
+        -------
+        r : ndarray, shape (K, m)
+            Whitened residuals per measurement; NaN marks an infeasible state.
+        J_g : ndarray, shape (K, m, n) or None
+            Derivatives with respect to the global parameters (None without ``jacobian``).
+        J_l : ndarray, shape (K, m, d) or None
+            Derivatives with respect to each measurement's local unknowns (None when there are
+            none or without ``jacobian``).
+        """
+
+    def retract(self, state, du: np.ndarray, dl: np.ndarray | None) -> Any:
+        """The state after a step.
+
+        Parameters
+        ----------
+        state : object
+            A state of this problem.
+        du : ndarray, shape (n,)
+            Step of the global parameters, internal units.
+        dl : ndarray, shape (K, d) or None
+            Step of the local unknowns (None when there are none).
+
+        Returns
+        -------
+        object
+            The new state (the old one is not modified).
+        """
 
 
 @dataclass
 class CalibrationResult:
     """Result of a calibration, in the style of :class:`scipy.optimize.OptimizeResult`.
 
+    Items can also be read as ``result["x"]``.
+
     Attributes
     ----------
-    x : (n,) identified global parameters (internal units).
-    parameters : ParameterSet with ``x`` as values.
-    cost : ``0.5 * sum(r^2)`` of the whitened residuals.
-    residuals : (K, m) whitened residuals at the solution.
-    success, status, message : convergence; ``status`` 1 Gauss-Newton step small, 2 cost flat,
-        3 no step reduces the cost, 0 maximum iterations.
-    nit, nfev : iterations and residual evaluations.
-    rank : number of directions identified (stepped along) among the free parameters.
-    singular_values : of the scaled reduced Jacobian of the free parameters.
-    null_space : (n, k) unidentifiable directions (numerically null) in scaled coordinates.
-    weak_space : (n, w) weakly identifiable directions: not null, but with a standard
-        deviation above ``max_std`` (scaled units) under the assumed noise; not adjusted.
-    weak_std : (w,) their standard deviations (scaled units).
-    covariance : (n, n) of ``x`` (zeros for fixed parameters), minimum-norm (pseudo-inverse)
-        covariance, multiplied by ``residual_variance`` unless ``absolute_sigma``.
-    std : (n,) standard deviations, ``sqrt(diag(covariance))``.
-    residual_variance : ``2 cost / dof`` (SPEC STYLE: not ``cost^2/(m-n)``).
-    dof : number of whitened residuals minus identified and local unknowns.
-    state : final problem state (e.g. the per-measurement poses).
+    x : ndarray, shape (n,)
+        Identified global parameters (internal units).
+    parameters : ParameterSet
+        The problem's parameters with ``x`` as values.
+    cost : float
+        ``0.5 * sum(r^2)`` of the whitened residuals.
+    residuals : ndarray, shape (K, m)
+        Whitened residuals at the solution.
+    success : bool
+        Whether the iteration converged (``status`` 1 or 2).
+    status : int
+        1 Gauss-Newton step negligible, 2 cost cannot decrease further, 3 no step reduces the
+        cost, 0 maximum iterations.
+    message : str
+        ``status`` in words.
+    nit : int
+        Iterations.
+    nfev : int
+        Residual evaluations.
+    rank : int
+        Number of directions identified (stepped along) among the free parameters.
+    singular_values : ndarray
+        Singular values of the scaled reduced Jacobian of the free parameters.
+    null_space : ndarray, shape (n, k)
+        Unidentifiable directions (numerically null) in scaled coordinates.
+    scales : ndarray, shape (n,)
+        Column scales of the parameters (the problem's ``scales``).
+    weak_space : ndarray, shape (n, w)
+        Weakly identifiable directions: not null, but with a standard deviation above
+        ``max_std`` (scaled units) under the assumed noise; not adjusted.
+    weak_std : ndarray, shape (w,)
+        Their standard deviations (scaled units).
+    covariance : ndarray, shape (n, n)
+        Covariance of ``x`` (zeros for fixed parameters), minimum-norm (pseudo-inverse),
+        multiplied by ``residual_variance`` unless ``absolute_sigma``.
+    std : ndarray, shape (n,)
+        Standard deviations, ``sqrt(diag(covariance))``.
+    residual_variance : float
+        ``2 cost / dof`` (SPEC STYLE: not ``cost^2/(m-n)``); NaN when ``dof <= 0``.
+    dof : int
+        Number of whitened residuals minus identified and local unknowns.
+    state : object, optional
+        Final problem state (e.g. the per-measurement poses).
+    extras : dict, optional
+        Results of the calibration method built on the estimator (e.g. ``"machine"``, the
+        calibrated machine; ``"registration"``); empty from :func:`levenberg_marquardt`.
     """
 
     x: np.ndarray
@@ -115,7 +205,27 @@ MAX_STD = 0.1
 def reduce_local(r, Jg, Jl):
     """Eliminate local unknowns: reduced rows/residuals and the back-substitution operator.
 
-    Returns ``(Jr (M, n), er (M,), back)`` with ``back(du) -> dl (K, d)``.
+    A complete QR of each measurement's local Jacobian ``J_l,k = [Q1 Q2] [R1; 0]`` gives the
+    reduced rows ``Q2^T J_g,k`` and residuals ``Q2^T r_k``.
+
+    Parameters
+    ----------
+    r : ndarray, shape (K, m)
+        Residuals.
+    Jg : ndarray, shape (K, m, n)
+        Jacobian of the global unknowns (in whatever column scaling the caller uses).
+    Jl : ndarray, shape (K, m, d) or None
+        Jacobian of the local unknowns; None or ``d = 0`` when there are none.
+
+    Returns
+    -------
+    Jr : ndarray, shape (M, n)
+        Reduced Jacobian, ``M = K (m - d)``.
+    er : ndarray, shape (M,)
+        Reduced residuals.
+    back : callable
+        ``back(du) -> dl`` (K, d): the local step that goes with a global step ``du`` (in the
+        columns of ``Jg``); returns None without local unknowns.
     """
     K, m = r.shape
     if Jl is None or Jl.shape[-1] == 0:
@@ -143,21 +253,43 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
 
     Parameters
     ----------
-    rtol : relative tolerance on singular values of the scaled reduced Jacobian; directions
-        with ``s_i < rtol * s_1`` are unidentifiable and never stepped along.
-    xtol : stop when the largest component of the (undamped) Gauss-Newton step, in scaled
+    problem : BlockProblem
+        The calibration problem.
+    rtol : float, optional
+        Relative tolerance on singular values of the scaled reduced Jacobian; directions with
+        ``s_i < rtol * s_1`` are unidentifiable and never stepped along.
+    xtol : float, optional
+        Stop when the largest component of the (undamped) Gauss-Newton step, in scaled
         coordinates, is below ``xtol``, or when that step would lower the cost by less than
         ``1e-12`` of it (the optimum of noisy data), or when the cost is below the problem's
         ``cost_floor`` (the precision of residuals computed by an inner solve).
-    ftol : stop when the relative cost decrease of an accepted step is below ``ftol``.
-    absolute_sigma : residuals are whitened by true standard deviations: report the
-        covariance without rescaling by the residual variance.
-    max_std : a direction whose standard deviation under the assumed noise exceeds this, in
-        scaled units (0.1 = 10 % of the characteristic length, or 5.7 deg), is not determined
-        by the data in any useful sense: it is neither stepped along (stepping along it stalls
-        the iteration in a curved valley) nor counted as identified, and it is returned in
+    ftol : float, optional
+        Stop when the relative cost decrease of an accepted undamped step is below ``ftol``.
+    max_iter : int, optional
+        Maximum iterations (>= 1).
+    absolute_sigma : bool, optional
+        Residuals are whitened by true standard deviations: report the covariance without
+        rescaling by the residual variance.
+    state : object, optional
+        State to start from; default ``problem.initial_state()``.
+    max_std : float, optional
+        A direction whose standard deviation under the assumed noise exceeds this, in scaled
+        units (0.1 = 10 % of the characteristic length, or 5.7 deg), is not determined by the
+        data in any useful sense: it is neither stepped along (stepping along it stalls the
+        iteration in a curved valley) nor counted as identified, and it is returned in
         ``weak_space``. None (default): numerical rank only; the machine calibrations pass
         :data:`MAX_STD`, where scaled units have that meaning.
+
+    Returns
+    -------
+    CalibrationResult
+        The estimate, its statistics and the identifiable / null / weak directions.
+
+    Raises
+    ------
+    ValueError
+        When a tolerance is outside [0, 1), ``max_iter < 1``, ``max_std`` is not positive, or
+        the residuals are not finite at the start point.
     """
     for name, v in (("rtol", rtol), ("xtol", xtol), ("ftol", ftol)):
         if not (np.isfinite(v) and 0 <= v < 1):

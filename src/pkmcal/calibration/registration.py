@@ -15,7 +15,31 @@ def register_points(source, target, what: str = "tracker registration", rel_tol=
     rotation about their line is undetermined. Both sets are checked (second singular value of
     the centred points at most ``rel_tol`` times the first): measured points are never exactly
     collinear, but points commanded on a line are collinear in the model, and the rotation
-    about that line is undetermined just the same. Raises :class:`InputError` otherwise.
+    about that line is undetermined just the same.
+
+    Parameters
+    ----------
+    source : array_like, shape (K, 3)
+        Points to transform.
+    target : array_like, shape (K, 3)
+        Corresponding points to match.
+    what : str, optional
+        What is being registered, the start of error messages.
+    rel_tol : float, optional
+        Collinearity threshold on the ratio of singular values.
+
+    Returns
+    -------
+    R : ndarray, shape (3, 3)
+        Rotation.
+    t : ndarray, shape (3,)
+        Translation, in the units of the points.
+
+    Raises
+    ------
+    InputError
+        When the shapes differ or are not (K, 3), fewer than 4 points are given, or either set
+        is collinear.
     """
     source = np.asarray(source, float)
     target = np.asarray(target, float)

@@ -41,7 +41,30 @@ class TrackerState:
 
 
 class TrackerProblem:
-    """Block problem (no per-point unknowns) for tracker calibration."""
+    """Block problem (no per-point unknowns) for tracker calibration.
+
+    Global unknowns: the machine's parameters and ``tracker.rx/ry/rz/x/y/z`` (rotation
+    increments about the base axes from the start registration, and the translation).
+
+    Parameters
+    ----------
+    machine : Delta
+        Start geometry (needs ``smr_offset``).
+    data : TrackerData
+        Actuator readings and tracker points.
+    noise : TrackerNoise or None
+        Whitens the residuals; None: unit weights (to differentiate predictions, not to fit).
+    registration : tuple of ndarray
+        Start ``base_from_tracker = (R (3, 3), t (3,))``.
+    joint : bool, optional
+        Estimate the tracker pose together with the errors; False holds it at
+        ``registration`` (seed 001's two-step method).
+
+    Raises
+    ------
+    InputError
+        When the machine's forward kinematics cannot reproduce some readings.
+    """
 
     local_dof = 0
 
@@ -71,13 +94,47 @@ class TrackerProblem:
                              "reproduces these actuator readings")
 
     def initial_state(self):
+        """Start state: the machine's parameters and the start registration.
+
+        Returns
+        -------
+        TrackerState
+            The state.
+        """
         return TrackerState(self.machine.u.copy(), self.R0.copy(), self.t0.copy())
 
     def global_values(self, state):
+        """Global values of a state: machine parameters, tracker rotation increment, translation.
+
+        Parameters
+        ----------
+        state : TrackerState
+            An estimator state.
+
+        Returns
+        -------
+        ndarray, shape (n_machine + 6,)
+            Parameter values, internal units.
+        """
         return np.concatenate([state.u, rotvec_from_matrix(state.R @ self.R0.T), state.t])
 
     def predict(self, state, q=None):
-        """Predicted tracker points (K, 3), and the FK positions and validity."""
+        """Predicted tracker points, and the forward kinematics behind them.
+
+        Parameters
+        ----------
+        state : TrackerState
+            Machine parameters and tracker pose.
+        q : array_like, shape (K, n_joints), optional
+            Actuator readings, rad; default: the data's.
+
+        Returns
+        -------
+        m : ndarray, shape (K, 3)
+            Predicted SMR points in the tracker frame, m.
+        fk : FKResult
+            Forward kinematics of the readings (positions and validity).
+        """
         m_centred, fk = self._predict_centred(state, q)
         return m_centred + self.m0, fk
 
@@ -89,6 +146,24 @@ class TrackerProblem:
         return (fk.P - self.h - c) @ state.R, fk
 
     def evaluate(self, state, jacobian=True):
+        """Whitened point residuals ``W_k (m_k - prediction_k)`` and their Jacobian.
+
+        Parameters
+        ----------
+        state : TrackerState
+            Machine parameters and tracker pose.
+        jacobian : bool, optional
+            Also compute the Jacobian.
+
+        Returns
+        -------
+        r : ndarray, shape (K, 3)
+            Whitened residuals; NaN where the forward kinematics failed.
+        J_g : ndarray, shape (K, 3, n_machine + 6) or None
+            Derivatives with respect to the machine parameters and the tracker pose.
+        J_l : None
+            No local unknowns.
+        """
         m_pred, fk = self._predict_centred(state)
         e = np.einsum("kij,kj->ki", self.W, self.m_centred - m_pred)
         e = np.where(fk.converged[:, None], e, np.nan)
@@ -105,12 +180,42 @@ class TrackerProblem:
         return e, np.einsum("kij,kjn->kin", self.W, J), None
 
     def retract(self, state, du, dl):
+        """The state after a global step (tracker rotation applied on the left).
+
+        Parameters
+        ----------
+        state : TrackerState
+            Current state.
+        du : ndarray, shape (n_machine + 6,)
+            Step of the global parameters.
+        dl : None
+            Unused.
+
+        Returns
+        -------
+        TrackerState
+            The new state.
+        """
         n = self.n_machine
         return TrackerState(state.u + du[:n], matrix_from_rotvec(du[n:n + 3]) @ state.R,
                             state.t + du[n + 3:])
 
     def null_groups(self, scales):
-        """The known unidentifiable directions, in words (scaled coordinates)."""
+        """The known unidentifiable directions, in words (scaled coordinates).
+
+        Per leg ``da + db`` (only ``db - da`` enters the leg equation) and, when the tracker pose
+        is estimated, a translation of the tracker with every platform joint.
+
+        Parameters
+        ----------
+        scales : ndarray, shape (n,)
+            Column scales; the directions are returned in scaled coordinates.
+
+        Returns
+        -------
+        list of NullGroup
+            The groups.
+        """
         p, n = self.parameters, len(self.parameters)
         groups = []
         for i in range(self.machine.n_joints):
@@ -144,8 +249,42 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
     The registration starts from the closed form on the nominal model (>= 4 points, not
     collinear). ``robust=True`` rejects outlier rows iteratively: a row whose whitened
     residual norm exceeds ``outlier_threshold`` robust standard deviations (median-based) is
-    flagged and left out, and the fit is repeated until the set is stable; the flagged file
-    rows are in ``extras["outlier_rows"]``.
+    flagged and left out, and the fit is repeated (at most 10 times) until the set is stable.
+
+    Parameters
+    ----------
+    machine : Delta
+        Start geometry; not modified.
+    data : TrackerData
+        Actuator readings and tracker points.
+    noise : TrackerNoise, optional
+        Tracker noise (default values when None).
+    joint : bool, optional
+        Estimate the tracker pose together with the errors (default); False: seed 001's
+        two-step method, registration fixed.
+    robust : bool, optional
+        Find and leave out outlier rows.
+    outlier_threshold : float, optional
+        Rejection threshold, in robust standard deviations of the residual norm.
+    rtol : float, optional
+        Rank tolerance of :func:`levenberg_marquardt`.
+    **options
+        Passed to :func:`levenberg_marquardt` (``xtol``, ``ftol``, ``max_iter``, ``max_std``;
+        ``max_std`` defaults to :data:`MAX_STD`).
+
+    Returns
+    -------
+    CalibrationResult
+        With ``extras``: ``problem``; ``method`` (``"tracker-joint"`` or
+        ``"tracker-two-step"``); ``machine``, the calibrated machine with
+        ``base_from_tracker``; ``registration``; ``start_registration``; ``outlier_rows``
+        (file rows left out); ``kept`` (mask of the rows used); ``unidentifiable``.
+
+    Raises
+    ------
+    InputError
+        When the model cannot reproduce some readings, the points cannot be registered, or
+        there are fewer equations than identifiable parameters.
     """
     noise = TrackerNoise() if noise is None else noise
     fk = machine.fk(data.q)
@@ -190,14 +329,46 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
 
 
 def predict_tracker_points(machine: Machine, q, base_from_tracker):
-    """Tracker-frame SMR points predicted by a model for readings ``q`` (K, n_joints)."""
+    """Tracker-frame SMR points predicted by a model for actuator readings.
+
+    Parameters
+    ----------
+    machine : Delta
+        The model (needs ``smr_offset``).
+    q : array_like, shape (K, n_joints)
+        Actuator readings, rad.
+    base_from_tracker : tuple of array_like
+        ``(R (3, 3), t (3,))``: a tracker point ``m`` is ``R m + t`` in the base frame.
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+        Predicted points, m, tracker frame (NaN where the forward kinematics fail).
+    """
     R, t = base_from_tracker
     P = machine.fk(q).P
     return (P - np.array([0.0, 0.0, machine.smr_offset]) - t) @ R
 
 
 def distance_ratios(machine: Machine, q, m, pairs):
-    """Seed 001 Fig. 6: FK distance / tracker distance x 100 % for point pairs (frame-free)."""
+    """Seed 001 Fig. 6: FK distance / tracker distance x 100 % for point pairs (frame-free).
+
+    Parameters
+    ----------
+    machine : Delta
+        The model.
+    q : array_like, shape (K, n_joints)
+        Actuator readings, rad.
+    m : ndarray, shape (K, 3)
+        Measured tracker points, m.
+    pairs : ndarray of int, shape (M, 2)
+        Row index pairs (e.g. :func:`~pkmcal.measurements.neighbour_pairs`).
+
+    Returns
+    -------
+    ndarray, shape (M,)
+        Ratios in percent (100 = distances agree).
+    """
     P = machine.fk(q).P
     d_model = np.linalg.norm(P[pairs[:, 0]] - P[pairs[:, 1]], axis=-1)
     d_meas = np.linalg.norm(m[pairs[:, 0]] - m[pairs[:, 1]], axis=-1)
@@ -205,10 +376,30 @@ def distance_ratios(machine: Machine, q, m, pairs):
 
 
 def prediction_covariance(result: CalibrationResult, q):
-    """Covariance (K, 3, 3) of the tracker points a calibrated model predicts for readings
-    ``q``: ``J C J^T`` with ``C`` the estimate's covariance (first order; the Cramér-Rao
-    prediction when ``C`` is at the truth with exact noise). Gauge-free: the unidentifiable
-    directions change no prediction."""
+    """Covariance of the tracker points a calibrated model predicts for readings ``q``.
+
+    ``J C J^T`` with ``C`` the estimate's covariance (first order; the Cramér-Rao prediction
+    when ``C`` is at the truth with exact noise). Gauge-free: the unidentifiable directions
+    change no prediction.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        Result of :func:`calibrate_tracker` (uses ``extras["problem"]``, ``state`` and
+        ``covariance``).
+    q : array_like, shape (K, n_joints) or (n_joints,)
+        Actuator readings, rad.
+
+    Returns
+    -------
+    ndarray, shape (K, 3, 3)
+        Covariance of each predicted point, m^2, tracker frame.
+
+    Raises
+    ------
+    InputError
+        When the model cannot reproduce some readings.
+    """
     problem = result.extras["problem"]
     pseudo = TrackerData(np.atleast_2d(q), np.zeros((len(np.atleast_2d(q)), 3)))
     unit = TrackerProblem(problem.machine, pseudo, None,

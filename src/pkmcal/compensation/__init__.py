@@ -28,14 +28,23 @@ WORKSPACE_FIT_POSES = 300
 class Compensation:
     """Joint commands for targets and their predicted residual errors.
 
-    q : (K, n_joints) commands (internal units; NaN where a target is unreachable).
-    reachable : (K,) bool.
-    position_std, orientation_std : (K,) predicted 1-sigma residual error (m, rad) from the
-        calibration's covariance, or None without one (orientation: None for 3-dof
-        platforms).
-    uncompensated_position, uncompensated_orientation : (K,) how far the calibrated model says
-        the platform would be from the target when commanded with the ``nominal`` model
-        (m, rad), or None.
+    Attributes
+    ----------
+    q : ndarray, shape (K, n_joints)
+        Commands, internal units (NaN where a target is unreachable).
+    reachable : ndarray of bool, shape (K,)
+        Targets the calibrated model reaches.
+    position_std : ndarray, shape (K,), optional
+        Predicted 1-sigma residual position error, m, from the calibration's covariance; None
+        without one.
+    orientation_std : ndarray, shape (K,), optional
+        The same for the orientation, rad; None without a covariance or for 3-dof platforms.
+    uncompensated_position : ndarray, shape (K,), optional
+        How far the calibrated model says the platform would be from the target when commanded
+        with the ``nominal`` model, m; NaN where that cannot be computed; None without
+        ``nominal``.
+    uncompensated_orientation : ndarray, shape (K,), optional
+        The same for the orientation, rad; None without ``nominal`` or for 3-dof platforms.
     """
 
     q: np.ndarray
@@ -48,10 +57,34 @@ class Compensation:
 
 def compensate(calibrated: Machine, P, R=None, covariance=None,
                nominal: Machine | None = None, null=None) -> Compensation:
-    """Commands ``q = IK_calibrated(x)`` for targets ``(P, R)`` (R ignored by 3-dof
-    platforms), the predicted residual error with ``covariance`` (n, n) of the calibrated
-    machine's parameters (SI) - pose changes along the unidentifiable directions ``null``
-    (n, k) removed - and the error the ``nominal`` model's commands would leave."""
+    """Commands ``q = IK_calibrated(x)`` for targets, with their predicted residual errors.
+
+    The residual error is predicted from the ``covariance`` of the calibrated machine's
+    parameters, with pose changes along the unidentifiable directions ``null`` removed by a
+    fit over the workspace (see the module docstring); the error the ``nominal`` model's
+    commands would leave comes from the calibrated model's forward kinematics.
+
+    Parameters
+    ----------
+    calibrated : Machine
+        The calibrated machine.
+    P : array_like, shape (K, 3) or (3,)
+        Target positions, m.
+    R : array_like, shape (K, 3, 3), optional
+        Target orientations (ignored by 3-dof platforms); default identity.
+    covariance : array_like, shape (n, n), optional
+        Covariance of the calibrated machine's parameters (SI).
+    nominal : Machine, optional
+        The uncalibrated model, to report what compensation gains.
+    null : array_like, shape (n, k), optional
+        Unidentifiable directions of the parameters (columns, in the parameters' SI units),
+        whose pose changes are removed from the predicted error.
+
+    Returns
+    -------
+    Compensation
+        Commands, reachability and the predicted errors that were asked for.
+    """
     from ..analysis.prediction import align_out, pose_sensitivity
     from ..kinematics import rotation_angle
 

@@ -12,19 +12,60 @@ from ..parameters import ParameterSet
 
 @dataclass
 class NullDirection:
-    """One explained group of unidentifiable directions, or one unexplained direction."""
+    """One explained group of unidentifiable directions, or one unexplained direction.
+
+    Attributes
+    ----------
+    name : str
+        The group's name, or the direction as a parameter combination
+        (``"leg2.dl1 - 0.8 leg2.dtheta"``).
+    dimension : int
+        Number of directions it stands for.
+    description : str
+        What it means, in words.
+    """
 
     name: str
     dimension: int
     description: str
 
     def as_dict(self) -> dict:
+        """The direction as a JSON-ready dict.
+
+        Returns
+        -------
+        dict
+            ``name``, ``dimension`` and ``description``.
+        """
         return {"name": self.name, "dimension": self.dimension, "description": self.description}
 
 
 @dataclass
 class IdentifiabilityReport:
-    """Rank, named unidentifiable directions and observability indices (SPEC 3)."""
+    """Rank, named unidentifiable directions and observability indices (SPEC 3).
+
+    Attributes
+    ----------
+    parameters : int
+        Number of free parameters (columns of the Jacobian).
+    identifiable : int
+        Numerical rank: the number of identifiable directions.
+    singular_values : ndarray
+        Singular values of the scaled reduced Jacobian, largest first.
+    unidentifiable : list of NullDirection, optional
+        The null space in words.
+    observability : dict, optional
+        O1..O5 (:func:`observability_indices`).
+    condition_number : float, optional
+        Largest over smallest nonzero (identified) singular value; inf when nothing is
+        identifiable.
+    hold_fixed : list of str, optional
+        A minimal identifiable set: hold these (free) parameters at their nominal values and the
+        others are identifiable (QR with column pivoting; empty when not computed).
+    correlated : list of tuple, optional
+        Parameter pairs ``(a, b, correlation)`` with ``|correlation| > 0.9`` in the
+        pseudo-inverse covariance (identifiable part), largest first.
+    """
 
     parameters: int
     identifiable: int
@@ -32,14 +73,19 @@ class IdentifiabilityReport:
     unidentifiable: list[NullDirection] = field(default_factory=list)
     observability: dict = field(default_factory=dict)
     condition_number: float = float("nan")
-    #: a minimal identifiable set: hold these (free) parameters at their nominal values and
-    #: the others are identifiable (QR with column pivoting; empty when not computed)
     hold_fixed: list[str] = field(default_factory=list)
-    #: parameter pairs ``(a, b, correlation)`` with ``|correlation| > 0.9`` in the
-    #: pseudo-inverse covariance (identifiable part), largest first
     correlated: list[tuple[str, str, float]] = field(default_factory=list)
 
     def as_dict(self) -> dict:
+        """The report as a JSON-ready dict (without the singular values).
+
+        Returns
+        -------
+        dict
+            ``parameters``, ``identifiable``, ``unidentifiable`` (list of dicts), ``observability``,
+            ``condition_number``, ``hold_fixed`` and ``correlated`` (dicts with ``a``, ``b``,
+            ``correlation``).
+        """
         return {
             "parameters": self.parameters,
             "identifiable": self.identifiable,
@@ -51,7 +97,18 @@ class IdentifiabilityReport:
         }
 
     def summary(self, max_pairs: int = 10) -> str:
-        """The report in words."""
+        """The report in words.
+
+        Parameters
+        ----------
+        max_pairs : int, optional
+            Number of correlated pairs listed; the rest are counted.
+
+        Returns
+        -------
+        str
+            Several lines of text.
+        """
         lines = [f"{self.identifiable} of {self.parameters} free parameter directions are "
                  "identifiable from these data."]
         for d in self.unidentifiable:
@@ -74,6 +131,18 @@ def observability_indices(singular_values, n_rows: int = 1) -> dict:
 
     ``O1 = (s1...sL)^(1/L) / sqrt(m)`` (D-optimality, ``m = n_rows``), ``O2 = sL/s1``,
     ``O3 = sL``, ``O4 = sL^2/s1``, ``O5 = 1 / sum(1/si)``.
+
+    Parameters
+    ----------
+    singular_values : array_like
+        Singular values in decreasing order (zeros are ignored).
+    n_rows : int, optional
+        Number of rows ``m`` of the Jacobian.
+
+    Returns
+    -------
+    dict
+        ``{"O1": ..., "O5": ...}`` as floats; all 0 without a nonzero singular value.
     """
     s = np.asarray(singular_values, float)
     s = s[s > 0]
@@ -92,9 +161,17 @@ def observability_indices(singular_values, n_rows: int = 1) -> dict:
 class NullGroup:
     """A known group of unidentifiable directions, in words, with its tangent vectors.
 
-    ``tangents`` (n, k) are directions of the full parameter vector in *scaled* coordinates
-    (the estimator's). A gauge of frame rotations gives 3 of them; "only ``db - da`` enters"
-    gives one per coordinate.
+    A gauge of frame rotations gives 3 tangents; "only ``db - da`` enters" gives one per
+    coordinate.
+
+    Attributes
+    ----------
+    name : str
+        Short name of the group.
+    description : str
+        What it means, in words.
+    tangents : ndarray, shape (n, k)
+        Directions of the full parameter vector in *scaled* coordinates (the estimator's).
     """
 
     name: str
@@ -106,9 +183,23 @@ def name_null_space(null_space, parameters: ParameterSet,
                     groups: Sequence[NullGroup] = ()) -> list[NullDirection]:
     """Explain unidentifiable directions by known groups first, then in named parameters.
 
-    ``null_space``: (n, k) orthonormal directions in scaled coordinates. A group is reported
-    with the number of its directions that lie in the null space; directions no group explains
-    are described by their largest parameter components (``"leg2.dl1 - 0.8 leg2.dtheta"``).
+    A group is reported with the number of its directions that lie in the null space;
+    directions no group explains are described by their largest parameter components
+    (``"leg2.dl1 - 0.8 leg2.dtheta"``).
+
+    Parameters
+    ----------
+    null_space : array_like, shape (n, k)
+        Orthonormal directions in scaled coordinates.
+    parameters : ParameterSet
+        Names of the ``n`` parameters.
+    groups : sequence of NullGroup, optional
+        Known groups, tried in order.
+
+    Returns
+    -------
+    list of NullDirection
+        The groups found, then one entry per unexplained direction.
     """
     N = np.asarray(null_space, float)
     out: list[NullDirection] = []
@@ -134,8 +225,23 @@ def name_null_space(null_space, parameters: ParameterSet,
 
 
 def name_weak_directions(result, parameters: ParameterSet) -> list[NullDirection]:
-    """The weakly identifiable directions of a calibration result, in words with their
-    standard deviations (scaled units: a fraction of the characteristic length, or rad)."""
+    """The weakly identifiable directions of a calibration result, in words.
+
+    Each with its standard deviation (scaled units: a fraction of the characteristic length,
+    or rad).
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        Uses ``weak_space`` and ``weak_std``.
+    parameters : ParameterSet
+        Names of the parameters.
+
+    Returns
+    -------
+    list of NullDirection
+        One entry per weak direction.
+    """
     out = []
     for k in range(result.weak_space.shape[1]):
         out.append(NullDirection(
@@ -160,7 +266,25 @@ def right_singular(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def analyze(jacobian_scaled, parameters: ParameterSet, rtol: float = 1e-7,
             groups: Sequence[NullGroup] = ()) -> IdentifiabilityReport:
-    """Identifiability of the free parameters from a scaled (reduced) Jacobian (M, n_free)."""
+    """Identifiability of the free parameters from a scaled (reduced) Jacobian.
+
+    Parameters
+    ----------
+    jacobian_scaled : array_like, shape (M, n_free)
+        Jacobian of the free parameters, columns scaled.
+    parameters : ParameterSet
+        All parameters (their ``free`` mask places the columns).
+    rtol : float, optional
+        Singular values below ``rtol`` times the largest count as zero.
+    groups : sequence of NullGroup, optional
+        Known groups that name null directions first.
+
+    Returns
+    -------
+    IdentifiabilityReport
+        Rank, named null space, O1..O5 and condition number (``hold_fixed`` and
+        ``correlated`` are left empty).
+    """
     J = np.asarray(jacobian_scaled, float)
     m = max(J.shape[0], 1)
     s, Vt = right_singular(J)

@@ -19,7 +19,18 @@ from ..kinematics import matrix_from_rotvec
 
 @dataclass(frozen=True)
 class Gauge:
-    """A 3-dimensional group of frame rotations that leaves the data unchanged."""
+    """A 3-dimensional group of frame rotations that leaves the data unchanged.
+
+    Attributes
+    ----------
+    name : str
+        Short name.
+    description : str
+        What it means, in words.
+    apply : callable
+        ``apply(machine, u_machine, G (3, 3)) -> u_machine'``: the parameters with the frame
+        rotated by ``G``.
+    """
 
     name: str
     description: str
@@ -43,7 +54,24 @@ CONSTRAINT_LINK_GAUGES = (BASE_ROTATION_ABOUT_O, PLATFORM_ROTATION_ABOUT_P)
 
 
 def apply_gauges(machine, u_machine, gauges: Sequence[Gauge], g) -> np.ndarray:
-    """Apply the rotations ``g`` (3 per gauge, rotation vectors) to machine parameters."""
+    """Apply the rotations ``g`` (3 per gauge, rotation vectors) to machine parameters.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine whose frame transforms are used.
+    u_machine : array_like, shape (n_machine,)
+        Machine parameters, internal units.
+    gauges : sequence of Gauge
+        The gauges, in the order of ``g``.
+    g : array_like, shape (3 * len(gauges),)
+        Rotation vectors, rad.
+
+    Returns
+    -------
+    ndarray, shape (n_machine,)
+        The transformed parameters.
+    """
     u = np.array(u_machine, float)
     for i, gauge in enumerate(gauges):
         u = gauge.apply(machine, u, matrix_from_rotvec(np.asarray(g[3 * i:3 * i + 3], float)))
@@ -51,10 +79,26 @@ def apply_gauges(machine, u_machine, gauges: Sequence[Gauge], g) -> np.ndarray:
 
 
 def gauge_generators(machine, u_machine, gauges: Sequence[Gauge], eps: float = 1e-6):
-    """Tangent directions (n_machine, 3 * len(gauges)) of the gauges at ``u_machine``.
+    """Tangent directions of the gauges at ``u_machine``.
 
     Central differences of the exact frame transforms (their only use is to *name* null
     directions, so finite-difference precision is ample).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine whose frame transforms are used.
+    u_machine : array_like, shape (n_machine,)
+        Machine parameters, internal units.
+    gauges : sequence of Gauge
+        The gauges.
+    eps : float, optional
+        Finite-difference step, rad.
+
+    Returns
+    -------
+    ndarray, shape (n_machine, 3 * len(gauges))
+        Unscaled tangents.
     """
     cols = []
     for j in range(3 * len(gauges)):
@@ -67,8 +111,27 @@ def gauge_generators(machine, u_machine, gauges: Sequence[Gauge], eps: float = 1
 
 
 def gauge_groups(machine, u_machine, gauges: Sequence[Gauge], scales, n_total=None):
-    """The gauges as :class:`~pkmcal.identifiability.analysis.NullGroup` in scaled coordinates
-    of a parameter vector of length ``n_total`` whose first entries are the machine's."""
+    """The gauges as :class:`~pkmcal.identifiability.analysis.NullGroup` in scaled coordinates.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine whose frame transforms are used.
+    u_machine : array_like, shape (n_machine,)
+        Machine parameters, internal units.
+    gauges : sequence of Gauge
+        The gauges.
+    scales : array_like, shape (n_total,)
+        Column scales of the full parameter vector.
+    n_total : int, optional
+        Length of the full parameter vector, whose first entries are the machine's (the rest
+        are padded with zeros); default ``n_machine``.
+
+    Returns
+    -------
+    list of NullGroup
+        One group (3 tangents) per gauge.
+    """
     from .analysis import NullGroup
 
     gen = gauge_generators(machine, u_machine, gauges)
@@ -82,8 +145,30 @@ def gauge_groups(machine, u_machine, gauges: Sequence[Gauge], scales, n_total=No
 def align_gauge(machine, u_est, u_ref, gauges: Sequence[Gauge], scales, max_iter: int = 20):
     """The member of ``u_est``'s gauge orbit closest to ``u_ref`` (scaled least squares).
 
-    Returns ``(u_aligned, g)``; ``g`` are the gauge rotation vectors. Used to compare an
-    estimate with a known truth gauge-free (SPEC 5).
+    Used to compare an estimate with a known truth gauge-free (SPEC 5). Gauss-Newton with a
+    finite-difference Jacobian.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine whose frame transforms are used.
+    u_est : array_like, shape (n_machine,)
+        Estimated parameters.
+    u_ref : array_like, shape (n_machine,)
+        Reference parameters (e.g. the truth).
+    gauges : sequence of Gauge
+        The gauges to move along.
+    scales : array_like, shape (n_machine,)
+        Column scales weighting the least squares.
+    max_iter : int, optional
+        Maximum Gauss-Newton iterations.
+
+    Returns
+    -------
+    u_aligned : ndarray, shape (n_machine,)
+        The aligned parameters.
+    g : ndarray, shape (3 * len(gauges),)
+        The gauge rotation vectors, rad.
     """
     g = np.zeros(3 * len(gauges))
     scales = np.asarray(scales, float)
@@ -110,6 +195,26 @@ def transport_covariance(machine, u_machine, gauges: Sequence[Gauge], g, covaria
     another member of its gauge orbit (:func:`align_gauge`), its covariance must follow, or a
     rotation of ~1 deg mixes weakly and strongly determined directions.
     ``T`` is the Jacobian of the frame transform by central differences.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine whose frame transforms are used.
+    u_machine : array_like, shape (n_machine,)
+        The estimate.
+    gauges : sequence of Gauge
+        The gauges.
+    g : array_like, shape (3 * len(gauges),)
+        The gauge rotation vectors (from :func:`align_gauge`), rad.
+    covariance : array_like, shape (n_machine, n_machine)
+        Covariance of ``u_machine``.
+    eps : float, optional
+        Relative finite-difference step.
+
+    Returns
+    -------
+    ndarray, shape (n_machine, n_machine)
+        The transported covariance.
     """
     u = np.asarray(u_machine, float)
     n = len(u)

@@ -29,6 +29,18 @@ def problem_null_groups(problem, state) -> list[NullGroup]:
     Problems with a ``null_groups`` method name them themselves (tracker: ``(scales)``, full
     pose: ``(state, scales)``); the constraint-link problems (parameters = the machine's +
     ``link.length``) get the two frame gauges of SPEC 2.1.
+
+    Parameters
+    ----------
+    problem : BlockProblem
+        The calibration problem.
+    state : object
+        The state to linearise at.
+
+    Returns
+    -------
+    list of NullGroup
+        Empty for problems of neither kind.
     """
     scales = np.asarray(problem.scales, float)
     method = getattr(problem, "null_groups", None)
@@ -49,6 +61,18 @@ def minimal_identifiable_set(jacobian_scaled, rank: int) -> np.ndarray:
 
     QR with column pivoting (:func:`scipy.linalg.qr`): the first ``rank`` pivots are the best
     conditioned independent columns; the others are returned (in pivot order).
+
+    Parameters
+    ----------
+    jacobian_scaled : array_like, shape (M, n)
+        Scaled Jacobian.
+    rank : int
+        Its numerical rank.
+
+    Returns
+    -------
+    ndarray of int, shape (n - rank,)
+        Column indices.
     """
     from scipy.linalg import qr
 
@@ -61,8 +85,27 @@ def minimal_identifiable_set(jacobian_scaled, rank: int) -> np.ndarray:
 
 def correlated_pairs(jacobian_scaled, rank: int, names: Sequence[str],
                      threshold: float = CORRELATION_THRESHOLD):
-    """Pairs ``(a, b, r)`` with ``|r| > threshold``, ``r`` the correlation of the
-    pseudo-inverse covariance ``V_r S_r^-2 V_r^T`` (identifiable part), largest first."""
+    """Strongly correlated parameter pairs of the identifiable part.
+
+    ``r`` is the correlation of the pseudo-inverse covariance ``V_r S_r^-2 V_r^T``; of
+    parameters with parallel columns only the first is paired.
+
+    Parameters
+    ----------
+    jacobian_scaled : array_like, shape (M, n)
+        Scaled Jacobian.
+    rank : int
+        Its numerical rank.
+    names : sequence of str
+        Names of the ``n`` columns.
+    threshold : float, optional
+        Pairs with ``|r| > threshold`` are returned.
+
+    Returns
+    -------
+    list of tuple
+        ``(a, b, r)``, largest ``|r|`` first.
+    """
     J = np.asarray(jacobian_scaled, float)
     if rank == 0 or J.shape[1] < 2:
         return []
@@ -95,20 +138,31 @@ def identifiability_report(problem, groups: Sequence[NullGroup] | Callable | Non
 
     Parameters
     ----------
-    problem : a :class:`~pkmcal.calibration.estimator.BlockProblem` (``ConstraintLinkML``,
-        ``TrackerProblem``, ``FullPoseML``, ...).
-    groups : known unidentifiable directions (:class:`NullGroup`, scaled coordinates of the
-        full parameter vector), named before any parameter combination; a callable
-        ``(problem, state) -> groups``; or None: :func:`problem_null_groups`.
-    rtol : relative tolerance on the singular values of the scaled reduced Jacobian.
-    state : where to evaluate (default ``problem.initial_state()``).
+    problem : BlockProblem
+        ``ConstraintLinkML``, ``TrackerProblem``, ``FullPoseML``, ...
+    groups : sequence of NullGroup, callable or None, optional
+        Known unidentifiable directions (scaled coordinates of the full parameter vector),
+        named before any parameter combination; a callable ``(problem, state) -> groups``; or
+        None: :func:`problem_null_groups`.
+    rtol : float, optional
+        Relative tolerance on the singular values of the scaled reduced Jacobian.
+    state : object, optional
+        Where to evaluate (default ``problem.initial_state()``).
 
     Returns
     -------
-    :class:`IdentifiabilityReport` with the free-parameter count, the rank, the named
-    unidentifiable directions, O1..O5, the condition number, ``hold_fixed`` (a minimal
-    identifiable set by QR with column pivoting: the parameters to hold fixed) and
-    ``correlated`` (pairs with ``|correlation| > 0.9``).
+    IdentifiabilityReport
+        The free-parameter count, the rank, the named unidentifiable directions, O1..O5, the
+        condition number, ``hold_fixed`` (a minimal identifiable set by QR with column
+        pivoting: the parameters to hold fixed) and ``correlated`` (pairs with
+        ``|correlation| > 0.9``).
+
+    Raises
+    ------
+    ValueError
+        When ``rtol`` is outside [0, 1).
+    InputError
+        When the residuals or Jacobians are not finite at the state.
     """
     from ..calibration.estimator import reduce_local
 

@@ -25,9 +25,30 @@ def _default_mode() -> int:
 def atomic_write_text(path, text: str, encoding: str = "utf-8") -> Path:
     """Write ``text`` to ``path`` atomically; return the path.
 
-    The destination keeps its permissions when it exists (else the umask default applies).
-    Raises :class:`FileNotFoundError` when the destination directory does not exist; the
-    temporary file is removed on any failure.
+    The text goes to a temporary file in the destination directory, is flushed to disk and
+    moved over the destination. The destination keeps its permissions when it exists (else
+    the umask default applies); the temporary file is removed on any failure.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination file.
+    text : str
+        Content.
+    encoding : str, optional
+        Text encoding.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    FileNotFoundError
+        When the destination directory does not exist.
+    IsADirectoryError
+        When ``path`` is a directory.
     """
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")

@@ -13,7 +13,18 @@ import numpy as np
 
 
 def rot_x(angle):
-    """Rotation about X by ``angle`` (rad), shape ``(..., 3, 3)``."""
+    """Rotation about X by ``angle``.
+
+    Parameters
+    ----------
+    angle : array_like, shape (...)
+        Angle, rad.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Rotation matrices.
+    """
     c, s = np.cos(angle), np.sin(angle)
     o, z = np.ones_like(c), np.zeros_like(c)
     return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1),
@@ -21,7 +32,18 @@ def rot_x(angle):
 
 
 def rot_y(angle):
-    """Rotation about Y by ``angle`` (rad), shape ``(..., 3, 3)``."""
+    """Rotation about Y by ``angle``.
+
+    Parameters
+    ----------
+    angle : array_like, shape (...)
+        Angle, rad.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Rotation matrices.
+    """
     c, s = np.cos(angle), np.sin(angle)
     o, z = np.ones_like(c), np.zeros_like(c)
     return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1),
@@ -29,7 +51,18 @@ def rot_y(angle):
 
 
 def rot_z(angle):
-    """Rotation about Z by ``angle`` (rad), shape ``(..., 3, 3)``."""
+    """Rotation about Z by ``angle``.
+
+    Parameters
+    ----------
+    angle : array_like, shape (...)
+        Angle, rad.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Rotation matrices.
+    """
     c, s = np.cos(angle), np.sin(angle)
     o, z = np.ones_like(c), np.zeros_like(c)
     return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1),
@@ -37,7 +70,18 @@ def rot_z(angle):
 
 
 def matrix_from_euler(angles):
-    """``R = RY(theta) RX(psi) RZ(phi)`` from ``angles = [psi, theta, phi]`` (..., 3) in rad."""
+    """``R = RY(theta) RX(psi) RZ(phi)`` from Euler angles.
+
+    Parameters
+    ----------
+    angles : array_like, shape (..., 3)
+        ``[psi, theta, phi]``, rad.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Rotation matrices.
+    """
     angles = np.asarray(angles, dtype=float)
     psi, theta, phi = angles[..., 0], angles[..., 1], angles[..., 2]
     cps, sps = np.cos(psi), np.sin(psi)
@@ -60,6 +104,16 @@ def euler_from_matrix(R):
     """Inverse of :func:`matrix_from_euler`: ``[psi, theta, phi]`` with ``psi`` in [-pi/2, pi/2].
 
     Singular at ``psi = +/-90 deg`` (gimbal lock), where ``theta + phi`` alone is defined.
+
+    Parameters
+    ----------
+    R : array_like, shape (..., 3, 3)
+        Rotation matrices.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``[psi, theta, phi]``, rad; ``theta`` and ``phi`` in [-pi, pi].
     """
     R = np.asarray(R, dtype=float)
     psi = np.arcsin(np.clip(-R[..., 1, 2], -1.0, 1.0))
@@ -69,7 +123,18 @@ def euler_from_matrix(R):
 
 
 def skew(v):
-    """Cross-product matrix ``[v]x`` with ``skew(v) @ w == cross(v, w)``, shape ``(..., 3, 3)``."""
+    """Cross-product matrix ``[v]x`` with ``skew(v) @ w == cross(v, w)``.
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3)
+        Vectors.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Skew-symmetric matrices.
+    """
     v = np.asarray(v, dtype=float)
     z = np.zeros(v.shape[:-1])
     x, y, w = v[..., 0], v[..., 1], v[..., 2]
@@ -78,7 +143,20 @@ def skew(v):
 
 
 def matrix_from_rotvec(v):
-    """Rodrigues: rotation matrix of the rotation vector ``v`` (..., 3), angle = ``|v|`` rad."""
+    """Rodrigues: rotation matrix of a rotation vector, angle = ``|v|``.
+
+    Small angles use series expansions, so the result keeps full precision near zero.
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3)
+        Rotation vectors (axis times angle), rad.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Rotation matrices.
+    """
     v = np.asarray(v, dtype=float)
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
     theta2 = x * x + y * y + z * z
@@ -108,15 +186,36 @@ def matrix_from_rotvec(v):
 
 
 def rotvec_from_matrix(R):
-    """Rotation vector of ``R`` (..., 3, 3); angle in [0, pi]."""
+    """Rotation vector of a rotation matrix; angle in [0, pi].
+
+    Parameters
+    ----------
+    R : array_like, shape (..., 3, 3)
+        Rotation matrices.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Rotation vectors, rad.
+    """
     R = np.asarray(R, dtype=float)
     return rotvec_from_quaternion(quaternion_from_matrix(R))
 
 
 def quaternion_from_matrix(R):
-    """Unit quaternion ``(qx, qy, qz, qw)`` with ``qw >= 0`` from ``R`` (..., 3, 3).
+    """Unit quaternion ``(qx, qy, qz, qw)`` with ``qw >= 0`` from a rotation matrix.
 
     Uses the largest of the four candidate denominators (Shepperd) for full precision.
+
+    Parameters
+    ----------
+    R : array_like, shape (..., 3, 3)
+        Rotation matrices.
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+        Quaternions, scalar last.
     """
     R = np.asarray(R, dtype=float)
     tr = R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2]
@@ -143,7 +242,18 @@ def quaternion_from_matrix(R):
 
 
 def matrix_from_quaternion(q):
-    """Rotation matrix from ``(qx, qy, qz, qw)`` (..., 4); the quaternion is normalised first."""
+    """Rotation matrix from a quaternion ``(qx, qy, qz, qw)``; the quaternion is normalised first.
+
+    Parameters
+    ----------
+    q : array_like, shape (..., 4)
+        Quaternions, scalar last (any non-zero norm).
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Rotation matrices.
+    """
     q = np.asarray(q, dtype=float)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
@@ -161,7 +271,18 @@ def matrix_from_quaternion(q):
 
 
 def rotvec_from_quaternion(q):
-    """Rotation vector from ``(qx, qy, qz, qw)``; angle in [0, pi]."""
+    """Rotation vector from a quaternion ``(qx, qy, qz, qw)``; angle in [0, pi].
+
+    Parameters
+    ----------
+    q : array_like, shape (..., 4)
+        Unit quaternions, scalar last (``q`` and ``-q`` give the same result).
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Rotation vectors, rad.
+    """
     q = np.asarray(q, dtype=float)
     q = np.where(q[..., 3:4] < 0, -q, q)
     v = q[..., :3]
@@ -173,14 +294,37 @@ def rotvec_from_quaternion(q):
 
 
 def rotation_angle(R):
-    """Angle (rad) of the rotation ``R`` (..., 3, 3), accurate for tiny angles."""
+    """Angle of a rotation, accurate for tiny angles.
+
+    Parameters
+    ----------
+    R : array_like, shape (..., 3, 3)
+        Rotation matrices.
+
+    Returns
+    -------
+    ndarray, shape (...)
+        Rotation angles in [0, pi], rad.
+    """
     return np.linalg.norm(rotvec_from_matrix(R), axis=-1)
 
 
 def kabsch(source, target, weights=None):
-    """Rotation ``G`` minimising ``sum w |G @ source_k - target_k|^2`` (no translation).
+    """Rotation ``G`` minimising ``sum w |G @ source_k - target_k|^2`` (no translation), via SVD.
 
-    ``source``, ``target``: (K, 3). Returns a proper rotation (det = +1), via SVD.
+    Parameters
+    ----------
+    source : array_like, shape (K, 3)
+        Points to rotate.
+    target : array_like, shape (K, 3)
+        Points to match.
+    weights : array_like, shape (K,), optional
+        Non-negative weight of each pair; default 1.
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        A proper rotation (det = +1).
     """
     source = np.asarray(source, dtype=float)
     target = np.asarray(target, dtype=float)

@@ -36,14 +36,55 @@ DEFAULT_LEG_ANGLES = np.deg2rad([90.0, 180.0, -90.0])
 
 
 def delta_parameters(values=None, n_legs: int = 3) -> ParameterSet:
-    """Registry of the 9 error parameters per leg (zeros unless ``values`` (n_legs*9) given)."""
+    """Registry of the 9 error parameters per leg, ``leg{i}.da.x`` ... ``leg{i}.db.z``.
+
+    Parameters
+    ----------
+    values : array_like, shape (n_legs * 9,), optional
+        Values in internal units (m, rad), leg by leg in the order of ``LEG_FIELDS``;
+        default: zeros.
+    n_legs : int, optional
+        Number of legs.
+
+    Returns
+    -------
+    ParameterSet
+        The named error parameters (kinds: length, except ``dtheta``, an angle).
+    """
     names = [f"leg{i + 1}.{f}" for i in range(n_legs) for f in LEG_FIELDS]
     v = np.zeros(len(names)) if values is None else np.asarray(values, float)
     return ParameterSet(names, LEG_KINDS * n_legs, v)
 
 
 class Delta(Machine):
-    """3-leg Delta robot with the simplified error model of seed 001; see the module doc."""
+    """3-leg Delta robot with the simplified error model of seed 001; see the module doc.
+
+    Parameters
+    ----------
+    base_radius : float
+        Nominal base radius ``a``, m.
+    platform_radius : float
+        Nominal platform radius ``b``, m.
+    upper_arm : float
+        Nominal upper-arm length ``l1``, m.
+    forearm : float
+        Nominal forearm length ``l2``, m.
+    leg_angles : array_like, shape (3,), optional
+        Angle ``phi_i`` of each leg about Z, rad; default 90, 180, -90 deg.
+    parameters : ParameterSet, optional
+        The 27 error parameters (:func:`delta_parameters`); default: all zero.
+    smr_offset : float, optional
+        Distance of the tracker reflector below the platform point, m.
+    home : tuple of ndarray, optional
+        ``(P, R)`` start pose for numerical solvers; default: :meth:`default_home`.
+    name : str, optional
+        Free-text name of the machine.
+
+    Raises
+    ------
+    InputError
+        When ``leg_angles`` does not hold exactly 3 angles.
+    """
 
     kind = "delta"
     n_joints = 3
@@ -72,7 +113,26 @@ class Delta(Machine):
 
     # -- geometry -------------------------------------------------------------------------
     def legs(self, u=None):
-        """Per-leg error arrays ``(da (3,3), dtheta (3,), dl1 (3,), dl2 (3,), db (3,3))``."""
+        """Per-leg error arrays, the legs along the first axis.
+
+        Parameters
+        ----------
+        u : array_like, shape (27,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        da : ndarray, shape (3, 3)
+            Base joint position errors, m (leg frame).
+        dtheta : ndarray, shape (3,)
+            Actuator angle offsets, rad.
+        dl1 : ndarray, shape (3,)
+            Upper-arm length errors, m.
+        dl2 : ndarray, shape (3,)
+            Forearm length errors, m.
+        db : ndarray, shape (3, 3)
+            Platform joint position errors, m (leg frame).
+        """
         u = self.u if u is None else np.asarray(u, float)
         e = u[self._idx]                                           # (3 legs, 9) LEG_FIELDS
         return e[:, 0:3], e[:, 3], e[:, 4], e[:, 5], e[:, 6:9]
@@ -81,7 +141,15 @@ class Delta(Machine):
         return self.l1
 
     def default_home(self):
-        """Below the base, at the depth where the arms are horizontal (theta = 0)."""
+        """Below the base, at the depth where the arms are horizontal (theta = 0).
+
+        Returns
+        -------
+        P : ndarray, shape (3,)
+            ``(0, 0, -depth)``, m (depth ``l2`` when the arms cannot be horizontal).
+        R : ndarray, shape (3, 3)
+            The identity.
+        """
         reach = self.l2**2 - (self.a + self.l1 - self.b) ** 2
         depth = np.sqrt(reach) if reach > 0 else self.l2
         return np.array([0.0, 0.0, -depth]), np.eye(3)
@@ -98,8 +166,28 @@ class Delta(Machine):
 
     # -- kinematics -----------------------------------------------------------------------
     def ik_jacobians(self, P, R=None, u=None, want_du: bool = True):
-        """Actuator angles (..., 3) for platform positions ``P`` (..., 3); ``R`` is ignored
-        (translation-only platform). ``dq_dpose`` (..., 3, 6) has zero rotation columns."""
+        """Actuator angles and their derivatives at platform positions.
+
+        Parameters
+        ----------
+        P : array_like, shape (..., 3)
+            Platform positions, m.
+        R : array_like, optional
+            Ignored (translation-only platform).
+        u : array_like, shape (27,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+        want_du : bool, optional
+            Also compute the derivatives with respect to the parameters.
+
+        Returns
+        -------
+        q : ndarray, shape (..., 3)
+            Actuator angles, rad (elbow-out root); NaN where unreachable.
+        dq_dpose : ndarray, shape (..., 3, 6)
+            Derivatives with respect to ``[dP, dOmega]``; the rotation columns are zero.
+        dq_du : ndarray, shape (..., 3, 27) or None
+            Derivatives with respect to the parameters; None unless ``want_du``.
+        """
         P = np.asarray(P, float)
         da, dth, dl1, dl2, db = self.legs(u)
         L1, L2 = self.l1 + dl1, self.l2 + dl2
@@ -139,11 +227,41 @@ class Delta(Machine):
         return q, dq_dpose, dq_du
 
     def ik(self, P, R=None, u=None) -> np.ndarray:
-        """Actuator angles (..., 3) at positions ``P`` (..., 3); NaN where unreachable."""
+        """Actuator angles at platform positions; NaN where unreachable.
+
+        Parameters
+        ----------
+        P : array_like, shape (..., 3)
+            Platform positions, m.
+        R : array_like, optional
+            Ignored (translation-only platform).
+        u : array_like, shape (27,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            Actuator angles, rad.
+        """
         return self.ik_jacobians(P, R, u, want_du=False)[0]
 
     def sphere_centres(self, q, u=None):
-        """Centres ``c_i = -Rphi_i^T d_i`` (..., 3, 3) and radii ``L2`` (3,) (eq. 6)."""
+        """Centres ``c_i = -Rphi_i^T d_i`` and radii of the three leg spheres (eq. 6).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 3)
+            Actuator angles, rad.
+        u : array_like, shape (27,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        centres : ndarray, shape (..., 3, 3)
+            Sphere centre of each leg (second-last axis), m, base frame.
+        radii : ndarray, shape (3,)
+            Forearm lengths ``L2 = l2 + dl2``, m.
+        """
         d, L2 = self._offsets(np.asarray(q, float), u)
         return -np.einsum("lji,...lj->...li", self.Rphi, d), L2
 
@@ -151,9 +269,32 @@ class Delta(Machine):
            raise_on_failure: bool = False) -> FKResult:
         """Closed-form forward kinematics (seed 001 eq. 6-11), vectorized over rows of ``q``.
 
-        Returns positions (K, 3) with ``R = I``; ``converged`` is False where the spheres do
-        not meet (unreachable) or their centres are collinear (degenerate). ``start``, ``tol``
-        and ``max_iter`` are accepted for the :class:`Machine` interface and unused.
+        Parameters
+        ----------
+        q : array_like, shape (K, 3)
+            Actuator angles, rad.
+        u : array_like, shape (27,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+        start : object, optional
+            Accepted for the :class:`Machine` interface; unused.
+        tol : float, optional
+            Accepted for the :class:`Machine` interface; unused.
+        max_iter : int, optional
+            Accepted for the :class:`Machine` interface; unused.
+        raise_on_failure : bool, optional
+            Raise instead of returning poses that could not be solved.
+
+        Returns
+        -------
+        FKResult
+            Positions (K, 3) in m with ``R = I``; ``converged`` is False where the spheres do not
+            meet (unreachable) or their centres are collinear (degenerate); residual 0 or inf;
+            ``iterations`` 0.
+
+        Raises
+        ------
+        ConvergenceError
+            With ``raise_on_failure``, when a row could not be solved.
         """
         q = np.atleast_2d(np.asarray(q, float))
         K = len(q)
@@ -169,7 +310,7 @@ class Delta(Machine):
         return result
 
     def fk_positions(self, q, u=None):
-        """Platform positions (..., 3) and a validity mask from the three-sphere intersection.
+        """Platform positions and a validity mask from the three-sphere intersection.
 
         The sphere centres ``c_i = -Rphi_i^T d_i`` (eq. 6) are formed per component with the
         legs as the leading axis (contiguous, no small-axis ``einsum``). Subtracting sphere 1
@@ -178,6 +319,20 @@ class Delta(Machine):
         solves eq. 8 for ``px, py`` through the 2x2 determinant ``q2``, which is ``l_z`` up to a
         factor: it vanishes exactly when both roots are at the same height. Of the two roots
         the lower one is returned (platform side).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 3)
+            Actuator angles, rad.
+        u : array_like, shape (27,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        P : ndarray, shape (..., 3)
+            Platform positions, m; NaN where not valid.
+        ok : ndarray of bool, shape (...)
+            False where the spheres do not meet or their centres are (nearly) collinear.
         """
         q = np.asarray(q, float)
         da, dth, dl1, dl2, db = self.legs(u)
@@ -220,7 +375,26 @@ class Delta(Machine):
         return np.where(ok[..., None], P, np.nan), ok
 
     def fk_numerical(self, q, u=None, start=None, tol: float = 1e-13, max_iter: int = 50):
-        """Newton on the three leg equations (3 unknowns), as a cross-check of :meth:`fk`."""
+        """Newton on the three leg equations (3 unknowns), as a cross-check of :meth:`fk`.
+
+        Parameters
+        ----------
+        q : array_like, shape (K, 3)
+            Actuator angles, rad.
+        u : array_like, shape (27,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+        start : array_like, shape (3,) or (K, 3), optional
+            Start positions, m; default: the home position.
+        tol : float, optional
+            Stop when every joint residual is below this, rad.
+        max_iter : int, optional
+            Maximum Newton iterations.
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            Platform positions, m, after the last iteration (convergence is not reported).
+        """
         q = np.atleast_2d(np.asarray(q, float))
         P = np.broadcast_to(self.home[0] if start is None else start, q.shape).copy()
         for _ in range(max_iter):
@@ -233,16 +407,52 @@ class Delta(Machine):
 
     # -- frames ---------------------------------------------------------------------------
     def transform_base(self, u, G):
+        """Not available: the Delta error model has no base-frame parameters.
+
+        Parameters
+        ----------
+        u : array_like
+            Parameter vector.
+        G : array_like, shape (3, 3)
+            Base rotation.
+
+        Raises
+        ------
+        NotImplementedError
+            Always: a rotated base frame is not representable.
+        """
         raise NotImplementedError("the Delta error model has no base-frame parameters: a "
                                   "rotated base frame is not representable")
 
     def transform_platform(self, u, C):
+        """Not available: the Delta platform does not rotate.
+
+        Parameters
+        ----------
+        u : array_like
+            Parameter vector.
+        C : array_like, shape (3, 3)
+            Platform rotation.
+
+        Raises
+        ------
+        NotImplementedError
+            Always.
+        """
         raise NotImplementedError("the Delta platform does not rotate")
 
 
 def default_delta() -> Delta:
-    """The embedded default of SPEC 2.2 (ours): a = 200, b = 50, l1 = 300, l2 = 800 mm,
-    legs at 90/180/-90 deg, SMR 30 mm below the platform point, home (0, 0, -750) mm."""
+    """The embedded default Delta of SPEC 2.2 (ours).
+
+    a = 200, b = 50, l1 = 300, l2 = 800 mm, legs at 90/180/-90 deg, SMR 30 mm below the
+    platform point, home (0, 0, -750) mm, no geometric errors.
+
+    Returns
+    -------
+    Delta
+        A new machine.
+    """
     return Delta(0.2, 0.05, 0.3, 0.8, DEFAULT_LEG_ANGLES, smr_offset=0.03,
                  home=(np.array([0.0, 0.0, -0.75]), np.eye(3)),
                  name="pkmcal default 90-degree Delta (SPEC 2.2)")

@@ -30,7 +30,23 @@ CHAIN_KINDS = ("length",) * 6 + ("angle", "angle", "length")
 def hexaslide_parameters(b, a0, alpha, beta, l) -> ParameterSet:
     """Registry of a Hexa Slide from per-chain arrays (internal units: m, rad).
 
-    ``b``, ``a0``: (6, 3); ``alpha``, ``beta``, ``l``: (6,).
+    Parameters
+    ----------
+    b : array_like, shape (6, 3)
+        Platform joint positions ``B_i``, m (platform frame).
+    a0 : array_like, shape (6, 3)
+        Rail start points ``A0_i``, m (base frame).
+    alpha : array_like, shape (6,)
+        Rail azimuths, rad.
+    beta : array_like, shape (6,)
+        Rail elevations, rad.
+    l : array_like, shape (6,)
+        Link lengths, m.
+
+    Returns
+    -------
+    ParameterSet
+        54 parameters ``chain{i}.b.x`` ... ``chain{i}.l``, chain by chain.
     """
     b, a0 = np.asarray(b, float).reshape(6, 3), np.asarray(a0, float).reshape(6, 3)
     values = np.column_stack([b, a0, np.asarray(alpha, float), np.asarray(beta, float),
@@ -46,7 +62,20 @@ def rail_direction(alpha, beta):
 
 
 class HexaSlide(Machine):
-    """6-PUS Hexa Slide machine; see the module docstring for the model."""
+    """6-PUS Hexa Slide machine; see the module docstring for the model.
+
+    Parameters
+    ----------
+    parameters : ParameterSet
+        The 54 chain parameters (:func:`hexaslide_parameters`).
+    home : tuple of ndarray, optional
+        ``(P, R)`` pose of the working assembly mode; default: :meth:`default_home`.
+    name : str, optional
+        Free-text name of the machine.
+    constraint_link_length : float, optional
+        Length of the constraint link (from the base origin O to the platform origin), m, when
+        the machine is used with one.
+    """
 
     kind = "hexaslide"
     n_joints = 6
@@ -67,7 +96,26 @@ class HexaSlide(Machine):
 
     # -- geometry -------------------------------------------------------------------------
     def chains(self, u=None):
-        """Per-chain arrays ``(b (6,3), a0 (6,3), alpha (6,), beta (6,), l (6,))``."""
+        """Per-chain parameter arrays, the chains along the first axis.
+
+        Parameters
+        ----------
+        u : array_like, shape (54,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        b : ndarray, shape (6, 3)
+            Platform joints, m.
+        a0 : ndarray, shape (6, 3)
+            Rail start points, m.
+        alpha : ndarray, shape (6,)
+            Rail azimuths, rad.
+        beta : ndarray, shape (6,)
+            Rail elevations, rad.
+        l : ndarray, shape (6,)
+            Link lengths, m.
+        """
         u = self.u if u is None else np.asarray(u, float)
         return u[self._ib], u[self._ia0], u[self._ial], u[self._ibe], u[self._il]
 
@@ -75,7 +123,15 @@ class HexaSlide(Machine):
         return float(np.mean(self.chains()[4]))
 
     def default_home(self):
-        """Platform origin above O on the constraint sphere (or at the mean link length)."""
+        """Platform origin above O on the constraint sphere (or at the mean link length).
+
+        Returns
+        -------
+        P : ndarray, shape (3,)
+            ``(0, 0, Lc)`` with the constraint-link length ``Lc``, else the mean link length, m.
+        R : ndarray, shape (3, 3)
+            The identity.
+        """
         b, a0, alpha, beta, l = self.chains()
         height = self.constraint_link_length or float(np.mean(l))
         P = np.array([0.0, 0.0, height])
@@ -160,6 +216,11 @@ def default_hexaslide() -> HexaSlide:
     (minus for s = 0); ``A0 = (480 cos g, 480 sin g, -400)`` mm, ``alpha = g + 180``,
     ``beta = 70`` deg, ``B = (120 cos gb, 120 sin gb, 0)`` mm, ``l = 450`` mm, ``Lc = 300`` mm,
     home ``P = (0, 0, 300)`` mm, ``R = I``.
+
+    Returns
+    -------
+    HexaSlide
+        A new nominal machine.
     """
     k = np.repeat(np.arange(3), 2)
     sgn = np.tile([-1.0, 1.0], 3)
@@ -189,7 +250,19 @@ PAPER_TABLE1 = {
 
 
 def paper_table1_deviations(parameters: ParameterSet) -> np.ndarray:
-    """Seed 000 Table 1 as a deviation vector in the order of ``parameters``."""
+    """Seed 000 Table 1 as a deviation vector in the order of ``parameters``.
+
+    Parameters
+    ----------
+    parameters : ParameterSet
+        A Hexa Slide registry (names ``chain{i}.*``).
+
+    Returns
+    -------
+    ndarray, shape (len(parameters),)
+        Deviations of the true machine from nominal, m and rad; zero for parameters the
+        table does not list.
+    """
     du = np.zeros(len(parameters))
     for field, values in PAPER_TABLE1.items():
         for i, v in enumerate(values):

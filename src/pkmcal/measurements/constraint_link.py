@@ -24,12 +24,18 @@ class ConstraintLinkData:
 
     Attributes
     ----------
-    q : (K, 6) joint readings, internal units (m for sliders).
-    link_length : assumed constraint-link length ``Lc`` (m).
-    passive : (K,) 0-based index of the passive actuator, or None when not recorded.
-    rows : (K,) row numbers in the source file (1-based data rows) for messages.
-    source : file name, for messages.
-    true_P, true_R : poses of a simulation (for tests and plots), else None.
+    q : ndarray, shape (K, 6)
+        Joint readings, internal units (m for sliders).
+    link_length : float
+        Assumed constraint-link length ``Lc``, m.
+    passive : ndarray of int, shape (K,), optional
+        0-based index of the passive actuator, or None when not recorded.
+    rows : ndarray of int, shape (K,), optional
+        Row numbers in the source file (1-based data rows) for messages; default 1..K.
+    source : str, optional
+        File name, for messages.
+    true_P, true_R : ndarray, optional
+        True poses of a simulation, (K, 3) m and (K, 3, 3) (for tests and plots), else None.
     """
 
     q: np.ndarray
@@ -51,7 +57,18 @@ class ConstraintLinkData:
         return len(self.q)
 
     def subset(self, mask) -> ConstraintLinkData:
-        """The measurements selected by a boolean mask or index array."""
+        """The measurements selected by a boolean mask or index array.
+
+        Parameters
+        ----------
+        mask : array_like of bool or int
+            Boolean mask (K,) or indices of the rows to keep.
+
+        Returns
+        -------
+        ConstraintLinkData
+            The selected rows, same link length and source.
+        """
         pick = (lambda a: None if a is None else a[mask])
         return ConstraintLinkData(self.q[mask], self.link_length, pick(self.passive),
                                   self.rows[mask], self.source, pick(self.true_P),
@@ -80,8 +97,10 @@ def sample_sphere_poses(machine: Machine, link_length: float, n: int, rng=None,
                         max_tilt: float = np.deg2rad(35.0),
                         max_rotation: float = np.deg2rad(25.0), min_manipulability=0.02,
                         min_loop_conditioning=2e-3):
-    """``n`` reachable poses with ``|P| = link_length``: P in a cap of half-angle ``max_tilt``
-    around the machine's home direction, Euler angles uniform in ``+/- max_rotation``.
+    """``n`` reachable poses with ``|P| = link_length`` around the machine's home direction.
+
+    P lies in a cap of half-angle ``max_tilt`` around the direction of the home position,
+    uniform on the cap; Euler angles are uniform in ``+/- max_rotation``.
 
     Poses are redrawn where the inverse kinematics fail, where the joint Jacobian is badly
     conditioned (smallest singular value below ``min_manipulability`` times the largest,
@@ -91,7 +110,37 @@ def sample_sphere_poses(machine: Machine, link_length: float, n: int, rng=None,
     ``min_loop_conditioning`` (about a tenth of its value at home on the default machine).
     Near such poses the five actuators do not hold the platform, and the pose moves far for a
     small geometry error.
-    Returns ``P`` (n, 3), ``R`` (n, 3, 3).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine whose inverse kinematics decide reachability.
+    link_length : float
+        Constraint-link length ``Lc``, m: the sphere's radius.
+    n : int
+        Number of poses.
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed (``numpy.random.default_rng``).
+    max_tilt : float, optional
+        Half-angle of the cap, rad.
+    max_rotation : float, optional
+        Bound of each Euler angle, rad.
+    min_manipulability : float, optional
+        Smallest accepted inverse condition number of the joint Jacobian.
+    min_loop_conditioning : float, optional
+        Smallest accepted inverse condition number of the constrained loop.
+
+    Returns
+    -------
+    P : ndarray, shape (n, 3)
+        Platform positions, m.
+    R : ndarray, shape (n, 3, 3)
+        Platform orientations.
+
+    Raises
+    ------
+    InputError
+        When 50 batches of draws do not give ``n`` accepted poses.
     """
     rng = np.random.default_rng(rng)
     axis = np.asarray(machine.home[0], float)
@@ -129,6 +178,35 @@ def simulate_constraint_link(true_machine: Machine, n_poses: int = 150, noise_m:
     The true link has length ``link_length`` (default: the machine's); the data record the
     assumed length ``link_length + link_length_error``. Every reading gets Gaussian noise of
     standard deviation ``noise_m``; the passive actuator cycles 1..6.
+
+    Parameters
+    ----------
+    true_machine : HexaSlide
+        The true machine (a machine with ``constraint_link_length``).
+    n_poses : int, optional
+        Number of poses, drawn by :func:`sample_sphere_poses`.
+    noise_m : float, optional
+        Standard deviation of the reading noise, internal units (m for sliders).
+    link_length : float, optional
+        True constraint-link length, m; default: ``true_machine.constraint_link_length``.
+    link_length_error : float, optional
+        Recorded minus true link length, m.
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed.
+    max_tilt : float, optional
+        Half-angle of the cap of positions, rad.
+    max_rotation : float, optional
+        Bound of each Euler angle, rad.
+
+    Returns
+    -------
+    ConstraintLinkData
+        The readings with ``passive`` set and the true poses in ``true_P``, ``true_R``.
+
+    Raises
+    ------
+    InputError
+        When no link length is given or known, or the poses cannot be drawn.
     """
     rng = np.random.default_rng(rng)
     Lc = link_length if link_length is not None else true_machine.constraint_link_length

@@ -37,9 +37,24 @@ def deviations(machine, which: str, rng) -> np.ndarray:
 
 
 def random_deviations(machine, rng) -> np.ndarray:
-    """Uniform random errors of every parameter: lengths and angles within
-    :data:`RANDOM_DEVIATION` for the machine type (else 2 mm / 0.02 rad), ratios (a leg's
-    gain, in whatever reading unit) within :data:`RATIO_DEVIATION` of their own value."""
+    """Uniform random errors of every parameter of a machine.
+
+    Lengths and angles are drawn within :data:`RANDOM_DEVIATION` for the machine type (else
+    2 mm / 0.02 rad), ratios (a leg's gain, in whatever reading unit) within
+    :data:`RATIO_DEVIATION` of their own value.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine whose parameters get errors.
+    rng : int, numpy.random.Generator or None
+        Random generator or seed.
+
+    Returns
+    -------
+    ndarray, shape (n_params,)
+        Deviations in internal units (m, rad, ratio), to add to ``machine.u``.
+    """
     params = machine.parameters
     length, angle = RANDOM_DEVIATION.get(getattr(machine, "kind", ""), (2e-3, 0.02))
     kinds = np.array(params.kinds)

@@ -23,7 +23,17 @@ from ..machines.base import Machine
 
 @dataclass(frozen=True)
 class TrackerNoise:
-    """Standard deviations of a laser tracker (half the MPE by default), SI units."""
+    """Standard deviations of a laser tracker (half the MPE by default), SI units.
+
+    Attributes
+    ----------
+    distance : float, optional
+        Along the beam, m.
+    transverse : float, optional
+        Across the beam, constant part, m.
+    transverse_per_m : float, optional
+        Across the beam, per metre of range (m/m).
+    """
 
     distance: float = 5e-6            # along the beam
     transverse: float = 7.5e-6        # across the beam, constant part
@@ -37,17 +47,54 @@ class TrackerNoise:
         return r[..., :, None] * r[..., None, :], self.transverse + self.transverse_per_m * rng
 
     def covariance(self, m):
-        """Per-point covariance (K, 3, 3) in the tracker frame for tracker points ``m``."""
+        """Per-point covariance in the tracker frame.
+
+        Parameters
+        ----------
+        m : array_like, shape (K, 3)
+            Tracker points, m, tracker frame.
+
+        Returns
+        -------
+        ndarray, shape (K, 3, 3)
+            Covariance of each point, m^2.
+        """
         rr, st = self._beam(m)
         return self.distance**2 * rr + (st**2)[..., None, None] * (np.eye(3) - rr)
 
     def whitening(self, m):
-        """``W`` (K, 3, 3) with ``W^T W = Cov^-1``: ``r/s_d`` along the beam, ``1/s_t`` across."""
+        """Whitening matrices ``W`` with ``W^T W = Cov^-1``.
+
+        Along the beam ``1/s_d``, across it ``1/s_t`` (range-dependent).
+
+        Parameters
+        ----------
+        m : array_like, shape (K, 3)
+            Tracker points, m, tracker frame.
+
+        Returns
+        -------
+        ndarray, shape (K, 3, 3)
+            Symmetric whitening matrix of each point, 1/m.
+        """
         rr, st = self._beam(m)
         return rr / self.distance + (np.eye(3) - rr) / st[..., None, None]
 
     def sample(self, m, rng):
-        """Noise vectors (K, 3) for tracker points ``m``."""
+        """Noise vectors for tracker points, drawn from :meth:`covariance`.
+
+        Parameters
+        ----------
+        m : array_like, shape (K, 3)
+            Tracker points, m, tracker frame.
+        rng : numpy.random.Generator
+            Random generator.
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            Noise to add to the points, m.
+        """
         m = np.asarray(m, float)
         L = np.linalg.cholesky(self.covariance(m))
         return np.einsum("kij,kj->ki", L, rng.standard_normal(m.shape))
@@ -57,9 +104,20 @@ class TrackerNoise:
 class TrackerData:
     """Actuator readings and tracker points.
 
-    q : (K, n_joints) joint readings (rad). m : (K, 3) SMR positions in the tracker frame (m).
-    rows : file row numbers for messages. true_P : simulated platform positions (base frame).
-    outliers : (K,) bool, rows a simulation corrupted on purpose (None for real data).
+    Attributes
+    ----------
+    q : ndarray, shape (K, n_joints)
+        Joint readings, rad.
+    m : ndarray, shape (K, 3)
+        SMR positions in the tracker frame, m.
+    rows : ndarray of int, shape (K,), optional
+        File row numbers for messages; default 1..K.
+    source : str, optional
+        File name, for messages.
+    true_P : ndarray, shape (K, 3), optional
+        Simulated platform positions (base frame), m; None for real data.
+    outliers : ndarray of bool, shape (K,), optional
+        Rows a simulation corrupted on purpose; None for real data.
     """
 
     q: np.ndarray
@@ -79,6 +137,18 @@ class TrackerData:
         return len(self.q)
 
     def subset(self, mask) -> TrackerData:
+        """The measurements selected by a boolean mask or index array.
+
+        Parameters
+        ----------
+        mask : array_like of bool or int
+            Boolean mask (K,) or indices of the rows to keep.
+
+        Returns
+        -------
+        TrackerData
+            The selected rows, same source.
+        """
         def pick(a):
             return None if a is None else a[mask]
 
@@ -96,10 +166,19 @@ TRACKER_TILT = np.deg2rad(1.0)
 
 
 def default_tracker_pose() -> tuple[np.ndarray, np.ndarray]:
-    """The true ``base_from_tracker = (R, t)`` of simulations without a tracker in the machine
-    file: the tracker stands at :data:`TRACKER_POSITION` (2.5 m from the robot's axis), its x
-    axis turned about Z toward the robot's axis (143.13 deg) and tilted by
-    :data:`TRACKER_TILT` (1 deg) about its y axis."""
+    """The true ``base_from_tracker = (R, t)`` of simulations without a tracker in the machine file.
+
+    The tracker stands at :data:`TRACKER_POSITION` (2.5 m from the robot's axis), its x axis
+    turned about Z toward the robot's axis (143.13 deg) and tilted by :data:`TRACKER_TILT`
+    (1 deg) about its y axis.
+
+    Returns
+    -------
+    R : ndarray, shape (3, 3)
+        Orientation of the tracker frame in the base frame.
+    t : ndarray, shape (3,)
+        Tracker origin in the base frame, m.
+    """
     t = np.array(TRACKER_POSITION, float)
     yaw = np.arctan2(-t[1], -t[0])
     R = matrix_from_rotvec([0.0, 0.0, yaw]) @ matrix_from_rotvec([0.0, TRACKER_TILT, 0.0])
@@ -107,14 +186,40 @@ def default_tracker_pose() -> tuple[np.ndarray, np.ndarray]:
 
 
 def grid_points(center, spacing=TRACKER_GRID_SPACING, shape=(3, 3, 3)):
-    """Points of a regular grid (seed 001: 3x3x3, dx = dy = 150 mm, dz = 40 mm), (N, 3)."""
+    """Points of a regular grid (seed 001: 3x3x3, dx = dy = 150 mm, dz = 40 mm).
+
+    Parameters
+    ----------
+    center : array_like, shape (3,)
+        Centre of the grid, m.
+    spacing : tuple of float, optional
+        Distance between neighbouring points along x, y, z, m.
+    shape : tuple of int, optional
+        Number of points along x, y, z.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        The points, m, x slowest and z fastest (``N = prod(shape)``).
+    """
     axes = [(np.arange(n) - (n - 1) / 2) * d for n, d in zip(shape, spacing, strict=True)]
     X, Y, Z = np.meshgrid(*axes, indexing="ij")
     return np.asarray(center, float) + np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
 
 
 def neighbour_pairs(shape=(3, 3, 3)):
-    """Index pairs of grid points that are neighbours along one axis (for distance ratios)."""
+    """Index pairs of grid points that are neighbours along one axis (for distance ratios).
+
+    Parameters
+    ----------
+    shape : tuple of int, optional
+        Grid shape, as in :func:`grid_points`.
+
+    Returns
+    -------
+    ndarray of int, shape (M, 2)
+        Indices into the rows of :func:`grid_points`, pairs along x, then y, then z.
+    """
     idx = np.arange(int(np.prod(shape))).reshape(shape)
     pairs = []
     for axis in range(3):
@@ -126,12 +231,42 @@ def neighbour_pairs(shape=(3, 3, 3)):
 def simulate_tracker(true_machine: Machine, nominal_machine: Machine, targets,
                      base_from_tracker, noise: TrackerNoise | None = TrackerNoise(),
                      outliers: int = 0, outlier_size: float = 1e-3, rng=None) -> TrackerData:
-    """The experiment of seed 001: command ``targets`` (N, 3) with the *nominal* model, the
-    *true* machine goes elsewhere, the tracker measures the SMR there (with noise).
+    """The experiment of seed 001: command points with the nominal model, measure the true machine.
 
-    ``base_from_tracker = (R, t)``; ``outliers`` rows get an extra error of ``outlier_size``
-    (m) in a random direction (beam breaks, a mis-seated SMR); they are flagged in
-    ``outliers``.
+    The *nominal* model commands ``targets``, the *true* machine goes elsewhere, and the
+    tracker measures the SMR there (``smr_offset`` below the platform point), with noise.
+    ``outliers`` random rows get an extra error of ``outlier_size`` in a random direction (beam
+    breaks, a mis-seated SMR); they are flagged in ``outliers``.
+
+    Parameters
+    ----------
+    true_machine : Delta
+        The true machine (needs ``smr_offset``).
+    nominal_machine : Delta
+        The model that computes the commands.
+    targets : array_like, shape (N, 3)
+        Commanded platform positions, m, base frame.
+    base_from_tracker : tuple of array_like
+        ``(R (3, 3), t (3,))``: a tracker point ``m`` is ``R m + t`` in the base frame.
+    noise : TrackerNoise or None, optional
+        Tracker noise; None for exact points.
+    outliers : int, optional
+        Number of rows to corrupt.
+    outlier_size : float, optional
+        Size of the outlier error, m.
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed.
+
+    Returns
+    -------
+    TrackerData
+        Commanded joints, measured points, the true positions and the outlier flags.
+
+    Raises
+    ------
+    InputError
+        When a target is outside the nominal workspace or the true machine cannot reach a
+        commanded point.
     """
     rng = np.random.default_rng(rng)
     q = nominal_machine.ik(np.asarray(targets, float))

@@ -37,11 +37,19 @@ CRITERIA = ("d", "a", "pose")
 class Design:
     """Per-candidate information on the identifiable subspace of a candidate set.
 
-    F : (K, r, p) reduced rows of each candidate in the basis ``V``.
-    V : (n_free, p) orthonormal basis (scaled coordinates of the free parameters) of the
-        directions the whole candidate set identifies.
-    null : (n_free, z) the directions it does not identify (scaled coordinates).
-    free : (n,) mask of the free problem parameters; scales : (n,) their column scales.
+    Attributes
+    ----------
+    F : ndarray, shape (K, r, p)
+        Reduced rows of each candidate in the basis ``V``.
+    V : ndarray, shape (n_free, p)
+        Orthonormal basis (scaled coordinates of the free parameters) of the directions the
+        whole candidate set identifies.
+    null : ndarray, shape (n_free, z)
+        The directions it does not identify (scaled coordinates).
+    free : ndarray of bool, shape (n,)
+        Mask of the free problem parameters.
+    scales : ndarray, shape (n,)
+        Their column scales.
     """
 
     F: np.ndarray
@@ -52,19 +60,49 @@ class Design:
 
     @property
     def rank(self) -> int:
+        """Dimension ``p`` of the identifiable subspace."""
         return self.V.shape[1]
 
     def __len__(self) -> int:
         return len(self.F)
 
     def information(self, idx=None) -> np.ndarray:
-        """``M(S)`` (p, p) of the candidates ``idx`` (all when None)."""
+        """``M(S)`` of a set of candidates: ``sum_k F_k^T F_k``.
+
+        Parameters
+        ----------
+        idx : array_like of int, optional
+            Candidate indices; all candidates when None.
+
+        Returns
+        -------
+        ndarray, shape (p, p)
+            The information matrix.
+        """
         F = self.F if idx is None else self.F[np.asarray(idx)]
         return np.einsum("kri,krj->ij", F, F)
 
 
 def design_from_problem(problem, rtol: float = 1e-7) -> Design:
-    """The :class:`Design` of a calibration problem's measurements, at its initial state."""
+    """The :class:`Design` of a calibration problem's measurements, at its initial state.
+
+    Parameters
+    ----------
+    problem : BlockProblem
+        A calibration problem whose measurements are the candidates.
+    rtol : float, optional
+        Singular values below ``rtol`` times the largest count as unidentified.
+
+    Returns
+    -------
+    Design
+        One candidate per measurement.
+
+    Raises
+    ------
+    InputError
+        When the residuals or the Jacobian are not finite at the initial state.
+    """
     from ..calibration.estimator import reduce_local
     from ..identifiability.analysis import right_singular
 
@@ -84,7 +122,27 @@ def design_from_problem(problem, rtol: float = 1e-7) -> Design:
 
 
 def criterion_value(M, criterion: str = "d", A=None) -> float:
-    """Value (smaller is better) of a criterion at information ``M``; inf when singular."""
+    """Value (smaller is better) of a criterion at information ``M``; inf when singular.
+
+    Parameters
+    ----------
+    M : array_like, shape (p, p)
+        Information matrix.
+    criterion : {'d', 'a', 'pose'}, optional
+        ``-log det M``, ``trace M^-1`` or ``trace(A M^-1)`` (see the module docstring).
+    A : array_like, shape (p, p), optional
+        Workspace operator, for ``criterion='pose'``.
+
+    Returns
+    -------
+    float
+        The criterion value.
+
+    Raises
+    ------
+    ValueError
+        For an unknown criterion.
+    """
     try:
         L = np.linalg.cholesky(M)
     except np.linalg.LinAlgError:
@@ -124,10 +182,23 @@ def _gains(F, Minv, criterion, A, sign: float):
 
 @dataclass
 class Selection:
-    """Result of :func:`select_poses`."""
+    """Result of :func:`select_poses`.
 
-    index: np.ndarray          # (n,) chosen candidates, in the order chosen
-    value: float               # criterion value of the chosen set
+    Attributes
+    ----------
+    index : ndarray of int, shape (n,)
+        Chosen candidates, in the greedy order (an exchanged candidate takes the place of the
+        one it replaced).
+    value : float
+        Criterion value of the chosen set.
+    criterion : str
+        The criterion.
+    exchanges : int
+        Number of exchanges made after the greedy start.
+    """
+
+    index: np.ndarray
+    value: float
     criterion: str
     exchanges: int
 
@@ -136,9 +207,34 @@ def select_poses(design: Design, n: int, criterion: str = "d", A=None,
                  max_exchanges=None) -> Selection:
     """Choose ``n`` of the candidates of ``design`` that minimise a criterion (module doc).
 
-    ``A`` (p, p) is required for ``criterion='pose'``. The greedy start uses a ridge of
-    ``1e-9`` of the mean candidate information so that the first picks are defined; exchanges
-    run until none improves the criterion (at most ``max_exchanges``, default ``10 n``).
+    The greedy start uses a ridge of ``1e-9`` of the mean candidate information so that the
+    first picks are defined; exchanges run until none improves the criterion (at most
+    ``max_exchanges``).
+
+    Parameters
+    ----------
+    design : Design
+        The candidates.
+    n : int
+        Number of poses to choose, 1..K.
+    criterion : {'d', 'a', 'pose'}, optional
+        The criterion.
+    A : array_like, shape (p, p), optional
+        Workspace operator, required for ``criterion='pose'``.
+    max_exchanges : int, optional
+        Largest number of exchanges; default ``10 n``.
+
+    Returns
+    -------
+    Selection
+        The chosen candidates and the criterion value.
+
+    Raises
+    ------
+    InputError
+        For an unknown criterion or ``n`` outside 1..K.
+    ValueError
+        When ``criterion='pose'`` is given without ``A``.
     """
     if criterion not in CRITERIA:
         raise InputError(f"unknown criterion {criterion!r}; use one of {', '.join(CRITERIA)}")
@@ -191,7 +287,28 @@ def select_poses(design: Design, n: int, criterion: str = "d", A=None,
 
 def random_values(design: Design, n: int, sets: int, criterion: str = "d", A=None,
                   rng=None) -> np.ndarray:
-    """Criterion values of ``sets`` random subsets of ``n`` candidates (the baseline)."""
+    """Criterion values of ``sets`` random subsets of ``n`` candidates (the baseline).
+
+    Parameters
+    ----------
+    design : Design
+        The candidates.
+    n : int
+        Size of each subset.
+    sets : int
+        Number of subsets.
+    criterion : {'d', 'a', 'pose'}, optional
+        The criterion.
+    A : array_like, shape (p, p), optional
+        Workspace operator, for ``criterion='pose'``.
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed.
+
+    Returns
+    -------
+    ndarray, shape (sets,)
+        Criterion values.
+    """
     rng = np.random.default_rng(rng)
     K = len(design)
     return np.array([criterion_value(design.information(rng.choice(K, n, replace=False)),

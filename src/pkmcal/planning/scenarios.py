@@ -36,7 +36,25 @@ SPHERE_TOL = 1e-4
 
 
 def scenario_for(machine: Machine, scenario: str | None = None) -> str:
-    """The measurement type of ``machine`` (``scenario`` checked against it when given)."""
+    """The measurement type of ``machine`` (``scenario`` checked against it when given).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (its ``kind``).
+    scenario : {'constraint-link', 'tracker', 'pose'}, optional
+        A requested scenario.
+
+    Returns
+    -------
+    str
+        The machine's scenario (:data:`SCENARIO_OF`).
+
+    Raises
+    ------
+    InputError
+        When the machine type has no scenario, or ``scenario`` is unknown or not the machine's.
+    """
     kind = getattr(machine, "kind", "")
     own = SCENARIO_OF.get(kind)
     if scenario is None:
@@ -52,7 +70,19 @@ def scenario_for(machine: Machine, scenario: str | None = None) -> str:
 
 
 def default_noise(scenario: str):
-    """The default noise model of a scenario (as ``pkmcal calibrate`` assumes)."""
+    """The default noise model of a scenario (as ``pkmcal calibrate`` assumes).
+
+    Parameters
+    ----------
+    scenario : {'constraint-link', 'tracker', 'pose'}
+        The scenario.
+
+    Returns
+    -------
+    float, TrackerNoise or FullPoseNoise
+        Encoder noise 1e-6 m for ``constraint-link``; the default ``TrackerNoise`` for
+        ``tracker``; the default ``FullPoseNoise`` otherwise.
+    """
     if scenario == "constraint-link":
         return 1e-6
     if scenario == "tracker":
@@ -65,7 +95,20 @@ def default_noise(scenario: str):
 
 
 def describe_noise(scenario: str, noise) -> str:
-    """The noise model in words, for reports."""
+    """The noise model in words, for reports.
+
+    Parameters
+    ----------
+    scenario : {'constraint-link', 'tracker', 'pose'}
+        The scenario.
+    noise : float, TrackerNoise or FullPoseNoise
+        The noise model of that scenario (:func:`default_noise`).
+
+    Returns
+    -------
+    str
+        One line, values in um and urad.
+    """
     if scenario == "constraint-link":
         return f"encoder noise {noise * 1e6:.4g} um (std)"
     if scenario == "tracker":
@@ -77,7 +120,7 @@ def describe_noise(scenario: str, noise) -> str:
 
 
 def candidate_poses(machine: Machine, scenario: str, n: int, rng=None):
-    """``n`` feasible candidate poses of a scenario, ``(P (n, 3), R (n, 3, 3))``.
+    """``n`` feasible candidate poses of a scenario.
 
     constraint-link: the sphere ``|P| = Lc`` (cap of 35 deg around home, rotations within
     +/-25 deg), reachable, well conditioned and drivable with the link mounted
@@ -85,6 +128,30 @@ def candidate_poses(machine: Machine, scenario: str, n: int, rng=None):
     seed 001's 3x3x3 grid around home, reachable and away from singular poses. pose: the SPEC 5
     workspace (0.1 m cube around home, +/-10 deg), well conditioned
     (:func:`~pkmcal.measurements.sample_platform_poses`).
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    scenario : {'constraint-link', 'tracker', 'pose'}
+        The scenario.
+    n : int
+        Number of poses (>= 1).
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed.
+
+    Returns
+    -------
+    P : ndarray, shape (n, 3)
+        Positions, m.
+    R : ndarray, shape (n, 3, 3)
+        Orientations (the identity for ``tracker``).
+
+    Raises
+    ------
+    InputError
+        When ``n < 1``, a constraint-link machine has no link length, or not enough feasible
+        poses are found.
     """
     if n < 1:
         raise InputError(f"the number of candidate poses must be >= 1, got {n}")
@@ -132,8 +199,34 @@ def link_length(machine: Machine) -> float:
 def planned_data(machine: Machine, scenario: str, P, R=None, rows=None, source="<plan>"):
     """Noise-free measurements of the *nominal* machine at planned poses.
 
-    Raises :class:`InputError` (naming ``rows``) for poses the machine cannot reach, and for
-    constraint-link plans off the sphere ``|P| = Lc``.
+    Constraint-link plans get the passive actuator cycling through the joints; tracker plans
+    are measured through :func:`tracker_pose`, pose plans through :func:`measurement_frames`.
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    scenario : {'constraint-link', 'tracker', 'pose'}
+        The scenario.
+    P : array_like, shape (K, 3)
+        Planned positions, m.
+    R : array_like, shape (K, 3, 3), optional
+        Planned orientations; default identity.
+    rows : array_like of int, optional
+        Row labels for messages; default 1..K.
+    source : str, optional
+        Name of the plan, for messages.
+
+    Returns
+    -------
+    ConstraintLinkData, TrackerData or FullPoseData
+        The data of the scenario, with the planned poses as the true ones.
+
+    Raises
+    ------
+    InputError
+        Naming ``rows``, for poses the machine cannot reach and for constraint-link plans off
+        the sphere ``|P| = Lc`` by more than :data:`SPHERE_TOL`.
     """
     P = np.atleast_2d(np.asarray(P, float))
     R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else np.asarray(R, float)
@@ -176,7 +269,19 @@ def _on_sphere(P, machine, rows, source):
 
 
 def tracker_pose(machine: Machine):
-    """``base_from_tracker`` of the machine file, else the simulations' default."""
+    """``base_from_tracker`` of the machine file, else the simulations' default.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (its ``base_from_tracker``, if any).
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(R (3, 3), t (3,))`` (:func:`~pkmcal.measurements.default_tracker_pose` when the
+        machine has none).
+    """
     pose = getattr(machine, "base_from_tracker", None)
     if pose is None:
         from ..measurements import default_tracker_pose
@@ -186,7 +291,19 @@ def tracker_pose(machine: Machine):
 
 
 def measurement_frames(machine: Machine):
-    """``measurement_frames`` of the machine file, else the simulations' default."""
+    """``measurement_frames`` of the machine file, else the simulations' default.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (its ``measurement_frames``, if any).
+
+    Returns
+    -------
+    MeasurementFrames
+        The frames (:func:`~pkmcal.measurements.default_measurement_frames` when the machine has
+        none).
+    """
     frames = getattr(machine, "measurement_frames", None)
     if frames is None:
         from ..measurements import default_measurement_frames
@@ -197,12 +314,36 @@ def measurement_frames(machine: Machine):
 
 def scenario_problem(machine: Machine, scenario: str, data, noise=None, registration=None,
                      frames=None):
-    """The calibration problem ``pkmcal calibrate`` solves by default for ``data`` (ML with the
-    per-pose unknowns for the constraint link; joint registration for the tracker; ML with the
-    measurement frames estimated for full poses), unsolved, at the nominal machine.
+    """The calibration problem ``pkmcal calibrate`` solves by default for ``data``, unsolved.
 
-    ``registration`` (tracker) and ``frames`` (pose) are the start values of the measurement
-    frames (default: the machine file's, else the simulations' defaults)."""
+    ML with the per-pose unknowns for the constraint link; joint registration for the tracker;
+    ML with the measurement frames estimated for full poses; at the nominal machine.
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    scenario : {'constraint-link', 'tracker', 'pose'}
+        The scenario.
+    data : ConstraintLinkData, TrackerData or FullPoseData
+        The measurements.
+    noise : float, TrackerNoise or FullPoseNoise, optional
+        Noise model; default :func:`default_noise`.
+    registration : tuple of ndarray, optional
+        Tracker: start ``base_from_tracker``; default :func:`tracker_pose`.
+    frames : MeasurementFrames, optional
+        Pose: start frames; default :func:`measurement_frames`.
+
+    Returns
+    -------
+    ConstraintLinkML, TrackerProblem or FullPoseML
+        The problem.
+
+    Raises
+    ------
+    InputError
+        When the problem cannot be set up for these data (see the problem classes).
+    """
     noise = default_noise(scenario) if noise is None else noise
     if scenario == "constraint-link":
         from ..calibration import ConstraintLinkML
@@ -221,7 +362,35 @@ def scenario_problem(machine: Machine, scenario: str, data, noise=None, registra
 
 def planned_problem(machine: Machine, scenario: str, P, R=None, noise=None, rows=None,
                     source="<plan>"):
-    """:func:`scenario_problem` of the noise-free :func:`planned_data` at poses ``(P, R)``."""
+    """:func:`scenario_problem` of the noise-free :func:`planned_data` at poses ``(P, R)``.
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    scenario : {'constraint-link', 'tracker', 'pose'}
+        The scenario.
+    P : array_like, shape (K, 3)
+        Planned positions, m.
+    R : array_like, shape (K, 3, 3), optional
+        Planned orientations; default identity.
+    noise : float, TrackerNoise or FullPoseNoise, optional
+        Noise model; default :func:`default_noise`.
+    rows : array_like of int, optional
+        Row labels for messages.
+    source : str, optional
+        Name of the plan, for messages.
+
+    Returns
+    -------
+    ConstraintLinkML, TrackerProblem or FullPoseML
+        The problem.
+
+    Raises
+    ------
+    InputError
+        As :func:`planned_data` and :func:`scenario_problem`.
+    """
     return scenario_problem(machine, scenario,
                             planned_data(machine, scenario, P, R, rows, source), noise)
 

@@ -201,7 +201,20 @@ def _before_after(res: Mapping) -> str:
 
 
 def build_html(report: Mapping, title: str | None = None) -> str:
-    """The HTML text of a calibration report (a ``pkmcal calibrate`` JSON mapping)."""
+    """The HTML text of a calibration report.
+
+    Parameters
+    ----------
+    report : mapping
+        The JSON report ``pkmcal calibrate`` writes (sections are shown when present).
+    title : str, optional
+        Page title; default names the calibrated file.
+
+    Returns
+    -------
+    str
+        A self-contained HTML document (inline styles, plots as embedded PNG).
+    """
     title = title or f"pkmcal calibration report: {report.get('calibrated_file', '')}"
     parts = [f"<h1>{_e(title)}</h1>"]
     conv = report.get("convergence", {}) or {}

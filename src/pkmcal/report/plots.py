@@ -21,8 +21,31 @@ def _save(fig, path: Path) -> Path:
 
 
 def plot_sweep(points, path, xlabel: str, title: str, extra=None, extra_label: str = ""):
-    """Calibrated position (um) and orientation (urad) error against a study variable (um),
-    log-log, mean +/- one standard deviation over seeds; the identity line for reference."""
+    """Calibrated position and orientation error against a study variable, log-log.
+
+    Mean +/- one standard deviation over seeds, position in um and orientation in urad against
+    the variable in um; the identity line for reference.
+
+    Parameters
+    ----------
+    points : sequence of SweepPoint
+        The main curve (:func:`~pkmcal.analysis.sweeps.constraint_link_sweep`), values in SI.
+    path : str or os.PathLike
+        Output PNG file.
+    xlabel : str
+        Label of the study variable's axis.
+    title : str
+        Figure title.
+    extra : sequence of SweepPoint, optional
+        A second curve, drawn dashed.
+    extra_label : str, optional
+        Legend label of ``extra``.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
     for pts, label, style in ((points, "maximum likelihood", "o-"),
                               (extra, extra_label, "s--")):
@@ -50,7 +73,22 @@ def plot_sweep(points, path, xlabel: str, title: str, extra=None, extra_label: s
 
 
 def plot_residuals(residuals_um, path, title: str = "joint residuals after calibration"):
-    """Histogram of residuals (um) per actuator."""
+    """Histogram of residuals per actuator.
+
+    Parameters
+    ----------
+    residuals_um : array_like, shape (K, n_joints)
+        Residuals, um.
+    path : str or os.PathLike
+        Output PNG file.
+    title : str, optional
+        Axes title.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
     r = np.atleast_2d(residuals_um)
     fig, ax = plt.subplots(figsize=(6, 4))
     for j in range(r.shape[1]):
@@ -63,7 +101,32 @@ def plot_residuals(residuals_um, path, title: str = "joint residuals after calib
 
 
 def plot_parameter_errors(names, before, after, std, path, unit_scale, unit_label):
-    """Parameter deviations from truth before and after calibration (gauge-aligned)."""
+    """Parameter deviations from truth before and after calibration (gauge-aligned).
+
+    Absolute values on a log axis, with the reported standard deviations as markers.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Parameter names.
+    before : array_like, shape (n,)
+        Nominal minus true values, internal units.
+    after : array_like, shape (n,)
+        Calibrated (gauge-aligned) minus true values, internal units.
+    std : array_like, shape (n,) or None
+        Reported standard deviations, internal units.
+    path : str or os.PathLike
+        Output PNG file.
+    unit_scale : float
+        Factor applied to every value before plotting.
+    unit_label : str
+        Label of the value axis.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
     fig, ax = plt.subplots(figsize=(12, 4))
     x = np.arange(len(names))
     ax.bar(x - 0.2, np.abs(before) * unit_scale, 0.4, label="nominal - true")
@@ -78,11 +141,25 @@ def plot_parameter_errors(names, before, after, std, path, unit_scale, unit_labe
 
 
 def plot_distance_ratio(panels, path, title: str = "distance ratio of neighbouring points"):
-    """Seed 001 Fig. 6: distance ratio [%] (model distance / tracker distance x 100) of
-    neighbouring grid points, per pair, before (dashed) and after (solid) calibration.
+    """Seed 001 Fig. 6: distance ratio of neighbouring grid points, before and after calibration.
 
-    ``panels``: list of ``(panel title, {label: (ratios, style)})``; styles such as ``"--"``
-    (before) and ``"-"`` (after). The 100 % line is drawn for reference.
+    The ratio [%] is model distance / tracker distance x 100, per pair; the 100 % line is drawn
+    for reference.
+
+    Parameters
+    ----------
+    panels : list of tuple
+        ``(panel title, {label: (ratios, style)})`` per panel; styles such as ``"--"``
+        (before) and ``"-"`` (after).
+    path : str or os.PathLike
+        Output PNG file.
+    title : str, optional
+        Figure title.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
     """
     fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4), squeeze=False)
     for ax, (panel_title, curves) in zip(axes[0], panels, strict=True):
@@ -110,8 +187,30 @@ def _shade_envelope(ax, x, lo, hi, color, label=None):
 
 def plot_link_forces(x, forces, path, xlabel: str = "angle [deg]",
                      title: str = "leg forces (tension positive)", undetermined=None):
-    """Seed 003 Fig. 6: the six leg forces [N] (tension positive) along the trajectory; samples
-    where a force is within the tolerance of zero (side undetermined) are marked."""
+    """Seed 003 Fig. 6: the six leg forces (tension positive) along the trajectory.
+
+    Samples where a force is within the tolerance of zero (side undetermined) are marked.
+
+    Parameters
+    ----------
+    x : array_like, shape (K,)
+        Abscissa (e.g. the angle on the circle, deg).
+    forces : array_like, shape (K, 6)
+        Leg forces, N.
+    path : str or os.PathLike
+        Output PNG file.
+    xlabel : str, optional
+        Label of the abscissa; ticks every 45 when it starts with "angle".
+    title : str, optional
+        Axes title.
+    undetermined : array_like of bool, shape (K, 6), optional
+        Samples to mark.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
     x = np.asarray(x, float)
     f = np.asarray(forces, float)
     fig, ax = plt.subplots(figsize=(8, 4.5))
@@ -135,9 +234,34 @@ def plot_link_forces(x, forces, path, xlabel: str = "angle [deg]",
 
 def plot_pose_errors(x, dx, dx_min, dx_max, path, xlabel: str = "angle [deg]",
                      title: str = "pose error from joint clearance"):
-    """Seed 003 Fig. 7: position errors dx, dy, dz [um] and orientation errors drx, dry, drz
-    [urad] along the trajectory; where a leg force is near zero the envelope of both sides is
-    shaded (the line is the value with those joints centred)."""
+    """Seed 003 Fig. 7: position and orientation errors along the trajectory.
+
+    Position errors dx, dy, dz [um] and orientation errors drx, dry, drz [urad]; where a leg
+    force is near zero the envelope of both sides is shaded (the line is the value with those
+    joints centred).
+
+    Parameters
+    ----------
+    x : array_like, shape (K,)
+        Abscissa (e.g. the angle on the circle, deg).
+    dx : array_like, shape (K, 6)
+        Pose errors ``[dp (m), dOmega (rad)]``.
+    dx_min : array_like, shape (K, 6)
+        Lower envelope, same units.
+    dx_max : array_like, shape (K, 6)
+        Upper envelope, same units.
+    path : str or os.PathLike
+        Output PNG file.
+    xlabel : str, optional
+        Label of the abscissa; ticks every 45 when it starts with "angle".
+    title : str, optional
+        Title of the upper axes.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
     x = np.asarray(x, float)
     dx, lo, hi = (np.asarray(v, float) * 1e6 for v in (dx, dx_min, dx_max))
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
@@ -161,9 +285,28 @@ def plot_pose_errors(x, dx, dx_min, dx_max, path, xlabel: str = "angle [deg]",
 
 def plot_error_map(x, y, panels, path, title: str = "pose error over the workspace",
                    overlay=None):
-    """Error maps over a horizontal workspace slice: one panel per
-    ``(panel title, values (ny, nx), colour-bar label)``; ``x``, ``y`` in mm; ``overlay``
-    (K, 2) in mm (e.g. the trajectory) is drawn on every panel."""
+    """Error maps over a horizontal workspace slice, one panel per map.
+
+    Parameters
+    ----------
+    x : array_like, shape (nx,)
+        Grid positions along X, mm.
+    y : array_like, shape (ny,)
+        Grid positions along Y, mm.
+    panels : sequence of tuple
+        ``(panel title, values (ny, nx), colour-bar label)`` per panel.
+    path : str or os.PathLike
+        Output PNG file.
+    title : str, optional
+        Figure title.
+    overlay : array_like, shape (K, 2), optional
+        Path in mm (e.g. the trajectory) drawn on every panel.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
     n = len(panels)
     cols = min(n, 2)
     rows = (n + cols - 1) // cols
@@ -186,10 +329,27 @@ def plot_error_map(x, y, panels, path, title: str = "pose error over the workspa
 
 
 def plot_prediction_map(slices, path, title: str, plan=None, centre=None):
-    """Predicted error over workspace slices and, optionally, where the planned measurements
-    are. ``slices``: ``(panel title, a (n,) mm, b (m,) mm, values (m, n), a label, b label,
-    colour-bar label)``; ``plan`` (K, 3) positions in mm, ``centre`` (3,) mm (home) drawn as
-    a cross with the 0.1 m workspace square."""
+    """Predicted error over workspace slices and, optionally, where the planned measurements are.
+
+    Parameters
+    ----------
+    slices : sequence of tuple
+        ``(panel title, a (n,) mm, b (m,) mm, values (m, n), a label, b label, colour-bar
+        label)`` per panel.
+    path : str or os.PathLike
+        Output PNG file.
+    title : str
+        Figure title.
+    plan : array_like, shape (K, 3), optional
+        Planned positions, mm, drawn in an extra panel (x, y; colour z).
+    centre : array_like, shape (3,), optional
+        Home position, mm, drawn as a cross with the 0.1 m workspace square.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
     n = len(slices) + (plan is not None)
     fig, axes = plt.subplots(1, n, figsize=(5.4 * n, 4.6), squeeze=False, layout="constrained")
     for ax, (panel_title, a, b, values, la, lb, label) in zip(axes.flat, slices, strict=False):
