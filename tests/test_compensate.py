@@ -130,3 +130,71 @@ def test_bad_input(cli, tmp_path):
     # the output must not overwrite the targets
     assert_input_error(cli("compensate", "default", "t.csv", "-o", "t.csv"), "t.csv")
     assert not (tmp_path / "c.csv").exists()
+
+
+@pytest.mark.parametrize("kind", ["delta", "stewart"])
+def test_instrument_frame_targets_land_where_the_instrument_measures(kind, cli, tmp_path):
+    """Targets in the tracker / motion-capture frame are converted with the frames the
+    calibration estimated: the true machine puts them where the instrument measures them,
+    within the predicted error, while the same targets in the base frame land off by the
+    motion the data cannot fix (millimetres)."""
+    from pkmcal.calibration import predict_tracker_points
+    from pkmcal.io import load_machine, read_joints, read_readings, write_poses, write_positions
+    from pkmcal.kinematics import matrix_from_rotvec, rotvec_from_matrix
+
+    machine_file, options, _ = CASES[kind]
+    assert cli("simulate", machine_file, *options, "--seed", "2", "--truth", "true.yaml",
+               "-o", "data.csv").returncode == 0
+    assert cli("calibrate", machine_file, "data.csv", "-o", "cal.yaml").returncode == 0
+    true = load_machine(tmp_path / "true.yaml")
+    rng = np.random.default_rng(3)
+    P = true.home[0] + rng.uniform(-0.03, 0.03, (25, 3))
+    R = matrix_from_rotvec(rng.uniform(-0.08, 0.08, (25, 3)))
+    if kind == "delta":
+        Rf, t = true.base_from_tracker
+        Pt = (P - np.array([0, 0, true.smr_offset]) - t) @ Rf
+        write_positions(tmp_path / "t.csv", Pt, "mm")
+        write_positions(tmp_path / "b.csv", P, "mm")
+    else:
+        Pt, Rt = true.measurement_frames.measured(P, R)
+        write_poses(tmp_path / "t.csv", Pt, Rt, "mm", "deg")
+        write_poses(tmp_path / "b.csv", P, R, "mm", "deg")
+    proc = cli("compensate", "cal.yaml", "t.csv", "--frame", "instrument", "--json", "-o",
+               "c.csv")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["targets_frame"] != "base"
+    proc = cli("compensate", "cal.yaml", "b.csv", "-o", "cb.csv")
+    assert proc.returncode == 0 and "--frame instrument" in proc.stdout
+
+    def landed(path):
+        if kind == "delta":
+            q = read_joints(path, 3, "angle")[0]
+            return predict_tracker_points(true, q, true.base_from_tracker), None
+        q = read_readings(path, true)[0]
+        fk = true.fk(q, start=(P, R))
+        assert fk.converged.all()
+        return true.measurement_frames.measured(fk.P, fk.R)
+
+    Pm, Rm = landed(tmp_path / "c.csv")
+    rms = float(np.sqrt(np.mean(np.sum((Pm - Pt) ** 2, -1))))
+    predicted = summary["predicted_position_um"]["rms"] * 1e-6
+    assert 0.3 < rms / predicted < 3.0, (rms, predicted)
+    if kind == "stewart":
+        a = np.linalg.norm(rotvec_from_matrix(Rm @ np.swapaxes(Rt, -1, -2)), axis=-1)
+        ratio = np.sqrt(np.mean(a**2)) / (summary["predicted_orientation_urad"]["rms"] * 1e-6)
+        assert 0.3 < ratio < 3.0
+    # the same targets in the base frame: right up to the unseen frame motion, which is large
+    Pb, _ = landed(tmp_path / "cb.csv")
+    target_b = Pt if kind == "delta" else true.measurement_frames.measured(P, R)[0]
+    miss = float(np.sqrt(np.mean(np.sum((Pb - target_b) ** 2, -1))))
+    assert miss > 20 * rms
+
+
+def test_instrument_frame_needs_one(cli, tmp_path):
+    from pkmcal.machines import default_hexaslide
+
+    _targets(tmp_path / "t.csv", default_hexaslide(), n=3)
+    assert_input_error(cli("compensate", "default", "t.csv", "--frame", "instrument", "-o",
+                           "c.csv"), "--frame instrument", "base frame")
+    assert not (tmp_path / "c.csv").exists()

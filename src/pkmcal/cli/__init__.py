@@ -54,6 +54,11 @@ class Method(enum.StrEnum):
     fk = "fk"
 
 
+class TargetFrame(enum.StrEnum):
+    base = "base"
+    instrument = "instrument"
+
+
 MachineArg = Annotated[str, typer.Argument(
     metavar="MACHINE", help="Machine file (YAML: hexaslide, delta or stewart) or 'default' "
                             "for the embedded Hexa Slide.",
@@ -439,6 +444,13 @@ def compensate(
         help="The machine file the controller used before (e.g. the nominal one): also "
              "report how far its commands would leave the platform.", show_default=False)]
     = None,
+    frame: Annotated[TargetFrame, typer.Option(
+        help="base: targets in the calibrated model's base frame. instrument: targets in the "
+             "measuring instrument's frame (Delta: reflector positions in the laser tracker's "
+             "frame; Stewart: marker poses in the motion-capture frame), converted with the "
+             "frames the calibration estimated; they land where the instrument will measure "
+             "them, also along directions the data cannot fix in the base frame.")]
+    = TargetFrame.base,
     json_output: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")]
     = False,
 ) -> None:
@@ -457,7 +469,8 @@ def compensate(
     """
     from ._compensate import run_compensate
 
-    raise typer.Exit(run_compensate(machine, targets, output, report, nominal, json_output))
+    raise typer.Exit(run_compensate(machine, targets, output, report, nominal, json_output,
+                                    TargetFrame(frame).value))
 
 
 @app.command("report")

@@ -829,6 +829,14 @@ def _write_calibration(calibrated, units, metadata, report, output, report_path,
             "null_space": (np.asarray(result.null_space, float)
                            * np.asarray(result.scales, float)[:, None])[:n].tolist(),
         }
+        all_names = list(result.parameters.names)
+        if len(all_names) > n and all_names[:n] == names:
+            # with the measurement frames (tracker pose, motion-capture frames) and Lc: what
+            # compensate needs for targets given in the instrument's frame
+            report["covariance"]["with_frames"] = {
+                "parameters": all_names,
+                "matrix": np.asarray(result.covariance, float).tolist(),
+            }
         # residual / assumed noise std of every residual, for the report's histogram
         report["normalised_residuals"] = np.asarray(result.residuals, float).ravel().tolist()
     report["provenance"] = provenance()

@@ -33,9 +33,10 @@ def calibration_report_path(machine, machine_spec: str, report: Path | None) -> 
     return path if path.is_file() else None
 
 
-def read_covariance(path: Path, machine) -> tuple[np.ndarray, np.ndarray | None]:
+def read_covariance(path: Path, machine, with_frames: bool = False):
     """The machine-parameter covariance of a calibration report (JSON), checked against the
-    machine's parameter names, and the unidentifiable directions (n, k) when given."""
+    machine's parameter names, and the unidentifiable directions (n, k) when given; with
+    ``with_frames`` also ``(names, matrix)`` of the machine and frame parameters together."""
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError) as exc:
@@ -64,14 +65,33 @@ def read_covariance(path: Path, machine) -> tuple[np.ndarray, np.ndarray | None]
         except (TypeError, ValueError):
             raise InputError(f"{path}: covariance.null_space is not a matrix of "
                              f"{len(names)} rows") from None
-    return C, N
+    if not with_frames:
+        return C, N
+    full = cov.get("with_frames")
+    try:
+        all_names = [str(v) for v in full["parameters"]]
+        C_all = np.asarray(full["matrix"], float)
+        assert C_all.shape == (len(all_names),) * 2 and np.all(np.isfinite(C_all))
+    except (TypeError, KeyError, ValueError, AssertionError):
+        raise InputError(f"{path}: no covariance of the measurement frames (covariance."
+                         "with_frames); calibrate again with this version") from None
+    return C, N, (all_names, C_all)
 
 
 def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path | None,
-                   nominal_spec: str | None, json_output: bool) -> int:
-    from ..compensation import compensate
+                   nominal_spec: str | None, json_output: bool, frame_name: str = "base") -> int:
+    from ..compensation import compensate, target_frame
 
     machine = load_machine_arg(machine_spec)
+    frame = None
+    if frame_name == "instrument":
+        frame = target_frame(machine)
+        if frame is None:
+            raise InputError(f"--frame instrument: {getattr(machine, 'source', machine_spec)} "
+                             "has no instrument frame (a calibrated Delta's tracker or a "
+                             "calibrated Stewart's measurement_frames); a constraint-link "
+                             "calibration measures in no external frame: give the targets in "
+                             "the base frame")
     inputs = [targets] + _machine_inputs(machine_spec) + ([report] if report else [])
     check_outputs([output], inputs)
     nominal = None
@@ -82,11 +102,18 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
             raise InputError(f"--nominal {nominal_spec}: a {nominal.kind} with other parameters "
                              f"than the calibrated {machine.kind}")
     report_path = calibration_report_path(machine, machine_spec, report)
-    C, N = (None, None) if report_path is None else read_covariance(report_path, machine)
+    C, N, names = None, None, None
+    if report_path is not None and frame is not None:
+        _, N, (names, C) = read_covariance(report_path, machine, with_frames=True)
+    elif report_path is not None:
+        C, N = read_covariance(report_path, machine)
     P, R, rows = read_poses_of(targets, machine)
     if len(P) == 0:
         raise InputError(f"{targets}: no target rows")
-    comp = compensate(machine, P, R, C, nominal, N)
+    try:
+        comp = compensate(machine, P, R, C, nominal, N, frame=frame, names=names)
+    except ValueError as exc:
+        raise InputError(f"{report_path}: {exc}") from None
     if not comp.reachable.all():
         raise InputError(f"{targets}: {int((~comp.reachable).sum())} target(s) cannot be reached "
                          f"by the calibrated machine, row(s) "
@@ -124,6 +151,7 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
         "targets_file": str(targets),
         "commands_file": str(output),
         "targets": int(len(P)),
+        "targets_frame": "base" if frame is None else frame.description,
         "covariance_from": None if report_path is None else str(report_path),
         "nominal_file": nominal_spec,
         "predicted_position_um": stats(comp.position_std, 1e6),
@@ -139,7 +167,9 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
         return 0
     table = _table("", "", title=f"pkmcal compensate: {summary['machine_file']}",
                    show_header=False)
-    table.add_row("targets", f"{len(P)} from {targets}")
+    table.add_row("targets", f"{len(P)} from {targets} ("
+                  + ("base frame of the calibrated model" if frame is None
+                     else frame.description) + ")")
     table.add_row("commands", f"{output} ({', '.join(list(columns)[:machine.n_joints])})")
     pp, po = summary["predicted_position_um"], summary["predicted_orientation_urad"]
     if pp:
@@ -147,14 +177,29 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
         if po:
             text += f"; orientation {po['rms']:.3g} urad RMS, {po['max']:.3g} urad max"
         table.add_row("predicted residual", f"{text} (1 sigma, from the calibration's "
-                      f"covariance in {report_path}; frames the data cannot fix aligned)")
+                      f"covariance in {report_path}; " + (
+                          "frames the data cannot fix aligned)" if frame is None else
+                          "in the instrument's frame, its pose uncertainty included)"))
     up, uo = summary["uncompensated_position_um"], summary["uncompensated_orientation_urad"]
     if up:
         text = f"position {up['rms']:.4g} um RMS, {up['max']:.4g} um max"
         if uo:
             text += f"; orientation {uo['rms']:.4g} urad RMS, {uo['max']:.4g} urad max"
         table.add_row("without compensation", f"{text} (commands of {nominal_spec}, as the "
-                      "calibrated model sees them)")
+                      "calibrated model sees them; frames the data cannot fix aligned)")
     console().print(table)
+    unseen = (getattr(machine, "calibration_info", None) or {}).get("unidentifiable") or []
+    if frame is None and unseen and target_frame(machine) is not None:
+        console().print(
+            f"note: the calibration data did not fix {'; '.join(map(str, unseen))[:300]}: "
+            "base-frame targets land off by that unknown motion (often millimetres). Give the "
+            "targets in the instrument's frame (--frame instrument) or set the work offset on "
+            "the machine (touch off a reference).", markup=False)
+    elif frame is None and unseen:
+        console().print(
+            f"note: the calibration data did not fix {'; '.join(map(str, unseen))[:300]}: "
+            "the base frame keeps the machine file's orientation there; register the work "
+            "frame on the machine (probe or touch off a reference) and give the targets in "
+            "it.", markup=False)
     return 0
 
