@@ -59,10 +59,14 @@ def test_calibrate_report_dir_and_report_command(kind, cli, tmp_path):
 def test_report_bad_input(cli, tmp_path):
     machine = CASES["hexaslide"][0]
     assert cli("simulate", machine, "--poses", "80", "-o", "data.csv").returncode == 0
-    # --report DIR must exist; nothing is written when it does not
-    assert_input_error(cli("calibrate", machine, "data.csv", "-o", "cal.yaml", "--report",
-                           "nodir"), "nodir")
+    # --report DIR is created when missing; a file of that name is refused, nothing written
+    (tmp_path / "afile").write_text("x")
+    proc = cli("calibrate", machine, "data.csv", "-o", "cal.yaml", "--report", "afile")
+    assert proc.returncode == 2 and "afile" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "cal.yaml").exists() and not (tmp_path / "cal.json").exists()
+    assert cli("calibrate", machine, "data.csv", "-o", "cal.yaml", "--report",
+               "new/dir").returncode == 0
+    assert (tmp_path / "new" / "dir" / "report.html").is_file()
     other = tmp_path / "other.json"
     other.write_text(json.dumps({"command": "identifiability"}))
     assert_input_error(cli("report", other, "-o", "r.html"), "other.json", "calibration report")

@@ -24,7 +24,7 @@ from ..errors import ConvergenceError, InputError
 app = typer.Typer(
     name="pkmcal",
     help="Calibration, identifiability and error analysis of parallel kinematic machines.\n\n"
-         "MACHINE arguments are a machine file (YAML, SPEC 6: hexaslide, delta or stewart) or "
+         "MACHINE arguments are a machine file (YAML: hexaslide, delta or stewart; examples/) or "
          "the word 'default' for the embedded Hexa Slide (examples/delta_default.yaml is the "
          "default Delta). Numbers on the command line take a unit suffix (2um, 300mm, 10deg); "
          "a bare number is SI.",
@@ -162,12 +162,12 @@ def simulate(
     Example: `pkmcal simulate examples/delta_default.yaml --scenario tracker --seed 1
     --truth true.yaml -o tracker.csv`
 
-    pose (six-leg platform, SPEC 2.4): random platform poses in the 0.1 m cube around home
+    pose (six-leg platform): random platform poses in the 0.1 m cube around home
     with Euler angles within +/-10 deg; the legs' readings q1..q6 (the machine's reading unit)
     and the marker pose measured by a motion-capture system, x, y, z (the file's length unit)
     and qx, qy, qz, qw, in the measurement frame. The true frames are the machine file's
-    measurement_frames, else the default (measurement origin at (1200, -400, -300) mm, turned
-    30 deg about Z and tilted 2 deg; marker 25 mm off the platform origin, turned 90 deg).
+    measurement_frames, else the default (the base origin measured at (1200, -400, -300) mm,
+    turned 30 deg about Z and tilted 2 deg; marker 25 mm off the platform origin, turned 90 deg).
 
     Example: `pkmcal simulate examples/cubic_6upu.yaml --scenario pose --poses 60 --truth
     true.yaml -o poses.csv`
@@ -202,7 +202,7 @@ def calibrate(
     report: Annotated[Path | None, typer.Option(
         "--report", metavar="DIR", file_okay=False,
         help="Also write DIR/report.html (self-contained: tables and plots) and its JSON twin "
-             "DIR/report.json.", show_default=False)] = None,
+             "DIR/report.json (DIR is created when missing).", show_default=False)] = None,
     fix_frames: Annotated[bool, typer.Option(
         "--fix-frames", help="pose data: hold the measurement frames (mocap_from_base, "
                              "platform_from_marker) at the machine file's measurement_frames "
@@ -244,7 +244,7 @@ def calibrate(
     Example: `pkmcal calibrate examples/delta_default.yaml tracker.csv --robust -o cal.yaml`
 
     q1..q6 + a pose (x, y, z with qx, qy, qz, qw or psi, theta, phi) with a Stewart file ->
-    full-pose calibration (SPEC 2.4): the legs and, unless --fix-frames, the measurement frames
+    full-pose calibration: the legs and, unless --fix-frames, the measurement frames
     (written to the calibrated file's measurement_frames section). The summary compares the
     machine file's legs (frames fitted alone) with the calibrated ones.
 
@@ -292,7 +292,7 @@ def identifiability(
                        "unidentifiable, observability, condition_number, hold_fixed, "
                        "correlated, predicted_accuracy, singular_values).")] = False,
 ) -> None:
-    """What the measurements will identify and how accurate the calibration will be (SPEC 3).
+    """What the measurements will identify and how accurate the calibration will be.
 
     From measurements (DATA; the type follows from the columns, as in `pkmcal calibrate`),
     from planned poses (`--planned DATA`), or, without DATA, from random planned poses of the
@@ -303,7 +303,7 @@ def identifiability(
     O1..O5, the condition number, a minimal identifiable set (parameters to hold fixed; QR
     with column pivoting), parameter pairs correlated beyond 0.9, and the predicted pose
     accuracy after calibration (Cramer-Rao bound with the --noise model, propagated to the
-    0.1 m workspace cube around home; frame gauges removed by best fit as in SPEC 5).
+    0.1 m workspace cube around home; frames the data cannot fix removed by a best fit).
 
     Example: `pkmcal identifiability default data.csv`
 
@@ -327,7 +327,8 @@ class Criterion(enum.StrEnum):
 def select_poses(
     machine: MachineArg,
     output: OutFile,
-    n: Annotated[int, typer.Option("-n", "--poses", help="Number of poses to choose.")] = 0,
+    n: Annotated[int, typer.Option("-n", "--poses", help="Number of poses to choose.",
+                                   show_default=False)],
     candidates: Annotated[int, typer.Option(
         help="Number of random feasible candidates (constraint-link: on the sphere |P| = Lc; "
              "tracker: in the box of the 3x3x3 grid around home; pose: the 0.1 m cube, +/-10 "
@@ -359,7 +360,7 @@ def select_poses(
     json_output: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")]
     = False,
 ) -> None:
-    """Choose N measurement poses that identify the machine best (SPEC 3).
+    """Choose N measurement poses that identify the machine best.
 
     Candidates are feasible poses of the machine's scenario (reachable, well conditioned;
     constraint link: drivable with the link mounted; within --joint-range) or the poses of
@@ -454,7 +455,7 @@ def compensate(
     json_output: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")]
     = False,
 ) -> None:
-    """Joint commands that put the real machine on the targets (SPEC 4).
+    """Joint commands that put the real machine on the targets.
 
     The calibrated model's inverse kinematics gives the commands; writes the targets with
     q1..qn (the file's units; Stewart: the reading unit) and, per target, the predicted
@@ -634,7 +635,7 @@ def montecarlo(
     Each run: true machine = MACHINE + deviations, simulated data of the scenario, the
     default calibration of `pkmcal calibrate`, and the accuracy of the result against the
     truth where the data cannot fix the frames: constraint-link, the workspace pose error
-    after aligning the frames (SPEC 5); tracker, held-out tracker points through the
+    after aligning the frames the data cannot fix; tracker, held-out tracker points through the
     identified registration; pose, held-out poses through the identified frames and the
     gauge-free parameter error. Per value: mean, 95 % confidence interval of the mean,
     median and 5-95 % of the runs.

@@ -544,8 +544,8 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
     machine = load_machine_arg(machine_spec)
     outputs = [output, report_path]
     if report_dir is not None:
-        if not report_dir.is_dir():
-            raise InputError(f"--report {report_dir}: not a directory (create it first)")
+        if report_dir.exists() and not report_dir.is_dir():
+            raise InputError(f"--report {report_dir}: a file, not a directory")
         outputs += [report_dir / "report.html", report_dir / "report.json"]
     check_outputs(outputs, [data_path] + _machine_inputs(machine_spec))
     split = None if holdout is None else (holdout_arg(holdout), seed)
@@ -851,6 +851,7 @@ def _write_calibration(calibrated, units, metadata, report, output, report_path,
     atomic_write_text(report_path, json_text)
     atomic_write_text(output, yaml_text)
     if html_text is not None:
+        report_dir.mkdir(parents=True, exist_ok=True)
         atomic_write_text(report_dir / "report.json", json_text)
         atomic_write_text(report_dir / "report.html", html_text)
     return json_text
