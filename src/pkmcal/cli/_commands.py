@@ -546,7 +546,8 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
     if report_dir is not None:
         if report_dir.exists() and not report_dir.is_dir():
             raise InputError(f"--report {report_dir}: a file, not a directory")
-        outputs += [report_dir / "report.html", report_dir / "report.json"]
+        if report_dir.is_dir():                 # else created at the end, with the files
+            outputs += [report_dir / "report.html", report_dir / "report.json"]
     check_outputs(outputs, [data_path] + _machine_inputs(machine_spec))
     split = None if holdout is None else (holdout_arg(holdout), seed)
     header, _ = read_table(data_path)
