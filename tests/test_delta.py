@@ -339,3 +339,14 @@ def test_delta_parameters_registry():
     np.testing.assert_array_equal(p.get("leg3.db"), [24.0, 25.0, 26.0])
     assert p.kinds[p.index("leg1.dtheta")] == "angle"
     assert p.kinds[p.index("leg1.dl2")] == "length"
+
+
+def test_pose_accuracy_default_poses_do_not_rotate_a_delta():
+    """A perfect model of a translation-only platform has no orientation error on the default
+    workspace (it used to be given rotated poses)."""
+    from pkmcal.analysis.accuracy import pose_accuracy
+    from pkmcal.machines import default_delta
+
+    report = pose_accuracy(default_delta(), default_delta(), n=50)
+    assert report.n_failed == 0
+    assert report.position_max < 1e-12 and report.orientation_max < 1e-12

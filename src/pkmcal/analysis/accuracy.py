@@ -203,8 +203,8 @@ def pose_accuracy(true_machine: Machine, model_machine: Machine, P=None, R=None,
     model_machine : Machine
         The model.
     P : ndarray, shape (K, 3), optional
-        Positions, m; default :func:`workspace_poses` around the true machine's home (random
-        orientations, also for a translation-only platform).
+        Positions, m; default :func:`machine_workspace` of the true machine (around its home;
+        no rotation for a translation-only platform).
     R : ndarray, shape (K, 3, 3), optional
         Orientations; ignored (replaced) when ``P`` is None.
     align : bool, optional
@@ -220,7 +220,7 @@ def pose_accuracy(true_machine: Machine, model_machine: Machine, P=None, R=None,
         Means and maxima over the poses that converged (NaN if none did).
     """
     if P is None:
-        P, R = workspace_poses(true_machine.home[0], n=n, rng=rng)
+        P, R = machine_workspace(true_machine, n=n, rng=rng)
     dp, dr, ok, (G, C) = pose_errors(true_machine, model_machine, P, R, align)
     return AccuracyReport(
         position_mean=float(np.nanmean(dp)) if ok.any() else float("nan"),
