@@ -368,7 +368,9 @@ def test_cli_planning_bad_input(cli, tmp_path):
                        "at least 48")
     assert_input_error(cli("select-poses", "default", "-n", "50", "--candidates", "20", "-o",
                            tmp_path / "o.csv"), "--candidates")
-    assert_input_error(cli("select-poses", "default", "-o", tmp_path / "o.csv"), "-n")
+    # -n is required: a usage error (exit 2) naming it
+    proc = cli("select-poses", "default", "-o", tmp_path / "o.csv")
+    assert proc.returncode == 2 and "'-n'" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "o.csv").exists()
 
 
