@@ -94,7 +94,29 @@ def right_jacobian_inverse(phi):
 
 
 class FullPoseProblem:
-    """What both methods share: parameters = the machine's + the two frames."""
+    """What both methods share: parameters = the machine's + the two frames.
+
+    Parameters
+    ----------
+    machine : Stewart
+        Start geometry (a six-leg platform).
+    data : FullPoseData
+        Leg readings and measured marker poses.
+    noise : FullPoseNoise
+        Standard deviations that whiten the residuals.
+    frames : MeasurementFrames
+        Start (or fixed) values of the two frames.
+    fixed_frames : tuple of bool, optional
+        ``(mocap_from_base, platform_from_marker)``: hold that frame at ``frames``.
+    fit_machine : bool, optional
+        False holds every leg parameter (fit the frames only).
+
+    Raises
+    ------
+    InputError
+        When the machine is not a six-leg platform, the data have the wrong number of reading
+        columns, or the reading noise is not positive.
+    """
 
     local_dof = 0
 
@@ -128,9 +150,30 @@ class FullPoseProblem:
                              np.array(B, float), np.array(c, float))
 
     def initial_state(self):
+        """Start state: the machine's parameters and the start frames.
+
+        Returns
+        -------
+        FullPoseState
+            The state (no platform poses).
+        """
         return self._start()
 
     def global_values(self, state):
+        """Global values of a state: leg parameters, then the two frames.
+
+        Each frame as a rotation increment from its start value and a translation.
+
+        Parameters
+        ----------
+        state : FullPoseState
+            An estimator state.
+
+        Returns
+        -------
+        ndarray, shape (n_machine + 12,)
+            Parameter values, internal units.
+        """
         (A0, _), (B0, _) = self.frames0.mocap_from_base, self.frames0.platform_from_marker
         return np.concatenate([state.u, rotvec_from_matrix(state.A @ A0.T), state.a,
                                rotvec_from_matrix(state.B @ B0.T), state.c])
@@ -143,20 +186,62 @@ class FullPoseProblem:
                              state.c + du[n + 9:n + 12], state.P, state.R)
 
     def retract(self, state, du, dl):
+        """The state after a global step (no local unknowns).
+
+        Parameters
+        ----------
+        state : FullPoseState
+            Current state.
+        du : ndarray, shape (n_machine + 12,)
+            Step of the global parameters; frame rotations applied on the left.
+        dl : None
+            Unused.
+
+        Returns
+        -------
+        FullPoseState
+            The new state.
+        """
         return self._retract_global(state, du)
 
     def platform_poses(self, state):
-        """Measured poses mapped to platform poses in the base frame through the frames."""
+        """Measured poses mapped to platform poses in the base frame through the frames.
+
+        Parameters
+        ----------
+        state : FullPoseState
+            An estimator state (its frames are used).
+
+        Returns
+        -------
+        P : ndarray, shape (K, 3)
+            Platform positions, m.
+        R : ndarray, shape (K, 3, 3)
+            Platform orientations.
+        """
         return state.frames().platform(self.data.P, self.data.R)
 
     # -- words ----------------------------------------------------------------------------
     def gauge_tangents(self, state):
-        """Tangents (n, 6) of the base-frame and of the platform-frame gauge at ``state``, in
-        the estimator's increment coordinates (unscaled): rotation (3) then translation (3).
+        """Tangents of the base-frame and of the platform-frame gauge at ``state``.
 
+        In the estimator's increment coordinates (unscaled): rotation (3) then translation (3).
         Base: ``b_i' = G b_i + g``, ``mocap_from_base' = mocap_from_base (G, g)^-1``.
         Platform: ``p_i' = C^T (p_i - c0)``, ``platform_from_marker' = (C, c0)^-1
-        platform_from_marker``."""
+        platform_from_marker``.
+
+        Parameters
+        ----------
+        state : FullPoseState
+            The state to linearise at.
+
+        Returns
+        -------
+        base : ndarray, shape (n, 6)
+            Tangents of the base-frame gauge.
+        platform : ndarray, shape (n, 6)
+            Tangents of the platform-frame gauge.
+        """
         p, n = self.parameters, len(self.parameters)
         m = self.machine
         b, pl, _, _ = m.legs(state.u)
@@ -180,8 +265,20 @@ class FullPoseProblem:
         return base, plat
 
     def null_groups(self, state, scales):
-        """The two frame gauges in words (only where the leg parameters and the frame are
-        both free)."""
+        """The two frame gauges in words (where the leg parameters and the frame are both free).
+
+        Parameters
+        ----------
+        state : FullPoseState
+            The state to linearise at.
+        scales : ndarray, shape (n,)
+            Column scales; the tangents are returned in scaled coordinates.
+
+        Returns
+        -------
+        list of NullGroup
+            Zero, one or two groups.
+        """
         if not self.fit_machine:
             return []
         base, plat = self.gauge_tangents(state)
@@ -204,11 +301,52 @@ class FullPoseProblem:
 
 
 class FullPoseIK(FullPoseProblem):
-    """Inverse-kinematic residuals (Zhuang, Yan & Masory 1998); no per-pose unknowns."""
+    """Inverse-kinematic residuals (Zhuang, Yan & Masory 1998); no per-pose unknowns.
+
+    The measured poses are taken as exact and mapped through the frames to platform poses.
+
+    Parameters
+    ----------
+    machine : Stewart
+        Start geometry (a six-leg platform).
+    data : FullPoseData
+        Leg readings and measured marker poses.
+    noise : FullPoseNoise
+        Standard deviations; only ``reading_m`` is used.
+    frames : MeasurementFrames
+        Start (or fixed) values of the two frames.
+    fixed_frames : tuple of bool, optional
+        ``(mocap_from_base, platform_from_marker)``: hold that frame at ``frames``.
+    fit_machine : bool, optional
+        False holds every leg parameter.
+
+    Raises
+    ------
+    InputError
+        As :class:`FullPoseProblem`.
+    """
 
     local_dof = 0
 
     def evaluate(self, state, jacobian=True):
+        """Whitened reading residuals at the platform poses given by the measured poses.
+
+        Parameters
+        ----------
+        state : FullPoseState
+            Leg parameters and frames.
+        jacobian : bool, optional
+            Also compute the Jacobian.
+
+        Returns
+        -------
+        r : ndarray, shape (K, 6)
+            ``(q - IK(platform pose)) / sigma_q``.
+        J_g : ndarray, shape (K, 6, n_machine + 12) or None
+            Derivatives with respect to the leg parameters and the frames.
+        J_l : None
+            No local unknowns.
+        """
         P, R = self.platform_poses(state)
         q, Jx, Ju = self.machine.ik_jacobians(P, R, state.u, want_du=jacobian)
         sig = self.sigma_q
@@ -231,7 +369,28 @@ class FullPoseIK(FullPoseProblem):
 
 
 class FullPoseML(FullPoseProblem):
-    """Maximum likelihood with the platform pose of every measurement unknown (6 per pose)."""
+    """Maximum likelihood with the platform pose of every measurement unknown (6 per pose).
+
+    Parameters
+    ----------
+    machine : Stewart
+        Start geometry (a six-leg platform).
+    data : FullPoseData
+        Leg readings and measured marker poses.
+    noise : FullPoseNoise
+        Standard deviations of readings, positions and orientations (all > 0).
+    frames : MeasurementFrames
+        Start (or fixed) values of the two frames.
+    fixed_frames : tuple of bool, optional
+        ``(mocap_from_base, platform_from_marker)``: hold that frame at ``frames``.
+    fit_machine : bool, optional
+        False holds every leg parameter.
+
+    Raises
+    ------
+    InputError
+        As :class:`FullPoseProblem`, or when the position or orientation noise is not positive.
+    """
 
     local_dof = 6
 
@@ -244,17 +403,58 @@ class FullPoseML(FullPoseProblem):
                              "method for exact poses)")
 
     def initial_state(self):
+        """Start state: start frames and the platform poses of the measured poses through them.
+
+        Returns
+        -------
+        FullPoseState
+            The state with platform poses.
+        """
         state = self._start()
         state.P, state.R = self.platform_poses(state)
         return state
 
     def retract(self, state, du, dl):
+        """The state after a step: global step and each platform pose moved.
+
+        Parameters
+        ----------
+        state : FullPoseState
+            Current state.
+        du : ndarray, shape (n_machine + 12,)
+            Step of the global parameters.
+        dl : ndarray, shape (K, 6)
+            Step of each platform pose, ``[dP (m), dOmega (rad)]``.
+
+        Returns
+        -------
+        FullPoseState
+            The new state.
+        """
         new = self._retract_global(state, du)
         new.P = state.P + dl[:, :3]
         new.R = matrix_from_rotvec(dl[:, 3:]) @ state.R
         return new
 
     def evaluate(self, state, jacobian=True):
+        """Whitened residuals of readings, measured positions and orientations.
+
+        Parameters
+        ----------
+        state : FullPoseState
+            Leg parameters, frames and platform poses.
+        jacobian : bool, optional
+            Also compute the Jacobians.
+
+        Returns
+        -------
+        r : ndarray, shape (K, 12)
+            Six reading residuals, three position and three orientation residuals per pose.
+        J_g : ndarray, shape (K, 12, n_machine + 12) or None
+            Derivatives with respect to the leg parameters and the frames.
+        J_l : ndarray, shape (K, 12, 6) or None
+            Derivatives with respect to each platform pose ``[dP, dOmega]``.
+        """
         P, R, A, a, B, c = state.P, state.R, state.A, state.a, state.B, state.c
         q, Jx, Ju = self.machine.ik_jacobians(P, R, state.u, want_du=jacobian)
         sq, sp, so = self.sigma_q, self.noise.position_m, self.noise.orientation_rad
@@ -311,7 +511,28 @@ def estimate_frames(machine: Machine, data: FullPoseData, max_passes: int = 100,
     pass), the marker frame's rotation as the mean of ``R_k^T A^T Rm_k``, and ``(c, a)`` by
     linear least squares of ``A R_k c + a = Pm_k - A P_k``; passes until ``c`` settles (exact
     for exact data and the true model).
-    Raises :class:`InputError` naming the rows the model cannot reach.
+
+    Parameters
+    ----------
+    machine : Stewart
+        The model (its forward kinematics give the platform poses).
+    data : FullPoseData
+        Leg readings and measured marker poses.
+    max_passes : int, optional
+        Maximum number of passes.
+    rcond : float, optional
+        ``rcond`` of the least-squares solve for ``(c, a)``.
+
+    Returns
+    -------
+    MeasurementFrames
+        Estimates of ``mocap_from_base`` and ``platform_from_marker``.
+
+    Raises
+    ------
+    InputError
+        Naming the rows the model cannot reach, or when fewer than 4 positions are given or
+        they lie on one line.
     """
     fk = machine.fk(data.q)
     if not fk.converged.all():
@@ -356,25 +577,47 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
 
     Parameters
     ----------
-    method : ``'ml'`` (default, every measured quantity noisy, poses unknown) or ``'ik'``
-        (inverse-kinematic residuals, measured poses exact); see the module docstring.
-    noise : :class:`~pkmcal.measurements.FullPoseNoise` (default values when None).
-    frames : start (or fixed) values of the frames; None: closed form
-        (:func:`estimate_frames`).
-    fix_frames : True (both), False (none), or frame names (``"mocap_from_base"``,
+    machine : Stewart
+        Start geometry (a six-leg platform); not modified.
+    data : FullPoseData
+        Leg readings and measured marker poses.
+    method : {'ml', 'ik'}, optional
+        ``'ml'`` (every measured quantity noisy, poses unknown) or ``'ik'`` (inverse-kinematic
+        residuals, measured poses exact); see the module docstring.
+    noise : FullPoseNoise, optional
+        Noise levels (default values when None).
+    frames : MeasurementFrames, optional
+        Start (or fixed) values of the frames; None: closed form (:func:`estimate_frames`).
+    fix_frames : bool, str or sequence of str, optional
+        True (both), False (none), or frame names (``"mocap_from_base"``,
         ``"platform_from_marker"``) held at ``frames``.
-    fit_machine : False keeps the leg parameters and fits the frames only (the baseline
-        "before calibration" of a model whose frames are unknown).
-    require_identifiable : raise :class:`InputError` when the poses leave directions other
-        than the frame gauges undetermined (degenerate poses: all alike, or no rotation),
-        naming them; False returns the fit with those directions reported instead.
-    options : passed to :func:`levenberg_marquardt` (``xtol``, ``ftol``, ``max_iter``, ...).
+    fit_machine : bool, optional
+        False keeps the leg parameters and fits the frames only (the baseline "before
+        calibration" of a model whose frames are unknown).
+    rtol : float, optional
+        Rank tolerance of :func:`levenberg_marquardt`.
+    require_identifiable : bool, optional
+        Raise :class:`InputError` when the poses leave directions other than the frame gauges
+        undetermined (degenerate poses: all alike, or no rotation), naming them; False returns
+        the fit with those directions reported instead.
+    **options
+        Passed to :func:`levenberg_marquardt` (``xtol``, ``ftol``, ``max_iter``, ``max_std``;
+        ``max_std`` defaults to :data:`MAX_STD`).
 
     Returns
     -------
-    CalibrationResult with ``extras``: ``method``, ``machine`` (calibrated, with
-    ``measurement_frames``), ``frames``, ``start_frames``, ``unidentifiable`` (named null and
-    weak directions), ``problem``.
+    CalibrationResult
+        With ``extras``: ``method``; ``machine``, the calibrated machine (with
+        ``measurement_frames``, home kept); ``frames``; ``start_frames``; ``fixed_frames``;
+        ``unidentifiable``, the named null and weak directions; ``problem``.
+
+    Raises
+    ------
+    InputError
+        For an unknown method or frame name, a machine that is not a six-leg platform, fixed
+        frames without ``frames``, fewer than 4 poses or fewer equations than identifiable
+        parameters, degenerate poses (with ``require_identifiable``), or data the start
+        model cannot explain.
     """
     if method not in PROBLEMS:
         raise InputError(f"unknown method {method!r} for full-pose data; choose one of "
@@ -448,12 +691,19 @@ def _check_identifiable(problem: FullPoseProblem, n_id: int, rtol: float, max_st
 class FullPoseErrors:
     """How well a model with its frames explains full-pose data.
 
-    leg_length : (K, 6) m, ``l0 + gain q`` minus the leg length at the measured pose (mapped
-        through the frames): the inverse-kinematic residual as a length.
-    position : (K,) m, distance between the measured marker position and the one predicted by
-        forward kinematics of the readings (NaN where it did not converge).
-    orientation : (K,) rad, angle between the measured and the predicted marker orientation.
-    converged : (K,) bool, forward kinematics converged.
+    Attributes
+    ----------
+    leg_length : ndarray, shape (K, 6)
+        ``l0 + gain q`` minus the leg length at the measured pose (mapped through the frames),
+        m: the inverse-kinematic residual as a length.
+    position : ndarray, shape (K,)
+        Distance between the measured marker position and the one predicted by forward
+        kinematics of the readings, m (NaN where it did not converge).
+    orientation : ndarray, shape (K,)
+        Angle between the measured and the predicted marker orientation, rad (NaN where the
+        forward kinematics did not converge).
+    converged : ndarray of bool, shape (K,)
+        Forward kinematics converged.
     """
 
     leg_length: np.ndarray
@@ -462,7 +712,15 @@ class FullPoseErrors:
     converged: np.ndarray
 
     def summary(self) -> dict:
-        """RMS and maximum of each error (SI units), over the converged rows for poses."""
+        """RMS and maximum of each error (SI units), over the converged rows for poses.
+
+        Returns
+        -------
+        dict
+            ``leg_length_rms``, ``leg_length_max``, ``leg_length_rms_per_leg`` (list of 6),
+            ``position_rms``, ``position_max`` (m), ``orientation_rms``, ``orientation_max``
+            (rad), ``poses`` and ``fk_failed`` (counts).
+        """
         ok = self.converged
 
         def rms(v):
@@ -483,7 +741,22 @@ class FullPoseErrors:
 
 def full_pose_errors(machine: Machine, frames: MeasurementFrames,
                      data: FullPoseData) -> FullPoseErrors:
-    """Leg-length residuals and pose errors of ``machine`` with ``frames`` on ``data``."""
+    """Leg-length residuals and pose errors of ``machine`` with ``frames`` on ``data``.
+
+    Parameters
+    ----------
+    machine : Stewart
+        The model to test.
+    frames : MeasurementFrames
+        Its measurement frames.
+    data : FullPoseData
+        Leg readings and measured marker poses.
+
+    Returns
+    -------
+    FullPoseErrors
+        Per-row errors.
+    """
     P, R = frames.platform(data.P, data.R)
     _, _, L = machine.leg_vectors(P, R)
     leg = machine.lengths(data.q) - L
@@ -500,8 +773,26 @@ def align_to(machine: Machine, u, frames: MeasurementFrames, u_ref):
 
     The base joints are moved by the rigid motion that best fits them to ``u_ref``'s (Horn),
     the platform joints likewise, and the frames by the inverse motions, so the aligned pair
-    predicts exactly the same data. Returns ``(u_aligned, frames_aligned)``; used to compare
-    an estimate with a known truth (SPEC 5) when the frames were unknown.
+    predicts exactly the same data. Used to compare an estimate with a known truth (SPEC 5)
+    when the frames were unknown.
+
+    Parameters
+    ----------
+    machine : Stewart
+        Any machine of the family (used for its parameter layout and transforms).
+    u : array_like, shape (48,)
+        Leg parameters to align.
+    frames : MeasurementFrames
+        The frames that go with ``u``.
+    u_ref : array_like, shape (48,)
+        Reference leg parameters (e.g. the truth).
+
+    Returns
+    -------
+    u_aligned : ndarray, shape (48,)
+        Aligned leg parameters.
+    frames_aligned : MeasurementFrames
+        The frames moved by the inverse motions.
     """
     b, p, _, _ = machine.legs(u)
     b_ref, p_ref, _, _ = machine.legs(u_ref)
@@ -515,9 +806,29 @@ def align_to(machine: Machine, u, frames: MeasurementFrames, u_ref):
 
 def gauge_free_error(machine: Machine, result: CalibrationResult, u_true,
                      frames_true: MeasurementFrames) -> np.ndarray:
-    """Error of a full-pose estimate against a known truth in the estimator's scaled increment
-    coordinates at the truth: leg parameters after :func:`align_to` (when the frames were
-    estimated), then the frames as rotation increments and translations."""
+    """Error of a full-pose estimate against a known truth, in scaled increment coordinates.
+
+    Leg parameters after :func:`align_to` (when the machine was fitted and at least one frame
+    was estimated), then the frames as rotation increments and translations, each divided by
+    the estimator's column scale.
+
+    Parameters
+    ----------
+    machine : Stewart
+        Machine of the family (for :func:`align_to`).
+    result : CalibrationResult
+        Result of :func:`calibrate_full_pose` (uses ``extras["problem"]`` and
+        ``extras["frames"]``).
+    u_true : array_like, shape (48,)
+        True leg parameters.
+    frames_true : MeasurementFrames
+        True frames.
+
+    Returns
+    -------
+    ndarray, shape (60,)
+        Scaled errors: 48 leg parameters, then 12 frame coordinates.
+    """
     problem = result.extras["problem"]
     frames = result.extras["frames"]
     u = result.x[:problem.n_machine]

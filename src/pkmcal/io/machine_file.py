@@ -49,8 +49,13 @@ unit, ``readings`` (optional, default: the file's length unit) names what the le
       platform_from_marker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0]}
     home: [0.0, 0.0, 565.0, 0.0, 0.0, 0.0]
 
-Readings in a length unit are converted to metres (the gain is then a ratio); readings in any
-other unit are kept as read and the gain carries metres per unit. ``measurement_frames`` are
+``gain`` is always the file's length unit per reading unit: 1 when the readings are lengths in
+the file's unit, 0.001 for ``length: mm`` with ``readings: {unit: counts}`` and 1 um per count
+(or with ``readings: {unit: um}``), 0.001 for ``length: m`` with ``readings: {unit: mm}``
+(``gain: 1`` there would mean 1 m per mm). Internally, readings in a length unit are converted
+to metres (the gain is then a ratio, 1 for readings that are the length); readings in any other
+unit are kept as read and the gain carries metres per unit (1e-6 for 1 um per count); ``l0`` is
+always in metres. ``measurement_frames`` are
 kept on the machine as ``machine.measurement_frames``
 (:class:`~pkmcal.measurements.full_pose.MeasurementFrames`, None without the key); a
 calibration from full-pose data writes the identified frames there.
@@ -378,18 +383,29 @@ class StewartFile(_Strict):
 
 @dataclass(frozen=True)
 class MachineFormat:
-    """How one machine type is read from and written to a file."""
+    """How one machine type is read from and written to a file.
+
+    Attributes
+    ----------
+    schema : type of pydantic.BaseModel
+        Validates the file's mapping.
+    build : callable
+        ``build(document, source) -> Machine`` (document validated, file units).
+    dump : callable
+        ``dump(machine, units) -> dict`` of the machine-specific keys, in file order.
+    counts : dict of str to int
+        Required length of each list key (``{"chains": 6}``), for messages.
+    home_text : str, optional
+        What ``home`` holds, for messages.
+    hints : dict of str to str, optional
+        Hints shown with a missing key of this machine type.
+    """
 
     schema: type[BaseModel]
-    #: ``build(document, source) -> Machine`` (document validated, file units)
     build: Callable[[Any, str], Machine]
-    #: ``dump(machine, units) -> dict`` of the machine-specific keys, in file order
     dump: Callable[[Machine, dict], dict]
-    #: how a list of this many entries is called in messages (``chains``)
     counts: dict[str, int]
-    #: what ``home`` holds, for messages
     home_text: str = "[x, y, z, psi, theta, phi]"
-    #: hints shown with a missing key of this machine type
     hints: dict[str, str] | None = None
 
 
@@ -745,7 +761,26 @@ def _validation_message(exc: ValidationError, source: str, lines: dict,
 
 
 def parse_machine(text: str, source: str = "<machine>") -> Machine:
-    """Machine from the text of a machine file; ``source`` names it in messages."""
+    """Machine from the text of a machine file.
+
+    Parameters
+    ----------
+    text : str
+        YAML text of a machine file (SPEC 6).
+    source : str, optional
+        Names the text in messages.
+
+    Returns
+    -------
+    Machine
+        In internal units (m, rad), with ``file_units``, ``source`` and ``calibration_info``.
+
+    Raises
+    ------
+    InputError
+        For invalid YAML, a missing or unsupported ``pkmcal`` version, an unknown machine
+        type, or a schema error (``FILE: key.path: what is wrong (line N)``).
+    """
     data, lines = _parse_yaml(text, source)
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a mapping of keys (pkmcal: 1, machine: ..., "
@@ -779,9 +814,21 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
 def load_machine(path) -> Machine:
     """Load a machine file (SPEC 6) into a machine in internal units (m, rad).
 
-    The returned machine carries ``file_units`` (``{"length": "mm", "angle": "deg"}``),
-    ``source`` (the path) and ``calibration_info`` (the file's ``calibration:`` mapping or
-    None). Raises :class:`~pkmcal.errors.InputError` naming the file, key path and line.
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The machine file.
+
+    Returns
+    -------
+    Machine
+        Carrying ``file_units`` (``{"length": "mm", "angle": "deg"}``), ``source`` (the path)
+        and ``calibration_info`` (the file's ``calibration:`` mapping or None).
+
+    Raises
+    ------
+    InputError
+        Naming the file, key path and line; also for a missing or non-text file.
     """
     path = Path(path)
     text = read_input_text(path, "machine file")
@@ -835,7 +882,28 @@ def _flow(value) -> str:
 
 def machine_to_text(machine: Machine, units: dict | None = None,
                     calibration: dict | None = None) -> str:
-    """Text of the machine file of ``machine`` (see :func:`save_machine`)."""
+    """Text of the machine file of ``machine`` (see :func:`save_machine`).
+
+    Parameters
+    ----------
+    machine : Machine
+        A Hexa Slide, Delta or Stewart machine.
+    units : dict, optional
+        ``{"length": "mm"|"m", "angle": "deg"|"rad"}``; default ``machine.file_units`` or
+        mm/deg.
+    calibration : dict, optional
+        Metadata written as the ``calibration:`` section.
+
+    Returns
+    -------
+    str
+        The YAML text, floats at full precision.
+
+    Raises
+    ------
+    InputError
+        For an unknown machine type, invalid units, or metadata that is not a mapping.
+    """
     kind = getattr(machine, "kind", "")
     if kind not in MACHINE_FORMATS:
         raise InputError(f"cannot save machine type {kind!r}; known: {', '.join(MACHINE_FORMATS)}")
@@ -881,14 +949,30 @@ def save_machine(machine: Machine, path, units: dict | None = None,
                  calibration: dict | None = None) -> Path:
     """Write ``machine`` as a machine file (same schema as :func:`load_machine` reads).
 
-    Parameters
-    ----------
-    units : ``{"length": "mm"|"m", "angle": "deg"|"rad"}``; default ``machine.file_units``
-        or mm/deg.
-    calibration : optional metadata mapping written as the ``calibration:`` section.
-
     The file always carries ``home`` (``machine.home``); floats are written at full precision;
     the file is checked by parsing it back, then written atomically.
+
+    Parameters
+    ----------
+    machine : Machine
+        A Hexa Slide, Delta or Stewart machine.
+    path : str or os.PathLike
+        Output file.
+    units : dict, optional
+        ``{"length": "mm"|"m", "angle": "deg"|"rad"}``; default ``machine.file_units`` or
+        mm/deg.
+    calibration : dict, optional
+        Metadata mapping written as the ``calibration:`` section.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    InputError
+        As :func:`machine_to_text`, or when the text does not parse back.
     """
     path = Path(path)
     text = machine_to_text(machine, units, calibration)

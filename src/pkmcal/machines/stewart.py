@@ -28,7 +28,24 @@ LEG_KINDS = ("length",) * 7 + ("ratio",)
 
 
 def stewart_parameters(base, platform, l0=None, gain=None) -> ParameterSet:
-    """Registry of a six-leg platform from (6, 3) joint arrays and (6,) l0, gain (SI)."""
+    """Registry of a six-leg platform from its joints and leg calibrations (SI).
+
+    Parameters
+    ----------
+    base : array_like, shape (6, 3)
+        Base joints ``b_i``, m (base frame).
+    platform : array_like, shape (6, 3)
+        Platform joints ``p_i``, m (platform frame).
+    l0 : array_like, shape (6,) or scalar, optional
+        Leg length at zero reading, m; default 0.
+    gain : array_like, shape (6,) or scalar, optional
+        Leg length per reading unit (m per unit; 1 for readings that are lengths); default 1.
+
+    Returns
+    -------
+    ParameterSet
+        48 parameters ``leg{i}.base.x`` ... ``leg{i}.gain``, leg by leg.
+    """
     base = np.asarray(base, float).reshape(6, 3)
     platform = np.asarray(platform, float).reshape(6, 3)
     l0 = np.zeros(6) if l0 is None else np.broadcast_to(np.asarray(l0, float), (6,))
@@ -39,7 +56,20 @@ def stewart_parameters(base, platform, l0=None, gain=None) -> ParameterSet:
 
 
 class Stewart(Machine):
-    """Six-leg platform (6-UPS / 6-UPU / 6-SPS); see the module docstring."""
+    """Six-leg platform (6-UPS / 6-UPU / 6-SPS); see the module docstring.
+
+    Parameters
+    ----------
+    parameters : ParameterSet
+        The 48 leg parameters (:func:`stewart_parameters`).
+    home : tuple of ndarray, optional
+        ``(P, R)`` pose of the working assembly mode; default: :meth:`default_home`.
+    name : str, optional
+        Free-text name of the machine.
+    reading_unit : str, optional
+        Unit of the leg readings in files: a length unit (readings converted to m) or another
+        name such as ``rev`` or ``counts`` (readings kept in that unit).
+    """
 
     kind = "stewart"
     n_joints = 6
@@ -64,7 +94,24 @@ class Stewart(Machine):
 
     # -- geometry -------------------------------------------------------------------------
     def legs(self, u=None):
-        """``(base (6,3), platform (6,3), l0 (6,), gain (6,))``."""
+        """Per-leg parameter arrays, the legs along the first axis.
+
+        Parameters
+        ----------
+        u : array_like, shape (48,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        base : ndarray, shape (6, 3)
+            Base joints, m.
+        platform : ndarray, shape (6, 3)
+            Platform joints, m.
+        l0 : ndarray, shape (6,)
+            Leg lengths at zero reading, m.
+        gain : ndarray, shape (6,)
+            Leg length per reading unit.
+        """
         u = self.u if u is None else np.asarray(u, float)
         return u[self._ib], u[self._ip], u[self._il0], u[self._ig]
 
@@ -74,16 +121,32 @@ class Stewart(Machine):
                          np.mean(np.linalg.norm(p - p.mean(0), axis=-1)), 1e-3))
 
     def parameter_scales(self) -> np.ndarray:
-        """Lengths by the characteristic length; a gain by its own size (a relative change)."""
+        """Lengths by the characteristic length; a gain by its own size (a relative change).
+
+        Returns
+        -------
+        ndarray, shape (48,)
+            Column scale of each parameter (1 for a zero gain).
+        """
         s = self.parameters.scales(self.characteristic_length())
         g = np.abs(self.u[self._ig])
         s[self._ig] = np.where(g > 0, g, 1.0)
         return s
 
     def default_home(self):
-        """Platform centred above the base joints at the height where the legs have the
-        length they have in the platform's middle position (readings 0 unless l0 = 0, then
-        the mean distance between the joint circles), orientation identity."""
+        """Platform centred above the base joints, orientation identity.
+
+        The height is where the legs have the length they have in the platform's middle position:
+        the mean ``l0`` (readings 0) when every ``l0`` is positive, else the mean radius of the base
+        joint circle plus that of the platform joint circle.
+
+        Returns
+        -------
+        P : ndarray, shape (3,)
+            Home position, m.
+        R : ndarray, shape (3, 3)
+            The identity.
+        """
         b, p, l0, _ = self.legs()
         offset = b.mean(0) - p.mean(0)
         length = np.mean(l0) if np.all(l0 > 0) else \
@@ -96,7 +159,26 @@ class Stewart(Machine):
 
     # -- kinematics -----------------------------------------------------------------------
     def leg_vectors(self, P, R, u=None):
-        """``w_i = t + R p_i - b_i`` (..., 6, 3), ``s_i = R p_i`` and the lengths (..., 6)."""
+        """Leg vectors, platform joint offsets and leg lengths at poses.
+
+        Parameters
+        ----------
+        P : array_like, shape (..., 3)
+            Platform positions ``t``, m.
+        R : array_like, shape (..., 3, 3)
+            Platform orientations.
+        u : array_like, shape (48,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        w : ndarray, shape (..., 6, 3)
+            ``w_i = t + R p_i - b_i``, m.
+        s : ndarray, shape (..., 6, 3)
+            ``s_i = R p_i``, m.
+        L : ndarray, shape (..., 6)
+            Leg lengths ``|w_i|``, m.
+        """
         b, p, _, _ = self.legs(u)
         s = np.einsum("...ij,kj->...ki", np.asarray(R, float), p)
         w = np.asarray(P, float)[..., None, :] + s - b
@@ -124,14 +206,45 @@ class Stewart(Machine):
         return r, dq_dpose, dq_du
 
     def lengths(self, r, u=None):
-        """Leg lengths (..., 6) for readings ``r``: ``l0 + gain r``."""
+        """Leg lengths for readings ``r``: ``l0 + gain r``.
+
+        Parameters
+        ----------
+        r : array_like, shape (..., 6)
+            Leg readings (internal units: m for length readings, else the reading unit).
+        u : array_like, shape (48,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        ndarray, shape (..., 6)
+            Leg lengths, m.
+        """
         _, _, l0, g = self.legs(u)
         return l0 + g * np.asarray(r, float)
 
     def jacobians(self, P, R, u=None):
-        """Seed 003 eq. 8-10 at poses: ``J_p`` (..., 6, 6) and ``J_s`` (..., 6, 6, 6) where
-        ``J_s[..., i, :, :]`` maps leg i's ``[dp_i (platform frame, 3), db_i (3)]`` to ``dl_i``
-        (``[z_i^T R, -z_i^T]``), and the unit vectors ``z`` (..., 6, 3)."""
+        """Seed 003 eq. 8-10 at poses: the pose and joint Jacobians of the leg lengths.
+
+        Parameters
+        ----------
+        P : array_like, shape (..., 3)
+            Platform positions, m.
+        R : array_like, shape (..., 3, 3)
+            Platform orientations.
+        u : array_like, shape (48,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        Jp : ndarray, shape (..., 6, 6)
+            Row i ``[z_i^T, (s_i x z_i)^T]``: leg lengths with respect to ``[dP, dOmega]``.
+        Js : ndarray, shape (..., 6, 6)
+            Row i ``[z_i^T R, -z_i^T]``: leg i's length with respect to its own
+            ``[dp_i (platform frame, 3), db_i (3)]``.
+        z : ndarray, shape (..., 6, 3)
+            Unit leg vectors.
+        """
         w, s, L = self.leg_vectors(P, R, u)
         z = w / L[..., None]
         Jp = np.concatenate([z, np.cross(s, z)], -1)
@@ -141,8 +254,39 @@ class Stewart(Machine):
 
     def fk(self, q, u=None, start=None, tol: float = 1e-12, max_iter: int = 50,
            raise_on_failure: bool = False, continuation: bool = False) -> FKResult:
-        """Forward kinematics by Newton; with ``continuation`` each row starts from the
-        previous row's solution (trajectories: stays on the assembly branch)."""
+        """Forward kinematics by Newton (:meth:`Machine.fk`), optionally by continuation.
+
+        Parameters
+        ----------
+        q : array_like, shape (K, 6)
+            Leg readings (internal units).
+        u : array_like, shape (48,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+        start : tuple of array_like, optional
+            ``(P0, R0)`` start pose(s); default: :attr:`home`.
+        tol : float, optional
+            Convergence when the largest leg-length residual ``|gain (r(pose) - q)|`` is
+            below ``tol`` times the characteristic length (both in m, whatever the reading
+            unit).
+        max_iter : int, optional
+            Maximum Newton iterations per pose.
+        raise_on_failure : bool, optional
+            Raise instead of returning poses that did not converge.
+        continuation : bool, optional
+            Solve the rows one after the other, each starting from the previous row's solution
+            (trajectories: stays on the assembly branch); ``start`` must then be a single pose.
+
+        Returns
+        -------
+        FKResult
+            Poses, convergence and residuals (leg lengths, m); with ``continuation``,
+            ``iterations`` is ``max_iter``.
+
+        Raises
+        ------
+        ConvergenceError
+            With ``raise_on_failure``, when a pose did not converge.
+        """
         if not continuation:
             return super().fk(q, u, start, tol, max_iter, raise_on_failure)
         q = np.atleast_2d(np.asarray(q, float))
@@ -161,16 +305,61 @@ class Stewart(Machine):
             result.raise_if_failed()
         return result
 
+    def _fk_system(self, q, P, R, u):
+        """Newton system of :meth:`fk` in leg lengths (m), not in readings.
+
+        The convergence tolerance of :meth:`Machine.fk` is a length (``tol`` times the
+        characteristic length), so the residual must be one too: ``gain (r(pose) - q)`` =
+        ``L(pose) - (l0 + gain q)``, with the Jacobian ``gain dr/dpose`` (= ``J_p``). In
+        readings, a reading unit that is not a length (``counts``: the gain is e.g. 1e-6 m per
+        count, the readings ~1e5) would put the residual's rounding (one ulp of the reading)
+        far above the tolerance, and every pose would "fail" to converge. The Newton step is
+        the same either way.
+        """
+        g = self.legs(u)[3]
+        qc, J, _ = self.ik_jacobians(P, R, u, want_du=False)
+        return (qc - q) * g, J * g[:, None]
+
     # -- frames ---------------------------------------------------------------------------
     def transform_base(self, u, G, t=None):
-        """Base joints in a base frame rotated by ``G`` (and moved: ``b' = G b + t``)."""
+        """Base joints in a base frame rotated by ``G`` (and moved: ``b' = G b + t``).
+
+        Parameters
+        ----------
+        u : array_like, shape (48,)
+            Parameter vector (internal units).
+        G : array_like, shape (3, 3)
+            Rotation from the old to the new base frame.
+        t : array_like, shape (3,), optional
+            Translation of the new base frame, m.
+
+        Returns
+        -------
+        ndarray, shape (48,)
+            The transformed parameter vector (only the base joints change).
+        """
         u = np.array(u, float)
         b = self.legs(u)[0] @ np.asarray(G).T
         u[self._ib] = b if t is None else b + np.asarray(t, float)
         return u
 
     def transform_platform(self, u, C, t=None):
-        """Platform joints in a re-oriented (and moved) platform frame: ``p' = C^T (p - t)``."""
+        """Platform joints in a re-oriented (and moved) platform frame: ``p' = C^T (p - t)``.
+
+        Parameters
+        ----------
+        u : array_like, shape (48,)
+            Parameter vector (internal units).
+        C : array_like, shape (3, 3)
+            Rotation of the new platform frame relative to the old one.
+        t : array_like, shape (3,), optional
+            Origin of the new platform frame in the old one, m.
+
+        Returns
+        -------
+        ndarray, shape (48,)
+            The transformed parameter vector (only the platform joints change).
+        """
         u = np.array(u, float)
         p = self.legs(u)[1]
         u[self._ip] = (p if t is None else p - np.asarray(t, float)) @ np.asarray(C)
@@ -179,8 +368,24 @@ class Stewart(Machine):
 
 def cubic_6upu(a=0.16, b=0.14, c=0.195, d=0.270, e=0.055, f=0.205, g=0.130, z1=0.130,
                z2=0.130, z3=0.280, height=0.41) -> Stewart:
-    """The cubic 6-UPU device of seed 003 Table 2 (SPEC 2.3), with ``P5 = (c, e, -d)``: three
-    links along Z, two along X, one along Y. Readings are leg lengths in metres (gain 1, l0 0).
+    """The cubic 6-UPU device of seed 003 Table 2 (SPEC 2.3), with ``P5 = (c, e, -d)``.
+
+    Three links along Z, two along X, one along Y. Readings are leg lengths in metres (gain 1,
+    l0 0).
+
+    Parameters
+    ----------
+    a, b, c, d, e, f, g : float, optional
+        Table 2 dimensions of the joint layout, m.
+    z1, z2, z3 : float, optional
+        Heights of base joints 4, 5 and 6, m.
+    height : float, optional
+        Height of the home position, m.
+
+    Returns
+    -------
+    Stewart
+        A new nominal device with home ``((0, 0, height), I)``.
     """
     base = [(b, -a, 0), (b, a, 0), (-b, 0, 0), (-c, -e, z1), (-c, e, z2), (0, f, z3)]
     platform = [(b, -a, 0), (b, a, 0), (-b, 0, 0), (c, -e, -d), (c, e, -d), (0, -f, -g)]

@@ -33,9 +33,19 @@ Frame = tuple[np.ndarray, np.ndarray]
 class FullPoseNoise:
     """Standard deviations of full-pose data, SI units.
 
-    reading_m : of a leg reading, expressed as a leg length (m).
-    position_m : of each coordinate of the measured position (m).
-    orientation_rad : of each component of the measured orientation (small rotation, rad).
+    Attributes
+    ----------
+    reading_m : float, optional
+        Of a leg reading, expressed as a leg length, m.
+    position_m : float, optional
+        Of each coordinate of the measured position, m.
+    orientation_rad : float, optional
+        Of each component of the measured orientation (small rotation), rad.
+
+    Raises
+    ------
+    InputError
+        When a value is negative or not finite.
     """
 
     reading_m: float = 2e-6
@@ -53,9 +63,12 @@ class FullPoseNoise:
 class MeasurementFrames:
     """The two frames that separate the measured poses from the machine's.
 
-    mocap_from_base : ``(A (3, 3), a (3,))``, a base point ``x`` is ``A x + a`` measured.
-    platform_from_marker : ``(B (3, 3), c (3,))``, a marker point ``y`` is ``B y + c`` in the
-        platform frame.
+    Attributes
+    ----------
+    mocap_from_base : tuple of ndarray
+        ``(A (3, 3), a (3,))``: a base point ``x`` is measured at ``A x + a``.
+    platform_from_marker : tuple of ndarray
+        ``(B (3, 3), c (3,))``: a marker point ``y`` is ``B y + c`` in the platform frame.
     """
 
     mocap_from_base: Frame
@@ -63,18 +76,56 @@ class MeasurementFrames:
 
     @classmethod
     def identity(cls) -> MeasurementFrames:
+        """Both frames the identity: the measured pose is the platform pose.
+
+        Returns
+        -------
+        MeasurementFrames
+            Identity rotations, zero offsets.
+        """
         return cls((np.eye(3), np.zeros(3)), (np.eye(3), np.zeros(3)))
 
     def measured(self, P, R):
-        """Measured marker poses ``(Pm, Rm)`` of platform poses ``(P, R)`` (base frame)."""
+        """Measured marker poses ``(Pm, Rm)`` of platform poses ``(P, R)`` (base frame).
+
+        Parameters
+        ----------
+        P : array_like, shape (..., 3)
+            Platform positions, m, base frame.
+        R : array_like, shape (..., 3, 3)
+            Platform orientations.
+
+        Returns
+        -------
+        Pm : ndarray, shape (..., 3)
+            Marker positions in the measurement frame, m.
+        Rm : ndarray, shape (..., 3, 3)
+            Marker orientations in the measurement frame.
+        """
         (A, a), (B, c) = self.mocap_from_base, self.platform_from_marker
         P, R = np.asarray(P, float), np.asarray(R, float)
         Pm = (P + np.einsum("...ij,j->...i", R, c)) @ A.T + a
         return Pm, A @ R @ B
 
     def platform(self, Pm, Rm):
-        """Platform poses ``(P, R)`` in the base frame of measured marker poses ``(Pm, Rm)``:
-        ``R = A^T Rm B^T``, ``P = A^T (Pm - a) - R c``."""
+        """Platform poses in the base frame of measured marker poses (inverse of :meth:`measured`).
+
+        ``R = A^T Rm B^T``, ``P = A^T (Pm - a) - R c``.
+
+        Parameters
+        ----------
+        Pm : array_like, shape (..., 3)
+            Marker positions in the measurement frame, m.
+        Rm : array_like, shape (..., 3, 3)
+            Marker orientations in the measurement frame.
+
+        Returns
+        -------
+        P : ndarray, shape (..., 3)
+            Platform positions, m, base frame.
+        R : ndarray, shape (..., 3, 3)
+            Platform orientations.
+        """
         (A, a), (B, c) = self.mocap_from_base, self.platform_from_marker
         Pm, Rm = np.asarray(Pm, float), np.asarray(Rm, float)
         R = A.T @ Rm @ B.T
@@ -86,11 +137,25 @@ class MeasurementFrames:
 class FullPoseData:
     """Leg readings and measured marker poses.
 
-    q : (K, 6) readings, internal units (m for length readings, else the reading unit).
-    P : (K, 3) measured marker positions, measurement frame (m).
-    R : (K, 3, 3) measured marker orientations.
-    rows : (K,) row numbers in the source file, for messages.
-    true_P, true_R : platform poses of a simulation (base frame), else None.
+    Attributes
+    ----------
+    q : ndarray, shape (K, 6)
+        Readings, internal units (m for length readings, else the reading unit).
+    P : ndarray, shape (K, 3)
+        Measured marker positions, measurement frame, m.
+    R : ndarray, shape (K, 3, 3)
+        Measured marker orientations.
+    rows : ndarray of int, shape (K,), optional
+        Row numbers in the source file, for messages; default 1..K.
+    source : str, optional
+        File name, for messages.
+    true_P, true_R : ndarray, optional
+        Platform poses of a simulation (base frame), (K, 3) m and (K, 3, 3), else None.
+
+    Raises
+    ------
+    InputError
+        When ``q``, ``P``, ``R`` and ``rows`` do not have the same number of rows.
     """
 
     q: np.ndarray
@@ -116,17 +181,36 @@ class FullPoseData:
         return len(self.q)
 
     def subset(self, mask) -> FullPoseData:
-        """The measurements selected by a boolean mask or index array."""
+        """The measurements selected by a boolean mask or index array.
+
+        Parameters
+        ----------
+        mask : array_like of bool or int
+            Boolean mask (K,) or indices of the rows to keep.
+
+        Returns
+        -------
+        FullPoseData
+            The selected rows, same source.
+        """
         pick = (lambda a: None if a is None else a[mask])
         return FullPoseData(self.q[mask], self.P[mask], self.R[mask], self.rows[mask],
                             self.source, pick(self.true_P), pick(self.true_R))
 
 
 def default_measurement_frames() -> MeasurementFrames:
-    """The true frames of simulations without ``measurement_frames`` in the machine file: the
-    motion-capture origin 1.2 m to the side and 0.3 m below the base centre, its axes turned
-    30 deg about Z and tilted 2 deg; the marker frame 25 mm off the platform origin (mostly
-    above it), turned 90 deg about X (a Y-up marker body) and 3 deg about Z."""
+    """The true frames of simulations without ``measurement_frames`` in the machine file.
+
+    ``mocap_from_base``: the base origin is at (1.2, -0.4, -0.3) m in the measurement frame,
+    whose axes are turned 30 deg about Z and tilted 2 deg about X relative to the base axes;
+    ``platform_from_marker``: the marker origin at (10, -5, 25) mm in the platform frame,
+    turned 90 deg about X (a Y-up marker body) and 3 deg about Z.
+
+    Returns
+    -------
+    MeasurementFrames
+        The default frames.
+    """
     A = matrix_from_rotvec([0.0, 0.0, np.deg2rad(30.0)]) @ matrix_from_rotvec(
         [np.deg2rad(2.0), 0.0, 0.0])
     B = matrix_from_rotvec([np.deg2rad(90.0), 0.0, 0.0]) @ matrix_from_rotvec(
@@ -143,12 +227,41 @@ POSE_MAX_ANGLE = np.deg2rad(10.0)
 
 def sample_platform_poses(machine: Machine, n: int, rng=None, half_range=POSE_HALF_RANGE,
                           max_angle=POSE_MAX_ANGLE, min_conditioning: float = 0.05):
-    """``n`` platform poses around the machine's home: position uniform in a cube of
-    half-width ``half_range`` (m), Euler angles uniform in ``+/- max_angle`` (rad) about the
-    home orientation. Poses whose leg Jacobian is badly conditioned (smallest singular value
-    below ``min_conditioning`` times the largest, rotation columns scaled by the
-    characteristic length) or whose legs would be shorter than a tenth of their home length
-    are drawn again. Returns ``P`` (n, 3), ``R`` (n, 3, 3)."""
+    """``n`` random platform poses around the machine's home.
+
+    Positions are uniform in a cube of half-width ``half_range`` around the home position,
+    Euler angles uniform in ``+/- max_angle`` applied to the home orientation. Poses whose leg
+    Jacobian is badly conditioned (smallest singular value below ``min_conditioning`` times the
+    largest, rotation columns scaled by the characteristic length) or whose legs would be
+    shorter than a tenth of their home length are drawn again.
+
+    Parameters
+    ----------
+    machine : Stewart
+        The six-leg platform (uses ``leg_vectors`` and ``lengths``).
+    n : int
+        Number of poses (>= 1).
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed.
+    half_range : float, optional
+        Half-width of the position cube, m.
+    max_angle : float, optional
+        Bound of each Euler angle, rad.
+    min_conditioning : float, optional
+        Smallest accepted inverse condition number of the leg Jacobian.
+
+    Returns
+    -------
+    P : ndarray, shape (n, 3)
+        Platform positions, m.
+    R : ndarray, shape (n, 3, 3)
+        Platform orientations.
+
+    Raises
+    ------
+    InputError
+        When ``n < 1`` or not enough well-conditioned poses are found.
+    """
     if n < 1:
         raise InputError(f"the number of poses must be >= 1, got {n}")
     rng = np.random.default_rng(rng)
@@ -169,10 +282,32 @@ def sample_platform_poses(machine: Machine, n: int, rng=None, half_range=POSE_HA
 
 def simulate_full_pose(true_machine: Machine, poses, frames: MeasurementFrames | None = None,
                        noise: FullPoseNoise | None = FullPoseNoise(), rng=None) -> FullPoseData:
-    """Full-pose data of ``true_machine`` at platform poses ``poses = (P, R)`` (or a number of
-    random poses, :func:`sample_platform_poses`): exact readings and measured marker poses
-    through ``frames`` (default :func:`default_measurement_frames`), plus Gaussian noise
-    (``noise=None``: none)."""
+    """Full-pose data of ``true_machine`` at given or random platform poses.
+
+    Exact readings and measured marker poses through ``frames``, plus Gaussian noise: the
+    readings ``reading_m / |gain|``, the positions ``position_m`` per coordinate and the
+    orientations a small rotation of ``orientation_rad`` per component, applied on the left.
+
+    Parameters
+    ----------
+    true_machine : Stewart
+        The true six-leg platform.
+    poses : tuple of array_like or int
+        Platform poses ``(P (K, 3), R (K, 3, 3))`` in the base frame, or a number of random
+        poses (:func:`sample_platform_poses`).
+    frames : MeasurementFrames, optional
+        True measurement frames; default :func:`default_measurement_frames`.
+    noise : FullPoseNoise or None, optional
+        Noise levels; None for exact data.
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed.
+
+    Returns
+    -------
+    FullPoseData
+        The readings and measured poses, with the true platform poses in ``true_P``,
+        ``true_R``.
+    """
     rng = np.random.default_rng(rng)
     if isinstance(poses, (int, np.integer)):
         poses = sample_platform_poses(true_machine, int(poses), rng)
