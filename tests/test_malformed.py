@@ -46,6 +46,36 @@ def _set_first(line, value):
     return value + "," + line.split(",", 1)[1]
 
 
+def _scale_columns(lines, names, factor):
+    """The values of the columns ``names`` times ``factor`` (data written in another unit)."""
+    header = lines[0].split(",")
+    idx = {header.index(n) for n in names}
+    return [lines[0]] + [",".join(repr(float(x) * factor) if j in idx else x
+                                  for j, x in enumerate(line.split(","))) for line in lines[1:]]
+
+
+def _euler_deg_under_rad(lines):
+    """The quaternion columns as Euler angles in degrees, under ``*_rad`` columns."""
+    from pkmcal.kinematics import euler_from_matrix, matrix_from_quaternion
+
+    rows = [line.split(",") for line in lines]
+    k = rows[0].index("qx")
+    Q = np.array([[float(x) for x in r[k:k + 4]] for r in rows[1:]])
+    angles = np.degrees(euler_from_matrix(matrix_from_quaternion(Q)))
+    return [",".join(rows[0][:k] + ["psi_rad", "theta_rad", "phi_rad"])] + [
+        ",".join(r[:k] + [repr(float(a)) for a in e]) for r, e in zip(rows[1:], angles,
+                                                                       strict=True)]
+
+
+def _scale_quaternion(lines, row, factor):
+    """Row ``row`` (file line number) with its quaternion qx..qw times ``factor``."""
+    out = list(lines)
+    fields = out[row - 1].split(",")
+    fields[-4:] = [repr(float(x) * factor) for x in fields[-4:]]
+    out[row - 1] = ",".join(fields)
+    return out
+
+
 def _drop_first_leg(text):
     lines = text.splitlines()
     k = next(i for i, line in enumerate(lines) if line.strip().startswith("- {base"))
@@ -124,6 +154,42 @@ CSV_CASES = [
     ("zero quaternion", "s", lambda ls: ls[:2] + [ls[2].rsplit(",", 4)[0] + ",0,0,0,0"]
      + ls[3:], ["row 3, columns qx, qy, qz, qw: the quaternion is zero"]),
     ("empty data file", "h", lambda ls: [], ["empty file"]),
+    # data in the wrong unit: refused by the readers' plausibility checks (not "did not
+    # converge" or advice about the poses)
+    ("Delta arm angles in rad under _deg", "d",
+     lambda ls: _scale_columns(ls, ["q1_deg", "q2_deg", "q3_deg"], np.pi / 180),
+     ["columns q1_deg, q2_deg, q3_deg", "the values look like rad, not deg",
+      "rename the columns q1_rad, q2_rad, q3_rad"]),
+    ("tracker points in m under _mm", "d",
+     lambda ls: _scale_columns(ls, ["mx_mm", "my_mm", "mz_mm"], 1e-3),
+     ["columns mx_mm, my_mm, mz_mm", "the tracker points are", "mm apart",
+      "the values look like m, not mm", "mx_m, my_m, mz_m"]),
+    ("Hexa Slide readings in m under _mm", "h",
+     lambda ls: _scale_columns(ls, [f"q{j}_mm" for j in range(1, 7)], 1e-3),
+     ["columns q1_mm..q6_mm", "the sliders read about 351 mm at the home pose",
+      "the values look like m, not mm", "q1_m..q6_m"]),
+    ("Stewart positions in m under _mm", "s",
+     lambda ls: _scale_columns(ls, ["x_mm", "y_mm", "z_mm"], 1e-3),
+     ["columns x_mm, y_mm, z_mm", "the measured positions are",
+      "the values look like m, not mm", "x_m, y_m, z_m"]),
+    ("Stewart leg readings in m under _mm", "s",
+     lambda ls: _scale_columns(ls, [f"q{j}_mm" for j in range(1, 7)], 1e-3),
+     ["columns q1_mm..q6_mm", "the legs read about", "the values look like m, not mm"]),
+    ("Euler angles in deg under _rad", "s", _euler_deg_under_rad,
+     ["columns psi_rad, theta_rad, phi_rad", "the measured orientations differ by",
+      "the values look like deg, not rad", "psi_deg, theta_deg, phi_deg"]),
+    ("quaternion not normalised", "s", lambda ls: _scale_quaternion(ls, 4, 1.01),
+     ["row 4, columns qx, qy, qz, qw", "the quaternion has norm 1.01, not 1"]),
+    ("reading of 1e300", "h", lambda ls: ls[:2] + [_set_first(ls[2], "1e300")] + ls[3:],
+     ["row 3, column q1_mm: 1e300 is out of range"]),
+    ("semicolon-separated", "h", lambda ls: [x.replace(",", ";") for x in ls],
+     ["row 1", "looks semicolon-separated",
+      "pkmcal reads comma-separated values with '.' decimals"]),
+    ("semicolons and decimal commas", "h",
+     lambda ls: [x.replace(",", ";").replace(".", ",") for x in ls],
+     ["looks semicolon-separated", "'.' decimals"]),
+    ("tab-separated", "h", lambda ls: [x.replace(",", "\t") for x in ls],
+     ["looks tab-separated", "comma-separated values"]),
     ("Delta data for a Hexa Slide", "h", lambda ls: None,
      ["tracker measurements of a hexaslide cannot be calibrated"]),
 ]

@@ -14,6 +14,11 @@ Columns read here:
   any length suffix when the legs read lengths) beside a measured pose (full-pose data,
   :func:`read_full_pose`).
 
+The readers that get the machine also check that the data's scale fits the nominal machine
+(:mod:`pkmcal.io.plausibility`): values off by a unit factor (metres under ``_mm``, radians under
+``_deg``) are refused with the unit they look like. A header with ``;`` or tabs (a spreadsheet's
+export) is refused as such.
+
 Row numbers in messages and in the ``rows`` arrays returned are *line numbers of the file*
 (header = line 1), i.e. the row numbers a spreadsheet shows. Blank lines and lines starting
 with ``#`` are skipped. Every problem is an :class:`~pkmcal.errors.InputError` naming the file,
@@ -35,6 +40,7 @@ from ..measurements import ConstraintLinkData, TrackerData
 from ..measurements.full_pose import FullPoseData
 from ..units import COLUMN_SUFFIXES, LENGTH, QUANTITIES
 from .atomic import atomic_write_text, read_input_text
+from .plausibility import Columns, check_full_pose_scale, check_reading_levels, check_tracker_scale
 
 Row = tuple[int, list[str]]
 
@@ -46,10 +52,25 @@ def _suffixes(quantity: str) -> list[str]:
 def read_table(path) -> tuple[list[str], list[Row]]:
     """Header and data rows of a CSV file.
 
-    Returns ``(header, rows)``: ``header`` the stripped column names, ``rows`` a list of
-    ``(line_number, fields)`` (line numbers of the file, header = 1). Raises
-    :class:`InputError` for a missing or empty file, duplicate column names, a row with the
-    wrong number of fields, or no data rows.
+    Blank lines and lines starting with ``#`` are skipped; fields are stripped.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file.
+
+    Returns
+    -------
+    header : list of str
+        The column names.
+    rows : list of tuple
+        ``(line_number, fields)`` per data row (line numbers of the file, header = 1).
+
+    Raises
+    ------
+    InputError
+        For a missing, empty or non-text file, an unnamed or duplicate column, a row with the
+        wrong number of fields, a CSV syntax error, or no data rows.
     """
     path = Path(path)
     text = read_input_text(path, "data file")
@@ -66,6 +87,7 @@ def read_table(path) -> tuple[list[str], list[Row]]:
             fields = [f.strip() for f in fields]
             if header is None:
                 header, header_line = fields, line
+                _check_separator(path, line, header)
                 continue
             if len(fields) != len(header):
                 raise InputError(f"{path}: row {line}: {len(fields)} field(s), the header (row "
@@ -87,6 +109,18 @@ def read_table(path) -> tuple[list[str], list[Row]]:
     if not rows:
         raise InputError(f"{path}: no data rows after the header")
     return header, rows
+
+
+def _check_separator(path, line: int, header: list[str]) -> None:
+    """Refuse a header written with another field separator (a spreadsheet's ';' or a tab)."""
+    for sep, word in ((";", "semicolon"), ("\t", "tab")):
+        if any(sep in name for name in header):
+            shown = ",".join(header)
+            shown = shown if len(shown) <= 40 else shown[:37] + "..."
+            raise InputError(f"{path}: row {line}: the header {shown!r} looks {word}-separated; "
+                             "pkmcal reads comma-separated values with '.' decimals (export "
+                             "the table as CSV with ',' between fields and '.' as the decimal "
+                             "mark)")
 
 
 def _a(word: str) -> str:
@@ -142,41 +176,142 @@ def parse_number(path, line: int, column: str, text: str) -> float:
             raise ValueError
         value = float(text)
     except ValueError:
-        raise InputError(f"{where}: not a number: {text!r}") from None
+        hint = ""
+        if text.count(",") == 1 and "." not in text:
+            try:
+                float(text.replace(",", "."))
+                hint = " (',' as the decimal mark: pkmcal reads '.' decimals)"
+            except ValueError:
+                pass
+        raise InputError(f"{where}: not a number: {text!r}{hint}") from None
     if not math.isfinite(value):
         raise InputError(f"{where}: not a finite number: {text!r}")
     return value
 
 
+#: largest magnitude of a length (m) or an angle (rad) in a data file: beyond, a value is garbage
+#: (1e300 from a broken export), not a measurement
+LIMITS = {"length": (1e6, "a length of more than 1000 km"),
+          "angle": (1e6, "an angle of more than 1e6 rad")}
+
+
 def _column_values(path, header, rows: list[Row], index: int, factor: float) -> np.ndarray:
     name = header[index]
-    return np.array([parse_number(path, line, name, f[index]) for line, f in rows]) * factor
+    values = np.array([parse_number(path, line, name, f[index]) for line, f in rows]) * factor
+    limit = LIMITS.get(COLUMN_SUFFIXES.get(name.rsplit("_", 1)[-1], ""))
+    if limit is not None and values.size:
+        k = int(np.argmax(np.abs(values)))
+        if not abs(values[k]) <= limit[0]:
+            line, fields = rows[k]
+            raise InputError(f"{path}: row {line}, column {name}: {fields[index]} is out of "
+                             f"range ({limit[1]})")
+    return values
 
 
 def joint_quantity(machine) -> str:
-    """``"length"`` or ``"angle"``: the quantity of ``machine``'s joint readings (declared by
-    the machine class: prismatic actuators read lengths, revolute ones angles)."""
+    """The quantity of ``machine``'s joint readings, as declared by the machine class.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine.
+
+    Returns
+    -------
+    str
+        ``"length"`` (prismatic actuators), ``"angle"`` (revolute ones) or, for a Stewart
+        platform whose legs read in a unit that is not a length, ``"reading"``.
+    """
     return machine.joint_quantity
 
 
 def read_joints(path, n_joints: int, quantity: str = "length"):
     """Joint readings ``q1_<unit> ... q<n>_<unit>`` in internal units.
 
-    Returns ``(q (K, n_joints), rows (K,), extra)``: ``rows`` the file line numbers of the data
-    rows, ``extra`` a dict ``column name -> list of raw strings`` of the other columns.
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file.
+    n_joints : int
+        Number of joint columns.
+    quantity : {'length', 'angle'}, optional
+        Quantity of the readings (decides the accepted unit suffixes).
+
+    Returns
+    -------
+    q : ndarray, shape (K, n_joints)
+        Readings, m or rad.
+    rows : ndarray of int, shape (K,)
+        File line numbers of the data rows.
+    extra : dict
+        Column name -> list of raw strings, for the other columns.
+
+    Raises
+    ------
+    InputError
+        For a missing column, a missing or wrong unit suffix, or a value that is not a finite
+        number (file, row and column named).
     """
+    q, rows, extra, _ = _read_joints(path, n_joints, quantity)
+    return q, rows, extra
+
+
+def _read_joints(path, n_joints: int, quantity: str):
+    """:func:`read_joints` and the names of the joint columns."""
     header, rows = read_table(path)
     cols = [find_column(path, header, f"q{j + 1}", quantity) for j in range(n_joints)]
     q = np.column_stack([_column_values(path, header, rows, i, f) for i, f in cols])
     used = {i for i, _ in cols}
     extra = {name: [f[k] for _, f in rows] for k, name in enumerate(header) if k not in used}
-    return q, np.array([line for line, _ in rows]), extra
+    return q, np.array([line for line, _ in rows]), extra, [header[i] for i, _ in cols]
+
+
+def _unit_groups(names: list[str], bases: list[str], quantity: str) -> list[tuple[list[int],
+                                                                                  Columns]]:
+    """The columns of one quantity grouped by unit suffix: ``(positions, Columns)`` each."""
+    groups: dict[str, list[int]] = {}
+    for k, (name, base) in enumerate(zip(names, bases, strict=True)):
+        groups.setdefault(name[len(base) + 1:], []).append(k)
+    return [(ks, Columns([names[k] for k in ks], [bases[k] for k in ks], unit, quantity))
+            for unit, ks in groups.items() if unit in QUANTITIES.get(quantity, {})]
+
+
+def _check_levels(path, q, names: list[str], quantity: str, machine) -> None:
+    """:func:`~pkmcal.io.plausibility.check_reading_levels` per unit of the joint columns."""
+    bases = [f"q{j + 1}" for j in range(len(names))]
+    for ks, cols in _unit_groups(names, bases, quantity):
+        check_reading_levels(path, q, cols, machine, ks)
+
+
+def _one_unit(names: list[str], bases: list[str], quantity: str) -> Columns | None:
+    """The columns when they share one unit (the cross-checks convert them together)."""
+    groups = _unit_groups(names, bases, quantity)
+    return groups[0][1] if len(groups) == 1 and len(groups[0][0]) == len(names) else None
 
 
 def read_passive(path, extra: dict, rows, n_joints: int) -> np.ndarray | None:
     """0-based passive actuator per row from the ``passive`` column (1..n in the file).
 
-    ``extra``: raw columns as returned by :func:`read_joints`; None when there is no column.
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file (for messages).
+    extra : dict
+        Raw columns as returned by :func:`read_joints`.
+    rows : array_like of int
+        File line numbers of the rows (for messages).
+    n_joints : int
+        Number of actuators.
+
+    Returns
+    -------
+    ndarray of int, shape (K,) or None
+        Passive actuator of each row, 0-based; None when there is no ``passive`` column.
+
+    Raises
+    ------
+    InputError
+        When a value is not a whole number in 1..n_joints.
     """
     values = extra.get("passive")
     if values is None:
@@ -196,22 +331,63 @@ def read_constraint_link(path, machine) -> ConstraintLinkData:
 
     The link length is the machine's ``constraint_link_length`` (machine file key
     ``constraint_link: {length: ...}``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file.
+    machine : HexaSlide
+        The machine (number of joints, link length).
+
+    Returns
+    -------
+    ConstraintLinkData
+        Readings in m, link length, passive actuators (or None) and file rows.
+
+    Raises
+    ------
+    InputError
+        When the machine has no constraint-link length or the file is not valid, or the
+        readings look like another unit than their columns say (far from the machine's
+        readings at home, :func:`~pkmcal.io.plausibility.check_reading_levels`).
     """
     if getattr(machine, "constraint_link_length", None) is None:
         source = getattr(machine, "source", "the machine")
         raise InputError(f"{source}: constraint_link: the machine has no constraint-link "
                          "length; add `constraint_link: {length: ...}` (in the file's length "
                          "unit) to the machine file")
-    q, rows, extra = read_joints(path, machine.n_joints)
+    q, rows, extra, names = _read_joints(path, machine.n_joints, "length")
     passive = read_passive(path, extra, rows, machine.n_joints)
+    _check_levels(path, q, names, "length", machine)
     return ConstraintLinkData(q, float(machine.constraint_link_length), passive, rows,
                               source=str(path))
 
 
 def read_tracker(path, machine) -> TrackerData:
-    """Laser-tracker data (SPEC 2.2) for ``machine``: readings ``q1..q<n>`` (the machine's
-    joint quantity, e.g. ``q1_deg`` for a Delta) and tracker points ``mx, my, mz`` (any
-    length unit) per row. Other columns are ignored."""
+    """Laser-tracker data (SPEC 2.2) for ``machine``.
+
+    Readings ``q1..q<n>`` (the machine's joint quantity, e.g. ``q1_deg`` for a Delta) and
+    tracker points ``mx, my, mz`` (any length unit) per row. Other columns are ignored.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file.
+    machine : Delta
+        The machine (number and quantity of joints).
+
+    Returns
+    -------
+    TrackerData
+        Readings (rad) and points (m), with the file rows.
+
+    Raises
+    ------
+    InputError
+        When the file is not valid (file, row and column named), or the points or the
+        readings look like another unit than their columns say
+        (:func:`~pkmcal.io.plausibility.check_tracker_scale`).
+    """
     header, rows = read_table(path)
     quantity = joint_quantity(machine)
     q_cols = [find_column(path, header, f"q{j + 1}", quantity)
@@ -219,6 +395,12 @@ def read_tracker(path, machine) -> TrackerData:
     m_cols = [find_column(path, header, c, "length") for c in ("mx", "my", "mz")]
     q = np.column_stack([_column_values(path, header, rows, i, f) for i, f in q_cols])
     m = np.column_stack([_column_values(path, header, rows, i, f) for i, f in m_cols])
+    q_names, q_bases = [header[i] for i, _ in q_cols], [f"q{j + 1}" for j in range(len(q_cols))]
+    _check_levels(path, q, q_names, quantity, machine)
+    q_units = _one_unit(q_names, q_bases, quantity)
+    m_units = _one_unit([header[i] for i, _ in m_cols], ["mx", "my", "mz"], "length")
+    if q_units is not None and m_units is not None:
+        check_tracker_scale(path, q, q_units, m, m_units, machine)
     return TrackerData(q, m, np.array([line for line, _ in rows]), source=str(path))
 
 
@@ -244,20 +426,78 @@ def _reading_columns(path, header: list[str], machine) -> list[tuple[int, float]
 
 
 def read_readings(path, machine):
-    """Stewart leg readings ``(q (K, 6), rows (K,))`` in internal units: metres for length
-    readings (any length suffix), else as read in the machine's reading unit (``q1_rev``)."""
+    """Stewart leg readings in internal units.
+
+    Metres for length readings (any length suffix), else as read in the machine's reading
+    unit (``q1_rev``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file.
+    machine : Stewart
+        The machine (its ``reading_unit``).
+
+    Returns
+    -------
+    q : ndarray, shape (K, 6)
+        Readings.
+    rows : ndarray of int, shape (K,)
+        File line numbers.
+
+    Raises
+    ------
+    InputError
+        When a reading column is missing or a value is not valid.
+    """
+    q, rows, _ = _read_readings(path, machine)
+    return q, rows
+
+
+def _read_readings(path, machine):
+    """:func:`read_readings` and the reading columns when they are lengths (else None); the
+    reading levels checked."""
     header, rows = read_table(path)
     cols = _reading_columns(path, header, machine)
     q = np.column_stack([_column_values(path, header, rows, i, f) for i, f in cols])
-    return q, np.array([line for line, _ in rows])
+    columns = None
+    if getattr(machine, "reading_unit", "m") in LENGTH:
+        names = [header[i] for i, _ in cols]
+        _check_levels(path, q, names, "length", machine)
+        columns = _one_unit(names, [f"q{j + 1}" for j in range(len(names))], "length")
+    return q, np.array([line for line, _ in rows]), columns
 
 
 def read_full_pose(path, machine) -> FullPoseData:
-    """Full-pose data (SPEC 2.4) for a Stewart ``machine``: readings ``q1..q6`` (its reading
-    unit) and the measured pose ``x, y, z`` + ``psi, theta, phi`` or ``qx, qy, qz, qw`` per
-    row (the marker frame in the measurement frame). Other columns are ignored."""
-    q, rows = read_readings(path, machine)
-    P, R, _ = read_poses(path)
+    """Full-pose data (SPEC 2.4) for a Stewart ``machine``.
+
+    Readings ``q1..q6`` (its reading unit) and the measured pose ``x, y, z`` + ``psi, theta,
+    phi`` or ``qx, qy, qz, qw`` per row (the marker frame in the measurement frame). Other
+    columns are ignored.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file.
+    machine : Stewart
+        The machine (its ``reading_unit``).
+
+    Returns
+    -------
+    FullPoseData
+        Readings, measured poses (m) and file rows.
+
+    Raises
+    ------
+    InputError
+        When the file is not valid, a quaternion is not normalised, or positions, Euler
+        angles or length readings look like another unit than their columns say
+        (:func:`~pkmcal.io.plausibility.check_full_pose_scale`).
+    """
+    q, rows, q_units = _read_readings(path, machine)
+    P, R, _, p_units, euler, e_units = _read_poses(path)
+    if p_units is not None:
+        check_full_pose_scale(path, q, q_units, P, p_units, R, euler, e_units, machine)
     return FullPoseData(q, P, R, rows, source=str(path))
 
 
@@ -270,9 +510,29 @@ def has_orientation(header: list[str]) -> bool:
 
 
 def read_positions(path, orientation_tol: float = 1e-9):
-    """Positions ``(P (K, 3) m, rows (K,))`` from ``x, y, z`` columns, for a platform that does
-    not rotate. Orientation columns, when present, must describe no rotation (angle below
-    ``orientation_tol`` rad); otherwise :class:`InputError` names the row."""
+    """Positions from ``x, y, z`` columns, for a platform that does not rotate.
+
+    Orientation columns, when present, must describe no rotation.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file.
+    orientation_tol : float, optional
+        Largest accepted rotation angle of the orientation columns, rad.
+
+    Returns
+    -------
+    P : ndarray, shape (K, 3)
+        Positions, m.
+    rows : ndarray of int, shape (K,)
+        File line numbers.
+
+    Raises
+    ------
+    InputError
+        When a column is missing or invalid, or a row's orientation is a rotation (row named).
+    """
     header, rows = read_table(path)
     lines = np.array([line for line, _ in rows])
     if has_orientation(header):
@@ -292,15 +552,47 @@ def read_positions(path, orientation_tol: float = 1e-9):
 
 
 def read_poses(path):
-    """Poses ``(P (K, 3) m, R (K, 3, 3), rows (K,))`` from position and orientation columns.
+    """Poses from position and orientation columns.
 
     Orientation: ``psi/theta/phi_<angle unit>`` or ``qx, qy, qz, qw`` (normalised).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file.
+
+    Returns
+    -------
+    P : ndarray, shape (K, 3)
+        Positions, m.
+    R : ndarray, shape (K, 3, 3)
+        Orientations.
+    rows : ndarray of int, shape (K,)
+        File line numbers.
+
+    Raises
+    ------
+    InputError
+        When columns are missing, both orientation forms are given, a quaternion is zero or
+        not normalised (``| |q| - 1 | > 1e-3``), or a value is not valid.
     """
+    P, R, lines, _, _, _ = _read_poses(path)
+    return P, R, lines
+
+
+#: largest accepted | |q| - 1 | of a quaternion (exports are normalised to about 1e-6)
+QUATERNION_NORM_TOL = 1e-3
+
+
+def _read_poses(path):
+    """:func:`read_poses` and, for the unit checks, the position columns (None when their
+    units differ), the Euler angles as read (rad; None for quaternions) and their columns."""
     header, rows = read_table(path)
     lines = np.array([line for line, _ in rows])
-    P = np.column_stack([_column_values(path, header, rows, *find_column(path, header, c,
-                                                                         "length"))
-                         for c in ("x", "y", "z")])
+    p_cols = [find_column(path, header, c, "length") for c in ("x", "y", "z")]
+    P = np.column_stack([_column_values(path, header, rows, *c) for c in p_cols])
+    p_units = _one_unit([header[i] for i, _ in p_cols], ["x", "y", "z"], "length")
+    angles, e_units = None, None
     euler = [find_column(path, header, c, "angle", required=False)
              for c in ("psi", "theta", "phi")]
     quat = [find_column(path, header, c, None, required=False) for c in ("qx", "qy", "qz", "qw")]
@@ -314,22 +606,32 @@ def read_poses(path):
             raise InputError(f"{path}: missing column(s) {', '.join(missing)} of the quaternion "
                              "qx, qy, qz, qw")
         Q = np.column_stack([_column_values(path, header, rows, *c) for c in quat])
-        norm = np.linalg.norm(Q, axis=1)
+        with np.errstate(over="ignore"):            # 1e300: an infinite norm, refused below
+            norm = np.linalg.norm(Q, axis=1)
         bad = np.flatnonzero(norm < 1e-9)
         if bad.size:
             raise InputError(f"{path}: row {lines[bad[0]]}, columns qx, qy, qz, qw: the "
                              "quaternion is zero")
+        bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOL)
+        if bad.size:
+            k = bad[0]
+            more = f" (and {bad.size - 1} more row(s))" if bad.size > 1 else ""
+            raise InputError(f"{path}: row {lines[k]}, columns qx, qy, qz, qw: the quaternion "
+                             f"has norm {norm[k]:.6g}, not 1{more}: a rotation is a unit "
+                             f"quaternion (accepted within {QUATERNION_NORM_TOL:g}); check "
+                             "the columns and their order (qx, qy, qz, then the scalar qw)")
         R = matrix_from_quaternion(Q)
     elif has_euler:
         for name, c in zip(("psi", "theta", "phi"), euler, strict=True):
             if c is None:
                 find_column(path, header, name, "angle")  # raises: missing column
-        R = matrix_from_euler(np.column_stack([_column_values(path, header, rows, *c)
-                                               for c in euler]))
+        angles = np.column_stack([_column_values(path, header, rows, *c) for c in euler])
+        R = matrix_from_euler(angles)
+        e_units = _one_unit([header[i] for i, _ in euler], ["psi", "theta", "phi"], "angle")
     else:
         raise InputError(f"{path}: missing orientation columns: psi_deg, theta_deg, phi_deg "
                          f"(or _rad) or qx, qy, qz, qw; columns found: {', '.join(header)}")
-    return P, R, lines
+    return P, R, lines, p_units, angles, e_units
 
 
 def _text(value) -> str:
@@ -343,7 +645,29 @@ def _text(value) -> str:
 
 
 def write_table(path, header: list[str], columns: list) -> Path:
-    """Write columns (equal-length sequences) under ``header`` as CSV, atomically."""
+    """Write columns (equal-length sequences) under ``header`` as CSV, atomically.
+
+    Floats are written with ``repr`` (full precision), booleans as 0/1.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file.
+    header : list of str
+        Column names.
+    columns : list of sequence
+        One sequence per column.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    ValueError
+        When the columns have different lengths.
+    """
     n = {len(c) for c in columns}
     if len(n) > 1:
         raise ValueError("all columns must have the same length")
@@ -364,8 +688,31 @@ def _unit_factor(unit: str, quantity: str) -> float:
 
 def write_joints(path, q, unit: str = "mm", extra: dict | None = None,
                  quantity: str = "length") -> Path:
-    """Write joint values ``q`` (K, n) in internal units as ``q1_<unit> ...`` (+ ``extra``
-    columns, name -> sequence, e.g. ``{"passive": passive + 1}``)."""
+    """Write joint values as ``q1_<unit> ...``, plus ``extra`` columns.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file.
+    q : array_like, shape (K, n)
+        Joint values, internal units (m or rad).
+    unit : str, optional
+        Column unit (a CSV suffix of ``quantity``: m, mm, um or rad, deg, urad).
+    extra : dict, optional
+        Column name -> sequence, e.g. ``{"passive": passive + 1}``.
+    quantity : {'length', 'angle'}, optional
+        Quantity of the joints.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    InputError
+        When ``unit`` is not a column unit of ``quantity``.
+    """
     q = np.atleast_2d(np.asarray(q, float))
     f = _unit_factor(unit, quantity)
     header = [f"q{j + 1}_{unit}" for j in range(q.shape[1])]
@@ -377,7 +724,29 @@ def write_joints(path, q, unit: str = "mm", extra: dict | None = None,
 
 
 def write_positions(path, P, length_unit: str = "mm", extra: dict | None = None) -> Path:
-    """Write positions as ``x_<len>, y_<len>, z_<len>`` (a platform that does not rotate)."""
+    """Write positions as ``x_<len>, y_<len>, z_<len>`` (a platform that does not rotate).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file.
+    P : array_like, shape (K, 3)
+        Positions, m.
+    length_unit : str, optional
+        Column unit (m, mm or um).
+    extra : dict, optional
+        Further columns, name -> sequence.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    InputError
+        When ``length_unit`` is not a column length unit.
+    """
     P = np.atleast_2d(np.asarray(P, float))
     fl = _unit_factor(length_unit, "length")
     header = [f"{c}_{length_unit}" for c in "xyz"]
@@ -390,8 +759,35 @@ def write_positions(path, P, length_unit: str = "mm", extra: dict | None = None)
 
 def write_tracker(path, q, m, joint_unit: str = "deg", length_unit: str = "mm",
                   quantity: str = "angle", extra: dict | None = None) -> Path:
-    """Write tracker data: readings ``q`` (K, n) as ``q1_<joint_unit> ...`` and tracker points
-    ``m`` (K, 3) as ``mx_<len>, my_<len>, mz_<len>`` (internal units in, file units out)."""
+    """Write tracker data: readings as ``q1_<joint_unit> ...`` and points as ``mx, my, mz``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file.
+    q : array_like, shape (K, n)
+        Readings, internal units.
+    m : array_like, shape (K, 3)
+        Tracker points, m.
+    joint_unit : str, optional
+        Column unit of the readings.
+    length_unit : str, optional
+        Column unit of the points.
+    quantity : {'angle', 'length'}, optional
+        Quantity of the readings.
+    extra : dict, optional
+        Further columns, name -> sequence.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    InputError
+        When a unit is not a column unit of its quantity.
+    """
     q = np.atleast_2d(np.asarray(q, float))
     m = np.atleast_2d(np.asarray(m, float))
     fq, fl = _unit_factor(joint_unit, quantity), _unit_factor(length_unit, "length")
@@ -406,7 +802,33 @@ def write_tracker(path, q, m, joint_unit: str = "deg", length_unit: str = "mm",
 
 def write_poses(path, P, R, length_unit: str = "mm", angle_unit: str = "deg",
                 extra: dict | None = None) -> Path:
-    """Write poses as ``x_<len>, y_<len>, z_<len>, psi_<ang>, theta_<ang>, phi_<ang>``."""
+    """Write poses as ``x_<len>, y_<len>, z_<len>, psi_<ang>, theta_<ang>, phi_<ang>``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file.
+    P : array_like, shape (K, 3)
+        Positions, m.
+    R : array_like, shape (K, 3, 3)
+        Orientations (written as Euler angles, :func:`~pkmcal.kinematics.euler_from_matrix`).
+    length_unit : str, optional
+        Column unit of the positions.
+    angle_unit : str, optional
+        Column unit of the angles.
+    extra : dict, optional
+        Further columns, name -> sequence.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    InputError
+        When a unit is not a column unit of its quantity.
+    """
     P = np.atleast_2d(np.asarray(P, float))
     fl, fa = _unit_factor(length_unit, "length"), _unit_factor(angle_unit, "angle")
     angles = np.atleast_2d(euler_from_matrix(np.asarray(R, float))) / fa
@@ -420,8 +842,24 @@ def write_poses(path, P, R, length_unit: str = "mm", angle_unit: str = "deg",
 
 
 def write_readings(path, q, machine, extra: dict | None = None) -> Path:
-    """Write Stewart readings ``q`` (K, 6, internal units) as ``q1_<unit> ...`` in the
-    machine's reading unit."""
+    """Write Stewart readings as ``q1_<unit> ...`` in the machine's reading unit.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file.
+    q : array_like, shape (K, 6)
+        Readings, internal units.
+    machine : Stewart
+        The machine (its ``reading_unit``; default m).
+    extra : dict, optional
+        Further columns, name -> sequence.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+    """
     q = np.atleast_2d(np.asarray(q, float))
     unit = getattr(machine, "reading_unit", "m")
     f = LENGTH[unit] if unit in LENGTH else 1.0
@@ -434,8 +872,29 @@ def write_readings(path, q, machine, extra: dict | None = None) -> Path:
 
 
 def write_full_pose(path, data: FullPoseData, machine, length_unit: str = "mm") -> Path:
-    """Write full-pose data: readings in ``machine``'s reading unit, then the measured pose as
-    ``x_<len>, y_<len>, z_<len>, qx, qy, qz, qw``."""
+    """Write full-pose data: readings, then the measured pose as ``x, y, z, qx, qy, qz, qw``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file.
+    data : FullPoseData
+        Readings and measured poses.
+    machine : Stewart
+        The machine (its ``reading_unit``).
+    length_unit : str, optional
+        Column unit of the positions.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    InputError
+        When ``length_unit`` is not a column length unit.
+    """
     from ..kinematics import quaternion_from_matrix
 
     fl = _unit_factor(length_unit, "length")

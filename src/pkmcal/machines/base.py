@@ -28,9 +28,17 @@ class FKResult:
 
     Attributes
     ----------
-    P : (K, 3) positions, m.   R : (K, 3, 3) orientations.
-    converged : (K,) bool.     residual : (K,) max |joint residual| in internal units.
-    iterations : int, Newton iterations used for the slowest pose.
+    P : ndarray, shape (K, 3)
+        Platform positions, m (base frame).
+    R : ndarray, shape (K, 3, 3)
+        Platform orientations.
+    converged : ndarray of bool, shape (K,)
+        True where the solver converged for that pose.
+    residual : ndarray, shape (K,)
+        Largest absolute joint residual of each pose at its last evaluation, in the joints'
+        internal units (m or rad); NaN or inf where the pose failed.
+    iterations : int
+        Newton iterations used for the slowest pose.
     """
 
     P: np.ndarray
@@ -40,7 +48,21 @@ class FKResult:
     iterations: int
 
     def raise_if_failed(self, what: str = "forward kinematics", rows=None) -> None:
-        """Raise :class:`ConvergenceError` naming (1-based) rows that did not converge."""
+        """Raise :class:`ConvergenceError` naming (1-based) rows that did not converge.
+
+        Parameters
+        ----------
+        what : str, optional
+            What was being solved, the start of the error message.
+        rows : array_like of int, shape (K,), optional
+            Row label of each pose (e.g. line numbers of a data file); default: 1-based position
+            in the batch.
+
+        Raises
+        ------
+        ConvergenceError
+            When any pose did not converge; the message lists up to ten row labels.
+        """
         bad = np.flatnonzero(~self.converged)
         if bad.size:
             labels = (np.asarray(rows)[bad] if rows is not None else bad + 1).tolist()
@@ -57,6 +79,16 @@ class Machine(ABC):
     Subclasses implement :meth:`ik_jacobians` (closed-form inverse kinematics with analytic
     derivatives), :meth:`transform_base` and :meth:`transform_platform` (re-expressing the
     geometry in rotated frames, which defines gauge freedoms), and the file schema.
+
+    Parameters
+    ----------
+    parameters : ParameterSet
+        The geometric parameters (names, kinds, values in internal units, fixed flags).
+    home : tuple of ndarray, optional
+        ``(P, R)``: a pose of the working assembly mode, position (3,) in m and orientation
+        (3, 3); default: :meth:`default_home`, computed on first use.
+    name : str, optional
+        Free-text name of the machine (the machine file's ``name``).
     """
 
     #: machine type as written in files (``machine: hexaslide``)
@@ -79,11 +111,22 @@ class Machine(ABC):
     # -- geometry -------------------------------------------------------------------------
     @property
     def u(self) -> np.ndarray:
-        """Current parameter vector (internal units)."""
+        """Current parameter vector (n_params,), internal units (m, rad)."""
         return self.parameters.values
 
     def with_parameters(self, values) -> Machine:
-        """A copy of this machine with new parameter values (same names, home, name)."""
+        """A copy of this machine with new parameter values (same names, home, name).
+
+        Parameters
+        ----------
+        values : array_like, shape (n_params,)
+            New parameter values, internal units.
+
+        Returns
+        -------
+        Machine
+            A shallow copy of the same class; only its :class:`ParameterSet` is replaced.
+        """
         new = self.__class__.__new__(self.__class__)
         new.__dict__.update(self.__dict__)
         new.parameters = self.parameters.with_values(values)
@@ -91,7 +134,10 @@ class Machine(ABC):
 
     @property
     def home(self) -> tuple[np.ndarray, np.ndarray]:
-        """A pose of the working assembly mode ``(P, R)``: the file's, or one found."""
+        """A pose of the working assembly mode ``(P, R)``: the file's, or one found.
+
+        Position (3,) in m and orientation (3, 3). Setting it stores a copy as floats.
+        """
         if self._home is None:
             self._home = self.default_home()
         return self._home
@@ -102,20 +148,53 @@ class Machine(ABC):
 
     @abstractmethod
     def default_home(self) -> tuple[np.ndarray, np.ndarray]:
-        """A start pose of the working assembly mode when the file gives none."""
+        """A start pose of the working assembly mode when the file gives none.
+
+        Returns
+        -------
+        P : ndarray, shape (3,)
+            Platform position, m.
+        R : ndarray, shape (3, 3)
+            Platform orientation.
+        """
 
     @abstractmethod
     def characteristic_length(self) -> float:
-        """Length (m) used to scale length parameters against angles."""
+        """Length (m) used to scale length parameters against angles.
+
+        Returns
+        -------
+        float
+            The characteristic length, m.
+        """
 
     def parameter_scales(self) -> np.ndarray:
-        """Column scale of every parameter in identification Jacobians: lengths by the
-        characteristic length, angles by 1 (machines with other kinds override this)."""
+        """Column scale of every parameter in identification Jacobians.
+
+        Lengths are scaled by the characteristic length, angles and ratios by 1; machines with
+        other kinds of parameters override this.
+
+        Returns
+        -------
+        ndarray, shape (n_params,)
+            Scale of each parameter.
+        """
         return self.parameters.scales(self.characteristic_length())
 
     def scales_with(self, extra) -> np.ndarray:
-        """Scales of the machine's parameters followed by those of ``extra`` (a ParameterSet
-        of measurement-model parameters: link length, tracker pose, frames)."""
+        """Scales of the machine's parameters followed by those of ``extra``.
+
+        Parameters
+        ----------
+        extra : ParameterSet
+            Measurement-model parameters (link length, tracker pose, frames), scaled with this
+            machine's characteristic length.
+
+        Returns
+        -------
+        ndarray, shape (n_params + len(extra),)
+            Column scales, machine parameters first.
+        """
         return np.concatenate([self.parameter_scales(),
                                extra.scales(self.characteristic_length())])
 
@@ -124,15 +203,49 @@ class Machine(ABC):
     def ik_jacobians(self, P, R, u=None, want_du: bool = True):
         """Joint values and derivatives at poses ``(P, R)``.
 
-        Returns ``q`` (..., n_joints), ``dq_dpose`` (..., n_joints, 6) with respect to
-        ``[dP, dOmega]`` and, when ``want_du``, ``dq_du`` (..., n_joints, n_params); else None.
-        ``q`` is NaN where a pose cannot be reached.
+        Parameters
+        ----------
+        P : array_like, shape (..., 3)
+            Platform positions, m (base frame).
+        R : array_like, shape (..., 3, 3)
+            Platform orientations (ignored by translation-only platforms).
+        u : array_like, shape (n_params,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+        want_du : bool, optional
+            Also compute the derivatives with respect to the parameters.
+
+        Returns
+        -------
+        q : ndarray, shape (..., n_joints)
+            Joint values (internal units: m or rad); NaN where a pose cannot be reached.
+        dq_dpose : ndarray, shape (..., n_joints, 6)
+            Derivatives with respect to ``[dP, dOmega]`` (see the module docstring).
+        dq_du : ndarray, shape (..., n_joints, n_params) or None
+            Derivatives with respect to the parameters; None unless ``want_du``.
         """
 
     def pose_conditioning(self, P, R, u=None, dq_dpose=None) -> np.ndarray:
-        """Inverse condition number (...,) of the joint Jacobian at poses, its rotation columns
-        scaled by the characteristic length (rotations as lengths): near 0 at a singularity.
-        Pass ``dq_dpose`` when it is already computed at these poses."""
+        """Inverse condition number of the joint Jacobian at poses: near 0 at a singularity.
+
+        The Jacobian's rotation columns are divided by the characteristic length (rotations as
+        lengths) before the singular values are taken.
+
+        Parameters
+        ----------
+        P : array_like, shape (..., 3)
+            Platform positions, m.
+        R : array_like, shape (..., 3, 3)
+            Platform orientations.
+        u : array_like, shape (n_params,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+        dq_dpose : array_like, shape (..., n_joints, 6), optional
+            The joint Jacobian when it is already computed at these poses.
+
+        Returns
+        -------
+        ndarray, shape (...)
+            Smallest over largest singular value of each pose's Jacobian.
+        """
         J = np.array(self.ik_jacobians(P, R, u, want_du=False)[1] if dq_dpose is None
                      else dq_dpose, float)
         J[..., 3:] /= self.characteristic_length()
@@ -140,19 +253,57 @@ class Machine(ABC):
         return sv[..., -1] / sv[..., 0]
 
     def ik(self, P, R, u=None) -> np.ndarray:
-        """Joint values (..., n_joints) at poses; NaN where the pose is not reachable."""
+        """Joint values at poses; NaN where the pose is not reachable.
+
+        Parameters
+        ----------
+        P : array_like, shape (..., 3)
+            Platform positions, m.
+        R : array_like, shape (..., 3, 3)
+            Platform orientations.
+        u : array_like, shape (n_params,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        ndarray, shape (..., n_joints)
+            Joint values, internal units (m or rad).
+        """
         return self.ik_jacobians(P, R, u, want_du=False)[0]
 
     def fk(self, q, u=None, start=None, tol: float = 1e-12, max_iter: int = 50,
            raise_on_failure: bool = False) -> FKResult:
         """Forward kinematics by Newton on the inverse kinematics, all poses at once.
 
+        Poses are solved in chunks of :attr:`fk_chunk`; with a single start pose the first Newton
+        step is shared by the whole batch. See :func:`newton_pose_solve` for the step limits.
+
         Parameters
         ----------
-        q : (K, n_joints) joint values (internal units).
-        start : ``(P0, R0)`` broadcastable to the batch; default: :attr:`home`.
-        tol : convergence when the largest joint residual is below ``tol`` times the
-            characteristic length.
+        q : array_like, shape (K, n_joints)
+            Joint values (internal units).
+        u : array_like, shape (n_params,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+        start : tuple of array_like, optional
+            ``(P0, R0)`` start poses broadcastable to the batch ((3,)/(K, 3) and (3, 3)/(K, 3, 3));
+            default: :attr:`home`.
+        tol : float, optional
+            Convergence when the largest joint residual is below ``tol`` times the characteristic
+            length.
+        max_iter : int, optional
+            Maximum Newton iterations per pose.
+        raise_on_failure : bool, optional
+            Raise instead of returning poses that did not converge.
+
+        Returns
+        -------
+        FKResult
+            Poses, per-pose convergence and residuals.
+
+        Raises
+        ------
+        ConvergenceError
+            With ``raise_on_failure``, when a pose did not converge.
         """
         q = np.atleast_2d(np.asarray(q, float))
         K = q.shape[0]
@@ -202,23 +353,79 @@ class Machine(ABC):
         """Parameters of the same machine expressed in a base frame rotated by ``G``.
 
         A base-frame vector ``v`` becomes ``G @ v``; the rotation is about the base origin O.
+
+        Parameters
+        ----------
+        u : array_like, shape (n_params,)
+            Parameter vector (internal units).
+        G : array_like, shape (3, 3)
+            Rotation from the old to the new base frame.
+
+        Returns
+        -------
+        ndarray, shape (n_params,)
+            The transformed parameter vector.
         """
 
     @abstractmethod
     def transform_platform(self, u, C) -> np.ndarray:
-        """Parameters with the platform frame re-oriented: ``R' = R C``, ``p' = C^T p``."""
+        """Parameters with the platform frame re-oriented: ``R' = R C``, ``p' = C^T p``.
+
+        Parameters
+        ----------
+        u : array_like, shape (n_params,)
+            Parameter vector (internal units).
+        C : array_like, shape (3, 3)
+            Rotation of the new platform frame relative to the old one.
+
+        Returns
+        -------
+        ndarray, shape (n_params,)
+            The transformed parameter vector.
+        """
 
 
 def newton_pose_solve(system, P, R, tol, max_iter, raise_on_failure=False,
                       max_step=0.05, max_rot=0.2, step_tol=None) -> FKResult:
     """Batched (Gauss-)Newton over full poses.
 
-    ``system(idx, P, R) -> (residual (k,m), J (k,m,6))`` evaluates the poses ``idx`` of the batch.
-
     Each pose is updated ``P += dP``, ``R <- exp(dOmega) R``; steps are limited to ``max_step``
     (m) and ``max_rot`` (rad) so a far start does not jump to another assembly mode. Poses stop
     iterating once converged; NaN residuals (unreachable) mark the pose as failed.
     Over-determined systems (least squares) converge on the step: ``|dx| < step_tol``.
+
+    Parameters
+    ----------
+    system : callable
+        ``system(idx, P, R) -> (residual (k, m), J (k, m, 6))`` evaluates the poses ``idx`` of
+        the batch; ``J`` is with respect to ``[dP, dOmega]``.
+    P : ndarray, shape (K, 3)
+        Start positions, m; updated in place.
+    R : ndarray, shape (K, 3, 3)
+        Start orientations; updated in place.
+    tol : float
+        A pose has converged when its largest absolute residual is below ``tol``.
+    max_iter : int
+        Maximum iterations.
+    raise_on_failure : bool, optional
+        Raise instead of returning poses that did not converge.
+    max_step : float, optional
+        Largest position step per iteration, m.
+    max_rot : float, optional
+        Largest rotation step per iteration, rad.
+    step_tol : float, optional
+        Also converged when every component of the step is below this (least squares).
+
+    Returns
+    -------
+    FKResult
+        The poses (the arrays ``P`` and ``R`` passed in), convergence, residuals and the
+        number of iterations run.
+
+    Raises
+    ------
+    ConvergenceError
+        With ``raise_on_failure``, when a pose did not converge.
     """
     K = P.shape[0]
     active = np.arange(K)
@@ -245,8 +452,11 @@ def newton_pose_solve(system, P, R, tol, max_iter, raise_on_failure=False,
             Jt = np.swapaxes(J, -1, -2)
             dx = -solve_batched(Jt @ J, (Jt @ r[..., None])[..., 0])
         dp, dw = dx[:, :3], dx[:, 3:]
-        sp = np.sqrt(np.sum(dp * dp, axis=-1, keepdims=True))
-        sw = np.sqrt(np.sum(dw * dw, axis=-1, keepdims=True))
+        # readings far outside the workspace (1e300) give steps whose squares overflow: an
+        # infinite norm, and the step limit below then stops that pose, which fails to converge
+        with np.errstate(over="ignore"):
+            sp = np.sqrt(np.sum(dp * dp, axis=-1, keepdims=True))
+            sw = np.sqrt(np.sum(dw * dw, axis=-1, keepdims=True))
         dp = dp * np.minimum(1.0, max_step / np.maximum(sp, 1e-300))
         dw = dw * np.minimum(1.0, max_rot / np.maximum(sw, 1e-300))
         if everyone:
@@ -279,8 +489,9 @@ def _shared_first_step(shared, q, P, R, tol, max_step=0.05, max_rot=0.2):
     dx = -np.linalg.solve(J0, r.T).T
     dx[np.max(np.abs(r), axis=-1) < tol] = 0.0
     dp, dw = dx[:, :3], dx[:, 3:]
-    sp = np.sqrt(np.sum(dp * dp, axis=-1, keepdims=True))
-    sw = np.sqrt(np.sum(dw * dw, axis=-1, keepdims=True))
+    with np.errstate(over="ignore"):    # huge readings: an infinite norm, no step (as above)
+        sp = np.sqrt(np.sum(dp * dp, axis=-1, keepdims=True))
+        sw = np.sqrt(np.sum(dw * dw, axis=-1, keepdims=True))
     P += dp * np.minimum(1.0, max_step / np.maximum(sp, 1e-300))
     R[...] = matrix_from_rotvec(dw * np.minimum(1.0, max_rot / np.maximum(sw, 1e-300))) @ R
 
