@@ -307,3 +307,20 @@ def test_huge_values_are_out_of_range(tmp_path):
                     + "1e300,2,3,4,5,6\n")
     with pytest.raises(InputError, match="row 6, column q1_deg: 1e300 is out of range"):
         read_tracker(path, load_machine(MACHINES["d"]))
+
+
+def test_fk_refuses_readings_in_the_wrong_unit(cli, tmp_path):
+    """`pkmcal fk` reads joints with the machine's level check too (metres under _mm)."""
+    from clitools import assert_input_error
+
+    assert cli("simulate", "default", "--poses", "20", "--noise", "0", "--deviations", "none",
+               "-o", "d.csv").returncode == 0
+    lines = (tmp_path / "d.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    scaled = [",".join(str(float(v) / 1000) if name.endswith("_mm") else v
+                       for name, v in zip(header, line.split(","), strict=True))
+              for line in lines[1:]]
+    (tmp_path / "m.csv").write_text("\n".join([lines[0], *scaled]) + "\n")
+    assert cli("fk", "default", "d.csv", "-o", "ok.csv").returncode == 0
+    assert_input_error(cli("fk", "default", "m.csv", "-o", "p.csv"), "m.csv", "look like m")
+    assert not (tmp_path / "p.csv").exists()

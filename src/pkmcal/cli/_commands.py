@@ -703,18 +703,18 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
 
 def _um(value_m: float) -> float | None:
     """Metres -> micrometres for a report; None when not finite."""
-    return float(value_m * 1e6) if np.isfinite(value_m) else None
+    return _finite_or_none(float(value_m) * 1e6)
 
 
 def holdout_arg(text: str) -> float:
-    """``--holdout``: a share (0.2 or 20%) or a whole number of rows (30)."""
+    """``--holdout``: a share (0.2 or 20%) or a whole number of rows (30); the range is checked
+    against the data by :func:`~pkmcal.calibration.holdout_split`."""
     t = text.strip()
     try:
         value = float(t[:-1]) / 100 if t.endswith("%") else float(t)
     except ValueError:
         value = float("nan")
-    if not np.isfinite(value) or value <= 0 or (value >= 1 and not value.is_integer()) \
-            or (t.endswith("%") and value >= 1):
+    if not np.isfinite(value) or (t.endswith("%") and not 0 < value < 1):
         raise InputError(f"--holdout {text}: give the share of rows to hold out (e.g. 0.2 or "
                          "20%) or their number (e.g. 30)")
     return value
@@ -744,10 +744,6 @@ def _validation(split, held, of: str, unit: str, before, after, calibration, **e
             "holdout": split[0], "seed": split[1], "of": of, "unit": unit,
             "before_rms": before, "after_rms": after, "calibration_rms": calibration,
             "held_out_over_calibration": ratio, **extra}
-
-
-def _finite(value) -> float | None:
-    return float(value) if value is not None and np.isfinite(value) else None
 
 
 def _fmt(value) -> str:
@@ -1350,8 +1346,8 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
             split, held, "pose error of the held-out rows: forward kinematics of the readings "
             "(through the identified frames) vs the measured pose; before: the machine file's "
             "legs, frames fitted alone on the calibration rows", units["length"],
-            _finite(h_before["position_rms"]), _finite(h_after["position_rms"]),
-            _finite(after["position_rms"]), before_calibration=h_before,
+            *_finite_or_none([h_before["position_rms"], h_after["position_rms"],
+                              after["position_rms"]]), before_calibration=h_before,
             after_calibration=h_after)
     metadata = {
         "method": f"full-pose-{method}",
@@ -1441,7 +1437,7 @@ def run_fk(machine_spec: str, joints: Path, output: Path) -> None:
     if machine.kind == "stewart":
         q, rows = read_readings(joints, machine)
     else:
-        q, rows, _ = read_joints(joints, machine.n_joints, joint_quantity(machine))
+        q, rows, _ = read_joints(joints, machine.n_joints, joint_quantity(machine), machine)
     result = machine.fk(q)
     result.raise_if_failed(what=f"{joints}: forward kinematics", rows=rows)
     units = _units(machine)

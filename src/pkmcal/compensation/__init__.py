@@ -113,9 +113,10 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
     ok = np.all(np.isfinite(q), -1)
     out = Compensation(q, ok)
     d = calibrated.pose_dof
-    S = pose_sensitivity(calibrated, P, R)
+    needs_fit = null is not None and np.size(null) and (nominal is not None or frame is None)
+    S = pose_sensitivity(calibrated, P, R) if covariance is not None or needs_fit else None
     workspace = None
-    if null is not None and np.size(null) and (nominal is not None or frame is None):
+    if needs_fit:
         # the frames are fitted over the workspace (SPEC 5), not over the targets: a few
         # targets would absorb real errors into the fit
         from ..analysis.accuracy import machine_workspace

@@ -225,7 +225,7 @@ def joint_quantity(machine) -> str:
     return machine.joint_quantity
 
 
-def read_joints(path, n_joints: int, quantity: str = "length"):
+def read_joints(path, n_joints: int, quantity: str = "length", machine=None):
     """Joint readings ``q1_<unit> ... q<n>_<unit>`` in internal units.
 
     Parameters
@@ -236,6 +236,9 @@ def read_joints(path, n_joints: int, quantity: str = "length"):
         Number of joint columns.
     quantity : {'length', 'angle'}, optional
         Quantity of the readings (decides the accepted unit suffixes).
+    machine : Machine, optional
+        When given, the readings' level is checked against the machine's at home (values
+        off by a unit factor are refused with the unit they look like).
 
     Returns
     -------
@@ -252,7 +255,9 @@ def read_joints(path, n_joints: int, quantity: str = "length"):
         For a missing column, a missing or wrong unit suffix, or a value that is not a finite
         number (file, row and column named).
     """
-    q, rows, extra, _ = _read_joints(path, n_joints, quantity)
+    q, rows, extra, names = _read_joints(path, n_joints, quantity)
+    if machine is not None:
+        _check_levels(path, q, names, quantity, machine)
     return q, rows, extra
 
 
