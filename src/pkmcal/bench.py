@@ -185,7 +185,10 @@ def _write_joints_csv(path: Path, q, passive) -> None:
     except ImportError:  # the CSV writer lives in pkmcal.io; plain csv as a fallback
         write_joints = None
     if write_joints is not None:
-        write_joints(path, q, unit="mm", extra={"passive": np.asarray(passive) + 1})
+        from .io.atomic import OutputSet
+
+        with OutputSet():       # a scratch input of the benchmark: written now, on its own
+            write_joints(path, q, unit="mm", extra={"passive": np.asarray(passive) + 1})
         return
     with open(path, "w", newline="") as f:
         w = csv.writer(f)

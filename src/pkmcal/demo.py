@@ -48,14 +48,14 @@ def run_demo(outdir: Path, quick: bool = False, rng=0,
     from .analysis.sweeps import constraint_link_sweep
     from .calibration import calibrate_constraint_link
     from .identifiability import CONSTRAINT_LINK_GAUGES, align_gauge
+    from .io.atomic import atomic_write_text, output_directory
     from .io.csv_io import write_joints
     from .io.machine_file import save_machine
     from .machines import default_hexaslide, paper_table1_deviations
     from .measurements import simulate_constraint_link
     from .report import plots
 
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
+    outdir = output_directory(outdir)
     rng = np.random.default_rng(rng)
     nominal = default_hexaslide()
     true = nominal.with_parameters(nominal.u + paper_table1_deviations(nominal.parameters))
@@ -149,10 +149,7 @@ def run_demo(outdir: Path, quick: bool = False, rng=0,
         "fig6_link_length_error": [p.__dict__ for p in fig6],
         "fig6_link_length_error_lc_estimated": [p.__dict__ for p in fig6_est],
     }
-    path = outdir / "summary.json"
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(summary, indent=2))
-    tmp.replace(path)
+    path = atomic_write_text(outdir / "summary.json", json.dumps(summary, indent=2))
     out.files.append(path)
     return out
 

@@ -398,13 +398,42 @@ def _in_process(settings, variable, seed, tasks, progress):
         yield from rows
 
 
+def _watch_parent(parent_pid: int, interval_s: float = 0.2) -> None:
+    """Worker start-up: end this worker as soon as the process that started it is gone
+    (``kill -9`` of ``pkmcal montecarlo`` must not leave workers computing); Ctrl-C is the
+    parent's to handle (it cancels the pool), so the worker ignores SIGINT."""
+    import signal
+    import sys
+    import threading
+    import time
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        try:                # immediate on Linux: the kernel signals us when the parent dies
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)   # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:      # the parent died before the line above
+        os._exit(1)
+
+    def watch():
+        while os.getppid() == parent_pid:
+            time.sleep(interval_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="pkmcal-parent-watch", daemon=True).start()
+
+
 def _local_processes(settings, variable, seed, tasks, workers, progress):
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     context = multiprocessing.get_context("spawn")     # children import numpy afresh
     with single_threaded_environment():
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=context,
+                                   initializer=_watch_parent, initargs=(os.getpid(),))
         try:
             futures = [pool.submit(run_chunk, settings, variable, seed, chunk)
                        for chunk in _chunks(tasks, workers)]
@@ -412,8 +441,14 @@ def _local_processes(settings, variable, seed, tasks, workers, progress):
                 rows = future.result()
                 progress(len(rows))
                 yield from rows
-        finally:
-            pool.shutdown(wait=True, cancel_futures=True)
+        except BaseException:
+            # an error or Ctrl-C: stop the workers now instead of waiting for their chunks
+            # (the executor has no public call for this)
+            for process in list((getattr(pool, "_processes", None) or {}).values()):
+                process.terminate()
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
 
 
 #: a Dask scheduler address: [protocol://]host:port

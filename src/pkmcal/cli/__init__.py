@@ -697,14 +697,42 @@ def _hoist_quiet(args: list[str]) -> list[str]:
     return ["--quiet", *args[:command + 1], *rest, *args[end:]]
 
 
+class _Terminated(SystemExit):
+    """SIGTERM or SIGHUP: unwind like Ctrl-C (staged outputs discarded), exit 128 + signal."""
+
+
+def _on_signal(signum, frame) -> None:
+    raise _Terminated(128 + signum)
+
+
+def _run(args: list[str]) -> None:
+    """Run the command inside one output set: its files appear together when it succeeds
+    (or where it commits them itself), and none of them on an error or an interrupt."""
+    from ..io.atomic import OutputSet
+
+    with OutputSet():
+        try:
+            app(args=args, prog_name="pkmcal")
+        except SystemExit as exc:
+            if exc.code not in (0, None):
+                raise
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``pkmcal`` console script."""
+    import signal
+
     # Batched small matrices: threaded BLAS costs ~10x in start-up and synchronisation.
     for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
+    for name in ("SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), _on_signal)
     args = _hoist_quiet(list(sys.argv[1:] if argv is None else argv))
     try:
-        app(args=args, prog_name="pkmcal")
+        _run(args)
+    except _Terminated as exc:
+        _fail(f"terminated (signal {int(exc.code) - 128})", int(exc.code))
     except (InputError, ConvergenceError) as exc:
         _fail(str(exc))
     except FileNotFoundError as exc:
@@ -715,3 +743,7 @@ def main(argv: list[str] | None = None) -> None:
         _fail(str(exc))
     except KeyboardInterrupt:
         _fail("interrupted", 130)
+    except SystemExit as exc:
+        if exc.code == 130:     # typer turns Ctrl-C into exit code 130, silently
+            _fail("interrupted", 130)
+        raise

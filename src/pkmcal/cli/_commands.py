@@ -11,7 +11,6 @@ import dataclasses
 import datetime
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +37,7 @@ from ..io import (
     write_table,
     write_tracker,
 )
+from ..io.atomic import is_stream
 from ..io.machine_file import DEFAULT_UNITS
 from ..measurements.deviations import DEFAULT_DEVIATIONS
 from ..measurements.deviations import deviations as _deviations
@@ -67,24 +67,46 @@ def _machine_inputs(spec: str) -> list[Path]:
     return [] if spec == "default" else [Path(spec)]
 
 
-def check_outputs(outputs: list[Path], inputs: list[Path]) -> None:
-    """Refuse outputs whose directory is missing, that are directories, that coincide, or that
-    would overwrite an input file (input files are never modified)."""
-    seen: dict[str, Path] = {}
-    for out in outputs:
-        directory = out.parent if str(out.parent) else Path(".")
-        if not directory.is_dir():
-            raise InputError(f"{out}: the output directory {directory} does not exist")
-        if out.is_dir():
-            raise InputError(f"{out}: is a directory, expected a file name")
-        key = os.path.realpath(out)
-        if key in seen:
-            raise InputError(f"{out}: used for two outputs ({seen[key]} and {out})")
-        seen[key] = out
+def check_outputs(outputs: list[Path], inputs: list[Path], directories=()) -> None:
+    """Check the command's outputs before any work: refuse outputs whose directory is missing
+    or not writable, that are directories, that coincide, or that would overwrite an input
+    file (input files are never modified). With the command's :class:`OutputSet` active
+    (``pkmcal`` runs every command in one) they become its declared outputs, inputs and
+    output directories; files read later are added to the inputs when read."""
+    from ..io.atomic import OutputSet, active_output_set
+
+    OutputSet(outputs, directories, inputs)       # the checks, at once
+    active = active_output_set()
+    if active is not None:
+        for d in directories:
+            active.add_directory(d)
         for inp in inputs:
-            if inp.exists() and out.exists() and os.path.samefile(inp, out):
-                raise InputError(f"{out}: the output would overwrite the input file {inp}; "
-                                 "choose another name")
+            active.add_input(inp)
+        for out in outputs:
+            active.declare(out)
+
+
+def _wrote(output: Path, beside: Path) -> str:
+    """``wrote OUT and OUT.json``; a device or pipe gets no file beside it."""
+    if is_stream(output):
+        return f"wrote {output} (not a regular file: no {beside.suffix} file beside it)"
+    return f"wrote {output} and {beside}"
+
+
+def text_digest(text: str) -> str:
+    """SHA-256 (hex) of a text's UTF-8 bytes: how a calibrated file pins its JSON report."""
+    import hashlib
+
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def commit_outputs() -> list[Path]:
+    """Write the command's staged outputs now, all or none (before saying they are written);
+    returns them."""
+    from ..io.atomic import active_output_set
+
+    active = active_output_set()
+    return active.commit() if active is not None else []
 
 
 def _units(machine) -> dict:
@@ -144,13 +166,12 @@ def run_demo(outdir: Path) -> None:
     module = _optional_module("pkmcal.demo", "the demo")
     if module is None:
         raise SystemExit(1)
-    if outdir.exists() and not outdir.is_dir():
-        raise InputError(f"{outdir}: exists and is not a directory")
-    outdir.mkdir(parents=True, exist_ok=True)
+    check_outputs([], [], [outdir])
     from ._console import progress_tasks
 
     with progress_tasks() as new:
         result = module.run_demo(outdir, progress=new)
+    commit_outputs()
     out = console()
     table = _table("quantity", "before calibration", "after calibration",
                    title="pkmcal demo (embedded Hexa Slide and Delta)")
@@ -323,6 +344,7 @@ def _simulate_constraint_link(machine, output: Path, poses: int, noise: str, lc_
         table.add_row("Lc error", f"machine file says {lc / LENGTH['mm']:.6g} mm, true link "
                       f"{lc_true / LENGTH['mm']:.6g} mm")
     out.print(table)
+    commit_outputs()
     out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
 
 
@@ -386,6 +408,7 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
         rows = data.rows[data.outliers] + 1          # file lines: header = 1
         table.add_row("outliers", f"rows {_rows_text(rows, limit=50)} moved by 1 mm")
     out.print(table)
+    commit_outputs()
     out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
 
 
@@ -462,6 +485,7 @@ def _simulate_full_pose(machine, output: Path, n_poses: int, noise: str | None,
                   f"{_mm(frames.mocap_from_base[1])} mm; marker origin at "
                   f"{_mm(frames.platform_from_marker[1])} mm in the platform frame")
     out.print(table)
+    commit_outputs()
     out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
 
 
@@ -542,13 +566,13 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
                          "ending in .yaml (the JSON report is written beside it)")
     report_path = output.with_suffix(".json")
     machine = load_machine_arg(machine_spec)
-    outputs = [output, report_path]
+    outputs = [output] + ([] if is_stream(output) else [report_path])
     if report_dir is not None:
         if report_dir.exists() and not report_dir.is_dir():
             raise InputError(f"--report {report_dir}: a file, not a directory")
-        if report_dir.is_dir():                 # else created at the end, with the files
-            outputs += [report_dir / "report.html", report_dir / "report.json"]
-    check_outputs(outputs, [data_path] + _machine_inputs(machine_spec))
+        outputs += [report_dir / "report.html", report_dir / "report.json"]
+    check_outputs(outputs, [data_path] + _machine_inputs(machine_spec),
+                  [report_dir] if report_dir is not None else [])
     split = None if holdout is None else (holdout_arg(holdout), seed)
     header, _ = read_table(data_path)
     kind = measurement_kind(data_path, header, machine)
@@ -837,20 +861,27 @@ def _write_calibration(calibrated, units, metadata, report, output, report_path,
         # residual / assumed noise std of every residual, for the report's histogram
         report["normalised_residuals"] = np.asarray(result.residuals, float).ravel().tolist()
     report["provenance"] = provenance()
+    json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
+    # the machine file names its report and pins it by digest: a report of another run
+    # (or a half-replaced pair) is refused by compensate and report
+    beside = not is_stream(output)      # no JSON report beside /dev/null or a pipe
+    metadata = {**metadata, "report_sha256": text_digest(json_text)} if beside else \
+        {k: v for k, v in metadata.items() if k != "report"}
     yaml_text = machine_to_text(calibrated, units, calibration=metadata)
     parse_machine(yaml_text, str(output))   # the calibrated file must load back
-    json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
     html_text = None
     if report_dir is not None:
         from ..report.html import build_html
 
         html_text = build_html(json.loads(json_text))
-    atomic_write_text(report_path, json_text)
+    # one set: the report, then the machine file that names it, then --report DIR
+    if beside:
+        atomic_write_text(report_path, json_text)
     atomic_write_text(output, yaml_text)
     if html_text is not None:
-        report_dir.mkdir(parents=True, exist_ok=True)
         atomic_write_text(report_dir / "report.json", json_text)
         atomic_write_text(report_dir / "report.html", html_text)
+    commit_outputs()
     return json_text
 
 
@@ -890,7 +921,8 @@ def _print_calibration(report, params, data_path, output, report_path, machine) 
         out.print("note: the data do not fix the directions listed as not identifiable; the "
                   "changes are the smallest ones (scaled) that fit the data, and std is for "
                   "the identifiable part.", markup=False)
-    out.print(f"wrote {output} and {report_path}", markup=False)
+    commit_outputs()
+    out.print(_wrote(output, report_path), markup=False)
 
 
 def _print_changes(params, limit: int = 10) -> None:
@@ -1213,7 +1245,8 @@ def _print_tracker_calibration(report, params, data_path, output, report_path, m
         out.print(f"note: the data fix only db - da of each leg{origin}; the "
                   "changes are the smallest ones (scaled) that fit the data, and std is for the "
                   "identifiable part.", markup=False)
-    out.print(f"wrote {output} and {report_path}", markup=False)
+    commit_outputs()
+    out.print(_wrote(output, report_path), markup=False)
 
 
 def _frame_report(frame, fl: float, unit: str) -> dict:
@@ -1423,7 +1456,8 @@ def _print_full_pose_calibration(report, params, data_path, output, report_path,
         out.print("note: the data fix the legs only relative to the measurement frames; the "
                   "changes are the smallest ones (scaled) that fit the data, and std is for "
                   "the identifiable part.", markup=False)
-    out.print(f"wrote {output} and {report_path}", markup=False)
+    commit_outputs()
+    out.print(_wrote(output, report_path), markup=False)
 
 
 # --------------------------------------------------------------------------------------------
@@ -1443,10 +1477,12 @@ def run_fk(machine_spec: str, joints: Path, output: Path) -> None:
     units = _units(machine)
     if machine.pose_dof == 3:
         write_positions(output, result.P, units["length"])
+        commit_outputs()
         console().print(f"{len(q)} position(s) of the platform point, base frame, written to "
                         f"{output} ({units['length']})", markup=False)
         return
     write_poses(output, result.P, result.R, units["length"], units["angle"])
+    commit_outputs()
     console().print(f"{len(q)} pose(s) written to {output} ({units['length']}, "
                     f"{units['angle']})", markup=False)
 
@@ -1499,6 +1535,7 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
     columns = joint_columns(machine, q, _units(machine))
     write_table(output, list(columns), list(columns.values()))
     unit = next(iter(columns)).split("_", 1)[1]
+    commit_outputs()
     console().print(f"{len(q)} {'leg reading' if machine.kind == 'stewart' else 'joint'} "
                     f"vector(s) written to {output} ({unit})", markup=False)
 
@@ -1509,6 +1546,8 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
 
 #: columns of ``pkmcal errors`` (SPEC 6), after the first (angle_deg or t_s)
 ERRORS_FORCE_COLUMNS = tuple(f"f{i}_N" for i in range(1, 7))
+#: the plots of ``pkmcal errors --plot DIR`` (DIR/<name>.png)
+ERRORS_PLOTS = ("link_forces", "pose_errors", "error_map")
 ERRORS_POSE_COLUMNS = ("dx_um", "dy_um", "dz_um", "drx_urad", "dry_urad", "drz_urad")
 
 
@@ -1606,7 +1645,12 @@ def run_errors(machine_spec: str, output: Path, trajectory: str | None,
         raise InputError(f"--plot {plot}: exists and is not a directory")
     machine = _errors_machine(machine_spec)
     inputs = _machine_inputs(machine_spec) if machine_spec != "cubic" else []
-    check_outputs([output], inputs + ([trajectory_file] if trajectory_file else []))
+    envelope_path = output.with_name(output.stem + "_envelope" + output.suffix)
+    plot_files = [] if plot is None else [plot / f"{n}.png" for n in ERRORS_PLOTS]
+    envelope_path = None if is_stream(output) else envelope_path    # no file beside a pipe
+    check_outputs([output, *([envelope_path] if envelope_path else []), *plot_files],
+                  inputs + ([trajectory_file] if trajectory_file else []),
+                  [plot] if plot is not None else [])
 
     if trajectory == "circle":
         r_m = _nonnegative(radius or "100mm", "length", "--radius")
@@ -1651,7 +1695,6 @@ def run_errors(machine_spec: str, output: Path, trajectory: str | None,
         env_columns += [e.dx_min[:, j] * 1e6 + 0.0, e.dx_max[:, j] * 1e6 + 0.0]
     env_header.append("undetermined_legs")
     env_columns.append(undetermined)
-    envelope_path = output.with_name(output.stem + "_envelope" + output.suffix)
 
     # -- outputs, at the very end -----------------------------------------------------------
     plots = []
@@ -1660,8 +1703,10 @@ def run_errors(machine_spec: str, output: Path, trajectory: str | None,
                               c_platform, backlash, tol_n)
     from ..io import write_table
 
-    write_table(envelope_path, env_header, env_columns)
+    if envelope_path is not None:
+        write_table(envelope_path, env_header, env_columns)
     write_table(output, header, columns)
+    commit_outputs()
     _print_errors(machine, where, result, trajectory, mass_kg, f_cut, c_base, c_platform,
                   backlash, tol_n, output, plots)
 
@@ -1669,9 +1714,10 @@ def run_errors(machine_spec: str, output: Path, trajectory: str | None,
 def _errors_plots(outdir: Path, machine, path, result, trajectory, mass_kg, f_cut, c_base,
                   c_platform, backlash, tol_n) -> list[Path]:
     from ..analysis.errors import clearance_map
+    from ..io.atomic import output_directory
     from ..report import plots
 
-    outdir.mkdir(parents=True, exist_ok=True)
+    output_directory(outdir)
     e = result.errors
     if trajectory == "circle":
         x, xlabel = np.degrees(path.angle), "angle [deg]"
@@ -1757,9 +1803,10 @@ def _print_errors(machine, where, result, trajectory, mass_kg, f_cut, c_base, c_
     if trajectory == "file" and np.any(np.abs(np.diff(path.R, axis=0)) > 1e-12):
         out.print("note: the orientation changes along the path; the platform's rotational "
                   "inertia is not modelled (translation inertia only).", markup=False)
-    envelope = output.with_name(output.stem + "_envelope" + output.suffix)
-    out.print(f"wrote {output}, {envelope}" + (" and " + ", ".join(map(str, plots))
-                                               if plots else ""), markup=False)
+    written = [output] + ([] if is_stream(output) else
+                          [output.with_name(output.stem + "_envelope" + output.suffix)])
+    commit_outputs()
+    out.print("wrote " + ", ".join(map(str, written + list(plots))), markup=False)
 
 
 # --------------------------------------------------------------------------------------------

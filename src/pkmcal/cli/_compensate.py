@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..io.atomic import read_input_text
 from ._commands import (
     _machine_inputs,
     _rows_text,
@@ -17,12 +18,14 @@ from ._commands import (
     joint_columns,
     load_machine_arg,
     read_poses_of,
+    text_digest,
 )
 from ._console import console, warning
 
 
 def calibration_report_path(machine, machine_spec: str, report: Path | None) -> Path | None:
-    """The calibration report: ``--report``, else the one the calibrated file names."""
+    """The calibration report: ``--report``, else the one the calibrated file names (checked
+    to be that calibration's: the file pins it by its SHA-256)."""
     if report is not None:
         return report
     info = getattr(machine, "calibration_info", None) or {}
@@ -30,7 +33,15 @@ def calibration_report_path(machine, machine_spec: str, report: Path | None) -> 
     if not name:
         return None
     path = Path(machine_spec).parent / str(name)
-    return path if path.is_file() else None
+    if not path.is_file():
+        return None
+    pinned = info.get("report_sha256")
+    if pinned is not None and text_digest(read_input_text(path, "calibration report")) \
+            != str(pinned):
+        raise InputError(f"{path}: is not the report of {machine_spec} (its SHA-256 differs "
+                         f"from calibration.report_sha256 there: written by another run); "
+                         "calibrate again, or give the right report with --report")
+    return path
 
 
 def read_covariance(path: Path, machine, with_frames: bool = False):
@@ -38,9 +49,7 @@ def read_covariance(path: Path, machine, with_frames: bool = False):
     machine's parameter names, and the unidentifiable directions (n, k) when given; with
     ``with_frames`` also ``(names, matrix)`` of the machine and frame parameters together."""
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read the calibration report: {exc}") from None
+        doc = json.loads(read_input_text(path, "calibration report"))
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}: not JSON (line {exc.lineno}): {exc.msg}") from None
     cov = doc.get("covariance") if isinstance(doc, dict) else None

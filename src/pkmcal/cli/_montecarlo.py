@@ -19,7 +19,14 @@ import numpy as np
 
 from ..errors import InputError
 from ..units import parse_quantity
-from ._commands import _finite_or_none, _table, load_machine_arg, versions
+from ._commands import (
+    _finite_or_none,
+    _table,
+    check_outputs,
+    commit_outputs,
+    load_machine_arg,
+    versions,
+)
 from ._console import console, progress_tasks, warning
 
 #: files written into the output directory
@@ -77,8 +84,7 @@ def run_montecarlo(machine_spec: str, vary: str, output: Path, runs: int = 20,
                    scheduler: str | None = None, quiet: bool = False) -> int:
     from ..analysis.montecarlo import MonteCarloSettings, montecarlo
 
-    if output.exists() and not output.is_dir():
-        raise InputError(f"{output}: exists and is not a directory")
+    check_outputs([output / name for name in OUTPUT_FILES], [], [output])
     if runs < 1:
         raise InputError(f"--runs: must be >= 1, got {runs}")
     if workers is not None and workers < 1:
@@ -173,13 +179,13 @@ def _write_outputs(result, outdir: Path, machine_spec: str) -> list[Path]:
                                  if result.executor.startswith("dask") else ())),
     }
     json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
-    # outputs, at the very end, each atomically
-    outdir.mkdir(parents=True, exist_ok=True)
+    # outputs, at the very end, all together
     paths = [outdir / name for name in OUTPUT_FILES]
     write_table(paths[0], *runs_table(result))
     write_table(paths[1], *summary_table(result))
     atomic_write_text(paths[2], json_text)
     plot_montecarlo(result, paths[3])
+    commit_outputs()
     return paths
 
 

@@ -18,6 +18,7 @@ from ._commands import (
     _table,
     _units,
     check_outputs,
+    commit_outputs,
     full_pose_noise_arg,
     joint_columns,
     load_machine_arg,
@@ -221,6 +222,7 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
                   f"predicted accuracy after calibration ({len(data)} measurements, "
                   f"{section['noise']})")
         report["map"] = str(map_path)
+    commit_outputs()
     if json_output:
         print(json.dumps(_finite_or_none(report), indent=2))
         return 0
@@ -398,6 +400,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
         write_map(map_path, machine, design, problem.n_machine, M, P[idx],
                   f"predicted accuracy with the {n} selected poses ({section['noise']})")
         report["map"] = str(map_path)
+    commit_outputs()
     if json_output:
         print(json.dumps(_finite_or_none(report), indent=2))
         return 0

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from ..errors import InputError
-from ._commands import check_outputs, load_machine_arg
+from ._commands import check_outputs, commit_outputs, load_machine_arg
 from ._compensate import calibration_report_path
 from ._console import console
 
@@ -14,13 +14,13 @@ from ._console import console
 def run_report(result: Path, output: Path) -> None:
     """``pkmcal report``: the HTML report and its JSON twin from a calibration report."""
     from ..io import atomic_write_text
-    from ..io.atomic import read_input_text
+    from ..io.atomic import is_stream, read_input_text
     from ..report.html import build_html
 
     if output.suffix.lower() == ".json":
         raise InputError(f"{output}: the report is an HTML file (its JSON twin is written "
                          "beside it); choose a name ending in .html")
-    twin = output.with_suffix(".json")
+    twin = None if is_stream(output) else output.with_suffix(".json")
     source = result
     if result.suffix.lower() in (".yaml", ".yml"):
         machine = load_machine_arg(str(result))
@@ -29,7 +29,7 @@ def run_report(result: Path, output: Path) -> None:
             raise InputError(f"{result}: names no calibration report beside it (is it a "
                              "calibrated file?); give the JSON report")
         source = found
-    check_outputs([output, twin], [result, source])
+    check_outputs([output] + ([twin] if twin else []), [result, source])
     text = read_input_text(source, "calibration report")
     try:
         doc = json.loads(text)
@@ -39,7 +39,10 @@ def run_report(result: Path, output: Path) -> None:
         raise InputError(f"{source}: not a calibration report of pkmcal calibrate (no "
                          "\"command\": \"calibrate\")")
     page = build_html(doc)
-    atomic_write_text(twin, json.dumps(doc, indent=2) + "\n")
+    if twin is not None:
+        atomic_write_text(twin, json.dumps(doc, indent=2) + "\n")
     atomic_write_text(output, page)
-    console().print(f"wrote {output} ({len(page) // 1024} kB, self-contained) and {twin}",
+    commit_outputs()
+    console().print(f"wrote {output} ({len(page) // 1024} kB, self-contained)"
+                    + (f" and {twin}" if twin else ""),
                     markup=False)

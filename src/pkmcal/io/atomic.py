@@ -1,18 +1,50 @@
-"""File access: atomic output (a reader never sees a half-written file, a failure leaves no
-file) and input text with clear errors.
+"""File access: a command's outputs appear all together or not at all, and never over an input.
 
-Every file the toolkit writes goes through :func:`atomic_write_text`: the text is written to a
-temporary file in the destination directory, flushed to disk, then moved over the destination
-with :func:`os.replace` (atomic on POSIX and Windows within one file system).
+Every file the toolkit writes goes through :func:`atomic_write_bytes` (or its text twin
+:func:`atomic_write_text`). Outside an output set this writes one file atomically. Inside an
+:class:`OutputSet` (every ``pkmcal`` command runs in one) the file is only *staged*: written
+to a uniquely named hidden temporary beside its destination and flushed to disk; the set is
+*committed* at its end, when every staged file is moved over its destination with
+:func:`os.replace` (atomic on POSIX within one file system):
+
+- before the first rename, every output is checked against every file the command read
+  (:func:`read_input_text` registers them by device and inode, so symbolic and hard links
+  are caught too) and against the other outputs;
+- the renames of one set run with SIGINT/SIGTERM held back and under a lock of the
+  destination directories, so two runs at once commit one after the other and a reader sees
+  either the previous set or the new one, never a mix; a destination that existed is kept as
+  a hard-linked backup until the whole set is in place, and restored if a rename fails;
+- on an error or an interrupt before the commit, the temporaries are removed and no output
+  directory has been created: nothing of the new set remains, the previous set is untouched;
+- a destination that is not a regular file (``/dev/null``, a FIFO, ``/dev/stdout``) is
+  written into, never replaced, and needs no writable directory;
+- temporaries are named ``.<name>.pkmcal-<pid>-<random>.tmp``: unique per run, hidden, never
+  mistaken for output. Those left by a killed process (``kill -9``) are removed by the next
+  output set that writes to the same directory.
+
+Messages name the user's file, never a temporary.
 """
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import os
+import re
+import secrets
+import signal
+import stat
 import tempfile
+import threading
 from pathlib import Path
 
 from ..errors import InputError
+
+_TAG = "pkmcal"
+_NEW = Path("/nonexistent/pkmcal-new-file")    # marker: the destination did not exist
+_STALE = re.compile(r"^\..+\.pkmcal-(\d+)-[^.]+\.(tmp|bak)$")
+_ACTIVE: contextvars.ContextVar[OutputSet | None] = contextvars.ContextVar(
+    "pkmcal_output_set", default=None)
 
 
 def _default_mode() -> int:
@@ -22,12 +54,420 @@ def _default_mode() -> int:
     return 0o666 & ~umask
 
 
-def atomic_write_text(path, text: str, encoding: str = "utf-8") -> Path:
-    """Write ``text`` to ``path`` atomically; return the path.
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
 
-    The text goes to a temporary file in the destination directory, is flushed to disk and
-    moved over the destination. The destination keeps its permissions when it exists (else
-    the umask default applies); the temporary file is removed on any failure.
+
+def remove_stale_temporaries(directory) -> list[Path]:
+    """Remove the temporaries (``.<name>.pkmcal-<pid>-<random>.tmp`` and ``.bak``) that a
+    process which no longer runs left in ``directory``; return the removed paths."""
+    removed = []
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return removed
+    for entry in entries:
+        m = _STALE.match(entry.name)
+        if m is None or _pid_alive(int(m.group(1))):
+            continue
+        with contextlib.suppress(OSError):
+            os.unlink(entry.path)
+            removed.append(Path(entry.path))
+    return removed
+
+
+def is_stream(path: Path) -> bool:
+    """Outputs written into, never replaced: not a regular file (``/dev/null``, a FIFO, a
+    terminal) or one of the process's own descriptors (``/dev/stdout``, ``/dev/fd/1``)."""
+    text = str(path)
+    if text in ("/dev/stdout", "/dev/stderr", "-") or text.startswith(("/dev/fd/",
+                                                                        "/proc/self/fd/")):
+        return True
+    try:
+        st = os.stat(path)
+    except OSError:
+        return False
+    return not stat.S_ISREG(st.st_mode) and not stat.S_ISDIR(st.st_mode)
+
+
+def _existing_ancestor(directory: Path) -> Path:
+    d = directory
+    while not d.exists() and d != d.parent:
+        d = d.parent
+    return d
+
+
+def _file_id(path) -> tuple[int, int] | None:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino) if stat.S_ISREG(st.st_mode) else None
+
+
+def _describe(exc: OSError) -> str:
+    return exc.strerror or str(exc)
+
+
+class OutputSet:
+    """The outputs of one command: checked up front, staged, and committed together.
+
+    Parameters
+    ----------
+    files : sequence of path, optional
+        Output files known before the work starts (``-o``, the JSON beside it); checked at
+        once (directory exists and is writable, not a directory, no two the same, not an
+        input). Files staged later are checked when staged and again at the commit.
+    directories : sequence of path, optional
+        Output directories (``--report DIR``, ``montecarlo -o DIR``): created at the commit
+        when missing (parents too); files staged inside them are outputs of the set.
+    inputs : sequence of path, optional
+        Files the command will read; every file read through :func:`read_input_text` while
+        the set is active is added.
+
+    Notes
+    -----
+    Use as a context manager: ``with OutputSet([out]) as outputs: ...``. Leaving the block
+    normally commits what is not committed yet; leaving it by an exception (an error,
+    Ctrl-C) discards the staged files. :meth:`commit` may be called earlier, e.g. before
+    printing which files were written.
+    """
+
+    def __init__(self, files=(), directories=(), inputs=()):
+        self._staged: dict[str, tuple[Path, Path, Path | None, bytes | None]] = {}
+        self._inputs: dict[tuple[int, int], Path] = {}
+        self._directories: list[Path] = []
+        self._token = None
+        self._declared: dict[str, Path] = {}
+        for d in directories:
+            self.add_directory(d)
+        for p in inputs:
+            self.add_input(p)
+        for f in files:
+            f = Path(f)
+            key = os.path.realpath(self._destination(f))
+            if key in self._declared and not is_stream(f):
+                raise InputError(f"{f}: used for two outputs ({self._declared[key]} and {f})")
+            self.declare(f)
+
+    # -- inputs --------------------------------------------------------------------------
+    def add_input(self, path) -> None:
+        """Register a file the command reads: no output may replace it."""
+        fid = _file_id(path)
+        if fid is not None:
+            self._inputs.setdefault(fid, Path(path))
+            for key, (user, _, _, _) in self._staged.items():
+                self._check_not_input(user, Path(key))
+            for user in self._declared.values():
+                self._check_not_input(user, self._destination(user))
+
+    def _check_not_input(self, user: Path, dest: Path) -> None:
+        fid = _file_id(dest)
+        if fid is not None and fid in self._inputs:
+            raise InputError(f"{user}: the output would overwrite the input file "
+                             f"{self._inputs[fid]}; choose another name")
+
+    # -- outputs -------------------------------------------------------------------------
+    def add_directory(self, directory) -> Path:
+        """An output directory (created at the commit when missing); return it."""
+        d = Path(directory)
+        if d.exists() and not d.is_dir():
+            raise InputError(f"{d}: exists and is not a directory (an output directory is "
+                             "expected)")
+        if not os.access(_existing_ancestor(d), os.W_OK | os.X_OK):
+            raise InputError(f"{d}: cannot create or write this output directory "
+                             "(permission denied)")
+        key = os.path.realpath(d)
+        if key in self._declared:
+            raise InputError(f"{d}: used for an output file and an output directory")
+        if all(os.path.realpath(e) != key for e in self._directories):
+            self._directories.append(d)
+        return d
+
+    @staticmethod
+    def _destination(path: Path) -> Path:
+        """Where the bytes go: a symbolic link's target (the link stays a link)."""
+        return Path(os.path.realpath(path)) if path.is_symlink() else path
+
+    def _in_output_directory(self, path: Path) -> bool:
+        parent = os.path.abspath(path.parent if str(path.parent) else ".")
+        return any(parent == os.path.abspath(d) or parent.startswith(os.path.abspath(d) + os.sep)
+                   for d in self._directories)
+
+    def declare(self, path) -> Path:
+        """Check an output file now (see the class); return it."""
+        path = Path(path)
+        if is_stream(path):
+            return path
+        dest = self._destination(path)
+        directory = dest.parent if str(dest.parent) else Path(".")
+        if not self._in_output_directory(dest):
+            if not directory.is_dir():
+                raise InputError(f"{path}: the output directory {directory} does not exist")
+            if not os.access(directory, os.W_OK | os.X_OK):
+                raise InputError(f"{path}: cannot write in the directory {directory} "
+                                 "(permission denied)")
+        if dest.is_dir():
+            raise InputError(f"{path}: is a directory, expected a file name")
+        key = os.path.realpath(dest)
+        for d in self._directories:
+            if os.path.realpath(d) == key:
+                raise InputError(f"{path}: used for an output file and an output directory")
+        self._declared.setdefault(key, path)
+        self._check_not_input(path, dest)
+        return path
+
+    def stage(self, path, data: bytes) -> Path:
+        """Write ``data`` for ``path`` to a temporary beside it; the destination changes at
+        the commit. Staging the same path again replaces the earlier content."""
+        path = self.declare(path)
+        if is_stream(path):
+            self._staged[str(path)] = (path, path, None, bytes(data))
+            return path
+        dest = self._destination(path)
+        key = os.path.realpath(dest)
+        self._discard_one(key)
+        where = _existing_ancestor(dest.parent if str(dest.parent) else Path("."))
+        remove_stale_temporaries(where)
+        try:
+            fd, tmp = tempfile.mkstemp(dir=where, prefix=f".{dest.name}.{_TAG}-{os.getpid()}-",
+                                       suffix=".tmp")
+        except OSError as exc:
+            raise InputError(f"{path}: cannot write: {_describe(exc)}") from None
+        self._staged[key] = (path, dest, Path(tmp), None)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+            try:
+                mode = dest.stat().st_mode & 0o7777
+            except OSError:
+                mode = _default_mode()
+            os.chmod(tmp, mode)
+        except OSError as exc:
+            self._discard_one(key)
+            raise InputError(f"{path}: cannot write: {_describe(exc)}") from None
+        return path
+
+    def _discard_one(self, key: str) -> None:
+        old = self._staged.pop(key, None)
+        if old is not None and old[2] is not None:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(old[2])
+
+    def discard(self) -> None:
+        """Remove every staged temporary: nothing of the set is written."""
+        for key in list(self._staged):
+            self._discard_one(key)
+
+    @property
+    def staged(self) -> list[Path]:
+        """The output paths staged and not committed yet, in staging order."""
+        return [v[0] for v in self._staged.values()]
+
+    def commit(self) -> list[Path]:
+        """Move every staged file over its destination, all or none; return the paths.
+
+        Raises
+        ------
+        InputError
+            An output would replace a file the command read, or a rename failed (the
+            destinations written so far are restored first).
+        """
+        if not self._staged:
+            return []
+        items = list(self._staged.values())
+        for user, dest, tmp, _ in items:
+            if tmp is not None:
+                self._check_not_input(user, dest)
+        held = _hold_signals()
+        locks = []
+        created: list[Path] = []
+        done: list[tuple[Path, Path | None]] = []     # (destination, backup or None)
+        try:
+            locks = _lock([d.parent for _, d, t, _ in items if t is not None])
+            for d in self._directories:
+                created += _make_directories(d)
+            for user, dest, tmp, data in items:
+                if tmp is None:
+                    continue
+                backup = _NEW           # a destination that did not exist: removed on a rollback
+                if dest.exists():
+                    backup = dest.with_name(f".{dest.name}.{_TAG}-{os.getpid()}-"
+                                            f"{secrets.token_hex(4)}.bak")
+                    try:
+                        os.link(dest, backup)
+                    except OSError:
+                        backup = None   # no hard links here: no rollback for this file
+                try:
+                    os.replace(tmp, dest)
+                except OSError as exc:
+                    if backup not in (None, _NEW):
+                        os.unlink(backup)
+                    raise InputError(f"{user}: cannot write: {_describe(exc)}") from None
+                done.append((dest, backup))
+            for user, _, tmp, data in items:
+                if tmp is None:
+                    try:
+                        with open(user, "wb") as fh:
+                            fh.write(data)
+                    except OSError as exc:
+                        raise InputError(f"{user}: cannot write: {_describe(exc)}") from None
+        except BaseException:
+            for dest, backup in reversed(done):
+                with contextlib.suppress(OSError):
+                    if backup is _NEW:
+                        os.unlink(dest)
+                    elif backup is not None:
+                        os.replace(backup, dest)
+            for d in reversed(created):
+                with contextlib.suppress(OSError):
+                    d.rmdir()
+            self.discard()
+            raise
+        else:
+            for _, backup in done:
+                if backup not in (None, _NEW):
+                    with contextlib.suppress(OSError):
+                        os.unlink(backup)
+            self._staged.clear()
+        finally:
+            for fd in locks:
+                os.close(fd)
+            _release_signals(held)
+        return [user for user, *_ in items]
+
+    # -- context manager -----------------------------------------------------------------
+    def __enter__(self) -> OutputSet:
+        self._token = _ACTIVE.set(self)
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            if exc_type is None:
+                self.commit()
+            else:
+                self.discard()
+        finally:
+            _ACTIVE.reset(self._token)
+
+
+def _make_directories(directory: Path) -> list[Path]:
+    """Create ``directory`` and its missing parents; return the created ones, outermost
+    first."""
+    missing = []
+    d = directory
+    while not d.exists() and d != d.parent:
+        missing.append(d)
+        d = d.parent
+    created = []
+    for d in reversed(missing):
+        d.mkdir()
+        created.append(d)
+    return created
+
+
+def _lock(directories) -> list[int]:
+    """Exclusive advisory locks (flock) on the directories, in a fixed order (no deadlock
+    between two runs); POSIX only, a no-op elsewhere."""
+    try:
+        import fcntl
+    except ImportError:     # pragma: no cover - not POSIX
+        return []
+    fds = []
+    keys = sorted({os.path.realpath(_existing_ancestor(Path(d) if str(d) else Path(".")))
+                   for d in directories})
+    for key in keys:
+        try:
+            fd = os.open(key, os.O_RDONLY)
+        except OSError:
+            continue
+        fds.append(fd)
+        with contextlib.suppress(OSError):
+            fcntl.flock(fd, fcntl.LOCK_EX)
+    return fds
+
+
+def _hold_signals():
+    """Hold SIGINT, SIGTERM and SIGHUP back (delivered after the commit); main thread only."""
+    if threading.current_thread() is not threading.main_thread() or \
+            not hasattr(signal, "pthread_sigmask"):
+        return None
+    return signal.pthread_sigmask(signal.SIG_BLOCK,
+                                  {signal.SIGINT, signal.SIGTERM, signal.SIGHUP})
+
+
+def _release_signals(previous) -> None:
+    if previous is not None:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def active_output_set() -> OutputSet | None:
+    """The :class:`OutputSet` of the running command, or None."""
+    return _ACTIVE.get()
+
+
+def output_directory(directory) -> Path:
+    """Make ``directory`` ready for outputs: inside an :class:`OutputSet` it is created at the
+    commit (nothing remains of it if the command fails); else at once. Returns it."""
+    outputs = _ACTIVE.get()
+    if outputs is not None:
+        return outputs.add_directory(directory)
+    d = Path(directory)
+    if d.exists() and not d.is_dir():
+        raise InputError(f"{d}: exists and is not a directory (an output directory is "
+                         "expected)")
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def atomic_write_bytes(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically; return the path.
+
+    Inside an :class:`OutputSet` the file is staged and appears at the set's commit; else
+    it is written at once, through a one-file set. The destination keeps its permissions
+    when it exists (else the umask default applies); a symbolic link keeps pointing to the
+    written file; ``/dev/null`` and other non-regular files are written into.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination file.
+    data : bytes
+        Content.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    InputError
+        When the destination's directory is missing or not writable, ``path`` is a
+        directory, or the file cannot be written (the message names ``path``).
+    """
+    outputs = _ACTIVE.get()
+    if outputs is not None:
+        return outputs.stage(path, data)
+    one = OutputSet([path])
+    one.stage(path, data)
+    one.commit()
+    return Path(path)
+
+
+def atomic_write_text(path, text: str, encoding: str = "utf-8") -> Path:
+    """Write ``text`` to ``path`` atomically (see :func:`atomic_write_bytes`); return the
+    path.
 
     Parameters
     ----------
@@ -42,45 +482,19 @@ def atomic_write_text(path, text: str, encoding: str = "utf-8") -> Path:
     -------
     pathlib.Path
         ``path``.
-
-    Raises
-    ------
-    FileNotFoundError
-        When the destination directory does not exist.
-    IsADirectoryError
-        When ``path`` is a directory.
     """
-    path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    if not directory.is_dir():
-        raise FileNotFoundError(f"{path}: the output directory {directory} does not exist")
-    if path.is_dir():
-        raise IsADirectoryError(f"{path}: is a directory, expected a file name")
-    try:
-        mode = path.stat().st_mode & 0o7777
-    except FileNotFoundError:
-        mode = _default_mode()
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding=encoding, newline="") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    return path
+    return atomic_write_bytes(path, text.encode(encoding))
 
 
 def read_input_text(path, kind: str) -> str:
     """Text of an input file (UTF-8, BOM allowed); :class:`InputError` naming the file when it
-    is missing, a directory or not text. ``kind`` says what was expected ("machine file")."""
+    is missing, a directory or not text. ``kind`` says what was expected ("machine file").
+    Inside an :class:`OutputSet` the file becomes one of the command's inputs: no output may
+    replace it."""
     path = Path(path)
+    outputs = _ACTIVE.get()
+    if outputs is not None:
+        outputs.add_input(path)
     try:
         return path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
@@ -89,3 +503,5 @@ def read_input_text(path, kind: str) -> str:
         raise InputError(f"{path}: is a directory, expected a {kind}") from None
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not a text file (UTF-8): {exc.reason}") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the {kind}: {_describe(exc)}") from None

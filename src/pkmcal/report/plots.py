@@ -12,12 +12,18 @@ import numpy as np  # noqa: E402
 
 
 def _save(fig, path: Path) -> Path:
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=120, bbox_inches="tight")
-    plt.close(fig)
-    tmp.replace(path)
-    return path
+    """Render ``fig`` as PNG and write it atomically (staged with the command's other
+    outputs: :func:`pkmcal.io.atomic.atomic_write_bytes`)."""
+    import io
+
+    from ..io.atomic import atomic_write_bytes
+
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, format="png", dpi=120, bbox_inches="tight")
+    finally:
+        plt.close(fig)
+    return atomic_write_bytes(Path(path), buf.getvalue())
 
 
 def plot_sweep(points, path, xlabel: str, title: str, extra=None, extra_label: str = ""):
