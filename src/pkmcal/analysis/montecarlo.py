@@ -531,10 +531,15 @@ def parse_values(variable: str, values: Sequence) -> list:
     if not values:
         raise InputError(f"--vary {variable}: give at least one value")
     if variable == "poses":
+        from ..limits import MAX_MEASUREMENTS
+
         out = []
         for v in values:
-            if float(v) != int(float(v)):
+            if not math.isfinite(float(v)) or float(v) != int(float(v)):
                 raise InputError(f"--vary poses: whole numbers of measurements, got {v}")
+            if not 1 <= int(float(v)) <= MAX_MEASUREMENTS:
+                raise InputError(f"--vary poses: between 1 and {MAX_MEASUREMENTS} "
+                                 f"measurements, got {v}")
             out.append(int(float(v)))
         return out
     out = [float(v) for v in values]

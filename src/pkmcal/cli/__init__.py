@@ -20,6 +20,7 @@ from typing import Annotated
 import typer
 
 from ..errors import ConvergenceError, InputError
+from ..limits import MAX_MEASUREMENTS, MAX_RUNS, MAX_SAMPLES
 
 app = typer.Typer(
     name="pkmcal",
@@ -114,7 +115,8 @@ def simulate(
              "(delta; default there) or pose (stewart: full-pose measurements; default there).",
         show_default=False)] = None,
     poses: Annotated[int | None, typer.Option(
-        min=1, help="Number of measurement poses (constraint-link: default 150; pose: default "
+        min=1, max=MAX_MEASUREMENTS,
+        help="Number of measurement poses (constraint-link: default 150; pose: default "
                     "60).", show_default=False)] = None,
     noise: Annotated[str | None, typer.Option(
         help="Measurement noise. constraint-link: encoder noise, standard deviation (default "
@@ -127,8 +129,8 @@ def simulate(
     lc_error: Annotated[str, typer.Option(
         "--lc-error", help="Error of the constraint-link length in the machine file: the true "
                            "link is the file's length minus this.")] = "0um",
-    seed: Annotated[int, typer.Option(help="Random seed (poses, noise, random deviations).")]
-    = 0,
+    seed: Annotated[int, typer.Option(
+        min=0, help="Random seed (poses, noise, random deviations).")] = 0,
     deviations: Annotated[Deviations | None, typer.Option(
         help="True machine = MACHINE + deviations: paper-table1 (seed 000 Table 1; default for "
              "a hexaslide), none, or random (uniform; hexaslide: lengths +/-2 mm, angles "
@@ -139,7 +141,8 @@ def simulate(
              "centred at the machine's home (default 3x3x3, seed 001).",
         show_default=False)] = None,
     outliers: Annotated[int, typer.Option(
-        min=0, help="tracker: corrupt this many random points by 1 mm (beam breaks, a "
+        min=0, max=MAX_MEASUREMENTS,
+        help="tracker: corrupt this many random points by 1 mm (beam breaks, a "
                     "mis-seated reflector); their rows are printed.")] = 0,
     truth: Annotated[Path | None, typer.Option(
         dir_okay=False, help="Also save the simulated true machine here (YAML; for a tracker "
@@ -225,7 +228,7 @@ def calibrate(
              "calibrate on the rest and report the held-out residuals before and after "
              "calibration (the report's validation section).", show_default=False)] = None,
     seed: Annotated[int, typer.Option(
-        help="Seed of the random choice of held-out rows (--holdout).")] = 0,
+        min=0, help="Seed of the random choice of held-out rows (--holdout).")] = 0,
     json_output: Annotated[bool, typer.Option(
         "--json", help="Print the JSON report on stdout instead of the summary.")] = False,
 ) -> None:
@@ -271,11 +274,12 @@ def identifiability(
                           "the machine file's geometry would give there (e.g. the output of "
                           "select-poses).")] = False,
     poses: Annotated[int | None, typer.Option(
+        min=1, max=MAX_MEASUREMENTS,
         help="Without DATA: the number of random planned poses (default: 150 constraint-link, "
              "60 pose; tracker: seed 001's 3x3x3 grid around home).", show_default=False)]
     = None,
-    seed: Annotated[int, typer.Option(help="Seed of random planned poses and of the "
-                                           "workspace sample.")] = 0,
+    seed: Annotated[int, typer.Option(
+        min=0, help="Seed of random planned poses and of the workspace sample.")] = 0,
     noise: Annotated[str | None, typer.Option(
         help="Measurement noise of the prediction, as in calibrate (constraint-link: encoder "
              "std, default 1um; tracker: leica or a length; pose: leg readings, default 2um).",
@@ -328,8 +332,9 @@ def select_poses(
     machine: MachineArg,
     output: OutFile,
     n: Annotated[int, typer.Option("-n", "--poses", help="Number of poses to choose.",
-                                   show_default=False)],
+                                   min=1, max=MAX_MEASUREMENTS, show_default=False)],
     candidates: Annotated[int, typer.Option(
+        min=1, max=MAX_MEASUREMENTS,
         help="Number of random feasible candidates (constraint-link: on the sphere |P| = Lc; "
              "tracker: in the box of the 3x3x3 grid around home; pose: the 0.1 m cube, +/-10 "
              "deg).")] = 2000,
@@ -345,15 +350,15 @@ def select_poses(
              "A-optimal (mean parameter variance); pose: smallest predicted mean squared "
              "position error over the workspace.")] = Criterion.d,
     random_sets: Annotated[int, typer.Option(
-        help="Random sets of the same size to compare against.")] = 100,
+        min=0, max=MAX_RUNS, help="Random sets of the same size to compare against.")] = 100,
     noise: Annotated[str | None, typer.Option(
         help="Measurement noise of the prediction (as in calibrate).", show_default=False)]
     = None,
     pose_noise: Annotated[str | None, typer.Option(
         "--pose-noise", help="pose measurements: noise of the measured poses.",
         show_default=False)] = None,
-    seed: Annotated[int, typer.Option(help="Seed of the candidates, the workspace sample and "
-                                           "the random sets.")] = 0,
+    seed: Annotated[int, typer.Option(
+        min=0, help="Seed of the candidates, the workspace sample and the random sets.")] = 0,
     map_path: Annotated[Path | None, typer.Option(
         "--map", help="Write a map (PNG) of the predicted position error with the chosen "
                       "poses.", show_default=False)] = None,
@@ -529,6 +534,7 @@ def errors_command(
         help="circle: angular speed, counter-clockwise from +X [default 10rad/s].",
         show_default=False)] = None,
     samples: Annotated[int | None, typer.Option(
+        min=1, max=MAX_SAMPLES,
         help="circle: samples, sample k at 360 k / samples deg [default 360].",
         show_default=False)] = None,
     clearance: Annotated[str, typer.Option(
@@ -589,11 +595,13 @@ def montecarlo(
         "-o", "--output", file_okay=False, show_default=False,
         help="Output directory: runs.csv, summary.csv, summary.json, montecarlo.png "
              "(created if missing; each file written atomically).")],
-    runs: Annotated[int, typer.Option(help="Simulated calibrations per value.")] = 20,
+    runs: Annotated[int, typer.Option(min=1, max=MAX_RUNS,
+                                      help="Simulated calibrations per value.")] = 20,
     scenario: Annotated[Scenario | None, typer.Option(
         help="Measurement scenario (default: the machine's: constraint-link for a hexaslide, "
              "tracker for a delta, pose for a stewart).", show_default=False)] = None,
     poses: Annotated[int | None, typer.Option(
+        min=1, max=MAX_MEASUREMENTS,
         help="Measurements per calibration when not swept (constraint-link 150, pose 60; "
              "tracker: the 3x3x3 grid, or this many points uniform in its box).",
         show_default=False)] = None,
@@ -617,7 +625,7 @@ def montecarlo(
         "--estimate-lc", help="constraint-link: estimate Lc too (seed 000 Fig. 6, second "
                               "curve).")] = False,
     seed: Annotated[int, typer.Option(
-        help="Seed: run r at value i draws from SeedSequence(seed, spawn_key=(i, r)); the "
+        min=0, help="Seed: run r at value i draws from SeedSequence(seed, spawn_key=(i, r)); the "
              "same seed gives the same runs.csv whatever --workers or --scheduler.")] = 0,
     workers: Annotated[int | None, typer.Option(
         help="Local worker processes (default: all cores; 1 runs in this process).",
@@ -707,15 +715,27 @@ def _on_signal(signum, frame) -> None:
 
 def _run(args: list[str]) -> None:
     """Run the command inside one output set: its files appear together when it succeeds
-    (or where it commits them itself), and none of them on an error or an interrupt."""
+    (or where it commits them itself), and none of them on an error or an interrupt. A
+    usage error (unknown option, a value out of range) is one line naming the option."""
+    from typer import Abort
+    from typer._click.exceptions import ClickException, NoArgsIsHelpError
+
     from ..io.atomic import OutputSet
 
     with OutputSet():
         try:
-            app(args=args, prog_name="pkmcal")
-        except SystemExit as exc:
-            if exc.code not in (0, None):
-                raise
+            code = app(args=args, prog_name="pkmcal", standalone_mode=False)
+        except NoArgsIsHelpError as exc:
+            exc.show()
+            raise SystemExit(exc.exit_code) from None
+        except ClickException as exc:
+            where = getattr(getattr(exc, "ctx", None), "command_path", None) or "pkmcal"
+            raise InputError(f"{_one_line(exc.format_message())} (see {where} --help)",
+                             getattr(exc, "exit_code", 2)) from None
+        except Abort:
+            raise KeyboardInterrupt from None
+        if isinstance(code, int) and code != 0:
+            raise SystemExit(code)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -733,7 +753,10 @@ def main(argv: list[str] | None = None) -> None:
         _run(args)
     except _Terminated as exc:
         _fail(f"terminated (signal {int(exc.code) - 128})", int(exc.code))
-    except (InputError, ConvergenceError) as exc:
+    except InputError as exc:
+        code = exc.args[1] if len(exc.args) > 1 and isinstance(exc.args[1], int) else 2
+        _fail(str(exc.args[0]) if len(exc.args) > 1 else str(exc), code)
+    except ConvergenceError as exc:
         _fail(str(exc))
     except FileNotFoundError as exc:
         _fail(f"{exc.filename}: file not found" if exc.filename else str(exc))
@@ -747,3 +770,8 @@ def main(argv: list[str] | None = None) -> None:
         if exc.code == 130:     # typer turns Ctrl-C into exit code 130, silently
             _fail("interrupted", 130)
         raise
+    except Exception as exc:    # a bug: one line all the same, the traceback on request
+        if os.environ.get("PKMCAL_DEBUG"):
+            raise
+        _fail(f"internal error ({type(exc).__name__}: {exc}); please report it with the "
+              "command line (PKMCAL_DEBUG=1 shows the traceback)", 1)

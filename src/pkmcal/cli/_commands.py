@@ -623,8 +623,8 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
 
     from ..calibration import calibrate_constraint_link, constraint_link_reading_rms
 
-    result = _solve(data_path, calibrate_constraint_link, machine, data, method=method,
-                    sigma_m=sigma, estimate_link_length=estimate_lc)
+    result = _solve(data_path, calibrate_constraint_link, machine, data, held=held,
+                    method=method, sigma_m=sigma, estimate_link_length=estimate_lc)
     if not _converged(result):
         return 1
 
@@ -774,15 +774,19 @@ def _fmt(value) -> str:
     return "n/a" if value is None else f"{value:.4g}"
 
 
-def _solve(data_path, calibrate, *args, **kwargs):
+def _solve(data_path, calibrate, *args, held=None, **kwargs):
     """Run a calibration; numerical failures caused by the data become an InputError naming
-    the data file (exit 2)."""
+    the data file (exit 2). With ``held`` (the rows --holdout set aside) a failure names the
+    option too: the rows left may be too few."""
     try:
         return calibrate(*args, **kwargs)
-    except InputError:
-        raise
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        raise InputError(f"{data_path}: calibration failed: {exc}") from None
+    except (InputError, ValueError, np.linalg.LinAlgError) as exc:
+        message = str(exc) if isinstance(exc, InputError) else \
+            f"{data_path}: calibration failed: {exc}"
+        if held is not None:
+            message = (f"--holdout: holding out {len(held)} row(s) leaves {len(args[1])} "
+                       f"to calibrate on: {message}")
+        raise InputError(message) from None
 
 
 def _converged(result, advice: str = "") -> bool:
@@ -1027,7 +1031,7 @@ def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path
         raise InputError(f"{data_path}: row(s) {_rows_text(data.rows[~fk.converged])}: no "
                          f"platform position of {machine.source} reproduces these arm angles "
                          "(outside the workspace, or a wrong angle unit or zero)")
-    result = _solve(data_path, calibrate_tracker, machine, data, noise_model,
+    result = _solve(data_path, calibrate_tracker, machine, data, noise_model, held=held,
                     joint=not two_step, robust=robust)
     if not _converged(result, "spread the points in all three directions, e.g. a 3x3x3 grid"):
         return 1
@@ -1289,10 +1293,10 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
         frames = file_frames
         frames_from = ("start: the machine file's measurement_frames" if file_frames is not None
                        else "start: closed form from the design model")
-    result = _solve(data_path, calibrate_full_pose, machine, data, method=method,
+    result = _solve(data_path, calibrate_full_pose, machine, data, held=held, method=method,
                     noise=noise_model, frames=frames, fix_frames=fix_frames)
     # the machine file's legs with the frames fitted alone: "before calibration"
-    before = _solve(data_path, calibrate_full_pose, machine, data, method=method,
+    before = _solve(data_path, calibrate_full_pose, machine, data, held=held, method=method,
                     noise=noise_model, frames=frames if fix_frames
                     else result.extras["start_frames"], fix_frames=fix_frames,
                     fit_machine=False)
