@@ -482,3 +482,17 @@ def test_montecarlo_workers_end_when_the_parent_is_killed(tmp_path):
         os.kill(w, signal.SIGKILL)
     assert not left, "montecarlo workers outlived their parent"
     assert not (tmp_path / "mc").exists()        # nothing of the killed run's set
+
+
+def test_a_full_disk_names_the_users_file_and_leaves_no_temporary(tmp_path, monkeypatch):
+    def full(fd):
+        raise OSError(28, "No space left on device")
+
+    target = tmp_path / "cal.yaml"
+    target.write_text("previous")
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(InputError) as info, OutputSet([target]):
+        atomic_write_text(target, "new" * 1000)
+    assert str(info.value).startswith(f"{target}: cannot write: No space left")
+    assert ".tmp" not in str(info.value)
+    assert target.read_text() == "previous" and _temporaries(tmp_path) == []
