@@ -315,13 +315,6 @@ class OutputSet:
                         os.unlink(backup)
                     raise InputError(f"{user}: cannot write: {_describe(exc)}") from None
                 done.append((dest, backup))
-            for user, _, tmp, data in items:
-                if tmp is None:
-                    try:
-                        with open(user, "wb") as fh:
-                            fh.write(data)
-                    except OSError as exc:
-                        raise InputError(f"{user}: cannot write: {_describe(exc)}") from None
         except BaseException:
             for dest, backup in reversed(done):
                 with contextlib.suppress(OSError):
@@ -344,6 +337,14 @@ class OutputSet:
             for fd in locks:
                 os.close(fd)
             _release_signals(held)
+        # streams last, interruptible (a FIFO without a reader blocks): nothing to roll back
+        for user, _, tmp, data in items:
+            if tmp is None:
+                try:
+                    with open(user, "wb") as fh:
+                        fh.write(data)
+                except OSError as exc:
+                    raise InputError(f"{user}: cannot write: {_describe(exc)}") from None
         return [user for user, *_ in items]
 
     # -- context manager -----------------------------------------------------------------
