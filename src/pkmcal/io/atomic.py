@@ -88,8 +88,7 @@ def is_stream(path: Path) -> bool:
     """Outputs written into, never replaced: not a regular file (``/dev/null``, a FIFO, a
     terminal) or one of the process's own descriptors (``/dev/stdout``, ``/dev/fd/1``)."""
     text = str(path)
-    if text in ("/dev/stdout", "/dev/stderr", "-") or text.startswith(("/dev/fd/",
-                                                                        "/proc/self/fd/")):
+    if text in ("/dev/stdout", "/dev/stderr") or text.startswith(("/dev/fd/", "/proc/self/fd/")):
         return True
     try:
         st = os.stat(path)
