@@ -184,11 +184,11 @@ def test_atomic_write_leaves_old_file_and_no_temporary_on_failure(tmp_path, monk
         raise OSError("disk full")
 
     monkeypatch.setattr(os, "replace", boom)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(InputError, match=r"out\.txt: cannot write: disk full"):
         atomic_write_text(path, "new\n")
     assert path.read_text() == "old\n"
     assert os.listdir(tmp_path) == ["out.txt"]
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(InputError, match="does not exist"):
         atomic_write_text(tmp_path / "no" / "dir.txt", "x")
 
 
