@@ -496,3 +496,10 @@ def test_a_full_disk_names_the_users_file_and_leaves_no_temporary(tmp_path, monk
     assert str(info.value).startswith(f"{target}: cannot write: No space left")
     assert ".tmp" not in str(info.value)
     assert target.read_text() == "previous" and _temporaries(tmp_path) == []
+
+
+def test_a_name_near_the_file_system_limit_still_has_a_temporary(tmp_path):
+    long = tmp_path / ("x" * 240 + ".csv")
+    long.write_text("old")
+    atomic_write_text(long, "new")
+    assert long.read_text() == "new" and _temporaries(tmp_path) == []

@@ -54,6 +54,15 @@ def _default_mode() -> int:
     return 0o666 & ~umask
 
 
+def _temporary_prefix(dest: Path) -> str:
+    """``.<name>.pkmcal-<pid>-``: hidden, the process's own; the name shortened so that a
+    destination name near the file system's limit (255 bytes) still has a temporary."""
+    name = dest.name
+    while len(name.encode()) > 120:
+        name = name[:-1]
+    return f".{name}.{_TAG}-{os.getpid()}-"
+
+
 def _pid_alive(pid: int) -> bool:
     if pid == os.getpid():
         return True
@@ -237,8 +246,7 @@ class OutputSet:
         where = _existing_ancestor(dest.parent if str(dest.parent) else Path("."))
         remove_stale_temporaries(where)
         try:
-            fd, tmp = tempfile.mkstemp(dir=where, prefix=f".{dest.name}.{_TAG}-{os.getpid()}-",
-                                       suffix=".tmp")
+            fd, tmp = tempfile.mkstemp(dir=where, prefix=_temporary_prefix(dest), suffix=".tmp")
         except OSError as exc:
             raise InputError(f"{path}: cannot write: {_describe(exc)}") from None
         self._staged[key] = (path, dest, Path(tmp), None)
@@ -301,8 +309,8 @@ class OutputSet:
                     continue
                 backup = _NEW           # a destination that did not exist: removed on a rollback
                 if dest.exists():
-                    backup = dest.with_name(f".{dest.name}.{_TAG}-{os.getpid()}-"
-                                            f"{secrets.token_hex(4)}.bak")
+                    backup = dest.with_name(_temporary_prefix(dest) + secrets.token_hex(4)
+                                            + ".bak")
                     try:
                         os.link(dest, backup)
                     except OSError:
