@@ -503,3 +503,19 @@ def test_a_name_near_the_file_system_limit_still_has_a_temporary(tmp_path):
     long.write_text("old")
     atomic_write_text(long, "new")
     assert long.read_text() == "new" and _temporaries(tmp_path) == []
+
+
+@pytest.mark.parametrize("delay", [0.05, 0.15, 0.3, 0.6])
+def test_ctrl_c_at_any_moment_is_one_line_and_exit_130(workdir, tmp_path, delay):
+    """Also while the modules are still being imported (the console script's _entry)."""
+    (tmp_path / "data.csv").write_bytes((workdir / "data.csv").read_bytes())
+    code, err = _run_and_signal(["calibrate", "default", "data.csv", "-o", "c.yaml"],
+                                tmp_path, delay, signal.SIGINT)
+    if code < 0:                    # the signal came before Python set up its handler
+        return
+    if code == 0:                   # a fast machine finished first: the whole set is there
+        assert (tmp_path / "c.yaml").is_file() and (tmp_path / "c.json").is_file()
+        return
+    assert code == 130, (code, err)
+    assert err.strip().splitlines() == ["error: interrupted"], err
+    assert _visible(tmp_path) == ["data.csv"] and _temporaries(tmp_path) == []
