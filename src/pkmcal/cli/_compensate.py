@@ -48,42 +48,28 @@ def read_covariance(path: Path, machine, with_frames: bool = False):
     """The machine-parameter covariance of a calibration report (JSON), checked against the
     machine's parameter names, and the unidentifiable directions (n, k) when given; with
     ``with_frames`` also ``(names, matrix)`` of the machine and frame parameters together."""
-    try:
-        doc = json.loads(read_input_text(path, "calibration report"))
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not JSON (line {exc.lineno}): {exc.msg}") from None
-    cov = doc.get("covariance") if isinstance(doc, dict) else None
-    if not isinstance(cov, dict) or "matrix" not in cov or "parameters" not in cov:
+    from ..report.schema import load_report
+
+    cov = load_report(path).get("covariance")
+    if cov is None:
         raise InputError(f"{path}: no covariance section (written by pkmcal calibrate); "
                          "calibrate again with this version or leave out --report")
     names = list(machine.parameters.names)
     if list(cov["parameters"]) != names:
         raise InputError(f"{path}: the covariance is of other parameters than those of "
                          f"{getattr(machine, 'source', 'the machine')} (another machine?)")
-    try:
-        C = np.asarray(cov["matrix"], float)
-    except (TypeError, ValueError):
-        raise InputError(f"{path}: covariance.matrix is not a matrix of numbers") from None
-    if C.shape != (len(names), len(names)) or not np.all(np.isfinite(C)):
-        raise InputError(f"{path}: covariance.matrix must be {len(names)} x {len(names)} finite "
-                         "numbers")
+    C = np.asarray(cov["matrix"], float)          # shapes and finiteness: load_report
     N = None
     if cov.get("null_space") is not None:
-        try:
-            N = np.asarray(cov["null_space"], float).reshape(len(names), -1)
-        except (TypeError, ValueError):
-            raise InputError(f"{path}: covariance.null_space is not a matrix of "
-                             f"{len(names)} rows") from None
+        N = np.asarray(cov["null_space"], float)  # n rows of one length: load_report
     if not with_frames:
         return C, N
     full = cov.get("with_frames")
-    try:
-        all_names = [str(v) for v in full["parameters"]]
-        C_all = np.asarray(full["matrix"], float)
-        assert C_all.shape == (len(all_names),) * 2 and np.all(np.isfinite(C_all))
-    except (TypeError, KeyError, ValueError, AssertionError):
+    if full is None:
         raise InputError(f"{path}: no covariance of the measurement frames (covariance."
-                         "with_frames); calibrate again with this version") from None
+                         "with_frames); calibrate again with this version")
+    all_names = [str(v) for v in full["parameters"]]
+    C_all = np.asarray(full["matrix"], float)
     return C, N, (all_names, C_all)
 
 

@@ -14,8 +14,9 @@ from ._console import console
 def run_report(result: Path, output: Path) -> None:
     """``pkmcal report``: the HTML report and its JSON twin from a calibration report."""
     from ..io import atomic_write_text
-    from ..io.atomic import is_stream, read_input_text
+    from ..io.atomic import is_stream
     from ..report.html import build_html
+    from ..report.schema import load_report
 
     if output.suffix.lower() == ".json":
         raise InputError(f"{output}: the report is an HTML file (its JSON twin is written "
@@ -30,14 +31,7 @@ def run_report(result: Path, output: Path) -> None:
                              "calibrated file?); give the JSON report")
         source = found
     check_outputs([output] + ([twin] if twin else []), [result, source])
-    text = read_input_text(source, "calibration report")
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{source}: not JSON (line {exc.lineno}): {exc.msg}") from None
-    if not (isinstance(doc, dict) and doc.get("command") == "calibrate"):
-        raise InputError(f"{source}: not a calibration report of pkmcal calibrate (no "
-                         "\"command\": \"calibrate\")")
+    doc = load_report(source)
     page = build_html(doc)
     if twin is not None:
         atomic_write_text(twin, json.dumps(doc, indent=2) + "\n")

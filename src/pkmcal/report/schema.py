@@ -1,0 +1,278 @@
+"""The calibration report (the JSON twin ``pkmcal calibrate`` writes): reading and checking.
+
+``pkmcal report`` and ``pkmcal compensate`` read a report a user hands them; it may be any
+file. :func:`load_report` parses it and checks every section those commands use against a
+schema (pydantic) before any of it is used, so a wrong file is one :class:`InputError` naming
+the file and the key (``cal.json: parameters[3].std: not a number``), never a ``KeyError``
+inside the HTML builder. Sections that are not used are not checked (a newer pkmcal may add
+some); sections that are used and present must have the right shape.
+
+A report is at most :data:`MAX_REPORT_BYTES` long and :data:`MAX_DEPTH` deep (a calibration
+report of 1000 parameters is a few tens of megabytes; deep nesting would exhaust the parser's
+recursion).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
+
+from ..errors import InputError
+
+__all__ = ["MAX_DEPTH", "MAX_REPORT_BYTES", "CalibrationReport", "load_report",
+           "validate_report"]
+
+#: largest report read (bytes)
+MAX_REPORT_BYTES = 512 * 1024 * 1024
+#: deepest nesting of JSON arrays/objects accepted (pkmcal writes at most 4)
+MAX_DEPTH = 32
+
+#: a JSON number (not a bool, not a string); NaN/Infinity literals are refused
+Num = Annotated[float, Strict(), Field(allow_inf_nan=False)]
+Int = Annotated[int, Strict()]
+OptNum = Num | None
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="allow", strict=True)
+
+
+class Convergence(_Section):
+    """``convergence``: whether and how the estimator ended."""
+
+    success: bool
+    message: str = ""
+
+
+class Unidentifiable(_Section):
+    """One named group of unidentifiable directions."""
+
+    name: str
+    dimension: Int = Field(ge=0)
+    description: str = ""
+
+
+class Identifiability(_Section):
+    """``identifiability``: rank, named null directions, singular values."""
+
+    free_parameters: Int = Field(ge=0)
+    identifiable: Int = Field(ge=0)
+    unidentifiable: list[Unidentifiable] = Field(default_factory=list)
+    condition_number: OptNum = None
+    singular_values: list[Num] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _rank_at_most_count(self):
+        if self.identifiable > self.free_parameters:
+            raise ValueError(f"identifiable ({self.identifiable}) exceeds free_parameters "
+                             f"({self.free_parameters})")
+        return self
+
+
+class Parameter(_Section):
+    """One row of ``parameters``."""
+
+    name: str
+    unit: str = ""
+    nominal: OptNum = None
+    identified: OptNum = None
+    std: OptNum = Field(default=None, ge=0)
+
+
+class RatioStats(_Section):
+    """Distance-ratio statistics (percent)."""
+
+    mean: Num
+    min: Num
+    max: Num
+    std: Num
+
+
+class DistanceRatio(_Section):
+    """``distance_ratio`` (Delta tracker reports)."""
+
+    before: RatioStats | None = None
+    after: RatioStats | None = None
+    after_two_step: RatioStats | None = None
+    pairs: Int | None = None
+    pairs_from: str = ""
+
+
+class FramesCovariance(_Section):
+    """``covariance.with_frames``: machine + frame parameters together."""
+
+    parameters: list[str]
+    matrix: list[list[Num]]
+
+    @model_validator(mode="after")
+    def _square(self):
+        _check_square(self.matrix, len(self.parameters))
+        return self
+
+
+class Covariance(_Section):
+    """``covariance``: of the machine parameters (SI units), with the null space."""
+
+    parameters: list[str]
+    matrix: list[list[Num]]
+    null_space: list[list[Num]] | None = None
+    with_frames: FramesCovariance | None = None
+
+    @model_validator(mode="after")
+    def _shapes(self):
+        n = len(self.parameters)
+        _check_square(self.matrix, n)
+        if self.null_space is not None:
+            if len(self.null_space) != n or len({len(r) for r in self.null_space}) > 1:
+                raise ValueError(f"null_space must have {n} rows of one length")
+        return self
+
+
+def _check_square(matrix, n: int) -> None:
+    if len(matrix) != n or any(len(row) != n for row in matrix):
+        raise ValueError(f"matrix must be {n} x {n} (one row and column per parameter)")
+
+
+Scalar = str | bool | int | float | None
+
+
+class CalibrationReport(_Section):
+    """The sections of a calibration report that ``pkmcal report`` and ``compensate`` use."""
+
+    command: Literal["calibrate"]
+    pkmcal_report: Int | None = None
+    calibrated_file: str = ""
+    convergence: Convergence | None = None
+    identifiability: Identifiability | None = None
+    residuals: dict[str, Any] | None = None
+    normalised_residuals: list[Num | None] | None = None
+    distance_ratio: DistanceRatio | None = None
+    validation: dict[str, Any] | None = None
+    link_length: dict[str, Any] | None = None
+    registration: dict[str, Any] | None = None
+    frames: dict[str, Any] | None = None
+    identifiable_combinations: dict[str, Any] | None = None
+    parameters: list[Parameter] | None = None
+    covariance: Covariance | None = None
+    provenance: dict[str, Scalar] | None = None
+
+
+def _depth(text: str) -> int:
+    """Deepest nesting of brackets outside strings (cheap, no recursion)."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for ch in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == '"':
+                in_string = False
+        elif ch == '"':
+            in_string = True
+        elif ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+            if deepest > MAX_DEPTH:
+                return deepest
+        elif ch in "]}":
+            depth -= 1
+    return deepest
+
+
+def _key_path(loc) -> str:
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out or "(top level)"
+
+
+def _refuse_constant(name: str):
+    raise ValueError(f"{name} is not a number JSON allows")
+
+
+def validate_report(doc: Any, source: str | Path = "report") -> dict:
+    """Check a parsed calibration report; return it unchanged.
+
+    Parameters
+    ----------
+    doc : Any
+        The parsed JSON document.
+    source : str or Path, optional
+        The file's name, for messages.
+
+    Returns
+    -------
+    dict
+        ``doc``, when it is a calibration report whose used sections have the right shape.
+
+    Raises
+    ------
+    InputError
+        Naming the file and the first wrong key.
+    """
+    if not isinstance(doc, dict):
+        raise InputError(f"{source}: not a calibration report (a JSON object was expected, "
+                         f"got {type(doc).__name__})")
+    if doc.get("command") != "calibrate":
+        raise InputError(f"{source}: not a calibration report of pkmcal calibrate (no "
+                         "\"command\": \"calibrate\")")
+    try:
+        CalibrationReport.model_validate(doc)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        msg = str(err.get("msg", "invalid")).removeprefix("Value error, ")
+        if err.get("type") == "missing":
+            msg = "missing (the section needs this key)"
+        value = err.get("input")
+        shown = "" if isinstance(value, (dict, list)) else f": {value!r}"[:80]
+        raise InputError(f"{source}: {_key_path(err.get('loc', ()))}: {msg}{shown}") from None
+    return doc
+
+
+def load_report(path: str | Path, what: str = "calibration report") -> dict:
+    """Read and check a calibration report (JSON) a user gives.
+
+    Parameters
+    ----------
+    path : str or Path
+        The JSON file.
+    what : str, optional
+        What the file is, for messages.
+
+    Returns
+    -------
+    dict
+        The checked report (see :func:`validate_report`).
+
+    Raises
+    ------
+    InputError
+        Unreadable, too large, not JSON, nested too deeply, or not a calibration report.
+    """
+    from ..io.atomic import read_input_text
+
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+    except OSError:
+        size = 0
+    if size > MAX_REPORT_BYTES:
+        raise InputError(f"{path}: {size} bytes is too large for a {what} (at most "
+                         f"{MAX_REPORT_BYTES // 2**20} MiB)")
+    text = read_input_text(path, what)
+    if _depth(text) > MAX_DEPTH:
+        raise InputError(f"{path}: not a {what}: JSON nested more than {MAX_DEPTH} deep")
+    try:
+        doc = json.loads(text, parse_constant=_refuse_constant)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not JSON (line {exc.lineno}, column {exc.colno}): "
+                         f"{exc.msg}") from None
+    except ValueError as exc:  # NaN / Infinity literals
+        raise InputError(f"{path}: not a {what}: {exc}") from None
+    return validate_report(doc, path)
+

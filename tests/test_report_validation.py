@@ -1,0 +1,124 @@
+"""A calibration report a user hands to `pkmcal report` or `compensate` is checked before use:
+one line naming the file and the key, exit 2, nothing written (issue 11, item 3)."""
+
+from __future__ import annotations
+
+import copy
+import json
+
+import pytest
+from clitools import assert_input_error, digest, run
+
+from pkmcal.errors import InputError
+from pkmcal.report.schema import MAX_DEPTH, load_report, validate_report
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    """A real calibration (default Hexa Slide, simulated constraint-link data)."""
+    d = tmp_path_factory.mktemp("cal")
+    assert run("simulate", "default", "--scenario", "constraint-link", "--poses", "60",
+               "-o", "d.csv", cwd=d).returncode == 0
+    proc = run("calibrate", "default", "d.csv", "-o", "cal.yaml", cwd=d)
+    assert proc.returncode == 0, proc.stderr
+    return d, json.loads((d / "cal.json").read_text())
+
+
+def test_a_real_report_passes_unchanged(calibrated):
+    _, doc = calibrated
+    assert validate_report(copy.deepcopy(doc), "cal.json") == doc
+
+
+def _set(path, value):
+    def edit(doc):
+        node = doc
+        for key in path[:-1]:
+            node = node[key]
+        node[path[-1]] = value
+    return edit
+
+
+def _drop(path):
+    def edit(doc):
+        node = doc
+        for key in path[:-1]:
+            node = node[key]
+        del node[path[-1]]
+    return edit
+
+
+#: (edit, words the message must contain)
+CASES = {
+    "std as text": (_set(("parameters", 3, "std"), "abc"), "parameters[3].std"),
+    "negative std": (_set(("parameters", 0, "std"), -1.0), "parameters[0].std"),
+    "name not text": (_set(("parameters", 1, "name"), 7), "parameters[1].name"),
+    "parameters not a list": (_set(("parameters",), {"a": 1}), "parameters"),
+    "no success flag": (_drop(("convergence", "success")), "convergence.success"),
+    "success as text": (_set(("convergence", "success"), "yes"), "convergence.success"),
+    "rank above count": (_set(("identifiability", "identifiable"), 999), "identifiability"),
+    "rank as float": (_set(("identifiability", "identifiable"), 48.5),
+                      "identifiability.identifiable"),
+    "singular value text": (_set(("identifiability", "singular_values", 2), "x"),
+                            "identifiability.singular_values[2]"),
+    "covariance not square": (lambda d: d["covariance"]["matrix"].pop(), "covariance"),
+    "covariance row short": (lambda d: d["covariance"]["matrix"][5].pop(), "covariance"),
+    "covariance entry text": (_set(("covariance", "matrix", 0, 0), "1"),
+                              "covariance.matrix[0][0]"),
+    "null space ragged": (lambda d: d["covariance"]["null_space"][0].append(0.0),
+                          "covariance"),
+    "normalised residual text": (_set(("normalised_residuals", 0), "0.1"),
+                                 "normalised_residuals[0]"),
+    "provenance nested": (_set(("provenance", "command"), {"a": [1]}), "provenance.command"),
+    "another command": (_set(("command",), "simulate"), "not a calibration report"),
+    "no command": (_drop(("command",)), "not a calibration report"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_a_wrong_section_names_its_key(calibrated, name):
+    _, doc = calibrated
+    edit, words = CASES[name]
+    bad = copy.deepcopy(doc)
+    edit(bad)
+    with pytest.raises(InputError) as err:
+        validate_report(bad, "cal.json")
+    msg = str(err.value)
+    assert msg.startswith("cal.json: ") and words in msg, msg
+    assert "\n" not in msg
+
+
+@pytest.mark.parametrize("text,words", [
+    ("not json at all", "not JSON (line 1"),
+    ("", "not JSON"),
+    ("[1, 2]", "a JSON object was expected"),
+    ('{"command": "calibrate", "parameters": [{"name": "a", "std": NaN}]}',
+     "NaN is not a number"),
+    ('{"command": "calibrate", "x": Infinity}', "Infinity is not a number"),
+    ("[" * 200_000 + "]" * 200_000, f"nested more than {MAX_DEPTH} deep"),
+])
+def test_unreadable_reports_are_refused(tmp_path, text, words):
+    path = tmp_path / "r.json"
+    path.write_text(text)
+    with pytest.raises(InputError) as err:
+        load_report(path)
+    assert words in str(err.value) and str(err.value).startswith(str(path))
+
+
+@pytest.mark.parametrize("command", ["report", "compensate"])
+def test_the_commands_refuse_a_bad_report_naming_the_key(calibrated, tmp_path, command):
+    d, doc = calibrated
+    bad = copy.deepcopy(doc)
+    bad["covariance"]["matrix"][3][4] = "oops"
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    (tmp_path / "cal.yaml").write_text((d / "cal.yaml").read_text())
+    (tmp_path / "t.csv").write_text("x_mm,y_mm,z_mm,psi_deg,theta_deg,phi_deg\n"
+                                    "0,0,300,0,0,0\n10,0,300,0,0,0\n")
+    before = digest(tmp_path / "bad.json")
+    if command == "report":
+        proc = run("report", "bad.json", "-o", "out.html", cwd=tmp_path)
+    else:
+        proc = run("compensate", "cal.yaml", "t.csv", "--report", "bad.json", "-o", "c.csv",
+                   cwd=tmp_path)
+    assert_input_error(proc, "bad.json", "covariance.matrix[3][4]")
+    assert digest(tmp_path / "bad.json") == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.json", "cal.yaml", "t.csv"]
