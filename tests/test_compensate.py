@@ -122,7 +122,8 @@ def test_bad_input(cli, tmp_path):
     assert_input_error(cli("compensate", "default", "t.csv", "--report", bad, "-o", "c.csv"),
                        "bad.json")
     other = tmp_path / "other.json"
-    other.write_text(json.dumps({"command": "calibrate", "covariance": {"parameters": ["a"], "matrix": [[1.0]]}}))
+    other.write_text(json.dumps({"command": "calibrate",
+                                 "covariance": {"parameters": ["a"], "matrix": [[1.0]]}}))
     assert_input_error(cli("compensate", "default", "t.csv", "--report", other, "-o",
                            "c.csv"), "other parameters")
     assert_input_error(cli("compensate", "default", "t.csv", "--nominal",

@@ -7,8 +7,8 @@ import copy
 import json
 
 import pytest
-from clitools import assert_input_error, digest, run
 
+from clitools import assert_input_error, digest, run
 from pkmcal.errors import InputError
 from pkmcal.report.schema import MAX_DEPTH, load_report, validate_report
 
