@@ -21,6 +21,7 @@ from .errors import (
     pose_error,
     trajectory_errors,
     trajectory_from_poses,
+    write_errors_csv,
 )
 from .tolerance import (
     Tolerances,
@@ -39,5 +40,5 @@ __all__ = [
     "link_forces", "linear_covariance", "monte_carlo", "platform_wrench", "pose_accuracy",
     "pose_error", "pose_errors", "sensitivity", "stewart_tolerances", "tolerances",
     "trajectory_errors", "trajectory_from_poses", "workspace_poses", "worst_case",
-    "machine_workspace",
+    "machine_workspace", "write_errors_csv",
 ]

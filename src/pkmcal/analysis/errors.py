@@ -545,6 +545,59 @@ def trajectory_errors(machine, trajectory: Trajectory, mass: float = 4.8,
     return TrajectoryErrors(trajectory, forces, wrench, errors)
 
 
+#: columns of the error table (SPEC 6, ``pkmcal errors``) after the first (``angle_deg`` on a
+#: circle, else ``t_s``): leg forces, tension positive, then the pose error
+ERRORS_FORCE_COLUMNS = tuple(f"f{i}_N" for i in range(1, 7))
+ERRORS_POSE_COLUMNS = ("dx_um", "dy_um", "dz_um", "drx_urad", "dry_urad", "drz_urad")
+
+
+def write_errors_csv(path, result: TrajectoryErrors, envelope_path=None) -> list:
+    """Write the error table of SPEC 6 (``pkmcal errors -o``) and, optionally, its envelope.
+
+    ``path`` gets exactly the SPEC 6 columns: ``angle_deg`` (a circle, :func:`circle_trajectory`)
+    or ``t_s``, then ``f1_N..f6_N`` (tension positive) and ``dx_um, dy_um, dz_um, drx_urad,
+    dry_urad, drz_urad``. ``envelope_path`` gets, per pose, the ``_min``/``_max`` bounds of
+    each error component and ``undetermined_legs`` (1-based, space separated) where a leg
+    force is too small to tell the clearance side. Files are written atomically (staged in the
+    running output set, if any), the envelope first.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The error table.
+    result : TrajectoryErrors
+        Of :func:`trajectory_errors`.
+    envelope_path : str or os.PathLike, optional
+        The envelope table; None writes none.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files written, the error table first.
+    """
+    from ..io.csv_io import write_table
+
+    path_ = result.trajectory
+    e = result.errors
+    first = (("angle_deg", np.degrees(path_.angle)) if path_.angle is not None
+             else ("t_s", path_.t))
+    scale = 1e6                                              # m -> um, rad -> urad
+    header = [first[0], *ERRORS_FORCE_COLUMNS, *ERRORS_POSE_COLUMNS]
+    columns = [first[1], *(result.forces.T + 0.0), *(e.dx * scale).T + 0.0]
+    written = []
+    if envelope_path is not None:
+        env_header, env_columns = [first[0]], [first[1]]
+        for j, name in enumerate(ERRORS_POSE_COLUMNS):
+            base, unit = name.rsplit("_", 1)
+            env_header += [f"{base}_min_{unit}", f"{base}_max_{unit}"]
+            env_columns += [e.dx_min[:, j] * scale + 0.0, e.dx_max[:, j] * scale + 0.0]
+        env_header.append("undetermined_legs")
+        env_columns.append([" ".join(str(i + 1) for i in np.flatnonzero(row))
+                            for row in e.undetermined])
+        written.append(write_table(envelope_path, env_header, env_columns))
+    return [write_table(path, header, columns), *written]
+
+
 @dataclass
 class ClearanceMap:
     """Clearance pose errors over a horizontal slice of the workspace.

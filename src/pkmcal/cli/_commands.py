@@ -1548,11 +1548,8 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
 # errors (seed 003: joint clearance under loads along a trajectory)
 # --------------------------------------------------------------------------------------------
 
-#: columns of ``pkmcal errors`` (SPEC 6), after the first (angle_deg or t_s)
-ERRORS_FORCE_COLUMNS = tuple(f"f{i}_N" for i in range(1, 7))
 #: the plots of ``pkmcal errors --plot DIR`` (DIR/<name>.png)
 ERRORS_PLOTS = ("link_forces", "pose_errors", "error_map")
-ERRORS_POSE_COLUMNS = ("dx_um", "dy_um", "dz_um", "drx_urad", "dry_urad", "drz_urad")
 
 
 def _errors_machine(spec: str):
@@ -1683,33 +1680,14 @@ def run_errors(machine_spec: str, output: Path, trajectory: str | None,
 
     result = err.trajectory_errors(machine, path, mass_kg, f_cut, c_base, c_platform, backlash,
                                    tol_n)
-    e = result.errors
-    first = ("angle_deg", np.degrees(path.angle)) if trajectory == "circle" else \
-        ("t_s", path.t)
-    scale = 1e6                                              # m -> um, rad -> urad
-    undetermined = [" ".join(str(i + 1) for i in np.flatnonzero(row)) for row in e.undetermined]
-    # the SPEC 6 columns exactly; the envelope (where a link force is too small to tell the
-    # clearance side) goes to a second file beside it
-    header = [first[0], *ERRORS_FORCE_COLUMNS, *ERRORS_POSE_COLUMNS]
-    columns = [first[1], *(result.forces.T + 0.0), *(e.dx * scale).T + 0.0]
-    env_header, env_columns = [first[0]], [first[1]]
-    for j, name in enumerate(ERRORS_POSE_COLUMNS):
-        base, unit = name.rsplit("_", 1)
-        env_header += [f"{base}_min_{unit}", f"{base}_max_{unit}"]
-        env_columns += [e.dx_min[:, j] * 1e6 + 0.0, e.dx_max[:, j] * 1e6 + 0.0]
-    env_header.append("undetermined_legs")
-    env_columns.append(undetermined)
-
     # -- outputs, at the very end -----------------------------------------------------------
     plots = []
     if plot is not None:
         plots = _errors_plots(plot, machine, path, result, trajectory, mass_kg, f_cut, c_base,
                               c_platform, backlash, tol_n)
-    from ..io import write_table
-
-    if envelope_path is not None:
-        write_table(envelope_path, env_header, env_columns)
-    write_table(output, header, columns)
+    # the SPEC 6 columns exactly; the envelope (where a link force is too small to tell the
+    # clearance side) goes to a second file beside it
+    err.write_errors_csv(output, result, envelope_path)
     commit_outputs()
     _print_errors(machine, where, result, trajectory, mass_kg, f_cut, c_base, c_platform,
                   backlash, tol_n, output, plots)
