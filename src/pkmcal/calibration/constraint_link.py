@@ -634,14 +634,19 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
                                                        estimate_link_length}
     problem = PROBLEMS[method](machine, data, sigma_m, **kwargs)
     n_id = int(problem.parameters.free.sum()) - 6
-    n_rows = len(data) * (machine.n_joints - 5 if method == "ml" else 1)
+    distinct, repeats = data.distinct()
+    n_rows = distinct * (machine.n_joints - 5 if method == "ml" else 1)
     if n_rows < n_id:
-        raise InputError(f"{data.source}: {len(data)} measurements give {n_rows} independent "
-                         f"equations, fewer than the {n_id} identifiable parameters")
+        what = (f"{len(data)} rows, {distinct} distinct ({repeats}),"
+                if repeats else f"{len(data)} measurements")
+        raise InputError(f"{data.source}: {what} give {n_rows} independent equations, fewer "
+                         f"than the {n_id} identifiable parameters; measure more poses spread "
+                         "over the sphere with varied orientation")
     if per_chain:
         result = _per_chain_sweeps(problem, max_sweeps, rtol, **options)
     else:
         result = levenberg_marquardt(problem, rtol=rtol, **{"max_std": MAX_STD, **options})
+    _refuse_degenerate(data, result, n_id, repeats)
     um, Lc = problem.split(result.x)
     calibrated = machine.with_parameters(um)
     calibrated.constraint_link_length = float(Lc)
@@ -660,6 +665,21 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         + name_weak_directions(result, problem.parameters),
     )
     return result
+
+
+def _refuse_degenerate(data, result, n_id: int, repeats: str) -> None:
+    """Refuse poses that leave more than the named frames unidentifiable (like collinear
+    tracker points): the estimate would be an arbitrary member of a family of geometries."""
+    null = 0 if result.null_space is None else result.null_space.shape[1]
+    free = int(result.parameters.free.sum()) if result.parameters is not None else 0
+    extra = null - (free - n_id)
+    if extra <= 0:
+        return
+    why = f" ({repeats})" if repeats else ""
+    raise InputError(f"{data.source}: the {len(data)} poses{why} are degenerate: {extra} "
+                     f"direction(s) beyond the frames' are not identifiable (only "
+                     f"{free - null} of {n_id}); measure more poses spread over the sphere with "
+                     "varied orientation")
 
 
 def _per_chain_sweeps(problem, max_sweeps, rtol, **options):

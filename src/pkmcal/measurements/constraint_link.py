@@ -56,6 +56,29 @@ class ConstraintLinkData:
     def __len__(self) -> int:
         return len(self.q)
 
+    def distinct(self) -> tuple[int, str]:
+        """How many rows are distinct measurements, and the repeated rows in words.
+
+        Returns
+        -------
+        count : int
+            Number of distinct rows (readings and passive joint all equal count once).
+        repeats : str
+            E.g. ``"rows 3, 4 repeat row 2"`` (file rows), empty when every row is distinct.
+        """
+        key = self.q if self.passive is None else np.column_stack([self.q, self.passive])
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        inverse = np.ravel(inverse)
+        copies = np.flatnonzero(first[inverse] != np.arange(len(key)))
+        if not copies.size:
+            return len(first), ""
+        shown = ", ".join(str(int(self.rows[i])) for i in copies[:5])
+        more = f" and {copies.size - 5} more" if copies.size > 5 else ""
+        origin = sorted({int(self.rows[first[inverse[i]]]) for i in copies})
+        origins = ", ".join(map(str, origin[:3])) + (" ..." if len(origin) > 3 else "")
+        return len(first), (f"rows {shown}{more} repeat row{'s' if len(origin) > 1 else ''} "
+                            f"{origins}")
+
     def subset(self, mask) -> ConstraintLinkData:
         """The measurements selected by a boolean mask or index array.
 
