@@ -11,6 +11,11 @@ Seed 001 on our default Delta (:func:`delta_demo`): random errors of about 1 mm 
 grid with Leica-type noise; the errors are identified jointly with the tracker pose and with
 the paper's two-step method; both are checked on held-out points (a 4x4x3 grid offset from
 the calibration grid) and by the distance ratio of neighbouring points (the paper's Fig. 6).
+
+Seed 003 on the embedded cubic 6-UPU device (:func:`clearance_demo`): the paper's case study,
+the platform on a circle r = 100 mm at z = 410 mm at 10 rad/s, 4.8 kg, 500 N cutting force
+down, joint clearance c_b = 10 um; the link forces (Fig. 6) and the pose errors (Fig. 7) along
+the circle, as ``pkmcal errors cubic`` computes them.
 """
 
 from __future__ import annotations
@@ -143,8 +148,10 @@ def run_demo(outdir: Path, quick: bool = False, rng=0,
                                           outdir / "residuals.png"))
     out.figures = {"fig5": fig5, "fig6": fig6, "fig6_lc_estimated": fig6_est}
     delta = delta_demo(outdir, out)
+    clearance = clearance_demo(outdir, out, samples=CLEARANCE_QUICK_SAMPLES if quick
+                               else CLEARANCE_CASE["samples"])
     summary = {
-        "rows": out.rows, "notes": out.notes, "delta": delta,
+        "rows": out.rows, "notes": out.notes, "delta": delta, "clearance": clearance,
         "fig5_noise": [p.__dict__ for p in fig5],
         "fig6_link_length_error": [p.__dict__ for p in fig6],
         "fig6_link_length_error_lc_estimated": [p.__dict__ for p in fig6_est],
@@ -269,6 +276,89 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
         "identifiable": int(joint.rank), "free_parameters": free,
         "unidentifiable": [d.as_dict() for d in joint.extras["unidentifiable"]],
         "true_tracker_pose": {"rotation": pose[0].tolist(), "translation_m": pose[1].tolist()},
+    }
+
+
+#: seed 003 case study (SPEC 2.3): circle radius (m), height (m), angular speed (rad/s),
+#: samples, platform mass (kg), cutting force (N), joint clearance c_b (m)
+CLEARANCE_CASE = {"radius": 0.1, "height": 0.41, "omega": 10.0, "samples": 360, "mass": 4.8,
+                  "cutting_force": (0.0, 0.0, -500.0), "clearance": 10e-6}
+#: samples on the circle in quick mode (every 5 deg: 90 and 270 deg are still samples)
+CLEARANCE_QUICK_SAMPLES = 72
+
+
+def clearance_demo(outdir: Path, out: DemoResult, samples: int = CLEARANCE_CASE["samples"]
+                   ) -> dict:
+    """Seed 003 on the embedded cubic 6-UPU device: link forces and clearance pose errors
+    along the paper's circle; appends notes and files to ``out`` and returns the numbers (for
+    ``summary.json``).
+
+    Writes ``cubic_errors.csv`` (the columns of ``pkmcal errors``, SPEC 6), its
+    ``cubic_errors_envelope.csv`` and the plots ``cubic_link_forces.png`` (Fig. 6) and
+    ``cubic_pose_errors.png`` (Fig. 7).
+    """
+    from .analysis import errors as err
+    from .machines import cubic_6upu
+    from .report import plots
+
+    case = CLEARANCE_CASE
+    machine = cubic_6upu()
+    path = err.circle_trajectory(case["radius"], case["height"], case["omega"], samples)
+    cb = case["clearance"]
+    result = err.trajectory_errors(machine, path, case["mass"], case["cutting_force"], cb)
+    f, e = result.forces, result.errors
+    angle = np.degrees(path.angle)
+    um = 1e6
+
+    def crossings(values) -> list[float]:
+        return [float(c) for c in err.zero_crossings(angle, values, 360.0)]
+
+    def at(values) -> str:
+        return ", ".join(f"{c:.1f}" for c in values) + " deg" if values else "nowhere"
+
+    links = [{"min_N": float(f[:, i].min()), "max_N": float(f[:, i].max()),
+              "changes_side_deg": crossings(f[:, i])} for i in range(6)]
+    pose = {name: {"min": float(e.dx[:, j].min() * um), "max": float(e.dx[:, j].max() * um),
+                   "changes_sign_deg": crossings(e.dx[:, j])}
+            for j, name in enumerate(err.ERROR_COMPONENTS)}
+    n_und = int(np.any(e.undetermined, axis=1).sum())
+    fc = case["cutting_force"]
+    out.notes.append(
+        f"cubic 6-UPU (seed 003, as pkmcal errors cubic): circle r = {case['radius'] * 1e3:g} "
+        f"mm at z = {case['height'] * 1e3:g} mm, {case['omega']:g} rad/s, {samples} samples; "
+        f"{case['mass']:g} kg, {-fc[2]:g} N cutting force down, joint clearance c_b = "
+        f"{cb * um:g} um")
+    for i, link in enumerate(links):
+        side = (f"changes side at {at(link['changes_side_deg'])}"
+                if link["changes_side_deg"] else
+                "compression all along" if link["max_N"] < 0 else
+                "tension all along" if link["min_N"] > 0 else "no change of side")
+        out.notes.append(f"  link {i + 1} force (tension +): {link['min_N']:.1f} .. "
+                         f"{link['max_N']:.1f} N, {side}")
+    out.notes.append(
+        f"cubic: dx changes sign at {at(pose['dx']['changes_sign_deg'])} (links 4-5 change "
+        f"side at {at(links[3]['changes_side_deg'])}), dy at "
+        f"{at(pose['dy']['changes_sign_deg'])} (link 6 at {at(links[5]['changes_side_deg'])})")
+    out.notes.append(
+        "cubic: position error " + ", ".join(
+            f"{n} {pose[n]['min']:.1f} .. {pose[n]['max']:.1f} um" for n in ("dx", "dy", "dz"))
+        + f"; 2 c_b = {2 * cb * um:g} um"
+        + (f"; {n_und} of {samples} samples with a link force within 1 N of zero (envelope "
+           "in cubic_errors_envelope.csv)" if n_und else ""))
+
+    out.files += err.write_errors_csv(outdir / "cubic_errors.csv", result,
+                                      outdir / "cubic_errors_envelope.csv")
+    out.files.append(plots.plot_link_forces(
+        angle, f, outdir / "cubic_link_forces.png",
+        title="Seed 003 Fig. 6: leg forces on the circle, cubic 6-UPU (tension positive)",
+        undetermined=e.undetermined))
+    out.files.append(plots.plot_pose_errors(
+        angle, e.dx, e.dx_min, e.dx_max, outdir / "cubic_pose_errors.png",
+        title=f"Seed 003 Fig. 7: pose error from joint clearance {cb * um:g} um, cubic 6-UPU"))
+    return {
+        "case": {**case, "samples": samples, "cutting_force": list(fc)},
+        "link_forces_N": links, "pose_error_um_urad": pose,
+        "samples_with_undetermined_side": n_und,
     }
 
 

@@ -174,7 +174,7 @@ def run_demo(outdir: Path) -> None:
     commit_outputs()
     out = console()
     table = _table("quantity", "before calibration", "after calibration",
-                   title="pkmcal demo (embedded Hexa Slide and Delta)")
+                   title="pkmcal demo: calibration (embedded Hexa Slide and Delta)")
     for row in result.rows:
         table.add_row(*map(str, row))
     out.print(table)
