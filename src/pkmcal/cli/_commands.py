@@ -8,7 +8,6 @@ only at the very end, atomically; problems are raised as :class:`~pkmcal.errors.
 from __future__ import annotations
 
 import dataclasses
-import datetime
 import json
 import math
 from pathlib import Path
@@ -42,6 +41,7 @@ from ..io.machine_file import DEFAULT_UNITS
 from ..measurements.deviations import DEFAULT_DEVIATIONS
 from ..measurements.deviations import deviations as _deviations
 from ..planning.scenarios import SCENARIO_OF as DEFAULT_SCENARIO
+from ..report.provenance import run_date
 from ..units import ANGLE, LENGTH, parse_quantity
 from ._console import console, error, warning
 
@@ -637,7 +637,7 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
     home_P, home_R = machine.home
     if np.all(np.isfinite(calibrated.ik(home_P, home_R))):
         calibrated.home = (home_P, home_R)
-    date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+    date = run_date()
     nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
     nominal_of["link.length"] = data.link_length
     params = _parameter_table(result, nominal_of, units)
@@ -1053,7 +1053,7 @@ def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path
     R0, t0 = result.extras["start_registration"]
     kept = np.asarray(result.extras["kept"], bool)
     outlier_rows = [int(v) for v in result.extras["outlier_rows"]]
-    date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+    date = run_date()
 
     nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
     nominal_of.update(zip(("tracker.rx", "tracker.ry", "tracker.rz"), (0.0, 0.0, 0.0),
@@ -1311,7 +1311,7 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
     frames_id = result.extras["frames"]
     err_after = full_pose_errors(calibrated, frames_id, data)
     err_before = full_pose_errors(machine, before.extras["frames"], data)
-    date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+    date = run_date()
 
     from ..io.machine_file import reading_factor
 

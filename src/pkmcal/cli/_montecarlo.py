@@ -8,7 +8,6 @@ atomically, and prints a summary table.
 
 from __future__ import annotations
 
-import datetime
 import json
 import math
 import re
@@ -18,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..report.provenance import run_date
 from ..units import parse_quantity
 from ._commands import (
     _finite_or_none,
@@ -147,7 +147,7 @@ def _write_outputs(result, outdir: Path, machine_spec: str) -> list[Path]:
     report = {
         "pkmcal_report": 1,
         "command": "montecarlo",
-        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "date": run_date(),
         "machine_file": str(machine_spec),
         "settings": result.settings.describe(),
         "variable": result.variable,
