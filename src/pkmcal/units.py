@@ -28,6 +28,19 @@ QUANTITIES: dict[str, dict[str, float]] = {
     "time": TIME,
 }
 
+#: largest magnitude of a command-line number, SI, per quantity: beyond these a value is a typo
+#: (``--noise 1e308``), refused naming the option before it overflows a computation. Checks
+#: against the machine's own scale (a noise of a tenth of the machine) come later, where the
+#: machine is known.
+MAX_MAGNITUDE: dict[str, float] = {
+    "length": 1e6,            # 1000 km
+    "angle": 1e3,             # 160 turns
+    "force": 1e9,             # N
+    "mass": 1e7,              # kg
+    "angular_speed": 1e5,     # rad/s (about a million rpm)
+    "time": 1e9,              # s (30 years)
+}
+
 #: suffixes allowed in CSV column names (SPEC 6), with their quantity
 COLUMN_SUFFIXES: dict[str, str] = {
     "m": "length", "mm": "length", "um": "length",
@@ -109,18 +122,22 @@ def parse_quantity(text: str, quantity: str, what: str = "value") -> float:
     Raises
     ------
     InputError
-        When the text is not a number or the unit is not one of ``quantity``.
+        When the text is not a number, the unit is not one of ``quantity`` or the magnitude
+        exceeds :data:`MAX_MAGNITUDE`.
     """
     m = _NUMBER.match(str(text))
     if not m:
         raise InputError(f"{what}: cannot read {text!r} as a number with a {quantity} unit")
     value, unit = float(m.group(1)), m.group(2)
-    if not unit:
-        return value
     try:
-        return value * factor(unit, quantity)
+        si = value * factor(unit, quantity) if unit else value
     except InputError as exc:
         raise InputError(f"{what}: {exc}") from None
+    limit = MAX_MAGNITUDE[quantity]
+    if not abs(si) <= limit:
+        raise InputError(f"{what}: {text} is out of range for a {quantity.replace('_', ' ')} "
+                         f"(at most {limit:g} in SI units; a bare number is SI)")
+    return si
 
 
 def parse_vector(text: str, quantity: str, n: int, what: str = "value") -> list[float]:

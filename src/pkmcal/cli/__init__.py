@@ -741,6 +741,7 @@ def _run(args: list[str]) -> None:
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``pkmcal`` console script."""
     import signal
+    import warnings
 
     # Batched small matrices: threaded BLAS costs ~10x in start-up and synchronisation.
     for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -749,6 +750,12 @@ def main(argv: list[str] | None = None) -> None:
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), _on_signal)
     args = _hoist_quiet(list(sys.argv[1:] if argv is None else argv))
+    if not os.environ.get("PKMCAL_DEBUG"):
+        # numpy's floating-point warnings (overflow, invalid value) and library warnings are
+        # for developers (PKMCAL_DEBUG=1 shows them): the user's numbers are checked up front
+        # against absolute limits and the machine's scale, so none should arise, and pkmcal's
+        # own warnings go through the console
+        warnings.simplefilter("ignore")
     try:
         _run(args)
     except _Terminated as exc:
