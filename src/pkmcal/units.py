@@ -135,8 +135,8 @@ def parse_quantity(text: str, quantity: str, what: str = "value") -> float:
         raise InputError(f"{what}: {exc}") from None
     limit = MAX_MAGNITUDE[quantity]
     if not abs(si) <= limit:
-        raise InputError(f"{what}: {text} is out of range for a {quantity.replace('_', ' ')} "
-                         f"(at most {limit:g} in SI units; a bare number is SI)")
+        raise InputError(f"{what}: {text} is out of range ({quantity.replace('_', ' ')} "
+                         f"at most {limit:g} in SI units; a bare number is SI)")
     return si
 
 
