@@ -108,7 +108,8 @@ def test_gain_is_file_length_unit_per_reading_unit():
      "legs: expected exactly 6 legs, got 5"),
     (lambda t: t.replace("l0: 0.0", "l0: abc", 1), "legs[0].l0: not a number: 'abc' (line 5)"),
     (lambda t: t.replace("gain: 1.0", "gain: 0", 1), "legs[0].gain: must not be 0"),
-    (lambda t: t.replace(", gain: 1.0", "", 1), "legs[0].gain: missing key (line 5)"),
+    (lambda t: t.replace("gain: 1.0", "gain: one", 1),
+     "legs[0].gain: not a number: 'one' (line 5)"),  # without gain: 1 (SPEC 7)
     (lambda t: t.replace("l0: 0.0", "l0: 0.0, length: 3", 1),
      "legs[0].length: unknown key (allowed here: base, platform, l0, gain)"),
     (lambda t: t.replace("platform: [", "platform: [1, ", 1),

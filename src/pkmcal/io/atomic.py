@@ -494,9 +494,11 @@ def atomic_write_text(path, text: str, encoding: str = "utf-8") -> Path:
     return atomic_write_bytes(path, text.encode(encoding))
 
 
-def read_input_text(path, kind: str) -> str:
+def read_input_text(path, kind: str, max_bytes: int | None = None) -> str:
     """Text of an input file (UTF-8, BOM allowed); :class:`InputError` naming the file when it
     is missing, a directory or not text. ``kind`` says what was expected ("machine file").
+    With ``max_bytes``, a larger file is refused before it is read (at most ``max_bytes + 1``
+    bytes are ever read, also from a device or a pipe).
     Inside an :class:`OutputSet` the file becomes one of the command's inputs: no output may
     replace it."""
     path = Path(path)
@@ -504,7 +506,16 @@ def read_input_text(path, kind: str) -> str:
     if outputs is not None:
         outputs.add_input(path)
     try:
-        return path.read_text(encoding="utf-8-sig")
+        if max_bytes is None:
+            return path.read_text(encoding="utf-8-sig")
+        with open(path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            data = f.read(max_bytes + 1) if size <= max_bytes else b""
+            if size > max_bytes or len(data) > max_bytes:
+                shown = f"{size} bytes" if size > max_bytes else f"more than {max_bytes} bytes"
+                raise InputError(f"{path}: the {kind} is {shown}; a {kind} is at most "
+                                 f"{max_bytes} bytes (is this the right file?)")
+        return data.decode("utf-8-sig")
     except FileNotFoundError:
         raise InputError(f"{path}: {kind} not found") from None
     except IsADirectoryError:

@@ -91,6 +91,15 @@ from pydantic_core import PydanticCustomError
 
 from ..errors import InputError
 from ..kinematics import euler_from_matrix, matrix_from_euler
+from ..limits import (
+    MAX_ANGLE,
+    MAX_LENGTH,
+    MAX_LENGTH_RATIO,
+    MAX_MACHINE_FILE_BYTES,
+    MAX_YAML_DEPTH,
+    MAX_YAML_NODES,
+    MIN_GAIN,
+)
 from ..machines import (
     Delta,
     HexaSlide,
@@ -118,8 +127,80 @@ class _DuplicateKey(yaml.MarkedYAMLError):
     pass
 
 
+class _Refused(yaml.MarkedYAMLError):
+    """A file refused while it is composed (too deep, too many values): ``problem`` says why,
+    ``context`` holds the key path."""
+
+
+def _path_text(path) -> str:
+    """``chains[3].alpha`` of a composer path (shortened when deep)."""
+    parts = list(path)
+    text = _key_path(parts[:6])
+    if len(parts) > 6:
+        text += "..."
+    return text
+
+
 class _Loader(yaml.SafeLoader):
-    """Safe loader that reads ``1e-3`` as a float and refuses duplicate keys."""
+    """Safe loader that reads ``1e-3`` as a float, refuses duplicate keys and bounds the
+    document before it is constructed: nesting depth (:data:`~pkmcal.limits.MAX_YAML_DEPTH`)
+    and values with aliases expanded (:data:`~pkmcal.limits.MAX_YAML_NODES`); an alias to
+    the collection that holds it is refused. Aliased nodes are shared in the composed graph,
+    so the expanded size is counted with one size per node, never by walking the expansion.
+    """
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._path: list = []
+        self._depth = 0
+        self._expanded = 0
+        self._sizes: dict[int, int] = {}
+
+    def _refuse(self, what: str, mark):
+        raise _Refused(_path_text(self._path), None, what, mark)
+
+    def _count(self, n: int, mark) -> None:
+        self._expanded += n
+        if self._expanded > MAX_YAML_NODES:
+            self._refuse(f"more than {MAX_YAML_NODES} values with the aliases (*name) "
+                         "expanded; a machine file has a few hundred (nested anchors and "
+                         "aliases are not accepted)", mark)
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            mark = self.peek_event().start_mark
+            node = super().compose_node(parent, index)
+            size = self._sizes.get(id(node))
+            if size is None:
+                self._refuse("the alias refers to a collection that contains it (a recursive "
+                             "alias)", mark)
+            self._count(size, mark)
+            return node
+        if isinstance(parent, yaml.MappingNode):
+            part = index.value if isinstance(index, yaml.ScalarNode) else None
+            pushed = index is not None
+        else:
+            part, pushed = index, parent is not None
+        if pushed:
+            self._path.append(part if part is not None else "?")
+        mark = self.peek_event().start_mark
+        if self._depth >= MAX_YAML_DEPTH:
+            self._refuse(f"nested more than {MAX_YAML_DEPTH} levels deep; a machine file "
+                         "needs a few", mark)
+        self._count(1, mark)
+        self._depth += 1
+        node = super().compose_node(parent, index)
+        self._depth -= 1
+        if isinstance(node, yaml.SequenceNode):
+            children = node.value
+        elif isinstance(node, yaml.MappingNode):
+            children = [n for pair in node.value for n in pair]
+        else:
+            children = []
+        self._sizes[id(node)] = 1 + sum(self._sizes[id(c)] for c in children)
+        if pushed:
+            self._path.pop()
+        return node
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
@@ -172,6 +253,11 @@ def _parse_yaml(text: str, source: str):
             raise InputError(f"{source}: the file is empty (expected a machine description "
                              "starting with 'pkmcal: 1')")
         data = loader.construct_document(node)
+    except _Refused as exc:
+        line = exc.problem_mark.line + 1
+        raise InputError(f"{source}: {exc.context}: {exc.problem} (line {line})") from None
+    except RecursionError:       # not reached within MAX_YAML_DEPTH; never a traceback
+        raise InputError(f"{source}: nested too deeply to be a machine file") from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
@@ -337,12 +423,13 @@ class Readings(_Strict):
 
 class StewartLeg(_Strict):
     """One leg: base joint (base frame), platform joint (platform frame), length at zero
-    reading ``l0`` and ``gain`` (file length unit per reading unit): ``L = l0 + gain r``."""
+    reading ``l0`` and ``gain`` (file length unit per reading unit): ``L = l0 + gain r``.
+    Without ``l0`` and ``gain`` the leg reads its length (``l0 = 0``, ``gain = 1``, SPEC 7)."""
 
     base: Vector3
     platform: Vector3
-    l0: Number
-    gain: Number
+    l0: Number = 0.0
+    gain: Number = 1.0
 
     @field_validator("gain")
     @classmethod
@@ -407,6 +494,11 @@ class MachineFormat:
     counts: dict[str, int]
     home_text: str = "[x, y, z, psi, theta, phi]"
     hints: dict[str, str] | None = None
+    #: key pattern -> "length", "angle" or "gain" (``"*"`` matches any key or index); ``home``
+    #: is known to every format
+    kinds: dict[tuple, str] | None = None
+    #: ``size(document) -> (metres, what it is)``: the machine's own size for plausibility
+    size: Callable[[Any], tuple[float, str]] | None = None
 
 
 def _factors(units) -> tuple[float, float]:
@@ -431,16 +523,8 @@ def _build_hexaslide(doc: HexaSlideFile, source: str) -> HexaSlide:
         l=np.array([c.l for c in ch]) * fl,
     )
     lc = doc.constraint_link.length * fl if doc.constraint_link is not None else None
-    machine = HexaSlide(params, home=_home_pose(doc.home, fl, fa), name=doc.name or "",
-                        constraint_link_length=lc)
-    if doc.home is not None:
-        q = machine.ik(*machine.home)
-        bad = np.flatnonzero(~np.isfinite(q))
-        if bad.size:
-            raise InputError(f"{source}: home: the pose cannot be reached by chain(s) "
-                             f"{', '.join(str(i + 1) for i in bad)} (link too short for the "
-                             "distance between rail and platform joint); check home and chains")
-    return machine
+    return HexaSlide(params, home=_home_pose(doc.home, fl, fa), name=doc.name or "",
+                     constraint_link_length=lc)
 
 
 def _fmt(x: float) -> str:
@@ -499,15 +583,6 @@ def _build_delta(doc: DeltaFile, source: str) -> Delta:
                     home=home, name=doc.name or "")
     machine.base_from_tracker = None if doc.tracker is None else (
         _rotation(doc.tracker.rotation), np.asarray(doc.tracker.translation, float) * fl)
-    q = machine.ik(machine.home[0])
-    bad = np.flatnonzero(~np.isfinite(q))
-    if bad.size:
-        key, what = (("home", "the position") if doc.home is not None else
-                     ("legs", "the default home (arms horizontal)"))
-        raise InputError(f"{source}: {key}: {what} cannot be reached by leg(s) "
-                         f"{', '.join(str(i + 1) for i in bad)} "
-                         "(the forearm cannot span the distance from the arm's circle to the "
-                         "platform joint); check home, the dimensions and legs")
     return machine
 
 
@@ -551,6 +626,9 @@ def _build_stewart(doc: StewartFile, source: str) -> Stewart:
     )
     machine = Stewart(params, home=_home_pose(doc.home, fl, fa), name=doc.name or "",
                       reading_unit=unit)
+    # without ``readings:`` the data's column suffix says the unit (SPEC 7): the first data
+    # file read fixes it (csv_io.adopt_reading_unit); until then the legs read lengths
+    machine.reading_unit_declared = doc.readings is not None
     machine.constraint_link_length = (doc.constraint_link.length * fl
                                       if doc.constraint_link is not None else None)
     frames = doc.measurement_frames
@@ -564,17 +642,6 @@ def _build_stewart(doc: StewartFile, source: str) -> Stewart:
              np.asarray(frames.mocap_from_base.translation, float) * fl),
             (_rotation(frames.platform_from_marker.rotation),
              np.asarray(frames.platform_from_marker.translation, float) * fl))
-    # the legs must hold the platform at home (FK starts there): a full-rank leg Jacobian
-    _, J, _ = machine.ik_jacobians(*machine.home, want_du=False)
-    Js = np.array(J, float)
-    Js[:, 3:] /= machine.characteristic_length()
-    sv = np.linalg.svd(Js, compute_uv=False)
-    if not (np.all(np.isfinite(sv)) and sv[-1] > 1e-9 * sv[0]):
-        key, what = ("home", "at home") if doc.home is not None else \
-            ("legs", "at the default home (platform centred above the base)")
-        raise InputError(f"{source}: {key}: the six legs do not hold the platform {what} (their "
-                         "directions are linearly dependent); check the joint coordinates and "
-                         "home")
     return machine
 
 
@@ -619,15 +686,122 @@ _DELTA_HINTS = {
     "legs": "a list of 3 legs {da: [x, y, z], dtheta, dl1, dl2, db: [x, y, z]}",
 }
 
+_HEXASLIDE_KINDS = {
+    ("chains", "*", "a0", "*"): "length", ("chains", "*", "b", "*"): "length",
+    ("chains", "*", "l"): "length", ("chains", "*", "alpha"): "angle",
+    ("chains", "*", "beta"): "angle", ("constraint_link", "length"): "length",
+}
+_DELTA_KINDS = {
+    ("base_radius",): "length", ("platform_radius",): "length", ("upper_arm",): "length",
+    ("forearm",): "length", ("smr_offset",): "length", ("leg_angles", "*"): "angle",
+    ("legs", "*", "da", "*"): "length", ("legs", "*", "dtheta"): "angle",
+    ("legs", "*", "dl1"): "length", ("legs", "*", "dl2"): "length",
+    ("legs", "*", "db", "*"): "length", ("tracker", "translation", "*"): "length",
+}
+_STEWART_KINDS = {
+    ("legs", "*", "base", "*"): "length", ("legs", "*", "platform", "*"): "length",
+    ("legs", "*", "l0"): "length", ("legs", "*", "gain"): "gain",
+    ("constraint_link", "length"): "length",
+    ("measurement_frames", "*", "translation", "*"): "length",
+}
+
+
+def _hexaslide_size(doc) -> tuple[float, str]:
+    fl = LENGTH[doc.units.length]
+    return float(np.median([c.l for c in doc.chains])) * fl, "the median link length l"
+
+
+def _delta_size(doc) -> tuple[float, str]:
+    fl = LENGTH[doc.units.length]
+    return (float(np.median([doc.base_radius, doc.upper_arm, doc.forearm])) * fl,
+            "the median of base_radius, upper_arm and forearm")
+
+
+def _stewart_size(doc) -> tuple[float, str]:
+    fl = LENGTH[doc.units.length]
+    with np.errstate(all="ignore"):
+        norms = [float(np.linalg.norm(np.asarray(v, float) / 2)) * 2
+                 for leg in doc.legs for v in (leg.base, leg.platform)]
+    return float(np.median(norms)) * fl, "the median distance of the leg joints from the origin"
+
+
 #: machine type (``machine:`` in files) -> format; add new machine types here
 MACHINE_FORMATS: dict[str, MachineFormat] = {
     "hexaslide": MachineFormat(HexaSlideFile, _build_hexaslide, _dump_hexaslide,
-                               {"chains": 6}),
+                               {"chains": 6}, kinds=_HEXASLIDE_KINDS, size=_hexaslide_size),
     "delta": MachineFormat(DeltaFile, _build_delta, _dump_delta, {"legs": 3},
-                           home_text="[x, y, z]", hints=_DELTA_HINTS),
+                           home_text="[x, y, z]", hints=_DELTA_HINTS, kinds=_DELTA_KINDS,
+                           size=_delta_size),
     "stewart": MachineFormat(StewartFile, _build_stewart, _dump_stewart, {"legs": 6},
-                             hints=_STEWART_HINTS),
+                             hints=_STEWART_HINTS, kinds=_STEWART_KINDS, size=_stewart_size),
 }
+
+
+def _kind_of(path: tuple, kinds: dict) -> str | None:
+    if len(path) == 2 and path[0] == "home" and isinstance(path[1], int):
+        return "length" if path[1] < 3 else "angle"
+    for pattern, kind in kinds.items():
+        if len(pattern) == len(path) and all(p == "*" or p == k
+                                             for p, k in zip(pattern, path, strict=True)):
+            return kind
+    return None
+
+
+def _numbers(value, path=()):
+    """``(path, number)`` of every number in a file's mapping (calibration metadata aside)."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not (path == () and key == "calibration"):
+                yield from _numbers(item, path + (key,))
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            yield from _numbers(item, path + (i,))
+    elif isinstance(value, (int, float)) and not isinstance(value, bool):
+        yield path, value
+
+
+def _line_of(lines: dict, key: tuple) -> int | None:
+    """Line of the deepest prefix of ``key`` that is in the file."""
+    for k in range(len(key), -1, -1):
+        if key[:k] in lines:
+            return lines[key[:k]]
+    return None
+
+
+def _check_magnitudes(data: dict, doc, fmt: MachineFormat, source: str, lines: dict) -> None:
+    """Refuse finite but absurd numbers before anything is computed with them.
+
+    A length is at most :data:`~pkmcal.limits.MAX_LENGTH_RATIO` times the machine's own size
+    (``fmt.size``, a median, so one absurd value does not set the scale) and never more than
+    :data:`~pkmcal.limits.MAX_LENGTH`; an angle at most :data:`~pkmcal.limits.MAX_ANGLE`; a
+    Stewart gain (length per reading unit) between :data:`~pkmcal.limits.MIN_GAIN` and the
+    largest length. Beyond these, squares and products overflow or lose every digit.
+    """
+    units = doc.units.model_dump()
+    fl, fa = _factors(units)
+    lu, au = units["length"], units["angle"]
+    size, what = fmt.size(doc) if fmt.size is not None else (float("nan"), "")
+    relative = size > 0 and np.isfinite(size) and size <= MAX_LENGTH
+    limit = min(MAX_LENGTH, MAX_LENGTH_RATIO * size) if relative else MAX_LENGTH
+    why = (f"more than {MAX_LENGTH_RATIO:g} times the machine's size ({size / fl:.6g} {lu}, "
+           f"{what})") if relative else f"more than {MAX_LENGTH / 1000:g} km"
+    for path, value in _numbers(data):
+        kind = _kind_of(path, fmt.kinds or {})
+        problem = None
+        if kind == "length" and not abs(value) * fl <= limit:
+            problem = f"{value:.6g} {lu} is not a plausible length: {why}"
+        elif kind == "angle" and not abs(value) * fa <= MAX_ANGLE:
+            problem = (f"{value:.6g} {au} is not a plausible angle: more than "
+                       f"{MAX_ANGLE / (2 * np.pi):g} turns")
+        elif kind == "gain" and not MIN_GAIN <= abs(value) * fl <= limit:
+            problem = (f"{value:.6g} {lu} per reading unit is not a plausible gain: the leg "
+                       f"length per reading unit must be between {MIN_GAIN:g} m and "
+                       + (f"{MAX_LENGTH_RATIO:g} times the machine's size ({size / fl:.6g} "
+                          f"{lu})" if relative else f"{MAX_LENGTH / 1000:g} km"))
+        if problem is not None:
+            line = _line_of(lines, path)
+            raise InputError(f"{source}: {_key_path(path)}: {problem}"
+                             + (f" (line {line})" if line else ""))
 
 
 # --------------------------------------------------------------------------------------------
@@ -804,8 +978,16 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
         doc = fmt.schema.model_validate(data)
     except ValidationError as exc:
         raise InputError(_validation_message(exc, source, lines, fmt)) from None
-    machine = fmt.build(doc, source)
-    machine.file_units = doc.units.model_dump()
+    _check_magnitudes(data, doc, fmt, source, lines)
+    with np.errstate(all="ignore"):         # no numpy warning ever reaches the user
+        machine = fmt.build(doc, source)
+        machine.file_units = doc.units.model_dump()
+        problems = machine.geometry_problems(home_given=doc.home is not None)
+    if problems:
+        key, what = problems[0]
+        line = _line_of(lines, key)
+        raise InputError(f"{source}: {_key_path(key)}: {what}"
+                         + (f" (line {line})" if line else ""))
     machine.source = source
     machine.calibration_info = doc.calibration
     return machine
@@ -831,7 +1013,7 @@ def load_machine(path) -> Machine:
         Naming the file, key path and line; also for a missing or non-text file.
     """
     path = Path(path)
-    text = read_input_text(path, "machine file")
+    text = read_input_text(path, "machine file", MAX_MACHINE_FILE_BYTES)
     return parse_machine(text, str(path))
 
 

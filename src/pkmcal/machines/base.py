@@ -198,6 +198,53 @@ class Machine(ABC):
         return np.concatenate([self.parameter_scales(),
                                extra.scales(self.characteristic_length())])
 
+    # -- validation -----------------------------------------------------------------------
+    def geometry_problems(self, home_given: bool = True) -> list[tuple[tuple, str]]:
+        """Why this geometry cannot work, for the machine file loader (empty when it can).
+
+        Only what is really degenerate is reported: a geometry the machine cannot work with
+        (duplicate chains or legs, a Jacobian singular everywhere, the home pose out of reach
+        or singular), never one that is merely unusual.
+
+        Parameters
+        ----------
+        home_given : bool, optional
+            True when the home pose was given (the machine file's ``home``), False when it is
+            :meth:`default_home`; decides which key a problem at home names.
+
+        Returns
+        -------
+        list of tuple
+            ``(key_path, what)``: the machine file key concerned as a path tuple
+            (``("chains", 3)``, ``("home",)``) and the problem in words, most specific first.
+        """
+        return []
+
+    def _length_text(self, x: float) -> str:
+        """A length for a message, in the machine file's length unit when known."""
+        from ..units import LENGTH
+
+        unit = (getattr(self, "file_units", None) or {}).get("length", "m")
+        return f"{float(x) / LENGTH[unit]:.6g} {unit}"
+
+    def _home_check(self) -> tuple[np.ndarray, bool]:
+        """``(unreachable, singular)`` at :attr:`home`: the 0-based joints that cannot reach
+        it, and whether the joint Jacobian is singular there (rotations scaled by the
+        characteristic length; smallest singular value below 1e-9 of the largest)."""
+        with np.errstate(all="ignore"):
+            P, R = self.home
+            q, J, _ = self.ik_jacobians(P, R, want_du=False)
+            bad = np.flatnonzero(~np.isfinite(np.asarray(q, float).reshape(-1)))
+            if bad.size:
+                return bad, True
+            Js = np.array(J, float).reshape(self.n_joints, 6)
+            Js[:, 3:] /= self.characteristic_length()
+            Js = Js[:, :3] if self.pose_dof == 3 else Js
+            if not np.all(np.isfinite(Js)):
+                return bad, True
+            sv = np.linalg.svd(Js, compute_uv=False)
+        return bad, not sv[-1] > 1e-9 * sv[0]
+
     # -- kinematics -----------------------------------------------------------------------
     @abstractmethod
     def ik_jacobians(self, P, R, u=None, want_du: bool = True):

@@ -154,6 +154,52 @@ class Delta(Machine):
         depth = np.sqrt(reach) if reach > 0 else self.l2
         return np.array([0.0, 0.0, -depth]), np.eye(3)
 
+    # -- validation -----------------------------------------------------------------------
+    def geometry_problems(self, home_given: bool = True) -> list[tuple[tuple, str]]:
+        """Degenerate legs (see :meth:`Machine.geometry_problems`).
+
+        Refused: two legs at the same angle (within 1e-6 rad: the two legs act alike and the
+        platform is free to move); an upper arm or forearm of zero or negative length with
+        its error; arms that cannot span the distance between the arm axes and the platform
+        joints anywhere (``upper_arm + forearm < |base_radius - platform_radius|`` with legs
+        around the axis); home (given, or the arms-horizontal default) out of reach.
+        """
+        phi = self.leg_angles
+        for j in range(3):
+            for i in range(j):
+                gap = abs((phi[j] - phi[i] + np.pi) % (2 * np.pi) - np.pi)
+                if gap < 1e-6:
+                    return [(("leg_angles", j), f"legs {i + 1} and {j + 1} stand at the same "
+                             f"angle ({np.degrees(phi[i]):.6g} and {np.degrees(phi[j]):.6g} "
+                             "deg): they act alike and the platform is free to move; the legs "
+                             "must stand at three different angles, e.g. 90, 180, -90 deg")]
+        _, _, dl1, dl2, _ = self.legs()
+        for i in range(3):
+            for key, nominal, error, what in (("dl1", self.l1, dl1[i], "upper arm"),
+                                              ("dl2", self.l2, dl2[i], "forearm")):
+                if not nominal + error > 0:
+                    return [(("legs", i, key), f"the {what} of leg {i + 1} would be "
+                             f"{self._length_text(nominal + error)} long (nominal "
+                             f"{self._length_text(nominal)} plus the error); check {key}")]
+        ring = np.sort(np.mod(phi, 2 * np.pi))
+        gaps = np.diff(np.concatenate([ring, ring[:1] + 2 * np.pi]))   # between legs around Z
+        surrounds = bool(np.max(gaps) <= np.pi)
+        if surrounds and self.l1 + self.l2 < abs(self.a - self.b):
+            return [(("forearm",), f"upper_arm ({self._length_text(self.l1)}) and forearm "
+                     f"({self._length_text(self.l2)}) together are shorter than "
+                     f"|base_radius - platform_radius| ({self._length_text(abs(self.a - self.b))})"
+                     ": the arms cannot reach the platform joints anywhere; check the "
+                     "dimensions")]
+        bad, _ = self._home_check()
+        if bad.size:
+            key, what = (("home",), "the position") if home_given else \
+                (("legs",), "the default home (arms horizontal)")
+            return [(key, f"{what} cannot be reached by leg(s) "
+                     f"{', '.join(str(i + 1) for i in bad)} (the forearm cannot span the "
+                     "distance from the arm's circle to the platform joint); check home, the "
+                     "dimensions and legs")]
+        return []
+
     def _offsets(self, theta, u):
         """``d_i`` (..., 3 legs, 3) of eq. 5 and the leg lengths ``L2`` (3,)."""
         da, dth, dl1, dl2, db = self.legs(u)

@@ -137,6 +137,51 @@ class HexaSlide(Machine):
         P = np.array([0.0, 0.0, height])
         return P, np.eye(3)
 
+    # -- validation -----------------------------------------------------------------------
+    def geometry_problems(self, home_given: bool = True) -> list[tuple[tuple, str]]:
+        """Degenerate chains (see :meth:`Machine.geometry_problems`).
+
+        Refused: two chains that are the same chain (the same rail line and direction,
+        platform joint and link length, within 1e-6 of the machine's size or 1e-6 rad: their
+        equations coincide, the Jacobian is singular everywhere); all six platform joints at
+        one point (nothing holds the orientation); the given home out of reach; a joint
+        Jacobian singular at home (e.g. links along their rails' normal planes, or six links
+        parallel to six parallel rails).
+        """
+        b, a0, alpha, beta, l = self.chains()
+        with np.errstate(all="ignore"):
+            a = rail_direction(alpha, beta)
+            tol = 1e-6 * self.characteristic_length()
+            for j in range(6):
+                for i in range(j):
+                    d = a0[j] - a0[i]
+                    off_line = np.linalg.norm(d - (d @ a[i]) * a[i])
+                    if (a[i] @ a[j] >= np.cos(1e-6) and off_line <= tol
+                            and np.linalg.norm(b[i] - b[j]) <= tol and abs(l[i] - l[j]) <= tol):
+                        return [(("chains", j), f"the same chain as chains[{i}] (the same rail "
+                                 "a0, alpha, beta, the same platform joint b and link length "
+                                 "l): the two sliders move together and only five chains "
+                                 "hold the platform; check the chains' values")]
+            if np.all(np.linalg.norm(b - b.mean(0), axis=-1) <= tol):
+                return [(("chains",), "all six platform joints b are at one point: nothing "
+                         "holds the platform's orientation; check the chains' b")]
+        bad, singular = self._home_check()
+        if bad.size:
+            if not home_given:
+                return []             # the default home is a guess: FK finds its own start
+            return [(("home",), f"the pose cannot be reached by chain(s) "
+                     f"{', '.join(str(i + 1) for i in bad)} (link too short for the distance "
+                     "between rail and platform joint); check home and chains")]
+        if singular:
+            at = "at home" if home_given else "at the default home (0, 0, constraint link " \
+                "length or mean link length)"
+            return [(("home",) if home_given else ("chains",),
+                     f"the six chains do not hold the platform {at}: the joint Jacobian is "
+                     "singular there (e.g. each link square to its rail, or the links parallel "
+                     "to parallel rails); check the chains"
+                     + (" and home" if home_given else ", or give a home pose where they do"))]
+        return []
+
     # -- kinematics -----------------------------------------------------------------------
     def ik_jacobians(self, P, R, u=None, want_du: bool = True):
         b, a0, alpha, beta, l = self.chains(u)

@@ -157,6 +157,31 @@ class Stewart(Machine):
         height = np.sqrt(max(length**2 - horizontal**2, (0.5 * length) ** 2))
         return offset + np.array([0.0, 0.0, height]), np.eye(3)
 
+    # -- validation -----------------------------------------------------------------------
+    def geometry_problems(self, home_given: bool = True) -> list[tuple[tuple, str]]:
+        """Degenerate legs (see :meth:`Machine.geometry_problems`).
+
+        Refused: two legs between the same joints (within 1e-6 of the machine's size: the
+        same leg twice, the Jacobian is singular everywhere); six legs that do not hold the
+        platform at home (given, or the default home: a singular leg Jacobian, e.g. six
+        parallel legs or a leg of zero length), where forward kinematics starts.
+        """
+        b, p, _, _ = self.legs()
+        tol = 1e-6 * self.characteristic_length()
+        for j in range(6):
+            for i in range(j):
+                if np.linalg.norm(b[i] - b[j]) <= tol and np.linalg.norm(p[i] - p[j]) <= tol:
+                    return [(("legs", j), f"the same leg as legs[{i}] (the same base and "
+                             "platform joints): only five legs hold the platform; check the "
+                             "legs' base and platform")]
+        _, singular = self._home_check()
+        if singular:
+            key, what = (("home",), "at home") if home_given else \
+                (("legs",), "at the default home (platform centred above the base)")
+            return [(key, f"the six legs do not hold the platform {what} (their directions "
+                     "are linearly dependent); check the joint coordinates and home")]
+        return []
+
     # -- kinematics -----------------------------------------------------------------------
     def leg_vectors(self, P, R, u=None):
         """Leg vectors, platform joint offsets and leg lengths at poses.
