@@ -170,8 +170,9 @@ def test_full_pose_csv_round_trip(tmp_path):
 def test_reading_columns_must_carry_the_machine_reading_unit(tmp_path):
     m = load_machine(JUGGLEBOT)
     (tmp_path / "d.csv").write_text("q1_mm,q2_mm,q3_mm,q4_mm,q5_mm,q6_mm\n1,1,1,1,1,1\n")
-    with pytest.raises(InputError, match=r"missing column q1_rev \(found q1_mm\): the legs of "
-                                         r".*jugglebot.yaml read in rev"):
+    with pytest.raises(InputError, match=r"columns q1_mm..q6_mm are in mm but .*jugglebot.yaml "
+                                         r"declares readings: \{unit: rev\}; rename the "
+                                         r"columns to q1_rev..q6_rev or change readings.unit"):
         read_readings(tmp_path / "d.csv", m)
 
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -409,20 +410,103 @@ def read_tracker(path, machine) -> TrackerData:
     return TrackerData(q, m, np.array([line for line, _ in rows]), source=str(path))
 
 
+def _reading_suffixes(header: list[str], n: int) -> list[str | None]:
+    """Unit suffix of each reading column ``q<j>_<unit>`` (None: no such single column)."""
+    out = []
+    for j in range(n):
+        names = [h for h in header if h.startswith(f"q{j + 1}_")]
+        out.append(names[0][len(f"q{j + 1}_"):] if len(names) == 1 else None)
+    return out
+
+
+def _span_of(base_unit: str, n: int) -> str:
+    return f"q1_{base_unit}..q{n}_{base_unit}"
+
+
+def adopt_reading_unit(machine, unit: str, path) -> None:
+    """Make ``unit`` the reading unit of a Stewart ``machine`` whose file declares none.
+
+    The file's ``gain`` is its length unit per reading unit (SPEC 6), so the internal gains
+    are rescaled from the length unit the machine assumed until now to ``unit`` (metres per
+    ``unit`` for a unit that is not a length). The machine then behaves as if its file said
+    ``readings: {unit: <unit>}``, and a machine file saved from it says so.
+
+    Parameters
+    ----------
+    machine : Stewart
+        The machine, changed in place.
+    unit : str
+        The reading unit of the data (the column suffix).
+    path : str or os.PathLike
+        The data file that decided it (kept as ``machine.reading_unit_from``).
+    """
+    old = LENGTH.get(machine.reading_unit, 1.0)
+    new = LENGTH.get(unit, 1.0)
+    if new != old:
+        u = np.array(machine.u, float)
+        idx = [machine.parameters.index(f"leg{j + 1}.gain") for j in range(machine.n_joints)]
+        u[idx] *= old / new
+        machine.parameters = machine.parameters.with_values(u)
+    machine.reading_unit = unit
+    machine.reading_unit_declared = True
+    machine.reading_unit_from = str(path)
+
+
+def _declared_text(machine) -> str:
+    """Where a Stewart's reading unit comes from, for a message."""
+    unit = machine.reading_unit
+    source = getattr(machine, "source", None) or "the machine file"
+    adopted = getattr(machine, "reading_unit_from", None)
+    if adopted is not None:
+        return (f"the legs of {source} read in {unit} (the unit of {adopted}, which set it: "
+                f"{source} declares no readings unit)")
+    what = " (leg lengths)" if unit in LENGTH else ""
+    return f"{source} declares readings: {{unit: {unit}}}{what}"
+
+
 def _reading_columns(path, header: list[str], machine) -> list[tuple[int, float]]:
-    """Positions and factors of a Stewart's reading columns ``q1_<unit> ... q6_<unit>``."""
+    """Positions and factors of a Stewart's reading columns ``q1_<unit> ... q6_<unit>``.
+
+    Without a declared reading unit (no ``readings:`` in the machine file) the columns' suffix
+    decides it (SPEC 7): a length suffix reads lengths, any other word (``rev``) becomes the
+    machine's reading unit (:func:`adopt_reading_unit`). With a declared unit, columns that
+    all carry another unit are refused with what to rename or change.
+    """
+    n = machine.n_joints
     unit = getattr(machine, "reading_unit", "m")
+    suffixes = _reading_suffixes(header, n)
+    common = suffixes[0] if all(x == suffixes[0] for x in suffixes) else None
+    if not getattr(machine, "reading_unit_declared", True):
+        present = [x for x in suffixes if x is not None]
+        words = {x for x in present if x not in LENGTH}
+        if len(words) > 1 or (words and len(present) > len([x for x in present
+                                                               if x in words])):
+            shown = ", ".join(f"q{j + 1}_{x}" for j, x in enumerate(suffixes) if x is not None)
+            raise InputError(f"{path}: columns {shown}: the leg readings must share one unit "
+                             f"(the machine file declares none, so the column suffix is the "
+                             f"reading unit); rename the columns")
+        if common is not None and common not in LENGTH:
+            if not re.match(r"^[A-Za-z][A-Za-z0-9]*$", common):
+                raise InputError(f"{path}: columns {_span_of(common, n)}: {common!r} is not a "
+                                 "reading unit (one word of letters and digits, e.g. q1_rev)")
+            adopt_reading_unit(machine, common, path)
+            unit = common
+    if common is not None and (common in LENGTH) != (unit in LENGTH) or (
+            common is not None and common not in LENGTH and common != unit):
+        lengths = " (or another length unit: mm, m, um)" if unit in LENGTH else ""
+        raise InputError(f"{path}: columns {_span_of(common, n)} are in {common} but "
+                         f"{_declared_text(machine)}; rename the columns to "
+                         f"{_span_of(unit, n)}{lengths} or change readings.unit")
     if unit in LENGTH:
-        return [find_column(path, header, f"q{j + 1}", "length")
-                for j in range(machine.n_joints)]
+        return [find_column(path, header, f"q{j + 1}", "length") for j in range(n)]
     source = getattr(machine, "source", "the machine file")
     out = []
-    for j in range(machine.n_joints):
+    for j in range(n):
         name = f"q{j + 1}_{unit}"
         if name in header:
             out.append((header.index(name), 1.0))
             continue
-        others = [n for n in header if n == f"q{j + 1}" or n.startswith(f"q{j + 1}_")]
+        others = [h for h in header if h == f"q{j + 1}" or h.startswith(f"q{j + 1}_")]
         found = f" (found {', '.join(others)})" if others else ""
         raise InputError(f"{path}: missing column {name}{found}: the legs of {source} read in "
                          f"{unit} (machine file key readings: {{unit: {unit}}}); columns found: "
