@@ -163,10 +163,17 @@ class _Loader(yaml.SafeLoader):
         self._expanded += n
         if self._expanded > MAX_YAML_NODES:
             self._refuse(f"more than {MAX_YAML_NODES} values with the aliases (*name) "
-                         "expanded; a machine file has a few hundred (nested anchors and "
-                         "aliases are not accepted)", mark)
+                         "expanded; a machine file has a few hundred: write the values out "
+                         "instead of nesting anchors (&name) and aliases", mark)
 
     def compose_node(self, parent, index):
+        if isinstance(parent, yaml.MappingNode):
+            part = index.value if isinstance(index, yaml.ScalarNode) else None
+            pushed = index is not None
+        else:
+            part, pushed = index, parent is not None
+        if pushed:
+            self._path.append(part if part is not None else "?")
         if self.check_event(yaml.AliasEvent):
             mark = self.peek_event().start_mark
             node = super().compose_node(parent, index)
@@ -175,14 +182,9 @@ class _Loader(yaml.SafeLoader):
                 self._refuse("the alias refers to a collection that contains it (a recursive "
                              "alias)", mark)
             self._count(size, mark)
+            if pushed:
+                self._path.pop()
             return node
-        if isinstance(parent, yaml.MappingNode):
-            part = index.value if isinstance(index, yaml.ScalarNode) else None
-            pushed = index is not None
-        else:
-            part, pushed = index, parent is not None
-        if pushed:
-            self._path.append(part if part is not None else "?")
         mark = self.peek_event().start_mark
         if self._depth >= MAX_YAML_DEPTH:
             self._refuse(f"nested more than {MAX_YAML_DEPTH} levels deep; a machine file "
@@ -780,7 +782,8 @@ def _check_magnitudes(data: dict, doc, fmt: MachineFormat, source: str, lines: d
     units = doc.units.model_dump()
     fl, fa = _factors(units)
     lu, au = units["length"], units["angle"]
-    size, what = fmt.size(doc) if fmt.size is not None else (float("nan"), "")
+    with np.errstate(all="ignore"):
+        size, what = fmt.size(doc) if fmt.size is not None else (float("nan"), "")
     relative = size > 0 and np.isfinite(size) and size <= MAX_LENGTH
     limit = min(MAX_LENGTH, MAX_LENGTH_RATIO * size) if relative else MAX_LENGTH
     why = (f"more than {MAX_LENGTH_RATIO:g} times the machine's size ({size / fl:.6g} {lu}, "
