@@ -207,8 +207,11 @@ def test_problem_prediction_is_the_public_prediction(case):
     res = calibrate_tracker(case.nominal, data)
     m, fk = res.extras["problem"].predict(res.state)
     assert fk.converged.all()
+    # two routes (centred about the data's centroid, and not) to points ~2.5 m away: they
+    # agree to rounding of that scale, which BLAS/CPU may change by a few ulps (issue 11)
     np.testing.assert_allclose(m, predict_tracker_points(
-        res.extras["machine"], data.q, res.extras["registration"]), rtol=0, atol=1e-15)
+        res.extras["machine"], data.q, res.extras["registration"]), rtol=0,
+        atol=1e-12 * np.abs(data.m).max())
     np.testing.assert_allclose(m, data.m, rtol=0, atol=1e-4)       # microns off, not metres
 
 
