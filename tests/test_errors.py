@@ -77,7 +77,7 @@ def test_aligned_pose_has_the_hand_geometry(aligned):
     machine, P, R = aligned
     _, _, z = machine.jacobians(P, R)
     expected = np.array([[0, 0, 1]] * 3 + [[1, 0, 0]] * 2 + [[0, -1, 0]], float)
-    np.testing.assert_allclose(z, expected, atol=1e-15)
+    np.testing.assert_allclose(z, expected, atol=1e-13)
 
 
 def test_vertical_load_on_vertical_legs_is_compression(aligned):

@@ -76,12 +76,12 @@ def test_frames_map_platform_poses_to_measured_and_back(case):
     P, R = case.poses
     Pm, Rm = case.frames.measured(P, R)
     P2, R2 = case.frames.platform(Pm, Rm)
-    np.testing.assert_allclose(P2, P, atol=1e-14)
-    np.testing.assert_allclose(R2, R, atol=1e-14)
+    np.testing.assert_allclose(P2, P, atol=1e-13)
+    np.testing.assert_allclose(R2, R, atol=1e-13)
     # the marker origin is c in the platform frame: measured = A (P + R c) + a
     (A, a), (B, c) = case.frames.mocap_from_base, case.frames.platform_from_marker
-    np.testing.assert_allclose(Pm[0], A @ (P[0] + R[0] @ c) + a, atol=1e-14)
-    np.testing.assert_allclose(Rm[0], A @ R[0] @ B, atol=1e-14)
+    np.testing.assert_allclose(Pm[0], A @ (P[0] + R[0] @ c) + a, atol=1e-13)
+    np.testing.assert_allclose(Rm[0], A @ R[0] @ B, atol=1e-13)
 
 
 def test_right_jacobian_inverse_against_finite_differences():
@@ -144,7 +144,8 @@ def test_alignment_predicts_the_same_data(case):
     moved = case.true.with_parameters(u)
     for m, f in ((case.true, case.frames), (moved, frames)):
         err = full_pose_errors(m, f, data)
-        assert np.abs(err.leg_length).max() < 1e-12 and err.position.max() < 1e-11
+        # 4e-13 m here, through frames fitted by SVD: room for another BLAS/CPU
+        assert np.abs(err.leg_length).max() < 1e-11 and err.position.max() < 1e-10
     assert np.abs(u - case.true.u).max() > 1e-4        # the legs did move
 
 
