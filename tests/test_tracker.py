@@ -282,7 +282,8 @@ def test_robust_fit_keeps_clean_data(case):
     data = case.simulate(rng=5)
     robust = calibrate_tracker(case.nominal, data, robust=True)
     assert robust.extras["outlier_rows"].size == 0
-    np.testing.assert_allclose(robust.x, calibrate_tracker(case.nominal, data).x, atol=1e-15)
+    plain = calibrate_tracker(case.nominal, data).x
+    np.testing.assert_allclose(robust.x, plain, rtol=0, atol=1e-12 * np.abs(plain).max())
 
 
 # -- registration ---------------------------------------------------------------------------------
@@ -296,9 +297,10 @@ def test_registration_recovers_a_known_pose_exactly(planar):
     R = matrix_from_rotvec([0.4, -2.1, 1.2])
     t = np.array([2.0, -1.0, 0.5])
     R_est, t_est = register_points(src, src @ R.T + t)
-    np.testing.assert_allclose(R_est, R, atol=1e-14)
-    np.testing.assert_allclose(t_est, t, atol=1e-14)
-    assert np.linalg.det(R_est) == pytest.approx(1.0, abs=1e-14)
+    # through an SVD (LAPACK): rounding well above the few ulps seen here on another BLAS/CPU
+    np.testing.assert_allclose(R_est, R, atol=1e-12)
+    np.testing.assert_allclose(t_est, t, atol=1e-12 * np.abs(t).max())
+    assert np.linalg.det(R_est) == pytest.approx(1.0, abs=1e-12)
 
 
 def test_registration_is_least_squares_with_noise():
