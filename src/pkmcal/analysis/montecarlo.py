@@ -47,6 +47,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..errors import ConvergenceError, InputError
+from ..io.plausibility import check_option_scale
 from ..machines.base import Machine
 
 #: the variables a Monte Carlo can sweep: quantity, display unit, factor of that unit to SI
@@ -215,6 +216,9 @@ def _check_settings(s: MonteCarloSettings, what: dict | None = None) -> None:
         if not (isinstance(s.deviations, str) and s.deviations == "random"):
             raise InputError(f"{what['tolerance']}: scales random deviations; it does not "
                              f"apply with --deviations {s.deviations}")
+    for name, kind in (("noise", "noise"), ("lc_error", "error"), ("tolerance", "error")):
+        if getattr(s, name) is not None:
+            check_option_scale(getattr(s, name), s.machine, what[name], kind)
     dev = s.deviations
     if isinstance(dev, str):
         if dev not in ("random", "none", "paper-table1"):

@@ -38,6 +38,7 @@ from ..io import (
 )
 from ..io.atomic import is_stream
 from ..io.machine_file import DEFAULT_UNITS
+from ..io.plausibility import check_option_scale
 from ..measurements.deviations import DEFAULT_DEVIATIONS
 from ..measurements.deviations import deviations as _deviations
 from ..planning.scenarios import SCENARIO_OF as DEFAULT_SCENARIO
@@ -247,8 +248,9 @@ def parse_grid(text: str) -> tuple[int, int, int]:
     return shape
 
 
-def tracker_noise_arg(text: str | None, allow_none: bool):
-    """The tracker noise model of ``--noise``: leica (default), none, or a length (isotropic)."""
+def tracker_noise_arg(text: str | None, allow_none: bool, machine=None):
+    """The tracker noise model of ``--noise``: leica (default), none, or a length (isotropic),
+    checked against the machine's size when given."""
     from ..measurements import TrackerNoise
 
     if text is None or text.strip().lower() == "leica":
@@ -262,6 +264,8 @@ def tracker_noise_arg(text: str | None, allow_none: bool):
     if not sigma > 0:
         raise InputError(f"--noise: must be > 0 (a standard deviation), leica or none; got "
                          f"{text}")
+    if machine is not None:
+        check_option_scale(sigma, machine, "--noise", "noise", text)
     return TrackerNoise(sigma, sigma, 0.0), f"isotropic {sigma * 1e6:.4g} um"
 
 
@@ -309,7 +313,9 @@ def _simulate_constraint_link(machine, output: Path, poses: int, noise: str, lc_
     noise_m = parse_quantity(noise, "length", "--noise")
     if not noise_m >= 0:
         raise InputError(f"--noise: must be >= 0, got {noise}")
-    lc_error_m = parse_quantity(lc_error, "length", "--lc-error")
+    check_option_scale(noise_m, machine, "--noise", "noise", noise)
+    lc_error_m = check_option_scale(parse_quantity(lc_error, "length", "--lc-error"), machine,
+                                    "--lc-error", "error", lc_error)
     lc = machine.constraint_link_length
     if lc is None:
         raise InputError(f"{machine.source}: constraint_link: the machine has no constraint-link "
@@ -357,7 +363,7 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
         simulate_tracker,
     )
 
-    noise_model, noise_text = tracker_noise_arg(noise, allow_none=True)
+    noise_model, noise_text = tracker_noise_arg(noise, allow_none=True, machine=machine)
     n_points = int(np.prod(shape))
     if outliers > n_points:
         raise InputError(f"--outliers: {outliers} outliers among {n_points} grid points")
@@ -412,7 +418,8 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
     out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
 
 
-def full_pose_noise_arg(noise: str | None, pose_noise: str | None, strict: bool):
+def full_pose_noise_arg(noise: str | None, pose_noise: str | None, strict: bool,
+                        machine=None):
     """The full-pose noise model of ``--noise`` (readings, as a leg length) and
     ``--pose-noise`` (POSITION,ORIENTATION). ``strict``: every standard deviation must be > 0
     (a calibration weighs by them); else >= 0 (a simulation may be exact)."""
@@ -436,6 +443,11 @@ def full_pose_noise_arg(noise: str | None, pose_noise: str | None, strict: bool)
             need = ("must be > 0 (a standard deviation that weighs the residuals)" if strict
                     else "must be >= 0")
             raise InputError(f"{option}: {need}, got {text}")
+    if machine is not None:
+        check_option_scale(reading, machine, "--noise", "noise", noise)
+        check_option_scale(position, machine, "--pose-noise (position)", "noise", pose_noise)
+        check_option_scale(orientation, machine, "--pose-noise (orientation)", "angle noise",
+                           pose_noise)
     return FullPoseNoise(reading, position, orientation)
 
 
@@ -454,7 +466,7 @@ def _simulate_full_pose(machine, output: Path, n_poses: int, noise: str | None,
         simulate_full_pose,
     )
 
-    noise_model = full_pose_noise_arg(noise, pose_noise, strict=False)
+    noise_model = full_pose_noise_arg(noise, pose_noise, strict=False, machine=machine)
     rng = np.random.default_rng(seed)
     true = _true_machine(machine, deviations, rng)
     frames = getattr(machine, "measurement_frames", None)
@@ -618,6 +630,7 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
     if not sigma > 0:
         raise InputError(f"--noise: must be > 0 (the standard deviation of the encoder "
                          f"noise), got {noise}")
+    check_option_scale(sigma, machine, "--noise", "noise", noise)
     kind = "constraint-link"
     data, held = _split_rows(read_constraint_link(data_path, machine), split, data_path)
 
@@ -1023,7 +1036,7 @@ def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path
                        json_output: bool, report_dir: Path | None = None, split=None) -> int:
     from ..calibration import calibrate_tracker, distance_ratios, predict_tracker_points
 
-    noise_model, noise_text = tracker_noise_arg(noise, allow_none=False)
+    noise_model, noise_text = tracker_noise_arg(noise, allow_none=False, machine=machine)
     data, held = _split_rows(read_tracker(data_path, machine), split, data_path)
     _check_spread(data, noise_model)
     fk = machine.fk(data.q)
@@ -1279,7 +1292,7 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
     from ..calibration import calibrate_full_pose, full_pose_errors
     from ..measurements import MeasurementFrames
 
-    noise_model = full_pose_noise_arg(noise, pose_noise, strict=True)
+    noise_model = full_pose_noise_arg(noise, pose_noise, strict=True, machine=machine)
     if method == "ik" and pose_noise is not None:
         raise InputError("--pose-noise: the ik method takes the measured poses as exact; use "
                          "--method ml to weigh them by their noise")
@@ -1645,6 +1658,10 @@ def run_errors(machine_spec: str, output: Path, trajectory: str | None,
     if plot is not None and plot.exists() and not plot.is_dir():
         raise InputError(f"--plot {plot}: exists and is not a directory")
     machine = _errors_machine(machine_spec)
+    for option, value, text in (("--clearance", c_base, clearance),
+                                ("--platform-clearance", c_platform, platform_clearance),
+                                ("--screw-error", backlash, screw_error)):
+        check_option_scale(value, machine, option, "noise", text)
     inputs = _machine_inputs(machine_spec) if machine_spec != "cubic" else []
     envelope_path = output.with_name(output.stem + "_envelope" + output.suffix)
     plot_files = [] if plot is None else [plot / f"{n}.png" for n in ERRORS_PLOTS]
@@ -1659,6 +1676,8 @@ def run_errors(machine_spec: str, output: Path, trajectory: str | None,
         w = parse_quantity(omega or "10rad/s", "angular_speed", "--omega")
         if not (math.isfinite(z_m) and math.isfinite(w)):
             raise InputError("--height, --omega: must be finite")
+        check_option_scale(r_m, machine, "--radius", "size", radius)
+        check_option_scale(z_m, machine, "--height", "size", height)
         n = 360 if samples is None else samples
         if n < 1:
             raise InputError(f"--samples: must be >= 1, got {n}")

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io import read_constraint_link, read_full_pose, read_table, read_tracker
+from ..io.plausibility import check_option_scale
 from ..units import parse_quantity
 from ._commands import (
     _MEASUREMENT_WORDS,
@@ -33,8 +34,9 @@ WORKSPACE_POSES = 500
 MAP_STEPS = 31
 
 
-def noise_model(scenario: str, noise: str | None, pose_noise: str | None):
-    """The noise model of ``--noise`` / ``--pose-noise`` for a scenario (as in calibrate)."""
+def noise_model(scenario: str, noise: str | None, pose_noise: str | None, machine=None):
+    """The noise model of ``--noise`` / ``--pose-noise`` for a scenario (as in calibrate),
+    checked against the machine's size when given."""
     if pose_noise is not None and scenario != "pose":
         raise InputError(f"--pose-noise applies to full-pose measurements, not {scenario}")
     if scenario == "constraint-link":
@@ -42,10 +44,12 @@ def noise_model(scenario: str, noise: str | None, pose_noise: str | None):
         if not sigma > 0:
             raise InputError(f"--noise: must be > 0 (the standard deviation of the encoder "
                              f"noise), got {noise}")
+        if machine is not None:
+            check_option_scale(sigma, machine, "--noise", "noise", noise)
         return sigma
     if scenario == "tracker":
-        return tracker_noise_arg(noise, allow_none=False)[0]
-    return full_pose_noise_arg(noise, pose_noise, strict=True)
+        return tracker_noise_arg(noise, allow_none=False, machine=machine)[0]
+    return full_pose_noise_arg(noise, pose_noise, strict=True, machine=machine)
 
 
 def measured_problem(machine, data_path: Path, kind: str, noise):
@@ -169,11 +173,11 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
     if data_path is not None and not planned:
         header, _ = read_table(data_path)
         kind = measurement_kind(data_path, header, machine)
-        model = noise_model(kind, noise, pose_noise)
+        model = noise_model(kind, noise, pose_noise, machine)
         source = f"{data_path}"
     else:
         kind = scenario_for(machine)
-        model = noise_model(kind, noise, pose_noise)
+        model = noise_model(kind, noise, pose_noise, machine)
         if data_path is None and kind == "tracker" and poses is None:
             from ..measurements import TRACKER_GRID_SPACING, grid_points
 
@@ -307,7 +311,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     if random_sets < 0:
         raise InputError(f"--random-sets: must be >= 0, got {random_sets}")
     kind = scenario_for(machine)
-    model = noise_model(kind, noise, pose_noise)
+    model = noise_model(kind, noise, pose_noise, machine)
     with progress_tasks() as new_task:
         step = new_task("select-poses: candidate poses", 5)
         if candidates_path is not None:

@@ -19,6 +19,9 @@ frame, so they are compared with those of the nominal forward kinematics of the 
   (Delta): points in the wrong length unit, or arm angles in the wrong angle unit.
 - :func:`check_full_pose_scale`: measured poses against the poses the readings give (Stewart):
   positions, Euler angles or length readings in the wrong unit.
+- :func:`check_option_scale`: a command-line length (a noise, an error, a trajectory's size)
+  against the machine's own size: ``--noise 1e3`` (a kilometre, a bare number is SI) on a
+  half-metre machine is refused instead of simulating nonsense.
 """
 
 from __future__ import annotations
@@ -41,6 +44,13 @@ EXPLAINED = 0.25
 MAX_ROWS = 200
 #: smallest median angle between orientations (rad) that is compared (below: no rotation)
 MIN_ROTATION = 0.01
+
+#: largest command-line value relative to the machine's characteristic length, per kind:
+#: a noise or clearance (a standard deviation, a play), an error of a dimension (link length,
+#: tolerance of the geometry), a size (a trajectory's radius or height)
+OPTION_SCALE = {"noise": 0.01, "error": 0.1, "size": 10.0}
+#: largest angular noise (rad): orientation noise of a pose measurement
+MAX_ANGLE_NOISE = 0.1
 
 _JOINTS = {"hexaslide": "sliders read", "stewart": "legs read", "delta": "arm angles are"}
 
@@ -532,3 +542,48 @@ def _readings_why(raw, unit, other, measured, d_m, d_fk, d_fk2, lengths: Columns
             f"{_fmt(d_m / f)} {u} apart (median distance between rows), but read as {unit} the "
             f"readings {as_read} on {_source(machine)} (read as {other}: "
             f"{_fmt(d_fk2 / f)} {u})")
+
+
+def check_option_scale(value: float, machine, option: str, kind: str,
+                       text: str | None = None) -> float:
+    """Refuse a command-line length that is absurd for this machine.
+
+    Parameters
+    ----------
+    value : float
+        The option's value, m (SI).
+    machine : Machine
+        The machine it applies to (its :meth:`~pkmcal.machines.base.Machine.characteristic_length`).
+    option : str
+        The option's name, for the message (``--noise``).
+    kind : str
+        A key of :data:`OPTION_SCALE` (``"noise"``, ``"error"``, ``"size"``), or ``"angle
+        noise"`` for an orientation noise in rad (limit :data:`MAX_ANGLE_NOISE`).
+    text : str, optional
+        The option as the user typed it, for the message.
+
+    Returns
+    -------
+    float
+        ``value``, when plausible.
+
+    Raises
+    ------
+    InputError
+        Naming the option, the value and the machine's size.
+    """
+    shown = text if text is not None else f"{value:g}"
+    if kind == "angle noise":
+        if abs(value) > MAX_ANGLE_NOISE:
+            raise InputError(f"{option}: {shown} is not a plausible orientation noise (at most "
+                             f"{MAX_ANGLE_NOISE:g} rad = {np.degrees(MAX_ANGLE_NOISE):.3g} deg; "
+                             "a bare number is SI, rad)")
+        return value
+    size = float(machine.characteristic_length())
+    ratio = OPTION_SCALE[kind]
+    if abs(value) > ratio * size:
+        what = {"noise": "a noise", "error": "an error", "size": "a size"}[kind]
+        raise InputError(f"{option}: {shown} = {_fmt(abs(value) * 1e3)} mm is not plausible as "
+                         f"{what} on {_source(machine)}: more than {ratio:g} x the machine's size "
+                         f"({_fmt(size * 1e3)} mm); a bare number is in metres")
+    return value
