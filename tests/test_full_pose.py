@@ -291,8 +291,11 @@ def test_degenerate_poses_are_refused_in_words(case, method):
     for poses in ((np.repeat(P[:1], 40, 0), np.repeat(R[:1], 40, 0)),
                   (P, np.broadcast_to(np.eye(3), R.shape))):
         data = case.simulate(rng=1, poses=poses)
-        with pytest.raises(InputError, match=r"degenerate poses\); undetermined: leg.*"
-                                             "rotations about all three axes"):
+        # an 18-dimensional null space has no preferred basis: which parameter leads the
+        # first named combination depends on rounding (OpenBLAS Sandybridge: mocap_from_base.y)
+        with pytest.raises(InputError, match=r"degenerate poses\); undetermined: "
+                                             r"(leg\d|mocap_from_base|platform_from_marker)\."
+                                             ".*rotations about all three axes"):
             calibrate_full_pose(case.nominal, data, method=method)
         res = calibrate_full_pose(case.nominal, data, method=method,
                                   require_identifiable=False)
