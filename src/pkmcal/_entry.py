@@ -1,21 +1,32 @@
 """Entry point of the ``pkmcal`` console script.
 
 It imports nothing heavy itself, so that Ctrl-C while the command's modules are still being
-imported also ends with one line (``error: interrupted``, exit 130) instead of a traceback;
-everything else is :func:`pkmcal.cli.main`.
+imported also ends with one line (``error: interrupted``, exit 130) instead of a traceback,
+and SIGTERM/SIGHUP then end with one line and 128 + signal instead of the default silent
+death; everything else is :func:`pkmcal.cli.main`.
 """
 
 from __future__ import annotations
 
+import signal
 import sys
+
+from .errors import Terminated, on_terminate
 
 
 def main() -> None:
-    """Run ``pkmcal`` (:func:`pkmcal.cli.main`); Ctrl-C at any point exits 130 with one line."""
+    """Run ``pkmcal`` (:func:`pkmcal.cli.main`); Ctrl-C at any point exits 130 with one line,
+    SIGTERM or SIGHUP 128 + signal."""
+    for name in ("SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), on_terminate)
     try:
         from .cli import main as cli_main
 
-        cli_main()
+        cli_main(exiting=True)
     except KeyboardInterrupt:
         sys.stderr.write("error: interrupted\n")
         raise SystemExit(130) from None
+    except Terminated as exc:
+        sys.stderr.write(f"error: terminated (signal {int(exc.code) - 128})\n")
+        raise SystemExit(exc.code) from None

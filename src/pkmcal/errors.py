@@ -9,3 +9,12 @@ class InputError(ValueError):
 
 class ConvergenceError(RuntimeError):
     """An iterative solver did not converge; the message names the poses concerned."""
+
+
+class Terminated(SystemExit):
+    """SIGTERM or SIGHUP: unwind like Ctrl-C (staged outputs discarded), exit 128 + signal."""
+
+
+def on_terminate(signum, frame) -> None:
+    """Signal handler of SIGTERM and SIGHUP: raise :class:`Terminated` (exit 128 + signal)."""
+    raise Terminated(128 + signum)

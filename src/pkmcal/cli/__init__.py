@@ -19,7 +19,7 @@ from typing import Annotated
 
 import typer
 
-from ..errors import ConvergenceError, InputError
+from ..errors import ConvergenceError, InputError, Terminated, on_terminate
 from ..limits import MAX_MEASUREMENTS, MAX_RUNS, MAX_SAMPLES
 
 app = typer.Typer(
@@ -705,15 +705,8 @@ def _hoist_quiet(args: list[str]) -> list[str]:
     return ["--quiet", *args[:command + 1], *rest, *args[end:]]
 
 
-class _Terminated(SystemExit):
-    """SIGTERM or SIGHUP: unwind like Ctrl-C (staged outputs discarded), exit 128 + signal."""
 
-
-def _on_signal(signum, frame) -> None:
-    raise _Terminated(128 + signum)
-
-
-def _run(args: list[str]) -> None:
+def _run(args: list[str], final: bool = False) -> None:
     """Run the command inside one output set: its files appear together when it succeeds
     (or where it commits them itself), and none of them on an error or an interrupt. A
     usage error (unknown option, a value out of range) is one line naming the option."""
@@ -722,7 +715,7 @@ def _run(args: list[str]) -> None:
 
     from ..io.atomic import OutputSet
 
-    with OutputSet():
+    with OutputSet(final=final):
         try:
             code = app(args=args, prog_name="pkmcal", standalone_mode=False)
         except NoArgsIsHelpError as exc:
@@ -738,8 +731,17 @@ def _run(args: list[str]) -> None:
             raise SystemExit(code)
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Entry point of the ``pkmcal`` console script."""
+def main(argv: list[str] | None = None, exiting: bool = False) -> None:
+    """Run ``pkmcal`` with ``argv`` (default: the command line).
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments after ``pkmcal``.
+    exiting : bool, optional
+        The process ends after this call (the console script): once the outputs are
+        committed, signals are held back until exit, so they cannot fail a finished run.
+    """
     import signal
     import warnings
 
@@ -748,7 +750,7 @@ def main(argv: list[str] | None = None) -> None:
         os.environ.setdefault(var, "1")
     for name in ("SIGTERM", "SIGHUP"):
         if hasattr(signal, name):
-            signal.signal(getattr(signal, name), _on_signal)
+            signal.signal(getattr(signal, name), on_terminate)
     args = _hoist_quiet(list(sys.argv[1:] if argv is None else argv))
     if not os.environ.get("PKMCAL_DEBUG"):
         # numpy's floating-point warnings (overflow, invalid value) and library warnings are
@@ -757,8 +759,8 @@ def main(argv: list[str] | None = None) -> None:
         # own warnings go through the console
         warnings.simplefilter("ignore")
     try:
-        _run(args)
-    except _Terminated as exc:
+        _run(args, final=exiting)
+    except Terminated as exc:
         _fail(f"terminated (signal {int(exc.code) - 128})", int(exc.code))
     except InputError as exc:
         code = exc.args[1] if len(exc.args) > 1 and isinstance(exc.args[1], int) else 2

@@ -149,7 +149,11 @@ class OutputSet:
     printing which files were written.
     """
 
-    def __init__(self, files=(), directories=(), inputs=()):
+    def __init__(self, files=(), directories=(), inputs=(), final: bool = False):
+        #: the set of a process that ends after it: a committed set keeps SIGINT, SIGTERM and
+        #: SIGHUP held back until the process exits, so a signal during or after the commit
+        #: cannot turn a run whose outputs are all written into a failed one (exit 130/143)
+        self.final = final
         self._staged: dict[str, tuple[Path, Path, Path | None, bytes | None]] = {}
         self._inputs: dict[tuple[int, int], Path] = {}
         self._directories: list[Path] = []
@@ -296,7 +300,19 @@ class OutputSet:
         for user, dest, tmp, _ in items:
             if tmp is not None:
                 self._check_not_input(user, dest)
+        # streams first, interruptible (a FIFO without a reader blocks until Ctrl-C) and before
+        # any file is replaced: a stream that cannot be written (/dev/full) leaves the files as
+        # they were. What a stream received cannot be taken back.
+        for user, _, tmp, data in items:
+            if tmp is None:
+                try:
+                    with open(user, "wb") as fh:
+                        fh.write(data)
+                except OSError as exc:
+                    self.discard()
+                    raise InputError(f"{user}: cannot write: {_describe(exc)}") from None
         held = _hold_signals()
+        committed = False
         locks = []
         created: list[Path] = []
         done: list[tuple[Path, Path | None]] = []     # (destination, backup or None)
@@ -340,18 +356,12 @@ class OutputSet:
                     with contextlib.suppress(OSError):
                         os.unlink(backup)
             self._staged.clear()
+            committed = True
         finally:
             for fd in locks:
                 os.close(fd)
-            _release_signals(held)
-        # streams last, interruptible (a FIFO without a reader blocks): nothing to roll back
-        for user, _, tmp, data in items:
-            if tmp is None:
-                try:
-                    with open(user, "wb") as fh:
-                        fh.write(data)
-                except OSError as exc:
-                    raise InputError(f"{user}: cannot write: {_describe(exc)}") from None
+            if not (committed and self.final):
+                _release_signals(held)
         return [user for user, *_ in items]
 
     # -- context manager -----------------------------------------------------------------

@@ -1,0 +1,72 @@
+"""A run's exit status and its files agree, whenever a signal comes (issue 11, item 2):
+exit 0 with the whole new set, or 130/143 with one line and the previous set; a stream that
+cannot be written leaves every file as it was."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from clitools import PKMCAL, run
+
+#: delays (s) spread from the interpreter's start-up (imports) to the end of a short run
+DELAYS = [0.12, 0.25, 0.4, 0.55, 0.7, 0.85, 1.0, 1.3, 1.8]
+
+
+@pytest.fixture(scope="module")
+def joints(tmp_path_factory):
+    d = tmp_path_factory.mktemp("j")
+    (d / "poses.csv").write_text("x_mm,y_mm,z_mm,psi_deg,theta_deg,phi_deg\n"
+                                 "0,0,300,0,0,0\n10,5,310,1,2,3\n")
+    assert run("ik", "default", "poses.csv", "-o", "j.csv", cwd=d).returncode == 0
+    return (d / "j.csv").read_text()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP],
+                         ids=["sigterm", "ctrl-c", "sighup"])
+def test_the_exit_status_says_whether_the_outputs_were_written(tmp_path, joints, sig):
+    (tmp_path / "j.csv").write_text(joints)
+    for delay in DELAYS:
+        out = tmp_path / "p.csv"
+        out.write_text("previous\n")
+        proc = subprocess.Popen([str(PKMCAL), "fk", "default", "j.csv", "-o", "p.csv"],
+                                cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True)
+        time.sleep(delay)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode >= 0, (delay, proc.returncode, err)   # never a silent death
+        written = out.read_text() != "previous\n"
+        if proc.returncode == 0:
+            assert written, delay
+        else:
+            assert proc.returncode == 128 + sig if sig != signal.SIGINT else 130, err
+            assert not written and len(err.strip().splitlines()) == 1, (delay, err)
+            assert "Traceback" not in err
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["j.csv", "p.csv"]
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="no /dev/full")
+def test_a_stream_that_cannot_be_written_leaves_the_other_outputs_unwritten(tmp_path):
+    proc = run("simulate", "default", "--scenario", "constraint-link", "--poses", "60",
+               "--truth", "t.yaml", "-o", "/dev/full", cwd=tmp_path)
+    assert proc.returncode == 2 and "/dev/full" in proc.stderr, proc.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="FIFO semantics of Linux")
+def test_ctrl_c_while_waiting_for_a_fifo_reader_writes_nothing(tmp_path, joints):
+    (tmp_path / "j.csv").write_text(joints)
+    os.mkfifo(tmp_path / "fifo")
+    proc = subprocess.Popen([str(PKMCAL), "fk", "default", "j.csv", "-o", "fifo"],
+                            cwd=tmp_path, stderr=subprocess.PIPE, text=True)
+    time.sleep(3)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130 and err.strip() == "error: interrupted", err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fifo", "j.csv"]
