@@ -64,8 +64,17 @@ MachineArg = Annotated[str, typer.Argument(
     metavar="MACHINE", help="Machine file (YAML: hexaslide, delta or stewart) or 'default' "
                             "for the embedded Hexa Slide.",
     show_default=False)]
+def _file_name(text: str) -> Path:
+    """An output file's name as typed: ``out.csv/`` names a directory (Path would drop the
+    slash and write ``out.csv``), refused like the shell refuses ``> out.csv/``."""
+    if text.endswith(("/", os.sep)):
+        raise typer.BadParameter(f"{text}: ends with '/', which names a directory; give a "
+                                 "file name")
+    return Path(text)
+
+
 OutFile = Annotated[Path, typer.Option("-o", "--output", help="Output file (written atomically).",
-                                       show_default=False, dir_okay=False)]
+                                       show_default=False, parser=_file_name, metavar="FILE")]
 
 
 def _version(value: bool) -> None:
@@ -145,8 +154,9 @@ def simulate(
         help="tracker: corrupt this many random points by 1 mm (beam breaks, a "
                     "mis-seated reflector); their rows are printed.")] = 0,
     truth: Annotated[Path | None, typer.Option(
-        dir_okay=False, help="Also save the simulated true machine here (YAML; for a tracker "
-                             "scenario with the true tracker pose).")] = None,
+        parser=_file_name, metavar="FILE",
+        help="Also save the simulated true machine here (YAML; for a tracker scenario with "
+             "the true tracker pose).")] = None,
 ) -> None:
     """Simulate measurements of a true machine (MACHINE + deviations); write a data file.
 
@@ -289,8 +299,9 @@ def identifiability(
                              "POSITION,ORIENTATION (default 20um,50urad).",
         show_default=False)] = None,
     map_path: Annotated[Path | None, typer.Option(
-        "--map", help="Write a map (PNG) of the predicted position error over two workspace "
-                      "slices through home.", show_default=False)] = None,
+        "--map", parser=_file_name, metavar="PNG",
+        help="Write a map (PNG) of the predicted position error over two workspace slices "
+             "through home.", show_default=False)] = None,
     json_output: Annotated[bool, typer.Option(
         "--json", help="Print the report as JSON (keys parameters, identifiable, "
                        "unidentifiable, observability, condition_number, hold_fixed, "
@@ -360,8 +371,9 @@ def select_poses(
     seed: Annotated[int, typer.Option(
         min=0, help="Seed of the candidates, the workspace sample and the random sets.")] = 0,
     map_path: Annotated[Path | None, typer.Option(
-        "--map", help="Write a map (PNG) of the predicted position error with the chosen "
-                      "poses.", show_default=False)] = None,
+        "--map", parser=_file_name, metavar="PNG",
+        help="Write a map (PNG) of the predicted position error with the chosen poses.",
+        show_default=False)] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")]
     = False,
 ) -> None:
@@ -486,7 +498,7 @@ def report_command(
         help="A calibration report (the JSON pkmcal calibrate writes beside the calibrated "
              "file) or the calibrated machine file (its report is found beside it).")],
     output: Annotated[Path, typer.Option(
-        "-o", "--output", dir_okay=False, show_default=False,
+        "-o", "--output", parser=_file_name, metavar="FILE", show_default=False,
         help="The HTML file; its JSON twin is written beside it (same name, .json).")],
 ) -> None:
     """A self-contained HTML report of a calibration (no network: plots embedded).

@@ -206,8 +206,17 @@ class OutputSet:
 
     @staticmethod
     def _destination(path: Path) -> Path:
-        """Where the bytes go: a symbolic link's target (the link stays a link)."""
-        return Path(os.path.realpath(path)) if path.is_symlink() else path
+        """Where the bytes go: a symbolic link's target (the link stays a link); a link that
+        points to itself through other links (a loop) is refused, never replaced."""
+        if not path.is_symlink():
+            return path
+        try:
+            return Path(os.path.realpath(path, strict=True))
+        except FileNotFoundError:           # a dangling link: the file it names is created
+            return Path(os.path.realpath(path))
+        except (OSError, RuntimeError) as exc:
+            raise InputError(f"{path}: cannot write through this symbolic link: "
+                             f"{getattr(exc, 'strerror', None) or exc}") from None
 
     def _in_output_directory(self, path: Path) -> bool:
         parent = os.path.abspath(path.parent if str(path.parent) else ".")
@@ -504,28 +513,52 @@ def atomic_write_text(path, text: str, encoding: str = "utf-8") -> Path:
     return atomic_write_bytes(path, text.encode(encoding))
 
 
+#: largest input file read when the caller gives no smaller bound (a data file of a million
+#: rows is about 100 MB): a device such as /dev/zero or a wrong multi-gigabyte file is refused
+#: after this many bytes instead of exhausting memory
+MAX_INPUT_BYTES = 1 << 30
+#: the text of inputs that are not regular files (a pipe, /dev/stdin, a process substitution
+#: ``<(...)``): they can be read once, and a command may read an input more than once
+_STREAM_TEXT: dict[str, str] = {}
+
+
 def read_input_text(path, kind: str, max_bytes: int | None = None) -> str:
     """Text of an input file (UTF-8, BOM allowed); :class:`InputError` naming the file when it
-    is missing, a directory or not text. ``kind`` says what was expected ("machine file").
-    With ``max_bytes``, a larger file is refused before it is read (at most ``max_bytes + 1``
-    bytes are ever read, also from a device or a pipe).
+    is missing, a directory, too large or not text. ``kind`` says what was expected ("machine
+    file"). At most ``max_bytes`` (default :data:`MAX_INPUT_BYTES`) are accepted; a larger file
+    is refused before it is read, a device or pipe after at most ``max_bytes + 1`` bytes, and
+    binary data (a NUL byte) as soon as it is seen. A pipe is read once: later reads of the
+    same path in this process give the same text.
     Inside an :class:`OutputSet` the file becomes one of the command's inputs: no output may
     replace it."""
     path = Path(path)
     outputs = _ACTIVE.get()
     if outputs is not None:
         outputs.add_input(path)
+    if str(path) in _STREAM_TEXT:
+        return _STREAM_TEXT[str(path)]
+    limit = MAX_INPUT_BYTES if max_bytes is None else max_bytes
     try:
-        if max_bytes is None:
-            return path.read_text(encoding="utf-8-sig")
         with open(path, "rb") as f:
-            size = os.fstat(f.fileno()).st_size
-            data = f.read(max_bytes + 1) if size <= max_bytes else b""
-            if size > max_bytes or len(data) > max_bytes:
-                shown = f"{size} bytes" if size > max_bytes else f"more than {max_bytes} bytes"
-                raise InputError(f"{path}: the {kind} is {shown}; a {kind} is at most "
-                                 f"{max_bytes} bytes (is this the right file?)")
-        return data.decode("utf-8-sig")
+            st = os.fstat(f.fileno())
+            regular = stat.S_ISREG(st.st_mode)
+            if regular and st.st_size > limit:
+                raise InputError(f"{path}: the {kind} is {st.st_size} bytes; a {kind} is at "
+                                 f"most {limit} bytes (is this the right file?)")
+            chunks, total = [], 0
+            while True:
+                chunk = f.read(min(1 << 20, limit + 1 - total))
+                if not chunk:
+                    break
+                if b"\0" in chunk:
+                    raise InputError(f"{path}: not a text file (UTF-8): it contains NUL bytes "
+                                     "(binary data, or UTF-16: save it as UTF-8)")
+                chunks.append(chunk)
+                total += len(chunk)
+                if total > limit:
+                    raise InputError(f"{path}: the {kind} is more than {limit} bytes; a {kind} "
+                                     f"is at most {limit} bytes (is this the right file?)")
+        text = b"".join(chunks).decode("utf-8-sig")
     except FileNotFoundError:
         raise InputError(f"{path}: {kind} not found") from None
     except IsADirectoryError:
@@ -534,3 +567,6 @@ def read_input_text(path, kind: str, max_bytes: int | None = None) -> str:
         raise InputError(f"{path}: not a text file (UTF-8): {exc.reason}") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read the {kind}: {_describe(exc)}") from None
+    if not regular:
+        _STREAM_TEXT[str(path)] = text
+    return text
