@@ -121,10 +121,11 @@ def test_bad_input(cli, tmp_path):
     bad.write_text("{not json")
     assert_input_error(cli("compensate", "default", "t.csv", "--report", bad, "-o", "c.csv"),
                        "bad.json")
-    other = tmp_path / "other.json"
-    other.write_text(json.dumps({"command": "calibrate",
-                                 "covariance": {"parameters": ["a"], "matrix": [[1.0]]}}))
-    assert_input_error(cli("compensate", "default", "t.csv", "--report", other, "-o",
+    # a valid report of another machine (a Delta's)
+    delta = EXAMPLES / "delta_default.yaml"
+    assert cli("simulate", delta, "--scenario", "tracker", "-o", "tr.csv").returncode == 0
+    assert cli("calibrate", delta, "tr.csv", "-o", "other.yaml").returncode == 0
+    assert_input_error(cli("compensate", "default", "t.csv", "--report", "other.json", "-o",
                            "c.csv"), "other parameters")
     assert_input_error(cli("compensate", "default", "t.csv", "--nominal",
                            EXAMPLES / "delta_default.yaml", "-o", "c.csv"), "--nominal")

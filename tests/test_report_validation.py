@@ -117,8 +117,46 @@ def test_the_commands_refuse_a_bad_report_naming_the_key(calibrated, tmp_path, c
     if command == "report":
         proc = run("report", "bad.json", "-o", "out.html", cwd=tmp_path)
     else:
-        proc = run("compensate", "cal.yaml", "t.csv", "--report", "bad.json", "-o", "c.csv",
+        # the nominal machine: a calibrated file would refuse a report it does not pin
+        proc = run("compensate", "default", "t.csv", "--report", "bad.json", "-o", "c.csv",
                    cwd=tmp_path)
     assert_input_error(proc, "bad.json", "covariance.matrix[3][4]")
     assert digest(tmp_path / "bad.json") == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.json", "cal.yaml", "t.csv"]
+
+
+def test_a_report_given_with_report_must_be_the_one_the_file_pins(calibrated, tmp_path):
+    d, doc = calibrated
+    (tmp_path / "cal.yaml").write_text((d / "cal.yaml").read_text())
+    other = copy.deepcopy(doc)
+    other["residuals"]["rms_um"] = 1.0            # a valid report, of another run
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    (tmp_path / "t.csv").write_text("x_mm,y_mm,z_mm,psi_deg,theta_deg,phi_deg\n0,0,300,0,0,0\n")
+    proc = run("compensate", "cal.yaml", "t.csv", "--report", "other.json", "-o", "c.csv",
+               cwd=tmp_path)
+    assert_input_error(proc, "other.json", "another run")
+    assert not (tmp_path / "c.csv").exists()
+
+
+REQUIRED_CASES = {
+    "unknown version": (_set(("pkmcal_report",), 99), "pkmcal_report"),
+    "unknown measurement": (_set(("measurement",), "telepathy"), "measurement"),
+    "unknown length unit": (_set(("units", "length"), "furlong"), "units.length"),
+    "negative noise": (_set(("noise_sigma_um",), -1), "noise_sigma_um"),
+    "rms as text": (_set(("residuals", "rms_um"), "0.5"), "residuals.rms_um"),
+    "no parameters": (_set(("parameters",), []), "parameters"),
+    "covariance null": (_set(("covariance",), "none"), "covariance"),
+    **{f"no {key}": (_drop((key,)), key) for key in (
+        "parameters", "residuals", "identifiability", "measurement", "units", "convergence",
+        "method", "measurements")},
+}
+
+
+@pytest.mark.parametrize("name", sorted(REQUIRED_CASES))
+def test_the_sections_every_report_has_are_required(calibrated, name):
+    _, doc = calibrated
+    edit, words = REQUIRED_CASES[name]
+    bad = copy.deepcopy(doc)
+    edit(bad)
+    with pytest.raises(InputError, match=r"^cal\.json: " + words.replace(".", r"\.")):
+        validate_report(bad, "cal.json")

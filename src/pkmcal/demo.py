@@ -156,7 +156,8 @@ def run_demo(outdir: Path, quick: bool = False, rng=0,
         "fig6_link_length_error": [p.__dict__ for p in fig6],
         "fig6_link_length_error_lc_estimated": [p.__dict__ for p in fig6_est],
     }
-    path = atomic_write_text(outdir / "summary.json", json.dumps(summary, indent=2))
+    path = atomic_write_text(outdir / "summary.json",
+                             json.dumps(summary, indent=2, allow_nan=False))
     out.files.append(path)
     return out
 

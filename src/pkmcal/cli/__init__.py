@@ -704,6 +704,24 @@ def _fail(message: str, code: int = 2) -> None:
     sys.exit(code)
 
 
+def _refuse_empty(args: list[str]) -> None:
+    """No option or argument of pkmcal takes an empty text: ``--noise ''`` (an unset shell
+    variable) would otherwise read as the option's default."""
+    for i, a in enumerate(args):
+        if a == "--":
+            return
+        name = None
+        if a.startswith("--") and a.endswith("=") and len(a) > 3:
+            name = a[:-1]
+        elif a.strip() == "":
+            prev = args[i - 1] if i else ""
+            name = (prev if prev.startswith("-") and prev != "--"
+                    else f"argument {i + 1}" + (f" (after {prev})" if prev else ""))
+        if name is not None:
+            raise InputError(f"{name}: an empty value (an unset shell variable?); give a value "
+                             "or leave the option out")
+
+
 def _hoist_quiet(args: list[str]) -> list[str]:
     """``pkmcal calibrate ... -q`` means ``pkmcal -q calibrate ...``: the global --quiet may be
     written after the command too (montecarlo has its own --quiet and keeps it)."""
@@ -763,7 +781,7 @@ def main(argv: list[str] | None = None, exiting: bool = False) -> None:
     for name in ("SIGTERM", "SIGHUP"):
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), on_terminate)
-    args = _hoist_quiet(list(sys.argv[1:] if argv is None else argv))
+    args = list(sys.argv[1:] if argv is None else argv)
     if not os.environ.get("PKMCAL_DEBUG"):
         # numpy's floating-point warnings (overflow, invalid value) and library warnings are
         # for developers (PKMCAL_DEBUG=1 shows them): the user's numbers are checked up front
@@ -771,6 +789,8 @@ def main(argv: list[str] | None = None, exiting: bool = False) -> None:
         # own warnings go through the console
         warnings.simplefilter("ignore")
     try:
+        _refuse_empty(args)
+        args = _hoist_quiet(args)
         _run(args, final=exiting)
     except Terminated as exc:
         _fail(f"terminated (signal {int(exc.code) - 128})", int(exc.code))

@@ -39,6 +39,7 @@ from ..io import (
 from ..io.atomic import is_stream
 from ..io.machine_file import DEFAULT_UNITS
 from ..io.plausibility import check_option_scale
+from ..limits import MAX_MEASUREMENTS
 from ..measurements.deviations import DEFAULT_DEVIATIONS
 from ..measurements.deviations import deviations as _deviations
 from ..planning.scenarios import SCENARIO_OF as DEFAULT_SCENARIO
@@ -245,6 +246,13 @@ def parse_grid(text: str) -> tuple[int, int, int]:
     if len(shape) != 3 or min(shape) < 1:
         raise InputError(f"--grid: expected NXxNYxNZ with positive whole numbers (e.g. 3x3x3), "
                          f"got {text!r}")
+    count = math.prod(shape)
+    if count > MAX_MEASUREMENTS:
+        raise InputError(f"--grid {text}: {count} points, more than {MAX_MEASUREMENTS} "
+                         "(pkmcal.limits.MAX_MEASUREMENTS)")
+    if count < 4:
+        raise InputError(f"--grid {text}: {count} point(s); a tracker calibration needs at "
+                         "least 4 points that are not on one line (e.g. 3x3x3)")
     return shape
 
 
@@ -261,6 +269,8 @@ def tracker_noise_arg(text: str | None, allow_none: bool, machine=None):
                              "give leica or a length such as 10um")
         return None, "none"
     sigma = parse_quantity(text, "length", "--noise")
+    if sigma == 0 and allow_none:
+        return None, "none"
     if not sigma > 0:
         raise InputError(f"--noise: must be > 0 (a standard deviation), leica or none; got "
                          f"{text}")
@@ -304,7 +314,8 @@ def run_simulate(machine_spec: str, output: Path, scenario: str | None, poses: i
     if grid is not None or outliers:
         raise InputError(f"--{'grid' if grid is not None else 'outliers'}: applies to "
                          "--scenario tracker")
-    _simulate_constraint_link(machine, output, poses or 150, noise or "2um", lc_error, seed,
+    _simulate_constraint_link(machine, output, poses or 150,
+                              "2um" if noise is None else noise, lc_error, seed,
                               deviations, truth)
 
 

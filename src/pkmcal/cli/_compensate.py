@@ -10,6 +10,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.atomic import read_input_text
 from ._commands import (
+    _finite_or_none,
     _machine_inputs,
     _rows_text,
     _table,
@@ -26,16 +27,17 @@ from ._console import console, warning
 def calibration_report_path(machine, machine_spec: str, report: Path | None) -> Path | None:
     """The calibration report: ``--report``, else the one the calibrated file names (checked
     to be that calibration's: the file pins it by its SHA-256)."""
-    if report is not None:
-        return report
     info = getattr(machine, "calibration_info", None) or {}
-    name = info.get("report")
-    if not name:
-        return None
-    path = Path(machine_spec).parent / str(name)
-    if not path.is_file():
-        return None
     pinned = info.get("report_sha256")
+    if report is not None:
+        path = report
+    else:
+        name = info.get("report")
+        if not name:
+            return None
+        path = Path(machine_spec).parent / str(name)
+        if not path.is_file():
+            return None
     if pinned is not None and text_digest(read_input_text(path, "calibration report")) \
             != str(pinned):
         raise InputError(f"{path}: is not the report of {machine_spec} (its SHA-256 differs "
@@ -158,7 +160,7 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
         warning("no calibration report (JSON with a covariance) beside the machine file: the "
                 "predicted residual error is not given; pass --report FILE.json")
     if json_output:
-        print(json.dumps(summary, indent=2))
+        print(json.dumps(_finite_or_none(summary), indent=2, allow_nan=False))
         return 0
     table = _table("", "", title=f"pkmcal compensate: {summary['machine_file']}",
                    show_header=False)

@@ -319,7 +319,8 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
             source = str(candidates_path)
         else:
             if candidates < n:
-                raise InputError(f"--candidates: {candidates} candidate poses cannot give {n}")
+                raise InputError(f"-n/--poses {n}: more than the {candidates} candidate poses "
+                                 "(--candidates); choose fewer or more candidates")
             P, R = candidate_poses(machine, kind, candidates, rng=seed)
             rows, source = None, "<candidates>"
         dropped = 0

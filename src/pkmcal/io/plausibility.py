@@ -49,6 +49,8 @@ MIN_ROTATION = 0.01
 #: a noise or clearance (a standard deviation, a play), an error of a dimension (link length,
 #: tolerance of the geometry), a size (a trajectory's radius or height)
 OPTION_SCALE = {"noise": 0.01, "error": 0.1, "size": 10.0}
+#: smallest nonzero noise relative to the machine's size (a few ulps of its coordinates)
+MIN_NOISE_RATIO = 1e-12
 #: largest angular noise (rad): orientation noise of a pose measurement
 MAX_ANGLE_NOISE = 0.1
 
@@ -574,6 +576,9 @@ def check_option_scale(value: float, machine, option: str, kind: str,
     """
     shown = text if text is not None else f"{value:g}"
     if kind == "angle noise":
+        if 0 < abs(value) < MIN_NOISE_RATIO:
+            raise InputError(f"{option}: {shown} is below {MIN_NOISE_RATIO:g} rad: no "
+                             "measurement is that exact; give 0 for exact simulated data")
         if abs(value) > MAX_ANGLE_NOISE:
             raise InputError(f"{option}: {shown} is not a plausible orientation noise (at most "
                              f"{MAX_ANGLE_NOISE:g} rad = {np.degrees(MAX_ANGLE_NOISE):.3g} deg; "
@@ -581,6 +586,10 @@ def check_option_scale(value: float, machine, option: str, kind: str,
         return value
     size = float(machine.characteristic_length())
     ratio = OPTION_SCALE[kind]
+    if kind == "noise" and 0 < abs(value) < MIN_NOISE_RATIO * size:
+        raise InputError(f"{option}: {shown} is below {MIN_NOISE_RATIO:g} of the machine's size "
+                         f"({_fmt(size * 1e3)} mm): no measurement is that exact and the "
+                         "weights would overflow; give 0 for exact simulated data")
     if abs(value) > ratio * size:
         what = {"noise": "a noise", "error": "an error", "size": "a size"}[kind]
         raise InputError(f"{option}: {shown} = {_fmt(abs(value) * 1e3)} mm is not plausible as "

@@ -139,15 +139,43 @@ def _check_square(matrix, n: int) -> None:
 Scalar = str | bool | int | float | None
 
 
+class Units(_Section):
+    """``units``: the units of the calibrated file, used for the tables."""
+
+    length: Literal["mm", "m"]
+    angle: Literal["deg", "rad"]
+
+
+class Residuals(_Section):
+    """``residuals``: the numbers shown are checked; other keys are shown as written."""
+
+    rms_um: OptNum = Field(default=None, ge=0)
+    before_rms_um: OptNum = Field(default=None, ge=0)
+    count: Int | None = Field(default=None, ge=0)
+    dof: Int | None = None
+    residual_variance: OptNum = Field(default=None, ge=0)
+    estimated_noise_um: OptNum = Field(default=None, ge=0)
+
+
+#: the measurement kinds pkmcal calibrates
+MEASUREMENTS = ("constraint-link", "tracker", "pose")
+
+
 class CalibrationReport(_Section):
-    """The sections of a calibration report that ``pkmcal report`` and ``compensate`` use."""
+    """The sections of a calibration report that ``pkmcal report`` and ``compensate`` use;
+    every report ``pkmcal calibrate`` writes has the required ones."""
 
     command: Literal["calibrate"]
-    pkmcal_report: Int | None = None
+    pkmcal_report: Literal[1]
+    measurement: Literal[MEASUREMENTS]
+    method: str
+    units: Units
+    measurements: Int = Field(ge=1)
     calibrated_file: str = ""
-    convergence: Convergence | None = None
-    identifiability: Identifiability | None = None
-    residuals: dict[str, Any] | None = None
+    convergence: Convergence
+    identifiability: Identifiability
+    residuals: Residuals
+    noise_sigma_um: OptNum = Field(default=None, gt=0)
     normalised_residuals: list[Num | None] | None = None
     distance_ratio: DistanceRatio | None = None
     validation: dict[str, Any] | None = None
@@ -155,7 +183,7 @@ class CalibrationReport(_Section):
     registration: dict[str, Any] | None = None
     frames: dict[str, Any] | None = None
     identifiable_combinations: dict[str, Any] | None = None
-    parameters: list[Parameter] | None = None
+    parameters: Annotated[list[Parameter], Field(min_length=1)]
     covariance: Covariance | None = None
     provenance: dict[str, Scalar] | None = None
 
