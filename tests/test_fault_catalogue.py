@@ -89,3 +89,50 @@ def test_a_pipe_is_read_once_for_all_its_uses(tmp_path, files):
                            " -q"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "c.yaml").exists() and (tmp_path / "c.json").exists()
+
+
+#: poses no joint command can reach from the working mode: mirrored through the base, or far
+FAR_POSES = ("x_mm,y_mm,z_mm,psi_deg,theta_deg,phi_deg\n0,0,410,0,0,0\n0,0,-410,0,0,0\n"
+             "0,0,9000,0,0,0\n")
+
+
+@pytest.mark.parametrize("command", ["ik", "compensate"])
+def test_poses_outside_the_working_mode_are_refused_naming_rows(tmp_path, command):
+    (tmp_path / "far.csv").write_text(FAR_POSES)
+    proc = run(command, EXAMPLES / "cubic_6upu.yaml", "far.csv", "-o", "q.csv", cwd=tmp_path)
+    assert_input_error(proc, "far.csv", "row(s) 3, 4")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["far.csv"]
+
+
+def test_a_trajectory_outside_the_working_mode_is_refused(tmp_path):
+    proc = run("errors", "cubic", "--height", "-410mm", "-o", "e.csv", cwd=tmp_path)
+    assert_input_error(proc, "working mode", "--height")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_working_mode_holds_over_each_machines_workspace():
+    from pkmcal.analysis.accuracy import machine_workspace
+    from pkmcal.io import load_machine
+    from pkmcal.machines import cubic_6upu, default_hexaslide
+
+    for machine in (default_hexaslide(), cubic_6upu(), load_machine(DELTA),
+                    load_machine(EXAMPLES / "jugglebot.yaml")):
+        P, R = machine_workspace(machine, n=500)
+        assert machine.working_mode(P, R).all(), machine.name
+
+
+@pytest.mark.parametrize("example,old,new,words", [
+    ("cubic_6upu.yaml", "readings: {unit: mm}", "readings: {unit: kg}",
+     ["readings.unit", "unit of mass"]),
+    ("hexaslide_default.yaml", "constraint_link: {length: 300.0}",
+     "constraint_link: {length: 1e-308}", ["constraint_link.length", "less than 1e-06"]),
+    ("delta_default.yaml", "base_radius: 200.0", "base_radius: 1e-308",
+     ["base_radius", "less than 1e-06"]),
+])
+def test_machine_file_values_that_cannot_be_meant(tmp_path, example, old, new, words):
+    text = (EXAMPLES / example).read_text()
+    assert old in text
+    (tmp_path / "m.yaml").write_text(text.replace(old, new))
+    proc = run("simulate", "m.yaml", "-o", "x.csv", cwd=tmp_path)
+    assert_input_error(proc, "m.yaml", *words)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.yaml"]

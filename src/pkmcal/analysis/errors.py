@@ -488,6 +488,14 @@ def check_poses(machine, P, R, labels=None, label: str = "pose") -> None:
         shown = ", ".join(map(str, names[:10])) + (" ..." if idx.size > 10 else "")
         raise InputError(f"{idx.size} pose(s) at a singularity of the machine (the legs cannot "
                          f"hold the platform there): {label}(s) {shown}")
+    off = ~np.atleast_1d(machine.working_mode(P, R))
+    if np.any(off):
+        idx = np.flatnonzero(off)
+        names = (idx + 1) if labels is None else np.asarray(labels)[idx]
+        shown = ", ".join(map(str, names[:10])) + (" ..." if idx.size > 10 else "")
+        raise InputError(f"{idx.size} pose(s) outside the machine's working mode (farther than "
+                         f"{machine.MAX_REACH:g}x its size from home, or beyond a singularity, "
+                         f"e.g. the platform mirrored through the base): {label}(s) {shown}")
 
 
 def trajectory_errors(machine, trajectory: Trajectory, mass: float = 4.8,

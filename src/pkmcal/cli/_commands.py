@@ -1551,6 +1551,12 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
         raise InputError(f"{poses}: {int(bad.sum())} pose(s) cannot be reached by the machine "
                          f"(no real inverse kinematics, {what}(s) "
                          f"{', '.join(map(str, chains))}), row(s) {_rows_text(rows[bad])}")
+    off = ~machine.working_mode(P, R)
+    if off.any():
+        raise InputError(f"{poses}: {int(off.sum())} pose(s) outside the machine's working "
+                         f"mode (farther than {machine.MAX_REACH:g}x the machine's size from "
+                         "home, or beyond a singularity, e.g. mirrored through the base), "
+                         f"row(s) {_rows_text(rows[off])}")
     if machine.pose_dof == 3:
         # the closed-form FK takes the working assembly mode (platform below the base): a
         # position the arms reach only on the other mode cannot be commanded back

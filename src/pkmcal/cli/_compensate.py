@@ -113,7 +113,9 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
         raise InputError(f"{report_path}: {exc}") from None
     if not comp.reachable.all():
         raise InputError(f"{targets}: {int((~comp.reachable).sum())} target(s) cannot be reached "
-                         f"by the calibrated machine, row(s) "
+                         f"by the calibrated machine (no real inverse kinematics, farther than "
+                         f"{machine.MAX_REACH:g}x its size from home, or beyond a singularity), "
+                         f"row(s) "
                          f"{_rows_text(rows[~comp.reachable])}")
     units = _units(machine)
     columns = joint_columns(machine, comp.q, units)

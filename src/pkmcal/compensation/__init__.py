@@ -110,7 +110,7 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
         P, Rb = frame.to_base(P, R)
         R = R if Rb is None else Rb
     q = calibrated.ik(P, R)
-    ok = np.all(np.isfinite(q), -1)
+    ok = calibrated.working_mode(P, R)      # real IK, near home, in home's working mode
     out = Compensation(q, ok)
     d = calibrated.pose_dof
     needs_fit = null is not None and np.size(null) and (nominal is not None or frame is None)

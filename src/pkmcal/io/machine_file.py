@@ -110,7 +110,7 @@ from ..machines import (
 )
 from ..machines.base import Machine
 from ..machines.delta import LEG_FIELDS
-from ..units import ANGLE, LENGTH
+from ..units import ANGLE, LENGTH, unit_of
 from .atomic import atomic_write_text, read_input_text
 
 FORMAT_VERSION = 1
@@ -420,6 +420,12 @@ class Readings(_Strict):
             raise PydanticCustomError(
                 "reading_unit", "{value} is a length unit the data files do not use: readings "
                 "in a length unit are mm, m or um", {"value": repr(value)})
+        quantity = unit_of(value)
+        if quantity not in (None, "length", "angle"):
+            raise PydanticCustomError(
+                "reading_unit", "{value} is a unit of {quantity}, not of what a leg reads: a "
+                "length (mm, m, um), an angle (deg, rad) or a count (rev, counts)",
+                {"value": repr(value), "quantity": quantity.replace("_", " ")})
         return value
 
 
@@ -770,6 +776,13 @@ def _line_of(lines: dict, key: tuple) -> int | None:
     return None
 
 
+#: keys of the machine's dimensions (positive lengths: links, arms, radii, the constraint
+#: link): a dimension this small relative to the machine is a typo, and it divides
+_DIMENSIONS = ("l", "length", "base_radius", "upper_arm", "forearm")
+#: smallest such dimension relative to the machine's size
+MIN_LENGTH_RATIO = 1e-6
+
+
 def _check_magnitudes(data: dict, doc, fmt: MachineFormat, source: str, lines: dict) -> None:
     """Refuse finite but absurd numbers before anything is computed with them.
 
@@ -793,6 +806,11 @@ def _check_magnitudes(data: dict, doc, fmt: MachineFormat, source: str, lines: d
         problem = None
         if kind == "length" and not abs(value) * fl <= limit:
             problem = f"{value:.6g} {lu} is not a plausible length: {why}"
+        elif (kind == "length" and relative and path and path[-1] in _DIMENSIONS
+              and 0 < value * fl < MIN_LENGTH_RATIO * size):
+            problem = (f"{value:.6g} {lu} is not a plausible length: less than "
+                       f"{MIN_LENGTH_RATIO:g} of the machine's size ({size / fl:.6g} {lu}, "
+                       f"{what})")
         elif kind == "angle" and not abs(value) * fa <= MAX_ANGLE:
             problem = (f"{value:.6g} {au} is not a plausible angle: more than "
                        f"{MAX_ANGLE / (2 * np.pi):g} turns")

@@ -245,6 +245,45 @@ class Machine(ABC):
             sv = np.linalg.svd(Js, compute_uv=False)
         return bad, not sv[-1] > 1e-9 * sv[0]
 
+    #: a commanded pose farther than this many characteristic lengths from home is not meant
+    MAX_REACH = 10.0
+
+    def working_mode(self, P, R, u=None) -> np.ndarray:
+        """Where poses can be commanded from the working mode of :attr:`home`.
+
+        A pose qualifies when its inverse kinematics is real, it lies within
+        :attr:`MAX_REACH` characteristic lengths of home, and the joint Jacobian's determinant
+        (translation columns for a 3-dof platform) has the sign it has at home: the sign
+        changes only across a singularity, which the machine cannot pass, so a pose of the
+        other sign belongs to another working or assembly mode (a platform mirrored through
+        the base, say) that the joints could reach only by being taken apart.
+
+        Parameters
+        ----------
+        P : array_like, shape (..., 3)
+            Platform positions, m.
+        R : array_like, shape (..., 3, 3)
+            Platform orientations.
+        u : array_like, shape (n_params,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        ndarray of bool, shape (...)
+            True where the pose can be commanded.
+        """
+        with np.errstate(all="ignore"):
+            q, J, _ = self.ik_jacobians(P, R, u, want_du=False)
+            P0, R0 = self.home
+            J0 = self.ik_jacobians(P0, R0, u, want_du=False)[1]
+            cols = slice(0, 3) if self.pose_dof == 3 else slice(None)
+            sign = np.sign(np.linalg.det(np.nan_to_num(np.asarray(J, float)[..., cols])))
+            sign0 = np.sign(np.linalg.det(np.asarray(J0, float).reshape(self.n_joints, 6)[
+                :, cols]))
+            near = (np.linalg.norm(np.asarray(P, float) - P0, axis=-1)
+                    <= self.MAX_REACH * self.characteristic_length())
+            return np.all(np.isfinite(q), axis=-1) & near & (sign == sign0)
+
     # -- kinematics -----------------------------------------------------------------------
     @abstractmethod
     def ik_jacobians(self, P, R, u=None, want_du: bool = True):
