@@ -16,5 +16,18 @@ class Terminated(SystemExit):
 
 
 def on_terminate(signum, frame) -> None:
-    """Signal handler of SIGTERM and SIGHUP: raise :class:`Terminated` (exit 128 + signal)."""
+    """Signal handler of SIGTERM and SIGHUP: raise :class:`Terminated` (exit 128 + signal).
+
+    Parameters
+    ----------
+    signum : int
+        The signal's number.
+    frame : frame or None
+        The interrupted frame (unused).
+
+    Raises
+    ------
+    Terminated
+        Always, with code ``128 + signum``.
+    """
     raise Terminated(128 + signum)

@@ -494,6 +494,11 @@ class MachineFormat:
         What ``home`` holds, for messages.
     hints : dict of str to str, optional
         Hints shown with a missing key of this machine type.
+    kinds : dict of tuple to str, optional
+        Key pattern -> ``"length"``, ``"angle"`` or ``"gain"`` (``"*"`` matches any key or
+        index), for the plausibility of the numbers; ``home`` is known to every format.
+    size : callable, optional
+        ``size(document) -> (metres, what it is)``: the machine's own size for plausibility.
     """
 
     schema: type[BaseModel]

@@ -163,6 +163,18 @@ class Delta(Machine):
         its error; arms that cannot span the distance between the arm axes and the platform
         joints anywhere (``upper_arm + forearm < |base_radius - platform_radius|`` with legs
         around the axis); home (given, or the arms-horizontal default) out of reach.
+
+        Parameters
+        ----------
+        home_given : bool, optional
+            True when the home pose was given (the machine file's ``home``), False when it is
+            :meth:`default_home`; decides which key a problem at home names.
+
+        Returns
+        -------
+        list of tuple
+            ``(key_path, what)``: the machine file key concerned as a path tuple and the
+            problem in words, most specific first; empty when the geometry can work.
         """
         phi = self.leg_angles
         for j in range(3):

@@ -147,6 +147,18 @@ class HexaSlide(Machine):
         one point (nothing holds the orientation); the given home out of reach; a joint
         Jacobian singular at home (e.g. links along their rails' normal planes, or six links
         parallel to six parallel rails).
+
+        Parameters
+        ----------
+        home_given : bool, optional
+            True when the home pose was given (the machine file's ``home``), False when it is
+            :meth:`default_home`; decides which key a problem at home names.
+
+        Returns
+        -------
+        list of tuple
+            ``(key_path, what)``: the machine file key concerned as a path tuple and the
+            problem in words, most specific first; empty when the geometry can work.
         """
         b, a0, alpha, beta, l = self.chains()
         with np.errstate(all="ignore"):

@@ -165,6 +165,18 @@ class Stewart(Machine):
         same leg twice, the Jacobian is singular everywhere); six legs that do not hold the
         platform at home (given, or the default home: a singular leg Jacobian, e.g. six
         parallel legs or a leg of zero length), where forward kinematics starts.
+
+        Parameters
+        ----------
+        home_given : bool, optional
+            True when the home pose was given (the machine file's ``home``), False when it is
+            :meth:`default_home`; decides which key a problem at home names.
+
+        Returns
+        -------
+        list of tuple
+            ``(key_path, what)``: the machine file key concerned as a path tuple and the
+            problem in words, most specific first; empty when the geometry can work.
         """
         b, p, _, _ = self.legs()
         tol = 1e-6 * self.characteristic_length()
