@@ -188,8 +188,10 @@ def sample_sphere_poses(machine: Machine, link_length: float, n: int, rng=None,
         ok[ok] = good
         return P, R, ok
 
-    return draw_accepted(draw, n, rng, "only {have} of {n} sphere poses are reachable: reduce "
-                         "max_tilt or max_rotation, or check the constraint-link length")
+    where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")
+    return draw_accepted(draw, n, rng, (f"{where}: " if where else "")
+                         + "only {have} of {n} sphere poses are reachable: reduce max_tilt or "
+                         "max_rotation, or check constraint_link.length and home")
 
 
 def simulate_constraint_link(true_machine: Machine, n_poses: int = 150, noise_m: float = 0.0,

@@ -276,8 +276,10 @@ def sample_platform_poses(machine: Machine, n: int, rng=None, half_range=POSE_HA
             & np.all(machine.lengths(q) > 0.1 * L0, axis=-1)
         return P, R, ok
 
-    return draw_accepted(draw, n, rng, "only {have} of {n} random poses around home are well "
-                         "conditioned: reduce the pose range or check the geometry and home")
+    where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")
+    return draw_accepted(draw, n, rng, (f"{where}: " if where else "")
+                         + "only {have} of {n} random poses around home are well conditioned: "
+                         "reduce the pose range or check the geometry (legs) and home")
 
 
 def simulate_full_pose(true_machine: Machine, poses, frames: MeasurementFrames | None = None,
