@@ -148,7 +148,7 @@ REQUIRED_CASES = {
     "covariance null": (_set(("covariance",), "none"), "covariance"),
     **{f"no {key}": (_drop((key,)), key) for key in (
         "parameters", "residuals", "identifiability", "measurement", "units", "convergence",
-        "method", "measurements")},
+        "method", "measurements", "covariance", "link_length")},
 }
 
 
@@ -160,3 +160,33 @@ def test_the_sections_every_report_has_are_required(calibrated, name):
     edit(bad)
     with pytest.raises(InputError, match=r"^cal\.json: " + words.replace(".", r"\.")):
         validate_report(bad, "cal.json")
+
+
+@pytest.mark.parametrize("layout,words", [
+    ("report is a directory", ["cal.json", "not a file"]),
+    ("report key a number", ["cal.yaml", "calibration.report"]),
+])
+def test_a_calibrated_files_report_that_cannot_be_used_is_refused(calibrated, tmp_path, layout,
+                                                                  words):
+    d, _ = calibrated
+    text = (d / "cal.yaml").read_text()
+    if layout == "report is a directory":
+        (tmp_path / "cal.json").mkdir()
+    else:
+        text = text.replace("report: cal.json", "report: 5")
+    (tmp_path / "cal.yaml").write_text(text)
+    (tmp_path / "t.csv").write_text("x_mm,y_mm,z_mm,psi_deg,theta_deg,phi_deg\n0,0,300,0,0,0\n")
+    for command in (["compensate", "cal.yaml", "t.csv", "-o", "c.csv"],
+                    ["report", "cal.yaml", "-o", "r.html"]):
+        proc = run(*command, cwd=tmp_path)
+        assert_input_error(proc, *words)
+    assert not (tmp_path / "c.csv").exists() and not (tmp_path / "r.html").exists()
+
+
+def test_a_calibrated_file_without_its_report_warns_naming_it(calibrated, tmp_path):
+    d, _ = calibrated
+    (tmp_path / "cal.yaml").write_text((d / "cal.yaml").read_text())
+    (tmp_path / "t.csv").write_text("x_mm,y_mm,z_mm,psi_deg,theta_deg,phi_deg\n0,0,300,0,0,0\n")
+    proc = run("compensate", "cal.yaml", "t.csv", "-o", "c.csv", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "cal.json (named by cal.yaml) is missing" in proc.stderr

@@ -33,11 +33,17 @@ def calibration_report_path(machine, machine_spec: str, report: Path | None) -> 
         path = report
     else:
         name = info.get("report")
-        if not name:
+        if name is None:
             return None
-        path = Path(machine_spec).parent / str(name)
+        if not isinstance(name, str) or not name.strip() or Path(name).name != name:
+            raise InputError(f"{machine_spec}: calibration.report: expected the file name of "
+                             f"the JSON report beside it, got {name!r}")
+        path = Path(machine_spec).parent / name
+        if not path.exists():
+            return None             # the YAML travelled without its report: warned later
         if not path.is_file():
-            return None
+            raise InputError(f"{path}: the calibration report {machine_spec} names is not a "
+                             "file; give the report with --report")
     if pinned is not None and text_digest(read_input_text(path, "calibration report")) \
             != str(pinned):
         raise InputError(f"{path}: is not the report of {machine_spec} (its SHA-256 differs "
@@ -159,8 +165,11 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
         "uncompensated_orientation_urad": stats(comp.uncompensated_orientation, 1e6),
     }
     if report_path is None:
-        warning("no calibration report (JSON with a covariance) beside the machine file: the "
-                "predicted residual error is not given; pass --report FILE.json")
+        named = (getattr(machine, "calibration_info", None) or {}).get("report")
+        where = (f"{Path(machine_spec).parent / named} (named by {machine_spec}) is missing"
+                 if named else "no calibration report (JSON with a covariance) beside the "
+                               "machine file")
+        warning(f"{where}: the predicted residual error is not given; pass --report FILE.json")
     if json_output:
         print(json.dumps(_finite_or_none(summary), indent=2, allow_nan=False))
         return 0

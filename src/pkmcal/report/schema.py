@@ -106,10 +106,13 @@ class FramesCovariance(_Section):
 
     parameters: list[str]
     matrix: list[list[Num]]
+    null_space: list[list[Num]] | None = None
 
     @model_validator(mode="after")
     def _square(self):
-        _check_square(self.matrix, len(self.parameters))
+        n = len(self.parameters)
+        _check_square(self.matrix, n)
+        _check_null_space(self.null_space, n)
         return self
 
 
@@ -125,10 +128,14 @@ class Covariance(_Section):
     def _shapes(self):
         n = len(self.parameters)
         _check_square(self.matrix, n)
-        if self.null_space is not None:
-            if len(self.null_space) != n or len({len(r) for r in self.null_space}) > 1:
-                raise ValueError(f"null_space must have {n} rows of one length")
+        _check_null_space(self.null_space, n)
         return self
+
+
+def _check_null_space(null_space, n: int) -> None:
+    if null_space is not None:
+        if len(null_space) != n or len({len(r) for r in null_space}) > 1:
+            raise ValueError(f"null_space must have {n} rows of one length")
 
 
 def _check_square(matrix, n: int) -> None:
@@ -177,6 +184,8 @@ class CalibrationReport(_Section):
     residuals: Residuals
     noise_sigma_um: OptNum = Field(default=None, gt=0)
     normalised_residuals: list[Num | None] | None = None
+    #: residual / (assumed std x sqrt(1 - h_ii)), leverage-corrected (None: fitted exactly)
+    standardised_residuals: list[Num | None] | None = None
     distance_ratio: DistanceRatio | None = None
     validation: dict[str, Any] | None = None
     link_length: dict[str, Any] | None = None
@@ -184,8 +193,15 @@ class CalibrationReport(_Section):
     frames: dict[str, Any] | None = None
     identifiable_combinations: dict[str, Any] | None = None
     parameters: Annotated[list[Parameter], Field(min_length=1)]
-    covariance: Covariance | None = None
+    covariance: Covariance
     provenance: dict[str, Scalar] | None = None
+
+    @model_validator(mode="after")
+    def _sections_of_the_measurement(self):
+        if self.measurement == "constraint-link" and self.link_length is None:
+            raise ValueError("link_length: missing (a constraint-link report states the link "
+                             "length it used)")
+        return self
 
 
 def _depth(text: str) -> int:
@@ -258,7 +274,9 @@ def validate_report(doc: Any, source: str | Path = "report") -> dict:
             msg = "missing (the section needs this key)"
         value = err.get("input")
         shown = "" if isinstance(value, (dict, list)) else f": {value!r}"[:80]
-        raise InputError(f"{source}: {_key_path(err.get('loc', ()))}: {msg}{shown}") from None
+        loc = err.get("loc", ())
+        where = f"{_key_path(loc)}: " if loc else ""
+        raise InputError(f"{source}: {where}{msg}{shown}") from None
     return doc
 
 
