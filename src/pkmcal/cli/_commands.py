@@ -651,6 +651,10 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
                     method=method, sigma_m=sigma, estimate_link_length=estimate_lc)
     if not _converged(result):
         return 1
+    from ..calibration.constraint_link import PROBLEMS
+
+    kw = {} if estimate_lc is None else {"estimate_link_length": estimate_lc}
+    result.extras["rebuild_problem"] = lambda: PROBLEMS[method](machine, data, sigma, **kw)
 
     units = _units(machine)
     fl = LENGTH[units["length"]]
@@ -885,9 +889,14 @@ def _write_calibration(calibrated, units, metadata, report, output, report_path,
             report["covariance"]["with_frames"] = {
                 "parameters": all_names,
                 "matrix": np.asarray(result.covariance, float).tolist(),
+                "null_space": (np.asarray(result.null_space, float)
+                               * np.asarray(result.scales, float)[:, None]).tolist(),
             }
         # residual / assumed noise std of every residual, for the report's histogram
         report["normalised_residuals"] = np.asarray(result.residuals, float).ravel().tolist()
+        standardised = _standardised(result)
+        if standardised is not None:
+            report["standardised_residuals"] = standardised
     report["provenance"] = provenance()
     json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
     # the machine file names its report and pins it by digest: a report of another run
@@ -911,6 +920,22 @@ def _write_calibration(calibrated, units, metadata, report, output, report_path,
         atomic_write_text(report_dir / "report.html", html_text)
     commit_outputs()
     return json_text
+
+
+def _standardised(result):
+    """Leverage-corrected standardised residuals for the report (None when the problem
+    cannot be evaluated again)."""
+    problem = result.extras.get("problem")
+    if problem is None and callable(result.extras.get("rebuild_problem")):
+        problem = result.extras["rebuild_problem"]()
+    if problem is None or result.state is None:
+        return None
+    from ..report.residuals import standardised_residuals
+
+    try:
+        return standardised_residuals(problem, result)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
 
 
 def _print_calibration(report, params, data_path, output, report_path, machine) -> None:
