@@ -153,12 +153,12 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
                         map_path: Path | None = None) -> int:
     from ..identifiability import identifiability_report
     from ..planning import (
-        DEFAULT_PLAN_SIZE,
         candidate_poses,
         describe_noise,
         design_from_problem,
         planned_problem,
         scenario_for,
+        standard_plan,
     )
 
     machine = load_machine_arg(machine_spec)
@@ -178,16 +178,15 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
     else:
         kind = scenario_for(machine)
         model = noise_model(kind, noise, pose_noise, machine)
-        if data_path is None and kind == "tracker" and poses is None:
-            from ..measurements import TRACKER_GRID_SPACING, grid_points
-
-            P = grid_points(machine.home[0], TRACKER_GRID_SPACING, (3, 3, 3))
-            R = np.broadcast_to(np.eye(3), (len(P), 3, 3))
-            rows, source = None, "the 3x3x3 grid of seed 001 around home (planned)"
+        if data_path is None and poses is None:
+            # the instrument's standard plan (tracker: seed 001's 3x3x3 grid), as select-poses
+            # compares with
+            plan = standard_plan(machine, kind, seed=seed)
+            P, R = plan.P, plan.R
+            rows, source = None, plan.name
         elif data_path is None:
-            n = DEFAULT_PLAN_SIZE[kind] if poses is None else poses
-            P, R = candidate_poses(machine, kind, n, rng=seed)
-            rows, source = None, f"{n} random planned poses (seed {seed})"
+            P, R = candidate_poses(machine, kind, poses, rng=seed)
+            rows, source = None, f"{poses} random planned poses (seed {seed})"
         else:
             P, R, rows = read_poses_of(data_path, machine)
             source = f"planned poses of {data_path}"
@@ -285,11 +284,75 @@ def parse_joint_range(text: str, machine) -> tuple[float, float]:
     return lo, hi
 
 
+#: relative tolerance of "no worse than the standard plan" (the search keeps a 1e-9 ridge)
+NO_WORSE_RTOL = 1e-6
+
+_CRITERION_WORDS = {
+    "d": ("-log det of the information", "D-efficiency: (det ratio)^(1/{p})"),
+    "a": ("mean variance of the scaled parameters", "ratio of the mean parameter variances"),
+    "pose": ("mean squared position error over the workspace",
+             "ratio of the mean squared position errors"),
+}
+
+
+def criterion_ratio(criterion: str, other: float, selected: float, rank: int) -> float:
+    """How many times better the selected set is than another by the criterion (> 1: better).
+
+    Parameters
+    ----------
+    criterion : {'d', 'a', 'pose'}
+        The criterion.
+    other, selected : float
+        Criterion values (:func:`~pkmcal.planning.criterion_value`) of the other and the
+        selected set.
+    rank : int
+        Number ``p`` of identifiable directions (the dimension of the information).
+
+    Returns
+    -------
+    float
+        ``(det M_sel / det M_other)^(1/p)`` for ``d`` (the D-efficiency), ``other /
+        selected`` for ``a`` and ``pose``; inf when only the other is singular.
+    """
+    if not (np.isfinite(selected) and np.isfinite(other)):
+        return float("inf") if np.isfinite(selected) else float("nan")
+    if criterion == "d":
+        return float(np.exp((other - selected) / max(rank, 1)))
+    return float(other / selected) if selected > 0 else float("nan")
+
+
+def _standard_plan_of(machine, kind, n, seed, lo_hi):
+    """The standard plan of ``n`` poses for select-poses, unavailable (with the reason) when
+    the machine cannot reach it or it needs joints outside ``--joint-range``."""
+    from ..planning import StandardPlan, standard_plan
+
+    try:
+        plan = standard_plan(machine, kind, n, seed)
+    except InputError as exc:
+        return StandardPlan(f"standard plan of {n} poses", reason=str(exc))
+    if not plan.available:
+        return plan
+    q = machine.ik(plan.P, plan.R)
+    reach = np.all(np.isfinite(q), -1)
+    if not reach.all():
+        return StandardPlan(plan.name, reason=f"{int((~reach).sum())} of its poses are out of "
+                            "this machine's reach")
+    if lo_hi is not None and not np.all((q >= lo_hi[0]) & (q <= lo_hi[1])):
+        return StandardPlan(plan.name, reason="it needs joint values outside --joint-range")
+    return plan
+
+
 def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                      candidates_path: Path | None, criterion: str, random_sets: int,
                      noise: str | None, pose_noise: str | None, seed: int,
                      map_path: Path | None, json_output: bool,
                      joint_range: str | None = None) -> int:
+    """``pkmcal select-poses``: choose ``n`` poses by a criterion, starting from the greedy
+    choice and from the instrument's standard plan, never returning a plan worse than the
+    standard one (by the criterion or the predicted RMS position error) when it is among the
+    candidates; report it next to the standard plan and random sets of the same size."""
+    from dataclasses import replace
+
     from ..analysis.prediction import pose_error_operator
     from ..io import write_poses, write_positions
     from ..planning import (
@@ -324,10 +387,11 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
             P, R = candidate_poses(machine, kind, candidates, rng=seed)
             rows, source = None, "<candidates>"
         dropped = 0
+        lo_hi = None
         if joint_range is not None:
-            lo, hi = parse_joint_range(joint_range, machine)
+            lo_hi = parse_joint_range(joint_range, machine)
             q = machine.ik(P, R)
-            inside = np.all((q >= lo) & (q <= hi), axis=-1)      # NaN (unreachable) is outside
+            inside = np.all((q >= lo_hi[0]) & (q <= lo_hi[1]), axis=-1)   # NaN: outside
             dropped = int((~inside).sum())
             P, R = P[inside], R[inside]
             rows = None if rows is None else np.asarray(rows)[inside]
@@ -337,16 +401,38 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
             raise InputError(f"{source}: {len(P)} candidate pose(s)"
                              + (f" within --joint-range ({dropped} outside)" if dropped else "")
                              + f"; cannot choose {n}")
+        K = len(P)
+        # the instrument's standard plan of n poses: evaluated by the same criterion, and
+        # (without --from) further candidates and a start of the exchanges
+        std = _standard_plan_of(machine, kind, n, seed, lo_hi)
+        k = len(std)
+        P_all = np.concatenate([P, std.P]) if k else P
+        R_all = np.concatenate([R, std.R]) if k else R
+        rows_all = rows
+        if k and rows is not None:
+            first = len(rows) if candidates_path is not None else candidates
+            rows_all = np.concatenate([np.asarray(rows), first + 1 + np.arange(k)])
         step(1, "select-poses: information of each candidate")
-        problem = planned_problem(machine, kind, P, R, model, rows, source)
+        problem = planned_problem(machine, kind, P_all, R_all, model, rows_all, source)
         design = design_from_problem(problem)
+        selectable = K + (k if candidates_path is None else 0)
+        pool = replace(design, F=design.F[:selectable])
+        if k and selectable == K:
+            sv = np.linalg.svd(pool.F.reshape(-1, design.rank), compute_uv=False)
+            if np.sum(sv > 1e-7 * sv[0]) < design.rank:
+                # the standard plan sees directions the --from poses cannot: not comparable
+                std = replace(std, P=None, R=None, reason="it identifies directions the "
+                              f"poses of {candidates_path} cannot")
+                k = 0
+                problem = planned_problem(machine, kind, P, R, model, rows, source)
+                design = pool = design_from_problem(problem)
         step(1, "select-poses: pose-error operator over the workspace")
         from ..analysis.accuracy import machine_workspace
 
         workspace = machine_workspace(machine, WORKSPACE_POSES, seed)
         op = pose_error_operator(machine, design, *workspace, problem.n_machine)
         if op.unbounded:
-            raise InputError(f"{source}: even all {len(P)} candidates leave {op.unbounded} "
+            raise InputError(f"{source}: even all {len(P_all)} candidates leave {op.unbounded} "
                              "direction(s) that move the platform unidentified; widen the "
                              "candidate set")
         per = design.F.shape[1]
@@ -356,53 +442,107 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                              f"independent equations ({per} each) for the {design.rank} "
                              f"identifiable parameter directions; choose at least {need}")
         A = op.A
-        step(1, f"select-poses: choosing {n} of {len(P)} (greedy, then exchanges)")
-        sel = select_poses(design, n, criterion, A=A)
-        idx = sel.index
+        std_idx = np.arange(K, K + k)
+        std_value = std_ms = float("inf")
+        if k:
+            M_std = design.information(std_idx)
+            std_value = criterion_value(M_std, criterion, A)
+            std_ms = criterion_value(M_std, "pose", A)
+        as_start = bool(k and selectable > K and np.isfinite(std_ms))
+        step(1, f"select-poses: choosing {n} of {selectable} (greedy and the standard plan, "
+             "then exchanges)")
+        sel = select_poses(pool, n, criterion, A=A, starts=[std_idx] if as_start else (),
+                           bound=std_ms * (1 + 1e-9) if as_start else None)
+        idx = np.asarray(sel.index)
+        value = criterion_value(design.information(idx), criterion, A)
+        ms = criterion_value(design.information(idx), "pose", A)
+        note = None
+        worse = bool(k and np.isfinite(std_ms) and (
+            value > std_value + NO_WORSE_RTOL * max(abs(std_value), 1.0)
+            or ms > std_ms * (1 + NO_WORSE_RTOL)))
+        returned_standard = False
+        if worse and as_start:
+            note = (f"the search ended worse than the standard plan (criterion {value:.6g} "
+                    f"against {std_value:.6g}, {np.sqrt(ms) * 1e6:.3g} um against "
+                    f"{np.sqrt(std_ms) * 1e6:.3g} um); the standard plan is returned")
+            idx, value, ms, returned_standard = std_idx, std_value, std_ms, True
+        elif worse:
+            note = (f"worse than the standard plan, which is not among the poses of "
+                    f"{candidates_path}")
+        elif as_start and sel.start is not None:
+            note = "the best plan came from the exchanges started at the standard plan"
         M = design.information(idx)
-        rms = float(np.sqrt(criterion_value(M, "pose", A)))
+        rms = float(np.sqrt(ms))
         step(1, f"select-poses: {random_sets} random sets for comparison")
-        baseline = np.sqrt(random_values(design, n, random_sets, "pose", A, rng=seed + 1)) \
-            if random_sets else np.zeros(0)
+        random_pool = replace(design, F=design.F[:K])       # the candidates proper
+        baseline = np.sqrt(random_values(random_pool, n, random_sets, "pose", A,
+                                         rng=seed + 1)) if random_sets else np.zeros(0)
+        random_crit = random_values(random_pool, n, random_sets, criterion, A,
+                                    rng=seed + 1) if random_sets else np.zeros(0)
         step(1)
     finite = baseline[np.isfinite(baseline)]
     median = float(np.median(baseline)) if baseline.size else float("nan")
+    crit_median = float(np.median(random_crit)) if random_crit.size else float("nan")
     from ..identifiability import observability_indices
 
     sv = np.linalg.svd(design.F[idx].reshape(-1, design.rank), compute_uv=False)
     section = prediction_report(machine, design, problem.n_machine, M, op=op)
     section["noise"] = describe_noise(kind, model)
+    std_rms = float(np.sqrt(std_ms))
+    origin = ("the standard plan" if returned_standard
+              else "exchanges from the standard plan" if sel.start is not None
+              else "greedy, then exchanges")
     report = {
         "pkmcal_report": 1,
         "command": "select-poses",
         "machine_file": str(getattr(machine, "source", machine_spec)),
         "measurement": kind,
-        "candidates": int(len(P)),
+        "candidates": int(K),
         "outside_joint_range": dropped,
         "candidates_file": None if candidates_path is None else str(candidates_path),
         "selected": int(n),
         "criterion": criterion,
-        "exchanges": sel.exchanges,
+        "exchanges": 0 if returned_standard else sel.exchanges,
         "identifiable": design.rank,
         "observability": observability_indices(sv),
         "predicted_accuracy": section,
+        "selected_plan": {"origin": origin, "criterion_value": value,
+                          "position_rms_um": rms * 1e6},
+        "standard_plan": {
+            "name": std.name, "available": bool(k), "reason": std.reason or None,
+            "poses": int(k),
+            "candidates": [K + 1 if rows_all is None else int(rows_all[K]),
+                           K + k if rows_all is None else int(rows_all[-1])]
+            if k and selectable > K else None,
+            "start": as_start,
+            "criterion_value": std_value if k else None,
+            "position_rms_um": std_rms * 1e6 if k else None,
+            "ratio_to_selected": std_rms / rms if k and rms > 0 else None,
+            "criterion_ratio_to_selected": criterion_ratio(criterion, std_value, value,
+                                                           design.rank) if k else None,
+            "returned": returned_standard, "note": note},
         "random_sets": {"sets": int(random_sets), "singular": int(baseline.size - finite.size),
                         "position_rms_median_um": median * 1e6,
                         "position_rms_best_um": float(finite.min()) * 1e6 if finite.size
                         else None,
-                        "ratio_median_to_selected": median / rms if rms > 0 else None},
+                        "ratio_median_to_selected": median / rms if rms > 0 else None,
+                        "criterion_median": crit_median,
+                        "criterion_ratio_median_to_selected":
+                            criterion_ratio(criterion, crit_median, value, design.rank)
+                            if random_sets else None},
         "seed": seed,
         "output": str(output),
     }
     units = _units(machine)
-    extra = {"candidate": (idx + 1 if rows is None else np.asarray(rows)[idx]).tolist()}
-    extra.update(joint_columns(machine, machine.ik(P[idx], R[idx]), units))
+    extra = {"candidate": (idx + 1 if rows_all is None else np.asarray(rows_all)[idx]).tolist()}
+    extra.update(joint_columns(machine, machine.ik(P_all[idx], R_all[idx]), units))
     if machine.pose_dof == 3:
-        write_positions(output, P[idx], units["length"], extra=extra)
+        write_positions(output, P_all[idx], units["length"], extra=extra)
     else:
-        write_poses(output, P[idx], R[idx], units["length"], units["angle"], extra=extra)
+        write_poses(output, P_all[idx], R_all[idx], units["length"], units["angle"],
+                    extra=extra)
     if map_path is not None:
-        write_map(map_path, machine, design, problem.n_machine, M, P[idx],
+        write_map(map_path, machine, design, problem.n_machine, M, P_all[idx],
                   f"predicted accuracy with the {n} selected poses ({section['noise']})")
         report["map"] = str(map_path)
     commit_outputs()
@@ -413,14 +553,46 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     table = _table("", "", title=f"pkmcal select-poses: {report['machine_file']}",
                    show_header=False)
     table.add_row("measurement", _MEASUREMENT_WORDS[kind])
-    table.add_row("selected", f"{n} of {len(P)} candidate poses by criterion {criterion} "
-                  f"(greedy + {sel.exchanges} exchanges); {design.rank} parameter directions "
-                  "identifiable")
+    how = ("the standard plan (the search ended worse)" if returned_standard
+           else f"greedy + {sel.exchanges} exchanges" if sel.start is None
+           else f"standard plan + {sel.exchanges} exchanges")
+    extra_words = (f"; the standard plan's {k} poses were further candidates and a start"
+                   if as_start else "")
+    table.add_row("selected", f"{n} of {K} candidate poses by criterion {criterion} ({how}"
+                  f"{extra_words}); {design.rank} parameter directions identifiable")
     _prediction_rows(table, section)
+    if k and not np.isfinite(std_ms):
+        table.add_row("standard plan", f"{std.name}: leaves parameter directions that move the "
+                      "platform unidentified (no bounded prediction); not a start")
+    elif k:
+        text = (f"{std.name}: predicted position error {std_rms * 1e6:.3g} um RMS, "
+                f"{std_rms / rms:.2f}x the selected set's {rms * 1e6:.3g} um")
+        if note:
+            text += f"; {note}"
+        table.add_row("standard plan", text)
+    else:
+        table.add_row("standard plan", f"none of {n} poses: {std.reason}")
     if random_sets:
         table.add_row("random sets", f"median predicted position error {median * 1e6:.3g} um "
                       f"RMS over {random_sets} random sets of {n} candidates: "
-                      f"{median / rms:.3g}x the selected set's {rms * 1e6:.3g} um")
+                      f"{median / rms:.2f}x the selected set's {rms * 1e6:.3g} um")
+    words, ratio_words = _CRITERION_WORDS[criterion]
+    crit = f"{criterion} ({words}): selected {value:.5g}"
+    ratios = []
+    if k and not np.isfinite(std_value):
+        crit += ", standard plan singular"
+    elif k:
+        crit += f", standard plan {std_value:.5g}"
+        ratios.append(f"{criterion_ratio(criterion, std_value, value, design.rank):.2f}x the "
+                      "standard plan")
+    if random_sets:
+        crit += f", median random set {crit_median:.5g}"
+        ratios.append(f"{criterion_ratio(criterion, crit_median, value, design.rank):.2f}x "
+                      "the median random set")
+    if ratios:
+        crit += (f"; the selected set is {' and '.join(ratios)} "
+                 f"({ratio_words.format(p=design.rank)})")
+    table.add_row("criterion", crit)
     table.add_row("written", str(output) + (f", {map_path}" if map_path else ""))
     out.print(table)
     return 0

@@ -13,6 +13,8 @@ from .scenarios import (
     DEFAULT_PLAN_SIZE,
     SCENARIO_OF,
     SCENARIOS,
+    STANDARD_PLANS,
+    StandardPlan,
     candidate_poses,
     default_noise,
     describe_noise,
@@ -21,12 +23,14 @@ from .scenarios import (
     planned_problem,
     scenario_for,
     scenario_problem,
+    standard_plan,
     tracker_pose,
 )
 
 __all__ = [
-    "CRITERIA", "DEFAULT_PLAN_SIZE", "Design", "SCENARIOS", "SCENARIO_OF", "Selection",
-    "candidate_poses", "criterion_value", "default_noise", "describe_noise",
-    "design_from_problem", "measurement_frames", "planned_data", "planned_problem",
-    "random_values", "scenario_for", "scenario_problem", "select_poses", "tracker_pose",
+    "CRITERIA", "DEFAULT_PLAN_SIZE", "Design", "SCENARIOS", "SCENARIO_OF", "STANDARD_PLANS",
+    "Selection", "StandardPlan", "candidate_poses", "criterion_value", "default_noise",
+    "describe_noise", "design_from_problem", "measurement_frames", "planned_data",
+    "planned_problem", "random_values", "scenario_for", "scenario_problem", "select_poses",
+    "standard_plan", "tracker_pose",
 ]

@@ -19,7 +19,10 @@ Criteria (smaller is better, as returned by :func:`criterion_value`):
 Selection (:func:`select_poses`) is greedy from a tiny ridge, then exchanges (remove the
 member that costs least, add the candidate that gains most; kept when the criterion improves)
 until no exchange improves it - the DETMAX/Fedorov family, with rank-r updates evaluated for
-all candidates at once.
+all candidates at once. Further starts (the instrument's standard plan, :mod:`.scenarios`) are
+improved the same way and the best result is kept, so that the choice is never worse than a
+start; a bound on the predicted position error keeps it no worse than the standard plan by
+that figure either.
 """
 
 from __future__ import annotations
@@ -187,29 +190,84 @@ class Selection:
     Attributes
     ----------
     index : ndarray of int, shape (n,)
-        Chosen candidates, in the greedy order (an exchanged candidate takes the place of the
-        one it replaced).
+        Chosen candidates, in the order of their start (greedy order, or the order of the
+        given start; an exchanged candidate takes the place of the one it replaced).
     value : float
         Criterion value of the chosen set.
     criterion : str
         The criterion.
     exchanges : int
-        Number of exchanges made after the greedy start.
+        Number of exchanges made after the start the chosen set came from.
+    start : int or None
+        That start: None for the greedy one, else its index in ``starts``.
     """
 
     index: np.ndarray
     value: float
     criterion: str
     exchanges: int
+    start: int | None = None
+
+
+def _exchange(F, chosen, free, M, ridge, criterion, A, max_exchanges, bound):
+    """Exchanges from the set ``chosen`` (information ``M``, ridge included) until none
+    improves the criterion; with ``bound``, a set whose ``trace(A M^-1)`` is within it is
+    only exchanged for sets within it. Returns ``(chosen, M, value, exchanges, within)``."""
+    n = len(chosen)
+
+    def within(Mc):
+        return bound is None or criterion_value(Mc - ridge, "pose", A) <= bound
+
+    value = criterion_value(M - ridge, criterion, A)
+    ok = within(M)
+    exchanges = 0
+    tries = min(n, 8)
+    while exchanges < max_exchanges:
+        Minv = np.linalg.inv(M)
+        loss = -_gains(F[chosen], Minv, criterion, A, -1.0)      # increase on removal
+        improved = False
+        for i in np.argsort(loss)[:tries]:
+            out = int(chosen[i])
+            M_out = M - F[out].T @ F[out]
+            cand = np.flatnonzero(free)
+            if cand.size == 0:
+                break
+            gain = _gains(F[cand], np.linalg.inv(M_out), criterion, A, +1.0)
+            # the value after the exchange falls with the gain: best additions first
+            for jj in np.argsort(-gain)[:1 if bound is None else tries]:
+                j = int(cand[jj])
+                M_new = M_out + F[j].T @ F[j]
+                new_value = criterion_value(M_new - ridge, criterion, A)
+                if not new_value < value - 1e-12 * max(abs(value), 1.0):
+                    break
+                if ok and not within(M_new):
+                    continue
+                chosen[i] = j
+                free[out], free[j] = True, False
+                M, value = M_new, new_value
+                ok = ok or within(M)
+                exchanges += 1
+                improved = True
+                break
+            if improved:
+                break
+        if not improved:
+            break
+    return chosen, M, value, exchanges, ok
 
 
 def select_poses(design: Design, n: int, criterion: str = "d", A=None,
-                 max_exchanges=None) -> Selection:
+                 max_exchanges=None, starts=(), bound=None) -> Selection:
     """Choose ``n`` of the candidates of ``design`` that minimise a criterion (module doc).
 
     The greedy start uses a ridge of ``1e-9`` of the mean candidate information so that the
     first picks are defined; exchanges run until none improves the criterion (at most
-    ``max_exchanges``).
+    ``max_exchanges``). Further ``starts`` (e.g. the instrument's standard plan) are improved
+    by exchanges the same way, and the best result is returned: never worse by the criterion
+    than any start. With ``bound`` (on ``trace(A M^-1)``, the predicted mean squared position
+    error), a start within the bound stays within it, and results within it are preferred:
+    with a start at the standard plan and ``bound`` its own value, the result is no worse
+    than the standard plan by the criterion nor by the predicted position error.
 
     Parameters
     ----------
@@ -220,31 +278,37 @@ def select_poses(design: Design, n: int, criterion: str = "d", A=None,
     criterion : {'d', 'a', 'pose'}, optional
         The criterion.
     A : array_like, shape (p, p), optional
-        Workspace operator, required for ``criterion='pose'``.
+        Workspace operator, required for ``criterion='pose'`` and with ``bound``.
     max_exchanges : int, optional
-        Largest number of exchanges; default ``10 n``.
+        Largest number of exchanges from each start; default ``10 n``.
+    starts : sequence of array_like of int, optional
+        Further starting sets, each of ``n`` distinct candidate indices.
+    bound : float, optional
+        Largest admissible ``trace(A M^-1)`` (A's units squared).
 
     Returns
     -------
     Selection
-        The chosen candidates and the criterion value.
+        The chosen candidates, the criterion value and the start they came from.
 
     Raises
     ------
     InputError
         For an unknown criterion or ``n`` outside 1..K.
     ValueError
-        When ``criterion='pose'`` is given without ``A``.
+        When ``criterion='pose'`` or ``bound`` is given without ``A``, or a start is not
+        ``n`` distinct candidate indices.
     """
     if criterion not in CRITERIA:
         raise InputError(f"unknown criterion {criterion!r}; use one of {', '.join(CRITERIA)}")
-    if criterion == "pose" and A is None:
-        raise ValueError("criterion 'pose' needs the workspace operator A")
+    if (criterion == "pose" or bound is not None) and A is None:
+        raise ValueError("criterion 'pose' and a bound need the workspace operator A")
     K, p = len(design), design.rank
     if not 1 <= n <= K:
         raise InputError(f"cannot choose {n} of {K} candidate poses")
     F = design.F
     ridge = 1e-9 * np.trace(design.information()) / max(K * p, 1) * np.eye(p)
+    max_exchanges = 10 * n if max_exchanges is None else max_exchanges
     chosen: list[int] = []
     free = np.ones(K, bool)
     M = ridge.copy()
@@ -254,35 +318,19 @@ def select_poses(design: Design, n: int, criterion: str = "d", A=None,
         chosen.append(j)
         free[j] = False
         M += F[j].T @ F[j]
-    chosen_arr = np.array(chosen)
-    value = criterion_value(M - ridge, criterion, A)
-    max_exchanges = 10 * n if max_exchanges is None else max_exchanges
-    exchanges = 0
-    tries = min(n, 8)
-    while exchanges < max_exchanges:
-        Minv = np.linalg.inv(M)
-        loss = -_gains(F[chosen_arr], Minv, criterion, A, -1.0)      # increase on removal
-        improved = False
-        for i in np.argsort(loss)[:tries]:
-            out = int(chosen_arr[i])
-            M_out = M - F[out].T @ F[out]
-            cand = np.flatnonzero(free)
-            if cand.size == 0:
-                break
-            gain = _gains(F[cand], np.linalg.inv(M_out), criterion, A, +1.0)
-            j = int(cand[int(np.argmax(gain))])
-            M_new = M_out + F[j].T @ F[j]
-            new_value = criterion_value(M_new - ridge, criterion, A)
-            if new_value < value - 1e-12 * max(abs(value), 1.0):
-                chosen_arr[i] = j
-                free[out], free[j] = True, False
-                M, value = M_new, new_value
-                exchanges += 1
-                improved = True
-                break
-        if not improved:
-            break
-    return Selection(chosen_arr, value, criterion, exchanges)
+    runs = [(None, *_exchange(F, np.array(chosen), free, M, ridge, criterion, A,
+                              max_exchanges, bound))]
+    for s, start in enumerate(starts):
+        idx = np.array(start, dtype=int).ravel()
+        if len(idx) != n or len(np.unique(idx)) != n or idx.min() < 0 or idx.max() >= K:
+            raise ValueError(f"start {s}: expected {n} distinct candidate indices in 0..{K - 1}")
+        free = np.ones(K, bool)
+        free[idx] = False
+        runs.append((s, *_exchange(F, idx, free, ridge + design.information(idx), ridge,
+                                   criterion, A, max_exchanges, bound)))
+    admissible = [r for r in runs if r[5]] or runs
+    start, index, _, value, exchanges, _ = min(admissible, key=lambda r: r[3])
+    return Selection(index, value, criterion, exchanges, start)
 
 
 def random_values(design: Design, n: int, sets: int, criterion: str = "d", A=None,

@@ -20,6 +20,8 @@ Scenarios (one per measurement type, SPEC 2):
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..errors import InputError
@@ -119,6 +121,113 @@ def describe_noise(scenario: str, noise) -> str:
             f"um / {noise.orientation_rad * 1e6:.3g} urad (std)")
 
 
+@dataclass
+class StandardPlan:
+    """The instrument's standard measurement plan of a scenario (what one measures without
+    planning), or the reason there is none of a given size.
+
+    Attributes
+    ----------
+    name : str
+        The plan in words, e.g. "seed 001's 3x3x3 grid around home".
+    P : ndarray, shape (n, 3) or None
+        Positions, m; None when there is no standard plan of the size asked for.
+    R : ndarray, shape (n, 3, 3) or None
+        Orientations.
+    reason : str
+        Why there is none (empty when there is one).
+    """
+
+    name: str
+    P: np.ndarray | None = None
+    R: np.ndarray | None = None
+    reason: str = ""
+
+    @property
+    def available(self) -> bool:
+        """True when the plan has poses."""
+        return self.P is not None
+
+    def __len__(self) -> int:
+        return 0 if self.P is None else len(self.P)
+
+
+def _tracker_grid_plan(machine: Machine, n: int, seed: int) -> StandardPlan:
+    """Seed 001's grid (3x3x3, dx = dy = 150 mm, dz = 40 mm around home); for ``n = k^3``
+    the k x k x k grid spanning the same box."""
+    from ..measurements import TRACKER_GRID_SPACING, grid_points
+
+    k = int(round(n ** (1.0 / 3.0)))
+    if k < 2 or k**3 != n:
+        return StandardPlan("seed 001's grid around home",
+                            reason=f"seed 001's grid has 3 x 3 x 3 = 27 points (k x k x k "
+                                   f"grids in its box: 8, 27, 64, ...), not {n}")
+    span = 2.0 * np.asarray(TRACKER_GRID_SPACING, float)       # the 3x3x3 grid's extent
+    P = grid_points(machine.home[0], span / (k - 1), (k, k, k))
+    return StandardPlan(f"the {k}x{k}x{k} grid of seed 001 around home", P,
+                        np.broadcast_to(np.eye(3), (n, 3, 3)))
+
+
+def _sampled_plan(machine: Machine, scenario: str, n: int, seed: int) -> StandardPlan:
+    """The simulations' default sample of ``n`` poses (:func:`candidate_poses` with ``seed``)."""
+    P, R = candidate_poses(machine, scenario, n, rng=seed)
+    where = "on the constraint sphere" if scenario == "constraint-link" else "around home"
+    return StandardPlan(f"{n} random planned poses {where} (seed {seed})", P, R)
+
+
+#: the standard plan of each scenario: ``(machine, n, seed) -> StandardPlan``
+STANDARD_PLANS = {
+    "constraint-link": lambda machine, n, seed: _sampled_plan(machine, "constraint-link", n,
+                                                              seed),
+    "tracker": _tracker_grid_plan,
+    "pose": lambda machine, n, seed: _sampled_plan(machine, "pose", n, seed),
+}
+
+
+def standard_plan(machine: Machine, scenario: str, n: int | None = None,
+                  seed: int = 0) -> StandardPlan:
+    """The instrument's standard plan of ``n`` poses: what ``pkmcal identifiability`` analyses
+    without data, and what ``pkmcal select-poses`` compares with and starts from.
+
+    A machine may define its own (a method ``standard_plan(scenario, n, seed)`` returning a
+    :class:`StandardPlan`); otherwise the scenario's entry of :data:`STANDARD_PLANS`: tracker,
+    seed 001's 3x3x3 grid (dx = dy = 150 mm, dz = 40 mm around home; k x k x k grids in the
+    same box for ``n = k^3``, none for other ``n``); constraint link and full pose, the
+    simulations' default sample of ``n`` feasible poses (:func:`candidate_poses`, ``seed``).
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    scenario : {'constraint-link', 'tracker', 'pose'}
+        The scenario.
+    n : int, optional
+        Number of poses; default :data:`DEFAULT_PLAN_SIZE` of the scenario.
+    seed : int, optional
+        Seed of sampled plans.
+
+    Returns
+    -------
+    StandardPlan
+        The plan, or (``available`` false) the reason there is none of ``n`` poses.
+
+    Raises
+    ------
+    InputError
+        For an unknown scenario, ``n < 1``, or when a sampled plan finds too few feasible
+        poses.
+    """
+    if scenario not in SCENARIOS:
+        raise InputError(f"unknown scenario {scenario!r}; use one of {', '.join(SCENARIOS)}")
+    n = DEFAULT_PLAN_SIZE[scenario] if n is None else int(n)
+    if n < 1:
+        raise InputError(f"the number of planned poses must be >= 1, got {n}")
+    own = getattr(machine, "standard_plan", None)
+    if callable(own):
+        return own(scenario, n, seed)
+    return STANDARD_PLANS[scenario](machine, n, seed)
+
+
 def candidate_poses(machine: Machine, scenario: str, n: int, rng=None):
     """``n`` feasible candidate poses of a scenario.
 
@@ -175,8 +284,10 @@ def candidate_poses(machine: Machine, scenario: str, n: int, rng=None):
             ok[ok] = _translation_conditioning(J[ok]) > 0.05
             return P, R, ok
 
-        return draw_accepted(draw, n, rng, "only {have} of {n} candidate points around home "
-                                           "are reachable and well conditioned")
+        where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")
+        return draw_accepted(draw, n, rng, (f"{where}: " if where else "")
+                             + "only {have} of {n} candidate points around home are reachable "
+                             "and well conditioned: check the geometry and home")
     from ..measurements import sample_platform_poses
 
     return sample_platform_poses(machine, n, rng)
