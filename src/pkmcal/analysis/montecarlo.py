@@ -18,6 +18,13 @@ cannot fix do not count:
   orientation of the marker, mean and max), and the gauge-free parameter error
   (:func:`~pkmcal.calibration.gauge_free_error`), RMS in the estimator's scaled coordinates.
 
+Every run gets a status (:func:`acceptance`): ``ok``; ``not converged`` (the estimator
+said so); ``rejected`` (it claimed convergence, but the residuals are more than the simulated
+noise explains, chi^2/dof against the chi-square distribution, so the geometry is wrong; or
+the calibrated model fails at the evaluation poses); ``failed`` (an exception). Summaries
+count every status and compute their statistics over the ok runs only, with the median and a
+robust (MAD) spread beside the mean.
+
 Every run is a pure function of ``(settings, seed)``: run ``r`` at value ``i`` of the swept
 variable draws everything (deviations, poses, noise, evaluation poses) from
 ``np.random.SeedSequence(seed, spawn_key=(i, r))``, which is
@@ -83,8 +90,30 @@ METRICS = {
         "parameter_rms": ("", 1.0, "RMS gauge-free parameter error, scaled coordinates"),
     },
 }
-#: statistics of each metric in a summary (over the converged runs of a value)
-STATISTICS = ("mean", "std", "ci95_low", "ci95_high", "median", "q05", "q95")
+#: statistics of each metric in a summary, over the ``ok`` runs of a value: mean, std (ddof
+#: 1), 95 % confidence interval of the mean (Student t), median, robust spread (1.4826 x the
+#: median absolute deviation: the std for normal data, blind to a few outliers), 5 % and 95 %
+#: quantiles. NaN (empty in CSV, null in JSON) where undefined: everything with no ok run, all
+#: but the mean and median with one.
+STATISTICS = ("mean", "std", "ci95_low", "ci95_high", "median", "mad_std", "q05", "q95")
+#: status of a run: the calibration converged and passed the acceptance test; the estimator
+#: did not converge; it converged, but to residuals the noise cannot explain (a wrong
+#: geometry) or to a model that fails at the evaluation poses; an exception
+STATUSES = ("ok", "not converged", "rejected", "failed")
+#: summary key of each status's count
+STATUS_COUNTS = {"ok": "ok", "not converged": "not_converged", "rejected": "rejected",
+                 "failed": "failed"}
+#: acceptance test of noisy data: chi^2/dof of the whitened residuals above this quantile of
+#: the chi-square distribution with dof degrees of freedom (divided by dof) ...
+ACCEPTANCE_QUANTILE = 0.999
+#: ... and above this (residuals sqrt(2) = 1.4 x the noise; the quantile alone tends to 1 at
+#: large dof) rejects a run
+ACCEPTANCE_MIN_RATIO = 2.0
+#: acceptance test of exact (noise-free) data: residual RMS above this fraction of the
+#: machine's characteristic length (plus a deliberate model error, ``lc_error``) rejects a run
+EXACT_RESIDUAL_RATIO = 1e-9
+#: scaled median absolute deviation: 1 / Phi^-1(3/4), the std of normal data
+MAD_SCALE = 1.4826
 #: evaluation poses per run (constraint-link workspace, tracker and pose held out)
 EVALUATION_POSES = {"constraint-link": 300, "tracker": 200, "pose": 100}
 #: default number of measurements (tracker: None = seed 001's 3x3x3 grid)
@@ -336,24 +365,120 @@ _RUNS = {"constraint-link": _constraint_link_run, "tracker": _tracker_run, "pose
 
 
 def run_once(settings: MonteCarloSettings, seed) -> dict:
-    """One simulated calibration: ``converged``, ``iterations``, the scenario's metrics (SI),
-    ``failure`` (empty, or why the run failed: its metrics are then NaN) and ``seconds``.
+    """One simulated calibration, judged.
 
-    ``settings`` must be :meth:`~MonteCarloSettings.resolved`; ``seed`` is anything
-    :func:`numpy.random.default_rng` takes (a :class:`~numpy.random.SeedSequence`).
+    Parameters
+    ----------
+    settings : MonteCarloSettings
+        :meth:`~MonteCarloSettings.resolved` settings.
+    seed : object
+        Anything :func:`numpy.random.default_rng` takes (a
+        :class:`~numpy.random.SeedSequence`).
+
+    Returns
+    -------
+    dict
+        ``converged`` (the estimator's claim), ``status`` (one of :data:`STATUSES`; see
+        :func:`acceptance`), ``iterations``, ``chi2_dof`` (chi^2/dof of the whitened
+        residuals; NaN where undefined), the scenario's metrics (SI; NaN when the run
+        failed), ``failure`` (empty for an ``ok`` run, else why it is not ok) and
+        ``seconds``.
     """
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     try:
         res, metrics = _RUNS[settings.scenario](settings, rng)
         converged = bool(res.success and np.all(np.isfinite(res.x)))
-        row = {"converged": converged, "iterations": int(res.nit), **metrics, "failure": ""}
+        status, chi2_dof, why = acceptance(res, settings, metrics)
+        row = {"converged": converged, "iterations": int(res.nit), "status": status,
+               "chi2_dof": chi2_dof, **metrics, "failure": why}
     except (InputError, ConvergenceError, ValueError, np.linalg.LinAlgError) as exc:
-        row = {"converged": False, "iterations": 0,
+        row = {"converged": False, "iterations": 0, "status": "failed", "chi2_dof": math.nan,
                **dict.fromkeys(METRICS[settings.scenario], math.nan),
                "failure": " ".join(f"{type(exc).__name__}: {exc}".split())}
     row["seconds"] = time.perf_counter() - t0
     return row
+
+
+def _exact_data(settings: MonteCarloSettings) -> bool:
+    """Whether the simulated data carry no noise at all (the calibration then weighs them
+    as if :data:`NOISE_FLOOR` noisy); the pose scenario's pose noise stays at its default."""
+    return settings.scenario in ("constraint-link", "tracker") and settings.noise == 0
+
+
+def acceptance(result, settings: MonteCarloSettings,
+               metrics: dict | None = None) -> tuple[str, float, str]:
+    """Judge one calibration of a Monte-Carlo run.
+
+    A run is ``ok`` when the estimator converged (``success`` and finite parameters), its
+    residuals are what the simulated noise explains, and every metric is finite. Residuals:
+
+    - noisy data (the calibration weighs by the noise the data were simulated with): the
+      chi^2 of the whitened residuals per degree of freedom, ``residual_variance``, is ~1.
+      Above both ``chi2.ppf(ACCEPTANCE_QUANTILE, dof) / dof`` and
+      :data:`ACCEPTANCE_MIN_RATIO` the run converged to a wrong geometry: ``rejected``. A
+      deliberate model error (``lc_error``, the assumed link length wrong) widens the limit
+      by ``1 + (lc_error / noise)^2``, the most it can add.
+    - exact data (noise 0): the residual RMS must stay below :data:`EXACT_RESIDUAL_RATIO` of
+      the machine's characteristic length plus ``lc_error``.
+
+    With ``dof <= 0`` there is no test of the residuals (``chi2_dof`` NaN).
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        The run's calibration (``success``, ``x``, ``residuals``, ``residual_variance``,
+        ``dof``, ``message``, ``nit``).
+    settings : MonteCarloSettings
+        The run's resolved settings (scenario, noise, lc_error, machine).
+    metrics : dict, optional
+        The run's accuracy metrics; a non-finite one rejects the run.
+
+    Returns
+    -------
+    status : str
+        ``'ok'``, ``'not converged'`` or ``'rejected'``.
+    chi2_dof : float
+        chi^2 / dof of the whitened residuals (NaN when ``dof <= 0``).
+    reason : str
+        Empty when ``ok``, else the status and why, in words.
+    """
+    from scipy import stats
+
+    dof = int(getattr(result, "dof", 0) or 0)
+    chi2_dof = float(getattr(result, "residual_variance", math.nan))
+    if dof <= 0 or not math.isfinite(chi2_dof):
+        chi2_dof = math.nan
+    if not (result.success and np.all(np.isfinite(result.x))):
+        what = "non-finite parameters" if result.success else \
+            f"{result.message or 'no convergence'}"
+        return "not converged", chi2_dof, (f"not converged: {what} after {int(result.nit)} "
+                                           "iterations")
+    model_error = abs(float(settings.lc_error or 0.0))
+    if _exact_data(settings):
+        r = np.asarray(result.residuals, float).ravel()
+        rms = float(np.sqrt(np.mean(r**2))) * NOISE_FLOOR if r.size else 0.0
+        size = float(settings.machine.characteristic_length())
+        limit = EXACT_RESIDUAL_RATIO * size + model_error
+        if not rms <= limit:
+            return "rejected", chi2_dof, (
+                f"rejected: residual RMS {rms:.3g} m on exact (noise-free) data, above "
+                f"{limit:.3g} m ({EXACT_RESIDUAL_RATIO:g} of the machine's size"
+                + (" + the Lc error" if model_error else "") + "): a wrong geometry")
+    elif math.isfinite(chi2_dof):
+        limit = max(ACCEPTANCE_MIN_RATIO, float(stats.chi2.ppf(ACCEPTANCE_QUANTILE, dof)) / dof)
+        if model_error:
+            weight = _weight(settings.noise) if settings.noise is not None else NOISE_FLOOR
+            limit *= 1.0 + (model_error / weight) ** 2
+        if not chi2_dof <= limit:
+            return "rejected", chi2_dof, (
+                f"rejected: residuals {math.sqrt(chi2_dof):.3g} x the noise (chi2/dof "
+                f"{chi2_dof:.3g} > {limit:.3g}, {dof} dof): a wrong geometry")
+    bad = [name for name, v in (metrics or {}).items() if not np.isfinite(v)]
+    if bad:
+        return "rejected", chi2_dof, (f"rejected: {', '.join(bad)} not finite: the calibrated "
+                                      "model fails at the evaluation poses")
+    return "ok", chi2_dof, ""
 
 
 def run_seed(seed: int, value_index: int, run: int) -> np.random.SeedSequence:
@@ -499,9 +624,10 @@ class MonteCarloResult:
     """Runs and their summary per value of the swept variable (SI units).
 
     rows : one dict per run, ordered by (value, run): ``value_index, run, value, converged,
-        iterations, <metrics>, failure, seconds``.
-    summary : one dict per value: ``value, runs, converged, failed`` and, per metric, a dict
-        of :data:`STATISTICS` over the converged runs.
+        iterations, status, chi2_dof, <metrics>, failure, seconds`` (:func:`run_once`).
+    summary : one dict per value (:func:`summarize`): ``value, runs``, the count of each
+        status (``ok, not_converged, rejected, failed``), ``converged`` (the estimator's
+        claim: ok + rejected) and, per metric, a dict of :data:`STATISTICS` over the ok runs.
     """
 
     settings: MonteCarloSettings
@@ -517,16 +643,66 @@ class MonteCarloResult:
     seconds: float
     extra: dict = field(default_factory=dict)
 
-    def metric(self, name: str) -> np.ndarray:
-        """``(n_values, runs)`` array of a metric (NaN where a run failed)."""
+    def metric(self, name: str, ok_only: bool = False) -> np.ndarray:
+        """A metric of every run.
+
+        Parameters
+        ----------
+        name : str
+            A key of ``metrics`` (``'position_mean'``).
+        ok_only : bool, optional
+            NaN for the runs that are not ``ok`` too.
+
+        Returns
+        -------
+        ndarray, shape (n_values, runs)
+            The metric (SI), NaN where a run failed.
+        """
         out = np.full((len(self.values), self.runs), np.nan)
         for row in self.rows:
-            out[row["value_index"], row["run"]] = row[name]
+            if not ok_only or row["status"] == "ok":
+                out[row["value_index"], row["run"]] = row[name]
         return out
 
     def mean(self, name: str) -> np.ndarray:
-        """Mean of a metric over the converged runs, per value."""
+        """Mean of a metric over the ok runs.
+
+        Parameters
+        ----------
+        name : str
+            A key of ``metrics``.
+
+        Returns
+        -------
+        ndarray, shape (n_values,)
+            Per value, SI; NaN where no run is ok.
+        """
         return np.array([s[name]["mean"] for s in self.summary])
+
+    def median(self, name: str) -> np.ndarray:
+        """Median of a metric over the ok runs.
+
+        Parameters
+        ----------
+        name : str
+            A key of ``metrics``.
+
+        Returns
+        -------
+        ndarray, shape (n_values,)
+            Per value, SI; NaN where no run is ok.
+        """
+        return np.array([s[name]["median"] for s in self.summary])
+
+    def not_ok(self) -> list[dict]:
+        """The runs that are not ``ok``, in order.
+
+        Returns
+        -------
+        list of dict
+            Their rows (``status`` and ``failure`` say why).
+        """
+        return [row for row in self.rows if row["status"] != "ok"]
 
 
 def parse_values(variable: str, values: Sequence) -> list:
@@ -607,30 +783,65 @@ def montecarlo(settings: MonteCarloSettings, variable: str, values: Sequence, ru
 
 
 def summarize(rows: list[dict], metrics, value=None) -> dict:
-    """Statistics of each metric over the converged runs: mean, std, 95 % confidence interval
-    of the mean (Student t), median, 5 % and 95 % quantiles."""
+    """Counts of each status and statistics of each metric over the ok runs of one value.
+
+    Runs that are not ``ok`` (not converged, rejected, failed) are counted, never averaged.
+    A row without ``status`` (an older caller) is ``ok`` when ``converged`` and without
+    ``failure``, ``failed`` with a failure text, else ``not converged``.
+
+    Parameters
+    ----------
+    rows : list of dict
+        The runs of the value (:func:`run_once` rows with their metrics).
+    metrics : iterable of str
+        Names of the metrics to summarize (the keys of a :data:`METRICS` entry).
+    value : object, optional
+        The swept value, copied into the summary.
+
+    Returns
+    -------
+    dict
+        ``value``, ``runs``, ``ok``, ``not_converged``, ``rejected``, ``failed``,
+        ``converged`` (the estimator's claim: ok + rejected), ``seconds_mean`` and per metric
+        a dict of :data:`STATISTICS`: mean, std (ddof 1), 95 % confidence interval of the mean
+        (Student t), median, ``mad_std`` (:data:`MAD_SCALE` x the median absolute deviation),
+        5 % and 95 % quantiles; NaN where undefined (no ok run; std, confidence interval,
+        spread and quantiles of one run).
+    """
     from scipy import stats
 
-    good = [row for row in rows if row["converged"]]
-    out = {"value": value, "runs": len(rows), "converged": len(good),
-           "failed": sum(bool(row["failure"]) for row in rows),
+    status = [_status(row) for row in rows]
+    good = [row for row, st in zip(rows, status, strict=True) if st == "ok"]
+    out = {"value": value, "runs": len(rows),
+           **{STATUS_COUNTS[k]: status.count(k) for k in STATUSES},
+           "converged": sum(st in ("ok", "rejected") for st in status),
            "seconds_mean": float(np.mean([row["seconds"] for row in rows])) if rows else
            math.nan}
     for name in metrics:
         v = np.array([row[name] for row in good], float)
         v = v[np.isfinite(v)]
         n = v.size
-        if n == 0:
-            out[name] = dict.fromkeys(STATISTICS, math.nan)
-            continue
-        mean = float(v.mean())
-        std = float(v.std(ddof=1)) if n > 1 else math.nan
-        half = float(stats.t.ppf(0.975, n - 1) * std / math.sqrt(n)) if n > 1 else math.nan
-        q05, median, q95 = np.quantile(v, [0.05, 0.5, 0.95])
-        out[name] = {"mean": mean, "std": std, "ci95_low": mean - half,
-                     "ci95_high": mean + half, "median": float(median), "q05": float(q05),
-                     "q95": float(q95)}
+        st = dict.fromkeys(STATISTICS, math.nan)
+        if n:
+            st["mean"] = float(v.mean())
+            st["median"] = float(np.median(v))
+        if n > 1:
+            std = float(v.std(ddof=1))
+            half = float(stats.t.ppf(0.975, n - 1) * std / math.sqrt(n))
+            q05, q95 = np.quantile(v, [0.05, 0.95])
+            st.update(std=std, ci95_low=st["mean"] - half, ci95_high=st["mean"] + half,
+                      mad_std=MAD_SCALE * float(np.median(np.abs(v - st["median"]))),
+                      q05=float(q05), q95=float(q95))
+        out[name] = st
     return out
+
+
+def _status(row: dict) -> str:
+    if "status" in row:
+        return row["status"]
+    if row.get("converged"):
+        return "rejected" if row.get("failure") else "ok"
+    return "failed" if row.get("failure") else "not converged"
 
 
 # -- outputs --------------------------------------------------------------------------------
@@ -649,33 +860,72 @@ def _metric_column(name: str, unit: str, stat: str | None = None) -> str:
 
 def runs_table(result: MonteCarloResult) -> tuple[list[str], list[list]]:
     """Header and columns of ``runs.csv``: one row per run, display units in the names.
-    Deterministic (no timings): the same seed gives the same file."""
+
+    Deterministic (no timings): the same seed gives the same file. Undefined numbers (the
+    metrics of a failed run, chi^2/dof without degrees of freedom) are empty cells.
+
+    Parameters
+    ----------
+    result : MonteCarloResult
+        The Monte Carlo.
+
+    Returns
+    -------
+    header : list of str
+        ``<variable>_<unit>, value_index, run, converged, iterations, status, chi2_dof``, the
+        metrics with their units, ``failure`` (why a run is not ok).
+    columns : list of list
+        One list per column.
+    """
     _, _, f = VARIABLES[result.variable]
     rows = result.rows
-    header = [value_column(result.variable), "value_index", "run", "converged", "iterations"]
+    header = [value_column(result.variable), "value_index", "run", "converged", "iterations",
+              "status", "chi2_dof"]
     columns = [[_display(row["value"], f, result.variable) for row in rows],
                [row["value_index"] for row in rows], [row["run"] for row in rows],
-               [row["converged"] for row in rows], [row["iterations"] for row in rows]]
+               [row["converged"] for row in rows], [row["iterations"] for row in rows],
+               [row["status"] for row in rows], [_cell(row["chi2_dof"]) for row in rows]]
     for name, (unit, scale, _) in result.metrics.items():
         header.append(_metric_column(name, unit))
-        columns.append([row[name] / scale for row in rows])
+        columns.append([_cell(row[name], scale) for row in rows])
     header.append("failure")
     columns.append([row["failure"] for row in rows])
     return header, columns
 
 
 def summary_table(result: MonteCarloResult) -> tuple[list[str], list[list]]:
-    """Header and columns of ``summary.csv``: one row per value."""
+    """Header and columns of ``summary.csv``: one row per value.
+
+    Parameters
+    ----------
+    result : MonteCarloResult
+        The Monte Carlo.
+
+    Returns
+    -------
+    header : list of str
+        ``<variable>_<unit>, runs, ok, not_converged, rejected, failed, converged`` and per
+        metric each of :data:`STATISTICS` (``position_mean_median_um``), over the ok runs.
+    columns : list of list
+        One list per column; undefined statistics are empty strings (never ``nan``).
+    """
     _, _, f = VARIABLES[result.variable]
     s = result.summary
-    header = [value_column(result.variable), "runs", "converged", "failed"]
-    columns = [[_display(p["value"], f, result.variable) for p in s], [p["runs"] for p in s],
-               [p["converged"] for p in s], [p["failed"] for p in s]]
+    counts = ["runs", *STATUS_COUNTS.values(), "converged"]
+    header = [value_column(result.variable), *counts]
+    columns = [[_display(p["value"], f, result.variable) for p in s],
+               *[[p[k] for p in s] for k in counts]]
     for name, (unit, scale, _) in result.metrics.items():
         for stat in STATISTICS:
             header.append(_metric_column(name, unit, stat))
-            columns.append([p[name][stat] / scale for p in s])
+            columns.append([_cell(p[name][stat], scale) for p in s])
     return header, columns
+
+
+def _cell(value, scale: float = 1.0):
+    """A number for a CSV cell in display units, or ``""`` when undefined."""
+    value = float(value)
+    return value / scale if math.isfinite(value) else ""
 
 
 def _display(value, factor: float, variable: str):
@@ -683,9 +933,27 @@ def _display(value, factor: float, variable: str):
 
 
 def plot_montecarlo(result: MonteCarloResult, path, title: str | None = None):
-    """Mean of each metric against the swept variable with the 95 % confidence band of the
-    mean (dark) and the 5-95 % band of the runs (light); log axes where the values span a
-    decade or more; the line error = variable where both are lengths in the same unit."""
+    """Plot each metric against the swept variable.
+
+    The mean over the ok runs with the 95 % confidence band of the mean (dark), the 5-95 %
+    band of the runs (light) and the median (open squares); log axes where the values span a
+    decade or more; the line error = variable where both are lengths in the same unit. Runs
+    that are not ok are counted in the title.
+
+    Parameters
+    ----------
+    result : MonteCarloResult
+        The Monte Carlo.
+    path : str or os.PathLike
+        Output image.
+    title : str, optional
+        Figure title; default: scenario, machine and runs per value.
+
+    Returns
+    -------
+    pathlib.Path
+        The image written.
+    """
     from ..report.plots import _save, plt
 
     names = [n for n in result.metrics if not n.endswith("_max")]
@@ -703,17 +971,22 @@ def plot_montecarlo(result: MonteCarloResult, path, title: str | None = None):
         ax.fill_between(x, stat["ci95_low"], stat["ci95_high"], color="C0", alpha=0.4,
                         label="95 % confidence of the mean")
         ax.plot(x, stat["mean"], "o-", color="C0", label="mean")
+        ax.plot(x, stat["median"], "s", color="C1", mfc="none", label="median")
         if name == "position_mean" and result.variable in ("noise", "lc-error"):
             ax.plot(x, x, "k:", lw=1, label="error = variable")
         ax.set_xscale("log" if _spans_decades(x) else "linear")
-        band = np.concatenate([stat["q05"], stat["q95"], stat["mean"]])
+        band = np.concatenate([stat["q05"], stat["q95"], stat["mean"], stat["median"]])
         ax.set_yscale("log" if _spans_decades(band) else "linear")
         ax.set_xlabel(f"{result.variable}" + (f" [{vunit}]" if vunit else ""))
         ax.set_ylabel(f"{words}" + (f" [{unit}]" if unit else ""), fontsize=8)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
+    bad = len(result.not_ok())
     fig.suptitle(title or f"Monte Carlo: {result.settings.scenario} calibration of "
-                 f"{result.settings.describe()['machine']}, {result.runs} runs per value")
+                 f"{result.settings.describe()['machine']}, {result.runs} runs per value"
+                 + (f"\n{bad} of {len(result.rows)} runs not ok (not converged, rejected or "
+                    "failed): counted, left out of the statistics" if bad else ""),
+                 fontsize=10 if len(names) < 2 else None)
     fig.tight_layout()
     return _save(fig, path)
 

@@ -117,22 +117,52 @@ def run_montecarlo(machine_spec: str, vary: str, output: Path, runs: int = 20,
                             scheduler=scheduler, progress=advance)
     files = _write_outputs(result, output, machine_spec)
     _print_summary(result, files)
-    converged = sum(p["converged"] for p in result.summary)
-    failed = [row for row in result.rows if row["failure"]]
-    if failed:
-        warning(f"{len(failed)} of {total} runs failed (metrics NaN in runs.csv), e.g. "
-                f"{failed[0]['failure']}")
-    if converged == 0:
+    return _report_runs(result)
+
+
+def _report_runs(result) -> int:
+    """A warning per value with runs that are not ok (counts per status, an example reason);
+    an error and exit code 1 when some value has no ok run (its statistics are empty)."""
+    from ..analysis.montecarlo import STATUS_COUNTS, STATUSES
+
+    empty = []
+    for i, p in enumerate(result.summary):
+        bad = [row for row in result.rows if row["value_index"] == i and row["status"] != "ok"]
+        if not bad:
+            continue
+        counts = ", ".join(f"{p[STATUS_COUNTS[k]]} {k}" for k in STATUSES[1:]
+                           if p[STATUS_COUNTS[k]])
+        warning(f"{_value_text(result, p['value'])}: {len(bad)} of {p['runs']} runs not ok "
+                f"({counts}), counted and left out of the statistics; e.g. run {bad[0]['run']}: "
+                f"{bad[0]['failure']}")
+        if p["ok"] == 0:
+            empty.append(_value_text(result, p["value"]))
+    if empty:
         from ._console import error
 
-        error("no calibration converged; see the failure column of runs.csv")
+        error(f"no run ok (converged and accepted) at {'; '.join(empty)}: no statistics; see "
+              "the status and failure columns of runs.csv")
         return 1
     return 0
 
 
+def _value_text(result, value) -> str:
+    """``noise 1 um``: the swept variable at one value, in its display unit."""
+    from ..analysis.montecarlo import VARIABLES
+
+    _, unit, factor = VARIABLES[result.variable]
+    if result.variable == "poses":
+        return f"poses {int(value)}"
+    return f"{result.variable} {value / factor:.4g}" + (f" {unit}" if unit else "")
+
+
 def _write_outputs(result, outdir: Path, machine_spec: str) -> list[Path]:
     from ..analysis.montecarlo import (
+        ACCEPTANCE_MIN_RATIO,
+        ACCEPTANCE_QUANTILE,
+        EXACT_RESIDUAL_RATIO,
         STATISTICS,
+        STATUS_COUNTS,
         VARIABLES,
         plot_montecarlo,
         runs_table,
@@ -166,12 +196,29 @@ def _write_outputs(result, outdir: Path, machine_spec: str) -> list[Path]:
                    "run_seconds_max": float(np.max(seconds))},
         "metrics": {name: {"unit": u or None, "description": words}
                     for name, (u, _, words) in result.metrics.items()},
-        "statistics": "over the converged runs of each value: mean, std (ddof 1), 95 % "
-                      "confidence interval of the mean (Student t), median, 5 % and 95 % "
-                      "quantiles; in the units of 'metrics'",
+        "statuses": {
+            "ok": "converged and accepted: the only runs in the statistics",
+            "not converged": "the estimator did not converge",
+            "rejected": "the estimator claimed convergence, but the residuals are more than "
+                        "the noise explains (a wrong geometry) or the calibrated model fails "
+                        "at the evaluation poses",
+            "failed": "an exception (the failure column of runs.csv says which)",
+            "converged": "count of runs the estimator said converged (ok + rejected)"},
+        "acceptance": {
+            "noisy data": f"chi2/dof of the whitened residuals above both chi2.ppf("
+                          f"{ACCEPTANCE_QUANTILE}, dof)/dof and {ACCEPTANCE_MIN_RATIO:g} "
+                          "rejects (a deliberate Lc error widens it by 1 + (Lc error / "
+                          "noise)^2)",
+            "exact data": f"residual RMS above {EXACT_RESIDUAL_RATIO:g} x the machine's "
+                          "characteristic length (+ the Lc error) rejects"},
+        "statistics": "over the ok runs of each value: mean, std (ddof 1), 95 % confidence "
+                      "interval of the mean (Student t), median, mad_std (1.4826 x the median "
+                      "absolute deviation), 5 % and 95 % quantiles; in the units of "
+                      "'metrics'; null where undefined (no ok run; std, interval, spread and "
+                      "quantiles of a single ok run)",
         "summary": [
-            {"value": display(p["value"]), "runs": p["runs"], "converged": p["converged"],
-             "failed": p["failed"],
+            {"value": display(p["value"]), "runs": p["runs"],
+             **{k: p[k] for k in STATUS_COUNTS.values()}, "converged": p["converged"],
              **{name: {k: p[name][k] / scale for k in STATISTICS}
                 for name, (_, scale, _) in result.metrics.items()}}
             for p in result.summary],
@@ -216,26 +263,38 @@ def _print_summary(result, files) -> None:
     out.print(head)
     metrics = [n for n in result.metrics if n.endswith("_mean")]
     col = f"{result.variable}" + (f" ({unit})" if unit else "")
-    cols = [col, "converged"]
+    cols = [col, "ok", "not ok"]
     for name in metrics:
         u = result.metrics[name][0]
-        cols += [f"{name.removesuffix('_mean').replace('_', ' ')} ({u})", "5-95 %"]
-    table = _table(*cols, title="error after calibration: mean over the converged runs +/- "
-                   "half-width of its 95 % confidence interval; 5-95 % of the runs",
+        words = name.removesuffix("_mean").replace("_", " ") + (f" ({u})" if u else "")
+        cols += [f"{words} mean", "median", "5-95 %"]
+    table = _table(*cols, title="error after calibration, over the ok runs",
                    justify={i: "right" for i in range(len(cols))})
+    short = {"not_converged": "not conv.", "rejected": "rejected", "failed": "failed"}
     for p in result.summary:
         v = int(p["value"]) if result.variable == "poses" else p["value"] / factor
-        row = [f"{v:.4g}", f"{p['converged']}/{p['runs']}"]
+        bad = ", ".join(f"{p[k]} {w}" for k, w in short.items() if p[k])
+        row = [f"{v:.4g}", f"{p['ok']}/{p['runs']}", bad or "-"]
         for name in metrics:
             scale = result.metrics[name][1]
             st = {k: p[name][k] / scale for k in p[name]}
             half = (st["ci95_high"] - st["ci95_low"]) / 2
-            row += [f"{st['mean']:.4g} +/- {half:.2g}" if math.isfinite(half) else
-                    f"{st['mean']:.4g}", f"{st['q05']:.3g}..{st['q95']:.3g}"]
+            mean = (f"{st['mean']:.4g} +/- {half:.2g}" if math.isfinite(half) else
+                    _number(st["mean"], ".4g"))
+            spread = (f"{st['q05']:.3g}..{st['q95']:.3g}" if math.isfinite(st["q05"]) else "-")
+            row += [mean, _number(st["median"], ".4g"), spread]
         table.add_row(*row)
     out.print(table)
+    out.print("mean +/- half-width of its 95 % confidence interval, median and 5-95 % of the ok "
+              "runs; runs not ok (not converged; rejected: residuals beyond the noise, a wrong "
+              "geometry; failed) are counted, never averaged", markup=False)
     out.print("wrote " + ", ".join(map(str, files)), markup=False)
     sys.stdout.flush()
+
+
+def _number(v: float, fmt: str) -> str:
+    """``v`` formatted, or ``-`` when undefined (no ok run)."""
+    return format(v, fmt) if math.isfinite(v) else "-"
 
 
 def _um(v: float) -> str:
