@@ -649,7 +649,7 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
 
     result = _solve(data_path, calibrate_constraint_link, machine, data, held=held,
                     method=method, sigma_m=sigma, estimate_link_length=estimate_lc)
-    if not _converged(result):
+    if not _converged(result, data_path):
         return 1
     from ..calibration.constraint_link import PROBLEMS
 
@@ -741,7 +741,7 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
         "report": report_path.name,
     }
     json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
-                                   result, report_dir)
+                                   result, report_dir, nominal=machine)
 
     if dropped:
         warning(f"{data_path}: {len(dropped)} row(s) left out (no pose from the five active "
@@ -817,12 +817,14 @@ def _solve(data_path, calibrate, *args, held=None, **kwargs):
         raise InputError(message) from None
 
 
-def _converged(result, advice: str = "") -> bool:
-    """True when the calibration converged; else says why (and what to try) on stderr."""
+def _converged(result, source, advice: str = "") -> bool:
+    """True when the calibration converged; else says why (and what to try) on stderr,
+    naming the data file ``source``."""
     if result.success and np.all(np.isfinite(result.x)):
         return True
-    error(f"calibration did not converge: {result.message} (after {result.nit} iterations)"
-          + (f"; {advice}" if advice else "") + "; no file written")
+    error(f"{source}: calibration did not converge: {result.message} (after {result.nit} "
+          "iterations)" + (f"; {advice}" if advice else "") + "; check the columns (order, "
+          "units) and the machine file; no file written")
     return False
 
 
@@ -861,8 +863,26 @@ def provenance() -> dict:
             "platform": platform.platform()}
 
 
+def _acceptance(result, nominal, calibrated, source) -> dict:
+    """The believability checks of a converged calibration (chi-square of the residuals
+    against the assumed noise, size of the changes against the machine's scale): warnings in
+    words with the usual causes, and the report's ``acceptance`` section."""
+    from ..calibration.acceptance import parameter_changes, residual_test
+
+    test = residual_test(result)
+    out = {"residuals": test.as_dict()}
+    if test.alarming:
+        warning(f"{source}: {test.message()}")
+    if nominal is not None:
+        changes = parameter_changes(nominal, calibrated)
+        out["parameter_changes"] = {"suspicious": changes.suspicious}
+        if changes.suspicious:
+            warning(f"{source}: {changes.message()}")
+    return out
+
+
 def _write_calibration(calibrated, units, metadata, report, output, report_path,
-                       result=None, report_dir: Path | None = None) -> str:
+                       result=None, report_dir: Path | None = None, nominal=None) -> str:
     """Write the calibrated machine file and its JSON report, at the very end and atomically;
     the machine file is checked to load back first. Returns the JSON text.
 
@@ -897,6 +917,8 @@ def _write_calibration(calibrated, units, metadata, report, output, report_path,
         standardised = _standardised(result)
         if standardised is not None:
             report["standardised_residuals"] = standardised
+        report["acceptance"] = _acceptance(result, nominal, calibrated,
+                                           report.get("data_file", "the data"))
     report["provenance"] = provenance()
     json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
     # the machine file names its report and pins it by digest: a report of another run
@@ -1082,7 +1104,8 @@ def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path
                          "(outside the workspace, or a wrong angle unit or zero)")
     result = _solve(data_path, calibrate_tracker, machine, data, noise_model, held=held,
                     joint=not two_step, robust=robust)
-    if not _converged(result, "spread the points in all three directions, e.g. a 3x3x3 grid"):
+    if not _converged(result, data_path,
+                      "spread the points in all three directions, e.g. a 3x3x3 grid"):
         return 1
 
     units = _units(machine)
@@ -1217,7 +1240,7 @@ def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path
         "report": report_path.name,
     }
     json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
-                                   result, report_dir)
+                                   result, report_dir, nominal=machine)
 
     if json_output:
         print(json_text, end="")
@@ -1349,7 +1372,7 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
                     noise=noise_model, frames=frames if fix_frames
                     else result.extras["start_frames"], fix_frames=fix_frames,
                     fit_machine=False)
-    if not _converged(result):
+    if not _converged(result, data_path):
         return 1
 
     units = _units(machine)
@@ -1450,7 +1473,7 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
         "report": report_path.name,
     }
     json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
-                                   result, report_dir)
+                                   result, report_dir, nominal=machine)
     if json_output:
         print(json_text, end="")
     else:
