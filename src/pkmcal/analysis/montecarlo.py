@@ -443,7 +443,7 @@ def acceptance(result, settings: MonteCarloSettings,
     reason : str
         Empty when ``ok``, else the status and why, in words.
     """
-    from scipy import stats
+    from ..calibration.acceptance import chi2_bound
 
     dof = int(getattr(result, "dof", 0) or 0)
     chi2_dof = float(getattr(result, "residual_variance", math.nan))
@@ -466,7 +466,8 @@ def acceptance(result, settings: MonteCarloSettings,
                 f"{limit:.3g} m ({EXACT_RESIDUAL_RATIO:g} of the machine's size"
                 + (" + the Lc error" if model_error else "") + "): a wrong geometry")
     elif math.isfinite(chi2_dof):
-        limit = max(ACCEPTANCE_MIN_RATIO, float(stats.chi2.ppf(ACCEPTANCE_QUANTILE, dof)) / dof)
+        # the chi-square bound of calibrate's own acceptance test, and at least a factor 2
+        limit = max(ACCEPTANCE_MIN_RATIO, chi2_bound(dof, alpha=1.0 - ACCEPTANCE_QUANTILE))
         if model_error:
             weight = _weight(settings.noise) if settings.noise is not None else NOISE_FLOOR
             limit *= 1.0 + (model_error / weight) ** 2

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["MAX_ANGLE_CHANGE", "MAX_LENGTH_CHANGE", "MAX_NOISE_FACTOR", "ParameterChanges",
-           "ResidualTest",
+           "ResidualTest", "chi2_bound",
            "parameter_changes", "residual_test"]
 
 #: a failed residual test is worth a warning when the residuals are at least this many times
@@ -108,6 +108,27 @@ class ResidualTest:
                 "from the machine)")
 
 
+def chi2_bound(dof: int, alpha: float = 1e-3) -> float:
+    """Upper ``1 - alpha`` quantile of chi-square / dof: the largest residual variance
+    (relative to the assumed noise) a correct calibration gives with probability ``1 - alpha``.
+
+    Parameters
+    ----------
+    dof : int
+        Degrees of freedom (> 0).
+    alpha : float, optional
+        Probability of exceeding the bound with the right model and noise.
+
+    Returns
+    -------
+    float
+        The bound (NaN when ``dof <= 0``).
+    """
+    from scipy import stats
+
+    return float(stats.chi2.ppf(1.0 - alpha, dof)) / dof if dof > 0 else math.nan
+
+
 def residual_test(result, alpha: float = 1e-3) -> ResidualTest:
     """Chi-square test of a calibration result's whitened residuals.
 
@@ -123,14 +144,12 @@ def residual_test(result, alpha: float = 1e-3) -> ResidualTest:
     ResidualTest
         The statistic, its bound and the verdict.
     """
-    from scipy import stats
-
     dof = int(getattr(result, "dof", 0) or 0)
     chi2 = 2.0 * float(result.cost)
     if dof <= 0 or not math.isfinite(chi2):
         return ResidualTest(chi2, dof, math.nan, math.nan, True)
     ratio = chi2 / dof
-    upper = float(stats.chi2.ppf(1.0 - alpha, dof)) / dof
+    upper = chi2_bound(dof, alpha)
     return ResidualTest(chi2, dof, ratio, upper, bool(ratio <= upper))
 
 
