@@ -450,7 +450,7 @@ def montecarlo_throughput(runs: int = 1000, baseline_runs: int = 100, n_poses: i
     strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa
     identical = strip(one.rows) == strip(par.rows[:baseline_runs])
     single = one.seconds / baseline_runs * runs
-    converged = int(sum(p["converged"] for p in par.summary))
+    converged = int(sum(p["ok"] for p in par.summary))        # ok: converged and accepted
     return {"runs": runs, "workers": par.workers, "seconds": par.seconds,
             "single_seconds": single, "baseline_runs": baseline_runs,
             "converged": converged, "identical": identical,

@@ -383,8 +383,10 @@ def select_poses(
     constraint link: drivable with the link mounted; within --joint-range) or the poses of
     --from. The choice
     maximises a design criterion on the information of the scaled identification Jacobian
-    (greedy, then exchanges until none improves it), and the report compares its predicted
-    accuracy after calibration with random sets of the same size. Writes the chosen poses
+    (greedy and the instrument's standard plan as starts, then exchanges until none improves
+    it; never worse than the standard plan, e.g. seed 001's 3x3x3 grid for a tracker), and
+    the report compares its predicted accuracy after calibration with the standard plan and
+    with random sets of the same size. Writes the chosen poses
     (the file's units) with the joint values that reach them on the nominal machine and the
     candidate row; `pkmcal identifiability MACHINE PLAN.csv --planned` analyses it again.
 
@@ -657,8 +659,11 @@ def montecarlo(
     truth where the data cannot fix the frames: constraint-link, the workspace pose error
     after aligning the frames the data cannot fix; tracker, held-out tracker points through the
     identified registration; pose, held-out poses through the identified frames and the
-    gauge-free parameter error. Per value: mean, 95 % confidence interval of the mean,
-    median and 5-95 % of the runs.
+    gauge-free parameter error. Every run has a status: ok, not converged, rejected (its
+    residuals fail the chi-square test against the simulated noise: a wrong geometry) or
+    failed; the others are counted, never averaged. Per value, over the ok runs: mean, 95 %
+    confidence interval of the mean, median, MAD spread and 5-95 %. Exits 1 when a value
+    has no ok run.
 
     Example (seed 000 Fig. 5): `pkmcal montecarlo default --vary noise=0.1,0.3,1,3,10um -o fig5`
 
