@@ -73,3 +73,26 @@ def test_sizeable_changes_are_named(name, change, flagged):
     assert (name in pc.message()) is flagged
     if flagged:
         assert "swapped or mis-numbered columns" in pc.message()
+
+
+def test_calibrate_warns_about_swapped_columns_and_not_about_the_papers_methods(tmp_path):
+    from pathlib import Path
+
+    from clitools import run
+
+    cubic = Path(__file__).resolve().parents[1] / "examples" / "cubic_6upu.yaml"
+    assert run("simulate", cubic, "--scenario", "pose", "-o", "p.csv", cwd=tmp_path
+               ).returncode == 0
+    lines = (tmp_path / "p.csv").read_text().splitlines()
+    head = lines[0].split(",")
+    head[0], head[1] = head[1], head[0]                    # q1 and q2 exchanged
+    (tmp_path / "s.csv").write_text("\n".join([",".join(head), *lines[1:]]) + "\n")
+    for method in ("ml", "ik"):
+        proc = run("calibrate", cubic, "s.csv", "--method", method, "-o", f"{method}.yaml",
+                   "-q", cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr
+        assert "swapped or mis-numbered columns" in proc.stderr, proc.stderr
+    for method in ("ml", "ik"):                            # the right columns: no warning
+        proc = run("calibrate", cubic, "p.csv", "--method", method, "-o", f"ok_{method}.yaml",
+                   "-q", cwd=tmp_path)
+        assert proc.returncode == 0 and proc.stderr == "", proc.stderr
