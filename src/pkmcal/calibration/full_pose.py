@@ -11,7 +11,9 @@ likewise for ``(B, c)``, rotations about the platform axes). Two methods share t
 ``ik`` (Zhuang, Yan & Masory 1998)
     Inverse-kinematic residuals: each measured pose is mapped through the frames to a platform
     pose, ``e_k = (q_k - IK(A^T (Pm - a) - R c, A^T Rm B^T; u)) / sigma_q``. No per-pose
-    unknowns; the measured poses are taken as exact.
+    unknowns; the measured poses are taken as exact by the estimate. Their noise is carried
+    into the chi-square (:meth:`FullPoseIK.noise_whitened`): the residual of a pose has the
+    covariance ``diag(sigma_q^2) + J_x Sigma_x J_x^T``.
 ``ml`` (default)
     Maximum likelihood: the platform pose of every measurement is an unknown (6 per pose,
     eliminated by the estimator's Schur machinery); residuals are the six readings
@@ -312,7 +314,7 @@ class FullPoseIK(FullPoseProblem):
     data : FullPoseData
         Leg readings and measured marker poses.
     noise : FullPoseNoise
-        Standard deviations; only ``reading_m`` is used.
+        Standard deviations of the readings and of the measured poses.
     frames : MeasurementFrames
         Start (or fixed) values of the two frames.
     fixed_frames : tuple of bool, optional
@@ -327,6 +329,22 @@ class FullPoseIK(FullPoseProblem):
     """
 
     local_dof = 0
+
+    def _whitener(self, R, c, Jx):
+        """Cholesky factors ``L`` (K, 6, 6) of each pose's residual covariance: the readings'
+        ``diag(sigma_q^2)`` plus the measured pose's noise mapped through the inverse
+        kinematics (position ``sigma_p``, orientation ``sigma_o``; a platform position carries
+        the orientation noise through the marker offset ``R c``)."""
+        K = len(R)
+        sp, so = self.noise.position_m, self.noise.orientation_rad
+        M = np.zeros((K, 6, 6))                        # d[P, Omega] / d[marker position, rot]
+        M[:, :3, :3] = np.eye(3)                       # (isotropic: the frame rotation drops)
+        M[:, :3, 3:] = skew(np.einsum("kij,j->ki", R, c))
+        M[:, 3:, 3:] = np.eye(3)
+        G = Jx @ M
+        S = np.einsum("kij,j,klj->kil", G, np.r_[np.full(3, sp**2), np.full(3, so**2)], G)
+        S = S + np.diag(self.sigma_q**2)
+        return np.linalg.cholesky(S)
 
     def evaluate(self, state, jacobian=True):
         """Whitened reading residuals at the platform poses given by the measured poses.
@@ -366,6 +384,31 @@ class FullPoseIK(FullPoseProblem):
         D[:, :3, 9:12] = -R                            # marker translation
         Jg = -np.concatenate([Ju, Jx @ D], -1) / sig[:, None]
         return r, Jg, None
+
+
+    def noise_whitened(self, state) -> np.ndarray:
+        """The residuals whitened by their whole covariance, for the chi-square.
+
+        The method's estimate weighs the readings only (Zhuang's), but the measured poses are
+        noisy too: the residual ``q - IK(x)`` of a pose has the covariance
+        ``diag(sigma_q^2) + J_x Sigma_x J_x^T``. Whitened by it, the residuals of a correct
+        model with the stated noise have unit variance (whitened by ``sigma_q`` alone they
+        came out ~10x the noise on data the tool simulated itself).
+
+        Parameters
+        ----------
+        state : FullPoseState
+            The estimate.
+
+        Returns
+        -------
+        ndarray, shape (K, 6)
+            ``L^-1 (q - IK(x))`` with ``L L^T`` each pose's residual covariance.
+        """
+        P, R = self.platform_poses(state)
+        q, Jx, _ = self.machine.ik_jacobians(P, R, state.u, want_du=False)
+        L = self._whitener(R, state.c, Jx)
+        return np.linalg.solve(L, (self.data.q - q)[..., None])[..., 0]
 
 
 class FullPoseML(FullPoseProblem):

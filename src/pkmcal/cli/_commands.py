@@ -1366,9 +1366,6 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
     from ..measurements import MeasurementFrames
 
     noise_model = full_pose_noise_arg(noise, pose_noise, strict=True, machine=machine)
-    if method == "ik" and pose_noise is not None:
-        raise InputError("--pose-noise: the ik method takes the measured poses as exact; use "
-                         "--method ml to weigh them by their noise")
     data, held = _split_rows(read_full_pose(data_path, machine), split, data_path)
     file_frames = getattr(machine, "measurement_frames", None)
     if fix_frames:
@@ -1421,6 +1418,11 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
     s = np.asarray(result.singular_values, float)
     unidentifiable = list(result.extras.get("unidentifiable", []))
     variance = float(result.residual_variance)
+    if hasattr(result.extras.get("problem"), "noise_whitened") and result.dof > 0:
+        # the ik estimate takes the poses as exact, but their noise is in the residuals: the
+        # residual variance relative to the whole noise (readings + poses through the IK)
+        r = result.extras["problem"].noise_whitened(result.state)
+        variance = float(np.sum(r**2) / result.dof)
     after, before_rep = _errors_report(err_after, fl), _errors_report(err_before, fl)
     report = {
         "pkmcal_report": 1,
