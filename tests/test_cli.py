@@ -159,8 +159,8 @@ BAD_DATA = [
     # (id, command, data text, words in the message)
     ("missing column", "calibrate", lambda d: _data(d, 60, HEADER.replace("q4_mm", "q_4mm")),
      ["bad.csv", "missing column q4"]),
-    ("unknown unit", "calibrate", lambda d: _data(d, 60, HEADER.replace("q2_mm", "q2_in")),
-     ["bad.csv", "q2_in", "unknown unit"]),
+    ("unknown unit", "calibrate", lambda d: _data(d, 60, HEADER.replace("q2_mm", "q2_ft")),
+     ["bad.csv", "q2_ft", "unknown unit"]),
     ("nan", "calibrate", lambda d: _data(d, 60, edit=(10, 0, "nan")),
      ["bad.csv", "row 12, column q1_mm", "not a finite number"]),
     ("text in a number", "fk", lambda d: _data(d, 5, edit=(3, 4, "five")),

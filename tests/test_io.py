@@ -245,7 +245,7 @@ def test_poses_round_trip_euler_and_quaternion(tmp_path):
 GOOD = "q1_mm,q2_mm,q3_mm,q4_mm,q5_mm,q6_mm,passive\n1,2,3,4,5,6,1\n1,2,3,4,5,6,2\n"
 BAD_CSV = [
     ("missing column", GOOD.replace("q3_mm", "r3_mm"), ["missing column q3_<unit>"]),
-    ("unknown unit", GOOD.replace("q2_mm", "q2_in"), ["'q2_in'", "unknown unit suffix 'in'"]),
+    ("unknown unit", GOOD.replace("q2_mm", "q2_ft"), ["'q2_ft'", "unknown unit suffix 'ft'"]),
     ("wrong quantity", GOOD.replace("q2_mm", "q2_deg"), ["'q2_deg'", "angle unit"]),
     ("no unit", GOOD.replace("q2_mm", "q2"), ["'q2'", "no unit suffix", "q2_mm"]),
     ("two columns", GOOD.replace("passive", "q1_m"), ["more than one column for q1"]),
@@ -468,7 +468,7 @@ TRACKER_GOOD = ("q1_deg,q2_deg,q3_deg,mx_mm,my_mm,mz_mm\n"
 BAD_TRACKER_CSV = [
     ("missing mx", TRACKER_GOOD.replace("mx_mm", "nx_mm"), ["missing column mx_<unit>",
                                                            "mx_mm"]),
-    ("unknown unit", TRACKER_GOOD.replace("mz_mm", "mz_in"), ["'mz_in'", "unknown unit"]),
+    ("unknown unit", TRACKER_GOOD.replace("mz_mm", "mz_ft"), ["'mz_ft'", "unknown unit"]),
     ("length unit for an arm", TRACKER_GOOD.replace("q2_deg", "q2_mm"),
      ["'q2_mm'", "length unit", "q2 is an angle"]),
     ("angle unit for a point", TRACKER_GOOD.replace("my_mm", "my_deg"),

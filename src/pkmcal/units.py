@@ -12,7 +12,7 @@ import re
 from .errors import InputError
 
 #: factor to SI for every unit the toolkit understands, grouped by quantity
-LENGTH = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "cm": 1e-2}
+LENGTH = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "cm": 1e-2, "in": 0.0254, "inch": 0.0254}
 ANGLE = {"rad": 1.0, "deg": 0.017453292519943295, "urad": 1e-6, "mrad": 1e-3}
 FORCE = {"N": 1.0, "kN": 1e3}
 MASS = {"kg": 1.0, "g": 1e-3}
@@ -43,7 +43,7 @@ MAX_MAGNITUDE: dict[str, float] = {
 
 #: suffixes allowed in CSV column names (SPEC 6), with their quantity
 COLUMN_SUFFIXES: dict[str, str] = {
-    "m": "length", "mm": "length", "um": "length",
+    "m": "length", "mm": "length", "um": "length", "in": "length",
     "rad": "angle", "deg": "angle", "urad": "angle",
     "N": "force",
 }

@@ -392,6 +392,9 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
         raise InputError(f"--grid {'x'.join(map(str, shape))}: {bad.size} grid point(s) "
                          f"outside the workspace of {machine.source} (e.g. "
                          f"{_mm(targets[bad[0]])} mm); use a smaller grid or another home")
+    refuse_outside_limits(machine, machine.ik(targets), np.arange(2, n_points + 2),
+                          f"--grid {'x'.join(map(str, shape))}: {{n}} grid point(s) (rows of "
+                          "the data file)")
     try:
         data = simulate_tracker(true, machine, targets, pose, noise_model, outliers=outliers,
                                 outlier_size=1e-3, rng=rng)
@@ -1603,6 +1606,17 @@ def joint_columns(machine, q, units) -> dict:
     return {f"q{j + 1}_{unit}": (q[:, j] / f).tolist() for j in range(q.shape[1])}
 
 
+def refuse_outside_limits(machine, q, rows, what: str) -> None:
+    """Refuse joint values ``q`` (K, n) outside the machine file's ``joint_limits``, naming
+    the rows and joints; ``what`` starts the message (``{n}``: the count of such rows)."""
+    outside = ~machine.within_limits(q) & np.all(np.isfinite(q), axis=-1)
+    if outside.any():
+        source = getattr(machine, "source", None) or "the machine file"
+        raise InputError(f"{what.format(n=int(outside.sum()))} need joint values outside the "
+                         f"joint limits of {source} ({machine.joint_limits_text()}): "
+                         f"{machine.limit_violation_text(q[outside], np.asarray(rows)[outside])}")
+
+
 def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
     machine = load_machine_arg(machine_spec)
     check_outputs([output], [poses] + _machine_inputs(machine_spec))
@@ -1630,6 +1644,7 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
             raise InputError(f"{poses}: {int(off.sum())} position(s) outside the working "
                              f"assembly mode (the platform must hang below the base), row(s) "
                              f"{_rows_text(rows[off])}")
+    refuse_outside_limits(machine, q, rows, f"{poses}: {{n}} pose(s)")
     columns = joint_columns(machine, q, _units(machine))
     write_table(output, list(columns), list(columns.values()))
     unit = next(iter(columns)).split("_", 1)[1]

@@ -19,6 +19,7 @@ from ._commands import (
     joint_columns,
     load_machine_arg,
     read_poses_of,
+    refuse_outside_limits,
     text_digest,
 )
 from ._console import console, warning
@@ -123,6 +124,7 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
                          f"{machine.MAX_REACH:g}x its size from home, or beyond a singularity), "
                          f"row(s) "
                          f"{_rows_text(rows[~comp.reachable])}")
+    refuse_outside_limits(machine, comp.q, rows, f"{targets}: {{n}} target(s)")
     units = _units(machine)
     columns = joint_columns(machine, comp.q, units)
     if comp.position_std is not None:

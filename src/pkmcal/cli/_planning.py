@@ -234,8 +234,9 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
                    f"{source}", show_header=False)
     table.add_row("measurement", f"{_MEASUREMENT_WORDS[kind]}, {len(data)} "
                   f"{'planned ' if report['planned'] else ''}measurements")
-    table.add_row("identifiable", f"{rep.identifiable} of {rep.parameters} free parameter "
-                  "directions")
+    table.add_row("identifiable", rep.rank.words())
+    for d in rep.weak:
+        table.add_row("weakly identifiable", f"{d.name}: {d.description}")
     for d in rep.unidentifiable:
         table.add_row("not identifiable", f"{d.dimension} x {d.name}: {d.description}")
     table.add_row("condition number", f"{rep.condition_number:.4g} (scaled Jacobian, "
@@ -284,6 +285,38 @@ def parse_joint_range(text: str, machine) -> tuple[float, float]:
     return lo, hi
 
 
+def joint_bounds(machine, joint_range: str | None):
+    """The joint bounds select-poses keeps its candidates within: the machine file's
+    ``joint_limits`` and ``--joint-range``, their intersection when both are given.
+
+    Returns ``((lo, hi), words)`` with ``lo``, ``hi`` (n_joints,) in internal units and the
+    bounds in words for messages, or ``(None, "")`` when there are none. Refuses bounds whose
+    intersection is empty for some joint.
+    """
+    limits = getattr(machine, "joint_limits", None)
+    source = getattr(machine, "source", None) or "the machine file"
+    if limits is None and joint_range is None:
+        return None, ""
+    n = machine.n_joints
+    lo, hi = np.full(n, -np.inf), np.full(n, np.inf)
+    words = []
+    if limits is not None:
+        lo, hi = np.maximum(lo, limits[0]), np.minimum(hi, limits[1])
+        words.append(f"the joint limits of {source} ({machine.joint_limits_text()})")
+    if joint_range is not None:
+        a, b = parse_joint_range(joint_range, machine)
+        lo, hi = np.maximum(lo, a), np.minimum(hi, b)
+        words.append(f"--joint-range {joint_range}")
+    if limits is not None and joint_range is not None:
+        empty = np.flatnonzero(~(lo < hi))
+        if empty.size:
+            raise InputError(f"--joint-range {joint_range}: no value of "
+                             f"{', '.join(f'q{j + 1}' for j in empty)} is both within it and "
+                             f"within the joint limits of {source} "
+                             f"({machine.joint_limits_text()})")
+    return (lo, hi), " and ".join(words)
+
+
 #: relative tolerance of "no worse than the standard plan" (the search keeps a 1e-9 ridge)
 NO_WORSE_RTOL = 1e-6
 
@@ -321,7 +354,7 @@ def criterion_ratio(criterion: str, other: float, selected: float, rank: int) ->
     return float(other / selected) if selected > 0 else float("nan")
 
 
-def _standard_plan_of(machine, kind, n, seed, lo_hi):
+def _standard_plan_of(machine, kind, n, seed, lo_hi, words="the joint limits"):
     """The standard plan of ``n`` poses for select-poses, unavailable (with the reason) when
     the machine cannot reach it or it needs joints outside ``--joint-range``."""
     from ..planning import StandardPlan, standard_plan
@@ -338,7 +371,7 @@ def _standard_plan_of(machine, kind, n, seed, lo_hi):
         return StandardPlan(plan.name, reason=f"{int((~reach).sum())} of its poses are out of "
                             "this machine's reach")
     if lo_hi is not None and not np.all((q >= lo_hi[0]) & (q <= lo_hi[1])):
-        return StandardPlan(plan.name, reason="it needs joint values outside --joint-range")
+        return StandardPlan(plan.name, reason=f"it needs joint values outside {words}")
     return plan
 
 
@@ -354,6 +387,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     from dataclasses import replace
 
     from ..analysis.prediction import pose_error_operator
+    from ..identifiability import numerical_rank
     from ..io import write_poses, write_positions
     from ..planning import (
         candidate_poses,
@@ -387,9 +421,8 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
             P, R = candidate_poses(machine, kind, candidates, rng=seed)
             rows, source = None, "<candidates>"
         dropped = 0
-        lo_hi = None
-        if joint_range is not None:
-            lo_hi = parse_joint_range(joint_range, machine)
+        lo_hi, limits_words = joint_bounds(machine, joint_range)
+        if lo_hi is not None:
             q = machine.ik(P, R)
             inside = np.all((q >= lo_hi[0]) & (q <= lo_hi[1]), axis=-1)   # NaN: outside
             dropped = int((~inside).sum())
@@ -399,12 +432,13 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                 rows = np.flatnonzero(inside) + 1
         if len(P) < n:
             raise InputError(f"{source}: {len(P)} candidate pose(s)"
-                             + (f" within --joint-range ({dropped} outside)" if dropped else "")
+                             + (f" within {limits_words} ({dropped} outside)" if dropped
+                                else "")
                              + f"; cannot choose {n}")
         K = len(P)
         # the instrument's standard plan of n poses: evaluated by the same criterion, and
         # (without --from) further candidates and a start of the exchanges
-        std = _standard_plan_of(machine, kind, n, seed, lo_hi)
+        std = _standard_plan_of(machine, kind, n, seed, lo_hi, limits_words)
         k = len(std)
         P_all = np.concatenate([P, std.P]) if k else P
         R_all = np.concatenate([R, std.R]) if k else R
@@ -419,7 +453,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
         pool = replace(design, F=design.F[:selectable])
         if k and selectable == K:
             sv = np.linalg.svd(pool.F.reshape(-1, design.rank), compute_uv=False)
-            if np.sum(sv > 1e-7 * sv[0]) < design.rank:
+            if numerical_rank(sv) < design.rank:
                 # the standard plan sees directions the --from poses cannot: not comparable
                 std = replace(std, P=None, R=None, reason="it identifies directions the "
                               f"poses of {candidates_path} cannot")
@@ -483,9 +517,11 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     finite = baseline[np.isfinite(baseline)]
     median = float(np.median(baseline)) if baseline.size else float("nan")
     crit_median = float(np.median(random_crit)) if random_crit.size else float("nan")
-    from ..identifiability import observability_indices
+    from ..identifiability import observability_indices, rank_rule
 
     sv = np.linalg.svd(design.F[idx].reshape(-1, design.rank), compute_uv=False)
+    # the selected plan's counts by the rule calibrate applies to its data (same noise)
+    plan_rank = rank_rule(sv, parameters=design.rank + design.null.shape[1])
     section = prediction_report(machine, design, problem.n_machine, M, op=op)
     section["noise"] = describe_noise(kind, model)
     std_rms = float(np.sqrt(std_ms))
@@ -499,11 +535,14 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
         "measurement": kind,
         "candidates": int(K),
         "outside_joint_range": dropped,
+        "joint_limits": None if lo_hi is None else limits_words,
         "candidates_file": None if candidates_path is None else str(candidates_path),
         "selected": int(n),
         "criterion": criterion,
         "exchanges": 0 if returned_standard else sel.exchanges,
-        "identifiable": design.rank,
+        "identifiable": plan_rank.identifiable,
+        "weakly_identifiable": plan_rank.weak,
+        "max_std": plan_rank.max_std,
         "observability": observability_indices(sv),
         "predicted_accuracy": section,
         "selected_plan": {"origin": origin, "criterion_value": value,
@@ -559,7 +598,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     extra_words = (f"; the standard plan's {k} poses were further candidates and a start"
                    if as_start else "")
     table.add_row("selected", f"{n} of {K} candidate poses by criterion {criterion} ({how}"
-                  f"{extra_words}); {design.rank} parameter directions identifiable")
+                  f"{extra_words}); {plan_rank.words()}")
     _prediction_rows(table, section)
     if k and not np.isfinite(std_ms):
         table.add_row("standard plan", f"{std.name}: leaves parameter directions that move the "

@@ -439,7 +439,20 @@ def adopt_reading_unit(machine, unit: str, path) -> None:
         The reading unit of the data (the column suffix).
     path : str or os.PathLike
         The data file that decided it (kept as ``machine.reading_unit_from``).
+
+    Raises
+    ------
+    InputError
+        When the machine has ``joint_limits`` (leg lengths, as its file declares no reading
+        unit) and ``unit`` is not a length.
     """
+    if getattr(machine, "joint_limits", None) is not None and (unit in LENGTH) != (
+            machine.reading_unit in LENGTH):
+        source = getattr(machine, "source", None) or "the machine file"
+        raise InputError(f"{path}: columns {_span_of(unit, machine.n_joints)} read in {unit}, but "
+                         f"the joint_limits of {source} are leg lengths in "
+                         f"{machine.reading_unit} (it declares no readings unit); add readings: "
+                         f"{{unit: {unit}}} and give joint_limits in {unit}")
     old = LENGTH.get(machine.reading_unit, 1.0)
     new = LENGTH.get(unit, 1.0)
     if new != old:

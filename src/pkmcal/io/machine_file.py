@@ -114,7 +114,9 @@ from ..units import ANGLE, LENGTH, unit_of
 from .atomic import atomic_write_text, read_input_text
 
 FORMAT_VERSION = 1
-LENGTH_UNITS = ("mm", "m")
+LENGTH_UNITS = ("mm", "m", "in")
+#: other names of the length units (``inch`` is read as ``in``)
+LENGTH_ALIASES = {"inch": "in"}
 ANGLE_UNITS = ("deg", "rad")
 DEFAULT_UNITS = {"length": "mm", "angle": "deg"}
 
@@ -290,7 +292,7 @@ class _Strict(BaseModel):
 class Units(_Strict):
     """Units of the numbers in this file."""
 
-    length: Literal["mm", "m"]
+    length: Literal["mm", "m", "in", "inch"]
     angle: Literal["deg", "rad"]
 
 
@@ -320,6 +322,7 @@ class HexaSlideFile(_Strict):
     constraint_link: ConstraintLink | None = None
     home: Pose6 | None = None
     chains: Annotated[list[HexaSlideChain], Field(min_length=6, max_length=6)]
+    joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
     calibration: dict[str, Any] | None = None
 
 
@@ -379,6 +382,7 @@ class DeltaFile(_Strict):
     legs: Annotated[list[DeltaLeg], Field(min_length=3, max_length=3)] | None = None
     tracker: TrackerPose | None = None
     home: list[Number] | None = None
+    joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
     calibration: dict[str, Any] | None = None
 
     @field_validator("home")
@@ -398,7 +402,7 @@ class DeltaFile(_Strict):
 
 
 #: units a Stewart leg may read in and that are converted to metres (data-file suffixes)
-READING_LENGTH_UNITS = ("mm", "m", "um")
+READING_LENGTH_UNITS = ("mm", "m", "um", "in")
 _READING_UNIT = re.compile(r"^[A-Za-z][A-Za-z0-9]*$")
 
 
@@ -419,7 +423,7 @@ class Readings(_Strict):
         if value in LENGTH and value not in READING_LENGTH_UNITS:
             raise PydanticCustomError(
                 "reading_unit", "{value} is a length unit the data files do not use: readings "
-                "in a length unit are mm, m or um", {"value": repr(value)})
+                "in a length unit are mm, m, um or in", {"value": repr(value)})
         quantity = unit_of(value)
         if quantity not in (None, "length", "angle"):
             raise PydanticCustomError(
@@ -468,6 +472,7 @@ class StewartFile(_Strict):
     legs: Annotated[list[StewartLeg], Field(min_length=6, max_length=6)]
     measurement_frames: MeasurementFramesSection | None = None
     home: Pose6 | None = None
+    joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
     calibration: dict[str, Any] | None = None
 
 
@@ -516,6 +521,13 @@ class MachineFormat:
 
 def _factors(units) -> tuple[float, float]:
     return LENGTH[units["length"]], ANGLE[units["angle"]]
+
+
+def _file_units(units: dict) -> dict:
+    """Units with the aliases replaced (``inch`` -> ``in``), as kept on the machine."""
+    units = dict(units)
+    units["length"] = LENGTH_ALIASES.get(units.get("length"), units.get("length"))
+    return units
 
 
 def _home_pose(home, fl: float, fa: float):
@@ -1007,16 +1019,82 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     _check_magnitudes(data, doc, fmt, source, lines)
     with np.errstate(all="ignore"):         # no numpy warning ever reaches the user
         machine = fmt.build(doc, source)
-        machine.file_units = doc.units.model_dump()
+        machine.file_units = _file_units(doc.units.model_dump())
         problems = machine.geometry_problems(home_given=doc.home is not None)
     if problems:
         key, what = problems[0]
         line = _line_of(lines, key)
         raise InputError(f"{source}: {_key_path(key)}: {what}"
                          + (f" (line {line})" if line else ""))
+    machine.joint_limits = _joint_limits(data.get("joint_limits"), machine, source, lines)
     machine.source = source
     machine.calibration_info = doc.calibration
     return machine
+
+
+def _joint_limits(value, machine: Machine, source: str, lines: dict):
+    """``joint_limits: {min: ..., max: ...}`` of a file as ``(lo, hi)`` arrays (n_joints,) in
+    internal units, or None without the key.
+
+    Each side is one number (every joint) or a list of one number per joint, in the file's
+    unit of the joint values (:meth:`~pkmcal.machines.base.Machine.joint_unit`); ``min`` must
+    be below ``max`` for every joint. Problems are :class:`InputError` with the key path.
+    """
+    if value is None:
+        return None
+    n = machine.n_joints
+    unit, factor = machine.joint_unit()
+    form = (f"joint_limits: {{min: LOW, max: HIGH}} with one number for every joint or a list "
+            f"of {n} (q1..q{n}, in {unit})")
+
+    def fail(path: tuple, what: str):
+        line = _line_of(lines, path)
+        raise InputError(f"{source}: {_key_path(path)}: {what}"
+                         + (f" (line {line})" if line else ""))
+
+    if not isinstance(value, dict):
+        fail(("joint_limits",), f"expected a mapping, got {_show(value)}; write {form}")
+    for key in value:
+        if key not in ("min", "max"):
+            fail(("joint_limits", key), "unknown key (allowed here: min, max)")
+    sides = []
+    for key in ("min", "max"):
+        if key not in value:
+            fail(("joint_limits",), f"missing key {key}; write {form}")
+        v = value[key]
+        items = v if isinstance(v, list) else [v]
+        if isinstance(v, list) and len(v) != n:
+            fail(("joint_limits", key), f"expected one number or a list of {n} (one per joint "
+                                        f"q1..q{n}), got {len(v)}")
+        for i, x in enumerate(items):
+            path = ("joint_limits", key) + ((i,) if isinstance(v, list) else ())
+            if isinstance(x, bool) or not isinstance(x, (int, float)):
+                fail(path, f"not a number: {_show(x)}")
+            if not np.isfinite(x):
+                fail(path, f"must be a finite number, got {_show(x)}")
+        sides.append(np.broadcast_to(np.asarray(items, float), (n,)) * factor)
+    lo, hi = sides
+    for j in range(n):
+        if not lo[j] < hi[j]:
+            listed = isinstance(value["min"], list)
+            fail(("joint_limits", "min") + ((j,) if listed else ()),
+                 f"q{j + 1}: min {lo[j] / factor:.6g} {unit} must be below max "
+                 f"{hi[j] / factor:.6g} {unit}")
+    return lo.copy(), hi.copy()
+
+
+def _limits_text(machine: Machine, units: dict) -> str | None:
+    """The ``joint_limits`` line of a machine file, or None when the machine has none."""
+    limits = getattr(machine, "joint_limits", None)
+    if limits is None:
+        return None
+    _, factor = machine.joint_unit(units)
+    sides = {}
+    for key, v in zip(("min", "max"), limits, strict=True):
+        # 12 digits: a limit is not a measurement, and 30 deg stays 30.0 (not 29.999999999999996)
+        v = [float(f"{float(x) / factor:.12g}") for x in np.asarray(v, float)]
+        sides[key] = v[0] if all(x == v[0] for x in v) else v
+    return f"joint_limits: {_flow(sides)}"
 
 
 def load_machine(path) -> Machine:
@@ -1115,10 +1193,10 @@ def machine_to_text(machine: Machine, units: dict | None = None,
     kind = getattr(machine, "kind", "")
     if kind not in MACHINE_FORMATS:
         raise InputError(f"cannot save machine type {kind!r}; known: {', '.join(MACHINE_FORMATS)}")
-    units = dict(units or getattr(machine, "file_units", None) or DEFAULT_UNITS)
+    units = _file_units(units or getattr(machine, "file_units", None) or DEFAULT_UNITS)
     if set(units) != {"length", "angle"} or units["length"] not in LENGTH_UNITS \
             or units["angle"] not in ANGLE_UNITS:
-        raise InputError(f"units must be {{length: mm|m, angle: deg|rad}}, got {units}")
+        raise InputError(f"units must be {{length: mm|m|in, angle: deg|rad}}, got {units}")
     fl, fa = _factors(units)
     body = MACHINE_FORMATS[kind].dump(machine, units)
     P, R = machine.home
@@ -1141,6 +1219,9 @@ def machine_to_text(machine: Machine, units: dict | None = None,
             lines.extend(f"  {k}: {_flow(v)}" for k, v in value.items())
         else:
             lines.append(f"{key}: {_flow(value)}")
+    limits = _limits_text(machine, units)
+    if limits is not None:
+        lines.append(limits)
     lines.append(f"home: {_flow(home)}   # {home_text}")
     if calibration is not None:
         meta = _plain(calibration)

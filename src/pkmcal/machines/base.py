@@ -245,6 +245,130 @@ class Machine(ABC):
             sv = np.linalg.svd(Js, compute_uv=False)
         return bad, not sv[-1] > 1e-9 * sv[0]
 
+    # -- joint limits (machine file key ``joint_limits``) -----------------------------------
+    def joint_unit(self, units: dict | None = None) -> tuple[str, float]:
+        """Unit of the joint values in a machine file and its SI factor.
+
+        A Stewart's reading unit (``rev``: factor 1, readings kept as read; a length unit:
+        converted to metres); otherwise the file's angle unit for revolute joints and its
+        length unit for prismatic ones.
+
+        Parameters
+        ----------
+        units : dict, optional
+            ``{"length": ..., "angle": ...}``; default the machine's ``file_units`` (m, rad
+            when it has none).
+
+        Returns
+        -------
+        unit : str
+            The unit name, e.g. ``"mm"``, ``"deg"`` or ``"rev"``.
+        factor : float
+            SI value of one unit (1 for a reading unit that is not a length).
+        """
+        from ..units import ANGLE, LENGTH
+
+        reading = getattr(self, "reading_unit", None)
+        if reading is not None:
+            return reading, LENGTH.get(reading, 1.0)
+        units = units or getattr(self, "file_units", None) or {"length": "m", "angle": "rad"}
+        if self.joint_quantity == "angle":
+            return units["angle"], ANGLE[units["angle"]]
+        return units["length"], LENGTH[units["length"]]
+
+    def limit_violations(self, q) -> np.ndarray:
+        """Which joint values lie outside the machine's ``joint_limits``.
+
+        Parameters
+        ----------
+        q : array_like, shape (..., n_joints)
+            Joint values, internal units.
+
+        Returns
+        -------
+        ndarray of bool, shape (..., n_joints)
+            True where a value is below its ``min`` or above its ``max``; NaN (a pose that
+            cannot be reached) is not a limit violation. All False without limits.
+        """
+        q = np.asarray(q, float)
+        limits = getattr(self, "joint_limits", None)
+        if limits is None:
+            return np.zeros(q.shape, bool)
+        lo, hi = (np.asarray(v, float) for v in limits)
+        return (q < lo) | (q > hi)
+
+    def within_limits(self, q) -> np.ndarray:
+        """Where every joint value is finite and within the machine's ``joint_limits``.
+
+        Parameters
+        ----------
+        q : array_like, shape (..., n_joints)
+            Joint values, internal units.
+
+        Returns
+        -------
+        ndarray of bool, shape (...)
+            True where the joints can take these values (all finite ones without limits).
+        """
+        q = np.asarray(q, float)
+        return np.all(np.isfinite(q), axis=-1) & ~np.any(self.limit_violations(q), axis=-1)
+
+    def joint_limits_text(self) -> str:
+        """The joint limits in words, in the machine file's units.
+
+        Returns
+        -------
+        str
+            E.g. ``"q1..q6 within 0..400 mm"`` or ``"q1 within -40..80 deg, q2 ..."``;
+            ``"none"`` without limits.
+        """
+        limits = getattr(self, "joint_limits", None)
+        if limits is None:
+            return "none"
+        unit, f = self.joint_unit()
+        lo, hi = (np.asarray(v, float) / f for v in limits)
+        if np.all(lo == lo[0]) and np.all(hi == hi[0]):
+            return f"q1..q{self.n_joints} within {lo[0]:.6g}..{hi[0]:.6g} {unit}"
+        return ", ".join(f"q{j + 1} within {a:.6g}..{b:.6g} {unit}"
+                         for j, (a, b) in enumerate(zip(lo, hi, strict=True)))
+
+    def limit_violation_text(self, q, rows=None, limit: int = 5) -> str:
+        """The rows and joints whose values break the joint limits, for a message.
+
+        Parameters
+        ----------
+        q : array_like, shape (K, n_joints)
+            Joint values, internal units.
+        rows : array_like of int, shape (K,), optional
+            Row label of each vector (file line numbers); default 1..K.
+        limit : int, optional
+            Most rows named.
+
+        Returns
+        -------
+        str
+            E.g. ``"row 3: q2 = 412.5 mm above max 400 mm; row 7: q1 = -2 mm below min 0 mm"``
+            (values in the machine file's units); empty when no value breaks a limit.
+        """
+        q = np.atleast_2d(np.asarray(q, float))
+        rows = np.arange(1, len(q) + 1) if rows is None else np.asarray(rows)
+        bad = self.limit_violations(q)
+        which = np.flatnonzero(bad.any(axis=-1))
+        if not which.size:
+            return ""
+        unit, f = self.joint_unit()
+        lo, hi = (np.asarray(v, float) / f for v in self.joint_limits)
+        parts = []
+        for k in which[:limit]:
+            joints = []
+            for j in np.flatnonzero(bad[k]):
+                v = q[k, j] / f
+                side = f"below min {lo[j]:.6g}" if v < lo[j] else f"above max {hi[j]:.6g}"
+                joints.append(f"q{j + 1} = {v:.6g} {unit} {side} {unit}")
+            parts.append(f"row {int(rows[k])}: " + ", ".join(joints))
+        more = f"; and {which.size - limit} more row(s)" if which.size > limit else ""
+        return "; ".join(parts) + more
+
     #: a commanded pose farther than this many characteristic lengths from home is not meant
     MAX_REACH = 10.0
 

@@ -125,7 +125,8 @@ def sample_sphere_poses(machine: Machine, link_length: float, n: int, rng=None,
     P lies in a cap of half-angle ``max_tilt`` around the direction of the home position,
     uniform on the cap; Euler angles are uniform in ``+/- max_rotation``.
 
-    Poses are redrawn where the inverse kinematics fail, where the joint Jacobian is badly
+    Poses are redrawn where the inverse kinematics fail, where a joint value breaks the
+    machine's ``joint_limits`` (machine file), where the joint Jacobian is badly
     conditioned (smallest singular value below ``min_manipulability`` times the largest,
     rotation columns scaled by the characteristic length), or where the machine cannot be
     driven with the link mounted: for some choice of passive actuator, the loop of the five
@@ -191,7 +192,8 @@ def sample_sphere_poses(machine: Machine, link_length: float, n: int, rng=None,
     where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")
     return draw_accepted(draw, n, rng, (f"{where}: " if where else "")
                          + "only {have} of {n} sphere poses are reachable: reduce max_tilt or "
-                         "max_rotation, or check constraint_link.length and home")
+                         "max_rotation, or check constraint_link.length and home",
+                         machine=machine)
 
 
 def simulate_constraint_link(true_machine: Machine, n_poses: int = 150, noise_m: float = 0.0,

@@ -63,22 +63,49 @@ def random_deviations(machine, rng) -> np.ndarray:
     return np.random.default_rng(rng).uniform(-1.0, 1.0, len(params)) * size
 
 
-def draw_accepted(draw, n: int, rng, failure: str, rounds: int = 50):
+def draw_accepted(draw, n: int, rng, failure: str, rounds: int = 50, machine=None):
     """``n`` poses from ``draw(m, rng) -> (P (m,3), R (m,3,3), ok (m,))``, drawing batches
     (about twice what is still missing) until enough are accepted.
 
+    With ``machine``, poses whose joint values break its ``joint_limits`` (machine file) are
+    not accepted either (:meth:`~pkmcal.machines.base.Machine.within_limits`).
+
     Raises :class:`~pkmcal.errors.InputError` with ``failure`` (formatted with ``have`` and
-    ``n``) when ``rounds`` batches do not give ``n``.
+    ``n``) when ``rounds`` batches do not give ``n``; when the limits rejected poses, the
+    message names the limits, how many poses broke them and the joint values at home.
     """
     from ..errors import InputError
 
+    limited = machine is not None and getattr(machine, "joint_limits", None) is not None
+    outside = drawn = 0
     P_out, R_out = [], []
     have = 0
     for _ in range(rounds):
-        P, R, ok = draw(2 * (n - have) + 16, rng)
+        m = 2 * (n - have) + 16
+        if limited and drawn and have:
+            # tight limits accept few poses: draw in proportion to the rate seen so far
+            m = min(int(m * drawn / have), 100 * m, 200_000)
+        P, R, ok = draw(m, rng)
+        drawn += m
+        if limited and ok.any():
+            inside = machine.within_limits(machine.ik(P[ok], R[ok]))
+            outside += int((~inside).sum())
+            ok = ok.copy()
+            ok[ok] = inside
         P_out.append(P[ok])
         R_out.append(R[ok])
         have += int(ok.sum())
         if have >= n:
             return np.concatenate(P_out)[:n], np.concatenate(R_out)[:n]
+    if outside:
+        source = getattr(machine, "source", None) or "the machine file"
+        unit, f = machine.joint_unit()
+        with np.errstate(all="ignore"):
+            home = np.asarray(machine.ik(*machine.home), float).reshape(-1) / f
+        raise InputError(
+            f"{source}: " + ("no pose" if have == 0 else f"only {have} of {n} poses")
+            + f" within the joint limits ({machine.joint_limits_text()}) could be drawn: "
+            f"{outside} drawn pose(s) the machine reaches need joint values outside them; "
+            f"widen joint_limits or check them against the joint values at home ("
+            + ", ".join(f"q{j + 1} = {v:.6g}" for j, v in enumerate(home)) + f" {unit})")
     raise InputError(failure.format(have=have, n=n))

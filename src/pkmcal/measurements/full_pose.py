@@ -232,8 +232,9 @@ def sample_platform_poses(machine: Machine, n: int, rng=None, half_range=POSE_HA
     Positions are uniform in a cube of half-width ``half_range`` around the home position,
     Euler angles uniform in ``+/- max_angle`` applied to the home orientation. Poses whose leg
     Jacobian is badly conditioned (smallest singular value below ``min_conditioning`` times the
-    largest, rotation columns scaled by the characteristic length) or whose legs would be
-    shorter than a tenth of their home length are drawn again.
+    largest, rotation columns scaled by the characteristic length), whose legs would be
+    shorter than a tenth of their home length or whose readings break the machine's
+    ``joint_limits`` (machine file) are drawn again.
 
     Parameters
     ----------
@@ -279,7 +280,8 @@ def sample_platform_poses(machine: Machine, n: int, rng=None, half_range=POSE_HA
     where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")
     return draw_accepted(draw, n, rng, (f"{where}: " if where else "")
                          + "only {have} of {n} random poses around home are well conditioned: "
-                         "reduce the pose range or check the geometry (legs) and home")
+                         "reduce the pose range or check the geometry (legs) and home",
+                         machine=machine)
 
 
 def simulate_full_pose(true_machine: Machine, poses, frames: MeasurementFrames | None = None,
