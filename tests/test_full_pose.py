@@ -299,7 +299,9 @@ def test_degenerate_poses_are_refused_in_words(case, method):
             calibrate_full_pose(case.nominal, data, method=method)
         res = calibrate_full_pose(case.nominal, data, method=method,
                                   require_identifiable=False)
-        assert res.rank < 48
+        # one rank rule (issue 12): rank counts the weakly identifiable directions too;
+        # fewer than 48 are adjusted
+        assert res.adjusted < 48
         assert len(res.extras["unidentifiable"]) > 2
 
 

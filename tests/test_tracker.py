@@ -362,7 +362,10 @@ def test_planar_grid_converges_and_reports_its_weak_directions():
                             default_tracker_pose(), noise=None, rng=2)
     res = calibrate_tracker(nominal, data)
     assert res.success, res.message
-    assert res.rank == 18 and res.weak_space.shape[1] == 3
+    # one rank rule (issue 12): the weak directions count as identifiable (21, as
+    # `pkmcal identifiability` says), 18 of them are adjusted
+    assert res.rank == 21 and res.weak == 3 and res.adjusted == 18
+    assert res.weak_space.shape[1] == 3
     assert np.all(res.weak_std > 0.1)
     weak = [d for d in res.extras["unidentifiable"] if d.description.startswith("weakly")]
     assert len(weak) == 3

@@ -29,6 +29,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+# MAX_STD: the machine calibrations' default max_std, re-exported for them (one rank rule)
+from ..identifiability.rank import MAX_STD, RTOL, rank_rule  # noqa: F401
 from ..parameters import ParameterSet
 
 
@@ -144,7 +146,9 @@ class CalibrationResult:
     nfev : int
         Residual evaluations.
     rank : int
-        Number of directions identified (stepped along) among the free parameters.
+        Number of identifiable directions of the free parameters (numerical rank,
+        :func:`~pkmcal.identifiability.rank.rank_rule`); includes the weak ones, which are not
+        stepped along (``adjusted`` are).
     singular_values : ndarray
         Singular values of the scaled reduced Jacobian of the free parameters.
     null_space : ndarray, shape (n, k)
@@ -152,8 +156,8 @@ class CalibrationResult:
     scales : ndarray, shape (n,)
         Column scales of the parameters (the problem's ``scales``).
     weak_space : ndarray, shape (n, w)
-        Weakly identifiable directions: not null, but with a standard deviation above
-        ``max_std`` (scaled units) under the assumed noise; not adjusted.
+        Weakly identifiable directions: identifiable (counted in ``rank``), but with a standard
+        deviation of at least ``max_std`` (scaled units) under the assumed noise; not adjusted.
     weak_std : ndarray, shape (w,)
         Their standard deviations (scaled units).
     covariance : ndarray, shape (n, n)
@@ -164,12 +168,14 @@ class CalibrationResult:
     residual_variance : float
         ``2 cost / dof`` (SPEC STYLE: not ``cost^2/(m-n)``); NaN when ``dof <= 0``.
     dof : int
-        Number of whitened residuals minus identified and local unknowns.
+        Number of whitened residuals minus adjusted directions and local unknowns.
     state : object, optional
         Final problem state (e.g. the per-measurement poses).
     extras : dict, optional
         Results of the calibration method built on the estimator (e.g. ``"machine"``, the
         calibrated machine; ``"registration"``); empty from :func:`levenberg_marquardt`.
+    max_std : float or None, optional
+        The weak-direction threshold used (None: numerical rank only).
     """
 
     x: np.ndarray
@@ -193,13 +199,37 @@ class CalibrationResult:
     dof: int
     state: Any = None
     extras: dict = field(default_factory=dict)
+    max_std: float | None = None
+
+    @property
+    def weak(self) -> int:
+        """Number of weakly identifiable directions (counted in ``rank``, not adjusted)."""
+        return int(self.weak_space.shape[1])
+
+    @property
+    def adjusted(self) -> int:
+        """Number of directions fitted: ``rank - weak``."""
+        return int(self.rank) - self.weak
+
+    def rank_words(self) -> str:
+        """The identifiable and weak counts in words (:meth:`~pkmcal.identifiability.rank.
+        Rank.words`).
+
+        Returns
+        -------
+        str
+            One line, e.g. ``"48 of 60 free parameter directions identifiable, of which 4
+            weakly (...)"``.
+        """
+        from ..identifiability.rank import Rank
+
+        n = int(self.parameters.free.sum()) if self.parameters is not None else 0
+        return Rank(int(self.rank), self.weak, n, self.max_std).words()
 
     def __getitem__(self, key):  # scipy-style access: result["x"]
         return getattr(self, key)
 
 
-#: default ``max_std`` of the machine calibrations (scaled units, see levenberg_marquardt)
-MAX_STD = 0.1
 
 
 def reduce_local(r, Jg, Jl):
@@ -245,7 +275,7 @@ def reduce_local(r, Jg, Jl):
     return Jr, er, back
 
 
-def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float = 1e-12,
+def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float = 1e-12,
                         ftol: float = 1e-14, max_iter: int = 100,
                         absolute_sigma: bool = False, state=None,
                         max_std: float | None = None) -> CalibrationResult:
@@ -257,7 +287,8 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
         The calibration problem.
     rtol : float, optional
         Relative tolerance on singular values of the scaled reduced Jacobian; directions with
-        ``s_i < rtol * s_1`` are unidentifiable and never stepped along.
+        ``s_i <= rtol * s_1`` are unidentifiable and never stepped along (the one rank rule,
+        :func:`~pkmcal.identifiability.rank.rank_rule`).
     xtol : float, optional
         Stop when the largest component of the (undamped) Gauss-Newton step, in scaled
         coordinates, is below ``xtol``, or when that step would lower the cost by less than
@@ -273,11 +304,12 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
     state : object, optional
         State to start from; default ``problem.initial_state()``.
     max_std : float, optional
-        A direction whose standard deviation under the assumed noise exceeds this, in scaled
-        units (0.1 = 10 % of the characteristic length, or 5.7 deg), is not determined by the
-        data in any useful sense: it is neither stepped along (stepping along it stalls the
-        iteration in a curved valley) nor counted as identified, and it is returned in
-        ``weak_space``. None (default): numerical rank only; the machine calibrations pass
+        An identifiable direction whose standard deviation under the assumed noise is at least
+        this, in scaled units (0.1 = 10 % of the characteristic length, or 5.7 deg), is not
+        determined by the data in any useful sense: it is counted as identifiable (``rank``)
+        but weakly, not stepped along (stepping along it stalls the iteration in a curved
+        valley and would fit noise), and returned in ``weak_space`` with its standard
+        deviation. None (default): numerical rank only; the machine calibrations pass
         :data:`MAX_STD`, where scaled units have that meaning.
 
     Returns
@@ -291,18 +323,12 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
         When a tolerance is outside [0, 1), ``max_iter < 1``, ``max_std`` is not positive, or
         the residuals are not finite at the start point.
     """
-    for name, v in (("rtol", rtol), ("xtol", xtol), ("ftol", ftol)):
+    for name, v in (("xtol", xtol), ("ftol", ftol)):
         if not (np.isfinite(v) and 0 <= v < 1):
             raise ValueError(f"{name} must be in [0, 1), got {v}")
     if max_iter < 1:
         raise ValueError(f"max_iter must be >= 1, got {max_iter}")
-    if max_std is not None and not max_std > 0:
-        raise ValueError(f"max_std must be positive or None, got {max_std}")
-    min_s = 0.0 if max_std is None else 1.0 / max_std
-
-    def ranks(s):
-        numerical = int(np.sum(s > rtol * s[0])) if s.size else 0
-        return numerical, min(numerical, int(np.sum(s > min_s)))
+    rank_rule(np.zeros(0), rtol, max_std)      # checks rtol and max_std (ValueError)
 
     params = problem.parameters
     free = params.free
@@ -320,7 +346,7 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
     for nit in range(1, max_iter + 1):  # noqa: B007
         Jr, er, back = reduce_local(r, Jg[..., free] * scales[free], Jl)
         U, s, Vt = np.linalg.svd(Jr, full_matrices=False)
-        _, rank = ranks(s)
+        rank = rank_rule(s, rtol, max_std).adjusted
         Ur, sr, Vr = U[:, :rank], s[:rank], Vt[:rank].T
         g = Ur.T @ er
         s1 = float(sr[0]) if rank else 1.0
@@ -362,7 +388,8 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
     # final statistics at the solution
     Jr, er, _ = reduce_local(r, Jg[..., free] * scales[free], Jl)
     U, s, Vt = np.linalg.svd(Jr, full_matrices=False)
-    numerical, rank = ranks(s)
+    decision = rank_rule(s, rtol, max_std)
+    numerical, rank = decision.identifiable, decision.adjusted   # rank: adjusted directions
     n_free = int(free.sum())
     null_free = (Vt[numerical:].T if Vt.shape[0] >= n_free
                  else _complete_null(Vt[:numerical], n_free))
@@ -382,10 +409,10 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = 1e-7, xtol: float =
     return CalibrationResult(
         x=x, parameters=params.with_values(x), cost=cost, residuals=r,
         success=status in (1, 2), status=status, message=message, nit=nit, nfev=nfev,
-        rank=rank, singular_values=s, null_space=null_space, scales=scales,
+        rank=numerical, singular_values=s, null_space=null_space, scales=scales,
         weak_space=weak_space, weak_std=1.0 / s[rank:numerical], covariance=cov,
         std=np.sqrt(np.clip(np.diag(cov), 0, None)), residual_variance=variance, dof=dof,
-        state=state,
+        state=state, max_std=max_std,
     )
 
 

@@ -42,6 +42,7 @@ import numpy as np
 from ..errors import InputError
 from ..identifiability import NullGroup, name_null_space, name_weak_directions
 from ..identifiability.analysis import right_singular
+from ..identifiability.rank import RTOL, rank_rule
 from ..kinematics import matrix_from_rotvec, rotvec_from_matrix, skew
 from ..machines.base import Machine
 from ..measurements.full_pose import FullPoseData, FullPoseNoise, MeasurementFrames
@@ -614,7 +615,7 @@ def estimate_frames(machine: Machine, data: FullPoseData, max_passes: int = 100,
 def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml",
                         noise: FullPoseNoise | None = None,
                         frames: MeasurementFrames | None = None, fix_frames=False,
-                        fit_machine: bool = True, rtol: float = 1e-7,
+                        fit_machine: bool = True, rtol: float = RTOL,
                         require_identifiable: bool = True, **options) -> CalibrationResult:
     """Identify the leg parameters (and the measurement frames) from full-pose data.
 
@@ -642,7 +643,12 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
     require_identifiable : bool, optional
         Raise :class:`InputError` when the poses leave directions other than the frame gauges
         undetermined (degenerate poses: all alike, or no rotation), naming them; False returns
-        the fit with those directions reported instead.
+        the fit with those directions reported instead. By the one rank rule
+        (:mod:`pkmcal.identifiability.rank`): unidentifiable directions are refused; weakly
+        identifiable ones (standard deviation of at least ``max_std`` under the assumed
+        noise) only when the measured poses do not vary beyond their noise; otherwise they are
+        left at their start values and reported (``weak_space``, ``weak_std``, named in
+        ``extras["unidentifiable"]``).
     **options
         Passed to :func:`levenberg_marquardt` (``xtol``, ``ftol``, ``max_iter``, ``max_std``;
         ``max_std`` defaults to :data:`MAX_STD`).
@@ -700,8 +706,48 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
     return result
 
 
-def _check_identifiable(problem: FullPoseProblem, n_id: int, rtol: float, max_std) -> None:
-    """Refuse poses that leave more than the frame gauges undetermined, in words."""
+#: measured poses whose positions or orientations spread by no more than this many times their
+#: noise (largest axis) do not vary: directions determined only weakly by them are refused
+DEGENERATE_SPREAD = 3.0
+
+
+def pose_spread(data: FullPoseData) -> tuple[float, float]:
+    """Spread of the measured poses: the largest standard deviation over the axes of the
+    positions (m) and of the orientations (rad, rotation vectors about the mean orientation).
+
+    Parameters
+    ----------
+    data : FullPoseData
+        The measured poses.
+
+    Returns
+    -------
+    tuple of float
+        ``(position, orientation)``.
+    """
+    P, R = np.asarray(data.P, float), np.asarray(data.R, float)
+    U, _, Vt = np.linalg.svd(np.sum(R, axis=0))       # chordal mean orientation
+    mean = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    phi = rotvec_from_matrix(np.einsum("ji,kjl->kil", mean, R))
+
+    def largest(x):
+        return float(np.sqrt(np.linalg.eigvalsh(np.cov(x.T, bias=True))[-1])) if len(x) > 1 \
+            else 0.0
+    return largest(P), largest(phi)
+
+
+def _check_identifiable(problem: FullPoseProblem, n_id: int, rtol: float,
+                        max_std: float | None) -> None:
+    """Refuse poses that leave more than the frame gauges undetermined, in words.
+
+    By the one rank rule (:mod:`pkmcal.identifiability.rank`, as ``pkmcal identifiability``):
+    directions beyond the gauges that are unidentifiable (numerical null space) are refused.
+    Weakly identifiable ones (standard deviation of at least ``max_std`` under the assumed
+    noise) are left at their start values and reported, not refused - unless the measured
+    positions or orientations do not vary beyond :data:`DEGENERATE_SPREAD` times their noise
+    (all poses alike, no rotation): then what "determines" those directions is the noise of
+    the poses the model is linearised at, and they are unidentifiable in fact.
+    """
     state = problem.initial_state()
     r, Jg, Jl = problem.evaluate(state)
     if not np.all(np.isfinite(r)):
@@ -710,10 +756,19 @@ def _check_identifiable(problem: FullPoseProblem, n_id: int, rtol: float, max_st
     free = problem.parameters.free
     Jr, _, _ = reduce_local(r, Jg[..., free] * problem.scales[free], Jl)
     s, Vt = right_singular(Jr)
-    floor = rtol * s[0] if s.size else 0.0
-    if max_std is not None:
-        floor = max(floor, 1.0 / max_std)
-    rank = int(np.sum(s > floor))
+    decision = rank_rule(s, rtol, max_std, parameters=int(free.sum()))
+    rank, why = decision.identifiable, ""
+    if rank >= n_id and decision.weak:
+        position, orientation = pose_spread(problem.data)
+        noise = problem.noise
+        if orientation <= DEGENERATE_SPREAD * noise.orientation_rad:
+            why = (f"the measured orientations vary by {orientation * 1e6:.3g} urad at most, "
+                   f"within {DEGENERATE_SPREAD:g}x their noise; ")
+        elif position <= DEGENERATE_SPREAD * noise.position_m:
+            why = (f"the measured positions vary by {position * 1e6:.3g} um at most, within "
+                   f"{DEGENERATE_SPREAD:g}x their noise; ")
+        if why:
+            rank = decision.adjusted
     if rank >= n_id:
         return
     N = np.zeros((len(problem.parameters), Vt.shape[0] - rank))
@@ -725,9 +780,9 @@ def _check_identifiable(problem: FullPoseProblem, n_id: int, rtol: float, max_st
     shown = "; ".join(words[:3]) + (f"; and {len(words) - 3} more" if len(words) > 3 else "")
     raise InputError(
         f"{problem.data.source}: the {len(problem.data)} poses determine only {rank} of the "
-        f"{n_id} identifiable parameter directions (degenerate poses); undetermined: {shown}. "
-        "Measure poses spread over the workspace: positions along all three axes and "
-        "rotations about all three axes")
+        f"{n_id} identifiable parameter directions ({why}degenerate poses); undetermined: "
+        f"{shown}. Measure poses spread over the workspace: positions along all three axes "
+        "and rotations about all three axes")
 
 
 @dataclass

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..identifiability import NullGroup, name_null_space, name_weak_directions
+from ..identifiability.rank import RTOL
 from ..kinematics import matrix_from_rotvec, rotvec_from_matrix, skew
 from ..machines.base import Machine
 from ..measurements.tracker import TrackerData, TrackerNoise
@@ -243,7 +244,7 @@ class TrackerProblem:
 
 def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise | None = None,
                       joint: bool = True, robust: bool = False, outlier_threshold: float = 5.0,
-                      rtol: float = 1e-7, **options) -> CalibrationResult:
+                      rtol: float = RTOL, **options) -> CalibrationResult:
     """Identify the error parameters (and the tracker pose) from tracker points.
 
     The registration starts from the closed form on the nominal model (>= 4 points, not

@@ -8,6 +8,7 @@ from .analysis import (
     name_null_space,
     name_weak_directions,
     observability_indices,
+    weak_directions,
 )
 from .gauge import (
     BASE_ROTATION_ABOUT_O,
@@ -20,6 +21,7 @@ from .gauge import (
     gauge_groups,
     transport_covariance,
 )
+from .rank import MAX_STD, RTOL, Rank, numerical_rank, rank_rule, weak_words
 from .report import (
     correlated_pairs,
     identifiability_report,
@@ -33,6 +35,7 @@ __all__ = [
     "apply_gauges", "gauge_generators", "gauge_groups", "name_null_space",
     "name_weak_directions",
     "observability_indices", "transport_covariance",
+    "MAX_STD", "RTOL", "Rank", "numerical_rank", "rank_rule", "weak_directions", "weak_words",
     "correlated_pairs", "identifiability_report", "minimal_identifiable_set",
     "problem_null_groups",
 ]

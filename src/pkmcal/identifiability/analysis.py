@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..parameters import ParameterSet
+from .rank import MAX_STD, RTOL, Rank, rank_rule, weak_words
 
 
 @dataclass
@@ -23,11 +24,15 @@ class NullDirection:
         Number of directions it stands for.
     description : str
         What it means, in words.
+    std : float or None, optional
+        A weakly identifiable direction's standard deviation (scaled units) under the assumed
+        noise; None for an unidentifiable one.
     """
 
     name: str
     dimension: int
     description: str
+    std: float | None = None
 
     def as_dict(self) -> dict:
         """The direction as a JSON-ready dict.
@@ -49,7 +54,8 @@ class IdentifiabilityReport:
     parameters : int
         Number of free parameters (columns of the Jacobian).
     identifiable : int
-        Numerical rank: the number of identifiable directions.
+        Numerical rank: the number of identifiable directions (the weak ones included), by
+        :func:`~pkmcal.identifiability.rank.rank_rule`.
     singular_values : ndarray
         Singular values of the scaled reduced Jacobian, largest first.
     unidentifiable : list of NullDirection, optional
@@ -65,6 +71,12 @@ class IdentifiabilityReport:
     correlated : list of tuple, optional
         Parameter pairs ``(a, b, correlation)`` with ``|correlation| > 0.9`` in the
         pseudo-inverse covariance (identifiable part), largest first.
+    weak : list of NullDirection, optional
+        The weakly identifiable directions (counted in ``identifiable``): standard deviation
+        under the assumed noise at least ``max_std`` (scaled units); a calibration leaves them
+        at their start values.
+    max_std : float or None, optional
+        The weak-direction threshold (None: not applied).
     """
 
     parameters: int
@@ -75,6 +87,19 @@ class IdentifiabilityReport:
     condition_number: float = float("nan")
     hold_fixed: list[str] = field(default_factory=list)
     correlated: list[tuple[str, str, float]] = field(default_factory=list)
+    weak: list[NullDirection] = field(default_factory=list)
+    max_std: float | None = None
+
+    @property
+    def weakly_identifiable(self) -> int:
+        """Number of weakly identifiable directions (a part of ``identifiable``)."""
+        return len(self.weak)
+
+    @property
+    def rank(self) -> Rank:
+        """The counts as a :class:`~pkmcal.identifiability.rank.Rank`."""
+        return Rank(self.identifiable, self.weakly_identifiable, self.parameters,
+                    self.max_std)
 
     def as_dict(self) -> dict:
         """The report as a JSON-ready dict (without the singular values).
@@ -82,13 +107,19 @@ class IdentifiabilityReport:
         Returns
         -------
         dict
-            ``parameters``, ``identifiable``, ``unidentifiable`` (list of dicts), ``observability``,
+            ``parameters``, ``identifiable``, ``weakly_identifiable`` (how many of the
+            identifiable directions are weak), ``max_std``, ``weak`` (dicts with ``name``,
+            ``std``, ``description``), ``unidentifiable`` (list of dicts), ``observability``,
             ``condition_number``, ``hold_fixed`` and ``correlated`` (dicts with ``a``, ``b``,
             ``correlation``).
         """
         return {
             "parameters": self.parameters,
             "identifiable": self.identifiable,
+            "weakly_identifiable": self.weakly_identifiable,
+            "max_std": self.max_std,
+            "weak": [{"name": d.name, "std": d.std, "description": d.description}
+                     for d in self.weak],
             "unidentifiable": [d.as_dict() for d in self.unidentifiable],
             "observability": self.observability,
             "condition_number": self.condition_number,
@@ -109,8 +140,9 @@ class IdentifiabilityReport:
         str
             Several lines of text.
         """
-        lines = [f"{self.identifiable} of {self.parameters} free parameter directions are "
-                 "identifiable from these data."]
+        lines = [f"{self.rank.words()}."]
+        for d in self.weak:
+            lines.append(f"  - weakly: {d.name}: {d.description}")
         for d in self.unidentifiable:
             lines.append(f"  - {d.dimension} x {d.name}: {d.description}")
         if self.hold_fixed:
@@ -228,12 +260,12 @@ def name_weak_directions(result, parameters: ParameterSet) -> list[NullDirection
     """The weakly identifiable directions of a calibration result, in words.
 
     Each with its standard deviation (scaled units: a fraction of the characteristic length,
-    or rad).
+    or rad). They are counted among the identifiable directions (``result.rank``).
 
     Parameters
     ----------
     result : CalibrationResult
-        Uses ``weak_space`` and ``weak_std``.
+        Uses ``weak_space``, ``weak_std`` and ``max_std``.
     parameters : ParameterSet
         Names of the parameters.
 
@@ -242,13 +274,39 @@ def name_weak_directions(result, parameters: ParameterSet) -> list[NullDirection
     list of NullDirection
         One entry per weak direction.
     """
+    return weak_directions(result.weak_space, result.weak_std, parameters,
+                           getattr(result, "max_std", MAX_STD))
+
+
+def weak_directions(space, std, parameters: ParameterSet,
+                    max_std: float | None = MAX_STD) -> list[NullDirection]:
+    """Weakly identifiable directions in words, each with its standard deviation.
+
+    Parameters
+    ----------
+    space : array_like, shape (n, w)
+        The directions (scaled coordinates of the full parameter vector).
+    std : array_like, shape (w,)
+        Their standard deviations (scaled units).
+    parameters : ParameterSet
+        Names of the parameters.
+    max_std : float or None, optional
+        The threshold they exceed.
+
+    Returns
+    -------
+    list of NullDirection
+        One entry per direction (``std`` set), described the same way by every command.
+    """
+    space = np.asarray(space, float)
     out = []
-    for k in range(result.weak_space.shape[1]):
+    for k in range(space.shape[1]):
         out.append(NullDirection(
-            parameters.describe_direction(result.weak_space[:, k]), 1,
-            f"weakly identifiable: standard deviation {result.weak_std[k]:.2g} (scaled) with "
-            "these measurements, so it is left unadjusted; spread the measurements more "
-            "(all three directions, wider orientations)"))
+            parameters.describe_direction(space[:, k]), 1,
+            f"weakly identifiable: standard deviation {float(std[k]):.2g} (scaled) with these "
+            f"measurements ({weak_words(max_std)}), so it is counted as identifiable but left "
+            "at its start value; spread the measurements more (all three directions, wider "
+            "orientations)", std=float(std[k])))
     return out
 
 
@@ -264,8 +322,9 @@ def right_singular(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return s, Vt
 
 
-def analyze(jacobian_scaled, parameters: ParameterSet, rtol: float = 1e-7,
-            groups: Sequence[NullGroup] = ()) -> IdentifiabilityReport:
+def analyze(jacobian_scaled, parameters: ParameterSet, rtol: float = RTOL,
+            groups: Sequence[NullGroup] = (),
+            max_std: float | None = None) -> IdentifiabilityReport:
     """Identifiability of the free parameters from a scaled (reduced) Jacobian.
 
     Parameters
@@ -275,27 +334,37 @@ def analyze(jacobian_scaled, parameters: ParameterSet, rtol: float = 1e-7,
     parameters : ParameterSet
         All parameters (their ``free`` mask places the columns).
     rtol : float, optional
-        Singular values below ``rtol`` times the largest count as zero.
+        Singular values at or below ``rtol`` times the largest count as zero
+        (:func:`~pkmcal.identifiability.rank.rank_rule`).
     groups : sequence of NullGroup, optional
         Known groups that name null directions first.
+    max_std : float or None, optional
+        Identifiable directions with a standard deviation ``1 / s_i`` (scaled units; the rows
+        whitened by the assumed noise) of at least this are reported as weakly identifiable;
+        None: none is.
 
     Returns
     -------
     IdentifiabilityReport
-        Rank, named null space, O1..O5 and condition number (``hold_fixed`` and
-        ``correlated`` are left empty).
+        Rank, weak directions, named null space, O1..O5 and condition number (``hold_fixed``
+        and ``correlated`` are left empty).
     """
     J = np.asarray(jacobian_scaled, float)
     m = max(J.shape[0], 1)
     s, Vt = right_singular(J)
-    rank = int(np.sum(s > rtol * s[0])) if s.size else 0
+    decision = rank_rule(s, rtol, max_std, parameters=J.shape[1])
+    rank, adjusted = decision.identifiable, decision.adjusted
     free_idx = np.flatnonzero(parameters.free)
     N = np.zeros((len(parameters), J.shape[1] - rank))
     N[free_idx] = Vt[rank:].T
+    W = np.zeros((len(parameters), rank - adjusted))
+    W[free_idx] = Vt[adjusted:rank].T
     report = IdentifiabilityReport(
         parameters=int(J.shape[1]), identifiable=rank, singular_values=s,
         unidentifiable=name_null_space(N, parameters, groups),
         observability=observability_indices(s[:rank], m),
         condition_number=float(s[0] / s[rank - 1]) if rank else float("inf"),
+        weak=weak_directions(W, 1.0 / s[adjusted:rank], parameters, max_std),
+        max_std=max_std,
     )
     return report

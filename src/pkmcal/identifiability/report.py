@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 from .analysis import IdentifiabilityReport, NullGroup, analyze
+from .rank import MAX_STD, RTOL
 
 #: parameter pairs with a larger absolute correlation are reported
 CORRELATION_THRESHOLD = 0.9
@@ -133,7 +134,8 @@ def correlated_pairs(jacobian_scaled, rank: int, names: Sequence[str],
 
 
 def identifiability_report(problem, groups: Sequence[NullGroup] | Callable | None = None,
-                           rtol: float = 1e-7, state=None) -> IdentifiabilityReport:
+                           rtol: float = RTOL, state=None,
+                           max_std: float | None = MAX_STD) -> IdentifiabilityReport:
     """What the data of ``problem`` can identify, at its initial state.
 
     Parameters
@@ -148,26 +150,30 @@ def identifiability_report(problem, groups: Sequence[NullGroup] | Callable | Non
         Relative tolerance on the singular values of the scaled reduced Jacobian.
     state : object, optional
         Where to evaluate (default ``problem.initial_state()``).
+    max_std : float or None, optional
+        Weak-direction threshold (scaled units), as the calibrations apply it
+        (:data:`~pkmcal.identifiability.rank.MAX_STD`): with the problem's noise model the
+        counts are ``calibrate``'s (:mod:`pkmcal.identifiability.rank`).
 
     Returns
     -------
     IdentifiabilityReport
-        The free-parameter count, the rank, the named unidentifiable directions, O1..O5, the
-        condition number, ``hold_fixed`` (a minimal identifiable set by QR with column
-        pivoting: the parameters to hold fixed) and ``correlated`` (pairs with
-        ``|correlation| > 0.9``).
+        The free-parameter count, the rank, the weakly identifiable directions, the named
+        unidentifiable directions, O1..O5, the condition number, ``hold_fixed`` (a minimal
+        identifiable set by QR with column pivoting: the parameters to hold fixed) and
+        ``correlated`` (pairs with ``|correlation| > 0.9``).
 
     Raises
     ------
     ValueError
-        When ``rtol`` is outside [0, 1).
+        When ``rtol`` is outside [0, 1) or ``max_std`` is not positive.
     InputError
         When the residuals or Jacobians are not finite at the state.
     """
     from ..calibration.estimator import reduce_local
+    from .rank import rank_rule
 
-    if not (np.isfinite(rtol) and 0 <= rtol < 1):
-        raise ValueError(f"rtol must be in [0, 1), got {rtol}")
+    rank_rule(np.zeros(0), rtol, max_std)      # checks rtol and max_std (ValueError)
     state = problem.initial_state() if state is None else state
     r, Jg, Jl = problem.evaluate(state)
     source = getattr(getattr(problem, "data", None), "source", "the data")
@@ -183,7 +189,7 @@ def identifiability_report(problem, groups: Sequence[NullGroup] | Callable | Non
         groups = problem_null_groups(problem, state)
     elif callable(groups):
         groups = groups(problem, state)
-    report = analyze(Jr, params, rtol=rtol, groups=list(groups))
+    report = analyze(Jr, params, rtol=rtol, groups=list(groups), max_std=max_std)
     free_names = [n for n, f in zip(params.names, free, strict=True) if f]
     report.hold_fixed = [free_names[i]
                          for i in minimal_identifiable_set(Jr, report.identifiable)]

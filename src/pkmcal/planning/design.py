@@ -86,7 +86,7 @@ class Design:
         return np.einsum("kri,krj->ij", F, F)
 
 
-def design_from_problem(problem, rtol: float = 1e-7) -> Design:
+def design_from_problem(problem, rtol: float | None = None) -> Design:
     """The :class:`Design` of a calibration problem's measurements, at its initial state.
 
     Parameters
@@ -94,7 +94,9 @@ def design_from_problem(problem, rtol: float = 1e-7) -> Design:
     problem : BlockProblem
         A calibration problem whose measurements are the candidates.
     rtol : float, optional
-        Singular values below ``rtol`` times the largest count as unidentified.
+        Singular values at or below ``rtol`` times the largest count as unidentified; default
+        :data:`~pkmcal.identifiability.rank.RTOL`, the one rank rule of ``calibrate`` and
+        ``identifiability`` (:func:`~pkmcal.identifiability.rank.numerical_rank`).
 
     Returns
     -------
@@ -108,6 +110,7 @@ def design_from_problem(problem, rtol: float = 1e-7) -> Design:
     """
     from ..calibration.estimator import reduce_local
     from ..identifiability.analysis import right_singular
+    from ..identifiability.rank import RTOL, numerical_rank
 
     state = problem.initial_state()
     r, Jg, Jl = problem.evaluate(state)
@@ -118,7 +121,7 @@ def design_from_problem(problem, rtol: float = 1e-7) -> Design:
     Jr, _, _ = reduce_local(r, Jg[..., free] * scales[free], Jl)
     K = r.shape[0]
     s, Vt = right_singular(Jr)
-    rank = int(np.sum(s > rtol * s[0])) if s.size else 0
+    rank = numerical_rank(s, RTOL if rtol is None else rtol)
     V, null = Vt[:rank].T, Vt[rank:].T
     F = (Jr @ V).reshape(K, -1, rank)
     return Design(F, V, null, free, scales)
