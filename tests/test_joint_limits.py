@@ -220,9 +220,11 @@ def test_select_poses_keeps_within_file_limits_and_joint_range(tmp_path):
 
 
 def test_calibrated_file_keeps_the_limits(tmp_path):
-    machine = write(tmp_path, "m.yaml", with_limits(HEXASLIDE, "{min: 250, max: 420}"))
-    assert run("simulate", machine, "--poses", "60", "-o", "d.csv", cwd=tmp_path).returncode == 0
-    proc = run("calibrate", machine, "d.csv", "-o", "cal.yaml", cwd=tmp_path)
-    assert proc.returncode in (0, 1), proc.stderr
-    assert load_machine(tmp_path / "cal.yaml").joint_limits is not None
-    assert "joint_limits: {min: 250.0, max: 420.0}" in (tmp_path / "cal.yaml").read_text()
+    write(tmp_path, "d.yaml", with_limits(DELTA, "{min: -60, max: 60}"))
+    proc = run("simulate", "d.yaml", "--scenario", "tracker", "-o", "t.csv", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    proc = run("calibrate", "d.yaml", "t.csv", "-o", "cal.yaml", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert np.allclose(np.degrees(load_machine(tmp_path / "cal.yaml").joint_limits),
+                       [[-60] * 3, [60] * 3])
+    assert "joint_limits: {min: -60.0, max: 60.0}" in (tmp_path / "cal.yaml").read_text()

@@ -77,6 +77,37 @@ OutFile = Annotated[Path, typer.Option("-o", "--output", help="Output file (writ
                                        show_default=False, parser=_file_name, metavar="FILE")]
 
 
+# -- options shared by the commands that read data files or predict accuracy (issue 12.7) ----
+def _column_map(value: str | None) -> str | None:
+    """``--columns``: from here on, data files are read with their columns renamed."""
+    if value is not None:
+        from ..io.csv_io import parse_column_map, set_column_map
+
+        set_column_map(parse_column_map(value))
+    return value
+
+
+def _reset_column_map() -> None:
+    """No column map outside the command that set one (main() may run several in a row)."""
+    module = sys.modules.get("pkmcal.io.csv_io")
+    if module is not None:
+        module.set_column_map(None)
+
+
+ColumnsOpt = Annotated[str | None, typer.Option(
+    "--columns", metavar="PKMCAL=FILE,...", callback=_column_map, show_default=False,
+    help="Rename the data file's columns to pkmcal's names before reading, for files from "
+         "other tools: e.g. q1_rev=leg_length_1,...,x_mm=position_x,...,qx=orientation_x "
+         "(left: pkmcal's name with its unit, right: the file's column). A name pkmcal does "
+         "not read, or a column the file does not have, is refused.")]
+WorkspaceOpt = Annotated[str | None, typer.Option(
+    "--workspace", metavar="BOX|POINTS.csv", show_default=False,
+    help="Where the predicted accuracy is evaluated (default: the 0.1 m cube around home, "
+         "orientations within +/-10 deg): a box X0,X1,Y0,Y1,Z0,Z1 with units (e.g. "
+         "-50mm,50mm,-50mm,50mm,250mm,350mm; orientations as by default), or a CSV of points "
+         "x_<len>, y_<len>, z_<len> [+ psi/theta/phi_<ang> or qx..qw].")]
+
+
 def _version(value: bool) -> None:
     if value:
         from importlib.metadata import version
@@ -241,6 +272,7 @@ def calibrate(
         min=0, help="Seed of the random choice of held-out rows (--holdout).")] = 0,
     json_output: Annotated[bool, typer.Option(
         "--json", help="Print the JSON report on stdout instead of the summary.")] = False,
+    columns: ColumnsOpt = None,
 ) -> None:
     """Identify the geometry from measurements; write the calibrated machine and a report.
 
@@ -306,6 +338,8 @@ def identifiability(
         "--json", help="Print the report as JSON (keys parameters, identifiable, "
                        "unidentifiable, observability, condition_number, hold_fixed, "
                        "correlated, predicted_accuracy, singular_values).")] = False,
+    columns: ColumnsOpt = None,
+    workspace: WorkspaceOpt = None,
 ) -> None:
     """What the measurements will identify and how accurate the calibration will be.
 
@@ -329,7 +363,7 @@ def identifiability(
     from ._planning import run_identifiability
 
     raise typer.Exit(run_identifiability(machine, data, json_output, planned, poses, seed,
-                                         noise, pose_noise, map_path))
+                                         noise, pose_noise, map_path, workspace=workspace))
 
 
 class Criterion(enum.StrEnum):
@@ -376,6 +410,8 @@ def select_poses(
         show_default=False)] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")]
     = False,
+    columns: ColumnsOpt = None,
+    workspace: WorkspaceOpt = None,
 ) -> None:
     """Choose N measurement poses that identify the machine best.
 
@@ -402,7 +438,8 @@ def select_poses(
         raise InputError(f"-n/--poses: give the number of poses to choose (>= 1), got {n}")
     raise typer.Exit(run_select_poses(machine, output, n, candidates, candidates_file,
                                       criterion.value, random_sets, noise, pose_noise, seed,
-                                      map_path, json_output, joint_range))
+                                      map_path, json_output, joint_range,
+                                      workspace=workspace))
 
 
 @app.command()
@@ -413,6 +450,7 @@ def fk(
         help="Joint readings q1_<unit>..q6_<unit> (Delta: q1_deg..q3_deg; Stewart: the legs' "
              "reading unit, e.g. q1_rev; other columns are ignored).")],
     output: OutFile,
+    columns: ColumnsOpt = None,
 ) -> None:
     """Forward kinematics: poses from joint readings, in the machine file's units.
 
@@ -434,6 +472,7 @@ def ik(
         help="Poses x_<unit>, y_<unit>, z_<unit> + psi/theta/phi_<unit> or qx, qy, qz, qw "
              "(Delta: x, y, z only).")],
     output: OutFile,
+    columns: ColumnsOpt = None,
 ) -> None:
     """Inverse kinematics: joint values that put the platform at the given poses.
 
@@ -473,6 +512,7 @@ def compensate(
     = TargetFrame.base,
     json_output: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")]
     = False,
+    columns: ColumnsOpt = None,
 ) -> None:
     """Joint commands that put the real machine on the targets.
 
@@ -573,6 +613,7 @@ def errors_command(
         file_okay=False, show_default=False,
         help="Directory for plots: leg forces (seed 003 Fig. 6), pose errors (Fig. 7) and "
              "an error map over the workspace slice.")] = None,
+    columns: ColumnsOpt = None,
 ) -> None:
     """Leg forces and pose errors from joint clearance under loads along a trajectory
     (seed 003).
@@ -762,6 +803,8 @@ def _run(args: list[str], final: bool = False) -> None:
                              getattr(exc, "exit_code", 2)) from None
         except Abort:
             raise KeyboardInterrupt from None
+        finally:
+            _reset_column_map()
         if isinstance(code, int) and code != 0:
             raise SystemExit(code)
 

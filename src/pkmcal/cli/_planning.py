@@ -4,6 +4,7 @@ how accurate the calibration will be, before and after measuring (SPEC 3)."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,7 @@ import numpy as np
 from ..errors import InputError
 from ..io import read_constraint_link, read_full_pose, read_table, read_tracker
 from ..io.plausibility import check_option_scale
-from ..units import parse_quantity
+from ..units import LENGTH, parse_quantity
 from ._commands import (
     _MEASUREMENT_WORDS,
     _finite_or_none,
@@ -83,21 +84,108 @@ def measured_problem(machine, data_path: Path, kind: str, noise):
     return scenario_problem(machine, kind, data, noise, frames=frames), data
 
 
-def _workspace_words(machine) -> str:
-    return ("0.1 m cube around home" if machine.pose_dof == 3
-            else "0.1 m cube around home, orientations within +/-10 deg")
+def workspace_arg(text: str | None, machine, seed: int = 0):
+    """The workspace of the predicted accuracy: ``--workspace`` (a box
+    ``X0,X1,Y0,Y1,Z0,Z1`` with units, or a CSV of points) or, without it, the SPEC 5 cube
+    around home. Every pose must be reachable from home's working mode and within the
+    machine file's joint limits."""
+    from ..analysis.accuracy import box_workspace, default_workspace
+
+    if text is None:
+        return default_workspace(machine, WORKSPACE_POSES, seed)
+    parts = [p.strip() for p in str(text).split(",")]
+    if len(parts) == 6 and not Path(text).exists():
+        unit = re.match(r"^.*?([A-Za-z]*)$", parts[-1]).group(1)
+        if unit and not any(re.search(r"[A-Za-z]$", p) for p in parts[:-1]):
+            parts = [p + unit for p in parts[:-1]] + parts[-1:]     # 0,100,...,350mm
+        v = [parse_quantity(p, "length", "--workspace") for p in parts]
+        lo, hi = np.array(v[0::2]), np.array(v[1::2])
+        bad = [c for c, a, b in zip("XYZ", lo, hi, strict=True) if not a < b]
+        if bad:
+            raise InputError(f"--workspace {text}: {bad[0]}0 must be below {bad[0]}1 (a box "
+                             "X0,X1,Y0,Y1,Z0,Z1, e.g. -50mm,50mm,-50mm,50mm,250mm,350mm)")
+        for value, part in zip(v, parts, strict=True):
+            check_option_scale(value, machine, "--workspace", "size", part)
+        unit_name = _units(machine)["length"]
+        f = LENGTH[unit_name]
+        words = "box " + ", ".join(f"{c} {a / f:.6g}..{b / f:.6g} {unit_name}"
+                                   for c, a, b in zip("xyz", lo, hi, strict=True))
+        ws = box_workspace(machine, lo, hi, WORKSPACE_POSES, seed,
+                           description=words + " (--workspace)")
+        rows = None
+    else:
+        ws, rows = _points_workspace(Path(text), machine, seed)
+    _check_workspace(machine, ws, text, rows)
+    return ws
 
 
-def prediction_report(machine, design, n_machine, M=None, rng=0, op=None) -> dict:
-    """Predicted pose accuracy over the SPEC 5 workspace (the JSON section); ``op``: the
-    pose-error operator at that workspace when already computed."""
-    from ..analysis.accuracy import machine_workspace
+def _points_workspace(path: Path, machine, seed: int):
+    """The poses of a ``--workspace`` points file (x, y, z [+ orientation]; without
+    orientation columns, orientations drawn within +/-10 deg as for the default workspace)
+    and the file rows: ``(Workspace, rows)``."""
+    from ..analysis.accuracy import Workspace
+    from ..io import read_positions
+    from ..io.csv_io import column_map, has_orientation
+    from ..kinematics import matrix_from_euler
+
+    if not path.exists():
+        raise InputError(f"--workspace {path}: neither a box X0,X1,Y0,Y1,Z0,Z1 (six lengths "
+                         "with units) nor an existing points file")
+    with column_map(None):           # --columns renames the data file's columns, not these
+        header, _ = read_table(path)
+        words = f"{{n}} poses of {path} (--workspace)"
+        if has_orientation(header) and machine.pose_dof == 6:
+            P, R, rows = read_poses_of(path, machine)
+        else:
+            P, rows = read_positions(path)
+            rng = np.random.default_rng(seed)
+            R = matrix_from_euler(rng.uniform(-1, 1, (len(P), 3)) * np.deg2rad(10.0))
+            if machine.pose_dof == 3:
+                R = np.broadcast_to(np.eye(3), R.shape)
+            else:
+                words = (f"{{n}} points of {path} (--workspace), orientations within "
+                         "+/-10 deg")
+    return Workspace(P, np.asarray(R), words.format(n=len(P)),
+                     (P.min(axis=0), P.max(axis=0))), rows
+
+
+def _check_workspace(machine, ws, text: str, rows) -> None:
+    """Refuse workspace poses the machine cannot take (unreachable, another working mode,
+    joints outside its limits), naming the rows of a points file."""
+    with np.errstate(all="ignore"):
+        q = machine.ik(ws.P, ws.R)
+        ok = np.all(np.isfinite(q), axis=-1) & machine.working_mode(ws.P, ws.R)
+    if not ok.all():
+        k = np.flatnonzero(~ok)
+        where = (f"row(s) {_rows_text(np.asarray(rows)[k])}" if rows is not None else
+                 f"{k.size} of its {len(ws.P)} sampled poses, e.g. at ("
+                 + ", ".join(f"{v * 1e3:.6g}" for v in ws.P[k[0]]) + ") mm")
+        raise InputError(f"--workspace {text}: {where}: out of the machine's reach (no real "
+                         "inverse kinematics, or beyond a singularity from home); give a "
+                         "workspace the machine reaches")
+    if rows is None:
+        rows = np.arange(1, len(q) + 1)
+        what = f"--workspace {text}: {{n}} of its sampled poses"
+    else:
+        what = f"--workspace {text}: {{n}} pose(s)"
+    from ._commands import refuse_outside_limits
+
+    refuse_outside_limits(machine, q, rows, what)
+
+
+def prediction_report(machine, design, n_machine, M=None, rng=0, op=None,
+                      workspace=None) -> dict:
+    """Predicted pose accuracy over the workspace (the JSON section): ``workspace`` (a
+    :class:`~pkmcal.analysis.accuracy.Workspace`, e.g. of ``--workspace``) or the SPEC 5
+    cube around home; ``op``: the pose-error operator at those poses when already
+    computed."""
     from ..analysis.prediction import predict_pose_accuracy
 
-    P, R = (op.P, op.R) if op is not None else machine_workspace(machine, WORKSPACE_POSES, rng)
+    ws = workspace_arg(None, machine, rng) if workspace is None else workspace
+    P, R = (op.P, op.R) if op is not None else (ws.P, ws.R)
     pred = predict_pose_accuracy(machine, design, P, R, M, n_machine, op=op)
     s = pred.summary()
-    out = {"workspace": _workspace_words(machine), "poses": s["poses"],
+    out = {"workspace": ws.description, "poses": s["poses"],
            "unbounded_directions": s["unbounded"]}
     for key, scale, unit in (("position", 1e6, "um"), ("orientation", 1e6, "urad")):
         if s[key] is not None:
@@ -121,17 +209,24 @@ def _prediction_rows(table, section: dict) -> None:
                   f"{section['workspace']}; {section['noise']})")
 
 
-def write_map(path: Path, machine, design, n_machine, M, plan_P, title: str) -> Path:
-    """Predicted position error (1 sigma) over two slices through home (x-y and x-z, home
-    orientation) and the planned measurement positions."""
+def write_map(path: Path, machine, design, n_machine, M, plan_P, title: str,
+              bounds=None) -> Path:
+    """Predicted position error (1 sigma) over two slices through the workspace's centre
+    (x-y and x-z, home orientation; default: home +/- 50 mm, else ``bounds = (lo, hi)``) and
+    the planned measurement positions."""
     from ..analysis.prediction import predict_pose_accuracy
     from ..report import plots
 
-    c = machine.home[0]
-    g = np.linspace(-0.05, 0.05, MAP_STEPS)
-    A, B = np.meshgrid(g, g)
+    if bounds is None:
+        c = machine.home[0]
+        half = np.full(3, 0.05)
+    else:
+        lo, hi = (np.asarray(b, float) for b in bounds)
+        c, half = (lo + hi) / 2, np.maximum((hi - lo) / 2, 1e-6)
+    t = np.linspace(-1.0, 1.0, MAP_STEPS)
     slices = []
     for (i, j) in ((0, 1), (0, 2)):
+        A, B = np.meshgrid(t * half[i], t * half[j])
         P = np.tile(c, (A.size, 1))
         P[:, i] += A.ravel()
         P[:, j] += B.ravel()
@@ -140,8 +235,10 @@ def write_map(path: Path, machine, design, n_machine, M, plan_P, title: str) -> 
         pred = predict_pose_accuracy(machine, design, P, R, M, n_machine)
         k = 3 - i - j
         a, b = "xyz"[i], "xyz"[j]
-        slices.append((f"{a}-{b} slice through home ({'xyz'[k]} = {c[k] * 1e3:.4g} mm)",
-                       (c[i] + g) * 1e3, (c[j] + g) * 1e3, (pred.position * 1e6).reshape(A.shape),
+        through = "home" if bounds is None else "the workspace's centre"
+        slices.append((f"{a}-{b} slice through {through} ({'xyz'[k]} = {c[k] * 1e3:.4g} mm)",
+                       (c[i] + t * half[i]) * 1e3, (c[j] + t * half[j]) * 1e3,
+                       (pred.position * 1e6).reshape(A.shape),
                        f"{a} [mm]", f"{b} [mm]", "predicted position error, 1 sigma [um]"))
     plan = None if plan_P is None else np.asarray(plan_P) * 1e3
     return plots.plot_prediction_map(slices, path, title, plan, c * 1e3)
@@ -150,7 +247,7 @@ def write_map(path: Path, machine, design, n_machine, M, plan_P, title: str) -> 
 def run_identifiability(machine_spec: str, data_path: Path | None, json_output: bool,
                         planned: bool = False, poses: int | None = None, seed: int = 0,
                         noise: str | None = None, pose_noise: str | None = None,
-                        map_path: Path | None = None) -> int:
+                        map_path: Path | None = None, workspace: str | None = None) -> int:
     from ..identifiability import identifiability_report
     from ..planning import (
         candidate_poses,
@@ -162,8 +259,11 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
     )
 
     machine = load_machine_arg(machine_spec)
-    if map_path is not None:
-        check_outputs([map_path], [p for p in (data_path,) if p is not None])
+    ws_file = [Path(workspace)] if workspace is not None and Path(workspace).exists() else []
+    if map_path is not None or ws_file:
+        check_outputs([map_path] if map_path is not None else [],
+                      [p for p in (data_path,) if p is not None] + ws_file)
+    ws = workspace_arg(workspace, machine, seed)
     if data_path is None and planned:
         raise InputError("--planned: give the plan file (DATA) with the planned poses")
     if data_path is not None and poses is not None:
@@ -199,7 +299,8 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
             data = problem.data
         rep = identifiability_report(problem)
         design = design_from_problem(problem)
-        section = prediction_report(machine, design, problem.n_machine, rng=seed)
+        section = prediction_report(machine, design, problem.n_machine, rng=seed,
+                                    workspace=ws)
     except InputError:
         raise
     except (ValueError, np.linalg.LinAlgError) as exc:
@@ -223,7 +324,7 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
         plan_P = getattr(data, "true_P", None)
         write_map(map_path, machine, design, problem.n_machine, None, plan_P,
                   f"predicted accuracy after calibration ({len(data)} measurements, "
-                  f"{section['noise']})")
+                  f"{section['noise']})", bounds=ws.bounds if workspace else None)
         report["map"] = str(map_path)
     commit_outputs()
     if json_output:
@@ -379,7 +480,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                      candidates_path: Path | None, criterion: str, random_sets: int,
                      noise: str | None, pose_noise: str | None, seed: int,
                      map_path: Path | None, json_output: bool,
-                     joint_range: str | None = None) -> int:
+                     joint_range: str | None = None, workspace: str | None = None) -> int:
     """``pkmcal select-poses``: choose ``n`` poses by a criterion, starting from the greedy
     choice and from the instrument's standard plan, never returning a plan worse than the
     standard one (by the criterion or the predicted RMS position error) when it is among the
@@ -402,7 +503,10 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
 
     machine = load_machine_arg(machine_spec)
     inputs = [p for p in (candidates_path,) if p is not None]
+    if workspace is not None and Path(workspace).exists():
+        inputs.append(Path(workspace))
     check_outputs([output] + ([map_path] if map_path else []), inputs)
+    ws = workspace_arg(workspace, machine, seed)
     if n < 1:
         raise InputError(f"-n/--poses: must be >= 1, got {n}")
     if random_sets < 0:
@@ -461,10 +565,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                 problem = planned_problem(machine, kind, P, R, model, rows, source)
                 design = pool = design_from_problem(problem)
         step(1, "select-poses: pose-error operator over the workspace")
-        from ..analysis.accuracy import machine_workspace
-
-        workspace = machine_workspace(machine, WORKSPACE_POSES, seed)
-        op = pose_error_operator(machine, design, *workspace, problem.n_machine)
+        op = pose_error_operator(machine, design, ws.P, ws.R, problem.n_machine)
         if op.unbounded:
             raise InputError(f"{source}: even all {len(P_all)} candidates leave {op.unbounded} "
                              "direction(s) that move the platform unidentified; widen the "
@@ -522,7 +623,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     sv = np.linalg.svd(design.F[idx].reshape(-1, design.rank), compute_uv=False)
     # the selected plan's counts by the rule calibrate applies to its data (same noise)
     plan_rank = rank_rule(sv, parameters=design.rank + design.null.shape[1])
-    section = prediction_report(machine, design, problem.n_machine, M, op=op)
+    section = prediction_report(machine, design, problem.n_machine, M, op=op, workspace=ws)
     section["noise"] = describe_noise(kind, model)
     std_rms = float(np.sqrt(std_ms))
     origin = ("the standard plan" if returned_standard
@@ -582,7 +683,8 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                     extra=extra)
     if map_path is not None:
         write_map(map_path, machine, design, problem.n_machine, M, P_all[idx],
-                  f"predicted accuracy with the {n} selected poses ({section['noise']})")
+                  f"predicted accuracy with the {n} selected poses ({section['noise']})",
+                  bounds=ws.bounds if workspace else None)
         report["map"] = str(map_path)
     commit_outputs()
     if json_output:

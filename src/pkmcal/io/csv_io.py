@@ -27,10 +27,12 @@ row and column. Input files are only read; outputs are written atomically at ful
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import math
 import re
+from contextvars import ContextVar
 from pathlib import Path
 
 import numpy as np
@@ -50,10 +52,145 @@ def _suffixes(quantity: str) -> list[str]:
     return [s for s, q in COLUMN_SUFFIXES.items() if q == quantity]
 
 
+#: the column map in force (pkmcal name -> the file's name), see :func:`column_map`
+_COLUMN_MAP: ContextVar[dict[str, str] | None] = ContextVar("pkmcal_column_map", default=None)
+
+#: bases of the columns pkmcal reads, with the quantity of their unit suffix (None: no
+#: suffix; "any": any unit word, e.g. a Stewart's q1_rev)
+_COLUMN_BASES = {"passive": None, "qx": None, "qy": None, "qz": None, "qw": None,
+                 "x": "length", "y": "length", "z": "length", "mx": "length", "my": "length",
+                 "mz": "length", "psi": "angle", "theta": "angle", "phi": "angle", "t": "time"}
+_KNOWN_COLUMNS = ("q1_<unit>..qn_<unit>, passive, x_<len>, y_<len>, z_<len>, psi_<ang>, "
+                  "theta_<ang>, phi_<ang>, qx, qy, qz, qw, mx_<len>, my_<len>, mz_<len>, t_s")
+
+
+def _column_name_problem(name: str) -> str | None:
+    """Why ``name`` is not a column pkmcal reads (None when it is one)."""
+    m = re.match(r"^q[1-9][0-9]?_([A-Za-z][A-Za-z0-9]*)$", name)
+    if m:
+        return None
+    if re.match(r"^q[1-9][0-9]?$", name):
+        return f"{name!r} needs a unit suffix ({name}_mm, {name}_deg, {name}_rev, ...)"
+    base, _, unit = name.partition("_")
+    if name in _COLUMN_BASES or base in _COLUMN_BASES:
+        quantity = _COLUMN_BASES.get(name if name in _COLUMN_BASES else base)
+        if quantity is None:
+            return None if name == base else f"{name!r}: {base} takes no unit suffix"
+        accepted = list(QUANTITIES["time"]) if quantity == "time" else _suffixes(quantity)
+        if not unit:
+            return f"{name!r} needs a unit suffix ({', '.join(base + '_' + u for u in accepted)})"
+        if unit not in accepted:
+            return (f"{name!r}: unknown {quantity} unit {unit!r} (accepted: "
+                    f"{', '.join(accepted)})")
+        return None
+    return f"{name!r} is not a column pkmcal reads"
+
+
+def parse_column_map(text: str) -> dict[str, str]:
+    """The column map of ``--columns PKMCAL=FILE,...``: pkmcal's name -> the file's name.
+
+    Parameters
+    ----------
+    text : str
+        Comma-separated pairs, e.g. ``"q1_rev=leg_length_1,x_mm=position_x"``.
+
+    Returns
+    -------
+    dict of str to str
+        pkmcal column name -> the data file's column name.
+
+    Raises
+    ------
+    InputError
+        Naming ``--columns``: a pair that is not ``NAME=NAME``, a left side that is not a
+        column pkmcal reads (``q1_<unit>``, ``x_<len>``, ``qx``, ...), or a name given twice.
+    """
+    mapping: dict[str, str] = {}
+    problems = []
+    for part in str(text).split(","):
+        left, eq, right = (p.strip() for p in part.partition("="))
+        if not eq or not left or not right:
+            raise InputError(f"--columns: expected PKMCAL=FILE pairs separated by commas (e.g. "
+                             f"q1_rev=leg_length_1,x_mm=position_x), got {part.strip()!r}")
+        if left in mapping:
+            raise InputError(f"--columns: {left} is given twice")
+        if right in mapping.values():
+            raise InputError(f"--columns: the file's column {right} is mapped twice")
+        problem = _column_name_problem(left)
+        if problem is not None:
+            problems.append(problem)
+        mapping[left] = right
+    if problems:
+        raise InputError(f"--columns: unknown pkmcal column name(s): {'; '.join(problems)} "
+                         f"(pkmcal reads {_KNOWN_COLUMNS})")
+    return mapping
+
+
+def set_column_map(mapping: dict[str, str] | None):
+    """Make ``mapping`` (pkmcal name -> the file's name) the column map of every data file
+    :func:`read_table` reads from now on in this context (None: no renaming).
+
+    Parameters
+    ----------
+    mapping : dict of str to str or None
+        As returned by :func:`parse_column_map`.
+
+    Returns
+    -------
+    contextvars.Token
+        Token to restore the previous map (``_COLUMN_MAP.reset``).
+    """
+    return _COLUMN_MAP.set(dict(mapping) if mapping else None)
+
+
+@contextlib.contextmanager
+def column_map(mapping: dict[str, str] | None):
+    """Read data files with their columns renamed (``--columns``), within a ``with`` block.
+
+    Parameters
+    ----------
+    mapping : dict of str to str or None
+        pkmcal name -> the file's name (:func:`parse_column_map`); None reads the files'
+        columns as they are.
+
+    Yields
+    ------
+    None
+        While the block runs, :func:`read_table` renames the columns.
+    """
+    token = set_column_map(mapping)
+    try:
+        yield
+    finally:
+        _COLUMN_MAP.reset(token)
+
+
+def _renamed(path, line: int, header: list[str]) -> list[str]:
+    """The header with the column map in force applied (unchanged without one)."""
+    mapping = _COLUMN_MAP.get()
+    if not mapping:
+        return header
+    missing = [right for right in mapping.values() if right not in header]
+    if missing:
+        shown = ", ".join(header)
+        shown = shown if len(shown) <= 300 else shown[:297] + "..."
+        raise InputError(f"{path}: row {line}: --columns names column(s) this file does not "
+                         f"have: {', '.join(missing)} (columns found: {shown})")
+    renamed_from = set(mapping.values())
+    for left, right in mapping.items():
+        if left in header and left not in renamed_from:
+            raise InputError(f"{path}: row {line}: --columns {left}={right}: the file already "
+                             f"has a column {left}")
+    back = {right: left for left, right in mapping.items()}
+    return [back.get(name, name) for name in header]
+
+
 def read_table(path) -> tuple[list[str], list[Row]]:
     """Header and data rows of a CSV file.
 
-    Blank lines and lines starting with ``#`` are skipped; fields are stripped.
+    Blank lines and lines starting with ``#`` are skipped; fields are stripped. With a column
+    map in force (``--columns``, :func:`column_map`) the header's columns are renamed to
+    pkmcal's names first; a mapped column the file does not have is refused.
 
     Parameters
     ----------
@@ -71,7 +208,8 @@ def read_table(path) -> tuple[list[str], list[Row]]:
     ------
     InputError
         For a missing, empty or non-text file, an unnamed or duplicate column, a row with the
-        wrong number of fields, a CSV syntax error, or no data rows.
+        wrong number of fields, a CSV syntax error, no data rows, or a column map that names
+        a column the file does not have.
     """
     path = Path(path)
     text = read_input_text(path, "data file")
@@ -89,6 +227,7 @@ def read_table(path) -> tuple[list[str], list[Row]]:
             if header is None:
                 header, header_line = fields, line
                 _check_separator(path, line, header)
+                header = _renamed(path, line, header)
                 continue
             if len(fields) != len(header):
                 raise InputError(f"{path}: row {line}: {len(fields)} field(s), the header (row "

@@ -60,6 +60,18 @@ kept on the machine as ``machine.measurement_frames``
 (:class:`~pkmcal.measurements.full_pose.MeasurementFrames`, None without the key); a
 calibration from full-pose data writes the identified frames there.
 
+Every machine file may state the joints' travel (issue 12 item 7)::
+
+    joint_limits: {min: 0.0, max: 400.0}         # one pair for every joint, or
+    joint_limits: {min: [-40, -40, -40], max: [80, 80, 80]}   # one value per joint
+
+in the file's unit of the joint values: slider travel in the length unit (Hexa Slide), arm
+angles in the angle unit (Delta), leg readings in the reading unit (Stewart). It is kept on the
+machine as ``machine.joint_limits = (lo, hi)`` (arrays in internal units; None without the
+key), checked by ``ik``, ``compensate``, ``select-poses`` and ``simulate``, and written back
+(a calibrated file keeps it). Lengths may be in ``mm``, ``m`` or ``in`` (``inch`` is read as
+``in``).
+
 Loading dispatches on ``machine:`` through :data:`MACHINE_FORMATS` (one entry per machine
 type: a pydantic schema, a builder and a dumper), so a new machine type is added there
 without touching the loader. Every problem is an :class:`~pkmcal.errors.InputError` whose
