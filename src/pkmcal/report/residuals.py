@@ -27,8 +27,8 @@ def leverages(problem, result) -> np.ndarray:
         The calibration problem that produced ``result`` (its ``evaluate`` gives the
         Jacobians at ``result.state``).
     result : CalibrationResult
-        The estimate; its ``rank`` identified directions of the free parameters (scaled by
-        ``result.scales``) span the global part of the fit.
+        The estimate; its ``adjusted`` directions of the free parameters (identified and
+        not weak; scaled by ``result.scales``) span the global part of the fit.
 
     Returns
     -------
@@ -41,7 +41,8 @@ def leverages(problem, result) -> np.ndarray:
     scales = np.asarray(result.scales, float)
     Jg = np.asarray(Jg, float)[..., free] * scales[free]
     K, m, _ = Jg.shape
-    rank = int(result.rank)
+    # the directions fitted: weakly identifiable ones are left at their start values
+    rank = int(getattr(result, "adjusted", result.rank))
     if Jl is None or np.asarray(Jl).shape[-1] == 0:
         U, _, _ = np.linalg.svd(Jg.reshape(K * m, -1), full_matrices=False)
         return np.sum(U[:, :rank] ** 2, axis=1).reshape(K, m)
