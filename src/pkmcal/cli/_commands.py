@@ -739,7 +739,9 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
         "rms_residual_um": report["residuals"]["rms_um"],
         "identifiable": rank,
         "free_parameters": n_free,
-        "unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable],
+        "unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable
+                           if d.std is None],
+        "weakly_identifiable": [d.name for d in unidentifiable if d.std is not None],
         "link_length_estimated": lc_estimated,
         "report": report_path.name,
     }
@@ -832,11 +834,14 @@ def _converged(result, source, advice: str = "") -> bool:
 
 
 def _identifiability_json(n_free, rank, unidentifiable, s) -> dict:
-    """The identifiability section of a calibration report."""
+    """The identifiability section of a calibration report: the directions the data cannot
+    fix, and apart from them the weakly identifiable ones (counted in ``identifiable``, left
+    at their start values; each with its standard deviation)."""
     return {
         "free_parameters": n_free,
         "identifiable": rank,
-        "unidentifiable": [d.as_dict() for d in unidentifiable],
+        "unidentifiable": [d.as_dict() for d in unidentifiable if d.std is None],
+        "weakly_identifiable": [d.as_dict() for d in unidentifiable if d.std is not None],
         "condition_number": float(s[0] / s[rank - 1]) if rank else None,
         "singular_values": s.tolist(),
     }
@@ -989,9 +994,12 @@ def _print_calibration(report, params, data_path, output, report_path, machine) 
                              "fk": "fk (paper 3.4.2, spread of the link length)"}
                   [report["method"]])
     table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
-                  "parameter directions")
+                  "parameter directions" + (f", of which {len(ident['weakly_identifiable'])} "
+                                            "weakly" if ident["weakly_identifiable"] else ""))
     for d in ident["unidentifiable"]:
         table.add_row("not identifiable", f"{d['dimension']} x {d['name']}: {d['description']}")
+    for d in ident["weakly_identifiable"]:
+        table.add_row("weakly identifiable", f"{d['name']}: {d['description']}")
     rms = res["rms_um"]
     noise = res["estimated_noise_um"]
     table.add_row("RMS residual", f"{rms:.4g} um ({res['of']}; assumed noise "
@@ -1252,7 +1260,9 @@ def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path
         "rms_residual_um": report["residuals"]["rms_um"],
         "identifiable": rank,
         "free_parameters": n_free,
-        "unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable],
+        "unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable
+                           if d.std is None],
+        "weakly_identifiable": [d.name for d in unidentifiable if d.std is not None],
         "distance_ratio_std_percent": {"before": before["std"], "after": after["std"]},
         "report": report_path.name,
     }
@@ -1286,12 +1296,15 @@ def _print_tracker_calibration(report, params, data_path, output, report_path, m
                   "two-step (seed 001): tracker registered first with the nominal model, then "
                   "the leg errors with the registration fixed")
     table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
-                  "parameter directions")
+                  "parameter directions" + (f", of which {len(ident['weakly_identifiable'])} "
+                                            "weakly" if ident["weakly_identifiable"] else ""))
     groups: dict[str, list[str]] = {}                 # one line per description
     for d in ident["unidentifiable"]:
         groups.setdefault(d["description"], []).append(f"{d['dimension']} x {d['name']}")
     for description, names in groups.items():
         table.add_row("not identifiable", f"{', '.join(names)}: {description}")
+    for d in ident["weakly_identifiable"]:
+        table.add_row("weakly identifiable", f"{d['name']}: {d['description']}")
     scale = res["noise_scale"]
     table.add_row("RMS residual", f"{res['rms_um']:.4g} um over {res['count']} points (3-D, "
                   f"measured - predicted tracker point); before calibration "
@@ -1488,7 +1501,9 @@ def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Pa
         "frames_fixed": bool(fix_frames),
         "identifiable": rank,
         "free_parameters": n_free,
-        "unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable],
+        "unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable
+                           if d.std is None],
+        "weakly_identifiable": [d.name for d in unidentifiable if d.std is not None],
         "report": report_path.name,
     }
     json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
@@ -1515,9 +1530,12 @@ def _print_full_pose_calibration(report, params, data_path, output, report_path,
                              "ik": "ik (inverse-kinematic residuals, Zhuang, Yan & Masory "
                                    "1998: measured poses exact)"}[report["method"]])
     table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
-                  "parameter directions")
+                  "parameter directions" + (f", of which {len(ident['weakly_identifiable'])} "
+                                            "weakly" if ident["weakly_identifiable"] else ""))
     for d in ident["unidentifiable"]:
         table.add_row("not identifiable", f"{d['dimension']} x {d['name']}: {d['description']}")
+    for d in ident["weakly_identifiable"]:
+        table.add_row("weakly identifiable", f"{d['name']}: {d['description']}")
     table.add_row("leg-length RMS", f"{b['leg_length_rms']:.4g} {unit} before, "
                   f"{a['leg_length_rms']:.4g} {unit} after ({res['before']})")
     table.add_row("pose error RMS", f"position {b['position_rms']:.4g} -> "

@@ -612,11 +612,15 @@ def build_html(report: Mapping, title: str | None = None) -> str:
         items = "".join(f"<li><b>{_e(d.get('dimension'))} x {_e(d.get('name'))}</b>: "
                         f"{_e(d.get('description', ''))}</li>"
                         for d in ident.get("unidentifiable", []))
+        weak = "".join(f"<li><b>{_e(d.get('name'))}</b>: {_e(d.get('description', ''))}</li>"
+                       for d in ident.get("weakly_identifiable", []) or [])
         parts.append(f"<h2>Identifiability</h2><p>{_e(rank)} of {_e(n)} free parameter "
                      f"directions identified; condition number "
                      f"{_e(_num(ident.get('condition_number')))} (scaled Jacobian).</p>"
                      + (f"<p>Not identifiable from these data:</p><ul>{items}</ul>"
-                        if items else ""))
+                        if items else "")
+                     + (f"<p>Weakly identifiable (counted above, left at the machine file's "
+                        f"values):</p><ul>{weak}</ul>" if weak else ""))
         if ident.get("singular_values"):
             parts.append(_singular_plot(ident["singular_values"], int(rank or 0)))
     res = report.get("residuals") or {}
