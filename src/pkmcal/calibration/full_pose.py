@@ -386,7 +386,6 @@ class FullPoseIK(FullPoseProblem):
         Jg = -np.concatenate([Ju, Jx @ D], -1) / sig[:, None]
         return r, Jg, None
 
-
     def noise_whitened(self, state) -> np.ndarray:
         """The residuals whitened by their whole covariance, for the chi-square.
 
