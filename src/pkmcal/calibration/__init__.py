@@ -21,6 +21,7 @@ from .full_pose import (
     gauge_free_error,
 )
 from .registration import register_points
+from .start import StartReport, continuation_solve, sphere_pose_candidates, start_sensitivity
 from .tracker import (
     TrackerProblem,
     calibrate_tracker,
@@ -37,4 +38,5 @@ __all__ = ["METHODS", "BlockProblem", "CalibrationResult", "ConstraintLinkFK",
            "calibrate_constraint_link", "levenberg_marquardt", "reduce_local",
            "solve_sphere_poses", "TrackerProblem", "calibrate_tracker", "distance_ratios",
            "predict_tracker_points", "prediction_covariance", "register_points",
-           "constraint_link_reading_rms", "holdout_split"]
+           "constraint_link_reading_rms", "holdout_split", "StartReport", "continuation_solve",
+           "sphere_pose_candidates", "start_sensitivity"]

@@ -36,6 +36,7 @@ from ..machines.base import Machine, newton_pose_solve
 from ..measurements.constraint_link import ConstraintLinkData
 from ..parameters import ParameterSet
 from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt
+from .start import continuation_solve
 
 LINK = "link.length"
 METHODS = ("ml", "ik", "fk")
@@ -642,8 +643,16 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         raise InputError(f"{data.source}: {what} give {n_rows} independent equations, fewer "
                          f"than the {n_id} identifiable parameters; measure more poses spread "
                          "over the sphere with varied orientation")
+    start = None
     if per_chain:
         result = _per_chain_sweeps(problem, max_sweeps, rtol, **options)
+    elif isinstance(problem, ConstraintLinkML):
+        # far starts (large build errors, other geometries): continuation, pose multi-starts,
+        # rows without a start pose retried and named (calibration.start)
+        lm_options = {"max_std": MAX_STD, **options}
+        result, problem, start = continuation_solve(
+            problem, lambda p, state: levenberg_marquardt(p, rtol=rtol, state=state,
+                                                          **lm_options))
     else:
         result = levenberg_marquardt(problem, rtol=rtol, **{"max_std": MAX_STD, **options})
     _refuse_degenerate(data, result, n_id, repeats)
@@ -658,8 +667,12 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         calibrated.home = (result.state.P[i], result.state.R[i])
     groups = gauge_groups(machine, um, CONSTRAINT_LINK_GAUGES, result.scales,
                           len(problem.parameters))
+    dropped = getattr(problem, "dropped_rows", np.array([], int))
+    if start is not None:
+        dropped = start.dropped_rows
+        result.extras.update(start=start, problem=problem, warnings=list(start.warnings))
     result.extras.update(
-        dropped_rows=getattr(problem, "dropped_rows", np.array([], int)),
+        dropped_rows=dropped,
         method=method, machine=calibrated, link_length=float(Lc),
         unidentifiable=name_null_space(result.null_space, problem.parameters, groups)
         + name_weak_directions(result, problem.parameters),

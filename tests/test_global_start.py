@@ -1,0 +1,145 @@
+"""A far start never returns a wrong geometry as a result (issue 12, item 1).
+
+On Hexa Slides other than the default one, seed 000's Table 1 errors put the forward
+kinematics start of some rows tens of millimetres off (and some on another branch of the
+loop), and the maximum-likelihood fit stopped in a local minimum with residuals 20-2000x the
+noise, 'converged'. ``calibration.start`` now falls back to a continuation (the rows least
+sensitive to the geometry first, every pose re-started with the geometry they give, trimmed
+refits) when the plain fit fails the residual test, and names the rows it leaves out.
+
+The Monte Carlo here is the first 40 runs of ``benchmarks/global_start.py`` (200 runs there:
+197 ok, 3 flagged, none silent; see the README).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pkmcal.calibration import calibrate_constraint_link
+from pkmcal.calibration.acceptance import residual_test
+from pkmcal.calibration.constraint_link import ConstraintLinkML
+from pkmcal.calibration.estimator import MAX_STD, levenberg_marquardt
+from pkmcal.calibration.start import sphere_pose_candidates
+from pkmcal.machines import default_hexaslide, paper_table1_deviations
+from pkmcal.measurements import simulate_constraint_link
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "global_start.py"
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("global_start_bench", BENCH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def bench():
+    return _bench()
+
+
+def _reporter_case(bench):
+    """The reporter's dimensions (rails from radius 560 mm at z = -520 mm, 65 deg, struts
+    520 mm, link 350 mm; platform radius 140 mm, rail pairs +/- 25 deg, platform joints
+    +/- 35 deg about the SPEC's 120-degree layout) with seed 000's Table 1 errors, 150 poses,
+    2 um noise: the plain fit stops with residuals 111x the noise ('converged')."""
+    nominal = bench.hexaslide(ra=0.56, za=-0.52, beta=65.0, l=0.52, lc=0.35, rb=0.14,
+                              ga=25.0, gb=35.0)
+    true = nominal.with_parameters(nominal.u + paper_table1_deviations(nominal.parameters))
+    true.constraint_link_length = nominal.constraint_link_length
+    data = simulate_constraint_link(true, 150, 2e-6, rng=3)
+    return nominal, true, data
+
+
+def test_the_plain_start_fails_on_a_reporter_like_machine_and_the_fallback_does_not(bench):
+    nominal, true, data = _reporter_case(bench)
+    plain = levenberg_marquardt(ConstraintLinkML(nominal, data, 2e-6), max_std=MAX_STD)
+    assert residual_test(plain).noise_factor > 20                     # the bug
+    res = calibrate_constraint_link(nominal, data, sigma_m=2e-6)
+    start = res.extras["start"]
+    assert start.strategy == "continuation" and start.fallback
+    assert residual_test(res).passed
+    assert start.attempts[0]["stage"] == "direct" and not start.attempts[0]["passed"]
+    from pkmcal.analysis.accuracy import machine_workspace, pose_errors
+
+    Pw, Rw = machine_workspace(true, 200, 0)
+    dp, dr, ok, _ = pose_errors(true, res.extras["machine"], Pw, Rw)
+    pred_p, pred_r = bench.predicted(true, res.extras["problem"], Pw[ok], Rw[ok])
+    assert np.sqrt(np.mean(dp[ok] ** 2)) < 3 * pred_p
+    assert np.sqrt(np.mean(dr[ok] ** 2)) < 3 * pred_r
+
+
+def test_the_default_machine_takes_the_direct_path():
+    machine = default_hexaslide()
+    true = machine.with_parameters(machine.u + paper_table1_deviations(machine.parameters))
+    true.constraint_link_length = machine.constraint_link_length
+    data = simulate_constraint_link(true, 150, 2e-6, rng=0)
+    res = calibrate_constraint_link(machine, data, sigma_m=2e-6)
+    start = res.extras["start"]
+    assert start.strategy == "direct" and not start.fallback
+    assert len(start.attempts) == 1 and start.attempts[0]["passed"]
+    assert res.extras["dropped_rows"].size == 0 and res.extras["warnings"] == []
+
+
+def test_rows_left_out_are_named(bench):
+    """Seed 36 of the benchmark: one row whose pose no start finds with the calibrated
+    geometry (the loop's forward kinematics have several solutions there) is left out and
+    named, in dropped_rows and in a warning; the others calibrate."""
+    row = bench.one_run(36)
+    assert row["status"] == "ok" and row["dropped"] == 1
+    rng = np.random.default_rng(36)
+    # rebuild the run's data to read the result itself
+    while True:
+        nominal, _ = bench.random_geometry(rng)
+        shuffle = bool(rng.random() < 0.5)
+        true = nominal.with_parameters(nominal.u + bench.table1_sized(nominal, rng, shuffle))
+        true.constraint_link_length = nominal.constraint_link_length
+        try:
+            data = simulate_constraint_link(true, 120, 2e-6, rng=rng)
+        except Exception:      # noqa: BLE001 - the benchmark skips such geometries alike
+            continue
+        break
+    res = calibrate_constraint_link(nominal, data, sigma_m=2e-6)
+    dropped = [int(v) for v in res.extras["dropped_rows"]]
+    assert len(dropped) == 1
+    (text,) = [w for w in res.extras["warnings"] if "left out" in w]
+    assert f"rows {dropped[0]}" in text and "1 of 120 row(s)" in text
+    assert len(res.extras["problem"].data) == 119
+    assert res.extras["start"].as_dict()["dropped_rows"] == dropped
+
+
+def test_pose_candidates_find_the_branch_the_home_start_misses(bench):
+    """Rails from radius 608 mm, 73.4 deg, struts 533 mm, link 349 mm: with the TRUE geometry,
+    Newton from home lands 3 rows on another local minimum of the pose fit 60-80 mm away (the
+    loop's forward kinematics have several solutions there); the multi-start finds all."""
+    from pkmcal.calibration.constraint_link import solve_sphere_poses
+
+    nominal = bench.hexaslide(ra=0.608, za=-0.517, beta=73.4, l=0.533, lc=0.349, rb=0.127,
+                              ga=24.2, gb=37.9)
+    true = nominal.with_parameters(nominal.u + paper_table1_deviations(nominal.parameters))
+    true.constraint_link_length = nominal.constraint_link_length
+    data = simulate_constraint_link(true, 150, 2e-6, rng=3)
+    home = solve_sphere_poses(true, None, data.q, data.link_length)
+    assert np.sum(np.linalg.norm(home.P - data.true_P, axis=-1) > 0.03) == 3
+    P, _, rms = sphere_pose_candidates(true, None, data.q, data.link_length)
+    assert np.max(np.linalg.norm(P - data.true_P, axis=-1)) < 1e-4
+    assert np.max(rms) < 1e-5
+
+
+def test_monte_carlo_over_random_geometries(bench):
+    """40 calibrations on random non-default Hexa Slides (around the default and the
+    reporter's dimensions), Table-1-sized errors, 2 um noise, 120 poses: every run is either
+    ok (residual test passed, gauge-free pose error within 3x the Cramer-Rao prediction) or
+    flagged (an error, no convergence, or a warning of the acceptance test); several needed
+    the fallback."""
+    rows = [bench.one_run(seed, 120) for seed in range(40)]
+    s = bench.summary(rows)
+    silent = [r for r in rows if r["status"] == "silent"]
+    assert not silent, silent
+    assert s["ok"] >= 38
+    assert s["fallback"] >= 5                  # the fallback is exercised, and works
+    assert all(r["ratio"] <= 3 for r in rows if r["status"] == "ok")
