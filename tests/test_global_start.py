@@ -7,7 +7,7 @@ noise, 'converged'. ``calibration.start`` now falls back to a continuation (the 
 sensitive to the geometry first, every pose re-started with the geometry they give, trimmed
 refits) when the plain fit fails the residual test, and names the rows it leaves out.
 
-The Monte Carlo here is the first 40 runs of ``benchmarks/global_start.py`` (200 runs there:
+The Monte Carlo here is ``benchmarks/global_start.py`` with its defaults (200 runs, 120 poses:
 197 ok, 3 flagged, none silent; see the README).
 """
 
@@ -131,15 +131,16 @@ def test_pose_candidates_find_the_branch_the_home_start_misses(bench):
 
 
 def test_monte_carlo_over_random_geometries(bench):
-    """40 calibrations on random non-default Hexa Slides (around the default and the
+    """200 calibrations on random non-default Hexa Slides (around the default and the
     reporter's dimensions), Table-1-sized errors, 2 um noise, 120 poses: every run is either
     ok (residual test passed, gauge-free pose error within 3x the Cramer-Rao prediction) or
-    flagged (an error, no convergence, or a warning of the acceptance test); several needed
-    the fallback."""
-    rows = [bench.one_run(seed, 120) for seed in range(40)]
+    flagged (an error, no convergence, or a warning of the acceptance test). Measured: 197
+    ok (worst ratio 2.3), 3 flagged; the plain fit failed the residual test in 34 runs (31
+    of them then solved by the continuation), and 1 run had rows retried."""
+    rows = [bench.one_run(seed, 120) for seed in range(200)]
     s = bench.summary(rows)
     silent = [r for r in rows if r["status"] == "silent"]
     assert not silent, silent
-    assert s["ok"] >= 38
-    assert s["fallback"] >= 5                  # the fallback is exercised, and works
-    assert all(r["ratio"] <= 3 for r in rows if r["status"] == "ok")
+    assert s["ok"] >= 195
+    assert s["fallback"] >= 20                 # the fallback is exercised, and works
+    assert s["worst_ok_ratio"] <= 3

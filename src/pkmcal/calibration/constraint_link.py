@@ -616,9 +616,13 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
     CalibrationResult
         With ``extras``: ``method``; ``machine``, the calibrated machine (home kept from
         ``machine`` when reachable, else the nearest measured pose); ``link_length``;
-        ``unidentifiable``, the named null and weak directions; ``dropped_rows``, file rows the
-        paper's methods could not solve for a pose with the start geometry and left out; with
-        ``per_chain`` also ``sweeps``.
+        ``unidentifiable``, the named null and weak directions; ``dropped_rows``, file rows
+        left out (the paper's methods: no pose for the start geometry; ``'ml'``: no pose found
+        that explains them with the calibrated geometry); with ``per_chain`` also ``sweeps``.
+        ``'ml'`` also: ``start``, the :class:`~pkmcal.calibration.start.StartReport` (plain fit
+        or the fallback of :func:`~pkmcal.calibration.start.continuation_solve` when the plain
+        fit fails the residual test); ``problem``, the problem solved (its data: the rows
+        kept); ``warnings``, sentences for the user (rows left out or retried, and why).
 
     Raises
     ------
@@ -646,9 +650,10 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
     start = None
     if per_chain:
         result = _per_chain_sweeps(problem, max_sweeps, rtol, **options)
-    elif isinstance(problem, ConstraintLinkML):
+    elif method == "ml":
         # far starts (large build errors, other geometries): continuation, pose multi-starts,
-        # rows without a start pose retried and named (calibration.start)
+        # rows without a start pose retried and named (calibration.start). Not for 'ik': its
+        # residuals (active readings taken as exact) fail the chi-square test by design
         lm_options = {"max_std": MAX_STD, **options}
         result, problem, start = continuation_solve(
             problem, lambda p, state: levenberg_marquardt(p, rtol=rtol, state=state,

@@ -159,20 +159,28 @@ def sphere_pose_candidates(machine, um, q, link_length, starts=()):
 
     q = np.asarray(q, float)
     K, n = q.shape
-    tries = [None] + [(np.array(P, float), np.array(R, float)) for P, R in starts]
-    for p in range(n):
-        sq = solve_sphere_poses(machine, um, q, link_length, np.full(K, p), max_iter=50)
-        tries.append((sq.P, sq.R))
-    best_P = np.zeros((K, 3))
-    best_R = np.broadcast_to(np.eye(3), (K, 3, 3)).copy()
-    best = np.full(K, np.inf)
-    for start in tries:
-        with np.errstate(invalid="ignore", over="ignore"):
-            fk = solve_sphere_poses(machine, um, q, link_length, None, start=start, max_iter=60)
-        rms, P = _reading_rms(machine, um, q, fk.P, fk.R, link_length)
-        better = rms < best
-        best[better], best_P[better], best_R[better] = rms[better], P[better], fk.R[better]
-    return best_P, best_R, best
+    if K == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0)
+    # the square systems for every reading left out, in one batch (n K poses)
+    qq = np.tile(q, (n, 1))
+    sq = solve_sphere_poses(machine, um, qq, link_length, np.repeat(np.arange(n), K),
+                            max_iter=40)
+    P0, R0 = machine.home
+    P0 = np.asarray(P0, float)
+    norm = np.linalg.norm(P0)
+    P0 = link_length * (P0 / norm if norm > 0 else np.array([0, 0, 1.0]))
+    Ps = [np.broadcast_to(P0, (K, 3)), *(np.asarray(P, float) for P, _ in starts), sq.P]
+    Rs = [np.broadcast_to(np.asarray(machine.home[1], float), (K, 3, 3)),
+          *(np.asarray(R, float) for _, R in starts), sq.R]
+    P_all, R_all = np.concatenate(Ps), np.concatenate(Rs)
+    m = len(P_all) // K
+    # each start polished by least squares on all readings and the link, in one batch
+    with np.errstate(invalid="ignore", over="ignore"):
+        fk = solve_sphere_poses(machine, um, np.tile(q, (m, 1)), link_length, None,
+                                start=(P_all.copy(), R_all.copy()), max_iter=40)
+    rms, P = _reading_rms(machine, um, np.tile(q, (m, 1)), fk.P, fk.R, link_length)
+    pick = np.argmin(rms.reshape(m, K), axis=0) * K + np.arange(K)
+    return P[pick], fk.R[pick], rms[pick]
 
 
 def start_sensitivity(problem, state) -> np.ndarray:
@@ -238,7 +246,7 @@ def continuation_solve(problem, solve, direct=None) -> tuple:
         When more than :data:`MAX_LEFT_OUT` of the rows (or too few to identify the geometry)
         can be explained by no pose, even with the best geometry found.
     """
-    from .constraint_link import SphereState
+    from .constraint_link import SphereState, solve_sphere_poses
 
     report = StartReport()
     data = problem.data
@@ -279,7 +287,7 @@ def continuation_solve(problem, solve, direct=None) -> tuple:
         P, R, rms = sphere_pose_candidates(machine, um, data.q, Lc, starts=[(P, R)])
         ok = rms < START_TOL * scale
         if ok.any():
-            z = rms * np.sqrt(data.q.shape[1]) / sigma       # ~ whitened norm of the row
+            z = rms * np.sqrt(data.q.shape[1]) / sigma           # ~ whitened norm of the row
             ok &= z <= max(OUTLIER_FLOOR, OUTLIER_FACTOR * float(np.median(z[ok])))
         return P, R, ok
 
@@ -303,8 +311,6 @@ def continuation_solve(problem, solve, direct=None) -> tuple:
 
     # 1. start poses: the plain least-squares forward kinematics from home; multi-start only
     #    where it does not explain the readings
-    from .constraint_link import solve_sphere_poses
-
     fk = solve_sphere_poses(machine, um0, data.q, Lc0)
     rms, P = _reading_rms(machine, um0, data.q, fk.P, fk.R, Lc0)
     R = fk.R
