@@ -149,7 +149,7 @@ Scalar = str | bool | int | float | None
 class Units(_Section):
     """``units``: the units of the calibrated file, used for the tables."""
 
-    length: Literal["mm", "m"]
+    length: Literal["mm", "m", "in"]
     angle: Literal["deg", "rad"]
 
 
