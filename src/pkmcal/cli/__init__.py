@@ -837,6 +837,9 @@ def main(argv: list[str] | None = None, exiting: bool = False) -> None:
         # own warnings go through the console
         warnings.simplefilter("ignore")
     try:
+        from ..report.provenance import run_date
+
+        run_date()      # a malformed SOURCE_DATE_EPOCH is refused before any import reads it
         _refuse_empty(args)
         args = _hoist_quiet(args)
         _run(args, final=exiting)
