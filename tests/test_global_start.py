@@ -133,7 +133,7 @@ def test_pose_candidates_find_the_branch_the_home_start_misses(bench):
 def test_monte_carlo_over_random_geometries(bench):
     """200 calibrations on random non-default Hexa Slides (around the default and the
     reporter's dimensions), Table-1-sized errors, 2 um noise, 120 poses: every run is either
-    ok (residual test passed, gauge-free pose error within 3x the Cramer-Rao prediction) or
+    ok (converged, no warning, gauge-free pose error within 3x the Cramer-Rao prediction) or
     flagged (an error, no convergence, or a warning of the acceptance test). Measured: 197
     ok (worst ratio 2.3), 3 flagged; the plain fit failed the residual test in 34 runs (31
     of them then solved by the continuation), and 1 run had rows retried."""

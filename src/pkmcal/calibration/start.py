@@ -266,7 +266,11 @@ def continuation_solve(problem, solve, direct=None) -> tuple:
 
     def record(stage, result, rows):
         nf = _noise_factor(result)
-        passed = bool(residual_test(result).passed)
+        # accepted unless alarming (the warning's rule): residuals a little above the assumed
+        # noise are a noise that is a little off (simulated 2 um, assumed 1 um), not a wrong
+        # geometry; the fallback (slower, and it leaves out rows far above the others) must not
+        # run for that
+        passed = not residual_test(result).alarming
         report.attempts.append({"stage": stage, "rows": int(rows),
                                 "noise_factor": float(nf), "passed": passed})
         return passed
