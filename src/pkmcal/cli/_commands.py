@@ -748,7 +748,10 @@ def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, outp
     json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
                                    result, report_dir, nominal=machine)
 
-    if dropped:
+    if "warnings" in result.extras:         # ml: the start strategy says what it left out
+        for text in result.extras["warnings"]:
+            warning(f"{data_path}: {text}")
+    elif dropped:
         warning(f"{data_path}: {len(dropped)} row(s) left out (no pose from the five active "
                 f"readings and the link with the start geometry): {_rows_text(dropped)}")
     if json_output:
