@@ -680,21 +680,6 @@ class MonteCarloResult:
         """
         return np.array([s[name]["mean"] for s in self.summary])
 
-    def median(self, name: str) -> np.ndarray:
-        """Median of a metric over the ok runs.
-
-        Parameters
-        ----------
-        name : str
-            A key of ``metrics``.
-
-        Returns
-        -------
-        ndarray, shape (n_values,)
-            Per value, SI; NaN where no run is ok.
-        """
-        return np.array([s[name]["median"] for s in self.summary])
-
     def not_ok(self) -> list[dict]:
         """The runs that are not ``ok``, in order.
 
