@@ -73,6 +73,25 @@ class FKResult:
             )
 
 
+@dataclass
+class FrameMotion:
+    """A change of the machine's parameters that moves a frame without moving the machine.
+
+    Attributes
+    ----------
+    name : str
+        Short name, e.g. ``"rigid motion of the base frame"``.
+    description : str
+        What it means, in words.
+    tangents : ndarray, shape (n_params, k)
+        Its directions in parameter space (internal units), one column per generator.
+    """
+
+    name: str
+    description: str
+    tangents: np.ndarray
+
+
 class Machine(ABC):
     """A parallel kinematic machine with geometric error parameters.
 
@@ -558,6 +577,51 @@ class Machine(ABC):
         return qc - q, J
 
     # -- frames (gauge) -------------------------------------------------------------------
+    def frame_motions(self, u=None) -> list[FrameMotion]:
+        """The frame motions this machine's parameters can express (for identifiability words).
+
+        By default a rigid motion of the base frame (every base-side element moved together:
+        3 rotations about the base axes, 3 translations) and one of the platform frame, found
+        by differentiating :meth:`transform_base` and :meth:`transform_platform` (with a
+        translation ``t`` where the machine supports it). No measurement of the machine alone
+        can see them; an instrument sees them unless its own unknowns (its frame, the target's
+        place) absorb them. Machines with other such combinations override this.
+
+        Parameters
+        ----------
+        u : array_like, shape (n_params,), optional
+            Parameter vector to linearise at; default :attr:`u`.
+
+        Returns
+        -------
+        list of FrameMotion
+            The motions, base first.
+        """
+        u = self.u if u is None else np.asarray(u, float)
+        h = 1e-6
+        out = []
+        for name, what, transform in (
+                ("rigid motion of the base frame", "moving every base joint by one rigid "
+                 "motion (3 rotations, 3 translations)", self.transform_base),
+                ("rigid motion of the platform frame", "moving every platform joint by one "
+                 "rigid motion", self.transform_platform)):
+            cols = []
+            try:
+                for k in range(3):
+                    w = np.zeros(3)
+                    w[k] = h
+                    cols.append((transform(u, matrix_from_rotvec(w))
+                                 - transform(u, matrix_from_rotvec(-w))) / (2 * h))
+                for k in range(3):
+                    t = np.zeros(3)
+                    t[k] = 1.0
+                    cols.append(transform(u, np.eye(3), t=t) - transform(u, np.eye(3)))
+            except (NotImplementedError, TypeError):
+                if not cols:
+                    continue
+            out.append(FrameMotion(name, what, np.column_stack(cols)))
+        return out
+
     @abstractmethod
     def transform_base(self, u, G) -> np.ndarray:
         """Parameters of the same machine expressed in a base frame rotated by ``G``.

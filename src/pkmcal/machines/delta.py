@@ -464,6 +464,44 @@ class Delta(Machine):
         return P
 
     # -- frames ---------------------------------------------------------------------------
+    def frame_motions(self, u=None):
+        """The Delta's invisible combinations (seed 001 eq. 5; SPEC 2.2).
+
+        Per leg ``da + db`` (the base joint and the platform joint shifted together: only
+        ``db - da`` enters the leg equation), and a translation of the platform frame (every
+        platform joint shifted by one vector ``v``, ``db_i += Rphi_i v``), which an
+        instrument's frame or target absorbs. The model has no base-frame parameters.
+
+        Parameters
+        ----------
+        u : array_like, shape (27,), optional
+            Unused (the directions are constant).
+
+        Returns
+        -------
+        list of FrameMotion
+            Three leg combinations and the platform translation.
+        """
+        from .base import FrameMotion
+
+        p, n = self.parameters, len(self.parameters)
+        out = []
+        for i in range(3):
+            T = np.zeros((n, 3))
+            for k, c in enumerate("xyz"):
+                T[p.index(f"leg{i + 1}.da.{c}"), k] = 1.0
+                T[p.index(f"leg{i + 1}.db.{c}"), k] = 1.0
+            out.append(FrameMotion(
+                f"leg{i + 1}.da + leg{i + 1}.db",
+                "the base joint and the platform joint of the leg shifted together change "
+                "nothing: only db - da enters the leg equation (seed 001 eq. 5)", T))
+        T = np.zeros((n, 3))
+        for i in range(3):
+            T[p.indices(f"leg{i + 1}.db"), :] = self.Rphi[i]
+        out.append(FrameMotion("translation of the platform frame",
+                               "shifting every platform joint by the same vector", T))
+        return out
+
     def transform_base(self, u, G):
         """Not available: the Delta error model has no base-frame parameters.
 

@@ -250,19 +250,52 @@ class HexaSlide(Machine):
         return q_out, dq_dpose, dq_du.reshape(shape + (6, len(self.parameters)))
 
     # -- frames ---------------------------------------------------------------------------
-    def transform_base(self, u, G):
+    def transform_base(self, u, G, t=None):
+        """Chains in a base frame rotated by ``G`` (and moved: ``a0' = G a0 + t``).
+
+        Parameters
+        ----------
+        u : array_like, shape (54,)
+            Parameter vector (internal units).
+        G : array_like, shape (3, 3)
+            Rotation from the old to the new base frame.
+        t : array_like, shape (3,), optional
+            Translation of the new base frame, m.
+
+        Returns
+        -------
+        ndarray, shape (54,)
+            The transformed parameter vector.
+        """
         u = np.array(u, float)
         b, a0, alpha, beta, l = self.chains(u)
         a = rail_direction(alpha, beta) @ np.asarray(G).T
-        u[self._ia0] = a0 @ np.asarray(G).T
+        u[self._ia0] = a0 @ np.asarray(G).T + (0.0 if t is None else np.asarray(t, float))
         new_alpha = np.arctan2(a[:, 1], a[:, 0])
         u[self._ial] = alpha + (new_alpha - alpha + np.pi) % (2 * np.pi) - np.pi
         u[self._ibe] = np.arcsin(np.clip(a[:, 2], -1, 1))
         return u
 
-    def transform_platform(self, u, C):
+    def transform_platform(self, u, C, t=None):
+        """Platform joints in a re-oriented (and moved) platform frame: ``b' = C^T (b - t)``.
+
+        Parameters
+        ----------
+        u : array_like, shape (54,)
+            Parameter vector (internal units).
+        C : array_like, shape (3, 3)
+            Rotation of the new platform frame relative to the old one.
+        t : array_like, shape (3,), optional
+            Origin of the new platform frame in the old one, m.
+
+        Returns
+        -------
+        ndarray, shape (54,)
+            The transformed parameter vector.
+        """
         u = np.array(u, float)
-        u[self._ib] = self.chains(u)[0] @ np.asarray(C)   # rows: (C^T b)^T = b^T C
+        b = self.chains(u)[0] - (0.0 if t is None else np.asarray(t, float))
+        u[self._ib] = b @ np.asarray(C)                   # rows: (C^T b)^T = b^T C
         return u
 
 

@@ -1,0 +1,22 @@
+"""Instruments as measurement models over any machine: points, distances (and their data).
+
+Each instrument is a :class:`~pkmcal.instruments.models.NuisanceModel` (``readings -> predicted
+measurement`` with its own unknowns and noise model); one problem
+(:class:`~pkmcal.instruments.problem.InstrumentProblem`) puts any of them on any
+:class:`~pkmcal.machines.Machine` into the shared estimator.
+"""
+
+from .data import InstrumentData
+from .models import (
+    DistancesModel,
+    IsotropicNoise,
+    NuisanceModel,
+    NuisanceState,
+    PointsModel,
+    sphere_centre,
+)
+from .problem import InstrumentProblem, InstrumentState, fit_instrument, frame_motion_groups
+
+__all__ = ["DistancesModel", "InstrumentData", "InstrumentProblem", "InstrumentState",
+           "IsotropicNoise", "NuisanceModel", "NuisanceState", "PointsModel",
+           "fit_instrument", "frame_motion_groups", "sphere_centre"]

@@ -1,0 +1,466 @@
+"""Measurement models of instruments, written once against any :class:`~pkmcal.machines.Machine`.
+
+An instrument measures something of the platform pose ``(P, R)`` through its own unknowns
+(*nuisance parameters*: the instrument's frame, the target's place on the platform, a pivot):
+``y = h(P, R; v)``. A model gives the residual ``e = y_measured - h`` of every row and its
+derivatives with respect to the pose (``[dP, dOmega]``, rotations on the left, as the machines'
+Jacobians) and to ``v``. The machine, the estimator and the CLI never look inside: adding an
+instrument is adding a model here.
+
+Rotations among the nuisance parameters (``tracker.rx/ry/rz``) are increments about the base
+axes applied on the left of their start value; derivatives are taken at the current value (the
+estimator's retraction, :class:`NuisanceState`).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..kinematics import matrix_from_rotvec, rotvec_from_matrix, skew
+from ..parameters import ParameterSet
+
+XYZ = ("x", "y", "z")
+ROT = ("rx", "ry", "rz")
+
+
+@dataclass
+class NuisanceState:
+    """Current nuisance values: the vector, and the rotation matrix of every rotation triple.
+
+    Attributes
+    ----------
+    values : ndarray, shape (n,)
+        Values; a rotation triple holds ``rotvec(R R0^T)``, the increment from its start.
+    rotations : list of ndarray
+        Current rotation matrix (3, 3) of each triple, in :attr:`NuisanceModel.rotation_slots`
+        order.
+    """
+
+    values: np.ndarray
+    rotations: list = field(default_factory=list)
+
+
+class NuisanceModel(ABC):
+    """A measurement model with nuisance parameters (see the module docstring).
+
+    Subclasses set :attr:`kind`, :attr:`size`, build :attr:`parameters` and implement
+    :meth:`residuals` and :meth:`start`.
+    """
+
+    #: measurement kind as users name it (``points``, ``poses``, ``distances``)
+    kind: str = ""
+    #: measured components per row
+    size: int = 0
+    #: in words, what each nuisance prefix stands for (for identifiability reports)
+    words: dict = {}
+
+    def __init__(self, parameters: ParameterSet, rotation_starts=()):
+        self.parameters = parameters
+        #: index of the first entry of each rotation triple
+        self.rotation_slots = [parameters.index(name) for name in parameters.names
+                               if name.endswith(".rx")]
+        starts = list(rotation_starts) or [np.eye(3)] * len(self.rotation_slots)
+        self.rotation_starts = [np.asarray(R, float) for R in starts]
+
+    def initial(self) -> NuisanceState:
+        """The start state (rotations at their start values).
+
+        Returns
+        -------
+        NuisanceState
+            Values and rotation matrices.
+        """
+        return NuisanceState(np.array(self.parameters.values, float),
+                             [R.copy() for R in self.rotation_starts])
+
+    def retract(self, state: NuisanceState, step) -> NuisanceState:
+        """The state after a step (rotation triples on the left, the rest added).
+
+        Parameters
+        ----------
+        state : NuisanceState
+            Current state.
+        step : array_like, shape (n,)
+            The step.
+
+        Returns
+        -------
+        NuisanceState
+            The new state.
+        """
+        step = np.asarray(step, float)
+        values = state.values + step
+        rotations = []
+        for i, R0, R in zip(self.rotation_slots, self.rotation_starts, state.rotations,
+                            strict=True):
+            Rn = matrix_from_rotvec(step[i:i + 3]) @ R
+            rotations.append(Rn)
+            values[i:i + 3] = rotvec_from_matrix(Rn @ R0.T)
+        return NuisanceState(values, rotations)
+
+    def with_start(self, state: NuisanceState) -> NuisanceModel:
+        """A copy of this model whose start values are ``state`` (rotations re-based).
+
+        Parameters
+        ----------
+        state : NuisanceState
+            The new start.
+
+        Returns
+        -------
+        NuisanceModel
+            A shallow copy; its parameters hold the new values (rotation increments 0).
+        """
+        new = self.__class__.__new__(self.__class__)
+        new.__dict__.update(self.__dict__)
+        values = np.array(state.values, float)
+        for i in self.rotation_slots:
+            values[i:i + 3] = 0.0
+        new.parameters = self.parameters.with_values(values)
+        new.rotation_starts = [np.array(R, float) for R in state.rotations]
+        return new
+
+    def rotation(self, state: NuisanceState, prefix: str) -> np.ndarray:
+        """Current rotation of the triple ``prefix.rx/ry/rz``.
+
+        Parameters
+        ----------
+        state : NuisanceState
+            The state.
+        prefix : str
+            The triple's prefix, e.g. ``"tracker"``.
+
+        Returns
+        -------
+        ndarray, shape (3, 3)
+            The rotation matrix.
+        """
+        return state.rotations[self.rotation_slots.index(self.parameters.index(prefix + ".rx"))]
+
+    def vector(self, state: NuisanceState, prefix: str) -> np.ndarray:
+        """Current value of the vector ``prefix.x/y/z``.
+
+        Parameters
+        ----------
+        state : NuisanceState
+            The state.
+        prefix : str
+            The vector's prefix, e.g. ``"target1"``.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            The value.
+        """
+        i = self.parameters.index(prefix + ".x")
+        return state.values[i:i + 3]
+
+    @abstractmethod
+    def residuals(self, state: NuisanceState, P, R, measured, group, jacobian: bool = True):
+        """Residuals ``measured - h(P, R; v)`` and their derivatives.
+
+        Parameters
+        ----------
+        state : NuisanceState
+            Nuisance values.
+        P : ndarray, shape (K, 3)
+            Platform positions, m.
+        R : ndarray, shape (K, 3, 3)
+            Platform orientations.
+        measured : ndarray, shape (K, size)
+            The measured values.
+        group : ndarray of int, shape (K,)
+            0-based target / setup of each row.
+        jacobian : bool, optional
+            Also return the derivatives.
+
+        Returns
+        -------
+        e : ndarray, shape (K, size)
+            Residuals (unwhitened, SI units).
+        de_dpose : ndarray, shape (K, size, 6) or None
+            Derivatives with respect to ``[dP, dOmega]``.
+        de_dv : ndarray, shape (K, size, n) or None
+            Derivatives with respect to the nuisance step (rotations on the left).
+        """
+
+    def predict(self, state: NuisanceState, P, R, group) -> np.ndarray:
+        """What the instrument measures at poses ``(P, R)``.
+
+        Parameters
+        ----------
+        state : NuisanceState
+            Nuisance values.
+        P : ndarray, shape (K, 3)
+            Platform positions, m.
+        R : ndarray, shape (K, 3, 3)
+            Platform orientations.
+        group : ndarray of int, shape (K,)
+            0-based target / setup of each row.
+
+        Returns
+        -------
+        ndarray, shape (K, size)
+            Predicted measurements, SI units.
+        """
+        zero = np.zeros((len(P), self.size))
+        return -self.residuals(state, P, R, zero, group, jacobian=False)[0]
+
+    @abstractmethod
+    def start(self, P, R, measured, group, source: str = "<data>") -> NuisanceModel:
+        """A copy of this model with start values from poses of the start geometry.
+
+        Parameters
+        ----------
+        P : ndarray, shape (K, 3)
+            Platform positions of the readings under the start geometry, m.
+        R : ndarray, shape (K, 3, 3)
+            Their orientations.
+        measured : ndarray, shape (K, size)
+            The measured values.
+        group : ndarray of int, shape (K,)
+            0-based target / setup of each row.
+        source : str, optional
+            File name for messages.
+
+        Returns
+        -------
+        NuisanceModel
+            The model with closed-form start values (refined by the estimator).
+        """
+
+
+def _vector_parameters(prefixes, kind: str = "length", fixed=()) -> ParameterSet:
+    names = [f"{p}.{c}" for p in prefixes for c in XYZ]
+    fixed_set = set(fixed)
+    return ParameterSet(names, [kind] * len(names), np.zeros(len(names)),
+                        fixed=[n.split(".")[0] in fixed_set or n.rsplit(".", 1)[0] in fixed_set
+                               for n in names])
+
+
+class PointsModel(NuisanceModel):
+    """A point target on the platform measured in the instrument frame (laser tracker, CMM).
+
+    ``m = A^T (P + R c_g - a)`` with ``(A, a)`` = base_from_tracker (``tracker.rx..z``: A as
+    increments on the left of the start, ``tracker.x/y/z``: a) and ``c_g`` the place of target
+    ``g`` in the platform frame (``target<g>.x/y/z``), estimated unless given.
+
+    Parameters
+    ----------
+    n_targets : int, optional
+        Number of targets (column ``target``).
+    known_target : array_like, shape (3,), optional
+        The target's place on the platform when the machine file gives it (all targets);
+        held fixed.
+    fix_frame : bool, optional
+        Hold the tracker frame at its start (seed 001's two-step method).
+    """
+
+    kind = "points"
+    size = 3
+    words = {"tracker": "the tracker frame", "target": "the target's place on the platform"}
+
+    def __init__(self, n_targets: int = 1, known_target=None, fix_frame: bool = False):
+        self.n_targets = int(n_targets)
+        self.known_target = None if known_target is None else np.asarray(known_target, float)
+        frame = ParameterSet([f"tracker.{k}" for k in ROT + XYZ], ["angle"] * 3 + ["length"] * 3,
+                             np.zeros(6), fixed=[fix_frame] * 6)
+        targets = _vector_parameters([f"target{g + 1}" for g in range(self.n_targets)])
+        if self.known_target is not None:
+            targets = ParameterSet(targets.names, targets.kinds,
+                                   np.tile(self.known_target, self.n_targets),
+                                   fixed=[True] * len(targets))
+        super().__init__(frame.concat(targets))
+        self._it = np.stack([self.parameters.indices(f"target{g + 1}")
+                             for g in range(self.n_targets)])
+        #: tracker-frame centroid of the measured points (residuals are formed about it: the
+        #: points lie metres from the tracker and rounding there would limit the precision)
+        self.m0 = np.zeros(3)
+
+    def residuals(self, state, P, R, measured, group, jacobian=True):
+        A = self.rotation(state, "tracker")
+        a = self.vector(state, "tracker")
+        c = state.values[self._it][group]                                  # (K, 3)
+        Rc = np.einsum("kij,kj->ki", R, c)
+        y = P + Rc - (a + A @ self.m0)                                      # no metre terms
+        e = (measured - self.m0) - y @ A
+        if not jacobian:
+            return e, None, None
+        K = len(P)
+        AT = np.broadcast_to(A.T, (K, 3, 3))
+        de_dpose = np.concatenate([-AT, AT @ skew(Rc)], -1)
+        n = len(self.parameters)
+        de_dv = np.zeros((K, 3, n))
+        y_full = P + Rc - a
+        de_dv[:, :, 0:3] = -AT @ skew(y_full)                              # A <- exp(w) A
+        de_dv[:, :, 3:6] = AT
+        ARt = -AT @ R                                                      # d/dc = -A^T R
+        for g in range(self.n_targets):
+            rows = np.flatnonzero(group == g)
+            de_dv[np.ix_(rows, np.arange(3), self._it[g])] = ARt[rows]
+        return e, de_dpose, de_dv
+
+    def start(self, P, R, measured, group, source="<data>"):
+        from ..calibration.registration import register_points
+
+        c = (np.zeros((self.n_targets, 3)) if self.known_target is None
+             else np.tile(self.known_target, (self.n_targets, 1)))
+        x = P + np.einsum("kij,kj->ki", R, c[group])
+        A, a = register_points(measured, x, f"{source}: tracker registration")
+        new = self.__class__.__new__(self.__class__)
+        new.__dict__.update(self.__dict__)
+        values = np.array(self.parameters.values, float)
+        values[3:6] = a
+        values[self._it.ravel()] = c.ravel()
+        new.parameters = self.parameters.with_values(values)
+        new.rotation_starts = [A]
+        new.m0 = measured.mean(0) if len(measured) else np.zeros(3)
+        return new
+
+
+class DistancesModel(NuisanceModel):
+    """A measuring ballbar: the distance between a pivot on the base and a ball on the platform.
+
+    ``d = |P + R b_g - p_g|`` with ``p_g`` (``setup<g>.pivot.x/y/z``, base frame) and ``b_g``
+    (``setup<g>.ball.x/y/z``, platform frame) unknown per mounting ``g``.
+
+    Parameters
+    ----------
+    n_setups : int, optional
+        Number of mountings (column ``setup``).
+    """
+
+    kind = "distances"
+    size = 1
+    words = {"pivot": "the ballbar's pivot on the base", "ball": "the ball on the platform"}
+
+    def __init__(self, n_setups: int = 1):
+        self.n_setups = int(n_setups)
+        prefixes = [f"setup{g + 1}.{w}" for g in range(self.n_setups) for w in ("pivot", "ball")]
+        super().__init__(_vector_parameters(prefixes))
+        self._ip = np.stack([self.parameters.indices([f"setup{g + 1}.pivot.{c}" for c in XYZ])
+                             for g in range(self.n_setups)])
+        self._ib = np.stack([self.parameters.indices([f"setup{g + 1}.ball.{c}" for c in XYZ])
+                             for g in range(self.n_setups)])
+
+    def residuals(self, state, P, R, measured, group, jacobian=True):
+        p = state.values[self._ip][group]
+        b = state.values[self._ib][group]
+        Rb = np.einsum("kij,kj->ki", R, b)
+        v = P + Rb - p
+        d = np.linalg.norm(v, axis=-1)
+        e = measured[:, :1] - d[:, None]
+        if not jacobian:
+            return e, None, None
+        nvec = v / np.where(d > 0, d, 1.0)[:, None]
+        K = len(P)
+        de_dpose = np.concatenate([-nvec, np.einsum("ki,kij->kj", nvec, skew(Rb))],
+                                  -1)[:, None, :]
+        de_dv = np.zeros((K, 1, len(self.parameters)))
+        nR = -np.einsum("ki,kij->kj", nvec, R)
+        for g in range(self.n_setups):
+            rows = np.flatnonzero(group == g)
+            de_dv[rows[:, None], 0, self._ip[g][None, :]] = nvec[rows]
+            de_dv[rows[:, None], 0, self._ib[g][None, :]] = nR[rows]
+        return e, de_dpose, de_dv
+
+    def start(self, P, R, measured, group, source="<data>"):
+        values = np.array(self.parameters.values, float)
+        for g in range(self.n_setups):
+            rows = group == g
+            b = values[self._ib[g]]
+            x = P[rows] + np.einsum("kij,j->ki", R[rows], b)
+            values[self._ip[g]] = sphere_centre(x, measured[rows, 0])
+        new = self.__class__.__new__(self.__class__)
+        new.__dict__.update(self.__dict__)
+        new.parameters = self.parameters.with_values(values)
+        return new
+
+
+def sphere_centre(points, radii) -> np.ndarray:
+    """Centre ``p`` with ``|x_k - p| = r_k`` in the least-squares sense (linear, closed form).
+
+    ``|x|^2 - r^2 = 2 x.p - |p|^2`` is linear in ``(p, |p|^2)``. Points on one plane (a
+    ballbar circle) leave ``p`` free along the plane's normal in that linear system; the
+    condition ``s = |p|^2`` then fixes it (of its two roots the one nearer the plane, the
+    pivot of a circle test lying in or near the circle's plane).
+
+    Parameters
+    ----------
+    points : array_like, shape (K, 3)
+        Points, m.
+    radii : array_like, shape (K,)
+        Their distances from the centre, m.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        The centre, m (the points' centroid when fewer than 3 points are given).
+    """
+    x = np.asarray(points, float)
+    r = np.asarray(radii, float)
+    if len(x) < 3:
+        return x.mean(0) if len(x) else np.zeros(3)
+    x0 = x.mean(0)
+    xc = x - x0                                    # centred: no metre-sized squares
+    M = np.column_stack([2 * xc, -np.ones(len(x))])
+    rhs = np.sum(xc**2, -1) - r**2
+    sol, *_ = np.linalg.lstsq(M, rhs, rcond=1e-10)
+    p, s = sol[:3], sol[3]
+    _, sv, Vt = np.linalg.svd(xc, full_matrices=True)
+    if sv[-1] <= 1e-9 * sv[0]:                     # coplanar: fix the normal component
+        n = Vt[-1]
+        p = p - (p @ n) * n                        # in-plane part (the plane passes x0)
+        h2 = s - p @ p                             # |p + lam n|^2 = s: lam = +-sqrt(h2)
+        if h2 > 0:
+            p = p + np.sqrt(h2) * n
+    return x0 + p
+
+
+@dataclass(frozen=True)
+class IsotropicNoise:
+    """Independent noise of one standard deviation on every measured component, SI units.
+
+    Attributes
+    ----------
+    sigma : float
+        Standard deviation (m for points and distances).
+    """
+
+    sigma: float = 1e-6
+
+    def whitening(self, measured) -> np.ndarray:
+        """Whitening matrices ``I / sigma``.
+
+        Parameters
+        ----------
+        measured : array_like, shape (K, s)
+            Measured values (only their shape is used).
+
+        Returns
+        -------
+        ndarray, shape (K, s, s)
+            One per row.
+        """
+        K, s = np.shape(measured)
+        return np.broadcast_to(np.eye(s) / self.sigma, (K, s, s))
+
+    def sample(self, measured, rng) -> np.ndarray:
+        """Noise to add to measured values.
+
+        Parameters
+        ----------
+        measured : array_like, shape (K, s)
+            Measured values (only their shape is used).
+        rng : numpy.random.Generator
+            Random generator.
+
+        Returns
+        -------
+        ndarray, shape (K, s)
+            Noise, SI units.
+        """
+        return self.sigma * rng.standard_normal(np.shape(measured))

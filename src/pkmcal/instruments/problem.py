@@ -1,0 +1,427 @@
+"""One calibration problem for every instrument model on every machine.
+
+Readings are taken as exact (the instrument's noise dominates, as with a laser tracker or a
+ballbar on encoders of a micrometre): the platform pose of each row is the machine's forward
+kinematics ``x_k = FK(q_k; u)``, and the residual is the instrument's,
+``W_k e_k(x_k, v)``, whitened by its noise. Derivatives with respect to the machine's
+parameters go through the implicit function theorem, ``dx/du = -(dq/dx)^-1 dq/du``, so any
+:class:`~pkmcal.machines.Machine` with analytic inverse-kinematics Jacobians serves. Global
+unknowns: the machine's parameters followed by the model's nuisance parameters; no per-row
+unknowns. The problem plugs into the shared estimator
+(:func:`~pkmcal.calibration.estimator.levenberg_marquardt`).
+
+Identifiability in words (:meth:`InstrumentProblem.null_groups`): the machine names the frame
+motions it can represent (:meth:`~pkmcal.machines.Machine.frame_motions`: a rigid motion of
+the base frame, of the platform frame, combinations only a sum of which enters); each one whose
+effect the nuisance parameters can undo lies in the null space and is reported with what
+absorbs it (``rigid motion of the base frame, absorbed by the tracker frame``). Nothing is
+assumed: the groups are found in the numerical null space of the model at the estimate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from ..identifiability import NullGroup, name_null_space, name_weak_directions
+from ..identifiability.rank import RTOL, numerical_rank
+from ..machines.base import Machine
+from .data import InstrumentData
+from .models import NuisanceModel, NuisanceState
+
+
+@dataclass
+class InstrumentState:
+    """Estimator state: machine parameters, nuisance state and the poses last solved.
+
+    Attributes
+    ----------
+    u : ndarray
+        Machine parameters.
+    nuisance : NuisanceState
+        Instrument unknowns.
+    P, R : ndarray
+        Platform poses of the rows (warm start of the forward kinematics).
+    """
+
+    u: np.ndarray
+    nuisance: NuisanceState
+    P: np.ndarray
+    R: np.ndarray
+    converged: np.ndarray = field(default=None)  # type: ignore[assignment]
+
+
+class InstrumentProblem:
+    """Block problem (no local unknowns) of an instrument model on a machine.
+
+    Parameters
+    ----------
+    machine : Machine
+        Start geometry; its fixed flags are kept.
+    data : InstrumentData
+        Readings and measurements.
+    model : NuisanceModel
+        The instrument's model with its start values (:meth:`NuisanceModel.start`).
+    noise : object
+        Has ``whitening(measured) -> (K, size, size)``; None: unit weights.
+    fit_machine : bool, optional
+        False holds every machine parameter (fits the instrument's unknowns alone).
+
+    Raises
+    ------
+    InputError
+        When the readings do not match the machine's joints or the start geometry's forward
+        kinematics cannot reproduce some rows.
+    """
+
+    local_dof = 0
+
+    def __init__(self, machine: Machine, data: InstrumentData, model: NuisanceModel, noise,
+                 fit_machine: bool = True):
+        if data.q.shape[1] != machine.n_joints:
+            raise InputError(f"{data.source}: {data.q.shape[1]} joint columns, the machine has "
+                             f"{machine.n_joints} joints")
+        self.machine, self.data, self.model, self.noise = machine, data, model, noise
+        mp = machine.parameters if fit_machine else machine.parameters.with_fixed(
+            list(machine.parameters.names))
+        self.parameters = mp.concat(model.parameters)
+        self.scales = machine.scales_with(model.parameters)
+        self.n_machine = len(mp)
+        self.fit_machine = fit_machine
+        K, s = len(data), model.size
+        self.W = (np.broadcast_to(np.eye(s), (K, s, s)) if noise is None
+                  else np.asarray(noise.whitening(data.values), float))
+        fk = machine.fk(data.q)
+        if not fk.converged.all():
+            rows = data.rows[~fk.converged]
+            shown = ", ".join(map(str, rows[:10].tolist())) + (" ..." if len(rows) > 10 else "")
+            raise InputError(f"{data.source}: no platform pose of the machine reproduces the "
+                             f"readings of {len(rows)} row(s): {shown} (outside the workspace, "
+                             "or a wrong joint unit)")
+        self._P0, self._R0 = fk.P, fk.R
+        #: forward kinematics converge to 1e-12 of the characteristic length: residuals are
+        #: no more precise than that, in units of the noise
+        self.cost_floor = 0.0
+
+    # -- state ----------------------------------------------------------------------------
+    def initial_state(self) -> InstrumentState:
+        """Start state: the machine's parameters, the model's start values and the poses.
+
+        Returns
+        -------
+        InstrumentState
+            The state.
+        """
+        return InstrumentState(self.machine.u.copy(), self.model.initial(), self._P0.copy(),
+                               self._R0.copy())
+
+    def global_values(self, state) -> np.ndarray:
+        """Machine parameters followed by the nuisance values.
+
+        Parameters
+        ----------
+        state : InstrumentState
+            An estimator state.
+
+        Returns
+        -------
+        ndarray, shape (n_machine + n_nuisance,)
+            Values, internal units.
+        """
+        return np.concatenate([state.u, state.nuisance.values])
+
+    def retract(self, state, du, dl):
+        """The state after a global step.
+
+        Parameters
+        ----------
+        state : InstrumentState
+            Current state.
+        du : ndarray, shape (n,)
+            Global step.
+        dl : None
+            Unused (no local unknowns).
+
+        Returns
+        -------
+        InstrumentState
+            The new state (poses kept as the next forward kinematics' start).
+        """
+        n = self.n_machine
+        return InstrumentState(state.u + du[:n], self.model.retract(state.nuisance, du[n:]),
+                               state.P, state.R)
+
+    def poses(self, state, q=None):
+        """Platform poses of readings under the state's geometry (forward kinematics).
+
+        Parameters
+        ----------
+        state : InstrumentState
+            The state.
+        q : array_like, shape (K, n_joints), optional
+            Readings; default the data's (warm-started from the state's poses).
+
+        Returns
+        -------
+        FKResult
+            Poses and convergence.
+        """
+        if q is None:
+            return self.machine.fk(self.data.q, state.u, start=(state.P, state.R))
+        return self.machine.fk(np.atleast_2d(q), state.u)
+
+    def evaluate(self, state, jacobian=True):
+        """Whitened residuals and their Jacobian (see :class:`BlockProblem`).
+
+        Parameters
+        ----------
+        state : InstrumentState
+            The state.
+        jacobian : bool, optional
+            Also compute the Jacobian.
+
+        Returns
+        -------
+        r : ndarray, shape (K, size)
+            ``W_k e_k``; NaN where the forward kinematics failed.
+        J_g : ndarray, shape (K, size, n) or None
+            Derivatives with respect to the global parameters.
+        J_l : None
+            No local unknowns.
+        """
+        fk = self.poses(state)
+        ok = fk.converged
+        state.P = np.where(ok[:, None], fk.P, state.P)
+        state.R = np.where(ok[:, None, None], fk.R, state.R)
+        e, de_dx, de_dv = self.model.residuals(state.nuisance, state.P, state.R,
+                                               self.data.values, self.data.group, jacobian)
+        r = np.einsum("kij,kj->ki", self.W, e)
+        r = np.where(ok[:, None], r, np.nan)
+        if not jacobian:
+            return r, None, None
+        de_du = self._through_fk(state, de_dx)
+        J = np.concatenate([de_du, de_dv], -1)
+        return r, np.einsum("kij,kjn->kin", self.W, J), None
+
+    def _through_fk(self, state, de_dx):
+        """``de/du = de/dx dx/du`` with ``dx/du = -(dq/dx)^-1 dq/du`` (implicit function)."""
+        _, Jx, Ju = self.machine.ik_jacobians(state.P, state.R, state.u)
+        d = self.machine.pose_dof
+        cols = slice(0, 3) if d == 3 else slice(None)
+        with np.errstate(all="ignore"):
+            dx_du = -np.linalg.solve(np.asarray(Jx)[..., cols], Ju)      # (K, d, n_machine)
+        return np.einsum("kid,kdn->kin", de_dx[..., cols], dx_du)
+
+    # -- predictions ----------------------------------------------------------------------
+    def predict(self, state, q, group=None):
+        """What the instrument measures for readings under a state's geometry.
+
+        Parameters
+        ----------
+        state : InstrumentState
+            The state (geometry and nuisance).
+        q : array_like, shape (K, n_joints)
+            Readings, internal units.
+        group : array_like of int, shape (K,), optional
+            0-based target / setup of each row; default 0.
+
+        Returns
+        -------
+        ndarray, shape (K, size)
+            Predicted measurements, SI units; NaN where the forward kinematics failed.
+        """
+        fk = self.poses(state, q)
+        group = np.zeros(len(fk.P), int) if group is None else np.asarray(group, int)
+        y = self.model.predict(state.nuisance, fk.P, fk.R, group)
+        return np.where(fk.converged[:, None], y, np.nan)
+
+    # -- words ----------------------------------------------------------------------------
+    def null_space(self, state, rtol: float = RTOL) -> np.ndarray:
+        """The model's numerical null space at ``state`` (scaled coordinates, fixed = 0).
+
+        Parameters
+        ----------
+        state : InstrumentState
+            The state to linearise at.
+        rtol : float, optional
+            Relative singular-value tolerance (the one rank rule).
+
+        Returns
+        -------
+        ndarray, shape (n, k)
+            Orthonormal unidentifiable directions.
+        """
+        _, J, _ = self.evaluate(state)
+        free = self.parameters.free
+        Js = J.reshape(-1, J.shape[-1])[:, free] * self.scales[free]
+        Js = Js[np.all(np.isfinite(Js), axis=1)]
+        _, s, Vt = np.linalg.svd(Js, full_matrices=True)
+        rank = numerical_rank(s, rtol)
+        N = np.zeros((len(free), Vt.shape[0] - rank))
+        N[free] = Vt[rank:].T
+        return N
+
+    def null_groups(self, state, scales, null_space=None):
+        """The machine's frame motions that the data cannot see, with what absorbs them.
+
+        Parameters
+        ----------
+        state : InstrumentState
+            The state to linearise at.
+        scales : ndarray, shape (n,)
+            Column scales; the groups are returned in scaled coordinates.
+        null_space : ndarray, shape (n, k), optional
+            The null space when already known (an estimator result's); default: computed.
+
+        Returns
+        -------
+        list of NullGroup
+            One group per frame motion with directions in the null space.
+        """
+        N = self.null_space(state) if null_space is None else np.asarray(null_space, float)
+        return frame_motion_groups(self.machine, state.u, self.parameters, self.n_machine,
+                                   scales, N, self.model.words)
+
+
+def frame_motion_groups(machine, u, parameters, n_machine, scales, N, words) -> list[NullGroup]:
+    """Groups of null directions explained by the machine's frame motions (module docstring).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (:meth:`~pkmcal.machines.Machine.frame_motions`).
+    u : ndarray
+        Machine parameters to linearise at.
+    parameters : ParameterSet
+        All the problem's parameters (machine's first).
+    n_machine : int
+        Number of machine parameters.
+    scales : ndarray, shape (n,)
+        Column scales.
+    N : ndarray, shape (n, k)
+        Null space, scaled coordinates.
+    words : dict
+        Nuisance prefix -> what it is in words.
+
+    Returns
+    -------
+    list of NullGroup
+        Groups whose tangents are null directions (scaled), each with its absorbers named.
+    """
+    groups = []
+    if N.shape[1] == 0:
+        return groups
+    Nm = N[:n_machine]
+    U, s, Vt = np.linalg.svd(Nm, full_matrices=True)
+    keep = s > 1e-6
+    Qn = U[:, :len(s)][:, keep]                       # machine parts of the null directions
+    # null directions of the instrument's unknowns alone (no machine part): a frame motion's
+    # lift is taken free of them, so only what must move with it is named as absorbing it
+    Z = N @ Vt[int(keep.sum()):].T
+    for motion in machine.frame_motions(u):
+        T = np.asarray(motion.tangents, float) / scales[:n_machine, None]
+        T = T[:, np.linalg.norm(T, axis=0) > 0]
+        if T.shape[1] == 0 or Qn.shape[1] == 0:
+            continue
+        Qt, _ = np.linalg.qr(T)
+        Ua, cos, _ = np.linalg.svd(Qt.T @ Qn, full_matrices=False)
+        inside = Qt @ Ua[:, cos > 1 - 1e-6]           # machine directions in the projection
+        if inside.shape[1] == 0:
+            continue
+        Y = np.linalg.lstsq(Nm, inside, rcond=None)[0]
+        tangents = N @ Y
+        tangents = tangents - Z @ (Z.T @ tangents)
+        absorbers = _absorbers(tangents, parameters, n_machine, words)
+        text = motion.description + (f"; absorbed by {absorbers}" if absorbers else
+                                     "; no measurement sees it")
+        groups.append(NullGroup(motion.name, text, tangents))
+    if Z.shape[1]:
+        groups.append(NullGroup(
+            "instrument unknowns alone",
+            f"{_absorbers(Z, parameters, n_machine, words)} can move together without "
+            "changing a measurement (the machine's parameters stay); they are fixed only in "
+            "the combination the measurements see", Z))
+    return groups
+
+
+def _absorbers(tangents, parameters, n_machine, words) -> str:
+    """The nuisance parameters that move with null directions, in words."""
+    size = np.linalg.norm(tangents, axis=1)
+    if not size.size or size.max() == 0:
+        return ""
+    names = [n for n, v in zip(parameters.names[n_machine:], size[n_machine:], strict=True)
+             if v > 1e-6 * size.max()]
+    seen = []
+    for name in names:
+        head = name.rsplit(".", 1)[0]
+        key = next((k for k in words if k in head.split(".") or head.startswith(k)), None)
+        label = (f"{words[key]} ({head})" if key is not None else head)
+        if label not in seen:
+            seen.append(label)
+    return ", ".join(seen)
+
+
+def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel, noise,
+                   fit_machine: bool = True, rtol: float = RTOL, **options):
+    """Fit an instrument model to data: start values, the instrument alone, then everything.
+
+    The start values come from the model's closed form on the start geometry's poses
+    (:meth:`NuisanceModel.start`); the instrument's unknowns are then fitted with the machine
+    held, and finally (``fit_machine``) the machine's parameters join them.
+
+    Parameters
+    ----------
+    machine : Machine
+        Start geometry; not modified.
+    data : InstrumentData
+        Readings and measurements.
+    model : NuisanceModel
+        The instrument's model (start values are computed).
+    noise : object
+        Whitening (``whitening(measured)``); None: unit weights.
+    fit_machine : bool, optional
+        False fits the instrument alone (the "before calibration" baseline).
+    rtol : float, optional
+        Rank tolerance.
+    **options
+        Passed to :func:`~pkmcal.calibration.estimator.levenberg_marquardt` (``max_std``
+        defaults to :data:`~pkmcal.identifiability.rank.MAX_STD`).
+
+    Returns
+    -------
+    CalibrationResult
+        With ``extras``: ``problem``, ``machine`` (calibrated), ``model`` (at the estimate),
+        ``start_model``, ``unidentifiable`` (named null and weak directions).
+
+    Raises
+    ------
+    InputError
+        When the start geometry cannot reproduce the readings, or the data cannot register the
+        instrument.
+    """
+    from ..calibration.estimator import MAX_STD, levenberg_marquardt
+
+    options = {"max_std": MAX_STD, **options}
+    fk = machine.fk(data.q)
+    if not fk.converged.all():
+        InstrumentProblem(machine, data, model, noise)            # raises, naming the rows
+    start = model.start(fk.P, fk.R, data.values, data.group, data.source)
+    alone = InstrumentProblem(machine, data, start, noise, fit_machine=False)
+    first = levenberg_marquardt(alone, rtol=rtol, **options)
+    start = start.with_start(first.state.nuisance)
+    if not fit_machine:
+        result, problem = first, alone
+    else:
+        problem = InstrumentProblem(machine, data, start, noise)
+        result = levenberg_marquardt(problem, rtol=rtol, **options)
+    state = result.state
+    calibrated = machine.with_parameters(state.u)
+    fitted = start.with_start(state.nuisance)
+    groups = problem.null_groups(state, result.scales, result.null_space)
+    result.extras.update(
+        problem=problem, machine=calibrated, model=fitted, start_model=start,
+        unidentifiable=name_null_space(result.null_space, problem.parameters, groups)
+        + name_weak_directions(result, problem.parameters))
+    return result
