@@ -24,7 +24,8 @@ from pkmcal.calibration import (
 from pkmcal.calibration.full_pose import FRAME_NAMES, right_jacobian_inverse
 from pkmcal.errors import InputError
 from pkmcal.kinematics import matrix_from_rotvec, rotvec_from_matrix
-from pkmcal.machines import cubic_6upu, default_hexaslide
+from pkmcal.machines import cubic_6upu
+from pkmcal.machines.delta import default_delta
 from pkmcal.measurements import (
     FullPoseData,
     FullPoseNoise,
@@ -317,8 +318,8 @@ def test_options_are_checked(case):
         calibrate_full_pose(case.nominal, data, noise=FullPoseNoise(0.0, 1e-5, 1e-5))
     with pytest.raises(InputError, match="position and orientation noise must be > 0"):
         calibrate_full_pose(case.nominal, data, noise=FullPoseNoise(1e-6, 0.0, 1e-5))
-    with pytest.raises(InputError, match="six-leg platforms"):
-        calibrate_full_pose(default_hexaslide(), data)
+    with pytest.raises(InputError, match="platform only translates"):
+        calibrate_full_pose(default_delta(), data)
     with pytest.raises(InputError, match="noise reading_m"):
         FullPoseNoise(-1.0)
     with pytest.raises(InputError, match="different lengths"):

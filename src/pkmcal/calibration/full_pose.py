@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..identifiability import NullGroup, name_null_space, name_weak_directions
+from ..identifiability import name_null_space, name_weak_directions
 from ..identifiability.analysis import right_singular
 from ..identifiability.rank import RTOL, rank_rule
 from ..kinematics import matrix_from_rotvec, rotvec_from_matrix, skew
@@ -52,6 +52,9 @@ from .registration import register_points
 
 FRAME_NAMES = ("mocap_from_base", "platform_from_marker")
 FRAME_FIELDS = ("rx", "ry", "rz", "x", "y", "z")
+#: what each frame is, in words (identifiability reports)
+FRAME_WORDS = {"mocap_from_base": "the measurement frame",
+               "platform_from_marker": "the marker's place on the platform"}
 METHODS = ("ml", "ik")
 
 
@@ -126,9 +129,9 @@ class FullPoseProblem:
     def __init__(self, machine: Machine, data: FullPoseData, noise: FullPoseNoise,
                  frames: MeasurementFrames, fixed_frames=(False, False),
                  fit_machine: bool = True):
-        if getattr(machine, "kind", "") != "stewart":
-            raise InputError(f"full-pose calibration is for six-leg platforms (stewart), not "
-                             f"{getattr(machine, 'kind', type(machine).__name__)}")
+        if machine.pose_dof != 6:
+            raise InputError("full-pose data need a platform that rotates; this machine's "
+                             "platform only translates: calibrate it from points")
         if data.q.shape[1] != machine.n_joints:
             raise InputError(f"{data.source}: {data.q.shape[1]} reading columns, the machine has "
                              f"{machine.n_joints} legs")
@@ -144,7 +147,7 @@ class FullPoseProblem:
         self.n_machine = len(mp)
         self.fixed_frames = tuple(bool(f) for f in fixed_frames)
         self.fit_machine = fit_machine
-        self.sigma_q = noise.reading_m / np.abs(machine.legs()[3])
+        self.sigma_q = machine.reading_sigma(noise.reading_m)
 
     # -- state ----------------------------------------------------------------------------
     def _start(self) -> FullPoseState:
@@ -226,12 +229,7 @@ class FullPoseProblem:
 
     # -- words ----------------------------------------------------------------------------
     def gauge_tangents(self, state):
-        """Tangents of the base-frame and of the platform-frame gauge at ``state``.
-
-        In the estimator's increment coordinates (unscaled): rotation (3) then translation (3).
-        Base: ``b_i' = G b_i + g``, ``mocap_from_base' = mocap_from_base (G, g)^-1``.
-        Platform: ``p_i' = C^T (p_i - c0)``, ``platform_from_marker' = (C, c0)^-1
-        platform_from_marker``.
+        """Tangents of the frame motions the data cannot see, unscaled (one array per group).
 
         Parameters
         ----------
@@ -240,67 +238,39 @@ class FullPoseProblem:
 
         Returns
         -------
-        base : ndarray, shape (n, 6)
-            Tangents of the base-frame gauge.
-        platform : ndarray, shape (n, 6)
-            Tangents of the platform-frame gauge.
+        list of ndarray, shape (n, k)
+            In the estimator's increment coordinates, one per group of
+            :meth:`null_groups`.
         """
-        p, n = self.parameters, len(self.parameters)
-        m = self.machine
-        b, pl, _, _ = m.legs(state.u)
-        base, plat = np.zeros((n, 6)), np.zeros((n, 6))
-        i_rm = p.indices([f"mocap_from_base.{k}" for k in ("rx", "ry", "rz")])
-        i_tm = p.indices([f"mocap_from_base.{k}" for k in ("x", "y", "z")])
-        i_rp = p.indices([f"platform_from_marker.{k}" for k in ("rx", "ry", "rz")])
-        i_tp = p.indices([f"platform_from_marker.{k}" for k in ("x", "y", "z")])
-        for i in range(6):
-            ib = p.indices(f"leg{i + 1}.base")
-            ip = p.indices(f"leg{i + 1}.platform")
-            base[ib, :3] = -skew(b[i])            # d b = omega x b
-            base[ib, 3:] = np.eye(3)              # d b = g
-            plat[ip, :3] = skew(pl[i])            # d p = p x omega
-            plat[ip, 3:] = -np.eye(3)             # d p = -c0
-        base[i_rm, :3] = -state.A                 # A' = exp(-A omega) A
-        base[i_tm, 3:] = -state.A                 # a' = a - A g
-        plat[i_rp, :3] = -np.eye(3)               # B' = exp(-omega) B
-        plat[i_tp, :3] = skew(state.c)            # c' = c + c x omega - c0
-        plat[i_tp, 3:] = -np.eye(3)
-        return base, plat
+        return [g.tangents * self.scales[:, None] for g in self.null_groups(state, self.scales)]
 
-    def null_groups(self, state, scales):
-        """The two frame gauges in words (where the leg parameters and the frame are both free).
+    def null_groups(self, state, scales, null_space=None):
+        """The frame motions the data cannot see, in words, with what absorbs them.
+
+        Found in the numerical null space of the reduced Jacobian
+        (:func:`~pkmcal.instruments.problem.frame_motion_groups`): on a six-dof platform a
+        rigid motion of the base frame absorbed by ``mocap_from_base`` and one of the platform
+        frame absorbed by ``platform_from_marker``, unless that frame is fixed.
 
         Parameters
         ----------
         state : FullPoseState
             The state to linearise at.
         scales : ndarray, shape (n,)
-            Column scales; the tangents are returned in scaled coordinates.
+            Column scales; the directions are returned in scaled coordinates.
+        null_space : ndarray, shape (n, k), optional
+            The null space when known (an estimator result's); default: computed.
 
         Returns
         -------
         list of NullGroup
-            Zero, one or two groups.
+            The groups found.
         """
-        if not self.fit_machine:
-            return []
-        base, plat = self.gauge_tangents(state)
-        groups = []
-        if not self.fixed_frames[0]:
-            groups.append(NullGroup(
-                "rigid motion of the base frame",
-                "moving every base joint by one rigid motion (3 rotations, 3 translations) and "
-                "mocap_from_base by its inverse changes no reading and no measured pose: the "
-                "data fix the base joints only relative to the measurement frame (fix "
-                "mocap_from_base to fix them)", base / scales[:, None]))
-        if not self.fixed_frames[1]:
-            groups.append(NullGroup(
-                "rigid motion of the platform frame",
-                "moving every platform joint by one rigid motion and platform_from_marker by "
-                "its inverse changes no reading and no measured pose: the data fix the "
-                "platform joints only relative to the marker frame (fix platform_from_marker "
-                "to fix them)", plat / scales[:, None]))
-        return groups
+        from ..instruments.problem import frame_motion_groups, problem_null_space
+
+        N = problem_null_space(self, state) if null_space is None else null_space
+        return frame_motion_groups(self.machine, state.u, self.parameters, self.n_machine,
+                                   np.asarray(scales, float), np.asarray(N, float), FRAME_WORDS)
 
 
 class FullPoseIK(FullPoseProblem):
@@ -670,9 +640,9 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
     if method not in PROBLEMS:
         raise InputError(f"unknown method {method!r} for full-pose data; choose one of "
                          f"{', '.join(METHODS)}")
-    if getattr(machine, "kind", "") != "stewart":
-        raise InputError(f"full-pose calibration is for six-leg platforms (stewart), not "
-                         f"{getattr(machine, 'kind', type(machine).__name__)}")
+    if machine.pose_dof != 6:
+        raise InputError("full-pose data need a platform that rotates; this machine's "
+                         "platform only translates: calibrate it from points")
     noise = FullPoseNoise() if noise is None else noise
     fixed = _fixed_pair(fix_frames)
     if any(fixed) and frames is None:

@@ -253,15 +253,7 @@ class InstrumentProblem:
         ndarray, shape (n, k)
             Orthonormal unidentifiable directions.
         """
-        _, J, _ = self.evaluate(state)
-        free = self.parameters.free
-        Js = J.reshape(-1, J.shape[-1])[:, free] * self.scales[free]
-        Js = Js[np.all(np.isfinite(Js), axis=1)]
-        _, s, Vt = np.linalg.svd(Js, full_matrices=True)
-        rank = numerical_rank(s, rtol)
-        N = np.zeros((len(free), Vt.shape[0] - rank))
-        N[free] = Vt[rank:].T
-        return N
+        return problem_null_space(self, state, rtol)
 
     def null_groups(self, state, scales, null_space=None):
         """The machine's frame motions that the data cannot see, with what absorbs them.
@@ -283,6 +275,37 @@ class InstrumentProblem:
         N = self.null_space(state) if null_space is None else np.asarray(null_space, float)
         return frame_motion_groups(self.machine, state.u, self.parameters, self.n_machine,
                                    scales, N, self.model.words)
+
+
+def problem_null_space(problem, state, rtol: float = RTOL) -> np.ndarray:
+    """Numerical null space of any block problem at ``state`` (local unknowns eliminated).
+
+    Parameters
+    ----------
+    problem : BlockProblem
+        The problem (``evaluate``, ``parameters``, ``scales``).
+    state : object
+        The state to linearise at.
+    rtol : float, optional
+        Relative singular-value tolerance (the one rank rule).
+
+    Returns
+    -------
+    ndarray, shape (n, k)
+        Orthonormal unidentifiable directions in scaled coordinates (fixed parameters 0).
+    """
+    from ..calibration.estimator import reduce_local
+
+    r, Jg, Jl = problem.evaluate(state)
+    free = problem.parameters.free
+    ok = np.all(np.isfinite(r), axis=-1)
+    Jr, _, _ = reduce_local(r[ok], Jg[ok][..., free] * problem.scales[free],
+                            None if Jl is None else Jl[ok])
+    _, s, Vt = np.linalg.svd(Jr, full_matrices=True)
+    rank = numerical_rank(s, rtol)
+    N = np.zeros((len(free), Vt.shape[0] - rank))
+    N[free] = Vt[rank:].T
+    return N
 
 
 def frame_motion_groups(machine, u, parameters, n_machine, scales, N, words) -> list[NullGroup]:

@@ -264,6 +264,28 @@ class Machine(ABC):
             sv = np.linalg.svd(Js, compute_uv=False)
         return bad, not sv[-1] > 1e-9 * sv[0]
 
+    def reading_sigma(self, sigma_length: float) -> np.ndarray:
+        """Standard deviation of each joint reading for a reading noise stated as a length.
+
+        Prismatic joints read lengths: ``sigma_length`` itself; revolute joints: the angle
+        that moves a point at the characteristic length by ``sigma_length``. Machines whose
+        readings have a gain override this.
+
+        Parameters
+        ----------
+        sigma_length : float
+            Reading noise as a length, m.
+
+        Returns
+        -------
+        ndarray, shape (n_joints,)
+            Standard deviations in the joints' internal units.
+        """
+        s = float(sigma_length)
+        if self.joint_quantity == "angle":
+            s = s / self.characteristic_length()
+        return np.full(self.n_joints, s)
+
     # -- joint limits (machine file key ``joint_limits``) -----------------------------------
     def joint_unit(self, units: dict | None = None) -> tuple[str, float]:
         """Unit of the joint values in a machine file and its SI factor.

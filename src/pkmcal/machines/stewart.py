@@ -115,6 +115,21 @@ class Stewart(Machine):
         u = self.u if u is None else np.asarray(u, float)
         return u[self._ib], u[self._ip], u[self._il0], u[self._ig]
 
+    def reading_sigma(self, sigma_length: float) -> np.ndarray:
+        """Standard deviation of each leg reading for a reading noise stated as a leg length.
+
+        Parameters
+        ----------
+        sigma_length : float
+            Reading noise as a leg length, m.
+
+        Returns
+        -------
+        ndarray, shape (6,)
+            ``sigma_length / |gain|`` per leg (nominal gains), in reading units.
+        """
+        return float(sigma_length) / np.abs(self.legs()[3])
+
     def characteristic_length(self) -> float:
         b, p, _, _ = self.legs()
         return float(max(np.mean(np.linalg.norm(b - b.mean(0), axis=-1)),

@@ -289,13 +289,14 @@ def simulate_full_pose(true_machine: Machine, poses, frames: MeasurementFrames |
     """Full-pose data of ``true_machine`` at given or random platform poses.
 
     Exact readings and measured marker poses through ``frames``, plus Gaussian noise: the
-    readings ``reading_m / |gain|``, the positions ``position_m`` per coordinate and the
+    readings ``reading_m`` as a length (:meth:`~pkmcal.machines.Machine.reading_sigma`: over
+    ``|gain|`` for a Stewart), the positions ``position_m`` per coordinate and the
     orientations a small rotation of ``orientation_rad`` per component, applied on the left.
 
     Parameters
     ----------
-    true_machine : Stewart
-        The true six-leg platform.
+    true_machine : Machine
+        The true machine (a platform that rotates).
     poses : tuple of array_like or int
         Platform poses ``(P (K, 3), R (K, 3, 3))`` in the base frame, or a number of random
         poses (:func:`sample_platform_poses`).
@@ -320,8 +321,7 @@ def simulate_full_pose(true_machine: Machine, poses, frames: MeasurementFrames |
     q = true_machine.ik(P, R)
     Pm, Rm = frames.measured(P, R)
     if noise is not None:
-        gain = np.abs(true_machine.legs()[3])
-        q = q + noise.reading_m / gain * rng.standard_normal(q.shape)
+        q = q + true_machine.reading_sigma(noise.reading_m) * rng.standard_normal(q.shape)
         Pm = Pm + noise.position_m * rng.standard_normal(Pm.shape)
         Rm = matrix_from_rotvec(noise.orientation_rad * rng.standard_normal(Pm.shape)) @ Rm
     return FullPoseData(q, Pm, Rm, source="<simulated>", true_P=P, true_R=R)
