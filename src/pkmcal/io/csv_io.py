@@ -501,11 +501,169 @@ def read_constraint_link(path, machine) -> ConstraintLinkData:
         raise InputError(f"{source}: constraint_link: the machine has no constraint-link "
                          "length; add `constraint_link: {length: ...}` (in the file's length "
                          "unit) to the machine file")
-    q, rows, extra, names = _read_joints(path, machine.n_joints, "length")
+    q, rows, extra, _ = machine_readings(path, machine)
     passive = read_passive(path, extra, rows, machine.n_joints)
-    _check_levels(path, q, names, "length", machine)
     return ConstraintLinkData(q, float(machine.constraint_link_length), passive, rows,
                               source=str(path))
+
+
+def machine_readings(path, machine):
+    """The joint readings of any machine, in internal units, their levels checked.
+
+    Columns ``q1_<unit>..q<n>_<unit>`` in the machine's joint quantity (a Stewart's reading
+    unit, :func:`read_readings`; lengths for sliders, angles for revolute joints).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file.
+    machine : Machine
+        The machine.
+
+    Returns
+    -------
+    q : ndarray, shape (K, n_joints)
+        Readings, internal units.
+    rows : ndarray of int, shape (K,)
+        File line numbers.
+    extra : dict
+        Column name -> raw strings, for every column.
+    columns : Columns or None
+        The reading columns when they share one unit of a physical quantity (for the
+        cross-checks of :mod:`~pkmcal.io.plausibility`), else None.
+
+    Raises
+    ------
+    InputError
+        When a reading column is missing, a value is not valid, or the readings look like
+        another unit than their columns say.
+    """
+    header, table = read_table(path)
+    extra = {name: [f[k] for _, f in table] for k, name in enumerate(header)}
+    if getattr(machine, "reading_unit", None) is not None:
+        q, rows, columns = _read_readings(path, machine)
+        return q, rows, extra, columns
+    quantity = joint_quantity(machine)
+    q, rows, _, names = _read_joints(path, machine.n_joints, quantity)
+    _check_levels(path, q, names, quantity, machine)
+    return q, rows, extra, _one_unit(names, [f"q{j + 1}" for j in range(len(names))], quantity)
+
+
+def read_groups(path, extra: dict, rows, column: str) -> np.ndarray | None:
+    """0-based group of each row from an integer column numbered 1..K (``target``, ``setup``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file (for messages).
+    extra : dict
+        Raw columns (:func:`machine_readings`).
+    rows : array_like of int
+        File line numbers (for messages).
+    column : str
+        The column's name.
+
+    Returns
+    -------
+    ndarray of int, shape (K,) or None
+        The groups, 0-based; None without the column.
+
+    Raises
+    ------
+    InputError
+        When a value is not a whole number >= 1, or a number below the largest has no row.
+    """
+    values = extra.get(column)
+    if values is None:
+        return None
+    out = np.empty(len(values), int)
+    for k, (line, text) in enumerate(zip(rows, values, strict=True)):
+        v = parse_number(path, int(line), column, text)
+        if v != int(v) or not 1 <= v <= 10_000:
+            raise InputError(f"{path}: row {line}, column {column}: must be a whole number "
+                             f"1, 2, ... (which {column} the row belongs to), got {text!r}")
+        out[k] = int(v) - 1
+    missing = sorted(set(range(int(out.max()) + 1)) - set(out.tolist())) if len(out) else []
+    if missing:
+        raise InputError(f"{path}: column {column}: {column} {missing[0] + 1} has no row; "
+                         f"number the {column}s 1..K without gaps (largest: {out.max() + 1})")
+    return out
+
+
+def read_points(path, machine):
+    """Point measurements (laser tracker, CMM) of a target on ``machine``'s platform.
+
+    Readings ``q1..q<n>`` (the machine's joint quantity), the point ``mx, my, mz`` (any length
+    unit, the instrument's frame) and optionally ``target`` (1..K: several targets or nests,
+    each with its own place on the platform). Other columns are ignored.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file.
+    machine : Machine
+        The machine.
+
+    Returns
+    -------
+    InstrumentData
+        ``kind="points"``: readings, points (m), targets (0-based) and file rows.
+
+    Raises
+    ------
+    InputError
+        When the file is not valid (file, row and column named) or the points or readings
+        look like another unit than their columns say.
+    """
+    from ..instruments import InstrumentData
+
+    q, rows, extra, q_units = machine_readings(path, machine)
+    header, table = read_table(path)
+    m_cols = [find_column(path, header, c, "length") for c in ("mx", "my", "mz")]
+    m = np.column_stack([_column_values(path, header, table, i, f) for i, f in m_cols])
+    m_units = _one_unit([header[i] for i, _ in m_cols], ["mx", "my", "mz"], "length")
+    if q_units is not None and m_units is not None:
+        check_tracker_scale(path, q, q_units, m, m_units, machine)
+    return InstrumentData("points", q, m, read_groups(path, extra, rows, "target"), rows,
+                          source=str(path))
+
+
+def read_distances(path, machine):
+    """Ballbar measurements: the distance ``d`` between a pivot on the base and a ball on the
+    platform, with the machine's readings.
+
+    Readings ``q1..q<n>``, the distance ``d`` (any length unit, e.g. ``d_mm``) and optionally
+    ``setup`` (1..K: each mounting has its own pivot and ball). Other columns are ignored.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file.
+    machine : Machine
+        The machine.
+
+    Returns
+    -------
+    InstrumentData
+        ``kind="distances"``: readings, distances (m), setups (0-based) and file rows.
+
+    Raises
+    ------
+    InputError
+        When the file is not valid (file, row and column named) or a distance is not > 0.
+    """
+    from ..instruments import InstrumentData
+
+    q, rows, extra, _ = machine_readings(path, machine)
+    header, table = read_table(path)
+    i, f = find_column(path, header, "d", "length")
+    d = _column_values(path, header, table, i, f)
+    bad = np.flatnonzero(~(d > 0))
+    if bad.size:
+        raise InputError(f"{path}: row {rows[bad[0]]}, column {header[i]}: a measured "
+                         f"distance must be > 0, got {table[bad[0]][1][i]!r}")
+    return InstrumentData("distances", q, d[:, None], read_groups(path, extra, rows, "setup"),
+                          rows, source=str(path))
 
 
 def read_tracker(path, machine) -> TrackerData:
@@ -1143,3 +1301,45 @@ def write_full_pose(path, data: FullPoseData, machine, length_unit: str = "mm") 
     extra = {f"{c}_{length_unit}": data.P[:, j] / fl for j, c in enumerate("xyz")}
     extra.update({name: Q[:, j] for j, name in enumerate(("qx", "qy", "qz", "qw"))})
     return write_readings(path, data.q, machine, extra)
+
+
+def write_instrument(path, data, machine, length_unit: str = "mm") -> Path:
+    """Write instrument data: the machine's readings, the measurement, the target / setup.
+
+    Readings as ``q1_<unit> ...`` in the machine file's joint unit
+    (:meth:`~pkmcal.machines.Machine.joint_unit`), then ``mx, my, mz`` (points) or ``d``
+    (distances) in ``length_unit``, then ``target`` / ``setup`` (1..K) when there are several.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file.
+    data : InstrumentData
+        The data (``kind`` ``"points"`` or ``"distances"``).
+    machine : Machine
+        The machine (its joint unit).
+    length_unit : str, optional
+        Column unit of the measurement.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    InputError
+        When ``length_unit`` is not a length unit.
+    """
+    unit, fq = machine.joint_unit()
+    fl = _unit_factor(length_unit, "length")
+    q = np.atleast_2d(np.asarray(data.q, float))
+    header = [f"q{j + 1}_{unit}" for j in range(q.shape[1])]
+    columns = [q[:, j] / fq for j in range(q.shape[1])]
+    names = {"points": [f"m{c}" for c in "xyz"], "distances": ["d"]}[data.kind]
+    header += [f"{n}_{length_unit}" for n in names]
+    columns += [data.values[:, j] / fl for j in range(len(names))]
+    if data.n_groups > 1:
+        header.append({"points": "target", "distances": "setup"}[data.kind])
+        columns.append([int(g) + 1 for g in data.group])
+    return write_table(path, header, columns)
