@@ -59,7 +59,7 @@ def test_simulate_writes_tracker_data_and_truth(delta_dir):
 
 def test_calibrate_summary_and_report(delta_dir):
     out = (delta_dir / "calibrate.out").read_text()
-    for words in ("21 of 33", "leg1.da + leg1.db", "translation of the tracker frame",
+    for words in ("21 of 33", "leg1.da + leg1.db", "translation of the platform frame",
                   "RMS residual", "distance ratio", "54 pairs", "wrote cal.yaml and cal.json"):
         assert words in out, out
     report = json.loads((delta_dir / "cal.json").read_text())
@@ -68,7 +68,7 @@ def test_calibrate_summary_and_report(delta_dir):
     assert ident["free_parameters"] == 33 and ident["identifiable"] == 21
     assert {d["name"] for d in ident["unidentifiable"]} == {
         "leg1.da + leg1.db", "leg2.da + leg2.db", "leg3.da + leg3.db",
-        "translation of the tracker frame"}
+        "translation of the platform frame"}
     res = report["residuals"]
     assert 5 < res["rms_um"] < 40 and res["before_rms_um"] > 300
     assert 0.5 < res["noise_scale"] < 1.5
@@ -156,7 +156,7 @@ def test_robust_flags_the_simulated_outlier_rows(tmp_path):
 
 
 def test_grid_neighbour_pairs_recover_the_grid():
-    from pkmcal.cli._commands import grid_neighbour_pairs
+    from pkmcal.calibration.run import grid_neighbour_pairs
 
     for shape in ((3, 3, 3), (4, 4, 3), (2, 1, 5)):
         P = grid_points([0.1, 0.2, -0.7], (0.15, 0.1, 0.04), shape)

@@ -25,4 +25,4 @@ def test_hexaslide_script(capsys):
 def test_delta_script(capsys):
     out = _load("delta_tracker_calibration").main()
     assert out["after"] < 0.02 * out["before"]
-    assert "translation of the tracker frame" in capsys.readouterr().out
+    assert "translation of the platform frame" in capsys.readouterr().out

@@ -113,7 +113,7 @@ def test_library_explicit_groups_and_combinations(data_files):
     assert rep.identifiable == 21
     assert len(rep.unidentifiable) == 12
     assert all(d.dimension == 1 and "." in d.name for d in rep.unidentifiable)
-    rep2 = identifiability_report(problem, groups=lambda p, s: p.null_groups(p.scales))
+    rep2 = identifiability_report(problem, groups=lambda p, s: p.null_groups(s, p.scales))
     assert [d.name for d in rep2.unidentifiable][:3] == [
         "leg1.da + leg1.db", "leg2.da + leg2.db", "leg3.da + leg3.db"]
 
@@ -163,7 +163,7 @@ def test_cli_summary_delta_and_stewart(data_files, cli):
     proc = cli("identifiability", MACHINES["delta"][0], data_files["delta"])
     assert proc.returncode == 0, proc.stderr
     out = " ".join(proc.stdout.split())
-    assert "21 of 33" in out and "translation of the tracker frame" in out
+    assert "21 of 33" in out and "translation of the platform frame" in out
     proc = cli("identifiability", MACHINES["stewart"][0], data_files["stewart"])
     assert proc.returncode == 0, proc.stderr
     out = " ".join(proc.stdout.split())

@@ -305,7 +305,7 @@ def test_delta_identifiability(delta_demo):
     assert int(free) == int(total) + 6
     dims = {d["name"]: d["dimension"] for d in delta_demo["unidentifiable"]}
     assert sum(v for k, v in dims.items() if "da + " in k) == int(legs)
-    assert dims["translation of the tracker frame"] == int(shift)
+    assert dims["translation of the platform frame"] == int(shift)
     assert int(rank) == int(free) - int(legs) - int(shift)
 
 

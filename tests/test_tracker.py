@@ -87,7 +87,7 @@ def test_rank_21_of_33_and_the_unidentifiable_groups_named(case):
     assert (res.rank, int(res.parameters.free.sum())) == (21, 33)
     assert res.null_space.shape == (33, 12)
     named = {d.name: d.dimension for d in res.extras["unidentifiable"]}
-    assert named == {**dict.fromkeys(LEG_NAMES, 3), "translation of the tracker frame": 3}
+    assert named == {**dict.fromkeys(LEG_NAMES, 3), "translation of the platform frame": 3}
     two = calibrate_tracker(case.nominal, exact, joint=False)
     assert (two.rank, int(two.parameters.free.sum())) == (18, 27)
     assert {d.name: d.dimension for d in two.extras["unidentifiable"]} == \
@@ -339,7 +339,7 @@ def test_any_120_degree_delta_calibrates_equally_well(name):
     res = calibrate_tracker(c.nominal, exact)
     assert res.success and res.rank == 21
     assert {d.name for d in res.extras["unidentifiable"]} == \
-        {*LEG_NAMES, "translation of the tracker frame"}
+        {*LEG_NAMES, "translation of the platform frame"}
     assert c.validation_errors(res).max() <= 1e-9
     # with noise: 40 runs within 1.3x of this geometry's own Cramér-Rao prediction
     C = prediction_covariance(calibrate_tracker(c.true, exact, absolute_sigma=True), c.q_val)

@@ -17,42 +17,34 @@ common shift of the platform joints is a translation of the tracker (3): 21 of 3
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from ..errors import InputError
-from ..identifiability import NullGroup, name_null_space, name_weak_directions
+from ..identifiability import name_null_space, name_weak_directions
 from ..identifiability.rank import RTOL
-from ..kinematics import matrix_from_rotvec, rotvec_from_matrix, skew
+from ..instruments import InstrumentData, InstrumentProblem, InstrumentState, PointsModel
 from ..machines.base import Machine
 from ..measurements.tracker import TrackerData, TrackerNoise
-from ..parameters import ParameterSet
 from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt
-from .registration import register_points
 
 TRACKER = ("tracker.rx", "tracker.ry", "tracker.rz", "tracker.x", "tracker.y", "tracker.z")
 
 
-@dataclass
-class TrackerState:
-    u: np.ndarray            # machine parameters
-    R: np.ndarray            # base_from_tracker rotation
-    t: np.ndarray            # base_from_tracker translation
+class TrackerProblem(InstrumentProblem):
+    """The points instrument (:class:`~pkmcal.instruments.PointsModel`) on a machine, started
+    from a registration: the block problem of tracker calibration.
 
-
-class TrackerProblem:
-    """Block problem (no per-point unknowns) for tracker calibration.
-
-    Global unknowns: the machine's parameters and ``tracker.rx/ry/rz/x/y/z`` (rotation
-    increments about the base axes from the start registration, and the translation).
+    Global unknowns: the machine's parameters, ``tracker.rx/ry/rz/x/y/z`` (rotation increments
+    about the base axes from the start registration, and the translation) and, unless the
+    machine gives it (:meth:`~pkmcal.machines.Machine.tracker_target`, a Delta's
+    ``smr_offset``), the place of each target on the platform, ``target<k>.x/y/z``.
 
     Parameters
     ----------
-    machine : Delta
-        Start geometry (needs ``smr_offset``).
+    machine : Machine
+        Start geometry.
     data : TrackerData
-        Actuator readings and tracker points.
+        Actuator readings and tracker points (``target``: 0-based target of each row).
     noise : TrackerNoise or None
         Whitens the residuals; None: unit weights (to differentiate predictions, not to fit).
     registration : tuple of ndarray
@@ -60,6 +52,8 @@ class TrackerProblem:
     joint : bool, optional
         Estimate the tracker pose together with the errors; False holds it at
         ``registration`` (seed 001's two-step method).
+    targets : array_like, shape (n_targets, 3), optional
+        Start places of the targets on the platform (m); default the machine's, else 0.
 
     Raises
     ------
@@ -67,179 +61,56 @@ class TrackerProblem:
         When the machine's forward kinematics cannot reproduce some readings.
     """
 
-    local_dof = 0
-
     def __init__(self, machine: Machine, data: TrackerData, noise: TrackerNoise | None,
-                 registration, joint: bool = True):
-        self.machine, self.data = machine, data
-        self.R0, self.t0 = registration
-        # noise None: unit weights (used to differentiate predictions, not to fit)
-        self.W = (np.broadcast_to(np.eye(3), (len(data), 3, 3)) if noise is None
-                  else noise.whitening(data.m))
-        self.h = np.array([0.0, 0.0, machine.smr_offset])
-        # residuals are formed about the centroid of the tracker points: the points lie metres
-        # from the tracker, and rounding of R^T (p - t) at that distance made the cost jitter
-        # by ~2e-12 of itself, more than the last Gauss-Newton steps gain (9 of 200 noisy
-        # joint fits ran to max_iter at the optimum; tests/test_tracker.py)
-        self.m0 = data.m.mean(0) if len(data) else np.zeros(3)
-        self.m_centred = data.m - self.m0
-        tracker = ParameterSet(TRACKER, ("angle",) * 3 + ("length",) * 3,
-                               np.concatenate([np.zeros(3), self.t0]), fixed=[not joint] * 6)
-        self.parameters = machine.parameters.concat(tracker)
-        self.scales = machine.scales_with(tracker)
-        self.n_machine = len(machine.parameters)
-        fk = machine.fk(data.q)
-        if not fk.converged.all():
-            rows = data.rows[~fk.converged].tolist()
-            raise InputError(f"{data.source}: rows {rows[:10]}: no platform position "
-                             "reproduces these actuator readings")
-
-    def initial_state(self):
-        """Start state: the machine's parameters and the start registration.
-
-        Returns
-        -------
-        TrackerState
-            The state.
-        """
-        return TrackerState(self.machine.u.copy(), self.R0.copy(), self.t0.copy())
-
-    def global_values(self, state):
-        """Global values of a state: machine parameters, tracker rotation increment, translation.
-
-        Parameters
-        ----------
-        state : TrackerState
-            An estimator state.
-
-        Returns
-        -------
-        ndarray, shape (n_machine + 6,)
-            Parameter values, internal units.
-        """
-        return np.concatenate([state.u, rotvec_from_matrix(state.R @ self.R0.T), state.t])
+                 registration, joint: bool = True, targets=None):
+        idata = as_points(data)
+        model = PointsModel(idata.n_groups, machine.tracker_target(), fix_frame=not joint)
+        R0, t0 = (np.asarray(v, float) for v in registration)
+        values = np.array(model.parameters.values, float)
+        values[3:6] = t0
+        if targets is not None and machine.tracker_target() is None:
+            values[6:] = np.asarray(targets, float).reshape(-1)
+        model.parameters = model.parameters.with_values(values)
+        model.rotation_starts = [R0]
+        model.m0 = idata.values.mean(0) if len(idata) else np.zeros(3)
+        super().__init__(machine, idata, model, noise)
+        self.R0, self.t0 = R0, t0
 
     def predict(self, state, q=None):
         """Predicted tracker points, and the forward kinematics behind them.
 
         Parameters
         ----------
-        state : TrackerState
+        state : InstrumentState
             Machine parameters and tracker pose.
         q : array_like, shape (K, n_joints), optional
-            Actuator readings, rad; default: the data's.
+            Actuator readings, rad; default: the data's (and their targets).
 
         Returns
         -------
         m : ndarray, shape (K, 3)
-            Predicted SMR points in the tracker frame, m.
+            Predicted points in the tracker frame, m (NaN where the FK failed).
         fk : FKResult
-            Forward kinematics of the readings (positions and validity).
+            Forward kinematics of the readings.
         """
-        m_centred, fk = self._predict_centred(state, q)
-        return m_centred + self.m0, fk
+        fk = self.poses(state, q)
+        group = self.data.group if q is None else np.zeros(len(fk.P), int)
+        m = self.model.predict(state.nuisance, fk.P, fk.R, group)
+        return np.where(fk.converged[:, None], m, np.nan), fk
 
-    def _predict_centred(self, state, q=None):
-        """``R^T (p - h - t) - m0`` as ``R^T (p - h - (t + R m0))``: no metre-sized terms."""
-        q = self.data.q if q is None else q
-        fk = self.machine.fk(q, state.u)
-        c = state.t + state.R @ self.m0              # the centroid's place in the base frame
-        return (fk.P - self.h - c) @ state.R, fk
 
-    def evaluate(self, state, jacobian=True):
-        """Whitened point residuals ``W_k (m_k - prediction_k)`` and their Jacobian.
+def as_points(data) -> InstrumentData:
+    """Tracker data as the points instrument's data (``target`` kept as the group)."""
+    if isinstance(data, InstrumentData):
+        return data
+    return InstrumentData("points", data.q, data.m, getattr(data, "target", None), data.rows,
+                          data.source, data.true_P)
 
-        Parameters
-        ----------
-        state : TrackerState
-            Machine parameters and tracker pose.
-        jacobian : bool, optional
-            Also compute the Jacobian.
 
-        Returns
-        -------
-        r : ndarray, shape (K, 3)
-            Whitened residuals; NaN where the forward kinematics failed.
-        J_g : ndarray, shape (K, 3, n_machine + 6) or None
-            Derivatives with respect to the machine parameters and the tracker pose.
-        J_l : None
-            No local unknowns.
-        """
-        m_pred, fk = self._predict_centred(state)
-        e = np.einsum("kij,kj->ki", self.W, self.m_centred - m_pred)
-        e = np.where(fk.converged[:, None], e, np.nan)
-        if not jacobian:
-            return e, None, None
-        _, Jp, Ju = self.machine.ik_jacobians(fk.P, None, state.u)
-        dp_du = -np.linalg.solve(Jp[..., :3], Ju)                  # (K, 3, n_machine)
-        RT = state.R.T
-        x = fk.P - self.h - state.t
-        de_du = -np.einsum("ij,kjn->kin", RT, dp_du)
-        de_dw = -np.einsum("ij,kjl->kil", RT, skew(x))              # rotation on the left
-        de_dt = np.broadcast_to(RT, (len(x), 3, 3))
-        J = np.concatenate([de_du, de_dw, de_dt], -1)
-        return e, np.einsum("kij,kjn->kin", self.W, J), None
-
-    def retract(self, state, du, dl):
-        """The state after a global step (tracker rotation applied on the left).
-
-        Parameters
-        ----------
-        state : TrackerState
-            Current state.
-        du : ndarray, shape (n_machine + 6,)
-            Step of the global parameters.
-        dl : None
-            Unused.
-
-        Returns
-        -------
-        TrackerState
-            The new state.
-        """
-        n = self.n_machine
-        return TrackerState(state.u + du[:n], matrix_from_rotvec(du[n:n + 3]) @ state.R,
-                            state.t + du[n + 3:])
-
-    def null_groups(self, scales):
-        """The known unidentifiable directions, in words (scaled coordinates).
-
-        Per leg ``da + db`` (only ``db - da`` enters the leg equation) and, when the tracker pose
-        is estimated, a translation of the tracker with every platform joint.
-
-        Parameters
-        ----------
-        scales : ndarray, shape (n,)
-            Column scales; the directions are returned in scaled coordinates.
-
-        Returns
-        -------
-        list of NullGroup
-            The groups.
-        """
-        p, n = self.parameters, len(self.parameters)
-        groups = []
-        for i in range(self.machine.n_joints):
-            T = np.zeros((n, 3))
-            for k, c in enumerate("xyz"):
-                T[p.index(f"leg{i + 1}.da.{c}"), k] = 1.0
-                T[p.index(f"leg{i + 1}.db.{c}"), k] = 1.0
-            groups.append(NullGroup(
-                f"leg{i + 1}.da + leg{i + 1}.db",
-                "the base joint and the platform joint of the leg shifted together change "
-                "nothing: only db - da enters the leg equation (seed 001 eq. 5)",
-                T / scales[:, None]))
-        if not p.fixed[p.index("tracker.x")]:
-            T = np.zeros((n, 3))
-            for i in range(self.machine.n_joints):
-                T[p.indices(f"leg{i + 1}.db"), :] = self.machine.Rphi[i]
-            T[p.indices(["tracker.x", "tracker.y", "tracker.z"]), :] = -np.eye(3)
-            groups.append(NullGroup(
-                "translation of the tracker frame",
-                "moving the tracker and shifting every platform joint by the same vector "
-                "changes no measurement: the data do not fix the origin of the base frame",
-                T / scales[:, None]))
-        return groups
+def registration_of(state) -> tuple[np.ndarray, np.ndarray]:
+    """``base_from_tracker = (R, t)`` of a tracker problem's state."""
+    v = state.nuisance.values
+    return state.nuisance.rotations[0], np.array(v[3:6], float)
 
 
 def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise | None = None,
@@ -293,12 +164,22 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
         rows = data.rows[~fk.converged].tolist()
         raise InputError(f"{data.source}: rows {rows[:10]}: no platform position reproduces "
                          "these actuator readings")
-    smr = fk.P - np.array([0.0, 0.0, machine.smr_offset])
-    registration = register_points(data.m, smr, f"{data.source}: tracker registration")
+    idata = as_points(data)
+    start_model = PointsModel(idata.n_groups, machine.tracker_target()).start(
+        fk.P, fk.R, idata.values, idata.group, data.source)
+    registration = (start_model.rotation_starts[0], start_model.parameters.values[3:6].copy())
+    targets = None
+    if machine.tracker_target() is None:
+        # the targets' places are unknown: fit them with the frame on the start geometry
+        # first (the closed-form registration puts them at the platform origin)
+        alone = TrackerProblem(machine, data, noise, registration, True).with_machine_fixed()
+        first = levenberg_marquardt(alone, rtol=rtol, **{"max_std": MAX_STD, **options})
+        registration = registration_of(first.state)
+        targets = first.state.nuisance.values[6:].copy()
     keep = np.ones(len(data), bool)
     for _ in range(10 if robust else 1):
         sub = data.subset(keep)
-        problem = TrackerProblem(machine, sub, noise, registration, joint)
+        problem = TrackerProblem(machine, sub, noise, registration, joint, targets)
         n_id = int(problem.parameters.free.sum()) - (12 if joint else 9)
         if 3 * len(sub) < n_id:
             raise InputError(f"{data.source}: {len(sub)} points give {3 * len(sub)} "
@@ -306,8 +187,8 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
         result = levenberg_marquardt(problem, rtol=rtol, **{"max_std": MAX_STD, **options})
         if not robust:
             break
-        e_all, _, _ = TrackerProblem(machine, data, noise, registration, joint).evaluate(
-            result.state, jacobian=False)
+        e_all, _, _ = TrackerProblem(machine, data, noise, registration, joint,
+                                     targets).evaluate(result.state, jacobian=False)
         norm2 = np.sum(e_all**2, -1)
         scale2 = np.median(norm2[keep]) / 2.366                 # chi2(3) median
         new_keep = norm2 <= outlier_threshold**2 * scale2
@@ -316,20 +197,22 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
         keep = new_keep
     state = result.state
     calibrated = machine.with_parameters(state.u)
-    calibrated.base_from_tracker = (state.R, state.t)
+    calibrated.base_from_tracker = registration_of(state)
     result.extras.update(
         problem=problem,
         method="tracker-joint" if joint else "tracker-two-step", machine=calibrated,
-        registration=(state.R, state.t), start_registration=registration,
+        registration=registration_of(state), start_registration=registration,
+        targets=problem.model.targets(state.nuisance).copy(),
         outlier_rows=data.rows[~keep], kept=keep,
         unidentifiable=name_null_space(result.null_space, problem.parameters,
-                                       problem.null_groups(result.scales))
+                                       problem.null_groups(state, result.scales,
+                                                           result.null_space))
         + name_weak_directions(result, problem.parameters),
     )
     return result
 
 
-def predict_tracker_points(machine: Machine, q, base_from_tracker):
+def predict_tracker_points(machine: Machine, q, base_from_tracker, targets=None, target=None):
     """Tracker-frame SMR points predicted by a model for actuator readings.
 
     Parameters
@@ -347,8 +230,15 @@ def predict_tracker_points(machine: Machine, q, base_from_tracker):
         Predicted points, m, tracker frame (NaN where the forward kinematics fail).
     """
     R, t = base_from_tracker
-    P = machine.fk(q).P
-    return (P - np.array([0.0, 0.0, machine.smr_offset]) - t) @ R
+    fk = machine.fk(q)
+    c = machine.tracker_target()
+    if c is None:
+        c = np.zeros(3) if targets is None else np.asarray(targets, float).reshape(-1, 3)
+    c = np.asarray(c, float)
+    if c.ndim == 2:
+        c = c[np.zeros(len(fk.P), int) if target is None else np.asarray(target, int)]
+    x = fk.P + np.einsum("kij,...j->ki", fk.R, c)
+    return (x - t) @ R
 
 
 def distance_ratios(machine: Machine, q, m, pairs):
@@ -402,8 +292,10 @@ def prediction_covariance(result: CalibrationResult, q):
         When the model cannot reproduce some readings.
     """
     problem = result.extras["problem"]
-    pseudo = TrackerData(np.atleast_2d(q), np.zeros((len(np.atleast_2d(q)), 3)))
-    unit = TrackerProblem(problem.machine, pseudo, None,
-                          (problem.R0, problem.t0), joint=True)
-    _, J, _ = unit.evaluate(result.state)                    # = -d(prediction)/dx
+    q = np.atleast_2d(q)
+    pseudo = InstrumentData("points", q, np.zeros((len(q), 3)))
+    unit = InstrumentProblem(problem.machine, pseudo, problem.model, None)
+    start = unit.initial_state()
+    state = InstrumentState(result.state.u, result.state.nuisance, start.P, start.R)
+    _, J, _ = unit.evaluate(state)                           # = -d(prediction)/dx
     return np.einsum("kin,nm,kjm->kij", J, result.covariance, J)

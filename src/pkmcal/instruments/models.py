@@ -268,14 +268,13 @@ class PointsModel(NuisanceModel):
         self.known_target = None if known_target is None else np.asarray(known_target, float)
         frame = ParameterSet([f"tracker.{k}" for k in ROT + XYZ], ["angle"] * 3 + ["length"] * 3,
                              np.zeros(6), fixed=[fix_frame] * 6)
-        targets = _vector_parameters([f"target{g + 1}" for g in range(self.n_targets)])
-        if self.known_target is not None:
-            targets = ParameterSet(targets.names, targets.kinds,
-                                   np.tile(self.known_target, self.n_targets),
-                                   fixed=[True] * len(targets))
-        super().__init__(frame.concat(targets))
-        self._it = np.stack([self.parameters.indices(f"target{g + 1}")
-                             for g in range(self.n_targets)])
+        if self.known_target is None:
+            frame = frame.concat(_vector_parameters([f"target{g + 1}"
+                                                     for g in range(self.n_targets)]))
+        super().__init__(frame)
+        self._it = (np.stack([self.parameters.indices(f"target{g + 1}")
+                              for g in range(self.n_targets)])
+                    if self.known_target is None else None)
         #: tracker-frame centroid of the measured points (residuals are formed about it: the
         #: points lie metres from the tracker and rounding there would limit the precision)
         self.m0 = np.zeros(3)
@@ -283,7 +282,7 @@ class PointsModel(NuisanceModel):
     def residuals(self, state, P, R, measured, group, jacobian=True):
         A = self.rotation(state, "tracker")
         a = self.vector(state, "tracker")
-        c = state.values[self._it][group]                                  # (K, 3)
+        c = self.targets(state)[group]                                     # (K, 3)
         Rc = np.einsum("kij,kj->ki", R, c)
         y = P + Rc - (a + A @ self.m0)                                      # no metre terms
         e = (measured - self.m0) - y @ A
@@ -297,11 +296,29 @@ class PointsModel(NuisanceModel):
         y_full = P + Rc - a
         de_dv[:, :, 0:3] = -AT @ skew(y_full)                              # A <- exp(w) A
         de_dv[:, :, 3:6] = AT
-        ARt = -AT @ R                                                      # d/dc = -A^T R
-        for g in range(self.n_targets):
-            rows = np.flatnonzero(group == g)
-            de_dv[np.ix_(rows, np.arange(3), self._it[g])] = ARt[rows]
+        if self._it is not None:
+            ARt = -AT @ R                                                  # d/dc = -A^T R
+            for g in range(self.n_targets):
+                rows = np.flatnonzero(group == g)
+                de_dv[np.ix_(rows, np.arange(3), self._it[g])] = ARt[rows]
         return e, de_dpose, de_dv
+
+    def targets(self, state) -> np.ndarray:
+        """Places of the targets on the platform (n_targets, 3), m.
+
+        Parameters
+        ----------
+        state : NuisanceState
+            The state.
+
+        Returns
+        -------
+        ndarray, shape (n_targets, 3)
+            The machine file's target for each, or the estimated places.
+        """
+        if self._it is None:
+            return np.tile(self.known_target, (self.n_targets, 1))
+        return state.values[self._it]
 
     def start(self, P, R, measured, group, source="<data>"):
         from ..calibration.registration import register_points
@@ -314,7 +331,8 @@ class PointsModel(NuisanceModel):
         new.__dict__.update(self.__dict__)
         values = np.array(self.parameters.values, float)
         values[3:6] = a
-        values[self._it.ravel()] = c.ravel()
+        if self._it is not None:
+            values[self._it.ravel()] = c.ravel()
         new.parameters = self.parameters.with_values(values)
         new.rotation_starts = [A]
         new.m0 = measured.mean(0) if len(measured) else np.zeros(3)

@@ -105,6 +105,21 @@ class InstrumentProblem:
         #: no more precise than that, in units of the noise
         self.cost_floor = 0.0
 
+    def with_machine_fixed(self) -> InstrumentProblem:
+        """A copy that holds every machine parameter (fits the instrument's unknowns alone).
+
+        Returns
+        -------
+        InstrumentProblem
+            A shallow copy with the machine's parameters fixed.
+        """
+        new = self.__class__.__new__(self.__class__)
+        new.__dict__.update(self.__dict__)
+        mp = self.machine.parameters.with_fixed(list(self.machine.parameters.names))
+        new.parameters = mp.concat(self.model.parameters)
+        new.fit_machine = False
+        return new
+
     # -- state ----------------------------------------------------------------------------
     def initial_state(self) -> InstrumentState:
         """Start state: the machine's parameters, the model's start values and the poses.
@@ -169,7 +184,11 @@ class InstrumentProblem:
             Poses and convergence.
         """
         if q is None:
-            return self.machine.fk(self.data.q, state.u, start=(state.P, state.R))
+            # warm start from the state's poses (another problem's state, e.g. of a subset of
+            # the rows, starts from this problem's own)
+            same = np.shape(state.P) == self._P0.shape
+            start = (state.P, state.R) if same else (self._P0, self._R0)
+            return self.machine.fk(self.data.q, state.u, start=start)
         return self.machine.fk(np.atleast_2d(q), state.u)
 
     def evaluate(self, state, jacobian=True):
@@ -193,21 +212,24 @@ class InstrumentProblem:
         """
         fk = self.poses(state)
         ok = fk.converged
-        state.P = np.where(ok[:, None], fk.P, state.P)
-        state.R = np.where(ok[:, None, None], fk.R, state.R)
-        e, de_dx, de_dv = self.model.residuals(state.nuisance, state.P, state.R,
-                                               self.data.values, self.data.group, jacobian)
+        if np.shape(state.P) == fk.P.shape:
+            state.P = np.where(ok[:, None], fk.P, state.P)     # the next evaluation's start
+            state.R = np.where(ok[:, None, None], fk.R, state.R)
+        P = np.where(ok[:, None], fk.P, self._P0)
+        R = np.where(ok[:, None, None], fk.R, self._R0)
+        e, de_dx, de_dv = self.model.residuals(state.nuisance, P, R, self.data.values,
+                                               self.data.group, jacobian)
         r = np.einsum("kij,kj->ki", self.W, e)
         r = np.where(ok[:, None], r, np.nan)
         if not jacobian:
             return r, None, None
-        de_du = self._through_fk(state, de_dx)
+        de_du = self._through_fk(state.u, P, R, de_dx)
         J = np.concatenate([de_du, de_dv], -1)
         return r, np.einsum("kij,kjn->kin", self.W, J), None
 
-    def _through_fk(self, state, de_dx):
+    def _through_fk(self, u, P, R, de_dx):
         """``de/du = de/dx dx/du`` with ``dx/du = -(dq/dx)^-1 dq/du`` (implicit function)."""
-        _, Jx, Ju = self.machine.ik_jacobians(state.P, state.R, state.u)
+        _, Jx, Ju = self.machine.ik_jacobians(P, R, u)
         d = self.machine.pose_dof
         cols = slice(0, 3) if d == 3 else slice(None)
         with np.errstate(all="ignore"):

@@ -264,6 +264,16 @@ class Machine(ABC):
             sv = np.linalg.svd(Js, compute_uv=False)
         return bad, not sv[-1] > 1e-9 * sv[0]
 
+    def tracker_target(self) -> np.ndarray | None:
+        """The place of a tracker's target on the platform when the machine file gives it.
+
+        Returns
+        -------
+        ndarray, shape (3,) or None
+            Platform-frame point, m; None (the default): the calibration estimates it.
+        """
+        return None
+
     def reading_sigma(self, sigma_length: float) -> np.ndarray:
         """Standard deviation of each joint reading for a reading noise stated as a length.
 

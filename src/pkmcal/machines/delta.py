@@ -463,6 +463,16 @@ class Delta(Machine):
             P = P - np.linalg.solve(J[..., :3], r[..., None])[..., 0]
         return P
 
+    def tracker_target(self) -> np.ndarray:
+        """The reflector ``smr_offset`` below the platform point (seed 001), platform frame.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            ``(0, 0, -smr_offset)``, m.
+        """
+        return np.array([0.0, 0.0, -self.smr_offset])
+
     # -- frames ---------------------------------------------------------------------------
     def frame_motions(self, u=None):
         """The Delta's invisible combinations (seed 001 eq. 5; SPEC 2.2).

@@ -118,6 +118,8 @@ class TrackerData:
         Simulated platform positions (base frame), m; None for real data.
     outliers : ndarray of bool, shape (K,), optional
         Rows a simulation corrupted on purpose; None for real data.
+    target : ndarray of int, shape (K,), optional
+        0-based target (reflector nest) of each row when there are several; None: one.
     """
 
     q: np.ndarray
@@ -126,10 +128,13 @@ class TrackerData:
     source: str = "<data>"
     true_P: np.ndarray | None = None
     outliers: np.ndarray | None = None
+    target: np.ndarray | None = None
 
     def __post_init__(self):
         self.q = np.atleast_2d(np.asarray(self.q, float))
         self.m = np.atleast_2d(np.asarray(self.m, float))
+        if self.target is not None:
+            self.target = np.asarray(self.target, int)
         if self.rows is None:
             self.rows = np.arange(1, len(self.q) + 1)
 
@@ -153,7 +158,7 @@ class TrackerData:
             return None if a is None else a[mask]
 
         return TrackerData(self.q[mask], self.m[mask], self.rows[mask], self.source,
-                           pick(self.true_P), pick(self.outliers))
+                           pick(self.true_P), pick(self.outliers), pick(self.target))
 
 
 #: seed 001's measurement grid: dx = dy = 150 mm, dz = 40 mm
