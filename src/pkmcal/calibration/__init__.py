@@ -21,6 +21,16 @@ from .full_pose import (
     gauge_free_error,
 )
 from .registration import register_points
+from .run import (
+    KINDS,
+    Calibration,
+    CalibrationNotConverged,
+    MeasurementKind,
+    calibrate,
+    measurement_kind,
+    register_kind,
+    supported_kinds,
+)
 from .start import StartReport, continuation_solve, sphere_pose_candidates, start_sensitivity
 from .tracker import (
     TrackerProblem,
@@ -39,4 +49,6 @@ __all__ = ["METHODS", "BlockProblem", "CalibrationResult", "ConstraintLinkFK",
            "solve_sphere_poses", "TrackerProblem", "calibrate_tracker", "distance_ratios",
            "predict_tracker_points", "prediction_covariance", "register_points",
            "constraint_link_reading_rms", "holdout_split", "StartReport", "continuation_solve",
-           "sphere_pose_candidates", "start_sensitivity"]
+           "sphere_pose_candidates", "start_sensitivity", "KINDS", "Calibration",
+           "CalibrationNotConverged", "MeasurementKind", "calibrate", "measurement_kind",
+           "register_kind", "supported_kinds"]

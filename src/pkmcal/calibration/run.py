@@ -1,0 +1,1550 @@
+"""One calibration of a machine from a data file, as ``pkmcal calibrate`` runs it.
+
+:func:`calibrate` tells the measurement kind from the data's columns, checks the options that
+apply to it, holds out rows for validation when asked, runs the kind's estimator and builds
+the report (the JSON ``pkmcal calibrate`` writes beside the calibrated file) and the
+calibrated file's ``calibration:`` section. It prints nothing: what the command prints as
+warnings is in :attr:`Calibration.warnings`. :meth:`Calibration.write` writes the calibrated
+machine file, its report and optionally the HTML report, all together or none.
+
+Measurement kinds are entries of :data:`KINDS` (:func:`register_kind`): how to recognise the
+data, which options apply, what the data need (for messages) and the handler that calibrates.
+Adding a kind is adding an entry; neither the estimator nor the command line changes.
+
+Options may be given as the user's strings (``"2um"``, ``"leica"``, ``"20um,50urad"``,
+``"20%"``), parsed with the messages of the command line, or as SI numbers and noise models.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConvergenceError, InputError
+
+__all__ = ["KINDS", "WHITENED_METHODS", "Calibration", "CalibrationNotConverged",
+           "CalibrateOptions", "MeasurementKind", "calibrate", "distance_ratio_pairs",
+           "file_units", "full_pose_noise_arg", "grid_neighbour_pairs", "holdout_arg",
+           "json_safe", "link_noise_arg", "measurement_kind", "provenance", "register_kind",
+           "rows_text", "supported_kinds", "text_digest", "tracker_noise_arg", "versions"]
+
+
+# --------------------------------------------------------------------------------------------
+# small helpers shared with the command line
+# --------------------------------------------------------------------------------------------
+
+
+def json_safe(value):
+    """A value made JSON-safe: NaN and infinities become None, numpy values Python ones.
+
+    Parameters
+    ----------
+    value : object
+        A number, array, list, tuple or dict (nested), or anything else (returned as is).
+
+    Returns
+    -------
+    object
+        The same structure with lists for arrays and tuples, Python numbers for numpy
+        scalars and None for non-finite floats.
+    """
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return json_safe(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+def rows_text(rows, limit: int = 10) -> str:
+    """Row numbers for a message: the first ``limit``, then ``...``.
+
+    Parameters
+    ----------
+    rows : iterable of int
+        Row numbers.
+    limit : int, optional
+        How many to show.
+
+    Returns
+    -------
+    str
+        E.g. ``"3, 7, 12"``.
+    """
+    rows = [int(r) for r in rows]
+    return ", ".join(map(str, rows[:limit])) + (" ..." if len(rows) > limit else "")
+
+
+def file_units(machine) -> dict:
+    """The units of a machine's file (its ``units`` section), the defaults when it has none.
+
+    Parameters
+    ----------
+    machine : Machine
+        A machine, loaded from a file or not.
+
+    Returns
+    -------
+    dict
+        ``{"length": ..., "angle": ...}``.
+    """
+    from ..io.machine_file import DEFAULT_UNITS
+
+    return dict(getattr(machine, "file_units", None) or DEFAULT_UNITS)
+
+
+def text_digest(text: str) -> str:
+    """SHA-256 (hex) of a text's UTF-8 bytes: how a calibrated file pins its JSON report.
+
+    Parameters
+    ----------
+    text : str
+        The text.
+
+    Returns
+    -------
+    str
+        64 hexadecimal digits.
+    """
+    import hashlib
+
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def versions(*extra: str) -> dict:
+    """Versions of Python, pkmcal, numpy, scipy and the ``extra`` packages.
+
+    Parameters
+    ----------
+    *extra : str
+        Further distribution names.
+
+    Returns
+    -------
+    dict
+        Name -> version (None: not installed).
+    """
+    import platform
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for name in ("pkmcal", "numpy", "scipy", *extra):
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def provenance() -> dict:
+    """The command line, the versions and the platform that produce a report.
+
+    Returns
+    -------
+    dict
+        ``command`` (``pkmcal`` and this process's arguments), the :func:`versions` and
+        ``platform``.
+    """
+    import platform
+    import shlex
+    import sys
+
+    return {"command": "pkmcal " + shlex.join(sys.argv[1:]), **versions(),
+            "platform": platform.platform()}
+
+
+def _source_of(machine) -> str:
+    """The machine's file (``default`` for the embedded one), else its name."""
+    return str(getattr(machine, "source", None) or getattr(machine, "name", None)
+               or "the machine")
+
+
+# --------------------------------------------------------------------------------------------
+# options given as the user's strings
+# --------------------------------------------------------------------------------------------
+
+
+def holdout_arg(text: str) -> float:
+    """``--holdout``: a share (0.2 or 20%) or a whole number of rows (30).
+
+    Parameters
+    ----------
+    text : str
+        The option's text.
+
+    Returns
+    -------
+    float
+        The share (< 1) or the count; the range is checked against the data by
+        :func:`~pkmcal.calibration.holdout_split`.
+
+    Raises
+    ------
+    InputError
+        When the text is neither.
+    """
+    t = text.strip()
+    try:
+        value = float(t[:-1]) / 100 if t.endswith("%") else float(t)
+    except ValueError:
+        value = float("nan")
+    if not np.isfinite(value) or (t.endswith("%") and not 0 < value < 1):
+        raise InputError(f"--holdout {text}: give the share of rows to hold out (e.g. 0.2 or "
+                         "20%) or their number (e.g. 30)")
+    return value
+
+
+def link_noise_arg(text: str | float | None, machine=None) -> float:
+    """The encoder noise of constraint-link data (``--noise``, default 1 um), m.
+
+    Parameters
+    ----------
+    text : str or float or None
+        A length with its unit (``"2um"``), a number in metres, or None for 1 um.
+    machine : Machine, optional
+        Checked against its size when given.
+
+    Returns
+    -------
+    float
+        The standard deviation, m.
+
+    Raises
+    ------
+    InputError
+        When it is not a positive length or implausible for the machine.
+    """
+    from ..io.plausibility import check_option_scale
+    from ..units import parse_quantity
+
+    if text is None or (isinstance(text, str) and not text):
+        text = "1um"
+    sigma = float(text) if isinstance(text, (int, float)) else \
+        parse_quantity(text, "length", "--noise")
+    if not sigma > 0:
+        raise InputError(f"--noise: must be > 0 (the standard deviation of the encoder "
+                         f"noise), got {text}")
+    if machine is not None:
+        check_option_scale(sigma, machine, "--noise", "noise", str(text))
+    return sigma
+
+
+def tracker_noise_arg(text: str | None, allow_none: bool, machine=None):
+    """The tracker noise model of ``--noise``: leica (default), none, or a length.
+
+    Parameters
+    ----------
+    text : str or None
+        ``leica`` or None (the default model), ``none``, or a length for isotropic noise.
+    allow_none : bool
+        Whether ``none`` (exact points, a simulation) is allowed.
+    machine : Machine, optional
+        The length is checked against its size when given.
+
+    Returns
+    -------
+    tuple
+        ``(TrackerNoise or None, description)``.
+
+    Raises
+    ------
+    InputError
+        When the text is not a noise model allowed here.
+    """
+    from ..io.plausibility import check_option_scale
+    from ..measurements import TrackerNoise
+    from ..units import parse_quantity
+
+    if text is None or text.strip().lower() == "leica":
+        return TrackerNoise(), "leica (5 um along the beam, 7.5 um + 3 um/m across)"
+    if text.strip().lower() == "none":
+        if not allow_none:
+            raise InputError("--noise none: the calibration weighs the points by their noise; "
+                             "give leica or a length such as 10um")
+        return None, "none"
+    sigma = parse_quantity(text, "length", "--noise")
+    if sigma == 0 and allow_none:
+        return None, "none"
+    if not sigma > 0:
+        raise InputError(f"--noise: must be > 0 (a standard deviation), leica or none; got "
+                         f"{text}")
+    if machine is not None:
+        check_option_scale(sigma, machine, "--noise", "noise", text)
+    return TrackerNoise(sigma, sigma, 0.0), f"isotropic {sigma * 1e6:.4g} um"
+
+
+def _tracker_noise_text(model) -> str:
+    """Words of a :class:`~pkmcal.measurements.TrackerNoise` given as an object."""
+    from ..measurements import TrackerNoise
+
+    if model == TrackerNoise():
+        return tracker_noise_arg(None, allow_none=False)[1]
+    if model.distance == model.transverse and model.transverse_per_m == 0:
+        return f"isotropic {model.distance * 1e6:.4g} um"
+    return (f"{model.distance * 1e6:.4g} um along the beam, {model.transverse * 1e6:.4g} um + "
+            f"{model.transverse_per_m * 1e6:.4g} um/m across")
+
+
+def full_pose_noise_arg(noise: str | None, pose_noise: str | None, strict: bool,
+                        machine=None):
+    """The full-pose noise model of ``--noise`` and ``--pose-noise``.
+
+    Parameters
+    ----------
+    noise : str or None
+        Noise of the readings, as a leg length (default: the model's).
+    pose_noise : str or None
+        ``POSITION,ORIENTATION`` with units (e.g. ``20um,50urad``; default: the model's).
+    strict : bool
+        Every standard deviation must be > 0 (a calibration weighs by them); else >= 0 (a
+        simulation may be exact).
+    machine : Machine, optional
+        The values are checked against its size when given.
+
+    Returns
+    -------
+    FullPoseNoise
+        The noise model, SI units.
+
+    Raises
+    ------
+    InputError
+        When a value is malformed, out of range or implausible for the machine.
+    """
+    from ..io.plausibility import check_option_scale
+    from ..measurements import FullPoseNoise
+    from ..units import parse_quantity
+
+    default = FullPoseNoise()
+    reading = default.reading_m if noise is None else parse_quantity(noise, "length", "--noise")
+    if pose_noise is None:
+        position, orientation = default.position_m, default.orientation_rad
+    else:
+        parts = [p.strip() for p in str(pose_noise).split(",")]
+        if len(parts) != 2:
+            raise InputError(f"--pose-noise: expected POSITION,ORIENTATION with units (e.g. "
+                             f"20um,50urad), got {pose_noise!r}")
+        position = parse_quantity(parts[0], "length", "--pose-noise (position)")
+        orientation = parse_quantity(parts[1], "angle", "--pose-noise (orientation)")
+    for option, value, text in (("--noise", reading, noise),
+                                ("--pose-noise", position, pose_noise),
+                                ("--pose-noise", orientation, pose_noise)):
+        if not (math.isfinite(value) and (value > 0 if strict else value >= 0)):
+            need = ("must be > 0 (a standard deviation that weighs the residuals)" if strict
+                    else "must be >= 0")
+            raise InputError(f"{option}: {need}, got {text}")
+    if machine is not None:
+        check_option_scale(reading, machine, "--noise", "noise", noise)
+        check_option_scale(position, machine, "--pose-noise (position)", "noise", pose_noise)
+        check_option_scale(orientation, machine, "--pose-noise (orientation)", "angle noise",
+                           pose_noise)
+    return FullPoseNoise(reading, position, orientation)
+
+
+# --------------------------------------------------------------------------------------------
+# measurement kinds
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CalibrateOptions:
+    """The options of :func:`calibrate` a measurement kind may use or refuse.
+
+    Attributes
+    ----------
+    method : str or None
+        Estimation method (kind-specific; None: the kind's default).
+    noise : object
+        Noise of the measurements: the user's text, or an SI number / noise model.
+    pose_noise : str or None
+        Noise of measured poses (full-pose data), ``POSITION,ORIENTATION``.
+    estimate_lc : bool or None
+        Constraint link: estimate the link length (None: the method's default).
+    two_step : bool
+        Tracker: registration first, then the errors.
+    robust : bool
+        Tracker: find and leave out outliers.
+    fix_frames : bool
+        Full pose: hold the measurement frames at the machine file's.
+    """
+
+    method: str | None = None
+    noise: object = None
+    pose_noise: str | None = None
+    estimate_lc: bool | None = None
+    two_step: bool = False
+    robust: bool = False
+    fix_frames: bool = False
+
+
+@dataclass(frozen=True)
+class MeasurementKind:
+    """One kind of calibration data: how to recognise it and how to calibrate from it.
+
+    Attributes
+    ----------
+    name : str
+        The kind's name (the report's ``measurement``).
+    columns : str
+        What a data file of this kind holds, for messages.
+    detect : callable
+        ``detect(header) -> bool``: whether a data file's columns are of this kind.
+    calibrate : callable
+        ``calibrate(machine, data, source, options, split) -> Calibration``; ``data`` is a
+        path or a data object, ``split`` None or ``(holdout, seed)``.
+    check_options : callable
+        ``check_options(options, source)``: raise :class:`InputError` for options that do not
+        apply.
+    machines : tuple of str or None
+        Machine types (``Machine.kind``) calibrated from this kind; None: every machine.
+    data_class : str
+        Class name of the data objects of this kind (data given in memory).
+    priority : int
+        Kinds are tried in increasing priority (a fallback such as readings-only data last).
+    readings_only : bool
+        The kind's data are joint readings alone (no instrument column).
+    missing : tuple of str or None
+        ``(columns, words)``: when readings-only data are given for a machine calibrated from
+        this kind, the message names these missing columns and the instrument.
+    """
+
+    name: str
+    columns: str
+    detect: Callable
+    calibrate: Callable
+    check_options: Callable
+    machines: tuple[str, ...] | None = None
+    data_class: str = ""
+    priority: int = 50
+    readings_only: bool = False
+    missing: tuple[str, str] | None = None
+
+
+#: the measurement kinds :func:`calibrate` knows, by name (:func:`register_kind`)
+KINDS: dict[str, MeasurementKind] = {}
+
+
+def register_kind(kind: MeasurementKind) -> MeasurementKind:
+    """Make a measurement kind known to :func:`calibrate` (replacing one of the same name).
+
+    Parameters
+    ----------
+    kind : MeasurementKind
+        The kind.
+
+    Returns
+    -------
+    MeasurementKind
+        ``kind``.
+    """
+    KINDS[kind.name] = kind
+    return kind
+
+
+def _kinds() -> list[MeasurementKind]:
+    return sorted(KINDS.values(), key=lambda k: k.priority)
+
+
+def supported_kinds(machine) -> dict[str, str]:
+    """The measurement kinds ``machine`` can be calibrated from, with the columns they need.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine.
+
+    Returns
+    -------
+    dict
+        Kind name -> what its data file holds.
+    """
+    return {k.name: k.columns for k in _kinds()
+            if k.machines is None or machine.kind in k.machines}
+
+
+def measurement_kind(path, header: list[str], machine) -> str:
+    """The measurement kind of a data file, from its columns, for ``machine``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file (named in messages).
+    header : list of str
+        Its column names.
+    machine : Machine
+        The machine to calibrate.
+
+    Returns
+    -------
+    str
+        A key of :data:`KINDS`.
+
+    Raises
+    ------
+    InputError
+        When the columns match no kind, or ``machine`` cannot be calibrated from that kind.
+    """
+    supported = supported_kinds(machine)
+    need = "; ".join(f"{k}: {v}" for k, v in supported.items()) or "none yet"
+    found = next((k for k in _kinds() if k.detect(header)), None)
+    if found is None:
+        raise InputError(f"{path}: cannot tell the measurement type from the columns "
+                         f"({', '.join(header)}); a {machine.kind} is calibrated from {need}")
+    if found.name not in supported:
+        hints = [KINDS[k].missing for k in supported if KINDS[k].missing]
+        if found.readings_only and hints:
+            columns, words = hints[0]
+            raise InputError(f"{path}: missing columns {columns}: a {machine.kind} is "
+                             f"calibrated from {words} ({need}); columns found: "
+                             f"{', '.join(header)}")
+        raise InputError(f"{path}: {found.name} measurements of a {machine.kind} cannot be "
+                         f"calibrated yet; this version calibrates a {machine.kind} from {need}")
+    return found.name
+
+
+def _has(header, base: str) -> bool:
+    return any(n == base or n.startswith(base + "_") for n in header)
+
+
+# --------------------------------------------------------------------------------------------
+# the result
+# --------------------------------------------------------------------------------------------
+
+
+class CalibrationNotConverged(ConvergenceError):
+    """The estimator did not converge; nothing to write.
+
+    Parameters
+    ----------
+    message : str
+        Why, naming the data, and what to try.
+    result : CalibrationResult, optional
+        The estimator's last state (also the attribute ``result``).
+    """
+
+    def __init__(self, message: str, result=None):
+        super().__init__(message)
+        self.result = result
+
+
+@dataclass
+class Calibration:
+    """A calibration of a machine from one data set (:func:`calibrate`).
+
+    Attributes
+    ----------
+    kind : str
+        The measurement kind (a key of :data:`KINDS`).
+    machine : Machine
+        The machine as given (the nominal, start geometry).
+    calibrated : Machine
+        The calibrated machine.
+    result : CalibrationResult
+        The estimator's result.
+    report : dict
+        The report (what ``pkmcal calibrate`` writes as JSON beside the calibrated file; not
+        finite values stay NaN here, :meth:`json_text` makes them null).
+    metadata : dict
+        The calibrated file's ``calibration:`` section (the report's name and digest are
+        added by :meth:`write`).
+    params : list of dict
+        The parameter table: name, kind, unit, nominal, identified, change, std, fixed and
+        the change in scaled units (``scaled_change``).
+    warnings : list of str
+        What the calibration warns about (rows left out, residuals beyond the noise,
+        suspicious changes), each naming the data.
+    units : dict
+        The units of the machine file (``length``, ``angle``), used by :meth:`write`.
+    inputs : list of pathlib.Path
+        The files read (never overwritten by :meth:`write`).
+    """
+
+    kind: str
+    machine: object
+    calibrated: object
+    result: object
+    report: dict
+    metadata: dict
+    params: list
+    warnings: list = field(default_factory=list)
+    units: dict = field(default_factory=dict)
+    inputs: list = field(default_factory=list)
+
+    def json_text(self) -> str:
+        """The report as JSON text (not finite numbers as null), as :meth:`write` writes it.
+
+        Returns
+        -------
+        str
+            Indented JSON ending with a newline.
+        """
+        return json.dumps(json_safe(self.report), indent=2, allow_nan=False) + "\n"
+
+    def write(self, output, report_dir=None) -> str:
+        """Write the calibrated machine file, its JSON report beside it (same name, .json) and
+        with ``report_dir`` the HTML report and its JSON twin: all together or none.
+
+        Inside an active :class:`~pkmcal.io.atomic.OutputSet` (a ``pkmcal`` command) the
+        files are staged in it and the set is committed; else they are written in a set of
+        their own. The machine file names its report and pins it by SHA-256; it is checked to
+        load back before anything is written.
+
+        Parameters
+        ----------
+        output : str or os.PathLike
+            The calibrated machine file (YAML).
+        report_dir : str or os.PathLike, optional
+            Directory for ``report.html`` and ``report.json`` (created when missing).
+
+        Returns
+        -------
+        str
+            The JSON report's text.
+
+        Raises
+        ------
+        InputError
+            When ``output`` ends in .json, or an output cannot be written or would replace
+            an input.
+        """
+        from ..io import atomic_write_text, machine_to_text, parse_machine
+        from ..io.atomic import OutputSet, active_output_set, is_stream
+
+        output = Path(output)
+        if output.suffix.lower() == ".json":
+            raise InputError(f"{output}: the calibrated machine is a YAML file; choose a name "
+                             "ending in .yaml (the JSON report is written beside it)")
+        report_dir = None if report_dir is None else Path(report_dir)
+        report_path = output.with_suffix(".json")
+        beside = not is_stream(output)      # no JSON report beside /dev/null or a pipe
+        self.report["calibrated_file"] = str(output)
+        json_text = self.json_text()
+        # the machine file names its report and pins it by digest: a report of another run
+        # (or a half-replaced pair) is refused by compensate and report
+        metadata = {k: v for k, v in self.metadata.items() if k != "report"}
+        if beside:
+            metadata.update(report=report_path.name, report_sha256=text_digest(json_text))
+        yaml_text = machine_to_text(self.calibrated, self.units, calibration=metadata)
+        parse_machine(yaml_text, str(output))   # the calibrated file must load back
+        html_text = None
+        if report_dir is not None:
+            from ..report.html import build_html
+
+            html_text = build_html(json.loads(json_text))
+
+        def stage():
+            # one set: the report, then the machine file that names it, then the report DIR
+            if beside:
+                atomic_write_text(report_path, json_text)
+            atomic_write_text(output, yaml_text)
+            if html_text is not None:
+                atomic_write_text(report_dir / "report.json", json_text)
+                atomic_write_text(report_dir / "report.html", html_text)
+
+        active = active_output_set()
+        if active is not None:
+            stage()
+            active.commit()
+        else:
+            files = [output] + ([report_path] if beside else [])
+            if report_dir is not None:
+                files += [report_dir / "report.html", report_dir / "report.json"]
+            with OutputSet(files, [report_dir] if report_dir is not None else [],
+                           self.inputs):
+                stage()
+        return json_text
+
+
+# --------------------------------------------------------------------------------------------
+# calibrate
+# --------------------------------------------------------------------------------------------
+
+
+def calibrate(machine, data, *, method: str | None = None, noise=None,
+              pose_noise: str | None = None, estimate_lc: bool | None = None,
+              two_step: bool = False, robust: bool = False, fix_frames: bool = False,
+              holdout: float | str | None = None, seed: int = 0) -> Calibration:
+    """Calibrate ``machine`` from measurements; the measurement kind follows from the data.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine's nominal model (the start of the estimation).
+    data : str or os.PathLike or data object
+        A data file (its columns give the kind, see :data:`KINDS`) or data read already
+        (:class:`~pkmcal.measurements.ConstraintLinkData`,
+        :class:`~pkmcal.measurements.TrackerData`,
+        :class:`~pkmcal.measurements.FullPoseData`).
+    method : str, optional
+        Constraint link: ``ml`` (default), ``ik`` or ``fk``; full pose: ``ml`` (default) or
+        ``ik``; not for tracker data (see ``two_step``).
+    noise : str or float or noise model, optional
+        Constraint link: the encoder noise (m, or text such as ``"1um"``, the default).
+        Tracker: a :class:`~pkmcal.measurements.TrackerNoise`, or ``"leica"`` (default) or
+        a length. Full pose: a :class:`~pkmcal.measurements.FullPoseNoise`, or the readings'
+        noise as a leg length (text).
+    pose_noise : str, optional
+        Full pose: noise of the measured poses, ``"POSITION,ORIENTATION"`` with units.
+    estimate_lc : bool, optional
+        Constraint link: estimate the link length (default: only with ``fk``).
+    two_step : bool, optional
+        Tracker: the paper's method, registration first.
+    robust : bool, optional
+        Tracker: find and leave out outlier rows.
+    fix_frames : bool, optional
+        Full pose: hold the measurement frames at the machine file's.
+    holdout : float or str, optional
+        Hold out a share (< 1, or text such as ``"20%"``) or a number of rows, chosen at
+        random, for validation (the report's ``validation`` section).
+    seed : int, optional
+        Seed of the choice of held-out rows.
+
+    Returns
+    -------
+    Calibration
+        The calibrated machine, the estimator's result, the report, the calibrated file's
+        metadata, the parameter table and the warnings.
+
+    Raises
+    ------
+    InputError
+        Bad data or options (the message names the file, row or option).
+    CalibrationNotConverged
+        When the estimator did not converge.
+    """
+    from ..io import read_table
+
+    split = None
+    if holdout is not None:
+        split = (holdout_arg(holdout) if isinstance(holdout, str) else float(holdout), seed)
+    if isinstance(data, (str, Path)):
+        source = Path(data)
+        header, _ = read_table(source)
+        kind = KINDS[measurement_kind(source, header, machine)]
+    else:
+        source = getattr(data, "source", None) or "the data"
+        kind = next((k for k in _kinds() if k.data_class == type(data).__name__), None)
+        if kind is None:
+            raise InputError(f"{source}: {type(data).__name__} is no calibration data (known: "
+                             f"{', '.join(k.data_class for k in _kinds())})")
+        supported = supported_kinds(machine)
+        if kind.name not in supported:
+            need = "; ".join(f"{k}: {v}" for k, v in supported.items()) or "none yet"
+            raise InputError(f"{source}: {kind.name} measurements of a {machine.kind} cannot "
+                             f"be calibrated yet; this version calibrates a {machine.kind} "
+                             f"from {need}")
+    options = CalibrateOptions(method, noise, pose_noise, estimate_lc, two_step, robust,
+                               fix_frames)
+    kind.check_options(options, source)
+    calibration = kind.calibrate(machine, data, source, options, split)
+    inputs = [Path(source)] if isinstance(data, (str, Path)) else []
+    machine_file = getattr(machine, "source", None)
+    if machine_file and machine_file != "default" and Path(machine_file).is_file():
+        inputs.append(Path(machine_file))
+    calibration.inputs = inputs
+    return calibration
+
+
+def _load(data, reader, machine):
+    """Data read from ``data`` (a path) with ``reader``, or ``data`` itself."""
+    return reader(Path(data), machine) if isinstance(data, (str, Path)) else data
+
+
+def _only_for_poses(options: CalibrateOptions, source, kind: str) -> None:
+    for option, given in (("--pose-noise", options.pose_noise is not None),
+                          ("--fix-frames", options.fix_frames)):
+        if given:
+            raise InputError(f"{option}: applies to full-pose data (a Stewart with x, y, z "
+                             f"and orientation columns); {source} has {kind} data")
+
+
+def _parameter_table(result, nominal_of: dict, units):
+    """Rows of the report's parameter list, in the machine file's units; ``nominal_of`` maps
+    parameter names to their start (nominal) values."""
+    from ..units import ANGLE, LENGTH
+
+    fl, fa = LENGTH[units["length"]], ANGLE[units["angle"]]
+    rows = []
+    params = result.parameters
+    for i, (name, kind) in enumerate(zip(params.names, params.kinds, strict=True)):
+        f = fl if kind == "length" else fa if kind == "angle" else 1.0
+        unit = units["length"] if kind == "length" else units["angle"] if kind == "angle" \
+            else "1"
+        nominal = nominal_of.get(name, float("nan"))
+        fixed = bool(params.fixed[i])
+        rows.append({
+            "name": name, "kind": kind, "unit": unit,
+            "nominal": nominal / f, "identified": result.x[i] / f,
+            "change": (result.x[i] - nominal) / f,
+            "std": None if fixed else result.std[i] / f,
+            "fixed": fixed,
+            "scaled_change": abs(result.x[i] - nominal) / result.scales[i],
+        })
+    return rows
+
+
+def _um(value_m: float) -> float | None:
+    """Metres -> micrometres for a report; None when not finite."""
+    return json_safe(float(value_m) * 1e6)
+
+
+def _split_rows(data, split, source):
+    """``(calibration data, held-out data or None)`` for ``holdout``/``seed``."""
+    if split is None:
+        return data, None
+    from . import holdout_split
+
+    try:
+        train, held = holdout_split(len(data), *split)
+    except ValueError as exc:
+        raise InputError(f"--holdout: {source}: {exc}") from None
+    return data.subset(train), data.subset(held)
+
+
+def _validation(split, held, of: str, unit: str, before, after, calibration, **extra) -> dict:
+    """The report's held-out validation section: RMS residuals of the held-out rows with the
+    machine file's and the calibrated model, next to the calibration rows' own RMS."""
+    ratio = after / calibration if after is not None and calibration else None
+    summary = (f"{len(held)} held-out rows: RMS {_fmt(before)} -> {_fmt(after)} {unit} "
+               f"(calibration rows {_fmt(calibration)} {unit}"
+               + (f"; held-out / calibration = {ratio:.3g}" if ratio is not None else "") + ")")
+    return {"summary": summary, "held_out": len(held), "rows": [int(r) for r in held.rows],
+            "holdout": split[0], "seed": split[1], "of": of, "unit": unit,
+            "before_rms": before, "after_rms": after, "calibration_rms": calibration,
+            "held_out_over_calibration": ratio, **extra}
+
+
+def _fmt(value) -> str:
+    return "n/a" if value is None else f"{value:.4g}"
+
+
+def _solve(source, estimator, *args, held=None, **kwargs):
+    """Run a calibration; numerical failures caused by the data become an InputError naming
+    the data. With ``held`` (the rows held out) a failure names the option too: the rows left
+    may be too few."""
+    try:
+        return estimator(*args, **kwargs)
+    except (InputError, ValueError, np.linalg.LinAlgError) as exc:
+        message = str(exc) if isinstance(exc, InputError) else \
+            f"{source}: calibration failed: {exc}"
+        if held is not None:
+            message = (f"--holdout: holding out {len(held)} row(s) leaves {len(args[1])} "
+                       f"to calibrate on: {message}")
+        raise InputError(message) from None
+
+
+def _require_converged(result, source, advice: str = "") -> None:
+    """Raise :class:`CalibrationNotConverged` (saying why and what to try, naming the data)
+    unless the calibration converged."""
+    if result.success and np.all(np.isfinite(result.x)):
+        return
+    raise CalibrationNotConverged(
+        f"{source}: calibration did not converge: {result.message} (after {result.nit} "
+        "iterations)" + (f"; {advice}" if advice else "") + "; check the columns (order, "
+        "units) and the machine file; no file written", result)
+
+
+def _identifiability_json(n_free, rank, unidentifiable, s) -> dict:
+    """The identifiability section of a calibration report: the directions the data cannot
+    fix, and apart from them the weakly identifiable ones (counted in ``identifiable``, left
+    at their start values; each with its standard deviation)."""
+    return {
+        "free_parameters": n_free,
+        "identifiable": rank,
+        "unidentifiable": [d.as_dict() for d in unidentifiable if d.std is None],
+        "weakly_identifiable": [d.as_dict() for d in unidentifiable if d.std is not None],
+        "condition_number": float(s[0] / s[rank - 1]) if rank else None,
+        "singular_values": s.tolist(),
+    }
+
+
+def _convergence_json(result) -> dict:
+    return {"success": bool(result.success), "status": int(result.status),
+            "message": result.message, "iterations": int(result.nit),
+            "evaluations": int(result.nfev)}
+
+
+def _identifiability_metadata(unidentifiable) -> dict:
+    return {"unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable
+                               if d.std is None],
+            "weakly_identifiable": [d.name for d in unidentifiable if d.std is not None]}
+
+
+#: methods whose residuals are whitened by the whole noise model (every measurement noisy):
+#: only their chi-square can be tested against the noise. The paper's methods (constraint
+#: link ik/fk, full-pose ik, the tracker's two-step) treat some measurements as exact, so
+#: their residuals exceed the noise by design.
+WHITENED_METHODS = ("ml", "joint")
+
+
+def _acceptance(result, nominal, calibrated, source, method, warnings: list) -> dict:
+    """The believability checks of a converged calibration (chi-square of the residuals
+    against the assumed noise, for :data:`WHITENED_METHODS`; size of the changes against the
+    machine's scale): warnings in words with the usual causes (appended to ``warnings``), and
+    the report's ``acceptance`` section."""
+    from .acceptance import parameter_changes, residual_test
+
+    out = {}
+    if method in WHITENED_METHODS:
+        test = residual_test(result)
+        out["residuals"] = test.as_dict()
+        if test.alarming:
+            warnings.append(f"{source}: {test.message()}")
+    else:
+        out["residuals"] = {"tested": False, "why": f"the {method} method treats some "
+                            "measurements as exact: its residuals exceed the noise by design"}
+    if nominal is not None:
+        changes = parameter_changes(nominal, calibrated)
+        out["parameter_changes"] = {"suspicious": changes.suspicious}
+        if changes.suspicious:
+            warnings.append(f"{source}: {changes.message()}")
+    return out
+
+
+def _standardised(result):
+    """Leverage-corrected standardised residuals for the report (None when the problem
+    cannot be evaluated again)."""
+    problem = result.extras.get("problem")
+    if problem is None and callable(result.extras.get("rebuild_problem")):
+        problem = result.extras["rebuild_problem"]()
+    if problem is None or result.state is None:
+        return None
+    from ..report.residuals import standardised_residuals
+
+    try:
+        return standardised_residuals(problem, result)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+
+
+def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict, params,
+            units) -> Calibration:
+    """The common end of every kind: the covariance of the machine's parameters (SI: m, rad;
+    the identifiable part, frames the data cannot fix held at the start values, which
+    ``pkmcal compensate`` propagates to the targets), the normalised and standardised
+    residuals, the acceptance checks (their warnings) and the provenance."""
+    names = list(calibrated.parameters.names)
+    n = len(names)
+    report["covariance"] = {
+        "of": "machine parameters, SI units (m, rad, ratio), minimum-norm (identifiable "
+              "part)",
+        "parameters": names,
+        "matrix": np.asarray(result.covariance, float)[:n, :n].tolist(),
+        # unidentifiable directions (columns, same units): pose changes along them are
+        # changes of frames the data cannot see, removed before predicting errors
+        "null_space": (np.asarray(result.null_space, float)
+                       * np.asarray(result.scales, float)[:, None])[:n].tolist(),
+    }
+    all_names = list(result.parameters.names)
+    if len(all_names) > n and all_names[:n] == names:
+        # with the measurement frames (tracker pose, motion-capture frames) and Lc: what
+        # compensate needs for targets given in the instrument's frame
+        report["covariance"]["with_frames"] = {
+            "parameters": all_names,
+            "matrix": np.asarray(result.covariance, float).tolist(),
+            "null_space": (np.asarray(result.null_space, float)
+                           * np.asarray(result.scales, float)[:, None]).tolist(),
+        }
+    # residual / assumed noise std of every residual, for the report's histogram
+    report["normalised_residuals"] = np.asarray(result.residuals, float).ravel().tolist()
+    standardised = _standardised(result)
+    if standardised is not None:
+        report["standardised_residuals"] = standardised
+    warnings: list[str] = []
+    report["acceptance"] = _acceptance(result, machine, calibrated,
+                                       report.get("data_file", "the data"),
+                                       report.get("method"), warnings)
+    report["provenance"] = provenance()
+    return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
+                       report=report, metadata=metadata, params=params, warnings=warnings,
+                       units=units)
+
+
+def _report_head(machine, source, kind: str, method: str, units=None) -> dict:
+    """The first keys of every report (``units`` last, when given)."""
+    from ..report.provenance import run_date
+
+    head = {"pkmcal_report": 1, "command": "calibrate", "date": run_date(),
+            "machine_file": _source_of(machine), "data_file": str(source),
+            "calibrated_file": None, "measurement": kind, "method": method}
+    return head if units is None else {**head, "units": units}
+
+
+def _public(params) -> list[dict]:
+    return [{k: v for k, v in p.items() if k != "scaled_change"} for p in params]
+
+
+# -- constraint link ---------------------------------------------------------------------------
+
+
+def _check_constraint_link(options: CalibrateOptions, source) -> None:
+    _only_for_poses(options, source, "constraint-link")
+    for option, given in (("--two-step", options.two_step), ("--robust", options.robust)):
+        if given:
+            raise InputError(f"{option}: applies to laser-tracker data (mx, my, mz columns); "
+                             f"{source} has constraint-link data")
+
+
+def _calibrate_constraint_link(machine, data, source, options: CalibrateOptions,
+                               split) -> Calibration:
+    from ..io import read_constraint_link
+    from ..units import LENGTH
+
+    method = options.method or "ml"
+    estimate_lc = options.estimate_lc
+    sigma = link_noise_arg(options.noise, machine)
+    kind = "constraint-link"
+    data, held = _split_rows(_load(data, read_constraint_link, machine), split, source)
+
+    from . import calibrate_constraint_link, constraint_link_reading_rms
+
+    result = _solve(source, calibrate_constraint_link, machine, data, held=held,
+                    method=method, sigma_m=sigma, estimate_link_length=estimate_lc)
+    _require_converged(result, source)
+    from .constraint_link import PROBLEMS
+
+    kw = {} if estimate_lc is None else {"estimate_link_length": estimate_lc}
+    result.extras["rebuild_problem"] = lambda: PROBLEMS[method](machine, data, sigma, **kw)
+
+    units = file_units(machine)
+    fl = LENGTH[units["length"]]
+    calibrated = result.extras["machine"]
+    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
+    # FK start of the calibrated file: the input machine's home (a central pose of the working
+    # assembly mode) rather than the first measured pose, which may sit at the workspace edge
+    home_P, home_R = machine.home
+    if np.all(np.isfinite(calibrated.ik(home_P, home_R))):
+        calibrated.home = (home_P, home_R)
+    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
+    nominal_of["link.length"] = data.link_length
+    params = _parameter_table(result, nominal_of, units)
+    r = np.asarray(result.residuals, float)
+    r_m = r * sigma
+    rank = int(result.rank)
+    n_free = int(np.sum(result.parameters.free))
+    s = np.asarray(result.singular_values, float)
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    dropped = [int(v) for v in np.asarray(result.extras.get("dropped_rows", []))]
+    lc_index = result.parameters.names.index("link.length") \
+        if "link.length" in result.parameters.names else None
+    lc_estimated = lc_index is not None and not bool(result.parameters.fixed[lc_index])
+    lc = float(result.extras.get("link_length", data.link_length))
+    residual_what = {"ml": "all joint readings", "ik": "passive joint readings",
+                     "fk": "computed link length |P| - Lc"}[method]
+    report = {
+        **_report_head(machine, source, kind, method, units),
+        "measurements": len(data),
+        "dropped_rows": dropped,
+        "noise_sigma_um": sigma * 1e6,
+        "link_length": {"value": lc / fl, "assumed": data.link_length / fl,
+                        "unit": units["length"], "estimated": lc_estimated,
+                        "std": params[lc_index]["std"] if lc_estimated else None},
+        "convergence": _convergence_json(result),
+        "residuals": {
+            "of": residual_what,
+            "count": int(r.size),
+            "rms_um": float(np.sqrt(np.mean(r_m**2)) * 1e6) if r.size else None,
+            "max_abs_um": float(np.max(np.abs(r_m)) * 1e6) if r.size else None,
+            "rms_per_column_um": (np.sqrt(np.mean(r_m**2, axis=0)) * 1e6).tolist()
+            if r.ndim == 2 and r.shape[1] > 1 else None,
+            "before_rms_um": _um(constraint_link_reading_rms(machine, data, sigma)),
+            "before": "machine file's geometry, all readings, poses fitted (maximum "
+                      "likelihood)",
+            "residual_variance": float(result.residual_variance),
+            "estimated_noise_um": float(np.sqrt(result.residual_variance) * sigma * 1e6)
+            if np.isfinite(result.residual_variance) else None,
+            "dof": int(result.dof),
+        },
+        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
+        "parameters": _public(params),
+    }
+    if held is not None:
+        report["validation"] = _validation(
+            split, held, "joint readings of the held-out rows (poses fitted, geometry and Lc "
+            "held); before: the machine file's geometry", "um",
+            _um(constraint_link_reading_rms(machine, held, sigma)),
+            _um(constraint_link_reading_rms(calibrated, dataclasses.replace(held, link_length=lc),
+                                            sigma)),
+            report["residuals"]["rms_um"])
+    metadata = {
+        "method": method,
+        "date": report["date"],
+        "data": str(source),
+        "machine": _source_of(machine),
+        "measurements": len(data),
+        "rms_residual_um": report["residuals"]["rms_um"],
+        "identifiable": rank,
+        "free_parameters": n_free,
+        **_identifiability_metadata(unidentifiable),
+        "link_length_estimated": lc_estimated,
+    }
+    calibration = _finish(kind, machine, calibrated, result, report, metadata, params, units)
+    if "warnings" in result.extras:         # ml: the start strategy says what it left out
+        calibration.warnings += [f"{source}: {text}" for text in result.extras["warnings"]]
+    elif dropped:
+        calibration.warnings.append(
+            f"{source}: {len(dropped)} row(s) left out (no pose from the five active readings "
+            f"and the link with the start geometry): {rows_text(dropped)}")
+    return calibration
+
+
+# -- laser tracker -----------------------------------------------------------------------------
+
+
+def grid_neighbour_pairs(P, abs_tol: float = 1e-4, rel_tol: float = 0.01) -> np.ndarray:
+    """Index pairs of neighbouring points of an axis-aligned grid.
+
+    ``j`` is the neighbour of ``i`` along an axis when ``P_j - P_i`` points along the positive
+    axis (off-axis part within ``abs_tol + rel_tol * distance``) and no closer point lies that
+    way; missing grid points are allowed. Seed 001 Fig. 6 compares such pairs.
+
+    Parameters
+    ----------
+    P : array_like, shape (K, 3)
+        Positions, m.
+    abs_tol : float, optional
+        Absolute off-axis tolerance, m.
+    rel_tol : float, optional
+        Off-axis tolerance relative to the distance.
+
+    Returns
+    -------
+    ndarray of int, shape (n, 2)
+        The pairs ``(i, j)``.
+    """
+    P = np.asarray(P, float)
+    K = len(P)
+    pairs = []
+    for start in range(0, K, 512):                       # K x K temporaries in blocks
+        D = P[None, :, :] - P[start:start + 512, None, :]   # (B, K, 3) P_j - P_i
+        for axis in range(3):
+            along = D[..., axis]
+            off = np.linalg.norm(np.delete(D, axis, axis=-1), axis=-1)
+            dist = np.where((along > abs_tol) & (off <= abs_tol + rel_tol * along), along,
+                            np.inf)
+            j = np.argmin(dist, axis=1)
+            i = np.flatnonzero(np.isfinite(dist[np.arange(len(D)), j]))
+            pairs.append(np.stack([i + start, j[i]], -1))
+    return np.concatenate(pairs) if pairs else np.zeros((0, 2), int)
+
+
+def distance_ratio_pairs(machine, q) -> tuple[np.ndarray, str]:
+    """Pairs of measurements for the distance ratio (seed 001 Fig. 6).
+
+    Neighbours of the grid the readings were commanded to (``machine``'s forward kinematics
+    of them, i.e. the commanded points when ``machine`` is the controller's model); nearest
+    neighbours when the points form no grid.
+
+    Parameters
+    ----------
+    machine : Machine
+        The controller's model.
+    q : array_like, shape (K, n)
+        Joint readings.
+
+    Returns
+    -------
+    tuple
+        ``(pairs (n, 2) of row indices, how they were found)``.
+    """
+    P = machine.fk(q).P
+    ok = np.all(np.isfinite(P), axis=-1)
+    pairs = grid_neighbour_pairs(np.where(ok[:, None], P, 1e9))
+    pairs = pairs[ok[pairs].all(axis=1)] if len(pairs) else pairs
+    if len(pairs):
+        return pairs, "neighbours on the commanded grid"
+    D = np.linalg.norm(P[:, None] - P[None], axis=-1)
+    np.fill_diagonal(D, np.inf)
+    j = np.argmin(np.where(np.isfinite(D), D, np.inf), axis=1)
+    pairs = np.unique(np.sort(np.stack([np.arange(len(P)), j], -1), axis=1), axis=0)
+    return pairs[ok[pairs].all(axis=1)], "nearest neighbours (the points form no grid)"
+
+
+def _ratio_stats(r) -> dict:
+    r = np.asarray(r, float)
+    r = r[np.isfinite(r)]
+    if not r.size:
+        return {"mean": None, "std": None, "min": None, "max": None}
+    return {"mean": float(r.mean()), "std": float(r.std()), "min": float(r.min()),
+            "max": float(r.max())}
+
+
+def _check_spread(data, noise_model) -> None:
+    """Refuse (nearly) collinear tracker points: the registration's rotation about their line
+    would be fixed only by the noise. Also fewer than 4 points (seed 001 eq. 12-14)."""
+    K = len(data)
+    if K < 4:
+        raise InputError(f"{data.source}: {K} point(s): the tracker registration needs at "
+                         "least 4 points that are not on one line (seed 001 uses a 3x3x3 grid)")
+    m = data.m - data.m.mean(0)
+    sv = np.linalg.svd(m, compute_uv=False)
+    off_line = sv[1] / math.sqrt(K)                       # RMS distance from the best line
+    sigma = float(np.sqrt(np.max(np.trace(noise_model.covariance(data.m), axis1=1, axis2=2))))
+    if off_line <= max(20 * sigma, 1e-6 * sv[0]):
+        raise InputError(f"{data.source}: the {K} tracker points lie on one line or nearly (RMS "
+                         f"distance from the best line {off_line * 1e6:.3g} um, tracker noise "
+                         f"{sigma * 1e6:.3g} um): the "
+                         "rotation of the tracker about that line cannot be found; measure "
+                         "points spread in 2-3 directions (e.g. a 3x3x3 grid)")
+
+
+def _rotvec(R):
+    from ..kinematics import rotvec_from_matrix
+
+    return rotvec_from_matrix(R)
+
+
+def _check_tracker(options: CalibrateOptions, source) -> None:
+    _only_for_poses(options, source, "tracker")
+    for option, given in (("--method", options.method is not None),
+                          ("--estimate-lc", options.estimate_lc is not None)):
+        if given:
+            raise InputError(f"{option}: applies to constraint-link data; {source} has "
+                             "tracker points (see --two-step, --robust)")
+
+
+def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) -> Calibration:
+    from ..io import read_tracker
+    from ..units import LENGTH
+    from . import calibrate_tracker, distance_ratios, predict_tracker_points
+
+    two_step, robust = options.two_step, options.robust
+    if options.noise is None or isinstance(options.noise, str):
+        noise_model, noise_text = tracker_noise_arg(options.noise, allow_none=False,
+                                                    machine=machine)
+    else:
+        noise_model, noise_text = options.noise, _tracker_noise_text(options.noise)
+    data, held = _split_rows(_load(data, read_tracker, machine), split, source)
+    _check_spread(data, noise_model)
+    fk = machine.fk(data.q)
+    if not fk.converged.all():
+        raise InputError(f"{source}: row(s) {rows_text(data.rows[~fk.converged])}: no "
+                         f"platform position of {_source_of(machine)} reproduces these arm "
+                         "angles (outside the workspace, or a wrong angle unit or zero)")
+    result = _solve(source, calibrate_tracker, machine, data, noise_model, held=held,
+                    joint=not two_step, robust=robust)
+    _require_converged(result, source,
+                       "spread the points in all three directions, e.g. a 3x3x3 grid")
+
+    units = file_units(machine)
+    fl = LENGTH[units["length"]]
+    method = "two-step" if two_step else "joint"
+    calibrated = result.extras["machine"]
+    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
+    # FK start of the calibrated file: the input machine's home, else the measured position
+    # closest to the middle of the data that the calibrated model reaches
+    P_cal = calibrated.fk(data.q).P
+    order = np.argsort(np.linalg.norm(P_cal - np.nanmean(P_cal, axis=0), axis=1))
+    for P_home in [machine.home[0], *P_cal[order]]:
+        if np.all(np.isfinite(calibrated.ik(P_home))):
+            calibrated.home = (np.asarray(P_home, float), np.eye(3))
+            break
+    R, t = result.extras["registration"]
+    R0, t0 = result.extras["start_registration"]
+    kept = np.asarray(result.extras["kept"], bool)
+    outlier_rows = [int(v) for v in result.extras["outlier_rows"]]
+
+    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
+    nominal_of.update(zip(("tracker.rx", "tracker.ry", "tracker.rz"), (0.0, 0.0, 0.0),
+                          strict=True))
+    nominal_of.update(zip(("tracker.x", "tracker.y", "tracker.z"), t0, strict=True))
+    params = _parameter_table(result, nominal_of, units)
+
+    # residuals in the tracker frame (m); before = nominal model + closed-form registration
+    r = data.m - predict_tracker_points(calibrated, data.q, (R, t))
+    r0 = data.m - predict_tracker_points(machine, data.q, (R0, t0))
+    norm, norm0 = np.linalg.norm(r, axis=1), np.linalg.norm(r0, axis=1)
+    rms = lambda v: float(np.sqrt(np.mean(v**2)) * 1e6) if v.size else None  # noqa: E731
+    # distance ratio (seed 001 Fig. 6) over pairs of kept rows
+    pairs, pairs_from = distance_ratio_pairs(machine, data.q)
+    pairs = pairs[kept[pairs].all(axis=1)] if len(pairs) else pairs
+    d_meas = np.linalg.norm(data.m[pairs[:, 0]] - data.m[pairs[:, 1]], axis=-1) \
+        if len(pairs) else np.zeros(0)
+    pairs = pairs[d_meas > 1e-9] if len(pairs) else pairs
+    ratio_before = distance_ratios(machine, data.q, data.m, pairs) if len(pairs) else []
+    ratio_after = distance_ratios(calibrated, data.q, data.m, pairs) if len(pairs) else []
+    before, after = _ratio_stats(ratio_before), _ratio_stats(ratio_after)
+
+    rank = int(result.rank)
+    n_free = int(np.sum(result.parameters.free))
+    s = np.asarray(result.singular_values, float)
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    da, _, _, _, db = calibrated.legs()
+    rot_change = float(np.degrees(np.linalg.norm(_rotvec(R @ R0.T))))
+    report = {
+        **_report_head(machine, source, "tracker", method),
+        "robust": robust,
+        "units": units,
+        "measurements": len(data),
+        "used": int(kept.sum()),
+        "outlier_rows": outlier_rows,
+        "noise": noise_text,
+        "smr_offset": machine.smr_offset / fl,
+        "registration": {
+            "estimated": not two_step,
+            "rotation": R.tolist(), "translation": (np.asarray(t) / fl).tolist(),
+            "unit": units["length"],
+            "start": {"rotation": R0.tolist(), "translation": (np.asarray(t0) / fl).tolist(),
+                      "method": "closed form (SVD) with the nominal model"},
+            "rotation_change_deg": rot_change,
+            "translation_change": float(np.linalg.norm(t - t0) / fl),
+        },
+        "convergence": _convergence_json(result),
+        "residuals": {
+            "of": "tracker points, measured - predicted (3-D distance, tracker frame)",
+            "count": int(kept.sum()),
+            "rms_um": rms(norm[kept]),
+            "max_um": float(norm[kept].max() * 1e6) if kept.any() else None,
+            "rms_per_axis_um": (np.sqrt(np.mean(r[kept] ** 2, axis=0)) * 1e6).tolist(),
+            "before_rms_um": rms(norm0[kept]),
+            "before": "machine file's model, closed-form registration",
+            "residual_variance": float(result.residual_variance),
+            "noise_scale": float(np.sqrt(result.residual_variance))
+            if np.isfinite(result.residual_variance) else None,
+            "dof": int(result.dof),
+            "outliers": [{"row": int(row), "residual_um": float(v * 1e6)} for row, v in
+                         zip(data.rows[~kept], norm[~kept], strict=True)],
+        },
+        "distance_ratio": {
+            "unit": "%", "pairs": int(len(pairs)), "pairs_from": pairs_from,
+            "before": before, "after": after,
+        },
+        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
+        "identifiable_combinations": {
+            "description": "db - da per leg (leg frame, file length unit): only this "
+                           "difference enters the model" + (
+                               "; with the tracker pose estimated it is fixed only up to one "
+                               "common translation v of the platform (db_i - da_i + Rphi_i v "
+                               "fits equally well)" if not two_step else ""),
+            **{f"leg{i + 1}.db - leg{i + 1}.da": ((db[i] - da[i]) / fl).tolist()
+               for i in range(3)}},
+        "parameters": _public(params),
+    }
+    if held is not None:
+        d_after = np.linalg.norm(held.m - predict_tracker_points(calibrated, held.q, (R, t)),
+                                 axis=1)
+        d_before = np.linalg.norm(held.m - predict_tracker_points(machine, held.q, (R0, t0)),
+                                  axis=1)
+        ok = np.isfinite(d_after) & np.isfinite(d_before)
+        report["validation"] = _validation(
+            split, held, "tracker points of the held-out rows, measured - predicted (3-D "
+            "distance) with the identified tracker pose; before: the machine file's model and "
+            "the closed-form registration of the calibration rows", "um",
+            rms(d_before[ok]), rms(d_after[ok]), report["residuals"]["rms_um"],
+            max_after=float(d_after[ok].max() * 1e6) if ok.any() else None,
+            not_reached=[int(r) for r in held.rows[~ok]])
+    metadata = {
+        "method": f"tracker-{method}",
+        "date": report["date"],
+        "data": str(source),
+        "machine": _source_of(machine),
+        "measurements": len(data),
+        "outlier_rows": outlier_rows,
+        "rms_residual_um": report["residuals"]["rms_um"],
+        "identifiable": rank,
+        "free_parameters": n_free,
+        **_identifiability_metadata(unidentifiable),
+        "distance_ratio_std_percent": {"before": before["std"], "after": after["std"]},
+    }
+    return _finish("tracker", machine, calibrated, result, report, metadata, params, units)
+
+
+# -- full pose ---------------------------------------------------------------------------------
+
+
+def _frame_report(frame, fl: float, unit: str) -> dict:
+    from ..kinematics import rotation_angle
+
+    R, t = frame
+    return {"rotation": np.asarray(R, float).tolist(),
+            "translation": (np.asarray(t, float) / fl).tolist(), "unit": unit,
+            "rotation_angle_deg": float(np.degrees(rotation_angle(np.asarray(R, float))))}
+
+
+def _errors_report(errors, fl: float) -> dict:
+    s = errors.summary()
+    return {"leg_length_rms": s["leg_length_rms"] / fl, "leg_length_max": s["leg_length_max"] / fl,
+            "leg_length_rms_per_leg": [v / fl for v in s["leg_length_rms_per_leg"]],
+            "position_rms": s["position_rms"] / fl, "position_max": s["position_max"] / fl,
+            "orientation_rms_deg": float(np.degrees(s["orientation_rms"])),
+            "orientation_max_deg": float(np.degrees(s["orientation_max"])),
+            "fk_failed": s["fk_failed"]}
+
+
+def _check_full_pose(options: CalibrateOptions, source) -> None:
+    for option, given in (("--estimate-lc", options.estimate_lc is not None),
+                          ("--two-step", options.two_step), ("--robust", options.robust)):
+        if given:
+            raise InputError(f"{option}: does not apply to full-pose data ({source}); "
+                             "see --method ml|ik, --fix-frames, --noise, --pose-noise")
+    if options.method not in (None, "ml", "ik"):
+        raise InputError(f"--method {options.method}: full-pose data are calibrated by ml "
+                         "(maximum likelihood, default) or ik (inverse-kinematic residuals)")
+
+
+def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
+                         split) -> Calibration:
+    from ..io import read_full_pose
+    from ..io.machine_file import reading_factor
+    from ..measurements import FullPoseNoise, MeasurementFrames
+    from ..units import LENGTH
+    from . import calibrate_full_pose, full_pose_errors
+
+    method, fix_frames = options.method or "ml", options.fix_frames
+    if isinstance(options.noise, FullPoseNoise):
+        if options.pose_noise is not None:
+            raise InputError("--pose-noise: the noise model given as noise holds the pose "
+                             "noise already")
+        noise_model = options.noise
+    else:
+        noise_model = full_pose_noise_arg(options.noise, options.pose_noise, strict=True,
+                                          machine=machine)
+    data, held = _split_rows(_load(data, read_full_pose, machine), split, source)
+    file_frames = getattr(machine, "measurement_frames", None)
+    if fix_frames:
+        frames = file_frames if file_frames is not None else MeasurementFrames.identity()
+        frames_from = ("the machine file's measurement_frames" if file_frames is not None
+                       else "identity (the machine file has no measurement_frames)")
+    else:
+        frames = file_frames
+        frames_from = ("start: the machine file's measurement_frames" if file_frames is not None
+                       else "start: closed form from the design model")
+    result = _solve(source, calibrate_full_pose, machine, data, held=held, method=method,
+                    noise=noise_model, frames=frames, fix_frames=fix_frames)
+    # the machine file's legs with the frames fitted alone: "before calibration"
+    before = _solve(source, calibrate_full_pose, machine, data, held=held, method=method,
+                    noise=noise_model, frames=frames if fix_frames
+                    else result.extras["start_frames"], fix_frames=fix_frames,
+                    fit_machine=False)
+    _require_converged(result, source)
+
+    units = file_units(machine)
+    fl = LENGTH[units["length"]]
+    calibrated = result.extras["machine"]
+    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
+    calibrated.home = machine.home
+    frames_id = result.extras["frames"]
+    err_after = full_pose_errors(calibrated, frames_id, data)
+    err_before = full_pose_errors(machine, before.extras["frames"], data)
+
+    reading_unit = machine.reading_unit
+    gain_factor = fl / reading_factor(reading_unit)         # internal gain -> file gain
+    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
+    start = result.extras["start_frames"]
+    for name, (R, t) in (("mocap_from_base", start.mocap_from_base),
+                         ("platform_from_marker", start.platform_from_marker)):
+        nominal_of.update({f"{name}.r{c}": 0.0 for c in "xyz"})
+        nominal_of.update({f"{name}.{c}": v for c, v in zip("xyz", t, strict=True)})
+    params = _parameter_table(result, nominal_of, units)
+    for p in params:
+        if p["name"].endswith(".gain"):
+            for key in ("nominal", "identified", "change", "std"):
+                if p[key] is not None:
+                    p[key] = p[key] / gain_factor
+            p["unit"] = f"{units['length']}/{reading_unit}"
+    rank = int(result.rank)
+    n_free = int(np.sum(result.parameters.free))
+    s = np.asarray(result.singular_values, float)
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    variance = float(result.residual_variance)
+    if hasattr(result.extras.get("problem"), "noise_whitened") and result.dof > 0:
+        # the ik estimate takes the poses as exact, but their noise is in the residuals: the
+        # residual variance relative to the whole noise (readings + poses through the IK)
+        r = result.extras["problem"].noise_whitened(result.state)
+        variance = float(np.sum(r**2) / result.dof)
+    after, before_rep = _errors_report(err_after, fl), _errors_report(err_before, fl)
+    report = {
+        **_report_head(machine, source, "pose", method, units),
+        "reading_unit": reading_unit,
+        "measurements": len(data),
+        "noise": {"reading_um": noise_model.reading_m * 1e6,
+                  "position_um": noise_model.position_m * 1e6,
+                  "orientation_urad": noise_model.orientation_rad * 1e6},
+        "frames": {
+            "fixed": bool(fix_frames), "from": frames_from,
+            "mocap_from_base": _frame_report(frames_id.mocap_from_base, fl, units["length"]),
+            "platform_from_marker": _frame_report(frames_id.platform_from_marker, fl,
+                                                  units["length"]),
+        },
+        "convergence": _convergence_json(result),
+        "residuals": {
+            "unit": units["length"],
+            "leg_length": "l0 + gain q minus the leg length at the measured pose (through the "
+                          "frames)",
+            "pose": "measured marker pose minus the one forward kinematics of the readings "
+                    "predict (through the frames)",
+            "before": "the machine file's legs, frames fitted alone",
+            "before_calibration": before_rep,
+            "after_calibration": after,
+            "residual_variance": variance,
+            "noise_scale": math.sqrt(variance) if math.isfinite(variance) else None,
+            "dof": int(result.dof),
+        },
+        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
+        "parameters": _public(params),
+    }
+    if held is not None:
+        h_after = _errors_report(full_pose_errors(calibrated, frames_id, held), fl)
+        h_before = _errors_report(full_pose_errors(machine, before.extras["frames"], held), fl)
+        report["validation"] = _validation(
+            split, held, "pose error of the held-out rows: forward kinematics of the readings "
+            "(through the identified frames) vs the measured pose; before: the machine file's "
+            "legs, frames fitted alone on the calibration rows", units["length"],
+            *json_safe([h_before["position_rms"], h_after["position_rms"],
+                        after["position_rms"]]), before_calibration=h_before,
+            after_calibration=h_after)
+    metadata = {
+        "method": f"full-pose-{method}",
+        "date": report["date"],
+        "data": str(source),
+        "machine": _source_of(machine),
+        "measurements": len(data),
+        "leg_length_rms": {"before": before_rep["leg_length_rms"],
+                           "after": after["leg_length_rms"], "unit": units["length"]},
+        "frames_fixed": bool(fix_frames),
+        "identifiable": rank,
+        "free_parameters": n_free,
+        **_identifiability_metadata(unidentifiable),
+    }
+    return _finish("pose", machine, calibrated, result, report, metadata, params, units)
+
+
+# --------------------------------------------------------------------------------------------
+# the kinds of today
+# --------------------------------------------------------------------------------------------
+
+register_kind(MeasurementKind(
+    name="tracker",
+    columns="q1_deg..q3_deg and the tracker points mx_mm, my_mm, mz_mm",
+    detect=lambda header: _has(header, "mx") or _has(header, "my") or _has(header, "mz"),
+    calibrate=_calibrate_tracker, check_options=_check_tracker, machines=("delta",),
+    data_class="TrackerData", priority=10,
+    missing=("mx_<unit>, my_<unit>, mz_<unit> (e.g. mx_mm)", "laser-tracker points")))
+register_kind(MeasurementKind(
+    name="pose",
+    columns="the leg readings q1_<unit>..q6_<unit> (the machine's reading unit) and the "
+            "measured pose x_mm, y_mm, z_mm with qx, qy, qz, qw or psi_deg, theta_deg, phi_deg",
+    detect=lambda header: (_has(header, "x") or _has(header, "y") or _has(header, "z")
+                           or "qw" in header),
+    calibrate=_calibrate_full_pose, check_options=_check_full_pose, machines=("stewart",),
+    data_class="FullPoseData", priority=20))
+register_kind(MeasurementKind(
+    name="constraint-link",
+    columns="q1_mm..q6_mm (optionally passive) with a constraint_link in the machine file",
+    detect=lambda header: _has(header, "q1"),
+    calibrate=_calibrate_constraint_link, check_options=_check_constraint_link,
+    machines=("hexaslide",), data_class="ConstraintLinkData", priority=90,
+    readings_only=True))
