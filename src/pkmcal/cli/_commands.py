@@ -7,13 +7,16 @@ only at the very end, atomically; problems are raised as :class:`~pkmcal.errors.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 from pathlib import Path
 
 import numpy as np
 
+from ..calibration.run import file_units as _units
+from ..calibration.run import full_pose_noise_arg, tracker_noise_arg
+from ..calibration.run import json_safe as _finite_or_none
+from ..calibration.run import rows_text as _rows_text
 from ..errors import InputError
 from ..io import (
     atomic_write_text,
@@ -21,14 +24,11 @@ from ..io import (
     load_machine,
     machine_to_text,
     parse_machine,
-    read_constraint_link,
-    read_full_pose,
     read_joints,
     read_poses,
     read_positions,
     read_readings,
     read_table,
-    read_tracker,
     write_full_pose,
     write_joints,
     write_poses,
@@ -43,7 +43,6 @@ from ..limits import MAX_MEASUREMENTS
 from ..measurements.deviations import DEFAULT_DEVIATIONS
 from ..measurements.deviations import deviations as _deviations
 from ..planning.scenarios import SCENARIO_OF as DEFAULT_SCENARIO
-from ..report.provenance import run_date
 from ..units import ANGLE, LENGTH, parse_quantity
 from ._console import console, error, warning
 
@@ -95,13 +94,6 @@ def _wrote(output: Path, beside: Path) -> str:
     return f"wrote {output} and {beside}"
 
 
-def text_digest(text: str) -> str:
-    """SHA-256 (hex) of a text's UTF-8 bytes: how a calibrated file pins its JSON report."""
-    import hashlib
-
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
-
-
 def commit_outputs() -> list[Path]:
     """Write the command's staged outputs now, all or none (before saying they are written);
     returns them."""
@@ -109,32 +101,6 @@ def commit_outputs() -> list[Path]:
 
     active = active_output_set()
     return active.commit() if active is not None else []
-
-
-def _units(machine) -> dict:
-    return dict(getattr(machine, "file_units", None) or DEFAULT_UNITS)
-
-
-def _rows_text(rows, limit: int = 10) -> str:
-    rows = [int(r) for r in rows]
-    return ", ".join(map(str, rows[:limit])) + (" ..." if len(rows) > limit else "")
-
-
-def _finite_or_none(value):
-    """JSON-safe: NaN and infinities become null, numpy scalars become Python numbers."""
-    if isinstance(value, dict):
-        return {k: _finite_or_none(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite_or_none(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _finite_or_none(value.tolist())
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    return value
 
 
 def _table(*columns, title=None, justify=None, show_header=True):
@@ -254,29 +220,6 @@ def parse_grid(text: str) -> tuple[int, int, int]:
         raise InputError(f"--grid {text}: {count} point(s); a tracker calibration needs at "
                          "least 4 points that are not on one line (e.g. 3x3x3)")
     return shape
-
-
-def tracker_noise_arg(text: str | None, allow_none: bool, machine=None):
-    """The tracker noise model of ``--noise``: leica (default), none, or a length (isotropic),
-    checked against the machine's size when given."""
-    from ..measurements import TrackerNoise
-
-    if text is None or text.strip().lower() == "leica":
-        return TrackerNoise(), "leica (5 um along the beam, 7.5 um + 3 um/m across)"
-    if text.strip().lower() == "none":
-        if not allow_none:
-            raise InputError("--noise none: the calibration weighs the points by their noise; "
-                             "give leica or a length such as 10um")
-        return None, "none"
-    sigma = parse_quantity(text, "length", "--noise")
-    if sigma == 0 and allow_none:
-        return None, "none"
-    if not sigma > 0:
-        raise InputError(f"--noise: must be > 0 (a standard deviation), leica or none; got "
-                         f"{text}")
-    if machine is not None:
-        check_option_scale(sigma, machine, "--noise", "noise", text)
-    return TrackerNoise(sigma, sigma, 0.0), f"isotropic {sigma * 1e6:.4g} um"
 
 
 def run_simulate(machine_spec: str, output: Path, scenario: str | None, poses: int | None,
@@ -432,39 +375,6 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
     out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
 
 
-def full_pose_noise_arg(noise: str | None, pose_noise: str | None, strict: bool,
-                        machine=None):
-    """The full-pose noise model of ``--noise`` (readings, as a leg length) and
-    ``--pose-noise`` (POSITION,ORIENTATION). ``strict``: every standard deviation must be > 0
-    (a calibration weighs by them); else >= 0 (a simulation may be exact)."""
-    from ..measurements import FullPoseNoise
-
-    default = FullPoseNoise()
-    reading = default.reading_m if noise is None else parse_quantity(noise, "length", "--noise")
-    if pose_noise is None:
-        position, orientation = default.position_m, default.orientation_rad
-    else:
-        parts = [p.strip() for p in str(pose_noise).split(",")]
-        if len(parts) != 2:
-            raise InputError(f"--pose-noise: expected POSITION,ORIENTATION with units (e.g. "
-                             f"20um,50urad), got {pose_noise!r}")
-        position = parse_quantity(parts[0], "length", "--pose-noise (position)")
-        orientation = parse_quantity(parts[1], "angle", "--pose-noise (orientation)")
-    for option, value, text in (("--noise", reading, noise),
-                                ("--pose-noise", position, pose_noise),
-                                ("--pose-noise", orientation, pose_noise)):
-        if not (math.isfinite(value) and (value > 0 if strict else value >= 0)):
-            need = ("must be > 0 (a standard deviation that weighs the residuals)" if strict
-                    else "must be >= 0")
-            raise InputError(f"{option}: {need}, got {text}")
-    if machine is not None:
-        check_option_scale(reading, machine, "--noise", "noise", noise)
-        check_option_scale(position, machine, "--pose-noise (position)", "noise", pose_noise)
-        check_option_scale(orientation, machine, "--pose-noise (orientation)", "angle noise",
-                           pose_noise)
-    return FullPoseNoise(reading, position, orientation)
-
-
 def _noise_text(noise) -> str:
     return (f"readings {noise.reading_m * 1e6:.4g} um (as leg length), position "
             f"{noise.position_m * 1e6:.4g} um, orientation {noise.orientation_rad * 1e6:.4g} "
@@ -520,66 +430,8 @@ def _mm(v) -> str:
 
 
 # --------------------------------------------------------------------------------------------
-# calibrate
+# calibrate (the calibration itself is pkmcal.calibration.calibrate)
 # --------------------------------------------------------------------------------------------
-
-#: measurement types each machine type can be calibrated from, with the columns they need
-CALIBRATIONS = {
-    "hexaslide": {"constraint-link": "q1_mm..q6_mm (optionally passive) with a constraint_link "
-                                     "in the machine file"},
-    "delta": {"tracker": "q1_deg..q3_deg and the tracker points mx_mm, my_mm, mz_mm"},
-    "stewart": {"pose": "the leg readings q1_<unit>..q6_<unit> (the machine's reading unit) "
-                        "and the measured pose x_mm, y_mm, z_mm with qx, qy, qz, qw or "
-                        "psi_deg, theta_deg, phi_deg"},
-}
-
-
-def measurement_kind(path: Path, header: list[str], machine) -> str:
-    """Measurement type from the columns of a data file (and whether ``machine`` can be
-    calibrated from it)."""
-    has = lambda base: any(n == base or n.startswith(base + "_") for n in header)  # noqa: E731
-    supported = CALIBRATIONS.get(machine.kind, {})
-    need = "; ".join(f"{k}: {v}" for k, v in supported.items()) or "none yet"
-    if has("mx") or has("my") or has("mz"):
-        kind = "tracker"
-    elif has("x") or has("y") or has("z") or "qw" in header:
-        kind = "pose"
-    elif has("q1"):
-        kind = "constraint-link"
-    else:
-        raise InputError(f"{path}: cannot tell the measurement type from the columns "
-                         f"({', '.join(header)}); a {machine.kind} is calibrated from {need}")
-    if kind not in supported:
-        if machine.kind == "delta" and kind == "constraint-link":
-            raise InputError(f"{path}: missing columns mx_<unit>, my_<unit>, mz_<unit> (e.g. "
-                             f"mx_mm): a delta is calibrated from laser-tracker points ({need}); "
-                             f"columns found: {', '.join(header)}")
-        raise InputError(f"{path}: {kind} measurements of a {machine.kind} cannot be calibrated "
-                         f"yet; this version calibrates a {machine.kind} from {need}")
-    return kind
-
-
-def _parameter_table(result, nominal_of: dict, units):
-    """Rows of the report's parameter list, in the machine file's units; ``nominal_of`` maps
-    parameter names to their start (nominal) values."""
-    fl, fa = LENGTH[units["length"]], ANGLE[units["angle"]]
-    rows = []
-    params = result.parameters
-    for i, (name, kind) in enumerate(zip(params.names, params.kinds, strict=True)):
-        f = fl if kind == "length" else fa if kind == "angle" else 1.0
-        unit = units["length"] if kind == "length" else units["angle"] if kind == "angle" \
-            else "1"
-        nominal = nominal_of.get(name, float("nan"))
-        fixed = bool(params.fixed[i])
-        rows.append({
-            "name": name, "kind": kind, "unit": unit,
-            "nominal": nominal / f, "identified": result.x[i] / f,
-            "change": (result.x[i] - nominal) / f,
-            "std": None if fixed else result.std[i] / f,
-            "fixed": fixed,
-            "scaled_change": abs(result.x[i] - nominal) / result.scales[i],
-        })
-    return rows
 
 
 def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str | None,
@@ -587,6 +439,8 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
                   two_step: bool = False, robust: bool = False, pose_noise: str | None = None,
                   fix_frames: bool = False, report_dir: Path | None = None,
                   holdout: str | None = None, seed: int = 0) -> int:
+    from ..calibration.run import CalibrationNotConverged, calibrate
+
     if output.suffix.lower() == ".json":
         raise InputError(f"{output}: the calibrated machine is a YAML file; choose a name "
                          "ending in .yaml (the JSON report is written beside it)")
@@ -599,390 +453,24 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
         outputs += [report_dir / "report.html", report_dir / "report.json"]
     check_outputs(outputs, [data_path] + _machine_inputs(machine_spec),
                   [report_dir] if report_dir is not None else [])
-    split = None if holdout is None else (holdout_arg(holdout), seed)
-    header, _ = read_table(data_path)
-    kind = measurement_kind(data_path, header, machine)
-    for option, given in (("--pose-noise", pose_noise is not None),
-                          ("--fix-frames", fix_frames)):
-        if given and kind != "pose":
-            raise InputError(f"{option}: applies to full-pose data (a Stewart with x, y, z "
-                             f"and orientation columns); {data_path} has {kind} data")
-    if kind == "pose":
-        for option, given in (("--estimate-lc", estimate_lc is not None),
-                              ("--two-step", two_step), ("--robust", robust)):
-            if given:
-                raise InputError(f"{option}: does not apply to full-pose data ({data_path}); "
-                                 "see --method ml|ik, --fix-frames, --noise, --pose-noise")
-        if method not in (None, "ml", "ik"):
-            raise InputError(f"--method {method}: full-pose data are calibrated by ml "
-                             "(maximum likelihood, default) or ik (inverse-kinematic residuals)")
-        return _calibrate_full_pose(machine, machine_spec, data_path, output, report_path,
-                                    method or "ml", noise, pose_noise, fix_frames, json_output,
-                                    report_dir, split)
-    if kind == "tracker":
-        for option, given in (("--method", method is not None),
-                              ("--estimate-lc", estimate_lc is not None)):
-            if given:
-                raise InputError(f"{option}: applies to constraint-link data; {data_path} has "
-                                 "tracker points (see --two-step, --robust)")
-        return _calibrate_tracker(machine, machine_spec, data_path, output, report_path, noise,
-                                  two_step, robust, json_output, report_dir, split)
-    for option, given in (("--two-step", two_step), ("--robust", robust)):
-        if given:
-            raise InputError(f"{option}: applies to laser-tracker data (mx, my, mz columns); "
-                             f"{data_path} has {kind} data")
-    return _calibrate_constraint_link(machine, machine_spec, data_path, output, report_path,
-                                      method or "ml", noise or "1um", estimate_lc, json_output,
-                                      report_dir, split)
-
-
-def _calibrate_constraint_link(machine, machine_spec: str, data_path: Path, output: Path,
-                               report_path: Path, method: str, noise: str,
-                               estimate_lc: bool | None, json_output: bool,
-                               report_dir: Path | None = None, split=None) -> int:
-    sigma = parse_quantity(noise, "length", "--noise")
-    if not sigma > 0:
-        raise InputError(f"--noise: must be > 0 (the standard deviation of the encoder "
-                         f"noise), got {noise}")
-    check_option_scale(sigma, machine, "--noise", "noise", noise)
-    kind = "constraint-link"
-    data, held = _split_rows(read_constraint_link(data_path, machine), split, data_path)
-
-    from ..calibration import calibrate_constraint_link, constraint_link_reading_rms
-
-    result = _solve(data_path, calibrate_constraint_link, machine, data, held=held,
-                    method=method, sigma_m=sigma, estimate_link_length=estimate_lc)
-    if not _converged(result, data_path):
+    try:
+        calibration = calibrate(machine, data_path, method=method, noise=noise,
+                                pose_noise=pose_noise, estimate_lc=estimate_lc,
+                                two_step=two_step, robust=robust, fix_frames=fix_frames,
+                                holdout=holdout, seed=seed)
+    except CalibrationNotConverged as exc:
+        error(str(exc))
         return 1
-    from ..calibration.constraint_link import PROBLEMS
-
-    kw = {} if estimate_lc is None else {"estimate_link_length": estimate_lc}
-    result.extras["rebuild_problem"] = lambda: PROBLEMS[method](machine, data, sigma, **kw)
-
-    units = _units(machine)
-    fl = LENGTH[units["length"]]
-    calibrated = result.extras["machine"]
-    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
-    # FK start of the calibrated file: the input machine's home (a central pose of the working
-    # assembly mode) rather than the first measured pose, which may sit at the workspace edge
-    home_P, home_R = machine.home
-    if np.all(np.isfinite(calibrated.ik(home_P, home_R))):
-        calibrated.home = (home_P, home_R)
-    date = run_date()
-    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
-    nominal_of["link.length"] = data.link_length
-    params = _parameter_table(result, nominal_of, units)
-    r = np.asarray(result.residuals, float)
-    r_m = r * sigma
-    rank = int(result.rank)
-    n_free = int(np.sum(result.parameters.free))
-    s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
-    dropped = [int(v) for v in np.asarray(result.extras.get("dropped_rows", []))]
-    lc_index = result.parameters.names.index("link.length") \
-        if "link.length" in result.parameters.names else None
-    lc_estimated = lc_index is not None and not bool(result.parameters.fixed[lc_index])
-    lc = float(result.extras.get("link_length", data.link_length))
-    residual_what = {"ml": "all joint readings", "ik": "passive joint readings",
-                     "fk": "computed link length |P| - Lc"}[method]
-    report = {
-        "pkmcal_report": 1,
-        "command": "calibrate",
-        "date": date,
-        "machine_file": str(getattr(machine, "source", machine_spec)),
-        "data_file": str(data_path),
-        "calibrated_file": str(output),
-        "measurement": kind,
-        "method": method,
-        "units": units,
-        "measurements": len(data),
-        "dropped_rows": dropped,
-        "noise_sigma_um": sigma * 1e6,
-        "link_length": {"value": lc / fl, "assumed": data.link_length / fl,
-                        "unit": units["length"], "estimated": lc_estimated,
-                        "std": params[lc_index]["std"] if lc_estimated else None},
-        "convergence": {"success": bool(result.success), "status": int(result.status),
-                        "message": result.message, "iterations": int(result.nit),
-                        "evaluations": int(result.nfev)},
-        "residuals": {
-            "of": residual_what,
-            "count": int(r.size),
-            "rms_um": float(np.sqrt(np.mean(r_m**2)) * 1e6) if r.size else None,
-            "max_abs_um": float(np.max(np.abs(r_m)) * 1e6) if r.size else None,
-            "rms_per_column_um": (np.sqrt(np.mean(r_m**2, axis=0)) * 1e6).tolist()
-            if r.ndim == 2 and r.shape[1] > 1 else None,
-            "before_rms_um": _um(constraint_link_reading_rms(machine, data, sigma)),
-            "before": "machine file's geometry, all readings, poses fitted (maximum "
-                      "likelihood)",
-            "residual_variance": float(result.residual_variance),
-            "estimated_noise_um": float(np.sqrt(result.residual_variance) * sigma * 1e6)
-            if np.isfinite(result.residual_variance) else None,
-            "dof": int(result.dof),
-        },
-        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
-        "parameters": [{k: v for k, v in p.items() if k != "scaled_change"} for p in params],
-    }
-    if held is not None:
-        report["validation"] = _validation(
-            split, held, "joint readings of the held-out rows (poses fitted, geometry and Lc "
-            "held); before: the machine file's geometry", "um",
-            _um(constraint_link_reading_rms(machine, held, sigma)),
-            _um(constraint_link_reading_rms(calibrated, dataclasses.replace(held, link_length=lc),
-                                            sigma)),
-            report["residuals"]["rms_um"])
-    metadata = {
-        "method": method,
-        "date": date,
-        "data": str(data_path),
-        "machine": str(getattr(machine, "source", machine_spec)),
-        "measurements": len(data),
-        "rms_residual_um": report["residuals"]["rms_um"],
-        "identifiable": rank,
-        "free_parameters": n_free,
-        "unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable
-                           if d.std is None],
-        "weakly_identifiable": [d.name for d in unidentifiable if d.std is not None],
-        "link_length_estimated": lc_estimated,
-        "report": report_path.name,
-    }
-    json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
-                                   result, report_dir, nominal=machine)
-
-    if "warnings" in result.extras:         # ml: the start strategy says what it left out
-        for text in result.extras["warnings"]:
-            warning(f"{data_path}: {text}")
-    elif dropped:
-        warning(f"{data_path}: {len(dropped)} row(s) left out (no pose from the five active "
-                f"readings and the link with the start geometry): {_rows_text(dropped)}")
+    for text in calibration.warnings:
+        warning(text)
+    json_text = calibration.write(output, report_dir)
     if json_output:
         print(json_text, end="")
     else:
-        _print_calibration(report, params, data_path, output, report_path, machine)
+        printer = _CALIBRATION_PRINTERS.get(calibration.kind, _print_any_calibration)
+        printer(calibration.report, calibration.params, data_path, output, report_path,
+                machine)
     return 0
-
-
-def _um(value_m: float) -> float | None:
-    """Metres -> micrometres for a report; None when not finite."""
-    return _finite_or_none(float(value_m) * 1e6)
-
-
-def holdout_arg(text: str) -> float:
-    """``--holdout``: a share (0.2 or 20%) or a whole number of rows (30); the range is checked
-    against the data by :func:`~pkmcal.calibration.holdout_split`."""
-    t = text.strip()
-    try:
-        value = float(t[:-1]) / 100 if t.endswith("%") else float(t)
-    except ValueError:
-        value = float("nan")
-    if not np.isfinite(value) or (t.endswith("%") and not 0 < value < 1):
-        raise InputError(f"--holdout {text}: give the share of rows to hold out (e.g. 0.2 or "
-                         "20%) or their number (e.g. 30)")
-    return value
-
-
-def _split_rows(data, split, data_path):
-    """``(calibration data, held-out data or None)`` for ``--holdout``/``--seed``."""
-    if split is None:
-        return data, None
-    from ..calibration import holdout_split
-
-    try:
-        train, held = holdout_split(len(data), *split)
-    except ValueError as exc:
-        raise InputError(f"--holdout: {data_path}: {exc}") from None
-    return data.subset(train), data.subset(held)
-
-
-def _validation(split, held, of: str, unit: str, before, after, calibration, **extra) -> dict:
-    """The report's held-out validation section: RMS residuals of the held-out rows with the
-    machine file's and the calibrated model, next to the calibration rows' own RMS."""
-    ratio = after / calibration if after is not None and calibration else None
-    summary = (f"{len(held)} held-out rows: RMS {_fmt(before)} -> {_fmt(after)} {unit} "
-               f"(calibration rows {_fmt(calibration)} {unit}"
-               + (f"; held-out / calibration = {ratio:.3g}" if ratio is not None else "") + ")")
-    return {"summary": summary, "held_out": len(held), "rows": [int(r) for r in held.rows],
-            "holdout": split[0], "seed": split[1], "of": of, "unit": unit,
-            "before_rms": before, "after_rms": after, "calibration_rms": calibration,
-            "held_out_over_calibration": ratio, **extra}
-
-
-def _fmt(value) -> str:
-    return "n/a" if value is None else f"{value:.4g}"
-
-
-def _solve(data_path, calibrate, *args, held=None, **kwargs):
-    """Run a calibration; numerical failures caused by the data become an InputError naming
-    the data file (exit 2). With ``held`` (the rows --holdout set aside) a failure names the
-    option too: the rows left may be too few."""
-    try:
-        return calibrate(*args, **kwargs)
-    except (InputError, ValueError, np.linalg.LinAlgError) as exc:
-        message = str(exc) if isinstance(exc, InputError) else \
-            f"{data_path}: calibration failed: {exc}"
-        if held is not None:
-            message = (f"--holdout: holding out {len(held)} row(s) leaves {len(args[1])} "
-                       f"to calibrate on: {message}")
-        raise InputError(message) from None
-
-
-def _converged(result, source, advice: str = "") -> bool:
-    """True when the calibration converged; else says why (and what to try) on stderr,
-    naming the data file ``source``."""
-    if result.success and np.all(np.isfinite(result.x)):
-        return True
-    error(f"{source}: calibration did not converge: {result.message} (after {result.nit} "
-          "iterations)" + (f"; {advice}" if advice else "") + "; check the columns (order, "
-          "units) and the machine file; no file written")
-    return False
-
-
-def _identifiability_json(n_free, rank, unidentifiable, s) -> dict:
-    """The identifiability section of a calibration report: the directions the data cannot
-    fix, and apart from them the weakly identifiable ones (counted in ``identifiable``, left
-    at their start values; each with its standard deviation)."""
-    return {
-        "free_parameters": n_free,
-        "identifiable": rank,
-        "unidentifiable": [d.as_dict() for d in unidentifiable if d.std is None],
-        "weakly_identifiable": [d.as_dict() for d in unidentifiable if d.std is not None],
-        "condition_number": float(s[0] / s[rank - 1]) if rank else None,
-        "singular_values": s.tolist(),
-    }
-
-
-def versions(*extra: str) -> dict:
-    """Versions of Python, pkmcal, numpy, scipy and the ``extra`` packages (None: absent)."""
-    import platform
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {"python": platform.python_version()}
-    for name in ("pkmcal", "numpy", "scipy", *extra):
-        try:
-            out[name] = version(name)
-        except PackageNotFoundError:
-            out[name] = None
-    return out
-
-
-def provenance() -> dict:
-    """The command line, the versions and the platform that produce a report."""
-    import platform
-    import shlex
-    import sys
-
-    return {"command": "pkmcal " + shlex.join(sys.argv[1:]), **versions(),
-            "platform": platform.platform()}
-
-
-#: methods whose residuals are whitened by the whole noise model (every measurement noisy):
-#: only their chi-square can be tested against the noise. The paper's methods (constraint
-#: link ik/fk, full-pose ik, the tracker's two-step) treat some measurements as exact, so
-#: their residuals exceed the noise by design.
-WHITENED_METHODS = ("ml", "joint")
-
-
-def _acceptance(result, nominal, calibrated, source, method) -> dict:
-    """The believability checks of a converged calibration (chi-square of the residuals
-    against the assumed noise, for :data:`WHITENED_METHODS`; size of the changes against the
-    machine's scale): warnings in words with the usual causes, and the report's
-    ``acceptance`` section."""
-    from ..calibration.acceptance import parameter_changes, residual_test
-
-    out = {}
-    if method in WHITENED_METHODS:
-        test = residual_test(result)
-        out["residuals"] = test.as_dict()
-        if test.alarming:
-            warning(f"{source}: {test.message()}")
-    else:
-        out["residuals"] = {"tested": False, "why": f"the {method} method treats some "
-                            "measurements as exact: its residuals exceed the noise by design"}
-    if nominal is not None:
-        changes = parameter_changes(nominal, calibrated)
-        out["parameter_changes"] = {"suspicious": changes.suspicious}
-        if changes.suspicious:
-            warning(f"{source}: {changes.message()}")
-    return out
-
-
-def _write_calibration(calibrated, units, metadata, report, output, report_path,
-                       result=None, report_dir: Path | None = None, nominal=None) -> str:
-    """Write the calibrated machine file and its JSON report, at the very end and atomically;
-    the machine file is checked to load back first. Returns the JSON text.
-
-    With ``result`` the report carries the covariance of the machine's parameters (SI: m,
-    rad; the identifiable part, frames the data cannot fix held at the start values), which
-    ``pkmcal compensate`` propagates to the targets."""
-    if result is not None:
-        names = list(calibrated.parameters.names)
-        n = len(names)
-        report["covariance"] = {
-            "of": "machine parameters, SI units (m, rad, ratio), minimum-norm (identifiable "
-                  "part)",
-            "parameters": names,
-            "matrix": np.asarray(result.covariance, float)[:n, :n].tolist(),
-            # unidentifiable directions (columns, same units): pose changes along them are
-            # changes of frames the data cannot see, removed before predicting errors
-            "null_space": (np.asarray(result.null_space, float)
-                           * np.asarray(result.scales, float)[:, None])[:n].tolist(),
-        }
-        all_names = list(result.parameters.names)
-        if len(all_names) > n and all_names[:n] == names:
-            # with the measurement frames (tracker pose, motion-capture frames) and Lc: what
-            # compensate needs for targets given in the instrument's frame
-            report["covariance"]["with_frames"] = {
-                "parameters": all_names,
-                "matrix": np.asarray(result.covariance, float).tolist(),
-                "null_space": (np.asarray(result.null_space, float)
-                               * np.asarray(result.scales, float)[:, None]).tolist(),
-            }
-        # residual / assumed noise std of every residual, for the report's histogram
-        report["normalised_residuals"] = np.asarray(result.residuals, float).ravel().tolist()
-        standardised = _standardised(result)
-        if standardised is not None:
-            report["standardised_residuals"] = standardised
-        report["acceptance"] = _acceptance(result, nominal, calibrated,
-                                           report.get("data_file", "the data"),
-                                           report.get("method"))
-    report["provenance"] = provenance()
-    json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
-    # the machine file names its report and pins it by digest: a report of another run
-    # (or a half-replaced pair) is refused by compensate and report
-    beside = not is_stream(output)      # no JSON report beside /dev/null or a pipe
-    metadata = {**metadata, "report_sha256": text_digest(json_text)} if beside else \
-        {k: v for k, v in metadata.items() if k != "report"}
-    yaml_text = machine_to_text(calibrated, units, calibration=metadata)
-    parse_machine(yaml_text, str(output))   # the calibrated file must load back
-    html_text = None
-    if report_dir is not None:
-        from ..report.html import build_html
-
-        html_text = build_html(json.loads(json_text))
-    # one set: the report, then the machine file that names it, then --report DIR
-    if beside:
-        atomic_write_text(report_path, json_text)
-    atomic_write_text(output, yaml_text)
-    if html_text is not None:
-        atomic_write_text(report_dir / "report.json", json_text)
-        atomic_write_text(report_dir / "report.html", html_text)
-    commit_outputs()
-    return json_text
-
-
-def _standardised(result):
-    """Leverage-corrected standardised residuals for the report (None when the problem
-    cannot be evaluated again)."""
-    problem = result.extras.get("problem")
-    if problem is None and callable(result.extras.get("rebuild_problem")):
-        problem = result.extras["rebuild_problem"]()
-    if problem is None or result.state is None:
-        return None
-    from ..report.residuals import standardised_residuals
-
-    try:
-        return standardised_residuals(problem, result)
-    except (ValueError, np.linalg.LinAlgError):
-        return None
 
 
 def _print_calibration(report, params, data_path, output, report_path, machine) -> None:
@@ -1047,242 +535,6 @@ def _print_changes(params, limit: int = 10) -> None:
                         f"{p['identified']:.6f} {p['unit']}", f"{p['change'] * f:+.4g}", std,
                         micro)
     out.print(changes)
-
-
-def grid_neighbour_pairs(P, abs_tol: float = 1e-4, rel_tol: float = 0.01) -> np.ndarray:
-    """Index pairs (n, 2) of neighbouring points of an axis-aligned grid in positions ``P``.
-
-    ``j`` is the neighbour of ``i`` along an axis when ``P_j - P_i`` points along the positive
-    axis (off-axis part within ``abs_tol + rel_tol * distance``) and no closer point lies that
-    way; missing grid points are allowed. Seed 001 Fig. 6 compares such pairs.
-    """
-    P = np.asarray(P, float)
-    K = len(P)
-    pairs = []
-    for start in range(0, K, 512):                       # K x K temporaries in blocks
-        D = P[None, :, :] - P[start:start + 512, None, :]   # (B, K, 3) P_j - P_i
-        for axis in range(3):
-            along = D[..., axis]
-            off = np.linalg.norm(np.delete(D, axis, axis=-1), axis=-1)
-            dist = np.where((along > abs_tol) & (off <= abs_tol + rel_tol * along), along,
-                            np.inf)
-            j = np.argmin(dist, axis=1)
-            i = np.flatnonzero(np.isfinite(dist[np.arange(len(D)), j]))
-            pairs.append(np.stack([i + start, j[i]], -1))
-    return np.concatenate(pairs) if pairs else np.zeros((0, 2), int)
-
-
-def distance_ratio_pairs(machine, q) -> tuple[np.ndarray, str]:
-    """Pairs for the distance ratio: neighbours of the grid the readings were commanded to
-    (``machine``'s forward kinematics of them, i.e. the commanded points when ``machine`` is
-    the controller's model); nearest neighbours when the points form no grid."""
-    P = machine.fk(q).P
-    ok = np.all(np.isfinite(P), axis=-1)
-    pairs = grid_neighbour_pairs(np.where(ok[:, None], P, 1e9))
-    pairs = pairs[ok[pairs].all(axis=1)] if len(pairs) else pairs
-    if len(pairs):
-        return pairs, "neighbours on the commanded grid"
-    D = np.linalg.norm(P[:, None] - P[None], axis=-1)
-    np.fill_diagonal(D, np.inf)
-    j = np.argmin(np.where(np.isfinite(D), D, np.inf), axis=1)
-    pairs = np.unique(np.sort(np.stack([np.arange(len(P)), j], -1), axis=1), axis=0)
-    return pairs[ok[pairs].all(axis=1)], "nearest neighbours (the points form no grid)"
-
-
-def _ratio_stats(r) -> dict:
-    r = np.asarray(r, float)
-    r = r[np.isfinite(r)]
-    if not r.size:
-        return {"mean": None, "std": None, "min": None, "max": None}
-    return {"mean": float(r.mean()), "std": float(r.std()), "min": float(r.min()),
-            "max": float(r.max())}
-
-
-def _check_spread(data, noise_model) -> None:
-    """Refuse (nearly) collinear tracker points: the registration's rotation about their line
-    would be fixed only by the noise. Also fewer than 4 points (seed 001 eq. 12-14)."""
-    K = len(data)
-    if K < 4:
-        raise InputError(f"{data.source}: {K} point(s): the tracker registration needs at "
-                         "least 4 points that are not on one line (seed 001 uses a 3x3x3 grid)")
-    m = data.m - data.m.mean(0)
-    sv = np.linalg.svd(m, compute_uv=False)
-    off_line = sv[1] / math.sqrt(K)                       # RMS distance from the best line
-    sigma = float(np.sqrt(np.max(np.trace(noise_model.covariance(data.m), axis1=1, axis2=2))))
-    if off_line <= max(20 * sigma, 1e-6 * sv[0]):
-        raise InputError(f"{data.source}: the {K} tracker points lie on one line or nearly (RMS "
-                         f"distance from the best line {off_line * 1e6:.3g} um, tracker noise "
-                         f"{sigma * 1e6:.3g} um): the "
-                         "rotation of the tracker about that line cannot be found; measure "
-                         "points spread in 2-3 directions (e.g. a 3x3x3 grid)")
-
-
-def _calibrate_tracker(machine, machine_spec: str, data_path: Path, output: Path,
-                       report_path: Path, noise: str | None, two_step: bool, robust: bool,
-                       json_output: bool, report_dir: Path | None = None, split=None) -> int:
-    from ..calibration import calibrate_tracker, distance_ratios, predict_tracker_points
-
-    noise_model, noise_text = tracker_noise_arg(noise, allow_none=False, machine=machine)
-    data, held = _split_rows(read_tracker(data_path, machine), split, data_path)
-    _check_spread(data, noise_model)
-    fk = machine.fk(data.q)
-    if not fk.converged.all():
-        raise InputError(f"{data_path}: row(s) {_rows_text(data.rows[~fk.converged])}: no "
-                         f"platform position of {machine.source} reproduces these arm angles "
-                         "(outside the workspace, or a wrong angle unit or zero)")
-    result = _solve(data_path, calibrate_tracker, machine, data, noise_model, held=held,
-                    joint=not two_step, robust=robust)
-    if not _converged(result, data_path,
-                      "spread the points in all three directions, e.g. a 3x3x3 grid"):
-        return 1
-
-    units = _units(machine)
-    fl = LENGTH[units["length"]]
-    method = "two-step" if two_step else "joint"
-    calibrated = result.extras["machine"]
-    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
-    # FK start of the calibrated file: the input machine's home, else the measured position
-    # closest to the middle of the data that the calibrated model reaches
-    P_cal = calibrated.fk(data.q).P
-    order = np.argsort(np.linalg.norm(P_cal - np.nanmean(P_cal, axis=0), axis=1))
-    for P_home in [machine.home[0], *P_cal[order]]:
-        if np.all(np.isfinite(calibrated.ik(P_home))):
-            calibrated.home = (np.asarray(P_home, float), np.eye(3))
-            break
-    R, t = result.extras["registration"]
-    R0, t0 = result.extras["start_registration"]
-    kept = np.asarray(result.extras["kept"], bool)
-    outlier_rows = [int(v) for v in result.extras["outlier_rows"]]
-    date = run_date()
-
-    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
-    nominal_of.update(zip(("tracker.rx", "tracker.ry", "tracker.rz"), (0.0, 0.0, 0.0),
-                          strict=True))
-    nominal_of.update(zip(("tracker.x", "tracker.y", "tracker.z"), t0, strict=True))
-    params = _parameter_table(result, nominal_of, units)
-
-    # residuals in the tracker frame (m); before = nominal model + closed-form registration
-    r = data.m - predict_tracker_points(calibrated, data.q, (R, t))
-    r0 = data.m - predict_tracker_points(machine, data.q, (R0, t0))
-    norm, norm0 = np.linalg.norm(r, axis=1), np.linalg.norm(r0, axis=1)
-    rms = lambda v: float(np.sqrt(np.mean(v**2)) * 1e6) if v.size else None
-    # distance ratio (seed 001 Fig. 6) over pairs of kept rows
-    pairs, pairs_from = distance_ratio_pairs(machine, data.q)
-    pairs = pairs[kept[pairs].all(axis=1)] if len(pairs) else pairs
-    d_meas = np.linalg.norm(data.m[pairs[:, 0]] - data.m[pairs[:, 1]], axis=-1) \
-        if len(pairs) else np.zeros(0)
-    pairs = pairs[d_meas > 1e-9] if len(pairs) else pairs
-    ratio_before = distance_ratios(machine, data.q, data.m, pairs) if len(pairs) else []
-    ratio_after = distance_ratios(calibrated, data.q, data.m, pairs) if len(pairs) else []
-    before, after = _ratio_stats(ratio_before), _ratio_stats(ratio_after)
-
-    rank = int(result.rank)
-    n_free = int(np.sum(result.parameters.free))
-    s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
-    da, _, _, _, db = calibrated.legs()
-    rot_change = float(np.degrees(np.linalg.norm(_rotvec(R @ R0.T))))
-    report = {
-        "pkmcal_report": 1,
-        "command": "calibrate",
-        "date": date,
-        "machine_file": str(getattr(machine, "source", machine_spec)),
-        "data_file": str(data_path),
-        "calibrated_file": str(output),
-        "measurement": "tracker",
-        "method": method,
-        "robust": robust,
-        "units": units,
-        "measurements": len(data),
-        "used": int(kept.sum()),
-        "outlier_rows": outlier_rows,
-        "noise": noise_text,
-        "smr_offset": machine.smr_offset / fl,
-        "registration": {
-            "estimated": not two_step,
-            "rotation": R.tolist(), "translation": (np.asarray(t) / fl).tolist(),
-            "unit": units["length"],
-            "start": {"rotation": R0.tolist(), "translation": (np.asarray(t0) / fl).tolist(),
-                      "method": "closed form (SVD) with the nominal model"},
-            "rotation_change_deg": rot_change,
-            "translation_change": float(np.linalg.norm(t - t0) / fl),
-        },
-        "convergence": {"success": bool(result.success), "status": int(result.status),
-                        "message": result.message, "iterations": int(result.nit),
-                        "evaluations": int(result.nfev)},
-        "residuals": {
-            "of": "tracker points, measured - predicted (3-D distance, tracker frame)",
-            "count": int(kept.sum()),
-            "rms_um": rms(norm[kept]),
-            "max_um": float(norm[kept].max() * 1e6) if kept.any() else None,
-            "rms_per_axis_um": (np.sqrt(np.mean(r[kept] ** 2, axis=0)) * 1e6).tolist(),
-            "before_rms_um": rms(norm0[kept]),
-            "before": "machine file's model, closed-form registration",
-            "residual_variance": float(result.residual_variance),
-            "noise_scale": float(np.sqrt(result.residual_variance))
-            if np.isfinite(result.residual_variance) else None,
-            "dof": int(result.dof),
-            "outliers": [{"row": int(row), "residual_um": float(v * 1e6)} for row, v in
-                         zip(data.rows[~kept], norm[~kept], strict=True)],
-        },
-        "distance_ratio": {
-            "unit": "%", "pairs": int(len(pairs)), "pairs_from": pairs_from,
-            "before": before, "after": after,
-        },
-        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
-        "identifiable_combinations": {
-            "description": "db - da per leg (leg frame, file length unit): only this "
-                           "difference enters the model" + (
-                               "; with the tracker pose estimated it is fixed only up to one "
-                               "common translation v of the platform (db_i - da_i + Rphi_i v "
-                               "fits equally well)" if not two_step else ""),
-            **{f"leg{i + 1}.db - leg{i + 1}.da": ((db[i] - da[i]) / fl).tolist()
-               for i in range(3)}},
-        "parameters": [{k: v for k, v in p.items() if k != "scaled_change"} for p in params],
-    }
-    if held is not None:
-        d_after = np.linalg.norm(held.m - predict_tracker_points(calibrated, held.q, (R, t)),
-                                 axis=1)
-        d_before = np.linalg.norm(held.m - predict_tracker_points(machine, held.q, (R0, t0)),
-                                  axis=1)
-        ok = np.isfinite(d_after) & np.isfinite(d_before)
-        report["validation"] = _validation(
-            split, held, "tracker points of the held-out rows, measured - predicted (3-D "
-            "distance) with the identified tracker pose; before: the machine file's model and "
-            "the closed-form registration of the calibration rows", "um",
-            rms(d_before[ok]), rms(d_after[ok]), report["residuals"]["rms_um"],
-            max_after=float(d_after[ok].max() * 1e6) if ok.any() else None,
-            not_reached=[int(r) for r in held.rows[~ok]])
-    metadata = {
-        "method": f"tracker-{method}",
-        "date": date,
-        "data": str(data_path),
-        "machine": str(getattr(machine, "source", machine_spec)),
-        "measurements": len(data),
-        "outlier_rows": outlier_rows,
-        "rms_residual_um": report["residuals"]["rms_um"],
-        "identifiable": rank,
-        "free_parameters": n_free,
-        "unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable
-                           if d.std is None],
-        "weakly_identifiable": [d.name for d in unidentifiable if d.std is not None],
-        "distance_ratio_std_percent": {"before": before["std"], "after": after["std"]},
-        "report": report_path.name,
-    }
-    json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
-                                   result, report_dir, nominal=machine)
-
-    if json_output:
-        print(json_text, end="")
-    else:
-        _print_tracker_calibration(report, params, data_path, output, report_path, machine)
-    return 0
-
-
-def _rotvec(R):
-    from ..kinematics import rotvec_from_matrix
-
-    return rotvec_from_matrix(R)
 
 
 def _print_tracker_calibration(report, params, data_path, output, report_path, machine):
@@ -1358,166 +610,6 @@ def _print_tracker_calibration(report, params, data_path, output, report_path, m
     out.print(_wrote(output, report_path), markup=False)
 
 
-def _frame_report(frame, fl: float, unit: str) -> dict:
-    R, t = frame
-    from ..kinematics import rotation_angle
-
-    return {"rotation": np.asarray(R, float).tolist(),
-            "translation": (np.asarray(t, float) / fl).tolist(), "unit": unit,
-            "rotation_angle_deg": float(np.degrees(rotation_angle(np.asarray(R, float))))}
-
-
-def _errors_report(errors, fl: float) -> dict:
-    s = errors.summary()
-    return {"leg_length_rms": s["leg_length_rms"] / fl, "leg_length_max": s["leg_length_max"] / fl,
-            "leg_length_rms_per_leg": [v / fl for v in s["leg_length_rms_per_leg"]],
-            "position_rms": s["position_rms"] / fl, "position_max": s["position_max"] / fl,
-            "orientation_rms_deg": float(np.degrees(s["orientation_rms"])),
-            "orientation_max_deg": float(np.degrees(s["orientation_max"])),
-            "fk_failed": s["fk_failed"]}
-
-
-def _calibrate_full_pose(machine, machine_spec: str, data_path: Path, output: Path,
-                         report_path: Path, method: str, noise: str | None,
-                         pose_noise: str | None, fix_frames: bool, json_output: bool,
-                         report_dir: Path | None = None, split=None) -> int:
-    from ..calibration import calibrate_full_pose, full_pose_errors
-    from ..measurements import MeasurementFrames
-
-    noise_model = full_pose_noise_arg(noise, pose_noise, strict=True, machine=machine)
-    data, held = _split_rows(read_full_pose(data_path, machine), split, data_path)
-    file_frames = getattr(machine, "measurement_frames", None)
-    if fix_frames:
-        frames = file_frames if file_frames is not None else MeasurementFrames.identity()
-        frames_from = ("the machine file's measurement_frames" if file_frames is not None
-                       else "identity (the machine file has no measurement_frames)")
-    else:
-        frames = file_frames
-        frames_from = ("start: the machine file's measurement_frames" if file_frames is not None
-                       else "start: closed form from the design model")
-    result = _solve(data_path, calibrate_full_pose, machine, data, held=held, method=method,
-                    noise=noise_model, frames=frames, fix_frames=fix_frames)
-    # the machine file's legs with the frames fitted alone: "before calibration"
-    before = _solve(data_path, calibrate_full_pose, machine, data, held=held, method=method,
-                    noise=noise_model, frames=frames if fix_frames
-                    else result.extras["start_frames"], fix_frames=fix_frames,
-                    fit_machine=False)
-    if not _converged(result, data_path):
-        return 1
-
-    units = _units(machine)
-    fl = LENGTH[units["length"]]
-    calibrated = result.extras["machine"]
-    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
-    calibrated.home = machine.home
-    frames_id = result.extras["frames"]
-    err_after = full_pose_errors(calibrated, frames_id, data)
-    err_before = full_pose_errors(machine, before.extras["frames"], data)
-    date = run_date()
-
-    from ..io.machine_file import reading_factor
-
-    reading_unit = machine.reading_unit
-    gain_factor = fl / reading_factor(reading_unit)         # internal gain -> file gain
-    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
-    start = result.extras["start_frames"]
-    for name, (R, t) in (("mocap_from_base", start.mocap_from_base),
-                         ("platform_from_marker", start.platform_from_marker)):
-        nominal_of.update({f"{name}.r{c}": 0.0 for c in "xyz"})
-        nominal_of.update({f"{name}.{c}": v for c, v in zip("xyz", t, strict=True)})
-    params = _parameter_table(result, nominal_of, units)
-    for p in params:
-        if p["name"].endswith(".gain"):
-            for key in ("nominal", "identified", "change", "std"):
-                if p[key] is not None:
-                    p[key] = p[key] / gain_factor
-            p["unit"] = f"{units['length']}/{reading_unit}"
-    rank = int(result.rank)
-    n_free = int(np.sum(result.parameters.free))
-    s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
-    variance = float(result.residual_variance)
-    if hasattr(result.extras.get("problem"), "noise_whitened") and result.dof > 0:
-        # the ik estimate takes the poses as exact, but their noise is in the residuals: the
-        # residual variance relative to the whole noise (readings + poses through the IK)
-        r = result.extras["problem"].noise_whitened(result.state)
-        variance = float(np.sum(r**2) / result.dof)
-    after, before_rep = _errors_report(err_after, fl), _errors_report(err_before, fl)
-    report = {
-        "pkmcal_report": 1,
-        "command": "calibrate",
-        "date": date,
-        "machine_file": str(getattr(machine, "source", machine_spec)),
-        "data_file": str(data_path),
-        "calibrated_file": str(output),
-        "measurement": "pose",
-        "method": method,
-        "units": units,
-        "reading_unit": reading_unit,
-        "measurements": len(data),
-        "noise": {"reading_um": noise_model.reading_m * 1e6,
-                  "position_um": noise_model.position_m * 1e6,
-                  "orientation_urad": noise_model.orientation_rad * 1e6},
-        "frames": {
-            "fixed": bool(fix_frames), "from": frames_from,
-            "mocap_from_base": _frame_report(frames_id.mocap_from_base, fl, units["length"]),
-            "platform_from_marker": _frame_report(frames_id.platform_from_marker, fl,
-                                                  units["length"]),
-        },
-        "convergence": {"success": bool(result.success), "status": int(result.status),
-                        "message": result.message, "iterations": int(result.nit),
-                        "evaluations": int(result.nfev)},
-        "residuals": {
-            "unit": units["length"],
-            "leg_length": "l0 + gain q minus the leg length at the measured pose (through the "
-                          "frames)",
-            "pose": "measured marker pose minus the one forward kinematics of the readings "
-                    "predict (through the frames)",
-            "before": "the machine file's legs, frames fitted alone",
-            "before_calibration": before_rep,
-            "after_calibration": after,
-            "residual_variance": variance,
-            "noise_scale": math.sqrt(variance) if math.isfinite(variance) else None,
-            "dof": int(result.dof),
-        },
-        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
-        "parameters": [{k: v for k, v in p.items() if k != "scaled_change"} for p in params],
-    }
-    if held is not None:
-        h_after = _errors_report(full_pose_errors(calibrated, frames_id, held), fl)
-        h_before = _errors_report(full_pose_errors(machine, before.extras["frames"], held), fl)
-        report["validation"] = _validation(
-            split, held, "pose error of the held-out rows: forward kinematics of the readings "
-            "(through the identified frames) vs the measured pose; before: the machine file's "
-            "legs, frames fitted alone on the calibration rows", units["length"],
-            *_finite_or_none([h_before["position_rms"], h_after["position_rms"],
-                              after["position_rms"]]), before_calibration=h_before,
-            after_calibration=h_after)
-    metadata = {
-        "method": f"full-pose-{method}",
-        "date": date,
-        "data": str(data_path),
-        "machine": str(getattr(machine, "source", machine_spec)),
-        "measurements": len(data),
-        "leg_length_rms": {"before": before_rep["leg_length_rms"],
-                           "after": after["leg_length_rms"], "unit": units["length"]},
-        "frames_fixed": bool(fix_frames),
-        "identifiable": rank,
-        "free_parameters": n_free,
-        "unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable
-                           if d.std is None],
-        "weakly_identifiable": [d.name for d in unidentifiable if d.std is not None],
-        "report": report_path.name,
-    }
-    json_text = _write_calibration(calibrated, units, metadata, report, output, report_path,
-                                   result, report_dir, nominal=machine)
-    if json_output:
-        print(json_text, end="")
-    else:
-        _print_full_pose_calibration(report, params, data_path, output, report_path, machine)
-    return 0
-
-
 def _print_full_pose_calibration(report, params, data_path, output, report_path,
                                  machine) -> None:
     out = console()
@@ -1574,6 +666,38 @@ def _print_full_pose_calibration(report, params, data_path, output, report_path,
                   "the identifiable part.", markup=False)
     commit_outputs()
     out.print(_wrote(output, report_path), markup=False)
+
+
+
+def _print_any_calibration(report, params, data_path, output, report_path, machine) -> None:
+    """The summary of a measurement kind without a summary of its own: what every report
+    has."""
+    out = console()
+    ident, conv = report["identifiability"], report["convergence"]
+    table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
+                   show_header=False)
+    table.add_row("measurement", f"{report['measurement']}, {report['measurements']} rows")
+    table.add_row("method", str(report["method"]))
+    table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
+                  "parameter directions" + (f", of which {len(ident['weakly_identifiable'])} "
+                                            "weakly" if ident["weakly_identifiable"] else ""))
+    for d in ident["unidentifiable"]:
+        table.add_row("not identifiable", f"{d['dimension']} x {d['name']}: {d['description']}")
+    for d in ident["weakly_identifiable"]:
+        table.add_row("weakly identifiable", f"{d['name']}: {d['description']}")
+    if "validation" in report:
+        table.add_row("held-out", report["validation"]["summary"])
+    table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
+    out.print(table)
+    _print_changes(params)
+    commit_outputs()
+    out.print(_wrote(output, report_path), markup=False)
+
+
+#: the summary of each measurement kind (others: :func:`_print_any_calibration`)
+_CALIBRATION_PRINTERS = {"constraint-link": _print_calibration,
+                         "tracker": _print_tracker_calibration,
+                         "pose": _print_full_pose_calibration}
 
 
 # --------------------------------------------------------------------------------------------

@@ -7,20 +7,20 @@ from pathlib import Path
 
 import numpy as np
 
+from ..calibration.run import file_units as _units
+from ..calibration.run import json_safe as _finite_or_none
+from ..calibration.run import rows_text as _rows_text
+from ..calibration.run import text_digest
 from ..errors import InputError
 from ..io.atomic import read_input_text
 from ._commands import (
-    _finite_or_none,
     _machine_inputs,
-    _rows_text,
     _table,
-    _units,
     check_outputs,
     joint_columns,
     load_machine_arg,
     read_poses_of,
     refuse_outside_limits,
-    text_digest,
 )
 from ._console import console, warning
 

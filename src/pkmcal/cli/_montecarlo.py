@@ -16,17 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..calibration.run import json_safe as _finite_or_none
+from ..calibration.run import versions
 from ..errors import InputError
 from ..report.provenance import run_date
 from ..units import parse_quantity
-from ._commands import (
-    _finite_or_none,
-    _table,
-    check_outputs,
-    commit_outputs,
-    load_machine_arg,
-    versions,
-)
+from ._commands import _table, check_outputs, commit_outputs, load_machine_arg
 from ._console import console, progress_tasks, warning
 
 #: files written into the output directory

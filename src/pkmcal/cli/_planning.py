@@ -9,24 +9,22 @@ from pathlib import Path
 
 import numpy as np
 
+from ..calibration.run import file_units as _units
+from ..calibration.run import full_pose_noise_arg, measurement_kind, tracker_noise_arg
+from ..calibration.run import json_safe as _finite_or_none
+from ..calibration.run import rows_text as _rows_text
 from ..errors import InputError
 from ..io import read_constraint_link, read_full_pose, read_table, read_tracker
 from ..io.plausibility import check_option_scale
 from ..units import LENGTH, parse_quantity
 from ._commands import (
     _MEASUREMENT_WORDS,
-    _finite_or_none,
-    _rows_text,
     _table,
-    _units,
     check_outputs,
     commit_outputs,
-    full_pose_noise_arg,
     joint_columns,
     load_machine_arg,
-    measurement_kind,
     read_poses_of,
-    tracker_noise_arg,
 )
 from ._console import console, progress_tasks
 
