@@ -213,16 +213,22 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
 
 
 def predict_tracker_points(machine: Machine, q, base_from_tracker, targets=None, target=None):
-    """Tracker-frame SMR points predicted by a model for actuator readings.
+    """Tracker-frame target points predicted by a model for actuator readings.
 
     Parameters
     ----------
-    machine : Delta
-        The model (needs ``smr_offset``).
+    machine : Machine
+        The model (its :meth:`~pkmcal.machines.Machine.tracker_target`, a Delta's
+        ``smr_offset``, when it gives one).
     q : array_like, shape (K, n_joints)
         Actuator readings, rad.
     base_from_tracker : tuple of array_like
         ``(R (3, 3), t (3,))``: a tracker point ``m`` is ``R m + t`` in the base frame.
+    targets : array_like, shape (n_targets, 3), optional
+        Places of the targets on the platform (m) when the machine gives none (a calibration's
+        ``extras["targets"]``); default the platform origin.
+    target : array_like of int, shape (K,), optional
+        0-based target of each row; default 0.
 
     Returns
     -------
@@ -237,7 +243,8 @@ def predict_tracker_points(machine: Machine, q, base_from_tracker, targets=None,
     c = np.asarray(c, float)
     if c.ndim == 2:
         c = c[np.zeros(len(fk.P), int) if target is None else np.asarray(target, int)]
-    x = fk.P + np.einsum("kij,...j->ki", fk.R, c)
+    c = np.broadcast_to(c, fk.P.shape)
+    x = fk.P + np.einsum("kij,kj->ki", fk.R, c)
     return (x - t) @ R
 
 

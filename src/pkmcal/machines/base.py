@@ -118,6 +118,9 @@ class Machine(ABC):
     pose_dof: int = 6
     #: what the joint readings measure: "length" (prismatic) or "angle" (revolute)
     joint_quantity: str = "length"
+    #: the instrument a machine is measured with when none is named (a registry name,
+    #: :mod:`pkmcal.instruments.registry`)
+    default_instrument: str = "tracker"
     #: poses per forward-kinematics chunk (temporaries stay in cache)
     fk_chunk: int = 8192
 

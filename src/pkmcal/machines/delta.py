@@ -87,6 +87,8 @@ class Delta(Machine):
     """
 
     kind = "delta"
+    #: the instrument of its source paper (seed 001)
+    default_instrument = "tracker"
     n_joints = 3
     pose_dof = 3
     joint_quantity = "angle"

@@ -78,6 +78,8 @@ class HexaSlide(Machine):
     """
 
     kind = "hexaslide"
+    #: the instrument of its source paper (seed 000): the calibrations' default scenario
+    default_instrument = "constraint-link"
     n_joints = 6
     pose_dof = 6
 

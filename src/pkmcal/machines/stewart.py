@@ -72,6 +72,8 @@ class Stewart(Machine):
     """
 
     kind = "stewart"
+    #: the instrument of SPEC 2.4 (motion capture)
+    default_instrument = "pose"
     n_joints = 6
     pose_dof = 6
 

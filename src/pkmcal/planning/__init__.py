@@ -16,6 +16,7 @@ from .scenarios import (
     STANDARD_PLANS,
     StandardPlan,
     candidate_poses,
+    candidate_set,
     default_noise,
     describe_noise,
     measurement_frames,
@@ -29,7 +30,8 @@ from .scenarios import (
 
 __all__ = [
     "CRITERIA", "DEFAULT_PLAN_SIZE", "Design", "SCENARIOS", "SCENARIO_OF", "STANDARD_PLANS",
-    "Selection", "StandardPlan", "candidate_poses", "criterion_value", "default_noise",
+    "Selection", "StandardPlan", "candidate_poses", "candidate_set", "criterion_value",
+    "default_noise",
     "describe_noise", "design_from_problem", "measurement_frames", "planned_data",
     "planned_problem", "random_values", "scenario_for", "scenario_problem", "select_poses",
     "standard_plan", "tracker_pose",

@@ -3,72 +3,80 @@
 A *plan* is a set of platform poses at which a machine will be measured. From a plan and the
 nominal machine we build exactly the calibration problem ``pkmcal calibrate`` would solve if
 the measurements came back noise-free (readings from the nominal inverse kinematics, measured
-points or poses through the nominal measurement frames). Its scaled, whitened identification
-Jacobian gives identifiability, the Cramer-Rao bound and the information each pose adds
-(:mod:`pkmcal.planning.design`), all without a measurement.
+points, poses or distances through the nominal instrument). Its scaled, whitened
+identification Jacobian gives identifiability, the Cramer-Rao bound and the information each
+pose adds (:mod:`pkmcal.planning.design`), all without a measurement.
 
-Scenarios (one per measurement type, SPEC 2):
-
-- ``constraint-link`` (Hexa Slide, seed 000): poses with ``|P| = Lc``; six joint readings,
-  the encoder noise ``sigma`` (m) weighs them.
-- ``tracker`` (Delta, seed 001): platform points; a laser tracker measures the reflector;
-  :class:`~pkmcal.measurements.TrackerNoise` weighs them; the registration is estimated
-  jointly.
-- ``pose`` (six-leg platforms, SPEC 2.4): platform poses; leg readings and a motion-capture
-  pose through unknown measurement frames; :class:`~pkmcal.measurements.FullPoseNoise`.
+A scenario is an instrument of the registry (:mod:`pkmcal.instruments.registry`):
+``constraint-link`` (seed 000), ``tracker`` (``points``: laser tracker, CMM), ``pose``
+(``poses``: motion capture) and ``distance`` (``distances``: a ballbar), each on every machine
+it applies to. The functions here look the instrument up and ask it; none switches on a
+machine or an instrument.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from ..errors import InputError
+from ..instruments.registry import (
+    INSTRUMENTS,
+    SPHERE_TOL,  # noqa: F401  (re-exported: plans off the sphere by more are refused)
+    StandardPlan,
+    instrument,
+    link_length,  # noqa: F401
+    measurement_frames,
+    tracker_pose,
+)
 from ..machines.base import Machine
 
-#: the measurement type each machine kind is calibrated from
+__all__ = ["DEFAULT_PLAN_SIZE", "SCENARIOS", "SCENARIO_OF", "STANDARD_PLANS", "StandardPlan",
+           "candidate_poses", "candidate_set", "default_noise", "describe_noise",
+           "measurement_frames", "planned_data", "planned_problem", "scenario_for",
+           "scenario_problem", "standard_plan", "tracker_pose"]
+
+#: the instrument each machine type is calibrated from by default (its source paper's)
 SCENARIO_OF = {"hexaslide": "constraint-link", "delta": "tracker", "stewart": "pose"}
-SCENARIOS = ("constraint-link", "tracker", "pose")
+#: every scenario (canonical names; aliases are accepted by :func:`scenario_for`)
+SCENARIOS = tuple(INSTRUMENTS)
 #: default plan sizes (seed 000: 150 poses; seed 001: a 3x3x3 grid; SPEC 2.4: 60 poses)
-DEFAULT_PLAN_SIZE = {"constraint-link": 150, "tracker": 27, "pose": 60}
-#: constraint-link plans: largest allowed deviation of |P| from Lc (m); poses within it are
-#: put on the sphere (rounding in a hand-made plan file)
-SPHERE_TOL = 1e-4
+DEFAULT_PLAN_SIZE = {name: inst.plan_size for name, inst in INSTRUMENTS.items()}
 
 
 def scenario_for(machine: Machine, scenario: str | None = None) -> str:
-    """The measurement type of ``machine`` (``scenario`` checked against it when given).
+    """The scenario of ``machine``: the requested one when it applies, else its default.
 
     Parameters
     ----------
     machine : Machine
-        The machine (its ``kind``).
-    scenario : {'constraint-link', 'tracker', 'pose'}, optional
-        A requested scenario.
+        The machine.
+    scenario : str, optional
+        A requested scenario (a name or alias of :mod:`pkmcal.instruments.registry`).
 
     Returns
     -------
     str
-        The machine's scenario (:data:`SCENARIO_OF`).
+        The canonical scenario name.
 
     Raises
     ------
     InputError
-        When the machine type has no scenario, or ``scenario`` is unknown or not the machine's.
+        When the scenario is unknown or does not apply to the machine (with the reason), or
+        the machine has no default.
     """
-    kind = getattr(machine, "kind", "")
-    own = SCENARIO_OF.get(kind)
     if scenario is None:
-        if own is None:
-            raise InputError(f"no measurement scenario for machines of type {kind!r}")
-        return own
-    if scenario not in SCENARIOS:
-        raise InputError(f"unknown scenario {scenario!r}; use one of {', '.join(SCENARIOS)}")
-    if scenario != own:
-        raise InputError(f"a {kind} is calibrated from {own} measurements in this version, not "
-                         f"{scenario}")
-    return scenario
+        name = getattr(machine, "default_instrument", None) or \
+            SCENARIO_OF.get(getattr(machine, "kind", ""))
+        if name is None:
+            raise InputError(f"no measurement scenario for machines of type "
+                             f"{getattr(machine, 'kind', '')!r}")
+        return name
+    inst = instrument(scenario)
+    why = inst.applies(machine)
+    if why is not None:
+        raise InputError(f"--scenario {scenario}: does not apply to this "
+                         f"{getattr(machine, 'kind', 'machine')}: {why}")
+    return inst.name
 
 
 def default_noise(scenario: str):
@@ -76,24 +84,16 @@ def default_noise(scenario: str):
 
     Parameters
     ----------
-    scenario : {'constraint-link', 'tracker', 'pose'}
+    scenario : str
         The scenario.
 
     Returns
     -------
-    float, TrackerNoise or FullPoseNoise
-        Encoder noise 1e-6 m for ``constraint-link``; the default ``TrackerNoise`` for
-        ``tracker``; the default ``FullPoseNoise`` otherwise.
+    object
+        Encoder noise 1e-6 m (constraint link), ``TrackerNoise``, ``FullPoseNoise`` or the
+        ballbar's ``IsotropicNoise``.
     """
-    if scenario == "constraint-link":
-        return 1e-6
-    if scenario == "tracker":
-        from ..measurements import TrackerNoise
-
-        return TrackerNoise()
-    from ..measurements import FullPoseNoise
-
-    return FullPoseNoise()
+    return instrument(scenario).default_noise()
 
 
 def describe_noise(scenario: str, noise) -> str:
@@ -101,9 +101,9 @@ def describe_noise(scenario: str, noise) -> str:
 
     Parameters
     ----------
-    scenario : {'constraint-link', 'tracker', 'pose'}
+    scenario : str
         The scenario.
-    noise : float, TrackerNoise or FullPoseNoise
+    noise : object
         The noise model of that scenario (:func:`default_noise`).
 
     Returns
@@ -111,77 +111,15 @@ def describe_noise(scenario: str, noise) -> str:
     str
         One line, values in um and urad.
     """
-    if scenario == "constraint-link":
-        return f"encoder noise {noise * 1e6:.4g} um (std)"
-    if scenario == "tracker":
-        return (f"laser tracker: {noise.distance * 1e6:.3g} um along the beam, "
-                f"{noise.transverse * 1e6:.3g} um + {noise.transverse_per_m * 1e6:.3g} um/m "
-                "across (std)")
-    return (f"leg readings {noise.reading_m * 1e6:.3g} um, poses {noise.position_m * 1e6:.3g} "
-            f"um / {noise.orientation_rad * 1e6:.3g} urad (std)")
+    return instrument(scenario).describe_noise(noise)
 
 
-@dataclass
-class StandardPlan:
-    """The instrument's standard measurement plan of a scenario (what one measures without
-    planning), or the reason there is none of a given size.
-
-    Attributes
-    ----------
-    name : str
-        The plan in words, e.g. "seed 001's 3x3x3 grid around home".
-    P : ndarray, shape (n, 3) or None
-        Positions, m; None when there is no standard plan of the size asked for.
-    R : ndarray, shape (n, 3, 3) or None
-        Orientations.
-    reason : str
-        Why there is none (empty when there is one).
-    """
-
-    name: str
-    P: np.ndarray | None = None
-    R: np.ndarray | None = None
-    reason: str = ""
-
-    @property
-    def available(self) -> bool:
-        """True when the plan has poses."""
-        return self.P is not None
-
-    def __len__(self) -> int:
-        return 0 if self.P is None else len(self.P)
-
-
-def _tracker_grid_plan(machine: Machine, n: int, seed: int) -> StandardPlan:
-    """Seed 001's grid (3x3x3, dx = dy = 150 mm, dz = 40 mm around home); for ``n = k^3``
-    the k x k x k grid spanning the same box."""
-    from ..measurements import TRACKER_GRID_SPACING, grid_points
-
-    k = int(round(n ** (1.0 / 3.0)))
-    if k < 2 or k**3 != n:
-        return StandardPlan("seed 001's grid around home",
-                            reason=f"seed 001's grid has 3 x 3 x 3 = 27 points (k x k x k "
-                                   f"grids in its box: 8, 27, 64, ...), not {n}")
-    span = 2.0 * np.asarray(TRACKER_GRID_SPACING, float)       # the 3x3x3 grid's extent
-    P = grid_points(machine.home[0], span / (k - 1), (k, k, k))
-    return StandardPlan(f"the {k}x{k}x{k} grid of seed 001 around home", P,
-                        np.broadcast_to(np.eye(3), (n, 3, 3)))
-
-
-def _sampled_plan(machine: Machine, scenario: str, n: int, seed: int) -> StandardPlan:
-    """The simulations' default sample of ``n`` poses (:func:`candidate_poses` with ``seed``)."""
-    P, R = candidate_poses(machine, scenario, n, rng=seed)
-    where = "on the constraint sphere" if scenario == "constraint-link" else "around home"
-    return StandardPlan(f"{n} random planned poses {where} (seed {seed})", P, R)
+def _standard_plan_entry(name):
+    return lambda machine, n, seed: INSTRUMENTS[name].standard_plan(machine, n, seed)
 
 
 #: the standard plan of each scenario: ``(machine, n, seed) -> StandardPlan``
-STANDARD_PLANS = {
-    "constraint-link": lambda machine, n, seed: _sampled_plan(machine, "constraint-link", n,
-                                                              seed),
-    "tracker": _tracker_grid_plan,
-    "pose": lambda machine, n, seed: _sampled_plan(machine, "pose", n, seed),
-}
+STANDARD_PLANS = {name: _standard_plan_entry(name) for name in INSTRUMENTS}
 
 
 def standard_plan(machine: Machine, scenario: str, n: int | None = None,
@@ -190,16 +128,16 @@ def standard_plan(machine: Machine, scenario: str, n: int | None = None,
     without data, and what ``pkmcal select-poses`` compares with and starts from.
 
     A machine may define its own (a method ``standard_plan(scenario, n, seed)`` returning a
-    :class:`StandardPlan`); otherwise the scenario's entry of :data:`STANDARD_PLANS`: tracker,
-    seed 001's 3x3x3 grid (dx = dy = 150 mm, dz = 40 mm around home; k x k x k grids in the
-    same box for ``n = k^3``, none for other ``n``); constraint link and full pose, the
-    simulations' default sample of ``n`` feasible poses (:func:`candidate_poses`, ``seed``).
+    :class:`StandardPlan`); otherwise the instrument's: tracker on a translating platform,
+    seed 001's 3x3x3 grid (k x k x k grids in the same box for ``n = k^3``, none for other
+    ``n``); distance, three ballbar circles; the others, the simulations' default sample of
+    ``n`` feasible poses (``seed``).
 
     Parameters
     ----------
     machine : Machine
         The nominal machine.
-    scenario : {'constraint-link', 'tracker', 'pose'}
+    scenario : str
         The scenario.
     n : int, optional
         Number of poses; default :data:`DEFAULT_PLAN_SIZE` of the scenario.
@@ -217,32 +155,24 @@ def standard_plan(machine: Machine, scenario: str, n: int | None = None,
         For an unknown scenario, ``n < 1``, or when a sampled plan finds too few feasible
         poses.
     """
-    if scenario not in SCENARIOS:
-        raise InputError(f"unknown scenario {scenario!r}; use one of {', '.join(SCENARIOS)}")
-    n = DEFAULT_PLAN_SIZE[scenario] if n is None else int(n)
+    inst = instrument(scenario)
+    n = inst.plan_size if n is None else int(n)
     if n < 1:
         raise InputError(f"the number of planned poses must be >= 1, got {n}")
     own = getattr(machine, "standard_plan", None)
     if callable(own):
-        return own(scenario, n, seed)
-    return STANDARD_PLANS[scenario](machine, n, seed)
+        return own(inst.name, n, seed)
+    return inst.standard_plan(machine, n, seed)
 
 
-def candidate_poses(machine: Machine, scenario: str, n: int, rng=None):
-    """``n`` feasible candidate poses of a scenario.
-
-    constraint-link: the sphere ``|P| = Lc`` (cap of 35 deg around home, rotations within
-    +/-25 deg), reachable, well conditioned and drivable with the link mounted
-    (:func:`~pkmcal.measurements.sample_sphere_poses`). tracker: uniform in the box spanned by
-    seed 001's 3x3x3 grid around home, reachable and away from singular poses. pose: the SPEC 5
-    workspace (0.1 m cube around home, +/-10 deg), well conditioned
-    (:func:`~pkmcal.measurements.sample_platform_poses`).
+def candidate_set(machine: Machine, scenario: str, n: int, rng=None):
+    """``n`` feasible candidate poses of a scenario, with their setups.
 
     Parameters
     ----------
     machine : Machine
         The nominal machine.
-    scenario : {'constraint-link', 'tracker', 'pose'}
+    scenario : str
         The scenario.
     n : int
         Number of poses (>= 1).
@@ -254,7 +184,45 @@ def candidate_poses(machine: Machine, scenario: str, n: int, rng=None):
     P : ndarray, shape (n, 3)
         Positions, m.
     R : ndarray, shape (n, 3, 3)
-        Orientations (the identity for ``tracker``).
+        Orientations.
+    group : ndarray of int, shape (n,) or None
+        0-based setup of each pose (ballbar mountings), None for one.
+
+    Raises
+    ------
+    InputError
+        When ``n < 1`` or not enough feasible poses are found.
+    """
+    if n < 1:
+        raise InputError(f"the number of candidate poses must be >= 1, got {n}")
+    return instrument(scenario).candidates(machine, n, np.random.default_rng(rng))
+
+
+def candidate_poses(machine: Machine, scenario: str, n: int, rng=None):
+    """``n`` feasible candidate poses of a scenario (:func:`candidate_set` without setups).
+
+    constraint-link: the sphere ``|P| = Lc`` (cap of 35 deg around home, rotations within
+    +/-25 deg); tracker: uniform in the box of seed 001's grid on translating platforms, else
+    the workspace around home with rotations; pose: the workspace around home with rotations;
+    distance: spheres of the ballbar length around the planned pivots.
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    scenario : str
+        The scenario.
+    n : int
+        Number of poses (>= 1).
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed.
+
+    Returns
+    -------
+    P : ndarray, shape (n, 3)
+        Positions, m.
+    R : ndarray, shape (n, 3, 3)
+        Orientations.
 
     Raises
     ------
@@ -262,62 +230,19 @@ def candidate_poses(machine: Machine, scenario: str, n: int, rng=None):
         When ``n < 1``, a constraint-link machine has no link length, or not enough feasible
         poses are found.
     """
-    if n < 1:
-        raise InputError(f"the number of candidate poses must be >= 1, got {n}")
-    rng = np.random.default_rng(rng)
-    if scenario == "constraint-link":
-        from ..measurements import sample_sphere_poses
-
-        return sample_sphere_poses(machine, link_length(machine), n, rng)
-    if scenario == "tracker":
-        from ..measurements import TRACKER_GRID_SPACING
-        from ..measurements.deviations import draw_accepted
-
-        half = np.asarray(TRACKER_GRID_SPACING, float)      # the 3x3x3 grid spans +/- spacing
-        centre = machine.home[0]
-
-        def draw(m, rng):
-            P = centre + rng.uniform(-1.0, 1.0, (m, 3)) * half
-            R = np.broadcast_to(np.eye(3), (m, 3, 3))
-            q, J, _ = machine.ik_jacobians(P, R, want_du=False)
-            ok = np.all(np.isfinite(q), -1)
-            ok[ok] = _translation_conditioning(J[ok]) > 0.05
-            return P, R, ok
-
-        where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")
-        return draw_accepted(draw, n, rng, (f"{where}: " if where else "")
-                             + "only {have} of {n} candidate points around home are reachable "
-                             "and well conditioned: check the geometry and home")
-    from ..measurements import sample_platform_poses
-
-    return sample_platform_poses(machine, n, rng)
+    P, R, _ = candidate_set(machine, scenario, n, rng)
+    return P, R
 
 
-def _translation_conditioning(J):
-    """Inverse condition number of the translation columns of joint Jacobians (K, n, 6)."""
-    sv = np.linalg.svd(np.asarray(J)[..., :3], compute_uv=False)
-    return sv[..., -1] / sv[..., 0]
-
-
-def link_length(machine: Machine) -> float:
-    Lc = getattr(machine, "constraint_link_length", None)
-    if Lc is None:
-        raise InputError(f"{getattr(machine, 'source', 'the machine file')}: no "
-                         "constraint_link length; constraint-link plans need it")
-    return float(Lc)
-
-
-def planned_data(machine: Machine, scenario: str, P, R=None, rows=None, source="<plan>"):
+def planned_data(machine: Machine, scenario: str, P, R=None, rows=None, source="<plan>",
+                 group=None):
     """Noise-free measurements of the *nominal* machine at planned poses.
-
-    Constraint-link plans get the passive actuator cycling through the joints; tracker plans
-    are measured through :func:`tracker_pose`, pose plans through :func:`measurement_frames`.
 
     Parameters
     ----------
     machine : Machine
         The nominal machine.
-    scenario : {'constraint-link', 'tracker', 'pose'}
+    scenario : str
         The scenario.
     P : array_like, shape (K, 3)
         Planned positions, m.
@@ -327,10 +252,12 @@ def planned_data(machine: Machine, scenario: str, P, R=None, rows=None, source="
         Row labels for messages; default 1..K.
     source : str, optional
         Name of the plan, for messages.
+    group : array_like of int, shape (K,), optional
+        0-based target / setup of each pose.
 
     Returns
     -------
-    ConstraintLinkData, TrackerData or FullPoseData
+    object
         The data of the scenario, with the planned poses as the true ones.
 
     Raises
@@ -342,103 +269,22 @@ def planned_data(machine: Machine, scenario: str, P, R=None, rows=None, source="
     P = np.atleast_2d(np.asarray(P, float))
     R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else np.asarray(R, float)
     rows = np.arange(1, len(P) + 1) if rows is None else np.asarray(rows)
-    if scenario == "constraint-link":
-        P = _on_sphere(P, machine, rows, source)
-    q = machine.ik(P, R)
-    bad = ~np.all(np.isfinite(q), -1)
-    if bad.any():
-        raise InputError(f"{source}: row(s) {_rows(rows[bad])}: pose(s) the machine cannot "
-                         "reach")
-    if scenario == "constraint-link":
-        from ..measurements import ConstraintLinkData
-
-        return ConstraintLinkData(q, link_length(machine), np.arange(len(P)) % machine.n_joints,
-                                  rows, source, true_P=P, true_R=R)
-    if scenario == "tracker":
-        from ..measurements import TrackerData
-
-        Rt, t = tracker_pose(machine)
-        smr = P - np.array([0.0, 0.0, getattr(machine, "smr_offset", 0.0)])
-        return TrackerData(q, (smr - t) @ Rt, rows=rows, source=source, true_P=P)
-    from ..measurements import FullPoseData
-
-    Pm, Rm = measurement_frames(machine).measured(P, R)
-    return FullPoseData(q, Pm, Rm, rows, source, true_P=P, true_R=R)
-
-
-def _on_sphere(P, machine, rows, source):
-    """Constraint-link plan poses put exactly on ``|P| = Lc`` (refused beyond SPHERE_TOL)."""
-    Lc = link_length(machine)
-    norm = np.linalg.norm(P, axis=-1)
-    off = ~(np.abs(norm - Lc) <= SPHERE_TOL)
-    if off.any():
-        raise InputError(f"{source}: row(s) {_rows(rows[off])}: |P| differs from the "
-                         f"constraint-link length {Lc * 1e3:.6g} mm by more than "
-                         f"{SPHERE_TOL * 1e3:g} mm; a constraint-link plan has its poses on "
-                         "that sphere")
-    return P * (Lc / norm)[:, None]
-
-
-def tracker_pose(machine: Machine):
-    """``base_from_tracker`` of the machine file, else the simulations' default.
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine (its ``base_from_tracker``, if any).
-
-    Returns
-    -------
-    tuple of ndarray
-        ``(R (3, 3), t (3,))`` (:func:`~pkmcal.measurements.default_tracker_pose` when the
-        machine has none).
-    """
-    pose = getattr(machine, "base_from_tracker", None)
-    if pose is None:
-        from ..measurements import default_tracker_pose
-
-        pose = default_tracker_pose()
-    return pose
-
-
-def measurement_frames(machine: Machine):
-    """``measurement_frames`` of the machine file, else the simulations' default.
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine (its ``measurement_frames``, if any).
-
-    Returns
-    -------
-    MeasurementFrames
-        The frames (:func:`~pkmcal.measurements.default_measurement_frames` when the machine has
-        none).
-    """
-    frames = getattr(machine, "measurement_frames", None)
-    if frames is None:
-        from ..measurements import default_measurement_frames
-
-        frames = default_measurement_frames()
-    return frames
+    return instrument(scenario).planned_data(machine, P, R, rows, source, group)
 
 
 def scenario_problem(machine: Machine, scenario: str, data, noise=None, registration=None,
                      frames=None):
     """The calibration problem ``pkmcal calibrate`` solves by default for ``data``, unsolved.
 
-    ML with the per-pose unknowns for the constraint link; joint registration for the tracker;
-    ML with the measurement frames estimated for full poses; at the nominal machine.
-
     Parameters
     ----------
     machine : Machine
         The nominal machine.
-    scenario : {'constraint-link', 'tracker', 'pose'}
+    scenario : str
         The scenario.
-    data : ConstraintLinkData, TrackerData or FullPoseData
+    data : object
         The measurements.
-    noise : float, TrackerNoise or FullPoseNoise, optional
+    noise : object, optional
         Noise model; default :func:`default_noise`.
     registration : tuple of ndarray, optional
         Tracker: start ``base_from_tracker``; default :func:`tracker_pose`.
@@ -447,54 +293,45 @@ def scenario_problem(machine: Machine, scenario: str, data, noise=None, registra
 
     Returns
     -------
-    ConstraintLinkML, TrackerProblem or FullPoseML
+    BlockProblem
         The problem.
 
     Raises
     ------
     InputError
-        When the problem cannot be set up for these data (see the problem classes).
+        When the problem cannot be set up for these data.
     """
-    noise = default_noise(scenario) if noise is None else noise
-    if scenario == "constraint-link":
-        from ..calibration import ConstraintLinkML
-
-        return ConstraintLinkML(machine, data, noise)
-    if scenario == "tracker":
-        from ..calibration import TrackerProblem
-
-        return TrackerProblem(machine, data, noise,
-                              tracker_pose(machine) if registration is None else registration)
-    from ..calibration import FullPoseML
-
-    return FullPoseML(machine, data, noise,
-                      measurement_frames(machine) if frames is None else frames)
+    start = {k: v for k, v in (("registration", registration), ("frames", frames))
+             if v is not None}
+    return instrument(scenario).problem(machine, data, noise, **start)
 
 
 def planned_problem(machine: Machine, scenario: str, P, R=None, noise=None, rows=None,
-                    source="<plan>"):
+                    source="<plan>", group=None):
     """:func:`scenario_problem` of the noise-free :func:`planned_data` at poses ``(P, R)``.
 
     Parameters
     ----------
     machine : Machine
         The nominal machine.
-    scenario : {'constraint-link', 'tracker', 'pose'}
+    scenario : str
         The scenario.
     P : array_like, shape (K, 3)
         Planned positions, m.
     R : array_like, shape (K, 3, 3), optional
         Planned orientations; default identity.
-    noise : float, TrackerNoise or FullPoseNoise, optional
+    noise : object, optional
         Noise model; default :func:`default_noise`.
     rows : array_like of int, optional
         Row labels for messages.
     source : str, optional
         Name of the plan, for messages.
+    group : array_like of int, shape (K,), optional
+        0-based target / setup of each pose.
 
     Returns
     -------
-    ConstraintLinkML, TrackerProblem or FullPoseML
+    BlockProblem
         The problem.
 
     Raises
@@ -503,9 +340,4 @@ def planned_problem(machine: Machine, scenario: str, P, R=None, noise=None, rows
         As :func:`planned_data` and :func:`scenario_problem`.
     """
     return scenario_problem(machine, scenario,
-                            planned_data(machine, scenario, P, R, rows, source), noise)
-
-
-def _rows(rows, limit: int = 10) -> str:
-    rows = [int(r) for r in rows]
-    return ", ".join(map(str, rows[:limit])) + (" ..." if len(rows) > limit else "")
+                            planned_data(machine, scenario, P, R, rows, source, group), noise)

@@ -1,0 +1,635 @@
+"""The instruments a user can measure a machine with, each one object: the registry.
+
+Every instrument knows, for any :class:`~pkmcal.machines.Machine`: whether it applies (and why
+not), its default noise model, candidate poses and its standard plan, the noise-free data of a
+plan on the nominal machine, and the calibration problem ``pkmcal calibrate`` solves. Planning
+(:mod:`pkmcal.planning.scenarios`), simulation and calibration look an instrument up here by
+name; adding one is adding an entry, touching neither the estimator nor the CLI.
+
+===================  ==================================================  =====================
+name (aliases)       measures                                            machines
+===================  ==================================================  =====================
+``constraint-link``  joint readings with a fixed-length link, one joint  platforms that rotate
+                     passive (seed 000)                                  (``constraint_link``)
+``tracker``          a target on the platform in the instrument frame    every machine
+(``points``)         (laser tracker, CMM, photogrammetry)
+``pose``             the marker pose (motion capture, 6-D tracker)       platforms that rotate
+(``poses``)
+``distance``         ballbar length between a pivot on the base and a    every machine
+(``distances``)      ball on the platform (ISO 230-4 circles)
+===================  ==================================================  =====================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..machines.base import Machine
+
+
+@dataclass
+class StandardPlan:
+    """The instrument's standard measurement plan (what one measures without planning), or
+    the reason there is none of a given size.
+
+    Attributes
+    ----------
+    name : str
+        The plan in words, e.g. "seed 001's 3x3x3 grid around home".
+    P : ndarray, shape (n, 3) or None
+        Positions, m; None when there is no standard plan of the size asked for.
+    R : ndarray, shape (n, 3, 3) or None
+        Orientations.
+    reason : str
+        Why there is none (empty when there is one).
+    group : ndarray of int, shape (n,) or None
+        0-based setup of each pose (distance plans), else None.
+    """
+
+    name: str
+    P: np.ndarray | None = None
+    R: np.ndarray | None = None
+    reason: str = ""
+    group: np.ndarray | None = None
+
+    @property
+    def available(self) -> bool:
+        """True when the plan has poses."""
+        return self.P is not None
+
+    def __len__(self) -> int:
+        return 0 if self.P is None else len(self.P)
+
+
+def _rows(rows, limit: int = 10) -> str:
+    rows = [int(r) for r in rows]
+    return ", ".join(map(str, rows[:limit])) + (" ..." if len(rows) > limit else "")
+
+
+def reachable(machine: Machine, P, R, rows, source) -> np.ndarray:
+    """Joint values of planned poses; InputError naming the rows the machine cannot reach."""
+    q = machine.ik(P, R)
+    bad = ~np.all(np.isfinite(q), -1)
+    if bad.any():
+        raise InputError(f"{source}: row(s) {_rows(rows[bad])}: pose(s) the machine cannot "
+                         "reach")
+    return q
+
+
+class Instrument:
+    """An instrument (see the module docstring); subclasses fill in the methods."""
+
+    #: canonical name (scenario and measurement type)
+    name: str = ""
+    #: other names users may give (``--scenario points``)
+    aliases: tuple = ()
+    #: what it measures, in words
+    words: str = ""
+    #: default number of planned poses
+    plan_size: int = 60
+
+    def applies(self, machine: Machine) -> str | None:
+        """Why this instrument cannot calibrate ``machine`` (None: it can).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        str or None
+            The reason in words.
+        """
+        return None
+
+    def default_noise(self):
+        """The noise model ``pkmcal calibrate`` assumes by default.
+
+        Returns
+        -------
+        object
+            The instrument's noise model.
+        """
+        raise NotImplementedError
+
+    def describe_noise(self, noise) -> str:
+        """The noise model in words (um, urad).
+
+        Parameters
+        ----------
+        noise : object
+            A noise model of this instrument.
+
+        Returns
+        -------
+        str
+            One line.
+        """
+        raise NotImplementedError
+
+    def candidates(self, machine: Machine, n: int, rng):
+        """``n`` feasible candidate poses and their setups.
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        n : int
+            Number of poses.
+        rng : numpy.random.Generator
+            Random generator.
+
+        Returns
+        -------
+        P : ndarray, shape (n, 3)
+            Positions, m.
+        R : ndarray, shape (n, 3, 3)
+            Orientations.
+        group : ndarray of int, shape (n,) or None
+            0-based setup of each pose (None: one).
+        """
+        from .simulate import sample_workspace_poses
+
+        P, R = sample_workspace_poses(machine, n, rng)
+        return P, R, None
+
+    def standard_plan(self, machine: Machine, n: int, seed: int) -> StandardPlan:
+        """The standard plan of ``n`` poses (default: the candidate sample of ``seed``).
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        n : int
+            Number of poses.
+        seed : int
+            Seed of sampled plans.
+
+        Returns
+        -------
+        StandardPlan
+            The plan.
+        """
+        P, R, group = self.candidates(machine, n, np.random.default_rng(seed))
+        return StandardPlan(f"{n} random planned poses around home (seed {seed})", P, R,
+                            group=group)
+
+    def planned_data(self, machine: Machine, P, R, rows, source, group=None):
+        """Noise-free measurements of the nominal machine at planned poses.
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        P : ndarray, shape (K, 3)
+            Positions, m.
+        R : ndarray, shape (K, 3, 3)
+            Orientations.
+        rows : ndarray of int, shape (K,)
+            Row labels for messages.
+        source : str
+            Name of the plan.
+        group : ndarray of int, shape (K,), optional
+            0-based setup of each pose.
+
+        Returns
+        -------
+        object
+            The instrument's data.
+        """
+        raise NotImplementedError
+
+    def problem(self, machine: Machine, data, noise=None, **start):
+        """The calibration problem ``pkmcal calibrate`` solves by default, unsolved.
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        data : object
+            The instrument's data.
+        noise : object, optional
+            Noise model; default :meth:`default_noise`.
+        **start
+            Start values of the instrument's unknowns (``registration``, ``frames``).
+
+        Returns
+        -------
+        BlockProblem
+            The problem.
+        """
+        raise NotImplementedError
+
+
+class ConstraintLink(Instrument):
+    """Seed 000: joint readings with the constraint link mounted, one joint passive."""
+
+    name = "constraint-link"
+    words = "a fixed-length constraint link, one joint passive (no external sensor)"
+    plan_size = 150
+
+    def applies(self, machine):
+        if machine.pose_dof != 6:
+            return ("the constraint link takes one degree of freedom of a platform that "
+                    "rotates; this machine's platform only translates")
+        if getattr(machine, "constraint_link_length", None) is None:
+            return ("the machine file has no constraint link: add `constraint_link: {length: "
+                    "...}` (in the file's length unit)")
+        return None
+
+    def default_noise(self):
+        return 1e-6
+
+    def describe_noise(self, noise):
+        return f"encoder noise {noise * 1e6:.4g} um (std)"
+
+    def candidates(self, machine, n, rng):
+        from ..measurements import sample_sphere_poses
+
+        P, R = sample_sphere_poses(machine, link_length(machine), n, rng)
+        return P, R, None
+
+    def standard_plan(self, machine, n, seed):
+        P, R, _ = self.candidates(machine, n, np.random.default_rng(seed))
+        return StandardPlan(f"{n} random planned poses on the constraint sphere (seed {seed})",
+                            P, R)
+
+    def planned_data(self, machine, P, R, rows, source, group=None):
+        from ..measurements import ConstraintLinkData
+
+        P = _on_sphere(P, machine, rows, source)
+        q = reachable(machine, P, R, rows, source)
+        return ConstraintLinkData(q, link_length(machine),
+                                  np.arange(len(P)) % machine.n_joints, rows, source,
+                                  true_P=P, true_R=R)
+
+    def problem(self, machine, data, noise=None, **start):
+        from ..calibration import ConstraintLinkML
+
+        return ConstraintLinkML(machine, data, self.default_noise() if noise is None else noise)
+
+
+#: constraint-link plans: largest allowed deviation of |P| from Lc (m); poses within it are
+#: put on the sphere (rounding in a hand-made plan file)
+SPHERE_TOL = 1e-4
+
+
+def link_length(machine: Machine) -> float:
+    """The machine file's constraint-link length, m; InputError when it has none."""
+    Lc = getattr(machine, "constraint_link_length", None)
+    if Lc is None:
+        raise InputError(f"{getattr(machine, 'source', 'the machine file')}: no "
+                         "constraint_link length; constraint-link plans need it")
+    return float(Lc)
+
+
+def _on_sphere(P, machine, rows, source):
+    """Constraint-link plan poses put exactly on ``|P| = Lc`` (refused beyond SPHERE_TOL)."""
+    Lc = link_length(machine)
+    norm = np.linalg.norm(P, axis=-1)
+    off = ~(np.abs(norm - Lc) <= SPHERE_TOL)
+    if off.any():
+        raise InputError(f"{source}: row(s) {_rows(rows[off])}: |P| differs from the "
+                         f"constraint-link length {Lc * 1e3:.6g} mm by more than "
+                         f"{SPHERE_TOL * 1e3:g} mm; a constraint-link plan has its poses on "
+                         "that sphere")
+    return P * (Lc / norm)[:, None]
+
+
+def tracker_pose(machine: Machine):
+    """``base_from_tracker`` of the machine file, else the simulations' default.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (its ``base_from_tracker``, if any).
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(R (3, 3), t (3,))``.
+    """
+    pose = getattr(machine, "base_from_tracker", None)
+    if pose is None:
+        from ..measurements import default_tracker_pose
+
+        pose = default_tracker_pose()
+    return pose
+
+
+#: where plans and simulations put an unknown target on the platform (platform frame, in
+#: characteristic lengths): off the platform origin, as a reflector nest on a tool would be
+TARGET_OFFSET = np.array([0.1, -0.05, -0.15])
+
+
+def plan_target(machine: Machine) -> np.ndarray:
+    """The target's place on the platform for plans: the machine's, else an offset one."""
+    c = machine.tracker_target()
+    return TARGET_OFFSET * machine.characteristic_length() if c is None else c
+
+
+class Tracker(Instrument):
+    """Points of a target on the platform in the instrument's frame (seed 001's tracker)."""
+
+    name = "tracker"
+    aliases = ("points",)
+    words = "a target on the platform measured in the instrument frame (laser tracker, CMM)"
+    plan_size = 27
+
+    def default_noise(self):
+        from ..measurements import TrackerNoise
+
+        return TrackerNoise()
+
+    def describe_noise(self, noise):
+        if hasattr(noise, "sigma"):
+            return f"points: {noise.sigma * 1e6:.3g} um per coordinate (std)"
+        return (f"laser tracker: {noise.distance * 1e6:.3g} um along the beam, "
+                f"{noise.transverse * 1e6:.3g} um + {noise.transverse_per_m * 1e6:.3g} um/m "
+                "across (std)")
+
+    def candidates(self, machine, n, rng):
+        if machine.pose_dof == 6:
+            return super().candidates(machine, n, rng)
+        from ..measurements import TRACKER_GRID_SPACING
+        from ..measurements.deviations import draw_accepted
+
+        half = np.asarray(TRACKER_GRID_SPACING, float)      # the 3x3x3 grid spans +/- spacing
+        centre = machine.home[0]
+
+        def draw(m, rng):
+            P = centre + rng.uniform(-1.0, 1.0, (m, 3)) * half
+            R = np.broadcast_to(np.eye(3), (m, 3, 3))
+            q, J, _ = machine.ik_jacobians(P, R, want_du=False)
+            ok = np.all(np.isfinite(q), -1)
+            sv = np.linalg.svd(np.asarray(J)[ok][..., :3], compute_uv=False)
+            ok[ok] = sv[..., -1] / sv[..., 0] > 0.05
+            return P, R, ok
+
+        where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")
+        P, R = draw_accepted(draw, n, rng, (f"{where}: " if where else "")
+                             + "only {have} of {n} candidate points around home are reachable "
+                             "and well conditioned: check the geometry and home")
+        return P, R, None
+
+    def standard_plan(self, machine, n, seed):
+        if machine.pose_dof == 6:
+            return super().standard_plan(machine, n, seed)
+        from ..measurements import TRACKER_GRID_SPACING, grid_points
+
+        k = int(round(n ** (1.0 / 3.0)))
+        if k < 2 or k**3 != n:
+            return StandardPlan("seed 001's grid around home",
+                                reason=f"seed 001's grid has 3 x 3 x 3 = 27 points (k x k x k "
+                                       f"grids in its box: 8, 27, 64, ...), not {n}")
+        span = 2.0 * np.asarray(TRACKER_GRID_SPACING, float)   # the 3x3x3 grid's extent
+        P = grid_points(machine.home[0], span / (k - 1), (k, k, k))
+        return StandardPlan(f"the {k}x{k}x{k} grid of seed 001 around home", P,
+                            np.broadcast_to(np.eye(3), (n, 3, 3)))
+
+    def planned_data(self, machine, P, R, rows, source, group=None):
+        from ..measurements import TrackerData
+
+        q = reachable(machine, P, R, rows, source)
+        Rt, t = tracker_pose(machine)
+        x = P + np.einsum("kij,j->ki", R, plan_target(machine))
+        return TrackerData(q, (x - t) @ Rt, rows=rows, source=source, true_P=P,
+                           target=None if group is None else np.asarray(group, int))
+
+    def problem(self, machine, data, noise=None, registration=None, **start):
+        from ..calibration import TrackerProblem
+
+        groups = getattr(data, "target", None)
+        n_targets = 1 if groups is None or not len(groups) else int(np.max(groups)) + 1
+        target = None if machine.tracker_target() is not None else \
+            np.tile(plan_target(machine), (n_targets, 1))
+        return TrackerProblem(machine, data, self.default_noise() if noise is None else noise,
+                              tracker_pose(machine) if registration is None else registration,
+                              targets=target)
+
+
+class Pose(Instrument):
+    """Full poses of a marker on the platform (motion capture), SPEC 2.4."""
+
+    name = "pose"
+    aliases = ("poses",)
+    words = "the marker pose (motion capture, 6-D tracker)"
+    plan_size = 60
+
+    def applies(self, machine):
+        if machine.pose_dof != 6:
+            return ("full poses need a platform that rotates; this machine's platform only "
+                    "translates: measure points (tracker) instead")
+        return None
+
+    def default_noise(self):
+        from ..measurements import FullPoseNoise
+
+        return FullPoseNoise()
+
+    def describe_noise(self, noise):
+        return (f"leg readings {noise.reading_m * 1e6:.3g} um, poses "
+                f"{noise.position_m * 1e6:.3g} um / {noise.orientation_rad * 1e6:.3g} urad "
+                "(std)")
+
+    def planned_data(self, machine, P, R, rows, source, group=None):
+        from ..measurements import FullPoseData
+
+        q = reachable(machine, P, R, rows, source)
+        Pm, Rm = measurement_frames(machine).measured(P, R)
+        return FullPoseData(q, Pm, Rm, rows, source, true_P=P, true_R=R)
+
+    def problem(self, machine, data, noise=None, frames=None, **start):
+        from ..calibration import FullPoseML
+
+        return FullPoseML(machine, data, self.default_noise() if noise is None else noise,
+                          measurement_frames(machine) if frames is None else frames)
+
+
+def measurement_frames(machine: Machine):
+    """``measurement_frames`` of the machine file, else the simulations' default.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (its ``measurement_frames``, if any).
+
+    Returns
+    -------
+    MeasurementFrames
+        The frames.
+    """
+    frames = getattr(machine, "measurement_frames", None)
+    if frames is None:
+        from ..measurements import default_measurement_frames
+
+        frames = default_measurement_frames()
+    return frames
+
+
+#: the ballbar length of plans and simulations, m (a common measuring-ballbar length)
+BALLBAR_LENGTH = 0.1
+#: setups of a distance plan: the circle planes of ISO 230-4 tests (normals)
+CIRCLE_NORMALS = ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0))
+
+
+def ballbar_setups(machine: Machine, length: float = BALLBAR_LENGTH):
+    """Pivots (base frame) and balls (platform frame) of the three planned ballbar setups.
+
+    The pivot of setup ``g`` stands ``length`` from the home position along the normal of the
+    ``g``-th circle plane (z, y, x), so the ball at the platform origin, on a ballbar of
+    ``length``, sweeps a sphere through home; the ball is at the platform origin.
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    length : float, optional
+        Ballbar length, m.
+
+    Returns
+    -------
+    pivots : ndarray, shape (3, 3)
+        One pivot per setup, m.
+    balls : ndarray, shape (3, 3)
+        One ball per setup, m (platform frame).
+    """
+    P0 = machine.home[0]
+    pivots = np.array([P0 - length * np.asarray(n) for n in CIRCLE_NORMALS])
+    return pivots, np.zeros((len(CIRCLE_NORMALS), 3))
+
+
+class Distance(Instrument):
+    """A measuring ballbar between a pivot on the base and a ball on the platform."""
+
+    name = "distance"
+    aliases = ("distances", "ballbar")
+    words = "ballbar lengths between a pivot on the base and a ball on the platform"
+    plan_size = 90
+
+    def default_noise(self):
+        from .models import IsotropicNoise
+
+        return IsotropicNoise(1e-6)
+
+    def describe_noise(self, noise):
+        return f"ballbar length {noise.sigma * 1e6:.3g} um (std)"
+
+    def candidates(self, machine, n, rng):
+        """Poses on the three setups' spheres (random directions within 60 deg of the pivot's
+        normal; random orientations within 10 deg on platforms that rotate)."""
+        from ..kinematics import matrix_from_euler
+        from ..measurements.deviations import draw_accepted
+
+        pivots, balls = ballbar_setups(machine)
+        P0, R0 = machine.home
+        normals = np.asarray(CIRCLE_NORMALS, float)
+        rotates = machine.pose_dof == 6
+
+        def draw(m, rng):
+            g = rng.integers(0, len(pivots), m)
+            v = rng.standard_normal((m, 3))
+            v /= np.linalg.norm(v, axis=-1, keepdims=True)
+            cos = np.sum(v * normals[g], -1)
+            v = np.where((cos < 0)[:, None], -v, v)
+            R = (matrix_from_euler(rng.uniform(-0.17, 0.17, (m, 3))) @ R0 if rotates
+                 else np.broadcast_to(np.eye(3), (m, 3, 3)).copy())
+            P = pivots[g] + BALLBAR_LENGTH * v - np.einsum("kij,kj->ki", R, balls[g])
+            with np.errstate(all="ignore"):
+                ok = machine.working_mode(P, R) & (np.abs(cos) > 0.5)
+            draw.group = g
+            return P, R, ok
+
+        groups = []
+
+        def tracked(m, rng):
+            P, R, ok = draw(m, rng)
+            groups.append(draw.group[ok])
+            return P, R, ok
+
+        where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")
+        P, R = draw_accepted(tracked, n, rng, (f"{where}: " if where else "")
+                             + "only {have} of {n} ballbar poses around home are reachable: "
+                             "check the geometry and home", machine=machine)
+        return P, R, np.concatenate(groups)[:n]
+
+    def standard_plan(self, machine, n, seed):
+        from .simulate import circle_poses
+
+        k = len(CIRCLE_NORMALS)
+        if n < 3 * k:
+            return StandardPlan("ballbar circles", reason=f"three circles need at least {3 * k} "
+                                f"poses, not {n}")
+        pivots, _ = ballbar_setups(machine)
+        P, R, g = [], [], []
+        for i, (normal, pivot) in enumerate(zip(CIRCLE_NORMALS, pivots, strict=True)):
+            m = n // k + (1 if i < n % k else 0)
+            # the circle of radius r at height h over the pivot: r^2 + h^2 = length^2
+            h = BALLBAR_LENGTH * np.cos(np.deg2rad(45.0))
+            Pi, Ri = circle_poses(machine, pivot + h * np.asarray(normal), h, m, normal)
+            P.append(Pi)
+            R.append(Ri)
+            g.append(np.full(m, i))
+        return StandardPlan(f"three ballbar circles of {n} poses (ISO 230-4 style, planes xy, "
+                            f"xz, yz; length {BALLBAR_LENGTH * 1e3:g} mm)",
+                            np.concatenate(P), np.concatenate(R), group=np.concatenate(g))
+
+    def planned_data(self, machine, P, R, rows, source, group=None):
+        from .data import InstrumentData
+
+        q = reachable(machine, P, R, rows, source)
+        group = np.zeros(len(P), int) if group is None else np.asarray(group, int)
+        pivots, balls = ballbar_setups(machine)
+        pivots, balls = pivots[group % len(pivots)], balls[group % len(pivots)]
+        d = np.linalg.norm(P + np.einsum("kij,kj->ki", R, balls) - pivots, axis=-1)
+        return InstrumentData("distances", q, d[:, None], group, rows, source, P, R)
+
+    def problem(self, machine, data, noise=None, **start):
+        from .models import DistancesModel
+        from .problem import InstrumentProblem
+
+        model = DistancesModel(data.n_groups)
+        pivots, balls = ballbar_setups(machine)
+        values = np.array(model.parameters.values, float)
+        for g in range(data.n_groups):
+            values[model._ip[g]] = pivots[g % len(pivots)]
+            values[model._ib[g]] = balls[g % len(pivots)]
+        model.parameters = model.parameters.with_values(values)
+        return InstrumentProblem(machine, data, model,
+                                 self.default_noise() if noise is None else noise)
+
+
+#: the instruments by canonical name
+INSTRUMENTS: dict[str, Instrument] = {i.name: i for i in (ConstraintLink(), Tracker(), Pose(),
+                                                          Distance())}
+
+
+def instrument(name: str) -> Instrument:
+    """The instrument of a name or alias.
+
+    Parameters
+    ----------
+    name : str
+        ``constraint-link``, ``tracker`` (``points``), ``pose`` (``poses``), ``distance``
+        (``distances``, ``ballbar``).
+
+    Returns
+    -------
+    Instrument
+        The registry entry.
+
+    Raises
+    ------
+    InputError
+        For an unknown name, listing the known ones.
+    """
+    for inst in INSTRUMENTS.values():
+        if name == inst.name or name in inst.aliases:
+            return inst
+    known = ", ".join(f"{i.name}" + (f" ({'/'.join(i.aliases)})" if i.aliases else "")
+                      for i in INSTRUMENTS.values())
+    raise InputError(f"unknown scenario {name!r}; use one of {known}")
