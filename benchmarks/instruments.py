@@ -386,7 +386,8 @@ def run(machine: str, instrument: str, runs: int = 100, seed: int = 0) -> dict:
         ``rank``, ``free``, ``poses``, ``runs``, ``noise_free_error`` (largest scaled error in
         the identifiable directions), ``ratio`` (RMS error / CRB), ``chi2`` (mean whitened
         squared error per identifiable direction), ``k_eff``, ``median_s`` (seconds per
-        calibration), ``success`` (all converged, none weak), ``errors`` and ``C`` (arrays).
+        calibration), ``success`` (all converged, none weak), ``unidentifiable`` (what the
+        library names, with dimensions), ``errors`` and ``C`` (arrays).
     """
     case = Case(machine, instrument, seed)
     bound = case.bound()
@@ -412,6 +413,7 @@ def run(machine: str, instrument: str, runs: int = 100, seed: int = 0) -> dict:
             "chi2": float(np.mean(chi2) / bound.rank), "k_eff": bound.k_eff,
             "median_s": float(np.median(seconds)),
             "success": bool(all(success) and set(ranks) == {bound.rank}),
+            "unidentifiable": {d.name: d.dimension for d in exact.extras["unidentifiable"]},
             "errors": errors, "C": bound.C}
 
 
@@ -443,6 +445,10 @@ def main(argv=None) -> int:
         rows.append({k: v for k, v in out.items() if k not in ("errors", "C")} | {"ok": ok})
     for (m, i), why in NOT_APPLICABLE.items():
         print(f"{m}-{i:<20} n/a: {why}")
+    print("\nunidentifiable (named by the library from the noise-free fit):")
+    for row in rows:
+        print(f"  {row['combination']:<27} " + "; ".join(
+            f"{name} ({dim})" for name, dim in row["unidentifiable"].items()))
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"runs": args.runs, "seed": args.seed, "results": rows,
