@@ -91,6 +91,21 @@ class Instrument:
     #: default number of planned poses
     plan_size: int = 60
 
+    def plan_size_for(self, machine: Machine) -> int:
+        """The default number of planned poses for ``machine``.
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        int
+            :attr:`plan_size` unless the instrument says otherwise.
+        """
+        return self.plan_size
+
     def applies(self, machine: Machine) -> str | None:
         """Why this instrument cannot calibrate ``machine`` (None: it can).
 
@@ -340,6 +355,10 @@ class Tracker(Instrument):
     words = "a target on the platform measured in the instrument frame (laser tracker, CMM)"
     plan_size = 27
 
+    def plan_size_for(self, machine):
+        # seed 001's 3x3x3 grid on a translating platform; poses with rotations otherwise
+        return self.plan_size if machine.pose_dof == 3 else 60
+
     def default_noise(self):
         from ..measurements import TrackerNoise
 
@@ -558,25 +577,15 @@ class Distance(Instrument):
         return P, R, np.concatenate(groups)[:n]
 
     def standard_plan(self, machine, n, seed):
-        from .simulate import circle_poses
-
         k = len(CIRCLE_NORMALS)
         if n < 3 * k:
-            return StandardPlan("ballbar circles", reason=f"three circles need at least {3 * k} "
-                                f"poses, not {n}")
-        pivots, _ = ballbar_setups(machine)
-        P, R, g = [], [], []
-        for i, (normal, pivot) in enumerate(zip(CIRCLE_NORMALS, pivots, strict=True)):
-            m = n // k + (1 if i < n % k else 0)
-            # the circle of radius r at height h over the pivot: r^2 + h^2 = length^2
-            h = BALLBAR_LENGTH * np.cos(np.deg2rad(45.0))
-            Pi, Ri = circle_poses(machine, pivot + h * np.asarray(normal), h, m, normal)
-            P.append(Pi)
-            R.append(Ri)
-            g.append(np.full(m, i))
-        return StandardPlan(f"three ballbar circles of {n} poses (ISO 230-4 style, planes xy, "
-                            f"xz, yz; length {BALLBAR_LENGTH * 1e3:g} mm)",
-                            np.concatenate(P), np.concatenate(R), group=np.concatenate(g))
+            return StandardPlan("ballbar on three mountings", reason=f"three mountings need "
+                                f"at least {3 * k} poses, not {n}")
+        P, R, group = self.candidates(machine, n, np.random.default_rng(seed))
+        turn = " and orientations within 10 deg" if machine.pose_dof == 6 else ""
+        return StandardPlan(f"a ballbar of {BALLBAR_LENGTH * 1e3:g} mm on three mountings: {n} "
+                            f"random poses on the spheres around the pivots{turn} (seed {seed})",
+                            P, R, group=group)
 
     def planned_data(self, machine, P, R, rows, source, group=None):
         from .data import InstrumentData

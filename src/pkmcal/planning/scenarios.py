@@ -130,7 +130,7 @@ def standard_plan(machine: Machine, scenario: str, n: int | None = None,
     A machine may define its own (a method ``standard_plan(scenario, n, seed)`` returning a
     :class:`StandardPlan`); otherwise the instrument's: tracker on a translating platform,
     seed 001's 3x3x3 grid (k x k x k grids in the same box for ``n = k^3``, none for other
-    ``n``); distance, three ballbar circles; the others, the simulations' default sample of
+    ``n``); distance, a ballbar on three mountings; the others, the simulations' default sample of
     ``n`` feasible poses (``seed``).
 
     Parameters
@@ -156,7 +156,7 @@ def standard_plan(machine: Machine, scenario: str, n: int | None = None,
         poses.
     """
     inst = instrument(scenario)
-    n = inst.plan_size if n is None else int(n)
+    n = inst.plan_size_for(machine) if n is None else int(n)
     if n < 1:
         raise InputError(f"the number of planned poses must be >= 1, got {n}")
     own = getattr(machine, "standard_plan", None)
