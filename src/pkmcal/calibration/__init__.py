@@ -9,6 +9,7 @@ from .constraint_link import (
     calibrate_constraint_link,
     solve_sphere_poses,
 )
+from .distances import calibrate_distances
 from .estimator import BlockProblem, CalibrationResult, levenberg_marquardt, reduce_local
 from .full_pose import (
     FullPoseErrors,
@@ -51,4 +52,4 @@ __all__ = ["METHODS", "BlockProblem", "CalibrationResult", "ConstraintLinkFK",
            "constraint_link_reading_rms", "holdout_split", "StartReport", "continuation_solve",
            "sphere_pose_candidates", "start_sensitivity", "KINDS", "Calibration",
            "CalibrationNotConverged", "MeasurementKind", "calibrate", "measurement_kind",
-           "register_kind", "supported_kinds"]
+           "register_kind", "supported_kinds", "calibrate_distances"]

@@ -203,6 +203,7 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
         method="tracker-joint" if joint else "tracker-two-step", machine=calibrated,
         registration=registration_of(state), start_registration=registration,
         targets=problem.model.targets(state.nuisance).copy(),
+        start_targets=(problem.model.targets(problem.model.initial()).copy()),
         outlier_rows=data.rows[~keep], kept=keep,
         unidentifiable=name_null_space(result.null_space, problem.parameters,
                                        problem.null_groups(state, result.scales,

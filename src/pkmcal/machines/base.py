@@ -267,6 +267,22 @@ class Machine(ABC):
             sv = np.linalg.svd(Js, compute_uv=False)
         return bad, not sv[-1] > 1e-9 * sv[0]
 
+    def identifiable_combinations(self, u=None) -> dict | None:
+        """Parameter combinations that are identifiable where their parts are not, in SI units.
+
+        Parameters
+        ----------
+        u : array_like, shape (n_params,), optional
+            Parameter vector; default :attr:`u`.
+
+        Returns
+        -------
+        dict or None
+            ``{"description": words, name: value (list or float), ...}``; None (the default)
+            when the machine has none worth reporting.
+        """
+        return None
+
     def tracker_target(self) -> np.ndarray | None:
         """The place of a tracker's target on the platform when the machine file gives it.
 

@@ -465,6 +465,25 @@ class Delta(Machine):
             P = P - np.linalg.solve(J[..., :3], r[..., None])[..., 0]
         return P
 
+    def identifiable_combinations(self, u=None) -> dict:
+        """``db - da`` per leg (leg frame, m): only this difference enters the leg equation.
+
+        Parameters
+        ----------
+        u : array_like, shape (27,), optional
+            Parameter vector; default :attr:`u`.
+
+        Returns
+        -------
+        dict
+            ``description`` and ``leg<i>.db - leg<i>.da`` (3 values each, m).
+        """
+        da, _, _, _, db = self.legs(u)
+        return {"description": "db - da per leg (leg frame): only this difference enters the "
+                               "model",
+                **{f"leg{i + 1}.db - leg{i + 1}.da": (db[i] - da[i]).tolist()
+                   for i in range(3)}}
+
     def tracker_target(self) -> np.ndarray:
         """The reflector ``smr_offset`` below the platform point (seed 001), platform frame.
 
