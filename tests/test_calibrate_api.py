@@ -131,8 +131,10 @@ def test_options_of_another_kind_are_refused_with_the_commands_words(data):
 
 def test_a_machine_that_cannot_use_the_data(data):
     path, _ = data["pose"]
-    with pytest.raises(InputError, match="pose measurements of a hexaslide cannot be"):
-        calibrate(machine_of("constraint-link"), path)
+    # the Delta's platform does not rotate: the registry's reason is given
+    with pytest.raises(InputError, match="pose measurements cannot calibrate a delta: full "
+                                         "poses need a platform that rotates"):
+        calibrate(machine_of("tracker"), path)
 
 
 def test_not_converged_is_an_exception(data, monkeypatch):
@@ -154,6 +156,6 @@ def test_not_converged_is_an_exception(data, monkeypatch):
 
 def test_kinds_are_a_registry():
     """Every kind names its data columns, its machines and its handler."""
-    assert set(KINDS) == {"constraint-link", "tracker", "pose"}
+    assert set(KINDS) == {"constraint-link", "tracker", "pose", "distance"}
     for kind in KINDS.values():
         assert kind.columns and callable(kind.calibrate) and callable(kind.check_options)

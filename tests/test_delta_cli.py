@@ -271,7 +271,7 @@ def test_bad_options_and_mismatches(delta_dir, tmp_path):
          ["constraint-link", "delta", "tracker"]),
         (("simulate", DELTA, "--noise", "loud", "-o", "o.csv"), ["--noise", "'loud'"]),
         (("calibrate", "default", delta_dir / "data.csv", "-o", "o.yaml"),
-         ["tracker measurements of a hexaslide"]),
+         ["q1_deg", "an angle unit, q1 is a length"]),
         (("calibrate", DELTA, delta_dir / "data.csv", "--method", "ik", "-o", "o.yaml"),
          ["--method", "constraint-link"]),
         (("calibrate", DELTA, delta_dir / "data.csv", "--noise", "none", "-o", "o.yaml"),

@@ -191,7 +191,7 @@ CSV_CASES = [
     ("tab-separated", "h", lambda ls: [x.replace(",", "\t") for x in ls],
      ["looks tab-separated", "comma-separated values"]),
     ("Delta data for a Hexa Slide", "h", lambda ls: None,
-     ["tracker measurements of a hexaslide cannot be calibrated"]),
+     ["column 'q1_deg'", "an angle unit, q1 is a length"]),
 ]
 
 

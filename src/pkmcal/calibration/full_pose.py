@@ -760,9 +760,10 @@ class FullPoseErrors:
 
     Attributes
     ----------
-    leg_length : ndarray, shape (K, 6)
-        ``l0 + gain q`` minus the leg length at the measured pose (mapped through the frames),
-        m: the inverse-kinematic residual as a length.
+    leg_length : ndarray, shape (K, n_joints)
+        The reading minus the reading at the measured pose (mapped through the frames), as a
+        length (:meth:`~pkmcal.machines.Machine.reading_sigma`: a Stewart's ``l0 + gain q``
+        minus the leg length up to the gain's sign), m.
     position : ndarray, shape (K,)
         Distance between the measured marker position and the one predicted by forward
         kinematics of the readings, m (NaN where it did not converge).
@@ -825,8 +826,8 @@ def full_pose_errors(machine: Machine, frames: MeasurementFrames,
         Per-row errors.
     """
     P, R = frames.platform(data.P, data.R)
-    _, _, L = machine.leg_vectors(P, R)
-    leg = machine.lengths(data.q) - L
+    # reading residual as a length: over the reading noise per metre (a Stewart's |gain|)
+    leg = (data.q - machine.ik(P, R)) / machine.reading_sigma(1.0)
     fk = machine.fk(data.q)
     Pm, Rm = frames.measured(fk.P, fk.R)
     pos = np.linalg.norm(Pm - data.P, axis=-1)

@@ -419,6 +419,9 @@ class MeasurementKind:
     missing : tuple of str or None
         ``(columns, words)``: when readings-only data are given for a machine calibrated from
         this kind, the message names these missing columns and the instrument.
+    instrument : str
+        The instrument of the registry (:mod:`pkmcal.instruments.registry`) whose
+        ``applies`` decides which machines the kind calibrates (empty: ``machines``).
     """
 
     name: str
@@ -431,6 +434,29 @@ class MeasurementKind:
     priority: int = 50
     readings_only: bool = False
     missing: tuple[str, str] | None = None
+    instrument: str = ""
+
+    def why_not(self, machine) -> str | None:
+        """Why ``machine`` cannot be calibrated from this kind (None: it can).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        str or None
+            The instrument's reason (:mod:`pkmcal.instruments.registry`), or a machine type
+            the kind is not for.
+        """
+        if self.instrument:
+            from ..instruments.registry import instrument
+
+            return instrument(self.instrument).applies(machine)
+        if self.machines is not None and machine.kind not in self.machines:
+            return f"this version calibrates {', '.join(self.machines)} machines from it"
+        return None
 
 
 #: the measurement kinds :func:`calibrate` knows, by name (:func:`register_kind`)
@@ -471,8 +497,7 @@ def supported_kinds(machine) -> dict[str, str]:
     dict
         Kind name -> what its data file holds.
     """
-    return {k.name: k.columns for k in _kinds()
-            if k.machines is None or machine.kind in k.machines}
+    return {k.name: k.columns for k in _kinds() if k.why_not(machine) is None}
 
 
 def measurement_kind(path, header: list[str], machine) -> str:
@@ -505,14 +530,29 @@ def measurement_kind(path, header: list[str], machine) -> str:
                          f"({', '.join(header)}); a {machine.kind} is calibrated from {need}")
     if found.name not in supported:
         hints = [KINDS[k].missing for k in supported if KINDS[k].missing]
+        if found.readings_only and found.instrument == machine.default_instrument:
+            # the machine's own instrument lacks something in the machine file
+            raise InputError(f"{_source_of(machine)}: {found.why_not(machine)}; {path} has "
+                             f"joint readings alone ({found.name} data)")
         if found.readings_only and hints:
             columns, words = hints[0]
             raise InputError(f"{path}: missing columns {columns}: a {machine.kind} is "
                              f"calibrated from {words} ({need}); columns found: "
                              f"{', '.join(header)}")
-        raise InputError(f"{path}: {found.name} measurements of a {machine.kind} cannot be "
-                         f"calibrated yet; this version calibrates a {machine.kind} from {need}")
+        raise InputError(f"{path}: {found.name} measurements cannot calibrate a {machine.kind}: "
+                         f"{found.why_not(machine)}; a {machine.kind} is calibrated from "
+                         f"{need}")
     return found.name
+
+
+def _names_of(kind: MeasurementKind) -> tuple:
+    """The kind's names: its own, its instrument's and the instrument's aliases."""
+    if not kind.instrument:
+        return (kind.name,)
+    from ..instruments.registry import instrument
+
+    inst = instrument(kind.instrument)
+    return (kind.name, inst.name, *inst.aliases)
 
 
 def _has(header, base: str) -> bool:
@@ -736,16 +776,17 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         kind = KINDS[measurement_kind(source, header, machine)]
     else:
         source = getattr(data, "source", None) or "the data"
-        kind = next((k for k in _kinds() if k.data_class == type(data).__name__), None)
+        kind = next((k for k in _kinds() if k.data_class == type(data).__name__
+                     and getattr(data, "kind", k.instrument) in _names_of(k)), None)
         if kind is None:
             raise InputError(f"{source}: {type(data).__name__} is no calibration data (known: "
                              f"{', '.join(k.data_class for k in _kinds())})")
         supported = supported_kinds(machine)
         if kind.name not in supported:
             need = "; ".join(f"{k}: {v}" for k, v in supported.items()) or "none yet"
-            raise InputError(f"{source}: {kind.name} measurements of a {machine.kind} cannot "
-                             f"be calibrated yet; this version calibrates a {machine.kind} "
-                             f"from {need}")
+            raise InputError(f"{source}: {kind.name} measurements cannot calibrate a "
+                             f"{machine.kind}: {kind.why_not(machine)}; a {machine.kind} is "
+                             f"calibrated from {need}")
     options = CalibrateOptions(method, noise, pose_noise, estimate_lc, two_step, robust,
                                fix_frames)
     kind.check_options(options, source)
@@ -1201,6 +1242,16 @@ def _check_spread(data, noise_model) -> None:
                          "points spread in 2-3 directions (e.g. a 3x3x3 grid)")
 
 
+def _as_tracker_data(data):
+    """Points given as the instrument layer's data, as tracker data (others unchanged)."""
+    if getattr(data, "kind", None) != "points":
+        return data
+    from ..measurements import TrackerData
+
+    return TrackerData(data.q, data.values, data.rows, data.source, data.true_P,
+                       target=data.group if data.n_groups > 1 else None)
+
+
 def _rotvec(R):
     from ..kinematics import rotvec_from_matrix
 
@@ -1227,13 +1278,14 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
                                                     machine=machine)
     else:
         noise_model, noise_text = options.noise, _tracker_noise_text(options.noise)
-    data, held = _split_rows(_load(data, read_tracker, machine), split, source)
+    data, held = _split_rows(_as_tracker_data(_load(data, read_tracker, machine)), split,
+                             source)
     _check_spread(data, noise_model)
     fk = machine.fk(data.q)
     if not fk.converged.all():
         raise InputError(f"{source}: row(s) {rows_text(data.rows[~fk.converged])}: no "
-                         f"platform position of {_source_of(machine)} reproduces these arm "
-                         "angles (outside the workspace, or a wrong angle unit or zero)")
+                         f"platform pose of {_source_of(machine)} reproduces these readings "
+                         "(outside the workspace, or a wrong unit or zero)")
     result = _solve(source, calibrate_tracker, machine, data, noise_model, held=held,
                     joint=not two_step, robust=robust)
     _require_converged(result, source,
@@ -1246,14 +1298,17 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
     calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
     # FK start of the calibrated file: the input machine's home, else the measured position
     # closest to the middle of the data that the calibrated model reaches
-    P_cal = calibrated.fk(data.q).P
-    order = np.argsort(np.linalg.norm(P_cal - np.nanmean(P_cal, axis=0), axis=1))
-    for P_home in [machine.home[0], *P_cal[order]]:
-        if np.all(np.isfinite(calibrated.ik(P_home))):
-            calibrated.home = (np.asarray(P_home, float), np.eye(3))
+    fk_cal = calibrated.fk(data.q)
+    order = np.argsort(np.linalg.norm(fk_cal.P - np.nanmean(fk_cal.P, axis=0), axis=1))
+    for P_home, R_home in [machine.home, *zip(fk_cal.P[order], fk_cal.R[order], strict=True)]:
+        if np.all(np.isfinite(calibrated.ik(P_home, R_home))):
+            calibrated.home = (np.asarray(P_home, float), np.asarray(R_home, float))
             break
     R, t = result.extras["registration"]
     R0, t0 = result.extras["start_registration"]
+    given = machine.tracker_target() is not None
+    targets, targets0 = result.extras["targets"], result.extras["start_targets"]
+    calibrated.tracker_targets = None if given else np.array(targets, float)
     kept = np.asarray(result.extras["kept"], bool)
     outlier_rows = [int(v) for v in result.extras["outlier_rows"]]
 
@@ -1264,8 +1319,8 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
     params = _parameter_table(result, nominal_of, units)
 
     # residuals in the tracker frame (m); before = nominal model + closed-form registration
-    r = data.m - predict_tracker_points(calibrated, data.q, (R, t))
-    r0 = data.m - predict_tracker_points(machine, data.q, (R0, t0))
+    r = data.m - predict_tracker_points(calibrated, data.q, (R, t), targets, data.target)
+    r0 = data.m - predict_tracker_points(machine, data.q, (R0, t0), targets0, data.target)
     norm, norm0 = np.linalg.norm(r, axis=1), np.linalg.norm(r0, axis=1)
     rms = lambda v: float(np.sqrt(np.mean(v**2)) * 1e6) if v.size else None  # noqa: E731
     # distance ratio (seed 001 Fig. 6) over pairs of kept rows
@@ -1282,7 +1337,14 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
     unidentifiable = list(result.extras.get("unidentifiable", []))
-    da, _, _, _, db = calibrated.legs()
+    combinations = calibrated.identifiable_combinations()
+    if combinations is not None:
+        combinations = {k: (v if k == "description" else (np.asarray(v) / fl).tolist())
+                        for k, v in combinations.items()}
+        combinations["description"] += (
+            " (file length unit); with the tracker pose estimated it is fixed only up to one "
+            "common translation of the platform (a shift of every platform joint fits "
+            "equally well)" if not two_step else " (file length unit)")
     rot_change = float(np.degrees(np.linalg.norm(_rotvec(R @ R0.T))))
     report = {
         **_report_head(machine, source, "tracker", method),
@@ -1292,7 +1354,10 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
         "used": int(kept.sum()),
         "outlier_rows": outlier_rows,
         "noise": noise_text,
-        "smr_offset": machine.smr_offset / fl,
+        **({"smr_offset": float(-machine.tracker_target()[2]) / fl} if given else {}),
+        "targets": {"given_by_machine_file": given, "unit": units["length"],
+                    "places": (np.asarray(targets, float) / fl).tolist(),
+                    "what": "target places on the platform (platform frame)"},
         "registration": {
             "estimated": not two_step,
             "rotation": R.tolist(), "translation": (np.asarray(t) / fl).tolist(),
@@ -1310,7 +1375,8 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
             "max_um": float(norm[kept].max() * 1e6) if kept.any() else None,
             "rms_per_axis_um": (np.sqrt(np.mean(r[kept] ** 2, axis=0)) * 1e6).tolist(),
             "before_rms_um": rms(norm0[kept]),
-            "before": "machine file's model, closed-form registration",
+            "before": "machine file's model, closed-form registration" if given else
+                      "machine file's model, tracker frame and targets fitted alone",
             "residual_variance": float(result.residual_variance),
             "noise_scale": float(np.sqrt(result.residual_variance))
             if np.isfinite(result.residual_variance) else None,
@@ -1323,21 +1389,14 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
             "before": before, "after": after,
         },
         "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
-        "identifiable_combinations": {
-            "description": "db - da per leg (leg frame, file length unit): only this "
-                           "difference enters the model" + (
-                               "; with the tracker pose estimated it is fixed only up to one "
-                               "common translation v of the platform (db_i - da_i + Rphi_i v "
-                               "fits equally well)" if not two_step else ""),
-            **{f"leg{i + 1}.db - leg{i + 1}.da": ((db[i] - da[i]) / fl).tolist()
-               for i in range(3)}},
+        **({"identifiable_combinations": combinations} if combinations else {}),
         "parameters": _public(params),
     }
     if held is not None:
-        d_after = np.linalg.norm(held.m - predict_tracker_points(calibrated, held.q, (R, t)),
-                                 axis=1)
-        d_before = np.linalg.norm(held.m - predict_tracker_points(machine, held.q, (R0, t0)),
-                                  axis=1)
+        d_after = np.linalg.norm(held.m - predict_tracker_points(
+            calibrated, held.q, (R, t), targets, held.target), axis=1)
+        d_before = np.linalg.norm(held.m - predict_tracker_points(
+            machine, held.q, (R0, t0), targets0, held.target), axis=1)
         ok = np.isfinite(d_after) & np.isfinite(d_before)
         report["validation"] = _validation(
             split, held, "tracker points of the held-out rows, measured - predicted (3-D "
@@ -1440,7 +1499,7 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
     err_after = full_pose_errors(calibrated, frames_id, data)
     err_before = full_pose_errors(machine, before.extras["frames"], data)
 
-    reading_unit = machine.reading_unit
+    reading_unit = getattr(machine, "reading_unit", None) or machine.joint_unit()[0]
     gain_factor = fl / reading_factor(reading_unit)         # internal gain -> file gain
     nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
     start = result.extras["start_frames"]
@@ -1522,6 +1581,123 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
     return _finish("pose", machine, calibrated, result, report, metadata, params, units)
 
 
+# -- ballbar distances ------------------------------------------------------------------------
+
+
+def _check_distances(options: CalibrateOptions, source) -> None:
+    _only_for_poses(options, source, "distance")
+    for option, given in (("--method", options.method is not None),
+                          ("--estimate-lc", options.estimate_lc is not None),
+                          ("--two-step", options.two_step), ("--robust", options.robust)):
+        if given:
+            raise InputError(f"{option}: does not apply to ballbar data ({source}); see "
+                             "--noise (the ballbar's standard deviation, default 1um)")
+
+
+def _distance_noise(noise, machine):
+    """The ballbar noise of ``--noise`` (text or SI number or model; default 1 um)."""
+    from ..instruments import IsotropicNoise
+    from ..io.plausibility import check_option_scale
+    from ..units import parse_quantity
+
+    if noise is None:
+        return IsotropicNoise(1e-6)
+    if hasattr(noise, "whitening"):
+        return noise
+    sigma = parse_quantity(noise, "length", "--noise") if isinstance(noise, str) \
+        else float(noise)
+    if not sigma > 0:
+        raise InputError(f"--noise: must be > 0 (the standard deviation of the ballbar "
+                         f"lengths), got {noise}")
+    check_option_scale(sigma, machine, "--noise", "noise", str(noise))
+    return IsotropicNoise(sigma)
+
+
+def _distance_rms(problem, state, data) -> tuple[float | None, np.ndarray]:
+    """RMS (um) and residuals (m) of ballbar lengths under a problem's state (NaN where the
+    forward kinematics fail)."""
+    predicted = problem.predict(state, data.q, data.group)[:, 0]
+    r = data.values[:, 0] - predicted
+    ok = np.isfinite(r)
+    return (_um(math.sqrt(float(np.mean(r[ok] ** 2)))) if ok.any() else None), r
+
+
+def _calibrate_distances(machine, data, source, options: CalibrateOptions,
+                         split) -> Calibration:
+    from ..io import read_distances
+    from ..units import LENGTH
+    from .distances import calibrate_distances
+
+    noise = _distance_noise(options.noise, machine)
+    data, held = _split_rows(_load(data, read_distances, machine), split, source)
+    result = _solve(source, calibrate_distances, machine, data, noise, held=held)
+    before = _solve(source, calibrate_distances, machine, data, noise, held=held,
+                    fit_machine=False)
+    _require_converged(result, source, "measure each mounting over a spread of poses (a "
+                       "sphere around the pivot, with rotations on a platform that rotates)")
+    units = file_units(machine)
+    fl = LENGTH[units["length"]]
+    calibrated = result.extras["machine"]
+    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
+    calibrated.home = machine.home
+    problem, before_problem = result.extras["problem"], before.extras["problem"]
+    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
+    start = result.extras["start_model"].parameters
+    nominal_of.update(zip(start.names, start.values, strict=True))
+    params = _parameter_table(result, nominal_of, units)
+    rms_after, r_after = _distance_rms(problem, result.state, data)
+    rms_before, _ = _distance_rms(before_problem, before.state, data)
+    rank = int(result.rank)
+    n_free = int(np.sum(result.parameters.free))
+    s = np.asarray(result.singular_values, float)
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    setups = result.extras["setups"]
+    ok = np.isfinite(r_after)
+    report = {
+        **_report_head(machine, source, "distance", "joint"),
+        "units": units,
+        "measurements": len(data),
+        "noise": f"ballbar {noise.sigma * 1e6:.4g} um (std)",
+        "setups": [{"setup": g + 1, "rows": int(np.sum(data.group == g)),
+                    "pivot": (p / fl).tolist(), "ball": (b / fl).tolist(),
+                    "unit": units["length"]} for g, (p, b) in enumerate(setups)],
+        "convergence": _convergence_json(result),
+        "residuals": {
+            "of": "ballbar lengths, measured - predicted (forward kinematics of the readings)",
+            "count": int(ok.sum()),
+            "rms_um": rms_after,
+            "max_abs_um": _um(float(np.max(np.abs(r_after[ok])))) if ok.any() else None,
+            "before_rms_um": rms_before,
+            "before": "machine file's model, mountings (pivots and balls) fitted alone",
+            "residual_variance": float(result.residual_variance),
+            "noise_scale": float(np.sqrt(result.residual_variance))
+            if np.isfinite(result.residual_variance) else None,
+            "dof": int(result.dof),
+        },
+        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
+        "parameters": _public(params),
+    }
+    if held is not None:
+        report["validation"] = _validation(
+            split, held, "ballbar lengths of the held-out rows, measured - predicted with the "
+            "identified mountings; before: the machine file's model with the mountings fitted "
+            "alone on the calibration rows", "um",
+            _distance_rms(before_problem, before.state, held)[0],
+            _distance_rms(problem, result.state, held)[0], rms_after)
+    metadata = {
+        "method": "ballbar",
+        "date": report["date"],
+        "data": str(source),
+        "machine": _source_of(machine),
+        "measurements": len(data),
+        "rms_residual_um": rms_after,
+        "identifiable": rank,
+        "free_parameters": n_free,
+        **_identifiability_metadata(unidentifiable),
+    }
+    return _finish("distance", machine, calibrated, result, report, metadata, params, units)
+
+
 # --------------------------------------------------------------------------------------------
 # the kinds of today
 # --------------------------------------------------------------------------------------------
@@ -1530,7 +1706,7 @@ register_kind(MeasurementKind(
     name="tracker",
     columns="q1_deg..q3_deg and the tracker points mx_mm, my_mm, mz_mm",
     detect=lambda header: _has(header, "mx") or _has(header, "my") or _has(header, "mz"),
-    calibrate=_calibrate_tracker, check_options=_check_tracker, machines=("delta",),
+    calibrate=_calibrate_tracker, check_options=_check_tracker, instrument="tracker",
     data_class="TrackerData", priority=10,
     missing=("mx_<unit>, my_<unit>, mz_<unit> (e.g. mx_mm)", "laser-tracker points")))
 register_kind(MeasurementKind(
@@ -1539,12 +1715,19 @@ register_kind(MeasurementKind(
             "measured pose x_mm, y_mm, z_mm with qx, qy, qz, qw or psi_deg, theta_deg, phi_deg",
     detect=lambda header: (_has(header, "x") or _has(header, "y") or _has(header, "z")
                            or "qw" in header),
-    calibrate=_calibrate_full_pose, check_options=_check_full_pose, machines=("stewart",),
+    calibrate=_calibrate_full_pose, check_options=_check_full_pose, instrument="pose",
     data_class="FullPoseData", priority=20))
+register_kind(MeasurementKind(
+    name="distance",
+    columns="the joint readings q1_<unit>.. and the ballbar length d_mm, optionally setup "
+            "(1..K, one per mounting)",
+    detect=lambda header: _has(header, "d"),
+    calibrate=_calibrate_distances, check_options=_check_distances, instrument="distance",
+    data_class="InstrumentData", priority=30))
 register_kind(MeasurementKind(
     name="constraint-link",
     columns="q1_mm..q6_mm (optionally passive) with a constraint_link in the machine file",
     detect=lambda header: _has(header, "q1"),
     calibrate=_calibrate_constraint_link, check_options=_check_constraint_link,
-    machines=("hexaslide",), data_class="ConstraintLinkData", priority=90,
+    instrument="constraint-link", data_class="ConstraintLinkData", priority=90,
     readings_only=True))

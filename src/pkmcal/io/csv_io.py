@@ -667,22 +667,24 @@ def read_distances(path, machine):
 
 
 def read_tracker(path, machine) -> TrackerData:
-    """Laser-tracker data (SPEC 2.2) for ``machine``.
+    """Laser-tracker data (SPEC 2.2) for ``machine``: :func:`read_points` as tracker data.
 
-    Readings ``q1..q<n>`` (the machine's joint quantity, e.g. ``q1_deg`` for a Delta) and
-    tracker points ``mx, my, mz`` (any length unit) per row. Other columns are ignored.
+    Readings ``q1..q<n>`` (the machine's joint quantity, e.g. ``q1_deg`` for a Delta),
+    tracker points ``mx, my, mz`` (any length unit) per row and optionally ``target`` (1..K).
+    Other columns are ignored.
 
     Parameters
     ----------
     path : str or os.PathLike
         The data file.
-    machine : Delta
+    machine : Machine
         The machine (number and quantity of joints).
 
     Returns
     -------
     TrackerData
-        Readings (rad) and points (m), with the file rows.
+        Readings (internal units) and points (m), with the file rows and targets (0-based,
+        None for one).
 
     Raises
     ------
@@ -691,20 +693,9 @@ def read_tracker(path, machine) -> TrackerData:
         readings look like another unit than their columns say
         (:func:`~pkmcal.io.plausibility.check_tracker_scale`).
     """
-    header, rows = read_table(path)
-    quantity = joint_quantity(machine)
-    q_cols = [find_column(path, header, f"q{j + 1}", quantity)
-              for j in range(machine.n_joints)]
-    m_cols = [find_column(path, header, c, "length") for c in ("mx", "my", "mz")]
-    q = np.column_stack([_column_values(path, header, rows, i, f) for i, f in q_cols])
-    m = np.column_stack([_column_values(path, header, rows, i, f) for i, f in m_cols])
-    q_names, q_bases = [header[i] for i, _ in q_cols], [f"q{j + 1}" for j in range(len(q_cols))]
-    _check_levels(path, q, q_names, quantity, machine)
-    q_units = _one_unit(q_names, q_bases, quantity)
-    m_units = _one_unit([header[i] for i, _ in m_cols], ["mx", "my", "mz"], "length")
-    if q_units is not None and m_units is not None:
-        check_tracker_scale(path, q, q_units, m, m_units, machine)
-    return TrackerData(q, m, np.array([line for line, _ in rows]), source=str(path))
+    points = read_points(path, machine)
+    return TrackerData(points.q, points.values, points.rows, source=str(path),
+                       target=points.group if points.n_groups > 1 else None)
 
 
 def _reading_suffixes(header: list[str], n: int) -> list[str | None]:
