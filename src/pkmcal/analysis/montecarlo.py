@@ -69,6 +69,7 @@ APPLIES = {
     "constraint-link": ("noise", "lc-error", "poses", "tolerance"),
     "tracker": ("noise", "poses", "tolerance"),
     "pose": ("noise", "poses", "tolerance"),
+    "distance": ("noise", "poses", "tolerance"),
 }
 #: accuracy metrics per scenario: name -> (unit suffix, factor of that unit to SI, words)
 METRICS = {
@@ -89,7 +90,14 @@ METRICS = {
         "orientation_max": ("urad", 1e-6, "max held-out marker orientation error"),
         "parameter_rms": ("", 1.0, "RMS gauge-free parameter error, scaled coordinates"),
     },
+    "distance": {
+        "distance_mean": ("um", 1e-6, "mean held-out ballbar-length error"),
+        "distance_max": ("um", 1e-6, "max held-out ballbar-length error"),
+    },
 }
+#: metrics a machine may not define (NaN then, without rejecting the run): the gauge-free
+#: parameter error of full poses needs a six-leg platform's leg layout
+OPTIONAL_METRICS = frozenset({"parameter_rms"})
 #: statistics of each metric in a summary, over the ``ok`` runs of a value: mean, std (ddof
 #: 1), 95 % confidence interval of the mean (Student t), median, robust spread (1.4826 x the
 #: median absolute deviation: the std for normal data, blind to a few outliers), 5 % and 95 %
@@ -115,9 +123,10 @@ EXACT_RESIDUAL_RATIO = 1e-9
 #: scaled median absolute deviation: 1 / Phi^-1(3/4), the std of normal data
 MAD_SCALE = 1.4826
 #: evaluation poses per run (constraint-link workspace, tracker and pose held out)
-EVALUATION_POSES = {"constraint-link": 300, "tracker": 200, "pose": 100}
-#: default number of measurements (tracker: None = seed 001's 3x3x3 grid)
-DEFAULT_POSES = {"constraint-link": 150, "tracker": None, "pose": 60}
+EVALUATION_POSES = {"constraint-link": 300, "tracker": 200, "pose": 100, "distance": 100}
+#: default number of measurements (tracker: None = seed 001's 3x3x3 grid on a platform that
+#: only translates, the instrument's plan size otherwise)
+DEFAULT_POSES = {"constraint-link": 150, "tracker": None, "pose": 60, "distance": 90}
 #: the calibration weighs by the noise; exact data are weighed as if this noisy (m)
 NOISE_FLOOR = 1e-7
 #: environment of worker processes: one BLAS/OpenMP thread each
@@ -192,15 +201,24 @@ class MonteCarloSettings:
         return {
             "machine": str(getattr(self.machine, "source", None) or self.machine.name),
             "kind": self.machine.kind, "scenario": self.scenario,
-            "poses": self.poses if self.poses is not None else (
-                "3x3x3 grid" if self.scenario == "tracker" else DEFAULT_POSES.get(
-                    self.scenario)),
+            "poses": self.poses if self.poses is not None else _default_poses(self),
             "noise_m": self.noise if self.noise is not None else "default",
             "lc_error_m": self.lc_error,
             "deviations": dev if isinstance(dev, str) else "given vector",
             "tolerance_m": self.tolerance, "estimate_lc": self.estimate_lc,
             "evaluation_poses": EVALUATION_POSES[self.scenario],
         }
+
+
+def _default_poses(settings: MonteCarloSettings):
+    """The number of measurements of a run when not given (words for seed 001's grid)."""
+    if settings.scenario == "tracker" and settings.machine.pose_dof == 3:
+        return "3x3x3 grid"
+    if settings.scenario == "tracker":
+        from ..instruments.registry import instrument
+
+        return instrument("tracker").plan_size_for(settings.machine)
+    return DEFAULT_POSES.get(settings.scenario)
 
 
 def _minimum_poses(settings: MonteCarloSettings) -> int:
@@ -210,6 +228,8 @@ def _minimum_poses(settings: MonteCarloSettings) -> int:
         return n - 6 + int(settings.estimate_lc)               # one equation per pose
     if settings.scenario == "tracker":
         return max(4, math.ceil((n + 6 - 12) / 3))             # 3 per point, 12 gauges
+    if settings.scenario == "distance":
+        return max(9, n - 6)                                   # 1 per pose, 3 mountings
     return max(4, math.ceil(n / 6))                            # 6 per pose, 12 gauges
 
 
@@ -302,20 +322,90 @@ def _constraint_link_run(s: MonteCarloSettings, rng):
                  "orientation_max": acc.orientation_max}
 
 
+def _tracker_noises(s: MonteCarloSettings):
+    """Simulated and fitted tracker noise of a run."""
+    from ..measurements import TrackerNoise
+
+    if s.noise is None:
+        return TrackerNoise(), TrackerNoise()
+    sim_noise = TrackerNoise(s.noise, s.noise, 0.0) if s.noise > 0 else None
+    return sim_noise, TrackerNoise(_weight(s.noise), _weight(s.noise), 0.0)
+
+
+def _points_run(s: MonteCarloSettings, rng):
+    """A tracker on a machine whose file does not give the target's place (a platform that
+    rotates): random workspace poses with rotations, the target's place estimated; held out:
+    the points at other poses through the identified registration and target."""
+    from ..calibration import calibrate_tracker, predict_tracker_points
+    from ..instruments.simulate import simulate_scenario
+
+    nominal = s.machine
+    sim_noise, fit_noise = _tracker_noises(s)
+    data, true, truth = simulate_scenario(nominal, "tracker", s.poses,
+                                          False if sim_noise is None else sim_noise, rng,
+                                          deviations=_deviation_vector(s, rng))
+    res = calibrate_tracker(nominal, data, fit_noise)
+    from ..instruments.registry import instrument
+
+    P, R, _ = instrument("tracker").candidates(nominal, EVALUATION_POSES[s.scenario], rng)
+    q = nominal.ik(P, R)
+    m = predict_tracker_points(res.extras["machine"], q, res.extras["registration"],
+                               targets=res.extras["targets"])
+    e = np.linalg.norm(m - predict_tracker_points(true, q, truth["base_from_tracker"],
+                                                  targets=truth["targets"]), axis=-1)
+    ok = np.isfinite(e)
+    return res, {"position_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
+                 "position_max": float(np.max(e[ok])) if ok.any() else math.nan}
+
+
+def _deviation_vector(s: MonteCarloSettings, rng) -> np.ndarray:
+    """True minus nominal parameters of a run (drawn as :func:`_true_machine` does)."""
+    return _true_machine(s, rng).u - s.machine.u
+
+
+def _distance_run(s: MonteCarloSettings, rng):
+    """A ballbar on three mountings (the registry's plan, random mounting errors), the pivots
+    and balls estimated with the machine; held out: ballbar lengths at other poses on the
+    spheres through the identified pivots and balls, against the true ones."""
+    from ..instruments import DistancesModel, IsotropicNoise, fit_instrument
+    from ..instruments.registry import instrument
+    from ..instruments.simulate import simulate_scenario
+
+    nominal = s.machine
+    noise = 1e-6 if s.noise is None else s.noise
+    data, true, truth = simulate_scenario(
+        nominal, "distance", s.poses or DEFAULT_POSES[s.scenario],
+        IsotropicNoise(noise) if noise > 0 else False, rng,
+        deviations=_deviation_vector(s, rng))
+    res = fit_instrument(nominal, data, DistancesModel(data.n_groups),
+                         IsotropicNoise(_weight(noise)))
+    P, R, g = instrument("distance").candidates(nominal, EVALUATION_POSES[s.scenario], rng)
+    q = nominal.ik(P, R)
+    model = res.extras["model"]
+    fit = res.extras["machine"].fk(q, start=(P, R))
+    d_fit = model.predict(model.initial(), fit.P, fit.R, g)[:, 0]
+    exact = true.fk(q, start=(P, R))
+    pivots = np.array([p for p, _ in truth["setups"]])[g]
+    balls = np.array([b for _, b in truth["setups"]])[g]
+    d_true = np.linalg.norm(exact.P + np.einsum("kij,kj->ki", exact.R, balls) - pivots, axis=-1)
+    e = np.abs(np.where(fit.converged & exact.converged, d_fit - d_true, np.nan))
+    ok = np.isfinite(e)
+    return res, {"distance_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
+                 "distance_max": float(np.max(e[ok])) if ok.any() else math.nan}
+
+
 def _tracker_run(s: MonteCarloSettings, rng):
     from ..calibration import calibrate_tracker, predict_tracker_points
-    from ..measurements import TrackerNoise, grid_points, simulate_tracker
+    from ..measurements import grid_points, simulate_tracker
     from ..planning import candidate_poses, tracker_pose
 
     nominal = s.machine
+    if nominal.tracker_target() is None:
+        return _points_run(s, rng)
     true = _true_machine(s, rng)
     pose = tracker_pose(nominal)
     true.base_from_tracker = pose
-    if s.noise is None:
-        sim_noise = fit_noise = TrackerNoise()
-    else:
-        sim_noise = TrackerNoise(s.noise, s.noise, 0.0) if s.noise > 0 else None
-        fit_noise = TrackerNoise(_weight(s.noise), _weight(s.noise), 0.0)
+    sim_noise, fit_noise = _tracker_noises(s)
     if s.poses is None:
         targets = grid_points(nominal.home[0])
     else:
@@ -333,6 +423,7 @@ def _tracker_run(s: MonteCarloSettings, rng):
 
 def _pose_run(s: MonteCarloSettings, rng):
     from ..calibration import calibrate_full_pose, full_pose_errors, gauge_free_error
+    from ..instruments.simulate import sample_workspace_poses
     from ..measurements import FullPoseNoise, simulate_full_pose
     from ..planning import measurement_frames
 
@@ -342,14 +433,18 @@ def _pose_run(s: MonteCarloSettings, rng):
     true.measurement_frames = frames
     default = FullPoseNoise()
     noise = default.reading_m if s.noise is None else s.noise
-    data = simulate_full_pose(true, s.poses or DEFAULT_POSES[s.scenario], frames,
-                              replace(default, reading_m=noise), rng)
+    data = simulate_full_pose(true, sample_workspace_poses(true, s.poses or
+                                                           DEFAULT_POSES[s.scenario], rng),
+                              frames, replace(default, reading_m=noise), rng)
     res = calibrate_full_pose(nominal, data, "ml", noise=replace(default,
                                                                  reading_m=_weight(noise)))
-    held = simulate_full_pose(true, EVALUATION_POSES[s.scenario], frames, None, rng)
+    held = simulate_full_pose(true, sample_workspace_poses(true, EVALUATION_POSES[s.scenario],
+                                                           rng), frames, None, rng)
     err = full_pose_errors(res.extras["machine"], res.extras["frames"], held)
     ok = err.converged
-    e = gauge_free_error(nominal, res, true.u, frames)
+    # the gauge-free parameter error needs the leg layout of a six-leg platform (align_to)
+    e = gauge_free_error(nominal, res, true.u, frames) if callable(
+        getattr(nominal, "legs", None)) else np.array([math.nan])
 
     def stat(f, v):
         return float(f(v[ok])) if ok.any() else math.nan
@@ -361,7 +456,8 @@ def _pose_run(s: MonteCarloSettings, rng):
                  "parameter_rms": float(np.sqrt(np.mean(e**2)))}
 
 
-_RUNS = {"constraint-link": _constraint_link_run, "tracker": _tracker_run, "pose": _pose_run}
+_RUNS = {"constraint-link": _constraint_link_run, "tracker": _tracker_run, "pose": _pose_run,
+         "distance": _distance_run}
 
 
 def run_once(settings: MonteCarloSettings, seed) -> dict:
@@ -403,7 +499,8 @@ def run_once(settings: MonteCarloSettings, seed) -> dict:
 def _exact_data(settings: MonteCarloSettings) -> bool:
     """Whether the simulated data carry no noise at all (the calibration then weighs them
     as if :data:`NOISE_FLOOR` noisy); the pose scenario's pose noise stays at its default."""
-    return settings.scenario in ("constraint-link", "tracker") and settings.noise == 0
+    return settings.scenario in ("constraint-link", "tracker", "distance") and \
+        settings.noise == 0
 
 
 def acceptance(result, settings: MonteCarloSettings,
@@ -475,7 +572,8 @@ def acceptance(result, settings: MonteCarloSettings,
             return "rejected", chi2_dof, (
                 f"rejected: residuals {math.sqrt(chi2_dof):.3g} x the noise (chi2/dof "
                 f"{chi2_dof:.3g} > {limit:.3g}, {dof} dof): a wrong geometry")
-    bad = [name for name, v in (metrics or {}).items() if not np.isfinite(v)]
+    bad = [name for name, v in (metrics or {}).items()
+           if not np.isfinite(v) and name not in OPTIONAL_METRICS]
     if bad:
         return "rejected", chi2_dof, (f"rejected: {', '.join(bad)} not finite: the calibrated "
                                       "model fails at the evaluation poses")

@@ -40,7 +40,12 @@ app = typer.Typer(
 class Scenario(enum.StrEnum):
     constraint_link = "constraint-link"
     tracker = "tracker"
+    points = "points"
     pose = "pose"
+    poses = "poses"
+    distance = "distance"
+    distances = "distances"
+    ballbar = "ballbar"
 
 
 class Deviations(enum.StrEnum):
@@ -151,18 +156,39 @@ def simulate(
     machine: MachineArg,
     output: OutFile,
     scenario: Annotated[Scenario | None, typer.Option(
-        help="Measurement scenario: constraint-link (hexaslide; default there), tracker "
-             "(delta; default there) or pose (stewart: full-pose measurements; default there).",
+        help="Measurement scenario (instrument), on every machine it applies to: "
+             "constraint-link (a platform that rotates with `constraint_link` in its file; the "
+             "Hexa Slide's default), tracker = points (laser tracker, every machine; the "
+             "Delta's default), pose = poses (motion capture, a platform that rotates; the "
+             "Stewart's default), distance = distances = ballbar (every machine).",
         show_default=False)] = None,
     poses: Annotated[int | None, typer.Option(
         min=1, max=MAX_MEASUREMENTS,
-        help="Number of measurement poses (constraint-link: default 150; pose: default "
-                    "60).", show_default=False)] = None,
+        help="Number of measurement poses (constraint-link: default 150; pose: 60; points on "
+             "a platform that rotates: 60 random workspace poses with rotations; distance: "
+             "90).", show_default=False)] = None,
     noise: Annotated[str | None, typer.Option(
         help="Measurement noise. constraint-link: encoder noise, standard deviation (default "
              "2um). tracker: leica (default; 5 um along the beam, 7.5 um + 3 um/m across), "
              "none, or a length for isotropic noise (e.g. 10um). pose: noise of the leg "
-             "readings, as a leg length (default 2um).", show_default=False)] = None,
+             "readings, as a leg length (default 2um). distance: ballbar length noise "
+             "(default 1um).", show_default=False)] = None,
+    targets: Annotated[int | None, typer.Option(
+        min=1, max=100,
+        help="points on a platform that rotates: number of targets (reflector nests); rows "
+             "cycle through them (column `target`); each true place is off the platform "
+             "origin by a random mounting error.", show_default=False)] = None,
+    setups: Annotated[int | None, typer.Option(
+        min=1, max=100,
+        help="distance: number of ballbar mountings (default 3; column `setup`); true pivots "
+             "and balls = planned + a random 1 mm mounting error.", show_default=False)]
+    = None,
+    radius: Annotated[str | None, typer.Option(
+        help="distance: the ballbar length (default 100mm): poses on the spheres of this "
+             "radius around each setup's pivot.", show_default=False)] = None,
+    circles: Annotated[bool, typer.Option(
+        "--circles", help="distance: ISO 230-4 circles (one per setup, home orientation) "
+                          "instead of random poses on the spheres.")] = False,
     pose_noise: Annotated[str | None, typer.Option(
         "--pose-noise", help="pose: noise of the measured poses, POSITION,ORIENTATION with "
                              "units (default 20um,50urad).", show_default=False)] = None,
@@ -215,12 +241,25 @@ def simulate(
 
     Example: `pkmcal simulate examples/cubic_6upu.yaml --scenario pose --poses 60 --truth
     true.yaml -o poses.csv`
+
+    points on a platform that rotates (Hexa Slide, Stewart): random workspace poses with
+    rotations; readings q1..qn and mx, my, mz (the file's length unit), `target` with
+    --targets. distance (every machine): readings and the ballbar length d between a pivot
+    on the base and a ball on the platform, `setup` with several mountings. pose works on
+    every platform that rotates, constraint-link on every one with `constraint_link`.
+
+    Example: `pkmcal simulate examples/cubic_6upu.yaml --scenario points --targets 2 -o
+    points.csv`
+
+    Example: `pkmcal simulate default --scenario distance --setups 4 --radius 150mm -o
+    ballbar.csv`
     """
     from ._commands import run_simulate
 
     run_simulate(machine, output, scenario.value if scenario else None, poses, noise,
                  lc_error, seed, deviations.value if deviations else None, truth, grid,
-                 outliers, pose_noise=pose_noise)
+                 outliers, pose_noise=pose_noise, targets=targets, setups=setups,
+                 radius=radius, circles=circles)
 
 
 @app.command()
@@ -340,6 +379,21 @@ def identifiability(
                        "correlated, predicted_accuracy, singular_values).")] = False,
     columns: ColumnsOpt = None,
     workspace: WorkspaceOpt = None,
+    scenario: Annotated[Scenario | None, typer.Option(
+        help="Without DATA or with --planned: the instrument (constraint-link, tracker = "
+             "points, pose = poses, distance = distances = ballbar) on any machine it applies "
+             "to; default the machine's (constraint link on a Hexa Slide, tracker on a Delta, "
+             "pose on a Stewart). With measurements it follows from the columns.",
+        show_default=False)] = None,
+    setups: Annotated[int | None, typer.Option(
+        min=1, max=100, help="distance plans: number of ballbar mountings (default 3).",
+        show_default=False)] = None,
+    radius: Annotated[str | None, typer.Option(
+        help="distance plans: the ballbar length (default 100mm); poses on the spheres of "
+             "this radius around the pivots.", show_default=False)] = None,
+    targets: Annotated[int | None, typer.Option(
+        min=1, max=100, help="tracker plans: number of targets on the platform, poses "
+             "cycling through them (default 1).", show_default=False)] = None,
 ) -> None:
     """What the measurements will identify and how accurate the calibration will be.
 
@@ -359,11 +413,19 @@ def identifiability(
     Example: `pkmcal identifiability default --poses 60 --noise 2um --map predicted.png`
 
     Example: `pkmcal identifiability examples/delta_default.yaml plan.csv --planned --json`
+
+    Every instrument on every machine it applies to: measurements of points (mx, my, mz
+    [+ target]), distances (d [+ setup]), poses or constraint-link readings, or a plan of
+    `--scenario` (its setup / target column kept).
+
+    Example: `pkmcal identifiability examples/cubic_6upu.yaml --scenario distance --setups 4`
     """
     from ._planning import run_identifiability
 
     raise typer.Exit(run_identifiability(machine, data, json_output, planned, poses, seed,
-                                         noise, pose_noise, map_path, workspace=workspace))
+                                         noise, pose_noise, map_path, workspace=workspace,
+                                         scenario=scenario.value if scenario else None,
+                                         setups=setups, radius=radius, targets=targets))
 
 
 class Criterion(enum.StrEnum):
@@ -412,6 +474,21 @@ def select_poses(
     = False,
     columns: ColumnsOpt = None,
     workspace: WorkspaceOpt = None,
+    scenario: Annotated[Scenario | None, typer.Option(
+        help="The instrument (constraint-link, tracker = points, pose = poses, distance = "
+             "distances = ballbar) on any machine it applies to; default the machine's.",
+        show_default=False)] = None,
+    setups: Annotated[int | None, typer.Option(
+        min=1, max=100, help="distance: number of ballbar mountings (default 3); the "
+             "candidates lie on the spheres around their pivots, the plan keeps the setup "
+             "column.", show_default=False)] = None,
+    radius: Annotated[str | None, typer.Option(
+        help="distance: the ballbar length (default 100mm), the radius of the candidate "
+             "spheres around the pivots.", show_default=False)] = None,
+    targets: Annotated[int | None, typer.Option(
+        min=1, max=100, help="tracker: number of targets on the platform; candidates cycle "
+             "through them and the plan keeps the target column.", show_default=False)]
+    = None,
 ) -> None:
     """Choose N measurement poses that identify the machine best.
 
@@ -429,6 +506,9 @@ def select_poses(
     Example: `pkmcal select-poses default -n 60 -o plan.csv --map plan.png`
 
     Example: `pkmcal select-poses examples/delta_default.yaml -n 27 --noise 10um -o plan.csv`
+
+    Example: `pkmcal select-poses default --scenario distance --radius 150mm -n 40 -o
+    ballbar-plan.csv`
     """
     from ._planning import run_select_poses
 
@@ -439,7 +519,9 @@ def select_poses(
     raise typer.Exit(run_select_poses(machine, output, n, candidates, candidates_file,
                                       criterion.value, random_sets, noise, pose_noise, seed,
                                       map_path, json_output, joint_range,
-                                      workspace=workspace))
+                                      workspace=workspace,
+                                      scenario=scenario.value if scenario else None,
+                                      setups=setups, radius=radius, targets=targets))
 
 
 @app.command()

@@ -29,7 +29,6 @@ from ..io import (
     read_positions,
     read_readings,
     read_table,
-    write_full_pose,
     write_joints,
     write_poses,
     write_positions,
@@ -42,7 +41,6 @@ from ..io.plausibility import check_option_scale
 from ..limits import MAX_MEASUREMENTS
 from ..measurements.deviations import DEFAULT_DEVIATIONS
 from ..measurements.deviations import deviations as _deviations
-from ..planning.scenarios import SCENARIO_OF as DEFAULT_SCENARIO
 from ..units import ANGLE, LENGTH, parse_quantity
 from ._console import console, error, warning
 
@@ -191,10 +189,6 @@ def run_bench(json_output: bool) -> int:
 # simulate
 # --------------------------------------------------------------------------------------------
 
-#: scenarios each machine type can simulate
-SCENARIOS = {"hexaslide": ("constraint-link",), "delta": ("tracker",), "stewart": ("pose",)}
-
-
 def _true_machine(machine, deviations: str, rng):
     """The simulated true machine: ``machine`` plus ``--deviations``, named as such."""
     true = machine.with_parameters(machine.u + _deviations(machine, deviations, rng))
@@ -222,90 +216,197 @@ def parse_grid(text: str) -> tuple[int, int, int]:
     return shape
 
 
+def _zero(text: str) -> bool:
+    return str(text).strip() in ("0", "0um", "0mm", "0m")
+
+
 def run_simulate(machine_spec: str, output: Path, scenario: str | None, poses: int | None,
                  noise: str | None, lc_error: str, seed: int, deviations: str | None,
                  truth: Path | None, grid: str | None = None, outliers: int = 0,
-                 pose_noise: str | None = None) -> None:
+                 pose_noise: str | None = None, targets: int | None = None,
+                 setups: int | None = None, radius: str | None = None,
+                 circles: bool = False) -> None:
+    """``pkmcal simulate``: any instrument of the registry on any machine it applies to."""
+    from ..planning import scenario_for
+
     machine = load_machine_arg(machine_spec)
     kind = machine.kind
-    scenario = scenario or DEFAULT_SCENARIO.get(kind, "constraint-link")
-    available = SCENARIOS.get(kind, ())
-    if scenario not in available:
-        raise InputError(f"--scenario {scenario}: not available for {kind} machines (available: "
-                         f"{', '.join(available) or 'none yet'})")
+    requested = scenario
+    try:
+        scenario = scenario_for(machine, scenario)      # the reason when it does not apply
+    except InputError as exc:
+        from ..instruments.registry import INSTRUMENTS
+
+        usable = [name for name, inst in INSTRUMENTS.items() if inst.applies(machine) is None]
+        raise InputError(f"{exc}; this {kind} can simulate: {', '.join(usable)}") from None
     deviations = deviations or DEFAULT_DEVIATIONS.get(kind, "random")
     check_outputs([output] + ([truth] if truth else []), _machine_inputs(machine_spec))
-    if pose_noise is not None and scenario != "pose":
-        raise InputError("--pose-noise: applies to --scenario pose")
-    if scenario == "pose":
-        for option, given in (("--grid", grid is not None), ("--outliers", bool(outliers)),
-                              ("--lc-error", lc_error.strip() not in ("0", "0um", "0mm", "0m"))):
-            if given:
-                raise InputError(f"{option}: does not apply to --scenario pose")
-        _simulate_full_pose(machine, output, poses or 60, noise, pose_noise, seed, deviations,
-                            truth)
-        return
-    if scenario == "tracker":
+    flag = f"--scenario {requested or scenario}"
+    grid_path = scenario == "tracker" and machine.pose_dof == 3 and not targets
+    given = {"--pose-noise": (pose_noise is not None, scenario == "pose"),
+             "--lc-error": (not _zero(lc_error), scenario == "constraint-link"),
+             "--grid": (grid is not None, grid_path),
+             "--outliers": (bool(outliers), grid_path),
+             "--targets": (targets is not None, scenario == "tracker"),
+             "--setups": (setups is not None, scenario == "distance"),
+             "--radius": (radius is not None, scenario == "distance"),
+             "--circles": (bool(circles), scenario == "distance")}
+    for option, (is_given, applies) in given.items():
+        if is_given and not applies:
+            where = {"--grid": "a tracker on a platform that only translates (its grid; on a "
+                               "platform that rotates use --poses)",
+                     "--outliers": "a tracker on a platform that only translates (its grid)",
+                     "--pose-noise": "--scenario pose", "--lc-error": "--scenario "
+                     "constraint-link", "--targets": "--scenario points (tracker)",
+                     "--setups": "--scenario distance", "--radius": "--scenario distance",
+                     "--circles": "--scenario distance"}[option]
+            raise InputError(f"{option}: does not apply to {flag} on this {kind}; it applies "
+                             f"to {where}")
+    if grid_path:
         if poses is not None:
-            raise InputError("--poses: applies to --scenario constraint-link or pose; a "
-                             "tracker scenario measures a grid (--grid NXxNYxNZ)")
-        if lc_error.strip() not in ("0", "0um", "0mm", "0m"):
-            raise InputError("--lc-error: applies to --scenario constraint-link")
+            raise InputError(f"--poses: a tracker on this {kind} (a platform that only "
+                             "translates) measures a grid (--grid NXxNYxNZ, seed 001)")
         _simulate_tracker(machine, output, noise, seed, deviations, truth,
                           parse_grid(grid or "3x3x3"), outliers)
         return
-    if grid is not None or outliers:
-        raise InputError(f"--{'grid' if grid is not None else 'outliers'}: applies to "
-                         "--scenario tracker")
-    _simulate_constraint_link(machine, output, poses or 150,
-                              "2um" if noise is None else noise, lc_error, seed,
-                              deviations, truth)
+    _simulate_scenario(machine, scenario, output, poses, noise, pose_noise, lc_error, seed,
+                       deviations, truth, targets, setups, radius, circles)
 
 
-def _simulate_constraint_link(machine, output: Path, poses: int, noise: str, lc_error: str,
-                              seed: int, deviations: str, truth: Path | None) -> None:
-    noise_m = parse_quantity(noise, "length", "--noise")
-    if not noise_m >= 0:
-        raise InputError(f"--noise: must be >= 0, got {noise}")
-    check_option_scale(noise_m, machine, "--noise", "noise", noise)
-    lc_error_m = check_option_scale(parse_quantity(lc_error, "length", "--lc-error"), machine,
-                                    "--lc-error", "error", lc_error)
-    lc = machine.constraint_link_length
-    if lc is None:
-        raise InputError(f"{machine.source}: constraint_link: the machine has no constraint-link "
-                         "length; add `constraint_link: {length: ...}` to the machine file")
-    lc_true = lc - lc_error_m
-    if not lc_true > 0:
-        raise InputError(f"--lc-error: the true link length {lc_true * 1e3:.6g} mm is not "
-                         "positive")
+def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
+                       noise: str | None, pose_noise: str | None, lc_error: str, seed: int,
+                       deviations: str, truth: Path | None, targets: int | None,
+                       setups: int | None, radius: str | None, circles: bool) -> None:
+    """Every scenario but the translating tracker grid, through
+    :func:`pkmcal.instruments.simulate.simulate_scenario`."""
+    from ..instruments.registry import BALLBAR_LENGTH
+    from ..instruments.simulate import simulate_scenario
+    from ..io import write_instrument
+
+    options: dict = {}
+    if scenario == "constraint-link":
+        text = "2um" if noise is None else noise
+        noise_m = parse_quantity(text, "length", "--noise")
+        if not noise_m >= 0:
+            raise InputError(f"--noise: must be >= 0, got {text}")
+        check_option_scale(noise_m, machine, "--noise", "noise", text)
+        lc_error_m = check_option_scale(parse_quantity(lc_error, "length", "--lc-error"),
+                                        machine, "--lc-error", "error", lc_error)
+        lc = machine.constraint_link_length
+        if not lc - lc_error_m > 0:
+            raise InputError(f"--lc-error: the true link length {(lc - lc_error_m) * 1e3:.6g} "
+                             "mm is not positive")
+        model, noise_words = noise_m, f"encoder noise {noise_m * 1e6:.4g} um"
+        options["link_error"] = lc_error_m
+    elif scenario == "pose":
+        model = full_pose_noise_arg(noise, pose_noise, strict=False, machine=machine)
+        noise_words = _noise_text(model)
+    elif scenario == "tracker":
+        model, noise_words = tracker_noise_arg(noise, allow_none=True, machine=machine)
+        model = False if model is None else model
+        options["targets"] = 1 if targets is None else targets
+        if options["targets"] < 1:
+            raise InputError(f"--targets: must be >= 1, got {targets}")
+    else:
+        text = "1um" if noise is None else noise
+        sigma = parse_quantity(text, "length", "--noise")
+        if not sigma >= 0:
+            raise InputError(f"--noise: must be >= 0 (a standard deviation), got {text}")
+        check_option_scale(sigma, machine, "--noise", "noise", text)
+        from ..instruments import IsotropicNoise
+
+        model = IsotropicNoise(sigma) if sigma > 0 else False
+        noise_words = f"ballbar length {sigma * 1e6:.4g} um (std)"
+        if setups is not None and setups < 1:
+            raise InputError(f"--setups: must be >= 1, got {setups}")
+        length = None
+        if radius is not None:
+            length = parse_quantity(radius, "length", "--radius")
+            if not length > 0:
+                raise InputError(f"--radius: the ballbar length must be > 0, got {radius}")
+            check_option_scale(length, machine, "--radius", "size", radius)
+        elif setups is not None:
+            length = BALLBAR_LENGTH
+        options.update(setups=setups, length=length, circles=bool(circles))
     rng = np.random.default_rng(seed)
-    true = _true_machine(machine, deviations, rng)
-    true.constraint_link_length = lc_true
-    from ..measurements import simulate_constraint_link
-
-    data = simulate_constraint_link(true, poses, noise_m, link_length=lc_true, rng=rng)
+    try:
+        data, true, truth_info = simulate_scenario(machine, scenario, poses, model, rng,
+                                                   deviations=deviations, **options)
+    except InputError as exc:
+        raise InputError(f"pkmcal simulate {scenario} (--deviations {deviations}, seed "
+                         f"{seed}): {exc}") from None
+    true.name = (f"simulated true machine ({deviations} deviations) of "
+                 f"{machine.name or 'MACHINE'}")
     units = _units(machine)
     truth_text = None
     if truth is not None:
         truth_text = machine_to_text(true, units)
         parse_machine(truth_text, str(truth))
     # outputs, at the very end
-    write_joints(output, data.q, unit=units["length"], extra={"passive": data.passive + 1})
+    if scenario == "constraint-link":
+        write_joints(output, data.q, unit=units["length"], extra={"passive": data.passive + 1})
+    elif scenario == "pose":
+        _write_pose_data(output, data, machine, units["length"])
+    else:
+        write_instrument(output, data, machine, units["length"])
     if truth is not None:
         atomic_write_text(truth, truth_text)
     out = console()
     table = _table("", "", title="pkmcal simulate", show_header=False)
     table.add_row("machine", f"{machine.source} ({machine.kind})")
-    table.add_row("scenario", f"constraint-link, {poses} poses on |P| = "
-                  f"{lc_true / LENGTH['mm']:.6g} mm (true link)")
-    table.add_row("deviations", deviations)
-    table.add_row("encoder noise", f"{noise_m * 1e6:.4g} um (seed {seed})")
-    if lc_error_m:
-        table.add_row("Lc error", f"machine file says {lc / LENGTH['mm']:.6g} mm, true link "
-                      f"{lc_true / LENGTH['mm']:.6g} mm")
+    table.add_row("scenario", f"{scenario}, {truth_info['poses']}")
+    table.add_row("deviations", deviations + (f" (seed {seed})" if deviations == "random"
+                                              else ""))
+    table.add_row("noise", f"{noise_words} (seed {seed})")
+    for name, value in _truth_rows(machine, scenario, truth_info):
+        table.add_row(name, value)
     out.print(table)
     commit_outputs()
     out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
+
+
+def _write_pose_data(path: Path, data, machine, length_unit: str) -> None:
+    """Full-pose data: readings in the machine file's joint unit, then ``x, y, z, qx, qy, qz,
+    qw`` (the measured marker pose)."""
+    from ..kinematics import quaternion_from_matrix
+
+    unit, f = machine.joint_unit()
+    fl = LENGTH[length_unit]
+    Q = quaternion_from_matrix(data.R)
+    header = [f"q{j + 1}_{unit}" for j in range(data.q.shape[1])]
+    columns = [data.q[:, j] / f for j in range(data.q.shape[1])]
+    header += [f"{c}_{length_unit}" for c in "xyz"] + ["qx", "qy", "qz", "qw"]
+    columns += [data.P[:, j] / fl for j in range(3)] + [Q[:, j] for j in range(4)]
+    write_table(path, header, columns)
+
+
+def _truth_rows(machine, scenario: str, info: dict):
+    """The simulated instrument's truth in words (table rows)."""
+    if scenario == "constraint-link":
+        lc = machine.constraint_link_length
+        rows = [("link", f"true length {info['link_length'] * 1e3:.6g} mm")]
+        if abs(lc - info["link_length"]) > 0:
+            rows.append(("Lc error", f"machine file says {lc * 1e3:.6g} mm, true link "
+                         f"{info['link_length'] * 1e3:.6g} mm"))
+        return rows
+    if scenario == "pose":
+        frames = info["frames"]
+        return [("frames", f"measurement origin at {_mm(frames.mocap_from_base[1])} mm; marker "
+                 f"origin at {_mm(frames.platform_from_marker[1])} mm in the platform frame")]
+    if scenario == "tracker":
+        R, t = info["base_from_tracker"]
+        rows = [("tracker pose", f"at {_mm(t)} mm in the base frame, rotated "
+                 f"{np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))):.4g} deg "
+                 "relative to it")]
+        for g, c in enumerate(info["targets"]):
+            rows.append((f"target {g + 1}", f"{_mm(c)} mm on the platform (true)"))
+        return rows
+    lengths = sorted({round(L * 1e3, 6) for L in info["length"]})
+    rows = [("ballbar", f"{'/'.join(f'{v:.6g}' for v in lengths)} mm (planned), true pivots "
+             "and balls off the planned ones by the mounting error")]
+    for g, (p, b) in enumerate(info["setups"]):
+        rows.append((f"setup {g + 1}", f"pivot {_mm(p)} mm, ball {_mm(b)} mm (platform)"))
+    return rows
 
 
 def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, deviations: str,
@@ -379,50 +480,6 @@ def _noise_text(noise) -> str:
     return (f"readings {noise.reading_m * 1e6:.4g} um (as leg length), position "
             f"{noise.position_m * 1e6:.4g} um, orientation {noise.orientation_rad * 1e6:.4g} "
             "urad")
-
-
-def _simulate_full_pose(machine, output: Path, n_poses: int, noise: str | None,
-                        pose_noise: str | None, seed: int, deviations: str,
-                        truth: Path | None) -> None:
-    from ..measurements import (
-        default_measurement_frames,
-        sample_platform_poses,
-        simulate_full_pose,
-    )
-
-    noise_model = full_pose_noise_arg(noise, pose_noise, strict=False, machine=machine)
-    rng = np.random.default_rng(seed)
-    true = _true_machine(machine, deviations, rng)
-    frames = getattr(machine, "measurement_frames", None)
-    frames_from = "the machine file's measurement_frames"
-    if frames is None:
-        frames, frames_from = default_measurement_frames(), "default"
-    true.measurement_frames = frames
-    poses = sample_platform_poses(true, n_poses, rng)
-    data = simulate_full_pose(true, poses, frames, noise_model, rng)
-    units = _units(machine)
-    truth_text = None
-    if truth is not None:
-        truth_text = machine_to_text(true, units)
-        parse_machine(truth_text, str(truth))
-    # outputs, at the very end
-    write_full_pose(output, data, machine, units["length"])
-    if truth is not None:
-        atomic_write_text(truth, truth_text)
-    out = console()
-    table = _table("", "", title="pkmcal simulate", show_header=False)
-    table.add_row("machine", f"{machine.source} ({machine.kind})")
-    table.add_row("scenario", f"pose, {n_poses} random poses in the 100 mm cube around home "
-                  f"{_mm(machine.home[0])} mm, Euler angles within +/-10 deg")
-    table.add_row("deviations", deviations + (f" (seed {seed})" if deviations == "random"
-                                              else ""))
-    table.add_row("noise", f"{_noise_text(noise_model)} (seed {seed})")
-    table.add_row("frames", f"{frames_from}: measurement origin at "
-                  f"{_mm(frames.mocap_from_base[1])} mm; marker origin at "
-                  f"{_mm(frames.platform_from_marker[1])} mm in the platform frame")
-    out.print(table)
-    commit_outputs()
-    out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
 
 
 def _mm(v) -> str:

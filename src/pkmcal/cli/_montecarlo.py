@@ -88,21 +88,25 @@ def run_montecarlo(machine_spec: str, vary: str, output: Path, runs: int = 20,
         raise InputError("--workers: does not apply with --scheduler (the Dask cluster has "
                          "its own workers)")
     variable, values = parse_vary(vary)
+    from ..planning import scenario_for
+
     machine = load_machine_arg(machine_spec)
+    resolved = scenario_for(machine, scenario)      # the reason when it does not apply
     noise_value = _length_option(noise, "--noise", allow=("leica",))
     if noise_value == "leica":
-        if machine.kind != "delta":
-            raise InputError("--noise leica: applies to the tracker scenario (a delta)")
+        if resolved != "tracker":
+            raise InputError(f"--noise leica: applies to the tracker scenario, not {resolved}")
         noise_value = None
-    if estimate_lc and machine.kind != "hexaslide":
-        raise InputError("--estimate-lc: applies to the constraint-link scenario (hexaslide)")
+    if estimate_lc and resolved != "constraint-link":
+        raise InputError(f"--estimate-lc: applies to the constraint-link scenario, not "
+                         f"{resolved}")
     settings = MonteCarloSettings(
-        machine, scenario, poses=poses, noise=noise_value,
+        machine, resolved, poses=poses, noise=noise_value,
         lc_error=_length_option(lc_error, "--lc-error") or 0.0,
         deviations=deviations, tolerance=_length_option(tolerance, "--tolerance"),
         estimate_lc=estimate_lc)
     if lc_error is not None and settings.resolved().scenario != "constraint-link":
-        raise InputError(f"--lc-error: applies to the constraint-link scenario (hexaslide), not "
+        raise InputError(f"--lc-error: applies to the constraint-link scenario, not "
                          f"{settings.resolved().scenario} ({machine.kind})")
 
     total = len(values) * runs

@@ -10,15 +10,14 @@ from pathlib import Path
 import numpy as np
 
 from ..calibration.run import file_units as _units
-from ..calibration.run import full_pose_noise_arg, measurement_kind, tracker_noise_arg
+from ..calibration.run import full_pose_noise_arg, tracker_noise_arg
 from ..calibration.run import json_safe as _finite_or_none
 from ..calibration.run import rows_text as _rows_text
 from ..errors import InputError
-from ..io import read_constraint_link, read_full_pose, read_table, read_tracker
+from ..io import read_constraint_link, read_full_pose, read_table
 from ..io.plausibility import check_option_scale
 from ..units import LENGTH, parse_quantity
 from ._commands import (
-    _MEASUREMENT_WORDS,
     _table,
     check_outputs,
     commit_outputs,
@@ -38,38 +37,114 @@ def noise_model(scenario: str, noise: str | None, pose_noise: str | None, machin
     checked against the machine's size when given."""
     if pose_noise is not None and scenario != "pose":
         raise InputError(f"--pose-noise applies to full-pose measurements, not {scenario}")
-    if scenario == "constraint-link":
+    if scenario in ("constraint-link", "distance"):
         sigma = 1e-6 if noise is None else parse_quantity(noise, "length", "--noise")
+        what = "encoder noise" if scenario == "constraint-link" else "ballbar length noise"
         if not sigma > 0:
-            raise InputError(f"--noise: must be > 0 (the standard deviation of the encoder "
-                             f"noise), got {noise}")
+            raise InputError(f"--noise: must be > 0 (the standard deviation of the {what}), "
+                             f"got {noise}")
         if machine is not None:
             check_option_scale(sigma, machine, "--noise", "noise", noise)
+        if scenario == "distance":
+            from ..instruments import IsotropicNoise
+
+            return IsotropicNoise(sigma)
         return sigma
     if scenario == "tracker":
         return tracker_noise_arg(noise, allow_none=False, machine=machine)[0]
     return full_pose_noise_arg(noise, pose_noise, strict=True, machine=machine)
 
 
-def measured_problem(machine, data_path: Path, kind: str, noise):
-    """The calibration problem ``pkmcal calibrate`` would solve (default method), unsolved."""
-    from ..planning import scenario_problem
+#: the measurement in words, per scenario
+MEASUREMENT_WORDS = {
+    "constraint-link": "constraint link (maximum likelihood: every reading noisy; one pose on "
+                       "the sphere per measurement)",
+    "tracker": "points of a target on the platform (laser tracker; tracker pose and unknown "
+               "target places estimated jointly)",
+    "pose": "full pose (maximum likelihood; both measurement frames estimated)",
+    "distance": "ballbar distances (pivot and ball of each setup estimated jointly)",
+}
 
+
+def data_kind(path: Path, header: list[str], machine) -> str:
+    """The scenario of a measurement file, from its columns: ``d`` -> distance, ``mx, my,
+    mz`` -> tracker (points), a pose (x, y, z + orientation) -> pose, readings alone ->
+    constraint-link; refused with the registry's reason when it does not apply to the
+    machine."""
+    from ..io.csv_io import has_orientation
+    from ..planning import scenario_for
+
+    def has(base):
+        return any(n == base or n.startswith(base + "_") for n in header)
+
+    if has("d"):
+        kind = "distance"
+    elif has("mx") and has("my") and has("mz"):
+        kind = "tracker"
+    elif has("x") and has("y") and has("z") and has_orientation(header):
+        kind = "pose"
+    else:
+        kind = "constraint-link"
+    try:
+        return scenario_for(machine, kind)
+    except InputError as exc:
+        raise InputError(f"{path}: {kind} measurements (from the columns "
+                         f"{', '.join(header)}): {str(exc).split(': ', 1)[-1]}") from None
+
+
+def _fk_of(machine, data, data_path: Path):
+    fk = machine.fk(data.q)
+    if not fk.converged.all():
+        raise InputError(f"{data_path}: row(s) {_rows_text(data.rows[~fk.converged])}: no "
+                         f"platform pose of {machine.source} reproduces these readings "
+                         "(outside the workspace, or a wrong unit or zero)")
+    return fk
+
+
+def measured_problem(machine, data_path: Path, kind: str, noise):
+    """The calibration problem ``pkmcal calibrate`` would solve (default method), unsolved,
+    its instrument's unknowns started from the data on the machine file's geometry (a fit
+    with the machine held: the registration and target places, the pivots and balls, the
+    measurement frames)."""
+    from ..calibration import levenberg_marquardt
+    from ..instruments.registry import instrument
+    from ..io import read_distances, read_points
+
+    inst = instrument(kind)
     if kind == "constraint-link":
         data = read_constraint_link(data_path, machine)
-        return scenario_problem(machine, kind, data, noise), data
+        return inst.problem(machine, data, noise), data
     if kind == "tracker":
-        from ..calibration import register_points
+        from ..calibration.tracker import TrackerProblem, registration_of
+        from ..instruments import PointsModel
 
-        data = read_tracker(data_path, machine)
-        fk = machine.fk(data.q)
-        if not fk.converged.all():
-            raise InputError(f"{data_path}: row(s) {_rows_text(data.rows[~fk.converged])}: no "
-                             f"platform position of {machine.source} reproduces these arm "
-                             "angles (outside the workspace, or a wrong angle unit or zero)")
-        smr = fk.P - np.array([0.0, 0.0, machine.smr_offset])
-        registration = register_points(data.m, smr, f"{data_path}: tracker registration")
-        return scenario_problem(machine, kind, data, noise, registration=registration), data
+        data = read_points(data_path, machine)
+        fk = _fk_of(machine, data, data_path)
+        start = PointsModel(data.n_groups, machine.tracker_target()).start(
+            fk.P, fk.R, data.values, data.group, str(data_path))
+        registration = (start.rotation_starts[0], start.parameters.values[3:6].copy())
+        targets = None
+        if machine.tracker_target() is None:
+            alone = TrackerProblem(machine, data, noise, registration).with_machine_fixed()
+            first = levenberg_marquardt(alone)
+            registration = registration_of(first.state)
+            targets = first.state.nuisance.values[6:].copy()
+        return inst.problem(machine, data, noise, registration=registration,
+                            targets=targets), data
+    if kind == "distance":
+        from ..instruments import DistancesModel, InstrumentProblem
+
+        data = read_distances(data_path, machine)
+        fk = _fk_of(machine, data, data_path)
+        model = DistancesModel(data.n_groups).start(fk.P, fk.R, data.values, data.group,
+                                                    str(data_path))
+        alone = InstrumentProblem(machine, data, model, noise).with_machine_fixed()
+        state = levenberg_marquardt(alone).state.nuisance
+        start = machine.with_parameters(machine.u)
+        start.ballbar_setups = [(state.values[model._ip[g]].copy(),
+                                 state.values[model._ib[g]].copy())
+                                for g in range(data.n_groups)]
+        return inst.problem(start, data, noise), data
     from ..calibration import estimate_frames
 
     data = read_full_pose(data_path, machine)
@@ -79,7 +154,55 @@ def measured_problem(machine, data_path: Path, kind: str, noise):
     frames = getattr(machine, "measurement_frames", None)
     if frames is None:
         frames = estimate_frames(machine, data)
-    return scenario_problem(machine, kind, data, noise, frames=frames), data
+    return inst.problem(machine, data, noise, frames=frames), data
+
+
+def plan_groups(path: Path, kind: str, rows):
+    """The 0-based ``setup`` (distance) or ``target`` (tracker) of each planned pose of a plan
+    file, None without that column."""
+    from ..io.csv_io import read_groups
+
+    column = {"distance": "setup", "tracker": "target"}.get(kind)
+    if column is None:
+        return None
+    header, table = read_table(path)
+    if column not in header:
+        return None
+    extra = {name: [f[k] for _, f in table] for k, name in enumerate(header)}
+    lines = [line for line, _ in table]
+    groups = read_groups(path, extra, lines, column)
+    if rows is not None and len(rows) != len(groups):
+        keep = np.isin(lines, np.asarray(rows))
+        groups = groups[keep]
+    return groups
+
+
+def planning_machine(machine, kind: str, setups: int | None, radius: str | None,
+                     targets: int | None):
+    """The machine ``kind``'s plans use: with ``--setups`` / ``--radius`` its planned ballbar
+    mountings (a copy carrying ``ballbar_setups``); refuses the options that do not apply."""
+    for option, value, applies in (("--setups", setups, "distance"),
+                                   ("--radius", radius, "distance"),
+                                   ("--targets", targets, "tracker")):
+        if value is not None and kind != applies:
+            raise InputError(f"{option}: applies to {applies} measurements, not {kind}")
+    if targets is not None and targets > 1 and machine.tracker_target() is not None:
+        raise InputError(f"--targets {targets}: {machine.source} gives the target's place on "
+                         "the platform; one target only")
+    if kind != "distance" or (setups is None and radius is None):
+        return machine
+    from ..instruments.registry import BALLBAR_LENGTH, planned_ballbar_setups
+
+    length = BALLBAR_LENGTH
+    if radius is not None:
+        length = parse_quantity(radius, "length", "--radius")
+        if not length > 0:
+            raise InputError(f"--radius: the ballbar length must be > 0, got {radius}")
+        check_option_scale(length, machine, "--radius", "size", radius)
+    out = machine.with_parameters(machine.u)
+    out.ballbar_setups = planned_ballbar_setups(machine, 3 if setups is None else setups,
+                                                length)
+    return out
 
 
 def workspace_arg(text: str | None, machine, seed: int = 0):
@@ -245,10 +368,15 @@ def write_map(path: Path, machine, design, n_machine, M, plan_P, title: str,
 def run_identifiability(machine_spec: str, data_path: Path | None, json_output: bool,
                         planned: bool = False, poses: int | None = None, seed: int = 0,
                         noise: str | None = None, pose_noise: str | None = None,
-                        map_path: Path | None = None, workspace: str | None = None) -> int:
+                        map_path: Path | None = None, workspace: str | None = None,
+                        scenario: str | None = None, setups: int | None = None,
+                        radius: str | None = None, targets: int | None = None) -> int:
+    """``pkmcal identifiability``: every scenario on every machine it applies to, from
+    measurements of any kind, a plan file or the instrument's standard plan."""
     from ..identifiability import identifiability_report
+    from ..instruments.registry import instrument
     from ..planning import (
-        candidate_poses,
+        candidate_set,
         describe_noise,
         design_from_problem,
         planned_problem,
@@ -268,32 +396,50 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
         raise InputError("--poses: the number of random planned poses applies without DATA")
     if poses is not None and poses < 1:
         raise InputError(f"--poses: must be >= 1, got {poses}")
+    group = None
     if data_path is not None and not planned:
         header, _ = read_table(data_path)
-        kind = measurement_kind(data_path, header, machine)
+        kind = data_kind(data_path, header, machine)
+        if scenario is not None and scenario_for(machine, scenario) != kind:
+            raise InputError(f"--scenario {scenario}: {data_path} holds {kind} measurements "
+                             "(from its columns); leave --scenario out or give a plan with "
+                             "--planned")
+        for option, value in (("--setups", setups), ("--radius", radius),
+                              ("--targets", targets)):
+            if value is not None:
+                raise InputError(f"{option}: applies to planned measurements; the "
+                                 f"measurements of {data_path} have their own")
         model = noise_model(kind, noise, pose_noise, machine)
         source = f"{data_path}"
     else:
-        kind = scenario_for(machine)
+        kind = scenario_for(machine, scenario)
+        machine = planning_machine(machine, kind, setups, radius, targets)
         model = noise_model(kind, noise, pose_noise, machine)
-        if data_path is None and poses is None:
+        if data_path is None and poses is None and not targets:
             # the instrument's standard plan (tracker: seed 001's 3x3x3 grid), as select-poses
             # compares with
             plan = standard_plan(machine, kind, seed=seed)
-            P, R = plan.P, plan.R
+            if not plan.available:
+                raise InputError(f"{plan.name}: {plan.reason}")
+            P, R, group = plan.P, plan.R, plan.group
             rows, source = None, plan.name
         elif data_path is None:
-            P, R = candidate_poses(machine, kind, poses, rng=seed)
-            rows, source = None, f"{poses} random planned poses (seed {seed})"
+            n = poses if poses is not None else instrument(kind).plan_size_for(machine)
+            P, R, group = candidate_set(machine, kind, n, rng=seed)
+            rows, source = None, f"{n} random planned poses (seed {seed})"
         else:
             P, R, rows = read_poses_of(data_path, machine)
+            group = plan_groups(data_path, kind, rows)
             source = f"planned poses of {data_path}"
+        if targets:
+            group = np.arange(len(P)) % targets
+            source += f", {targets} target(s) in turn"
     try:
         if data_path is not None and not planned:
             problem, data = measured_problem(machine, data_path, kind, model)
         else:
             problem = planned_problem(machine, kind, P, R, model, rows,
-                                      str(data_path or "<plan>"))
+                                      str(data_path or "<plan>"), group=group)
             data = problem.data
         rep = identifiability_report(problem)
         design = design_from_problem(problem)
@@ -331,7 +477,7 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
     out = console()
     table = _table("", "", title=f"pkmcal identifiability: {report['machine_file']} with "
                    f"{source}", show_header=False)
-    table.add_row("measurement", f"{_MEASUREMENT_WORDS[kind]}, {len(data)} "
+    table.add_row("measurement", f"{MEASUREMENT_WORDS[kind]}, {len(data)} "
                   f"{'planned ' if report['planned'] else ''}measurements")
     table.add_row("identifiable", rep.rank.words())
     for d in rep.weak:
@@ -478,7 +624,9 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                      candidates_path: Path | None, criterion: str, random_sets: int,
                      noise: str | None, pose_noise: str | None, seed: int,
                      map_path: Path | None, json_output: bool,
-                     joint_range: str | None = None, workspace: str | None = None) -> int:
+                     joint_range: str | None = None, workspace: str | None = None,
+                     scenario: str | None = None, setups: int | None = None,
+                     radius: str | None = None, targets: int | None = None) -> int:
     """``pkmcal select-poses``: choose ``n`` poses by a criterion, starting from the greedy
     choice and from the instrument's standard plan, never returning a plan worse than the
     standard one (by the criterion or the predicted RMS position error) when it is among the
@@ -489,7 +637,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     from ..identifiability import numerical_rank
     from ..io import write_poses, write_positions
     from ..planning import (
-        candidate_poses,
+        candidate_set,
         criterion_value,
         describe_noise,
         design_from_problem,
@@ -509,19 +657,23 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
         raise InputError(f"-n/--poses: must be >= 1, got {n}")
     if random_sets < 0:
         raise InputError(f"--random-sets: must be >= 0, got {random_sets}")
-    kind = scenario_for(machine)
+    kind = scenario_for(machine, scenario)
+    machine = planning_machine(machine, kind, setups, radius, targets)
     model = noise_model(kind, noise, pose_noise, machine)
     with progress_tasks() as new_task:
         step = new_task("select-poses: candidate poses", 5)
         if candidates_path is not None:
             P, R, rows = read_poses_of(candidates_path, machine)
+            G = plan_groups(candidates_path, kind, rows)
             source = str(candidates_path)
         else:
             if candidates < n:
                 raise InputError(f"-n/--poses {n}: more than the {candidates} candidate poses "
                                  "(--candidates); choose fewer or more candidates")
-            P, R = candidate_poses(machine, kind, candidates, rng=seed)
+            P, R, G = candidate_set(machine, kind, candidates, rng=seed)
             rows, source = None, "<candidates>"
+        if targets:
+            G = np.arange(len(P)) % targets
         dropped = 0
         lo_hi, limits_words = joint_bounds(machine, joint_range)
         if lo_hi is not None:
@@ -529,6 +681,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
             inside = np.all((q >= lo_hi[0]) & (q <= lo_hi[1]), axis=-1)   # NaN: outside
             dropped = int((~inside).sum())
             P, R = P[inside], R[inside]
+            G = None if G is None else np.asarray(G)[inside]
             rows = None if rows is None else np.asarray(rows)[inside]
             if candidates_path is None:
                 rows = np.flatnonzero(inside) + 1
@@ -544,12 +697,19 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
         k = len(std)
         P_all = np.concatenate([P, std.P]) if k else P
         R_all = np.concatenate([R, std.R]) if k else R
+        std_G = std.group if not (k and targets) else np.arange(k) % targets
+        G_all = G
+        if k and (G is not None or std_G is not None):
+            G_all = np.concatenate([np.zeros(K, int) if G is None else np.asarray(G, int),
+                                    np.zeros(k, int) if std_G is None else np.asarray(std_G,
+                                                                                      int)])
         rows_all = rows
         if k and rows is not None:
             first = len(rows) if candidates_path is not None else candidates
             rows_all = np.concatenate([np.asarray(rows), first + 1 + np.arange(k)])
         step(1, "select-poses: information of each candidate")
-        problem = planned_problem(machine, kind, P_all, R_all, model, rows_all, source)
+        problem = planned_problem(machine, kind, P_all, R_all, model, rows_all, source,
+                                  group=G_all)
         design = design_from_problem(problem)
         selectable = K + (k if candidates_path is None else 0)
         pool = replace(design, F=design.F[:selectable])
@@ -560,7 +720,8 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                 std = replace(std, P=None, R=None, reason="it identifies directions the "
                               f"poses of {candidates_path} cannot")
                 k = 0
-                problem = planned_problem(machine, kind, P, R, model, rows, source)
+                problem = planned_problem(machine, kind, P, R, model, rows, source, group=G)
+                G_all = G
                 design = pool = design_from_problem(problem)
         step(1, "select-poses: pose-error operator over the workspace")
         op = pose_error_operator(machine, design, ws.P, ws.R, problem.n_machine)
@@ -674,6 +835,9 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     units = _units(machine)
     extra = {"candidate": (idx + 1 if rows_all is None else np.asarray(rows_all)[idx]).tolist()}
     extra.update(joint_columns(machine, machine.ik(P_all[idx], R_all[idx]), units))
+    column = {"distance": "setup", "tracker": "target"}.get(kind)
+    if column is not None and G_all is not None:
+        extra[column] = (np.asarray(G_all)[idx] + 1).tolist()
     if machine.pose_dof == 3:
         write_positions(output, P_all[idx], units["length"], extra=extra)
     else:
@@ -691,7 +855,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     out = console()
     table = _table("", "", title=f"pkmcal select-poses: {report['machine_file']}",
                    show_header=False)
-    table.add_row("measurement", _MEASUREMENT_WORDS[kind])
+    table.add_row("measurement", MEASUREMENT_WORDS[kind])
     how = ("the standard plan (the search ended worse)" if returned_standard
            else f"greedy + {sel.exchanges} exchanges" if sel.start is None
            else f"standard plan + {sel.exchanges} exchanges")

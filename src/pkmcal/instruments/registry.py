@@ -419,13 +419,13 @@ class Tracker(Instrument):
         return TrackerData(q, (x - t) @ Rt, rows=rows, source=source, true_P=P,
                            target=None if group is None else np.asarray(group, int))
 
-    def problem(self, machine, data, noise=None, registration=None, **start):
+    def problem(self, machine, data, noise=None, registration=None, targets=None, **start):
         from ..calibration import TrackerProblem
 
-        groups = getattr(data, "target", None)
+        groups = getattr(data, "target", getattr(data, "group", None))
         n_targets = 1 if groups is None or not len(groups) else int(np.max(groups)) + 1
         target = None if machine.tracker_target() is not None else \
-            np.tile(plan_target(machine), (n_targets, 1))
+            np.tile(plan_target(machine), (n_targets, 1)) if targets is None else targets
         return TrackerProblem(machine, data, self.default_noise() if noise is None else noise,
                               tracker_pose(machine) if registration is None else registration,
                               targets=target)
@@ -496,12 +496,77 @@ BALLBAR_LENGTH = 0.1
 CIRCLE_NORMALS = ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0))
 
 
-def ballbar_setups(machine: Machine, length: float = BALLBAR_LENGTH):
-    """Pivots (base frame) and balls (platform frame) of the three planned ballbar setups.
+def setup_normals(n_setups: int) -> np.ndarray:
+    """Directions from the pivots to home of ``n_setups`` planned ballbar mountings.
 
-    The pivot of setup ``g`` stands ``length`` from the home position along the normal of the
-    ``g``-th circle plane (z, y, x), so the ball at the platform origin, on a ballbar of
-    ``length``, sweeps a sphere through home; the ball is at the platform origin.
+    The first three are the normals of the ISO 230-4 circle planes (:data:`CIRCLE_NORMALS`:
+    z, y, x), the next four the diagonals of the upper half space, further ones spread over
+    the upper hemisphere (a Fibonacci lattice).
+
+    Parameters
+    ----------
+    n_setups : int
+        Number of mountings (>= 1).
+
+    Returns
+    -------
+    ndarray, shape (n_setups, 3)
+        Unit vectors.
+    """
+    base = [np.asarray(v, float) for v in CIRCLE_NORMALS]
+    base += [np.array([sx, sy, 1.0]) / np.sqrt(3.0) for sx, sy in ((1, 1), (-1, 1), (-1, -1),
+                                                                    (1, -1))]
+    extra = max(0, n_setups - len(base))
+    for k in range(extra):
+        z = 1.0 - (k + 0.5) / extra * 0.8                       # z in (0.2, 1)
+        phi = k * np.pi * (3.0 - np.sqrt(5.0))
+        r = np.sqrt(1.0 - z * z)
+        base.append(np.array([r * np.cos(phi), r * np.sin(phi), z]))
+    return np.array(base[:n_setups])
+
+
+def planned_ballbar_setups(machine: Machine, n_setups: int = 3,
+                           length: float = BALLBAR_LENGTH) -> list:
+    """The planned ballbar mountings: pivots ``length`` from home, balls at the platform origin.
+
+    The pivot of setup ``g`` stands ``length`` from the home position against the ``g``-th
+    direction of :func:`setup_normals`, so the ball at the platform origin, on a ballbar of
+    ``length``, sweeps a sphere through home.
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine (its home).
+    n_setups : int, optional
+        Number of mountings.
+    length : float, optional
+        Ballbar length, m.
+
+    Returns
+    -------
+    list of tuple
+        ``[(pivot (3,) base frame, ball (3,) platform frame), ...]``, m.
+
+    Raises
+    ------
+    InputError
+        When ``n_setups < 1`` or ``length`` is not > 0.
+    """
+    if int(n_setups) < 1:
+        raise InputError(f"the number of ballbar setups must be >= 1, got {n_setups}")
+    if not length > 0:
+        raise InputError(f"the ballbar length must be > 0, got {length} m")
+    P0 = machine.home[0]
+    return [(P0 - length * n, np.zeros(3)) for n in setup_normals(int(n_setups))]
+
+
+def ballbar_setups(machine: Machine, length: float | None = None):
+    """Pivots (base frame) and balls (platform frame) of the ballbar setups of plans.
+
+    The machine's own ``ballbar_setups`` (a calibrated machine file, or set by a planning
+    command for ``--radius`` / ``--setups``) when it has them and ``length`` is not given,
+    else the three planned setups of :func:`planned_ballbar_setups` (ballbar ``length``,
+    default :data:`BALLBAR_LENGTH`).
 
     Parameters
     ----------
@@ -512,14 +577,18 @@ def ballbar_setups(machine: Machine, length: float = BALLBAR_LENGTH):
 
     Returns
     -------
-    pivots : ndarray, shape (3, 3)
+    pivots : ndarray, shape (K, 3)
         One pivot per setup, m.
-    balls : ndarray, shape (3, 3)
+    balls : ndarray, shape (K, 3)
         One ball per setup, m (platform frame).
     """
-    P0 = machine.home[0]
-    pivots = np.array([P0 - length * np.asarray(n) for n in CIRCLE_NORMALS])
-    return pivots, np.zeros((len(CIRCLE_NORMALS), 3))
+    setups = getattr(machine, "ballbar_setups", None) if length is None else None
+    if not setups:
+        setups = planned_ballbar_setups(machine, len(CIRCLE_NORMALS),
+                                        BALLBAR_LENGTH if length is None else length)
+    pivots = np.array([np.asarray(p, float) for p, _ in setups])
+    balls = np.array([np.asarray(b, float) for _, b in setups])
+    return pivots, balls
 
 
 class Distance(Instrument):
@@ -539,14 +608,17 @@ class Distance(Instrument):
         return f"ballbar length {noise.sigma * 1e6:.3g} um (std)"
 
     def candidates(self, machine, n, rng):
-        """Poses on the three setups' spheres (random directions within 60 deg of the pivot's
-        normal; random orientations within 10 deg on platforms that rotate)."""
+        """Poses on the setups' spheres (:func:`ballbar_setups`: random directions within 60
+        deg of the pivot's direction to home; random orientations within 10 deg on platforms
+        that rotate)."""
         from ..kinematics import matrix_from_euler
         from ..measurements.deviations import draw_accepted
 
         pivots, balls = ballbar_setups(machine)
         P0, R0 = machine.home
-        normals = np.asarray(CIRCLE_NORMALS, float)
+        arm = P0 + balls @ R0.T - pivots                  # pivot -> ball at home, per setup
+        radius = np.linalg.norm(arm, axis=-1)
+        normals = arm / np.where(radius > 0, radius, 1.0)[:, None]
         rotates = machine.pose_dof == 6
 
         def draw(m, rng):
@@ -557,7 +629,7 @@ class Distance(Instrument):
             v = np.where((cos < 0)[:, None], -v, v)
             R = (matrix_from_euler(rng.uniform(-0.17, 0.17, (m, 3))) @ R0 if rotates
                  else np.broadcast_to(np.eye(3), (m, 3, 3)).copy())
-            P = pivots[g] + BALLBAR_LENGTH * v - np.einsum("kij,kj->ki", R, balls[g])
+            P = pivots[g] + radius[g, None] * v - np.einsum("kij,kj->ki", R, balls[g])
             with np.errstate(all="ignore"):
                 ok = machine.working_mode(P, R) & (np.abs(cos) > 0.5)
             draw.group = g
@@ -577,15 +649,22 @@ class Distance(Instrument):
         return P, R, np.concatenate(groups)[:n]
 
     def standard_plan(self, machine, n, seed):
-        k = len(CIRCLE_NORMALS)
+        pivots, balls = ballbar_setups(machine)
+        k = len(pivots)
+        words = {1: "one mounting", 2: "two mountings", 3: "three mountings"}.get(
+            k, f"{k} mountings")
         if n < 3 * k:
-            return StandardPlan("ballbar on three mountings", reason=f"three mountings need "
-                                f"at least {3 * k} poses, not {n}")
+            return StandardPlan(f"ballbar on {words}", reason=f"{words} need at least {3 * k} "
+                                f"poses, not {n}")
         P, R, group = self.candidates(machine, n, np.random.default_rng(seed))
+        P0, R0 = machine.home
+        lengths = np.linalg.norm(P0 + balls @ R0.T - pivots, axis=-1) * 1e3
+        length = (f"{lengths[0]:.4g} mm" if np.ptp(lengths) < 1e-6
+                  else "/".join(f"{v:.4g}" for v in lengths) + " mm")
         turn = " and orientations within 10 deg" if machine.pose_dof == 6 else ""
-        return StandardPlan(f"a ballbar of {BALLBAR_LENGTH * 1e3:g} mm on three mountings: {n} "
-                            f"random poses on the spheres around the pivots{turn} (seed {seed})",
-                            P, R, group=group)
+        return StandardPlan(f"a ballbar of {length} on {words}: {n} random poses on the "
+                            f"spheres around the pivots{turn} (seed {seed})", P, R,
+                            group=group)
 
     def planned_data(self, machine, P, R, rows, source, group=None):
         from .data import InstrumentData

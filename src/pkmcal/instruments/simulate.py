@@ -173,3 +173,346 @@ def simulate_instrument(true_machine: Machine, nominal_machine: Machine, model: 
         y = y + noise.sample(y, rng)
     return InstrumentData(model.kind, q, y, group, source="<simulated>", true_P=fk.P,
                           true_R=fk.R)
+
+
+# -- a whole simulated experiment of any instrument on any machine ---------------------------
+
+#: half-width of the random mounting error of simulated targets, pivots and balls, m
+MOUNTING_ERROR = 1e-3
+
+
+def planned_targets(machine: Machine, n_targets: int = 1) -> np.ndarray:
+    """Planned places of ``n_targets`` tracker targets (reflector nests) on the platform.
+
+    The machine's own target when its file gives one (a Delta's ``smr_offset``; then only one
+    target makes sense); else target 1 at
+    :func:`~pkmcal.instruments.registry.plan_target` and the others turned about the platform
+    z axis by ``360 deg g / n_targets``.
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    n_targets : int, optional
+        Number of targets (>= 1).
+
+    Returns
+    -------
+    ndarray, shape (n_targets, 3)
+        Places in the platform frame, m.
+
+    Raises
+    ------
+    InputError
+        When ``n_targets < 1``, or several targets are asked for on a machine whose file
+        gives the target's place.
+    """
+    from .registry import plan_target
+
+    n_targets = int(n_targets)
+    if n_targets < 1:
+        raise InputError(f"the number of targets must be >= 1, got {n_targets}")
+    known = machine.tracker_target()
+    if known is not None:
+        if n_targets > 1:
+            raise InputError(f"{getattr(machine, 'source', None) or 'the machine file'} gives "
+                             "the target's place on the platform (e.g. a Delta's "
+                             "smr_offset): one target only")
+        return np.asarray(known, float)[None, :]
+    c = plan_target(machine)
+    t = 2 * np.pi * np.arange(n_targets) / n_targets
+    return np.column_stack([np.cos(t) * c[0] - np.sin(t) * c[1],
+                            np.sin(t) * c[0] + np.cos(t) * c[1], np.full(n_targets, c[2])])
+
+
+def circle_plan(machine: Machine, n: int, setups=None):
+    """ISO 230-4 style ballbar circles, one per setup, the platform at its home orientation.
+
+    For setup ``g`` (pivot ``p``, ball ``b``, ballbar length ``L = |home + R0 b - p|``) the ball
+    runs on the circle of radius ``L sin 45 deg`` about the pivot's direction to home, ``L cos
+    45 deg`` above the pivot; the ``n`` poses are shared out among the setups in turn.
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    n : int
+        Number of poses (at least 3 per setup).
+    setups : list of tuple, optional
+        ``[(pivot, ball), ...]``; default
+        :func:`~pkmcal.instruments.registry.ballbar_setups` of the machine.
+
+    Returns
+    -------
+    P : ndarray, shape (n, 3)
+        Positions, m.
+    R : ndarray, shape (n, 3, 3)
+        Orientations.
+    group : ndarray of int, shape (n,)
+        0-based setup of each pose.
+
+    Raises
+    ------
+    InputError
+        When there are fewer than 3 poses per setup or the machine cannot reach a pose.
+    """
+    from .registry import ballbar_setups
+
+    if setups is None:
+        pivots, balls = ballbar_setups(machine)
+    else:
+        pivots = np.array([np.asarray(p, float) for p, _ in setups])
+        balls = np.array([np.asarray(b, float) for _, b in setups])
+    k = len(pivots)
+    if n < 3 * k:
+        raise InputError(f"{k} ballbar circles need at least {3 * k} poses, got {n}")
+    P0, R0 = machine.home
+    Ps, Rs, gs = [], [], []
+    for g in range(k):
+        m = n // k + (1 if g < n % k else 0)
+        arm = P0 + R0 @ balls[g] - pivots[g]
+        L = np.linalg.norm(arm)
+        normal = arm / L
+        h = L * np.cos(np.deg2rad(45.0))
+        P, R = circle_poses(machine, pivots[g] + h * normal, h, m, normal)
+        Ps.append(P - np.einsum("kij,j->ki", R, balls[g]))
+        Rs.append(R)
+        gs.append(np.full(m, g))
+    P, R, group = np.concatenate(Ps), np.concatenate(Rs), np.concatenate(gs)
+    with np.errstate(all="ignore"):
+        ok = np.all(np.isfinite(machine.ik(P, R)), -1) & machine.working_mode(P, R)
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        raise InputError(f"ballbar circle {group[bad[0]] + 1}: {bad.size} of its poses are out "
+                         "of the machine's reach (e.g. at ("
+                         + ", ".join(f"{v * 1e3:.6g}" for v in P[bad[0]]) + ") mm); use a "
+                         "shorter ballbar or fewer setups")
+    return P, R, group
+
+
+def _true_machine(machine: Machine, deviations, rng) -> Machine:
+    """``machine`` plus deviations (a name of :func:`~pkmcal.measurements.deviations.deviations`
+    or a vector), every other attribute kept."""
+    from ..measurements.deviations import deviations as draw
+
+    du = draw(machine, deviations, rng) if isinstance(deviations, str) else \
+        np.asarray(deviations, float)
+    if du.shape != (len(machine.parameters),):
+        raise InputError(f"deviations: expected {len(machine.parameters)} values, got "
+                         f"{du.shape}")
+    return machine.with_parameters(machine.u + du)
+
+
+def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noise=None,
+                      rng=None, *, deviations="random", targets: int = 1, setups=None,
+                      length: float | None = None, circles: bool = False,
+                      mounting_error: float = MOUNTING_ERROR, link_error: float = 0.0,
+                      poses=None):
+    """A simulated experiment: the true machine measured by an instrument of the registry.
+
+    The true machine is ``machine`` plus ``deviations``; the nominal ``machine`` commands the
+    poses; the instrument, with its true unknowns, measures the true machine there:
+
+    - ``constraint-link``: :func:`~pkmcal.measurements.simulate_constraint_link` on the
+      sphere of the true link (the file's length minus ``link_error``); ``noise`` encoder std
+      (m, default 1 um).
+    - ``tracker`` (``points``): ``n`` random workspace poses (registry candidates: rotations
+      on platforms that rotate), or ``poses``; ``targets`` targets, rows cycling through them;
+      the tracker at the machine file's ``base_from_tracker`` (else the simulations'
+      default); true target places = planned (:func:`planned_targets`) + a uniform error of
+      ``mounting_error`` per coordinate (the file's target when it gives one). ``noise`` a
+      tracker noise model (default ``TrackerNoise()``; None-valued noise: pass
+      ``noise=False`` for exact data).
+    - ``pose`` (``poses``): :func:`~pkmcal.measurements.simulate_full_pose` at ``n`` random
+      poses, through the machine file's ``measurement_frames`` (else the default);
+      ``noise`` a ``FullPoseNoise``.
+    - ``distance`` (``distances``): ``setups`` mountings of a ballbar of ``length`` (the
+      machine's ``ballbar_setups`` when neither is given, else
+      :func:`~pkmcal.instruments.registry.planned_ballbar_setups`, 3 and 100 mm by default);
+      ``n`` poses on the spheres around the pivots (registry candidates) or, with
+      ``circles``, ISO 230-4 circles (:func:`circle_plan`); true pivots and balls = planned +
+      a uniform error of ``mounting_error``; ``noise`` an ``IsotropicNoise`` (default 1 um).
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine (not modified).
+    scenario : str
+        A name or alias of :mod:`pkmcal.instruments.registry`; it must apply to the machine.
+    n : int, optional
+        Number of measurements; default the instrument's plan size for the machine.
+    noise : object, optional
+        The instrument's noise model (see above); None its default; False exact data.
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed (deviations, poses, mounting errors, noise).
+    deviations : str or array_like, optional
+        ``"random"``, ``"none"``, ``"paper-table1"`` or a vector (true - nominal).
+    targets : int, optional
+        tracker: number of targets.
+    setups : int, optional
+        distance: number of ballbar mountings (default 3).
+    length : float, optional
+        distance: ballbar length, m (default
+        :data:`~pkmcal.instruments.registry.BALLBAR_LENGTH`).
+    circles : bool, optional
+        distance: ISO 230-4 circles instead of poses on the spheres.
+    mounting_error : float, optional
+        Half-width of the uniform error of true targets, pivots and balls, m.
+    link_error : float, optional
+        constraint-link: the file's length minus the true one, m.
+    poses : tuple, optional
+        ``(P, R)`` or ``(P, R, group)``: commanded poses instead of random ones (tracker,
+        distance, pose).
+
+    Returns
+    -------
+    data : object
+        The measurements: ``ConstraintLinkData``, ``FullPoseData`` or
+        :class:`~pkmcal.instruments.InstrumentData` (``points`` / ``distances``, with
+        ``group`` the 0-based target / setup and the true poses).
+    true_machine : Machine
+        The true machine, carrying its true instrument: ``constraint_link_length``,
+        ``base_from_tracker`` and ``tracker_targets`` (None when the file gives the target),
+        ``measurement_frames`` or ``ballbar_setups`` (``[(pivot, ball), ...]``).
+    truth : dict
+        The instrument's truth and plan in words: ``scenario`` (canonical name), ``poses``
+        (words), and per scenario ``link_length``; ``base_from_tracker``, ``targets``,
+        ``planned_targets``; ``frames``; ``setups``, ``planned_setups``, ``length``.
+
+    Raises
+    ------
+    InputError
+        When the scenario does not apply to the machine (with the reason), an option does
+        not apply to it, or the poses cannot be drawn or reached.
+    """
+    from .registry import (
+        BALLBAR_LENGTH,
+        instrument,
+        measurement_frames,
+        planned_ballbar_setups,
+        tracker_pose,
+    )
+
+    inst = instrument(scenario)
+    why = inst.applies(machine)
+    if why is not None:
+        raise InputError(f"scenario {scenario}: does not apply to this "
+                         f"{getattr(machine, 'kind', 'machine')}: {why}")
+    name = inst.name
+    rng = np.random.default_rng(rng)
+    n = inst.plan_size_for(machine) if n is None else int(n)
+    if n < 1:
+        raise InputError(f"the number of measurements must be >= 1, got {n}")
+    if name != "tracker" and int(targets) != 1:
+        raise InputError(f"targets: apply to the tracker (points) scenario, not {name}")
+    if name != "distance" and (setups is not None or length is not None or circles):
+        raise InputError(f"setups, length and circles: apply to the distance scenario, not "
+                         f"{name}")
+    if name != "constraint-link" and link_error:
+        raise InputError(f"link_error: applies to the constraint-link scenario, not {name}")
+    if not mounting_error >= 0:
+        raise InputError(f"mounting_error: must be >= 0, got {mounting_error}")
+    true = _true_machine(machine, deviations, rng)
+    truth: dict = {"scenario": name}
+
+    if name == "constraint-link":
+        from ..measurements import simulate_constraint_link
+
+        Lc = float(machine.constraint_link_length) - float(link_error)
+        if not Lc > 0:
+            raise InputError(f"link_error: the true link length {Lc * 1e3:.6g} mm is not "
+                             "positive")
+        true.constraint_link_length = Lc
+        sigma = 1e-6 if noise is None else (0.0 if noise is False else float(noise))
+        data = simulate_constraint_link(true, n, sigma, link_length=Lc,
+                                        link_length_error=float(link_error), rng=rng)
+        truth.update(link_length=Lc, poses=f"{n} poses on the true link's sphere |P| = "
+                     f"{Lc * 1e3:.6g} mm")
+        return data, true, truth
+
+    if name == "pose":
+        from ..measurements import FullPoseNoise, simulate_full_pose
+
+        frames = measurement_frames(machine)
+        true.measurement_frames = frames
+        model = FullPoseNoise() if noise is None else (None if noise is False else noise)
+        if poses is None:
+            poses = sample_workspace_poses(true, n, rng)
+            words = (f"{n} random poses in the 0.1 m cube around home, Euler angles within "
+                     "+/-10 deg")
+        else:
+            poses = (np.asarray(poses[0], float), np.asarray(poses[1], float))
+            words = f"{len(poses[0])} given poses"
+        data = simulate_full_pose(true, poses, frames, model, rng)
+        truth.update(frames=frames, poses=words)
+        return data, true, truth
+
+    if name == "tracker":
+        from ..measurements import TrackerNoise
+        from .models import PointsModel
+
+        k = int(targets)
+        planned = planned_targets(machine, k)
+        known = machine.tracker_target() is not None
+        c = planned if known else planned + rng.uniform(-mounting_error, mounting_error,
+                                                        planned.shape)
+        Rt, t = tracker_pose(machine)
+        model = PointsModel(k, machine.tracker_target())
+        state = model.initial()
+        state.rotations = [np.asarray(Rt, float)]
+        state.values[3:6] = t
+        if not known:
+            state.values[model._it.ravel()] = c.ravel()
+        if poses is None:
+            P, R, _ = inst.candidates(machine, n, rng)
+            words = (f"{n} random workspace poses around home"
+                     + (" with rotations within +/-10 deg" if machine.pose_dof == 6 else ""))
+        else:
+            P, R = np.asarray(poses[0], float), np.asarray(poses[1], float)
+            words = f"{len(P)} given poses"
+        group = np.arange(len(P)) % k
+        model_noise = TrackerNoise() if noise is None else (None if noise is False else noise)
+        data = simulate_instrument(true, machine, model, state, P, R, group, model_noise, rng)
+        true.base_from_tracker = (np.asarray(Rt, float), np.asarray(t, float))
+        true.tracker_targets = None if known else c
+        truth.update(base_from_tracker=true.base_from_tracker, targets=c,
+                     planned_targets=planned, poses=words)
+        return data, true, truth
+
+    # distance
+    from .models import DistancesModel, IsotropicNoise
+
+    if setups is None and length is None and getattr(machine, "ballbar_setups", None):
+        plan = [(np.asarray(p, float), np.asarray(b, float)) for p, b in machine.ballbar_setups]
+    else:
+        plan = planned_ballbar_setups(machine, 3 if setups is None else int(setups),
+                                      BALLBAR_LENGTH if length is None else float(length))
+    nominal = machine.with_parameters(machine.u)
+    nominal.ballbar_setups = plan
+    k = len(plan)
+    if poses is not None:
+        P, R = np.asarray(poses[0], float), np.asarray(poses[1], float)
+        group = (np.arange(len(P)) % k if len(poses) < 3 or poses[2] is None
+                 else np.asarray(poses[2], int))
+        words = f"{len(P)} given poses"
+    elif circles:
+        P, R, group = circle_plan(nominal, n, plan)
+        words = f"{k} ISO 230-4 circle(s), {n} poses"
+    else:
+        P, R, group = inst.candidates(nominal, n, rng)
+        words = (f"{n} random poses on the spheres around the {k} pivot(s)"
+                 + (" with rotations within +/-10 deg" if machine.pose_dof == 6 else ""))
+    true_setups = [(p + rng.uniform(-mounting_error, mounting_error, 3),
+                    b + rng.uniform(-mounting_error, mounting_error, 3)) for p, b in plan]
+    model = DistancesModel(k)
+    state = model.initial()
+    for g, (p, b) in enumerate(true_setups):
+        state.values[model._ip[g]] = p
+        state.values[model._ib[g]] = b
+    model_noise = IsotropicNoise(1e-6) if noise is None else (None if noise is False else noise)
+    data = simulate_instrument(true, machine, model, state, P, R, group, model_noise, rng)
+    true.ballbar_setups = true_setups
+    P0, R0 = machine.home
+    L = [float(np.linalg.norm(P0 + R0 @ b - p)) for p, b in plan]
+    truth.update(setups=true_setups, planned_setups=plan, length=L, poses=words)
+    return data, true, truth
