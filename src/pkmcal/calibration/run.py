@@ -1205,7 +1205,7 @@ def distance_ratio_pairs(machine, q) -> tuple[np.ndarray, str]:
     ok = np.all(np.isfinite(P), axis=-1)
     pairs = grid_neighbour_pairs(np.where(ok[:, None], P, 1e9))
     pairs = pairs[ok[pairs].all(axis=1)] if len(pairs) else pairs
-    if len(pairs):
+    if len(pairs) >= max(1, len(P) // 4):      # a grid: most points have a neighbour
         return pairs, "neighbours on the commanded grid"
     D = np.linalg.norm(P[:, None] - P[None], axis=-1)
     np.fill_diagonal(D, np.inf)
@@ -1329,8 +1329,10 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
     d_meas = np.linalg.norm(data.m[pairs[:, 0]] - data.m[pairs[:, 1]], axis=-1) \
         if len(pairs) else np.zeros(0)
     pairs = pairs[d_meas > 1e-9] if len(pairs) else pairs
-    ratio_before = distance_ratios(machine, data.q, data.m, pairs) if len(pairs) else []
-    ratio_after = distance_ratios(calibrated, data.q, data.m, pairs) if len(pairs) else []
+    ratio_before = distance_ratios(machine, data.q, data.m, pairs, targets0, data.target) \
+        if len(pairs) else []
+    ratio_after = distance_ratios(calibrated, data.q, data.m, pairs, targets, data.target) \
+        if len(pairs) else []
     before, after = _ratio_stats(ratio_before), _ratio_stats(ratio_after)
 
     rank = int(result.rank)

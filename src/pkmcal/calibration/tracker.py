@@ -249,27 +249,34 @@ def predict_tracker_points(machine: Machine, q, base_from_tracker, targets=None,
     return (x - t) @ R
 
 
-def distance_ratios(machine: Machine, q, m, pairs):
-    """Seed 001 Fig. 6: FK distance / tracker distance x 100 % for point pairs (frame-free).
+def distance_ratios(machine: Machine, q, m, pairs, targets=None, target=None):
+    """Seed 001 Fig. 6: model distance / tracker distance x 100 % for point pairs (frame-free).
+
+    The model's distance is between the target points the readings put in the base frame
+    (the platform point on a Delta; ``P + R c`` with the targets' places ``c`` otherwise).
 
     Parameters
     ----------
-    machine : Delta
+    machine : Machine
         The model.
     q : array_like, shape (K, n_joints)
-        Actuator readings, rad.
+        Actuator readings.
     m : ndarray, shape (K, 3)
         Measured tracker points, m.
     pairs : ndarray of int, shape (M, 2)
         Row index pairs (e.g. :func:`~pkmcal.measurements.neighbour_pairs`).
+    targets : array_like, shape (n_targets, 3), optional
+        Places of the targets on the platform when the machine gives none, m.
+    target : array_like of int, shape (K,), optional
+        0-based target of each row.
 
     Returns
     -------
     ndarray, shape (M,)
         Ratios in percent (100 = distances agree).
     """
-    P = machine.fk(q).P
-    d_model = np.linalg.norm(P[pairs[:, 0]] - P[pairs[:, 1]], axis=-1)
+    x = predict_tracker_points(machine, q, (np.eye(3), np.zeros(3)), targets, target)
+    d_model = np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=-1)
     d_meas = np.linalg.norm(m[pairs[:, 0]] - m[pairs[:, 1]], axis=-1)
     return 100.0 * d_model / d_meas
 

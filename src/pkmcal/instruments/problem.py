@@ -392,20 +392,22 @@ def frame_motion_groups(machine, u, parameters, n_machine, scales, N, words) -> 
 
 
 def _absorbers(tangents, parameters, n_machine, words) -> str:
-    """The nuisance parameters that move with null directions, in words."""
+    """The nuisance parameters that move with null directions, in words, grouped by what they
+    are (``the ballbar's pivot on the base (setup1.pivot, setup2.pivot)``)."""
     size = np.linalg.norm(tangents, axis=1)
     if not size.size or size.max() == 0:
         return ""
     names = [n for n, v in zip(parameters.names[n_machine:], size[n_machine:], strict=True)
              if v > 1e-6 * size.max()]
-    seen = []
+    groups: dict[str, list[str]] = {}
     for name in names:
         head = name.rsplit(".", 1)[0]
         key = next((k for k in words if k in head.split(".") or head.startswith(k)), None)
-        label = (f"{words[key]} ({head})" if key is not None else head)
-        if label not in seen:
-            seen.append(label)
-    return ", ".join(seen)
+        label = words[key] if key is not None else head
+        if head not in groups.setdefault(label, []):
+            groups[label].append(head)
+    return ", ".join(label if heads == [label] else f"{label} ({', '.join(heads)})"
+                     for label, heads in groups.items())
 
 
 def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel, noise,
