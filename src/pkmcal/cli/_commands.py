@@ -601,8 +601,14 @@ def _print_tracker_calibration(report, params, data_path, output, report_path, m
     unit = report["units"]["length"]
     table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
                    show_header=False)
-    table.add_row("measurement", f"laser tracker, {report['measurements']} points (reflector "
-                  f"{report['smr_offset']:.6g} {unit} below the platform point)")
+    if "smr_offset" in report:
+        where = f"reflector {report['smr_offset']:.6g} {unit} below the platform point"
+    else:
+        places = report["targets"]["places"]
+        where = (f"{len(places)} target(s) at estimated places on the platform: "
+                 + ", ".join("(" + ", ".join(f"{v:.6g}" for v in c) + ")" for c in places)
+                 + f" {unit}")
+    table.add_row("measurement", f"laser tracker, {report['measurements']} points ({where})")
     table.add_row("method", "joint: the leg errors and the tracker pose together"
                   if report["method"] == "joint" else
                   "two-step (seed 001): tracker registered first with the nominal model, then "
@@ -657,12 +663,16 @@ def _print_tracker_calibration(report, params, data_path, output, report_path, m
                   "a wrong smr_offset or noise model", "errors the model does not have"]
         out.print(f"note: the residuals are {scale:.3g} times the assumed noise: "
                   f"{', '.join(c for c in causes if c)}.", markup=False)
-    if ident["unidentifiable"]:
+    if ident["unidentifiable"] and "identifiable_combinations" in report:
         origin = (" and, with the tracker pose unknown, not the origin of the base frame"
                   if report["registration"]["estimated"] else "")
         out.print(f"note: the data fix only db - da of each leg{origin}; the "
                   "changes are the smallest ones (scaled) that fit the data, and std is for the "
                   "identifiable part.", markup=False)
+    elif ident["unidentifiable"]:
+        out.print("note: the data fix the machine only relative to the tracker frame and the "
+                  "targets; the changes are the smallest ones (scaled) that fit the data, and "
+                  "std is for the identifiable part.", markup=False)
     commit_outputs()
     out.print(_wrote(output, report_path), markup=False)
 
@@ -742,6 +752,22 @@ def _print_any_calibration(report, params, data_path, output, report_path, machi
         table.add_row("not identifiable", f"{d['dimension']} x {d['name']}: {d['description']}")
     for d in ident["weakly_identifiable"]:
         table.add_row("weakly identifiable", f"{d['name']}: {d['description']}")
+    res = report.get("residuals", {})
+    if res.get("rms_um") is not None:
+        before = (f"; before calibration {res['before_rms_um']:.4g} um ({res['before']})"
+                  if res.get("before_rms_um") is not None else "")
+        table.add_row("RMS residual", f"{res['rms_um']:.4g} um over {res.get('count')} "
+                      f"rows ({res.get('of', 'measured - predicted')}){before}")
+    if report.get("noise") is not None:
+        scale = res.get("noise_scale")
+        table.add_row("noise", f"{report['noise']}" + (
+            f"; residuals / assumed noise = {scale:.3g}" if scale is not None else ""))
+    for setup in report.get("setups", []):
+        unit = setup["unit"]
+        table.add_row(f"setup {setup['setup']}", f"{setup['rows']} rows; pivot ("
+                      + ", ".join(f"{v:.6g}" for v in setup["pivot"]) + f") {unit} (base), "
+                      "ball (" + ", ".join(f"{v:.6g}" for v in setup["ball"])
+                      + f") {unit} (platform)")
     if "validation" in report:
         table.add_row("held-out", report["validation"]["summary"])
     table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
