@@ -532,18 +532,32 @@ def fk(
         help="Joint readings q1_<unit>..q6_<unit> (Delta: q1_deg..q3_deg; Stewart: the legs' "
              "reading unit, e.g. q1_rev; other columns are ignored).")],
     output: OutFile,
+    frame: Annotated[TargetFrame, typer.Option(
+        help="base: platform poses in the base frame. instrument: what the calibration's "
+             "instrument measures for these readings, from the calibrated file's tracker "
+             "(mx, my, mz of the target in the tracker frame; column target 1..K picks the "
+             "target), measurement_frames (x, y, z, qx, qy, qz, qw of the marker in the "
+             "motion-capture frame) or ballbar (d per column setup 1..K) section: compare them "
+             "with new measurements to check a calibration.")] = TargetFrame.base,
+    instrument: Annotated[str | None, typer.Option(
+        metavar="tracker|pose|distance",
+        help="With --frame instrument, when the file carries several instruments: which one "
+             "(aliases points, poses, ballbar).", show_default=False)] = None,
     columns: ColumnsOpt = None,
 ) -> None:
     """Forward kinematics: poses from joint readings, in the machine file's units.
 
     Writes x, y, z and psi, theta, phi (R = RY(theta) RX(psi) RZ(phi)) per row; for a Delta
-    (the platform only translates) x, y, z of the platform point in the base frame.
+    (the platform only translates) x, y, z of the platform point in the base frame. With
+    --frame instrument: the instrument's predicted measurements in the file's length unit.
 
     Example: `pkmcal fk calibrated.yaml joints.csv -o poses.csv`
+
+    Example: `pkmcal fk calibrated.yaml new_readings.csv --frame instrument -o predicted.csv`
     """
     from ._commands import run_fk
 
-    run_fk(machine, joints, output)
+    run_fk(machine, joints, output, TargetFrame(frame).value, instrument)
 
 
 @app.command()
@@ -587,11 +601,17 @@ def compensate(
     = None,
     frame: Annotated[TargetFrame, typer.Option(
         help="base: targets in the calibrated model's base frame. instrument: targets in the "
-             "measuring instrument's frame (Delta: reflector positions in the laser tracker's "
-             "frame; Stewart: marker poses in the motion-capture frame), converted with the "
-             "frames the calibration estimated; they land where the instrument will measure "
-             "them, also along directions the data cannot fix in the base frame.")]
+             "measuring instrument's frame, converted with the frames the calibration "
+             "estimated (tracker: x, y, z of the target in the tracker's frame, optional column "
+             "target 1..K, a platform that rotates keeps its home orientation unless the rows "
+             "give one, in the tracker's frame; pose: marker poses in the motion-capture "
+             "frame); they land where the instrument will measure them, also along "
+             "directions the data cannot fix in the base frame.")]
     = TargetFrame.base,
+    instrument: Annotated[str | None, typer.Option(
+        metavar="tracker|pose",
+        help="With --frame instrument, when the file carries several instrument frames: "
+             "which one.", show_default=False)] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")]
     = False,
     columns: ColumnsOpt = None,
@@ -612,7 +632,7 @@ def compensate(
     from ._compensate import run_compensate
 
     raise typer.Exit(run_compensate(machine, targets, output, report, nominal, json_output,
-                                    TargetFrame(frame).value))
+                                    TargetFrame(frame).value, instrument))
 
 
 @app.command("report")

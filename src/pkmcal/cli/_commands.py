@@ -788,7 +788,14 @@ _CALIBRATION_PRINTERS = {"constraint-link": _print_calibration,
 # --------------------------------------------------------------------------------------------
 
 
-def run_fk(machine_spec: str, joints: Path, output: Path) -> None:
+def run_fk(machine_spec: str, joints: Path, output: Path, frame: str = "base",
+           instrument: str | None = None) -> None:
+    if frame == "instrument":
+        _fk_instrument(machine_spec, joints, output, instrument)
+        return
+    if instrument is not None:
+        raise InputError(f"--instrument {instrument}: only with --frame instrument (the "
+                         "instrument's predicted measurements); --frame base writes poses")
     machine = load_machine_arg(machine_spec)
     check_outputs([output], [joints] + _machine_inputs(machine_spec))
     if machine.kind == "stewart":
@@ -808,6 +815,67 @@ def run_fk(machine_spec: str, joints: Path, output: Path) -> None:
     commit_outputs()
     console().print(f"{len(q)} pose(s) written to {output} ({units['length']}, "
                     f"{units['angle']})", markup=False)
+
+
+#: what ``fk --frame instrument`` writes per instrument, in words
+_FK_INSTRUMENT_WORDS = {"tracker": "predicted tracker point(s) (target in the tracker frame)",
+                        "pose": "predicted marker pose(s) (motion-capture frame)",
+                        "distance": "predicted ballbar length(s)"}
+
+
+def group_numbers(path: Path, extra: dict, rows, column: str):
+    """0-based groups of an optional integer column (``target``, ``setup``: 1, 2, ...) of a
+    file whose rows are predicted or commanded, not fitted: any of the numbers may be absent
+    (a file may use target 2 only); None without the column. A value that is not a whole
+    number >= 1 is an InputError naming the row and column."""
+    from ..io.csv_io import parse_number
+
+    values = extra.get(column)
+    if values is None:
+        return None
+    out = np.empty(len(values), int)
+    for k, (line, text) in enumerate(zip(rows, values, strict=True)):
+        v = parse_number(path, int(line), column, text)
+        if v != int(v) or not 1 <= v <= 10_000:
+            raise InputError(f"{path}: row {line}, column {column}: must be a whole number "
+                             f"1, 2, ... (which {column} the row belongs to), got {text!r}")
+        out[k] = int(v) - 1
+    return out
+
+
+def _fk_instrument(machine_spec: str, joints: Path, output: Path,
+                   instrument: str | None) -> None:
+    """``pkmcal fk --frame instrument``: what the calibration's instrument measures for the
+    readings (:func:`~pkmcal.instruments.predict_instrument`), in the machine file's length
+    unit: ``mx, my, mz`` (+ ``target``), ``x, y, z, qx, qy, qz, qw`` or ``d`` (+ ``setup``)."""
+    from ..instruments import choose_instrument, predict_instrument
+    from ..io.csv_io import machine_readings
+    from ..kinematics import quaternion_from_matrix
+
+    machine = load_machine_arg(machine_spec)
+    name = choose_instrument(machine, instrument, option="--instrument")
+    check_outputs([output], [joints] + _machine_inputs(machine_spec))
+    q, rows, extra, _ = machine_readings(joints, machine)
+    column = {"tracker": "target", "distance": "setup"}.get(name)
+    group = group_numbers(joints, extra, rows, column) if column else None
+    pred = predict_instrument(machine, q, name, group, rows=rows, source=str(joints))
+    pred.fk.raise_if_failed(what=f"{joints}: forward kinematics", rows=rows)
+    unit = _units(machine)["length"]
+    f = LENGTH[unit]
+    if name == "pose":
+        Q = quaternion_from_matrix(pred.R)
+        columns = {f"{c}_{unit}": pred.values[:, j] / f for j, c in enumerate("xyz")}
+        columns.update({c: Q[:, j] for j, c in enumerate(("qx", "qy", "qz", "qw"))})
+    elif name == "tracker":
+        columns = {f"m{c}_{unit}": pred.values[:, j] / f for j, c in enumerate("xyz")}
+    else:
+        columns = {f"d_{unit}": pred.values[:, 0] / f}
+    if group is not None:
+        columns[column] = (group + 1).tolist()
+    write_table(output, list(columns), [list(v) for v in columns.values()])
+    commit_outputs()
+    console().print(f"{len(q)} {_FK_INSTRUMENT_WORDS[name]} written to {output} ({unit})",
+                    markup=False)
 
 
 def read_poses_of(path: Path, machine):

@@ -17,6 +17,7 @@ from ._commands import (
     _machine_inputs,
     _table,
     check_outputs,
+    group_numbers,
     joint_columns,
     load_machine_arg,
     read_poses_of,
@@ -82,20 +83,76 @@ def read_covariance(path: Path, machine, with_frames: bool = False):
     return C, N, (all_names, C_all)
 
 
+def choose_frame(machine, machine_spec: str, instrument: str | None):
+    """The instrument frame of ``--frame instrument``: the one ``--instrument`` names, or the
+    only one the calibrated file carries (a tracker's or motion capture's)."""
+    from ..compensation import instrument_frames
+    from ..instruments import instrument_name
+
+    where = getattr(machine, "source", machine_spec)
+    frames = instrument_frames(machine)
+    if not frames:
+        ballbar = (" (its ballbar section gives distances, not a frame to place targets in)"
+                   if getattr(machine, "ballbar_setups", None) else "")
+        raise InputError(f"--frame instrument: {where} has no instrument frame{ballbar}: a "
+                         "calibration from points writes the tracker section (targets in the "
+                         "tracker's frame), one from poses writes measurement_frames (marker "
+                         "poses in the motion-capture frame); a constraint-link calibration "
+                         "measures in no external frame: give the targets in the base frame")
+    if instrument is not None:
+        name = instrument_name(instrument)
+        if name not in frames:
+            raise InputError(f"--instrument {instrument}: {where} has no "
+                             f"{'tracker' if name == 'tracker' else 'measurement_frames'} "
+                             f"frame to give targets in; it has: {', '.join(frames)}")
+        return frames[name]
+    if len(frames) > 1:
+        raise InputError(f"--frame instrument: {where} carries several instrument frames: "
+                         f"name one with --instrument ({'|'.join(frames)})")
+    return next(iter(frames.values()))
+
+
+def read_instrument_targets(path: Path, machine, frame):
+    """Targets in the instrument's frame: ``(P, R, rows, group)``. A tracker's targets are
+    x, y, z, with an optional orientation (a platform that rotates; tracker frame; without it
+    the home orientation: R None) and an optional ``target`` column (1..K); marker poses are
+    full poses."""
+    from ..io.csv_io import has_orientation, read_positions, read_table
+
+    if frame.instrument != "tracker":
+        P, R, rows = read_poses_of(path, machine)
+        return P, R, rows, None
+    header, table = read_table(path)
+    if machine.pose_dof == 6 and has_orientation(header):
+        P, R, rows = read_poses_of(path, machine)
+    elif machine.pose_dof == 6:
+        (P, rows), R = read_positions(path), None
+    else:
+        P, _, rows = read_poses_of(path, machine)
+        R = None
+    extra = {name: [f[k] for _, f in table] for k, name in enumerate(header)}
+    group = group_numbers(path, extra, rows, "target")
+    n = len(frame.targets)
+    if group is not None and machine.tracker_target() is None and group.max() >= n:
+        k = int(np.argmax(group >= n))
+        raise InputError(f"{path}: row {rows[k]}, column target: target {group[k] + 1}, but "
+                         f"the machine file's tracker section has {n} target(s) (numbered "
+                         f"1..{n})")
+    return P, R, rows, group
+
+
 def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path | None,
-                   nominal_spec: str | None, json_output: bool, frame_name: str = "base") -> int:
+                   nominal_spec: str | None, json_output: bool, frame_name: str = "base",
+                   instrument: str | None = None) -> int:
     from ..compensation import compensate, target_frame
 
     machine = load_machine_arg(machine_spec)
     frame = None
     if frame_name == "instrument":
-        frame = target_frame(machine)
-        if frame is None:
-            raise InputError(f"--frame instrument: {getattr(machine, 'source', machine_spec)} "
-                             "has no instrument frame (a calibrated Delta's tracker or a "
-                             "calibrated Stewart's measurement_frames); a constraint-link "
-                             "calibration measures in no external frame: give the targets in "
-                             "the base frame")
+        frame = choose_frame(machine, machine_spec, instrument)
+    elif instrument is not None:
+        raise InputError(f"--instrument {instrument}: only with --frame instrument (targets in "
+                         "that instrument's frame)")
     inputs = [targets] + _machine_inputs(machine_spec) + ([report] if report else [])
     check_outputs([output], inputs)
     nominal = None
@@ -111,7 +168,12 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
         _, N, (names, C) = read_covariance(report_path, machine, with_frames=True)
     elif report_path is not None:
         C, N = read_covariance(report_path, machine)
-    P, R, rows = read_poses_of(targets, machine)
+    group = None
+    if frame is None:
+        P, R, rows = read_poses_of(targets, machine)
+    else:
+        P, R, rows, group = read_instrument_targets(targets, machine, frame)
+        frame = frame.with_group(group)
     if len(P) == 0:
         raise InputError(f"{targets}: no target rows")
     try:
@@ -138,7 +200,9 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
                 comp.uncompensated_orientation * 1e6).tolist()
     from ..io import write_poses, write_positions
 
-    if machine.pose_dof == 3:
+    if group is not None:
+        columns = {"target": (group + 1).tolist(), **columns}
+    if machine.pose_dof == 3 or R is None:
         write_positions(output, P, units["length"], extra=columns)
     else:
         write_poses(output, P, R, units["length"], units["angle"], extra=columns)

@@ -76,7 +76,8 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
     P : array_like, shape (K, 3) or (3,)
         Target positions, m (base frame, or the instrument's with ``frame``).
     R : array_like, shape (K, 3, 3), optional
-        Target orientations (ignored by 3-dof platforms); default identity.
+        Target orientations (ignored by 3-dof platforms); default identity, or with a tracker
+        ``frame`` the home orientation (a tracker's targets are points).
     covariance : array_like, shape (n, n), optional
         Covariance of the parameters (SI): the machine's, in the machine's order; with
         ``frame``, of the parameters ``names``.
@@ -105,10 +106,11 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
     from ..analysis.prediction import pose_sensitivity
 
     P = np.atleast_2d(np.asarray(P, float))
-    R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else np.asarray(R, float)
+    R = None if R is None else np.asarray(R, float)
     if frame is not None:
         P, Rb = frame.to_base(P, R)
         R = R if Rb is None else Rb
+    R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else R
     q = calibrated.ik(P, R)
     ok = calibrated.working_mode(P, R)      # real IK, near home, in home's working mode
     out = Compensation(q, ok)
@@ -221,6 +223,7 @@ def _instrument_jacobian(calibrated, frame, P, R, S, h: float = 1e-6):
     return J
 
 
-from .frames import MocapFrames, TrackerFrame, target_frame  # noqa: E402
+from .frames import MocapFrames, TrackerFrame, instrument_frames, target_frame  # noqa: E402
 
-__all__ = ["Compensation", "MocapFrames", "TrackerFrame", "compensate", "target_frame"]
+__all__ = ["Compensation", "MocapFrames", "TrackerFrame", "compensate", "instrument_frames",
+           "target_frame"]

@@ -17,7 +17,7 @@ frame parameters can be propagated to the targets.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -26,70 +26,140 @@ from ..kinematics import matrix_from_rotvec
 
 @dataclass(frozen=True)
 class TrackerFrame:
-    """Targets are reflector (SMR) positions in the laser tracker's frame (Delta).
+    """Targets are positions of a target on the platform in the tracker's frame (points).
+
+    A target row ``m`` (tracker frame) asks for the platform pose that puts the target ``c``
+    (platform frame) there: ``P + R c = A m + a`` with ``(A, a) = base_from_tracker``. A
+    platform that rotates keeps its home orientation, or takes the target row's orientation,
+    given in the tracker frame (the base-frame orientation is ``A Rt``).
 
     Attributes
     ----------
     R : ndarray, shape (3, 3)
-        Rotation of ``base_from_tracker`` (``x_base = R m + t``).
+        Rotation ``A`` of ``base_from_tracker`` (``x_base = A m + a``).
     t : ndarray, shape (3,)
-        Translation of ``base_from_tracker``, m.
-    smr_offset : float
-        The reflector's distance below the platform point, m.
+        Translation ``a`` of ``base_from_tracker``, m.
+    targets : ndarray, shape (K, 3)
+        Places of the targets on the platform, m, platform frame.
+    estimated : bool, optional
+        The calibration estimated the targets' places (its covariance has
+        ``target<k>.x/y/z``); False when the machine file fixes them (a Delta's reflector).
+    home_R : ndarray, shape (3, 3) or None, optional
+        Orientation of a platform that rotates when a target gives none (home); None for a
+        platform that only translates.
+    group : ndarray of int, shape (n,) or None, optional
+        0-based target of each target row (column ``target``); None: target 1 for every row.
     """
 
     R: np.ndarray
     t: np.ndarray
-    smr_offset: float
+    targets: np.ndarray
+    estimated: bool = False
+    home_R: np.ndarray | None = None
+    group: np.ndarray | None = None
 
-    #: the calibration's names of the frame parameters, in ``delta`` order
-    names = ("tracker.rx", "tracker.ry", "tracker.rz", "tracker.x", "tracker.y", "tracker.z")
-    description = "reflector positions in the laser tracker's frame"
+    instrument = "tracker"
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The calibration's names of the frame parameters, in ``delta`` order: the tracker
+        pose (rotation increments, translation), then the estimated targets' places."""
+        out = ("tracker.rx", "tracker.ry", "tracker.rz", "tracker.x", "tracker.y", "tracker.z")
+        if self.estimated:
+            out += tuple(f"target{g + 1}.{c}" for g in range(len(self.targets)) for c in "xyz")
+        return out
+
+    @property
+    def description(self) -> str:
+        """The targets' frame in words."""
+        if not self.estimated and self.home_R is None:
+            return "reflector positions in the laser tracker's frame"
+        return "target positions in the tracker's frame"
+
+    def with_group(self, group) -> TrackerFrame:
+        """This frame for target rows of the given targets.
+
+        Parameters
+        ----------
+        group : array_like of int, shape (n,) or None
+            0-based target of each row; None: target 1.
+
+        Returns
+        -------
+        TrackerFrame
+            A copy with ``group`` set.
+        """
+        return replace(self, group=None if group is None else np.asarray(group, int))
+
+    def _placed(self, n: int, targets=None) -> np.ndarray:
+        targets = self.targets if targets is None else targets
+        group = np.zeros(n, int) if self.group is None else self.group
+        if len(targets) == 1:
+            group = np.zeros(n, int)
+        return targets[group]
 
     def to_base(self, Pt, Rt=None):
-        """Platform points (base frame) whose reflector is at the targets.
+        """Platform poses (base frame) whose target is at the target rows.
 
         Parameters
         ----------
-        Pt : array_like, shape (K, 3)
-            Reflector positions, m, tracker frame.
-        Rt : None
-            Ignored (a Delta platform only translates).
+        Pt : array_like, shape (n, 3)
+            Target positions, m, tracker frame.
+        Rt : array_like, shape (n, 3, 3) or None
+            Platform orientations in the tracker frame (a platform that rotates); None: the
+            home orientation. Ignored by a platform that only translates.
 
         Returns
         -------
-        P : ndarray, shape (K, 3)
-            Platform points, m, base frame.
-        R : None
-            No orientation.
+        P : ndarray, shape (n, 3)
+            Platform positions, m, base frame.
+        R : ndarray, shape (n, 3, 3) or None
+            Platform orientations, base frame; None for a platform that only translates.
         """
-        smr = np.array([0.0, 0.0, self.smr_offset])
-        return np.asarray(Pt, float) @ self.R.T + self.t + smr, None
+        Pt = np.atleast_2d(np.asarray(Pt, float))
+        c = self._placed(len(Pt))
+        x = Pt @ self.R.T + self.t
+        if self.home_R is None:
+            return x - c, None
+        if Rt is None:
+            Rb = np.broadcast_to(self.home_R, (len(Pt), 3, 3)).copy()
+        else:
+            Rb = self.R @ np.asarray(Rt, float)
+        return x - np.einsum("kij,kj->ki", Rb, c), Rb
 
     def measure(self, P, R=None, delta=None):
-        """Tracker-frame reflector positions of platform points.
+        """Tracker-frame target positions (and orientations) of platform poses.
 
         Parameters
         ----------
-        P : array_like, shape (K, 3)
-            Platform points, m, base frame.
-        R : None
-            Ignored.
-        delta : array_like, shape (6,), optional
-            Perturbation of the frame: rotation increment (left) and translation, m.
+        P : array_like, shape (n, 3)
+            Platform positions, m, base frame.
+        R : array_like, shape (n, 3, 3) or None
+            Platform orientations (ignored by a platform that only translates).
+        delta : array_like, optional
+            Perturbation of the frame parameters (:attr:`names` order): rotation increment
+            (left), translation (m), then the estimated targets' places (m).
 
         Returns
         -------
-        Pt : ndarray, shape (K, 3)
-            Reflector positions, m, tracker frame.
-        Rt : None
-            No orientation.
+        Pt : ndarray, shape (n, 3)
+            Target positions, m, tracker frame.
+        Rt : ndarray, shape (n, 3, 3) or None
+            Platform orientations in the tracker frame; None for a platform that only
+            translates.
         """
-        Rf, t = self.R, self.t
+        Rf, t, targets = self.R, self.t, self.targets
         if delta is not None:
-            Rf, t = matrix_from_rotvec(np.asarray(delta[:3], float)) @ Rf, t + delta[3:6]
-        smr = np.array([0.0, 0.0, self.smr_offset])
-        return (np.asarray(P, float) - smr - t) @ Rf, None
+            d = np.asarray(delta, float)
+            Rf, t = matrix_from_rotvec(d[:3]) @ Rf, t + d[3:6]
+            if self.estimated:
+                targets = targets + d[6:].reshape(targets.shape)
+        P = np.atleast_2d(np.asarray(P, float))
+        c = self._placed(len(P), targets)
+        if self.home_R is None:
+            return (P + c - t) @ Rf, None
+        R = np.asarray(R, float)
+        return (P + np.einsum("kij,kj->ki", R, c) - t) @ Rf, Rf.T @ R
 
 
 @dataclass(frozen=True)
@@ -107,6 +177,22 @@ class MocapFrames:
     names = tuple(f"{f}.{c}" for f in ("mocap_from_base", "platform_from_marker")
                   for c in ("rx", "ry", "rz", "x", "y", "z"))
     description = "marker poses in the motion-capture frame"
+    instrument = "pose"
+
+    def with_group(self, group) -> MocapFrames:
+        """This frame (marker poses have no target numbers).
+
+        Parameters
+        ----------
+        group : array_like of int or None
+            Ignored.
+
+        Returns
+        -------
+        MocapFrames
+            ``self``.
+        """
+        return self
 
     def to_base(self, Pt, Rt):
         """Platform poses (base frame) whose marker is at the target poses.
@@ -156,25 +242,62 @@ class MocapFrames:
         return frames.measured(P, R)
 
 
-def target_frame(machine):
+def instrument_frames(machine) -> dict:
+    """The instrument frames a calibrated machine carries, by instrument.
+
+    Parameters
+    ----------
+    machine : Machine
+        A calibrated machine: its ``base_from_tracker`` (and ``tracker_targets``, or the
+        machine's own target, :meth:`~pkmcal.machines.Machine.tracker_target`) and its
+        ``measurement_frames``.
+
+    Returns
+    -------
+    dict
+        ``{"tracker": TrackerFrame, "pose": MocapFrames}``, the ones it has, in that order;
+        empty for a machine without instrument frames (a constraint-link or ballbar
+        calibration: a ballbar has no frame to give targets in).
+    """
+    out = {}
+    pose = getattr(machine, "base_from_tracker", None)
+    if pose is not None:
+        R, t = pose
+        known = machine.tracker_target()
+        targets = getattr(machine, "tracker_targets", None)
+        if known is not None:
+            targets, estimated = np.asarray(known, float).reshape(1, 3), False
+        elif targets is None:
+            targets, estimated = np.zeros((1, 3)), False
+        else:
+            targets, estimated = np.asarray(targets, float).reshape(-1, 3), True
+        home_R = (np.asarray(machine.home[1], float)
+                  if getattr(machine, "pose_dof", 3) == 6 else None)
+        out["tracker"] = TrackerFrame(np.asarray(R, float), np.asarray(t, float), targets,
+                                      estimated, home_R)
+    frames = getattr(machine, "measurement_frames", None)
+    if frames is not None and getattr(machine, "pose_dof", 3) == 6:
+        out["pose"] = MocapFrames(frames)
+    return out
+
+
+def target_frame(machine, instrument: str | None = None):
     """The instrument frame a calibrated machine file carries, or None.
 
     Parameters
     ----------
     machine : Machine
         A calibrated machine (its ``base_from_tracker`` or ``measurement_frames``).
+    instrument : {'tracker', 'pose'}, optional
+        Which one; default the first it has (tracker, then pose).
 
     Returns
     -------
     TrackerFrame or MocapFrames or None
-        None when the file has no instrument frame (e.g. a constraint-link calibration).
+        None when the file has no (such) instrument frame (e.g. a constraint-link
+        calibration).
     """
-    pose = getattr(machine, "base_from_tracker", None)
-    if pose is not None:
-        R, t = pose
-        return TrackerFrame(np.asarray(R, float), np.asarray(t, float),
-                            float(getattr(machine, "smr_offset", 0.0)))
-    frames = getattr(machine, "measurement_frames", None)
-    if frames is not None:
-        return MocapFrames(frames)
-    return None
+    frames = instrument_frames(machine)
+    if instrument is not None:
+        return frames.get(instrument)
+    return next(iter(frames.values()), None)

@@ -15,8 +15,16 @@ from .models import (
     PointsModel,
     sphere_centre,
 )
+from .predict import (
+    InstrumentPrediction,
+    choose_instrument,
+    fitted_instruments,
+    instrument_name,
+    predict_instrument,
+)
 from .problem import InstrumentProblem, InstrumentState, fit_instrument, frame_motion_groups
 
 __all__ = ["DistancesModel", "InstrumentData", "InstrumentProblem", "InstrumentState",
            "IsotropicNoise", "NuisanceModel", "NuisanceState", "PointsModel",
-           "fit_instrument", "frame_motion_groups", "sphere_centre"]
+           "fit_instrument", "frame_motion_groups", "sphere_centre", "InstrumentPrediction",
+           "choose_instrument", "fitted_instruments", "instrument_name", "predict_instrument"]

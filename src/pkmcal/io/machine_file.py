@@ -60,6 +60,23 @@ kept on the machine as ``machine.measurement_frames``
 (:class:`~pkmcal.measurements.full_pose.MeasurementFrames`, None without the key); a
 calibration from full-pose data writes the identified frames there.
 
+Every machine file may carry what an instrument's calibration fitted (issue 13), in the
+file's length unit; all optional::
+
+    tracker:                                   # points (laser tracker): base_from_tracker
+      {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0],
+       targets: [[10.0, -5.0, -15.0]]}          # not on a Delta (its target is smr_offset)
+    ballbar:                                   # distances: one mounting per setup 1..K
+      - {pivot: [0.0, 0.0, 200.0], ball: [0.0, 0.0, 0.0]}   # pivot base frame, ball platform
+    measurement_frames: {...}                  # poses (Hexa Slide, Stewart), as above
+
+kept on the machine as ``machine.base_from_tracker = (R, t)``, ``machine.tracker_targets``
+((K, 3) platform-frame places, m; None without ``targets``: the platform origin, or the
+Delta's reflector), ``machine.ballbar_setups`` (list of ``(pivot, ball)``, m) and
+``machine.measurement_frames``; each is None without its key. ``pkmcal fk --frame
+instrument`` predicts the instrument's measurements from them, ``pkmcal compensate --frame
+instrument`` takes targets in the instrument's frame.
+
 Every machine file may state the joints' travel (issue 12 item 7)::
 
     joint_limits: {min: 0.0, max: 400.0}         # one pair for every joint, or
@@ -324,20 +341,6 @@ class HexaSlideChain(_Strict):
     l: Positive
 
 
-class HexaSlideFile(_Strict):
-    """``machine: hexaslide`` (SPEC 6)."""
-
-    pkmcal: Literal[1]
-    machine: Literal["hexaslide"]
-    name: str | None = None
-    units: Units
-    constraint_link: ConstraintLink | None = None
-    home: Pose6 | None = None
-    chains: Annotated[list[HexaSlideChain], Field(min_length=6, max_length=6)]
-    joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
-    calibration: dict[str, Any] | None = None
-
-
 NonNegative = Annotated[float, Strict(), Field(allow_inf_nan=False, ge=0)]
 Matrix3 = Annotated[list[Vector3], Field(min_length=3, max_length=3)]
 
@@ -378,6 +381,27 @@ class TrackerPose(_Strict):
         return value
 
 
+class TrackerSection(TrackerPose):
+    """``tracker`` of a Hexa Slide or a Stewart platform: ``base_from_tracker`` and, optionally,
+    the places of the targets on the platform (platform frame, file length unit), one per
+    value of a data file's ``target`` column (1..K); without ``targets`` the target is the
+    platform origin."""
+
+    targets: Annotated[list[Vector3], Field(min_length=1)] | None = None
+
+
+class BallbarSetup(_Strict):
+    """One ballbar mounting: ``pivot`` (base frame) and ``ball`` (platform frame), file length
+    unit; the measured length is ``|P + R ball - pivot|``."""
+
+    pivot: Vector3
+    ball: Vector3
+
+
+#: ``ballbar``: one mounting per value of a data file's ``setup`` column (1..K)
+Ballbar = Annotated[list[BallbarSetup], Field(min_length=1)]
+
+
 class DeltaFile(_Strict):
     """``machine: delta`` (SPEC 6)."""
 
@@ -393,6 +417,7 @@ class DeltaFile(_Strict):
     smr_offset: Number = 0.0
     legs: Annotated[list[DeltaLeg], Field(min_length=3, max_length=3)] | None = None
     tracker: TrackerPose | None = None
+    ballbar: Ballbar | None = None
     home: list[Number] | None = None
     joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
     calibration: dict[str, Any] | None = None
@@ -472,6 +497,23 @@ class MeasurementFramesSection(_Strict):
     platform_from_marker: TrackerPose
 
 
+class HexaSlideFile(_Strict):
+    """``machine: hexaslide`` (SPEC 6)."""
+
+    pkmcal: Literal[1]
+    machine: Literal["hexaslide"]
+    name: str | None = None
+    units: Units
+    constraint_link: ConstraintLink | None = None
+    home: Pose6 | None = None
+    chains: Annotated[list[HexaSlideChain], Field(min_length=6, max_length=6)]
+    tracker: TrackerSection | None = None
+    ballbar: Ballbar | None = None
+    measurement_frames: MeasurementFramesSection | None = None
+    joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
+    calibration: dict[str, Any] | None = None
+
+
 class StewartFile(_Strict):
     """``machine: stewart`` (SPEC 6)."""
 
@@ -482,6 +524,8 @@ class StewartFile(_Strict):
     readings: Readings | None = None
     constraint_link: ConstraintLink | None = None
     legs: Annotated[list[StewartLeg], Field(min_length=6, max_length=6)]
+    tracker: TrackerSection | None = None
+    ballbar: Ballbar | None = None
     measurement_frames: MeasurementFramesSection | None = None
     home: Pose6 | None = None
     joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
@@ -560,8 +604,10 @@ def _build_hexaslide(doc: HexaSlideFile, source: str) -> HexaSlide:
         l=np.array([c.l for c in ch]) * fl,
     )
     lc = doc.constraint_link.length * fl if doc.constraint_link is not None else None
-    return HexaSlide(params, home=_home_pose(doc.home, fl, fa), name=doc.name or "",
-                     constraint_link_length=lc)
+    machine = HexaSlide(params, home=_home_pose(doc.home, fl, fa), name=doc.name or "",
+                        constraint_link_length=lc)
+    _build_instruments(machine, doc, fl)
+    return machine
 
 
 def _fmt(x: float) -> str:
@@ -588,6 +634,71 @@ def _dump_hexaslide(machine: HexaSlide, units: dict) -> dict:
          "l": float(l[i]) / fl}
         for i in range(6)
     ]
+    out.update(_dump_instruments(machine, fl))
+    return out
+
+
+def _vector(value, fl: float) -> list[float]:
+    """A 3-vector in metres as file numbers (file length unit)."""
+    return [float(v) / fl for v in np.asarray(value, float).reshape(3)]
+
+
+def _build_instruments(machine: Machine, doc, fl: float) -> None:
+    """What an instrument's calibration fitted, from the file onto the machine.
+
+    ``tracker`` -> ``machine.base_from_tracker = (R, t)`` and ``machine.tracker_targets``
+    ((K, 3) platform-frame places, m, or None); ``ballbar`` -> ``machine.ballbar_setups``
+    (list of ``(pivot, ball)``, m, or None); ``measurement_frames`` ->
+    ``machine.measurement_frames`` (None without the key). Keys a machine type's schema does
+    not have are None.
+    """
+    tracker = getattr(doc, "tracker", None)
+    machine.base_from_tracker = None if tracker is None else (
+        _rotation(tracker.rotation), np.asarray(tracker.translation, float) * fl)
+    targets = getattr(tracker, "targets", None)
+    machine.tracker_targets = None if targets is None else np.asarray(targets, float) * fl
+    ballbar = getattr(doc, "ballbar", None)
+    machine.ballbar_setups = None if ballbar is None else [
+        (np.asarray(s.pivot, float) * fl, np.asarray(s.ball, float) * fl) for s in ballbar]
+    frames = getattr(doc, "measurement_frames", None)
+    if frames is None:
+        machine.measurement_frames = None
+    else:
+        from ..measurements.full_pose import MeasurementFrames
+
+        machine.measurement_frames = MeasurementFrames(
+            (_rotation(frames.mocap_from_base.rotation),
+             np.asarray(frames.mocap_from_base.translation, float) * fl),
+            (_rotation(frames.platform_from_marker.rotation),
+             np.asarray(frames.platform_from_marker.translation, float) * fl))
+
+
+def _dump_instruments(machine: Machine, fl: float) -> dict:
+    """The ``tracker``, ``ballbar`` and ``measurement_frames`` sections of ``machine`` (those
+    it has), in the file's length unit; the inverse of :func:`_build_instruments`."""
+    out: dict[str, Any] = {}
+    pose = getattr(machine, "base_from_tracker", None)
+    if pose is not None:
+        section = _frame_text(pose, fl)
+        targets = getattr(machine, "tracker_targets", None)
+        if targets is not None:
+            targets = np.asarray(targets, float).reshape(-1, 3)
+            known = machine.tracker_target()
+            if known is None:
+                section["targets"] = [_vector(c, fl) for c in targets]
+            elif not np.allclose(targets, known, rtol=0, atol=1e-12):
+                raise InputError(f"cannot save tracker targets for a {machine.kind}: its "
+                                 "target on the platform is fixed by the machine file "
+                                 "(smr_offset)")
+        out["tracker"] = section
+    setups = getattr(machine, "ballbar_setups", None)
+    if setups is not None:
+        out["ballbar"] = [{"pivot": _vector(p, fl), "ball": _vector(b, fl)} for p, b in setups]
+    frames = getattr(machine, "measurement_frames", None)
+    if frames is not None and getattr(machine, "pose_dof", 6) == 6:
+        out["measurement_frames"] = {
+            "mocap_from_base": _frame_text(frames.mocap_from_base, fl),
+            "platform_from_marker": _frame_text(frames.platform_from_marker, fl)}
     return out
 
 
@@ -618,8 +729,7 @@ def _build_delta(doc: DeltaFile, source: str) -> Delta:
                     doc.forearm * fl, np.asarray(doc.leg_angles, float) * fa,
                     parameters=delta_parameters(values), smr_offset=doc.smr_offset * fl,
                     home=home, name=doc.name or "")
-    machine.base_from_tracker = None if doc.tracker is None else (
-        _rotation(doc.tracker.rotation), np.asarray(doc.tracker.translation, float) * fl)
+    _build_instruments(machine, doc, fl)
     return machine
 
 
@@ -637,11 +747,7 @@ def _dump_delta(machine: Delta, units: dict) -> dict:
                   "dl1": float(dl1[i]) / fl, "dl2": float(dl2[i]) / fl,
                   "db": [float(v) / fl for v in db[i]]} for i in range(3)],
     }
-    pose = getattr(machine, "base_from_tracker", None)
-    if pose is not None:
-        R, t = pose
-        out["tracker"] = {"rotation": [[float(v) for v in row] for row in np.asarray(R)],
-                          "translation": [float(v) / fl for v in np.asarray(t)]}
+    out.update(_dump_instruments(machine, fl))
     return out
 
 
@@ -668,17 +774,7 @@ def _build_stewart(doc: StewartFile, source: str) -> Stewart:
     machine.reading_unit_declared = doc.readings is not None
     machine.constraint_link_length = (doc.constraint_link.length * fl
                                       if doc.constraint_link is not None else None)
-    frames = doc.measurement_frames
-    if frames is None:
-        machine.measurement_frames = None
-    else:
-        from ..measurements.full_pose import MeasurementFrames
-
-        machine.measurement_frames = MeasurementFrames(
-            (_rotation(frames.mocap_from_base.rotation),
-             np.asarray(frames.mocap_from_base.translation, float) * fl),
-            (_rotation(frames.platform_from_marker.rotation),
-             np.asarray(frames.platform_from_marker.translation, float) * fl))
+    _build_instruments(machine, doc, fl)
     return machine
 
 
@@ -702,11 +798,7 @@ def _dump_stewart(machine: Stewart, units: dict) -> dict:
          "l0": float(l0[i]) / fl, "gain": float(g[i]) / gain_factor}
         for i in range(6)
     ]
-    frames = getattr(machine, "measurement_frames", None)
-    if frames is not None:
-        out["measurement_frames"] = {
-            "mocap_from_base": _frame_text(frames.mocap_from_base, fl),
-            "platform_from_marker": _frame_text(frames.platform_from_marker, fl)}
+    out.update(_dump_instruments(machine, fl))
     return out
 
 
@@ -723,23 +815,29 @@ _DELTA_HINTS = {
     "legs": "a list of 3 legs {da: [x, y, z], dtheta, dl1, dl2, db: [x, y, z]}",
 }
 
+#: quantities of the instrument sections (every machine type; a key a type lacks never matches)
+_INSTRUMENT_KINDS = {
+    ("tracker", "translation", "*"): "length", ("tracker", "targets", "*", "*"): "length",
+    ("ballbar", "*", "pivot", "*"): "length", ("ballbar", "*", "ball", "*"): "length",
+    ("measurement_frames", "*", "translation", "*"): "length",
+}
 _HEXASLIDE_KINDS = {
     ("chains", "*", "a0", "*"): "length", ("chains", "*", "b", "*"): "length",
     ("chains", "*", "l"): "length", ("chains", "*", "alpha"): "angle",
     ("chains", "*", "beta"): "angle", ("constraint_link", "length"): "length",
+    **_INSTRUMENT_KINDS,
 }
 _DELTA_KINDS = {
     ("base_radius",): "length", ("platform_radius",): "length", ("upper_arm",): "length",
     ("forearm",): "length", ("smr_offset",): "length", ("leg_angles", "*"): "angle",
     ("legs", "*", "da", "*"): "length", ("legs", "*", "dtheta"): "angle",
     ("legs", "*", "dl1"): "length", ("legs", "*", "dl2"): "length",
-    ("legs", "*", "db", "*"): "length", ("tracker", "translation", "*"): "length",
+    ("legs", "*", "db", "*"): "length", **_INSTRUMENT_KINDS,
 }
 _STEWART_KINDS = {
     ("legs", "*", "base", "*"): "length", ("legs", "*", "platform", "*"): "length",
     ("legs", "*", "l0"): "length", ("legs", "*", "gain"): "gain",
-    ("constraint_link", "length"): "length",
-    ("measurement_frames", "*", "translation", "*"): "length",
+    ("constraint_link", "length"): "length", **_INSTRUMENT_KINDS,
 }
 
 
@@ -912,6 +1010,13 @@ _HINTS = {
 }
 
 
+#: list keys of the instrument sections and what they hold, for messages
+_LIST_SECTIONS = {
+    "ballbar": "a list of mountings {pivot: [x, y, z], ball: [x, y, z]} (one per setup)",
+    "targets": "a list of target places [[x, y, z], ...] on the platform (one per target)",
+}
+
+
 def _describe(err: dict, fmt: MachineFormat) -> str:
     schema, counts = fmt.schema, fmt.counts
     kind, loc, value = err["type"], err["loc"], err.get("input")
@@ -948,12 +1053,16 @@ def _describe(err: dict, fmt: MachineFormat) -> str:
                    f"{actual}"
         if last == "rotation":
             return f"expected a 3x3 matrix (3 rows of 3 numbers), got {actual} rows"
+        if last in _LIST_SECTIONS:
+            return f"expected at least one entry: {_LIST_SECTIONS[last]}"
         return f"expected {n} numbers, got {actual}"
     if kind == "list_type":
         if last == "home":
             return f"expected a list {fmt.home_text}, got {_show(value)}"
         if isinstance(last, str) and last in counts:
             return f"expected a list of {counts[last]} entries, got {_show(value)}"
+        if last in _LIST_SECTIONS:
+            return f"expected {_LIST_SECTIONS[last]}, got {_show(value)}"
         return f"expected a list [x, y, z], got {_show(value)}"
     if kind in ("model_type", "dict_type", "model_attributes_type"):
         return f"expected a mapping (key: value), got {_show(value)}"

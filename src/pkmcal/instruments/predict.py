@@ -1,0 +1,285 @@
+"""What a calibrated machine's instrument measures for new joint readings (issue 13 item 3).
+
+A calibration from points, poses or distances fits, beside the machine's parameters, the
+instrument's own unknowns, and the calibrated machine file keeps them:
+
+==============  ===========================  ===============================================
+instrument      machine attributes           predicted measurement per reading
+==============  ===========================  ===============================================
+``tracker``     ``base_from_tracker``,       ``mx, my, mz``: the target (column ``target``,
+(points)        ``tracker_targets``          1..K) in the tracker frame
+``pose``        ``measurement_frames``       ``x, y, z, qx, qy, qz, qw``: the marker pose in
+(poses)                                      the motion-capture frame
+``distance``    ``ballbar_setups``           ``d``: the ballbar length of the mounting
+(ballbar)                                    (column ``setup``, 1..K)
+==============  ===========================  ===============================================
+
+The prediction is the forward kinematics of the readings followed by the instrument's own
+model (:class:`~pkmcal.instruments.PointsModel`, :class:`~pkmcal.instruments.DistancesModel`,
+:class:`~pkmcal.measurements.MeasurementFrames`), the same models the calibration fitted: a
+user checks a calibration by comparing new measurements with these predictions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..machines.base import Machine
+from .models import DistancesModel, NuisanceState, PointsModel
+
+#: the instruments a calibrated machine can carry, in the order they are offered, with their
+#: other names (as :mod:`pkmcal.instruments.registry`), machine-file section and maker
+INSTRUMENT_SECTIONS = {
+    "tracker": (("points",), "tracker", "a calibration from points (mx, my, mz: laser "
+                                        "tracker, CMM) writes the tracker section"),
+    "pose": (("poses",), "measurement_frames", "a calibration from poses (x, y, z, qx..qw: "
+                                               "motion capture) writes measurement_frames"),
+    "distance": (("distances", "ballbar"), "ballbar", "a calibration from distances (d: "
+                                                      "ballbar) writes the ballbar section"),
+}
+
+
+def instrument_name(name: str) -> str:
+    """The canonical name of an instrument a calibrated machine can carry.
+
+    Parameters
+    ----------
+    name : str
+        ``tracker`` (``points``), ``pose`` (``poses``) or ``distance`` (``distances``,
+        ``ballbar``).
+
+    Returns
+    -------
+    str
+        ``"tracker"``, ``"pose"`` or ``"distance"``.
+
+    Raises
+    ------
+    InputError
+        For another name, listing the known ones.
+    """
+    for canonical, (aliases, _, _) in INSTRUMENT_SECTIONS.items():
+        if name == canonical or name in aliases:
+            return canonical
+    raise InputError(f"unknown instrument {name!r}; use one of "
+                     f"{', '.join(INSTRUMENT_SECTIONS)}")
+
+
+def fitted_instruments(machine: Machine) -> list[str]:
+    """The instruments whose fitted unknowns ``machine`` carries.
+
+    Parameters
+    ----------
+    machine : Machine
+        A (calibrated) machine: its ``base_from_tracker``, ``measurement_frames``,
+        ``ballbar_setups``.
+
+    Returns
+    -------
+    list of str
+        Among ``"tracker"``, ``"pose"``, ``"distance"``, in that order.
+    """
+    out = []
+    if getattr(machine, "base_from_tracker", None) is not None:
+        out.append("tracker")
+    if getattr(machine, "measurement_frames", None) is not None and machine.pose_dof == 6:
+        out.append("pose")
+    if getattr(machine, "ballbar_setups", None):
+        out.append("distance")
+    return out
+
+
+def _where(machine: Machine) -> str:
+    return str(getattr(machine, "source", "") or "the machine")
+
+
+def choose_instrument(machine: Machine, instrument: str | None = None,
+                      option: str = "instrument") -> str:
+    """The instrument to predict for: the one asked for, or the only one the machine carries.
+
+    Parameters
+    ----------
+    machine : Machine
+        A calibrated machine.
+    instrument : str, optional
+        An instrument name or alias (:func:`instrument_name`); None: the machine must carry
+        exactly one.
+    option : str, optional
+        The option that names the instrument, for messages (``instrument`` for the Python
+        argument, ``--instrument`` on the command line).
+
+    Returns
+    -------
+    str
+        ``"tracker"``, ``"pose"`` or ``"distance"``.
+
+    Raises
+    ------
+    InputError
+        When the machine carries none (saying which calibration writes what), several and
+        none is named (listing them), or not the one named.
+    """
+    have = fitted_instruments(machine)
+    where = _where(machine)
+    if instrument is not None:
+        name = instrument_name(instrument)
+        if name not in have:
+            section = INSTRUMENT_SECTIONS[name][1]
+            offered = (f"; it has: {', '.join(have)}" if have else
+                       "; it has no instrument section")
+            raise InputError(f"{option} {instrument}: {where} has no {section} section "
+                             f"({INSTRUMENT_SECTIONS[name][2]}){offered}")
+        return name
+    if not have:
+        makers = "; ".join(text for _, _, text in INSTRUMENT_SECTIONS.values())
+        raise InputError(f"{where} carries no instrument (no tracker, measurement_frames or "
+                         f"ballbar section): {makers}; a constraint-link calibration measures "
+                         "in no instrument frame")
+    if len(have) > 1:
+        raise InputError(f"{where} carries several instruments: name one with {option} "
+                         f"({'|'.join(have)})")
+    return have[0]
+
+
+def tracker_targets(machine: Machine) -> tuple[np.ndarray, bool]:
+    """Places of the tracker's targets on the platform, and whether they are one for all.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine: its :meth:`~pkmcal.machines.Machine.tracker_target` (a Delta's
+        reflector, the same for every target number), else its ``tracker_targets``, else the
+        platform origin.
+
+    Returns
+    -------
+    targets : ndarray, shape (K, 3)
+        Platform-frame places, m.
+    shared : bool
+        True when every target number is the same place (the machine file fixes it).
+    """
+    known = machine.tracker_target()
+    if known is not None:
+        return np.asarray(known, float).reshape(1, 3), True
+    targets = getattr(machine, "tracker_targets", None)
+    if targets is None:
+        return np.zeros((1, 3)), False
+    return np.asarray(targets, float).reshape(-1, 3), False
+
+
+@dataclass
+class InstrumentPrediction:
+    """Predicted measurements of an instrument for joint readings.
+
+    Attributes
+    ----------
+    instrument : str
+        ``"tracker"``, ``"pose"`` or ``"distance"``.
+    values : ndarray, shape (K, 3) or (K, 1)
+        Tracker points (tracker frame), marker positions (motion-capture frame) or ballbar
+        lengths, m; NaN where the forward kinematics failed.
+    R : ndarray, shape (K, 3, 3) or None
+        Marker orientations in the motion-capture frame (``pose``), else None.
+    group : ndarray of int, shape (K,)
+        0-based target / setup of each row (0 for poses).
+    converged : ndarray of bool, shape (K,)
+        Rows whose forward kinematics converged.
+    fk : FKResult
+        The forward kinematics of the readings (platform poses, base frame).
+    """
+
+    instrument: str
+    values: np.ndarray
+    R: np.ndarray | None
+    group: np.ndarray
+    converged: np.ndarray
+    fk: object
+
+
+def _check_groups(group, n: int, what: str, section: str, rows, source) -> None:
+    bad = np.flatnonzero((group < 0) | (group >= n))
+    if bad.size:
+        k = int(bad[0])
+        where = (f"{source}: " if source else "") + (
+            f"row {int(rows[k])}, column {what}: " if rows is not None else f"{what} ")
+        raise InputError(f"{where}{what} {int(group[k]) + 1}, but the machine file's "
+                         f"{section} has {n} (numbered 1..{n})")
+
+
+def predict_instrument(machine: Machine, q, instrument: str | None = None, group=None,
+                       rows=None, source: str | None = None,
+                       start=None) -> InstrumentPrediction:
+    """What the calibration's instrument measures for joint readings ``q``.
+
+    Forward kinematics of ``q`` on ``machine``, then the instrument's model with the unknowns
+    the calibration fitted (see the module docstring).
+
+    Parameters
+    ----------
+    machine : Machine
+        A calibrated machine carrying ``base_from_tracker`` (and ``tracker_targets``),
+        ``measurement_frames`` or ``ballbar_setups``.
+    q : array_like, shape (K, n_joints)
+        Joint readings, internal units.
+    instrument : str, optional
+        ``tracker`` (``points``), ``pose`` (``poses``) or ``distance`` (``distances``,
+        ``ballbar``); needed when the machine carries several.
+    group : array_like of int, shape (K,), optional
+        0-based target (tracker) or setup (distance) of each row; default 0.
+    rows : array_like of int, shape (K,), optional
+        File line numbers, for messages.
+    source : str, optional
+        The readings' file, for messages.
+    start : tuple of ndarray, optional
+        Start poses ``(P, R)`` of the forward kinematics; default home.
+
+    Returns
+    -------
+    InstrumentPrediction
+        The predicted measurements (NaN where the forward kinematics failed).
+
+    Raises
+    ------
+    InputError
+        When the machine carries no instrument, several and none is named, not the one named,
+        or a target / setup number beyond those in the machine file.
+    """
+    name = choose_instrument(machine, instrument)
+    q = np.atleast_2d(np.asarray(q, float))
+    K = len(q)
+    group = np.zeros(K, int) if group is None else np.asarray(group, int).reshape(K)
+    if name == "pose":
+        group = np.zeros(K, int)
+    fk = machine.fk(q, start=start)
+    ok = np.asarray(fk.converged, bool)
+    P = np.where(ok[:, None], np.asarray(fk.P, float), 0.0)
+    R = np.where(ok[:, None, None], np.asarray(fk.R, float), np.eye(3))
+    Rm = None
+    if name == "tracker":
+        targets, shared = tracker_targets(machine)
+        if shared:
+            group = np.zeros(K, int)          # every target number is the file's reflector
+        _check_groups(group, len(targets), "target", "tracker.targets" if getattr(
+            machine, "tracker_targets", None) is not None else "tracker (one target: the "
+            "platform origin, no targets key)", rows, source)
+        A, a = (np.asarray(v, float) for v in machine.base_from_tracker)
+        model = PointsModel(len(targets), targets[0] if shared else None)
+        values = np.concatenate([np.zeros(3), a] + ([] if shared else [targets.ravel()]))
+        values = model.predict(NuisanceState(values, [A]), P, R, group)
+    elif name == "distance":
+        setups = list(machine.ballbar_setups)
+        _check_groups(group, len(setups), "setup", "ballbar", rows, source)
+        model = DistancesModel(len(setups))
+        values = np.zeros(len(model.parameters))
+        for g, (pivot, ball) in enumerate(setups):
+            values[model.parameters.indices([f"setup{g + 1}.pivot.{c}" for c in "xyz"])] = pivot
+            values[model.parameters.indices([f"setup{g + 1}.ball.{c}" for c in "xyz"])] = ball
+        values = model.predict(NuisanceState(values, []), P, R, group)
+    else:
+        values, Rm = machine.measurement_frames.measured(P, R)
+        Rm = np.where(ok[:, None, None], Rm, np.nan)
+    values = np.where(ok[:, None], values, np.nan)
+    return InstrumentPrediction(name, values, Rm, group, ok, fk)
