@@ -406,8 +406,10 @@ def _absorbers(tangents, parameters, n_machine, words) -> str:
         label = words[key] if key is not None else head
         if head not in groups.setdefault(label, []):
             groups[label].append(head)
-    return ", ".join(label if heads == [label] else f"{label} ({', '.join(heads)})"
-                     for label, heads in groups.items())
+    # "the tracker frame", not "the tracker frame (tracker)": a head that is the word's own
+    # key says nothing more
+    return ", ".join(label if len(heads) == 1 and heads[0] in words
+                     else f"{label} ({', '.join(heads)})" for label, heads in groups.items())
 
 
 def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel, noise,
