@@ -1,20 +1,25 @@
 """Calibration from laser-tracker points (seed 001 eq. 12-15), jointly with the registration.
 
-Unknowns: the machine's error parameters and the tracker pose ``base_from_tracker = (R, t)``
-(``tracker.rx/ry/rz``: rotation increments about the base axes, applied on the left of the
-closed-form start; ``tracker.x/y/z``: translation). Residual of point k, whitened with the
-tracker's anisotropic noise (:class:`~pkmcal.measurements.TrackerNoise`)::
+Any machine: the points instrument of :mod:`pkmcal.instruments`
+(:class:`~pkmcal.instruments.PointsModel`) on the machine's forward kinematics. Unknowns: the
+machine's parameters, the tracker pose ``base_from_tracker = (R, t)`` (``tracker.rx/ry/rz``:
+rotation increments about the base axes, applied on the left of the closed-form start;
+``tracker.x/y/z``: translation) and, unless the machine gives it (a Delta's ``smr_offset``),
+the place ``c_k`` of every target on the platform (``target<k>.x/y/z``). Residual of point i,
+whitened with the tracker's anisotropic noise (:class:`~pkmcal.measurements.TrackerNoise`)::
 
-    e_k = W_k (m_k - R^T (FK(q_k; u) - h_M e_z - t))
+    e_i = W_i (m_i - R^T (P(q_i; u) + R_p(q_i; u) c_k - t))
 
 Seed 001 registers first (with the nominal model) and then identifies the errors with the
 registration fixed (``joint=False`` reproduces that); ``joint=True`` (default) estimates both
 together, which removes the bias the nominal model leaves in the registration.
 
-Identifiability (SPEC 2.2): ``da`` and ``db`` enter only as ``db - da`` (9 directions), and a
-common shift of the platform joints is a translation of the tracker (3): 21 of 33.
+Identifiability is found from the data and named by the machine's frame motions: on the Delta
+(SPEC 2.2) ``da`` and ``db`` enter only as ``db - da`` (9 directions) and a translation of the
+platform frame is absorbed by the tracker frame (3): 21 of 33; on a platform that rotates a
+rigid motion of the base frame is absorbed by the tracker frame and one of the platform frame
+by the targets (12).
 """
-
 from __future__ import annotations
 
 import numpy as np
