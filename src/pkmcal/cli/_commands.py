@@ -825,22 +825,11 @@ _FK_INSTRUMENT_WORDS = {"tracker": "predicted tracker point(s) (target in the tr
 
 def group_numbers(path: Path, extra: dict, rows, column: str):
     """0-based groups of an optional integer column (``target``, ``setup``: 1, 2, ...) of a
-    file whose rows are predicted or commanded, not fitted: any of the numbers may be absent
-    (a file may use target 2 only); None without the column. A value that is not a whole
-    number >= 1 is an InputError naming the row and column."""
-    from ..io.csv_io import parse_number
+    file whose rows are predicted or commanded, not fitted: any of the numbers may be absent;
+    None without the column (:func:`~pkmcal.io.read_groups` with gaps)."""
+    from ..io import read_groups
 
-    values = extra.get(column)
-    if values is None:
-        return None
-    out = np.empty(len(values), int)
-    for k, (line, text) in enumerate(zip(rows, values, strict=True)):
-        v = parse_number(path, int(line), column, text)
-        if v != int(v) or not 1 <= v <= 10_000:
-            raise InputError(f"{path}: row {line}, column {column}: must be a whole number "
-                             f"1, 2, ... (which {column} the row belongs to), got {text!r}")
-        out[k] = int(v) - 1
-    return out
+    return read_groups(path, extra, rows, column, gaps=True)
 
 
 def _fk_instrument(machine_spec: str, joints: Path, output: Path,

@@ -549,7 +549,7 @@ def machine_readings(path, machine):
     return q, rows, extra, _one_unit(names, [f"q{j + 1}" for j in range(len(names))], quantity)
 
 
-def read_groups(path, extra: dict, rows, column: str) -> np.ndarray | None:
+def read_groups(path, extra: dict, rows, column: str, gaps: bool = False) -> np.ndarray | None:
     """0-based group of each row from an integer column numbered 1..K (``target``, ``setup``).
 
     Parameters
@@ -562,6 +562,9 @@ def read_groups(path, extra: dict, rows, column: str) -> np.ndarray | None:
         File line numbers (for messages).
     column : str
         The column's name.
+    gaps : bool, optional
+        Allow numbers below the largest without rows (rows that are predicted or commanded,
+        not fitted: a file may use target 2 only).
 
     Returns
     -------
@@ -571,7 +574,8 @@ def read_groups(path, extra: dict, rows, column: str) -> np.ndarray | None:
     Raises
     ------
     InputError
-        When a value is not a whole number >= 1, or a number below the largest has no row.
+        When a value is not a whole number >= 1, or (without ``gaps``) a number below the
+        largest has no row.
     """
     values = extra.get(column)
     if values is None:
@@ -583,7 +587,8 @@ def read_groups(path, extra: dict, rows, column: str) -> np.ndarray | None:
             raise InputError(f"{path}: row {line}, column {column}: must be a whole number "
                              f"1, 2, ... (which {column} the row belongs to), got {text!r}")
         out[k] = int(v) - 1
-    missing = sorted(set(range(int(out.max()) + 1)) - set(out.tolist())) if len(out) else []
+    missing = [] if gaps or not len(out) else \
+        sorted(set(range(int(out.max()) + 1)) - set(out.tolist()))
     if missing:
         raise InputError(f"{path}: column {column}: {column} {missing[0] + 1} has no row; "
                          f"number the {column}s 1..K without gaps (largest: {out.max() + 1})")
