@@ -1,0 +1,67 @@
+"""The README's "Every instrument on every machine" runs as written: its command block and its
+Python example, and the table's identifiable counts are what the commands print."""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+
+from clitools import run
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+SECTION = README[README.index("## Every instrument on every machine"):
+                 README.index("## A session")]
+
+
+def _block(lang: str) -> str:
+    return re.search(rf"```{lang}\n(.*?)```", SECTION, re.S).group(1)
+
+
+def test_the_commands_run(tmp_path):
+    (tmp_path / "examples").symlink_to(ROOT / "examples")
+    for line in _block("sh").splitlines():
+        command = line.split("#")[0].strip()
+        if not command:
+            continue
+        args = shlex.split(command)
+        assert args[0] == "pkmcal"
+        proc = run(*args[1:], cwd=tmp_path)
+        assert proc.returncode == 0, (command, proc.stderr)
+    assert (tmp_path / "cal.yaml").is_file() and (tmp_path / "predicted.csv").is_file()
+
+
+def test_the_python_example_runs(tmp_path, monkeypatch):
+    (tmp_path / "examples").symlink_to(ROOT / "examples")
+    proc = run("simulate", "examples/cubic_6upu.yaml", "--scenario", "distance", "-o",
+               "bar.csv", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    monkeypatch.chdir(tmp_path)
+    python = re.search(r"```python\n(from pkmcal.calibration import calibrate.*?)```",
+                       README, re.S).group(1)
+    exec(compile(python, "README", "exec"), {})
+    assert (tmp_path / "cal.yaml").is_file() and (tmp_path / "cal.json").is_file()
+
+
+@pytest.mark.parametrize("machine, scenario", [("hexaslide_default", "points"),
+                                               ("hexaslide_default", "pose"),
+                                               ("hexaslide_default", "distance"),
+                                               ("delta_default", "points"),
+                                               ("delta_default", "distance"),
+                                               ("cubic_6upu", "points"),
+                                               ("cubic_6upu", "pose"),
+                                               ("cubic_6upu", "distance")])
+def test_the_table_counts(machine, scenario, tmp_path):
+    """Each cell's count is the one ``identifiability`` prints for the example machine."""
+    proc = run("identifiability", ROOT / "examples" / f"{machine}.yaml", "--scenario",
+               scenario, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    count = re.search(r"(\d+) of (\d+)", proc.stdout).group(0)
+    row = {"hexaslide_default": "Hexa Slide", "delta_default": "Delta",
+           "cubic_6upu": "Stewart"}[machine]
+    cells = re.search(rf"\| \*\*{row}\*\* \|(.*)\|\n", SECTION).group(1).split(" | ")
+    cell = cells[{"points": 0, "pose": 1, "distance": 2}[scenario]]
+    assert f"**{count}**" in cell, (count, cell)
