@@ -442,9 +442,7 @@ def _pose_run(s: MonteCarloSettings, rng):
                                                            rng), frames, None, rng)
     err = full_pose_errors(res.extras["machine"], res.extras["frames"], held)
     ok = err.converged
-    # the gauge-free parameter error needs the leg layout of a six-leg platform (align_to)
-    e = gauge_free_error(nominal, res, true.u, frames) if callable(
-        getattr(nominal, "legs", None)) else np.array([math.nan])
+    e = gauge_free_error(nominal, res, true.u, frames)
 
     def stat(f, v):
         return float(f(v[ok])) if ok.any() else math.nan

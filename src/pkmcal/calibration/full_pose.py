@@ -862,14 +862,39 @@ def align_to(machine: Machine, u, frames: MeasurementFrames, u_ref):
     frames_aligned : MeasurementFrames
         The frames moved by the inverse motions.
     """
-    b, p, _, _ = machine.legs(u)
-    b_ref, p_ref, _, _ = machine.legs(u_ref)
-    G, g = register_points(b, b_ref, "base joints")
-    H, h = register_points(p, p_ref, "platform joints")      # p' = H p + h = C^T (p - c0)
-    C, c0 = H.T, -H.T @ h
+    if callable(getattr(machine, "legs", None)):
+        # a six-leg platform: the joints themselves, registered in closed form (Horn)
+        b, p, _, _ = machine.legs(u)
+        b_ref, p_ref, _, _ = machine.legs(u_ref)
+        G, g = register_points(b, b_ref, "base joints")
+        H, h = register_points(p, p_ref, "platform joints")  # p' = H p + h = C^T (p - c0)
+        C, c0 = H.T, -H.T @ h
+    else:
+        G, g, C, c0 = _frame_motions_towards(machine, u, u_ref)
     u1 = machine.transform_platform(machine.transform_base(u, G, g), C, c0)
     (A, a), (B, c) = frames.mocap_from_base, frames.platform_from_marker
     return u1, MeasurementFrames((A @ G.T, a - A @ G.T @ g), (C.T @ B, C.T @ (c - c0)))
+
+
+def _frame_motions_towards(machine: Machine, u, u_ref):
+    """The base and platform rigid motions that bring ``u`` nearest ``u_ref`` (scaled least
+    squares over :meth:`~pkmcal.machines.Machine.transform_base` and ``transform_platform``
+    with translations), for machines without a closed form."""
+    from scipy.optimize import least_squares
+
+    scales = machine.parameter_scales()
+    L = machine.characteristic_length()
+
+    def motions(x):
+        return (matrix_from_rotvec(x[:3]), x[3:6] * L, matrix_from_rotvec(x[6:9]), x[9:] * L)
+
+    def residual(x):
+        G, g, C, c0 = motions(x)
+        return (machine.transform_platform(machine.transform_base(u, G, g), C, c0)
+                - u_ref) / scales
+
+    return motions(least_squares(residual, np.zeros(12), xtol=1e-15, ftol=1e-15,
+                                 gtol=1e-15).x)
 
 
 def gauge_free_error(machine: Machine, result: CalibrationResult, u_true,
