@@ -60,6 +60,28 @@ kept on the machine as ``machine.measurement_frames``
 (:class:`~pkmcal.measurements.full_pose.MeasurementFrames`, None without the key); a
 calibration from full-pose data writes the identified frames there.
 
+A linear Delta 3D printer (issue 14) is described by its design values, in Klipper's names and
+meanings, and optionally by the full chain of each tower (Hexa Slide keys, SPEC 2.1, absolute
+values; the top-level keys stay the design)::
+
+    pkmcal: 1
+    machine: linear_delta
+    units: {length: mm, angle: deg}
+    delta_radius: 140.0                        # carriage joint line to effector joint line
+    arm_length: 270.0                          # or a list of three
+    tower_angles: [210.0, 330.0, 90.0]         # counter-clockwise from +X
+    position_endstop: [300.0, 300.0, 300.0]    # nozzle-to-bed distance at each endstop
+    chains:                                    # optional: exactly 3
+      - {a0: [-121.2, -70.0, 518.2], alpha: 210.0, beta: -90.0, b: [0, 0, 0], l: 270.0}
+    home: [0.0, 0.0, 120.0]                    # x, y, z of the nozzle
+
+``a0`` is the carriage joint at the endstop, ``alpha``/``beta`` the direction down the tower,
+``l`` the arm and ``b`` the effector joint relative to the nozzle tip; the readings
+``q1_mm..q3_mm`` are the carriages' travels down from their endstops. With ``chains`` the
+machine's common ``delta_radius`` and ``arm_length`` parameters take the top-level values and
+the per-tower trims the differences (:mod:`pkmcal.machines.linear_delta`); a file is written
+with ``chains`` whenever its geometry is not exactly the design's (a calibrated file).
+
 Every machine file may carry what an instrument's calibration fitted (issue 13), in the
 file's length unit; all optional::
 
@@ -132,9 +154,11 @@ from ..limits import (
 from ..machines import (
     Delta,
     HexaSlide,
+    LinearDelta,
     Stewart,
     delta_parameters,
     hexaslide_parameters,
+    linear_delta,
     stewart_parameters,
 )
 from ..machines.base import Machine
@@ -435,6 +459,60 @@ class DeltaFile(_Strict):
             raise PydanticCustomError(
                 "home_rotation", "the Delta platform does not rotate: psi, theta, phi must be "
                 "0, got {angles}; write home: [x, y, z]", {"angles": value[3:]})
+        return value
+
+
+class LinearDeltaFile(_Strict):
+    """``machine: linear_delta``: the design values (Klipper's names and meanings) and,
+    optionally, the full chain of each tower (Hexa Slide keys, absolute values)."""
+
+    pkmcal: Literal[1]
+    machine: Literal["linear_delta"]
+    name: str | None = None
+    units: Units
+    delta_radius: Positive
+    arm_length: Any                            # one number or 3: checked by _arm_lengths
+    tower_angles: Vector3
+    position_endstop: Vector3
+    chains: Annotated[list[HexaSlideChain], Field(min_length=3, max_length=3)] | None = None
+    tracker: TrackerPose | None = None
+    ballbar: Ballbar | None = None
+    home: list[Number] | None = None
+    joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
+    calibration: dict[str, Any] | None = None
+
+    @field_validator("arm_length")
+    @classmethod
+    def _arm_lengths(cls, value):
+        items = value if isinstance(value, list) else [value]
+        if isinstance(value, list) and len(value) != 3:
+            raise PydanticCustomError(
+                "arm_lengths", "expected one number or a list of 3 (one per tower), got "
+                "{n} numbers", {"n": len(value)})
+        for x in items:
+            if isinstance(x, bool) or not isinstance(x, (int, float)):
+                raise PydanticCustomError(
+                    "arm_lengths", "not a number: {value} (one arm length, or a list of 3)",
+                    {"value": _show(x)})
+            if not np.isfinite(x) or x <= 0:
+                raise PydanticCustomError(
+                    "arm_lengths", "an arm length must be a finite number > 0, got {value}",
+                    {"value": _show(x)})
+        return value
+
+    @field_validator("home")
+    @classmethod
+    def _position_home(cls, value):
+        if value is None:
+            return value
+        if len(value) not in (3, 6):
+            raise PydanticCustomError(
+                "home_length", "expected 3 numbers [x, y, z] (the effector does not rotate), "
+                "got {n}", {"n": len(value)})
+        if len(value) == 6 and any(abs(v) > 1e-9 for v in value[3:]):
+            raise PydanticCustomError(
+                "home_rotation", "the effector does not rotate: psi, theta, phi must be 0, got "
+                "{angles}; write home: [x, y, z]", {"angles": value[3:]})
         return value
 
 
@@ -751,6 +829,56 @@ def _dump_delta(machine: Delta, units: dict) -> dict:
     return out
 
 
+def _build_linear_delta(doc: LinearDeltaFile, source: str) -> LinearDelta:
+    fl, fa = _factors(doc.units.model_dump())
+    arms = doc.arm_length
+    arms = [float(v) * fl for v in arms] if isinstance(arms, list) else float(arms) * fl
+    chains = None
+    if doc.chains is not None:
+        ch = doc.chains
+        chains = (np.array([c.a0 for c in ch], float) * fl,
+                  np.array([c.alpha for c in ch], float) * fa,
+                  np.array([c.beta for c in ch], float) * fa,
+                  np.array([c.l for c in ch], float) * fl,
+                  np.array([c.b for c in ch], float) * fl)
+    home = None
+    if doc.home is not None:
+        home = (np.asarray(doc.home[:3], float) * fl, np.eye(3))
+    machine = linear_delta(doc.delta_radius * fl, arms, np.asarray(doc.tower_angles, float) * fa,
+                           np.asarray(doc.position_endstop, float) * fl, chains=chains,
+                           home=home, name=doc.name or "")
+    _build_instruments(machine, doc, fl)
+    return machine
+
+
+def _dump_linear_delta(machine: LinearDelta, units: dict) -> dict:
+    """The top level (the design values, as read) and, when the geometry is not exactly the
+    design's, the chains."""
+    from ..machines import linear_delta as _nominal_machine
+
+    fl, fa = _factors(units)
+    nom = machine.nominal
+    arms = nom["arm_length"]
+    out: dict[str, Any] = {
+        "delta_radius": float(nom["delta_radius"]) / fl,
+        "arm_length": (float(arms) / fl if np.ndim(arms) == 0
+                       else [float(v) / fl for v in np.asarray(arms)]),
+        "tower_angles": [float(v) / fa for v in nom["tower_angles"]],
+        "position_endstop": [float(v) / fl for v in nom["position_endstop"]],
+    }
+    design = _nominal_machine(nom["delta_radius"], arms, nom["tower_angles"],
+                              nom["position_endstop"])
+    if (getattr(machine, "from_chains", False) or np.any(machine.b != 0)
+            or not np.array_equal(machine.u, design.u)):
+        a0, alpha, beta, l, b = machine.chains()
+        out["chains"] = [
+            {"a0": _vector(a0[i], fl), "alpha": float(alpha[i]) / fa,
+             "beta": float(beta[i]) / fa, "b": _vector(b[i], fl), "l": float(l[i]) / fl}
+            for i in range(3)]
+    out.update(_dump_instruments(machine, fl))
+    return out
+
+
 def reading_factor(unit: str) -> float:
     """SI factor of a Stewart reading unit: a length unit's factor, 1 for any other word."""
     return LENGTH[unit] if unit in LENGTH else 1.0
@@ -834,6 +962,23 @@ _DELTA_KINDS = {
     ("legs", "*", "dl1"): "length", ("legs", "*", "dl2"): "length",
     ("legs", "*", "db", "*"): "length", **_INSTRUMENT_KINDS,
 }
+_LINEAR_DELTA_HINTS = {
+    "delta_radius": "the horizontal distance from the carriage joint line to the effector joint "
+                    "line, e.g. delta_radius: 140.0",
+    "arm_length": "the arm (diagonal rod) length, one or one per tower, e.g. arm_length: 270.0",
+    "tower_angles": "the tower angles counter-clockwise from +X, e.g. tower_angles: [210, 330, "
+                    "90]",
+    "position_endstop": "the nozzle-to-bed distance at each tower's endstop (Klipper's "
+                        "position_endstop), e.g. position_endstop: [300, 300, 300]",
+    "chains": "a list of 3 chains {a0: [x, y, z], alpha, beta, b: [x, y, z], l}",
+}
+_LINEAR_DELTA_KINDS = {
+    ("delta_radius",): "length", ("arm_length",): "length", ("arm_length", "*"): "length",
+    ("tower_angles", "*"): "angle", ("position_endstop", "*"): "length",
+    ("chains", "*", "a0", "*"): "length", ("chains", "*", "b", "*"): "length",
+    ("chains", "*", "l"): "length", ("chains", "*", "alpha"): "angle",
+    ("chains", "*", "beta"): "angle", **_INSTRUMENT_KINDS,
+}
 _STEWART_KINDS = {
     ("legs", "*", "base", "*"): "length", ("legs", "*", "platform", "*"): "length",
     ("legs", "*", "l0"): "length", ("legs", "*", "gain"): "gain",
@@ -850,6 +995,15 @@ def _delta_size(doc) -> tuple[float, str]:
     fl = LENGTH[doc.units.length]
     return (float(np.median([doc.base_radius, doc.upper_arm, doc.forearm])) * fl,
             "the median of base_radius, upper_arm and forearm")
+
+
+def _linear_delta_size(doc) -> tuple[float, str]:
+    fl = LENGTH[doc.units.length]
+    arms = doc.arm_length if isinstance(doc.arm_length, list) else [doc.arm_length]
+    with np.errstate(all="ignore"):
+        return (float(np.median([doc.delta_radius, float(np.median(arms)),
+                                 float(np.median(doc.position_endstop))])) * fl,
+                "the median of delta_radius, arm_length and position_endstop")
 
 
 def _stewart_size(doc) -> tuple[float, str]:
@@ -869,6 +1023,10 @@ MACHINE_FORMATS: dict[str, MachineFormat] = {
                            size=_delta_size),
     "stewart": MachineFormat(StewartFile, _build_stewart, _dump_stewart, {"legs": 6},
                              hints=_STEWART_HINTS, kinds=_STEWART_KINDS, size=_stewart_size),
+    "linear_delta": MachineFormat(LinearDeltaFile, _build_linear_delta, _dump_linear_delta,
+                                  {"chains": 3}, home_text="[x, y, z]",
+                                  hints=_LINEAR_DELTA_HINTS, kinds=_LINEAR_DELTA_KINDS,
+                                  size=_linear_delta_size),
 }
 
 
@@ -905,7 +1063,8 @@ def _line_of(lines: dict, key: tuple) -> int | None:
 
 #: keys of the machine's dimensions (positive lengths: links, arms, radii, the constraint
 #: link): a dimension this small relative to the machine is a typo, and it divides
-_DIMENSIONS = ("l", "length", "base_radius", "upper_arm", "forearm")
+_DIMENSIONS = ("l", "length", "base_radius", "upper_arm", "forearm", "delta_radius",
+               "arm_length")
 #: smallest such dimension relative to the machine's size
 MIN_LENGTH_RATIO = 1e-6
 

@@ -92,6 +92,23 @@ class FrameMotion:
     tangents: np.ndarray
 
 
+@dataclass(frozen=True)
+class ParameterSubset:
+    """A named choice of the parameters a calibration estimates, e.g. a firmware's set.
+
+    Attributes
+    ----------
+    free : tuple of str
+        Parameter names or group prefixes (``tower1.endstop``, ``tower2``) left free; every
+        other parameter is fixed at its value.
+    description : str
+        What the set is, in words (the firmware and its command, what it fixes).
+    """
+
+    free: tuple[str, ...]
+    description: str
+
+
 class Machine(ABC):
     """A parallel kinematic machine with geometric error parameters.
 
@@ -123,6 +140,9 @@ class Machine(ABC):
     default_instrument: str = "tracker"
     #: poses per forward-kinematics chunk (temporaries stay in cache)
     fk_chunk: int = 8192
+    #: named parameter subsets (:meth:`parameter_set`); ``full`` (every parameter free) is
+    #: always available
+    PARAMETER_SETS: dict[str, ParameterSubset] = {}
 
     def __init__(self, parameters: ParameterSet, home=None, name: str = ""):
         self.parameters = parameters
@@ -219,6 +239,66 @@ class Machine(ABC):
         """
         return np.concatenate([self.parameter_scales(),
                                extra.scales(self.characteristic_length())])
+
+    def parameter_set(self, name: str) -> ParameterSet:
+        """The machine's parameters with the fixed flags of a named subset.
+
+        ``full`` frees every parameter unless the machine defines its own ``full``; other
+        names are the machine's :attr:`PARAMETER_SETS` (a linear Delta's ``klipper``,
+        ``marlin``, ``rrf``).
+
+        Parameters
+        ----------
+        name : str
+            The subset's name.
+
+        Returns
+        -------
+        ParameterSet
+            Same names, kinds and values; ``fixed`` True for every parameter the subset does
+            not free.
+
+        Raises
+        ------
+        InputError
+            For a name the machine does not know (the message lists the known ones).
+        """
+        from ..errors import InputError
+
+        p = self.parameters
+        sets = dict(self.PARAMETER_SETS)
+        if name == "full" and "full" not in sets:
+            return ParameterSet(p.names, p.kinds, p.values, np.zeros(len(p), bool))
+        if name not in sets:
+            known = ", ".join(sorted(set(sets) | {"full"}))
+            raise InputError(f"unknown parameter set {name!r} for a {self.kind or 'machine'}; "
+                             f"known: {known}")
+        fixed = np.ones(len(p), bool)
+        fixed[p.indices(list(sets[name].free))] = False
+        return ParameterSet(p.names, p.kinds, p.values, fixed)
+
+    def with_parameter_set(self, name: str) -> Machine:
+        """A copy of this machine whose parameters carry the fixed flags of a named subset.
+
+        Parameters
+        ----------
+        name : str
+            The subset's name (:meth:`parameter_set`).
+
+        Returns
+        -------
+        Machine
+            A shallow copy; only its :class:`ParameterSet` is replaced.
+
+        Raises
+        ------
+        InputError
+            For an unknown name.
+        """
+        new = self.__class__.__new__(self.__class__)
+        new.__dict__.update(self.__dict__)
+        new.parameters = self.parameter_set(name)
+        return new
 
     # -- validation -----------------------------------------------------------------------
     def geometry_problems(self, home_given: bool = True) -> list[tuple[tuple, str]]:

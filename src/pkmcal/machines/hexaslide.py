@@ -61,6 +61,52 @@ def rail_direction(alpha, beta):
     return np.stack([ca * cb, sa * cb, sb], -1)
 
 
+def slider_link_solve(dx, dy, dz, ax, ay, az, l):
+    """Closed-form inverse kinematics of ``n`` slider-link chains at ``N`` poses at once.
+
+    A slider moves from ``A0`` along the unit direction ``a``; a link of length ``l`` joins it
+    to the point ``A0 + d``. The slider travel is ``q = a.d - sqrt(l^2 - |d|^2 + (a.d)^2)``
+    (seed 000 eq. 1-9): the root with the link's end ahead of the slider along ``a``
+    (``s = a.n > 0``). Shared by every machine built of such chains (Hexa Slide, linear Delta).
+
+    Parameters
+    ----------
+    dx, dy, dz : ndarray, shape (n, N)
+        Components of ``d`` (link end minus rail start), chain by chain; contiguous rows.
+    ax, ay, az : ndarray, shape (n, 1)
+        Components of the unit rail direction ``a``.
+    l : ndarray, shape (n,)
+        Link lengths.
+
+    Returns
+    -------
+    q : ndarray, shape (n, N)
+        Slider travel; NaN where the point is out of reach or the chain is singular.
+    inv_s : ndarray, shape (n, N)
+        ``1 / s`` with ``s = a.n``.
+    nx, ny, nz : ndarray, shape (n, N)
+        ``n / s``, the link vector ``n = d - q a`` over ``s``: ``dq/dd = n / s``,
+        ``dq/dA0 = -n / s``, ``dq/da = -q n / s`` (on directions normal to ``a``),
+        ``dq/dl = -l / s``.
+    """
+    ad = dx * ax
+    ad += dy * ay
+    ad += dz * az
+    rad = (l * l)[:, None] + ad * ad
+    rad -= dx * dx
+    rad -= dy * dy
+    rad -= dz * dz
+    with np.errstate(invalid="ignore"):
+        s = np.sqrt(rad)                                    # = a.n
+    s[~(s > 0)] = np.nan                                    # singular or unreachable
+    q = ad - s
+    inv_s = 1.0 / s
+    nx = (dx - q * ax) * inv_s                              # n / s, link vector n = d - q a
+    ny = (dy - q * ay) * inv_s
+    nz = (dz - q * az) * inv_s
+    return q, inv_s, nx, ny, nz
+
+
 class HexaSlide(Machine):
     """6-PUS Hexa Slide machine; see the module docstring for the model.
 
@@ -213,21 +259,7 @@ class HexaSlide(Machine):
         dx = rbx + (Pt[0] - a0[:, 0:1])                          # d = P + R B - A0
         dy = rby + (Pt[1] - a0[:, 1:2])
         dz = rbz + (Pt[2] - a0[:, 2:3])
-        ad = dx * ax
-        ad += dy * ay
-        ad += dz * az
-        rad = (l * l)[:, None] + ad * ad
-        rad -= dx * dx
-        rad -= dy * dy
-        rad -= dz * dz
-        with np.errstate(invalid="ignore"):
-            s = np.sqrt(rad)                                    # = a.n
-        s[~(s > 0)] = np.nan                                    # singular or unreachable
-        q = ad - s
-        inv_s = 1.0 / s
-        nx = (dx - q * ax) * inv_s                              # n / s, link vector n = d - q a
-        ny = (dy - q * ay) * inv_s
-        nz = (dz - q * az) * inv_s
+        q, inv_s, nx, ny, nz = slider_link_solve(dx, dy, dz, ax, ay, az, l)
         Jt = np.empty((6, 6, N))                                # (chain, [dP, dOmega], pose)
         Jt[:, 0], Jt[:, 1], Jt[:, 2] = nx, ny, nz
         np.subtract(rby * nz, rbz * ny, out=Jt[:, 3])           # (R B) x n / s

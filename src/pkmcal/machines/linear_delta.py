@@ -1,0 +1,851 @@
+"""Linear Delta 3D printer: three carriages on (nearly) vertical towers, parallelogram arms.
+
+The effector translates (``pose_dof = 3``); the platform point is the NOZZLE TIP. Joint ``i``
+reads ``q_i``, the travel of carriage ``i`` DOWN its tower from its endstop (0 at the endstop,
+m), as a firmware's step count divided by steps per mm gives it.
+
+Kinematics (the Hexa Slide chain, SPEC 2.1, one per tower)
+----------------------------------------------------------
+Tower ``i`` is the chain ``(a0_i, a_i, l_i, b_i)`` of the Hexa Slide: ``a0`` the carriage joint
+at the endstop, ``a = [cos(alpha) cos(beta), sin(alpha) cos(beta), sin(beta)]`` the unit
+direction down the tower, ``l`` the arm length, ``b`` the effector joint relative to the nozzle
+tip (base axes: the effector does not rotate). With ``d = P + b - a0`` the carriage travel is
+``q = a.d - sqrt(l^2 - |d|^2 + (a.d)^2)``, computed by the Hexa Slide's own routine
+(:func:`~pkmcal.machines.hexaslide.slider_link_solve`). Forward kinematics intersects the three
+spheres of radius ``l_i`` about ``a0_i + q_i a_i - b_i`` in closed form and takes the lower
+root (the nozzle hangs below the carriages).
+
+Parameters (what a firmware adjusts, so that a firmware's set is "these free, the rest fixed")
+----------------------------------------------------------------------------------------------
+Twenty parameters, internal units m and rad:
+
+``delta_radius``, ``arm_length``
+    common radius ``R`` and arm length ``L``;
+``tower{i}.radius_trim``, ``tower{i}.arm_trim``
+    per-tower trims: tower ``i`` has radius ``r_i = R + radius_trim_i`` and arm
+    ``l_i = L + arm_trim_i``. A firmware with one radius (all three) frees ``delta_radius``
+    and fixes the trims; one with per-tower arms (Klipper) frees the trims; one that adjusts
+    all diagonals by one increment (RepRapFirmware) frees ``arm_length``. Common value and
+    trims together are redundant (only the sums enter): ``full`` fixes the common values.
+``tower{i}.angle``
+    tower angle ``theta_i``, counter-clockwise from +X (Klipper's ``angle``, default 210, 330,
+    90 deg);
+``tower{i}.endstop``
+    ``position_endstop`` of the tower in Klipper's meaning: the nozzle-to-bed distance (the
+    nozzle at the centre) when that tower's carriage is at its endstop, so the carriage
+    height at the endstop is ``endstop_i + sqrt(l_i^2 - r_i^2)`` (vertical tower);
+``tower{i}.tilt_radial``, ``tower{i}.tilt_tangential``
+    tower tilt, rad: the top of the tower leaning away from the centre, and counter-clockwise
+    (towards ``e_t``). Zero for Klipper, Marlin and RepRapFirmware, which assume vertical
+    towers.
+
+The map to the chain, with ``e_r = (cos theta, sin theta, 0)``, ``e_t = (-sin theta,
+cos theta, 0)``, ``e_z``, ``h_i = sqrt(l_i^2 - r_i^2)``::
+
+    a0_i - b_i = r_i e_r + (endstop_i + h_i) e_z
+    a_i = -sin(tr) cos(tt) e_r - sin(tt) e_t - cos(tr) cos(tt) e_z     (tr, tt: the tilts)
+    l_i = L + arm_trim_i
+
+so ``r_i``, ``theta_i`` are the polar coordinates of ``a0 - b`` (Klipper's tower position:
+``delta_radius`` is the horizontal distance between the carriage joint line and the effector
+joint line with the nozzle at the centre), and the tilt turns the tower about its carriage
+joint at the endstop. The map is exact both ways: a file's ``chains`` (absolute ``a0``,
+``alpha``, ``beta``, ``l``, ``b``) give ``r``, ``theta`` (``atan2``), ``endstop = (a0 - b)_z -
+h``, the tilts from ``a`` in the tower's frame, and the trims against the common values.
+``b`` enters the kinematics only through ``a0 - b`` (the effector does not rotate), so it is
+not a parameter: it is kept as :attr:`LinearDelta.b` to write the file's chains back
+(``a0 = b + ...``). With ``b = 0`` and no tilt this is Klipper's model exactly
+(``klippy/kinematics/delta.py``: tower ``(cos(angle) r, sin(angle) r)``, ``abs_endstops =
+position_endstop + sqrt(arm^2 - radius^2)``, carriage height ``sqrt(arm^2 - (tx - x)^2 -
+(ty - y)^2) + z``; ``klippy/extras/delta_calibrate.py``: the "stable position" is the step
+count since the endstop, carriage height ``abs_endstop - steps * step_dist``).
+
+Firmware parameter sets (:attr:`LinearDelta.PARAMETER_SETS`), from the sources read
+-------------------------------------------------------------------------------------
+``klipper``
+    Klipper ``DELTA_CALIBRATE`` / ``DELTA_ANALYZE CALIBRATE=extended``
+    (``klippy/kinematics/delta.py``, ``DeltaCalibration.coordinate_descent_params``): adjusts
+    ``radius``, ``angle_a``, ``angle_b``, ``endstop_a/b/c`` (the ``position_endstop`` values)
+    and, only in the extended mode (when distance measurements of the printed calibration
+    object exist), ``arm_a/b/c``; ``angle_c`` is never adjusted (the gauge: rotation about
+    z). The basic ``DELTA_CALIBRATE`` fixes the arm lengths: that is ``klipper-basic``.
+    ``klipper`` is the extended set: 3 endstops, the radius, 2 tower angles, 3 arm lengths
+    (the per-tower arm trims; the common value stays).
+``marlin``
+    Marlin ``G33`` (``Marlin/src/gcode/calibrate/G33.cpp``, ``Marlin/src/module/delta.cpp``):
+    ``P3`` and above adjust ``delta_endstop_adj`` (3, normalised so the largest is 0 with
+    ``delta_height``: together one endstop per tower), ``delta_radius`` and
+    ``delta_tower_angle_trim`` (3, normalised to sum zero after each iteration: the same
+    machine as fixing the third, turned about z). ``G33`` never adjusts
+    ``delta_diagonal_rod``, the per-tower ``delta_diagonal_rod_trim`` or the compile-time
+    ``DELTA_RADIUS_TRIM_TOWER``. Set: 3 endstops, ``delta_radius``, tower 1 and 2 angles.
+    (``G33 P2`` leaves the angles: the same as ``rrf-4``.)
+``rrf``
+    RepRapFirmware's least squares (``src/Movement/Kinematics/LinearDeltaKinematics.cpp``,
+    ``DoAutoCalibration``/``ComputeDerivative``/``Adjust``): factors 0-2 the endstop
+    adjustments (normalised to mean zero into ``homedHeight``: one endstop per tower), 3 the
+    delta radius, 4-5 the X and Y tower angle corrections (Z is never adjusted), 6 the
+    diagonal rod (one increment added to all diagonals), 7-8 the bed tilt X/Y. ``rrf`` is the
+    7-factor set; the 9-factor bed tilt is the probe instrument's bed plane, estimated with
+    every set (kept once, there). ``rrf-6``, ``rrf-4``, ``rrf-3``: the smaller sets.
+``full``
+    every tower quantity (endstop, angle, radius and arm trims, both tilts; the common
+    radius and arm length are fixed: with the trims free they add nothing). No gauge is
+    fixed: the estimator names the rotation about z and what the instrument cannot see.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from ..kinematics import matrix_from_rotvec
+from ..parameters import ParameterSet
+from .base import FKResult, FrameMotion, Machine, ParameterSubset
+from .hexaslide import rail_direction, slider_link_solve
+
+TOWER_FIELDS = ("endstop", "angle", "radius_trim", "arm_trim", "tilt_radial", "tilt_tangential")
+TOWER_KINDS = ("length", "angle", "length", "length", "angle", "angle")
+#: Klipper's default tower angles (``klippy/kinematics/delta.py``), rad
+DEFAULT_TOWER_ANGLES = np.deg2rad([210.0, 330.0, 90.0])
+
+_ENDSTOPS = ("tower1.endstop", "tower2.endstop", "tower3.endstop")
+_ARM_TRIMS = ("tower1.arm_trim", "tower2.arm_trim", "tower3.arm_trim")
+_TWO_ANGLES = ("tower1.angle", "tower2.angle")
+
+
+def linear_delta_parameters(delta_radius, arm_length, tower_angles, endstops, radius_trim=0.0,
+                            arm_trim=0.0, tilt_radial=0.0, tilt_tangential=0.0) -> ParameterSet:
+    """Registry of a linear Delta (internal units: m, rad); see the module docstring.
+
+    Parameters
+    ----------
+    delta_radius : float
+        Common radius ``R``, m.
+    arm_length : float
+        Common arm length ``L``, m.
+    tower_angles : array_like, shape (3,)
+        Tower angles, rad.
+    endstops : array_like, shape (3,)
+        ``position_endstop`` per tower, m.
+    radius_trim, arm_trim : array_like, shape (3,) or float, optional
+        Per-tower trims of radius and arm length, m.
+    tilt_radial, tilt_tangential : array_like, shape (3,) or float, optional
+        Tower tilts, rad.
+
+    Returns
+    -------
+    ParameterSet
+        ``delta_radius``, ``arm_length``, then ``tower{i}.endstop`` ... ``tilt_tangential``
+        tower by tower (20 parameters).
+    """
+    cols = [np.broadcast_to(np.asarray(v, float), (3,)) for v in
+            (endstops, tower_angles, radius_trim, arm_trim, tilt_radial, tilt_tangential)]
+    values = np.concatenate([[float(delta_radius), float(arm_length)],
+                             np.column_stack(cols).reshape(-1)])
+    names = ["delta_radius", "arm_length"] + [f"tower{i + 1}.{f}" for i in range(3)
+                                              for f in TOWER_FIELDS]
+    return ParameterSet(names, ("length", "length") + TOWER_KINDS * 3, values)
+
+
+class LinearDelta(Machine):
+    """Linear Delta printer with the per-tower Hexa Slide chain; see the module docstring.
+
+    Parameters
+    ----------
+    parameters : ParameterSet
+        The 20 parameters (:func:`linear_delta_parameters`).
+    b : array_like, shape (3, 3), optional
+        Effector joints relative to the nozzle tip, m (base axes); default 0. Only ``a0 - b``
+        enters the kinematics: ``b`` is carried for the file's ``chains``.
+    nominal : dict, optional
+        The design values of the machine file's top level (SI): ``delta_radius``,
+        ``arm_length`` (float or (3,)), ``tower_angles`` (3,), ``position_endstop`` (3,);
+        default: taken from ``parameters``.
+    home : tuple of ndarray, optional
+        ``(P, R)`` start pose; default: :meth:`default_home`.
+    name : str, optional
+        Free-text name of the machine.
+    """
+
+    kind = "linear_delta"
+    #: the probe instrument is the printers' own; until it is registered, a tracker
+    default_instrument = "tracker"
+    n_joints = 3
+    pose_dof = 3
+    joint_quantity = "length"
+    #: the tracker's reflector below the nozzle tip, m: 0 (:meth:`tracker_target`; the
+    #: tracker-grid simulation of translating platforms reads it)
+    smr_offset = 0.0
+
+    PARAMETER_SETS = {
+        "klipper": ParameterSubset(
+            _ENDSTOPS + ("delta_radius",) + _TWO_ANGLES + _ARM_TRIMS,
+            "Klipper DELTA_CALIBRATE with DELTA_ANALYZE (extended): position_endstop of the "
+            "three towers, delta_radius, the angles of towers 1 and 2 (tower 3's fixes the "
+            "rotation about z) and the three arm lengths"),
+        "klipper-basic": ParameterSubset(
+            _ENDSTOPS + ("delta_radius",) + _TWO_ANGLES,
+            "Klipper DELTA_CALIBRATE (basic, heights only): the three endstops, delta_radius "
+            "and the angles of towers 1 and 2; the arm lengths are fixed"),
+        "marlin": ParameterSubset(
+            _ENDSTOPS + ("delta_radius",) + _TWO_ANGLES,
+            "Marlin G33 (P3 and above): endstop adjustments with the delta height (one "
+            "endstop per tower), delta_radius and the tower angle trims (normalised to sum "
+            "zero by Marlin: tower 3's fixed here, the same machine turned about z); G33 "
+            "never adjusts the diagonal rod"),
+        "rrf": ParameterSubset(
+            _ENDSTOPS + ("delta_radius",) + _TWO_ANGLES + ("arm_length",),
+            "RepRapFirmware 7-factor (the 9-factor bed tilt is the probe's bed plane): the "
+            "endstop adjustments with the homed height, delta radius, X and Y tower angle "
+            "corrections (Z fixed) and one increment of all diagonal rods"),
+        "rrf-6": ParameterSubset(
+            _ENDSTOPS + ("delta_radius",) + _TWO_ANGLES,
+            "RepRapFirmware 6-factor: endstops, delta radius, X and Y tower angle corrections"),
+        "rrf-4": ParameterSubset(
+            _ENDSTOPS + ("delta_radius",),
+            "RepRapFirmware 4-factor (and Marlin G33 P2): endstops and delta radius"),
+        "rrf-3": ParameterSubset(_ENDSTOPS, "RepRapFirmware 3-factor: the endstops only"),
+        "full": ParameterSubset(
+            tuple(f"tower{i + 1}" for i in range(3)),
+            "every tower quantity: endstop, angle, radius and arm (the trims; the common "
+            "delta_radius and arm_length are fixed, redundant with them) and both tilts"),
+    }
+
+    def __init__(self, parameters: ParameterSet, b=None, nominal: dict | None = None,
+                 home=None, name: str = ""):
+        super().__init__(parameters, home, name)
+        p = parameters
+        self.b = np.zeros((3, 3)) if b is None else np.array(b, float).reshape(3, 3)
+        self._iR, self._iL = p.index("delta_radius"), p.index("arm_length")
+        self._idx = np.stack([[p.index(f"tower{i + 1}.{f}") for f in TOWER_FIELDS]
+                              for i in range(3)])                         # (3, 6)
+        if nominal is None:
+            u = p.values
+            nominal = {"delta_radius": float(u[self._iR]), "arm_length": float(u[self._iL]),
+                       "tower_angles": u[self._idx[:, 1]].copy(),
+                       "position_endstop": u[self._idx[:, 0]].copy()}
+        self.nominal = nominal
+        #: True when the geometry came from a file's ``chains`` (messages name those keys)
+        self.from_chains = False
+
+    # -- geometry -------------------------------------------------------------------------
+    def towers(self, u=None):
+        """Per-tower values of the firmware parameters, the towers along the first axis.
+
+        Parameters
+        ----------
+        u : array_like, shape (20,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        endstop : ndarray, shape (3,)
+            ``position_endstop``, m.
+        theta : ndarray, shape (3,)
+            Tower angles, rad.
+        r : ndarray, shape (3,)
+            Tower radii ``delta_radius + radius_trim``, m.
+        l : ndarray, shape (3,)
+            Arm lengths ``arm_length + arm_trim``, m.
+        tilt_radial, tilt_tangential : ndarray, shape (3,)
+            Tower tilts, rad.
+        """
+        u = self.u if u is None else np.asarray(u, float)
+        e = u[self._idx]
+        return (e[:, 0], e[:, 1], u[self._iR] + e[:, 2], u[self._iL] + e[:, 3], e[:, 4],
+                e[:, 5])
+
+    def _frames(self, theta):
+        c, s = np.cos(theta), np.sin(theta)
+        z = np.zeros_like(c)
+        return (np.stack([c, s, z], -1), np.stack([-s, c, z], -1),
+                np.broadcast_to([0.0, 0.0, 1.0], (len(c), 3)))
+
+    def _geometry(self, u=None):
+        """``c = a0 - b`` (3, 3), ``a`` (3, 3), ``l`` (3,) and intermediate values."""
+        pe, theta, r, l, tr, tt = self.towers(u)
+        er, et, ez = self._frames(theta)
+        with np.errstate(invalid="ignore"):
+            h = np.sqrt(l * l - r * r)
+        c = r[:, None] * er + (pe + h)[:, None] * ez
+        ar, at, az = -np.sin(tr) * np.cos(tt), -np.sin(tt), -np.cos(tr) * np.cos(tt)
+        a = ar[:, None] * er + at[:, None] * et + az[:, None] * ez
+        return c, a, l, (r, h, er, et, ez, ar, at, tr, tt)
+
+    def chains(self, u=None):
+        """The Hexa Slide chain of each tower (file keys of ``chains``), absolute values.
+
+        Parameters
+        ----------
+        u : array_like, shape (20,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        a0 : ndarray, shape (3, 3)
+            Carriage joints at the endstops, m.
+        alpha, beta : ndarray, shape (3,)
+            Direction down each tower (azimuth, elevation), rad; for a vertical tower
+            ``beta = -90 deg`` and ``alpha`` the tower angle.
+        l : ndarray, shape (3,)
+            Arm lengths, m.
+        b : ndarray, shape (3, 3)
+            Effector joints relative to the nozzle tip, m.
+        """
+        c, a, l, extra = self._geometry(u)
+        theta = self.towers(u)[1]
+        alpha = np.where(np.hypot(a[:, 0], a[:, 1]) > 0, np.arctan2(a[:, 1], a[:, 0]), theta)
+        vertical = (extra[7] == 0) & (extra[8] == 0)
+        alpha = np.where(vertical, theta, alpha)
+        # atan2, not arcsin: well conditioned near -90 deg (nearly vertical towers)
+        beta = np.where(vertical, -np.pi / 2, np.arctan2(a[:, 2], np.hypot(a[:, 0], a[:, 1])))
+        return c + self.b, alpha, beta, l.copy(), self.b.copy()
+
+    def parameters_from_chains(self, a0, alpha, beta, l, b=None, u=None) -> np.ndarray:
+        """Parameter vector of given chains (the inverse of :meth:`chains`).
+
+        The common ``delta_radius`` and ``arm_length`` keep their values in ``u``; the trims
+        take the differences.
+
+        Parameters
+        ----------
+        a0 : array_like, shape (3, 3)
+            Carriage joints at the endstops, m.
+        alpha, beta : array_like, shape (3,)
+            Direction down each tower, rad.
+        l : array_like, shape (3,)
+            Arm lengths, m.
+        b : array_like, shape (3, 3), optional
+            Effector joints; default :attr:`b`.
+        u : array_like, shape (20,), optional
+            Where the common values (and the branch of the tower angles) come from; default
+            :attr:`u`.
+
+        Returns
+        -------
+        ndarray, shape (20,)
+            The parameters, internal units.
+        """
+        b = self.b if b is None else np.asarray(b, float).reshape(3, 3)
+        a = rail_direction(np.asarray(alpha, float), np.asarray(beta, float))
+        # beta = -90 deg: cos(beta) is 6e-17, not 0; a vertical tower has no tilt
+        a[np.hypot(a[:, 0], a[:, 1]) < 1e-15] = [0.0, 0.0, -1.0]
+        return self._from_geometry(np.asarray(a0, float) - b, a, np.asarray(l, float), u)
+
+    def _from_geometry(self, c, a, l, u=None):
+        u = np.array(self.u if u is None else u, float)
+        theta_old = u[self._idx[:, 1]]
+        r = np.hypot(c[:, 0], c[:, 1])
+        theta = np.arctan2(c[:, 1], c[:, 0])
+        theta = theta_old + (theta - theta_old + np.pi) % (2 * np.pi) - np.pi
+        er, et, ez = self._frames(theta)
+        with np.errstate(invalid="ignore"):
+            h = np.sqrt(l * l - r * r)
+        ar, at, az = (np.sum(a * e, -1) for e in (er, et, ez))
+        tt = -np.arcsin(np.clip(at, -1, 1))
+        tr = np.arctan2(-ar, -az)
+        u[self._idx] = np.column_stack([c[:, 2] - h, theta, r - u[self._iR], l - u[self._iL],
+                                        tr, tt])
+        return u
+
+    def characteristic_length(self) -> float:
+        return float(np.mean(self.towers()[3]))
+
+    def default_home(self):
+        """The nozzle above the bed centre at 40 % of the lowest endstop height.
+
+        Returns
+        -------
+        P : ndarray, shape (3,)
+            ``(0, 0, 0.4 min(position_endstop))``, m.
+        R : ndarray, shape (3, 3)
+            The identity.
+        """
+        return np.array([0.0, 0.0, 0.4 * float(np.min(self.towers()[0]))]), np.eye(3)
+
+    def tracker_target(self) -> np.ndarray:
+        """The tracker's target: the nozzle tip (any other place on a translating effector is
+        the same up to the tracker's translation).
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            Zeros.
+        """
+        return np.zeros(3)
+
+    def firmware_values(self, u=None) -> dict:
+        """What a firmware's configuration holds, per tower, in SI units.
+
+        Parameters
+        ----------
+        u : array_like, shape (20,), optional
+            Parameter vector; default :attr:`u`.
+
+        Returns
+        -------
+        dict
+            ``radius``, ``arm_length``, ``angle``, ``position_endstop``, ``tilt_radial``,
+            ``tilt_tangential``: lists of 3 (m, rad).
+        """
+        pe, theta, r, l, tr, tt = self.towers(u)
+        return {"radius": r.tolist(), "arm_length": l.tolist(), "angle": theta.tolist(),
+                "position_endstop": pe.tolist(), "tilt_radial": tr.tolist(),
+                "tilt_tangential": tt.tolist()}
+
+    def identifiable_combinations(self, u=None) -> dict:
+        """Each tower's radius and arm length: only common value plus trim enters the model.
+
+        Parameters
+        ----------
+        u : array_like, shape (20,), optional
+            Parameter vector; default :attr:`u`.
+
+        Returns
+        -------
+        dict
+            ``description``, ``radius`` and ``arm_length`` per tower (m).
+        """
+        v = self.firmware_values(u)
+        return {"description": "per tower: radius = delta_radius + radius_trim and arm length "
+                               "= arm_length + arm_trim (only these sums enter the model)",
+                "radius": v["radius"], "arm_length": v["arm_length"]}
+
+    # -- validation -----------------------------------------------------------------------
+    def geometry_problems(self, home_given: bool = True) -> list[tuple[tuple, str]]:
+        """Degenerate towers (see :meth:`Machine.geometry_problems`).
+
+        Refused: an arm not longer than its tower's radius (the arms cannot reach the centre
+        and the carriage height at the endstop ``sqrt(arm^2 - radius^2)`` is not real); a
+        tower whose direction down does not point down; two towers at the same angle (within
+        1e-6 rad: they act alike and the effector is free to move); the home pose out of reach
+        or singular.
+
+        Parameters
+        ----------
+        home_given : bool, optional
+            True when the home pose was given (the machine file's ``home``), False when it is
+            :meth:`default_home`; decides which key a problem at home names.
+
+        Returns
+        -------
+        list of tuple
+            ``(key_path, what)``: the machine file key concerned as a path tuple and the
+            problem in words, most specific first; empty when the geometry can work.
+        """
+        pe, theta, r, l, tr, tt = self.towers()
+        chains = self.from_chains
+        for i in range(3):
+            if not l[i] > r[i] > 0:
+                key = ("chains", i, "l") if chains else ("arm_length",)
+                return [(key, f"the arm of tower {i + 1} ({self._length_text(l[i])}) is not "
+                         f"longer than the tower's radius ({self._length_text(r[i])}): the "
+                         "arms cannot reach the centre and the carriage height at the endstop, "
+                         "sqrt(arm^2 - radius^2), is not real; check arm_length and "
+                         "delta_radius" + (" and the chains" if chains else ""))]
+        _, a, _, _ = self._geometry()
+        for i in range(3):
+            if not a[i, 2] < -1e-3:
+                return [(("chains", i, "beta"), f"the direction down tower {i + 1} does not "
+                         "point down (beta must be below 0, -90 deg for a vertical tower); "
+                         "check alpha and beta")]
+        for j in range(3):
+            for i in range(j):
+                gap = abs((theta[j] - theta[i] + np.pi) % (2 * np.pi) - np.pi)
+                if gap < 1e-6:
+                    key = ("chains", j) if chains else ("tower_angles", j)
+                    return [(key, f"towers {i + 1} and {j + 1} stand at the same angle "
+                             f"({np.degrees(theta[i]):.6g} deg): they act alike and the "
+                             "effector is free to move; the towers must stand at three "
+                             "different angles, e.g. 210, 330, 90 deg")]
+        bad, singular = self._home_check()
+        if bad.size:
+            if not home_given:
+                return [(("position_endstop",), "the default home (the nozzle at the centre, "
+                         "40 % of the lowest endstop height) cannot be reached by tower(s) "
+                         f"{', '.join(str(i + 1) for i in bad)}; give a home pose or check "
+                         "the dimensions")]
+            return [(("home",), "the position cannot be reached by tower(s) "
+                     f"{', '.join(str(i + 1) for i in bad)} (the arm cannot span the distance "
+                     "from the tower to the effector); check home and the dimensions")]
+        if singular:
+            return [(("home",) if home_given else ("tower_angles",),
+                     "the three arms do not hold the effector "
+                     + ("at home" if home_given else "at the default home")
+                     + ": the joint Jacobian is singular there (e.g. the towers on one line); "
+                     "check the tower angles" + (" and home" if home_given else ""))]
+        return []
+
+    # -- kinematics -----------------------------------------------------------------------
+    def ik_jacobians(self, P, R=None, u=None, want_du: bool = True):
+        """Carriage travels and their derivatives at nozzle positions.
+
+        Parameters
+        ----------
+        P : array_like, shape (..., 3)
+            Nozzle positions, m.
+        R : array_like, optional
+            Ignored (translation-only effector).
+        u : array_like, shape (20,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+        want_du : bool, optional
+            Also compute the derivatives with respect to the parameters.
+
+        Returns
+        -------
+        q : ndarray, shape (..., 3)
+            Travel of each carriage down from its endstop, m; NaN where unreachable.
+        dq_dpose : ndarray, shape (..., 3, 6)
+            Derivatives with respect to ``[dP, dOmega]``; the rotation columns are zero.
+        dq_du : ndarray, shape (..., 3, 20) or None
+            Derivatives with respect to the parameters; None unless ``want_du``.
+        """
+        c, a, l, (r, h, er, et, ez, ar, at, tr, tt) = self._geometry(u)
+        P = np.asarray(P, float)
+        shape = P.shape[:-1]
+        N = int(np.prod(shape))
+        Pt = P.reshape(N, 3).T
+        dx = Pt[0] - c[:, 0:1]                                   # d = P + b - a0, (3, N)
+        dy = Pt[1] - c[:, 1:2]
+        dz = Pt[2] - c[:, 2:3]
+        q, inv_s, nx, ny, nz = slider_link_solve(dx, dy, dz, a[:, 0:1], a[:, 1:2], a[:, 2:3], l)
+        J = np.zeros((N, 3, 6))
+        J[:, :, 0], J[:, :, 1], J[:, :, 2] = nx.T, ny.T, nz.T
+        q_out = q.T.reshape(shape + (3,))
+        dq_dpose = J.reshape(shape + (3, 6))
+        if not want_du:
+            return q_out, dq_dpose, None
+
+        def dot(v):                                              # (n/s) . v_i, (3, N)
+            return nx * v[:, 0:1] + ny * v[:, 1:2] + nz * v[:, 2:3]
+
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dc_dr = er - (r / h)[:, None] * ez                    # c = r e_r + (pe + h) e_z
+            dc_dl = (l / h)[:, None] * ez
+        da_dtheta = ar[:, None] * et - at[:, None] * er
+        ctr, str_, ctt, stt = np.cos(tr), np.sin(tr), np.cos(tt), np.sin(tt)
+        da_dtr = (-ctr * ctt)[:, None] * er + (str_ * ctt)[:, None] * ez
+        da_dtt = (str_ * stt)[:, None] * er - ctt[:, None] * et + (ctr * stt)[:, None] * ez
+        dq_dr = -dot(dc_dr)
+        dq_dl = -l[:, None] * inv_s - dot(dc_dl)
+        cols = np.stack([
+            -nz,                                                 # endstop: c_z += 1
+            -r[:, None] * dot(et) - q * dot(da_dtheta),          # angle
+            dq_dr,                                               # radius trim
+            dq_dl,                                               # arm trim
+            -q * dot(da_dtr),                                    # tilt radial
+            -q * dot(da_dtt),                                    # tilt tangential
+        ], -1)                                                   # (3, N, 6) TOWER_FIELDS
+        dq_du = np.zeros((N, 3, len(self.parameters)))
+        towers = np.arange(3)
+        dq_du[:, towers[:, None], self._idx] = cols.transpose(1, 0, 2)
+        dq_du[:, :, self._iR] = dq_dr.T
+        dq_du[:, :, self._iL] = dq_dl.T
+        return q_out, dq_dpose, dq_du.reshape(shape + (3, len(self.parameters)))
+
+    def ik(self, P, R=None, u=None) -> np.ndarray:
+        """Carriage travels at nozzle positions; NaN where unreachable.
+
+        Parameters
+        ----------
+        P : array_like, shape (..., 3)
+            Nozzle positions, m.
+        R : array_like, optional
+            Ignored (translation-only effector).
+        u : array_like, shape (20,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            Carriage travels down from the endstops, m.
+        """
+        return self.ik_jacobians(P, R, u, want_du=False)[0]
+
+    def fk(self, q, u=None, start=None, tol: float = 1e-9, max_iter: int = 0,
+           raise_on_failure: bool = False) -> FKResult:
+        """Closed-form forward kinematics: the lower intersection of the three arm spheres.
+
+        Parameters
+        ----------
+        q : array_like, shape (K, 3)
+            Carriage travels down from the endstops, m.
+        u : array_like, shape (20,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+        start : object, optional
+            Accepted for the :class:`Machine` interface; unused.
+        tol : float, optional
+            Accepted for the :class:`Machine` interface; unused.
+        max_iter : int, optional
+            Accepted for the :class:`Machine` interface; unused.
+        raise_on_failure : bool, optional
+            Raise instead of returning rows that could not be solved.
+
+        Returns
+        -------
+        FKResult
+            Nozzle positions (K, 3), m, with ``R = I``; ``converged`` False where the spheres do
+            not meet or their centres are collinear; residual 0 or inf; ``iterations`` 0.
+
+        Raises
+        ------
+        ConvergenceError
+            With ``raise_on_failure``, when a row could not be solved.
+        """
+        q = np.atleast_2d(np.asarray(q, float))
+        K = len(q)
+        P, ok = np.empty((K, 3)), np.empty(K, bool)
+        for lo in range(0, K, self.fk_chunk):
+            P[lo:lo + self.fk_chunk], ok[lo:lo + self.fk_chunk] = \
+                self.fk_positions(q[lo:lo + self.fk_chunk], u)
+        result = FKResult(P, np.broadcast_to(np.eye(3), (K, 3, 3)).copy(), ok,
+                          np.where(ok, 0.0, np.inf), 0)
+        if raise_on_failure:
+            result.raise_if_failed()
+        return result
+
+    def fk_positions(self, q, u=None):
+        """Nozzle positions and a validity mask from the three-sphere intersection.
+
+        Sphere ``i``: centre ``a0_i + q_i a_i - b_i`` (the carriage joint, shifted by the
+        effector joint's offset), radius ``l_i``. Subtracting sphere 1 from spheres 2 and 3
+        gives two planes; their line ``p0 + s m`` (``m = n2 x n3``) meets sphere 1 in two points,
+        of which the lower one is the nozzle.
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 3)
+            Carriage travels, m.
+        u : array_like, shape (20,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        P : ndarray, shape (..., 3)
+            Nozzle positions, m; NaN where not valid.
+        ok : ndarray of bool, shape (...)
+            False where the spheres do not meet or their centres are (nearly) collinear.
+        """
+        q = np.asarray(q, float)
+        c, a, l, _ = self._geometry(u)
+        t = np.moveaxis(q, -1, 0)                                # (3, ...)
+        col = (3,) + (1,) * (t.ndim - 1)
+        cx = c[:, 0].reshape(col) + t * a[:, 0].reshape(col)
+        cy = c[:, 1].reshape(col) + t * a[:, 1].reshape(col)
+        cz = c[:, 2].reshape(col) + t * a[:, 2].reshape(col)
+        x1, y1, z1 = cx[0], cy[0], cz[0]
+        ax, ay, az = cx[1] - x1, cy[1] - y1, cz[1] - z1          # n2 = c2 - c1
+        bx, by, bz = cx[2] - x1, cy[2] - y1, cz[2] - z1          # n3 = c3 - c1
+        r1 = l[0] ** 2
+        s1 = x1 * x1 + y1 * y1 + z1 * z1 - r1
+        b2 = 0.5 * (cx[1] ** 2 + cy[1] ** 2 + cz[1] ** 2 - l[1] ** 2 - s1)
+        b3 = 0.5 * (cx[2] ** 2 + cy[2] ** 2 + cz[2] ** 2 - l[2] ** 2 - s1)
+        lx, ly, lz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx   # m = n2 x n3
+        g = lx * lx + ly * ly + lz * lz
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            # e = p0 - c1 with p0 = (b2 (n3 x m) + b3 (m x n2)) / |m|^2 on both planes
+            ex = (b2 * (by * lz - bz * ly) + b3 * (ly * az - lz * ay)) / g - x1
+            ey = (b2 * (bz * lx - bx * lz) + b3 * (lz * ax - lx * az)) / g - y1
+            ez = (b2 * (bx * ly - by * lx) + b3 * (lx * ay - ly * ax)) / g - z1
+            B = lx * ex + ly * ey + lz * ez
+            C = ex * ex + ey * ey + ez * ez - r1
+            disc = B * B - g * C
+            s = (-B - np.copysign(np.sqrt(disc), lz)) / g        # the lower root
+            P = np.stack([x1 + ex + s * lx, y1 + ey + s * ly, z1 + ez + s * lz], -1)
+            scale = ax * ax + ay * ay + az * az + bx * bx + by * by + bz * bz
+            ok = (g > 1e-12 * scale**2) & (disc >= 0) & np.all(np.isfinite(P), -1)
+        return np.where(ok[..., None], P, np.nan), ok
+
+    # -- frames ---------------------------------------------------------------------------
+    def transform_base(self, u, G, t=None):
+        """Parameters with the towers moved by one rigid motion: ``a0 - b -> G (a0 - b) + t``,
+        ``a -> G a``.
+
+        The towers are measured from the effector joints (``a0 - b``), so this moves the
+        machine together with its effector; no reading changes.
+
+        Parameters
+        ----------
+        u : array_like, shape (20,)
+            Parameter vector (internal units).
+        G : array_like, shape (3, 3)
+            Rotation.
+        t : array_like, shape (3,), optional
+            Translation, m.
+
+        Returns
+        -------
+        ndarray, shape (20,)
+            The transformed parameter vector (common values kept, the trims change).
+        """
+        G = np.asarray(G, float)
+        c, a, l, _ = self._geometry(u)
+        c = c @ G.T + (0.0 if t is None else np.asarray(t, float))
+        return self._from_geometry(c, a @ G.T, l, u)
+
+    def transform_platform(self, u, C, t=None):
+        """The nozzle point moved to ``t`` on the effector (the effector does not rotate).
+
+        Parameters
+        ----------
+        u : array_like, shape (20,)
+            Parameter vector (internal units).
+        C : array_like, shape (3, 3)
+            Must be the identity.
+        t : array_like, shape (3,), optional
+            New platform point in the old platform frame, m.
+
+        Returns
+        -------
+        ndarray, shape (20,)
+            The transformed parameter vector.
+
+        Raises
+        ------
+        NotImplementedError
+            For a rotation: the effector does not rotate.
+        """
+        if not np.allclose(np.asarray(C, float), np.eye(3), rtol=0, atol=1e-15):
+            raise NotImplementedError("the effector of a linear Delta does not rotate")
+        return self.transform_base(u, np.eye(3), t)
+
+    def frame_motions(self, u=None) -> list[FrameMotion]:
+        """The linear Delta's invisible combinations, each in words.
+
+        A rigid motion of the machine (the towers with the effector) split into what an
+        instrument may absorb separately: the rotation about z (the three tower angles
+        together), the vertical translation (the three endstops together: a probe's bed
+        height absorbs it), the horizontal translation and the tilt (a probe's bed tilt
+        absorbs them); and the common radius and arm length against their trims (only the
+        sums enter: no measurement sees them).
+
+        Parameters
+        ----------
+        u : array_like, shape (20,), optional
+            Parameter vector to linearise at; default :attr:`u`.
+
+        Returns
+        -------
+        list of FrameMotion
+            The motions.
+        """
+        u = self.u if u is None else np.asarray(u, float)
+        n = len(self.parameters)
+        hr, ht = 1e-6, 1e-6 * self.characteristic_length()
+
+        def rot(k):
+            w = np.zeros(3)
+            w[k] = hr
+            return (self.transform_base(u, matrix_from_rotvec(w))
+                    - self.transform_base(u, matrix_from_rotvec(-w))) / (2 * hr)
+
+        def shift(k):
+            t = np.zeros(3)
+            t[k] = ht
+            return (self.transform_base(u, np.eye(3), t)
+                    - self.transform_base(u, np.eye(3), -t)) / (2 * ht)
+
+        out = [
+            FrameMotion("rotation about z", "turning the three towers together about the "
+                        "vertical axis (the three tower angles by one angle): only their "
+                        "differences are seen (a firmware fixes one tower angle)",
+                        np.column_stack([rot(2)])),
+            FrameMotion("vertical translation", "raising the three towers together (the "
+                        "three endstops by one length)", np.column_stack([shift(2)])),
+            FrameMotion("horizontal translation", "moving the three towers together "
+                        "sideways (each tower's radius and angle)",
+                        np.column_stack([shift(0), shift(1)])),
+            FrameMotion("tilt of the towers", "tilting the three towers together about a "
+                        "horizontal axis (their tilts, radii and endstops)",
+                        np.column_stack([rot(0), rot(1)])),
+        ]
+        for common, trim, what in (("delta_radius", "radius_trim", "radius"),
+                                   ("arm_length", "arm_trim", "arm length")):
+            T = np.zeros((n, 1))
+            T[self.parameters.index(common), 0] = 1.0
+            for i in range(3):
+                T[self.parameters.index(f"tower{i + 1}.{trim}"), 0] = -1.0
+            out.append(FrameMotion(f"{common} with the {trim}s",
+                                   f"{common} up and the three {trim}s down by the same "
+                                   f"length: only their sums, each tower's {what}, enter "
+                                   "the model", T))
+        return out
+
+
+def linear_delta(delta_radius: float, arm_length, tower_angles=DEFAULT_TOWER_ANGLES,
+                 position_endstop=(0.3, 0.3, 0.3), chains=None, home=None,
+                 name: str = "") -> LinearDelta:
+    """A linear Delta from its design values (a machine file's top level), SI units.
+
+    Parameters
+    ----------
+    delta_radius : float
+        Horizontal distance from the carriage joint line to the effector joint line, m.
+    arm_length : float or array_like, shape (3,)
+        Arm length (one, or one per tower), m.
+    tower_angles : array_like, shape (3,), optional
+        Tower angles, rad; default Klipper's 210, 330, 90 deg.
+    position_endstop : array_like, shape (3,), optional
+        Klipper's ``position_endstop`` per tower, m.
+    chains : tuple, optional
+        ``(a0 (3, 3), alpha (3,), beta (3,), l (3,), b (3, 3))``: the full chain of each
+        tower (absolute values, m and rad); default: the design values.
+    home : tuple of ndarray, optional
+        ``(P, R)`` start pose.
+    name : str, optional
+        Free-text name.
+
+    Returns
+    -------
+    LinearDelta
+        The machine; the common ``delta_radius`` and ``arm_length`` parameters are the design
+        values (the mean of three arm lengths), with ``chains`` the means of the towers'
+        radii and arms; the trims are the differences.
+
+    Raises
+    ------
+    InputError
+        When an array does not hold 3 values.
+    """
+    arms = np.broadcast_to(np.asarray(arm_length, float), (3,)).copy()
+    angles = np.asarray(tower_angles, float).reshape(-1)
+    pe = np.asarray(position_endstop, float).reshape(-1)
+    if angles.shape != (3,) or pe.shape != (3,) or np.ndim(arm_length) > 1:
+        raise InputError("a linear Delta has 3 towers: give 3 tower angles, 3 endstops and "
+                         "one arm length or 3")
+    common = float(arms[0]) if np.all(arms == arms[0]) else float(np.mean(arms))
+    params = linear_delta_parameters(delta_radius, common, angles, pe, arm_trim=arms - common)
+    nominal = {"delta_radius": float(delta_radius),
+               "arm_length": float(arm_length) if np.ndim(arm_length) == 0 else arms.copy(),
+               "tower_angles": angles.copy(), "position_endstop": pe.copy()}
+    machine = LinearDelta(params, nominal=nominal, home=home, name=name)
+    if chains is not None:
+        a0, alpha, beta, l, b = chains
+        machine.b = np.array(b, float).reshape(3, 3)
+        u = machine.parameters_from_chains(a0, alpha, beta, l)
+        p = machine.parameters
+        r, arms = u[p.index("delta_radius")] + u[p.indices(["tower1.radius_trim",
+                                                            "tower2.radius_trim",
+                                                            "tower3.radius_trim"])], \
+            u[p.index("arm_length")] + u[p.indices(list(_ARM_TRIMS))]
+        u = linear_delta_parameters(
+            np.mean(r), np.mean(arms), *(u[machine._idx[:, k]] for k in (1, 0)),
+            radius_trim=r - np.mean(r), arm_trim=arms - np.mean(arms),
+            tilt_radial=u[machine._idx[:, 4]], tilt_tangential=u[machine._idx[:, 5]]).values
+        machine.parameters = machine.parameters.with_values(u)
+        machine.from_chains = True
+    return machine
+
+
+def default_linear_delta() -> LinearDelta:
+    """A Kossel-size printer (Klipper's defaults for the angles): ``delta_radius`` 140 mm,
+    arms 270 mm, endstops 300 mm, towers at 210, 330, 90 deg, vertical, no effector offset.
+
+    Returns
+    -------
+    LinearDelta
+        A new machine.
+    """
+    return linear_delta(0.14, 0.27, DEFAULT_TOWER_ANGLES, (0.3, 0.3, 0.3),
+                        name="pkmcal default linear Delta (Kossel size)")
