@@ -21,6 +21,7 @@ from .full_pose import (
     full_pose_errors,
     gauge_free_error,
 )
+from .probe import calibrate_probe, poorly_determined
 from .registration import register_points
 from .run import (
     KINDS,
@@ -52,4 +53,5 @@ __all__ = ["METHODS", "BlockProblem", "CalibrationResult", "ConstraintLinkFK",
            "constraint_link_reading_rms", "holdout_split", "StartReport", "continuation_solve",
            "sphere_pose_candidates", "start_sensitivity", "KINDS", "Calibration",
            "CalibrationNotConverged", "MeasurementKind", "calibrate", "measurement_kind",
-           "register_kind", "supported_kinds", "calibrate_distances"]
+           "register_kind", "supported_kinds", "calibrate_distances", "calibrate_probe",
+           "poorly_determined"]

@@ -1733,3 +1733,149 @@ register_kind(MeasurementKind(
     calibrate=_calibrate_constraint_link, check_options=_check_constraint_link,
     instrument="constraint-link", data_class="ConstraintLinkData", priority=90,
     readings_only=True))
+
+
+# -- bed-probe heights (issue 14 items 2, 3) --------------------------------------------------
+
+
+def _check_probe(options: CalibrateOptions, source) -> None:
+    _only_for_poses(options, source, "probe")
+    for option, given in (("--method", options.method is not None),
+                          ("--estimate-lc", options.estimate_lc is not None),
+                          ("--two-step", options.two_step), ("--robust", options.robust)):
+        if given:
+            raise InputError(f"{option}: does not apply to probe heights ({source}); see "
+                             "--noise (the probe's repeatability along z, default 10um)")
+
+
+def _probe_noise(noise, machine):
+    """The probe noise of ``--noise`` (text or SI number or model; default
+    :data:`~pkmcal.instruments.registry.PROBE_SIGMA`)."""
+    from ..instruments import IsotropicNoise
+    from ..instruments.registry import PROBE_SIGMA
+    from ..io.plausibility import check_option_scale
+    from ..units import parse_quantity
+
+    if noise is None:
+        return IsotropicNoise(PROBE_SIGMA)
+    if hasattr(noise, "whitening"):
+        return noise
+    sigma = parse_quantity(noise, "length", "--noise") if isinstance(noise, str) \
+        else float(noise)
+    if not sigma > 0:
+        raise InputError(f"--noise: must be > 0 (the standard deviation of the probe's "
+                         f"trigger height), got {noise}")
+    check_option_scale(sigma, machine, "--noise", "noise", str(noise))
+    return IsotropicNoise(sigma)
+
+
+def _probe_rms(problem, state, data) -> tuple[float | None, np.ndarray]:
+    """RMS (um) and residuals (m) of probe heights under a problem's state."""
+    r = data.values[:, 0] - problem.predict(state, data.q)[:, 0]
+    ok = np.isfinite(r)
+    return (_um(math.sqrt(float(np.mean(r[ok] ** 2)))) if ok.any() else None), r
+
+
+def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) -> Calibration:
+    from ..io import read_probe
+    from ..units import LENGTH
+    from .probe import MEASURE_NEXT, POOR_STD, calibrate_probe, poorly_determined_warnings
+
+    noise = _probe_noise(options.noise, machine)
+    data, held = _split_rows(_load(data, read_probe, machine), split, source)
+    result = _solve(source, calibrate_probe, machine, data, noise, held=held)
+    before = _solve(source, calibrate_probe, machine, data, noise, held=held,
+                    fit_machine=False)
+    _require_converged(result, source, "probe over the whole bed (the centre and rings out "
+                       "to the edge of the reachable radius)")
+    units = file_units(machine)
+    fl = LENGTH[units["length"]]
+    calibrated = result.extras["machine"]
+    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
+    calibrated.home = machine.home
+    problem, before_problem = result.extras["problem"], before.extras["problem"]
+    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
+    start = result.extras["start_model"].parameters
+    nominal_of.update(zip(start.names, start.values, strict=True))
+    params = _parameter_table(result, nominal_of, units)
+    rms_after, r_after = _probe_rms(problem, result.state, data)
+    rms_before, r_before = _probe_rms(before_problem, before.state, data)
+    rank = int(result.rank)
+    n_free = int(np.sum(result.parameters.free))
+    s = np.asarray(result.singular_values, float)
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    poor = result.extras.get("poorly_determined", [])
+    bed, bed_before = result.extras["bed"], before.extras["bed"]
+    ok = np.isfinite(r_after)
+
+    def plane(b):
+        return {"height": b[0] / fl, "tilt_x": b[1], "tilt_y": b[2], "unit": units["length"],
+                "tilt": "slopes dz/dx, dz/dy"}
+
+    report = {
+        **_report_head(machine, source, "probe", "joint"),
+        "units": units,
+        "measurements": len(data),
+        "noise": f"probe trigger {noise.sigma * 1e6:.4g} um along z (std)",
+        "bed": {**plane(bed), "before": plane(bed_before),
+                "model": "z = height + tilt_x x + tilt_y y (base frame); heights measured "
+                         "along z"},
+        "convergence": _convergence_json(result),
+        "residuals": {
+            "of": "probe heights, measured - predicted (forward kinematics of the readings, "
+                  "height above the fitted bed along z)",
+            "count": int(ok.sum()),
+            "rms_um": rms_after,
+            "max_abs_um": _um(float(np.max(np.abs(r_after[ok])))) if ok.any() else None,
+            "before_rms_um": rms_before,
+            "before_max_abs_um": _um(float(np.nanmax(np.abs(r_before))))
+            if np.isfinite(r_before).any() else None,
+            "before": "machine file's model, bed plane (height and tilt) fitted alone",
+            "residual_variance": float(result.residual_variance),
+            "noise_scale": float(np.sqrt(result.residual_variance))
+            if np.isfinite(result.residual_variance) else None,
+            "dof": int(result.dof),
+        },
+        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
+        "poorly_determined": {
+            "threshold_mm": POOR_STD * 1e3,
+            "rule": "a determined parameter whose standard deviation (an angle's or ratio's "
+                    "times the characteristic length) exceeds the threshold",
+            "measure_next": MEASURE_NEXT["probe"],
+            "parameters": [{"name": p.name, "std": p.std / (fl if p.kind == "length" else 1.0),
+                            "kind": p.kind, "correlated_with": p.partner,
+                            "correlation": p.correlation} for p in poor],
+        },
+        "parameters": _public(params),
+    }
+    if held is not None:
+        report["validation"] = _validation(
+            split, held, "probe heights of the held-out rows, measured - predicted with the "
+            "identified bed; before: the machine file's model with the bed fitted alone on "
+            "the calibration rows", "um",
+            _probe_rms(before_problem, before.state, held)[0],
+            _probe_rms(problem, result.state, held)[0], rms_after)
+    metadata = {
+        "method": "probe",
+        "date": report["date"],
+        "data": str(source),
+        "machine": _source_of(machine),
+        "measurements": len(data),
+        "rms_residual_um": rms_after,
+        "identifiable": rank,
+        "free_parameters": n_free,
+        **_identifiability_metadata(unidentifiable),
+    }
+    calibration = _finish("probe", machine, calibrated, result, report, metadata, params,
+                          units)
+    calibration.warnings.extend(poorly_determined_warnings(poor, source, "probe", units))
+    return calibration
+
+
+register_kind(MeasurementKind(
+    name="probe",
+    columns="the joint readings q1_<unit>.. where the probe triggered and probe_z_mm (the "
+            "nozzle's height above the bed there, 0 for a nozzle-contact probe)",
+    detect=lambda header: _has(header, "probe_z"),
+    calibrate=_calibrate_probe, check_options=_check_probe, instrument="probe",
+    data_class="InstrumentData", priority=25))

@@ -46,6 +46,9 @@ class Scenario(enum.StrEnum):
     distance = "distance"
     distances = "distances"
     ballbar = "ballbar"
+    probe = "probe"
+    probe_heights = "probe-heights"
+    bed_probe = "bed-probe"
 
 
 class Deviations(enum.StrEnum):

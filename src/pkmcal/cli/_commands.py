@@ -307,6 +307,16 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
         options["targets"] = 1 if targets is None else targets
         if options["targets"] < 1:
             raise InputError(f"--targets: must be >= 1, got {targets}")
+    elif scenario == "probe":
+        text = "10um" if noise is None else noise
+        sigma = parse_quantity(text, "length", "--noise")
+        if not sigma >= 0:
+            raise InputError(f"--noise: must be >= 0 (a standard deviation), got {text}")
+        check_option_scale(sigma, machine, "--noise", "noise", text)
+        from ..instruments import IsotropicNoise
+
+        model = IsotropicNoise(sigma) if sigma > 0 else False
+        noise_words = f"probe trigger {sigma * 1e6:.4g} um along z (std)"
     else:
         text = "1um" if noise is None else noise
         sigma = parse_quantity(text, "length", "--noise")
@@ -401,6 +411,10 @@ def _truth_rows(machine, scenario: str, info: dict):
         for g, c in enumerate(info["targets"]):
             rows.append((f"target {g + 1}", f"{_mm(c)} mm on the platform (true)"))
         return rows
+    if scenario == "probe":
+        z, tx, ty = info["bed"]
+        return [("bed", f"true bed at z = {z * 1e3:.6g} mm, slopes dz/dx = {tx:.3g}, dz/dy = "
+                 f"{ty:.3g}; the probe triggers at probe_z = 0 (nozzle contact)")]
     lengths = sorted({round(L * 1e3, 6) for L in info["length"]})
     rows = [("ballbar", f"{'/'.join(f'{v:.6g}' for v in lengths)} mm (planned), true pivots "
              "and balls off the planned ones by the mounting error")]

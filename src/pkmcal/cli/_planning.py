@@ -52,6 +52,10 @@ def noise_model(scenario: str, noise: str | None, pose_noise: str | None, machin
         return sigma
     if scenario == "tracker":
         return tracker_noise_arg(noise, allow_none=False, machine=machine)[0]
+    if scenario == "probe":
+        from ..calibration.run import _probe_noise
+
+        return _probe_noise(noise, machine)
     return full_pose_noise_arg(noise, pose_noise, strict=True, machine=machine)
 
 
@@ -63,21 +67,24 @@ MEASUREMENT_WORDS = {
                "target places estimated jointly)",
     "pose": "full pose (maximum likelihood; both measurement frames estimated)",
     "distance": "ballbar distances (pivot and ball of each setup estimated jointly)",
+    "probe": "bed-probe heights (bed height and tilt estimated jointly)",
 }
 
 
 def data_kind(path: Path, header: list[str], machine) -> str:
-    """The scenario of a measurement file, from its columns: ``d`` -> distance, ``mx, my,
-    mz`` -> tracker (points), a pose (x, y, z + orientation) -> pose, readings alone ->
-    constraint-link; refused with the registry's reason when it does not apply to the
-    machine."""
+    """The scenario of a measurement file, from its columns: ``probe_z`` -> probe, ``d`` ->
+    distance, ``mx, my, mz`` -> tracker (points), a pose (x, y, z + orientation) -> pose,
+    readings alone -> constraint-link; refused with the registry's reason when it does not
+    apply to the machine."""
     from ..io.csv_io import has_orientation
     from ..planning import scenario_for
 
     def has(base):
         return any(n == base or n.startswith(base + "_") for n in header)
 
-    if has("d"):
+    if has("probe_z"):
+        kind = "probe"
+    elif has("d"):
         kind = "distance"
     elif has("mx") and has("my") and has("mz"):
         kind = "tracker"
@@ -131,6 +138,14 @@ def measured_problem(machine, data_path: Path, kind: str, noise):
             targets = first.state.nuisance.values[6:].copy()
         return inst.problem(machine, data, noise, registration=registration,
                             targets=targets), data
+    if kind == "probe":
+        from ..instruments import InstrumentProblem, ProbeModel
+        from ..io import read_probe
+
+        data = read_probe(data_path, machine)
+        fk = _fk_of(machine, data, data_path)
+        model = ProbeModel().start(fk.P, fk.R, data.values, data.group, str(data_path))
+        return InstrumentProblem(machine, data, model, noise), data
     if kind == "distance":
         from ..instruments import DistancesModel, InstrumentProblem
 

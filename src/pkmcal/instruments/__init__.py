@@ -1,4 +1,5 @@
-"""Instruments as measurement models over any machine: points, distances (and their data).
+"""Instruments as measurement models over any machine: points, distances, probe heights (and
+their data).
 
 Each instrument is a :class:`~pkmcal.instruments.models.NuisanceModel` (``readings -> predicted
 measurement`` with its own unknowns and noise model); one problem
@@ -13,6 +14,7 @@ from .models import (
     NuisanceModel,
     NuisanceState,
     PointsModel,
+    ProbeModel,
     sphere_centre,
 )
 from .predict import (
@@ -25,6 +27,6 @@ from .predict import (
 from .problem import InstrumentProblem, InstrumentState, fit_instrument, frame_motion_groups
 
 __all__ = ["DistancesModel", "InstrumentData", "InstrumentProblem", "InstrumentState",
-           "IsotropicNoise", "NuisanceModel", "NuisanceState", "PointsModel",
+           "IsotropicNoise", "NuisanceModel", "NuisanceState", "PointsModel", "ProbeModel",
            "fit_instrument", "frame_motion_groups", "sphere_centre", "InstrumentPrediction",
            "choose_instrument", "fitted_instruments", "instrument_name", "predict_instrument"]

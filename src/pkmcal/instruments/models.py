@@ -482,3 +482,103 @@ class IsotropicNoise:
             Noise, SI units.
         """
         return self.sigma * rng.standard_normal(np.shape(measured))
+
+
+class ProbeModel(NuisanceModel):
+    """Bed-probe heights: the nozzle's height above a flat bed at the probe's trigger.
+
+    The bed is the plane ``z = b + tx x + ty y`` of the base frame (``bed.z``: its height at
+    the base frame's z axis, m; ``bed.tilt_x``, ``bed.tilt_y``: its slopes dz/dx and dz/dy,
+    dimensionless, as firmwares give bed tilt). A row's nozzle tip is ``x = P + R c`` (``c``
+    the tip on the platform, known, default the platform origin) and the instrument measures
+    its *vertical* height above the bed, along the base z axis (the direction the machine
+    moves while probing):
+
+    ``probe_z = x_z - (b + tx x_x + ty x_y)``
+
+    (0 for a probe that triggers on nozzle contact; the probe's offset otherwise). The
+    height along z is the perpendicular distance divided by the cosine of the bed's tilt: for
+    a tilt of 1 mrad they differ by half a part per million of ``probe_z``. The readings are
+    exact (forward kinematics); the trigger's repeatability, which moves the machine, hence
+    all its readings, together along z, is noise on ``probe_z``.
+
+    Parameters
+    ----------
+    tip : array_like, shape (3,), optional
+        The nozzle tip in the platform frame, m; default the platform origin.
+    """
+
+    kind = "probe"
+    size = 1
+    words = {"bed": "the bed plane (height and tilt)"}
+
+    def __init__(self, tip=None):
+        self.tip = np.zeros(3) if tip is None else np.asarray(tip, float).reshape(3)
+        super().__init__(ParameterSet(["bed.z", "bed.tilt_x", "bed.tilt_y"],
+                                      ["length", "ratio", "ratio"], np.zeros(3)))
+
+    def tips(self, P, R) -> np.ndarray:
+        """Nozzle tips of poses, base frame.
+
+        Parameters
+        ----------
+        P : ndarray, shape (K, 3)
+            Platform positions, m.
+        R : ndarray, shape (K, 3, 3)
+            Platform orientations.
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            ``P + R c``, m.
+        """
+        return np.asarray(P, float) + np.einsum("kij,j->ki", np.asarray(R, float), self.tip)
+
+    def residuals(self, state, P, R, measured, group, jacobian=True):
+        b, tx, ty = state.values[:3]
+        x = self.tips(P, R)
+        h = x[:, 2] - (b + tx * x[:, 0] + ty * x[:, 1])
+        e = measured[:, :1] - h[:, None]
+        if not jacobian:
+            return e, None, None
+        K = len(P)
+        n = np.broadcast_to(np.array([-tx, -ty, 1.0]), (K, 3))        # dh/dx
+        Rc = x - np.asarray(P, float)
+        # x = P + R c, dx/dOmega = -skew(R c): dh/dOmega = -n skew(Rc); e = measured - h
+        de_dpose = np.concatenate([-n, np.einsum("ki,kij->kj", n, skew(Rc))], -1)[:, None, :]
+        de_dv = np.stack([np.ones(K), x[:, 0], x[:, 1]], -1)[:, None, :]
+        return e, de_dpose, de_dv
+
+    def start(self, P, R, measured, group, source="<data>"):
+        """The bed plane through the tips lowered by their measured heights (least squares).
+
+        Parameters
+        ----------
+        P : ndarray, shape (K, 3)
+            Platform positions of the readings under the start geometry, m.
+        R : ndarray, shape (K, 3, 3)
+            Their orientations.
+        measured : ndarray, shape (K, 1)
+            Measured heights, m.
+        group : ndarray of int, shape (K,)
+            Unused (one bed).
+        source : str, optional
+            File name for messages.
+
+        Returns
+        -------
+        ProbeModel
+            The model with the fitted plane as start values (minimum norm when the tips lie on
+            a line).
+        """
+        x = self.tips(P, R)
+        values = np.array(self.parameters.values, float)
+        if len(x):
+            x0 = x[:, :2].mean(0)
+            A = np.column_stack([np.ones(len(x)), x[:, :2] - x0])
+            sol, *_ = np.linalg.lstsq(A, x[:, 2] - measured[:, 0], rcond=1e-10)
+            values = np.array([sol[0] - sol[1:] @ x0, sol[1], sol[2]])
+        new = self.__class__.__new__(self.__class__)
+        new.__dict__.update(self.__dict__)
+        new.parameters = self.parameters.with_values(values)
+        return new

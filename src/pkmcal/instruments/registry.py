@@ -17,6 +17,9 @@ name (aliases)       measures                                            machine
 (``poses``)
 ``distance``         ballbar length between a pivot on the base and a    every machine
 (``distances``)      ball on the platform (ISO 230-4 circles)
+``probe``            the nozzle's height above a flat bed at the probe   every machine
+(``probe-heights``,  trigger (bed height and tilt estimated; Klipper's
+``bed-probe``)       DELTA_CALIBRATE pattern)
 ===================  ==================================================  =====================
 """
 
@@ -28,6 +31,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
+from .problem import InstrumentProblem
 
 
 @dataclass
@@ -691,9 +695,329 @@ class Distance(Instrument):
                                  self.default_noise() if noise is None else noise)
 
 
+#: the probe's repeatability assumed by default, m (standard deviation of the trigger height).
+#: An assumption, not a datum: the order of the spread that Klipper's PROBE_ACCURACY reports for
+#: common bed probes (a few um for a good touch or piezo probe, 10-20 um for inductive ones)
+PROBE_SIGMA = 10e-6
+#: Klipper's DELTA_CALIBRATE points (klippy/extras/delta_calibrate.py): the centre, then six
+#: points at 90 + 60 i deg on circles of these fractions of the probe radius
+KLIPPER_SCATTER = (0.95, 0.90, 0.85, 0.70, 0.75, 0.80)
+#: largest inverse condition number of the joint Jacobian accepted at a probe point
+PROBE_CONDITIONING = 0.05
+#: the probe radius of plans: this fraction of the largest reachable, well-conditioned radius
+PROBE_MARGIN = 0.8
+
+
+def bed_height(machine: Machine) -> float:
+    """Height of the nominal bed (a horizontal plane) in the base frame, m.
+
+    The machine's ``bed_height`` (an attribute or method) when it has one, else the height of
+    its home position (the plane probe plans lie on).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine.
+
+    Returns
+    -------
+    float
+        The bed's z, m.
+    """
+    own = getattr(machine, "bed_height", None)
+    if callable(own):
+        own = own()
+    return float(machine.home[0][2] if own is None else own)
+
+
+def bed_centre(machine: Machine) -> np.ndarray:
+    """Centre of probe patterns on the bed: the machine's ``bed_centre`` or home's x, y.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine.
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        x, y, m.
+    """
+    own = getattr(machine, "bed_centre", None)
+    if callable(own):
+        own = own()
+    return np.asarray(machine.home[0][:2] if own is None else own, float)[:2]
+
+
+def _probe_ok(machine: Machine, P, R) -> np.ndarray:
+    """Probe points the machine reaches, within its limits, well conditioned, working mode."""
+    with np.errstate(all="ignore"):
+        q, J, _ = machine.ik_jacobians(P, R, want_du=False)
+        J = np.array(J, float)
+        if machine.pose_dof == 3:
+            J = J[..., :3]
+        else:
+            J[..., 3:] /= machine.characteristic_length()
+        ok = np.all(np.isfinite(q), -1) & np.all(np.isfinite(J), (-2, -1))
+        sv = np.linalg.svd(np.where(ok[:, None, None], J, 1.0), compute_uv=False)
+        ok &= sv[..., -1] > PROBE_CONDITIONING * sv[..., 0]
+        ok &= machine.working_mode(P, R)
+        if getattr(machine, "joint_limits", None) is not None and ok.any():
+            ok[ok] = machine.within_limits(q[ok])
+    return ok
+
+
+def _bed_points(machine: Machine, xy):
+    """Poses with the nozzle tip at ``xy`` on the nominal bed, the platform at home
+    orientation (the tip is the platform origin)."""
+    xy = np.atleast_2d(np.asarray(xy, float))
+    P = np.column_stack([xy, np.full(len(xy), bed_height(machine))])
+    return P, np.broadcast_to(machine.home[1], (len(P), 3, 3)).copy()
+
+
+def probe_radius(machine: Machine) -> float:
+    """Radius of probe patterns on the bed, m.
+
+    The machine's ``probe_radius`` when it has one (a printer's configured probe radius), else
+    :data:`PROBE_MARGIN` times the largest radius ``r`` (in steps of 1/40 of the
+    characteristic length) such that the circles of radius up to ``r`` about
+    :func:`bed_centre` on the bed are reachable, within the joint limits and well
+    conditioned (inverse condition number above :data:`PROBE_CONDITIONING`).
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+
+    Returns
+    -------
+    float
+        The radius, m.
+
+    Raises
+    ------
+    InputError
+        When not even the bed's centre can be probed.
+    """
+    own = getattr(machine, "probe_radius", None)
+    if callable(own):
+        own = own()
+    if own is not None:
+        return float(own)
+    L = machine.characteristic_length()
+    centre = bed_centre(machine)
+    t = np.linspace(0.0, 2 * np.pi, 72, endpoint=False)
+    ring = np.column_stack([np.cos(t), np.sin(t)])
+    if not _probe_ok(machine, *_bed_points(machine, centre[None, :])).all():
+        where = str(getattr(machine, "source", "") or "the machine")
+        raise InputError(f"{where}: the bed's centre ({centre[0] * 1e3:.6g}, "
+                         f"{centre[1] * 1e3:.6g}, {bed_height(machine) * 1e3:.6g}) mm cannot be "
+                         "probed (out of reach or badly conditioned); set the bed or home")
+    r = 0.0
+    for k in range(1, 41):
+        radius = k * L / 40
+        if not _probe_ok(machine, *_bed_points(machine, centre + radius * ring)).all():
+            break
+        r = radius
+    return PROBE_MARGIN * (r if r > 0 else L / 80)
+
+
+def probe_pattern(n: int, radius: float, centre=(0.0, 0.0)) -> tuple[np.ndarray, str] | None:
+    """The standard probe pattern of ``n`` points on the bed, or None when there is none.
+
+    ``n = 7``: Klipper's ``DELTA_CALIBRATE`` points (``klippy/extras/delta_calibrate.py``):
+    the centre and six points at ``90 + 60 i`` deg on circles of ``0.95, 0.90, 0.85, 0.70,
+    0.75, 0.80`` times the radius. ``n = 1 + 3 m (m + 1)`` (19, 37, 61, ...): the centre and
+    ``m`` rings, ring ``k`` of ``6 k`` points at radius ``k / m`` of the radius, starting at
+    90 deg (Klipper's first direction).
+
+    Parameters
+    ----------
+    n : int
+        Number of points.
+    radius : float
+        Probe radius, m.
+    centre : array_like, shape (2,), optional
+        Centre of the pattern, m.
+
+    Returns
+    -------
+    tuple or None
+        ``(xy (n, 2), words)``; None for other ``n``.
+    """
+    centre = np.asarray(centre, float)
+    if n == 7:
+        a = np.deg2rad(90.0 + 60.0 * np.arange(6))
+        d = radius * np.asarray(KLIPPER_SCATTER)
+        xy = np.vstack([[0.0, 0.0], np.column_stack([np.cos(a) * d, np.sin(a) * d])])
+        return centre + xy, (f"Klipper's DELTA_CALIBRATE pattern (centre + 6 points at 0.7-0.95 "
+                             f"of a {radius * 1e3:.4g} mm radius)")
+    m = int(round((-3 + np.sqrt(9 + 12 * (n - 1))) / 6)) if n >= 1 else 0
+    if m < 1 or 1 + 3 * m * (m + 1) != n:
+        return None
+    pts = [np.zeros(2)]
+    for k in range(1, m + 1):
+        a = np.deg2rad(90.0) + 2 * np.pi * np.arange(6 * k) / (6 * k)
+        pts += list(radius * k / m * np.column_stack([np.cos(a), np.sin(a)]))
+    return centre + np.array(pts), (f"the centre and {m} ring(s) of 6, 12, ... points within "
+                                    f"a {radius * 1e3:.4g} mm radius")
+
+
+#: relative lift (of the characteristic length) of the probe points of :func:`height_groups`
+LIFT = 0.01
+
+
+def height_groups(problem, state, scales, null_space) -> list:
+    """Null directions of probe heights that probing at other heights would see, named.
+
+    With every tip on the bed (the same ``probe_z`` everywhere), a change of the machine
+    that moves the nozzle along z in proportion to its height above the bed (a vertical
+    scale about the bed) changes no height. The directions of the null space that the same
+    points, every other one lifted by :data:`LIFT` characteristic lengths, would see are
+    returned as one group.
+
+    Parameters
+    ----------
+    problem : InstrumentProblem
+        A probe problem.
+    state : InstrumentState
+        The state to linearise at.
+    scales : ndarray, shape (n,)
+        Column scales.
+    null_space : ndarray, shape (n, k)
+        The problem's null space (scaled).
+
+    Returns
+    -------
+    list of NullGroup
+        Empty, or one group ``vertical scale about the bed``.
+    """
+    from ..identifiability import NullGroup
+    from .data import InstrumentData
+
+    N = np.asarray(null_space, float)
+    if N.shape[1] == 0:
+        return []
+    machine = problem.machine.with_parameters(state.u)
+    fk = machine.fk(problem.data.q)
+    if not fk.converged.all():
+        return []
+    P = np.array(fk.P, float)
+    P[::2, 2] += LIFT * machine.characteristic_length()
+    q = machine.ik(P, fk.R)
+    if not np.all(np.isfinite(q)):
+        return []
+    model = problem.model.with_start(state.nuisance)
+    lifted = InstrumentData("probe", q, model.predict(model.initial(), P, fk.R,
+                                                      np.zeros(len(P), int)))
+    other = InstrumentProblem(machine, lifted, model, problem.noise)
+    _, J, _ = other.evaluate(other.initial_state())
+    J = (J * scales).reshape(-1, len(scales))
+    s0 = np.linalg.svd(J, compute_uv=False)[0]
+    _, s, Vt = np.linalg.svd(J @ N, full_matrices=False)
+    seen = s > 1e-6 * s0
+    if not seen.any():
+        return []
+    return [NullGroup("vertical scale about the bed",
+                      "moving the nozzle along z in proportion to its height above the bed "
+                      "changes no height while every probe point lies on the bed (one "
+                      "probe_z); probe at a second height too (on a gauge block of known "
+                      "thickness, its thickness as probe_z) to see it", N @ Vt[seen].T)]
+
+
+class ProbeProblem(InstrumentProblem):
+    """The instrument problem of probe heights; its null directions are named by the
+    machine's frame motions (what absorbs them) and :func:`height_groups`."""
+
+    def null_groups(self, state, scales, null_space=None):
+        """The null directions in words.
+
+        Parameters
+        ----------
+        state : InstrumentState
+            The state to linearise at.
+        scales : ndarray, shape (n,)
+            Column scales.
+        null_space : ndarray, shape (n, k), optional
+            The null space when known.
+
+        Returns
+        -------
+        list of NullGroup
+            Frame motions, then the vertical scale about the bed when it is null.
+        """
+        N = self.null_space(state) if null_space is None else np.asarray(null_space, float)
+        return (super().null_groups(state, scales, N)
+                + height_groups(self, state, scales, N))
+
+
+class Probe(Instrument):
+    """Bed-probe heights: the nozzle's height above a flat bed of unknown height and tilt."""
+
+    name = "probe"
+    aliases = ("probe-heights", "bed-probe")
+    words = ("bed-probe heights: the nozzle's height above the bed at the trigger (bed height "
+             "and tilt estimated)")
+    plan_size = 37
+
+    def applies(self, machine):
+        # a vertical probe needs a z axis the platform moves along: every machine here has one
+        return None
+
+    def default_noise(self):
+        from .models import IsotropicNoise
+
+        return IsotropicNoise(PROBE_SIGMA)
+
+    def describe_noise(self, noise):
+        return f"probe trigger {noise.sigma * 1e6:.3g} um along z (std)"
+
+    def candidates(self, machine, n, rng):
+        """Random points uniform on the disk of :func:`probe_radius` on the nominal bed."""
+        r = probe_radius(machine)
+        centre = bed_centre(machine)
+        rho = r * np.sqrt(rng.uniform(0.0, 1.0, n))
+        a = rng.uniform(0.0, 2 * np.pi, n)
+        P, R = _bed_points(machine, centre + np.column_stack([rho * np.cos(a),
+                                                             rho * np.sin(a)]))
+        return P, R, None
+
+    def standard_plan(self, machine, n, seed):
+        pattern = probe_pattern(n, probe_radius(machine), bed_centre(machine))
+        if pattern is None:
+            return StandardPlan("a probe pattern of rings on the bed",
+                                reason=f"the probe patterns have 7 points (Klipper's "
+                                       f"DELTA_CALIBRATE) or 1 + 3 m (m + 1) points (centre and "
+                                       f"m rings: 19, 37, 61, ...), not {n}")
+        xy, words = pattern
+        P, R = _bed_points(machine, xy)
+        return StandardPlan(words, P, R)
+
+    def planned_data(self, machine, P, R, rows, source, group=None):
+        from .data import InstrumentData
+        from .models import ProbeModel
+
+        q = reachable(machine, P, R, rows, source)
+        model = ProbeModel()
+        state = model.initial()
+        state.values[0] = bed_height(machine)
+        h = model.predict(state, P, R, np.zeros(len(P), int))
+        return InstrumentData("probe", q, h, np.zeros(len(P), int), rows, source, P, R)
+
+    def problem(self, machine, data, noise=None, **start):
+        from .models import ProbeModel
+
+        model = ProbeModel()
+        values = np.array(model.parameters.values, float)
+        values[0] = bed_height(machine)
+        model.parameters = model.parameters.with_values(values)
+        return ProbeProblem(machine, data, model,
+                            self.default_noise() if noise is None else noise)
+
+
 #: the instruments by canonical name
 INSTRUMENTS: dict[str, Instrument] = {i.name: i for i in (ConstraintLink(), Tracker(), Pose(),
-                                                          Distance())}
+                                                          Distance(), Probe())}
 
 
 def instrument(name: str) -> Instrument:
@@ -703,7 +1027,7 @@ def instrument(name: str) -> Instrument:
     ----------
     name : str
         ``constraint-link``, ``tracker`` (``points``), ``pose`` (``poses``), ``distance``
-        (``distances``, ``ballbar``).
+        (``distances``, ``ballbar``), ``probe`` (``probe-heights``, ``bed-probe``).
 
     Returns
     -------

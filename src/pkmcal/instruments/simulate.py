@@ -179,6 +179,10 @@ def simulate_instrument(true_machine: Machine, nominal_machine: Machine, model: 
 
 #: half-width of the random mounting error of simulated targets, pivots and balls, m
 MOUNTING_ERROR = 1e-3
+#: half-width of the random error of a simulated bed's height, m
+BED_ERROR = 1e-3
+#: half-width of a simulated bed's random slopes dz/dx, dz/dy (1 mm over a metre)
+TILT_ERROR = 1e-3
 
 
 def planned_targets(machine: Machine, n_targets: int = 1) -> np.ndarray:
@@ -307,7 +311,7 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
                       rng=None, *, deviations="random", targets: int = 1, setups=None,
                       length: float | None = None, circles: bool = False,
                       mounting_error: float = MOUNTING_ERROR, link_error: float = 0.0,
-                      poses=None):
+                      poses=None, bed_error: float = BED_ERROR, tilt_error: float = TILT_ERROR):
     """A simulated experiment: the true machine measured by an instrument of the registry.
 
     The true machine is ``machine`` plus ``deviations``; the nominal ``machine`` commands the
@@ -332,6 +336,15 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
       ``n`` poses on the spheres around the pivots (registry candidates) or, with
       ``circles``, ISO 230-4 circles (:func:`circle_plan`); true pivots and balls = planned +
       a uniform error of ``mounting_error``; ``noise`` an ``IsotropicNoise`` (default 1 um).
+    - ``probe`` (``probe-heights``, ``bed-probe``): the standard probe pattern of ``n`` points
+      when there is one (:func:`~pkmcal.instruments.registry.probe_pattern`: 7 = Klipper's
+      DELTA_CALIBRATE, 19, 37, ...), else ``n`` random points on the bed's disk, or ``poses``;
+      the true bed is the nominal one (:func:`~pkmcal.instruments.registry.bed_height`)
+      raised by a uniform ``+/- bed_error`` and tilted by uniform slopes ``+/- tilt_error``.
+      Each point is probed as a firmware does: the nominal model moves the nozzle down the
+      vertical through the point until the true machine's nozzle is at the probe's trigger
+      height (0 plus the trigger noise, ``noise`` an ``IsotropicNoise``, default 10 um)
+      above the true bed; the readings there are recorded with ``probe_z = 0``.
 
     Parameters
     ----------
@@ -363,6 +376,10 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
     poses : tuple, optional
         ``(P, R)`` or ``(P, R, group)``: commanded poses instead of random ones (tracker,
         distance, pose).
+    bed_error : float, optional
+        probe: half-width of the uniform error of the true bed's height, m.
+    tilt_error : float, optional
+        probe: half-width of the uniform true bed slopes dz/dx, dz/dy.
 
     Returns
     -------
@@ -377,7 +394,8 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
     truth : dict
         The instrument's truth and plan in words: ``scenario`` (canonical name), ``poses``
         (words), and per scenario ``link_length``; ``base_from_tracker``, ``targets``,
-        ``planned_targets``; ``frames``; ``setups``, ``planned_setups``, ``length``.
+        ``planned_targets``; ``frames``; ``setups``, ``planned_setups``, ``length``; ``bed``
+        (``(height, tilt_x, tilt_y)`` of the true bed, also the true machine's ``probe_bed``).
 
     Raises
     ------
@@ -408,6 +426,11 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
     if name != "distance" and (setups is not None or length is not None or circles):
         raise InputError(f"setups, length and circles: apply to the distance scenario, not "
                          f"{name}")
+    if name != "probe" and (bed_error != BED_ERROR or tilt_error != TILT_ERROR):
+        raise InputError(f"bed_error and tilt_error: apply to the probe scenario, not {name}")
+    if not (bed_error >= 0 and tilt_error >= 0):
+        raise InputError(f"bed_error and tilt_error: must be >= 0, got {bed_error}, "
+                         f"{tilt_error}")
     if name != "constraint-link" and link_error:
         raise InputError(f"link_error: applies to the constraint-link scenario, not {name}")
     if not mounting_error >= 0:
@@ -479,6 +502,10 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
                      planned_targets=planned, poses=words)
         return data, true, truth
 
+    if name == "probe":
+        return _simulate_probe(machine, true, inst, n, noise, rng, poses, bed_error,
+                               tilt_error, truth)
+
     # distance
     from .models import DistancesModel, IsotropicNoise
 
@@ -515,4 +542,96 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
     P0, R0 = machine.home
     L = [float(np.linalg.norm(P0 + R0 @ b - p)) for p, b in plan]
     truth.update(setups=true_setups, planned_setups=plan, length=L, poses=words)
+    return data, true, truth
+
+
+def probe_trigger(true_machine: Machine, nominal_machine: Machine, P, R, bed, heights,
+                  tip=None, tol: float = 1e-13, max_iter: int = 50):
+    """Readings at which a probe triggers: the nominal model lowers the nozzle along the
+    vertical through each commanded point until the true machine's nozzle tip is ``heights``
+    above the true bed (vertically).
+
+    Parameters
+    ----------
+    true_machine : Machine
+        The machine that moves.
+    nominal_machine : Machine
+        The model that commands (inverse kinematics).
+    P : array_like, shape (K, 3)
+        Commanded points (their x, y; z the start of the search), m.
+    R : array_like, shape (K, 3, 3)
+        Commanded orientations (kept).
+    bed : array_like, shape (3,)
+        True bed ``(height, tilt_x, tilt_y)`` (:class:`~pkmcal.instruments.ProbeModel`).
+    heights : array_like, shape (K,)
+        True heights of the tip at the trigger, m.
+    tip : array_like, shape (3,), optional
+        The nozzle tip on the platform, m; default the platform origin.
+    tol : float, optional
+        Tolerance on the height, m.
+    max_iter : int, optional
+        Largest number of steps.
+
+    Returns
+    -------
+    q : ndarray, shape (K, n_joints)
+        Readings at the trigger.
+    fk : FKResult
+        The true machine's poses there.
+
+    Raises
+    ------
+    InputError
+        When a point cannot be reached or the search does not converge.
+    """
+    from .models import ProbeModel
+
+    model = ProbeModel(tip)
+    state = model.initial()
+    state.values[:] = np.asarray(bed, float)
+    P = np.array(P, float)
+    R = np.asarray(R, float)
+    heights = np.asarray(heights, float)
+    zero = np.zeros(len(P), int)
+    for _ in range(max_iter):
+        q = nominal_machine.ik(P, R)
+        if not np.all(np.isfinite(q)):
+            bad = np.flatnonzero(~np.all(np.isfinite(q), -1)) + 1
+            raise InputError(f"probe points {bad[:10].tolist()}: the nominal model cannot "
+                             "reach them on the way down to the bed")
+        fk = true_machine.fk(q, start=(P, R))
+        if not fk.converged.all():
+            raise InputError("the true machine cannot reach some probe readings")
+        # the height changes with the commanded z at a rate of about 1: Newton with slope 1
+        miss = model.predict(state, fk.P, fk.R, zero)[:, 0] - heights
+        if np.max(np.abs(miss)) <= tol:
+            return q, fk
+        P[:, 2] -= miss
+    raise InputError(f"the probe search did not converge to {tol * 1e3:g} mm in {max_iter} "
+                     "steps: the true machine's heights do not follow the commanded ones")
+
+
+def _simulate_probe(machine, true, inst, n, noise, rng, poses, bed_error, tilt_error, truth):
+    """The probe branch of :func:`simulate_scenario` (see there)."""
+    from .registry import bed_height
+
+    if poses is not None:
+        P, R = np.asarray(poses[0], float), np.asarray(poses[1], float)
+        words = f"{len(P)} given points"
+    else:
+        plan = inst.standard_plan(machine, n, 0)
+        if plan.available:
+            P, R, words = plan.P, plan.R, f"{n} points: {plan.name}"
+        else:
+            P, R, _ = inst.candidates(machine, n, rng)
+            words = f"{n} random points on the bed's disk"
+    bed = np.array([bed_height(machine) + rng.uniform(-bed_error, bed_error),
+                    *rng.uniform(-tilt_error, tilt_error, 2)])
+    model = inst.default_noise() if noise is None else (None if noise is False else noise)
+    eps = np.zeros((len(P), 1)) if model is None else model.sample(np.zeros((len(P), 1)), rng)
+    q, fk = probe_trigger(true, machine, P, R, bed, eps[:, 0])
+    data = InstrumentData("probe", q, np.zeros((len(P), 1)), None, source="<simulated>",
+                          true_P=fk.P, true_R=fk.R)
+    true.probe_bed = tuple(float(v) for v in bed)
+    truth.update(bed=true.probe_bed, poses=words)
     return data, true, truth

@@ -13,6 +13,7 @@ from .csv_io import (
     read_points,
     read_poses,
     read_positions,
+    read_probe,
     read_readings,
     read_table,
     read_tracker,
@@ -40,5 +41,5 @@ __all__ = [
     "read_passive", "read_poses", "read_positions", "read_readings", "read_table",
     "read_tracker", "save_machine", "write_full_pose", "write_joints", "write_poses",
     "write_positions", "write_readings", "write_table", "write_tracker", "machine_readings",
-    "read_distances", "read_groups", "read_points", "write_instrument",
+    "read_distances", "read_groups", "read_points", "read_probe", "write_instrument",
 ]

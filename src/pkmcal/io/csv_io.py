@@ -671,6 +671,45 @@ def read_distances(path, machine):
                           rows, source=str(path))
 
 
+def read_probe(path, machine):
+    """Bed-probe heights: the machine's readings where the probe triggered and the nozzle's
+    height above the bed there.
+
+    Readings ``q1..q<n>`` (the machine's joint quantity, e.g. ``q1_mm`` for a printer's
+    carriages) and ``probe_z`` (any length unit, e.g. ``probe_z_mm``: the nozzle's height
+    above the bed surface at the trigger, 0 for a probe that triggers on nozzle contact). Other
+    columns are ignored.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file.
+    machine : Machine
+        The machine.
+
+    Returns
+    -------
+    InstrumentData
+        ``kind="probe"``: readings, heights (m) and file rows.
+
+    Raises
+    ------
+    InputError
+        When the file is not valid (file, row and column named), a height is not finite, or
+        there are fewer than 3 rows (the bed plane's height and tilt).
+    """
+    from ..instruments import InstrumentData
+
+    q, rows, _, _ = machine_readings(path, machine)
+    header, table = read_table(path)
+    i, f = find_column(path, header, "probe_z", "length")
+    h = _column_values(path, header, table, i, f)
+    if len(h) < 3:
+        raise InputError(f"{path}: {len(h)} probe height(s); the bed plane (height and tilt) "
+                         "needs at least 3 points not on one line")
+    return InstrumentData("probe", q, h[:, None], None, rows, source=str(path))
+
+
 def read_tracker(path, machine) -> TrackerData:
     """Laser-tracker data (SPEC 2.2) for ``machine``: :func:`read_points` as tracker data.
 
@@ -1304,14 +1343,15 @@ def write_instrument(path, data, machine, length_unit: str = "mm") -> Path:
 
     Readings as ``q1_<unit> ...`` in the machine file's joint unit
     (:meth:`~pkmcal.machines.Machine.joint_unit`), then ``mx, my, mz`` (points) or ``d``
-    (distances) in ``length_unit``, then ``target`` / ``setup`` (1..K) when there are several.
+    (distances) or ``probe_z`` (probe heights) in ``length_unit``, then ``target`` / ``setup``
+    (1..K) when there are several.
 
     Parameters
     ----------
     path : str or os.PathLike
         Output file.
     data : InstrumentData
-        The data (``kind`` ``"points"`` or ``"distances"``).
+        The data (``kind`` ``"points"``, ``"distances"`` or ``"probe"``).
     machine : Machine
         The machine (its joint unit).
     length_unit : str, optional
@@ -1332,7 +1372,8 @@ def write_instrument(path, data, machine, length_unit: str = "mm") -> Path:
     q = np.atleast_2d(np.asarray(data.q, float))
     header = [f"q{j + 1}_{unit}" for j in range(q.shape[1])]
     columns = [q[:, j] / fq for j in range(q.shape[1])]
-    names = {"points": [f"m{c}" for c in "xyz"], "distances": ["d"]}[data.kind]
+    names = {"points": [f"m{c}" for c in "xyz"], "distances": ["d"],
+             "probe": ["probe_z"]}[data.kind]
     header += [f"{n}_{length_unit}" for n in names]
     columns += [data.values[:, j] / fl for j in range(len(names))]
     if data.n_groups > 1:
