@@ -242,7 +242,8 @@ def run_simulate(machine_spec: str, output: Path, scenario: str | None, poses: i
     deviations = deviations or DEFAULT_DEVIATIONS.get(kind, "random")
     check_outputs([output] + ([truth] if truth else []), _machine_inputs(machine_spec))
     flag = f"--scenario {requested or scenario}"
-    grid_path = scenario == "tracker" and machine.pose_dof == 3 and not targets
+    grid_path = (scenario == "tracker" and machine.tracker_grid_spacing() is not None
+                 and not targets)
     given = {"--pose-noise": (pose_noise is not None, scenario == "pose"),
              "--lc-error": (not _zero(lc_error), scenario == "constraint-link"),
              "--grid": (grid is not None, grid_path),

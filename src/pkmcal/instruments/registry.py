@@ -360,8 +360,8 @@ class Tracker(Instrument):
     plan_size = 27
 
     def plan_size_for(self, machine):
-        # seed 001's 3x3x3 grid on a translating platform; poses with rotations otherwise
-        return self.plan_size if machine.pose_dof == 3 else 60
+        # the source paper's 3x3x3 grid (seed 001, the Delta); random poses otherwise
+        return self.plan_size if machine.tracker_grid_spacing() is not None else 60
 
     def default_noise(self):
         from ..measurements import TrackerNoise
@@ -376,12 +376,11 @@ class Tracker(Instrument):
                 "across (std)")
 
     def candidates(self, machine, n, rng):
-        if machine.pose_dof == 6:
+        if machine.tracker_grid_spacing() is None:
             return super().candidates(machine, n, rng)
-        from ..measurements import TRACKER_GRID_SPACING
         from ..measurements.deviations import draw_accepted
 
-        half = np.asarray(TRACKER_GRID_SPACING, float)      # the 3x3x3 grid spans +/- spacing
+        half = np.asarray(machine.tracker_grid_spacing(), float)   # the 3x3x3 grid: +/- spacing
         centre = machine.home[0]
 
         def draw(m, rng):
@@ -400,16 +399,16 @@ class Tracker(Instrument):
         return P, R, None
 
     def standard_plan(self, machine, n, seed):
-        if machine.pose_dof == 6:
+        if machine.tracker_grid_spacing() is None:
             return super().standard_plan(machine, n, seed)
-        from ..measurements import TRACKER_GRID_SPACING, grid_points
+        from ..measurements import grid_points
 
         k = int(round(n ** (1.0 / 3.0)))
         if k < 2 or k**3 != n:
             return StandardPlan("seed 001's grid around home",
                                 reason=f"seed 001's grid has 3 x 3 x 3 = 27 points (k x k x k "
                                        f"grids in its box: 8, 27, 64, ...), not {n}")
-        span = 2.0 * np.asarray(TRACKER_GRID_SPACING, float)   # the 3x3x3 grid's extent
+        span = 2.0 * np.asarray(machine.tracker_grid_spacing(), float)   # 3x3x3 extent
         P = grid_points(machine.home[0], span / (k - 1), (k, k, k))
         return StandardPlan(f"the {k}x{k}x{k} grid of seed 001 around home", P,
                             np.broadcast_to(np.eye(3), (n, 3, 3)))

@@ -363,6 +363,17 @@ class Machine(ABC):
         """
         return None
 
+    def tracker_grid_spacing(self) -> tuple | None:
+        """The spacing of a tracker grid this machine is measured on by its source paper.
+
+        Returns
+        -------
+        tuple of float or None
+            ``(dx, dy, dz)``, m, of a 3x3x3 grid around home (seed 001 for the Delta); None
+            (the default): tracker plans are random poses around home.
+        """
+        return None
+
     def tracker_target(self) -> np.ndarray | None:
         """The place of a tracker's target on the platform when the machine file gives it.
 

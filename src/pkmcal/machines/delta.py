@@ -484,6 +484,18 @@ class Delta(Machine):
                 **{f"leg{i + 1}.db - leg{i + 1}.da": (db[i] - da[i]).tolist()
                    for i in range(3)}}
 
+    def tracker_grid_spacing(self) -> tuple:
+        """Seed 001's grid: dx = dy = 150 mm, dz = 40 mm (3x3x3 around home).
+
+        Returns
+        -------
+        tuple of float
+            The spacing, m.
+        """
+        from ..measurements import TRACKER_GRID_SPACING
+
+        return tuple(TRACKER_GRID_SPACING)
+
     def tracker_target(self) -> np.ndarray:
         """The reflector ``smr_offset`` below the platform point (seed 001), platform frame.
 

@@ -5,7 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 #: half-widths of the uniform random deviations per machine type: (length m, angle rad)
-RANDOM_DEVIATION = {"hexaslide": (2e-3, 0.02), "delta": (1e-3, np.deg2rad(0.5))}
+RANDOM_DEVIATION = {"hexaslide": (2e-3, 0.02), "delta": (1e-3, np.deg2rad(0.5)),
+                    # a printer: endstops, radius and arms off by up to 1 mm, towers leaning
+                    # and turned by up to 0.3 deg
+                    "linear_delta": (1e-3, np.deg2rad(0.3))}
 
 
 #: half-width of random deviations of ratio parameters (gains), relative to their value
