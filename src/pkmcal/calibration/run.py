@@ -1343,10 +1343,7 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
     if combinations is not None:
         combinations = {k: (v if k == "description" else (np.asarray(v) / fl).tolist())
                         for k, v in combinations.items()}
-        combinations["description"] += (
-            " (file length unit); with the tracker pose estimated it is fixed only up to one "
-            "common translation of the platform (a shift of every platform joint fits "
-            "equally well)" if not two_step else " (file length unit)")
+        combinations["description"] += " (file length unit)"
     rot_change = float(np.degrees(np.linalg.norm(_rotvec(R @ R0.T))))
     report = {
         **_report_head(machine, source, "tracker", method),

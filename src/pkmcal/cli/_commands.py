@@ -679,11 +679,10 @@ def _print_tracker_calibration(report, params, data_path, output, report_path, m
         out.print(f"note: the residuals are {scale:.3g} times the assumed noise: "
                   f"{', '.join(c for c in causes if c)}.", markup=False)
     if ident["unidentifiable"] and "identifiable_combinations" in report:
-        origin = (" and, with the tracker pose unknown, not the origin of the base frame"
-                  if report["registration"]["estimated"] else "")
-        out.print(f"note: the data fix only db - da of each leg{origin}; the "
-                  "changes are the smallest ones (scaled) that fit the data, and std is for the "
-                  "identifiable part.", markup=False)
+        what = report["identifiable_combinations"]["description"].split(" (file length")[0]
+        out.print(f"note: the data fix {what}, not each part; the changes are the smallest "
+                  "ones (scaled) that fit the data, and std is for the identifiable part.",
+                  markup=False)
     elif ident["unidentifiable"]:
         out.print("note: the data fix the machine only relative to the tracker frame and the "
                   "targets; the changes are the smallest ones (scaled) that fit the data, and "

@@ -480,7 +480,8 @@ class Delta(Machine):
         """
         da, _, _, _, db = self.legs(u)
         return {"description": "db - da per leg (leg frame): only this difference enters the "
-                               "model",
+                               "model, and with the tracker pose unknown only up to one "
+                               "common translation of the platform",
                 **{f"leg{i + 1}.db - leg{i + 1}.da": (db[i] - da[i]).tolist()
                    for i in range(3)}}
 
