@@ -680,9 +680,8 @@ def _print_tracker_calibration(report, params, data_path, output, report_path, m
                   f"{', '.join(c for c in causes if c)}.", markup=False)
     if ident["unidentifiable"] and "identifiable_combinations" in report:
         what = report["identifiable_combinations"]["description"].split(" (file length")[0]
-        out.print(f"note: the data fix {what}, not each part; the changes are the smallest "
-                  "ones (scaled) that fit the data, and std is for the identifiable part.",
-                  markup=False)
+        out.print(f"note: {what}; the changes are the smallest ones (scaled) that fit the "
+                  "data, and std is for the identifiable part.", markup=False)
     elif ident["unidentifiable"]:
         out.print("note: the data fix the machine only relative to the tracker frame and the "
                   "targets; the changes are the smallest ones (scaled) that fit the data, and "
