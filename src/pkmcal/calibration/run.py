@@ -28,11 +28,13 @@ import numpy as np
 
 from ..errors import ConvergenceError, InputError
 
-__all__ = ["KINDS", "WHITENED_METHODS", "Calibration", "CalibrationNotConverged",
-           "CalibrateOptions", "MeasurementKind", "calibrate", "distance_ratio_pairs",
+__all__ = ["JOINT_KINDS", "KINDS", "WHITENED_METHODS", "Calibration",
+           "CalibrationNotConverged", "CalibrateOptions", "JointPart", "MeasurementKind",
+           "apply_parameter_set", "calibrate", "calibrate_joint", "distance_ratio_pairs",
            "file_units", "full_pose_noise_arg", "grid_neighbour_pairs", "holdout_arg",
-           "json_safe", "link_noise_arg", "measurement_kind", "provenance", "register_kind",
-           "rows_text", "supported_kinds", "text_digest", "tracker_noise_arg", "versions"]
+           "json_safe", "link_noise_arg", "measurement_kind", "noise_per_file_arg",
+           "parameter_set_names", "provenance", "register_kind", "rows_text",
+           "supported_kinds", "text_digest", "tracker_noise_arg", "versions"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -716,18 +718,21 @@ class Calibration:
 def calibrate(machine, data, *, method: str | None = None, noise=None,
               pose_noise: str | None = None, estimate_lc: bool | None = None,
               two_step: bool = False, robust: bool = False, fix_frames: bool = False,
-              holdout: float | str | None = None, seed: int = 0) -> Calibration:
+              holdout: float | str | None = None, seed: int = 0,
+              parameters: str | None = None) -> Calibration:
     """Calibrate ``machine`` from measurements; the measurement kind follows from the data.
 
     Parameters
     ----------
     machine : Machine
         The machine's nominal model (the start of the estimation).
-    data : str or os.PathLike or data object
+    data : str or os.PathLike or data object, or a list of them
         A data file (its columns give the kind, see :data:`KINDS`) or data read already
         (:class:`~pkmcal.measurements.ConstraintLinkData`,
         :class:`~pkmcal.measurements.TrackerData`,
-        :class:`~pkmcal.measurements.FullPoseData`).
+        :class:`~pkmcal.measurements.FullPoseData`). A list of several: one geometry from all
+        of them, each file with its own instrument unknowns and noise (:data:`JOINT_KINDS`
+        combine; see :func:`calibrate_joint`); a list of one is that one.
     method : str, optional
         Constraint link: ``ml`` (default), ``ik`` or ``fk``; full pose: ``ml`` (default) or
         ``ik``; not for tracker data (see ``two_step``).
@@ -748,9 +753,13 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         Full pose: hold the measurement frames at the machine file's.
     holdout : float or str, optional
         Hold out a share (< 1, or text such as ``"20%"``) or a number of rows, chosen at
-        random, for validation (the report's ``validation`` section).
+        random, for validation (the report's ``validation`` section); with several files, of
+        every file.
     seed : int, optional
         Seed of the choice of held-out rows.
+    parameters : str, optional
+        A named parameter set of the machine (``machine.parameter_set(name)``, e.g. a
+        firmware's set): its fixed flags replace the machine's before the fit.
 
     Returns
     -------
@@ -770,6 +779,21 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     split = None
     if holdout is not None:
         split = (holdout_arg(holdout) if isinstance(holdout, str) else float(holdout), seed)
+    chosen = None
+    if parameters is not None:
+        machine, chosen = apply_parameter_set(machine, parameters), str(parameters)
+    if isinstance(data, (list, tuple)):
+        if not data:
+            raise InputError("no data file given")
+        if len(data) > 1:
+            calibration = calibrate_joint(machine, list(data), noise=noise, split=split,
+                                          options=CalibrateOptions(method, None, pose_noise,
+                                                                   estimate_lc, two_step,
+                                                                   robust, fix_frames))
+            return _with_parameter_set(calibration, chosen)
+        data = data[0]
+    if isinstance(noise, dict):
+        noise = _noise_of(noise, data, 0, 1)
     if isinstance(data, (str, Path)):
         source = Path(data)
         header, _ = read_table(source)
@@ -796,7 +820,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     if machine_file and machine_file != "default" and Path(machine_file).is_file():
         inputs.append(Path(machine_file))
     calibration.inputs = inputs
-    return calibration
+    return _with_parameter_set(calibration, chosen)
 
 
 def _load(data, reader, machine):
@@ -1695,6 +1719,527 @@ def _calibrate_distances(machine, data, source, options: CalibrateOptions,
         **_identifiability_metadata(unidentifiable),
     }
     return _finish("distance", machine, calibrated, result, report, metadata, params, units)
+
+
+# --------------------------------------------------------------------------------------------
+# named parameter sets (--parameters)
+# --------------------------------------------------------------------------------------------
+
+
+def _machines_with_sets() -> list[str]:
+    """Machine types whose class has named parameter sets (``parameter_set``)."""
+    from ..machines.base import Machine
+
+    found, todo = set(), list(Machine.__subclasses__())
+    while todo:
+        cls = todo.pop()
+        todo.extend(cls.__subclasses__())
+        if getattr(cls, "kind", "") and (getattr(cls, "PARAMETER_SETS", None)
+                                         or "parameter_set" in vars(cls)):
+            found.add(cls.kind)
+    return sorted(found)
+
+
+def parameter_set_names(machine) -> list[str] | None:
+    """The names of a machine's parameter sets, when it lists them (None: it does not).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (``parameter_sets``: a list, a mapping or a method giving one).
+
+    Returns
+    -------
+    list of str or None
+        The names.
+    """
+    sets = getattr(machine, "parameter_sets", None)
+    if callable(sets):
+        sets = sets()
+    if sets is None:
+        own = getattr(machine, "PARAMETER_SETS", None)
+        if own is None:
+            return None
+        return sorted(set(map(str, own)) | {"full"})
+    return [str(k) for k in (sets.keys() if isinstance(sets, dict) else sets)]
+
+
+def apply_parameter_set(machine, name: str):
+    """A copy of ``machine`` whose fixed flags are those of its parameter set ``name``.
+
+    Parameters
+    ----------
+    machine : Machine
+        A machine with ``parameter_set(name) -> ParameterSet`` (e.g. a firmware's set).
+    name : str
+        The set's name (``--parameters``).
+
+    Returns
+    -------
+    Machine
+        The copy (values unchanged; parameters the set does not name are fixed).
+
+    Raises
+    ------
+    InputError
+        When the machine has no named sets (naming the machine types that have them) or
+        none of this name (listing its sets).
+    """
+    from ..parameters import ParameterSet
+
+    method = getattr(machine, "parameter_set", None)
+    kind = getattr(machine, "kind", "") or "machine"
+    if not callable(method):
+        having = _machines_with_sets()
+        raise InputError(f"--parameters {name}: a {kind} has no named parameter sets ("
+                         + (f"machines with them: {', '.join(having)}" if having else
+                            "no machine type of this version has them") + ")")
+    names = parameter_set_names(machine)
+    if names == ["full"] and name != "full":
+        having = _machines_with_sets()
+        raise InputError(f"--parameters {name}: a {kind} has no named parameter sets besides "
+                         "full (every parameter free) ("
+                         + (f"machines with them: {', '.join(having)}" if having else
+                            "no machine type of this version has them") + ")")
+    listing = f"; its sets: {', '.join(names)}" if names else ""
+    if names is not None and name not in names:
+        raise InputError(f"--parameters {name}: no parameter set of that name for this "
+                         f"{kind}{listing}")
+    try:
+        chosen = method(name)
+    except (KeyError, ValueError, InputError) as exc:
+        text = str(exc).strip("'\"")
+        raise InputError(f"--parameters {name}: no parameter set of that name for this "
+                         f"{kind}{listing or (': ' + text if text else '')}") from None
+    mp = machine.parameters
+    if tuple(chosen.names) == tuple(mp.names):
+        fixed = np.asarray(chosen.fixed, bool)
+    else:
+        lookup = dict(zip(chosen.names, np.asarray(chosen.fixed, bool), strict=True))
+        fixed = np.array([lookup.get(n, True) for n in mp.names], bool)
+    new = machine.with_parameters(mp.values)
+    new.parameters = ParameterSet(mp.names, mp.kinds, mp.values, fixed)
+    return new
+
+
+def _with_parameter_set(calibration: Calibration, name: str | None) -> Calibration:
+    """Record the parameter set of ``--parameters`` in the report and the calibrated file."""
+    if name is None:
+        return calibration
+    mp = calibration.machine.parameters
+    calibration.report["parameter_set"] = {
+        "name": name, "free": [n for n, f in zip(mp.names, mp.fixed, strict=True) if not f],
+        "fixed": int(np.sum(mp.fixed))}
+    calibration.metadata["parameter_set"] = name
+    return calibration
+
+
+# --------------------------------------------------------------------------------------------
+# several data files in one fit
+# --------------------------------------------------------------------------------------------
+
+
+def noise_per_file_arg(texts, sources) -> dict | str | None:
+    """``--noise`` of several files: ``FILE=VALUE`` per file (files without one: the kind's
+    default).
+
+    Parameters
+    ----------
+    texts : list of str or None
+        The option's values as given.
+    sources : list of str or os.PathLike
+        The data files.
+
+    Returns
+    -------
+    dict or str or None
+        One file: its value (or None); several: file (as given) -> value.
+
+    Raises
+    ------
+    InputError
+        When a value names no data file, a file twice, or (several files) has no ``FILE=``.
+    """
+    texts = list(texts or [])
+    if len(sources) <= 1:
+        if len(texts) > 1:
+            raise InputError("--noise: given more than once for one data file")
+        if texts and "=" in texts[0]:
+            name, value = texts[0].split("=", 1)
+            if _match_file(name, sources) is None:
+                raise InputError(f"--noise {texts[0]}: {name} is not the data file "
+                                 f"({sources[0]})")
+            return value
+        return texts[0] if texts else None
+    out: dict = {}
+    for text in texts:
+        if "=" not in text:
+            raise InputError(f"--noise {text}: with several data files give FILE=VALUE per "
+                             "file (e.g. --noise bar.csv=2um); files without one use their "
+                             "kind's default")
+        name, value = text.split("=", 1)
+        i = _match_file(name, sources)
+        if i is None:
+            raise InputError(f"--noise {text}: {name} is none of the data files ("
+                             + ", ".join(map(str, sources)) + ")")
+        if str(sources[i]) in out:
+            raise InputError(f"--noise: {sources[i]} given twice")
+        out[str(sources[i])] = value
+    return out
+
+
+def _match_file(name: str, sources) -> int | None:
+    """Index of the data file ``name`` names (as given, or its file name when unique)."""
+    from ..instruments.joint import file_labels
+
+    name = name.strip()
+    for i, s in enumerate(sources):
+        if str(s) == name or Path(str(s)) == Path(name):
+            return i
+    labels = file_labels(sources)
+    if name in labels:
+        return labels.index(name)
+    return None
+
+
+def _noise_of(noise, source, i: int, n: int):
+    """The noise of file ``i`` of ``n``: from a mapping (file or label -> value), else the
+    value given (one file) or the default (several)."""
+    if isinstance(noise, dict):
+        for key, value in noise.items():
+            if key == source or str(key) == str(source) or key == i:
+                return value
+            if isinstance(key, str) and not isinstance(source, (str, Path)):
+                continue
+            if isinstance(key, str) and Path(str(source)).name == key:
+                return value
+        return None
+    if noise is not None and n > 1:
+        raise InputError("--noise: with several data files give FILE=VALUE per file (e.g. "
+                         "--noise bar.csv=2um)")
+    return noise
+
+
+@dataclass
+class JointPart:
+    """One file of a joint fit, ready for :func:`~pkmcal.instruments.joint.fit_joint`.
+
+    Attributes
+    ----------
+    data : InstrumentData
+        Readings and measurements.
+    model : NuisanceModel
+        The instrument's model (start values computed by the fit).
+    noise : object
+        Noise model (``whitening``).
+    noise_text : str
+        The noise in words.
+    kind : str
+        The measurement kind (a key of :data:`KINDS`).
+    """
+
+    data: object
+    model: object
+    noise: object
+    noise_text: str
+    kind: str
+
+
+def _joint_tracker(machine, data, source, noise) -> JointPart:
+    from ..instruments import PointsModel
+    from ..io import read_tracker
+    from .tracker import as_points
+
+    if noise is None or isinstance(noise, str):
+        noise_model, text = tracker_noise_arg(noise, allow_none=False, machine=machine)
+    else:
+        noise_model, text = noise, _tracker_noise_text(noise)
+    raw = _as_tracker_data(_load(data, read_tracker, machine))
+    _check_spread(raw, noise_model)
+    points = as_points(raw)
+    points.source = str(source)
+    return JointPart(points, PointsModel(points.n_groups, machine.tracker_target()),
+                     noise_model, text, "tracker")
+
+
+def _joint_distances(machine, data, source, noise) -> JointPart:
+    from ..instruments import DistancesModel
+    from ..io import read_distances
+
+    noise_model = _distance_noise(noise, machine)
+    dist = _load(data, read_distances, machine)
+    counts = np.bincount(dist.group, minlength=dist.n_groups)
+    few = np.flatnonzero(counts < 6)
+    if few.size:
+        raise InputError(f"{source}: setup {few[0] + 1} has {counts[few[0]]} row(s); each "
+                         "mounting needs at least 6 lengths (its pivot and ball are unknown)")
+    dist.source = str(source)
+    return JointPart(dist, DistancesModel(dist.n_groups), noise_model,
+                     f"ballbar {noise_model.sigma * 1e6:.4g} um (std)", "distance")
+
+
+#: measurement kinds that combine in one fit: kind -> ``prepare(machine, data, source,
+#: noise) -> JointPart``. A kind not listed here combines too when its handler's result has
+#: an :class:`~pkmcal.instruments.InstrumentProblem` in ``extras["problem"]`` (the instrument
+#: layer's kinds); full poses and the constraint link (a pose per measurement) do not.
+JOINT_KINDS: dict[str, Callable] = {"tracker": _joint_tracker, "distance": _joint_distances}
+
+#: kinds refused in a joint fit, with why
+_NOT_JOINT = {"pose": "full poses estimate a platform pose per measurement",
+              "constraint-link": "the constraint link estimates a platform pose per "
+                                 "measurement"}
+
+
+def _joint_part(machine, data, source, kind: MeasurementKind, noise) -> JointPart:
+    """The joint fit's view of one file (its kind's preparation, else the kind's own
+    calibration's instrument problem)."""
+    from ..instruments import InstrumentProblem
+
+    if kind.name in _NOT_JOINT:
+        combine = ", ".join(sorted(set(JOINT_KINDS) | (set(KINDS) - set(_NOT_JOINT))))
+        raise InputError(f"{source}: {kind.name} data cannot be combined with other files in "
+                         f"one fit ({_NOT_JOINT[kind.name]}); the kinds that combine: "
+                         f"{combine}; calibrate from {source} on its own")
+    prepare = JOINT_KINDS.get(kind.name)
+    if prepare is not None:
+        return prepare(machine, data, source, noise)
+    kind.check_options(CalibrateOptions(noise=noise), source)
+    alone = kind.calibrate(machine, data, source, CalibrateOptions(noise=noise), None)
+    problem = alone.result.extras.get("problem")
+    if not isinstance(problem, InstrumentProblem) or getattr(problem, "local_dof", 0):
+        raise InputError(f"{source}: {kind.name} data cannot be combined with other files in "
+                         f"one fit (no instrument model of the shared layer); the kinds that "
+                         f"combine: {', '.join(sorted(JOINT_KINDS))}")
+    text = alone.report.get("noise")
+    return JointPart(problem.data, problem.model, problem.noise,
+                     str(text) if text is not None else f"{kind.name} default", kind.name)
+
+
+def _part_rms(problem, state, data) -> tuple[float | None, np.ndarray]:
+    """RMS (um) of the per-row residual norm (3-D for points) and the residuals (m)."""
+    predicted = problem.predict(state, data.q, data.group)
+    r = data.values - predicted
+    norm = np.linalg.norm(r, axis=1)
+    ok = np.isfinite(norm)
+    return (_um(math.sqrt(float(np.mean(norm[ok] ** 2)))) if ok.any() else None), r
+
+
+def _check_joint_options(options: CalibrateOptions) -> None:
+    for option, given in (("--method", options.method is not None),
+                          ("--pose-noise", options.pose_noise is not None),
+                          ("--estimate-lc", options.estimate_lc is not None),
+                          ("--two-step", options.two_step), ("--robust", options.robust),
+                          ("--fix-frames", options.fix_frames)):
+        if given:
+            raise InputError(f"{option}: does not apply to a fit of several data files (one "
+                             "maximum-likelihood fit of every file's instrument); see --noise "
+                             "FILE=VALUE and --holdout")
+
+
+def calibrate_joint(machine, data: list, *, noise=None, split=None,
+                    options: CalibrateOptions | None = None) -> Calibration:
+    """One geometry from several data files of instrument-layer kinds (``calibrate`` with a
+    list).
+
+    Every file's kind comes from its columns; each keeps its own instrument unknowns (named
+    ``FILE:name``) and noise; one maximum-likelihood fit estimates everything
+    (:func:`~pkmcal.instruments.joint.fit_joint`). The report has each file's residuals
+    before (the machine file's model, the file's instrument fitted alone) and after, the
+    joint identifiability in words and what each file adds
+    (:class:`~pkmcal.instruments.joint.JointContributions`); the calibrated file carries the
+    instruments' sections (the first tracker file's frame and targets, every ballbar file's
+    mountings in order).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine's nominal model (its fixed flags are kept).
+    data : list
+        Data files (or data objects of the instrument layer), at least one.
+    noise : dict or None, optional
+        File (as given, its file name, or its index) -> noise (text or model); files not
+        named use their kind's default.
+    split : tuple, optional
+        ``(holdout, seed)``: the rows held out of every file.
+    options : CalibrateOptions, optional
+        Other options: refused when given (they apply to one kind).
+
+    Returns
+    -------
+    Calibration
+        Kind ``"joint"``.
+
+    Raises
+    ------
+    InputError
+        Bad data or options, or a file of a kind that does not combine.
+    CalibrationNotConverged
+        When the estimator did not converge.
+    """
+    from ..instruments import DistancesModel, PointsModel
+    from ..instruments.joint import file_labels, fit_joint
+    from ..io import read_table
+    from ..units import LENGTH
+
+    _check_joint_options(options or CalibrateOptions())
+    if isinstance(noise, str) or (noise is not None and not isinstance(noise, dict)):
+        raise InputError("--noise: with several data files give FILE=VALUE per file (e.g. "
+                         "--noise bar.csv=2um)")
+    sources, kinds = [], []
+    for i, item in enumerate(data):
+        if isinstance(item, (str, Path)):
+            source = Path(item)
+            header, _ = read_table(source)
+            kinds.append(KINDS[measurement_kind(source, header, machine)])
+        else:
+            source = getattr(item, "source", None) or f"data{i + 1}"
+            kind = next((k for k in _kinds() if k.data_class == type(item).__name__
+                         and getattr(item, "kind", k.instrument) in _names_of(k)), None)
+            if kind is None:
+                raise InputError(f"{source}: {type(item).__name__} is no calibration data")
+            kinds.append(kind)
+        sources.append(source)
+    if len({str(s) for s in sources}) != len(sources):
+        raise InputError("the same data file is given twice: "
+                         + ", ".join(str(s) for s in sources))
+    labels = file_labels(sources)
+    parts, held = [], []
+    for i, (item, source, kind) in enumerate(zip(data, sources, kinds, strict=True)):
+        part = _joint_part(machine, item, source, kind, _noise_of(noise, source, i, len(data)))
+        part.data, h = _split_rows(part.data, split, source)
+        parts.append(part)
+        held.append(h)
+    names = ", ".join(map(str, sources))
+    try:
+        result = fit_joint(machine, [(p.data, p.model, p.noise) for p in parts], labels)
+    except (InputError, ValueError, np.linalg.LinAlgError) as exc:
+        message = str(exc) if isinstance(exc, InputError) else \
+            f"{names}: joint calibration failed: {exc}"
+        if split is not None:
+            message = f"--holdout: {message}"
+        raise InputError(message) from None
+    _require_converged(result, names, "check that the files measure the same machine")
+    problem = result.extras["problem"]
+    state = result.state
+    units = file_units(machine)
+    fl = LENGTH[units["length"]]
+    calibrated = result.extras["machine"]
+    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
+    calibrated.home = machine.home
+    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
+    for label, start in zip(labels, result.extras["start_models"], strict=True):
+        nominal_of.update({f"{label}:{n}": v for n, v in zip(
+            start.parameters.names, start.parameters.values, strict=True)})
+    params = _parameter_table(result, nominal_of, units)
+
+    files, sections, setups, tracker_from = [], [], [], None
+    for i, (part, label, source) in enumerate(zip(parts, labels, sources, strict=True)):
+        sub = problem.part_state(state, i)
+        before = result.extras["before"][i]
+        bproblem = before.extras["problem"]
+        rms_after, r_after = _part_rms(problem.parts[i], sub, part.data)
+        rms_before, _ = _part_rms(bproblem, before.state, part.data)
+        model = problem.parts[i].model
+        entry = {"file": str(source), "label": label, "measurement": part.kind,
+                 "measurements": len(part.data), "noise": part.noise_text,
+                 "residuals": {"of": ("3-D distance of the points" if model.size == 3 else
+                                      "measured - predicted"),
+                               "rms_um": rms_after, "before_rms_um": rms_before,
+                               "before": "machine file's model, this file's instrument "
+                                         "fitted alone",
+                               "chi_square": float(np.nansum(problem.split(
+                                   result.residuals)[i] ** 2)),
+                               "count": int(np.sum(np.isfinite(r_after).all(axis=1)))}}
+        if isinstance(model, PointsModel):
+            R = model.rotation(sub.nuisance, "tracker")
+            t = np.array(model.vector(sub.nuisance, "tracker"))
+            targets = model.targets(sub.nuisance)
+            entry["registration"] = {"rotation": R.tolist(), "translation": (t / fl).tolist(),
+                                     "unit": units["length"]}
+            entry["targets"] = {"given_by_machine_file": machine.tracker_target() is not None,
+                                "places": (np.asarray(targets) / fl).tolist(),
+                                "unit": units["length"]}
+            if tracker_from is None:
+                tracker_from = str(source)
+                calibrated.base_from_tracker = (R, t)
+                calibrated.tracker_targets = (None if machine.tracker_target() is not None
+                                              else np.array(targets, float))
+                sections.append(f"tracker (frame and targets) from {source}")
+        elif isinstance(model, DistancesModel):
+            mine = [(np.array(sub.nuisance.values[model._ip[g]]),
+                     np.array(sub.nuisance.values[model._ib[g]]))
+                    for g in range(model.n_setups)]
+            entry["setups"] = [{"setup": len(setups) + g + 1, "in_file": g + 1,
+                                "pivot": (p / fl).tolist(), "ball": (b / fl).tolist(),
+                                "unit": units["length"]} for g, (p, b) in enumerate(mine)]
+            sections.append(f"ballbar setups {len(setups) + 1}..{len(setups) + len(mine)} "
+                            f"from {source}")
+            setups.extend(mine)
+        if held[i] is not None:
+            entry["validation"] = _validation(
+                split, held[i], f"{part.kind} of the held-out rows of {source}, measured - "
+                "predicted with the identified instrument; before: the machine file's model "
+                "with the instrument fitted alone", "um",
+                _part_rms(bproblem, before.state, held[i])[0],
+                _part_rms(problem.parts[i], sub, held[i])[0], rms_after)
+        files.append(entry)
+    if setups:
+        calibrated.ballbar_setups = setups
+    rank = int(result.rank)
+    n_free = int(np.sum(result.parameters.free))
+    s = np.asarray(result.singular_values, float)
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    contributions = result.extras["contributions"]
+    from ..units import ANGLE
+
+    fa = ANGLE[units["angle"]]
+    r = np.asarray(result.residuals, float)
+    report = {
+        **_report_head(machine, names, "joint", "joint", units),
+        "data_files": [str(s) for s in sources],
+        "measurements": int(sum(len(p.data) for p in parts)),
+        "files": files,
+        "parameter_names": "each file's instrument unknowns are named FILE:name (e.g. "
+                           f"{labels[0]}:{parts[0].model.parameters.names[0]})",
+        "instrument_sections": sections,
+        "convergence": _convergence_json(result),
+        "residuals": {
+            "of": "every file's whitened residuals (measured - predicted, / assumed noise)",
+            "count": int(np.isfinite(r).sum()),
+            "residual_variance": float(result.residual_variance),
+            "noise_scale": float(np.sqrt(result.residual_variance))
+            if np.isfinite(result.residual_variance) else None,
+            "dof": int(result.dof),
+        },
+        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
+        "contributions": {**contributions.as_dict(fl, fa, (units["length"], units["angle"])),
+                          "summary": contributions.lines()},
+        "parameters": _public(params),
+    }
+    if any(h is not None for h in held):
+        report["validation"] = {
+            "summary": "; ".join(f"{f['file']}: {f['validation']['summary']}" for f in files
+                                 if "validation" in f),
+            "holdout": split[0], "seed": split[1]}
+    metadata = {
+        "method": "joint",
+        "date": report["date"],
+        "data": [str(s) for s in sources],
+        "machine": _source_of(machine),
+        "measurements": report["measurements"],
+        "rms_residual_um": {f["label"]: f["residuals"]["rms_um"] for f in files},
+        "identifiable": rank,
+        "free_parameters": n_free,
+        **_identifiability_metadata(unidentifiable),
+    }
+    calibration = _finish("joint", machine, calibrated, result, report, metadata, params, units)
+    inputs = [Path(s) for s, item in zip(sources, data, strict=True)
+              if isinstance(item, (str, Path))]
+    machine_file = getattr(machine, "source", None)
+    if machine_file and machine_file != "default" and Path(machine_file).is_file():
+        inputs.append(Path(machine_file))
+    calibration.inputs = inputs
+    return calibration
 
 
 # --------------------------------------------------------------------------------------------

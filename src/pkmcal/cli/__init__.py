@@ -268,8 +268,11 @@ def simulate(
 @app.command()
 def calibrate(
     machine: MachineArg,
-    data: Annotated[Path, typer.Argument(metavar="DATA", help="Measurement file (CSV).",
-                                         show_default=False)],
+    data: Annotated[list[Path], typer.Argument(
+        metavar="DATA...", show_default=False,
+        help="Measurement file(s) (CSV). Several files of instrument kinds (tracker points, "
+             "ballbar distances, ...) are fitted together: one geometry, each file with its "
+             "own instrument unknowns and noise.")],
     output: OutFile,
     method: Annotated[Method | None, typer.Option(
         help="constraint-link data: ml maximum likelihood, every reading noisy (default); ik "
@@ -277,11 +280,13 @@ def calibrate(
              "forward-kinematics method (estimates Lc). pose data: ml maximum likelihood, "
              "readings and measured poses noisy (default); ik inverse-kinematic residuals "
              "(Zhuang, Yan & Masory 1998), measured poses exact.", show_default=False)] = None,
-    noise: Annotated[str | None, typer.Option(
+    noise: Annotated[list[str] | None, typer.Option(
         help="Measurement noise. constraint-link: encoder noise, standard deviation (default "
              "1um). tracker: leica (default) or a length for isotropic noise (e.g. 10um). pose: "
-             "noise of the leg readings, as a leg length (default 2um).",
-        show_default=False)] = None,
+             "noise of the leg readings, as a leg length (default 2um). distance: the ballbar's "
+             "standard deviation (default 1um). With several data files: FILE=VALUE, once per "
+             "file (e.g. --noise bar.csv=2um --noise pts.csv=leica); files not named use "
+             "their kind's default.", show_default=False)] = None,
     pose_noise: Annotated[str | None, typer.Option(
         "--pose-noise", help="pose data: noise of the measured poses, POSITION,ORIENTATION "
                              "with units (default 20um,50urad).", show_default=False)] = None,
@@ -289,6 +294,11 @@ def calibrate(
         "--report", metavar="DIR", file_okay=False,
         help="Also write DIR/report.html (self-contained: tables and plots) and its JSON twin "
              "DIR/report.json (DIR is created when missing).", show_default=False)] = None,
+    parameters: Annotated[str | None, typer.Option(
+        "--parameters", metavar="NAME",
+        help="Fit the machine's named parameter set NAME (e.g. a firmware's: klipper, marlin, "
+             "rrf, full on a linear Delta): its fixed flags replace the machine file's.",
+        show_default=False)] = None,
     fix_frames: Annotated[bool, typer.Option(
         "--fix-frames", help="pose data: hold the measurement frames (mocap_from_base, "
                              "platform_from_marker) at the machine file's measurement_frames "
@@ -336,13 +346,23 @@ def calibrate(
     machine file's legs (frames fitted alone) with the calibrated ones.
 
     Example: `pkmcal calibrate examples/cubic_6upu.yaml poses.csv --method ik -o cal.yaml`
+
+    Several files (tracker points, ballbar distances and the other instrument kinds; not
+    full poses or constraint-link data): one fit of the geometry with every file's own
+    instrument unknowns (named FILE:name) and noise (--noise FILE=VALUE); the summary shows
+    each file's residuals before and after, what the files cannot fix together and what each
+    file adds; --holdout holds out rows of every file.
+
+    Example: `pkmcal calibrate machine.yaml points.csv ballbar.csv --noise ballbar.csv=2um
+    -o cal.yaml`
     """
     from ._commands import run_calibrate
 
     raise typer.Exit(run_calibrate(machine, data, output, method.value if method else None,
                                    noise, estimate_lc, json_output, two_step, robust,
                                    pose_noise=pose_noise, fix_frames=fix_frames,
-                                   report_dir=report, holdout=holdout, seed=seed))
+                                   report_dir=report, holdout=holdout, seed=seed,
+                                   parameters=parameters))
 
 
 @app.command()

@@ -506,13 +506,18 @@ def _mm(v) -> str:
 # --------------------------------------------------------------------------------------------
 
 
-def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str | None,
-                  noise: str | None, estimate_lc: bool | None, json_output: bool,
+def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None,
+                  noise, estimate_lc: bool | None, json_output: bool,
                   two_step: bool = False, robust: bool = False, pose_noise: str | None = None,
                   fix_frames: bool = False, report_dir: Path | None = None,
-                  holdout: str | None = None, seed: int = 0) -> int:
-    from ..calibration.run import CalibrationNotConverged, calibrate
+                  holdout: str | None = None, seed: int = 0,
+                  parameters: str | None = None) -> int:
+    from ..calibration.run import CalibrationNotConverged, calibrate, noise_per_file_arg
 
+    paths = list(data_path) if isinstance(data_path, (list, tuple)) else [data_path]
+    noise = noise_per_file_arg(noise if isinstance(noise, (list, tuple)) or noise is None
+                               else [noise], paths)
+    data_path = paths[0] if len(paths) == 1 else paths
     if output.suffix.lower() == ".json":
         raise InputError(f"{output}: the calibrated machine is a YAML file; choose a name "
                          "ending in .yaml (the JSON report is written beside it)")
@@ -523,13 +528,13 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
         if report_dir.exists() and not report_dir.is_dir():
             raise InputError(f"--report {report_dir}: a file, not a directory")
         outputs += [report_dir / "report.html", report_dir / "report.json"]
-    check_outputs(outputs, [data_path] + _machine_inputs(machine_spec),
+    check_outputs(outputs, paths + _machine_inputs(machine_spec),
                   [report_dir] if report_dir is not None else [])
     try:
         calibration = calibrate(machine, data_path, method=method, noise=noise,
                                 pose_noise=pose_noise, estimate_lc=estimate_lc,
                                 two_step=two_step, robust=robust, fix_frames=fix_frames,
-                                holdout=holdout, seed=seed)
+                                holdout=holdout, seed=seed, parameters=parameters)
     except CalibrationNotConverged as exc:
         error(str(exc))
         return 1
@@ -540,9 +545,54 @@ def run_calibrate(machine_spec: str, data_path: Path, output: Path, method: str 
         print(json_text, end="")
     else:
         printer = _CALIBRATION_PRINTERS.get(calibration.kind, _print_any_calibration)
-        printer(calibration.report, calibration.params, data_path, output, report_path,
-                machine)
+        printer(calibration.report, calibration.params,
+                data_path if len(paths) == 1 else ", ".join(map(str, paths)), output,
+                report_path, machine)
     return 0
+
+
+def _print_joint_calibration(report, params, data_path, output, report_path, machine):
+    """Summary of a fit of several files: per file before/after, the joint identifiability,
+    what each file adds."""
+    out = console()
+    ident, conv, res = report["identifiability"], report["convergence"], report["residuals"]
+    table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
+                   show_header=False)
+    table.add_row("measurement", f"{len(report['files'])} files fitted together, "
+                  f"{report['measurements']} rows: one geometry, each file's own instrument "
+                  "unknowns (named FILE:name)")
+    if "parameter_set" in report:
+        table.add_row("parameter set", f"{report['parameter_set']['name']} "
+                      f"({len(report['parameter_set']['free'])} free machine parameters)")
+    for f in report["files"]:
+        r = f["residuals"]
+        before = "n/a" if r["before_rms_um"] is None else f"{r['before_rms_um']:.4g}"
+        after = "n/a" if r["rms_um"] is None else f"{r['rms_um']:.4g}"
+        table.add_row(f["label"], f"{f['measurement']}, {f['measurements']} rows, noise "
+                      f"{f['noise']}; RMS residual {before} -> {after} um (before: the machine "
+                      "file's model, this file's instrument fitted alone)")
+        if "validation" in f:
+            table.add_row("", f"held-out: {f['validation']['summary']}")
+    table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
+                  "parameter directions" + (f", of which {len(ident['weakly_identifiable'])} "
+                                            "weakly" if ident["weakly_identifiable"] else ""))
+    for d in ident["unidentifiable"]:
+        table.add_row("not identifiable", f"{d['dimension']} x {d['name']}: {d['description']}")
+    for d in ident["weakly_identifiable"]:
+        table.add_row("weakly identifiable", f"{d['name']}: {d['description']}")
+    for i, line in enumerate(report["contributions"]["summary"]):
+        table.add_row("each file adds" if i == 0 else "", line)
+    scale = res["noise_scale"]
+    if scale is not None:
+        table.add_row("noise", f"residuals / assumed noise = {scale:.3g} over {res['count']} "
+                      "residuals")
+    for section in report.get("instrument_sections", []):
+        table.add_row("calibrated file", section)
+    table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
+    out.print(table)
+    _print_changes([p for p in params if ":" not in p["name"]])
+    commit_outputs()
+    out.print(_wrote(output, report_path), markup=False)
 
 
 def _print_calibration(report, params, data_path, output, report_path, machine) -> None:
@@ -793,7 +843,8 @@ def _print_any_calibration(report, params, data_path, output, report_path, machi
 #: the summary of each measurement kind (others: :func:`_print_any_calibration`)
 _CALIBRATION_PRINTERS = {"constraint-link": _print_calibration,
                          "tracker": _print_tracker_calibration,
-                         "pose": _print_full_pose_calibration}
+                         "pose": _print_full_pose_calibration,
+                         "joint": _print_joint_calibration}
 
 
 # --------------------------------------------------------------------------------------------

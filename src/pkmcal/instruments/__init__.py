@@ -8,6 +8,7 @@ measurement`` with its own unknowns and noise model); one problem
 """
 
 from .data import InstrumentData
+from .joint import JointContributions, JointProblem, JointState, file_labels, fit_joint
 from .models import (
     DistancesModel,
     IsotropicNoise,
@@ -29,4 +30,5 @@ from .problem import InstrumentProblem, InstrumentState, fit_instrument, frame_m
 __all__ = ["DistancesModel", "InstrumentData", "InstrumentProblem", "InstrumentState",
            "IsotropicNoise", "NuisanceModel", "NuisanceState", "PointsModel", "ProbeModel",
            "fit_instrument", "frame_motion_groups", "sphere_centre", "InstrumentPrediction",
-           "choose_instrument", "fitted_instruments", "instrument_name", "predict_instrument"]
+           "choose_instrument", "fitted_instruments", "instrument_name", "predict_instrument",
+           "JointContributions", "JointProblem", "JointState", "file_labels", "fit_joint"]
