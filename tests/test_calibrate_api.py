@@ -156,6 +156,6 @@ def test_not_converged_is_an_exception(data, monkeypatch):
 
 def test_kinds_are_a_registry():
     """Every kind names its data columns, its machines and its handler."""
-    assert set(KINDS) == {"constraint-link", "tracker", "pose", "distance"}
+    assert set(KINDS) == {"constraint-link", "tracker", "pose", "distance", "probe"}
     for kind in KINDS.values():
         assert kind.columns and callable(kind.calibrate) and callable(kind.check_options)

@@ -65,6 +65,10 @@ class PoorParameter:
         The parameter it correlates most strongly with (None when it correlates with none).
     correlation : float
         That correlation.
+    combined : bool, optional
+        The parameter also moves along an unidentifiable direction: its standard deviation is
+        that of its identifiable part (the minimum-norm covariance), the value itself is fixed
+        only in combination with others.
     """
 
     name: str
@@ -72,6 +76,7 @@ class PoorParameter:
     kind: str
     partner: str | None
     correlation: float
+    combined: bool = False
 
     def text(self, unit_length: str = "mm", unit_angle: str = "deg") -> str:
         """The parameter in words, in the given units.
@@ -98,18 +103,22 @@ class PoorParameter:
             value = f"{self.std:.3g}"
         corr = ("" if self.partner is None else
                 f", correlation {self.correlation:+.3f} with {self.partner}")
-        return f"{self.name}: std {value}{corr}"
+        combined = (" (of its part the data fix; the value itself only in combination, see "
+                    "'not identifiable')" if self.combined else "")
+        return f"{self.name}: std {value}{combined}{corr}"
 
 
 def poorly_determined(result, n_machine: int, length: float,
                       threshold: float = POOR_STD) -> list[PoorParameter]:
     """The fitted machine parameters whose standard deviation is beyond ``threshold``.
 
-    A parameter counts when it is determined (no component along the null space, which
-    :func:`~pkmcal.identifiability.name_null_space` names instead), free, and its standard
-    deviation - a length's, or an angle's or ratio's times ``length`` - exceeds
-    ``threshold``. A parameter along a weakly identifiable direction (left at its start
-    value) counts as well, with that direction's standard deviation when it is larger.
+    A parameter counts when it is free and its standard deviation - a length's, or an angle's
+    or ratio's times ``length`` - exceeds ``threshold``; for a parameter that also moves along
+    the null space (named by :func:`~pkmcal.identifiability.name_null_space`) that is the
+    standard deviation of its identifiable part (``combined``: a linear Delta's arm trim, of
+    which the data see only the sum with the common arm length). A parameter along a weakly
+    identifiable direction (left at its start value) counts as well, with that direction's
+    standard deviation when it is larger.
 
     Parameters
     ----------
@@ -137,8 +146,9 @@ def poorly_determined(result, n_machine: int, length: float,
     free = np.asarray(params.free, bool)
     out = []
     for i in range(n_machine):
-        if not free[i] or (N.shape[1] and np.linalg.norm(N[i]) > 1e-6):
+        if not free[i]:
             continue
+        combined = bool(N.shape[1] and np.linalg.norm(N[i]) > 1e-6)
         s = float(std[i])
         if W.shape[1] and np.linalg.norm(W[i]) > 1e-6:
             s = max(s, float(np.max(np.abs(W[i]) * weak_std)) * scales[i])
@@ -153,7 +163,7 @@ def poorly_determined(result, n_machine: int, length: float,
             c = cov[i, j] / (std[i] * std[j])
             if abs(c) > abs(best):
                 partner, best = params.names[j], float(c)
-        out.append(PoorParameter(params.names[i], s, kind, partner, best))
+        out.append(PoorParameter(params.names[i], s, kind, partner, best, combined))
     out.sort(key=lambda p: -(p.std if p.kind == "length" else p.std * length))
     return out
 

@@ -169,14 +169,16 @@ class LinearDelta(Machine):
     """
 
     kind = "linear_delta"
-    #: the probe instrument is the printers' own; until it is registered, a tracker
-    default_instrument = "tracker"
+    #: a printer calibrates from its bed probe (Klipper DELTA_CALIBRATE, Marlin G33, RRF G32)
+    default_instrument = "probe"
     n_joints = 3
     pose_dof = 3
     joint_quantity = "length"
-    #: the tracker's reflector below the nozzle tip, m: 0 (:meth:`tracker_target`; the
-    #: tracker-grid simulation of translating platforms reads it)
+    #: the tracker's reflector below the nozzle tip, m: 0 (:meth:`tracker_target`)
     smr_offset = 0.0
+    #: the bed's height in the base frame, m: Klipper's coordinates put the bed at z = 0 (the
+    #: probe instrument's planned points lie on it)
+    bed_height = 0.0
 
     PARAMETER_SETS = {
         "klipper": ParameterSubset(
