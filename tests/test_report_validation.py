@@ -190,3 +190,11 @@ def test_a_calibrated_file_without_its_report_warns_naming_it(calibrated, tmp_pa
     proc = run("compensate", "cal.yaml", "t.csv", "-o", "c.csv", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert "cal.json (named by cal.yaml) is missing" in proc.stderr
+
+
+def test_every_calibration_kind_is_a_known_measurement():
+    """The report schema knows every kind calibrate writes (the registry) and joint fits."""
+    from pkmcal.calibration.run import KINDS
+    from pkmcal.report.schema import MEASUREMENTS
+
+    assert set(MEASUREMENTS) == set(KINDS) | {"joint"}

@@ -164,8 +164,9 @@ class Residuals(_Section):
     estimated_noise_um: OptNum = Field(default=None, ge=0)
 
 
-#: the measurement kinds pkmcal calibrates
-MEASUREMENTS = ("constraint-link", "tracker", "pose")
+#: the measurement kinds pkmcal calibrates (``pkmcal.calibration.run.KINDS``) and ``joint``, a
+#: fit of several data files (a test checks the list against the registry)
+MEASUREMENTS = ("constraint-link", "tracker", "pose", "distance", "probe", "joint")
 
 
 class CalibrationReport(_Section):
