@@ -70,6 +70,7 @@ APPLIES = {
     "tracker": ("noise", "poses", "tolerance"),
     "pose": ("noise", "poses", "tolerance"),
     "distance": ("noise", "poses", "tolerance"),
+    "probe": ("noise", "poses", "tolerance"),
 }
 #: accuracy metrics per scenario: name -> (unit suffix, factor of that unit to SI, words)
 METRICS = {
@@ -93,6 +94,10 @@ METRICS = {
     "distance": {
         "distance_mean": ("um", 1e-6, "mean held-out ballbar-length error"),
         "distance_max": ("um", 1e-6, "max held-out ballbar-length error"),
+    },
+    "probe": {
+        "height_mean": ("um", 1e-6, "mean held-out error of the nozzle's height over the bed"),
+        "height_max": ("um", 1e-6, "max held-out error of the nozzle's height over the bed"),
     },
 }
 #: metrics a machine may not define (NaN then, without rejecting the run): the gauge-free
@@ -123,10 +128,12 @@ EXACT_RESIDUAL_RATIO = 1e-9
 #: scaled median absolute deviation: 1 / Phi^-1(3/4), the std of normal data
 MAD_SCALE = 1.4826
 #: evaluation poses per run (constraint-link workspace, tracker and pose held out)
-EVALUATION_POSES = {"constraint-link": 300, "tracker": 200, "pose": 100, "distance": 100}
+EVALUATION_POSES = {"constraint-link": 300, "tracker": 200, "pose": 100, "distance": 100,
+                    "probe": 100}
 #: default number of measurements (tracker: None = seed 001's 3x3x3 grid on a platform that
 #: only translates, the instrument's plan size otherwise)
-DEFAULT_POSES = {"constraint-link": 150, "tracker": None, "pose": 60, "distance": 90}
+DEFAULT_POSES = {"constraint-link": 150, "tracker": None, "pose": 60, "distance": 90,
+                 "probe": 37}
 #: the calibration weighs by the noise; exact data are weighed as if this noisy (m)
 NOISE_FLOOR = 1e-7
 #: environment of worker processes: one BLAS/OpenMP thread each
@@ -394,6 +401,38 @@ def _distance_run(s: MonteCarloSettings, rng):
                  "distance_max": float(np.max(e[ok])) if ok.any() else math.nan}
 
 
+def _probe_run(s: MonteCarloSettings, rng):
+    """Bed-probe heights at the instrument's standard pattern (the true bed off by a random
+    height and tilt), the bed plane estimated with the machine; held out: the height of the
+    nozzle over the bed at other points of the bed, 1 mm above it, with the readings the
+    nominal model commands there - the calibrated model and its bed against the truth."""
+    from ..calibration.probe import calibrate_probe
+    from ..instruments import IsotropicNoise
+    from ..instruments.registry import instrument
+    from ..instruments.simulate import simulate_scenario
+
+    nominal = s.machine
+    noise = 1e-5 if s.noise is None else s.noise
+    data, true, truth = simulate_scenario(
+        nominal, "probe", s.poses or DEFAULT_POSES[s.scenario],
+        IsotropicNoise(noise) if noise > 0 else False, rng,
+        deviations=_deviation_vector(s, rng))
+    res = calibrate_probe(nominal, data, IsotropicNoise(_weight(noise)))
+    P, R, _ = instrument("probe").candidates(nominal, EVALUATION_POSES[s.scenario], rng)
+    q = nominal.ik(P + np.array([0.0, 0.0, 1e-3]), R)
+
+    def heights(machine, bed):
+        fk = machine.fk(q, start=(P, R))
+        z0, tx, ty = bed
+        h = fk.P[:, 2] - (z0 + tx * fk.P[:, 0] + ty * fk.P[:, 1])
+        return np.where(fk.converged, h, np.nan)
+
+    e = np.abs(heights(res.extras["machine"], res.extras["bed"]) - heights(true, truth["bed"]))
+    ok = np.isfinite(e)
+    return res, {"height_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
+                 "height_max": float(np.max(e[ok])) if ok.any() else math.nan}
+
+
 def _tracker_run(s: MonteCarloSettings, rng):
     from ..calibration import calibrate_tracker, predict_tracker_points
     from ..measurements import grid_points, simulate_tracker
@@ -455,7 +494,7 @@ def _pose_run(s: MonteCarloSettings, rng):
 
 
 _RUNS = {"constraint-link": _constraint_link_run, "tracker": _tracker_run, "pose": _pose_run,
-         "distance": _distance_run}
+         "distance": _distance_run, "probe": _probe_run}
 
 
 def run_once(settings: MonteCarloSettings, seed) -> dict:
