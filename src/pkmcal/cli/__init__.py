@@ -417,6 +417,11 @@ def identifiability(
     targets: Annotated[int | None, typer.Option(
         min=1, max=100, help="tracker plans: number of targets on the platform, poses "
              "cycling through them (default 1).", show_default=False)] = None,
+    parameters: Annotated[str | None, typer.Option(
+        "--parameters", metavar="NAME",
+        help="Analyse the machine's named parameter set NAME (a firmware's: klipper, marlin, "
+             "rrf, full on a linear Delta), as calibrate --parameters fits it.",
+        show_default=False)] = None,
 ) -> None:
     """What the measurements will identify and how accurate the calibration will be.
 
@@ -448,7 +453,8 @@ def identifiability(
     raise typer.Exit(run_identifiability(machine, data, json_output, planned, poses, seed,
                                          noise, pose_noise, map_path, workspace=workspace,
                                          scenario=scenario.value if scenario else None,
-                                         setups=setups, radius=radius, targets=targets))
+                                         setups=setups, radius=radius, targets=targets,
+                                         parameters=parameters))
 
 
 class Criterion(enum.StrEnum):
@@ -512,6 +518,11 @@ def select_poses(
         min=1, max=100, help="tracker: number of targets on the platform; candidates cycle "
              "through them and the plan keeps the target column.", show_default=False)]
     = None,
+    parameters: Annotated[str | None, typer.Option(
+        "--parameters", metavar="NAME",
+        help="Analyse the machine's named parameter set NAME (a firmware's: klipper, marlin, "
+             "rrf, full on a linear Delta), as calibrate --parameters fits it.",
+        show_default=False)] = None,
 ) -> None:
     """Choose N measurement poses that identify the machine best.
 
@@ -544,7 +555,8 @@ def select_poses(
                                       map_path, json_output, joint_range,
                                       workspace=workspace,
                                       scenario=scenario.value if scenario else None,
-                                      setups=setups, radius=radius, targets=targets))
+                                      setups=setups, radius=radius, targets=targets,
+                                      parameters=parameters))
 
 
 @app.command()

@@ -380,12 +380,22 @@ def write_map(path: Path, machine, design, n_machine, M, plan_P, title: str,
     return plots.plot_prediction_map(slices, path, title, plan, c * 1e3)
 
 
+def _with_set(machine, parameters: str | None):
+    """The machine with the fixed flags of its parameter set ``--parameters`` (if given)."""
+    if parameters is None:
+        return machine
+    from ..calibration.run import apply_parameter_set
+
+    return apply_parameter_set(machine, parameters)
+
+
 def run_identifiability(machine_spec: str, data_path: Path | None, json_output: bool,
                         planned: bool = False, poses: int | None = None, seed: int = 0,
                         noise: str | None = None, pose_noise: str | None = None,
                         map_path: Path | None = None, workspace: str | None = None,
                         scenario: str | None = None, setups: int | None = None,
-                        radius: str | None = None, targets: int | None = None) -> int:
+                        radius: str | None = None, targets: int | None = None,
+                        parameters: str | None = None) -> int:
     """``pkmcal identifiability``: every scenario on every machine it applies to, from
     measurements of any kind, a plan file or the instrument's standard plan."""
     from ..identifiability import identifiability_report
@@ -399,7 +409,7 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
         standard_plan,
     )
 
-    machine = load_machine_arg(machine_spec)
+    machine = _with_set(load_machine_arg(machine_spec), parameters)
     ws_file = [Path(workspace)] if workspace is not None and Path(workspace).exists() else []
     if map_path is not None or ws_file:
         check_outputs([map_path] if map_path is not None else [],
@@ -641,7 +651,8 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                      map_path: Path | None, json_output: bool,
                      joint_range: str | None = None, workspace: str | None = None,
                      scenario: str | None = None, setups: int | None = None,
-                     radius: str | None = None, targets: int | None = None) -> int:
+                     radius: str | None = None, targets: int | None = None,
+                     parameters: str | None = None) -> int:
     """``pkmcal select-poses``: choose ``n`` poses by a criterion, starting from the greedy
     choice and from the instrument's standard plan, never returning a plan worse than the
     standard one (by the criterion or the predicted RMS position error) when it is among the
@@ -662,7 +673,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
         select_poses,
     )
 
-    machine = load_machine_arg(machine_spec)
+    machine = _with_set(load_machine_arg(machine_spec), parameters)
     inputs = [p for p in (candidates_path,) if p is not None]
     if workspace is not None and Path(workspace).exists():
         inputs.append(Path(workspace))
