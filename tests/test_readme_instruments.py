@@ -7,6 +7,7 @@ import re
 import shlex
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from clitools import run
@@ -65,3 +66,42 @@ def test_the_table_counts(machine, scenario, tmp_path):
     cells = re.search(rf"\| \*\*{row}\*\* \|(.*)\|\n", SECTION).group(1).split(" | ")
     cell = cells[{"points": 0, "pose": 1, "distance": 2}[scenario]]
     assert f"**{count}**" in cell, (count, cell)
+
+
+PRINTER = README[README.index("### A Delta 3D printer"):README.index("### A Gough–Stewart")]
+
+
+def test_the_printer_session_runs_and_its_table_is_what_it_reports(tmp_path):
+    """The printer section's commands run as written, and its table of standard deviations
+    (probe alone, ballbar alone, both) is what the joint calibration reports."""
+    (tmp_path / "examples").symlink_to(ROOT / "examples")
+    block = re.search(r"```sh\n(.*?)```", PRINTER, re.S).group(1).replace("\\\n", "")
+    for line in block.splitlines():
+        command = line.split("#")[0].strip()
+        if not command:
+            continue
+        if command.startswith("printf"):
+            (tmp_path / "targets.csv").write_text("x_mm,y_mm,z_mm\n0,0,10\n40,-30,0.2\n")
+            continue
+        proc = run(*shlex.split(command)[1:], cwd=tmp_path)
+        assert proc.returncode == 0, (command, proc.stderr)
+    import json
+
+    report = json.loads((tmp_path / "both.json").read_text())
+    std = {p["name"]: p for p in report["contributions"]["parameters"]}
+
+    def mean(prefix, key, file=None):
+        values = [p["joint"] if file is None else p["alone"][file]
+                  for name, p in std.items() if name.endswith(prefix)]
+        return float(np.mean(values))
+
+    factor = {"mm": 1.0, "um": 1e-3, "deg": 1.0, "urad": np.degrees(1e-6)}
+    rows = {"arm length trims": "arm_trim", "delta radius": "delta_radius",
+            "tower angles": ".angle"}
+    for words, suffix in rows.items():
+        cells = re.search(rf"\| {words} \| (.*) \|\n", PRINTER).group(1).split(" | ")
+        for text, file in zip(cells, ("probe.csv", "bar.csv", None), strict=True):
+            value, unit = text.split()
+            expected = float(value) * factor[unit]
+            assert mean(suffix, "alone", file) == pytest.approx(expected, rel=0.1), (words,
+                                                                                     file)
