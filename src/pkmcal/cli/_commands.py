@@ -884,7 +884,8 @@ def run_fk(machine_spec: str, joints: Path, output: Path, frame: str = "base",
 #: what ``fk --frame instrument`` writes per instrument, in words
 _FK_INSTRUMENT_WORDS = {"tracker": "predicted tracker point(s) (target in the tracker frame)",
                         "pose": "predicted marker pose(s) (motion-capture frame)",
-                        "distance": "predicted ballbar length(s)"}
+                        "distance": "predicted ballbar length(s)",
+                        "probe": "predicted probe height(s) above the bed"}
 
 
 def group_numbers(path: Path, extra: dict, rows, column: str):
@@ -922,7 +923,7 @@ def _fk_instrument(machine_spec: str, joints: Path, output: Path,
     elif name == "tracker":
         columns = {f"m{c}_{unit}": pred.values[:, j] / f for j, c in enumerate("xyz")}
     else:
-        columns = {f"d_{unit}": pred.values[:, 0] / f}
+        columns = {f"{'probe_z' if name == 'probe' else 'd'}_{unit}": pred.values[:, 0] / f}
     if group is not None:
         columns[column] = (group + 1).tolist()
     write_table(output, list(columns), [list(v) for v in columns.values()])

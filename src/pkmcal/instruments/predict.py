@@ -12,6 +12,8 @@ instrument      machine attributes           predicted measurement per reading
 (poses)                                      the motion-capture frame
 ``distance``    ``ballbar_setups``           ``d``: the ballbar length of the mounting
 (ballbar)                                    (column ``setup``, 1..K)
+``probe``       ``probe_bed``                ``probe_z``: the nozzle's height above the bed
+                                             plane (vertical)
 ==============  ===========================  ===============================================
 
 The prediction is the forward kinematics of the readings followed by the instrument's own
@@ -39,6 +41,8 @@ INSTRUMENT_SECTIONS = {
                                                "motion capture) writes measurement_frames"),
     "distance": (("distances", "ballbar"), "ballbar", "a calibration from distances (d: "
                                                       "ballbar) writes the ballbar section"),
+    "probe": (("probe-heights", "bed-probe"), "bed", "a calibration from probe heights "
+                                                     "(probe_z) writes the bed section"),
 }
 
 
@@ -89,6 +93,8 @@ def fitted_instruments(machine: Machine) -> list[str]:
         out.append("pose")
     if getattr(machine, "ballbar_setups", None):
         out.append("distance")
+    if getattr(machine, "probe_bed", None) is not None:
+        out.append("probe")
     return out
 
 
@@ -278,6 +284,13 @@ def predict_instrument(machine: Machine, q, instrument: str | None = None, group
             values[model.parameters.indices([f"setup{g + 1}.pivot.{c}" for c in "xyz"])] = pivot
             values[model.parameters.indices([f"setup{g + 1}.ball.{c}" for c in "xyz"])] = ball
         values = model.predict(NuisanceState(values, []), P, R, group)
+    elif name == "probe":
+        from .models import ProbeModel
+
+        group = np.zeros(K, int)
+        model = ProbeModel()
+        values = model.predict(NuisanceState(np.asarray(machine.probe_bed, float), []), P, R,
+                               group)
     else:
         values, Rm = machine.measurement_frames.measured(P, R)
         Rm = np.where(ok[:, None, None], Rm, np.nan)

@@ -91,11 +91,13 @@ file's length unit; all optional::
     ballbar:                                   # distances: one mounting per setup 1..K
       - {pivot: [0.0, 0.0, 200.0], ball: [0.0, 0.0, 0.0]}   # pivot base frame, ball platform
     measurement_frames: {...}                  # poses (Hexa Slide, Stewart), as above
+    bed: {height: 0.5, tilt_x: -0.0004, tilt_y: 0.0}   # probe heights: the bed plane
 
 kept on the machine as ``machine.base_from_tracker = (R, t)``, ``machine.tracker_targets``
 ((K, 3) platform-frame places, m; None without ``targets``: the platform origin, or the
-Delta's reflector), ``machine.ballbar_setups`` (list of ``(pivot, ball)``, m) and
-``machine.measurement_frames``; each is None without its key. ``pkmcal fk --frame
+Delta's reflector), ``machine.ballbar_setups`` (list of ``(pivot, ball)``, m),
+``machine.probe_bed`` (``(height m, tilt_x, tilt_y)``) and ``machine.measurement_frames``;
+each is None without its key. ``pkmcal fk --frame
 instrument`` predicts the instrument's measurements from them, ``pkmcal compensate --frame
 instrument`` takes targets in the instrument's frame.
 
@@ -426,6 +428,15 @@ class BallbarSetup(_Strict):
 Ballbar = Annotated[list[BallbarSetup], Field(min_length=1)]
 
 
+class BedPlane(_Strict):
+    """The bed a probe measured: the plane ``z = height + tilt_x x + tilt_y y`` of the base
+    frame (``height`` in the file's length unit; ``tilt_x``, ``tilt_y`` slopes dz/dx, dz/dy)."""
+
+    height: Number
+    tilt_x: Number = 0.0
+    tilt_y: Number = 0.0
+
+
 class DeltaFile(_Strict):
     """``machine: delta`` (SPEC 6)."""
 
@@ -442,6 +453,7 @@ class DeltaFile(_Strict):
     legs: Annotated[list[DeltaLeg], Field(min_length=3, max_length=3)] | None = None
     tracker: TrackerPose | None = None
     ballbar: Ballbar | None = None
+    bed: BedPlane | None = None
     home: list[Number] | None = None
     joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
     calibration: dict[str, Any] | None = None
@@ -477,6 +489,7 @@ class LinearDeltaFile(_Strict):
     chains: Annotated[list[HexaSlideChain], Field(min_length=3, max_length=3)] | None = None
     tracker: TrackerPose | None = None
     ballbar: Ballbar | None = None
+    bed: BedPlane | None = None
     home: list[Number] | None = None
     joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
     calibration: dict[str, Any] | None = None
@@ -587,6 +600,7 @@ class HexaSlideFile(_Strict):
     chains: Annotated[list[HexaSlideChain], Field(min_length=6, max_length=6)]
     tracker: TrackerSection | None = None
     ballbar: Ballbar | None = None
+    bed: BedPlane | None = None
     measurement_frames: MeasurementFramesSection | None = None
     joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
     calibration: dict[str, Any] | None = None
@@ -604,6 +618,7 @@ class StewartFile(_Strict):
     legs: Annotated[list[StewartLeg], Field(min_length=6, max_length=6)]
     tracker: TrackerSection | None = None
     ballbar: Ballbar | None = None
+    bed: BedPlane | None = None
     measurement_frames: MeasurementFramesSection | None = None
     home: Pose6 | None = None
     joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
@@ -738,6 +753,8 @@ def _build_instruments(machine: Machine, doc, fl: float) -> None:
     ballbar = getattr(doc, "ballbar", None)
     machine.ballbar_setups = None if ballbar is None else [
         (np.asarray(s.pivot, float) * fl, np.asarray(s.ball, float) * fl) for s in ballbar]
+    bed = getattr(doc, "bed", None)
+    machine.probe_bed = None if bed is None else (bed.height * fl, bed.tilt_x, bed.tilt_y)
     frames = getattr(doc, "measurement_frames", None)
     if frames is None:
         machine.measurement_frames = None
@@ -772,6 +789,10 @@ def _dump_instruments(machine: Machine, fl: float) -> dict:
     setups = getattr(machine, "ballbar_setups", None)
     if setups is not None:
         out["ballbar"] = [{"pivot": _vector(p, fl), "ball": _vector(b, fl)} for p, b in setups]
+    bed = getattr(machine, "probe_bed", None)
+    if bed is not None:
+        out["bed"] = {"height": float(bed[0]) / fl, "tilt_x": float(bed[1]),
+                      "tilt_y": float(bed[2])}
     frames = getattr(machine, "measurement_frames", None)
     if frames is not None and getattr(machine, "pose_dof", 6) == 6:
         out["measurement_frames"] = {
@@ -947,7 +968,7 @@ _DELTA_HINTS = {
 _INSTRUMENT_KINDS = {
     ("tracker", "translation", "*"): "length", ("tracker", "targets", "*", "*"): "length",
     ("ballbar", "*", "pivot", "*"): "length", ("ballbar", "*", "ball", "*"): "length",
-    ("measurement_frames", "*", "translation", "*"): "length",
+    ("measurement_frames", "*", "translation", "*"): "length", ("bed", "height"): "length",
 }
 _HEXASLIDE_KINDS = {
     ("chains", "*", "a0", "*"): "length", ("chains", "*", "b", "*"): "length",
