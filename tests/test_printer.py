@@ -80,16 +80,9 @@ def test_printer_is_not_the_example():
     assert case("full").du[m.parameters.index("tower1.tilt_radial")] != 0
 
 
-_TILTED_BUG = ("ProbeProblem.null_groups (instruments/registry.py): on a tilted bed, "
-               "height_groups also names 'vertical scale about the bed' inside the span of the "
-               "frame motions (lifted points see the towers' tilt through the bed slope, "
-               "~3e-6 relative): 7 named dimensions in a 6-dimensional null space")
-
 
 @pytest.mark.parametrize("name,planned", [
-    ("full", True), ("klipper", True), ("klipper", False),
-    pytest.param("full", False, marks=pytest.mark.xfail(strict=True, raises=AssertionError,
-                                           reason=_TILTED_BUG))],
+    ("full", True), ("klipper", True), ("klipper", False), ("full", False)],
     ids=["full-plan", "klipper-plan", "klipper-true-bed", "full-true-bed"])
 def test_rank_and_named_directions_match_finite_differences(name, planned):
     """The estimator's rank = the numerical rank of central differences of the residuals

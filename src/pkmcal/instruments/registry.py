@@ -946,8 +946,16 @@ class ProbeProblem(InstrumentProblem):
             Frame motions, then the vertical scale about the bed when it is null.
         """
         N = self.null_space(state) if null_space is None else np.asarray(null_space, float)
-        return (super().null_groups(state, scales, N)
-                + height_groups(self, state, scales, N))
+        groups = super().null_groups(state, scales, N)
+        # the vertical scale is searched for outside what the frame motions already name: on
+        # a tilted bed lifted points see the towers' tilt slightly (heights are vertical, the
+        # bed slopes), which would otherwise be named a second time as a "vertical scale"
+        rest = N
+        if groups and N.shape[1]:
+            Q, _ = np.linalg.qr(np.column_stack([g.tangents for g in groups]))
+            U, sv, _ = np.linalg.svd(N - Q @ (Q.T @ N), full_matrices=False)
+            rest = U[:, sv > 1e-3]
+        return groups + height_groups(self, state, scales, rest)
 
 
 class Probe(Instrument):
