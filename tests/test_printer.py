@@ -80,7 +80,6 @@ def test_printer_is_not_the_example():
     assert case("full").du[m.parameters.index("tower1.tilt_radial")] != 0
 
 
-
 @pytest.mark.parametrize("name,planned", [
     ("full", True), ("klipper", True), ("klipper", False), ("full", False)],
     ids=["full-plan", "klipper-plan", "klipper-true-bed", "full-true-bed"])
