@@ -1645,6 +1645,26 @@ def _distance_rms(problem, state, data) -> tuple[float | None, np.ndarray]:
     return (_um(math.sqrt(float(np.mean(r[ok] ** 2)))) if ok.any() else None), r
 
 
+def _fit_with_baseline(machine, data, source, split, reader, fit, noise, advice: str):
+    """What the instrument-layer kinds share: read and split the data, fit the instrument
+    with the machine and alone on the machine file's model (the "before" baseline), check
+    convergence, name the calibrated machine and build the parameter table (start values of
+    the instrument's unknowns as their nominal)."""
+    data, held = _split_rows(_load(data, reader, machine), split, source)
+    result = _solve(source, fit, machine, data, noise, held=held)
+    before = _solve(source, fit, machine, data, noise, held=held, fit_machine=False)
+    _require_converged(result, source, advice)
+    units = file_units(machine)
+    calibrated = result.extras["machine"]
+    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
+    calibrated.home = machine.home
+    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
+    start = result.extras["start_model"].parameters
+    nominal_of.update(zip(start.names, start.values, strict=True))
+    params = _parameter_table(result, nominal_of, units)
+    return data, held, result, before, calibrated, params, units
+
+
 def _calibrate_distances(machine, data, source, options: CalibrateOptions,
                          split) -> Calibration:
     from ..io import read_distances
@@ -1652,22 +1672,12 @@ def _calibrate_distances(machine, data, source, options: CalibrateOptions,
     from .distances import calibrate_distances
 
     noise = _distance_noise(options.noise, machine)
-    data, held = _split_rows(_load(data, read_distances, machine), split, source)
-    result = _solve(source, calibrate_distances, machine, data, noise, held=held)
-    before = _solve(source, calibrate_distances, machine, data, noise, held=held,
-                    fit_machine=False)
-    _require_converged(result, source, "measure each mounting over a spread of poses (a "
-                       "sphere around the pivot, with rotations on a platform that rotates)")
-    units = file_units(machine)
+    data, held, result, before, calibrated, params, units = _fit_with_baseline(
+        machine, data, source, split, read_distances, calibrate_distances, noise,
+        "measure each mounting over a spread of poses (a sphere around the pivot, with "
+        "rotations on a platform that rotates)")
     fl = LENGTH[units["length"]]
-    calibrated = result.extras["machine"]
-    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
-    calibrated.home = machine.home
     problem, before_problem = result.extras["problem"], before.extras["problem"]
-    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
-    start = result.extras["start_model"].parameters
-    nominal_of.update(zip(start.names, start.values, strict=True))
-    params = _parameter_table(result, nominal_of, units)
     rms_after, r_after = _distance_rms(problem, result.state, data)
     rms_before, _ = _distance_rms(before_problem, before.state, data)
     rank = int(result.rank)
@@ -2324,22 +2334,12 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
     from .probe import MEASURE_NEXT, POOR_STD, calibrate_probe, poorly_determined_warnings
 
     noise = _probe_noise(options.noise, machine)
-    data, held = _split_rows(_load(data, read_probe, machine), split, source)
-    result = _solve(source, calibrate_probe, machine, data, noise, held=held)
-    before = _solve(source, calibrate_probe, machine, data, noise, held=held,
-                    fit_machine=False)
-    _require_converged(result, source, "probe over the whole bed (the centre and rings out "
-                       "to the edge of the reachable radius)")
-    units = file_units(machine)
+    data, held, result, before, calibrated, params, units = _fit_with_baseline(
+        machine, data, source, split, read_probe, calibrate_probe, noise,
+        "probe over the whole bed (the centre and rings out to the edge of the reachable "
+        "radius)")
     fl = LENGTH[units["length"]]
-    calibrated = result.extras["machine"]
-    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
-    calibrated.home = machine.home
     problem, before_problem = result.extras["problem"], before.extras["problem"]
-    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
-    start = result.extras["start_model"].parameters
-    nominal_of.update(zip(start.names, start.values, strict=True))
-    params = _parameter_table(result, nominal_of, units)
     rms_after, r_after = _probe_rms(problem, result.state, data)
     rms_before, r_before = _probe_rms(before_problem, before.state, data)
     rank = int(result.rank)

@@ -101,7 +101,7 @@ import numpy as np
 from ..errors import InputError
 from ..kinematics import matrix_from_rotvec
 from ..parameters import ParameterSet
-from .base import FKResult, FrameMotion, Machine, ParameterSubset
+from .base import FKResult, FrameMotion, Machine, ParameterSubset, closed_form_positions_fk
 from .hexaslide import rail_direction, slider_link_solve
 
 TOWER_FIELDS = ("endstop", "angle", "radius_trim", "arm_trim", "tilt_radial", "tilt_tangential")
@@ -595,17 +595,7 @@ class LinearDelta(Machine):
         ConvergenceError
             With ``raise_on_failure``, when a row could not be solved.
         """
-        q = np.atleast_2d(np.asarray(q, float))
-        K = len(q)
-        P, ok = np.empty((K, 3)), np.empty(K, bool)
-        for lo in range(0, K, self.fk_chunk):
-            P[lo:lo + self.fk_chunk], ok[lo:lo + self.fk_chunk] = \
-                self.fk_positions(q[lo:lo + self.fk_chunk], u)
-        result = FKResult(P, np.broadcast_to(np.eye(3), (K, 3, 3)).copy(), ok,
-                          np.where(ok, 0.0, np.inf), 0)
-        if raise_on_failure:
-            result.raise_if_failed()
-        return result
+        return closed_form_positions_fk(self, q, u, raise_on_failure)
 
     def fk_positions(self, q, u=None):
         """Nozzle positions and a validity mask from the three-sphere intersection.
