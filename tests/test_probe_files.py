@@ -43,3 +43,19 @@ def test_calibrate_writes_the_bed_and_fk_predicts_the_heights(tmp_path):
     report = json.loads((tmp_path / "cal.json").read_text())
     rms = np.sqrt(np.mean(z**2)) * 1e3
     assert rms == pytest.approx(report["residuals"]["rms_um"], rel=1e-6)
+
+
+@pytest.mark.parametrize("column, value, words", [
+    ("probe_z_mm", "1e9", "not plausible as a probe height"),
+    ("d_mm", "1e7", "not plausible as a ballbar length"),
+])
+def test_absurd_instrument_values_are_refused(tmp_path, column, value, words):
+    """A height or a length far beyond the machine's size (a unit slip) is refused naming the
+    row and column, and nothing is written."""
+    (tmp_path / "data.csv").write_text(f"q1_mm,q2_mm,q3_mm,{column}\n"
+                                       + "".join(f"{10 + k},{12 + k},{11 + k},{value}\n"
+                                                 for k in range(8)))
+    proc = run("calibrate", EXAMPLES / "linear_delta.yaml", "data.csv", "-o", "o.yaml",
+               cwd=tmp_path)
+    assert proc.returncode == 2 and words in proc.stderr and "row 2" in proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv"]

@@ -633,6 +633,17 @@ def read_points(path, machine):
                           source=str(path))
 
 
+def _refuse_beyond(path, column: str, rows, values, limit: float, what: str,
+                   limit_words: str) -> None:
+    """InputError naming the first row whose value exceeds ``limit`` (m): not plausible as
+    ``what`` on this machine (a wrong unit suffix, most often)."""
+    bad = np.flatnonzero(values > limit)
+    if bad.size:
+        raise InputError(f"{path}: row {rows[bad[0]]}, column {column}: "
+                         f"{values[bad[0]] * 1e3:.6g} mm is not plausible as {what}: more "
+                         f"than {limit_words} ({limit * 1e3:.6g} mm); check the unit suffix")
+
+
 def read_distances(path, machine):
     """Ballbar measurements: the distance ``d`` between a pivot on the base and a ball on the
     platform, with the machine's readings.
@@ -667,6 +678,8 @@ def read_distances(path, machine):
     if bad.size:
         raise InputError(f"{path}: row {rows[bad[0]]}, column {header[i]}: a measured "
                          f"distance must be > 0, got {table[bad[0]][1][i]!r}")
+    _refuse_beyond(path, header[i], rows, d, 10 * machine.characteristic_length(),
+                   "a ballbar length", "10 x the machine's size")
     return InstrumentData("distances", q, d[:, None], read_groups(path, extra, rows, "setup"),
                           rows, source=str(path))
 
@@ -704,6 +717,8 @@ def read_probe(path, machine):
     header, table = read_table(path)
     i, f = find_column(path, header, "probe_z", "length")
     h = _column_values(path, header, table, i, f)
+    _refuse_beyond(path, header[i], rows, np.abs(h), machine.characteristic_length(),
+                   "a probe height above the bed", "the machine's size")
     if len(h) < 3:
         raise InputError(f"{path}: {len(h)} probe height(s); the bed plane (height and tilt) "
                          "needs at least 3 points not on one line")
