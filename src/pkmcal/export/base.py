@@ -1,0 +1,433 @@
+"""A controller's parameter format, and the best values it can hold for a calibrated machine.
+
+A controller (Klipper, Marlin, RepRapFirmware, LinuxCNC) computes joint commands from target
+positions with its own kinematics and its own, usually smaller, set of parameters. A
+:class:`ControllerFormat` knows that kinematics (:meth:`ControllerFormat.ik`), how its
+parameters map from a pkmcal machine when the machine is exactly representable
+(:meth:`ControllerFormat.initial`), how they are written and read (:meth:`text`,
+:meth:`parse`) and how to turn them back into a machine (:meth:`to_machine`).
+
+:func:`fit_controller` finds the values that minimise the position error over a workspace:
+the controller commands joints for each target, the calibrated machine (the best model of
+the real one) goes where those joints put it, and the distance to the target is the error the
+controller leaves. Values are fitted, not copied: a controller with fewer parameters than the
+calibrated model gets its least-squares best, and the remaining error is reported.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from ..machines.base import Machine
+
+
+@dataclass
+class ControllerParameters:
+    """A controller's parameter values, SI internally (m, rad, ratios).
+
+    Attributes
+    ----------
+    names : list of str
+        Parameter names in the controller's own words (``arm_length_a``, ``base.3.x``).
+    values : ndarray, shape (n,)
+        Values, SI.
+    kinds : list of str
+        ``length``, ``angle`` or ``ratio`` per parameter.
+    fixed : ndarray of bool, shape (n,)
+        Parameters the fit holds (a gauge the controller's format fixes, or a value the
+        controller does not let the user set).
+    """
+
+    names: list
+    values: np.ndarray
+    kinds: list
+    fixed: np.ndarray = field(default=None)  # type: ignore[assignment]
+
+    def __post_init__(self):
+        self.values = np.asarray(self.values, float).reshape(-1)
+        self.fixed = (np.zeros(len(self.values), bool) if self.fixed is None
+                      else np.asarray(self.fixed, bool).reshape(-1))
+
+    def with_values(self, values) -> ControllerParameters:
+        """A copy with new values.
+
+        Parameters
+        ----------
+        values : array_like, shape (n,)
+            The values, SI.
+
+        Returns
+        -------
+        ControllerParameters
+            The copy.
+        """
+        return ControllerParameters(list(self.names), np.asarray(values, float),
+                                    list(self.kinds), self.fixed.copy())
+
+    def as_dict(self) -> dict:
+        """Name -> value (SI).
+
+        Returns
+        -------
+        dict
+            The values.
+        """
+        return dict(zip(self.names, (float(v) for v in self.values), strict=True))
+
+
+class ControllerFormat(ABC):
+    """One controller's kinematics and parameter file (see the module docstring)."""
+
+    #: the name of ``--to`` / ``--from``
+    name: str = ""
+    #: what it is, in words (controller, kinematics, where its convention was read)
+    words: str = ""
+    #: default file suffix of the written file
+    suffix: str = ".txt"
+
+    @abstractmethod
+    def applies(self, machine: Machine) -> str | None:
+        """Why this format cannot hold ``machine`` (None: it can).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        str or None
+            The reason in words.
+        """
+
+    @abstractmethod
+    def initial(self, machine: Machine) -> ControllerParameters:
+        """The controller's values read directly off a machine (its design values).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine (nominal or calibrated).
+
+        Returns
+        -------
+        ControllerParameters
+            The values (the start of :func:`fit_controller`; exact when the format can
+            represent the machine).
+        """
+
+    @abstractmethod
+    def ik(self, params: ControllerParameters, P, R=None) -> np.ndarray:
+        """The joint readings the controller commands for target poses.
+
+        In the machine's reading convention (``q1..qn`` as the machine's data files have
+        them, internal units), so that ``machine.fk`` of them is where the machine goes.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The controller's values.
+        P : ndarray, shape (K, 3)
+            Target positions, m (the calibrated file's base frame).
+        R : ndarray, shape (K, 3, 3), optional
+            Target orientations (platforms that rotate).
+
+        Returns
+        -------
+        ndarray, shape (K, n_joints)
+            Commanded readings; NaN where the controller cannot reach a target.
+        """
+
+    @abstractmethod
+    def text(self, params: ControllerParameters, machine: Machine) -> str:
+        """The file the controller reads, in its units and conventions.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        machine : Machine
+            The machine they are for (name, joint count).
+
+        Returns
+        -------
+        str
+            The file's text.
+        """
+
+    @abstractmethod
+    def parse(self, text: str, source: str) -> ControllerParameters:
+        """The values of a controller file (import).
+
+        Parameters
+        ----------
+        text : str
+            The file's text.
+        source : str
+            Its name, for messages.
+
+        Returns
+        -------
+        ControllerParameters
+            The values, SI.
+
+        Raises
+        ------
+        InputError
+            Naming the file, line and key of what cannot be read.
+        """
+
+    @abstractmethod
+    def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
+        """A pkmcal machine with the controller's values (import).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        like : Machine, optional
+            A machine to take what the controller does not hold from (e.g. an effector
+            offset); default the format's defaults.
+
+        Returns
+        -------
+        Machine
+            The machine.
+        """
+
+
+@dataclass
+class ExportResult:
+    """The controller's best values for a calibrated machine, and the error they leave.
+
+    Attributes
+    ----------
+    format : str
+        The format's name.
+    params : ControllerParameters
+        The fitted values.
+    text : str
+        The file the controller reads.
+    remaining_rms, remaining_max : float
+        Position error the fitted values leave over the workspace (RMS, max), m.
+    before_rms, before_max : float or None
+        The same for the values the controller had before (``nominal``), m.
+    workspace : str
+        The workspace in words.
+    points : int
+        Number of workspace poses.
+    """
+
+    format: str
+    params: ControllerParameters
+    text: str
+    remaining_rms: float
+    remaining_max: float
+    before_rms: float | None
+    before_max: float | None
+    workspace: str
+    points: int
+
+    def as_dict(self) -> dict:
+        """The result for a report (lengths in um).
+
+        Returns
+        -------
+        dict
+            Format, values (SI) and errors.
+        """
+        um = (lambda v: None if v is None else float(v) * 1e6)  # noqa: E731
+        return {"format": self.format, "values": self.params.as_dict(),
+                "fixed": [n for n, f in zip(self.params.names, self.params.fixed,
+                                            strict=True) if f],
+                "workspace": self.workspace, "points": self.points,
+                "remaining_rms_um": um(self.remaining_rms),
+                "remaining_max_um": um(self.remaining_max),
+                "before_rms_um": um(self.before_rms), "before_max_um": um(self.before_max)}
+
+
+def position_errors(fmt: ControllerFormat, params: ControllerParameters, machine: Machine,
+                    P, R=None) -> np.ndarray:
+    """Where the machine goes when the controller commands targets, minus the targets.
+
+    Parameters
+    ----------
+    fmt : ControllerFormat
+        The controller.
+    params : ControllerParameters
+        Its values.
+    machine : Machine
+        The machine that moves (the calibrated model).
+    P : ndarray, shape (K, 3)
+        Targets, m.
+    R : ndarray, shape (K, 3, 3), optional
+        Target orientations.
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+        Position errors, m; NaN where the controller or the machine fails.
+    """
+    P = np.asarray(P, float)
+    R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else np.asarray(R, float)
+    with np.errstate(all="ignore"):
+        q = fmt.ik(params, P, R)
+        ok = np.all(np.isfinite(q), axis=-1)
+        out = np.full(P.shape, np.nan)
+        if ok.any():
+            fk = machine.fk(q[ok], start=(P[ok], R[ok]))
+            out[ok] = np.where(fk.converged[:, None], fk.P - P[ok], np.nan)
+    return out
+
+
+def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
+                   start: ControllerParameters | None = None) -> ControllerParameters:
+    """The controller's values that minimise the position error over workspace poses.
+
+    Least squares (scipy's trust-region reflective with a finite-difference Jacobian, the
+    controller's kinematics being a black box here) from :meth:`ControllerFormat.initial` of
+    the machine, over the free parameters; lengths scaled by the machine's characteristic
+    length.
+
+    Parameters
+    ----------
+    fmt : ControllerFormat
+        The controller.
+    machine : Machine
+        The calibrated machine.
+    P : ndarray, shape (K, 3)
+        Workspace positions, m.
+    R : ndarray, shape (K, 3, 3), optional
+        Workspace orientations.
+    start : ControllerParameters, optional
+        Start values; default ``fmt.initial(machine)``.
+
+    Returns
+    -------
+    ControllerParameters
+        The fitted values.
+
+    Raises
+    ------
+    InputError
+        When the controller cannot reach the workspace with its start values.
+    """
+    from scipy.optimize import least_squares
+
+    params = fmt.initial(machine) if start is None else start
+    free = ~params.fixed
+    L = machine.characteristic_length()
+    scale = np.array([L if k == "length" else 1.0 for k in params.kinds])[free]
+
+    def residual(x):
+        v = params.values.copy()
+        v[free] = x * scale
+        e = position_errors(fmt, params.with_values(v), machine, P, R) / L
+        return np.nan_to_num(e.ravel(), nan=1.0)      # a target lost weighs a lot
+
+    e0 = position_errors(fmt, params, machine, P, R)
+    if not np.all(np.isfinite(e0)):
+        bad = int(np.sum(~np.all(np.isfinite(e0), axis=-1)))
+        raise InputError(f"{fmt.name}: {bad} of {len(P)} workspace poses cannot be commanded "
+                         "with the controller's values read off the machine; give a smaller "
+                         "workspace (--workspace)")
+    if not free.any():
+        return params
+    fit = least_squares(residual, params.values[free] / scale, method="trf", xtol=1e-15,
+                        ftol=1e-15, gtol=1e-15, max_nfev=200 * (int(free.sum()) + 1))
+    v = params.values.copy()
+    v[free] = fit.x * scale
+    return params.with_values(v)
+
+
+def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine | None = None,
+           workspace: str = "") -> ExportResult:
+    """The controller file for a calibrated machine: fitted values and the error they leave.
+
+    Parameters
+    ----------
+    fmt : ControllerFormat
+        The controller.
+    machine : Machine
+        The calibrated machine.
+    P : ndarray, shape (K, 3)
+        Workspace positions, m.
+    R : ndarray, shape (K, 3, 3), optional
+        Workspace orientations.
+    nominal : Machine, optional
+        The machine the controller's current values come from (its machine file before
+        calibration): their error on the calibrated machine is reported too.
+    workspace : str, optional
+        The workspace in words.
+
+    Returns
+    -------
+    ExportResult
+        The result.
+
+    Raises
+    ------
+    InputError
+        When the format does not apply to the machine, or the workspace cannot be commanded.
+    """
+    why = fmt.applies(machine)
+    if why is not None:
+        raise InputError(f"--to {fmt.name}: {why}")
+    params = fit_controller(fmt, machine, P, R)
+    e = np.linalg.norm(position_errors(fmt, params, machine, P, R), axis=-1)
+    before = (None, None)
+    if nominal is not None:
+        e0 = np.linalg.norm(position_errors(fmt, fmt.initial(nominal), machine, P, R), axis=-1)
+        before = (float(np.sqrt(np.nanmean(e0**2))), float(np.nanmax(e0)))
+    return ExportResult(fmt.name, params, fmt.text(params, machine),
+                        float(np.sqrt(np.nanmean(e**2))), float(np.nanmax(e)), *before,
+                        workspace, len(P))
+
+
+#: the controller formats by name (:func:`register_format`)
+FORMATS: dict[str, ControllerFormat] = {}
+
+
+def register_format(fmt: ControllerFormat) -> ControllerFormat:
+    """Make a controller format known to ``pkmcal export`` / ``import``.
+
+    Parameters
+    ----------
+    fmt : ControllerFormat
+        The format.
+
+    Returns
+    -------
+    ControllerFormat
+        ``fmt``.
+    """
+    FORMATS[fmt.name] = fmt
+    return fmt
+
+
+def controller_format(name: str) -> ControllerFormat:
+    """The format of a name.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`FORMATS`.
+
+    Returns
+    -------
+    ControllerFormat
+        The format.
+
+    Raises
+    ------
+    InputError
+        For an unknown name, listing the known ones.
+    """
+    if name not in FORMATS:
+        raise InputError(f"unknown controller format {name!r}; use one of "
+                         f"{', '.join(sorted(FORMATS))}")
+    return FORMATS[name]
