@@ -14,10 +14,11 @@ from .base import (
     controller_format,
     export,
     fit_controller,
+    load_formats,
     position_errors,
     register_format,
 )
 
 __all__ = ["FORMATS", "ControllerFormat", "ControllerParameters", "ExportResult",
-           "controller_format", "export", "fit_controller", "position_errors",
+           "controller_format", "export", "fit_controller", "load_formats", "position_errors",
            "register_format"]

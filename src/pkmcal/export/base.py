@@ -388,8 +388,26 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
                         workspace, len(P))
 
 
-#: the controller formats by name (:func:`register_format`)
+#: the controller formats by name (:func:`register_format`; filled by :data:`FORMAT_MODULES`)
 FORMATS: dict[str, ControllerFormat] = {}
+#: the modules of ``pkmcal.export`` that register formats, one per controller family
+FORMAT_MODULES = ("linuxcnc_hexapod", "linuxcnc_delta", "klipper", "klipper_rotary", "marlin",
+                  "reprapfirmware")
+
+
+def load_formats() -> dict[str, ControllerFormat]:
+    """Import the format modules (once) and return :data:`FORMATS`.
+
+    Returns
+    -------
+    dict
+        Name -> format.
+    """
+    import importlib
+
+    for module in FORMAT_MODULES:
+        importlib.import_module(f"{__package__}.{module}")
+    return FORMATS
 
 
 def register_format(fmt: ControllerFormat) -> ControllerFormat:
@@ -427,6 +445,7 @@ def controller_format(name: str) -> ControllerFormat:
     InputError
         For an unknown name, listing the known ones.
     """
+    load_formats()
     if name not in FORMATS:
         raise InputError(f"unknown controller format {name!r}; use one of "
                          f"{', '.join(sorted(FORMATS))}")
