@@ -1,0 +1,542 @@
+"""Klipper's ``delta`` kinematics: a ``printer.cfg`` fragment for a linear Delta printer.
+
+Read in Klipper's source (``Klipper3d/klipper``, ``klippy/kinematics/delta.py``,
+``DeltaKinematics.__init__`` and ``DeltaCalibration``):
+
+- ``[printer] delta_radius`` is ONE radius for the three towers (there is no per-stepper
+  radius); tower ``i`` stands at ``(cos(angle_i) r, sin(angle_i) r)``, ``angle`` per
+  ``[stepper_a|b|c]`` in degrees (defaults 210, 330, 90);
+- ``arm_length`` per stepper (``stepper_b`` and ``stepper_c`` default to ``stepper_a``'s);
+- ``position_endstop`` per stepper (``b``, ``c`` default to ``a``'s); the carriage height at the
+  endstop is ``abs_endstop = position_endstop + sqrt(arm^2 - delta_radius^2)``;
+- the carriage height for a nozzle position is ``sqrt(arm^2 - (tx - x)^2 - (ty - y)^2) + z``
+  (``DeltaCalibration.calc_stable_position``: steps since the endstop are ``(abs_endstop -
+  height) / step_dist``), so the travel down from the endstop is ``abs_endstop - height``;
+- ``SAVE_CONFIG`` writes the values with ``%.6f`` into the ``#*#`` block at the end of
+  ``printer.cfg`` (``DeltaCalibration.save_state``), which overrides the sections above it.
+
+``print_radius`` and ``minimum_z_position`` are not kinematics: the fragment leaves them as the
+user has them. Klipper cannot hold tower tilts or per-tower radii: :func:`fit_controller` finds
+the values that leave the least position error.
+
+The controller's coordinates
+----------------------------
+Klipper's ``z = 0`` is the bed. A calibrated machine file with a ``bed`` section (a probe
+calibration, ``machine.probe_bed = (height, tilt_x, tilt_y)``: the bed is the plane ``z =
+height + tilt_x x + tilt_y y`` of the calibrated frame) puts Klipper's origin on the bed at
+the base frame's z axis: the controller's target ``(x, y, z)`` is the calibrated frame's
+``(x, y, z + height)``, so the written ``position_endstop`` values are heights above the bed.
+The bed's tilt is not kinematics for Klipper (``bed_mesh`` corrects it): the fragment names it
+in a comment and the remaining error leaves it out. The bed is carried in the values as three
+fixed entries (``bed.z``, ``bed.tilt_x``, ``bed.tilt_y``) and written as a ``# pkmcal bed:``
+comment, which :meth:`KlipperDelta.parse` reads back.
+
+This module also holds the helpers the Marlin and RepRapFirmware formats share
+(:func:`vertical_tower_travel`, :func:`controller_endstops`, :func:`linear_delta_machine`).
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from ..errors import InputError
+from ..machines.base import Machine
+from ..machines.linear_delta import LinearDelta, linear_delta
+from .base import ControllerFormat, ControllerParameters, register_format
+
+#: the bed entries every linear-Delta format carries (fixed): height m, slopes dz/dx, dz/dy
+BED = ("bed.z", "bed.tilt_x", "bed.tilt_y")
+BED_KINDS = ("length", "ratio", "ratio")
+#: the tower letters of Klipper's steppers
+TOWERS = "abc"
+#: ``# pkmcal bed: height=<mm> tilt_x=<dz/dx> tilt_y=<dz/dy>`` (any comment character)
+BED_COMMENT = re.compile(r"pkmcal bed:\s*height=(\S+)\s+tilt_x=(\S+)\s+tilt_y=(\S+)")
+
+
+def linear_delta_applies(machine: Machine) -> str | None:
+    """Why a linear-Delta printer format cannot hold a machine (None: it can).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine.
+
+    Returns
+    -------
+    str or None
+        The reason in words.
+    """
+    if getattr(machine, "kind", None) != "linear_delta":
+        return (f"holds a linear Delta printer (machine: linear_delta), not a "
+                f"{getattr(machine, 'kind', type(machine).__name__)}")
+    return None
+
+
+def machine_bed(machine: Machine) -> np.ndarray:
+    """The bed plane of a calibrated machine file (its ``bed`` section), zeros without one.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        ``(height m, tilt_x, tilt_y)``: the bed is ``z = height + tilt_x x + tilt_y y``.
+    """
+    bed = getattr(machine, "probe_bed", None)
+    return np.zeros(3) if bed is None else np.asarray(bed, float).reshape(3)
+
+
+def bed_text(bed, comment: str) -> str:
+    """The ``pkmcal bed:`` comment line (height in mm).
+
+    Parameters
+    ----------
+    bed : array_like, shape (3,)
+        ``(height m, tilt_x, tilt_y)``.
+    comment : str
+        The comment character (``#`` or ``;``).
+
+    Returns
+    -------
+    str
+        The line.
+    """
+    h, tx, ty = (float(v) for v in bed)
+    return f"{comment} pkmcal bed: height={h * 1e3:.6f} tilt_x={tx:.12g} tilt_y={ty:.12g}"
+
+
+def read_bed(text: str, source: str) -> np.ndarray:
+    """The ``pkmcal bed:`` comment of a controller file (zeros without one).
+
+    Parameters
+    ----------
+    text : str
+        The file's text.
+    source : str
+        Its name, for messages.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        ``(height m, tilt_x, tilt_y)``.
+
+    Raises
+    ------
+    InputError
+        When a value of the comment is not a number.
+    """
+    bed = np.zeros(3)
+    for n, line in enumerate(text.splitlines(), 1):
+        m = BED_COMMENT.search(line)
+        if m:
+            for k, key in enumerate(("height", "tilt_x", "tilt_y")):
+                bed[k] = finite_number(m.group(k + 1), source, n, f"pkmcal bed {key}")
+            bed[0] *= 1e-3
+    return bed
+
+
+def finite_number(word: str, source: str, line: int, key: str) -> float:
+    """A finite number of a controller file, or an error naming the line and key.
+
+    Parameters
+    ----------
+    word : str
+        The text of the value.
+    source : str
+        The file's name.
+    line : int
+        1-based line number.
+    key : str
+        The key, in the controller's words.
+
+    Returns
+    -------
+    float
+        The value.
+
+    Raises
+    ------
+    InputError
+        When the value is not a finite number.
+    """
+    try:
+        v = float(word)
+    except ValueError:
+        raise InputError(f"{source}: line {line}: {key}: {word!r} is not a number") from None
+    if not np.isfinite(v):
+        raise InputError(f"{source}: line {line}: {key}: {word!r} is not a finite number")
+    return v
+
+
+def vertical_tower_travel(towers, arms, tops, P) -> np.ndarray:
+    """Carriage travel down from the endstop on vertical towers (the firmwares' delta IK).
+
+    Carriage height ``z + sqrt(arm^2 - (tx - x)^2 - (ty - y)^2)`` (Klipper, Marlin's
+    ``DELTA_Z``, RepRapFirmware's ``Transform`` without tilt), travel ``top - height``.
+
+    Parameters
+    ----------
+    towers : array_like, shape (3, 2)
+        Tower positions (x, y), m.
+    arms : array_like, shape (3,)
+        Arm (diagonal rod) lengths, m.
+    tops : array_like, shape (3,)
+        Carriage heights at the endstops, m (the controller's coordinates).
+    P : array_like, shape (K, 3)
+        Nozzle targets in the controller's coordinates, m.
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+        Travels, m; NaN where an arm cannot reach.
+    """
+    P = np.asarray(P, float).reshape(-1, 3)
+    T = np.asarray(towers, float)
+    dx = T[None, :, 0] - P[:, 0:1]
+    dy = T[None, :, 1] - P[:, 1:2]
+    with np.errstate(invalid="ignore"):
+        height = P[:, 2:3] + np.sqrt(np.asarray(arms, float)[None] ** 2 - dx * dx - dy * dy)
+    return np.asarray(tops, float)[None] - height
+
+
+def tower_positions(radius, angles) -> np.ndarray:
+    """Towers at one radius and their angles: ``(cos(angle) r, sin(angle) r)``.
+
+    Parameters
+    ----------
+    radius : float or array_like, shape (3,)
+        Radius, m.
+    angles : array_like, shape (3,)
+        Tower angles, rad.
+
+    Returns
+    -------
+    ndarray, shape (3, 2)
+        Tower positions, m.
+    """
+    a = np.asarray(angles, float)
+    r = np.broadcast_to(np.asarray(radius, float), a.shape)
+    return np.column_stack([r * np.cos(a), r * np.sin(a)])
+
+
+def controller_endstops(machine: LinearDelta, radius: float, height: float = 0.0):
+    """A linear Delta's values on vertical towers of one radius: arms, angles, and the
+    ``position_endstop`` (Klipper's meaning) keeping each carriage's height at its endstop.
+
+    With its own radius ``r_i`` tower ``i``'s carriage at the endstop is at ``endstop_i +
+    sqrt(l_i^2 - r_i^2)``; a controller with one radius ``R`` puts it at ``E_i + sqrt(l_i^2 -
+    R^2)``, so ``E_i = endstop_i + sqrt(l_i^2 - r_i^2) - sqrt(l_i^2 - R^2) - height`` (heights
+    above the bed at ``height``).
+
+    Parameters
+    ----------
+    machine : LinearDelta
+        The machine.
+    radius : float
+        The controller's common radius, m.
+    height : float, optional
+        The bed's height at the z axis (the controller's z = 0), m.
+
+    Returns
+    -------
+    arms : ndarray, shape (3,)
+        Arm lengths, m.
+    angles : ndarray, shape (3,)
+        Tower angles, rad.
+    endstops : ndarray, shape (3,)
+        ``E_i``, m.
+    """
+    v = machine.firmware_values()
+    l, r = np.asarray(v["arm_length"]), np.asarray(v["radius"])
+    pe, theta = np.asarray(v["position_endstop"]), np.asarray(v["angle"])
+    E = pe + np.sqrt(l * l - r * r) - np.sqrt(l * l - radius * radius) - height
+    return l, theta, E
+
+
+def wrap_degrees(angle):
+    """An angle in degrees brought into (-180, 180].
+
+    Parameters
+    ----------
+    angle : array_like
+        Angles, deg.
+
+    Returns
+    -------
+    ndarray
+        The same angles, in (-180, 180].
+    """
+    a = np.asarray(angle, float)
+    return 180.0 - (180.0 - a) % 360.0
+
+
+def linear_delta_machine(radius: float, arms, angles, endstops, bed,
+                         like: Machine | None = None, name: str = "") -> LinearDelta:
+    """A pkmcal linear Delta from a controller's values (vertical towers, one radius).
+
+    Parameters
+    ----------
+    radius : float
+        Common radius, m.
+    arms : array_like, shape (3,)
+        Arm lengths, m.
+    angles : array_like, shape (3,)
+        Tower angles, rad.
+    endstops : array_like, shape (3,)
+        ``position_endstop`` (Klipper's meaning: the nozzle's height above the bed at the
+        centre when the tower's carriage is at its endstop), m.
+    bed : array_like, shape (3,)
+        ``(height, tilt_x, tilt_y)`` of the bed in the machine's frame: the endstops are
+        raised by the height; a non-zero bed becomes the machine's ``probe_bed``.
+    like : Machine, optional
+        Name and home pose come from it.
+    name : str, optional
+        Name when ``like`` gives none.
+
+    Returns
+    -------
+    LinearDelta
+        The machine.
+    """
+    bed = np.asarray(bed, float).reshape(3)
+    arms = np.asarray(arms, float).reshape(3)
+    one = bool(np.all(arms == arms[0]))
+    m = linear_delta(float(radius), float(arms[0]) if one else arms,
+                     np.asarray(angles, float).reshape(3),
+                     np.asarray(endstops, float).reshape(3) + bed[0],
+                     home=None if like is None else like.home,
+                     name=(like.name if like is not None and like.name else name))
+    m.probe_bed = tuple(float(v) for v in bed) if np.any(bed != 0) else None
+    return m
+
+
+class KlipperDelta(ControllerFormat):
+    """Klipper ``kinematics: delta`` (see the module docstring)."""
+
+    name = "klipper"
+    words = ("Klipper delta kinematics (klippy/kinematics/delta.py): [printer] delta_radius, "
+             "[stepper_a|b|c] arm_length, angle, position_endstop")
+    suffix = ".cfg"
+
+    NAMES = (["delta_radius"] + [f"arm_length_{t}" for t in TOWERS]
+             + [f"angle_{t}" for t in TOWERS] + [f"position_endstop_{t}" for t in TOWERS]
+             + list(BED))
+    KINDS = ["length"] * 4 + ["angle"] * 3 + ["length"] * 3 + list(BED_KINDS)
+
+    def applies(self, machine: Machine) -> str | None:
+        """Why Klipper's delta format cannot hold ``machine`` (None: a linear Delta).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        str or None
+            The reason in words.
+        """
+        return linear_delta_applies(machine)
+
+    def values(self, radius, arms, angles, endstops, bed) -> ControllerParameters:
+        """Klipper's values from their parts (SI), the bed fixed.
+
+        Parameters
+        ----------
+        radius : float
+            ``delta_radius``, m.
+        arms : array_like, shape (3,)
+            ``arm_length`` a, b, c, m.
+        angles : array_like, shape (3,)
+            ``angle`` a, b, c, rad.
+        endstops : array_like, shape (3,)
+            ``position_endstop`` a, b, c, m.
+        bed : array_like, shape (3,)
+            The bed (``bed.z`` m, ``bed.tilt_x``, ``bed.tilt_y``).
+
+        Returns
+        -------
+        ControllerParameters
+            The values.
+        """
+        v = np.concatenate([[radius], arms, angles, endstops, bed]).astype(float)
+        return ControllerParameters(list(self.NAMES), v, list(self.KINDS),
+                                    np.arange(len(v)) >= 10)
+
+    def initial(self, machine: Machine) -> ControllerParameters:
+        """Klipper's values read off a linear Delta (exact for vertical towers of one radius).
+
+        Parameters
+        ----------
+        machine : Machine
+            A linear Delta.
+
+        Returns
+        -------
+        ControllerParameters
+            ``delta_radius`` the mean tower radius; arms and angles per tower;
+            ``position_endstop`` keeping each carriage's height at its endstop, above the bed.
+        """
+        bed = machine_bed(machine)
+        R = float(np.mean(machine.firmware_values()["radius"]))
+        arms, angles, E = controller_endstops(machine, R, bed[0])
+        return self.values(R, arms, angles, E, bed)
+
+    def ik(self, params: ControllerParameters, P, R=None) -> np.ndarray:
+        """Klipper's carriage travels down from the endstops for nozzle targets.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Klipper's values.
+        P : ndarray, shape (K, 3)
+            Targets in the calibrated frame, m.
+        R : ndarray, optional
+            Ignored (the effector does not rotate).
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            Travels, m; NaN where an arm cannot reach.
+        """
+        v = params.values
+        radius, arms, angles, pe, bed = v[0], v[1:4], v[4:7], v[7:10], v[10:13]
+        Pc = np.array(P, float).reshape(-1, 3)
+        Pc[:, 2] -= bed[0]
+        tops = pe + np.sqrt(arms**2 - radius**2)
+        return vertical_tower_travel(tower_positions(radius, angles), arms, tops, Pc)
+
+    def text(self, params: ControllerParameters, machine: Machine) -> str:
+        """The ``printer.cfg`` fragment (mm, deg).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Klipper's values.
+        machine : Machine
+            The machine they are for.
+
+        Returns
+        -------
+        str
+            ``[printer]`` and ``[stepper_a|b|c]`` sections with the kinematic keys.
+        """
+        v = params.values
+        bed = v[10:13]
+        lines = [f"# pkmcal export --to klipper: {machine.name or 'linear Delta'}",
+                 "# Klipper delta kinematics (klippy/kinematics/delta.py); merge into "
+                 "printer.cfg (and remove these keys from a #*# SAVE_CONFIG block, which "
+                 "overrides them)",
+                 "# z = 0 is the bed at the centre" + (
+                     f"; the bed's tilt (dz/dx {bed[1]:.6g}, dz/dy {bed[2]:.6g}) is left to "
+                     "bed_mesh" if np.any(bed[1:] != 0) else ""),
+                 bed_text(bed, "#"),
+                 "[printer]", "kinematics: delta", f"delta_radius: {v[0] * 1e3:.6f}"]
+        for i, t in enumerate(TOWERS):
+            lines += ["", f"[stepper_{t}]", f"arm_length: {v[1 + i] * 1e3:.6f}",
+                      f"angle: {np.degrees(v[4 + i]):.9f}",
+                      f"position_endstop: {v[7 + i] * 1e3:.6f}"]
+        return "\n".join(lines) + "\n"
+
+    def parse(self, text: str, source: str) -> ControllerParameters:
+        """Klipper's values from a ``printer.cfg`` (or a fragment).
+
+        Reads ``[printer] delta_radius`` and ``[stepper_a|b|c] arm_length``, ``angle``,
+        ``position_endstop`` with Klipper's defaults (``b``, ``c`` take ``a``'s arm length and
+        endstop; angles 210, 330, 90); a ``#*#`` SAVE_CONFIG block overrides the sections
+        above it, as in Klipper.
+
+        Parameters
+        ----------
+        text : str
+            The file's text.
+        source : str
+            Its name, for messages.
+
+        Returns
+        -------
+        ControllerParameters
+            The values, SI.
+
+        Raises
+        ------
+        InputError
+            Naming the line and key of a value that is not a number, or the key missing.
+        """
+        found: dict = {}
+        section = None
+        for n, raw in enumerate(text.splitlines(), 1):
+            line = raw
+            if line.startswith("#*#"):
+                line = line[3:]
+            line = re.split(r"[#;]", line, maxsplit=1)[0].strip()
+            if not line:
+                continue
+            m = re.fullmatch(r"\[([^\]]+)\]", line)
+            if m:
+                section = m.group(1).strip()
+                continue
+            m = re.fullmatch(r"([A-Za-z_0-9]+)\s*[:=]\s*(.*)", line)
+            if m is None or section is None:
+                continue
+            key = m.group(1).strip().lower()
+            wanted = ((section == "printer" and key == "delta_radius")
+                      or (section in {f"stepper_{t}" for t in TOWERS}
+                          and key in ("arm_length", "angle", "position_endstop")))
+            if wanted:
+                label = f"[{section}] {key}"
+                found[(section, key)] = (finite_number(m.group(2).strip(), source, n, label),
+                                         n, label)
+
+        def get(sec, key, default=None):
+            if (sec, key) in found:
+                return found[(sec, key)][0]
+            if default is None:
+                raise InputError(f"{source}: [{sec}] {key}: missing (Klipper's delta "
+                                 "kinematics need it)")
+            return default
+
+        radius = get("printer", "delta_radius") * 1e-3
+        arm_a = get("stepper_a", "arm_length")
+        pe_a = get("stepper_a", "position_endstop")
+        arms = np.array([arm_a] + [get(f"stepper_{t}", "arm_length", arm_a) for t in "bc"])
+        pe = np.array([pe_a] + [get(f"stepper_{t}", "position_endstop", pe_a) for t in "bc"])
+        angles = np.array([get(f"stepper_{t}", "angle", d)
+                           for t, d in zip(TOWERS, (210.0, 330.0, 90.0), strict=True)])
+        for i, t in enumerate(TOWERS):
+            if not arms[i] * 1e-3 > radius > 0:
+                key = ((f"stepper_{t}", "arm_length") if (f"stepper_{t}", "arm_length")
+                       in found else ("stepper_a", "arm_length"))
+                n = found[key][1]
+                raise InputError(f"{source}: line {n}: [{key[0]}] arm_length: {arms[i]:g} "
+                                 f"mm must exceed delta_radius ({radius * 1e3:g} mm) > 0")
+        return self.values(radius, arms * 1e-3, np.radians(angles), pe * 1e-3,
+                           read_bed(text, source))
+
+    def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
+        """A linear Delta with Klipper's values (vertical towers, one radius).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Klipper's values.
+        like : Machine, optional
+            Name and home pose come from it.
+
+        Returns
+        -------
+        Machine
+            The :class:`~pkmcal.machines.LinearDelta`; a ``pkmcal bed`` comment becomes its
+            ``probe_bed`` (the endstops raised by the bed's height).
+        """
+        v = params.values
+        return linear_delta_machine(v[0], v[1:4], v[4:7], v[7:10], v[10:13], like,
+                                    "linear Delta (imported from Klipper)")
+
+
+KLIPPER = register_format(KlipperDelta())

@@ -1,0 +1,385 @@
+"""Marlin's linear Delta: ``M665 H L R X Y Z A B C`` and ``M666 X Y Z`` G-code lines.
+
+Read in Marlin's source (``MarlinFirmware/Marlin``):
+
+- ``Marlin/src/gcode/calibrate/M665.cpp``: ``H`` delta height (``delta_height``), ``L``
+  diagonal rod (``delta_diagonal_rod``), ``R`` delta radius, ``S`` segments per second (not
+  kinematics: not written), ``X Y Z`` the tower angle trims (``delta_tower_angle_trim``, deg),
+  ``A B C`` the diagonal rod trims (``delta_diagonal_rod_trim``, mm); ``M665_report`` prints
+  ``M665 L R H S X Y Z A B C``.
+- ``Marlin/src/module/delta.cpp`` ``recalc_delta_settings``: tower ``i`` at ``(cos(base_i +
+  trim_i), sin(base_i + trim_i)) (delta_radius + DELTA_RADIUS_TRIM_TOWER_i)`` with ``base`` 210,
+  330, 90 deg; ``delta_diagonal_rod_2_tower_i = (delta_diagonal_rod + rod_trim_i)^2``. The
+  per-tower radius trims ``DELTA_RADIUS_TRIM_TOWER`` are compile-time (``Configuration.h``),
+  not a G-code: this format takes them as 0.
+- ``Marlin/src/module/delta.h`` ``DELTA_Z``: the carriage height for a position is ``z +
+  sqrt(delta_diagonal_rod_2_tower_i - |tower_i - (x, y)|^2)``.
+- ``Marlin/src/gcode/calibrate/M666.cpp``: ``M666 X Y Z`` the endstop adjustments
+  (``delta_endstop_adj``, mm); a positive value is refused ("M666 offsets must be <= 0").
+- ``Marlin/src/module/motion.cpp`` ``homeaxis`` (DELTA): after each carriage reaches its
+  endstop it moves ``delta_endstop_adj`` further (down, for a negative value) when that is more
+  than ``MIN_STEPS_PER_SEGMENT`` steps; ``home_delta`` then declares the nozzle at ``(0, 0,
+  delta_height)`` (``set_axis_is_at_home``; ``delta_height - probe.offset.z`` in builds with a
+  bed probe: this format writes for ``M851 Z0``) and the planner takes the carriage heights
+  from the inverse kinematics there: ``delta_height + sqrt(rod_i^2 - radius_i^2)``.
+- ``Marlin/src/gcode/calibrate/G33.cpp``: ``G33`` normalises the endstop adjustments so the
+  largest is 0 (into ``delta_height``) and the angle trims to sum 0.
+
+So the carriage of tower ``i`` at its endstop stands at ``H - adj_i + sqrt(rod_i^2 - R^2)`` in
+Marlin's coordinates: Klipper's ``position_endstop`` is ``H - adj_i``, and the travel down
+from the endstop for a target is ``H - adj_i + sqrt(rod_i^2 - R^2) - DELTA_Z_i``.
+
+Degenerate values, fixed in the fit
+-----------------------------------
+Only ``H - adj_i`` enters: ``H`` is fixed (the adjustments are free) and the text writes the
+equivalent normalised values (largest adjustment 0, as G33 leaves them; Marlin accepts no
+positive one). Only ``L + A``, ``L + B``, ``L + C`` enter: ``L`` is fixed at the calibrated
+machine's mean arm length, the trims free, and the text writes ``L`` as the mean of the three
+rods (the trims about it). Everything else is free, all three angle trims
+included (the calibrated frame is fixed: a turn of the three towers moves the print).
+
+The controller's coordinates are the bed's as in :mod:`pkmcal.export.klipper` (``z = 0`` the
+bed at the centre; its tilt is left to bed levelling, ``G29``). Not modelled: adjustments
+smaller than ``MIN_STEPS_PER_SEGMENT`` steps, which Marlin does not move; a hotend offset;
+``M206``/``G92`` shifts.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from ..errors import InputError
+from ..machines.base import Machine
+from .base import ControllerFormat, ControllerParameters, register_format
+from .klipper import (
+    BED,
+    BED_KINDS,
+    bed_text,
+    controller_endstops,
+    finite_number,
+    linear_delta_applies,
+    linear_delta_machine,
+    machine_bed,
+    read_bed,
+    tower_positions,
+    vertical_tower_travel,
+    wrap_degrees,
+)
+
+#: Marlin's tower angles before the trims (``recalc_delta_settings``), deg
+BASE_ANGLES = np.array([210.0, 330.0, 90.0])
+_ABC = "abc"
+_LENGTH_KEYS = {"H", "L", "R", "A", "B", "C"}
+
+
+def gcode_words(line: str, source: str, n: int, code: str) -> dict:
+    """The letter words of one G-code line (``X1.5 Y-2``), values as text.
+
+    Parameters
+    ----------
+    line : str
+        The line without its comment and command.
+    source : str
+        The file's name.
+    n : int
+        1-based line number.
+    code : str
+        The command, for messages.
+
+    Returns
+    -------
+    dict
+        Upper-case letter -> value text.
+
+    Raises
+    ------
+    InputError
+        For a word without a value.
+    """
+    out = {}
+    tokens = line.split()
+    k = 0
+    while k < len(tokens):
+        tok = tokens[k]
+        letter, value = tok[0].upper(), tok[1:]
+        if not letter.isalpha():
+            raise InputError(f"{source}: line {n}: {code}: {tok!r} is not a letter word")
+        if not value and k + 1 < len(tokens) and not tokens[k + 1][0].isalpha():
+            k += 1
+            value = tokens[k]                   # "L 250": the value after a space
+        if not value:
+            raise InputError(f"{source}: line {n}: {code} {letter}: no value")
+        out[letter] = value
+        k += 1
+    return out
+
+
+def gcode_lines(text: str, codes: tuple):
+    """The lines of a G-code file with one of the commands (``M665``), comments removed.
+
+    Marlin's ``M503`` report (``echo:  M665 L...``) and line numbers (``N12``) are accepted.
+
+    Parameters
+    ----------
+    text : str
+        The file's text.
+    codes : tuple of str
+        Commands, upper case.
+
+    Yields
+    ------
+    tuple
+        ``(line number, command, rest of the line)``.
+    """
+    for n, raw in enumerate(text.splitlines(), 1):
+        line = raw.split(";", 1)[0]
+        line = re.sub(r"\([^)]*\)", " ", line).strip()
+        line = re.sub(r"^(echo:|ok)\s*", "", line, flags=re.I).strip()
+        line = re.sub(r"^N\d+\s+", "", line, flags=re.I)
+        m = re.match(r"([GMgm])0*(\d+)(?=\s|$)(.*)", line)
+        if m and f"{m.group(1).upper()}{m.group(2)}" in codes:
+            yield n, f"{m.group(1).upper()}{m.group(2)}", m.group(3)
+
+
+class MarlinDelta(ControllerFormat):
+    """Marlin ``DELTA``: ``M665`` / ``M666`` (see the module docstring)."""
+
+    name = "marlin"
+    words = ("Marlin delta (Marlin/src/module/delta.cpp, gcode/calibrate/M665.cpp, M666.cpp): "
+             "M665 H L R X Y Z A B C, M666 X Y Z")
+    suffix = ".gcode"
+
+    NAMES = (["delta_height", "delta_diagonal_rod", "delta_radius"]
+             + [f"delta_tower_angle_trim_{t}" for t in _ABC]
+             + [f"delta_diagonal_rod_trim_{t}" for t in _ABC]
+             + [f"delta_endstop_adj_{t}" for t in _ABC] + list(BED))
+    KINDS = ["length"] * 3 + ["angle"] * 3 + ["length"] * 6 + list(BED_KINDS)
+    #: H (degenerate with the adjustments), L (with the rod trims) and the bed
+    FIXED = np.array([True, True] + [False] * 10 + [True] * 3)
+
+    def applies(self, machine: Machine) -> str | None:
+        """Why Marlin's delta format cannot hold ``machine`` (None: a linear Delta).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        str or None
+            The reason in words.
+        """
+        return linear_delta_applies(machine)
+
+    def values(self, H, L, R, trims, rod_trims, adj, bed) -> ControllerParameters:
+        """Marlin's values from their parts (SI).
+
+        Parameters
+        ----------
+        H : float
+            ``delta_height``, m.
+        L : float
+            ``delta_diagonal_rod``, m.
+        R : float
+            ``delta_radius``, m.
+        trims : array_like, shape (3,)
+            Tower angle trims, rad.
+        rod_trims : array_like, shape (3,)
+            Diagonal rod trims, m.
+        adj : array_like, shape (3,)
+            Endstop adjustments, m.
+        bed : array_like, shape (3,)
+            The bed (``bed.z`` m, ``bed.tilt_x``, ``bed.tilt_y``).
+
+        Returns
+        -------
+        ControllerParameters
+            The values.
+        """
+        v = np.concatenate([[H, L, R], trims, rod_trims, adj, bed]).astype(float)
+        return ControllerParameters(list(self.NAMES), v, list(self.KINDS), self.FIXED.copy())
+
+    def initial(self, machine: Machine) -> ControllerParameters:
+        """Marlin's values read off a linear Delta (exact for vertical towers of one radius).
+
+        Parameters
+        ----------
+        machine : Machine
+            A linear Delta.
+
+        Returns
+        -------
+        ControllerParameters
+            ``R`` the mean tower radius, ``L`` the mean arm with the trims the differences,
+            the angle trims against 210, 330, 90 deg, ``H`` and the adjustments normalised
+            (largest 0).
+        """
+        bed = machine_bed(machine)
+        R = float(np.mean(machine.firmware_values()["radius"]))
+        arms, angles, E = controller_endstops(machine, R, bed[0])
+        L = float(np.mean(arms))
+        trims = np.radians(wrap_degrees(np.degrees(angles) - BASE_ANGLES))
+        H = float(np.min(E))
+        return self.values(H, L, R, trims, arms - L, H - E, bed)
+
+    def ik(self, params: ControllerParameters, P, R=None) -> np.ndarray:
+        """Marlin's carriage travels down from the endstops for nozzle targets.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Marlin's values.
+        P : ndarray, shape (K, 3)
+            Targets in the calibrated frame, m.
+        R : ndarray, optional
+            Ignored (the effector does not rotate).
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            Travels, m; NaN where a rod cannot reach.
+        """
+        v = params.values
+        H, L, radius = v[0], v[1], v[2]
+        trims, rods, adj, bed = v[3:6], L + v[6:9], v[9:12], v[12:15]
+        Pc = np.array(P, float).reshape(-1, 3)
+        Pc[:, 2] -= bed[0]
+        towers = tower_positions(radius, np.radians(BASE_ANGLES) + trims)
+        tops = H - adj + np.sqrt(rods**2 - radius**2)
+        return vertical_tower_travel(towers, rods, tops, Pc)
+
+    @staticmethod
+    def normalised(v):
+        """``H`` and the adjustments with the largest adjustment 0 (as G33 leaves them).
+
+        Parameters
+        ----------
+        v : ndarray
+            Marlin's values (SI).
+
+        Returns
+        -------
+        H : float
+            ``delta_height``, m.
+        adj : ndarray, shape (3,)
+            Endstop adjustments (<= 0), m.
+        """
+        top = float(np.max(v[9:12]))
+        return v[0] - top, v[9:12] - top
+
+    def text(self, params: ControllerParameters, machine: Machine) -> str:
+        """The G-code lines (mm, deg).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Marlin's values.
+        machine : Machine
+            The machine they are for.
+
+        Returns
+        -------
+        str
+            ``M665 H L R X Y Z A B C`` and ``M666 X Y Z`` with comments.
+        """
+        v = params.values
+        H, adj = self.normalised(v)
+        rods = v[1] + v[6:9]
+        L = round(float(np.mean(rods)) * 1e3, 6) * 1e-3     # trims about their mean
+        bed = v[12:15]
+        mm = (lambda x: f"{x * 1e3:.6f}")  # noqa: E731
+        deg = (lambda x: f"{np.degrees(x):.9f}")  # noqa: E731
+        lines = [f"; pkmcal export --to marlin: {machine.name or 'linear Delta'}",
+                 "; Marlin delta (module/delta.cpp); send, then M500 to store in EEPROM",
+                 "; H is the nozzle height at home for M851 Z0; z = 0 is the bed at the centre"
+                 + (f"; the bed's tilt (dz/dx {bed[1]:.6g}, dz/dy {bed[2]:.6g}) is left to "
+                    "bed levelling" if np.any(bed[1:] != 0) else ""),
+                 bed_text(bed, ";"),
+                 "M665 " + " ".join([f"H{mm(H)}", f"L{mm(L)}", f"R{mm(v[2])}"]
+                                    + [f"{k}{deg(v[3 + i])}" for i, k in enumerate("XYZ")]
+                                    + [f"{k}{mm(rods[i] - L)}" for i, k in enumerate("ABC")]),
+                 "M666 " + " ".join(f"{k}{mm(adj[i])}" for i, k in enumerate("XYZ"))]
+        return "\n".join(lines) + "\n"
+
+    def parse(self, text: str, source: str) -> ControllerParameters:
+        """Marlin's values from ``M665`` / ``M666`` lines (a G-code file or an ``M503`` report).
+
+        Later lines override earlier ones, as Marlin executes them; ``H``, ``L`` and ``R``
+        are required (their defaults are compile-time), the trims and adjustments default to
+        0.
+
+        Parameters
+        ----------
+        text : str
+            The file's text.
+        source : str
+            Its name, for messages.
+
+        Returns
+        -------
+        ControllerParameters
+            The values, SI.
+
+        Raises
+        ------
+        InputError
+            Naming the line and key of a value that is not a number, a positive endstop
+            adjustment (Marlin refuses it), a missing ``H``, ``L`` or ``R``, or a rod not
+            longer than the radius.
+        """
+        got: dict = {}
+        for n, code, rest in gcode_lines(text, ("M665", "M666")):
+            for letter, word in gcode_words(rest, source, n, code).items():
+                keys = "HLRXYZABC" if code == "M665" else "XYZ"
+                if letter not in keys:
+                    continue                    # S, B: not kinematics
+                value = finite_number(word, source, n, f"{code} {letter}")
+                if code == "M666" and value > 0:
+                    raise InputError(f"{source}: line {n}: M666 {letter}: {word} is positive; "
+                                     "Marlin's endstop adjustments must be <= 0 (M666.cpp)")
+                scale = 1e-3 if (letter in _LENGTH_KEYS or code == "M666") else np.pi / 180
+                got[(code, letter)] = (value * scale, n)
+        for k in "HLR":
+            if ("M665", k) not in got:
+                raise InputError(f"{source}: M665 {k}: missing (no M665 line sets it; Marlin's "
+                                 "default is in the firmware's Configuration.h)")
+
+        def g(code, k):
+            return got.get((code, k), (0.0, 0))[0]
+
+        H, L, R = g("M665", "H"), g("M665", "L"), g("M665", "R")
+        rods = L + np.array([g("M665", k) for k in "ABC"])
+        if not (R > 0 and np.all(rods > R)):
+            raise InputError(f"{source}: line {got[('M665', 'R')][1]}: M665 R: the radius "
+                             f"({R * 1e3:g} mm) must be > 0 and below every diagonal rod "
+                             f"({', '.join(f'{x * 1e3:g}' for x in rods)} mm)")
+        return self.values(H, L, R, [g("M665", k) for k in "XYZ"],
+                           [g("M665", k) for k in "ABC"], [g("M666", k) for k in "XYZ"],
+                           read_bed(text, source))
+
+    def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
+        """A linear Delta with Marlin's values (vertical towers, one radius).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Marlin's values.
+        like : Machine, optional
+            Name and home pose come from it.
+
+        Returns
+        -------
+        Machine
+            The :class:`~pkmcal.machines.LinearDelta`: arms ``L + A|B|C``, angles 210, 330,
+            90 deg plus the trims, ``position_endstop`` ``H - adj``.
+        """
+        v = params.values
+        return linear_delta_machine(v[2], v[1] + v[6:9], np.radians(BASE_ANGLES) + v[3:6],
+                                    v[0] - v[9:12], v[12:15], like,
+                                    "linear Delta (imported from Marlin)")
+
+
+MARLIN = register_format(MarlinDelta())

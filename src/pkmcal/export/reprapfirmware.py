@@ -1,0 +1,314 @@
+"""RepRapFirmware's linear Delta: ``M665 L R H B X Y Z`` and ``M666 X Y Z A B`` lines.
+
+Read in RepRapFirmware's source (``Duet3D/RepRapFirmware``,
+``src/Movement/Kinematics/LinearDeltaKinematics.cpp``):
+
+- ``Configure`` (``M665``): ``L`` the diagonals, one value for all towers or ``a:b:c`` one per
+  tower (fewer than 3 repeat the first); ``R`` the delta radius (one for the three towers);
+  ``H`` the homed height; ``B`` the printable radius (a limit, not kinematics: not written);
+  ``X Y Z`` the tower angle corrections, deg. ``M666``: ``X Y Z`` the endstop adjustments, mm;
+  ``A B`` the bed tilt in percent (``xTilt = A * 0.01``).
+- ``Recalc``: tower A at ``-(r cos(30 + X), r sin(30 + X))``, B at ``(r cos(30 - Y), -r sin(30 -
+  Y))``, C at ``(-r sin(Z), r cos(Z))``: the angles 210 + X, 330 + Y, 90 + Z deg at radius r;
+  the homed carriage heights ``homedHeight + sqrt(L_i^2 - r^2) + endstopAdjustment_i``.
+- ``Transform``: the carriage height for a position is ``sqrt(L_i^2 - (x - tx)^2 - (y -
+  ty)^2) + z + x xTilt + y yTilt``; homing (``OnHomingSwitchTriggered``) sets each carriage at
+  its endstop to its homed carriage height, so the travel down is the homed height minus that.
+- ``NormaliseEndstopAdjustments``: the adjustments are made to average 0 into
+  ``homedHeight``; ``WriteCalibrationParameters`` (``M500``/``config-override.g``) writes
+  ``M665 L R H B X Y Z`` and ``M666 X Y Z A B``.
+
+So Klipper's ``position_endstop`` of tower ``i`` is ``H + adj_i`` (note the sign, opposite to
+Marlin's), and the bed tilt is a shear: the target ``(x, y, z)`` is driven as ``(x, y, z +
+xTilt x + yTilt y)`` of the towers' frame.
+
+The bed
+-------
+A calibrated machine file with a ``bed`` (probe calibration: the plane ``z = height + tilt_x x
++ tilt_y y`` of the calibrated frame) gives the controller's coordinates: the target ``(x, y,
+z)`` is ``z`` above the bed, the calibrated frame's ``(x, y, z + height + tilt_x x + tilt_y
+y)``. RepRapFirmware's ``A`` and ``B`` hold the bed's tilt (what its 9-factor ``G32`` fits):
+:meth:`RepRapFirmwareDelta.initial` starts them at the bed's slopes and the fit frees them, so
+they also take whatever shear of the towers fits best. Import (:meth:`to_machine`) puts ``A``,
+``B`` back as the bed's slopes (``probe_bed``) of a machine with vertical towers.
+
+Degenerate values, fixed in the fit
+-----------------------------------
+Only ``H + adj_i`` enters: ``H`` is fixed and the text writes the equivalent normalised values
+(adjustments averaging 0, as RepRapFirmware leaves them). Everything else is free: the three
+diagonals, the radius, the three angle corrections (the calibrated frame is fixed) and the two
+tilts. Not modelled: more than three towers (``M669``), ``M556`` axis skew, ``G92`` offsets.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from ..machines.base import Machine
+from .base import ControllerFormat, ControllerParameters, register_format
+from .klipper import (
+    BED,
+    BED_KINDS,
+    bed_text,
+    controller_endstops,
+    finite_number,
+    linear_delta_applies,
+    linear_delta_machine,
+    machine_bed,
+    read_bed,
+    tower_positions,
+    vertical_tower_travel,
+    wrap_degrees,
+)
+from .marlin import BASE_ANGLES, gcode_lines, gcode_words
+
+_XYZ = "xyz"
+
+
+class RepRapFirmwareDelta(ControllerFormat):
+    """RepRapFirmware ``M665`` / ``M666`` (see the module docstring)."""
+
+    name = "reprapfirmware"
+    words = ("RepRapFirmware linear delta (src/Movement/Kinematics/LinearDeltaKinematics.cpp): "
+             "M665 L R H X Y Z, M666 X Y Z A B")
+    suffix = ".g"
+
+    NAMES = ([f"diagonal_{t}" for t in _XYZ] + ["radius", "homed_height"]
+             + [f"angle_correction_{t}" for t in _XYZ]
+             + [f"endstop_adjustment_{t}" for t in _XYZ] + ["x_tilt", "y_tilt"] + list(BED))
+    KINDS = ["length"] * 5 + ["angle"] * 3 + ["length"] * 3 + ["ratio"] * 2 + list(BED_KINDS)
+    #: homed_height (degenerate with the adjustments) and the bed
+    FIXED = np.array([False] * 4 + [True] + [False] * 8 + [True] * 3)
+
+    def applies(self, machine: Machine) -> str | None:
+        """Why RepRapFirmware's delta format cannot hold ``machine`` (None: a linear Delta).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        str or None
+            The reason in words.
+        """
+        return linear_delta_applies(machine)
+
+    def values(self, diagonals, radius, H, corrections, adj, tilt, bed) -> ControllerParameters:
+        """RepRapFirmware's values from their parts (SI).
+
+        Parameters
+        ----------
+        diagonals : array_like, shape (3,)
+            Diagonal rods, m.
+        radius : float
+            Delta radius, m.
+        H : float
+            Homed height, m.
+        corrections : array_like, shape (3,)
+            Tower angle corrections, rad.
+        adj : array_like, shape (3,)
+            Endstop adjustments, m.
+        tilt : array_like, shape (2,)
+            ``xTilt``, ``yTilt`` (ratios: ``A`` and ``B`` are percent).
+        bed : array_like, shape (3,)
+            The bed (``bed.z`` m, ``bed.tilt_x``, ``bed.tilt_y``).
+
+        Returns
+        -------
+        ControllerParameters
+            The values.
+        """
+        v = np.concatenate([diagonals, [radius, H], corrections, adj, tilt, bed]).astype(float)
+        return ControllerParameters(list(self.NAMES), v, list(self.KINDS), self.FIXED.copy())
+
+    def initial(self, machine: Machine) -> ControllerParameters:
+        """RepRapFirmware's values read off a linear Delta (exact for vertical towers of one
+        radius).
+
+        Parameters
+        ----------
+        machine : Machine
+            A linear Delta.
+
+        Returns
+        -------
+        ControllerParameters
+            Diagonals per tower, the mean radius, the angle corrections against 210, 330,
+            90 deg, ``H`` and the adjustments normalised (mean 0), the tilts the bed's slopes.
+        """
+        bed = machine_bed(machine)
+        R = float(np.mean(machine.firmware_values()["radius"]))
+        arms, angles, E = controller_endstops(machine, R, bed[0])
+        corr = np.radians(wrap_degrees(np.degrees(angles) - BASE_ANGLES))
+        H = float(np.mean(E))
+        return self.values(arms, R, H, corr, E - H, bed[1:], bed)
+
+    def ik(self, params: ControllerParameters, P, R=None) -> np.ndarray:
+        """RepRapFirmware's carriage travels down from the endstops for nozzle targets.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            RepRapFirmware's values.
+        P : ndarray, shape (K, 3)
+            Targets in the calibrated frame, m.
+        R : ndarray, optional
+            Ignored (the effector does not rotate).
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            Travels, m; NaN where a diagonal cannot reach.
+        """
+        v = params.values
+        diag, radius, H = v[0:3], v[3], v[4]
+        corr, adj, tilt, bed = v[5:8], v[8:11], v[11:13], v[13:16]
+        Pc = np.array(P, float).reshape(-1, 3)
+        # the calibrated frame -> heights above the bed -> RepRapFirmware's tilt shear
+        Pc[:, 2] += (tilt[0] - bed[1]) * Pc[:, 0] + (tilt[1] - bed[2]) * Pc[:, 1] - bed[0]
+        towers = tower_positions(radius, np.radians(BASE_ANGLES) + corr)
+        tops = H + adj + np.sqrt(diag**2 - radius**2)
+        return vertical_tower_travel(towers, diag, tops, Pc)
+
+    @staticmethod
+    def normalised(v):
+        """``H`` and the adjustments with the adjustments averaging 0 (RepRapFirmware's
+        ``NormaliseEndstopAdjustments``).
+
+        Parameters
+        ----------
+        v : ndarray
+            RepRapFirmware's values (SI).
+
+        Returns
+        -------
+        H : float
+            Homed height, m.
+        adj : ndarray, shape (3,)
+            Endstop adjustments, m.
+        """
+        mean = float(np.mean(v[8:11]))
+        return v[4] + mean, v[8:11] - mean
+
+    def text(self, params: ControllerParameters, machine: Machine) -> str:
+        """The G-code lines (mm, deg, percent).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            RepRapFirmware's values.
+        machine : Machine
+            The machine they are for.
+
+        Returns
+        -------
+        str
+            ``M665 L a:b:c R H X Y Z`` and ``M666 X Y Z A B`` with comments.
+        """
+        v = params.values
+        H, adj = self.normalised(v)
+        mm = (lambda x: f"{x * 1e3:.6f}")  # noqa: E731
+        lines = [f"; pkmcal export --to reprapfirmware: {machine.name or 'linear Delta'}",
+                 "; RepRapFirmware linear delta (LinearDeltaKinematics.cpp); for config.g or "
+                 "config-override.g; B (printable radius) is left as it is",
+                 "; z = 0 is the bed; A and B hold its tilt",
+                 bed_text(v[13:16], ";"),
+                 "M665 L" + ":".join(mm(x) for x in v[0:3]) + f" R{mm(v[3])} H{mm(H)} "
+                 + " ".join(f"{k}{np.degrees(v[5 + i]):.9f}" for i, k in enumerate("XYZ")),
+                 "M666 " + " ".join(f"{k}{mm(adj[i])}" for i, k in enumerate("XYZ"))
+                 + f" A{v[11] * 100:.9f} B{v[12] * 100:.9f}"]
+        return "\n".join(lines) + "\n"
+
+    def parse(self, text: str, source: str) -> ControllerParameters:
+        """RepRapFirmware's values from ``M665`` / ``M666`` lines (``config.g``,
+        ``config-override.g``).
+
+        Later lines override earlier ones, as the firmware executes them; ``L``, ``R`` and
+        ``H`` are required, the corrections, adjustments and tilts default to 0.
+
+        Parameters
+        ----------
+        text : str
+            The file's text.
+        source : str
+            Its name, for messages.
+
+        Returns
+        -------
+        ControllerParameters
+            The values, SI.
+
+        Raises
+        ------
+        InputError
+            Naming the line and key of a value that is not a number, more than three
+            diagonals (extra towers are not a linear Delta of pkmcal's), a missing ``L``,
+            ``R`` or ``H``, or a diagonal not longer than the radius.
+        """
+        got: dict = {}
+        for n, code, rest in gcode_lines(text, ("M665", "M666")):
+            for letter, word in gcode_words(rest, source, n, code).items():
+                keys = "LRHXYZ" if code == "M665" else "XYZAB"
+                if letter not in keys:
+                    continue                    # M665 B: the printable radius
+                if code == "M665" and letter == "L":
+                    parts = word.split(":")
+                    if len(parts) > 3:
+                        raise InputError(f"{source}: line {n}: M665 L: {len(parts)} diagonals; "
+                                         "a linear Delta has 3 towers")
+                    d = [finite_number(p, source, n, "M665 L") * 1e-3 for p in parts]
+                    got[(code, letter)] = (np.array(d + [d[0]] * (3 - len(d))), n)
+                    continue
+                value = finite_number(word, source, n, f"{code} {letter}")
+                if code == "M665" and letter in "XYZ":
+                    value = np.radians(value)
+                elif code == "M666" and letter in "AB":
+                    value *= 0.01
+                else:
+                    value *= 1e-3
+                got[(code, letter)] = (value, n)
+        for k in "LRH":
+            if ("M665", k) not in got:
+                raise InputError(f"{source}: M665 {k}: missing (no M665 line sets it)")
+
+        def g(code, k):
+            return got.get((code, k), (0.0, 0))[0]
+
+        diag, R = g("M665", "L"), g("M665", "R")
+        if not (R > 0 and np.all(diag > R)):
+            raise InputError(f"{source}: line {got[('M665', 'R')][1]}: M665 R: the radius "
+                             f"({R * 1e3:g} mm) must be > 0 and below every diagonal "
+                             f"({', '.join(f'{x * 1e3:g}' for x in diag)} mm)")
+        return self.values(diag, R, g("M665", "H"), [g("M665", k) for k in "XYZ"],
+                           [g("M666", k) for k in "XYZ"], [g("M666", k) for k in "AB"],
+                           read_bed(text, source))
+
+    def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
+        """A linear Delta with RepRapFirmware's values (vertical towers, one radius).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            RepRapFirmware's values.
+        like : Machine, optional
+            Name and home pose come from it.
+
+        Returns
+        -------
+        Machine
+            The :class:`~pkmcal.machines.LinearDelta` in the towers' frame (raised by a
+            ``pkmcal bed`` comment's height): ``position_endstop`` ``H + adj``; the tilts
+            ``A``, ``B`` become the bed's slopes (``probe_bed``), which is what they mean to
+            RepRapFirmware.
+        """
+        v = params.values
+        bed = np.array([v[13], v[11], v[12]])
+        return linear_delta_machine(v[3], v[0:3], np.radians(BASE_ANGLES) + v[5:8],
+                                    v[4] + v[8:11], bed, like,
+                                    "linear Delta (imported from RepRapFirmware)")
+
+
+REPRAPFIRMWARE = register_format(RepRapFirmwareDelta())
