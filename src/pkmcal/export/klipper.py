@@ -140,6 +140,25 @@ def read_bed(text: str, source: str) -> np.ndarray:
     return bed
 
 
+def bed_values(bed) -> list[tuple[str, str]]:
+    """The bed entries for a printed table.
+
+    Parameters
+    ----------
+    bed : array_like, shape (3,)
+        ``(height m, tilt_x, tilt_y)``.
+
+    Returns
+    -------
+    list of tuple
+        ``(name, value in words)``.
+    """
+    h, tx, ty = (float(x) for x in bed)
+    return [("bed height (pkmcal, fixed)", f"{h * 1e3:.6f} mm"),
+            ("bed tilt dz/dx (pkmcal, fixed)", f"{tx:.9g}"),
+            ("bed tilt dz/dy (pkmcal, fixed)", f"{ty:.9g}")]
+
+
 def finite_number(word: str, source: str, line: int, key: str) -> float:
     """A finite number of a controller file, or an error naming the line and key.
 
@@ -442,6 +461,27 @@ class KlipperDelta(ControllerFormat):
                       f"angle: {np.degrees(v[4 + i]):.9f}",
                       f"position_endstop: {v[7 + i] * 1e3:.6f}"]
         return "\n".join(lines) + "\n"
+
+    def values_text(self, params: ControllerParameters) -> list[tuple[str, str]]:
+        """The values as the written file has them, for a printed table.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        list of tuple
+            ``(name, value in words)``: the file's keys, mm and deg, then the bed.
+        """
+        v = params.values
+        out = [("[printer] delta_radius", f"{v[0] * 1e3:.6f} mm")]
+        for i, t in enumerate(TOWERS):
+            out += [(f"[stepper_{t}] arm_length", f"{v[1 + i] * 1e3:.6f} mm"),
+                    (f"[stepper_{t}] angle", f"{np.degrees(v[4 + i]):.9f} deg"),
+                    (f"[stepper_{t}] position_endstop", f"{v[7 + i] * 1e3:.6f} mm")]
+        return out + bed_values(v[10:13])
 
     def parse(self, text: str, source: str) -> ControllerParameters:
         """Klipper's values from a ``printer.cfg`` (or a fragment).

@@ -57,6 +57,7 @@ from .klipper import (
     BED,
     BED_KINDS,
     bed_text,
+    bed_values,
     controller_endstops,
     finite_number,
     linear_delta_applies,
@@ -303,6 +304,30 @@ class MarlinDelta(ControllerFormat):
                                     + [f"{k}{mm(rods[i] - L)}" for i, k in enumerate("ABC")]),
                  "M666 " + " ".join(f"{k}{mm(adj[i])}" for i, k in enumerate("XYZ"))]
         return "\n".join(lines) + "\n"
+
+    def values_text(self, params: ControllerParameters) -> list[tuple[str, str]]:
+        """The values as the written file has them, for a printed table.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        list of tuple
+            ``(name, value in words)``: the written (normalised) words, mm and deg, then the bed.
+        """
+        v = params.values
+        H, adj = self.normalised(v)
+        rods = v[1] + v[6:9]
+        L = round(float(np.mean(rods)) * 1e3, 6) * 1e-3
+        out = [("M665 H", f"{H * 1e3:.6f} mm"), ("M665 L", f"{L * 1e3:.6f} mm"),
+               ("M665 R", f"{v[2] * 1e3:.6f} mm")]
+        out += [(f"M665 {k}", f"{np.degrees(v[3 + i]):.9f} deg") for i, k in enumerate("XYZ")]
+        out += [(f"M665 {k}", f"{(rods[i] - L) * 1e3:.6f} mm") for i, k in enumerate("ABC")]
+        out += [(f"M666 {k}", f"{adj[i] * 1e3:.6f} mm") for i, k in enumerate("XYZ")]
+        return out + bed_values(v[12:15])
 
     def parse(self, text: str, source: str) -> ControllerParameters:
         """Marlin's values from ``M665`` / ``M666`` lines (a G-code file or an ``M503`` report).

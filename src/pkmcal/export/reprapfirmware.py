@@ -51,6 +51,7 @@ from .klipper import (
     BED,
     BED_KINDS,
     bed_text,
+    bed_values,
     controller_endstops,
     finite_number,
     linear_delta_applies,
@@ -221,6 +222,29 @@ class RepRapFirmwareDelta(ControllerFormat):
                  "M666 " + " ".join(f"{k}{mm(adj[i])}" for i, k in enumerate("XYZ"))
                  + f" A{v[11] * 100:.9f} B{v[12] * 100:.9f}"]
         return "\n".join(lines) + "\n"
+
+    def values_text(self, params: ControllerParameters) -> list[tuple[str, str]]:
+        """The values as the written file has them, for a printed table.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        list of tuple
+            ``(name, value in words)``: the written (normalised) words, mm, deg and
+            percent, then the bed.
+        """
+        v = params.values
+        H, adj = self.normalised(v)
+        out = [(f"M665 L ({t})", f"{v[i] * 1e3:.6f} mm") for i, t in enumerate("abc")]
+        out += [("M665 R", f"{v[3] * 1e3:.6f} mm"), ("M665 H", f"{H * 1e3:.6f} mm")]
+        out += [(f"M665 {k}", f"{np.degrees(v[5 + i]):.9f} deg") for i, k in enumerate("XYZ")]
+        out += [(f"M666 {k}", f"{adj[i] * 1e3:.6f} mm") for i, k in enumerate("XYZ")]
+        out += [("M666 A", f"{v[11] * 100:.9f} %"), ("M666 B", f"{v[12] * 100:.9f} %")]
+        return out + bed_values(v[13:16])
 
     def parse(self, text: str, source: str) -> ControllerParameters:
         """RepRapFirmware's values from ``M665`` / ``M666`` lines (``config.g``,
