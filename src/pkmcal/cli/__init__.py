@@ -670,6 +670,75 @@ def compensate(
                                     TargetFrame(frame).value, instrument))
 
 
+#: ``--to`` / ``--from`` in words (the names of :data:`pkmcal.export.FORMATS`; not loaded
+#: here: the CLI imports no format module before a command runs)
+FORMAT_NAMES = ("linuxcnc-genhexkins|linuxcnc-rotarydelta|linuxcnc-lineardelta|klipper|marlin|"
+                "reprapfirmware")
+
+
+@app.command("export")
+def export_command(
+    machine: Annotated[str, typer.Argument(
+        metavar="CALIBRATED", show_default=False,
+        help="The calibrated machine file (from pkmcal calibrate).")],
+    to: Annotated[str, typer.Option(
+        "--to", metavar="FORMAT", show_default=False,
+        help=f"The controller's parameter format: {FORMAT_NAMES}.")],
+    output: OutFile,
+    nominal: Annotated[str | None, typer.Option(
+        help="The machine file the controller's current values come from (e.g. the nominal "
+             "one): also report the error they leave on the calibrated machine.",
+        show_default=False)] = None,
+    workspace: WorkspaceOpt = None,
+    seed: Annotated[int, typer.Option(
+        min=0, help="Seed of the sampled workspace poses.")] = 0,
+) -> None:
+    """Write the calibration as the controller's own parameter file (FILE) and a record
+    (FILE.json).
+
+    The values are those that minimise the position error over the workspace when the
+    controller commands the joints with its own kinematics and the calibrated machine moves;
+    the command prints the values written (the controller's units), the error that remains
+    (RMS and max over the workspace: what the controller's parameters cannot represent) and,
+    with --nominal, the error of the values it had before. linuxcnc-genhexkins (six-strut
+    platforms) represents the calibrated model exactly: setp lines of the joints (mm) and a
+    HAL scale instance per joint between strut length and the drive's reading.
+
+    Example: `pkmcal export calibrated.yaml --to linuxcnc-genhexkins -o hexapod.hal`
+
+    Example: `pkmcal export cal.yaml --to klipper --nominal printer.yaml -o printer.cfg`
+    """
+    from ._export import run_export
+
+    raise typer.Exit(run_export(machine, to, output, nominal, workspace, seed))
+
+
+@app.command("import")
+def import_command(
+    path: Annotated[Path, typer.Argument(
+        metavar="FILE", show_default=False,
+        help="The controller's parameter file (e.g. a .hal, printer.cfg or G-code lines).")],
+    source_format: Annotated[str, typer.Option(
+        "--from", metavar="FORMAT", show_default=False,
+        help=f"The file's format: {FORMAT_NAMES}.")],
+    output: OutFile,
+    like: Annotated[str | None, typer.Option(
+        help="A machine file to take what the controller's file does not hold from (name, "
+             "home, units, joint limits, effector offsets).", show_default=False)] = None,
+) -> None:
+    """Read a controller's current values back as a pkmcal machine file, to start a
+    calibration from what the machine runs today.
+
+    Example: `pkmcal import hexapod.hal --from linuxcnc-genhexkins -o machine.yaml`
+
+    Example: `pkmcal import printer.cfg --from klipper --like examples/linear_delta.yaml -o
+    printer.yaml`
+    """
+    from ._export import run_import
+
+    raise typer.Exit(run_import(path, source_format, output, like))
+
+
 @app.command("report")
 def report_command(
     result: Annotated[Path, typer.Argument(

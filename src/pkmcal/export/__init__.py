@@ -13,6 +13,7 @@ from .base import (
     ExportResult,
     controller_format,
     export,
+    export_workspace,
     fit_controller,
     load_formats,
     position_errors,
@@ -20,5 +21,5 @@ from .base import (
 )
 
 __all__ = ["FORMATS", "ControllerFormat", "ControllerParameters", "ExportResult",
-           "controller_format", "export", "fit_controller", "load_formats", "position_errors",
-           "register_format"]
+           "controller_format", "export", "export_workspace", "fit_controller", "load_formats",
+           "position_errors", "register_format"]

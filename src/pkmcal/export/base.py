@@ -88,6 +88,35 @@ class ControllerFormat(ABC):
     words: str = ""
     #: default file suffix of the written file
     suffix: str = ".txt"
+    #: the format holds every machine it applies to exactly: :meth:`initial` is the best
+    #: (:func:`fit_controller` returns it without a fit)
+    exact: bool = False
+
+    def values_text(self, params: ControllerParameters) -> list[tuple[str, str]]:
+        """The values as the written file has them, for a printed table.
+
+        The default: each value by name, lengths in mm, angles in degrees, ratios as they
+        are; a format whose file has other units or groups its values overrides it.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        list of tuple
+            ``(name, value in words)``.
+        """
+        out = []
+        for name, value, kind in zip(params.names, params.values, params.kinds, strict=True):
+            if kind == "length":
+                out.append((name, f"{value * 1e3:.6f} mm"))
+            elif kind == "angle":
+                out.append((name, f"{np.degrees(value):.6f} deg"))
+            else:
+                out.append((name, f"{value:.9g}"))
+        return out
 
     @abstractmethod
     def applies(self, machine: Machine) -> str | None:
@@ -335,7 +364,7 @@ def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
         raise InputError(f"{fmt.name}: {bad} of {len(P)} workspace poses cannot be commanded "
                          "with the controller's values read off the machine; give a smaller "
                          "workspace (--workspace)")
-    if not free.any():
+    if not free.any() or fmt.exact:
         return params
     fit = least_squares(residual, params.values[free] / scale, method="trf", xtol=1e-15,
                         ftol=1e-15, gtol=1e-15, max_nfev=200 * (int(free.sum()) + 1))
@@ -386,6 +415,40 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
     return ExportResult(fmt.name, params, fmt.text(params, machine),
                         float(np.sqrt(np.nanmean(e**2))), float(np.nanmax(e)), *before,
                         workspace, len(P))
+
+
+def export_workspace(machine: Machine, workspace=None, n: int = 500, rng=0):
+    """The workspace an export is fitted and evaluated over.
+
+    Parameters
+    ----------
+    machine : Machine
+        The calibrated machine.
+    workspace : Workspace or ndarray, optional
+        A :class:`~pkmcal.analysis.accuracy.Workspace` (e.g. of
+        :func:`~pkmcal.analysis.accuracy.box_workspace`), or positions (K, 3), m (at the home
+        orientation); default the machine's: :func:`~pkmcal.analysis.accuracy.default_workspace`
+        (the SPEC 5 0.1 m cube around home, orientations within +/-10 deg where the platform
+        rotates).
+    n : int, optional
+        Number of poses of the default workspace.
+    rng : int or numpy.random.Generator, optional
+        Seed of the default workspace's poses.
+
+    Returns
+    -------
+    Workspace
+        Poses ``P`` (K, 3), ``R`` (K, 3, 3) and the description.
+    """
+    from ..analysis.accuracy import Workspace, default_workspace
+
+    if workspace is None:
+        return default_workspace(machine, n, rng)
+    if isinstance(workspace, Workspace):
+        return workspace
+    P = np.asarray(workspace, float).reshape(-1, 3)
+    R = np.broadcast_to(np.asarray(machine.home[1], float), (len(P), 3, 3))
+    return Workspace(P, R, f"{len(P)} given positions", (P.min(axis=0), P.max(axis=0)))
 
 
 #: the controller formats by name (:func:`register_format`; filled by :data:`FORMAT_MODULES`)

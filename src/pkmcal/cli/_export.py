@@ -1,0 +1,102 @@
+"""``pkmcal export`` and ``pkmcal import``: a calibration in a controller's own parameter file,
+and a controller's current values as a machine file (:mod:`pkmcal.export`)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..calibration.run import json_safe as _finite_or_none
+from ..errors import InputError
+from ..io.atomic import atomic_write_text, read_input_text
+from ._commands import (
+    _machine_inputs,
+    _table,
+    check_outputs,
+    commit_outputs,
+    load_machine_arg,
+)
+from ._console import console
+
+
+def _um(value) -> str:
+    return "-" if value is None else f"{value * 1e6:.4g} um"
+
+
+def export_record(result, calibrated: str, output: Path, nominal: str | None) -> dict:
+    """The JSON record beside the written file: the result and where it came from."""
+    record = {"calibrated": calibrated, "nominal": nominal, "file": str(output)}
+    record.update(result.as_dict())
+    return _finite_or_none(record)
+
+
+def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = None,
+               workspace: str | None = None, seed: int = 0) -> int:
+    """``pkmcal export``: fit the controller's values, write FILE and FILE.json."""
+    from ..export import controller_format, export
+    from ._planning import workspace_arg
+
+    fmt = controller_format(to)
+    record_path = output.with_name(output.name + ".json")
+    inputs = _machine_inputs(machine_spec) + (_machine_inputs(nominal) if nominal else [])
+    if workspace is not None and Path(workspace).exists():
+        inputs.append(Path(workspace))
+    check_outputs([output, record_path], inputs)
+    machine = load_machine_arg(machine_spec)
+    why = fmt.applies(machine)
+    if why is not None:
+        raise InputError(f"--to {fmt.name}: {machine_spec}: {why}")
+    before = None
+    if nominal is not None:
+        before = load_machine_arg(nominal)
+        why = fmt.applies(before)
+        if why is not None:
+            raise InputError(f"--nominal {nominal}: {why}")
+        if before.kind != machine.kind:
+            raise InputError(f"--nominal {nominal}: a {before.kind} machine, but {machine_spec} "
+                             f"is a {machine.kind} machine")
+    ws = workspace_arg(workspace, machine, seed)
+    result = export(fmt, machine, ws.P, ws.R, nominal=before, workspace=ws.description)
+    atomic_write_text(output, result.text)
+    atomic_write_text(record_path, json.dumps(export_record(result, machine_spec, output,
+                                                            nominal), indent=2) + "\n")
+    commit_outputs()
+    out = console()
+    table = _table("", "", show_header=False)
+    table.add_row("format", fmt.name)
+    table.add_row("workspace", f"{ws.description} ({len(ws.P)} poses)")
+    table.add_row("remaining error", f"RMS {_um(result.remaining_rms)}, max "
+                                      f"{_um(result.remaining_max)} (what the controller "
+                                      "cannot represent, and rounding)")
+    if before is not None:
+        table.add_row("error of --nominal", f"RMS {_um(result.before_rms)}, max "
+                                           f"{_um(result.before_max)} (the values of {nominal})")
+    out.print(table)
+    values = _table("value", "written", title="Values written (the controller's units)")
+    for name, text in fmt.values_text(result.params):
+        values.add_row(name, text)
+    out.print(values)
+    out.print(f"wrote {output} and {record_path}", markup=False)
+    return 0
+
+
+def run_import(path: Path, source_format: str, output: Path, like: str | None = None) -> int:
+    """``pkmcal import``: a controller file's values as a pkmcal machine file."""
+    from ..export import controller_format
+    from ..io.machine_file import save_machine
+
+    fmt = controller_format(source_format)
+    check_outputs([output], [path] + (_machine_inputs(like) if like else []))
+    text = read_input_text(path, f"{fmt.name} file")
+    params = fmt.parse(text, str(path))
+    model = load_machine_arg(like) if like is not None else None
+    machine = fmt.to_machine(params, model)
+    problems = machine.geometry_problems(home_given=model is not None)
+    if problems:
+        raise InputError(f"{path}: the imported values do not make a working machine: "
+                         f"{problems[0][1]}")
+    save_machine(machine, output, getattr(machine, "file_units", None))
+    commit_outputs()
+    console().print(f"{len(params.values)} {fmt.name} values of {path} written to {output} "
+                    f"as a {machine.kind} machine file", markup=False)
+    return 0
