@@ -672,8 +672,8 @@ def compensate(
 
 #: ``--to`` / ``--from`` in words (the names of :data:`pkmcal.export.FORMATS`; not loaded
 #: here: the CLI imports no format module before a command runs)
-FORMAT_NAMES = ("linuxcnc-genhexkins|linuxcnc-rotarydelta|linuxcnc-lineardelta|klipper|marlin|"
-                "reprapfirmware")
+FORMAT_NAMES = ("linuxcnc-genhexkins|linuxcnc-rotarydelta|linuxcnc-lineardelta|klipper|"
+                "klipper-rotary-delta|marlin|reprapfirmware")
 
 
 @app.command("export")
