@@ -1,0 +1,610 @@
+"""LinuxCNC ``rotarydeltakins`` and ``lineardeltakins``: a ``.hal`` file of ``setp`` lines.
+
+Read in LinuxCNC's source (``LinuxCNC/linuxcnc``, ``src/emc/kinematics/``):
+
+``rotarydeltakins`` (``rotarydeltakins.c``, ``rotarydeltakins-common.h``)
+    HAL pins ``rotarydeltakins.platformradius`` (origin to a hip joint), ``.thighlength``
+    (hip to knee), ``.shinlength`` (the parallelogram, knee to foot), ``.footradius`` (the
+    controlled point to an ankle joint), in machine units. Joints 0, 1, 2 are hip angles in
+    DEGREES, 0 with the thigh straight out, positive knee DOWN (``kinematics_forward``: knee
+    at ``z = -thighlength sin(j)``). Joint 0 swings in the YZ plane with its hip at ``(0,
+    -platformradius)`` (-90 deg); ``kinematics_inverse`` gets joint 1 by turning the target
+    by +120 deg (hip at 150 deg) and joint 2 by -120 deg (hip at 30 deg). ``inverse_j0`` takes
+    the knee with the larger distance from the axis (knee out). Only ``platformradius -
+    footradius`` enters: ``footradius`` is held at the platform radius ``b`` (fixed).
+    The world's z: ``kinematics_forward`` returns ``z = (b + sqrt(d)) / (2 a)``, the sign
+    changed from the lower root of the Zsombor-Murray / mzavatsky solution it is based on
+    (``-(b + sqrt(d)) / (2 a)``), and ``inverse_j0`` inverts exactly that: LinuxCNC's ``z``
+    grows from the hips TOWARDS the foot (the header's "Z coordinates are always negative"
+    does not hold for the code). pkmcal's target ``(x, y, z)`` (z up, the platform hanging
+    below the base) is LinuxCNC's ``(x, y, -z)``.
+
+``lineardeltakins`` (``lineardeltakins.c``, ``lineardeltakins-common.h``)
+    HAL pins ``lineardeltakins.R`` (effective horizontal distance bridged by the rods:
+    Marlin's ``DELTA_RADIUS``, pkmcal's ``delta_radius``) and ``lineardeltakins.L`` (rod
+    length). Towers 0, 1, 2 at ``(0, R)``, ``(-sin60 R, -cos60 R)``, ``(sin60 R, -cos60 R)``:
+    90, 210, 330 deg. Joint ``j`` is the carriage height ``z + sqrt(L^2 - (Tx - x)^2 - (Ty -
+    y)^2)`` (``kinematics_inverse``), its zero the carriage level with the world's ``z = 0``.
+    (Some versions carry ``J0off`` .. ``J2off`` pins; the mainline has ``R`` and ``L`` only, so
+    they are not used.)
+
+The joints' zero (an INI note, decided here)
+--------------------------------------------
+A joint's position after homing is the INI's ``[JOINT_n] HOME_OFFSET`` (the joint position
+of the home switch); it, not a HAL pin of the kinematics, is where LinuxCNC holds a joint's
+zero. The file writes it as comment lines (``# [JOINT_0] HOME_OFFSET = ...``) with a ``#
+pkmcal`` line that :meth:`parse` reads back; no HAL ``offset`` component is wired (that would
+re-route the user's ``motor-pos-cmd`` nets).
+
+- Linear Delta: pkmcal's reading is the carriage's travel down from its endstop, so the
+  joint is ``HOME_OFFSET_j - q``: ``HOME_OFFSET_j`` is the carriage height at the endstop
+  (fitted, one per joint; the joint's scale has the sign that makes "down" negative).
+- Rotary Delta: pkmcal's reading is seed 001's arm angle (up positive, rad); the joint is
+  ``joint_zero_j - deg(q)``, with ``joint_zero_j`` the joint position at reading 0 (fitted:
+  it holds the arm's actuator offset ``dtheta``). With the machine's reading at the home
+  switch ``q_home`` (deg), ``HOME_OFFSET_j = joint_zero_j - q_home``.
+
+Legs and frames
+---------------
+Reading ``i`` of the machine goes to the LinuxCNC joint whose hip or tower angle is the
+nearest to the machine's leg ``i`` (within 5 deg: :meth:`applies` refuses a machine whose legs
+are not LinuxCNC's three, e.g. the 90/180/-90 deg default Delta). The assignment is
+carried as fixed values (``readingN.joint``) and ``# pkmcal`` lines. The linear Delta's world
+``z = 0`` is the bed of a probe-calibrated file (its ``bed`` height, fixed ``bed_z``; the
+tilt is not kinematics and is left out); the rotary Delta's is the hip plane, as LinuxCNC has
+it. Lengths are written in mm (``LINEAR_UNITS = mm``), 1e-9 mm digits; angles in degrees,
+1e-12 deg digits.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from ..errors import InputError
+from ..machines.base import Machine
+from ..machines.delta import Delta, delta_parameters
+from ..machines.linear_delta import linear_delta
+from .base import ControllerFormat, ControllerParameters, register_format
+from .klipper_rotary import delta_applies, finite, leg_offsets, pkmcal_comments
+
+#: rotarydeltakins' hip angles of joints 0, 1, 2, deg
+ROTARY_HIPS = (-90.0, 150.0, 30.0)
+#: lineardeltakins' tower angles of joints 0, 1, 2, deg
+LINEAR_TOWERS = (90.0, 210.0, 330.0)
+#: how far a machine's leg may stand from LinuxCNC's, deg
+ANGLE_TOLERANCE = 5.0
+_SETP = re.compile(r"^\s*setp\s+(\S+)\s+(\S+)\s*$")
+
+
+def joint_of_legs(leg_angles, hips) -> np.ndarray:
+    """The LinuxCNC joint of each machine leg: the one whose angle is the nearest.
+
+    Parameters
+    ----------
+    leg_angles : array_like, shape (3,)
+        The machine's leg angles, rad.
+    hips : sequence of float
+        LinuxCNC's angles of joints 0, 1, 2, deg.
+
+    Returns
+    -------
+    ndarray of int, shape (3,)
+        Joint per leg; -1 where no joint is within :data:`ANGLE_TOLERANCE` or two legs
+        share one.
+    """
+    d = np.degrees(np.asarray(leg_angles, float))[:, None] - np.asarray(hips)[None]
+    d = np.abs((d + 180.0) % 360.0 - 180.0)
+    j = np.argmin(d, axis=1)
+    ok = d[np.arange(3), j] <= ANGLE_TOLERANCE
+    if len(set(j.tolist())) < 3:
+        ok[:] = False
+    return np.where(ok, j, -1)
+
+
+def rotarydelta_joints(pfr, tl, sl, fr, P) -> np.ndarray:
+    """rotarydeltakins' ``kinematics_inverse`` (``inverse_j0`` and the +/-120 deg turns).
+
+    Parameters
+    ----------
+    pfr, tl, sl, fr : float
+        platformradius, thighlength, shinlength, footradius (one length unit).
+    P : array_like, shape (K, 3)
+        Targets in LinuxCNC's world (same unit).
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+        Joints 0, 1, 2, deg; NaN where unreachable.
+    """
+    P = np.asarray(P, float).reshape(-1, 3)
+    x, y, z = P[:, 0], P[:, 1], P[:, 2]
+
+    def inverse_j0(x, y, z):
+        with np.errstate(all="ignore"):
+            a = 0.5 * (x * x + (y - fr) ** 2 + z * z + tl * tl - sl * sl - pfr * pfr) / z
+            b = (fr - pfr - y) / z
+            d = tl * tl * (b * b + 1) - (a - b * pfr) ** 2
+            knee_y = (pfr + a * b + np.sqrt(d)) / (b * b + 1)
+            knee_z = a - b * knee_y
+            return np.degrees(np.arctan2(knee_z, knee_y - pfr))
+
+    out = [inverse_j0(x, y, z)]
+    for t in (2 * np.pi / 3, -2 * np.pi / 3):
+        xr = x * np.cos(t) - y * np.sin(t)
+        yr = x * np.sin(t) + y * np.cos(t)
+        out.append(inverse_j0(xr, yr, z))
+    return np.column_stack(out)
+
+
+def hal_values(text: str, source: str, prefix: str, pins) -> dict:
+    """The ``setp PREFIX.PIN VALUE`` values of a ``.hal`` file (the last one wins).
+
+    Parameters
+    ----------
+    text : str
+        The file's text.
+    source : str
+        Its name, for messages.
+    prefix : str
+        The component (``rotarydeltakins``).
+    pins : sequence of str
+        The pins wanted.
+
+    Returns
+    -------
+    dict
+        Pin -> value as written.
+
+    Raises
+    ------
+    InputError
+        Naming the line and pin of a value that is not a number, or a pin missing.
+    """
+    found = {}
+    for n, raw in enumerate(text.splitlines(), 1):
+        line = raw.split("#")[0]
+        m = _SETP.match(line)
+        if m and m.group(1).startswith(prefix + "."):
+            pin = m.group(1)[len(prefix) + 1:]
+            if pin in pins:
+                found[pin] = finite(m.group(2), source, n, m.group(1))
+    for pin in pins:
+        if pin not in found:
+            raise InputError(f"{source}: setp {prefix}.{pin} is missing")
+    return found
+
+
+def reading_joints(notes: dict, source: str) -> np.ndarray:
+    """The joint of each reading from ``# pkmcal readingN.joint`` lines, else joint ``N - 1``.
+
+    Parameters
+    ----------
+    notes : dict
+        :func:`~pkmcal.export.klipper_rotary.pkmcal_comments` of the file.
+    source : str
+        Its name, for messages.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        Joint numbers (as floats, the values' ``ratio`` entries).
+
+    Raises
+    ------
+    InputError
+        When the lines do not name joints 0, 1, 2 once each (naming the line).
+    """
+    joints = np.array([notes.get(f"reading{i + 1}.joint", (float(i), 0))[0] for i in range(3)])
+    if sorted(joints.tolist()) != [0.0, 1.0, 2.0]:
+        line = max(notes.get(f"reading{i + 1}.joint", (0, 0))[1] for i in range(3))
+        raise InputError(f"{source}: line {line}: pkmcal readingN.joint: the three readings "
+                         "must go to joints 0, 1 and 2, one each")
+    return joints
+
+
+class LinuxCNCRotaryDelta(ControllerFormat):
+    """LinuxCNC ``rotarydeltakins`` (see the module docstring)."""
+
+    name = "linuxcnc-rotarydelta"
+    words = ("LinuxCNC rotarydeltakins (src/emc/kinematics/rotarydeltakins-common.h): HAL "
+             "pins platformradius, thighlength, shinlength, footradius; joints in deg, knee "
+             "down positive; [JOINT_n] HOME_OFFSET notes")
+    suffix = ".hal"
+
+    PINS = ("platformradius", "thighlength", "shinlength", "footradius")
+    NAMES = list(PINS) + [f"joint_zero.{j}" for j in range(3)] + [f"reading{i + 1}.joint"
+                                                                   for i in range(3)]
+    KINDS = ["length"] * 4 + ["angle"] * 3 + ["ratio"] * 3
+
+    def values(self, pfr, tl, sl, fr, zeros, joints) -> ControllerParameters:
+        """The values from their parts (SI); ``footradius`` and the leg angles fixed.
+
+        Parameters
+        ----------
+        pfr, tl, sl, fr : float
+            The four pins, m.
+        zeros : array_like, shape (3,)
+            ``joint_zero`` of joints 0, 1, 2 (the joint position at reading 0), rad.
+        joints : array_like, shape (3,)
+            The LinuxCNC joint of each of the machine's readings (0, 1, 2).
+
+        Returns
+        -------
+        ControllerParameters
+            The values.
+        """
+        v = np.concatenate([[pfr, tl, sl, fr], zeros, joints]).astype(float)
+        fixed = np.array([False, False, False, True] + [False] * 3 + [True] * 3)
+        return ControllerParameters(list(self.NAMES), v, list(self.KINDS), fixed)
+
+    def applies(self, machine: Machine) -> str | None:
+        """Why rotarydeltakins cannot hold ``machine`` (None: a Delta with LinuxCNC's legs).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        str or None
+            The reason in words.
+        """
+        why = delta_applies(machine)
+        if why is None and np.any(joint_of_legs(machine.leg_angles, ROTARY_HIPS) < 0):
+            legs = ", ".join(f"{v:g}" for v in np.degrees(machine.leg_angles))
+            why = ("rotarydeltakins has its hips at -90, 150 and 30 deg (120 deg apart, joint 0 "
+                   f"in the YZ plane); the machine's legs stand at {legs} deg")
+        return why
+
+    def initial(self, machine: Machine) -> ControllerParameters:
+        """The values read off a Delta (exact with LinuxCNC's legs and one radius and arm
+        pair, the shoulders at ``z = 0``).
+
+        Parameters
+        ----------
+        machine : Machine
+            A Delta.
+
+        Returns
+        -------
+        ControllerParameters
+            ``platformradius - footradius`` the legs' mean, ``footradius = b``; the arms'
+            means; ``joint_zero = -dtheta`` per joint.
+        """
+        e = leg_offsets(machine)
+        _, dth, dl1, dl2, _ = machine.legs()
+        joint = joint_of_legs(machine.leg_angles, ROTARY_HIPS)
+        zeros = np.zeros(3)
+        zeros[joint] = -dth
+        return self.values(float(np.mean(e[:, 0])) + machine.b, float(np.mean(machine.l1 + dl1)),
+                           float(np.mean(machine.l2 + dl2)), machine.b, zeros, joint)
+
+    def ik(self, params: ControllerParameters, P, R=None) -> np.ndarray:
+        """The machine's readings when rotarydeltakins commands targets.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        P : ndarray, shape (K, 3)
+            Targets in the calibrated frame, m.
+        R : ndarray, optional
+            Ignored.
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            ``joint_zero_j - rad(joint_j)`` of each reading's joint, rad; NaN where
+            unreachable.
+        """
+        v = params.values
+        P = np.asarray(P, float).reshape(-1, 3) * np.array([1.0, 1.0, -1.0])
+        J = np.radians(rotarydelta_joints(v[0], v[1], v[2], v[3], P))
+        joint = v[7:10].astype(int)
+        return v[4:7][joint][None] - J[:, joint]
+
+    def text(self, params: ControllerParameters, machine: Machine) -> str:
+        """The ``.hal`` file: four ``setp`` lines and the joints' ``HOME_OFFSET`` notes.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        machine : Machine
+            The machine they are for.
+
+        Returns
+        -------
+        str
+            The file (lengths mm, angles deg).
+        """
+        v = params.values
+        lines = [f"# pkmcal export for {machine.name or 'a rotary Delta'}: LinuxCNC "
+                 "rotarydeltakins", "# (src/emc/kinematics/rotarydeltakins-common.h). Lengths "
+                 "mm (LINEAR_UNITS = mm), joints deg,", "# knee down positive; LinuxCNC's z is "
+                 "the calibrated frame's -z (it grows towards the foot)."]
+        lines += [f"setp rotarydeltakins.{pin} {v[k] * 1e3:.9f}"
+                  for k, pin in enumerate(self.PINS)]
+        lines += ["# Joint zero: the joint position at the machine's reading 0. With the "
+                  "machine's reading", "# at the home switch q_home (deg, seed 001's arm "
+                  "angle, up positive), the INI has:"]
+        for j in range(3):
+            z = np.degrees(v[4 + j])
+            lines.append(f"# [JOINT_{j}] HOME_OFFSET = {z:.12f} - q_home_{j}")
+        lines += [f"# pkmcal joint_zero.{j}_deg = {np.degrees(v[4 + j]):.12f}" for j in range(3)]
+        lines += [f"# pkmcal reading{i + 1}.joint = {int(v[7 + i])}" for i in range(3)]
+        return "\n".join(lines) + "\n"
+
+    def parse(self, text: str, source: str) -> ControllerParameters:
+        """The values of a ``.hal`` file.
+
+        Parameters
+        ----------
+        text : str
+            The file's text.
+        source : str
+            Its name, for messages.
+
+        Returns
+        -------
+        ControllerParameters
+            The four pins, SI; ``joint_zero`` and each reading's joint from the ``#
+            pkmcal`` lines, else 0 (the readings are LinuxCNC's joints, sign changed, in
+            rad) and reading ``N`` = joint ``N - 1``.
+
+        Raises
+        ------
+        InputError
+            Naming the line and pin of a value that is not a number, or a pin missing.
+        """
+        pins = hal_values(text, source, "rotarydeltakins", self.PINS)
+        notes = pkmcal_comments(text, source)
+        zeros = np.radians([notes.get(f"joint_zero.{j}_deg", (0.0, 0))[0] for j in range(3)])
+        return self.values(*(pins[p] * 1e-3 for p in self.PINS), zeros,
+                           reading_joints(notes, source))
+
+    def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
+        """A Delta with rotarydeltakins' values (pkmcal's frame: z up, hips at ``z = 0``).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        like : Machine, optional
+            ``smr_offset`` and name come from it.
+
+        Returns
+        -------
+        Delta
+            ``a = platformradius``, ``b = footradius``, ``l1``, ``l2``, legs at LinuxCNC's
+            hips (in the order of the readings), ``dtheta = -joint_zero``, no other errors.
+        """
+        v = params.values
+        joint = v[7:10].astype(int)
+        u = np.zeros((3, 9))
+        u[:, 3] = -v[4:7][joint]
+        name = like.name if like is not None and like.name else "imported from LinuxCNC"
+        return Delta(v[0], v[3], v[1], v[2], np.radians(np.asarray(ROTARY_HIPS)[joint]),
+                     delta_parameters(u.reshape(-1)),
+                     smr_offset=float(getattr(like, "smr_offset", 0.0) or 0.0), name=name)
+
+
+class LinuxCNCLinearDelta(ControllerFormat):
+    """LinuxCNC ``lineardeltakins`` (see the module docstring)."""
+
+    name = "linuxcnc-lineardelta"
+    words = ("LinuxCNC lineardeltakins (src/emc/kinematics/lineardeltakins-common.h): HAL "
+             "pins R, L; joints are carriage heights; [JOINT_n] HOME_OFFSET notes")
+    suffix = ".hal"
+
+    NAMES = (["R", "L"] + [f"home_offset.{j}" for j in range(3)] + ["bed_z"]
+             + [f"reading{i + 1}.joint" for i in range(3)])
+    KINDS = ["length"] * 6 + ["ratio"] * 3
+
+    def values(self, R, L, homes, bed_z, joints) -> ControllerParameters:
+        """The values from their parts (SI); ``bed_z`` and the tower angles fixed.
+
+        Parameters
+        ----------
+        R, L : float
+            The two pins, m.
+        homes : array_like, shape (3,)
+            ``HOME_OFFSET`` of joints 0, 1, 2: the carriage height at the endstop, m.
+        bed_z : float
+            Height of LinuxCNC's ``z = 0`` in the calibrated frame, m.
+        joints : array_like, shape (3,)
+            The LinuxCNC joint of each of the machine's readings (0, 1, 2).
+
+        Returns
+        -------
+        ControllerParameters
+            The values.
+        """
+        v = np.concatenate([[R, L], homes, [bed_z], joints]).astype(float)
+        return ControllerParameters(list(self.NAMES), v, list(self.KINDS), np.arange(9) >= 5)
+
+    def applies(self, machine: Machine) -> str | None:
+        """Why lineardeltakins cannot hold ``machine`` (None: a linear Delta with LinuxCNC's
+        towers).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        str or None
+            The reason in words.
+        """
+        if getattr(machine, "kind", None) != "linear_delta":
+            return (f"holds a linear Delta printer (machine: linear_delta), not a "
+                    f"{getattr(machine, 'kind', type(machine).__name__)}")
+        if np.any(joint_of_legs(machine.towers()[1], LINEAR_TOWERS) < 0):
+            t = ", ".join(f"{v:g}" for v in np.degrees(machine.towers()[1]))
+            return ("lineardeltakins has its towers at 90, 210 and 330 deg (tower 0 on +Y); "
+                    f"the machine's stand at {t} deg")
+        return None
+
+    def initial(self, machine: Machine) -> ControllerParameters:
+        """The values read off a linear Delta (exact for vertical towers at LinuxCNC's
+        angles with one radius and one arm length).
+
+        Parameters
+        ----------
+        machine : Machine
+            A linear Delta.
+
+        Returns
+        -------
+        ControllerParameters
+            ``R``, ``L`` the towers' means; ``HOME_OFFSET`` each carriage's height at its
+            endstop above the bed.
+        """
+        pe, theta, r, l, _, _ = machine.towers()
+        bed = getattr(machine, "probe_bed", None)
+        bed_z = 0.0 if bed is None else float(bed[0])
+        joint = joint_of_legs(theta, LINEAR_TOWERS)
+        homes = np.zeros(3)
+        homes[joint] = pe + np.sqrt(l * l - r * r) - bed_z
+        return self.values(float(np.mean(r)), float(np.mean(l)), homes, bed_z, joint)
+
+    def ik(self, params: ControllerParameters, P, R=None) -> np.ndarray:
+        """The carriages' travels down from their endstops when lineardeltakins commands
+        targets.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        P : ndarray, shape (K, 3)
+            Nozzle targets in the calibrated frame, m.
+        R : ndarray, optional
+            Ignored.
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            ``HOME_OFFSET_j - joint_j`` of each reading's joint, m; NaN where unreachable.
+        """
+        v = params.values
+        Rr, L = v[0], v[1]
+        P = np.asarray(P, float).reshape(-1, 3) - np.array([0.0, 0.0, v[5]])
+        T = np.array([[0.0, Rr], [-np.sin(np.pi / 3) * Rr, -0.5 * Rr],
+                      [np.sin(np.pi / 3) * Rr, -0.5 * Rr]])
+        with np.errstate(invalid="ignore"):
+            J = P[:, 2:3] + np.sqrt(L * L - (T[None, :, 0] - P[:, 0:1]) ** 2
+                                    - (T[None, :, 1] - P[:, 1:2]) ** 2)
+        joint = v[6:9].astype(int)
+        return v[2:5][joint][None] - J[:, joint]
+
+    def text(self, params: ControllerParameters, machine: Machine) -> str:
+        """The ``.hal`` file: two ``setp`` lines and the joints' ``HOME_OFFSET`` notes.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        machine : Machine
+            The machine they are for.
+
+        Returns
+        -------
+        str
+            The file (mm).
+        """
+        v = params.values
+        bed = getattr(machine, "probe_bed", None)
+        lines = [f"# pkmcal export for {machine.name or 'a linear Delta'}: LinuxCNC "
+                 "lineardeltakins", "# (src/emc/kinematics/lineardeltakins-common.h). Lengths "
+                 "mm (LINEAR_UNITS = mm); joints are", "# carriage heights, z = 0 the bed."]
+        if bed is not None and (bed[1] or bed[2]):
+            lines.append(f"# the bed's tilt (dz/dx {bed[1]:.6g}, dz/dy {bed[2]:.6g}) is not "
+                         "kinematics: probe it into a compensation")
+        lines += [f"setp lineardeltakins.R {v[0] * 1e3:.9f}",
+                  f"setp lineardeltakins.L {v[1] * 1e3:.9f}",
+                  "# The carriage height at the endstop (the home switch), for the INI:"]
+        lines += [f"# [JOINT_{j}] HOME_OFFSET = {v[2 + j] * 1e3:.9f}" for j in range(3)]
+        lines += [f"# pkmcal home_offset.{j}_mm = {v[2 + j] * 1e3:.9f}" for j in range(3)]
+        lines.append(f"# pkmcal bed_z_mm = {v[5] * 1e3:.9f}")
+        lines += [f"# pkmcal reading{i + 1}.joint = {int(v[6 + i])}" for i in range(3)]
+        return "\n".join(lines) + "\n"
+
+    def parse(self, text: str, source: str) -> ControllerParameters:
+        """The values of a ``.hal`` file.
+
+        Parameters
+        ----------
+        text : str
+            The file's text.
+        source : str
+            Its name, for messages.
+
+        Returns
+        -------
+        ControllerParameters
+            ``R``, ``L``, SI; ``HOME_OFFSET`` from the ``# pkmcal home_offset`` lines, else
+            the ``# [JOINT_n] HOME_OFFSET`` notes (one of the two is required: the joints'
+            zero is not in the kinematics); ``bed_z`` and each reading's joint from the ``#
+            pkmcal`` lines, else 0 and reading ``N`` = joint ``N - 1``.
+
+        Raises
+        ------
+        InputError
+            Naming the line and key of a value that is not a number, or a value missing.
+        """
+        pins = hal_values(text, source, "lineardeltakins", ("R", "L"))
+        notes = pkmcal_comments(text, source)
+        ini = {}
+        for n, line in enumerate(text.splitlines(), 1):
+            m = re.match(r"^\s*#\s*\[JOINT_([0-2])\]\s*HOME_OFFSET\s*=\s*(\S+)\s*$", line)
+            if m:
+                ini[int(m.group(1))] = finite(m.group(2), source, n,
+                                              f"[JOINT_{m.group(1)}] HOME_OFFSET")
+        homes = []
+        for j in range(3):
+            if f"home_offset.{j}_mm" in notes:
+                homes.append(notes[f"home_offset.{j}_mm"][0])
+            elif j in ini:
+                homes.append(ini[j])
+            else:
+                raise InputError(f"{source}: [JOINT_{j}] HOME_OFFSET is missing: write it as "
+                                 f"'# [JOINT_{j}] HOME_OFFSET = <mm>' (the carriage height at "
+                                 "the endstop)")
+        return self.values(pins["R"] * 1e-3, pins["L"] * 1e-3, np.array(homes) * 1e-3,
+                           notes.get("bed_z_mm", (0.0, 0))[0] * 1e-3,
+                           reading_joints(notes, source))
+
+    def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
+        """A linear Delta with lineardeltakins' values.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        like : Machine, optional
+            Name and home pose come from it.
+
+        Returns
+        -------
+        LinearDelta
+            Vertical towers at LinuxCNC's angles (in the order of the readings), ``R``,
+            ``L``, ``position_endstop = HOME_OFFSET + bed_z - sqrt(L^2 - R^2)`` in the
+            calibrated frame, the bed (``bed_z``) as its ``probe_bed``.
+        """
+        v = params.values
+        joint = v[6:9].astype(int)
+        pe = v[2:5][joint] + v[5] - np.sqrt(v[1] ** 2 - v[0] ** 2)
+        m = linear_delta(float(v[0]), float(v[1]), np.radians(np.asarray(LINEAR_TOWERS)[joint]),
+                         pe, home=None if like is None else like.home,
+                         name=(like.name if like is not None and like.name
+                               else "imported from LinuxCNC"))
+        m.probe_bed = None if v[5] == 0 else (float(v[5]), 0.0, 0.0)
+        return m
+
+
+register_format(LinuxCNCRotaryDelta())
+register_format(LinuxCNCLinearDelta())
