@@ -105,3 +105,47 @@ def test_the_printer_session_runs_and_its_table_is_what_it_reports(tmp_path):
             expected = float(value) * factor[unit]
             assert mean(suffix, "alone", file) == pytest.approx(expected, rel=0.1), (words,
                                                                                      file)
+
+
+EXPORT = README[README.index("### Handing the calibration to the controller"):
+                README.index("### Before measuring")]
+
+
+@pytest.fixture(scope="module")
+def calibrated_examples(tmp_path_factory):
+    """The README's export figures' machines: the examples simulated and calibrated, seed 1."""
+    d = tmp_path_factory.mktemp("export")
+    out = {}
+    for name, machine, scenario in (("delta", "delta_default", None),
+                                    ("printer", "linear_delta", "points")):
+        extra = ["--scenario", scenario] if scenario else []
+        assert run("simulate", EXAMPLES_DIR / f"{machine}.yaml", "--seed", "1", *extra, "-o",
+                   f"{name}.csv", cwd=d).returncode == 0
+        proc = run("calibrate", EXAMPLES_DIR / f"{machine}.yaml", f"{name}.csv", "-o",
+                   f"{name}_cal.yaml", cwd=d)
+        assert proc.returncode == 0, proc.stderr
+        out[name] = (d, f"{name}_cal.yaml", EXAMPLES_DIR / f"{machine}.yaml")
+    return out
+
+
+EXAMPLES_DIR = ROOT / "examples"
+
+
+@pytest.mark.parametrize("fmt, machine", [("klipper", "printer"), ("marlin", "printer"),
+                                          ("reprapfirmware", "printer"),
+                                          ("linuxcnc-lineardelta", "printer"),
+                                          ("klipper-rotary-delta", "delta")])
+def test_the_export_table_is_what_export_prints(calibrated_examples, fmt, machine):
+    """Each format's remaining error in the README table (RMS / max, um) is what ``pkmcal
+    export`` reports for the example calibrated as the table says."""
+    import json
+
+    d, cal, nominal = calibrated_examples[machine]
+    proc = run("export", cal, "--to", fmt, "--nominal", nominal, "-o", f"{fmt}.out", cwd=d)
+    assert proc.returncode == 0, proc.stderr
+    record = json.loads((d / f"{fmt}.out.json").read_text())
+    row = re.search(rf"\| `{fmt}` \|[^\n]*\| (\d+\.?\d*) / (\d+\.?\d*) um", EXPORT)
+    assert row is not None, fmt
+    rms, peak = float(row.group(1)), float(row.group(2))
+    assert record["remaining_rms_um"] == pytest.approx(rms, abs=0.5 + 0.01 * rms)
+    assert record["remaining_max_um"] == pytest.approx(peak, abs=0.5 + 0.01 * peak)
