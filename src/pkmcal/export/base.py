@@ -118,9 +118,16 @@ class ControllerFormat(ABC):
                 out.append((name, f"{value:.9g}"))
         return out
 
-    @abstractmethod
+    #: the machine type (``Machine.kind``) whose kinematics the controller runs, and its
+    #: words; :meth:`applies` refuses other types with them
+    machine_kind: str = ""
+    machine_words: str = ""
+
     def applies(self, machine: Machine) -> str | None:
         """Why this format cannot hold ``machine`` (None: it can).
+
+        A machine of another type than :attr:`machine_kind` is refused; then
+        :meth:`layout_problem` (a controller's fixed layout, e.g. LinuxCNC's tower angles).
 
         Parameters
         ----------
@@ -132,6 +139,26 @@ class ControllerFormat(ABC):
         str or None
             The reason in words.
         """
+        kind = getattr(machine, "kind", type(machine).__name__)
+        if self.machine_kind and kind != self.machine_kind:
+            return (f"holds a {self.machine_words} (machine: {self.machine_kind}), not a "
+                    f"{kind}")
+        return self.layout_problem(machine)
+
+    def layout_problem(self, machine: Machine) -> str | None:
+        """Why the controller's fixed layout cannot hold a machine of the right type.
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine (of :attr:`machine_kind`).
+
+        Returns
+        -------
+        str or None
+            The reason in words; None (the default): any layout.
+        """
+        return None
 
     @abstractmethod
     def initial(self, machine: Machine) -> ControllerParameters:

@@ -55,25 +55,6 @@ TOWERS = "abc"
 BED_COMMENT = re.compile(r"pkmcal bed:\s*height=(\S+)\s+tilt_x=(\S+)\s+tilt_y=(\S+)")
 
 
-def linear_delta_applies(machine: Machine) -> str | None:
-    """Why a linear-Delta printer format cannot hold a machine (None: it can).
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine.
-
-    Returns
-    -------
-    str or None
-        The reason in words.
-    """
-    if getattr(machine, "kind", None) != "linear_delta":
-        return (f"holds a linear Delta printer (machine: linear_delta), not a "
-                f"{getattr(machine, 'kind', type(machine).__name__)}")
-    return None
-
-
 def machine_bed(machine: Machine) -> np.ndarray:
     """The bed plane of a calibrated machine file (its ``bed`` section), zeros without one.
 
@@ -338,6 +319,8 @@ class KlipperDelta(ControllerFormat):
     """Klipper ``kinematics: delta`` (see the module docstring)."""
 
     name = "klipper"
+    machine_kind = "linear_delta"
+    machine_words = "linear Delta printer"
     words = ("Klipper delta kinematics (klippy/kinematics/delta.py): [printer] delta_radius, "
              "[stepper_a|b|c] arm_length, angle, position_endstop")
     suffix = ".cfg"
@@ -346,21 +329,6 @@ class KlipperDelta(ControllerFormat):
              + [f"angle_{t}" for t in TOWERS] + [f"position_endstop_{t}" for t in TOWERS]
              + list(BED))
     KINDS = ["length"] * 4 + ["angle"] * 3 + ["length"] * 3 + list(BED_KINDS)
-
-    def applies(self, machine: Machine) -> str | None:
-        """Why Klipper's delta format cannot hold ``machine`` (None: a linear Delta).
-
-        Parameters
-        ----------
-        machine : Machine
-            The machine.
-
-        Returns
-        -------
-        str or None
-            The reason in words.
-        """
-        return linear_delta_applies(machine)
 
     def values(self, radius, arms, angles, endstops, bed) -> ControllerParameters:
         """Klipper's values from their parts (SI), the bed fixed.

@@ -221,25 +221,6 @@ def finite(word: str, source: str, line: int, key: str) -> float:
     return v
 
 
-def delta_applies(machine: Machine) -> str | None:
-    """Why a rotary-Delta format cannot hold a machine (None: a ``delta``).
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine.
-
-    Returns
-    -------
-    str or None
-        The reason in words.
-    """
-    if getattr(machine, "kind", None) != "delta":
-        return (f"holds a rotary Delta robot (machine: delta), not a "
-                f"{getattr(machine, 'kind', type(machine).__name__)}")
-    return None
-
-
 def leg_offsets(machine: Delta) -> np.ndarray:
     """Each leg's base joint minus its platform joint, leg frame (the Delta's ``e_i``).
 
@@ -263,6 +244,8 @@ class KlipperRotaryDelta(ControllerFormat):
     """Klipper ``kinematics: rotary_delta`` (see the module docstring)."""
 
     name = "klipper-rotary-delta"
+    machine_kind = "delta"
+    machine_words = "rotary Delta robot"
     words = ("Klipper rotary_delta kinematics (klippy/kinematics/rotary_delta.py, "
              "klippy/chelper/kin_rotary_delta.c): [printer] shoulder_radius, shoulder_height, "
              "[stepper_a|b|c] upper_arm_length, lower_arm_length, angle, position_endstop")
@@ -324,21 +307,6 @@ class KlipperRotaryDelta(ControllerFormat):
         """
         v = params.values
         return v[0], v[1], v[2:5], v[5:8], v[8:11], v[11:14], v[14], v[15:18]
-
-    def applies(self, machine: Machine) -> str | None:
-        """Why Klipper's rotary_delta format cannot hold ``machine`` (None: a Delta).
-
-        Parameters
-        ----------
-        machine : Machine
-            The machine.
-
-        Returns
-        -------
-        str or None
-            The reason in words.
-        """
-        return delta_applies(machine)
 
     def initial(self, machine: Machine) -> ControllerParameters:
         """Klipper's values read off a Delta (exact without per-leg radius, height or

@@ -67,7 +67,7 @@ from ..machines.base import Machine
 from ..machines.delta import Delta, delta_parameters
 from ..machines.linear_delta import linear_delta
 from .base import ControllerFormat, ControllerParameters, register_format
-from .klipper_rotary import delta_applies, finite, leg_offsets, pkmcal_comments
+from .klipper_rotary import finite, leg_offsets, pkmcal_comments
 
 #: rotarydeltakins' hip angles of joints 0, 1, 2, deg
 ROTARY_HIPS = (-90.0, 150.0, 30.0)
@@ -208,6 +208,8 @@ class LinuxCNCRotaryDelta(ControllerFormat):
     """LinuxCNC ``rotarydeltakins`` (see the module docstring)."""
 
     name = "linuxcnc-rotarydelta"
+    machine_kind = "delta"
+    machine_words = "rotary Delta robot"
     words = ("LinuxCNC rotarydeltakins (src/emc/kinematics/rotarydeltakins-common.h): HAL "
              "pins platformradius, thighlength, shinlength, footradius; joints in deg, knee "
              "down positive; [JOINT_n] HOME_OFFSET notes")
@@ -239,25 +241,24 @@ class LinuxCNCRotaryDelta(ControllerFormat):
         fixed = np.array([False, False, False, True] + [False] * 3 + [True] * 3)
         return ControllerParameters(list(self.NAMES), v, list(self.KINDS), fixed)
 
-    def applies(self, machine: Machine) -> str | None:
-        """Why rotarydeltakins cannot hold ``machine`` (None: a Delta with LinuxCNC's legs).
+    def layout_problem(self, machine: Machine) -> str | None:
+        """Why rotarydeltakins' fixed hips cannot hold a Delta (None: legs where its hips are).
 
         Parameters
         ----------
         machine : Machine
-            The machine.
+            A Delta.
 
         Returns
         -------
         str or None
             The reason in words.
         """
-        why = delta_applies(machine)
-        if why is None and np.any(joint_of_legs(machine.leg_angles, ROTARY_HIPS) < 0):
+        if np.any(joint_of_legs(machine.leg_angles, ROTARY_HIPS) < 0):
             legs = ", ".join(f"{v:g}" for v in np.degrees(machine.leg_angles))
-            why = ("rotarydeltakins has its hips at -90, 150 and 30 deg (120 deg apart, joint 0 "
-                   f"in the YZ plane); the machine's legs stand at {legs} deg")
-        return why
+            return ("rotarydeltakins has its hips at -90, 150 and 30 deg (120 deg apart, joint "
+                    f"0 in the YZ plane); the machine's legs stand at {legs} deg")
+        return None
 
     def initial(self, machine: Machine) -> ControllerParameters:
         """The values read off a Delta (exact with LinuxCNC's legs and one radius and arm
@@ -396,6 +397,8 @@ class LinuxCNCLinearDelta(ControllerFormat):
     """LinuxCNC ``lineardeltakins`` (see the module docstring)."""
 
     name = "linuxcnc-lineardelta"
+    machine_kind = "linear_delta"
+    machine_words = "linear Delta printer"
     words = ("LinuxCNC lineardeltakins (src/emc/kinematics/lineardeltakins-common.h): HAL "
              "pins R, L; joints are carriage heights; [JOINT_n] HOME_OFFSET notes")
     suffix = ".hal"
@@ -426,23 +429,19 @@ class LinuxCNCLinearDelta(ControllerFormat):
         v = np.concatenate([[R, L], homes, [bed_z], joints]).astype(float)
         return ControllerParameters(list(self.NAMES), v, list(self.KINDS), np.arange(9) >= 5)
 
-    def applies(self, machine: Machine) -> str | None:
-        """Why lineardeltakins cannot hold ``machine`` (None: a linear Delta with LinuxCNC's
-        towers).
+    def layout_problem(self, machine: Machine) -> str | None:
+        """Why lineardeltakins' fixed towers cannot hold a printer (None: towers where its are).
 
         Parameters
         ----------
         machine : Machine
-            The machine.
+            A linear Delta.
 
         Returns
         -------
         str or None
             The reason in words.
         """
-        if getattr(machine, "kind", None) != "linear_delta":
-            return (f"holds a linear Delta printer (machine: linear_delta), not a "
-                    f"{getattr(machine, 'kind', type(machine).__name__)}")
         if np.any(joint_of_legs(machine.towers()[1], LINEAR_TOWERS) < 0):
             t = ", ".join(f"{v:g}" for v in np.degrees(machine.towers()[1]))
             return ("lineardeltakins has its towers at 90, 210 and 330 deg (tower 0 on +Y); "

@@ -60,7 +60,6 @@ from .klipper import (
     bed_values,
     controller_endstops,
     finite_number,
-    linear_delta_applies,
     linear_delta_machine,
     machine_bed,
     read_bed,
@@ -148,6 +147,8 @@ class MarlinDelta(ControllerFormat):
     """Marlin ``DELTA``: ``M665`` / ``M666`` (see the module docstring)."""
 
     name = "marlin"
+    machine_kind = "linear_delta"
+    machine_words = "linear Delta printer"
     words = ("Marlin delta (Marlin/src/module/delta.cpp, gcode/calibrate/M665.cpp, M666.cpp): "
              "M665 H L R X Y Z A B C, M666 X Y Z")
     suffix = ".gcode"
@@ -159,21 +160,6 @@ class MarlinDelta(ControllerFormat):
     KINDS = ["length"] * 3 + ["angle"] * 3 + ["length"] * 6 + list(BED_KINDS)
     #: H (degenerate with the adjustments), L (with the rod trims) and the bed
     FIXED = np.array([True, True] + [False] * 10 + [True] * 3)
-
-    def applies(self, machine: Machine) -> str | None:
-        """Why Marlin's delta format cannot hold ``machine`` (None: a linear Delta).
-
-        Parameters
-        ----------
-        machine : Machine
-            The machine.
-
-        Returns
-        -------
-        str or None
-            The reason in words.
-        """
-        return linear_delta_applies(machine)
 
     def values(self, H, L, R, trims, rod_trims, adj, bed) -> ControllerParameters:
         """Marlin's values from their parts (SI).

@@ -54,7 +54,6 @@ from .klipper import (
     bed_values,
     controller_endstops,
     finite_number,
-    linear_delta_applies,
     linear_delta_machine,
     machine_bed,
     read_bed,
@@ -71,6 +70,8 @@ class RepRapFirmwareDelta(ControllerFormat):
     """RepRapFirmware ``M665`` / ``M666`` (see the module docstring)."""
 
     name = "reprapfirmware"
+    machine_kind = "linear_delta"
+    machine_words = "linear Delta printer"
     words = ("RepRapFirmware linear delta (src/Movement/Kinematics/LinearDeltaKinematics.cpp): "
              "M665 L R H X Y Z, M666 X Y Z A B")
     suffix = ".g"
@@ -81,21 +82,6 @@ class RepRapFirmwareDelta(ControllerFormat):
     KINDS = ["length"] * 5 + ["angle"] * 3 + ["length"] * 3 + ["ratio"] * 2 + list(BED_KINDS)
     #: homed_height (degenerate with the adjustments) and the bed
     FIXED = np.array([False] * 4 + [True] + [False] * 8 + [True] * 3)
-
-    def applies(self, machine: Machine) -> str | None:
-        """Why RepRapFirmware's delta format cannot hold ``machine`` (None: a linear Delta).
-
-        Parameters
-        ----------
-        machine : Machine
-            The machine.
-
-        Returns
-        -------
-        str or None
-            The reason in words.
-        """
-        return linear_delta_applies(machine)
 
     def values(self, diagonals, radius, H, corrections, adj, tilt, bed) -> ControllerParameters:
         """RepRapFirmware's values from their parts (SI).
