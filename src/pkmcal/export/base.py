@@ -141,8 +141,8 @@ class ControllerFormat(ABC):
         """
         kind = getattr(machine, "kind", type(machine).__name__)
         if self.machine_kind and kind != self.machine_kind:
-            return (f"holds a {self.machine_words} (machine: {self.machine_kind}), not a "
-                    f"{kind}")
+            return (f"the {self.name} format is for a {self.machine_words} (machine: "
+                    f"{self.machine_kind}), this is a {kind}")
         return self.layout_problem(machine)
 
     def layout_problem(self, machine: Machine) -> str | None:
