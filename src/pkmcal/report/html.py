@@ -559,6 +559,52 @@ def _ratio_plot(ratio) -> str:
     return _png(fig)
 
 
+def _instrument_sections(report) -> str:
+    """Sections of the newer kinds: the files of a joint fit and what each adds, ballbar
+    mountings, and the parameters the data determine poorly (with what to measure next)."""
+    parts = []
+    files = report.get("files")
+    if isinstance(files, list) and files:
+        rows = "".join(
+            f"<tr><td>{_e(f.get('label', f.get('file')))}</td><td>{_e(f.get('measurement'))}"
+            f"</td><td>{_e(f.get('measurements'))}</td><td>{_e(f.get('noise', ''))}</td>"
+            f"<td>{_num((f.get('residuals') or {}).get('before_rms_um'))}</td>"
+            f"<td>{_num((f.get('residuals') or {}).get('rms_um'))}</td></tr>"
+            for f in files if isinstance(f, Mapping))
+        parts.append("<h2>Files fitted together</h2><table><tr><th>file</th><th>kind</th>"
+                     "<th>rows</th><th>noise</th><th>RMS before (um)</th><th>RMS after (um)"
+                     f"</th></tr>{rows}</table>")
+    contributions = report.get("contributions")
+    if isinstance(contributions, Mapping) and contributions.get("summary"):
+        summary = contributions["summary"]
+        lines = summary if isinstance(summary, list) else [summary]
+        parts.append("<h2>What each file adds</h2><ul>"
+                     + "".join(f"<li>{_e(line)}</li>" for line in lines) + "</ul>")
+    setups = report.get("setups")
+    if isinstance(setups, list) and setups:
+        rows = "".join(
+            f"<tr><td>{_e(u.get('setup'))}</td><td>{_e(u.get('rows'))}</td>"
+            f"<td>{_e(', '.join(_num(v) for v in u.get('pivot', [])))}</td>"
+            f"<td>{_e(', '.join(_num(v) for v in u.get('ball', [])))}</td>"
+            f"<td>{_e(u.get('unit', ''))}</td></tr>" for u in setups if isinstance(u, Mapping))
+        parts.append("<h2>Ballbar mountings</h2><table><tr><th>setup</th><th>rows</th>"
+                     "<th>pivot (base)</th><th>ball (platform)</th><th>unit</th></tr>"
+                     f"{rows}</table>")
+    poor = report.get("poorly_determined")
+    if isinstance(poor, Mapping) and poor.get("parameters"):
+        unit = (report.get("units") or {}).get("length", "")
+        rows = "".join(
+            f"<tr><td>{_e(q.get('name'))}</td><td>{_num(q.get('std'))}</td>"
+            f"<td>{_e(q.get('correlated_with') or '')}</td><td>{_num(q.get('correlation'))}"
+            "</td></tr>" for q in poor["parameters"] if isinstance(q, Mapping))
+        parts.append("<h2>Poorly determined</h2><p>Determined by these data only to the "
+                     f"standard deviations below (lengths in {_e(unit)}, angles in the file's "
+                     f"unit); to fix them, measure {_e(poor.get('measure_next', ''))}.</p>"
+                     "<table><tr><th>parameter</th><th>std</th><th>most correlated with</th>"
+                     f"<th>correlation</th></tr>{rows}</table>")
+    return "".join(parts)
+
+
 def _summary_rows(report, conv):
     keys = ("machine_file", "data_file", "calibrated_file", "measurement", "method",
             "measurements", "used", "date", "reading_unit", "noise", "noise_sigma_um",
@@ -659,7 +705,8 @@ def build_html(report: Mapping, title: str | None = None) -> str:
     validation = report.get("validation")
     if isinstance(validation, Mapping):
         parts.append("<h2>Held-out validation</h2>" + _kv_table(list(_rows(validation))))
-    for key in ("link_length", "registration", "frames"):
+    parts.append(_instrument_sections(report))
+    for key in ("link_length", "registration", "frames", "bed"):
         if isinstance(report.get(key), Mapping):
             parts.append(f"<h2>{_e(key.replace('_', ' '))}</h2>"
                          + _kv_table(list(_rows(report[key]))))
