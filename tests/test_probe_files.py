@@ -44,8 +44,8 @@ def test_calibrate_writes_the_bed_and_fk_predicts_the_heights(tmp_path):
     rms = np.sqrt(np.mean(z**2)) * 1e3
     assert rms == pytest.approx(report["residuals"]["rms_um"], rel=1e-6)
     # the HTML report shows the bed and the poorly determined parameters
-    assert run("report", "cal.yaml", "-o", "cal.html", cwd=tmp_path).returncode == 0
-    html = (tmp_path / "cal.html").read_text()
+    assert run("report", "cal.yaml", "-o", "cal_report.html", cwd=tmp_path).returncode == 0
+    html = (tmp_path / "cal_report.html").read_text()
     assert "<h2>bed</h2>" in html and "Poorly determined" in html
 
 

@@ -90,8 +90,8 @@ def test_the_printer_session_runs_and_its_table_is_what_it_reports(tmp_path):
     report = json.loads((tmp_path / "both.json").read_text())
     std = {p["name"]: p for p in report["contributions"]["parameters"]}
     # the HTML report shows the files fitted together and what each adds
-    assert run("report", "both.yaml", "-o", "both.html", cwd=tmp_path).returncode == 0
-    html = (tmp_path / "both.html").read_text()
+    assert run("report", "both.yaml", "-o", "both_report.html", cwd=tmp_path).returncode == 0
+    html = (tmp_path / "both_report.html").read_text()
     assert "Files fitted together" in html and "What each file adds" in html
     assert "tower1.arm_trim: std" in html
 
