@@ -445,10 +445,10 @@ def _tracker_run(s: MonteCarloSettings, rng):
     pose = tracker_pose(nominal)
     true.base_from_tracker = pose
     sim_noise, fit_noise = _tracker_noises(s)
-    if s.poses is None:
-        targets = grid_points(nominal.home[0])
+    if s.poses is None and nominal.tracker_grid_spacing() is not None:
+        targets = grid_points(nominal.home[0], nominal.tracker_grid_spacing())
     else:
-        targets = candidate_poses(nominal, "tracker", s.poses, rng)[0]
+        targets = candidate_poses(nominal, "tracker", s.poses or 60, rng)[0]
     data = simulate_tracker(true, nominal, targets, pose, sim_noise, rng=rng)
     res = calibrate_tracker(nominal, data, fit_noise)
     held = candidate_poses(nominal, "tracker", EVALUATION_POSES[s.scenario], rng)[0]

@@ -103,8 +103,7 @@ class PoorParameter:
             value = f"{self.std:.3g}"
         corr = ("" if self.partner is None else
                 f", correlation {self.correlation:+.3f} with {self.partner}")
-        combined = (" (of its part the data fix; the value itself only in combination, see "
-                    "'not identifiable')" if self.combined else "")
+        combined = " (its identifiable part)" if self.combined else ""
         return f"{self.name}: std {value}{combined}{corr}"
 
 
@@ -170,13 +169,13 @@ def poorly_determined(result, n_machine: int, length: float,
 
 def poorly_determined_warnings(poor: list[PoorParameter], source, instrument: str = "probe",
                                units: dict | None = None,
-                               threshold: float = POOR_STD) -> list[str]:
-    """Warnings in words for :func:`poorly_determined` parameters (empty when none).
+                               threshold: float = POOR_STD, shown: int = 4) -> list[str]:
+    """One warning in words for the :func:`poorly_determined` parameters (empty when none).
 
     Parameters
     ----------
     poor : list of PoorParameter
-        The parameters.
+        The parameters, largest standard deviation first.
     source : str
         The data, named in the warning.
     instrument : str, optional
@@ -185,20 +184,27 @@ def poorly_determined_warnings(poor: list[PoorParameter], source, instrument: st
         ``{"length": ..., "angle": ...}`` of the text; default mm and deg.
     threshold : float, optional
         The threshold used, m.
+    shown : int, optional
+        How many parameters the warning names (the report lists all).
 
     Returns
     -------
     list of str
-        One warning per parameter.
+        No warning, or one naming the worst ``shown`` parameters and how many there are.
     """
+    if not poor:
+        return []
     units = units or {"length": "mm", "angle": "deg"}
     from ..units import LENGTH
 
     limit = f"{threshold / LENGTH[units['length']]:.3g} {units['length']}"
     nxt = MEASURE_NEXT.get(instrument, "another instrument (distances or points)")
-    return [f"{source}: {p.text(units['length'], units['angle'])}: poorly determined by "
-            f"these {instrument} measurements (standard deviation beyond {limit} at the "
-            f"machine's scale); to fix it, measure {nxt}" for p in poor]
+    named = "; ".join(p.text(units["length"], units["angle"]) for p in poor[:shown])
+    more = (f"; and {len(poor) - shown} more (the report's poorly_determined lists them)"
+            if len(poor) > shown else "")
+    return [f"{source}: {len(poor)} parameter(s) poorly determined by these {instrument} "
+            f"measurements (standard deviation beyond {limit} at the machine's scale): "
+            f"{named}{more}; to fix them, measure {nxt}"]
 
 
 def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: float = RTOL,
