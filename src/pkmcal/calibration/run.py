@@ -526,6 +526,12 @@ def measurement_kind(path, header: list[str], machine) -> str:
     """
     supported = supported_kinds(machine)
     need = "; ".join(f"{k}: {v}" for k, v in supported.items()) or "none yet"
+    matches = [k for k in _kinds() if k.detect(header) and not k.readings_only]
+    if len(matches) > 1:
+        raise InputError(f"{path}: columns of {len(matches)} kinds of measurement in one file ("
+                         + "; ".join(f"{k.name}: {k.columns}" for k in matches)
+                         + "): give each instrument's rows in a file of its own (several files "
+                         "are fitted together: pkmcal calibrate MACHINE A.csv B.csv)")
     found = next((k for k in _kinds() if k.detect(header)), None)
     if found is None:
         raise InputError(f"{path}: cannot tell the measurement type from the columns "
@@ -680,7 +686,17 @@ class Calibration:
         if beside:
             metadata.update(report=report_path.name, report_sha256=text_digest(json_text))
         yaml_text = machine_to_text(self.calibrated, self.units, calibration=metadata)
-        parse_machine(yaml_text, str(output))   # the calibrated file must load back
+        try:                                    # the calibrated file must load back
+            parse_machine(yaml_text, str(output))
+        except InputError as exc:
+            import re
+
+            what = re.sub(r" \(line \d+\)$", "", str(exc).split(": ", 1)[-1])
+            data = self.report.get("data_file") or "the data"
+            raise InputError(f"{data}: the calibrated geometry is not a working machine "
+                             f"({what}); the data do not determine it, or do not belong to "
+                             f"this machine file (see identifiability); {output} not "
+                             "written") from None
         html_text = None
         if report_dir is not None:
             from ..report.html import build_html
@@ -2086,7 +2102,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     CalibrationNotConverged
         When the estimator did not converge.
     """
-    from ..instruments import DistancesModel, PointsModel
+    from ..instruments import DistancesModel, PointsModel, ProbeModel
     from ..instruments.joint import file_labels, fit_joint
     from ..io import read_table
     from ..units import LENGTH
@@ -2109,7 +2125,14 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                 raise InputError(f"{source}: {type(item).__name__} is no calibration data")
             kinds.append(kind)
         sources.append(source)
-    if len({str(s) for s in sources}) != len(sources):
+    def _same(a):
+        # a path names the same file through links and relative spellings
+        try:
+            return Path(a).resolve() if isinstance(a, (str, Path)) else str(a)
+        except OSError:
+            return str(a)
+
+    if len({_same(s) for s in sources}) != len(sources):
         raise InputError("the same data file is given twice: "
                          + ", ".join(str(s) for s in sources))
     labels = file_labels(sources)
@@ -2142,7 +2165,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
             start.parameters.names, start.parameters.values, strict=True)})
     params = _parameter_table(result, nominal_of, units)
 
-    files, sections, setups, tracker_from = [], [], [], None
+    files, sections, setups, tracker_from, bed_from = [], [], [], None, None
     for i, (part, label, source) in enumerate(zip(parts, labels, sources, strict=True)):
         sub = problem.part_state(state, i)
         before = result.extras["before"][i]
@@ -2175,6 +2198,14 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                 calibrated.tracker_targets = (None if machine.tracker_target() is not None
                                               else np.array(targets, float))
                 sections.append(f"tracker (frame and targets) from {source}")
+        elif isinstance(model, ProbeModel):
+            bed = tuple(float(v) for v in sub.nuisance.values[:3])
+            entry["bed"] = {"height": bed[0] / fl, "tilt_x": bed[1], "tilt_y": bed[2],
+                            "unit": units["length"], "tilt": "slopes dz/dx, dz/dy"}
+            if bed_from is None:
+                bed_from = str(source)
+                calibrated.probe_bed = bed
+                sections.append(f"bed (height and tilt) from {source}")
         elif isinstance(model, DistancesModel):
             mine = [(np.array(sub.nuisance.values[model._ip[g]]),
                      np.array(sub.nuisance.values[model._ib[g]]))

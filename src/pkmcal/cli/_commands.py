@@ -538,9 +538,10 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
     except CalibrationNotConverged as exc:
         error(str(exc))
         return 1
+    # staged first: a calibrated geometry that cannot be written is the one message (exit 2)
+    json_text = calibration.write(output, report_dir)
     for text in calibration.warnings:
         warning(text)
-    json_text = calibration.write(output, report_dir)
     if json_output:
         print(json_text, end="")
     else:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..calibration.run import json_safe as _finite_or_none
 from ..errors import InputError
-from ..io.atomic import atomic_write_text, read_input_text
+from ..io.atomic import atomic_write_text, is_stream, read_input_text
 from ._commands import (
     _machine_inputs,
     _table,
@@ -37,12 +37,17 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
     from ._planning import workspace_arg
 
     fmt = controller_format(to)
-    record_path = output.with_name(output.name + ".json")
+    # no record beside /dev/null or a pipe (as calibrate writes no report beside them)
+    record_path = None if is_stream(output) else output.with_name(output.name + ".json")
     inputs = _machine_inputs(machine_spec) + (_machine_inputs(nominal) if nominal else [])
     if workspace is not None and Path(workspace).exists():
         inputs.append(Path(workspace))
-    check_outputs([output, record_path], inputs)
     machine = load_machine_arg(machine_spec)
+    # the calibration's report, which the calibrated file pins, is an input too
+    pinned = _pinned_report(machine, machine_spec)
+    if pinned is not None:
+        inputs.append(pinned)
+    check_outputs([output] + ([record_path] if record_path is not None else []), inputs)
     why = fmt.applies(machine)
     if why is not None:
         raise InputError(f"--to {fmt.name}: {machine_spec}: {why}")
@@ -58,8 +63,9 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
     ws = workspace_arg(workspace, machine, seed)
     result = export(fmt, machine, ws.P, ws.R, nominal=before, workspace=ws.description)
     atomic_write_text(output, result.text)
-    atomic_write_text(record_path, json.dumps(export_record(result, machine_spec, output,
-                                                            nominal), indent=2) + "\n")
+    if record_path is not None:
+        atomic_write_text(record_path, json.dumps(export_record(result, machine_spec, output,
+                                                                nominal), indent=2) + "\n")
     commit_outputs()
     out = console()
     table = _table("", "", show_header=False)
@@ -76,8 +82,17 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
     for name, text in fmt.values_text(result.params):
         values.add_row(name, text)
     out.print(values)
-    out.print(f"wrote {output} and {record_path}", markup=False)
+    out.print(f"wrote {output}" + (f" and {record_path}" if record_path else ""), markup=False)
     return 0
+
+
+def _pinned_report(machine, machine_spec: str) -> Path | None:
+    """The JSON report a calibrated machine file names beside it (None: none named)."""
+    name = (getattr(machine, "calibration_info", None) or {}).get("report")
+    if not isinstance(name, str) or not name.strip() or Path(name).name != name \
+            or machine_spec == "default":
+        return None
+    return Path(machine_spec).parent / name
 
 
 def run_import(path: Path, source_format: str, output: Path, like: str | None = None) -> int:
@@ -90,12 +105,26 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
     text = read_input_text(path, f"{fmt.name} file")
     params = fmt.parse(text, str(path))
     model = load_machine_arg(like) if like is not None else None
+    if model is not None and fmt.machine_kind and model.kind != fmt.machine_kind:
+        raise InputError(f"--like {like}: a {model.kind} machine; {fmt.name} files describe a "
+                         f"{fmt.machine_words} (machine: {fmt.machine_kind})")
     machine = fmt.to_machine(params, model)
     problems = machine.geometry_problems(home_given=model is not None)
     if problems:
         raise InputError(f"{path}: the imported values do not make a working machine: "
                          f"{problems[0][1]}")
-    save_machine(machine, output, getattr(machine, "file_units", None))
+    from ..io.machine_file import machine_to_text, parse_machine
+
+    units = getattr(machine, "file_units", None)
+    try:                   # the values must make a plausible machine file: name the input
+        parse_machine(machine_to_text(machine, units), str(output))
+    except InputError as exc:
+        import re
+
+        what = re.sub(r" \(line \d+\)$", "", str(exc).split(": ", 1)[-1])
+        raise InputError(f"{path}: the imported values do not make a plausible machine file: "
+                         f"{what}") from None
+    save_machine(machine, output, units)
     commit_outputs()
     console().print(f"{len(params.values)} {fmt.name} values of {path} written to {output} "
                     f"as a {machine.kind} machine file", markup=False)

@@ -183,11 +183,21 @@ def _old_command_error(calibrated, nominal, P, R):
 
 
 def _ordered(C, names: list[str], wanted: list[str]) -> np.ndarray:
-    """The covariance ``C`` over ``names`` restricted and reordered to ``wanted``."""
-    missing = [w for w in wanted if w not in names]
+    """The covariance ``C`` over ``names`` restricted and reordered to ``wanted``.
+
+    A fit of several files names each file's instrument unknowns ``FILE:name``: a wanted
+    ``tracker.x`` is then the first file's ``FILE:tracker.x`` (the one whose section the
+    calibrated file keeps)."""
+    def find(w):
+        if w in names:
+            return names.index(w)
+        prefixed = [i for i, n in enumerate(names) if n.endswith(":" + w)]
+        return prefixed[0] if prefixed else None
+
+    idx = [find(w) for w in wanted]
+    missing = [w for w, i in zip(wanted, idx, strict=True) if i is None]
     if missing:
         raise ValueError(f"the covariance has no parameter {', '.join(missing[:5])}")
-    idx = [names.index(w) for w in wanted]
     return C[np.ix_(idx, idx)]
 
 

@@ -493,6 +493,11 @@ class KlipperDelta(ControllerFormat):
             if m is None or section is None:
                 continue
             key = m.group(1).strip().lower()
+            if section == "printer" and key == "kinematics" \
+                    and m.group(2).strip().lower() != "delta":
+                raise InputError(f"{source}: line {n}: [printer] kinematics: "
+                                 f"{m.group(2).strip()!r}; this format reads Klipper's delta "
+                                 "kinematics (kinematics: delta)")
             wanted = ((section == "printer" and key == "delta_radius")
                       or (section in {f"stepper_{t}" for t in TOWERS}
                           and key in ("arm_length", "angle", "position_endstop")))

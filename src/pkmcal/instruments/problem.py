@@ -465,6 +465,15 @@ def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel,
     else:
         problem = InstrumentProblem(machine, data, start, noise)
         result = levenberg_marquardt(problem, rtol=rtol, **options)
+    rows = np.column_stack([data.q, data.values, data.group])
+    distinct = len(np.unique(rows[np.all(np.isfinite(rows), axis=1)], axis=0))
+    if distinct * model.size <= result.rank:
+        # copies of the same row add no information: the fit would be exact whatever the
+        # noise, and its covariance meaningless
+        raise InputError(f"{data.source}: {len(data)} rows but {distinct} distinct: "
+                         f"{distinct * model.size} equation(s) for the {result.rank} "
+                         "direction(s) they would have to fix, with nothing left to check "
+                         "them; repeated rows add no information: measure distinct poses")
     state = result.state
     calibrated = machine.with_parameters(state.u)
     fitted = start.with_start(state.nuisance)

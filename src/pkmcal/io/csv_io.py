@@ -59,9 +59,11 @@ _COLUMN_MAP: ContextVar[dict[str, str] | None] = ContextVar("pkmcal_column_map",
 #: suffix; "any": any unit word, e.g. a Stewart's q1_rev)
 _COLUMN_BASES = {"passive": None, "qx": None, "qy": None, "qz": None, "qw": None,
                  "x": "length", "y": "length", "z": "length", "mx": "length", "my": "length",
-                 "mz": "length", "psi": "angle", "theta": "angle", "phi": "angle", "t": "time"}
+                 "mz": "length", "psi": "angle", "theta": "angle", "phi": "angle", "t": "time",
+                 "target": None, "setup": None, "d": "length", "probe_z": "length"}
 _KNOWN_COLUMNS = ("q1_<unit>..qn_<unit>, passive, x_<len>, y_<len>, z_<len>, psi_<ang>, "
-                  "theta_<ang>, phi_<ang>, qx, qy, qz, qw, mx_<len>, my_<len>, mz_<len>, t_s")
+                  "theta_<ang>, phi_<ang>, qx, qy, qz, qw, mx_<len>, my_<len>, mz_<len>, "
+                  "target, d_<len>, setup, probe_z_<len>, t_s")
 
 
 def _column_name_problem(name: str) -> str | None:
@@ -540,6 +542,13 @@ def machine_readings(path, machine):
     """
     header, table = read_table(path)
     extra = {name: [f[k] for _, f in table] for k, name in enumerate(header)}
+    beyond = [name for name in header
+              if re.match(r"^q(\d+)(_|$)", name) and int(re.match(r"^q(\d+)", name).group(1))
+              > machine.n_joints]
+    if beyond:
+        raise InputError(f"{path}: column {beyond[0]}: the machine has {machine.n_joints} "
+                         f"joints (q1..q{machine.n_joints}); are these readings of another "
+                         "machine?")
     if getattr(machine, "reading_unit", None) is not None:
         q, rows, columns = _read_readings(path, machine)
         return q, rows, extra, columns

@@ -433,8 +433,9 @@ class BedPlane(_Strict):
     frame (``height`` in the file's length unit; ``tilt_x``, ``tilt_y`` slopes dz/dx, dz/dy)."""
 
     height: Number
-    tilt_x: Number = 0.0
-    tilt_y: Number = 0.0
+    #: slopes beyond 1 (45 deg) are no bed a probe measured
+    tilt_x: Annotated[float, Strict(), Field(allow_inf_nan=False, ge=-1.0, le=1.0)] = 0.0
+    tilt_y: Annotated[float, Strict(), Field(allow_inf_nan=False, ge=-1.0, le=1.0)] = 0.0
 
 
 class DeltaFile(_Strict):
@@ -485,7 +486,9 @@ class LinearDeltaFile(_Strict):
     delta_radius: Positive
     arm_length: Any                            # one number or 3: checked by _arm_lengths
     tower_angles: Vector3
-    position_endstop: Vector3
+    #: nozzle-to-bed distances at the endstops: above the bed
+    position_endstop: Annotated[list[Annotated[float, Strict(), Field(
+        allow_inf_nan=False, gt=0)]], Field(min_length=3, max_length=3)]
     chains: Annotated[list[HexaSlideChain], Field(min_length=3, max_length=3)] | None = None
     tracker: TrackerPose | None = None
     ballbar: Ballbar | None = None
