@@ -140,3 +140,25 @@ def test_import_refusals_name_the_input(tmp_path, text, args, words):
     (tmp_path / "in.cfg").write_text(text)
     assert_input_error(run("import", "in.cfg", *args, "-o", "m.yaml", cwd=tmp_path), *words)
     assert not (tmp_path / "m.yaml").exists()
+
+
+@pytest.mark.parametrize("text, fmt, words", [
+    ("M665 H285 L250 R132.5 R140 X0 Y0 Z0\n", "marlin", ["line 1", "M665 R", "twice"]),
+    ("M665 L250:251 R132.5 H285\n", "reprapfirmware", ["line 1", "2 diagonals"]),
+])
+def test_gcode_refusals(tmp_path, text, fmt, words):
+    (tmp_path / "in.g").write_text(text)
+    assert_input_error(run("import", "in.g", "--from", fmt, "-o", "m.yaml", cwd=tmp_path),
+                       "in.g", *words)
+
+
+def test_gcode_words_without_spaces(tmp_path):
+    """Marlin reads ``M665H285L250R132.5``: so does import."""
+    (tmp_path / "a.g").write_text("M665 H285 L250 R132.5 X0 Y0 Z0\nM666 X0 Y-0.3 Z-0.5\n")
+    (tmp_path / "b.g").write_text("M665H285L250R132.5X0Y0Z0\nM666X0Y-0.3Z-0.5\n")
+    for name in ("a", "b"):
+        proc = run("import", f"{name}.g", "--from", "marlin", "-o", f"{name}.yaml",
+                   cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr
+    strip = (lambda t: "\n".join(x for x in t.splitlines() if not x.startswith("name")))  # noqa: E731
+    assert strip((tmp_path / "a.yaml").read_text()) == strip((tmp_path / "b.yaml").read_text())

@@ -98,21 +98,34 @@ def gcode_words(line: str, source: str, n: int, code: str) -> dict:
     InputError
         For a word without a value.
     """
-    out = {}
+    import re
+
+    pair = r"[A-Za-z][-+]?[0-9.]+"
+    words = []
     tokens = line.split()
     k = 0
     while k < len(tokens):
         tok = tokens[k]
-        letter, value = tok[0].upper(), tok[1:]
-        if not letter.isalpha():
+        if not tok[0].isalpha():
             raise InputError(f"{source}: line {n}: {code}: {tok!r} is not a letter word")
-        if not value and k + 1 < len(tokens) and not tokens[k + 1][0].isalpha():
-            k += 1
-            value = tokens[k]                   # "L 250": the value after a space
+        if len(tok) > 1 and re.fullmatch(f"({pair}){{2,}}", tok):
+            # several words without spaces ("H285L250"), as Marlin reads them
+            words += [(w[0], w[1:]) for w in re.findall(pair, tok)]
+        else:
+            value = tok[1:]
+            if not value and k + 1 < len(tokens) and not tokens[k + 1][0].isalpha():
+                k += 1
+                value = tokens[k]               # "L 250": the value after a space
+            words.append((tok[0], value))
+        k += 1
+    out = {}
+    for letter, value in words:
+        letter = letter.upper()
         if not value:
             raise InputError(f"{source}: line {n}: {code} {letter}: no value")
+        if letter in out:
+            raise InputError(f"{source}: line {n}: {code} {letter}: given twice")
         out[letter] = value
-        k += 1
     return out
 
 
@@ -138,7 +151,7 @@ def gcode_lines(text: str, codes: tuple):
         line = re.sub(r"\([^)]*\)", " ", line).strip()
         line = re.sub(r"^(echo:|ok)\s*", "", line, flags=re.I).strip()
         line = re.sub(r"^N\d+\s+", "", line, flags=re.I)
-        m = re.match(r"([GMgm])0*(\d+)(?=\s|$)(.*)", line)
+        m = re.match(r"([GMgm])0*(\d+)(?=\s|$|[A-Za-z])(.*)", line)
         if m and f"{m.group(1).upper()}{m.group(2)}" in codes:
             yield n, f"{m.group(1).upper()}{m.group(2)}", m.group(3)
 

@@ -266,9 +266,9 @@ class RepRapFirmwareDelta(ControllerFormat):
                     continue                    # M665 B: the printable radius
                 if code == "M665" and letter == "L":
                     parts = word.split(":")
-                    if len(parts) > 3:
+                    if len(parts) not in (1, 3):
                         raise InputError(f"{source}: line {n}: M665 L: {len(parts)} diagonals; "
-                                         "a linear Delta has 3 towers")
+                                         "give one for all towers or one per tower (3)")
                     d = [finite_number(p, source, n, "M665 L") * 1e-3 for p in parts]
                     got[(code, letter)] = (np.array(d + [d[0]] * (3 - len(d))), n)
                     continue
