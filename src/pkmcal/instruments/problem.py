@@ -468,12 +468,14 @@ def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel,
     rows = np.column_stack([data.q, data.values, data.group])
     distinct = len(np.unique(rows[np.all(np.isfinite(rows), axis=1)], axis=0))
     if distinct * model.size <= result.rank:
-        # copies of the same row add no information: the fit would be exact whatever the
-        # noise, and its covariance meaningless
-        raise InputError(f"{data.source}: {len(data)} rows but {distinct} distinct: "
-                         f"{distinct * model.size} equation(s) for the {result.rank} "
-                         "direction(s) they would have to fix, with nothing left to check "
-                         "them; repeated rows add no information: measure distinct poses")
+        # no equation left to check the fit: it would be exact whatever the noise, and its
+        # covariance meaningless (copies of one row add no information)
+        rows_text = (f"{len(data)} rows but {distinct} distinct" if distinct < len(data)
+                     else f"{len(data)} rows")
+        raise InputError(f"{data.source}: {rows_text}: {distinct * model.size} equation(s) "
+                         f"for the {result.rank} direction(s) they would have to fix, with "
+                         "nothing left to check them; measure more"
+                         + (" distinct" if distinct < len(data) else "") + " poses")
     state = result.state
     calibrated = machine.with_parameters(state.u)
     fitted = start.with_start(state.nuisance)
