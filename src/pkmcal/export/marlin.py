@@ -108,7 +108,8 @@ def gcode_words(line: str, source: str, n: int, code: str) -> dict:
         tok = tokens[k]
         if not tok[0].isalpha():
             raise InputError(f"{source}: line {n}: {code}: {tok!r} is not a letter word")
-        if len(tok) > 1 and re.fullmatch(f"({pair}){{2,}}", tok):
+        exponent = re.search(r"\d[eE][-+]?\d", tok)       # 1e9 is one number, not 1 and E9
+        if len(tok) > 1 and not exponent and re.fullmatch(f"({pair}){{2,}}", tok):
             # several words without spaces ("H285L250"), as Marlin reads them
             words += [(w[0], w[1:]) for w in re.findall(pair, tok)]
         else:
