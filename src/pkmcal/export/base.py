@@ -478,6 +478,39 @@ def export_workspace(machine: Machine, workspace=None, n: int = 500, rng=0):
     return Workspace(P, R, f"{len(P)} given positions", (P.min(axis=0), P.max(axis=0)))
 
 
+def finite_number(word: str, source: str, line: int, key: str) -> float:
+    """A finite number of a controller file, or an error naming the line and key.
+
+    Parameters
+    ----------
+    word : str
+        The text of the value.
+    source : str
+        The file's name.
+    line : int
+        1-based line number.
+    key : str
+        The key, in the controller's words.
+
+    Returns
+    -------
+    float
+        The value.
+
+    Raises
+    ------
+    InputError
+        When the value is not a finite number.
+    """
+    try:
+        v = float(word)
+    except ValueError:
+        raise InputError(f"{source}: line {line}: {key}: {word!r} is not a number") from None
+    if not np.isfinite(v):
+        raise InputError(f"{source}: line {line}: {key}: {word!r} is not a finite number")
+    return v
+
+
 #: the controller formats by name (:func:`register_format`; filled by :data:`FORMAT_MODULES`)
 FORMATS: dict[str, ControllerFormat] = {}
 #: the modules of ``pkmcal.export`` that register formats, one per controller family

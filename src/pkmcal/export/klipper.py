@@ -44,7 +44,7 @@ import numpy as np
 from ..errors import InputError
 from ..machines.base import Machine
 from ..machines.linear_delta import LinearDelta, linear_delta
-from .base import ControllerFormat, ControllerParameters, register_format
+from .base import ControllerFormat, ControllerParameters, finite_number, register_format
 
 #: the bed entries every linear-Delta format carries (fixed): height m, slopes dz/dx, dz/dy
 BED = ("bed.z", "bed.tilt_x", "bed.tilt_y")
@@ -138,39 +138,6 @@ def bed_values(bed) -> list[tuple[str, str]]:
     return [("bed height (pkmcal, fixed)", f"{h * 1e3:.6f} mm"),
             ("bed tilt dz/dx (pkmcal, fixed)", f"{tx:.9g}"),
             ("bed tilt dz/dy (pkmcal, fixed)", f"{ty:.9g}")]
-
-
-def finite_number(word: str, source: str, line: int, key: str) -> float:
-    """A finite number of a controller file, or an error naming the line and key.
-
-    Parameters
-    ----------
-    word : str
-        The text of the value.
-    source : str
-        The file's name.
-    line : int
-        1-based line number.
-    key : str
-        The key, in the controller's words.
-
-    Returns
-    -------
-    float
-        The value.
-
-    Raises
-    ------
-    InputError
-        When the value is not a finite number.
-    """
-    try:
-        v = float(word)
-    except ValueError:
-        raise InputError(f"{source}: line {line}: {key}: {word!r} is not a number") from None
-    if not np.isfinite(v):
-        raise InputError(f"{source}: line {line}: {key}: {word!r} is not a finite number")
-    return v
 
 
 def vertical_tower_travel(towers, arms, tops, P) -> np.ndarray:

@@ -70,7 +70,7 @@ import numpy as np
 from ..errors import InputError
 from ..machines.base import Machine
 from ..machines.delta import Delta, delta_parameters
-from .base import ControllerFormat, ControllerParameters, register_format
+from .base import ControllerFormat, ControllerParameters, finite_number, register_format
 
 #: the letters of Klipper's steppers
 STEPPERS = "abc"
@@ -184,41 +184,8 @@ def pkmcal_comments(text: str, source: str) -> dict:
     for n, line in enumerate(text.splitlines(), 1):
         m = _PKMCAL.match(line)
         if m:
-            out[m.group(1)] = (finite(m.group(2), source, n, f"pkmcal {m.group(1)}"), n)
+            out[m.group(1)] = (finite_number(m.group(2), source, n, f"pkmcal {m.group(1)}"), n)
     return out
-
-
-def finite(word: str, source: str, line: int, key: str) -> float:
-    """A finite number of a controller file, or an error naming the line and key.
-
-    Parameters
-    ----------
-    word : str
-        The text.
-    source : str
-        The file's name.
-    line : int
-        1-based line number.
-    key : str
-        The key.
-
-    Returns
-    -------
-    float
-        The value.
-
-    Raises
-    ------
-    InputError
-        When the text is not a finite number.
-    """
-    try:
-        v = float(word)
-    except ValueError:
-        raise InputError(f"{source}: line {line}: {key}: {word!r} is not a number") from None
-    if not np.isfinite(v):
-        raise InputError(f"{source}: line {line}: {key}: {word!r} is not a finite number")
-    return v
 
 
 def leg_offsets(machine: Delta) -> np.ndarray:
@@ -457,7 +424,7 @@ class KlipperRotaryDelta(ControllerFormat):
             if section in (f"stepper_{t}" for t in STEPPERS):
                 wanted = ("position_endstop", "upper_arm_length", "lower_arm_length", "angle")
             if key in wanted:
-                found[(section, key)] = finite(word, source, n, f"[{section}] {key}")
+                found[(section, key)] = finite_number(word, source, n, f"[{section}] {key}")
 
         def get(section, key, default=None):
             if (section, key) in found:

@@ -66,8 +66,8 @@ from ..errors import InputError
 from ..machines.base import Machine
 from ..machines.delta import Delta, delta_parameters
 from ..machines.linear_delta import linear_delta
-from .base import ControllerFormat, ControllerParameters, register_format
-from .klipper_rotary import finite, leg_offsets, pkmcal_comments
+from .base import ControllerFormat, ControllerParameters, finite_number, register_format
+from .klipper_rotary import leg_offsets, pkmcal_comments
 
 #: rotarydeltakins' hip angles of joints 0, 1, 2, deg
 ROTARY_HIPS = (-90.0, 150.0, 30.0)
@@ -169,7 +169,7 @@ def hal_values(text: str, source: str, prefix: str, pins) -> dict:
         if m and m.group(1).startswith(prefix + "."):
             pin = m.group(1)[len(prefix) + 1:]
             if pin in pins:
-                found[pin] = finite(m.group(2), source, n, m.group(1))
+                found[pin] = finite_number(m.group(2), source, n, m.group(1))
     for pin in pins:
         if pin not in found:
             raise InputError(f"{source}: setp {prefix}.{pin} is missing")
@@ -561,7 +561,7 @@ class LinuxCNCLinearDelta(ControllerFormat):
         for n, line in enumerate(text.splitlines(), 1):
             m = re.match(r"^\s*#\s*\[JOINT_([0-2])\]\s*HOME_OFFSET\s*=\s*(\S+)\s*$", line)
             if m:
-                ini[int(m.group(1))] = finite(m.group(2), source, n,
+                ini[int(m.group(1))] = finite_number(m.group(2), source, n,
                                               f"[JOINT_{m.group(1)}] HOME_OFFSET")
         homes = []
         for j in range(3):
