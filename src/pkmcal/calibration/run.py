@@ -1652,9 +1652,9 @@ def _distance_noise(noise, machine):
     return IsotropicNoise(sigma)
 
 
-def _distance_rms(problem, state, data) -> tuple[float | None, np.ndarray]:
-    """RMS (um) and residuals (m) of ballbar lengths under a problem's state (NaN where the
-    forward kinematics fail)."""
+def _scalar_rms(problem, state, data) -> tuple[float | None, np.ndarray]:
+    """RMS (um) and residuals (m) of a one-value instrument (ballbar lengths, probe heights)
+    under a problem's state (NaN where the forward kinematics fail)."""
     predicted = problem.predict(state, data.q, data.group)[:, 0]
     r = data.values[:, 0] - predicted
     ok = np.isfinite(r)
@@ -1694,8 +1694,8 @@ def _calibrate_distances(machine, data, source, options: CalibrateOptions,
         "rotations on a platform that rotates)")
     fl = LENGTH[units["length"]]
     problem, before_problem = result.extras["problem"], before.extras["problem"]
-    rms_after, r_after = _distance_rms(problem, result.state, data)
-    rms_before, _ = _distance_rms(before_problem, before.state, data)
+    rms_after, r_after = _scalar_rms(problem, result.state, data)
+    rms_before, _ = _scalar_rms(before_problem, before.state, data)
     rank = int(result.rank)
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
@@ -1731,8 +1731,8 @@ def _calibrate_distances(machine, data, source, options: CalibrateOptions,
             split, held, "ballbar lengths of the held-out rows, measured - predicted with the "
             "identified mountings; before: the machine file's model with the mountings fitted "
             "alone on the calibration rows", "um",
-            _distance_rms(before_problem, before.state, held)[0],
-            _distance_rms(problem, result.state, held)[0], rms_after)
+            _scalar_rms(before_problem, before.state, held)[0],
+            _scalar_rms(problem, result.state, held)[0], rms_after)
     metadata = {
         "method": "ballbar",
         "date": report["date"],
@@ -2352,13 +2352,6 @@ def _probe_noise(noise, machine):
     return IsotropicNoise(sigma)
 
 
-def _probe_rms(problem, state, data) -> tuple[float | None, np.ndarray]:
-    """RMS (um) and residuals (m) of probe heights under a problem's state."""
-    r = data.values[:, 0] - problem.predict(state, data.q)[:, 0]
-    ok = np.isfinite(r)
-    return (_um(math.sqrt(float(np.mean(r[ok] ** 2)))) if ok.any() else None), r
-
-
 def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) -> Calibration:
     from ..io import read_probe
     from ..units import LENGTH
@@ -2371,8 +2364,8 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
         "radius)")
     fl = LENGTH[units["length"]]
     problem, before_problem = result.extras["problem"], before.extras["problem"]
-    rms_after, r_after = _probe_rms(problem, result.state, data)
-    rms_before, r_before = _probe_rms(before_problem, before.state, data)
+    rms_after, r_after = _scalar_rms(problem, result.state, data)
+    rms_before, r_before = _scalar_rms(before_problem, before.state, data)
     rank = int(result.rank)
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
@@ -2426,8 +2419,8 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
             split, held, "probe heights of the held-out rows, measured - predicted with the "
             "identified bed; before: the machine file's model with the bed fitted alone on "
             "the calibration rows", "um",
-            _probe_rms(before_problem, before.state, held)[0],
-            _probe_rms(problem, result.state, held)[0], rms_after)
+            _scalar_rms(before_problem, before.state, held)[0],
+            _scalar_rms(problem, result.state, held)[0], rms_after)
     metadata = {
         "method": "probe",
         "date": report["date"],
