@@ -127,7 +127,10 @@ def test_options_of_another_kind_are_refused_with_the_commands_words(data):
         calibrate(machine_of("constraint-link"), path, holdout="2x")
     path, _ = data["pose"]
     with pytest.raises(InputError, match="does not apply to full-pose data"):
-        calibrate(machine_of("pose"), path, robust=True)
+        calibrate(machine_of("pose"), path, two_step=True)
+    # --robust applies to every instrument, but not to a method that takes poses as exact
+    with pytest.raises(InputError, match="--robust: applies to the ml method"):
+        calibrate(machine_of("pose"), path, robust=True, method="ik")
 
 
 def test_a_machine_that_cannot_use_the_data(data):

@@ -275,7 +275,10 @@ def test_robust_fit_flags_exactly_the_outliers(case, seed):
     np.testing.assert_array_equal(robust.extras["kept"], ~data.outliers)
     # as good as a fit that never saw the outliers; the plain fit is ruined by them
     clean = calibrate_tracker(case.nominal, data.subset(~data.outliers))
-    assert abs(rms(case.validation_errors(robust)) - rms(case.validation_errors(clean))) < 1e-12
+    # (the noise levels are estimated to a relative 1e-3 in both fits, and the left-out rows
+    # keep a weight of 1e-6: the two estimates agree to far better than their spread)
+    after, without = rms(case.validation_errors(robust)), rms(case.validation_errors(clean))
+    assert abs(after - without) <= 1e-4 * without
     assert rms(case.validation_errors(calibrate_tracker(case.nominal, data))) > \
         5 * rms(case.validation_errors(robust))
 

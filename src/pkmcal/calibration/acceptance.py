@@ -146,6 +146,13 @@ def residual_test(result, alpha: float = 1e-3) -> ResidualTest:
     """
     dof = int(getattr(result, "dof", 0) or 0)
     chi2 = 2.0 * float(result.cost)
+    extras = getattr(result, "extras", None) or {}
+    if "weighted_residuals" in extras and extras.get("noise") is not None:
+        # levels estimated from the data: the test is against the *assumed* noise (what the
+        # instruments are believed to do), over the rows used
+        r = np.asarray(result.residuals, float)
+        used = np.asarray(extras.get("used", np.ones(r.shape, bool)), bool)
+        chi2 = float(np.sum(r[used & np.isfinite(r)] ** 2))
     if dof <= 0 or not math.isfinite(chi2):
         return ResidualTest(chi2, dof, math.nan, math.nan, True)
     ratio = chi2 / dof

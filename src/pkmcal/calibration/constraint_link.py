@@ -37,6 +37,7 @@ from ..measurements.constraint_link import ConstraintLinkData
 from ..parameters import ParameterSet
 from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt
 from .start import continuation_solve
+from .variance import fit
 
 LINK = "link.length"
 METHODS = ("ml", "ik", "fk")
@@ -295,6 +296,22 @@ class ConstraintLinkML(_ConstraintLinkProblem):
         """
         return self.sigma
 
+    def noise_groups(self):
+        """One noise group, the encoder readings (as lengths), one measurement per pose.
+
+        Returns
+        -------
+        NoiseGroups
+            See :class:`~pkmcal.calibration.variance.NoiseGroups`.
+        """
+        from .variance import NoiseGroups
+
+        K, n = self.data.q.shape
+        groups = NoiseGroups.single((K, n), "reading", "encoder readings",
+                                    float(np.mean(self.sigma)), "length",
+                                    getattr(self.data, "rows", None))
+        return groups
+
     def retract(self, state, du, dl):
         """The state after a step: poses moved on the sphere, then projected back onto it.
 
@@ -349,6 +366,8 @@ class ConstraintLinkIK(ConstraintLinkML):
     """
 
     active_weight = 1e3
+    #: the active readings are taken as exact: its residuals are not the noise's
+    noise_groups = None
 
     def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=False):
         if data.passive is None:
@@ -585,6 +604,7 @@ PROBLEMS = {"ml": ConstraintLinkML, "ik": ConstraintLinkIK, "fk": ConstraintLink
 def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method: str = "ml",
                               sigma_m=1e-6, estimate_link_length: bool | None = None,
                               per_chain: bool = False, max_sweeps: int = 200, rtol: float = 1e-7,
+                              estimate_noise=True, robust: bool = False,
                               **options) -> CalibrationResult:
     """Calibrate ``machine`` from constraint-link data.
 
@@ -607,6 +627,11 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         ``per_chain`` only: maximum number of sweeps over the chains.
     rtol : float, optional
         Rank tolerance of :func:`levenberg_marquardt`.
+    estimate_noise : bool, optional
+        ``'ml'``: estimate the encoder noise from the residuals (``sigma_m`` its prior;
+        :func:`~pkmcal.calibration.variance.fit`); False holds ``sigma_m``.
+    robust : bool, optional
+        ``'ml'``: leave out the rows the outlier test names.
     **options
         Passed to :func:`levenberg_marquardt` (``xtol``, ``ftol``, ``max_iter``, ``max_std``;
         without ``per_chain``, ``max_std`` defaults to :data:`MAX_STD`).
@@ -658,6 +683,10 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         result, problem, start = continuation_solve(
             problem, lambda p, state: levenberg_marquardt(p, rtol=rtol, state=state,
                                                           **lm_options))
+        # the encoder noise from the residuals, rows the noise cannot explain named (or left
+        # out with robust): from the solution the start strategy found
+        result = fit(problem, estimate_noise, robust=robust, rtol=rtol, state=result.state,
+                     **lm_options)
     else:
         result = levenberg_marquardt(problem, rtol=rtol, **{"max_std": MAX_STD, **options})
     _refuse_degenerate(data, result, n_id, repeats)

@@ -47,8 +47,9 @@ from ..kinematics import matrix_from_rotvec, rotvec_from_matrix, skew
 from ..machines.base import Machine
 from ..measurements.full_pose import FullPoseData, FullPoseNoise, MeasurementFrames
 from ..parameters import ParameterSet
-from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt, reduce_local
+from .estimator import MAX_STD, CalibrationResult, reduce_local
 from .registration import register_points
+from .variance import fit
 
 FRAME_NAMES = ("mocap_from_base", "platform_from_marker")
 FRAME_FIELDS = ("rx", "ry", "rz", "x", "y", "z")
@@ -449,6 +450,27 @@ class FullPoseML(FullPoseProblem):
         new.R = matrix_from_rotvec(dl[:, 3:]) @ state.R
         return new
 
+    def noise_groups(self):
+        """Noise groups: the leg readings (as leg lengths), the measured positions and the
+        measured orientations; one measurement per pose.
+
+        Returns
+        -------
+        NoiseGroups
+            See :class:`~pkmcal.calibration.variance.NoiseGroups`.
+        """
+        from .variance import NoiseGroups, row_names
+
+        K, n = self.data.q.shape
+        labels = np.tile(np.r_[np.zeros(n, int), np.ones(3, int), np.full(3, 2)], (K, 1))
+        return NoiseGroups(labels, ["reading", "position", "orientation"],
+                           ["leg readings", "measured positions", "measured orientations"],
+                           np.array([self.noise.reading_m, self.noise.position_m,
+                                     self.noise.orientation_rad]),
+                           ["length", "length", "angle"],
+                           np.repeat(np.arange(K), n + 6).reshape(K, n + 6),
+                           row_names(getattr(self.data, "rows", None), K))
+
     def evaluate(self, state, jacobian=True):
         """Whitened residuals of readings, measured positions and orientations.
 
@@ -585,7 +607,8 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
                         noise: FullPoseNoise | None = None,
                         frames: MeasurementFrames | None = None, fix_frames=False,
                         fit_machine: bool = True, rtol: float = RTOL,
-                        require_identifiable: bool = True, **options) -> CalibrationResult:
+                        require_identifiable: bool = True, estimate_noise=True,
+                        robust: bool = False, **options) -> CalibrationResult:
     """Identify the leg parameters (and the measurement frames) from full-pose data.
 
     Parameters
@@ -618,6 +641,13 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
         noise) only when the measured poses do not vary beyond their noise; otherwise they are
         left at their start values and reported (``weak_space``, ``weak_std``, named in
         ``extras["unidentifiable"]``).
+    estimate_noise : bool or collection of str, optional
+        ``'ml'``: estimate the noise of the readings, positions and orientations from the
+        residuals (``noise`` their prior; :func:`~pkmcal.calibration.variance.fit`); False
+        holds ``noise``; or the group keys to hold (``"reading"``, ``"position"``,
+        ``"orientation"``).
+    robust : bool, optional
+        Leave out the poses the outlier test names.
     **options
         Passed to :func:`levenberg_marquardt` (``xtol``, ``ftol``, ``max_iter``, ``max_std``;
         ``max_std`` defaults to :data:`MAX_STD`).
@@ -660,7 +690,10 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
                          f"equations, fewer than the {n_id} identifiable parameters")
     if require_identifiable:
         _check_identifiable(problem, n_id, rtol, options.get("max_std", MAX_STD))
-    result = levenberg_marquardt(problem, rtol=rtol, **{"max_std": MAX_STD, **options})
+    # ml: the reading, position and orientation noise from the residuals (ik: its residuals
+    # take the poses as exact and are not the noise's; one scale as before)
+    result = fit(problem, estimate_noise, robust=robust, rtol=rtol,
+                 **{"max_std": MAX_STD, **options})
     state = result.state
     calibrated = machine.with_parameters(state.u)
     calibrated.measurement_frames = state.frames()

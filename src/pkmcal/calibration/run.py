@@ -976,13 +976,26 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list) -> 
     against the assumed noise, for :data:`WHITENED_METHODS`; size of the changes against the
     machine's scale): warnings in words with the usual causes (appended to ``warnings``), and
     the report's ``acceptance`` section."""
-    from .acceptance import parameter_changes, residual_test
+    from .acceptance import MAX_NOISE_FACTOR, parameter_changes, residual_test
 
     out = {}
-    if method in WHITENED_METHODS:
+    noise = result.extras.get("noise")
+    if method in WHITENED_METHODS or noise is not None:
         test = residual_test(result)
         out["residuals"] = test.as_dict()
-        if test.alarming:
+        if test.alarming and noise is not None and noise.estimated:
+            high = [f"{name} {ratio:.3g}x" for name, ratio, status
+                    in zip(noise.names, noise.ratio, noise.status, strict=True)
+                    if status == "estimated" and ratio >= MAX_NOISE_FACTOR]
+            warnings.append(
+                f"{source}: the residuals are {test.noise_factor:.3g}x the assumed noise "
+                f"(estimated from them: {', '.join(high) or 'no single group'}); the "
+                "estimated levels weigh the fit and its standard deviations. If the "
+                "instruments are not that noisy, the model misses something: see the "
+                "report's residual checks (per reading, per pose, against each reading) "
+                "and its model_adequacy section, and look for swapped columns, a wrong unit "
+                "or outlier rows")
+        elif test.alarming:
             warnings.append(f"{source}: {test.message()}")
     else:
         out["residuals"] = {"tested": False, "why": f"the {method} method treats some "
@@ -998,13 +1011,16 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list) -> 
 def _standardised(result):
     """Leverage-corrected standardised residuals for the report (None when the problem
     cannot be evaluated again)."""
-    problem = result.extras.get("problem")
+    # the problem as fitted: reweighted by the estimated noise levels when they were
+    problem = result.extras.get("weighted") or result.extras.get("problem")
     if problem is None and callable(result.extras.get("rebuild_problem")):
         problem = result.extras["rebuild_problem"]()
     if problem is None or result.state is None:
         return None
     from ..report.residuals import standardised_residuals
 
+    if "weighted_residuals" in result.extras:
+        result = dataclasses.replace(result, residuals=result.extras["weighted_residuals"])
     try:
         return standardised_residuals(problem, result)
     except (ValueError, np.linalg.LinAlgError):
@@ -1045,13 +1061,37 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
     if standardised is not None:
         report["standardised_residuals"] = standardised
     warnings: list[str] = []
-    report["acceptance"] = _acceptance(result, machine, calibrated,
-                                       report.get("data_file", "the data"),
+    source = report.get("data_file", "the data")
+    _noise_report(result, report, source, warnings)
+    report["acceptance"] = _acceptance(result, machine, calibrated, source,
                                        report.get("method"), warnings)
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,
                        units=units)
+
+
+def _noise_report(result, report: dict, source, warnings: list) -> None:
+    """The noise levels (assumed, estimated) and the outlier rows of a calibration: the
+    report's ``noise_model`` and ``outliers`` sections and their warnings."""
+    noise, test = result.extras.get("noise"), result.extras.get("outliers")
+    if noise is not None:
+        report["noise_model"] = noise.as_dict()
+    if test is None:
+        return
+    report["outliers"] = test.as_dict()
+    flagged = [test.names[i] for i in test.flagged if test.kept[i]]
+    left = [test.names[i] for i in test.left_out]
+    if flagged:
+        shown = ", ".join(flagged[:10]) + (f" and {len(flagged) - 10} more"
+                                            if len(flagged) > 10 else "")
+        warnings.append(f"{source}: {shown}: residuals the noise does not explain (chi-square "
+                        f"test of each row, p < {test.threshold:.2g}); check "
+                        f"{'them' if len(flagged) > 1 else 'it'} (a beam break, a mis-read "
+                        "marker, a wrong row) or leave them out with --robust")
+    if left:
+        shown = ", ".join(left[:10]) + (f" and {len(left) - 10} more" if len(left) > 10 else "")
+        warnings.append(f"{source}: {len(left)} row(s) left out as outliers (--robust): {shown}")
 
 
 def _report_head(machine, source, kind: str, method: str, units=None) -> dict:
@@ -1073,10 +1113,12 @@ def _public(params) -> list[dict]:
 
 def _check_constraint_link(options: CalibrateOptions, source) -> None:
     _only_for_poses(options, source, "constraint-link")
-    for option, given in (("--two-step", options.two_step), ("--robust", options.robust)):
-        if given:
-            raise InputError(f"{option}: applies to laser-tracker data (mx, my, mz columns); "
-                             f"{source} has constraint-link data")
+    if options.two_step:
+        raise InputError(f"--two-step: applies to laser-tracker data (mx, my, mz columns); "
+                         f"{source} has constraint-link data")
+    if options.robust and options.method not in (None, "ml"):
+        raise InputError(f"--robust: applies to the ml method (its residuals are the noise's); "
+                         f"--method {options.method} takes some readings as exact")
 
 
 def _calibrate_constraint_link(machine, data, source, options: CalibrateOptions,
@@ -1093,7 +1135,8 @@ def _calibrate_constraint_link(machine, data, source, options: CalibrateOptions,
     from . import calibrate_constraint_link, constraint_link_reading_rms
 
     result = _solve(source, calibrate_constraint_link, machine, data, held=held,
-                    method=method, sigma_m=sigma, estimate_link_length=estimate_lc)
+                    method=method, sigma_m=sigma, estimate_link_length=estimate_lc,
+                    estimate_noise=options.noise is None, robust=options.robust)
     _require_converged(result, source)
     from .constraint_link import PROBLEMS
 
@@ -1327,7 +1370,7 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
                          f"platform pose of {_source_of(machine)} reproduces these readings "
                          "(outside the workspace, or a wrong unit or zero)")
     result = _solve(source, calibrate_tracker, machine, data, noise_model, held=held,
-                    joint=not two_step, robust=robust)
+                    joint=not two_step, robust=robust, estimate_noise=options.noise is None)
     _require_converged(result, source,
                        "spread the points in all three directions, e.g. a 3x3x3 grid")
 
@@ -1484,10 +1527,13 @@ def _errors_report(errors, fl: float) -> dict:
 
 def _check_full_pose(options: CalibrateOptions, source) -> None:
     for option, given in (("--estimate-lc", options.estimate_lc is not None),
-                          ("--two-step", options.two_step), ("--robust", options.robust)):
+                          ("--two-step", options.two_step)):
         if given:
             raise InputError(f"{option}: does not apply to full-pose data ({source}); "
-                             "see --method ml|ik, --fix-frames, --noise, --pose-noise")
+                             "see --method ml|ik, --fix-frames, --noise, --pose-noise, --robust")
+    if options.robust and options.method == "ik":
+        raise InputError("--robust: applies to the ml method (its residuals are the noise's); "
+                         "--method ik takes the measured poses as exact")
     if options.method not in (None, "ml", "ik"):
         raise InputError(f"--method {options.method}: full-pose data are calibrated by ml "
                          "(maximum likelihood, default) or ik (inverse-kinematic residuals)")
@@ -1520,8 +1566,13 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
         frames = file_frames
         frames_from = ("start: the machine file's measurement_frames" if file_frames is not None
                        else "start: closed form from the design model")
+    # levels the user gave are held, the others estimated from the residuals
+    hold = (["reading", "position", "orientation"] if isinstance(options.noise, FullPoseNoise)
+            else (["reading"] if options.noise is not None else [])
+            + (["position", "orientation"] if options.pose_noise is not None else []))
     result = _solve(source, calibrate_full_pose, machine, data, held=held, method=method,
-                    noise=noise_model, frames=frames, fix_frames=fix_frames)
+                    noise=noise_model, frames=frames, fix_frames=fix_frames,
+                    estimate_noise=hold, robust=options.robust)
     # the machine file's legs with the frames fitted alone: "before calibration"
     before = _solve(source, calibrate_full_pose, machine, data, held=held, method=method,
                     noise=noise_model, frames=frames if fix_frames
@@ -1627,10 +1678,11 @@ def _check_distances(options: CalibrateOptions, source) -> None:
     _only_for_poses(options, source, "distance")
     for option, given in (("--method", options.method is not None),
                           ("--estimate-lc", options.estimate_lc is not None),
-                          ("--two-step", options.two_step), ("--robust", options.robust)):
+                          ("--two-step", options.two_step)):
         if given:
             raise InputError(f"{option}: does not apply to ballbar data ({source}); see "
-                             "--noise (the ballbar's standard deviation, default 1um)")
+                             "--noise (the ballbar's standard deviation, default 1um), "
+                             "--robust")
 
 
 def _distance_noise(noise, machine):
@@ -1661,13 +1713,17 @@ def _scalar_rms(problem, state, data) -> tuple[float | None, np.ndarray]:
     return (_um(math.sqrt(float(np.mean(r[ok] ** 2)))) if ok.any() else None), r
 
 
-def _fit_with_baseline(machine, data, source, split, reader, fit, noise, advice: str):
+def _fit_with_baseline(machine, data, source, split, reader, fit, noise, advice: str,
+                       options: CalibrateOptions):
     """What the instrument-layer kinds share: read and split the data, fit the instrument
     with the machine and alone on the machine file's model (the "before" baseline), check
     convergence, name the calibrated machine and build the parameter table (start values of
     the instrument's unknowns as their nominal)."""
     data, held = _split_rows(_load(data, reader, machine), split, source)
-    result = _solve(source, fit, machine, data, noise, held=held)
+    # the noise level from the residuals unless the user gave it; rows it cannot explain
+    # named (left out with --robust)
+    result = _solve(source, fit, machine, data, noise, held=held,
+                    estimate_noise=options.noise is None, robust=options.robust)
     before = _solve(source, fit, machine, data, noise, held=held, fit_machine=False)
     _require_converged(result, source, advice)
     units = file_units(machine)
@@ -1691,7 +1747,7 @@ def _calibrate_distances(machine, data, source, options: CalibrateOptions,
     data, held, result, before, calibrated, params, units = _fit_with_baseline(
         machine, data, source, split, read_distances, calibrate_distances, noise,
         "measure each mounting over a spread of poses (a sphere around the pivot, with "
-        "rotations on a platform that rotates)")
+        "rotations on a platform that rotates)", options)
     fl = LENGTH[units["length"]]
     problem, before_problem = result.extras["problem"], before.extras["problem"]
     rms_after, r_after = _scalar_rms(problem, result.state, data)
@@ -2054,12 +2110,12 @@ def _check_joint_options(options: CalibrateOptions) -> None:
     for option, given in (("--method", options.method is not None),
                           ("--pose-noise", options.pose_noise is not None),
                           ("--estimate-lc", options.estimate_lc is not None),
-                          ("--two-step", options.two_step), ("--robust", options.robust),
+                          ("--two-step", options.two_step),
                           ("--fix-frames", options.fix_frames)):
         if given:
             raise InputError(f"{option}: does not apply to a fit of several data files (one "
                              "maximum-likelihood fit of every file's instrument); see --noise "
-                             "FILE=VALUE and --holdout")
+                             "FILE=VALUE, --robust and --holdout")
 
 
 def calibrate_joint(machine, data: list, *, noise=None, split=None,
@@ -2136,15 +2192,20 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         raise InputError("the same data file is given twice: "
                          + ", ".join(str(s) for s in sources))
     labels = file_labels(sources)
-    parts, held = [], []
+    parts, held, hold = [], [], []
     for i, (item, source, kind) in enumerate(zip(data, sources, kinds, strict=True)):
-        part = _joint_part(machine, item, source, kind, _noise_of(noise, source, i, len(data)))
+        given = _noise_of(noise, source, i, len(data))
+        if given is not None:       # the user's level for this file is held
+            hold.append(f"{labels[i]}:*")
+        part = _joint_part(machine, item, source, kind, given)
         part.data, h = _split_rows(part.data, split, source)
         parts.append(part)
         held.append(h)
     names = ", ".join(map(str, sources))
     try:
-        result = fit_joint(machine, [(p.data, p.model, p.noise) for p in parts], labels)
+        result = fit_joint(machine, [(p.data, p.model, p.noise) for p in parts], labels,
+                           estimate_noise=hold,
+                           robust=bool(options is not None and options.robust))
     except (InputError, ValueError, np.linalg.LinAlgError) as exc:
         message = str(exc) if isinstance(exc, InputError) else \
             f"{names}: joint calibration failed: {exc}"
@@ -2325,10 +2386,11 @@ def _check_probe(options: CalibrateOptions, source) -> None:
     _only_for_poses(options, source, "probe")
     for option, given in (("--method", options.method is not None),
                           ("--estimate-lc", options.estimate_lc is not None),
-                          ("--two-step", options.two_step), ("--robust", options.robust)):
+                          ("--two-step", options.two_step)):
         if given:
             raise InputError(f"{option}: does not apply to probe heights ({source}); see "
-                             "--noise (the probe's repeatability along z, default 10um)")
+                             "--noise (the probe's repeatability along z, default 10um), "
+                             "--robust")
 
 
 def _probe_noise(noise, machine):
@@ -2361,7 +2423,7 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
     data, held, result, before, calibrated, params, units = _fit_with_baseline(
         machine, data, source, split, read_probe, calibrate_probe, noise,
         "probe over the whole bed (the centre and rings out to the edge of the reachable "
-        "radius)")
+        "radius)", options)
     fl = LENGTH[units["length"]]
     problem, before_problem = result.extras["problem"], before.extras["problem"]
     rms_after, r_after = _scalar_rms(problem, result.state, data)

@@ -31,6 +31,7 @@ from ..instruments import InstrumentData, InstrumentProblem, InstrumentState, Po
 from ..machines.base import Machine
 from ..measurements.tracker import TrackerData, TrackerNoise
 from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt
+from .variance import OUTLIER_ALPHA, fit
 
 TRACKER = ("tracker.rx", "tracker.ry", "tracker.rz", "tracker.x", "tracker.y", "tracker.z")
 
@@ -119,14 +120,15 @@ def registration_of(state) -> tuple[np.ndarray, np.ndarray]:
 
 
 def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise | None = None,
-                      joint: bool = True, robust: bool = False, outlier_threshold: float = 5.0,
+                      joint: bool = True, robust: bool = False,
+                      outlier_alpha: float = OUTLIER_ALPHA, estimate_noise=True,
                       rtol: float = RTOL, **options) -> CalibrationResult:
     """Identify the error parameters (and the tracker pose) from tracker points.
 
     The registration starts from the closed form on the nominal model (>= 4 points, not
-    collinear). ``robust=True`` rejects outlier rows iteratively: a row whose whitened
-    residual norm exceeds ``outlier_threshold`` robust standard deviations (median-based) is
-    flagged and left out, and the fit is repeated (at most 10 times) until the set is stable.
+    collinear). The noise levels along and across the beam are estimated from the residuals
+    (:func:`~pkmcal.calibration.variance.fit`; the given or default ``noise`` is their prior)
+    and rows the noise cannot explain are named; ``robust=True`` leaves them out.
 
     Parameters
     ----------
@@ -140,9 +142,12 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
         Estimate the tracker pose together with the errors (default); False: seed 001's
         two-step method, registration fixed.
     robust : bool, optional
-        Find and leave out outlier rows.
-    outlier_threshold : float, optional
-        Rejection threshold, in robust standard deviations of the residual norm.
+        Leave out the rows the outlier test names, and fit again until none is named.
+    outlier_alpha : float, optional
+        False-alarm rate of the outlier test over all rows.
+    estimate_noise : bool or collection of str, optional
+        True: estimate the levels along and across the beam; False: hold ``noise`` (the
+        covariance is scaled by the residual variance); or the keys to hold.
     rtol : float, optional
         Rank tolerance of :func:`levenberg_marquardt`.
     **options
@@ -155,7 +160,8 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
         With ``extras``: ``problem``; ``method`` (``"tracker-joint"`` or
         ``"tracker-two-step"``); ``machine``, the calibrated machine with
         ``base_from_tracker``; ``registration``; ``start_registration``; ``outlier_rows``
-        (file rows left out); ``kept`` (mask of the rows used); ``unidentifiable``.
+        (file rows left out); ``kept`` (mask of the rows used); ``unidentifiable``; ``noise``
+        and ``outliers`` (:func:`~pkmcal.calibration.variance.fit`).
 
     Raises
     ------
@@ -181,25 +187,17 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
         first = levenberg_marquardt(alone, rtol=rtol, **{"max_std": MAX_STD, **options})
         registration = registration_of(first.state)
         targets = first.state.nuisance.values[6:].copy()
-    keep = np.ones(len(data), bool)
-    for _ in range(10 if robust else 1):
-        sub = data.subset(keep)
-        problem = TrackerProblem(machine, sub, noise, registration, joint, targets)
-        n_id = int(problem.parameters.free.sum()) - (12 if joint else 9)
-        if 3 * len(sub) < n_id:
-            raise InputError(f"{data.source}: {len(sub)} points give {3 * len(sub)} "
-                             f"equations, fewer than the {n_id} identifiable parameters")
-        result = levenberg_marquardt(problem, rtol=rtol, **{"max_std": MAX_STD, **options})
-        if not robust:
-            break
-        e_all, _, _ = TrackerProblem(machine, data, noise, registration, joint,
-                                     targets).evaluate(result.state, jacobian=False)
-        norm2 = np.sum(e_all**2, -1)
-        scale2 = np.median(norm2[keep]) / 2.366                 # chi2(3) median
-        new_keep = norm2 <= outlier_threshold**2 * scale2
-        if np.array_equal(new_keep, keep):
-            break
-        keep = new_keep
+    problem = TrackerProblem(machine, data, noise, registration, joint, targets)
+    n_id = int(problem.parameters.free.sum()) - (12 if joint else 9)
+    if 3 * len(data) < n_id:
+        raise InputError(f"{data.source}: {len(data)} points give {3 * len(data)} "
+                         f"equations, fewer than the {n_id} identifiable parameters")
+    # the two-step method holds a registration of the nominal model: its residuals exceed the
+    # noise by design, they cannot tell its level
+    result = fit(problem, estimate_noise if joint else False, robust=robust,
+                 alpha=outlier_alpha, rtol=rtol, **{"max_std": MAX_STD, **options})
+    test = result.extras["outliers"]
+    keep = test.kept if test is not None else np.ones(len(data), bool)
     state = result.state
     calibrated = machine.with_parameters(state.u)
     calibrated.base_from_tracker = registration_of(state)

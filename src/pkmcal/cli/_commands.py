@@ -552,6 +552,23 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
     return 0
 
 
+def _noise_rows(table, report) -> None:
+    """The noise levels the fit used (estimated from the residuals, or assumed / given) and
+    the rows the outlier test names."""
+    from ..calibration.variance import NoiseEstimate
+
+    levels = report.get("noise_model")
+    if levels is not None:
+        title = ("noise (estimated)" if levels["estimated"] else "noise (held)")
+        for i, line in enumerate(NoiseEstimate.lines_of(levels)):
+            table.add_row(title if i == 0 else "", line)
+    outliers = report.get("outliers")
+    if outliers and outliers["flagged"]:
+        rows = [f["row"] + (" (left out)" if f["left_out"] else "") for f in outliers["flagged"]]
+        table.add_row("outlier rows", ", ".join(rows[:10])
+                      + (f" and {len(rows) - 10} more" if len(rows) > 10 else ""))
+
+
 def _print_joint_calibration(report, params, data_path, output, report_path, machine):
     """Summary of a fit of several files: per file before/after, the joint identifiability,
     what each file adds."""
@@ -589,6 +606,7 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
                       "residuals")
     for section in report.get("instrument_sections", []):
         table.add_row("calibrated file", section)
+    _noise_rows(table, report)
     table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
     out.print(table)
     _print_changes([p for p in params if ":" not in p["name"]])
@@ -621,6 +639,7 @@ def _print_calibration(report, params, data_path, output, report_path, machine) 
                   + (f", estimated {noise:.3g} um)" if noise is not None else ")"))
     if "validation" in report:
         table.add_row("held-out", report["validation"]["summary"])
+    _noise_rows(table, report)
     table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
     if lc["estimated"]:
         std = f" +/- {lc['std']:.3g} {lc['unit']}" if lc["std"] is not None else ""
@@ -719,6 +738,7 @@ def _print_tracker_calibration(report, params, data_path, output, report_path, m
                   f"{unit} from the closed-form registration")
     if "validation" in report:
         table.add_row("held-out", report["validation"]["summary"])
+    _noise_rows(table, report)
     table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
     out.print(table)
     _print_changes(params)
@@ -784,6 +804,7 @@ def _print_full_pose_calibration(report, params, data_path, output, report_path,
                   f"({', '.join(f'{v:.6g}' for v in k['translation'])}) {unit}")
     if "validation" in report:
         table.add_row("held-out", report["validation"]["summary"])
+    _noise_rows(table, report)
     table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
     out.print(table)
     _print_changes(params)
@@ -834,6 +855,7 @@ def _print_any_calibration(report, params, data_path, output, report_path, machi
                       + f") {unit} (platform)")
     if "validation" in report:
         table.add_row("held-out", report["validation"]["summary"])
+    _noise_rows(table, report)
     table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
     out.print(table)
     _print_changes(params)

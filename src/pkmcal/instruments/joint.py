@@ -268,6 +268,26 @@ class JointProblem:
         r = np.concatenate(rs, 0)
         return r, (np.concatenate(Js, 0) if jacobian else None), None
 
+    def noise_groups(self):
+        """Every file's noise groups, named for the file (``label:key``): each file's levels
+        are estimated on their own. None when a part has no groups.
+
+        Returns
+        -------
+        NoiseGroups or None
+            See :class:`~pkmcal.calibration.variance.NoiseGroups`.
+        """
+        from ..calibration.variance import concat_groups
+
+        parts, offset = [], 0
+        for label, problem in zip(self.labels, self.parts, strict=True):
+            groups = problem.noise_groups()
+            if groups is None:
+                return None
+            parts.append(groups.prefixed(label, offset))
+            offset += len(groups.id_names)
+        return concat_groups(parts)
+
     def split(self, residuals) -> list[np.ndarray]:
         """Joint residual rows back to each part's ``(K_i, size_i)``.
 
@@ -565,7 +585,8 @@ class JointContributions:
         return out
 
 
-def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, **options):
+def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, estimate_noise=True,
+              robust: bool = False, **options):
     """Fit one geometry to several instruments' data: starts, each instrument alone, then all.
 
     Each part's nuisance unknowns start from its model's closed form on the start geometry
@@ -587,6 +608,12 @@ def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, **option
         One label per file (default :func:`file_labels` of the sources).
     rtol : float, optional
         Rank tolerance.
+    estimate_noise : bool or collection of str, optional
+        Estimate each file's noise levels from its residuals (its noise model the prior;
+        :func:`~pkmcal.calibration.variance.fit`); False holds them; or the group keys to
+        hold (``"label:key"``).
+    robust : bool, optional
+        Leave out the rows the outlier test names.
     **options
         Passed to :func:`~pkmcal.calibration.estimator.levenberg_marquardt` (``max_std``
         defaults to :data:`~pkmcal.identifiability.rank.MAX_STD`).
@@ -594,10 +621,11 @@ def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, **option
     Returns
     -------
     CalibrationResult
-        With ``extras``: ``problem`` (the :class:`JointProblem`), ``machine`` (calibrated),
-        ``models`` (each file's model at the estimate), ``start_models``, ``before`` (each
-        file's fit with the machine held), ``unidentifiable`` (named null and weak
-        directions), ``contributions`` (:class:`JointContributions`).
+        With ``extras``: ``noise``, ``outliers``; ``problem`` (the :class:`JointProblem`),
+        ``machine`` (calibrated), ``models`` (each file's model at the estimate),
+        ``start_models``, ``before`` (each file's fit with the machine held),
+        ``unidentifiable`` (named null and weak directions), ``contributions``
+        (:class:`JointContributions`).
 
     Raises
     ------
@@ -606,6 +634,7 @@ def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, **option
         instrument.
     """
     from ..calibration.estimator import MAX_STD, levenberg_marquardt
+    from ..calibration.variance import fit
 
     options = {"max_std": MAX_STD, **options}
     parts = list(parts)
@@ -654,7 +683,7 @@ def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, **option
     state.u = np.array(u0, float)
     for sub in state.parts:
         sub.u = state.u
-    result = levenberg_marquardt(problem, rtol=rtol, state=state, **options)
+    result = fit(problem, estimate_noise, robust=robust, rtol=rtol, state=state, **options)
     state = result.state
     groups = problem.null_groups(state, result.scales, result.null_space)
     result.extras.update(

@@ -260,6 +260,8 @@ class PointsModel(NuisanceModel):
     """
 
     kind = "points"
+    #: what its measurements are, in words (noise groups, outlier rows)
+    quantity = "tracker points"
     size = 3
     words = {"tracker": "the tracker frame", "target": "the target's place on the platform"}
 
@@ -352,6 +354,8 @@ class DistancesModel(NuisanceModel):
     """
 
     kind = "distances"
+    #: what its measurements are, in words (noise groups, outlier rows)
+    quantity = "ballbar lengths"
     size = 1
     words = {"pivot": "the ballbar's pivot on the base", "ball": "the ball on the platform"}
 
@@ -466,6 +470,30 @@ class IsotropicNoise:
         K, s = np.shape(measured)
         return np.broadcast_to(np.eye(s) / self.sigma, (K, s, s))
 
+    def groups(self, measured):
+        """One noise group for every component (see :meth:`TrackerNoise.groups
+        <pkmcal.measurements.TrackerNoise.groups>`).
+
+        Parameters
+        ----------
+        measured : array_like, shape (K, s)
+            Measured values (only their shape is used).
+
+        Returns
+        -------
+        labels : ndarray of int, shape (K, s)
+            All 0.
+        keys, names : list of str
+            ``["noise"]``, ``["measurements"]`` (the problem names them by its instrument).
+        assumed : ndarray, shape (1,)
+            ``sigma``.
+        kinds : list of str
+            ``["length"]``.
+        """
+        K, s = np.shape(measured)
+        return (np.zeros((K, s), int), ["noise"], ["measurements"], np.array([self.sigma]),
+                ["length"])
+
     def sample(self, measured, rng) -> np.ndarray:
         """Noise to add to measured values.
 
@@ -509,6 +537,8 @@ class ProbeModel(NuisanceModel):
     """
 
     kind = "probe"
+    #: what its measurements are, in words (noise groups, outlier rows)
+    quantity = "probe heights"
     size = 1
     words = {"bed": "the bed plane (height and tilt)"}
 

@@ -227,6 +227,30 @@ class InstrumentProblem:
         J = np.concatenate([de_du, de_dv], -1)
         return r, np.einsum("kij,kjn->kin", self.W, J), None
 
+    def noise_groups(self):
+        """Noise groups of the whitened residuals (the noise model's ``groups``), one
+        measurement per row; None without a noise model that has groups.
+
+        Returns
+        -------
+        NoiseGroups or None
+            See :class:`~pkmcal.calibration.variance.NoiseGroups`.
+        """
+        from ..calibration.variance import NoiseGroups, row_names
+
+        groups = getattr(self.noise, "groups", None)
+        if not callable(groups):
+            return None
+        labels, keys, names, assumed, kinds = groups(self.data.values)
+        if keys == ["noise"]:       # the noise model does not know what it weighs
+            keys = [self.model.kind]
+            names = [getattr(self.model, "quantity", self.model.kind)]
+        K, s = np.shape(labels)
+        return NoiseGroups(np.asarray(labels, int), list(keys), list(names),
+                           np.asarray(assumed, float), list(kinds),
+                           np.repeat(np.arange(K), s).reshape(K, s),
+                           row_names(self.data.rows, K))
+
     def _through_fk(self, u, P, R, de_dx):
         """``de/du = de/dx dx/du`` with ``dx/du = -(dq/dx)^-1 dq/du`` (implicit function)."""
         _, Jx, Ju = self.machine.ik_jacobians(P, R, u)
@@ -413,7 +437,8 @@ def _absorbers(tangents, parameters, n_machine, words) -> str:
 
 
 def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel, noise,
-                   fit_machine: bool = True, rtol: float = RTOL, **options):
+                   fit_machine: bool = True, rtol: float = RTOL, estimate_noise=True,
+                   robust: bool = False, **options):
     """Fit an instrument model to data: start values, the instrument alone, then everything.
 
     The start values come from the model's closed form on the start geometry's poses
@@ -434,6 +459,11 @@ def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel,
         False fits the instrument alone (the "before calibration" baseline).
     rtol : float, optional
         Rank tolerance.
+    estimate_noise : bool or collection of str, optional
+        Estimate the noise levels from the residuals (``noise`` their prior;
+        :func:`~pkmcal.calibration.variance.fit`); False holds ``noise``.
+    robust : bool, optional
+        Leave out the rows the outlier test names.
     **options
         Passed to :func:`~pkmcal.calibration.estimator.levenberg_marquardt` (``max_std``
         defaults to :data:`~pkmcal.identifiability.rank.MAX_STD`).
@@ -442,7 +472,8 @@ def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel,
     -------
     CalibrationResult
         With ``extras``: ``problem``, ``machine`` (calibrated), ``model`` (at the estimate),
-        ``start_model``, ``unidentifiable`` (named null and weak directions).
+        ``start_model``, ``unidentifiable`` (named null and weak directions); ``noise``,
+        ``outliers`` (:func:`~pkmcal.calibration.variance.fit`).
 
     Raises
     ------
@@ -451,6 +482,7 @@ def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel,
         instrument.
     """
     from ..calibration.estimator import MAX_STD, levenberg_marquardt
+    from ..calibration.variance import fit
 
     options = {"max_std": MAX_STD, **options}
     fk = machine.fk(data.q)
@@ -464,7 +496,7 @@ def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel,
         result, problem = first, alone
     else:
         problem = InstrumentProblem(machine, data, start, noise)
-        result = levenberg_marquardt(problem, rtol=rtol, **options)
+        result = fit(problem, estimate_noise, robust=robust, rtol=rtol, **options)
     rows = np.column_stack([data.q, data.values, data.group])
     distinct = len(np.unique(rows[np.all(np.isfinite(rows), axis=1)], axis=0))
     if distinct * model.size <= result.rank:

@@ -63,9 +63,11 @@ class TrackerNoise:
         return self.distance**2 * rr + (st**2)[..., None, None] * (np.eye(3) - rr)
 
     def whitening(self, m):
-        """Whitening matrices ``W`` with ``W^T W = Cov^-1``.
+        """Whitening matrices ``W`` with ``W^T W = Cov^-1``, rows along the beam first.
 
-        Along the beam ``1/s_d``, across it ``1/s_t`` (range-dependent).
+        Row 0 is along the beam (``r / s_d``), rows 1-2 across it (two unit vectors normal
+        to the beam, ``/ s_t``, range-dependent): each whitened residual component belongs to
+        one noise group (:meth:`groups`).
 
         Parameters
         ----------
@@ -75,10 +77,45 @@ class TrackerNoise:
         Returns
         -------
         ndarray, shape (K, 3, 3)
-            Symmetric whitening matrix of each point, 1/m.
+            Whitening matrix of each point, 1/m.
         """
+        m = np.asarray(m, float)
         rr, st = self._beam(m)
-        return rr / self.distance + (np.eye(3) - rr) / st[..., None, None]
+        rng = np.linalg.norm(m, axis=-1)
+        r = np.where(rng[..., None] > 0, m / np.where(rng > 0, rng, 1.0)[..., None],
+                     np.array([0.0, 0.0, 1.0]))
+        # a vector normal to the beam: the axis least aligned with it, projected
+        axis = np.eye(3)[np.argmin(np.abs(r), axis=-1)]
+        t1 = axis - np.sum(axis * r, -1)[..., None] * r
+        t1 /= np.linalg.norm(t1, axis=-1)[..., None]
+        t2 = np.cross(r, t1)
+        return np.stack([r / self.distance, t1 / st[..., None], t2 / st[..., None]], -2)
+
+    def groups(self, m):
+        """Noise groups of the whitened components (:meth:`whitening`'s rows).
+
+        Parameters
+        ----------
+        m : array_like, shape (K, 3)
+            Tracker points, m, tracker frame.
+
+        Returns
+        -------
+        labels : ndarray of int, shape (K, 3)
+            0 along the beam, 1 across it.
+        keys, names : list of str
+            The groups.
+        assumed : ndarray, shape (2,)
+            Along the beam, and the RMS across it over the points, m.
+        kinds : list of str
+            Both ``"length"``.
+        """
+        _, st = self._beam(m)
+        K = len(np.asarray(m))
+        across = float(np.sqrt(np.mean(st**2))) if K else self.transverse
+        return (np.tile([0, 1, 1], (K, 1)), ["along", "across"],
+                ["tracker along the beam", "tracker across the beam"],
+                np.array([self.distance, across]), ["length", "length"])
 
     def sample(self, m, rng):
         """Noise vectors for tracker points, drawn from :meth:`covariance`.

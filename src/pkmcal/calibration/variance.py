@@ -1,0 +1,714 @@
+"""The noise model from the data: variance components, outlier rows, honest uncertainty.
+
+Users rarely know their instruments' noise. Every residual of a calibration problem belongs to
+a *noise group* (:class:`NoiseGroups`: the tracker along and across the beam, the leg
+readings, the measured positions and orientations, each file of a joint fit ...), whitened by
+an assumed standard deviation. The true variance of group ``c`` is ``theta_c`` times the
+assumed one; :func:`fit` estimates the ``theta_c`` from the residuals and refits with them.
+
+Estimator (Förstner's iteration of the Helmert / REML variance-component equations). With the
+problem whitened by the current levels, ``M = I - H`` the residual-maker of the linearised fit
+(local unknowns included, weak directions excluded) and ``r`` the whitened residuals, the
+expectation of ``sum_{i in c} r_i^2`` is ``sum_{i in c} (1 - h_ii) = red_c``, the group's
+*redundancy*, when the levels are right. The update::
+
+    theta_c <- theta_c sum_{i in c} r_i^2 / red_c
+
+has the REML estimate as its fixed point. It moves a group even when its redundancy is small
+at the current levels (leg readings assumed far more precise than they are carry almost none
+until their level rises). The assumed levels are the prior in the plainest sense: the start,
+and the value kept for a group whose redundancy at the solution is below
+:data:`MIN_REDUNDANCY` (its level would be a guess); a group the user fixed (``--noise``) is
+held. The estimated level's standard deviation is ``sigma_c / sqrt(2 red_c)`` (first order,
+groups treated as independent).
+
+Outliers. Per measurement (a tracker point, a pose, a probe height), the test statistic
+``T = r_S^T (I - H_SS)^+ r_S`` is chi-square with ``rank(I - H_SS)`` degrees of freedom for a
+correct measurement (Baarda's data snooping, whole rows); a row whose p-value is below
+``alpha / (number of rows)`` (Bonferroni) is named. ``robust=True`` leaves the named rows out
+(weight :data:`LEFT_OUT_WEIGHT`, which keeps per-measurement unknowns determined) and repeats
+until no new row is named.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from ..identifiability.rank import RTOL
+from .estimator import CalibrationResult, levenberg_marquardt
+
+__all__ = ["MIN_REDUNDANCY", "NoiseEstimate", "NoiseGroups", "OutlierTest",
+           "Weighted", "fit", "hat_factors", "noise_groups_of"]
+
+#: a group is estimated when its residuals have at least this redundancy (relative standard
+#: deviation of its level 1/sqrt(2 red) <= 22 %); below it the assumed value is kept
+MIN_REDUNDANCY = 10.0
+#: stop when no level changes by more than this, relative
+VCE_TOL = 1e-3
+#: at most this many reweighted fits
+VCE_MAX_ITER = 30
+#: family-wise false-alarm rate of the outlier test (Bonferroni over the rows)
+OUTLIER_ALPHA = 0.01
+#: residual weight of a left-out row (small, not zero: its pose unknowns stay determined)
+LEFT_OUT_WEIGHT = 1e-6
+#: at most this many rounds of leaving rows out
+ROBUST_ROUNDS = 10
+
+
+@dataclass
+class NoiseGroups:
+    """Which noise group each whitened residual belongs to, and what was assumed.
+
+    Attributes
+    ----------
+    labels : ndarray of int, shape (K, m)
+        Group of each residual (index into ``keys``).
+    keys : list of str
+        Short names (``"reading"``, ``"along"``, ``"pts.csv:across"``) used to hold groups.
+    names : list of str
+        The groups in words.
+    assumed : ndarray, shape (G,)
+        Assumed standard deviation of each group, SI units (m, rad).
+    kinds : list of str
+        ``"length"`` or ``"angle"`` per group (for display).
+    ids : ndarray of int, shape (K, m)
+        Measurement (row) of each residual: the outlier test takes a row's residuals together.
+    id_names : list of str
+        The rows in words (``"row 17"``, ``"pts.csv row 17"``), one per id.
+    """
+
+    labels: np.ndarray
+    keys: list
+    names: list
+    assumed: np.ndarray
+    kinds: list
+    ids: np.ndarray
+    id_names: list
+
+    @classmethod
+    def single(cls, shape, key, name, assumed, kind, rows=None, prefix=""):
+        """One group for every residual of a (K, m) problem, one id per row.
+
+        Parameters
+        ----------
+        shape : tuple
+            ``(K, m)``.
+        key, name : str
+            The group's short name and words.
+        assumed : float
+            Assumed standard deviation, SI.
+        kind : str
+            ``"length"`` or ``"angle"``.
+        rows : array_like of int, optional
+            File row of each measurement (default 1..K).
+        prefix : str, optional
+            In front of the row names (``"pts.csv "``).
+
+        Returns
+        -------
+        NoiseGroups
+            The groups.
+        """
+        K, m = shape
+        return cls(np.zeros((K, m), int), [key], [name], np.array([float(assumed)]), [kind],
+                   np.repeat(np.arange(K), m).reshape(K, m), row_names(rows, K, prefix))
+
+    def prefixed(self, label: str, id_offset: int) -> NoiseGroups:
+        """The same groups named for a file of a joint fit (``label:key``)."""
+        return NoiseGroups(self.labels, [f"{label}:{k}" for k in self.keys],
+                           [f"{n} ({label})" for n in self.names], self.assumed, self.kinds,
+                           self.ids + id_offset, [f"{label} {n}" for n in self.id_names])
+
+
+def row_names(rows, K: int, prefix: str = "") -> list[str]:
+    """``"row N"`` per measurement (file rows when known, else 1..K)."""
+    rows = np.arange(1, K + 1) if rows is None else np.asarray(rows).reshape(-1)
+    return [f"{prefix}row {int(r)}" for r in rows]
+
+
+def concat_groups(parts: list[NoiseGroups]) -> NoiseGroups:
+    """Groups of residuals stacked as one column (a joint problem's ``(M, 1)`` rows)."""
+    labels, ids, keys, names, assumed, kinds, id_names = [], [], [], [], [], [], []
+    for g in parts:
+        labels.append(g.labels.reshape(-1) + len(keys))
+        ids.append(g.ids.reshape(-1))
+        keys += g.keys
+        names += g.names
+        assumed.append(g.assumed)
+        kinds += g.kinds
+        id_names += g.id_names
+    return NoiseGroups(np.concatenate(labels)[:, None], keys, names, np.concatenate(assumed),
+                       kinds, np.concatenate(ids)[:, None], id_names)
+
+
+def noise_groups_of(problem) -> NoiseGroups | None:
+    """The problem's noise groups (its ``noise_groups()``), or None when it has none (its
+    residuals are not whitened by a complete noise model: the paper's methods that take some
+    measurements as exact)."""
+    method = getattr(problem, "noise_groups", None)
+    return method() if callable(method) else None
+
+
+class Weighted:
+    """A block problem with its residuals rescaled per noise group and per row.
+
+    Residual ``i`` of group ``c`` is divided by ``sqrt(theta_c)``; the residuals of a row left
+    out are multiplied by :data:`LEFT_OUT_WEIGHT`. Everything else is the wrapped problem's
+    (attributes are looked up there).
+
+    Parameters
+    ----------
+    problem : BlockProblem
+        The problem, whitened by the assumed levels.
+    groups : NoiseGroups
+        Its groups.
+    theta : array_like, shape (G,)
+        Variance factors.
+    kept : array_like of bool, shape (n_ids,)
+        Rows used.
+    """
+
+    def __init__(self, problem, groups: NoiseGroups, theta, kept):
+        self.problem, self.groups = problem, groups
+        self.theta = np.asarray(theta, float)
+        self.kept = np.asarray(kept, bool)
+        f = 1.0 / np.sqrt(self.theta[groups.labels])
+        self.factor = np.where(self.kept[groups.ids], f, f * LEFT_OUT_WEIGHT)
+        self.cost_floor = float(getattr(problem, "cost_floor", 0.0)) * float(
+            np.min(self.factor) ** 2)
+
+    def __getattr__(self, name):
+        if name in ("problem", "groups", "theta", "kept", "factor"):
+            raise AttributeError(name)
+        return getattr(self.problem, name)
+
+    def initial_state(self):
+        return self.problem.initial_state()
+
+    def global_values(self, state):
+        return self.problem.global_values(state)
+
+    def retract(self, state, du, dl):
+        return self.problem.retract(state, du, dl)
+
+    def evaluate(self, state, jacobian=True):
+        r, Jg, Jl = self.problem.evaluate(state, jacobian)
+        f = self.factor
+        r = r * f
+        if not jacobian:
+            return r, None, None
+        Jg = Jg * f[..., None]
+        Jl = None if Jl is None else Jl * f[..., None]
+        return r, Jg, Jl
+
+    def assumed_residuals(self, residuals) -> np.ndarray:
+        """Residuals of this problem whitened by the assumed levels again (left-out rows
+        unscaled)."""
+        return np.asarray(residuals, float) / self.factor
+
+
+def hat_factors(problem, result):
+    """Square-root factors of the hat matrix of the linearised problem at the solution.
+
+    ``H`` restricted to measurement ``k``'s residuals is ``L_k L_k^T + G_k G_k^T``
+    (``L = Q1``: the local unknowns' own projection; ``G = Q2 U``: the fitted global
+    directions with the local part removed); between measurements it is ``G_k G_j^T``.
+
+    Parameters
+    ----------
+    problem : BlockProblem
+        The problem that produced ``result``.
+    result : CalibrationResult
+        The estimate (its ``adjusted`` directions are the fitted ones).
+
+    Returns
+    -------
+    L : ndarray, shape (K, m, d) or None
+        Local factors (None without local unknowns).
+    G : ndarray, shape (K, m, rank)
+        Global factors.
+    """
+    _, Jg, Jl = problem.evaluate(result.state)
+    free = np.asarray(result.parameters.free, bool)
+    scales = np.asarray(result.scales, float)
+    Jg = np.asarray(Jg, float)[..., free] * scales[free]
+    K, m, _ = Jg.shape
+    rank = int(getattr(result, "adjusted", result.rank))
+    if Jl is None or np.asarray(Jl).shape[-1] == 0:
+        U, _, _ = np.linalg.svd(Jg.reshape(K * m, -1), full_matrices=False)
+        return None, U[:, :rank].reshape(K, m, rank)
+    Jl = np.asarray(Jl, float)
+    d = Jl.shape[-1]
+    Q, _ = np.linalg.qr(Jl, mode="complete")
+    Q1, Q2 = Q[..., :d], Q[..., d:]
+    Jr = np.einsum("kmi,kmn->kin", Q2, Jg)
+    U, _, _ = np.linalg.svd(Jr.reshape(K * (m - d), -1), full_matrices=False)
+    Ur = U[:, :rank].reshape(K, m - d, rank)
+    return Q1, np.einsum("kmi,kir->kmr", Q2, Ur)
+
+
+def _leverages(L, G) -> np.ndarray:
+    h = np.sum(G**2, axis=-1)
+    if L is not None:
+        h = h + np.sum(L**2, axis=-1)
+    return np.clip(h, 0.0, 1.0)
+
+
+@dataclass
+class NoiseEstimate:
+    """The noise levels of a calibration: assumed, estimated (or held) and how well known.
+
+    Attributes
+    ----------
+    keys, names, kinds : list of str
+        The groups (:class:`NoiseGroups`).
+    assumed : ndarray, shape (G,)
+        Assumed standard deviations, SI.
+    sigma : ndarray, shape (G,)
+        Standard deviations used in the final fit, SI (estimated or assumed).
+    std : ndarray, shape (G,)
+        Standard deviation of ``sigma`` (NaN where not estimated), SI.
+    redundancy : ndarray, shape (G,)
+        Redundancy of each group's residuals (their share of the degrees of freedom).
+    count : ndarray of int, shape (G,)
+        Residuals per group (rows used).
+    status : list of str
+        ``"estimated"``, ``"held"`` (given by the user), ``"assumed"`` (too little
+        redundancy) or ``"at most"`` (the other groups' levels leave it almost no
+        redundancy: the data fit it almost exactly and bound its level from above only).
+    iterations : int
+        Reweighted fits.
+    """
+
+    keys: list
+    names: list
+    kinds: list
+    assumed: np.ndarray
+    sigma: np.ndarray
+    std: np.ndarray
+    redundancy: np.ndarray
+    count: np.ndarray
+    status: list
+    iterations: int = 0
+
+    @property
+    def estimated(self) -> bool:
+        """Whether any level was estimated (or bounded) from the data."""
+        return "estimated" in self.status or "at most" in self.status
+
+    @property
+    def ratio(self) -> np.ndarray:
+        """Level used / level assumed, per group."""
+        return self.sigma / self.assumed
+
+    def as_dict(self, length_factor: float = 1e-6, angle_factor: float = 1e-6,
+                units: tuple = ("um", "urad")) -> dict:
+        """JSON-ready levels in display units.
+
+        Parameters
+        ----------
+        length_factor, angle_factor : float, optional
+            SI value of one display unit (1e-6: um and urad).
+        units : tuple of str, optional
+            The display units' names.
+
+        Returns
+        -------
+        dict
+            ``{"estimated": bool, "groups": [{key, name, unit, assumed, sigma, std,
+            ratio, redundancy, count, status}], "min_redundancy", "method"}``.
+        """
+        out = []
+        for i, key in enumerate(self.keys):
+            f, unit = ((length_factor, units[0]) if self.kinds[i] == "length"
+                       else (angle_factor, units[1]))
+            out.append({
+                "key": key, "name": self.names[i], "unit": unit,
+                "assumed": float(self.assumed[i] / f), "sigma": float(self.sigma[i] / f),
+                "std": float(self.std[i] / f) if np.isfinite(self.std[i]) else None,
+                "ratio": float(self.ratio[i]), "redundancy": float(self.redundancy[i]),
+                "count": int(self.count[i]), "status": self.status[i]})
+        return {"estimated": self.estimated, "groups": out,
+                "min_redundancy": MIN_REDUNDANCY,
+                "method": "variance components from the residuals (REML, Förstner's "
+                          "iteration); assumed levels where the redundancy is too small",
+                "iterations": int(self.iterations)}
+
+    def lines(self, length_factor: float = 1e-6, angle_factor: float = 1e-6,
+              units: tuple = ("um", "urad")) -> list[str]:
+        """One line per group, e.g. ``"tracker across the beam: 7.02 +- 0.21 um (assumed
+        13.5 um; estimated, redundancy 560)"``."""
+        return self.lines_of(self.as_dict(length_factor, angle_factor, units))
+
+    @staticmethod
+    def lines_of(levels: dict) -> list[str]:
+        """:meth:`lines` of a report's ``noise_model`` section (:meth:`as_dict`)."""
+        out = []
+        for g in levels["groups"]:
+            pm = f" +- {g['std']:.2g}" if g["std"] is not None else ""
+            why = {"estimated": f"estimated, redundancy {g['redundancy']:.0f}",
+                   "at most": "at most: the data fit these almost exactly, they bound "
+                              "the level from above only",
+                   "held": "held: given",
+                   "assumed": f"assumed: redundancy {g['redundancy']:.1f} < "
+                              f"{levels['min_redundancy']:g}"}[g["status"]]
+            out.append(f"{g['name']}: {g['sigma']:.3g}{pm} {g['unit']} (assumed "
+                       f"{g['assumed']:.3g} {g['unit']}; {why})")
+        return out
+
+
+@dataclass
+class OutlierTest:
+    """Rows whose residuals the noise does not explain (Baarda's test, whole rows).
+
+    Attributes
+    ----------
+    statistic : ndarray, shape (n_ids,)
+        ``r_S^T (I - H_SS)^+ r_S`` per row (left-out rows: against their prediction).
+    dof : ndarray of int, shape (n_ids,)
+        Its degrees of freedom.
+    p : ndarray, shape (n_ids,)
+        Chi-square p-values.
+    threshold : float
+        Rows with ``p`` below this are outliers (``alpha / rows``).
+    kept : ndarray of bool, shape (n_ids,)
+        Rows used in the final fit.
+    names : list of str
+        The rows in words.
+    """
+
+    statistic: np.ndarray
+    dof: np.ndarray
+    p: np.ndarray
+    threshold: float
+    kept: np.ndarray
+    names: list = field(default_factory=list)
+
+    @property
+    def flagged(self) -> np.ndarray:
+        """Indices of the rows the test names (used or left out)."""
+        return np.flatnonzero((self.p < self.threshold) & (self.dof > 0))
+
+    @property
+    def left_out(self) -> np.ndarray:
+        """Indices of the rows left out of the fit."""
+        return np.flatnonzero(~self.kept)
+
+    def as_dict(self) -> dict:
+        """JSON-ready: the named rows with their statistics."""
+        def row(i):
+            return {"row": self.names[i], "statistic": float(self.statistic[i]),
+                    "dof": int(self.dof[i]), "p": float(self.p[i]),
+                    "left_out": bool(not self.kept[i])}
+        return {"test": "chi-square of each row's residuals against the noise (Baarda), "
+                        "Bonferroni over the rows",
+                "alpha": OUTLIER_ALPHA, "threshold_p": float(self.threshold),
+                "flagged": [row(i) for i in self.flagged],
+                "left_out": [self.names[i] for i in self.left_out]}
+
+
+def _outlier_test(weighted: Weighted, result, L, G, alpha: float) -> OutlierTest:
+    groups = weighted.groups
+    ids = groups.ids.reshape(-1)
+    n_ids = len(groups.id_names)
+    K, m = groups.labels.shape
+    r = np.asarray(result.residuals, float).reshape(-1) / np.where(
+        weighted.kept[ids], 1.0, LEFT_OUT_WEIGHT)
+    Gf = G.reshape(K * m, -1)
+    Lf = None if L is None else L.reshape(K * m, -1)
+    block = np.repeat(np.arange(K), m)
+    order = np.argsort(ids, kind="stable")
+    starts = np.searchsorted(ids[order], np.arange(n_ids + 1))
+    stat = np.zeros(n_ids)
+    dof = np.zeros(n_ids, int)
+    for i in range(n_ids):
+        S = order[starts[i]:starts[i + 1]]
+        if len(S) == 0 or not np.all(np.isfinite(r[S])):
+            continue
+        M = np.eye(len(S))
+        if Lf is not None:
+            same = block[S][:, None] == block[S][None, :]
+            M -= (Lf[S] @ Lf[S].T) * same
+        if weighted.kept[i]:
+            M -= Gf[S] @ Gf[S].T
+        else:   # left out: its residual against the prediction (uncertainty of the fit added)
+            M += Gf[S] @ Gf[S].T
+        w, V = np.linalg.eigh(0.5 * (M + M.T))
+        good = w > 1e-8 * max(1.0, float(w.max(initial=0.0)))
+        z = V[:, good].T @ r[S]
+        stat[i] = float(np.sum(z**2 / w[good]))
+        dof[i] = int(good.sum())
+    p = np.where(dof > 0, stats.chi2.sf(stat, np.maximum(dof, 1)), 1.0)
+    n_tested = max(int(np.sum(dof > 0)), 1)
+    return OutlierTest(stat, dof, p, alpha / n_tested, weighted.kept.copy(),
+                       list(groups.id_names))
+
+
+def _hold_mask(groups: NoiseGroups, noise) -> np.ndarray:
+    """Groups held at their assumed level: ``noise`` False/"fixed" holds all, True/"auto"
+    none, a collection of keys (or key suffixes after ``label:``, or ``label:*`` for every
+    group of a file) those."""
+    G = len(groups.keys)
+    if noise is False or noise == "fixed":
+        return np.ones(G, bool)
+    if noise is True or noise is None or noise == "auto":
+        return np.zeros(G, bool)
+    held = {str(k) for k in noise}
+    prefixes = tuple(k[:-1] for k in held if k.endswith(":*"))
+    return np.array([k in held or k.rsplit(":", 1)[-1] in held
+                     or (bool(prefixes) and k.startswith(prefixes)) for k in groups.keys])
+
+
+def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPHA,
+        rtol: float = RTOL, state=None, **options) -> CalibrationResult:
+    """Fit a calibration problem with its noise levels estimated from the residuals.
+
+    Parameters
+    ----------
+    problem : BlockProblem
+        The problem, whitened by the assumed levels. Without ``noise_groups()`` (a method
+        that takes some measurements as exact) this is :func:`levenberg_marquardt` with the
+        covariance scaled by the residual variance, as before.
+    noise : {"auto", "fixed"} or bool or collection of str, optional
+        ``"auto"`` (default): estimate every group with the redundancy for it (at least
+        :data:`MIN_REDUNDANCY`); ``"fixed"``/False: hold all at the assumed levels (the
+        covariance is then scaled by the overall residual variance, as without groups); a
+        collection of group keys: hold those (the user gave them), estimate the others.
+    robust : bool, optional
+        Leave out the rows the outlier test names, and fit again (repeated until no new row
+        is named).
+    alpha : float, optional
+        False-alarm rate of the outlier test over all rows.
+    rtol : float, optional
+        Rank tolerance.
+    state : object, optional
+        Start state.
+    **options
+        Passed to :func:`levenberg_marquardt`; ``absolute_sigma=True`` (the noise is known
+        exactly) holds every level and does not scale the covariance.
+
+    Returns
+    -------
+    CalibrationResult
+        The final fit; ``residuals`` are whitened by the *assumed* levels (as for every
+        problem) and ``residual_variance`` is their variance over the rows used
+        (``chi2 / dof`` against the assumed noise); ``cost`` and the covariance are those of
+        the fit with the levels used, ``dof`` without the left-out rows. ``extras``:
+        ``noise`` (:class:`NoiseEstimate` or None), ``outliers`` (:class:`OutlierTest` or
+        None), ``weighted`` (the reweighted problem, or the problem
+        itself), ``weighted_residuals`` (whitened by the levels used; left-out rows scaled
+        by :data:`LEFT_OUT_WEIGHT`).
+    """
+    absolute = bool(options.pop("absolute_sigma", False))
+    if absolute:        # the caller knows the noise exactly (Cramér-Rao covariances)
+        noise = "fixed"
+    groups = noise_groups_of(problem)
+    if groups is None:
+        result = levenberg_marquardt(problem, rtol=rtol, state=state, absolute_sigma=absolute,
+                                     **options)
+        result.extras.update(noise=None, outliers=None, weighted=problem,
+                             weighted_residuals=result.residuals)
+        return result
+    G = len(groups.keys)
+    held = _hold_mask(groups, noise)
+    levels = _Levels(np.ones(G), held, np.zeros(G, bool))
+    kept = np.ones(len(groups.id_names), bool)
+    for _ in range(ROBUST_ROUNDS if robust else 1):
+        state = _estimate_levels(problem, groups, levels, kept, state, rtol, options)
+        weighted = Weighted(problem, groups, levels.theta, kept)
+        estimated = bool(levels.estimated.any() or levels.bounded.any())
+        result = levenberg_marquardt(weighted, rtol=rtol, state=state,
+                                     absolute_sigma=bool(estimated or absolute), **options)
+        state = result.state
+        L, G_ = hat_factors(weighted, result)
+        test = _outlier_test(weighted, result, L, G_, alpha)
+        if not robust:
+            break
+        flagged = np.zeros(len(kept), bool)
+        flagged[test.flagged] = True
+        new_kept = kept & ~flagged
+        if np.array_equal(new_kept, kept) or not new_kept.any():
+            break
+        kept = new_kept
+    # degrees of freedom without the left-out rows' residuals (their own unknowns were fitted)
+    used = kept[groups.ids]
+    n_out = int(np.sum(~used))
+    d = int(getattr(problem, "local_dof", 0) or 0)
+    m = groups.labels.shape[1]
+    fitted_variance = result.residual_variance
+    result.dof = int(result.dof - n_out + d * (n_out // m))
+    weighted_r = np.asarray(result.residuals, float)
+    assumed_r = weighted.assumed_residuals(weighted_r)
+    ok = used & np.isfinite(assumed_r)
+    if n_out and not (estimated or absolute) and result.dof > 0:
+        # the covariance was scaled with the left-out rows' (tiny) residuals counted
+        scale = float(np.sum(weighted_r[ok] ** 2)) / result.dof / fitted_variance
+        result.covariance = result.covariance * scale
+        result.std = np.sqrt(np.clip(np.diag(result.covariance), 0, None))
+    # downstream, residual_variance is the residuals' variance over the *assumed* noise
+    result.residual_variance = (float(np.sum(assumed_r[ok] ** 2)) / result.dof
+                                if result.dof > 0 else float("nan"))
+    h = _leverages(L, G_).reshape(-1)
+    lab = groups.labels.reshape(-1)
+    use = ok.reshape(-1)
+    red = np.bincount(lab[use], 1.0 - h[use], minlength=G)
+    count = np.bincount(lab[use], minlength=G)
+    sigma = groups.assumed * np.sqrt(levels.theta)
+    std = np.where(levels.estimated, sigma / np.sqrt(2.0 * np.maximum(red, 1e-300)), np.nan)
+    status = ["held" if levels.held[c] else "assumed" if levels.guessed[c]
+              else "at most" if levels.bounded[c] else "estimated" for c in range(G)]
+    result.extras.update(
+        noise=NoiseEstimate(list(groups.keys), list(groups.names), list(groups.kinds),
+                            groups.assumed.copy(), sigma, std, red, count, status,
+                            levels.iterations),
+        outliers=test, weighted=weighted, weighted_residuals=weighted_r, used=used)
+    # downstream, residuals are "measured - predicted over the assumed noise" for every problem
+    result.residuals = assumed_r
+    return result
+
+
+def helmert_matrix(L, G, labels, use, n_groups: int):
+    """Helmert's matrix ``S_cd = sum_{i in c, j in d} M_ij^2`` of the residual-maker
+    ``M = I - H`` and the groups' redundancies ``sum_{i in c} M_ii``.
+
+    ``E[sum_{i in c} r_i^2] = sum_d S_cd phi_d`` when group ``d``'s true variance is
+    ``phi_d`` times the one the residuals are whitened by: solving ``S phi = q`` is Helmert's
+    variance-component estimate; ``2 S^-1`` its covariance.
+
+    Parameters
+    ----------
+    L, G : ndarray
+        :func:`hat_factors`.
+    labels : ndarray of int, shape (K, m)
+        Group of each residual.
+    use : ndarray of bool, shape (K, m)
+        Residuals counted (rows used, finite).
+    n_groups : int
+        Number of groups.
+
+    Returns
+    -------
+    S : ndarray, shape (n_groups, n_groups)
+    redundancy : ndarray, shape (n_groups,)
+    """
+    K, m = labels.shape
+    E = np.zeros((K, m, n_groups))
+    E[np.arange(K)[:, None], np.arange(m)[None, :], labels] = 1.0
+    E *= np.asarray(use, bool)[..., None]
+    Ef = E.reshape(K * m, n_groups)
+    Gf = G.reshape(K * m, -1)
+    h = np.sum(Gf**2, axis=1)
+    # between any two residuals: (G_i . G_j)^2 summed over groups = tr(T_c T_d)
+    T = np.einsum("ic,ir,is->crs", Ef, Gf, Gf)
+    S = np.einsum("crs,dsr->cd", T, T)
+    if L is not None:
+        # within a measurement the local unknowns add A = L L^T: (A + B)^2 - B^2 = A^2 + 2AB
+        A = np.einsum("kid,kjd->kij", L, L)
+        B = np.einsum("kir,kjr->kij", G, G)
+        X = A * A + 2.0 * A * B
+        S = S + np.einsum("kic,kij,kjd->cd", E, X, E)
+        h = h + np.sum(L.reshape(K * m, -1) ** 2, axis=1)
+    h = np.clip(h, 0.0, 1.0)
+    red = Ef.T @ (1.0 - h)
+    S = S + np.diag(Ef.T @ (1.0 - 2.0 * h))
+    return S, red
+
+
+#: at most this factor of change of a variance in one step (a level assumed far too small has
+#: almost no redundancy at first: one step must not jump to infinity)
+MAX_STEP = 1e4
+
+
+def _helmert_step(S, red, q, free) -> np.ndarray:
+    """Variance ratios ``phi`` of one step: Helmert's ``S phi = q`` for the free groups (the
+    others held at 1); Förstner's ``q / red`` where that is not positive."""
+    phi = np.ones(len(q))
+    if not free.any():
+        return phi
+    f = np.flatnonzero(free)
+    rhs = q[f] - S[np.ix_(f, ~free)].sum(axis=1)
+    try:
+        sol = np.linalg.solve(S[np.ix_(f, f)], rhs)
+    except np.linalg.LinAlgError:
+        sol = np.full(len(f), -1.0)
+    fallback = q[f] / np.maximum(red[f], 1e-300)
+    sol = np.where(np.isfinite(sol) & (sol > 0), sol, fallback)
+    sol = np.where(sol > 0, sol, 1.0)
+    phi[f] = np.clip(sol, 1.0 / MAX_STEP, MAX_STEP)
+    return phi
+
+
+@dataclass
+class _Levels:
+    """Variance factors of the groups and which are held (given) or guessed (too little
+    redundancy: kept at the assumed level)."""
+
+    theta: np.ndarray
+    held: np.ndarray
+    guessed: np.ndarray
+    iterations: int = 0
+    S: np.ndarray | None = None
+    capacity: np.ndarray | None = None
+    bounded: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.capacity is None:
+            self.capacity = np.full(len(self.theta), np.nan)
+        if self.bounded is None:
+            self.bounded = np.zeros(len(self.theta), bool)
+
+    @property
+    def estimated(self) -> np.ndarray:
+        return ~(self.held | self.guessed | self.bounded)
+
+
+def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state, rtol,
+                     options):
+    """Helmert's iteration to convergence (see the module docstring), updating ``levels``
+    in place. First, each group's *capacity* (its redundancy were its level far above the
+    others') decides whether the data can check it at all: below :data:`MIN_REDUNDANCY` it
+    keeps its assumed level. Returns the last fit's state."""
+    G = len(groups.keys)
+    lab = groups.labels.reshape(-1)
+    for it in range(VCE_MAX_ITER):
+        if not levels.estimated.any():
+            return state
+        weighted = Weighted(problem, groups, levels.theta, kept)
+        result = levenberg_marquardt(weighted, rtol=rtol, state=state, **options)
+        levels.iterations += 1
+        state = result.state
+        if it == 0:
+            # a group is estimable when the data could check it: its redundancy were
+            # its level far above the others' (not at the assumed level, where a group
+            # assumed far too precise is fitted almost exactly)
+            for c in np.flatnonzero(levels.estimated):
+                theta = levels.theta.copy()
+                theta[c] *= 1e6
+                alone = Weighted(problem, groups, theta, kept)
+                h = _leverages(*hat_factors(alone, result)).reshape(-1)
+                use = kept[groups.ids.reshape(-1)] & (lab == c)
+                levels.capacity[c] = float(np.sum(1.0 - h[use]))
+            levels.guessed |= levels.estimated & (levels.capacity < MIN_REDUNDANCY)
+            if not levels.estimated.any():
+                return state
+        L, Gf = hat_factors(weighted, result)
+        r = np.asarray(result.residuals, float).reshape(-1)
+        use = kept[groups.ids.reshape(-1)] & np.isfinite(r)
+        S, red = helmert_matrix(L, Gf, groups.labels, use.reshape(groups.labels.shape), G)
+        q = np.bincount(lab[use], r[use] ** 2, minlength=G)
+        new = levels.theta * _helmert_step(S, red, q, levels.estimated)
+        # a group the others' levels leave little redundancy (below MIN_REDUNDANCY) and whose
+        # level keeps falling (by 5 % or more per step) is heading for the boundary: the
+        # data fit it ever more exactly and bound its level from above only; held there
+        bound = levels.estimated & (red < MIN_REDUNDANCY) & (new < 0.95 * levels.theta)
+        new[bound] = levels.theta[bound]
+        levels.bounded |= bound
+        levels.S = S
+        change = float(np.max(np.abs(np.log(new / levels.theta)), initial=0.0))
+        levels.theta = new
+        if change < VCE_TOL:
+            break
+    return state
