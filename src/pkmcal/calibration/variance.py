@@ -6,21 +6,25 @@ readings, the measured positions and orientations, each file of a joint fit ...)
 an assumed standard deviation. The true variance of group ``c`` is ``theta_c`` times the
 assumed one; :func:`fit` estimates the ``theta_c`` from the residuals and refits with them.
 
-Estimator (Förstner's iteration of the Helmert / REML variance-component equations). With the
-problem whitened by the current levels, ``M = I - H`` the residual-maker of the linearised fit
-(local unknowns included, weak directions excluded) and ``r`` the whitened residuals, the
-expectation of ``sum_{i in c} r_i^2`` is ``sum_{i in c} (1 - h_ii) = red_c``, the group's
-*redundancy*, when the levels are right. The update::
+Estimator (Helmert's variance-component equations, iterated: REML). With the problem whitened
+by the current levels, ``M = I - H`` the residual-maker of the linearised fit (local unknowns
+included, weak directions excluded) and ``r`` the whitened residuals, if group ``d``'s true
+variance is ``phi_d`` times the current one::
 
-    theta_c <- theta_c sum_{i in c} r_i^2 / red_c
+    E[q_c] = sum_d S_cd phi_d,   q_c = sum_{i in c} r_i^2,   S_cd = sum_{i in c, j in d} M_ij^2
 
-has the REML estimate as its fixed point. It moves a group even when its redundancy is small
-at the current levels (leg readings assumed far more precise than they are carry almost none
-until their level rises). The assumed levels are the prior in the plainest sense: the start,
-and the value kept for a group whose redundancy at the solution is below
-:data:`MIN_REDUNDANCY` (its level would be a guess); a group the user fixed (``--noise``) is
-held. The estimated level's standard deviation is ``sigma_c / sqrt(2 red_c)`` (first order,
-groups treated as independent).
+(:func:`helmert_matrix`). Each step solves ``S phi = q`` and multiplies the levels by ``phi``
+(Förstner's ``q_c / red_c``, ``red_c = sum_{i in c} M_ii`` the group's *redundancy*, where
+Helmert's gives no positive value); at the fixed point ``phi = 1``: the REML estimate.
+Helmert's step moves every group at once, also one whose redundancy is small at the current
+levels (leg readings assumed far more precise than they are carry almost none until their
+level rises). The assumed levels are the prior in the plainest sense: the start, and the value
+kept for a group the data cannot check (its redundancy, were its level far above the others',
+below :data:`MIN_REDUNDANCY`); a group the user fixed (``--noise``) is held. A group whose
+redundancy keeps falling below :data:`MIN_REDUNDANCY` is fitted ever more exactly: the data
+bound its level from above only ("at most"). The covariance of the estimated ``theta`` is
+``2 S^-1`` (Gaussian noise), so a level's standard deviation is
+``sigma_c sqrt((S^-1)_cc / 2)`` (``sigma_c / sqrt(2 red_c)`` for one group).
 
 Outliers. Per measurement (a tracker point, a pose, a probe height), the test statistic
 ``T = r_S^T (I - H_SS)^+ r_S`` is chi-square with ``rank(I - H_SS)`` degrees of freedom for a
@@ -333,7 +337,7 @@ class NoiseEstimate:
                 "count": int(self.count[i]), "status": self.status[i]})
         return {"estimated": self.estimated, "groups": out,
                 "min_redundancy": MIN_REDUNDANCY,
-                "method": "variance components from the residuals (REML, Förstner's "
+                "method": "variance components from the residuals (REML, Helmert's "
                           "iteration); assumed levels where the redundancy is too small",
                 "iterations": int(self.iterations)}
 
@@ -551,13 +555,16 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
     # downstream, residual_variance is the residuals' variance over the *assumed* noise
     result.residual_variance = (float(np.sum(assumed_r[ok] ** 2)) / result.dof
                                 if result.dof > 0 else float("nan"))
-    h = _leverages(L, G_).reshape(-1)
     lab = groups.labels.reshape(-1)
-    use = ok.reshape(-1)
-    red = np.bincount(lab[use], 1.0 - h[use], minlength=G)
-    count = np.bincount(lab[use], minlength=G)
+    count = np.bincount(lab[ok.reshape(-1)], minlength=G)
+    S, red = helmert_matrix(L, G_, groups.labels, ok, G)
     sigma = groups.assumed * np.sqrt(levels.theta)
-    std = np.where(levels.estimated, sigma / np.sqrt(2.0 * np.maximum(red, 1e-300)), np.nan)
+    std = np.full(G, np.nan)
+    est = np.flatnonzero(levels.estimated)
+    if est.size:
+        with np.errstate(all="ignore"):
+            inv = np.linalg.pinv(S[np.ix_(est, est)], hermitian=True)
+        std[est] = sigma[est] * np.sqrt(np.clip(np.diag(inv), 0, None) / 2.0)
     status = ["held" if levels.held[c] else "assumed" if levels.guessed[c]
               else "at most" if levels.bounded[c] else "estimated" for c in range(G)]
     result.extras.update(

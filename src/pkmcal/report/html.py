@@ -629,6 +629,40 @@ def _summary_rows(report, conv):
             yield f"convergence: {label}", _value_text(k, v), u, _is_number(v)
 
 
+def _noise_section(report) -> str:
+    """The noise levels (assumed, estimated), the outlier rows and the model checks."""
+    out = []
+    levels = report.get("noise_model")
+    if isinstance(levels, Mapping) and isinstance(levels.get("groups"), list):
+        rows = "".join(
+            f"<tr><td>{_e(g.get('name'))}</td><td>{_e(_num(g.get('assumed')))} "
+            f"{_e(g.get('unit'))}</td><td>{_e(_num(g.get('sigma')))}"
+            + (f" &plusmn; {_e(_num(g.get('std')))}" if g.get("std") is not None else "")
+            + f" {_e(g.get('unit'))}</td><td>{_e(_num(g.get('ratio')))}</td>"
+            f"<td>{_e(g.get('status'))}</td><td>{_e(_num(g.get('redundancy')))}</td></tr>"
+            for g in levels["groups"] if isinstance(g, Mapping))
+        out.append("<h2>Noise levels</h2><p class=small>" + _e(levels.get("method", ""))
+                   + ". Estimated where the data check them (redundancy at least "
+                   + _e(_num(levels.get("min_redundancy"))) + "); held where given.</p>"
+                   "<table><tr><th>group</th><th>assumed</th><th>used</th>"
+                   "<th>used / assumed</th><th>status</th><th>redundancy</th></tr>"
+                   + rows + "</table>")
+    outliers = report.get("outliers")
+    if isinstance(outliers, Mapping) and outliers.get("flagged"):
+        rows = "".join(f"<tr><td>{_e(f.get('row'))}</td><td>{_e(_num(f.get('statistic')))}"
+                       f"</td><td>{_e(f.get('dof'))}</td><td>{_e(_num(f.get('p')))}</td>"
+                       f"<td>{'yes' if f.get('left_out') else 'no'}</td></tr>"
+                       for f in outliers["flagged"] if isinstance(f, Mapping))
+        out.append("<h2>Outlier rows</h2><p class=small>" + _e(outliers.get("test", ""))
+                   + f"; p below {_e(_num(outliers.get('threshold_p')))}.</p><table><tr>"
+                   "<th>row</th><th>statistic</th><th>dof</th><th>p</th><th>left out</th>"
+                   "</tr>" + rows + "</table>")
+    adequacy = report.get("model_adequacy")
+    if isinstance(adequacy, Mapping):
+        out.append("<h2>Model adequacy</h2>" + _kv_table(list(_rows(adequacy))))
+    return "".join(out)
+
+
 def build_html(report: Mapping, title: str | None = None) -> str:
     """The HTML text of a calibration report.
 
@@ -692,6 +726,7 @@ def build_html(report: Mapping, title: str | None = None) -> str:
                 "raw residual / assumed std would look too narrow for a correct fit.</p>"
                 + text + "</div></div>")
         parts.append(_before_after(res))
+    parts.append(_noise_section(report))
     ratio = report.get("distance_ratio")
     if isinstance(ratio, Mapping) and isinstance(ratio.get("before"), Mapping):
         parts.append("<h2>Distance ratios (seed 001 Fig. 6)</h2>"
@@ -715,10 +750,13 @@ def build_html(report: Mapping, title: str | None = None) -> str:
     parts.append(_combinations_section(report))
     if params:
         n_gauge = sum(p["name"] in gauge for p in params)
+        levels = report.get("noise_model")
+        how = ("with the noise levels estimated from the residuals (see Noise levels)"
+               if isinstance(levels, Mapping) and levels.get("estimated")
+               else "scaled by the residual variance")
         parts.append(
             "<h2>Parameters</h2><p class=small>Standard deviations from the covariance of the "
-            "estimate (scaled by the residual variance); unidentifiable directions keep the "
-            "machine file's values."
+            f"estimate ({how}); unidentifiable directions keep the machine file's values."
             + (f" {n_gauge} of {len(params)} parameters lie partly along an unidentifiable "
                "direction (listed under Identifiability): each of them is not identifiable by "
                "itself, so its change shows only where the calibration put it, and its std and "
