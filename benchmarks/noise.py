@@ -92,7 +92,7 @@ from pkmcal.instruments import (  # noqa: E402
     fit_joint,
 )
 from pkmcal.instruments.simulate import probe_trigger  # noqa: E402
-from pkmcal.kinematics import matrix_from_rotvec, rotvec_from_matrix  # noqa: E402
+from pkmcal.kinematics import rotvec_from_matrix, skew  # noqa: E402
 from pkmcal.measurements import ConstraintLinkData, FullPoseNoise, TrackerNoise  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -128,7 +128,6 @@ assert instruments.POSE_NOISE == FullPoseNoise()
 #: of about 9 in the joint fit, below MIN_REDUNDANCY: it would be bounded, not estimated)
 JOINT_BALLBAR = 60
 #: held-out poses of the pose and constraint-link cases' check of the reported covariance
-#: (its Jacobian by central differences: two forward kinematics per free parameter)
 HELD_POSES = 20
 #: runs per case whose reported covariance is checked (z2; the check costs more than a fit)
 Z2_RUNS = 50
@@ -276,7 +275,7 @@ class NoiseCase:
                                      * rng.standard_normal(bar.values.shape), bar.group,
                                      source="bar.csv")
 
-    def fit(self, data, estimate_noise=True, start: str = "nominal", **options):
+    def fit(self, data, estimate_noise=True, start: str = "nominal", noise=None, **options):
         """Calibrate with the ASSUMED noise (the library's defaults for the instrument).
 
         Parameters
@@ -289,10 +288,14 @@ class NoiseCase:
             The start geometry: the nominal machine (the benchmark), or the true one (the
             estimate then differs from the truth in the identifiable directions only, to first
             order: its covariance is expressed in the truth's gauge).
+        noise : object, optional
+            The noise to assume instead of the library's default (as the instrument's
+            ``noise`` argument; ``probe+ballbar``: a pair of standard deviations, m).
         **options
             Passed on (``robust``, ...).
         """
-        c, assumed = self.case, ASSUMED[self.instrument]
+        c = self.case
+        assumed = ASSUMED[self.instrument] if noise is None else noise
         machine = {"nominal": c.nominal, "truth": c.true}[start]
         kw = dict(estimate_noise=estimate_noise, **options)
         if self.instrument in ("points", "distances"):
@@ -302,11 +305,11 @@ class NoiseCase:
         if self.instrument == "constraint-link":
             return calibrate_constraint_link(machine, data, method="ml", sigma_m=assumed, **kw)
         if self.instrument == "probe":
-            return calibrate_probe(machine, data, c.noise, **kw)
+            return calibrate_probe(machine, data, IsotropicNoise(float(assumed)), **kw)
         probe, bar = data
-        return fit_joint(machine, [(probe, ProbeModel(), c.noise),
-                                   (bar, DistancesModel(self.joint.k), self.joint.bar_noise)],
-                         **kw)
+        return fit_joint(machine, [(probe, ProbeModel(), IsotropicNoise(float(assumed[0]))),
+                                   (bar, DistancesModel(self.joint.k),
+                                    IsotropicNoise(float(assumed[1])))], **kw)
 
     # -- the bound of the true noise ----------------------------------------------------------
     def bound(self):
@@ -405,95 +408,82 @@ class NoiseCase:
             self._q_held = c.nominal.ik(P, R)
         return self._q_held
 
-    def _pose_statistic(self, result, C, r_adj):
-        """Marker poses at held-out readings through the estimated frames; the Jacobian in
-        the estimator's coordinates (legs, then increments on the left of the frame rotations
-        and the frame translations) by central differences at the estimate."""
+    def _pose_statistic(self, result, C, r_adj, jacobian=None):
+        """Marker poses at held-out readings through the estimated frames (positions over the
+        assumed position noise, rotations from the estimate's over the orientation noise); the
+        Jacobian in the estimator's coordinates (legs, then increments on the left of the frame
+        rotations and the frame translations) at the estimate."""
         c = self.case
         q = self._held_readings()
         n = len(c.nominal.parameters)
-        x0 = np.array(result.x, float)
-        (A, a), (B, b) = result.extras["frames"].mocap_from_base, \
-            result.extras["frames"].platform_from_marker
-        w = np.array([ASSUMED["poses"].position_m] * 3 + [ASSUMED["poses"].orientation_rad] * 3)
-        ref = None
-
-        def predict(x, u=None):
-            nonlocal ref
-            machine = c.nominal.with_parameters(x[:n] if u is None else u)
-            frames = instruments.MeasurementFrames(
-                (matrix_from_rotvec(x[n:n + 3]) @ A, a + x[n + 3:n + 6]),
-                (matrix_from_rotvec(x[n + 6:n + 9]) @ B, b + x[n + 9:n + 12]))
-            fk = machine.fk(q)
-            assert fk.converged.all()
-            P, R = frames.measured(fk.P, fk.R)
-            if ref is None:
-                ref = R
-            rot = rotvec_from_matrix(R @ np.swapaxes(ref, -1, -2))
-            return (np.concatenate([P, rot], -1) / w).ravel()
-
-        x = np.zeros(len(x0))
-        x[:n] = x0[:n]
-        h_est = predict(x)
-        # the truth through the true frames, in the same coordinates (increments about the
-        # estimate's frames)
-        (At, at), (Bt, bt) = instruments.FRAMES.mocap_from_base, \
-            instruments.FRAMES.platform_from_marker
-        xt = np.zeros(len(x0))
-        xt[n:n + 3] = rotvec_from_matrix(At @ A.T)
-        xt[n + 3:n + 6] = at - a
-        xt[n + 6:n + 9] = rotvec_from_matrix(Bt @ B.T)
-        xt[n + 9:n + 12] = bt - b
-        h_true = predict(xt, c.true.u)
-        J = _central_differences(predict, x, result.scales, result.parameters.free)
+        u = np.array(result.x[:n], float)
+        frames = result.extras["frames"]
+        (A, _), (B, b) = frames.mocap_from_base, frames.platform_from_marker
+        noise = ASSUMED["poses"]
+        w = np.array([noise.position_m] * 3 + [noise.orientation_rad] * 3)
+        fk = c.nominal.with_parameters(u).fk(q)
+        assert fk.converged.all()
+        Pm, Rm = frames.measured(fk.P, fk.R)
+        true = c.true.fk(q)
+        assert true.converged.all()
+        Pt, Rt = instruments.FRAMES.measured(true.P, true.R)
+        d = (np.concatenate([Pm - Pt, rotvec_from_matrix(Rm @ np.swapaxes(Rt, -1, -2))], -1)
+             / w).ravel()
+        J = self._pose_jacobian(u, fk.P, fk.R, A, B, b) if jacobian is None else jacobian
+        J = (J / np.tile(w, len(q))[:, None])
         free = np.asarray(result.parameters.free, bool)
-        sf = np.asarray(result.scales, float)[free]
-        return _statistic(h_est - h_true, J, C[np.ix_(free, free)] / np.outer(sf, sf), r_adj)
+        return _statistic(d, J[:, free], C[np.ix_(free, free)], r_adj)
+
+    def _pose_jacobian(self, u, P, R, A, B, b) -> np.ndarray:
+        """d(marker position, marker rotation increment) / d(legs, frame increments), one row
+        per component (K * 6), unscaled. From the inverse kinematics' Jacobians:
+        ``d(P, Omega) / du = -(dq/dpose)^-1 dq/du`` (``Omega`` on the left); ``Pm = A (P + R b)
+        + a``, ``Rm = A R B``."""
+        _, Jx, Ju = self.case.nominal.ik_jacobians(P, R, u)
+        dx = -np.linalg.solve(Jx, Ju)                              # (K, 6, n)
+        K, n = len(P), Ju.shape[-1]
+        Rb = np.einsum("kij,j->ki", R, b)
+        J = np.zeros((K, 6, n + 12))
+        # legs: dPm = A (dP - [R b]x dOmega), rotation increment A dOmega
+        J[:, :3, :n] = np.einsum("ij,kjn->kin", A, dx[:, :3] - np.einsum(
+            "kij,kjn->kin", skew(Rb), dx[:, 3:]))
+        J[:, 3:, :n] = np.einsum("ij,kjn->kin", A, dx[:, 3:])
+        # mocap frame: rotation on the left of A, then its translation
+        J[:, :3, n:n + 3] = -skew(np.einsum("ij,kj->ki", A, P + Rb))
+        J[:, 3:, n:n + 3] = np.eye(3)
+        J[:, :3, n + 3:n + 6] = np.eye(3)
+        # marker frame: rotation on the left of B (Rm's increment A R eps), its translation
+        J[:, 3:, n + 6:n + 9] = np.einsum("ij,kjl->kil", A, R)
+        J[:, :3, n + 9:n + 12] = np.einsum("ij,kjl->kil", A, R)
+        return J.reshape(K * 6, n + 12)
 
     def _link_statistic(self, result, C, r_adj):
-        """Platform poses at held-out readings; the truth moved along the two frame rotations
-        to the estimate's gauge; the Jacobian by central differences at the estimate."""
+        """Platform poses at held-out readings (positions over the characteristic length,
+        rotations from the estimate's); the truth moved along the two frame rotations to the
+        estimate's gauge; the Jacobian ``d(P, Omega) / du = -(dq/dpose)^-1 dq/du``."""
         c = self.case
         q = self._held_readings()
         n = len(c.nominal.parameters)
         scales = np.asarray(result.scales, float)[:n]
-        u_est = np.array(result.x[:n], float)
-        u_true, _ = align_gauge(c.nominal, c.true.u, u_est, CONSTRAINT_LINK_GAUGES, scales)
+        u = np.array(result.x[:n], float)
+        u_true, _ = align_gauge(c.nominal, c.true.u, u, CONSTRAINT_LINK_GAUGES, scales)
         L = c.nominal.characteristic_length()
-        ref = None
-
-        def predict(u):
-            nonlocal ref
-            fk = c.nominal.with_parameters(u).fk(q)
-            assert fk.converged.all()
-            if ref is None:
-                ref = fk.R
-            rot = rotvec_from_matrix(fk.R @ np.swapaxes(ref, -1, -2))
-            return (np.concatenate([fk.P / L, rot], -1)).ravel()
-
-        h_est = predict(u_est)
-        h_true = predict(u_true)
+        fk, true = c.nominal.with_parameters(u).fk(q), c.nominal.with_parameters(u_true).fk(q)
+        assert fk.converged.all() and true.converged.all()
+        d = np.concatenate([(fk.P - true.P) / L, rotvec_from_matrix(
+            fk.R @ np.swapaxes(true.R, -1, -2))], -1).ravel()
+        _, Jx, Ju = c.nominal.ik_jacobians(fk.P, fk.R, u)
+        dx = -np.linalg.solve(Jx, Ju)
+        dx[:, :3] /= L
+        J = dx.reshape(len(q) * 6, n)
         free = np.asarray(result.parameters.free, bool)[:n]
-        J = _central_differences(predict, u_est, scales, free)
-        return _statistic(h_est - h_true, J, C[:n, :n][np.ix_(free, free)]
-                          / np.outer(scales[free], scales[free]), r_adj)
+        return _statistic(d, J[:, free], C[:n, :n][np.ix_(free, free)], r_adj)
 
 
 def _residuals_and_jacobian(problem, state):
     """A problem's whitened residuals and Jacobian, one row per residual component."""
     r, J, _ = problem.evaluate(state)
     return r.ravel(), J.reshape(r.size, -1)
-
-
-def _central_differences(predict, x0, scales, free, h: float = 1e-5) -> np.ndarray:
-    """Columns ``d predict / d(x_j / scale_j)`` of the free coordinates (forward kinematics
-    converge to 1e-12: steps not smaller than 1e-5 of a scale)."""
-    cols = []
-    for j in np.flatnonzero(free):
-        dx = np.zeros(len(x0))
-        dx[j] = h * scales[j]
-        cols.append((predict(x0 + dx) - predict(x0 - dx)) / (2 * h))
-    return np.column_stack(cols)
 
 
 def _statistic(d, J, C, r: int) -> float:
