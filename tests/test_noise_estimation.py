@@ -1,0 +1,403 @@
+"""Noise levels from the residuals (issue 16, items 2 and 3): recovered, held, honest, robust.
+
+Every instrument - a laser tracker on the Delta and on the Stewart platform, full poses,
+the constraint link, ballbar lengths, probe heights and a joint fit of two files (probe
+heights and ballbar lengths) - on ``benchmarks/noise.py``'s cases (the geometries of
+``benchmarks/instruments.py`` and ``benchmarks/printer.py``, none of the examples'), smaller
+where many runs are needed, with data whose noise is NOT the one the calibration assumes (the
+library's default for the instrument):
+
+(a) the estimated levels recover the true ones: ``|estimate - true| < 4 std`` (the reported
+    std of the level; a normal deviate exceeds 4 with probability 6e-5), and the assumed
+    level is far off for at least one group (the prior does not pass the test);
+    ``estimate_noise=False`` holds every level at the given value and a list of keys holds
+    those (the others estimated); with one group the estimate and its covariance are those of
+    the old behaviour (covariance scaled by the residual variance);
+(b) the uncertainty the calibration REPORTS is honest: over many runs the prediction errors at
+    held-out measurements, whitened by the covariance the calibration reports (with the
+    estimated levels), have unit variance - ``t = d^T S^+ d / r`` per run
+    (``NoiseCase.whitened_error``) is about F(r, nu), ``nu`` the redundancy of the estimated
+    levels; the mean over the runs lies in the band ``[1 - z sd_chi2, E_F + z sd_F]`` (``z``
+    for a two-sided false-alarm rate of 1e-3, normal approximation of the mean; the lower end
+    is that of known levels, the upper that of the smallest redundancy: conservative on both
+    sides). Runs start from the true geometry (what is tested is the covariance, not the start
+    strategy: a direction the rank rule leaves unadjusted then carries no start error the
+    covariance does not claim);
+(c) gross errors (50, 75 and 100 times the noise: a beam break, a mis-read marker) in 2-3 rows
+    are named by ``extras["outliers"]``, and ``robust=True`` leaves out exactly those rows;
+    clean data name no row in most runs (binomial bound at the test's family-wise rate).
+
+Where the library falls short the test is marked ``xfail(strict=True)`` with the cause (see
+the reasons); the measured figures are in the docstrings. The whole file takes about a minute
+on 2 cores.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import sys
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from pkmcal.calibration.variance import OUTLIER_ALPHA
+from pkmcal.instruments import IsotropicNoise
+from pkmcal.measurements import FullPoseNoise, TrackerNoise
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "noise.py"
+
+
+def _bench():
+    name = "noise_bench"
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, BENCH)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module                      # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+bench = _bench()
+M = bench.Mismatch
+D = TrackerNoise()
+
+#: name -> (case, poses per run or None for the benchmark's own number)
+CASES = {
+    "delta-tracker": (M("delta", "points", "isotropic", "isotropic 7 um, Leica-type assumed",
+                        IsotropicNoise(7e-6)), None),
+    "stewart-tracker": (M("stewart", "points", "3x", "TrackerNoise() x 3",
+                          TrackerNoise(3 * D.distance, 3 * D.transverse,
+                                       3 * D.transverse_per_m)), None),
+    "poses": (M("stewart", "poses", "mixed", "readings 5x, positions 3x, orientations 2x",
+                FullPoseNoise(10e-6, 60e-6, 100e-6)), 30),
+    "constraint-link": (M("stewart", "constraint-link", "2.5x", "encoders 5 um, 2 um assumed",
+                          5e-6), 72),
+    "ballbar": (M("delta", "distances", "3x", "3 um, 1 um assumed", IsotropicNoise(3e-6)),
+                None),
+    "probe": (M("printer", "probe", "3x", "30 um, 10 um assumed", 30e-6), None),
+    "joint": (M("printer", "probe+ballbar", "2x-3x", "probe 20 um (10 um assumed), 60 ballbar "
+                "lengths 3 um (1 um assumed)", (20e-6, 3e-6)), None),
+}
+NAMES = list(CASES)
+
+
+@cache
+def noise_case(name: str):
+    mismatch, poses = CASES[name]
+    return bench.NoiseCase(mismatch, seed=0, poses=poses)
+
+
+def _levels(result) -> dict:
+    noise = result.extras["noise"]
+    return {k: (float(s), float(sd), st) for k, s, sd, st in
+            zip(noise.keys, noise.sigma, noise.std, noise.status, strict=True)}
+
+
+# -- (a) the levels are recovered, held where given -------------------------------------------
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_estimated_levels_recover_the_true_ones(name):
+    """One data set per instrument, the default options from the nominal start: every group
+    estimated, within 4 of its reported standard deviations of the true level; the assumed
+    level is more than 4 of them off for at least one group."""
+    case = noise_case(name)
+    result = case.fit(case.simulate(np.random.default_rng(1)))
+    assert result.success
+    levels = _levels(result)
+    assert set(levels) == set(case.true_levels)
+    far = []
+    noise = result.extras["noise"]
+    for key, (sigma, std, status) in levels.items():
+        true = case.true_levels[key]
+        assert status == "estimated", (key, status)
+        assert std > 0, (key, std)
+        assert abs(sigma - true) < 4 * std, (key, sigma, true, std)
+        far.append(abs(noise.assumed[noise.keys.index(key)] - true) > 4 * std)
+    assert any(far), levels
+
+
+@pytest.mark.xfail(strict=True, reason="src defect: calibrate_constraint_link runs its start "
+                   "strategy's residual test against the ASSUMED encoder noise; at 10x the "
+                   "assumed noise the direct fit fails it, the fallback leaves out 20-30 valid "
+                   "rows (or refuses the data) and the level is then estimated at about 0.65x "
+                   "the true one")
+def test_encoder_noise_ten_times_the_assumed_is_recovered():
+    """Stewart platform, constraint link, 120 poses, encoder noise 20 um where 2 um is assumed
+    (the benchmark's case): no row left out, the level within 4 std of 20 um."""
+    case = bench.NoiseCase({m.name: m for m in bench.mismatches()}
+                           ["stewart-constraint-link:readings10x"])
+    result = case.fit(case.simulate(np.random.default_rng(1)))
+    assert len(result.extras["dropped_rows"]) == 0, result.extras["dropped_rows"]
+    sigma, std, status = _levels(result)["reading"]
+    assert status == "estimated" and abs(sigma - 20e-6) < 4 * std, (sigma, std)
+
+
+def test_estimate_noise_false_holds_every_level():
+    """``estimate_noise=False``: every level held at the given value (status ``held``), no
+    standard deviation claimed; the residual variance is against that noise."""
+    case = noise_case("poses")
+    data = case.simulate(np.random.default_rng(2))
+    result = case.fit(data, estimate_noise=False)
+    noise = result.extras["noise"]
+    assert noise.status == ["held"] * 3
+    np.testing.assert_array_equal(noise.sigma, noise.assumed)
+    p = bench.ASSUMED["poses"]
+    np.testing.assert_array_equal(noise.assumed, [p.reading_m, p.position_m, p.orientation_rad])
+    assert np.isnan(noise.std).all()
+    assert not noise.estimated
+
+
+def test_held_keys_keep_their_values_and_the_others_are_estimated():
+    """A list of keys holds those groups (what ``--noise`` / ``--pose-noise`` do): full poses
+    with the true orientation level given and held, the readings and positions (wrongly
+    assumed) estimated; a tracker with the true level along the beam given and held."""
+    case = noise_case("poses")
+    true = case.true_noise
+    data = case.simulate(np.random.default_rng(3))
+    given = FullPoseNoise(2e-6, 20e-6, true.orientation_rad)     # the first two are wrong
+    levels = _levels(case.fit(data, estimate_noise=["orientation"], noise=given))
+    assert levels["orientation"][0] == true.orientation_rad
+    assert levels["orientation"][2] == "held"
+    for key in ("reading", "position"):
+        sigma, std, status = levels[key]
+        assert status == "estimated"
+        assert abs(sigma - case.true_levels[key]) < 4 * std, (key, sigma, std)
+
+    case = noise_case("delta-tracker")
+    data = case.simulate(np.random.default_rng(4))
+    given = TrackerNoise(distance=7e-6)                             # across: Leica-type
+    levels = _levels(case.fit(data, estimate_noise=["along"], noise=given))
+    assert levels["along"][0] == 7e-6 and levels["along"][2] == "held"
+    sigma, std, status = levels["across"]
+    assert status == "estimated" and abs(sigma - 7e-6) < 4 * std, (sigma, std)
+
+
+def test_a_joint_fit_holds_one_file_and_estimates_the_other():
+    """Two files: ``"bar.csv:*"`` holds every group of the ballbar file (what ``--noise
+    bar.csv=1um`` does), the probe file's level is estimated."""
+    case = bench.NoiseCase({m.name: m for m in bench.mismatches()}
+                           ["printer-probe+ballbar:probe3x"])       # ballbar noise as assumed
+    data = case.simulate(np.random.default_rng(5))
+    levels = _levels(case.fit(data, estimate_noise=["bar.csv:*"]))
+    assert levels["bar.csv:distances"][0] == bench.printer.BALLBAR_SIGMA
+    assert levels["bar.csv:distances"][2] == "held"
+    sigma, std, status = levels["probe.csv:probe"]
+    assert status == "estimated" and abs(sigma - 30e-6) < 4 * std, (sigma, std)
+
+
+@pytest.mark.parametrize("name", ["ballbar", "probe", "constraint-link"])
+def test_one_group_estimated_is_the_old_behaviour(name):
+    """With one noise group the estimated level only rescales the weights: the estimate is the
+    one with the level held, and its standard deviations are those of the covariance scaled by
+    the residual variance (to the variance-component iteration's 1e-3 tolerance)."""
+    case = noise_case(name)
+    data = case.simulate(np.random.default_rng(6))
+    new, old = case.fit(data), case.fit(data, estimate_noise=False)
+    free = new.parameters.free & (new.std > 0)
+    scaled = (new.x - old.x)[free] / new.std[free]
+    assert np.abs(scaled).max() < 1e-3, np.abs(scaled).max()
+    np.testing.assert_allclose(new.std[free], old.std[free], rtol=5e-3)
+    sigma = new.extras["noise"].sigma[0]
+    assumed = new.extras["noise"].assumed[0]
+    assert abs(sigma**2 / assumed**2 / old.residual_variance - 1) < 5e-3
+
+
+# -- (b) the reported uncertainty is honest -----------------------------------------------------
+
+#: runs per instrument (fewer where a run costs more: the full poses' and the constraint link's
+#: check differentiates the forward kinematics numerically)
+RUNS = {"delta-tracker": 100, "stewart-tracker": 60, "poses": 50, "constraint-link": 50,
+        "ballbar": 100, "probe": 100, "joint": 60}
+#: two-sided false-alarm rate of each band
+FALSE_ALARM = 1e-3
+
+
+@cache
+def monte_carlo(name: str, estimate_noise: bool = True) -> dict:
+    """``RUNS[name]`` calibrations with fresh noise from the true geometry: ``t`` per run, the
+    adjusted directions ``r``, the smallest redundancy ``nu`` of the estimated levels, and the
+    rows the outlier test named."""
+    case = noise_case(name)
+    rng = np.random.default_rng(1000 + NAMES.index(name))
+    out = {"t": [], "r": [], "nu": [], "flagged": [], "status": []}
+    for _ in range(RUNS[name]):
+        result = case.fit(case.simulate(rng), estimate_noise, start="truth")
+        assert result.success
+        t, r = case.whitened_error(result)
+        noise = result.extras["noise"]
+        estimated = [red for red, st in zip(noise.redundancy, noise.status, strict=True)
+                     if st == "estimated"]
+        out["t"].append(t)
+        out["r"].append(r)
+        out["nu"].append(min(estimated) if estimated else np.inf)
+        out["flagged"].append(list(result.extras["outliers"].flagged))
+        out["status"].append(list(noise.status))
+    return {k: (np.array(v, float) if k in ("t", "r", "nu") else v) for k, v in out.items()}
+
+
+def band(r, nu, alpha: float = FALSE_ALARM) -> tuple[float, float]:
+    """Acceptance band of the mean of ``t_i ~ F(r_i, nu_i)`` over the runs (see the module
+    docstring): the lower end for known levels (chi-square / r), the upper for estimated ones
+    with the smallest redundancy."""
+    r, nu = np.asarray(r, float), np.asarray(nu, float)
+    n = len(r)
+    z = stats.norm.ppf(1 - alpha / 2)
+    assert np.all(nu > 4), nu.min()
+    mean_f = nu / (nu - 2)
+    var_f = 2 * nu**2 * (r + nu - 2) / (r * (nu - 2) ** 2 * (nu - 4))
+    lower = 1 - z * np.sqrt(np.sum(2 / r)) / n
+    upper = np.mean(mean_f) + z * np.sqrt(np.sum(var_f)) / n
+    return float(lower), float(upper)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_reported_uncertainty_is_calibrated(name):
+    """Mean ``t`` (prediction errors whitened by the REPORTED covariance, levels estimated)
+    within the band. Measured (mean t, band): Delta tracker 0.982 [0.898, 1.212]; Stewart
+    tracker 1.024 [0.913, 1.191]; full poses 1.090 [0.905, 1.320] (in 4 of the 50 runs a level
+    is only bounded, ``at most``: its covariance is then conservative); constraint link 1.115
+    [0.898, 1.251]; ballbar 1.022 [0.910, 1.157]; probe 1.172 [0.879, 1.284]; joint fit 1.057
+    [0.877, 1.242]."""
+    mc = monte_carlo(name)
+    lower, upper = band(mc["r"], mc["nu"])
+    mean = float(mc["t"].mean())
+    assert lower < mean < upper, (lower, mean, upper)
+
+
+def test_holding_wrong_levels_is_seen_by_the_same_test():
+    """The test has the power to see a dishonest covariance: the joint fit with both files'
+    levels held at the assumed ones (probe 2x, ballbar 3x too small: one scale for both files
+    mis-weighs them) reports a covariance the errors do not follow (measured: mean t 1.311,
+    above the band's 1.242)."""
+    mc = monte_carlo("joint", estimate_noise=False)
+    held = monte_carlo("joint")
+    lower, upper = band(held["r"], held["nu"])
+    mean = float(mc["t"].mean())
+    assert not lower < mean < upper, (lower, mean, upper)
+
+
+# -- (c) gross errors ------------------------------------------------------------------------
+
+#: 0-based rows given a gross error, and its size in multiples of the (largest) true level
+GROSS_ROWS = np.array([3, 11, 17])
+GROSS_SIZE = np.array([50.0, -75.0, 100.0])
+#: the joint fit: probe row 5 and ballbar rows 3 and 11 (ids: the probe's 37 rows first)
+JOINT_IDS = {5, 37 + 3, 37 + 11}
+
+
+def with_gross_errors(name: str, data):
+    """``data`` with gross errors in :data:`GROSS_ROWS`; returns the data and the ids of the
+    rows hit (indices into the outlier test's rows; the constraint link: file rows)."""
+    case = noise_case(name)
+    level = max(case.true_levels.values())
+    rows, size = GROSS_ROWS, GROSS_SIZE
+    if name == "poses":                     # a mis-read marker position
+        P = data.P.copy()
+        P[rows, 1] += size * case.true_levels["position"]
+        return dataclasses.replace(data, P=P), set(rows.tolist())
+    if name == "constraint-link":           # an encoder that skipped
+        q = data.q.copy()
+        q[rows, 2] += size * level
+        return dataclasses.replace(data, q=q), set((rows + 1).tolist())
+    if name == "joint":
+        probe, bar = data
+        pv, bv = probe.values.copy(), bar.values.copy()
+        pv[5, 0] += size[2] * case.true_levels["probe.csv:probe"]
+        bv[rows[:2], 0] += size[:2] * case.true_levels["bar.csv:distances"]
+        return (dataclasses.replace(probe, values=pv),
+                dataclasses.replace(bar, values=bv)), set(JOINT_IDS)
+    values = data.values.copy()             # a beam break, a bad probe trigger, a slipped bar
+    values[rows, 0] += size * level
+    return dataclasses.replace(data, values=values), set(rows.tolist())
+
+
+def named(name: str, result, left_out: bool = False) -> set:
+    """Rows the outlier test names (or leaves out); the constraint link: the file rows it
+    names, with those its start strategy left out (``dropped_rows``: its problem holds the
+    other rows only)."""
+    test = result.extras["outliers"]
+    idx = np.flatnonzero(~test.kept) if left_out else test.flagged
+    if name != "constraint-link":
+        return set(idx.tolist())
+    rows = {int(test.names[i].split()[-1]) for i in idx}
+    return rows | {int(r) for r in result.extras["dropped_rows"]}
+
+
+@cache
+def gross_fits(name: str):
+    case = noise_case(name)
+    data, hit = with_gross_errors(name, case.simulate(np.random.default_rng(7)))
+    return case.fit(data), case.fit(data, robust=True), hit
+
+
+LINK_XFAIL = ("src defect: in calibrate_constraint_link a gross error never reaches the outlier "
+              "test: the start strategy's residual test (against the assumed noise) fails, its "
+              "fallback trims rows by their residuals and leaves out the bad row AND clean ones "
+              "(here file rows 3, 13, 54 with rows 12 and 18, while row 4 stays in; one gross "
+              "error in row 18 alone drops rows 13, 18, 34, 40)")
+ROBUST_XFAIL = {
+    "constraint-link": LINK_XFAIL,
+    "probe": "src defect (masking): the probe level is estimated from the residuals with the "
+             "gross errors in them (23x the true level), no row's statistic passes the "
+             "Bonferroni threshold, and robust=True, which only leaves out what a round names, "
+             "leaves out nothing",
+    "joint": "src defect: robust=True leaves out every row a round names at once and tests a "
+             "left-out row against its prediction WITHOUT the prediction's uncertainty (its "
+             "rows of the hat factors are scaled by LEFT_OUT_WEIGHT): in round 2, with one "
+             "gross error still in, the clean ballbar row 47 (leverage 0.91) is named, left "
+             "out, and then named for ever (statistic 30.4, p 3e-8; with only the three bad "
+             "rows left out its in-fit p is 0.11)",
+}
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(
+    strict=True, reason=ROBUST_XFAIL[n])) if n in ROBUST_XFAIL else n for n in NAMES])
+def test_robust_leaves_out_exactly_the_gross_errors(name):
+    """``robust=True``: exactly the rows with gross errors left out, and the levels estimated
+    without them recover the true ones (4 std)."""
+    _, robust, hit = gross_fits(name)
+    assert named(name, robust, left_out=True) == hit
+    case = noise_case(name)
+    levels = _levels(robust)
+    assert any(status == "estimated" for _, _, status in levels.values())
+    for key, (sigma, std, status) in levels.items():
+        if status == "estimated":
+            assert abs(sigma - case.true_levels[key]) < 4 * std, (key, sigma, std)
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(
+    strict=True, reason=ROBUST_XFAIL[n])) if n in ("probe", "constraint-link") else n
+    for n in NAMES])
+def test_default_options_name_gross_errors_and_no_clean_row(name):
+    """Default options: the rows the test names have gross errors (none clean), at least the
+    largest is named. (Not all of them: see the next test.)"""
+    default, _, hit = gross_fits(name)
+    flagged = named(name, default)
+    assert flagged and flagged <= hit, (flagged, hit)
+
+
+@pytest.mark.xfail(strict=True, reason="src defect (masking): the level estimated from the "
+                   "residuals takes the gross errors in (12x the true level here), so only the "
+                   "two largest of three are named without robust=True")
+def test_default_options_name_every_gross_error():
+    """Delta, tracker: three gross errors of 50, 75 and 100 times the noise, all named."""
+    default, _, hit = gross_fits("delta-tracker")
+    assert named("delta-tracker", default) == hit
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_clean_data_name_no_row_in_most_runs(name):
+    """Over the runs of (b) (clean data), the runs in which the test names a row: at most
+    the binomial quantile of the test's family-wise rate ``OUTLIER_ALPHA`` at a false-alarm
+    rate of 1e-3 (a row named by chance is what the rate allows)."""
+    mc = monte_carlo(name)
+    runs = len(mc["flagged"])
+    with_rows = sum(bool(f) for f in mc["flagged"])
+    limit = stats.binom.ppf(1 - FALSE_ALARM, runs, OUTLIER_ALPHA)
+    assert with_rows <= limit, (with_rows, limit, runs)
