@@ -65,13 +65,18 @@ def counts_everywhere(machine_path, data_path, noise=None, pose_noise=None, cli=
     sv = np.linalg.svd(design.F.reshape(-1, design.rank), compute_uv=False)
     plan = rank_rule(sv)
     out["planning"] = (design.rank, plan.weak)
+    # a noise given is held, as the command line holds --noise (else it is estimated from the
+    # residuals, and the weak directions are those of the estimated levels)
+    est = noise is None and pose_noise is None
     if kind == "constraint-link":
         res = calibrate_constraint_link(machine, read_constraint_link(data_path, machine),
-                                        sigma_m=model)
+                                        sigma_m=model, estimate_noise=est)
     elif kind == "tracker":
-        res = calibrate_tracker(machine, read_tracker(data_path, machine), model)
+        res = calibrate_tracker(machine, read_tracker(data_path, machine), model,
+                                estimate_noise=est)
     else:
-        res = calibrate_full_pose(machine, read_full_pose(data_path, machine), noise=model)
+        res = calibrate_full_pose(machine, read_full_pose(data_path, machine), noise=model,
+                                  estimate_noise=est)
     out["calibrate"] = (res.rank, res.weak)
     assert len(_weak(res.extras["unidentifiable"])) == res.weak
     assert res.adjusted == res.rank - res.weak

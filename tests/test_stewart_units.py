@@ -149,7 +149,9 @@ def test_fk_residual_is_a_leg_length(setup):
 def test_noise_free_calibration_recovers_the_truth(setup, method):
     data = setup.data()
     res = calibrate_full_pose(setup.nominal, data, method=method)
-    assert res.success and res.cost < 1e-15
+    # residuals over the assumed noise (the fit's own cost is over the estimated levels,
+    # which exact data drive to their floor)
+    assert res.success and 0.5 * np.sum(res.residuals**2) < 1e-15
     assert (res.rank, int(res.parameters.free.sum())) == (48, 60)
     e = gauge_free_error(setup.nominal, res, setup.true.u, setup.frames)
     assert np.abs(e).max() < 1e-9

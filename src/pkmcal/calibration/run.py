@@ -1055,8 +1055,10 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
             "null_space": (np.asarray(result.null_space, float)
                            * np.asarray(result.scales, float)[:, None]).tolist(),
         }
-    # residual / assumed noise std of every residual, for the report's histogram
-    report["normalised_residuals"] = np.asarray(result.residuals, float).ravel().tolist()
+    # residual / std of every residual, for the report's histogram: the noise levels the fit
+    # used (estimated from the residuals, or assumed / given)
+    report["normalised_residuals"] = np.asarray(
+        result.extras.get("weighted_residuals", result.residuals), float).ravel().tolist()
     standardised = _standardised(result)
     if standardised is not None:
         report["standardised_residuals"] = standardised

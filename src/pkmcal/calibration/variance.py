@@ -524,8 +524,8 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         state = _estimate_levels(problem, groups, levels, kept, state, rtol, options)
         weighted = Weighted(problem, groups, levels.theta, kept)
         estimated = bool(levels.estimated.any() or levels.bounded.any())
-        result = levenberg_marquardt(weighted, rtol=rtol, state=state,
-                                     absolute_sigma=bool(estimated or absolute), **options)
+        result = _refit(weighted, state, rtol, options,
+                        absolute_sigma=bool(estimated or absolute))
         state = result.state
         L, G_ = hat_factors(weighted, result)
         test = _outlier_test(weighted, result, L, G_, alpha)
@@ -624,6 +624,10 @@ def helmert_matrix(L, G, labels, use, n_groups: int):
     return S, red
 
 
+#: a level is at least this share of the assumed one (std): exact (simulated) data would drive
+#: it to the rounding of the residuals, where no fit converges; there it is "at most" this
+MIN_LEVEL = 1e-3
+
 #: at most this factor of change of a variance in one step (a level assumed far too small has
 #: almost no redundancy at first: one step must not jump to infinity)
 MAX_STEP = 1e4
@@ -672,6 +676,19 @@ class _Levels:
         return ~(self.held | self.guessed | self.bounded)
 
 
+def _refit(weighted: Weighted, state, rtol, options, absolute_sigma: bool = False):
+    """The estimator on the reweighted problem from ``state``. A state that is already the
+    optimum up to rounding (exact data, a converged fit reweighted) may admit no step that
+    lowers the cost on the first try: that is convergence, not a failure."""
+    first = state is None
+    result = levenberg_marquardt(weighted, rtol=rtol, state=state,
+                                 absolute_sigma=absolute_sigma, **options)
+    if not first and result.status == 3 and result.nit == 1:
+        result.status, result.success = 2, True
+        result.message = "cost cannot decrease beyond rounding (converged)"
+    return result
+
+
 def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state, rtol,
                      options):
     """Helmert's iteration to convergence (see the module docstring), updating ``levels``
@@ -684,7 +701,7 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
         if not levels.estimated.any():
             return state
         weighted = Weighted(problem, groups, levels.theta, kept)
-        result = levenberg_marquardt(weighted, rtol=rtol, state=state, **options)
+        result = _refit(weighted, state, rtol, options)
         levels.iterations += 1
         state = result.state
         if it == 0:
@@ -711,6 +728,9 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
         # level keeps falling (by 5 % or more per step) is heading for the boundary: the
         # data fit it ever more exactly and bound its level from above only; held there
         bound = levels.estimated & (red < MIN_REDUNDANCY) & (new < 0.95 * levels.theta)
+        floor = levels.estimated & (new <= MIN_LEVEL**2)
+        new[floor] = MIN_LEVEL**2
+        bound |= floor
         new[bound] = levels.theta[bound]
         levels.bounded |= bound
         levels.S = S

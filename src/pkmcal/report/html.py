@@ -276,19 +276,19 @@ def _residual_plot(r, how: str) -> str:
     return _png(fig)
 
 
-def _chi_text(c, sigma_text: str) -> str:
+def _chi_text(c, sigma_text: str, noise: str = "the assumed noise") -> str:
     lo95, hi95 = c["interval95"]
     lo99, hi99 = c["interval99"]
     if c["within99"]:
         verdict = ("<span class=ok>within its 99 % interval</span>: the residuals agree with "
-                   "the assumed noise")
+                   f"{noise}")
     elif c["ratio"] > hi99:
         verdict = ("<span class=bad>above its 99 % interval</span>: the residuals are larger "
-                   f"than the assumed noise (by a factor {np.sqrt(c['ratio']):.3g} in std): "
+                   f"than {noise} (by a factor {np.sqrt(c['ratio']):.3g} in std): "
                    "the noise is larger than assumed, outliers, or errors the model lacks")
     else:
         verdict = ("<span class=bad>below its 99 % interval</span>: the residuals are smaller "
-                   f"than the assumed noise (factor {np.sqrt(c['ratio']):.3g} in std): the "
+                   f"than {noise} (factor {np.sqrt(c['ratio']):.3g} in std): the "
                    "assumed noise is too large, so the standard deviations are too")
     return (f"<table><tr><th>quantity</th><th>value</th><th>unit</th></tr>"
             f"<tr><th>chi-square (sum of squared whitened residuals)</th>"
@@ -635,16 +635,16 @@ def _noise_section(report) -> str:
     levels = report.get("noise_model")
     if isinstance(levels, Mapping) and isinstance(levels.get("groups"), list):
         rows = "".join(
-            f"<tr><td>{_e(g.get('name'))}</td><td>{_e(_num(g.get('assumed')))} "
-            f"{_e(g.get('unit'))}</td><td>{_e(_num(g.get('sigma')))}"
+            f"<tr><td>{_e(g.get('name'))}</td><td>{_e(_num(g.get('assumed')))}</td>"
+            f"<td>{_e(_num(g.get('sigma')))}"
             + (f" &plusmn; {_e(_num(g.get('std')))}" if g.get("std") is not None else "")
-            + f" {_e(g.get('unit'))}</td><td>{_e(_num(g.get('ratio')))}</td>"
+            + f"</td><td>{_e(g.get('unit'))}</td><td>{_e(_num(g.get('ratio')))}</td>"
             f"<td>{_e(g.get('status'))}</td><td>{_e(_num(g.get('redundancy')))}</td></tr>"
             for g in levels["groups"] if isinstance(g, Mapping))
         out.append("<h2>Noise levels</h2><p class=small>" + _e(levels.get("method", ""))
                    + ". Estimated where the data check them (redundancy at least "
                    + _e(_num(levels.get("min_redundancy"))) + "); held where given.</p>"
-                   "<table><tr><th>group</th><th>assumed</th><th>used</th>"
+                   "<table><tr><th>group</th><th>assumed</th><th>used</th><th>unit</th>"
                    "<th>used / assumed</th><th>status</th><th>redundancy</th></tr>"
                    + rows + "</table>")
     outliers = report.get("outliers")
@@ -655,7 +655,8 @@ def _noise_section(report) -> str:
                        for f in outliers["flagged"] if isinstance(f, Mapping))
         out.append("<h2>Outlier rows</h2><p class=small>" + _e(outliers.get("test", ""))
                    + f"; p below {_e(_num(outliers.get('threshold_p')))}.</p><table><tr>"
-                   "<th>row</th><th>statistic</th><th>dof</th><th>p</th><th>left out</th>"
+                   "<th>row</th><th>statistic [1]</th><th>dof [count]</th><th>p [1]</th>"
+                   "<th>left out</th>"
                    "</tr>" + rows + "</table>")
     adequacy = report.get("model_adequacy")
     if isinstance(adequacy, Mapping):
@@ -717,7 +718,11 @@ def build_html(report: Mapping, title: str | None = None) -> str:
                 sigma = (f"; the noise the residuals suggest is "
                          f"{report['noise_sigma_um'] * np.sqrt(chi['ratio']):.3g} um "
                          f"(assumed {report['noise_sigma_um']:.3g} um)")
-            text = _chi_text(chi, sigma) if chi is not None else ""
+            levels = report.get("noise_model")
+            noise = ("the noise levels used (estimated from these residuals: see Noise "
+                     "levels)" if isinstance(levels, Mapping) and levels.get("estimated")
+                     else "the assumed noise")
+            text = _chi_text(chi, sigma, noise) if chi is not None else ""
             parts.append(
                 "<div class=side><div>" + _residual_plot(*st) + "</div><div>"
                 "<p><b>Standardised residuals</b> ("
