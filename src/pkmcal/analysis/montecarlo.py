@@ -136,6 +136,9 @@ DEFAULT_POSES = {"constraint-link": 150, "tracker": None, "pose": 60, "distance"
                  "probe": 37}
 #: the calibration weighs by the noise; exact data are weighed as if this noisy (m)
 NOISE_FLOOR = 1e-7
+#: a run whose noise levels were estimated is rejected when a level exceeds the simulated one
+#: by the chi-square limit and by more than this many of its standard deviations
+ACCEPTANCE_LEVEL_STD = 4.0
 #: environment of worker processes: one BLAS/OpenMP thread each
 SINGLE_THREAD_ENV = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS",
                      "NUMEXPR_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")
@@ -552,7 +555,10 @@ def acceptance(result, settings: MonteCarloSettings,
       Above both ``chi2.ppf(ACCEPTANCE_QUANTILE, dof) / dof`` and
       :data:`ACCEPTANCE_MIN_RATIO` the run converged to a wrong geometry: ``rejected``. A
       deliberate model error (``lc_error``, the assumed link length wrong) widens the limit
-      by ``1 + (lc_error / noise)^2``, the most it can add.
+      by ``1 + (lc_error / noise)^2``, the most it can add. When the calibration estimated
+      its noise levels (the default), they weigh the fit: a level above the simulated one
+      by that limit (in variance) and by more than :data:`ACCEPTANCE_LEVEL_STD` of its
+      standard deviations rejects the run.
     - exact data (noise 0): the residual RMS must stay below :data:`EXACT_RESIDUAL_RATIO` of
       the machine's characteristic length plus ``lc_error``.
 
@@ -605,7 +611,20 @@ def acceptance(result, settings: MonteCarloSettings,
         if model_error:
             weight = _weight(settings.noise) if settings.noise is not None else NOISE_FLOOR
             limit *= 1.0 + (model_error / weight) ** 2
-        if not chi2_dof <= limit:
+        levels = (getattr(result, "extras", None) or {}).get("noise")
+        if levels is not None and levels.estimated:
+            # the levels were estimated from the residuals (the fit weighs by them, not by the
+            # simulated noise): a wrong geometry shows as a level significantly above the
+            # simulated one
+            for name, sigma, assumed, std in zip(levels.names, levels.sigma, levels.assumed,
+                                                 levels.std, strict=True):
+                if (sigma**2 > limit * assumed**2 and np.isfinite(std)
+                        and sigma - assumed > ACCEPTANCE_LEVEL_STD * std):
+                    return "rejected", chi2_dof, (
+                        f"rejected: {name} {sigma / assumed:.3g} x the noise simulated "
+                        f"({sigma:.3g} +- {std:.2g}, more than {ACCEPTANCE_LEVEL_STD:g} std "
+                        "above it): a wrong geometry")
+        elif not chi2_dof <= limit:
             return "rejected", chi2_dof, (
                 f"rejected: residuals {math.sqrt(chi2_dof):.3g} x the noise (chi2/dof "
                 f"{chi2_dof:.3g} > {limit:.3g}, {dof} dof): a wrong geometry")

@@ -235,23 +235,42 @@ def hat_factors(problem, result):
     G : ndarray, shape (K, m, rank)
         Global factors.
     """
+    L, G, _ = _linearised(problem, result)
+    return L, G
+
+
+def _linearised(problem, result):
+    """:func:`hat_factors` and ``log det`` of the normal matrix of the fitted directions
+    (local unknowns included): the REML likelihood's determinant term."""
     _, Jg, Jl = problem.evaluate(result.state)
     free = np.asarray(result.parameters.free, bool)
     scales = np.asarray(result.scales, float)
     Jg = np.asarray(Jg, float)[..., free] * scales[free]
     K, m, _ = Jg.shape
     rank = int(getattr(result, "adjusted", result.rank))
-    if Jl is None or np.asarray(Jl).shape[-1] == 0:
-        U, _, _ = np.linalg.svd(Jg.reshape(K * m, -1), full_matrices=False)
-        return None, U[:, :rank].reshape(K, m, rank)
-    Jl = np.asarray(Jl, float)
-    d = Jl.shape[-1]
-    Q, _ = np.linalg.qr(Jl, mode="complete")
-    Q1, Q2 = Q[..., :d], Q[..., d:]
-    Jr = np.einsum("kmi,kmn->kin", Q2, Jg)
-    U, _, _ = np.linalg.svd(Jr.reshape(K * (m - d), -1), full_matrices=False)
-    Ur = U[:, :rank].reshape(K, m - d, rank)
-    return Q1, np.einsum("kmi,kir->kmr", Q2, Ur)
+    with np.errstate(divide="ignore"):
+        if Jl is None or np.asarray(Jl).shape[-1] == 0:
+            U, s, _ = np.linalg.svd(Jg.reshape(K * m, -1), full_matrices=False)
+            return None, U[:, :rank].reshape(K, m, rank), float(np.sum(np.log(s[:rank] ** 2)))
+        Jl = np.asarray(Jl, float)
+        d = Jl.shape[-1]
+        Q, Rl = np.linalg.qr(Jl, mode="complete")
+        Q1, Q2 = Q[..., :d], Q[..., d:]
+        Jr = np.einsum("kmi,kmn->kin", Q2, Jg)
+        U, s, _ = np.linalg.svd(Jr.reshape(K * (m - d), -1), full_matrices=False)
+        Ur = U[:, :rank].reshape(K, m - d, rank)
+        logdet = float(np.sum(np.log(s[:rank] ** 2))
+                       + np.sum(np.log(np.diagonal(Rl[..., :d, :], axis1=-2, axis2=-1) ** 2)))
+    return Q1, np.einsum("kmi,kir->kmr", Q2, Ur), logdet
+
+
+def _reml(weighted: Weighted, result, logdet: float) -> float:
+    """REML log-likelihood (up to a constant) of the levels of ``weighted`` at its fit:
+    ``-(sum log sigma_i^2 + log det(J^T J) + r^T r) / 2`` with ``sigma_i`` relative to the
+    assumed level and ``J``, ``r`` whitened by the levels (``result`` is the fit of
+    ``weighted``)."""
+    r = np.asarray(result.residuals, float)
+    return -0.5 * float(np.sum(-2.0 * np.log(weighted.factor)) + logdet + np.sum(r**2))
 
 
 def _leverages(L, G) -> np.ndarray:
@@ -694,15 +713,29 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
     """Helmert's iteration to convergence (see the module docstring), updating ``levels``
     in place. First, each group's *capacity* (its redundancy were its level far above the
     others') decides whether the data can check it at all: below :data:`MIN_REDUNDANCY` it
-    keeps its assumed level. Returns the last fit's state."""
+    keeps its assumed level. A Helmert step that lowers the REML likelihood (it can overshoot
+    into another basin when a group starts with almost no redundancy) is replaced by
+    Förstner's smaller one from the previous levels. Returns the last fit's state."""
     G = len(groups.keys)
     lab = groups.labels.reshape(-1)
+    previous = None         # (theta, likelihood, state, q, red) of the last accepted levels
     for it in range(VCE_MAX_ITER):
         if not levels.estimated.any():
             return state
         weighted = Weighted(problem, groups, levels.theta, kept)
         result = _refit(weighted, state, rtol, options)
         levels.iterations += 1
+        L, Gf, logdet = _linearised(weighted, result)
+        likelihood = _reml(weighted, result, logdet)
+        if previous is not None and likelihood < previous[1] - 1e-9 * abs(previous[1]):
+            theta0, _, state0, q0, red0 = previous
+            step = np.ones(G)
+            f = levels.estimated & (red0 > 0)
+            step[f] = np.clip(q0[f] / red0[f], 1.0 / MAX_STEP, MAX_STEP)
+            levels.theta = theta0 * step
+            state = state0
+            previous = (theta0, -np.inf, state0, q0, red0)  # accept the next step whatever
+            continue
         state = result.state
         if it == 0:
             # a group is estimable when the data could check it: its redundancy were
@@ -718,11 +751,11 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
             levels.guessed |= levels.estimated & (levels.capacity < MIN_REDUNDANCY)
             if not levels.estimated.any():
                 return state
-        L, Gf = hat_factors(weighted, result)
         r = np.asarray(result.residuals, float).reshape(-1)
         use = kept[groups.ids.reshape(-1)] & np.isfinite(r)
         S, red = helmert_matrix(L, Gf, groups.labels, use.reshape(groups.labels.shape), G)
         q = np.bincount(lab[use], r[use] ** 2, minlength=G)
+        previous = (levels.theta.copy(), likelihood, state, q, red)
         new = levels.theta * _helmert_step(S, red, q, levels.estimated)
         # a group the others' levels leave little redundancy (below MIN_REDUNDANCY) and whose
         # level keeps falling (by 5 % or more per step) is heading for the boundary: the
