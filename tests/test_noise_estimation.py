@@ -347,12 +347,6 @@ ROBUST_XFAIL = {
              "gross errors in them (23x the true level), no row's statistic passes the "
              "Bonferroni threshold, and robust=True, which only leaves out what a round names, "
              "leaves out nothing",
-    "joint": "src defect: robust=True leaves out every row a round names at once and tests a "
-             "left-out row against its prediction WITHOUT the prediction's uncertainty (its "
-             "rows of the hat factors are scaled by LEFT_OUT_WEIGHT): in round 2, with one "
-             "gross error still in, the clean ballbar row 47 (leverage 0.91) is named, left "
-             "out, and then named for ever (statistic 30.4, p 3e-8; with only the three bad "
-             "rows left out its in-fit p is 0.11)",
 }
 
 
@@ -382,9 +376,6 @@ def test_default_options_name_gross_errors_and_no_clean_row(name):
     assert flagged and flagged <= hit, (flagged, hit)
 
 
-@pytest.mark.xfail(strict=True, reason="src defect (masking): the level estimated from the "
-                   "residuals takes the gross errors in (12x the true level here), so only the "
-                   "two largest of three are named without robust=True")
 def test_default_options_name_every_gross_error():
     """Delta, tracker: three gross errors of 50, 75 and 100 times the noise, all named."""
     default, _, hit = gross_fits("delta-tracker")

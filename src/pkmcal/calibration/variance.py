@@ -30,12 +30,17 @@ Outliers. Per measurement (a tracker point, a pose, a probe height), the test st
 ``T = r_S^T (I - H_SS)^+ r_S`` is chi-square with ``rank(I - H_SS)`` degrees of freedom for a
 correct measurement (Baarda's data snooping, whole rows); a row whose p-value is below
 ``alpha / (number of rows)`` (Bonferroni) is named. ``robust=True`` leaves the named rows out
-(weight :data:`LEFT_OUT_WEIGHT`, which keeps per-measurement unknowns determined) and repeats
-until no new row is named.
+(weight :data:`LEFT_OUT_WEIGHT`, which keeps per-measurement unknowns determined), estimates
+the levels again without them and tests every row again, a left-out one against its
+prediction (the fit's uncertainty added): the rows named then are the ones left out, until a
+set repeats. Gross errors inflate a level estimated with them in and hide each other in one
+test (masking), so without ``robust`` the rows named are still those the rounds would leave
+out; the fit keeps them.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -401,6 +406,10 @@ class OutlierTest:
         Rows used in the final fit.
     names : list of str
         The rows in words.
+    named : ndarray of int, optional
+        The rows named, when they come from the robust rounds (the fit kept every row):
+        what ``robust=True`` leaves out; default the rows whose ``p`` is below the
+        threshold.
     """
 
     statistic: np.ndarray
@@ -409,10 +418,13 @@ class OutlierTest:
     threshold: float
     kept: np.ndarray
     names: list = field(default_factory=list)
+    named: np.ndarray | None = None
 
     @property
     def flagged(self) -> np.ndarray:
         """Indices of the rows the test names (used or left out)."""
+        if self.named is not None:
+            return np.asarray(self.named, int)
         return np.flatnonzero((self.p < self.threshold) & (self.dof > 0))
 
     @property
@@ -457,8 +469,10 @@ def _outlier_test(weighted: Weighted, result, L, G, alpha: float) -> OutlierTest
             M -= (Lf[S] @ Lf[S].T) * same
         if weighted.kept[i]:
             M -= Gf[S] @ Gf[S].T
-        else:   # left out: its residual against the prediction (uncertainty of the fit added)
-            M += Gf[S] @ Gf[S].T
+        else:   # left out: its residual against the prediction (uncertainty of the fit added;
+            # its rows of the factors carry the left-out weight)
+            Gs = Gf[S] / LEFT_OUT_WEIGHT
+            M += Gs @ Gs.T
         w, V = np.linalg.eigh(0.5 * (M + M.T))
         good = w > 1e-8 * max(1.0, float(w.max(initial=0.0)))
         z = V[:, good].T @ r[S]
@@ -537,25 +551,40 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         return result
     G = len(groups.keys)
     held = _hold_mask(groups, noise)
-    levels = _Levels(np.ones(G), held, np.zeros(G, bool))
-    kept = np.ones(len(groups.id_names), bool)
-    for _ in range(ROBUST_ROUNDS if robust else 1):
-        state = _estimate_levels(problem, groups, levels, kept, state, rtol, options)
-        weighted = Weighted(problem, groups, levels.theta, kept)
-        estimated = bool(levels.estimated.any() or levels.bounded.any())
-        result = _refit(weighted, state, rtol, options,
-                        absolute_sigma=bool(estimated or absolute))
-        state = result.state
-        L, G_ = hat_factors(weighted, result)
-        test = _outlier_test(weighted, result, L, G_, alpha)
-        if not robust:
-            break
-        flagged = np.zeros(len(kept), bool)
-        flagged[test.flagged] = True
-        new_kept = kept & ~flagged
-        if np.array_equal(new_kept, kept) or not new_kept.any():
-            break
-        kept = new_kept
+
+    def rounds(n_rounds, state):
+        levels = _Levels(np.ones(G), held.copy(), np.zeros(G, bool))
+        kept = np.ones(len(groups.id_names), bool)
+        seen = [kept]
+        for round_ in range(n_rounds):
+            state = _estimate_levels(problem, groups, levels, kept, state, rtol, options)
+            weighted = Weighted(problem, groups, levels.theta, kept)
+            estimated = bool(levels.estimated.any() or levels.bounded.any())
+            result = _refit(weighted, state, rtol, options,
+                            absolute_sigma=bool(estimated or absolute))
+            state = result.state
+            L, G_ = hat_factors(weighted, result)
+            test = _outlier_test(weighted, result, L, G_, alpha)
+            # the rows named now are out, the others in (a row left out in an earlier round
+            # comes back when its prediction explains it); a set seen before ends the rounds
+            new_kept = np.ones(len(kept), bool)
+            new_kept[test.flagged] = False
+            if (round_ + 1 == n_rounds or not new_kept.any()
+                    or any(np.array_equal(new_kept, k) for k in seen)):
+                break
+            seen.append(new_kept)
+            kept = new_kept
+        return result, weighted, test, levels, kept, estimated, L, G_
+
+    start = state
+    result, weighted, test, levels, kept, estimated, L, G_ = rounds(
+        ROBUST_ROUNDS if robust else 1, start)
+    if not robust and test.flagged.size:
+        # gross errors hide each other in one test (the level estimated with them in is
+        # inflated): name what robust=True would leave out, keeping every row in the fit
+        robust_test, robust_kept = rounds(ROBUST_ROUNDS, start)[2:5:2]
+        test = dataclasses.replace(robust_test, kept=np.ones_like(robust_kept),
+                                   named=np.flatnonzero(~robust_kept))
     # degrees of freedom without the left-out rows' residuals (their own unknowns were fitted)
     used = kept[groups.ids]
     n_out = int(np.sum(~used))
