@@ -343,10 +343,6 @@ LINK_XFAIL = ("src defect: in calibrate_constraint_link a gross error never reac
               "error in row 18 alone drops rows 13, 18, 34, 40)")
 ROBUST_XFAIL = {
     "constraint-link": LINK_XFAIL,
-    "probe": "src defect (masking): the probe level is estimated from the residuals with the "
-             "gross errors in them (23x the true level), no row's statistic passes the "
-             "Bonferroni threshold, and robust=True, which only leaves out what a round names, "
-             "leaves out nothing",
 }
 
 
@@ -366,7 +362,7 @@ def test_robust_leaves_out_exactly_the_gross_errors(name):
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(
-    strict=True, reason=ROBUST_XFAIL[n])) if n in ("probe", "constraint-link") else n
+    strict=True, reason=ROBUST_XFAIL[n])) if n == "constraint-link" else n
     for n in NAMES])
 def test_default_options_name_gross_errors_and_no_clean_row(name):
     """Default options: the rows the test names have gross errors (none clean), at least the

@@ -65,6 +65,11 @@ OUTLIER_ALPHA = 0.01
 LEFT_OUT_WEIGHT = 1e-6
 #: at most this many rounds of leaving rows out
 ROBUST_ROUNDS = 10
+#: median of chi-square with one degree of freedom
+MEDIAN_CHI2_1 = float(stats.chi2.ppf(0.5, 1))
+#: the first robust round judges a group on its median level where that is below this share
+#: of its estimated level (in variance): gross errors inflated the estimate
+ROBUST_SHRINK = 0.25
 
 
 @dataclass
@@ -445,7 +450,13 @@ class OutlierTest:
                 "left_out": [self.names[i] for i in self.left_out]}
 
 
-def _outlier_test(weighted: Weighted, result, L, G, alpha: float) -> OutlierTest:
+def _outlier_test(weighted: Weighted, result, L, G, alpha: float,
+                  robust_scale: bool = False) -> OutlierTest:
+    """Baarda's test of every row (see the module docstring). ``robust_scale``: each group's
+    residuals over its robust level (median of ``r_i^2 / (1 - h_ii)``) where that is below
+    :data:`ROBUST_SHRINK` of the estimated one (in variance; clean data's medians scatter far
+    less): gross errors in the fit inflate the estimate and can hide every one of them (the
+    first round's candidates; later rounds re-admit what their prediction explains)."""
     groups = weighted.groups
     ids = groups.ids.reshape(-1)
     n_ids = len(groups.id_names)
@@ -454,6 +465,17 @@ def _outlier_test(weighted: Weighted, result, L, G, alpha: float) -> OutlierTest
         weighted.kept[ids], 1.0, LEFT_OUT_WEIGHT)
     Gf = G.reshape(K * m, -1)
     Lf = None if L is None else L.reshape(K * m, -1)
+    if robust_scale:
+        h = _leverages(L, G).reshape(-1)
+        lab = groups.labels.reshape(-1)
+        used = weighted.kept[ids] & np.isfinite(r) & (1.0 - h > 1e-6)
+        scale = np.ones(len(groups.keys))
+        for c in range(len(groups.keys)):
+            z = r[used & (lab == c)] ** 2 / (1.0 - h[used & (lab == c)])
+            rho = float(np.median(z)) / MEDIAN_CHI2_1 if z.size >= 10 else 1.0
+            if rho < ROBUST_SHRINK:
+                scale[c] = max(rho, 1e-4)
+        r = r / np.sqrt(scale[lab])
     block = np.repeat(np.arange(K), m)
     order = np.argsort(ids, kind="stable")
     starts = np.searchsorted(ids[order], np.arange(n_ids + 1))
@@ -566,9 +588,12 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
             L, G_ = hat_factors(weighted, result)
             test = _outlier_test(weighted, result, L, G_, alpha)
             # the rows named now are out, the others in (a row left out in an earlier round
-            # comes back when its prediction explains it); a set seen before ends the rounds
+            # comes back when its prediction explains it); a set seen before ends the rounds.
+            # The first round's candidates are judged on the robust levels (masking)
+            named = test.flagged if round_ else _outlier_test(
+                weighted, result, L, G_, alpha, robust_scale=True).flagged
             new_kept = np.ones(len(kept), bool)
-            new_kept[test.flagged] = False
+            new_kept[named] = False
             if (round_ + 1 == n_rounds or not new_kept.any()
                     or any(np.array_equal(new_kept, k) for k in seen)):
                 break
@@ -579,7 +604,8 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
     start = state
     result, weighted, test, levels, kept, estimated, L, G_ = rounds(
         ROBUST_ROUNDS if robust else 1, start)
-    if not robust and test.flagged.size:
+    if not robust and (test.flagged.size or _outlier_test(
+            weighted, result, L, G_, alpha, robust_scale=True).flagged.size):
         # gross errors hide each other in one test (the level estimated with them in is
         # inflated): name what robust=True would leave out, keeping every row in the fit
         robust_test, robust_kept = rounds(ROBUST_ROUNDS, start)[2:5:2]
