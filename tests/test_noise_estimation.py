@@ -27,8 +27,7 @@ library's default for the instrument):
     are named by ``extras["outliers"]``, and ``robust=True`` leaves out exactly those rows;
     clean data name no row in most runs (binomial bound at the test's family-wise rate).
 
-Where the library falls short the test is marked ``xfail(strict=True)`` with the cause (see
-the reasons); the measured figures are in the docstrings. The whole file takes about 45 s
+The measured figures are in the docstrings. The whole file takes about 45 s
 (29 s of CPU; measured with other jobs on the 2 cores).
 """
 
@@ -122,11 +121,6 @@ def test_estimated_levels_recover_the_true_ones(name):
     assert any(far), levels
 
 
-@pytest.mark.xfail(strict=True, reason="src defect: calibrate_constraint_link runs its start "
-                   "strategy's residual test against the ASSUMED encoder noise; at 10x the "
-                   "assumed noise the direct fit fails it, the fallback leaves out 20-30 valid "
-                   "rows (or refuses the data) and the level is then estimated at about 0.65x "
-                   "the true one")
 def test_encoder_noise_ten_times_the_assumed_is_recovered():
     """Stewart platform, constraint link, 120 poses, encoder noise 20 um where 2 um is assumed
     (the benchmark's case): no row left out, the level within 4 std of 20 um."""
@@ -336,18 +330,19 @@ def gross_fits(name: str):
     return case.fit(data), case.fit(data, robust=True), hit
 
 
-LINK_XFAIL = ("src defect: in calibrate_constraint_link a gross error never reaches the outlier "
-              "test: the start strategy's residual test (against the assumed noise) fails, its "
-              "fallback trims rows by their residuals and leaves out the bad row AND clean ones "
-              "(here file rows 3, 13, 54 with rows 12 and 18, while row 4 stays in; one gross "
-              "error in row 18 alone drops rows 13, 18, 34, 40)")
-ROBUST_XFAIL = {
-    "constraint-link": LINK_XFAIL,
-}
+
+
+#: the constraint link's start strategy (calibration.start) decides which rows it keeps before
+#: the outlier test sees them: three gross encoder errors bend the plain fit of all rows
+#: (median residual 12x the noise), its trimmed rounds explain the typical row 4x better and
+#: leave out five rows, two of the three bad ones and three clean ones; the outlier test never
+#: re-admits rows the start strategy dropped
+LINK_XFAIL = ("src limitation: the constraint link's start strategy leaves out rows before the "
+              "outlier test (here 3, 12, 13, 18, 54 for the bad 4, 12, 18)")
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(
-    strict=True, reason=ROBUST_XFAIL[n])) if n in ROBUST_XFAIL else n for n in NAMES])
+    strict=True, reason=LINK_XFAIL)) if n == "constraint-link" else n for n in NAMES])
 def test_robust_leaves_out_exactly_the_gross_errors(name):
     """``robust=True``: exactly the rows with gross errors left out, and the levels estimated
     without them recover the true ones (4 std)."""
@@ -362,8 +357,7 @@ def test_robust_leaves_out_exactly_the_gross_errors(name):
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(
-    strict=True, reason=ROBUST_XFAIL[n])) if n == "constraint-link" else n
-    for n in NAMES])
+    strict=True, reason=LINK_XFAIL)) if n == "constraint-link" else n for n in NAMES])
 def test_default_options_name_gross_errors_and_no_clean_row(name):
     """Default options: the rows the test names have gross errors (none clean), at least the
     largest is named. (Not all of them: see the next test.)"""

@@ -682,7 +682,8 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         lm_options = {"max_std": MAX_STD, **options}
         result, problem, start = continuation_solve(
             problem, lambda p, state: levenberg_marquardt(p, rtol=rtol, state=state,
-                                                          **lm_options))
+                                                          **lm_options),
+            noise_known=estimate_noise is False)
         # the encoder noise from the residuals, rows the noise cannot explain named (or left
         # out with robust): from the solution the start strategy found
         result = fit(problem, estimate_noise, robust=robust, rtol=rtol, state=result.state,

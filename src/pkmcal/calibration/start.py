@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from .acceptance import residual_test
+from .acceptance import MAX_NOISE_FACTOR, residual_test
 
 __all__ = ["StartReport", "continuation_solve", "sphere_pose_candidates", "start_sensitivity"]
 
@@ -218,7 +218,23 @@ def _noise_factor(result) -> float:
     return test.noise_factor if np.isfinite(test.ratio) else 0.0
 
 
-def continuation_solve(problem, solve, direct=None) -> tuple:
+
+
+
+def _median_noise_factor(result) -> float:
+    """The residuals' typical size over the assumed noise, from their median (robust to a few
+    gross errors), corrected for the unknowns fitted (``dof / N``)."""
+    r = np.asarray(result.residuals, float).ravel()
+    r = r[np.isfinite(r)]
+    dof = int(getattr(result, "dof", 0) or 0)
+    if not r.size or dof <= 0:
+        return 0.0
+    from scipy import stats
+
+    return float(np.sqrt(np.median(r**2) / (stats.chi2.ppf(0.5, 1) * dof / r.size)))
+
+
+def continuation_solve(problem, solve, direct=None, noise_known: bool = True) -> tuple:
     """Solve a constraint-link maximum-likelihood problem from a far start.
 
     Parameters
@@ -230,6 +246,13 @@ def continuation_solve(problem, solve, direct=None) -> tuple:
         options).
     direct : CalibrationResult, optional
         The plain fit, when already made (it is then not repeated).
+    noise_known : bool, optional
+        False: the noise level will be estimated from the residuals. A fit passes when its
+        median residual is within ``MAX_NOISE_FACTOR`` of the assumed noise (not on the
+        chi-square test against the assumed noise, which data noisier than assumed fail);
+        when the plain fit of all rows does not, the fallback runs, and the plain fit is kept
+        unless the fallback's median residual is ``MAX_NOISE_FACTOR`` times smaller (a wrong
+        geometry; otherwise the data are merely noisier than assumed, or a few rows wrong).
 
     Returns
     -------
@@ -270,7 +293,14 @@ def continuation_solve(problem, solve, direct=None) -> tuple:
         # noise are a noise that is a little off (simulated 2 um, assumed 1 um), not a wrong
         # geometry; the fallback (slower, and it leaves out rows far above the others) must not
         # run for that
-        passed = not residual_test(result).alarming
+        if noise_known:
+            passed = not residual_test(result).alarming
+        else:
+            # the noise level will be estimated: a typical (median) residual within
+            # MAX_NOISE_FACTOR of the assumed noise passes (a few gross errors do not move
+            # it; the outlier test names them); else the fallback runs, and the plain fit is
+            # kept unless it finds a geometry that explains the rows far better
+            passed = bool(result.success) and _median_noise_factor(result) <= MAX_NOISE_FACTOR
         report.attempts.append({"stage": stage, "rows": int(rows),
                                 "noise_factor": float(nf), "passed": passed})
         return passed
@@ -335,11 +365,15 @@ def continuation_solve(problem, solve, direct=None) -> tuple:
             if best is None or key < best[0]:
                 best = (key, result, sub, mask.copy())
 
+    plain = None            # the plain fit of every row (unknown noise: kept unless beaten)
     if direct is not None and ok.all():
         consider(direct, problem, ok, record("direct", direct, K))
+        plain = (direct, problem, ok.copy())
     elif _enough(ok, problem):
         result, sub, passed = fit(ok, u0, P, R, "direct")
         consider(result, sub, ok, passed)
+        if ok.all():
+            plain = (result, sub, ok.copy())
         if passed and not ok.all():
             # rows without a start pose: re-started with the fitted geometry, all refitted
             P1, R1 = P.copy(), R.copy()
@@ -396,6 +430,13 @@ def continuation_solve(problem, solve, direct=None) -> tuple:
         raise InputError(f"{data.source}: no pose on the constraint sphere (Lc = "
                          f"{Lc0 * 1e3:.6g} mm) reproduces the readings of "
                          f"{int((~started).sum())} row(s): {_rows_text(data.rows[~started])}")
+    if (not noise_known and plain is not None and plain[0].success
+            and _median_noise_factor(plain[0])
+            <= MAX_NOISE_FACTOR * _median_noise_factor(best[1])):
+        # no geometry explains the typical row far better: the data are noisier than
+        # assumed, or a few rows are wrong (the outlier test names them)
+        result, sub, mask = plain
+        return _finish(((False,), result, sub, mask), report, data, started, "direct")
     return _finish(best, report, data, started,
                    "continuation" if not best[0][0] else "best effort")
 
