@@ -281,15 +281,20 @@ def calibrate(
              "readings and measured poses noisy (default); ik inverse-kinematic residuals "
              "(Zhuang, Yan & Masory 1998), measured poses exact.", show_default=False)] = None,
     noise: Annotated[list[str] | None, typer.Option(
-        help="Measurement noise. constraint-link: encoder noise, standard deviation (default "
-             "1um). tracker: leica (default) or a length for isotropic noise (e.g. 10um). pose: "
-             "noise of the leg readings, as a leg length (default 2um). distance: the ballbar's "
-             "standard deviation (default 1um). With several data files: FILE=VALUE, once per "
-             "file (e.g. --noise bar.csv=2um --noise pts.csv=leica); files not named use "
-             "their kind's default.", show_default=False)] = None,
+        help="Measurement noise, held as given. Without it the noise levels are estimated "
+             "from the residuals (the defaults below are the start and are kept where the data "
+             "cannot check them; the report's noise_model section). constraint-link: encoder "
+             "noise, standard deviation (default 1um). tracker: leica (default) or a length "
+             "for isotropic noise (e.g. 10um). pose: noise of the leg readings, as a leg "
+             "length (default 2um). distance: the ballbar's standard deviation (default 1um). "
+             "probe: the trigger's (default 10um). With several data files: FILE=VALUE, once "
+             "per file (e.g. --noise bar.csv=2um --noise pts.csv=leica); files not named have "
+             "their levels estimated.", show_default=False)] = None,
     pose_noise: Annotated[str | None, typer.Option(
         "--pose-noise", help="pose data: noise of the measured poses, POSITION,ORIENTATION "
-                             "with units (default 20um,50urad).", show_default=False)] = None,
+                             "with units, held as given (default: estimated from the "
+                             "residuals, starting from 20um,50urad).",
+        show_default=False)] = None,
     report: Annotated[Path | None, typer.Option(
         "--report", metavar="DIR", file_okay=False,
         help="Also write DIR/report.html (self-contained: tables and plots) and its JSON twin "
@@ -313,8 +318,9 @@ def calibrate(
                            "with the nominal model) and then the errors with the registration "
                            "fixed. Default: errors and registration together.")] = False,
     robust: Annotated[bool, typer.Option(
-        "--robust", help="tracker data: find and leave out outlier rows (printed by row "
-                         "number).")] = False,
+        "--robust", help="Leave out the rows the noise cannot explain (a chi-square test "
+                         "of each row; named by file row in any case, left out with this "
+                         "option) and fit again; every instrument (ml methods).")] = False,
     holdout: Annotated[str | None, typer.Option(
         "--holdout", metavar="F",
         help="Hold out a random share of the rows (0.2 or 20%) or a number of them (30): "
