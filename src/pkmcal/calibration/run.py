@@ -1350,6 +1350,10 @@ def _check_tracker(options: CalibrateOptions, source) -> None:
         if given:
             raise InputError(f"{option}: applies to constraint-link data; {source} has "
                              "tracker points (see --two-step, --robust)")
+    if options.two_step and options.robust:
+        raise InputError("--robust: applies to the joint method (its residuals are the "
+                         "noise's); --two-step holds a registration of the nominal model, whose "
+                         "residuals exceed the noise by design")
 
 
 def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) -> Calibration:
