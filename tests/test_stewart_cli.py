@@ -112,7 +112,7 @@ def test_gain_is_file_length_unit_per_reading_unit():
     (lambda t: t.replace("gain: 1.0", "gain: one", 1),
      "legs[0].gain: not a number: 'one' (line 5)"),  # without gain: 1 (SPEC 7)
     (lambda t: t.replace("l0: 0.0", "l0: 0.0, length: 3", 1),
-     "legs[0].length: unknown key (allowed here: base, platform, l0, gain)"),
+     "legs[0].length: unknown key (allowed here: base, platform, l0, gain, curvature)"),
     (lambda t: t.replace("platform: [", "platform: [1, ", 1),
      "legs[0].platform: expected 3 numbers, got 4"),
     (lambda t: t.replace("units:", "readings: {unit: cm}\nunits:"),

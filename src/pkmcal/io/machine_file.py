@@ -55,7 +55,10 @@ the file's unit, 0.001 for ``length: mm`` with ``readings: {unit: counts}`` and 
 (``gain: 1`` there would mean 1 m per mm). Internally, readings in a length unit are converted
 to metres (the gain is then a ratio, 1 for readings that are the length); readings in any other
 unit are kept as read and the gain carries metres per unit (1e-6 for 1 um per count); ``l0`` is
-always in metres. ``measurement_frames`` are
+always in metres. A leg may carry ``curvature`` (the file's length unit per reading unit
+squared: ``L = l0 + gain r + curvature r^2``, the reading curvature a calibration adopts when
+held-out data show it); when one leg has it, every leg has it (0 where absent), and a file
+without it is the linear model. ``measurement_frames`` are
 kept on the machine as ``machine.measurement_frames``
 (:class:`~pkmcal.measurements.full_pose.MeasurementFrames`, None without the key); a
 calibration from full-pose data writes the identified frames there.
@@ -573,6 +576,7 @@ class StewartLeg(_Strict):
     platform: Vector3
     l0: Number = 0.0
     gain: Number = 1.0
+    curvature: Number | None = None
 
     @field_validator("gain")
     @classmethod
@@ -918,6 +922,9 @@ def _build_stewart(doc: StewartFile, source: str) -> Stewart:
         platform=np.array([leg.platform for leg in legs]) * fl,
         l0=np.array([leg.l0 for leg in legs]) * fl,
         gain=np.array([leg.gain for leg in legs]) * gain_factor,
+        # file length unit per reading unit squared -> internal
+        curvature=None if all(leg.curvature is None for leg in legs) else np.array(
+            [leg.curvature or 0.0 for leg in legs]) * fl / reading_factor(unit) ** 2,
     )
     machine = Stewart(params, home=_home_pose(doc.home, fl, fa), name=doc.name or "",
                       reading_unit=unit)
@@ -950,6 +957,9 @@ def _dump_stewart(machine: Stewart, units: dict) -> dict:
          "l0": float(l0[i]) / fl, "gain": float(g[i]) / gain_factor}
         for i in range(6)
     ]
+    if machine.has_curvature:
+        for leg, c in zip(out["legs"], machine.curvature(), strict=True):
+            leg["curvature"] = float(c) * reading_factor(unit) ** 2 / fl
     out.update(_dump_instruments(machine, fl))
     return out
 

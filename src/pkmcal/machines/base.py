@@ -13,6 +13,7 @@ orientation ``R`` (..., 3, 3). Pose derivatives are taken with respect to ``[dP,
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -107,6 +108,30 @@ class ParameterSubset:
 
     free: tuple[str, ...]
     description: str
+
+
+@dataclass(frozen=True)
+class ModelExtension:
+    """A named extension of a machine's model: parameters the plain model holds at zero (or
+    lacks) that a calibration may add when held-out data show the machine has them.
+
+    Attributes
+    ----------
+    name : str
+        Short name, e.g. ``"reading curvature"``.
+    description : str
+        What it models, in words.
+    parameters : tuple of str
+        The parameters it adds (or frees).
+    apply : callable
+        ``apply(machine) -> Machine``: a copy of the machine with the extension's parameters
+        free, at values that leave the machine's kinematics unchanged.
+    """
+
+    name: str
+    description: str
+    parameters: tuple[str, ...]
+    apply: Callable
 
 
 class Machine(ABC):
@@ -346,6 +371,21 @@ class Machine(ABC):
                 return bad, True
             sv = np.linalg.svd(Js, compute_uv=False)
         return bad, not sv[-1] > 1e-9 * sv[0]
+
+    def model_extensions(self) -> list[ModelExtension]:
+        """Candidate extensions of the model, tried by a calibration on held-out data.
+
+        A calibration adopts one only when it predicts rows left out of the fit better than
+        the plain model by more than the cross-validation's standard error
+        (:mod:`pkmcal.calibration.extensions`). Machines with such candidates override this;
+        the estimators and the command line need nothing else.
+
+        Returns
+        -------
+        list of ModelExtension
+            None by default.
+        """
+        return []
 
     def identifiable_combinations(self, u=None) -> dict | None:
         """Parameter combinations that are identifiable where their parts are not, in SI units.

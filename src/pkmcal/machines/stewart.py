@@ -8,6 +8,13 @@ reading) and ``leg{i}.gain`` (length per reading unit) — 48 in all. Readings i
 are converted to metres (gain 1 means "the reading is the length"); readings in any other unit
 (``rev``, ``counts``) stay in that unit and the gain carries metres per unit.
 
+A leg whose reading is not quite linear in its length (a lead screw's pitch error, a belt
+that stretches, a pulley off centre) may carry the *reading curvature* extension
+(:meth:`Stewart.model_extensions`): ``L_i = l0_i + gain_i r_i + curvature_i r_i^2``, six more
+parameters ``leg{i}.curvature`` (m per reading unit squared) after the 48. A platform without
+them is exactly the linear model (48 parameters, files unchanged); a calibration adopts them
+only when they predict held-out data better (:mod:`pkmcal.calibration.extensions`).
+
 The cubic 6-UPU device of seed 003 is one instance (``examples/cubic_6upu.yaml``). Notation
 of seed 003 eq. 1-10: ``s_i = R p_i``, ``w_i = t + s_i - b_i = l_i z_i``,
 ``J_p`` row i = ``[z_i^T, (s_i x z_i)^T]``, ``J_s`` row i = ``[z_i^T R, -z_i^T]`` on
@@ -20,14 +27,14 @@ import numpy as np
 
 from ..kinematics import matrix_from_euler
 from ..parameters import ParameterSet
-from .base import FKResult, Machine
+from .base import FKResult, Machine, ModelExtension
 
 LEG_FIELDS = ("base.x", "base.y", "base.z", "platform.x", "platform.y", "platform.z", "l0",
               "gain")
 LEG_KINDS = ("length",) * 7 + ("ratio",)
 
 
-def stewart_parameters(base, platform, l0=None, gain=None) -> ParameterSet:
+def stewart_parameters(base, platform, l0=None, gain=None, curvature=None) -> ParameterSet:
     """Registry of a six-leg platform from its joints and leg calibrations (SI).
 
     Parameters
@@ -40,11 +47,15 @@ def stewart_parameters(base, platform, l0=None, gain=None) -> ParameterSet:
         Leg length at zero reading, m; default 0.
     gain : array_like, shape (6,) or scalar, optional
         Leg length per reading unit (m per unit; 1 for readings that are lengths); default 1.
+    curvature : array_like, shape (6,) or scalar, optional
+        Leg length per reading unit squared (the reading curvature extension); default: none
+        (the linear legs, 48 parameters).
 
     Returns
     -------
     ParameterSet
-        48 parameters ``leg{i}.base.x`` ... ``leg{i}.gain``, leg by leg.
+        48 parameters ``leg{i}.base.x`` ... ``leg{i}.gain``, leg by leg; with ``curvature``
+        six more, ``leg1.curvature`` ... ``leg6.curvature``.
     """
     base = np.asarray(base, float).reshape(6, 3)
     platform = np.asarray(platform, float).reshape(6, 3)
@@ -52,7 +63,36 @@ def stewart_parameters(base, platform, l0=None, gain=None) -> ParameterSet:
     gain = np.ones(6) if gain is None else np.broadcast_to(np.asarray(gain, float), (6,))
     values = np.column_stack([base, platform, l0, gain]).reshape(-1)
     names = [f"leg{i + 1}.{f}" for i in range(6) for f in LEG_FIELDS]
-    return ParameterSet(names, LEG_KINDS * 6, values)
+    params = ParameterSet(names, LEG_KINDS * 6, values)
+    if curvature is None:
+        return params
+    return params.concat(curvature_parameters(curvature))
+
+
+def curvature_parameters(curvature=0.0, fixed=False) -> ParameterSet:
+    """The six ``leg{i}.curvature`` parameters (m per reading unit squared).
+
+    Parameters
+    ----------
+    curvature : array_like, shape (6,) or scalar, optional
+        Values; default 0 (the linear legs).
+    fixed : bool, optional
+        Fixed flags.
+
+    Returns
+    -------
+    ParameterSet
+        Six parameters of kind ``ratio`` (scaled by :meth:`Stewart.parameter_scales`).
+    """
+    values = np.broadcast_to(np.asarray(curvature, float), (6,))
+    return ParameterSet([f"leg{i + 1}.curvature" for i in range(6)], ("ratio",) * 6, values,
+                        np.full(6, bool(fixed)))
+
+
+#: the reading curvature extension in words (:meth:`Stewart.model_extensions`)
+CURVATURE_WORDS = ("a per-leg reading nonlinearity: L = l0 + gain r + curvature r^2 (six "
+                   "parameters leg{i}.curvature; a lead screw's pitch error, a belt that "
+                   "stretches)")
 
 
 class Stewart(Machine):
@@ -86,6 +126,8 @@ class Stewart(Machine):
         self._ip = np.stack([p.indices(f"leg{i + 1}.platform") for i in range(6)])
         self._il0 = np.array([p.index(f"leg{i + 1}.l0") for i in range(6)])
         self._ig = np.array([p.index(f"leg{i + 1}.gain") for i in range(6)])
+        self._ic = (np.array([p.index(f"leg{i + 1}.curvature") for i in range(6)])
+                    if "leg1.curvature" in p.names else None)
 
     @property
     def joint_quantity(self) -> str:
@@ -117,6 +159,66 @@ class Stewart(Machine):
         u = self.u if u is None else np.asarray(u, float)
         return u[self._ib], u[self._ip], u[self._il0], u[self._ig]
 
+    @property
+    def has_curvature(self) -> bool:
+        """Whether the legs carry the reading curvature parameters (the extension)."""
+        return self._ic is not None
+
+    def curvature(self, u=None) -> np.ndarray:
+        """Leg length per reading unit squared of each leg (zeros without the extension).
+
+        Parameters
+        ----------
+        u : array_like, shape (n_params,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        ndarray, shape (6,)
+            ``curvature_i``, m per reading unit squared.
+        """
+        if self._ic is None:
+            return np.zeros(6)
+        u = self.u if u is None else np.asarray(u, float)
+        return u[self._ic]
+
+    def with_curvature(self, curvature=0.0, fixed: bool = False) -> Stewart:
+        """A copy with the reading curvature parameters (the extension), at ``curvature``.
+
+        Parameters
+        ----------
+        curvature : array_like, shape (6,) or scalar, optional
+            Start values, m per reading unit squared; default 0 (the same machine).
+        fixed : bool, optional
+            Hold them (a calibration does not change them).
+
+        Returns
+        -------
+        Stewart
+            The copy (every other attribute shared); this machine when it has them already.
+        """
+        if self._ic is not None:
+            return self
+        new = self.__class__.__new__(self.__class__)
+        new.__dict__.update(self.__dict__)
+        new.parameters = self.parameters.concat(curvature_parameters(curvature, fixed))
+        new._ic = np.array([new.parameters.index(f"leg{i + 1}.curvature") for i in range(6)])
+        return new
+
+    def model_extensions(self) -> list[ModelExtension]:
+        """The reading curvature of every leg (:data:`CURVATURE_WORDS`), unless present.
+
+        Returns
+        -------
+        list of ModelExtension
+            One candidate, ``reading curvature``; none when the legs carry it already.
+        """
+        if self._ic is not None:
+            return []
+        return [ModelExtension("reading curvature", CURVATURE_WORDS,
+                               tuple(f"leg{i + 1}.curvature" for i in range(6)),
+                               lambda machine: machine.with_curvature())]
+
     def reading_sigma(self, sigma_length: float) -> np.ndarray:
         """Standard deviation of each leg reading for a reading noise stated as a leg length.
 
@@ -142,12 +244,18 @@ class Stewart(Machine):
 
         Returns
         -------
-        ndarray, shape (48,)
-            Column scale of each parameter (1 for a zero gain).
+        ndarray, shape (n_params,)
+            Column scale of each parameter (1 for a zero gain); a curvature by
+            ``gain^2 / characteristic length``.
         """
         s = self.parameters.scales(self.characteristic_length())
         g = np.abs(self.u[self._ig])
         s[self._ig] = np.where(g > 0, g, 1.0)
+        if self._ic is not None:
+            # the curvature that moves a leg by the characteristic length at the reading that
+            # spans it (Lc / |gain|): gain^2 / Lc
+            lc = self.characteristic_length()
+            s[self._ic] = np.where(g > 0, g**2 / lc, 1.0 / lc)
         return s
 
     def default_home(self):
@@ -239,28 +347,67 @@ class Stewart(Machine):
         return w, s, np.linalg.norm(w, axis=-1)
 
     def ik_jacobians(self, P, R, u=None, want_du: bool = True):
+        """Readings at poses and their derivatives (:meth:`Machine.ik_jacobians`).
+
+        The reading solves ``l0 + gain r + curvature r^2 = L``: ``r = (L - l0) / gain``
+        without the curvature, else the root nearest it,
+        ``r = 2 (L - l0) / (gain + sqrt(gain^2 + 4 curvature (L - l0)))``; every derivative
+        is that of the length over the slope ``dL/dr = gain + 2 curvature r``.
+
+        Parameters
+        ----------
+        P : array_like, shape (..., 3)
+            Platform positions, m (base frame).
+        R : array_like, shape (..., 3, 3)
+            Platform orientations.
+        u : array_like, shape (n_params,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+        want_du : bool, optional
+            Also compute the derivatives with respect to the parameters.
+
+        Returns
+        -------
+        r : ndarray, shape (..., 6)
+            Readings (internal units); NaN where no reading gives the leg's length.
+        dq_dpose : ndarray, shape (..., 6, 6)
+            Derivatives with respect to ``[dP, dOmega]``: ``J_p`` over the slope.
+        dq_du : ndarray, shape (..., 6, n_params) or None
+            Derivatives with respect to the parameters; None unless ``want_du``.
+        """
         b, p, l0, g = self.legs(u)
         w, s, L = self.leg_vectors(P, R, u)
         z = w / L[..., None]
-        r = (L - l0) / g
-        zg = z / g[:, None]
-        dq_dpose = np.concatenate([zg, np.cross(s, zg)], -1)     # J_p / gain
+        if self._ic is None:
+            r = (L - l0) / g
+            slope = np.broadcast_to(g, r.shape)
+        else:
+            c = self.curvature(u)
+            d = L - l0
+            with np.errstate(invalid="ignore"):     # no reading gives that length: NaN
+                root = np.sqrt(g**2 + 4.0 * c * d)
+            r = 2.0 * d / (g + np.sign(g) * root)
+            slope = g + 2.0 * c * r
+        zg = z / slope[..., None]
+        dq_dpose = np.concatenate([zg, np.cross(s, zg)], -1)     # J_p / slope
         if not want_du:
             return r, dq_dpose, None
         R = np.asarray(R, float)
-        cols = np.concatenate([
+        cols = [
             -zg,                                                  # d r / d base
             np.einsum("...ji,...kj->...ki", R, zg),               # d r / d platform = R^T z/g
-            np.broadcast_to(-1.0 / g, r.shape)[..., None],        # d r / d l0
-            (-r / g)[..., None],                                  # d r / d gain
-        ], -1)                                                    # (..., 6, 8) LEG_FIELDS
+            (-1.0 / slope)[..., None],                            # d r / d l0
+            (-r / slope)[..., None],                              # d r / d gain
+        ]
+        idx = [self._ib, self._ip, self._il0[:, None], self._ig[:, None]]
+        if self._ic is not None:
+            cols.append((-r * r / slope)[..., None])              # d r / d curvature
+            idx.append(self._ic[:, None])
         dq_du = np.zeros(r.shape + (len(self.parameters),))
-        idx = np.concatenate([self._ib, self._ip, self._il0[:, None], self._ig[:, None]], -1)
-        dq_du[..., np.arange(6)[:, None], idx] = cols
+        dq_du[..., np.arange(6)[:, None], np.concatenate(idx, -1)] = np.concatenate(cols, -1)
         return r, dq_dpose, dq_du
 
     def lengths(self, r, u=None):
-        """Leg lengths for readings ``r``: ``l0 + gain r``.
+        """Leg lengths for readings ``r``: ``l0 + gain r`` (``+ curvature r^2``).
 
         Parameters
         ----------
@@ -275,7 +422,10 @@ class Stewart(Machine):
             Leg lengths, m.
         """
         _, _, l0, g = self.legs(u)
-        return l0 + g * np.asarray(r, float)
+        r = np.asarray(r, float)
+        if self._ic is None:
+            return l0 + g * r
+        return l0 + (g + self.curvature(u) * r) * r
 
     def jacobians(self, P, R, u=None):
         """Seed 003 eq. 8-10 at poses: the pose and joint Jacobians of the leg lengths.
