@@ -381,6 +381,9 @@ class CalibrateOptions:
         Tracker: find and leave out outliers.
     fix_frames : bool
         Full pose: hold the measurement frames at the machine file's.
+    extensions : str
+        ``"auto"``: try the machine's model extensions, adopted by cross-validation
+        (full poses); ``"none"``: the plain model.
     """
 
     method: str | None = None
@@ -390,6 +393,7 @@ class CalibrateOptions:
     two_step: bool = False
     robust: bool = False
     fix_frames: bool = False
+    extensions: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -735,7 +739,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
               pose_noise: str | None = None, estimate_lc: bool | None = None,
               two_step: bool = False, robust: bool = False, fix_frames: bool = False,
               holdout: float | str | None = None, seed: int = 0,
-              parameters: str | None = None) -> Calibration:
+              parameters: str | None = None, extensions: str = "auto") -> Calibration:
     """Calibrate ``machine`` from measurements; the measurement kind follows from the data.
 
     Parameters
@@ -776,6 +780,12 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     parameters : str, optional
         A named parameter set of the machine (``machine.parameter_set(name)``, e.g. a
         firmware's set): its fixed flags replace the machine's before the fit.
+    extensions : {"auto", "none"}, optional
+        Full pose: ``"auto"`` tries the machine's model extensions
+        (:meth:`~pkmcal.machines.Machine.model_extensions`, e.g. a six-leg platform's reading
+        curvature) and adopts one only when it predicts held-out rows better
+        (cross-validation, :mod:`pkmcal.calibration.extensions`); ``"none"`` fits the plain
+        model.
 
     Returns
     -------
@@ -827,8 +837,11 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
             raise InputError(f"{source}: {kind.name} measurements cannot calibrate a "
                              f"{machine.kind}: {kind.why_not(machine)}; a {machine.kind} is "
                              f"calibrated from {need}")
+    if extensions not in ("auto", "none"):
+        raise InputError(f"--extensions {extensions}: auto (adopted by cross-validation) or "
+                         "none (the plain model)")
     options = CalibrateOptions(method, noise, pose_noise, estimate_lc, two_step, robust,
-                               fix_frames)
+                               fix_frames, extensions)
     kind.check_options(options, source)
     calibration = kind.calibrate(machine, data, source, options, split)
     inputs = [Path(source)] if isinstance(data, (str, Path)) else []
@@ -1065,6 +1078,9 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
     warnings: list[str] = []
     source = report.get("data_file", "the data")
     _noise_report(result, report, source, warnings)
+    from .adequacy import add_to_report
+
+    add_to_report(result, report)       # model_adequacy: residuals against readings and pose
     report["acceptance"] = _acceptance(result, machine, calibrated, source,
                                        report.get("method"), warnings)
     report["provenance"] = provenance()
@@ -1579,6 +1595,25 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
     result = _solve(source, calibrate_full_pose, machine, data, held=held, method=method,
                     noise=noise_model, frames=frames, fix_frames=fix_frames,
                     estimate_noise=hold, robust=options.robust)
+    # the machine's model extensions (a leg's reading curvature ...), adopted only when they
+    # predict rows held out of the fit better (k-fold cross-validation on these data)
+    model, choice = machine, None
+    if options.extensions == "auto" and machine.model_extensions():
+        from .extensions import choose_full_pose_extensions
+
+        _require_converged(result, source)
+        levels = result.extras.get("noise")
+        cv_noise = noise_model if levels is None else FullPoseNoise(
+            **{f"{k}_{'rad' if k == 'orientation' else 'm'}": v
+               for k, v in zip(levels.keys, levels.sigma, strict=True)})
+        choice = choose_full_pose_extensions(machine, data, method, cv_noise, frames=frames,
+                                             fix_frames=fix_frames)
+        if choice.adopted:
+            model = choice.machine
+            result = _solve(source, calibrate_full_pose, model, data, held=held,
+                            method=method, noise=noise_model, frames=frames,
+                            fix_frames=fix_frames, estimate_noise=hold, robust=options.robust)
+        result.extras["extensions"] = choice
     # the machine file's legs with the frames fitted alone: "before calibration"
     before = _solve(source, calibrate_full_pose, machine, data, held=held, method=method,
                     noise=noise_model, frames=frames if fix_frames
@@ -1597,7 +1632,7 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
 
     reading_unit = getattr(machine, "reading_unit", None) or machine.joint_unit()[0]
     gain_factor = fl / reading_factor(reading_unit)         # internal gain -> file gain
-    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
+    nominal_of = dict(zip(model.parameters.names, model.u, strict=True))
     start = result.extras["start_frames"]
     for name, (R, t) in (("mocap_from_base", start.mocap_from_base),
                          ("platform_from_marker", start.platform_from_marker)):
@@ -1610,6 +1645,11 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
                 if p[key] is not None:
                     p[key] = p[key] / gain_factor
             p["unit"] = f"{units['length']}/{reading_unit}"
+        elif p["name"].endswith(".curvature"):           # internal -> file length / reading^2
+            for key in ("nominal", "identified", "change", "std"):
+                if p[key] is not None:
+                    p[key] = p[key] * reading_factor(reading_unit) ** 2 / fl
+            p["unit"] = f"{units['length']}/{reading_unit}^2"
     rank = int(result.rank)
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
@@ -1621,6 +1661,10 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
         r = result.extras["problem"].noise_whitened(result.state)
         variance = float(np.sum(r**2) / result.dof)
     after, before_rep = _errors_report(err_after, fl), _errors_report(err_before, fl)
+    extensions = (choice.as_dict({"leg_length": (fl, units["length"]), "position": (
+        fl, units["length"]), "orientation": (math.pi / 180, "deg")}) if choice is not None
+        else {"tried": [], "adopted": [], "skipped": "--extensions none" if
+              options.extensions == "none" else "the machine offers none"})
     report = {
         **_report_head(machine, source, "pose", method, units),
         "reading_unit": reading_unit,
@@ -1650,6 +1694,7 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
         },
         "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
         "parameters": _public(params),
+        "model_extensions": extensions,
     }
     if held is not None:
         h_after = _errors_report(full_pose_errors(calibrated, frames_id, held), fl)
@@ -1670,11 +1715,13 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
         "leg_length_rms": {"before": before_rep["leg_length_rms"],
                            "after": after["leg_length_rms"], "unit": units["length"]},
         "frames_fixed": bool(fix_frames),
+        "model_extensions": list(choice.adopted) if choice is not None else [],
         "identifiable": rank,
         "free_parameters": n_free,
         **_identifiability_metadata(unidentifiable),
     }
-    return _finish("pose", machine, calibrated, result, report, metadata, params, units)
+    # the nominal of the fitted model (with an adopted extension at its neutral values)
+    return _finish("pose", model, calibrated, result, report, metadata, params, units)
 
 
 # -- ballbar distances ------------------------------------------------------------------------

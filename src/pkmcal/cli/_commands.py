@@ -511,7 +511,7 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
                   two_step: bool = False, robust: bool = False, pose_noise: str | None = None,
                   fix_frames: bool = False, report_dir: Path | None = None,
                   holdout: str | None = None, seed: int = 0,
-                  parameters: str | None = None) -> int:
+                  parameters: str | None = None, extensions: str = "auto") -> int:
     from ..calibration.run import CalibrationNotConverged, calibrate, noise_per_file_arg
 
     paths = list(data_path) if isinstance(data_path, (list, tuple)) else [data_path]
@@ -534,7 +534,8 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
         calibration = calibrate(machine, data_path, method=method, noise=noise,
                                 pose_noise=pose_noise, estimate_lc=estimate_lc,
                                 two_step=two_step, robust=robust, fix_frames=fix_frames,
-                                holdout=holdout, seed=seed, parameters=parameters)
+                                holdout=holdout, seed=seed, parameters=parameters,
+                                extensions=extensions)
     except CalibrationNotConverged as exc:
         error(str(exc))
         return 1
@@ -670,8 +671,8 @@ def _print_changes(params, limit: int = 10) -> None:
         f = (1e3 if p["unit"] == "mm" else 1e6) if p["kind"] == "length" else \
             (math.pi / 180 * 1e6 if p["unit"] == "deg" else 1e6)
         if p["kind"] not in ("length", "angle"):     # a gain: relative change
-            micro = "ppm"
-            f = 1e6 / abs(p["nominal"]) if p["nominal"] else 1e6
+            micro = "ppm" if p["nominal"] else p["unit"]   # from 0 (a curvature): its unit
+            f = 1e6 / abs(p["nominal"]) if p["nominal"] else 1.0
         std = f"{p['std'] * f:.3g}" if p["std"] is not None else "fixed"
         changes.add_row(p["name"], f"{p['nominal']:.6f} {p['unit']}",
                         f"{p['identified']:.6f} {p['unit']}", f"{p['change'] * f:+.4g}", std,
@@ -805,6 +806,13 @@ def _print_full_pose_calibration(report, params, data_path, output, report_path,
     if "validation" in report:
         table.add_row("held-out", report["validation"]["summary"])
     _noise_rows(table, report)
+    ext = report.get("model_extensions") or {}
+    for t in ext.get("trials", []):
+        table.add_row("model extension", f"{t['name']}: {t['why']} ({ext['folds']}-fold "
+                      f"cross-validation: held-out loss {t['cv_loss']:.4g} vs "
+                      f"{t['cv_loss_baseline']:.4g} per pose)")
+    if "model_adequacy" in report:
+        table.add_row("model adequacy", report["model_adequacy"]["verdict"])
     table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
     out.print(table)
     _print_changes(params)
