@@ -319,6 +319,13 @@ def test_command_line_extensions_option(design, tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "reading curvature: adopted" in proc.stdout
     assert load_machine(tmp_path / "curved.yaml").has_curvature
+    # compensate against the machine file the calibration started from (no curvature)
+    (tmp_path / "targets.csv").write_text("x_mm,y_mm,z_mm,psi_deg,theta_deg,phi_deg\n"
+                                          "0,0,560,0,0,0\n20,-10,580,2,1,0\n")
+    proc = run("compensate", "curved.yaml", "targets.csv", "--nominal", MACHINE, "-o",
+               "commands.csv", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "uncompensated_position_um" in (tmp_path / "commands.csv").read_text()
     proc = run("calibrate", MACHINE, "poses.csv", "--extensions", "x", "-o", "x.yaml",
                cwd=tmp_path)
     assert_input_error(proc, "--extensions x")

@@ -158,6 +158,9 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
     nominal = None
     if nominal_spec is not None:
         nominal = load_machine_arg(nominal_spec)
+        for ext in nominal.model_extensions():      # adopted by the calibration: the nominal
+            if set(ext.parameters) <= set(machine.parameters.names):  # at its neutral values
+                nominal = ext.apply(nominal)
         if nominal.kind != machine.kind or \
                 list(nominal.parameters.names) != list(machine.parameters.names):
             raise InputError(f"--nominal {nominal_spec}: a {nominal.kind} with other parameters "
