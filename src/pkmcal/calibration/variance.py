@@ -183,13 +183,17 @@ class Weighted:
         Variance factors.
     kept : array_like of bool, shape (n_ids,)
         Rows used.
+    weights : array_like, shape (n_ids,), optional
+        Row weights of a robust fit (1: full weight).
     """
 
-    def __init__(self, problem, groups: NoiseGroups, theta, kept):
+    def __init__(self, problem, groups: NoiseGroups, theta, kept, weights=None):
         self.problem, self.groups = problem, groups
         self.theta = np.asarray(theta, float)
         self.kept = np.asarray(kept, bool)
         f = 1.0 / np.sqrt(self.theta[groups.labels])
+        if weights is not None:         # a robust fit's row weights (variance divisors)
+            f = f * np.sqrt(np.asarray(weights, float))[groups.ids]
         self.factor = np.where(self.kept[groups.ids], f, f * LEFT_OUT_WEIGHT)
         self.cost_floor = float(getattr(problem, "cost_floor", 0.0)) * float(
             np.min(self.factor) ** 2)
@@ -506,6 +510,50 @@ def _outlier_test(weighted: Weighted, result, L, G, alpha: float,
                        list(groups.id_names))
 
 
+#: iterations of the robust (Tukey-weighted) fit
+IRLS_ITER = 20
+#: a group whose level came out this many times the assumed one (std) makes the fit suspect:
+#: a robust fit looks for gross errors the least-squares fit bent to (a few rows for many
+#: unknowns hide them from every test of the residuals)
+MAX_NOISE_RATIO = 3.0
+
+
+def _robust_candidates(problem, groups: NoiseGroups, theta, state, rtol, options,
+                       alpha: float) -> np.ndarray:
+    """Rows a robust fit finds far beyond the others: iteratively reweighted least squares
+    with Tukey's biweight on each row's chi-square per degree of freedom, over a median scale
+    (a least-squares fit bends to gross errors, most with few rows per unknown; the robust one
+    does not). Returns a mask over the rows."""
+    from scipy import stats
+
+    n = len(groups.id_names)
+    ids = groups.ids.reshape(-1)
+    d = int(getattr(problem, "local_dof", 0) or 0)
+    dof = np.maximum(np.bincount(ids, minlength=n) - d, 1)
+    cut = stats.chi2.ppf(1.0 - alpha / max(n, 1), dof) / dof
+    med = stats.chi2.ppf(0.5, dof) / dof
+    f = 1.0 / np.sqrt(np.asarray(theta, float)[groups.labels]).reshape(-1)
+    w = np.ones(n)
+    u = np.zeros(n)
+    for _ in range(IRLS_ITER):
+        weighted = Weighted(problem, groups, theta, np.ones(n, bool), np.maximum(w, 1e-12))
+        result = _refit(weighted, state, rtol, options)
+        state = result.state
+        r, _, _ = problem.evaluate(state, jacobian=False)
+        r = np.asarray(r, float).reshape(-1) * f
+        ok = np.isfinite(r)
+        z = np.bincount(ids[ok], r[ok] ** 2, minlength=n) / dof
+        scale = float(np.median(z / med))
+        if not scale > 0:
+            break
+        u = z / scale
+        new = np.where(u < cut, (1.0 - u / cut) ** 2, 0.0)
+        if np.max(np.abs(new - w)) < 1e-3:
+            break
+        w = new
+    return u >= cut
+
+
 def _hold_mask(groups: NoiseGroups, noise) -> np.ndarray:
     """Groups held at their assumed level: ``noise`` False/"fixed" holds all, True/"auto"
     none, a collection of keys (or key suffixes after ``label:``, or ``label:*`` for every
@@ -574,12 +622,17 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
     G = len(groups.keys)
     held = _hold_mask(groups, noise)
 
-    def rounds(n_rounds, state):
+    def rounds(n_rounds, state, candidates):
         levels = _Levels(np.ones(G), held.copy(), np.zeros(G, bool))
         kept = np.ones(len(groups.id_names), bool)
-        seen = [kept]
+        if candidates is not None and candidates.any() and (~candidates).any():
+            kept = ~candidates          # the robust fit's candidates start out
+        seen = [kept]                   # the sets fitted
+        first = state
         for round_ in range(n_rounds):
-            state = _estimate_levels(problem, groups, levels, kept, state, rtol, options)
+            # every round from the start: a fit bent by gross errors can hold the next one,
+            # without them, in its local minimum
+            state = _estimate_levels(problem, groups, levels, kept, first, rtol, options)
             weighted = Weighted(problem, groups, levels.theta, kept)
             estimated = bool(levels.estimated.any() or levels.bounded.any())
             result = _refit(weighted, state, rtol, options,
@@ -590,10 +643,15 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
             # the rows named now are out, the others in (a row left out in an earlier round
             # comes back when its prediction explains it); a set seen before ends the rounds.
             # The first round's candidates are judged on the robust levels (masking)
-            named = test.flagged if round_ else _outlier_test(
+            named = test.flagged if round_ or candidates is not None else _outlier_test(
                 weighted, result, L, G_, alpha, robust_scale=True).flagged
             new_kept = np.ones(len(kept), bool)
             new_kept[named] = False
+            # never so many out that nothing is left to check the fit
+            d = int(getattr(problem, "local_dof", 0) or 0)
+            left = int(np.sum(new_kept[groups.ids])) - d * int(new_kept.sum())
+            if left <= result.rank:
+                break
             if (round_ + 1 == n_rounds or not new_kept.any()
                     or any(np.array_equal(new_kept, k) for k in seen)):
                 break
@@ -602,15 +660,24 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         return result, weighted, test, levels, kept, estimated, L, G_
 
     start = state
-    result, weighted, test, levels, kept, estimated, L, G_ = rounds(
-        ROBUST_ROUNDS if robust else 1, start)
-    if not robust and (test.flagged.size or _outlier_test(
-            weighted, result, L, G_, alpha, robust_scale=True).flagged.size):
-        # gross errors hide each other in one test (the level estimated with them in is
-        # inflated): name what robust=True would leave out, keeping every row in the fit
-        robust_test, robust_kept = rounds(ROBUST_ROUNDS, start)[2:5:2]
-        test = dataclasses.replace(robust_test, kept=np.ones_like(robust_kept),
-                                   named=np.flatnonzero(~robust_kept))
+    # the plain fit (every row, levels estimated) decides whether to look for gross errors
+    result, weighted, test, levels, kept, estimated, L, G_ = rounds(1, start, None)
+    suspect = (test.flagged.size > 0 or bool(np.any(levels.theta > MAX_NOISE_RATIO**2))
+               or _outlier_test(weighted, result, L, G_, alpha, robust_scale=True).flagged.size)
+    if suspect:
+        # gross errors can bend a least-squares fit until no test names them (few rows for
+        # many unknowns): the candidates of a robust fit start the rounds, which re-admit
+        # what the fit without them predicts
+        candidates = _robust_candidates(problem, groups, levels.theta, start, rtol,
+                                        options, alpha)
+        again = rounds(ROBUST_ROUNDS, start, candidates)
+        if robust:
+            result, weighted, test, levels, kept, estimated, L, G_ = again
+        else:
+            # name what robust=True leaves out, keeping every row in the fit
+            robust_test, robust_kept = again[2], again[4]
+            test = dataclasses.replace(robust_test, kept=np.ones_like(robust_kept),
+                                       named=np.flatnonzero(~robust_kept))
     # degrees of freedom without the left-out rows' residuals (their own unknowns were fitted)
     used = kept[groups.ids]
     n_out = int(np.sum(~used))
