@@ -56,11 +56,17 @@ _SUFFIX_UNITS = {"_um": "um", "_deg": "deg", "_urad": "urad", "_percent": "%", "
 _COUNTS = {"count": "residuals", "dof": "degrees of freedom", "pairs": "pairs",
            "used": "rows", "measurements": "rows", "held_out": "rows", "iterations":
            "iterations", "evaluations": "evaluations", "status": "code", "fk_failed": "rows",
-           "seed": "seed", "sweeps": "sweeps"}
+           "seed": "seed", "sweeps": "sweeps", "significant_trends": "trends",
+           "tests": "tests", "column": "column"}
 #: dimensionless quantities: key -> unit text
 _RATIOS = {"residual_variance": "x assumed variance (chi2/dof)",
            "noise_scale": "x assumed noise std", "held_out_over_calibration": "ratio",
-           "holdout": "share or rows", "estimated": "", "fixed": "", "robust": ""}
+           "holdout": "share or rows", "estimated": "", "fixed": "", "robust": "",
+           # model_adequacy (calibration.adequacy)
+           "noise_ratio": "x assumed noise std", "far_above": "x assumed noise std",
+           "over_assumed": "x assumed noise std", "explained": "share of variance",
+           "p": "probability", "p_adjusted": "probability", "alpha": "probability",
+           "statistic": "chi-square", "threshold_p": "probability"}
 #: keys whose value is a length in the section's "unit"
 _LENGTH_KEYS = re.compile(r"(^|_)(value|assumed|std|translation|translation_change|rms|max|"
                           r"before_rms|after_rms|calibration_rms|max_after|leg_length_rms|"
