@@ -233,7 +233,9 @@ def monte_carlo(case, method, noise):
         e = gauge_free_error(case.nominal, res, case.true.u, case.frames)
         errors.append(e - N @ (N.T @ e))
         success.append(res.success)
-        variance.append(res.residual_variance)
+        # 2 cost / dof of the fit as made (the noise levels estimated from the residuals;
+        # residual_variance is over the assumed noise, at an optimum weighted otherwise)
+        variance.append(2.0 * res.cost / res.dof)
     errors = np.array(errors)
     chi2 = np.einsum("ki,ij,kj->k", errors, np.linalg.pinv(C, rcond=1e-10, hermitian=True),
                      errors)
