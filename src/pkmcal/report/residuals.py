@@ -36,27 +36,9 @@ def leverages(problem, result) -> np.ndarray:
         ``h_ii`` per whitened residual, in [0, 1]; their sum is the number of unknowns fitted
         (local unknowns + identified directions).
     """
-    _, Jg, Jl = problem.evaluate(result.state)
-    free = np.asarray(result.parameters.free, bool)
-    scales = np.asarray(result.scales, float)
-    Jg = np.asarray(Jg, float)[..., free] * scales[free]
-    K, m, _ = Jg.shape
-    # the directions fitted: weakly identifiable ones are left at their start values
-    rank = int(getattr(result, "adjusted", result.rank))
-    if Jl is None or np.asarray(Jl).shape[-1] == 0:
-        U, _, _ = np.linalg.svd(Jg.reshape(K * m, -1), full_matrices=False)
-        return np.sum(U[:, :rank] ** 2, axis=1).reshape(K, m)
-    Jl = np.asarray(Jl, float)
-    d = Jl.shape[-1]
-    # per measurement: the local columns' own projection Q1 Q1^T, plus the global columns
-    # with the local part removed (Q2 Q2^T J_g), which are orthogonal to it
-    Q, _ = np.linalg.qr(Jl, mode="complete")
-    Q1, Q2 = Q[..., :d], Q[..., d:]
-    Jr = np.einsum("kmi,kmn->kin", Q2, Jg)
-    U, _, _ = np.linalg.svd(Jr.reshape(K * (m - d), -1), full_matrices=False)
-    Ur = U[:, :rank].reshape(K, m - d, rank)
-    h = np.sum(Q1**2, axis=-1) + np.sum(np.einsum("kmi,kir->kmr", Q2, Ur) ** 2, axis=-1)
-    return np.clip(h, 0.0, 1.0)
+    from ..calibration.variance import _leverages, hat_factors
+
+    return _leverages(*hat_factors(problem, result))
 
 
 def standardised_residuals(problem, result) -> list:
