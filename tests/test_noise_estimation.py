@@ -331,17 +331,7 @@ def gross_fits(name: str):
 
 
 
-#: the constraint link's start strategy (calibration.start) decides which rows it keeps before
-#: the outlier test sees them: three gross encoder errors bend the plain fit of all rows
-#: (median residual 12x the noise), its trimmed rounds explain the typical row 4x better and
-#: leave out five rows, two of the three bad ones and three clean ones; the outlier test never
-#: re-admits rows the start strategy dropped
-LINK_XFAIL = ("src limitation: the constraint link's start strategy leaves out rows before the "
-              "outlier test (here 3, 12, 13, 18, 54 for the bad 4, 12, 18)")
-
-
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(
-    strict=True, reason=LINK_XFAIL)) if n == "constraint-link" else n for n in NAMES])
+@pytest.mark.parametrize("name", NAMES)
 def test_robust_leaves_out_exactly_the_gross_errors(name):
     """``robust=True``: exactly the rows with gross errors left out, and the levels estimated
     without them recover the true ones (4 std)."""
@@ -355,16 +345,45 @@ def test_robust_leaves_out_exactly_the_gross_errors(name):
             assert abs(sigma - case.true_levels[key]) < 4 * std, (key, sigma, std)
 
 
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(
-    strict=True, reason=LINK_XFAIL)) if n == "constraint-link" else n for n in NAMES])
+@pytest.mark.parametrize("name", NAMES)
 def test_default_options_name_every_gross_error_and_no_clean_row(name):
     """Default options (no ``robust``): the rows named are exactly those with gross errors
     (the fit keeps them). With one test the level estimated with the gross errors in would
     hide the smaller ones (masking: 12x the true level on the Delta's tracker); the rows named
-    are those the robust rounds leave out."""
+    are those the robust rounds leave out. The constraint link: rows its start strategy could
+    not fit stay out when the rounds name them too (here two of the three), and only those."""
     default, _, hit = gross_fits(name)
     assert named(name, default) == hit
-    assert default.extras["outliers"].kept.all()
+    kept = default.extras["outliers"].kept
+    if name == "constraint-link":
+        dropped = {int(r) for r in default.extras["dropped_rows"]}
+        assert dropped <= hit
+        out = {int(default.extras["outliers"].names[i].split()[-1])
+               for i in np.flatnonzero(~kept)}
+        assert out == dropped
+    else:
+        assert kept.all()
+
+
+def test_constraint_link_rows_the_start_strategy_left_out_are_tested_again():
+    """The constraint link's start strategy leaves out rows its trimmed rounds cannot explain
+    (here clean rows with the bad ones, the plain fit bent by three gross encoder errors);
+    the outlier rounds start from them and bring back every clean one: the start report says
+    which, its warning names only the rows still out, and the report's residuals are those of
+    the rows in the fit."""
+    default, robust, hit = gross_fits("constraint-link")
+    for result in (default, robust):
+        start = result.extras["start"]
+        assert start.readmitted_rows.size > 0
+        assert not set(start.readmitted_rows.tolist()) & hit
+        assert set(start.dropped_rows.tolist()) <= hit
+        left = [w for w in start.warnings if "left out" in w]
+        assert len(left) == 1 and all(f"{r}" in left[0] for r in start.dropped_rows.tolist())
+        assert start.as_dict()["readmitted_rows"] == start.readmitted_rows.tolist()
+    # the problem holds every row; those out carry no weight in the levels
+    assert len(robust.extras["problem"].data) == noise_case("constraint-link").n_poses
+    noise = robust.extras["noise"]
+    assert noise.status == ["estimated"]
 
 
 @pytest.mark.parametrize("name", NAMES)

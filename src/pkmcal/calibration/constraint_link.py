@@ -680,14 +680,23 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         # rows without a start pose retried and named (calibration.start). Not for 'ik': its
         # residuals (active readings taken as exact) fail the chi-square test by design
         lm_options = {"max_std": MAX_STD, **options}
+        every_row = problem
         result, problem, start = continuation_solve(
             problem, lambda p, state: levenberg_marquardt(p, rtol=rtol, state=state,
                                                           **lm_options),
             noise_known=estimate_noise is False)
+        state, left_out = result.state, None
+        if start.kept is not None and not start.kept.all():
+            # rows the start strategy left out are the outlier rounds' first candidates, not
+            # their verdict: posed with the geometry found, brought back when it explains them
+            problem, left_out = every_row, ~start.kept
+            state = _with_left_out_poses(problem, state, start.kept)
         # the encoder noise from the residuals, rows the noise cannot explain named (or left
         # out with robust): from the solution the start strategy found
-        result = fit(problem, estimate_noise, robust=robust, rtol=rtol, state=result.state,
-                     **lm_options)
+        result = fit(problem, estimate_noise, robust=robust, rtol=rtol, state=state,
+                     left_out=left_out, **lm_options)
+        if left_out is not None:
+            start.readmit(~result.extras["outliers"].kept, data.rows)
     else:
         result = levenberg_marquardt(problem, rtol=rtol, **{"max_std": MAX_STD, **options})
     _refuse_degenerate(data, result, n_id, repeats)
@@ -713,6 +722,21 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         + name_weak_directions(result, problem.parameters),
     )
     return result
+
+
+def _with_left_out_poses(problem, state, kept) -> SphereState:
+    """``state`` (of the rows ``kept``) completed for every row of ``problem``: the rows left
+    out get the pose on the constraint sphere that best explains their readings with the
+    state's geometry."""
+    from .start import sphere_pose_candidates
+
+    um, Lc = problem.split(state.u)
+    K = len(kept)
+    P, R = np.zeros((K, 3)), np.tile(np.eye(3), (K, 1, 1))
+    P[kept], R[kept] = state.P, state.R
+    P[~kept], R[~kept], _ = sphere_pose_candidates(problem.machine, um, problem.data.q[~kept],
+                                                   Lc)
+    return SphereState(state.u.copy(), P, R)
 
 
 def _refuse_degenerate(data, result, n_id: int, repeats: str) -> None:

@@ -1174,6 +1174,8 @@ def _calibrate_constraint_link(machine, data, source, options: CalibrateOptions,
     nominal_of["link.length"] = data.link_length
     params = _parameter_table(result, nominal_of, units)
     r = np.asarray(result.residuals, float)
+    if "used" in result.extras:             # the rows in the fit (not those left out)
+        r = r[np.asarray(result.extras["used"], bool).reshape(len(r), -1).all(axis=-1)]
     r_m = r * sigma
     rank = int(result.rank)
     n_free = int(np.sum(result.parameters.free))

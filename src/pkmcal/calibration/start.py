@@ -85,6 +85,34 @@ class StartReport:
     retried_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     dropped_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     warnings: list = field(default_factory=list)
+    kept: np.ndarray | None = None
+    readmitted_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+
+    def readmit(self, still_out, file_rows) -> None:
+        """Only the left-out rows in ``still_out`` stay out: the outlier test found the others
+        consistent with the noise once the geometry was calibrated (rows the start strategy
+        left out are its first candidates, not its verdict).
+
+        Parameters
+        ----------
+        still_out : array_like of bool, shape (K,)
+            Rows left out of the final fit (over all the data's rows).
+        file_rows : array_like of int, shape (K,)
+            The data's file rows.
+        """
+        if self.kept is None:
+            return
+        out = ~self.kept & np.asarray(still_out, bool)
+        back = ~self.kept & ~out
+        if not back.any():
+            return
+        old = _left_out_text(self.dropped_rows, len(self.kept))
+        self.warnings = [w for w in self.warnings if w != old]
+        self.kept = ~out
+        self.readmitted_rows = np.asarray(file_rows)[back]
+        self.dropped_rows = np.asarray(file_rows)[out]
+        if self.dropped_rows.size:
+            self.warnings.insert(0, _left_out_text(self.dropped_rows, len(self.kept)))
 
     @property
     def fallback(self) -> bool:
@@ -98,12 +126,13 @@ class StartReport:
         -------
         dict
             ``strategy``, ``fallback``, ``attempts``, ``retried_rows``, ``dropped_rows``,
-            ``warnings``.
+            ``readmitted_rows``, ``warnings``.
         """
         return {"strategy": self.strategy, "fallback": self.fallback,
                 "attempts": list(self.attempts),
                 "retried_rows": [int(v) for v in self.retried_rows],
                 "dropped_rows": [int(v) for v in self.dropped_rows],
+                "readmitted_rows": [int(v) for v in self.readmitted_rows],
                 "warnings": list(self.warnings)}
 
 
@@ -441,6 +470,16 @@ def continuation_solve(problem, solve, direct=None, noise_known: bool = True) ->
                    "continuation" if not best[0][0] else "best effort")
 
 
+def _left_out_text(rows, K: int) -> str:
+    """The warning for the rows left out (file rows ``rows`` of ``K``)."""
+    return (f"{len(rows)} of {K} row(s) left out: with the calibrated geometry the best pose "
+            "found on the constraint sphere leaves residuals more than "
+            f"{OUTLIER_FACTOR:g} times the other rows' (and the noise's): rows "
+            f"{_rows_text(rows)}. Usual causes: poses near another assembly mode of the loop, "
+            "where the forward kinematics have several solutions, or wrong rows (readings "
+            "taken without the link, another passive joint, a typing error)")
+
+
 def _min_rows(problem, redundancy: float = 1.0) -> int:
     """Rows needed to identify the geometry (``redundancy`` equations per identifiable
     parameter)."""
@@ -458,6 +497,7 @@ def _finish(best, report, data, started, strategy):
     report.strategy = strategy
     report.retried_rows = data.rows[~started & mask]
     report.dropped_rows = data.rows[~mask]
+    report.kept = np.asarray(mask, bool).copy()
     K = len(data)
     if report.dropped_rows.size:
         # readings that no pose explains even with the calibrated geometry are bad input
@@ -469,13 +509,7 @@ def _finish(best, report, data, started, strategy):
             raise InputError(f"{data.source}: no pose on the constraint sphere (Lc = "
                              f"{data.link_length * 1e3:.6g} mm) reproduces the readings of "
                              f"{rows.size} row(s): {_rows_text(rows)}")
-        what = (f"{report.dropped_rows.size} of {K} row(s) left out: with the calibrated "
-                "geometry the best pose found on the constraint sphere leaves residuals "
-                f"more than {OUTLIER_FACTOR:g} times the other rows' (and the noise's): rows "
-                f"{_rows_text(report.dropped_rows)}. Usual causes: poses near another "
-                "assembly mode of the loop, where the forward kinematics have several "
-                "solutions, or wrong rows (readings taken without the link, another passive "
-                "joint, a typing error)")
+        what = _left_out_text(report.dropped_rows, K)
         if report.dropped_rows.size > MAX_LEFT_OUT * K:
             raise InputError(f"{data.source}: {what}; that is more than "
                              f"{MAX_LEFT_OUT:.0%} of the rows: check the data and the "

@@ -318,6 +318,9 @@ class NoiseEstimate:
         redundancy: the data fit it almost exactly and bound its level from above only).
     iterations : int
         Reweighted fits.
+    capacity : ndarray, shape (G,), optional
+        Redundancy each group would have were its level far above the others' (what decides
+        ``"assumed"``: below :data:`MIN_REDUNDANCY`); NaN where not computed (held).
     """
 
     keys: list
@@ -330,6 +333,7 @@ class NoiseEstimate:
     count: np.ndarray
     status: list
     iterations: int = 0
+    capacity: np.ndarray | None = None
 
     @property
     def estimated(self) -> bool:
@@ -356,9 +360,11 @@ class NoiseEstimate:
         -------
         dict
             ``{"estimated": bool, "groups": [{key, name, unit, assumed, sigma, std,
-            ratio, redundancy, count, status}], "min_redundancy", "method"}``.
+            ratio, redundancy, capacity, count, status}], "min_redundancy", "method"}``.
         """
         out = []
+        capacity = (np.full(len(self.keys), np.nan) if self.capacity is None
+                    else np.asarray(self.capacity, float))
         for i, key in enumerate(self.keys):
             f, unit = ((length_factor, units[0]) if self.kinds[i] == "length"
                        else (angle_factor, units[1]))
@@ -367,6 +373,7 @@ class NoiseEstimate:
                 "assumed": float(self.assumed[i] / f), "sigma": float(self.sigma[i] / f),
                 "std": float(self.std[i] / f) if np.isfinite(self.std[i]) else None,
                 "ratio": float(self.ratio[i]), "redundancy": float(self.redundancy[i]),
+                "capacity": float(capacity[i]) if np.isfinite(capacity[i]) else None,
                 "count": int(self.count[i]), "status": self.status[i]})
         return {"estimated": self.estimated, "groups": out,
                 "min_redundancy": MIN_REDUNDANCY,
@@ -390,8 +397,10 @@ class NoiseEstimate:
                    "at most": "at most: the data fit these almost exactly, they bound "
                               "the level from above only",
                    "held": "held: given",
-                   "assumed": f"assumed: redundancy {g['redundancy']:.1f} < "
-                              f"{levels['min_redundancy']:g}"}[g["status"]]
+                   "assumed": "assumed: redundancy {:.1f} < {:g}, were its level far above "
+                              "the others'".format(
+                                  g["redundancy"] if g.get("capacity") is None
+                                  else g["capacity"], levels["min_redundancy"])}[g["status"]]
             out.append(f"{g['name']}: {g['sigma']:.3g}{pm} {g['unit']} (assumed "
                        f"{g['assumed']:.3g} {g['unit']}; {why})")
         return out
@@ -519,11 +528,11 @@ MAX_NOISE_RATIO = 3.0
 
 
 def _robust_candidates(problem, groups: NoiseGroups, theta, state, rtol, options,
-                       alpha: float) -> np.ndarray:
+                       alpha: float, out=None) -> np.ndarray:
     """Rows a robust fit finds far beyond the others: iteratively reweighted least squares
     with Tukey's biweight on each row's chi-square per degree of freedom, over a median scale
     (a least-squares fit bends to gross errors, most with few rows per unknown; the robust one
-    does not). Returns a mask over the rows."""
+    does not), its first fit without the rows of ``out``. Returns a mask over the rows."""
     from scipy import stats
 
     n = len(groups.id_names)
@@ -533,7 +542,7 @@ def _robust_candidates(problem, groups: NoiseGroups, theta, state, rtol, options
     cut = stats.chi2.ppf(1.0 - alpha / max(n, 1), dof) / dof
     med = stats.chi2.ppf(0.5, dof) / dof
     f = 1.0 / np.sqrt(np.asarray(theta, float)[groups.labels]).reshape(-1)
-    w = np.ones(n)
+    w = np.ones(n) if out is None else np.where(out, 0.0, 1.0)
     u = np.zeros(n)
     for _ in range(IRLS_ITER):
         weighted = Weighted(problem, groups, theta, np.ones(n, bool), np.maximum(w, 1e-12))
@@ -570,7 +579,7 @@ def _hold_mask(groups: NoiseGroups, noise) -> np.ndarray:
 
 
 def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPHA,
-        rtol: float = RTOL, state=None, **options) -> CalibrationResult:
+        rtol: float = RTOL, state=None, left_out=None, **options) -> CalibrationResult:
     """Fit a calibration problem with its noise levels estimated from the residuals.
 
     Parameters
@@ -593,6 +602,11 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         Rank tolerance.
     state : object, optional
         Start state.
+    left_out : array_like of bool, shape (rows,), optional
+        Rows a start strategy could not fit (the constraint link's): out of the plain fit and
+        the first candidates of the outlier rounds, which bring back those the fit without
+        them predicts. Without ``robust`` the rows the rounds keep out stay out; the other
+        rows named are kept in the fit, as always.
     **options
         Passed to :func:`levenberg_marquardt`; ``absolute_sigma=True`` (the noise is known
         exactly) holds every level and does not scale the covariance.
@@ -621,6 +635,9 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         return result
     G = len(groups.keys)
     held = _hold_mask(groups, noise)
+    n_ids = len(groups.id_names)
+    out = (np.zeros(n_ids, bool) if left_out is None
+           else np.asarray(left_out, bool).reshape(n_ids))
 
     def rounds(n_rounds, state, candidates):
         levels = _Levels(np.ones(G), held.copy(), np.zeros(G, bool))
@@ -661,22 +678,28 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
 
     start = state
     # the plain fit (every row, levels estimated) decides whether to look for gross errors
-    result, weighted, test, levels, kept, estimated, L, G_ = rounds(1, start, None)
-    suspect = (test.flagged.size > 0 or bool(np.any(levels.theta > MAX_NOISE_RATIO**2))
+    result, weighted, test, levels, kept, estimated, L, G_ = rounds(
+        1, start, out if out.any() else None)
+    suspect = (out.any() or test.flagged.size > 0
+               or bool(np.any(levels.theta > MAX_NOISE_RATIO**2))
                or _outlier_test(weighted, result, L, G_, alpha, robust_scale=True).flagged.size)
     if suspect:
         # gross errors can bend a least-squares fit until no test names them (few rows for
         # many unknowns): the candidates of a robust fit start the rounds, which re-admit
         # what the fit without them predicts
         candidates = _robust_candidates(problem, groups, levels.theta, start, rtol,
-                                        options, alpha)
+                                        options, alpha, out if out.any() else None)
         again = rounds(ROBUST_ROUNDS, start, candidates)
         if robust:
             result, weighted, test, levels, kept, estimated, L, G_ = again
         else:
-            # name what robust=True leaves out, keeping every row in the fit
+            # name what robust=True leaves out, keeping every row in the fit but those a
+            # start strategy could not fit and the rounds keep out
             robust_test, robust_kept = again[2], again[4]
-            test = dataclasses.replace(robust_test, kept=np.ones_like(robust_kept),
+            keep = ~(out & ~robust_kept)
+            if not np.array_equal(keep, kept):
+                result, weighted, _, levels, kept, estimated, L, G_ = rounds(1, start, ~keep)
+            test = dataclasses.replace(robust_test, kept=keep.copy(),
                                        named=np.flatnonzero(~robust_kept))
     # degrees of freedom without the left-out rows' residuals (their own unknowns were fitted)
     used = kept[groups.ids]
@@ -711,7 +734,7 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
     result.extras.update(
         noise=NoiseEstimate(list(groups.keys), list(groups.names), list(groups.kinds),
                             groups.assumed.copy(), sigma, std, red, count, status,
-                            levels.iterations),
+                            levels.iterations, levels.capacity.copy()),
         outliers=test, weighted=weighted, weighted_residuals=weighted_r, used=used)
     # downstream, residuals are "measured - predicted over the assumed noise" for every problem
     result.residuals = assumed_r
@@ -840,6 +863,10 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
     Förstner's smaller one from the previous levels. Returns the last fit's state."""
     G = len(groups.keys)
     lab = groups.labels.reshape(-1)
+    # which groups the data can check depends on the rows used: decided afresh (a round
+    # that left many rows out must not keep a level assumed once they are back)
+    levels.guessed[:] = False
+    levels.bounded[:] = False
     previous = None         # (theta, likelihood, state, q, red) of the last accepted levels
     for it in range(VCE_MAX_ITER):
         if not levels.estimated.any():
@@ -871,6 +898,7 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
                 use = kept[groups.ids.reshape(-1)] & (lab == c)
                 levels.capacity[c] = float(np.sum(1.0 - h[use]))
             levels.guessed |= levels.estimated & (levels.capacity < MIN_REDUNDANCY)
+            levels.theta[levels.guessed] = 1.0
             if not levels.estimated.any():
                 return state
         r = np.asarray(result.residuals, float).reshape(-1)

@@ -40,11 +40,14 @@ class TrackerNoise:
     transverse_per_m: float = 3e-6    # across the beam, per metre of range
 
     def _beam(self, m):
-        """Projector on the beam ``rr`` (K, 3, 3) and the transverse std ``st`` (K,)."""
+        """Beam directions ``r`` (K, 3; +z at the tracker's origin, where there is none), the
+        projector on them ``rr`` (K, 3, 3) and the transverse std ``st`` (K,)."""
         m = np.asarray(m, float)
         rng = np.linalg.norm(m, axis=-1)
-        r = m / np.where(rng > 0, rng, 1.0)[..., None]
-        return r[..., :, None] * r[..., None, :], self.transverse + self.transverse_per_m * rng
+        r = np.where(rng[..., None] > 0, m / np.where(rng > 0, rng, 1.0)[..., None],
+                     np.array([0.0, 0.0, 1.0]))
+        return (r, r[..., :, None] * r[..., None, :],
+                self.transverse + self.transverse_per_m * rng)
 
     def covariance(self, m):
         """Per-point covariance in the tracker frame.
@@ -59,7 +62,7 @@ class TrackerNoise:
         ndarray, shape (K, 3, 3)
             Covariance of each point, m^2.
         """
-        rr, st = self._beam(m)
+        _, rr, st = self._beam(m)
         return self.distance**2 * rr + (st**2)[..., None, None] * (np.eye(3) - rr)
 
     def whitening(self, m):
@@ -79,11 +82,7 @@ class TrackerNoise:
         ndarray, shape (K, 3, 3)
             Whitening matrix of each point, 1/m.
         """
-        m = np.asarray(m, float)
-        rr, st = self._beam(m)
-        rng = np.linalg.norm(m, axis=-1)
-        r = np.where(rng[..., None] > 0, m / np.where(rng > 0, rng, 1.0)[..., None],
-                     np.array([0.0, 0.0, 1.0]))
+        r, _, st = self._beam(m)
         # a vector normal to the beam: the axis least aligned with it, projected
         axis = np.eye(3)[np.argmin(np.abs(r), axis=-1)]
         t1 = axis - np.sum(axis * r, -1)[..., None] * r
@@ -110,7 +109,7 @@ class TrackerNoise:
         kinds : list of str
             Both ``"length"``.
         """
-        _, st = self._beam(m)
+        _, _, st = self._beam(m)
         K = len(np.asarray(m))
         across = float(np.sqrt(np.mean(st**2))) if K else self.transverse
         return (np.tile([0, 1, 1], (K, 1)), ["along", "across"],
