@@ -17,10 +17,11 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/pkmcal demo -o demo-output
 
-# one BLAS thread: the tests run many small SVDs, which threads slow down ~100x on 2 cores
+# one BLAS thread: the tests run many small SVDs, which threads slow down ~100x on 2 cores;
+# one test process per core instead (pytest-xdist), a test file's tests in one process
 test: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks examples
-	OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q
+	OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist loadfile
 
 bench: $(STAMP)
 	$(BIN)/pkmcal bench

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -14,6 +15,20 @@ def run(*args, cwd):
     """Run ``pkmcal *args`` in ``cwd``; the CompletedProcess (text output)."""
     return subprocess.run([str(PKMCAL), *map(str, args)], cwd=cwd, capture_output=True,
                           text=True, timeout=120)
+
+
+def _default_sigint():
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def popen(*args, cwd, **kwargs):
+    """Start ``pkmcal *args`` in ``cwd`` as a user's shell does, Ctrl-C at its default: a
+    process started with SIGINT ignored keeps ignoring it (Python honours an inherited
+    ignore, as every Unix program should), and pytest-xdist's workers ignore it - so do a
+    non-interactive shell's background jobs. Text output, ``kwargs`` passed on."""
+    kwargs.setdefault("text", True)
+    return subprocess.Popen([str(PKMCAL), *map(str, args)], cwd=cwd,
+                            preexec_fn=_default_sigint, **kwargs)
 
 
 def digest(path) -> str:

@@ -88,7 +88,8 @@ def test_the_default_machine_takes_the_direct_path():
 def test_rows_left_out_are_named(bench):
     """Seed 36 of the benchmark: one row whose pose no start finds with the calibrated
     geometry (the loop's forward kinematics have several solutions there) is left out and
-    named, in dropped_rows and in a warning; the others calibrate."""
+    named, in dropped_rows and in a warning - the outlier test, given it as a candidate,
+    keeps it out; the others calibrate."""
     row = bench.one_run(36)
     assert row["status"] == "ok" and row["dropped"] == 1
     rng = np.random.default_rng(36)
@@ -108,7 +109,11 @@ def test_rows_left_out_are_named(bench):
     assert len(dropped) == 1
     (text,) = [w for w in res.extras["warnings"] if "left out" in w]
     assert f"rows {dropped[0]}" in text and "1 of 120 row(s)" in text
-    assert len(res.extras["problem"].data) == 119
+    # the problem holds every row; the outlier rounds, started from the rows the start
+    # strategy left out, keep exactly this one out of the fit
+    test = res.extras["outliers"]
+    assert len(res.extras["problem"].data) == 120
+    assert [int(test.names[i].split()[-1]) for i in test.left_out] == dropped
     assert res.extras["start"].as_dict()["dropped_rows"] == dropped
 
 

@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from clitools import PKMCAL, run
+from clitools import popen, run
 
 #: delays (s) spread from the interpreter's start-up (imports) to the end of a short run
 DELAYS = [0.12, 0.25, 0.4, 0.55, 0.7, 0.85, 1.0, 1.3, 1.8]
@@ -34,9 +34,8 @@ def test_the_exit_status_says_whether_the_outputs_were_written(tmp_path, joints,
     for delay in DELAYS:
         out = tmp_path / "p.csv"
         out.write_text("previous\n")
-        proc = subprocess.Popen([str(PKMCAL), "fk", "default", "j.csv", "-o", "p.csv"],
-                                cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                text=True)
+        proc = popen("fk", "default", "j.csv", "-o", "p.csv", cwd=tmp_path,
+                     stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         time.sleep(delay)
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
@@ -63,8 +62,7 @@ def test_a_stream_that_cannot_be_written_leaves_the_other_outputs_unwritten(tmp_
 def test_ctrl_c_while_waiting_for_a_fifo_reader_writes_nothing(tmp_path, joints):
     (tmp_path / "j.csv").write_text(joints)
     os.mkfifo(tmp_path / "fifo")
-    proc = subprocess.Popen([str(PKMCAL), "fk", "default", "j.csv", "-o", "fifo"],
-                            cwd=tmp_path, stderr=subprocess.PIPE, text=True)
+    proc = popen("fk", "default", "j.csv", "-o", "fifo", cwd=tmp_path, stderr=subprocess.PIPE)
     time.sleep(3)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=30)

@@ -78,6 +78,10 @@ class StartReport:
         readings even with the calibrated geometry.
     warnings : list of str
         Sentences for the user (rows left out and why).
+    kept : ndarray of bool, shape (K,), optional
+        The rows in the returned fit (None before the strategy has run).
+    readmitted_rows : ndarray of int
+        File rows the strategy left out that the outlier test brought back (:meth:`readmit`).
     """
 
     strategy: str = "direct"
