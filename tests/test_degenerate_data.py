@@ -67,3 +67,22 @@ def test_a_null_space_beyond_the_frames_is_refused():
         cl._refuse_degenerate(data, result, 48, "")
     result.null_space = np.zeros((54, 6))          # the frames only: accepted
     cl._refuse_degenerate(data, result, 48, "")
+
+
+@pytest.mark.parametrize("rows,words", [
+    (47, ("47 measurements give 47 independent equation(s), fewer than the 48",)),
+    (48, ("48 measurements give 48 independent equation(s), as many as the 48",
+          "nothing left to check the fit")),
+])
+def test_data_that_leave_nothing_to_check_the_fit_are_refused(tmp_path, data_csv, rows, words):
+    """One equation per constraint-link row (six readings, five pose unknowns): 48 rows for
+    the default Hexa Slide's 48 identifiable parameters would fit exactly whatever the noise,
+    as 37 probe heights for 37 directions do (refused alike); 49 calibrate."""
+    head, body = data_csv[0], data_csv[1:]
+    (tmp_path / "few.csv").write_text("\n".join([head, *body[:rows]]) + "\n")
+    proc = run("calibrate", "default", "few.csv", "-o", "cal.yaml", cwd=tmp_path)
+    assert_input_error(proc, "few.csv", *words)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["few.csv"]
+    (tmp_path / "enough.csv").write_text("\n".join([head, *body[:49]]) + "\n")
+    proc = run("calibrate", "default", "enough.csv", "-o", "cal.yaml", "-q", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr

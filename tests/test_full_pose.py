@@ -280,7 +280,7 @@ def test_ik_method_with_noisy_poses_is_worse_than_ml(case):
 
 def test_too_few_poses_are_refused(case):
     data = case.simulate(noise=None).subset(np.arange(7))
-    with pytest.raises(InputError, match="7 poses give 42 independent equations, fewer than "
+    with pytest.raises(InputError, match="7 poses give 42 independent equation\\(s\\), fewer than "
                                          "the 48"):
         calibrate_full_pose(case.nominal, data)
     with pytest.raises(InputError, match="3 pose"):

@@ -300,7 +300,7 @@ def test_bad_input_exits_2_without_output(sim_dir, tmp_path):
     (tmp_path / "noq.csv").write_text("x_mm,y_mm,z_mm,qx,qy,qz,qw\n0,0,0,0,0,0,1\n")
     cases = [
         (("calibrate", CUBIC, tmp_path / "few.csv", "-o", "c.yaml"),
-         ("few.csv: 5 poses give 30 independent equations, fewer than the 48",)),
+         ("few.csv: 5 poses give 30 independent equation(s), fewer than the 48",)),
         (("calibrate", CUBIC, tmp_path / "same.csv", "-o", "c.yaml"),
          ("degenerate poses", "rotations about all three axes")),
         (("calibrate", CUBIC, tmp_path / "nan.csv", "-o", "c.yaml"),

@@ -235,9 +235,14 @@ def test_fewer_than_four_points_are_refused(case):
     with pytest.raises(InputError, match=r"tracker registration: 2 point\(s\); at least 4"):
         register_points(data.m[:2], data.m[:2])
     # 4-6 points register, but give fewer equations than identifiable parameters
-    with pytest.raises(InputError, match="5 points give 15 equations, fewer than the 21"):
+    with pytest.raises(InputError,
+                       match=r"5 points give 15 independent equation\(s\), fewer than the 21"):
         calibrate_tracker(case.nominal, data.subset(np.arange(5)))
-    with pytest.raises(InputError, match="15 equations, fewer than the 18"):
+    # 7 points: as many equations as parameters, nothing left to check the fit
+    with pytest.raises(InputError, match=r"21 independent equation\(s\), as many as the 21 "
+                                         "identifiable parameters, with nothing left to check"):
+        calibrate_tracker(case.nominal, data.subset(np.arange(7)))
+    with pytest.raises(InputError, match=r"15 independent equation\(s\), fewer than the 18"):
         calibrate_tracker(case.nominal, data.subset(np.arange(5)), joint=False)
 
 

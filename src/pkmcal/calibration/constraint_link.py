@@ -35,7 +35,7 @@ from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine, newton_pose_solve
 from ..measurements.constraint_link import ConstraintLinkData
 from ..parameters import ParameterSet
-from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt
+from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt, require_redundancy
 from .start import continuation_solve
 from .variance import fit
 
@@ -666,12 +666,9 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
     n_id = int(problem.parameters.free.sum()) - 6
     distinct, repeats = data.distinct()
     n_rows = distinct * (machine.n_joints - 5 if method == "ml" else 1)
-    if n_rows < n_id:
-        what = (f"{len(data)} rows, {distinct} distinct ({repeats}),"
-                if repeats else f"{len(data)} measurements")
-        raise InputError(f"{data.source}: {what} give {n_rows} independent equations, fewer "
-                         f"than the {n_id} identifiable parameters; measure more poses spread "
-                         "over the sphere with varied orientation")
+    require_redundancy(data.source, f"{len(data)} rows, {distinct} distinct ({repeats})"
+                       if repeats else f"{len(data)} measurements", n_rows, n_id,
+                       "measure more poses spread over the sphere with varied orientation")
     start = None
     if per_chain:
         result = _per_chain_sweeps(problem, max_sweeps, rtol, **options)

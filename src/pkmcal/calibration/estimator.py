@@ -232,6 +232,39 @@ class CalibrationResult:
 
 
 
+def require_redundancy(source, what: str, equations: int, n_id: int, advice: str) -> None:
+    """Refuse data that leave no equation to check a fit: with ``equations <= n_id`` it would
+    be exact whatever the noise (or fail to fix every direction), its residuals and covariance
+    meaningless.
+
+    Parameters
+    ----------
+    source : str or path
+        The data file, named in the message.
+    what : str
+        The data in words (``"48 rows"``, ``"30 rows, 20 distinct (...)"``).
+    equations : int
+        Independent equations the data give.
+    n_id : int
+        Parameters they would have to fix.
+    advice : str
+        What to measure instead (ends the message).
+
+    Raises
+    ------
+    InputError
+        When ``equations <= n_id``.
+    """
+    if equations > n_id:
+        return
+    from ..errors import InputError
+
+    how = "fewer than" if equations < n_id else "as many as"
+    raise InputError(f"{source}: {what} give {equations} independent equation(s), {how} the "
+                     f"{n_id} identifiable parameters, with nothing left to check the fit; "
+                     f"{advice}")
+
+
 def reduce_local(r, Jg, Jl):
     """Eliminate local unknowns: reduced rows/residuals and the back-substitution operator.
 

@@ -47,7 +47,7 @@ from ..kinematics import matrix_from_rotvec, rotvec_from_matrix, skew
 from ..machines.base import Machine
 from ..measurements.full_pose import FullPoseData, FullPoseNoise, MeasurementFrames
 from ..parameters import ParameterSet
-from .estimator import MAX_STD, CalibrationResult, reduce_local
+from .estimator import MAX_STD, CalibrationResult, reduce_local, require_redundancy
 from .registration import register_points
 from .variance import fit
 
@@ -685,9 +685,8 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
     problem = PROBLEMS[method](machine, data, noise, start, fixed, fit_machine)
     n_gauge = 6 * sum(not f for f in fixed) if fit_machine else 0
     n_id = int(problem.parameters.free.sum()) - n_gauge
-    if 6 * len(data) < n_id:
-        raise InputError(f"{data.source}: {len(data)} poses give {6 * len(data)} independent "
-                         f"equations, fewer than the {n_id} identifiable parameters")
+    require_redundancy(data.source, f"{len(data)} poses", 6 * len(data), n_id,
+                       "measure more poses spread over the workspace")
     if require_identifiable:
         _check_identifiable(problem, n_id, rtol, options.get("max_std", MAX_STD))
     # ml: the reading, position and orientation noise from the residuals (ik: its residuals

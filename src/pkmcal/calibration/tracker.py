@@ -30,7 +30,7 @@ from ..identifiability.rank import RTOL
 from ..instruments import InstrumentData, InstrumentProblem, InstrumentState, PointsModel
 from ..machines.base import Machine
 from ..measurements.tracker import TrackerData, TrackerNoise
-from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt
+from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt, require_redundancy
 from .variance import OUTLIER_ALPHA, fit
 
 TRACKER = ("tracker.rx", "tracker.ry", "tracker.rz", "tracker.x", "tracker.y", "tracker.z")
@@ -189,9 +189,8 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
         targets = first.state.nuisance.values[6:].copy()
     problem = TrackerProblem(machine, data, noise, registration, joint, targets)
     n_id = int(problem.parameters.free.sum()) - (12 if joint else 9)
-    if 3 * len(data) < n_id:
-        raise InputError(f"{data.source}: {len(data)} points give {3 * len(data)} "
-                         f"equations, fewer than the {n_id} identifiable parameters")
+    require_redundancy(data.source, f"{len(data)} points", 3 * len(data), n_id,
+                       "measure more points spread over the workspace")
     # the two-step method holds a registration of the nominal model: its residuals exceed the
     # noise by design, they cannot tell its level
     result = fit(problem, estimate_noise if joint else False, robust=robust,
