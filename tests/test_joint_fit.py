@@ -298,3 +298,20 @@ def test_kinds_that_cannot_combine_are_refused(work):
     proc = run("calibrate", EXAMPLES / "cubic_6upu.yaml", "poses.csv", "sbar.csv", "-o",
                "x.yaml", cwd=work)
     assert_input_error(proc, "poses.csv", "cannot be combined", "distance", "tracker")
+
+
+def test_file_noise_of_two_files_of_one_name_holds_only_the_one_named():
+    """``--noise a.csv=1um`` with ``a.csv`` and ``sub/a.csv``: the file as given is the first,
+    the second is ``sub/a.csv`` or its label ``a.csv#2``; one value never holds both (the file
+    name alone matched every file of that name)."""
+    from pkmcal.calibration.run import _noise_of, noise_per_file_arg
+
+    sources = ["a.csv", "sub/a.csv"]
+    given = noise_per_file_arg(["a.csv=1um"], sources)
+    assert [_noise_of(given, sources, i) for i in range(2)] == ["1um", None]
+    for name in ("a.csv#2", "sub/a.csv"):
+        given = noise_per_file_arg([f"{name}=2um"], sources)
+        assert [_noise_of(given, sources, i) for i in range(2)] == [None, "2um"]
+    # a mapping by index or by label from Python
+    assert [_noise_of({1: "3um"}, sources, i) for i in range(2)] == [None, "3um"]
+    assert [_noise_of({"a.csv#2": "3um"}, sources, i) for i in range(2)] == [None, "3um"]

@@ -69,6 +69,13 @@ CASES = {
     "normalised residual text": (_set(("normalised_residuals", 0), "0.1"),
                                  "normalised_residuals[0]"),
     "provenance nested": (_set(("provenance", "command"), {"a": [1]}), "provenance.command"),
+    "noise level negative": (_set(("noise_model", "groups", 0, "sigma"), -1.0),
+                             "noise_model.groups[0].sigma"),
+    "noise level text": (_set(("noise_model", "groups", 0, "sigma"), "2"),
+                         "noise_model.groups[0].sigma"),
+    "noise status unknown": (_set(("noise_model", "groups", 0, "status"), "guessed"),
+                             "noise_model.groups[0].status"),
+    "outlier p above 1": (_set(("outliers", "threshold_p"), 2.0), "outliers.threshold_p"),
     "another command": (_set(("command",), "simulate"), "not a calibration report"),
     "no command": (_drop(("command",)), "not a calibration report"),
 }

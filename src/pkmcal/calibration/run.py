@@ -819,7 +819,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
             return _with_parameter_set(calibration, chosen)
         data = data[0]
     if isinstance(noise, dict):
-        noise = _noise_of(noise, data, 0, 1)
+        noise = _noise_of(noise, [data], 0)
     if isinstance(data, (str, Path)):
         source = Path(data)
         header, _ = read_table(source)
@@ -1077,7 +1077,7 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
         report["standardised_residuals"] = standardised
     warnings: list[str] = []
     source = report.get("data_file", "the data")
-    _noise_report(result, report, source, warnings)
+    _noise_report(result, report, source, warnings, result.extras.get("robust", True))
     from .adequacy import add_to_report
 
     add_to_report(result, report)       # model_adequacy: residuals against readings and pose
@@ -1089,9 +1089,11 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
                        units=units)
 
 
-def _noise_report(result, report: dict, source, warnings: list) -> None:
+def _noise_report(result, report: dict, source, warnings: list, robust: bool = True) -> None:
     """The noise levels (assumed, estimated) and the outlier rows of a calibration: the
-    report's ``noise_model`` and ``outliers`` sections and their warnings."""
+    report's ``noise_model`` and ``outliers`` sections and their warnings (rows left out
+    without ``robust``: those a start strategy could not fit, kept out by the outlier
+    test)."""
     noise, test = result.extras.get("noise"), result.extras.get("outliers")
     if noise is not None:
         report["noise_model"] = noise.as_dict()
@@ -1109,7 +1111,9 @@ def _noise_report(result, report: dict, source, warnings: list) -> None:
                         "marker, a wrong row) or leave them out with --robust")
     if left:
         shown = ", ".join(left[:10]) + (f" and {len(left) - 10} more" if len(left) > 10 else "")
-        warnings.append(f"{source}: {len(left)} row(s) left out as outliers (--robust): {shown}")
+        why = ("--robust" if robust else "the start could not fit them, and the outlier "
+               "test agrees")
+        warnings.append(f"{source}: {len(left)} row(s) left out as outliers ({why}): {shown}")
 
 
 def _report_head(machine, source, kind: str, method: str, units=None) -> dict:
@@ -2039,19 +2043,24 @@ def _match_file(name: str, sources) -> int | None:
     return None
 
 
-def _noise_of(noise, source, i: int, n: int):
-    """The noise of file ``i`` of ``n``: from a mapping (file or label -> value), else the
+def _noise_of(noise, sources, i: int):
+    """The noise of file ``i`` of ``sources``: from a mapping (key: the file as given, its
+    index, or its label - the file name, ``a.csv#2`` for the second of one name), else the
     value given (one file) or the default (several)."""
+    source = sources[i]
     if isinstance(noise, dict):
+        from ..instruments.joint import file_labels
+
+        label = file_labels(sources)[i]
+        path = isinstance(source, (str, Path))
         for key, value in noise.items():
-            if key == source or str(key) == str(source) or key == i:
+            if key == i or (isinstance(key, str) and key == label):
                 return value
-            if isinstance(key, str) and not isinstance(source, (str, Path)):
-                continue
-            if isinstance(key, str) and Path(str(source)).name == key:
+            if path and isinstance(key, (str, Path)) and (
+                    str(key) == str(source) or Path(str(key)) == Path(str(source))):
                 return value
         return None
-    if noise is not None and n > 1:
+    if noise is not None and len(sources) > 1:
         raise InputError("--noise: with several data files give FILE=VALUE per file (e.g. "
                          "--noise bar.csv=2um)")
     return noise
@@ -2249,7 +2258,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     labels = file_labels(sources)
     parts, held, hold = [], [], []
     for i, (item, source, kind) in enumerate(zip(data, sources, kinds, strict=True)):
-        given = _noise_of(noise, source, i, len(data))
+        given = _noise_of(noise, sources, i)
         if given is not None:       # the user's level for this file is held
             hold.append(f"{labels[i]}:*")
         part = _joint_part(machine, item, source, kind, given)

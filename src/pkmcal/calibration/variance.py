@@ -619,7 +619,7 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         (``chi2 / dof`` against the assumed noise); ``cost`` and the covariance are those of
         the fit with the levels used, ``dof`` without the left-out rows. ``extras``:
         ``noise`` (:class:`NoiseEstimate` or None), ``outliers`` (:class:`OutlierTest` or
-        None), ``weighted`` (the reweighted problem, or the problem
+        None), ``robust``, ``weighted`` (the reweighted problem, or the problem
         itself), ``weighted_residuals`` (whitened by the levels used; left-out rows scaled
         by :data:`LEFT_OUT_WEIGHT`).
     """
@@ -735,7 +735,8 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         noise=NoiseEstimate(list(groups.keys), list(groups.names), list(groups.kinds),
                             groups.assumed.copy(), sigma, std, red, count, status,
                             levels.iterations, levels.capacity.copy()),
-        outliers=test, weighted=weighted, weighted_residuals=weighted_r, used=used)
+        outliers=test, weighted=weighted, weighted_residuals=weighted_r, used=used,
+        robust=bool(robust))
     # downstream, residuals are "measured - predicted over the assumed noise" for every problem
     result.residuals = assumed_r
     return result

@@ -164,6 +164,49 @@ class Residuals(_Section):
     estimated_noise_um: OptNum = Field(default=None, ge=0)
 
 
+class NoiseGroup(_Section):
+    """One noise group of ``noise_model`` (``NoiseEstimate.as_dict``)."""
+
+    key: str
+    name: str
+    unit: str
+    assumed: Num = Field(gt=0)
+    sigma: Num = Field(gt=0)
+    std: OptNum = Field(default=None, ge=0)
+    ratio: Num = Field(gt=0)
+    redundancy: Num = Field(ge=0)
+    capacity: OptNum = Field(default=None, ge=0)
+    count: Int = Field(ge=0)
+    status: Literal["estimated", "held", "assumed", "at most"]
+
+
+class NoiseModel(_Section):
+    """``noise_model``: the levels used, assumed, estimated or held."""
+
+    estimated: bool
+    groups: list[NoiseGroup]
+    min_redundancy: Num = Field(ge=0)
+
+
+class OutlierRow(_Section):
+    """A row the outlier test names."""
+
+    row: str
+    statistic: Num = Field(ge=0)
+    dof: Int = Field(ge=0)
+    p: Num = Field(ge=0, le=1)
+    left_out: bool
+
+
+class Outliers(_Section):
+    """``outliers``: the rows the test names, and those left out of the fit."""
+
+    alpha: Num = Field(gt=0, lt=1)
+    threshold_p: Num = Field(ge=0, le=1)
+    flagged: list[OutlierRow]
+    left_out: list[str]
+
+
 #: the measurement kinds pkmcal calibrates (``pkmcal.calibration.run.KINDS``) and ``joint``, a
 #: fit of several data files (a test checks the list against the registry)
 MEASUREMENTS = ("constraint-link", "tracker", "pose", "distance", "probe", "joint")
@@ -196,6 +239,8 @@ class CalibrationReport(_Section):
     parameters: Annotated[list[Parameter], Field(min_length=1)]
     covariance: Covariance
     provenance: dict[str, Scalar] | None = None
+    noise_model: NoiseModel | None = None
+    outliers: Outliers | None = None
 
     @model_validator(mode="after")
     def _sections_of_the_measurement(self):
