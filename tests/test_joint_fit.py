@@ -280,6 +280,12 @@ def test_command_line_with_two_files(work):
     (("pts.csv", "junk.csv"), ("junk.csv", "cannot tell the measurement type")),
     (("pts.csv", "bar.csv", "--noise", "2um"), ("FILE=VALUE",)),
     (("pts.csv", "bar.csv", "--noise", "nope.csv=2um"), ("nope.csv is none of the data",)),
+    (("pts.csv", "bar.csv", "--noise", "bar.csv="), ("--noise bar.csv=", "no value after")),
+    (("pts.csv", "bar.csv", "--noise", "=2um"), ("--noise =2um", "none of the data files")),
+    (("pts.csv", "bar.csv", "--noise", "2um"), ("levels of files without one are estimated",)),
+    (("bar.csv", "--noise", "bar.csv="), ("--noise bar.csv=", "no value after")),
+    (("pts.csv", "--pose-noise", "20um,50urad", "--pose-noise", "30um,60urad"),
+     ("--pose-noise", "given more than once")),
     (("pts.csv", "bar.csv", "--two-step"), ("--two-step", "several data files")),
     (("pts.csv", "pts.csv"), ("given twice",)),
     (("bar.csv", "--parameters", "klipper"), ("--parameters klipper", "no named parameter "
@@ -315,3 +321,15 @@ def test_file_noise_of_two_files_of_one_name_holds_only_the_one_named():
     # a mapping by index or by label from Python
     assert [_noise_of({1: "3um"}, sources, i) for i in range(2)] == [None, "3um"]
     assert [_noise_of({"a.csv#2": "3um"}, sources, i) for i in range(2)] == [None, "3um"]
+
+
+def test_a_file_named_by_its_absolute_path_is_the_file(work):
+    """``--noise /abs/path/bar.csv=VALUE`` names ``bar.csv`` given relatively: held."""
+    proc = run("calibrate", EXAMPLES / "hexaslide_default.yaml", "pts.csv", "bar.csv",
+               "--noise", f"{(work / 'bar.csv').resolve()}=2um", "-o", "abs.yaml", "-q",
+               cwd=work)
+    assert proc.returncode == 0, proc.stderr
+    groups = json.loads((work / "abs.json").read_text())["noise_model"]["groups"]
+    status = {g["key"]: g["status"] for g in groups}
+    assert status["bar.csv:distances"] == "held"
+    assert all(v != "held" for k, v in status.items() if k.startswith("pts.csv"))

@@ -2007,6 +2007,8 @@ def noise_per_file_arg(texts, sources) -> dict | str | None:
             raise InputError("--noise: given more than once for one data file")
         if texts and "=" in texts[0]:
             name, value = texts[0].split("=", 1)
+            if not value.strip():
+                raise InputError(f"--noise {texts[0]}: no value after '='")
             if _match_file(name, sources) is None:
                 raise InputError(f"--noise {texts[0]}: {name} is not the data file "
                                  f"({sources[0]})")
@@ -2016,9 +2018,12 @@ def noise_per_file_arg(texts, sources) -> dict | str | None:
     for text in texts:
         if "=" not in text:
             raise InputError(f"--noise {text}: with several data files give FILE=VALUE per "
-                             "file (e.g. --noise bar.csv=2um); files without one use their "
-                             "kind's default")
+                             "file (e.g. --noise bar.csv=2um); the levels of files without "
+                             "one are estimated")
         name, value = text.split("=", 1)
+        if not value.strip():
+            raise InputError(f"--noise {text}: no value after '=' (e.g. --noise "
+                             f"{name.strip() or 'bar.csv'}=2um)")
         i = _match_file(name, sources)
         if i is None:
             raise InputError(f"--noise {text}: {name} is none of the data files ("
@@ -2034,9 +2039,17 @@ def _match_file(name: str, sources) -> int | None:
     from ..instruments.joint import file_labels
 
     name = name.strip()
+    if not name:
+        return None
     for i, s in enumerate(sources):
         if str(s) == name or Path(str(s)) == Path(name):
             return i
+    for i, s in enumerate(sources):        # the same file spelled another way (absolute path)
+        try:
+            if Path(str(s)).resolve() == Path(name).resolve():
+                return i
+        except OSError:
+            continue
     labels = file_labels(sources)
     if name in labels:
         return labels.index(name)

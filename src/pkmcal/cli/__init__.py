@@ -290,7 +290,7 @@ def calibrate(
              "probe: the trigger's (default 10um). With several data files: FILE=VALUE, once "
              "per file (e.g. --noise bar.csv=2um --noise pts.csv=leica); files not named have "
              "their levels estimated.", show_default=False)] = None,
-    pose_noise: Annotated[str | None, typer.Option(
+    pose_noise: Annotated[list[str] | None, typer.Option(
         "--pose-noise", help="pose data: noise of the measured poses, POSITION,ORIENTATION "
                              "with units, held as given (default: estimated from the "
                              "residuals, starting from 20um,50urad).",

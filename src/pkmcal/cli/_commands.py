@@ -508,7 +508,7 @@ def _mm(v) -> str:
 
 def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None,
                   noise, estimate_lc: bool | None, json_output: bool,
-                  two_step: bool = False, robust: bool = False, pose_noise: str | None = None,
+                  two_step: bool = False, robust: bool = False, pose_noise=None,
                   fix_frames: bool = False, report_dir: Path | None = None,
                   holdout: str | None = None, seed: int = 0,
                   parameters: str | None = None, extensions: str = "auto") -> int:
@@ -517,6 +517,11 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
     paths = list(data_path) if isinstance(data_path, (list, tuple)) else [data_path]
     noise = noise_per_file_arg(noise if isinstance(noise, (list, tuple)) or noise is None
                                else [noise], paths)
+    if isinstance(pose_noise, (list, tuple)):
+        if len(pose_noise) > 1:
+            raise InputError("--pose-noise: given more than once (one POSITION,ORIENTATION "
+                             "pair holds the measured poses' noise)")
+        pose_noise = pose_noise[0] if pose_noise else None
     data_path = paths[0] if len(paths) == 1 else paths
     if output.suffix.lower() == ".json":
         raise InputError(f"{output}: the calibrated machine is a YAML file; choose a name "

@@ -578,7 +578,7 @@ def check_option_scale(value: float, machine, option: str, kind: str,
     if kind == "angle noise":
         if 0 < abs(value) < MIN_NOISE_RATIO:
             raise InputError(f"{option}: {shown} is below {MIN_NOISE_RATIO:g} rad: no "
-                             "measurement is that exact; give 0 for exact simulated data")
+                             "measurement is that exact (simulate takes 0 for exact data)")
         if abs(value) > MAX_ANGLE_NOISE:
             raise InputError(f"{option}: {shown} is not a plausible orientation noise (at most "
                              f"{MAX_ANGLE_NOISE:g} rad = {np.degrees(MAX_ANGLE_NOISE):.3g} deg; "
@@ -589,7 +589,7 @@ def check_option_scale(value: float, machine, option: str, kind: str,
     if kind == "noise" and 0 < abs(value) < MIN_NOISE_RATIO * size:
         raise InputError(f"{option}: {shown} is below {MIN_NOISE_RATIO:g} of the machine's size "
                          f"({_fmt(size * 1e3)} mm): no measurement is that exact and the "
-                         "weights would overflow; give 0 for exact simulated data")
+                         "weights would overflow (simulate takes 0 for exact data)")
     if abs(value) > ratio * size:
         what = {"noise": "a noise", "error": "an error", "size": "a size"}[kind]
         raise InputError(f"{option}: {shown} = {_fmt(abs(value) * 1e3)} mm is not plausible as "
