@@ -301,6 +301,12 @@ def test_calibrate_adopts_by_default_and_reports_it(design):
     assert rows["leg1.curvature"]["unit"] == "mm/rev^2" and rows["leg1.curvature"]["nominal"] == 0
     assert "model_adequacy" in cal.report
     json.loads(cal.json_text())
+    # the HTML report shows what was tried, its held-out losses and the verdict
+    from pkmcal.report.html import build_html
+
+    html = build_html(json.loads(cal.json_text()))
+    part = html[html.index("<h2>Model extensions</h2>"):]
+    assert "reading curvature" in part and "<td>yes</td>" in part
     off = calibrate(design, data, extensions="none")
     assert not off.calibrated.has_curvature and len(off.result.parameters) == 60
     assert off.report["model_extensions"]["skipped"] == "--extensions none"

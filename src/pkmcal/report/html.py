@@ -667,6 +667,19 @@ def _noise_section(report) -> str:
     adequacy = report.get("model_adequacy")
     if isinstance(adequacy, Mapping):
         out.append("<h2>Model adequacy</h2>" + _kv_table(list(_rows(adequacy))))
+    extensions = report.get("model_extensions")
+    if isinstance(extensions, Mapping) and isinstance(extensions.get("trials"), list):
+        # what was tried, judged on held-out rows: the loss with and without, and the verdict
+        rows = "".join(
+            f"<tr><td>{_e(t.get('name'))}</td><td>{_e(t.get('description', ''))}</td>"
+            f"<td>{_e(_num(t.get('cv_loss_baseline')))}</td><td>{_e(_num(t.get('cv_loss')))}"
+            f"</td><td>{_e(_num(t.get('cv_gain')))} &plusmn; {_e(_num(t.get('cv_se')))}</td>"
+            f"<td>{'yes' if t.get('adopted') else 'no'}</td><td>{_e(t.get('why', ''))}</td>"
+            "</tr>" for t in extensions["trials"] if isinstance(t, Mapping))
+        out.append("<h2>Model extensions</h2><p class=small>"
+                   + _e(extensions.get("criterion", "")) + ".</p><table><tr><th>extension</th>"
+                   "<th>what</th><th>held-out loss, plain model</th><th>with it</th>"
+                   "<th>gain</th><th>adopted</th><th>why</th></tr>" + rows + "</table>")
     return "".join(out)
 
 
