@@ -211,7 +211,7 @@ BAD_DATA = [
     ("fewer than 4 points", "calibrate", lambda d: _rows(d, 3),
      ["bad.csv", "3 point(s)", "at least 4 points"]),
     ("fewer equations than parameters", "calibrate", lambda d: _rows(d, 6),
-     ["bad.csv", "6 points give 18 equations", "21 identifiable"]),
+     ["bad.csv", "6 points give 18 independent equation(s)", "21 identifiable"]),
     ("collinear points", "calibrate", _collinear,
      ["bad.csv", "7 tracker points lie on one line"]),
     ("empty file", "fk", lambda d: "", ["bad.csv", "empty file"]),

@@ -678,8 +678,9 @@ def _noise_section(report) -> str:
             "</tr>" for t in extensions["trials"] if isinstance(t, Mapping))
         out.append("<h2>Model extensions</h2><p class=small>"
                    + _e(extensions.get("criterion", "")) + ".</p><table><tr><th>extension</th>"
-                   "<th>what</th><th>held-out loss, plain model</th><th>with it</th>"
-                   "<th>gain</th><th>adopted</th><th>why</th></tr>" + rows + "</table>")
+                   "<th>what</th><th>held-out loss, plain model [whitened SS per row]</th>"
+                   "<th>with it [whitened SS per row]</th><th>gain [whitened SS per row]</th>"
+                   "<th>adopted</th><th>why</th></tr>" + rows + "</table>")
     return "".join(out)
 
 
