@@ -687,7 +687,10 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
             # rows the start strategy left out are the outlier rounds' first candidates, not
             # their verdict: posed with the geometry found, brought back when it explains them
             problem, left_out = every_row, ~start.kept
-            state = _with_left_out_poses(problem, state, start.kept)
+            P, R = np.zeros((len(data), 3)), np.tile(np.eye(3), (len(data), 1, 1))
+            P[start.kept], R[start.kept] = state.P, state.R
+            P[left_out], R[left_out] = start.left_out_poses
+            state = SphereState(state.u.copy(), P, R)
         # the encoder noise from the residuals, rows the noise cannot explain named (or left
         # out with robust): from the solution the start strategy found
         result = fit(problem, estimate_noise, robust=robust, rtol=rtol, state=state,
@@ -719,21 +722,6 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         + name_weak_directions(result, problem.parameters),
     )
     return result
-
-
-def _with_left_out_poses(problem, state, kept) -> SphereState:
-    """``state`` (of the rows ``kept``) completed for every row of ``problem``: the rows left
-    out get the pose on the constraint sphere that best explains their readings with the
-    state's geometry."""
-    from .start import sphere_pose_candidates
-
-    um, Lc = problem.split(state.u)
-    K = len(kept)
-    P, R = np.zeros((K, 3)), np.tile(np.eye(3), (K, 1, 1))
-    P[kept], R[kept] = state.P, state.R
-    P[~kept], R[~kept], _ = sphere_pose_candidates(problem.machine, um, problem.data.q[~kept],
-                                                   Lc)
-    return SphereState(state.u.copy(), P, R)
 
 
 def _refuse_degenerate(data, result, n_id: int, repeats: str) -> None:

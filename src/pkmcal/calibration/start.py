@@ -82,6 +82,9 @@ class StartReport:
         The rows in the returned fit (None before the strategy has run).
     readmitted_rows : ndarray of int
         File rows the strategy left out that the outlier test brought back (:meth:`readmit`).
+    left_out_poses : tuple of ndarray, optional
+        ``(P (k, 3), R (k, 3, 3))``: the best pose on the constraint sphere of each row left out,
+        with the returned fit's geometry (where the outlier rounds start them).
     """
 
     strategy: str = "direct"
@@ -91,6 +94,7 @@ class StartReport:
     warnings: list = field(default_factory=list)
     kept: np.ndarray | None = None
     readmitted_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    left_out_poses: tuple | None = None
 
     def readmit(self, still_out, file_rows) -> None:
         """Only the left-out rows in ``still_out`` stay out: the outlier test found the others
@@ -506,7 +510,8 @@ def _finish(best, report, data, started, strategy):
     if report.dropped_rows.size:
         # readings that no pose explains even with the calibrated geometry are bad input
         um, Lc = problem.split(result.x)
-        _, _, rms = sphere_pose_candidates(problem.machine, um, data.q[~mask], Lc)
+        P, R, rms = sphere_pose_candidates(problem.machine, um, data.q[~mask], Lc)
+        report.left_out_poses = (P, R)
         gross = rms >= START_TOL * problem.machine.characteristic_length()
         if gross.any():
             rows = data.rows[~mask][gross]
