@@ -300,13 +300,20 @@ def test_calibrate_adopts_by_default_and_reports_it(design):
     rows = {p["name"]: p for p in cal.params}
     assert rows["leg1.curvature"]["unit"] == "mm/rev^2" and rows["leg1.curvature"]["nominal"] == 0
     assert "model_adequacy" in cal.report
-    json.loads(cal.json_text())
+    # the written report passes the schema `pkmcal report` checks it with
+    from pkmcal.report.schema import validate_report
+
+    doc = json.loads(cal.json_text())
+    assert validate_report(doc, "cal.json") is doc
     # the HTML report shows what was tried, its held-out losses and the verdict
     from pkmcal.report.html import build_html
 
     html = build_html(json.loads(cal.json_text()))
     part = html[html.index("<h2>Model extensions</h2>"):]
     assert "reading curvature" in part and "<td>yes</td>" in part
+    # the noise levels: the rule that decides estimated/assumed is on the capacity, shown
+    levels = html[html.index("<h2>Noise levels</h2>"):html.index("<h2>Model adequacy</h2>")]
+    assert "capacity [count]" in levels and "capacity, the group's redundancy" in levels
     off = calibrate(design, data, extensions="none")
     assert not off.calibrated.has_curvature and len(off.result.parameters) == 60
     assert off.report["model_extensions"]["skipped"] == "--extensions none"
@@ -336,3 +343,22 @@ def test_command_line_extensions_option(design, tmp_path):
     proc = run("calibrate", MACHINE, "poses.csv", "--extensions", "x", "-o", "x.yaml",
                cwd=tmp_path)
     assert_input_error(proc, "--extensions x")
+
+
+def test_extensions_option_is_refused_where_the_data_take_none():
+    """Data without model extensions (tracker points here) and fits of several files refuse
+    ``--extensions``, as they refuse every option that does not fit them; not giving it is the
+    default everywhere."""
+    from pkmcal.machines import default_delta
+    from pkmcal.measurements import TrackerNoise, grid_points, simulate_tracker
+
+    delta = default_delta()
+    pose = (np.eye(3), np.array([1.5, -2.0, 0.3]))
+    data = simulate_tracker(delta, delta, grid_points(delta.home[0]), pose, TrackerNoise(),
+                            rng=3)
+    for value in ("auto", "none"):
+        with pytest.raises(InputError, match="--extensions: applies to full-pose data"):
+            calibrate(delta, data, extensions=value)
+        with pytest.raises(InputError, match="--extensions: does not apply to a fit of several"):
+            calibrate(delta, [data, data], extensions=value)
+    assert "model_extensions" not in calibrate(delta, data).report

@@ -76,6 +76,21 @@ CASES = {
     "noise status unknown": (_set(("noise_model", "groups", 0, "status"), "guessed"),
                              "noise_model.groups[0].status"),
     "outlier p above 1": (_set(("outliers", "threshold_p"), 2.0), "outliers.threshold_p"),
+    "adequacy without verdict": (_drop(("model_adequacy", "verdict")),
+                                 "model_adequacy.verdict"),
+    "adequacy not an object": (_set(("model_adequacy",), [1, 2]), "model_adequacy"),
+    "adequacy ratio negative": (_set(("model_adequacy", "noise_ratio"), -2.0),
+                                "model_adequacy.noise_ratio"),
+    "adequacy group count text": (_set(("model_adequacy", "groups", 0, "count"), "9"),
+                                  "model_adequacy.groups[0].count"),
+    "extension adopted untried": (_set(("model_extensions",), {
+        "tried": ["a"], "adopted": ["b"], "folds": 5, "trials": []}), "model_extensions"),
+    "extension loss text": (_set(("model_extensions",), {
+        "tried": ["a"], "adopted": [], "folds": 5, "trials": [
+            {"name": "a", "cv_loss": "1", "adopted": False, "why": "x"}]}),
+        "model_extensions.trials[0].cv_loss"),
+    "extension trials not a list": (_set(("model_extensions",), {
+        "tried": [], "adopted": [], "trials": {"a": 1}}), "model_extensions.trials"),
     "another command": (_set(("command",), "simulate"), "not a calibration report"),
     "no command": (_drop(("command",)), "not a calibration report"),
 }

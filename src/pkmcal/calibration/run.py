@@ -381,9 +381,10 @@ class CalibrateOptions:
         Tracker: find and leave out outliers.
     fix_frames : bool
         Full pose: hold the measurement frames at the machine file's.
-    extensions : str
+    extensions : str or None
         ``"auto"``: try the machine's model extensions, adopted by cross-validation
-        (full poses); ``"none"``: the plain model.
+        (full poses); ``"none"``: the plain model; None: not asked for (``"auto"`` where the
+        data take extensions).
     """
 
     method: str | None = None
@@ -393,7 +394,7 @@ class CalibrateOptions:
     two_step: bool = False
     robust: bool = False
     fix_frames: bool = False
-    extensions: str = "auto"
+    extensions: str | None = None
 
 
 @dataclass(frozen=True)
@@ -739,7 +740,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
               pose_noise: str | None = None, estimate_lc: bool | None = None,
               two_step: bool = False, robust: bool = False, fix_frames: bool = False,
               holdout: float | str | None = None, seed: int = 0,
-              parameters: str | None = None, extensions: str = "auto") -> Calibration:
+              parameters: str | None = None, extensions: str | None = None) -> Calibration:
     """Calibrate ``machine`` from measurements; the measurement kind follows from the data.
 
     Parameters
@@ -785,7 +786,8 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         (:meth:`~pkmcal.machines.Machine.model_extensions`, e.g. a six-leg platform's reading
         curvature) and adopts one only when it predicts held-out rows better
         (cross-validation, :mod:`pkmcal.calibration.extensions`); ``"none"`` fits the plain
-        model.
+        model. None (default): ``"auto"`` for full poses; other data take no extensions and
+        refuse the option when it is given.
 
     Returns
     -------
@@ -805,6 +807,9 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     split = None
     if holdout is not None:
         split = (holdout_arg(holdout) if isinstance(holdout, str) else float(holdout), seed)
+    if extensions is not None and extensions not in ("auto", "none"):
+        raise InputError(f"--extensions {extensions}: auto (adopted by cross-validation) or "
+                         "none (the plain model)")
     chosen = None
     if parameters is not None:
         machine, chosen = apply_parameter_set(machine, parameters), str(parameters)
@@ -815,7 +820,8 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
             calibration = calibrate_joint(machine, list(data), noise=noise, split=split,
                                           options=CalibrateOptions(method, None, pose_noise,
                                                                    estimate_lc, two_step,
-                                                                   robust, fix_frames))
+                                                                   robust, fix_frames,
+                                                                   extensions))
             return _with_parameter_set(calibration, chosen)
         data = data[0]
     if isinstance(noise, dict):
@@ -837,9 +843,6 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
             raise InputError(f"{source}: {kind.name} measurements cannot calibrate a "
                              f"{machine.kind}: {kind.why_not(machine)}; a {machine.kind} is "
                              f"calibrated from {need}")
-    if extensions not in ("auto", "none"):
-        raise InputError(f"--extensions {extensions}: auto (adopted by cross-validation) or "
-                         "none (the plain model)")
     options = CalibrateOptions(method, noise, pose_noise, estimate_lc, two_step, robust,
                                fix_frames, extensions)
     kind.check_options(options, source)
@@ -859,7 +862,8 @@ def _load(data, reader, machine):
 
 def _only_for_poses(options: CalibrateOptions, source, kind: str) -> None:
     for option, given in (("--pose-noise", options.pose_noise is not None),
-                          ("--fix-frames", options.fix_frames)):
+                          ("--fix-frames", options.fix_frames),
+                          ("--extensions", options.extensions is not None)):
         if given:
             raise InputError(f"{option}: applies to full-pose data (a Stewart with x, y, z "
                              f"and orientation columns); {source} has {kind} data")
@@ -1604,7 +1608,7 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
     # the machine's model extensions (a leg's reading curvature ...), adopted only when they
     # predict rows held out of the fit better (k-fold cross-validation on these data)
     model, choice = machine, None
-    if options.extensions == "auto" and machine.model_extensions():
+    if options.extensions != "none" and machine.model_extensions():
         from .extensions import choose_full_pose_extensions
 
         _require_converged(result, source)
@@ -2188,7 +2192,8 @@ def _check_joint_options(options: CalibrateOptions) -> None:
                           ("--pose-noise", options.pose_noise is not None),
                           ("--estimate-lc", options.estimate_lc is not None),
                           ("--two-step", options.two_step),
-                          ("--fix-frames", options.fix_frames)):
+                          ("--fix-frames", options.fix_frames),
+                          ("--extensions", options.extensions is not None)):
         if given:
             raise InputError(f"{option}: does not apply to a fit of several data files (one "
                              "maximum-likelihood fit of every file's instrument); see --noise "

@@ -331,12 +331,12 @@ def calibrate(
     json_output: Annotated[bool, typer.Option(
         "--json", help="Print the JSON report on stdout instead of the summary.")] = False,
     columns: ColumnsOpt = None,
-    extensions: Annotated[str, typer.Option(
-        "--extensions", metavar="auto|none",
+    extensions: Annotated[str | None, typer.Option(
+        "--extensions", metavar="auto|none", show_default=False,
         help="pose data: auto (default) tries the machine's model extensions (a six-leg "
              "platform's per-leg reading curvature) and adopts one only when it predicts rows "
              "held out of the fit better (5-fold cross-validation, in the report); none fits "
-             "the plain model.")] = "auto",
+             "the plain model. Other data take no extensions and refuse it.")] = None,
 ) -> None:
     """Identify the geometry from measurements; write the calibrated machine and a report.
 

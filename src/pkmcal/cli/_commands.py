@@ -511,7 +511,7 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
                   two_step: bool = False, robust: bool = False, pose_noise=None,
                   fix_frames: bool = False, report_dir: Path | None = None,
                   holdout: str | None = None, seed: int = 0,
-                  parameters: str | None = None, extensions: str = "auto") -> int:
+                  parameters: str | None = None, extensions: str | None = None) -> int:
     from ..calibration.run import CalibrationNotConverged, calibrate, noise_per_file_arg
 
     paths = list(data_path) if isinstance(data_path, (list, tuple)) else [data_path]

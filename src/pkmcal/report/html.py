@@ -645,13 +645,16 @@ def _noise_section(report) -> str:
             f"<td>{_e(_num(g.get('sigma')))}"
             + (f" &plusmn; {_e(_num(g.get('std')))}" if g.get("std") is not None else "")
             + f"</td><td>{_e(g.get('unit'))}</td><td>{_e(_num(g.get('ratio')))}</td>"
-            f"<td>{_e(g.get('status'))}</td><td>{_e(_num(g.get('redundancy')))}</td></tr>"
+            f"<td>{_e(g.get('status'))}</td><td>{_e(_num(g.get('redundancy')))}</td>"
+            f"<td>{_e(_num(g.get('capacity')))}</td></tr>"
             for g in levels["groups"] if isinstance(g, Mapping))
         out.append("<h2>Noise levels</h2><p class=small>" + _e(levels.get("method", ""))
-                   + ". Estimated where the data check them (redundancy at least "
+                   + ". Estimated where the data can check them (capacity, the group's "
+                   "redundancy were its level far above the others', at least "
                    + _e(_num(levels.get("min_redundancy"))) + "); held where given.</p>"
                    "<table><tr><th>group</th><th>assumed</th><th>used</th><th>unit</th>"
-                   "<th>used / assumed</th><th>status</th><th>redundancy</th></tr>"
+                   "<th>used / assumed [1]</th><th>status</th><th>redundancy [count]</th>"
+                   "<th>capacity [count]</th></tr>"
                    + rows + "</table>")
     outliers = report.get("outliers")
     if isinstance(outliers, Mapping) and outliers.get("flagged"):
@@ -699,7 +702,7 @@ def build_html(report: Mapping, title: str | None = None) -> str:
     str
         A self-contained HTML document (inline styles, plots as embedded PNG).
     """
-    title = title or f"pkmcal calibration report: {report.get('calibrated_file', '')}"
+    title = title or f"pkmcal calibration report: {report.get('calibrated_file') or ''}"
     parts = [f"<h1>{_e(title)}</h1>"]
     conv = report.get("convergence", {}) or {}
     ok = bool(conv.get("success"))

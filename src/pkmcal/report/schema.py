@@ -207,6 +207,86 @@ class Outliers(_Section):
     left_out: list[str]
 
 
+class AdequacyGroup(_Section):
+    """One noise group of ``model_adequacy``: its residuals' RMS and the levels."""
+
+    name: str
+    unit: str
+    rms: OptNum = Field(default=None, ge=0)
+    count: Int = Field(ge=0)
+    over_assumed: OptNum = Field(default=None, ge=0)
+    assumed: OptNum = Field(default=None, gt=0)
+    used: OptNum = Field(default=None, gt=0)
+
+
+class Trend(_Section):
+    """A significant trend of a residual column against a reading or pose coordinate."""
+
+    residual: str
+    against: str
+    shape: Literal["linear", "quadratic"]
+    explained: Num = Field(ge=0, le=1)
+    p: Num = Field(ge=0, le=1)
+    p_adjusted: Num = Field(ge=0, le=1)
+
+
+class AdequacyColumn(_Section):
+    """A residual column: its RMS and its strongest trend."""
+
+    name: str
+    unit: str
+    rms: OptNum = Field(default=None, ge=0)
+    strongest_trend: Trend | None = None
+
+
+class ModelAdequacy(_Section):
+    """``model_adequacy`` (:func:`pkmcal.calibration.adequacy.model_adequacy`)."""
+
+    noise_ratio: OptNum = Field(default=None, ge=0)
+    far_above_noise: bool
+    groups: list[AdequacyGroup]
+    columns: list[AdequacyColumn]
+    trends: list[Trend]
+    significant_trends: Int = Field(ge=0)
+    tests: Int = Field(ge=0)
+    alpha: Num = Field(gt=0, lt=1)
+    verdict: str
+
+
+class ExtensionTrial(_Section):
+    """A model extension tried: its held-out loss with and without it, and the verdict."""
+
+    name: str
+    description: str = ""
+    cv_loss: OptNum = Field(default=None, ge=0)
+    cv_loss_baseline: OptNum = Field(default=None, ge=0)
+    cv_gain: OptNum = None
+    cv_se: OptNum = Field(default=None, ge=0)
+    adopted: bool
+    why: str
+
+
+class ModelExtensions(_Section):
+    """``model_extensions``: the extensions tried by cross-validation and those adopted."""
+
+    tried: list[str]
+    adopted: list[str]
+    criterion: str = ""
+    folds: Int | None = Field(default=None, ge=2)
+    trials: list[ExtensionTrial] = []
+    skipped: str | None = None
+
+    @model_validator(mode="after")
+    def _adopted_were_tried(self):
+        tried = {t.name for t in self.trials} | set(self.tried)
+        missing = [a for a in self.adopted if a not in tried]
+        if missing:
+            raise ValueError(f"adopted: {missing[0]!r} is not among the extensions tried")
+        if self.trials and self.folds is None:
+            raise ValueError("folds: missing (the trials' cross-validation states its folds)")
+        return self
+
+
 #: the measurement kinds pkmcal calibrates (``pkmcal.calibration.run.KINDS``) and ``joint``, a
 #: fit of several data files (a test checks the list against the registry)
 MEASUREMENTS = ("constraint-link", "tracker", "pose", "distance", "probe", "joint")
@@ -222,7 +302,7 @@ class CalibrationReport(_Section):
     method: str
     units: Units
     measurements: Int = Field(ge=1)
-    calibrated_file: str = ""
+    calibrated_file: str | None = None      # None: not written to a file (the library)
     convergence: Convergence
     identifiability: Identifiability
     residuals: Residuals
@@ -241,6 +321,8 @@ class CalibrationReport(_Section):
     provenance: dict[str, Scalar] | None = None
     noise_model: NoiseModel | None = None
     outliers: Outliers | None = None
+    model_adequacy: ModelAdequacy | None = None
+    model_extensions: ModelExtensions | None = None
 
     @model_validator(mode="after")
     def _sections_of_the_measurement(self):
