@@ -396,3 +396,28 @@ def test_clean_data_name_no_row_in_most_runs(name):
     with_rows = sum(bool(f) for f in mc["flagged"])
     limit = stats.binom.ppf(1 - FALSE_ALARM, runs, OUTLIER_ALPHA)
     assert with_rows <= limit, (with_rows, limit, runs)
+
+
+@pytest.mark.parametrize("name,true_noise", [
+    ("probe", 100e-6),                      # 10x the assumed: the rounds run, none left out
+    ("delta-tracker", None),
+    ("ballbar", None),
+])
+def test_robust_fit_that_leaves_no_row_out_is_the_plain_fit(name, true_noise):
+    """``robust=True`` on clean data whose levels are far from the assumed ones (the plain fit
+    is suspect, the robust rounds run): when it leaves no row out, its geometry, covariance
+    and levels are the plain fit's, bit for bit (they were the rounds' last fit, started from
+    other levels, and ended elsewhere on data that fix the geometry poorly)."""
+    mismatch = CASES[name][0]
+    if true_noise is not None:
+        mismatch = dataclasses.replace(mismatch, true=true_noise)
+    case = bench.NoiseCase(mismatch, seed=0)
+    data = case.simulate(np.random.default_rng(3))
+    plain, robust = case.fit(data), case.fit(data, robust=True)
+    assert robust.extras["outliers"].kept.all(), named(name, robust, left_out=True)
+    assert robust.extras["robust"] and not plain.extras["robust"]
+    np.testing.assert_array_equal(robust.x, plain.x)
+    np.testing.assert_array_equal(robust.covariance, plain.covariance)
+    np.testing.assert_array_equal(robust.extras["noise"].sigma, plain.extras["noise"].sigma)
+    np.testing.assert_array_equal(robust.extras["outliers"].flagged,
+                                  plain.extras["outliers"].flagged)
