@@ -11,7 +11,7 @@ from __future__ import annotations
 import signal
 import sys
 
-from .errors import Terminated, on_terminate
+from .errors import Terminated, interruption, on_terminate
 
 
 def main() -> None:
@@ -24,9 +24,13 @@ def main() -> None:
         from .cli import main as cli_main
 
         cli_main(exiting=True)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, Terminated, ImportError) as exc:
+        # a signal during an extension module's initialisation is an ImportError caused by it
+        cause = interruption(exc)
+        if cause is None:
+            raise
+        if isinstance(cause, Terminated):
+            sys.stderr.write(f"error: terminated (signal {int(cause.code) - 128})\n")
+            raise SystemExit(cause.code) from None
         sys.stderr.write("error: interrupted\n")
         raise SystemExit(130) from None
-    except Terminated as exc:
-        sys.stderr.write(f"error: terminated (signal {int(exc.code) - 128})\n")
-        raise SystemExit(exc.code) from None

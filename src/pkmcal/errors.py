@@ -31,3 +31,28 @@ def on_terminate(signum, frame) -> None:
         Always, with code ``128 + signum``.
     """
     raise Terminated(128 + signum)
+
+
+def interruption(exc: BaseException | None) -> BaseException | None:
+    """The Ctrl-C (:class:`KeyboardInterrupt`) or :class:`Terminated` that caused ``exc``, if
+    any: a signal that arrives while an extension module initialises surfaces as an
+    ``ImportError`` ("initialization failed") whose cause or context is the signal's
+    exception.
+
+    Parameters
+    ----------
+    exc : BaseException or None
+        The exception caught.
+
+    Returns
+    -------
+    BaseException or None
+        The interruption in ``exc``'s chain (``exc`` itself included), else None.
+    """
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, (KeyboardInterrupt, Terminated)):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None

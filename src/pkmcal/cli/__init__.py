@@ -19,7 +19,7 @@ from typing import Annotated
 
 import typer
 
-from ..errors import ConvergenceError, InputError, Terminated, on_terminate
+from ..errors import ConvergenceError, InputError, Terminated, interruption, on_terminate
 from ..limits import MAX_MEASUREMENTS, MAX_RUNS, MAX_SAMPLES
 
 app = typer.Typer(
@@ -1081,6 +1081,11 @@ def main(argv: list[str] | None = None, exiting: bool = False) -> None:
             _fail("interrupted", 130)
         raise
     except Exception as exc:    # a bug: one line all the same, the traceback on request
+        cause = interruption(exc)       # a signal that came during an import surfaces so
+        if isinstance(cause, Terminated):
+            _fail(f"terminated (signal {int(cause.code) - 128})", int(cause.code))
+        if cause is not None:
+            _fail("interrupted", 130)
         if os.environ.get("PKMCAL_DEBUG"):
             raise
         _fail(f"internal error ({type(exc).__name__}: {exc}); please report it with the "
