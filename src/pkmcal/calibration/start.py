@@ -11,7 +11,11 @@ wrong geometry whose residuals are many times the noise. Two things go wrong:
   pose may land in one that is not the pose the readings came from, even with the true
   geometry. :func:`sphere_pose_candidates` therefore starts each row from several poses (the
   home pose, and the square five-readings-plus-link solutions for every choice of the left-out
-  reading) and keeps the pose that explains its readings best.
+  reading) and keeps the pose that explains its readings best. With the calibrated geometry,
+  the rows still left out also start from the poses of the fitted rows with the nearest
+  readings (:func:`neighbour_poses`: near the edge of the workspace the pose the readings came
+  from can have a narrow basin that no start from home reaches); the outlier rounds then
+  bring back those it explains.
 - *Ill-conditioned rows.* A row whose pose moves far for a small geometry error is a strongly
   non-linear residual, and a few of them bend the first Gauss-Newton steps into a wrong
   valley. :func:`continuation_solve` first fits the geometry to the rows whose start poses
@@ -38,7 +42,8 @@ import numpy as np
 from ..errors import InputError
 from .acceptance import MAX_NOISE_FACTOR, residual_test
 
-__all__ = ["StartReport", "continuation_solve", "sphere_pose_candidates", "start_sensitivity"]
+__all__ = ["StartReport", "continuation_solve", "neighbour_poses", "sphere_pose_candidates",
+           "start_sensitivity"]
 
 #: a row's start pose must explain its readings to within this share of the machine's
 #: characteristic length (RMS over the readings): plausible geometric errors stay below it
@@ -55,6 +60,14 @@ MAX_LEFT_OUT = 0.25
 #: the reading noise) exceeds this factor times the median row's, and this floor, is not fitted
 OUTLIER_FACTOR = 8.0
 OUTLIER_FLOOR = 8.0
+#: a row whose best pose explains its readings this many times worse than the typical row's
+#: (RMS reading residual over the median row's) is started again from its neighbours' poses
+RETRY_FACTOR = 3.0
+#: the neighbours: the well-explained rows with the nearest readings
+NEIGHBOURS = 8
+#: passes of the neighbours' starts (a row found in one starts its neighbours in the next;
+#: each pass asks twice the neighbours of the last)
+NEIGHBOUR_PASSES = 3
 
 
 @dataclass
@@ -161,14 +174,121 @@ def _reading_rms(machine, um, q, P, R, Lc):
     return np.where(np.isfinite(rms), rms, np.inf), P
 
 
-def sphere_pose_candidates(machine, um, q, link_length, starts=()):
+def neighbour_poses(machine, um, q, link_length, P, R, rms, neighbours=None):
+    """Rows explained far worse than the typical row, started again from the poses of the
+    well-explained rows with the nearest readings.
+
+    Near the edge of the workspace the least-squares forward kinematics of a row has a wide
+    basin around a wrong pose (tens of millimetres off, its residual hundreds of times the
+    noise) and a narrow one around the pose the readings came from: home and the square
+    systems land in the wide one, even with the true geometry. A row whose readings are close
+    to another's has its pose close too, so the poses of the rows with the nearest readings
+    that are explained start near it: Newton on the square systems (five readings and the
+    link) from there stays on that assembly mode, and least squares on all readings polishes
+    the pose. Each row keeps the best pose found.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (with a constraint link).
+    um : array_like or None
+        Its parameter vector (internal units); None for the machine's own.
+    q : ndarray, shape (K, n_joints)
+        Joint readings, m.
+    link_length : float
+        Constraint-link length ``Lc``, m.
+    P, R, rms : ndarray
+        The rows' poses so far and their RMS reading residuals, m (inf: no pose).
+    neighbours : tuple of ndarray, optional
+        ``(q (k, n_joints), P (k, 3), R (k, 3, 3))`` of explained rows to start from (e.g. the
+        rows of a fit); every row of ``q`` is then retried. Default: the rows of ``q`` within
+        :data:`RETRY_FACTOR` of the median residual start the others.
+
+    Returns
+    -------
+    P, R, rms : ndarray
+        The poses, improved where a neighbour's start explains the readings better.
+    """
+    P, R, rms = np.array(P, float), np.array(R, float), np.array(rms, float)
+    if neighbours is not None:             # the caller's rows: one pass, twice the neighbours
+        return _neighbour_pass(machine, um, q, link_length, P, R, rms, neighbours,
+                               2 * NEIGHBOURS)[:3]
+    for i in range(NEIGHBOUR_PASSES):
+        # a row found in one pass is a neighbour in the next, which asks twice as many
+        # neighbours for the (fewer) rows still unexplained
+        P, R, rms, improved, left = _neighbour_pass(machine, um, q, link_length, P, R, rms,
+                                                    None, NEIGHBOURS * 2**i)
+        if not (improved and left):
+            break
+    return P, R, rms
+
+
+def _neighbour_pass(machine, um, q, link_length, P, R, rms, neighbours, k):
+    """One pass of :func:`neighbour_poses` with ``k`` neighbours: ``(P, R, rms, improved,
+    left)``, ``left`` whether rows are still explained far worse than the typical one."""
+    from scipy.spatial import cKDTree
+
+    from .constraint_link import solve_sphere_poses
+
+    def far(rms):
+        finite = np.isfinite(rms)
+        return ~(rms <= RETRY_FACTOR * float(np.median(rms[finite]))) if finite.any() \
+            else np.ones(len(rms), bool)
+
+    if neighbours is None:
+        retry = far(rms)
+        good = np.isfinite(rms) & ~retry
+        neighbours = (q[good], P[good], R[good])
+    else:
+        retry = np.ones(len(q), bool)       # rows the caller could not explain: every one
+    q_ref, P_ref, R_ref = (np.asarray(a, float) for a in neighbours)
+    if not retry.any() or not len(q_ref):
+        return P, R, rms, False, bool(retry.any())
+    k = min(k, len(q_ref))
+    spread = np.std(np.concatenate([q_ref, q]), axis=0)
+    spread = np.where(spread > 0, spread, 1.0)
+    _, nn = cKDTree(q_ref / spread).query(q[retry] / spread, k=k)
+    nn = np.reshape(nn, (-1, k)).ravel()                      # (rows x k,)
+    rows = np.flatnonzero(retry)
+    n = q.shape[1]
+    # from each neighbour's pose: the square systems (five readings and the link, for every
+    # reading left out: Newton stays on the neighbour's assembly mode, where least squares
+    # on all readings slides into the wide basin), then least squares on all readings; and
+    # least squares directly
+    qk = np.repeat(q[rows], k, axis=0)
+    qq = np.tile(qk, (n, 1))
+    with np.errstate(invalid="ignore", over="ignore"):
+        sq = solve_sphere_poses(machine, um, qq, link_length, np.repeat(np.arange(n), len(qk)),
+                                start=(np.tile(P_ref[nn], (n, 1)),
+                                       np.tile(R_ref[nn], (n, 1, 1))), max_iter=40)
+        starts_P = np.concatenate([P_ref[nn], sq.P])
+        starts_R = np.concatenate([R_ref[nn], sq.R])
+        q_all = np.tile(qk, (n + 1, 1))
+        fk = solve_sphere_poses(machine, um, q_all, link_length, None,
+                                start=(starts_P, starts_R), max_iter=40)
+    new, Pn = _reading_rms(machine, um, q_all, fk.P, fk.R, link_length)
+    # candidates of retried row j: j*k .. j*k+k-1 in each of the n + 1 blocks
+    new = new.reshape(n + 1, len(rows), k).transpose(1, 0, 2).reshape(len(rows), -1)
+    pick = np.argmin(new, axis=1)
+    best = new[np.arange(len(rows)), pick]
+    better = best < rms[rows]
+    block, col = np.divmod(pick, k)
+    flat = (block * len(qk) + np.arange(len(rows)) * k + col)[better]
+    at = rows[better]
+    P[at], R[at], rms[at] = Pn[flat], fk.R[flat], best[better]
+    return P, R, rms, bool(better.any()), bool(far(rms).any())
+
+
+def sphere_pose_candidates(machine, um, q, link_length, starts=(), neighbours=None):
     """For each row, the pose on ``|P| = link_length`` that best explains its readings among
     several starts.
 
     Starts: the home pose; the square systems of five readings and the link from home, for
     every choice of the reading left out; and any ``starts`` given. Each is polished by least
     squares on all readings and the link (:func:`~pkmcal.calibration.constraint_link.
-    solve_sphere_poses`), and the pose with the smallest RMS reading residual is kept.
+    solve_sphere_poses`), and the pose with the smallest RMS reading residual is kept. With
+    ``neighbours`` (rows a fit explains), every row also starts from the poses of the
+    neighbours with the nearest readings (:func:`neighbour_poses`).
 
     Parameters
     ----------
@@ -182,6 +302,11 @@ def sphere_pose_candidates(machine, um, q, link_length, starts=()):
         Constraint-link length ``Lc``, m.
     starts : sequence of tuple, optional
         Further ``(P (K, 3), R (K, 3, 3))`` start poses (e.g. the poses of an earlier fit).
+    neighbours : tuple of ndarray, optional
+        ``(q, P, R)`` of rows a fit explains, whose poses also start these rows
+        (:func:`neighbour_poses`). Only with a calibrated geometry: with a geometry still far
+        off, more starts let rows settle on a wrong assembly mode that this geometry explains
+        better and lead the continuation astray.
 
     Returns
     -------
@@ -217,7 +342,10 @@ def sphere_pose_candidates(machine, um, q, link_length, starts=()):
                                 start=(P_all.copy(), R_all.copy()), max_iter=40)
     rms, P = _reading_rms(machine, um, np.tile(q, (m, 1)), fk.P, fk.R, link_length)
     pick = np.argmin(rms.reshape(m, K), axis=0) * K + np.arange(K)
-    return P[pick], fk.R[pick], rms[pick]
+    if neighbours is None:
+        return P[pick], fk.R[pick], rms[pick]
+    return neighbour_poses(machine, um, q, link_length, P[pick], fk.R[pick], rms[pick],
+                           neighbours)
 
 
 def start_sensitivity(problem, state) -> np.ndarray:
@@ -510,7 +638,9 @@ def _finish(best, report, data, started, strategy):
     if report.dropped_rows.size:
         # readings that no pose explains even with the calibrated geometry are bad input
         um, Lc = problem.split(result.x)
-        P, R, rms = sphere_pose_candidates(problem.machine, um, data.q[~mask], Lc)
+        P, R, rms = sphere_pose_candidates(
+            problem.machine, um, data.q[~mask], Lc,
+            neighbours=(data.q[mask], result.state.P, result.state.R))
         report.left_out_poses = (P, R)
         gross = rms >= START_TOL * problem.machine.characteristic_length()
         if gross.any():
