@@ -53,6 +53,20 @@ def test_cli_import_is_light():
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
+def test_the_commands_module_does_not_import_scipy_stats():
+    """Every command imports the commands' module, and with it the calibration package;
+    scipy.stats (half a second, most of a short command's run) is imported where a test
+    statistic is computed, not at start-up."""
+    code = ("import sys, pkmcal.cli._commands; assert 'scipy.stats' not in sys.modules, "
+            "[m for m in sys.modules if m.startswith('scipy')]")
+    subprocess.run([sys.executable, "-c", code], check=True)
+    from scipy import stats
+
+    from pkmcal.calibration.variance import MEDIAN_CHI2_1
+
+    assert abs(MEDIAN_CHI2_1 - stats.chi2.ppf(0.5, 1)) <= 1e-14 * MEDIAN_CHI2_1
+
+
 def test_simulate_writes_readings_and_truth(run_dir):
     q, rows, extra = read_joints(run_dir / "data.csv", 6)
     assert q.shape == (150, 6) and rows[0] == 2

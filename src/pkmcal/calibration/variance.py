@@ -44,7 +44,6 @@ import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from ..identifiability.rank import RTOL
 from .estimator import CalibrationResult, levenberg_marquardt
@@ -65,8 +64,9 @@ OUTLIER_ALPHA = 0.01
 LEFT_OUT_WEIGHT = 1e-6
 #: at most this many rounds of leaving rows out
 ROBUST_ROUNDS = 10
-#: median of chi-square with one degree of freedom
-MEDIAN_CHI2_1 = float(stats.chi2.ppf(0.5, 1))
+#: median of chi-square with one degree of freedom (``scipy.stats.chi2.ppf(0.5, 1)``; a literal:
+#: scipy.stats takes half a second to import, paid by every command that loads this package)
+MEDIAN_CHI2_1 = 0.454936423119572
 #: the first robust round judges a group on its median level where that is below this share
 #: of its estimated level (in variance): gross errors inflated the estimate
 ROBUST_SHRINK = 0.25
@@ -513,6 +513,8 @@ def _outlier_test(weighted: Weighted, result, L, G, alpha: float,
         z = V[:, good].T @ r[S]
         stat[i] = float(np.sum(z**2 / w[good]))
         dof[i] = int(good.sum())
+    from scipy import stats
+
     p = np.where(dof > 0, stats.chi2.sf(stat, np.maximum(dof, 1)), 1.0)
     n_tested = max(int(np.sum(dof > 0)), 1)
     return OutlierTest(stat, dof, p, alpha / n_tested, weighted.kept.copy(),
