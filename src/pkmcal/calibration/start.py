@@ -293,7 +293,7 @@ def sphere_pose_candidates(machine, um, q, link_length, starts=(), neighbours=No
     Parameters
     ----------
     machine : Machine
-        The machine (a Hexa Slide with a constraint link).
+        The machine (a Hexa Slide, a six-leg platform: any with a constraint link).
     um : array_like or None
         Its parameter vector (internal units); None for the machine's own.
     q : ndarray, shape (K, n_joints)
