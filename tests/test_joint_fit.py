@@ -321,6 +321,15 @@ def test_file_noise_of_two_files_of_one_name_holds_only_the_one_named():
     # a mapping by index or by label from Python
     assert [_noise_of({1: "3um"}, sources, i) for i in range(2)] == [None, "3um"]
     assert [_noise_of({"a.csv#2": "3um"}, sources, i) for i in range(2)] == [None, "3um"]
+    # the same resolver as the command line's: an absolute path names the file given
+    # relatively, and a key naming no file is refused (it would leave a level estimated)
+    from pathlib import Path
+
+    absolute = str(Path("sub/a.csv").resolve())
+    assert [_noise_of({absolute: "4um"}, sources, i) for i in range(2)] == [None, "4um"]
+    for key in ("b.csv", 2, -1):
+        with pytest.raises(InputError, match="none of the data files"):
+            _noise_of({key: "1um"}, sources, 0)
 
 
 def test_a_file_named_by_its_absolute_path_is_the_file(work):

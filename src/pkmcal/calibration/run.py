@@ -824,8 +824,9 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
                                                                    extensions))
             return _with_parameter_set(calibration, chosen)
         data = data[0]
-    if isinstance(noise, dict):
-        noise = _noise_of(noise, [data], 0)
+    if isinstance(noise, dict):     # named as the joint fit names it: the path or its source
+        noise = _noise_of(noise, [data if isinstance(data, (str, Path))
+                                  else getattr(data, "source", None) or "data1"], 0)
     if isinstance(data, (str, Path)):
         source = Path(data)
         header, _ = read_table(source)
@@ -2064,19 +2065,20 @@ def _noise_of(noise, sources, i: int):
     """The noise of file ``i`` of ``sources``: from a mapping (key: the file as given, its
     index, or its label - the file name, ``a.csv#2`` for the second of one name), else the
     value given (one file) or the default (several)."""
-    source = sources[i]
     if isinstance(noise, dict):
-        from ..instruments.joint import file_labels
-
-        label = file_labels(sources)[i]
-        path = isinstance(source, (str, Path))
+        # one matching for the command line's FILE=VALUE and a Python mapping; a key that
+        # names no file is refused (it would leave that file's level estimated silently)
+        found = None
         for key, value in noise.items():
-            if key == i or (isinstance(key, str) and key == label):
-                return value
-            if path and isinstance(key, (str, Path)) and (
-                    str(key) == str(source) or Path(str(key)) == Path(str(source))):
-                return value
-        return None
+            at = (key if isinstance(key, int) and not isinstance(key, bool)
+                  and 0 <= key < len(sources) else
+                  _match_file(str(key), sources) if isinstance(key, (str, Path)) else None)
+            if at is None:
+                raise InputError(f"noise: {key!r} is none of the data files ("
+                                 + ", ".join(map(str, sources)) + ")")
+            if at == i:
+                found = value
+        return found
     if noise is not None and len(sources) > 1:
         raise InputError("--noise: with several data files give FILE=VALUE per file (e.g. "
                          "--noise bar.csv=2um)")
