@@ -196,7 +196,8 @@ def test_monte_carlo_over_random_geometries(bench):
     flagged (an error, no convergence, or a warning of the acceptance test). Measured: 196
     ok (worst ratio 2.32), 4 flagged; the plain fit failed the residual test in 35 runs, the
     fallback ran in 36. Every row is clean: no ok run leaves one out (2 ok runs left out 4
-    clean rows before the left-out rows also started from their neighbours' poses)."""
+    clean rows before the left-out rows also started from their neighbours' poses); one row
+    is tolerated (another BLAS may round a borderline pose search the other way)."""
     rows = [bench.one_run(seed, 120) for seed in range(200)]
     s = bench.summary(rows)
     silent = [r for r in rows if r["status"] == "silent"]

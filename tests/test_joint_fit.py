@@ -330,6 +330,9 @@ def test_file_noise_of_two_files_of_one_name_holds_only_the_one_named():
     for key in ("b.csv", 2, -1):
         with pytest.raises(InputError, match="none of the data files"):
             _noise_of({key: "1um"}, sources, 0)
+    assert [_noise_of({np.int64(1): "5um"}, sources, i) for i in range(2)] == [None, "5um"]
+    with pytest.raises(InputError, match="name the same data file"):
+        _noise_of({0: "1um", "a.csv": "2um"}, sources, 1)
 
 
 def test_a_file_named_by_its_absolute_path_is_the_file(work):

@@ -399,21 +399,28 @@ def test_clean_data_name_no_row_in_most_runs(name):
 
 
 @pytest.mark.parametrize("name,true_noise", [
-    ("probe", 100e-6),                      # 10x the assumed: the rounds run, none left out
-    ("delta-tracker", None),
-    ("ballbar", None),
+    # levels far above the assumed ones (a level over 3x makes the plain fit suspect)
+    ("probe", 100e-6),                      # 10x the assumed 10 um
+    ("delta-tracker", IsotropicNoise(30e-6)),   # 2-6x the Leica-type default
+    ("ballbar", IsotropicNoise(10e-6)),     # 10x the assumed 1 um
 ])
-def test_robust_fit_that_leaves_no_row_out_is_the_plain_fit(name, true_noise):
+def test_robust_fit_that_leaves_no_row_out_is_the_plain_fit(name, true_noise, monkeypatch):
     """``robust=True`` on clean data whose levels are far from the assumed ones (the plain fit
     is suspect, the robust rounds run): when it leaves no row out, its geometry, covariance
     and levels are the plain fit's, bit for bit (they were the rounds' last fit, started from
     other levels, and ended elsewhere on data that fix the geometry poorly)."""
-    mismatch = CASES[name][0]
-    if true_noise is not None:
-        mismatch = dataclasses.replace(mismatch, true=true_noise)
+    mismatch = dataclasses.replace(CASES[name][0], true=true_noise)
     case = bench.NoiseCase(mismatch, seed=0)
     data = case.simulate(np.random.default_rng(3))
-    plain, robust = case.fit(data), case.fit(data, robust=True)
+    from pkmcal.calibration import variance
+
+    searched = []
+    robust_candidates = variance._robust_candidates
+    monkeypatch.setattr(variance, "_robust_candidates",
+                        lambda *a, **k: searched.append(1) or robust_candidates(*a, **k))
+    plain = case.fit(data)
+    assert searched, "the plain fit was not suspect: the robust rounds did not run"
+    robust = case.fit(data, robust=True)
     assert robust.extras["outliers"].kept.all(), named(name, robust, left_out=True)
     assert robust.extras["robust"] and not plain.extras["robust"]
     np.testing.assert_array_equal(robust.x, plain.x)

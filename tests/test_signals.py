@@ -82,7 +82,7 @@ def test_a_signal_during_an_extension_import_is_the_signal(monkeypatch, capsys, 
     Cython modules chain it); it ends like the signal, not as an internal error (seen once in
     a full run: SIGHUP 0.12 s after the start)."""
     import pkmcal.cli as cli
-    from pkmcal.errors import Terminated, interruption
+    from pkmcal.errors import InputError, Terminated, interruption
 
     signal_exc = {"term": Terminated(143), "hup": Terminated(129),
                   "ctrl-c": KeyboardInterrupt()}[cause]
@@ -100,3 +100,15 @@ def test_a_signal_during_an_extension_import_is_the_signal(monkeypatch, capsys, 
     err = capsys.readouterr().err
     assert err.strip() == words and "internal error" not in err
     assert interruption(ValueError("a bug")) is None
+
+    # an import a signal broke, turned into a refusal (Dask "not installed"): the signal
+    def refused(*_args, **_kwargs):
+        try:
+            importing()
+        except ImportError:
+            raise InputError("--scheduler: Dask is not installed") from None
+
+    monkeypatch.setattr(cli, "_run", refused)
+    with pytest.raises(SystemExit) as done:
+        cli.main(["montecarlo", "default"])
+    assert done.value.code == code and capsys.readouterr().err.strip() == words

@@ -2053,7 +2053,7 @@ def _match_file(name: str, sources) -> int | None:
         try:
             if Path(str(s)).resolve() == Path(name).resolve():
                 return i
-        except OSError:
+        except (OSError, RuntimeError):    # RuntimeError: a symbolic link loop (3.11)
             continue
     labels = file_labels(sources)
     if name in labels:
@@ -2068,14 +2068,20 @@ def _noise_of(noise, sources, i: int):
     if isinstance(noise, dict):
         # one matching for the command line's FILE=VALUE and a Python mapping; a key that
         # names no file is refused (it would leave that file's level estimated silently)
-        found = None
+        import numbers
+
+        found, seen = None, {}
         for key, value in noise.items():
-            at = (key if isinstance(key, int) and not isinstance(key, bool)
-                  and 0 <= key < len(sources) else
+            at = (int(key) if isinstance(key, numbers.Integral) and not isinstance(key, bool)
+                  and 0 <= int(key) < len(sources) else
                   _match_file(str(key), sources) if isinstance(key, (str, Path)) else None)
             if at is None:
                 raise InputError(f"noise: {key!r} is none of the data files ("
                                  + ", ".join(map(str, sources)) + ")")
+            if at in seen:
+                raise InputError(f"noise: {seen[at]!r} and {key!r} name the same data file "
+                                 f"({sources[at]})")
+            seen[at] = key
             if at == i:
                 found = value
         return found

@@ -636,6 +636,11 @@ def _finish(best, report, data, started, strategy):
     report.kept = np.asarray(mask, bool).copy()
     K = len(data)
     if report.dropped_rows.size:
+        what = _left_out_text(report.dropped_rows, K)
+        if report.dropped_rows.size > MAX_LEFT_OUT * K:
+            raise InputError(f"{data.source}: {what}; that is more than "
+                             f"{MAX_LEFT_OUT:.0%} of the rows: check the data and the "
+                             "machine file (constraint_link.length, home, chains)")
         # readings that no pose explains even with the calibrated geometry are bad input
         um, Lc = problem.split(result.x)
         P, R, rms = sphere_pose_candidates(
@@ -648,11 +653,6 @@ def _finish(best, report, data, started, strategy):
             raise InputError(f"{data.source}: no pose on the constraint sphere (Lc = "
                              f"{data.link_length * 1e3:.6g} mm) reproduces the readings of "
                              f"{rows.size} row(s): {_rows_text(rows)}")
-        what = _left_out_text(report.dropped_rows, K)
-        if report.dropped_rows.size > MAX_LEFT_OUT * K:
-            raise InputError(f"{data.source}: {what}; that is more than "
-                             f"{MAX_LEFT_OUT:.0%} of the rows: check the data and the "
-                             "machine file (constraint_link.length, home, chains)")
         report.warnings.append(what)
     if report.retried_rows.size:
         report.warnings.append(

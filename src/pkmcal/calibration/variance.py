@@ -692,7 +692,8 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         candidates = _robust_candidates(problem, groups, levels.theta, start, rtol,
                                         options, alpha, out if out.any() else None)
         again = rounds(ROBUST_ROUNDS, start, candidates)
-        if robust and not np.array_equal(again[4], kept):
+        if robust and np.any(~again[4] & ~out):
+            # robust=True leaves out a row the plain fit keeps
             result, weighted, test, levels, kept, estimated, L, G_ = again
         else:
             # name what robust=True leaves out, keeping every row in the fit but those a
@@ -701,7 +702,7 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
             # started from other levels, and data that fix the geometry poorly can end
             # elsewhere from there
             robust_test, robust_kept = again[2], again[4]
-            keep = robust_kept if robust else ~(out & ~robust_kept)
+            keep = ~(out & ~robust_kept)
             if not np.array_equal(keep, kept):
                 result, weighted, _, levels, kept, estimated, L, G_ = rounds(1, start, ~keep)
             test = dataclasses.replace(robust_test, kept=keep.copy(),

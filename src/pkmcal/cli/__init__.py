@@ -961,6 +961,13 @@ def _one_line(message: str) -> str:
     return " ".join(str(message).split()) if "\n" in str(message) else str(message)
 
 
+def _fail_interrupted(cause: BaseException) -> None:
+    """End as the signal behind ``cause`` (a :class:`Terminated` or a Ctrl-C) ends a run."""
+    if isinstance(cause, Terminated):
+        _fail(f"terminated (signal {int(cause.code) - 128})", int(cause.code))
+    _fail("interrupted", 130)
+
+
 def _fail(message: str, code: int = 2) -> None:
     from ._console import error
 
@@ -1064,6 +1071,8 @@ def main(argv: list[str] | None = None, exiting: bool = False) -> None:
     except Terminated as exc:
         _fail(f"terminated (signal {int(exc.code) - 128})", int(exc.code))
     except InputError as exc:
+        if interruption(exc) is not None:   # an import a signal broke, reported as a refusal
+            _fail_interrupted(interruption(exc))
         code = exc.args[1] if len(exc.args) > 1 and isinstance(exc.args[1], int) else 2
         _fail(str(exc.args[0]) if len(exc.args) > 1 else str(exc), code)
     except ConvergenceError as exc:
@@ -1082,10 +1091,8 @@ def main(argv: list[str] | None = None, exiting: bool = False) -> None:
         raise
     except Exception as exc:    # a bug: one line all the same, the traceback on request
         cause = interruption(exc)       # a signal that came during an import surfaces so
-        if isinstance(cause, Terminated):
-            _fail(f"terminated (signal {int(cause.code) - 128})", int(cause.code))
         if cause is not None:
-            _fail("interrupted", 130)
+            _fail_interrupted(cause)
         if os.environ.get("PKMCAL_DEBUG"):
             raise
         _fail(f"internal error ({type(exc).__name__}: {exc}); please report it with the "
