@@ -11,12 +11,13 @@ from __future__ import annotations
 import signal
 import sys
 
-from .errors import Terminated, interruption, on_terminate
+from .errors import Terminated, interruption, on_interrupt, on_terminate
 
 
 def main() -> None:
     """Run ``pkmcal`` (:func:`pkmcal.cli.main`); Ctrl-C at any point exits 130 with one line,
     SIGTERM or SIGHUP 128 + signal."""
+    signal.signal(signal.SIGINT, on_interrupt)
     for name in ("SIGTERM", "SIGHUP"):
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), on_terminate)
@@ -24,8 +25,9 @@ def main() -> None:
         from .cli import main as cli_main
 
         cli_main(exiting=True)
-    except (KeyboardInterrupt, Terminated, ImportError) as exc:
+    except (KeyboardInterrupt, Terminated, Exception) as exc:
         # a signal during an extension module's initialisation is an ImportError caused by it
+        # (or another exception where the module swallowed the signal's)
         cause = interruption(exc)
         if cause is None:
             raise

@@ -19,7 +19,8 @@ from typing import Annotated
 
 import typer
 
-from ..errors import ConvergenceError, InputError, Terminated, interruption, on_terminate
+from ..errors import (ConvergenceError, InputError, Terminated, forget_signals, interruption,
+                      on_interrupt, on_terminate)
 from ..limits import MAX_MEASUREMENTS, MAX_RUNS, MAX_SAMPLES
 
 app = typer.Typer(
@@ -1051,6 +1052,8 @@ def main(argv: list[str] | None = None, exiting: bool = False) -> None:
     # Batched small matrices: threaded BLAS costs ~10x in start-up and synchronisation.
     for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
+    forget_signals()
+    signal.signal(signal.SIGINT, on_interrupt)
     for name in ("SIGTERM", "SIGHUP"):
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), on_terminate)
@@ -1070,30 +1073,36 @@ def main(argv: list[str] | None = None, exiting: bool = False) -> None:
         _run(args, final=exiting)
     except Terminated as exc:
         _fail(f"terminated (signal {int(exc.code) - 128})", int(exc.code))
-    except InputError as exc:
-        if interruption(exc) is not None:   # an import a signal broke, reported as a refusal
-            _fail_interrupted(interruption(exc))
-        code = exc.args[1] if len(exc.args) > 1 and isinstance(exc.args[1], int) else 2
-        _fail(str(exc.args[0]) if len(exc.args) > 1 else str(exc), code)
-    except ConvergenceError as exc:
-        _fail(str(exc))
-    except FileNotFoundError as exc:
-        _fail(f"{exc.filename}: file not found" if exc.filename else str(exc))
-    except OSError as exc:
-        if exc.filename:
-            _fail(f"{exc.filename}: {exc.strerror or exc}")
-        _fail(str(exc))
     except KeyboardInterrupt:
         _fail("interrupted", 130)
     except SystemExit as exc:
         if exc.code == 130:     # typer turns Ctrl-C into exit code 130, silently
             _fail("interrupted", 130)
         raise
-    except Exception as exc:    # a bug: one line all the same, the traceback on request
-        cause = interruption(exc)       # a signal that came during an import surfaces so
+    except Exception as exc:
+        # a signal can surface as another exception: an ImportError it broke, or whatever an
+        # extension module raised after swallowing the signal's own - the run was interrupted
+        cause = interruption(exc)
         if cause is not None:
             _fail_interrupted(cause)
-        if os.environ.get("PKMCAL_DEBUG"):
-            raise
-        _fail(f"internal error ({type(exc).__name__}: {exc}); please report it with the "
-              "command line (PKMCAL_DEBUG=1 shows the traceback)", 1)
+        _fail_exception(exc)
+
+
+def _fail_exception(exc: Exception) -> None:
+    """End the run on ``exc``: exit 2 with its message for what the user can mend, 1 with one
+    line for a bug (the traceback with PKMCAL_DEBUG=1)."""
+    if isinstance(exc, InputError):
+        code = exc.args[1] if len(exc.args) > 1 and isinstance(exc.args[1], int) else 2
+        _fail(str(exc.args[0]) if len(exc.args) > 1 else str(exc), code)
+    if isinstance(exc, ConvergenceError):
+        _fail(str(exc))
+    if isinstance(exc, FileNotFoundError):
+        _fail(f"{exc.filename}: file not found" if exc.filename else str(exc))
+    if isinstance(exc, OSError):
+        if exc.filename:
+            _fail(f"{exc.filename}: {exc.strerror or exc}")
+        _fail(str(exc))
+    if os.environ.get("PKMCAL_DEBUG"):
+        raise exc
+    _fail(f"internal error ({type(exc).__name__}: {exc}); please report it with the "
+          "command line (PKMCAL_DEBUG=1 shows the traceback)", 1)
