@@ -19,8 +19,15 @@ from typing import Annotated
 
 import typer
 
-from ..errors import (ConvergenceError, InputError, Terminated, forget_signals, interruption,
-                      on_interrupt, on_terminate)
+from ..errors import (
+    ConvergenceError,
+    InputError,
+    Terminated,
+    forget_signals,
+    interruption,
+    on_interrupt,
+    on_terminate,
+)
 from ..limits import MAX_MEASUREMENTS, MAX_RUNS, MAX_SAMPLES
 
 app = typer.Typer(
