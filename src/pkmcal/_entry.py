@@ -8,19 +8,15 @@ death; everything else is :func:`pkmcal.cli.main`.
 
 from __future__ import annotations
 
-import signal
 import sys
 
-from .errors import Terminated, interruption, on_interrupt, on_terminate
+from .errors import Terminated, handle_signals, interruption
 
 
 def main() -> None:
     """Run ``pkmcal`` (:func:`pkmcal.cli.main`); Ctrl-C at any point exits 130 with one line,
     SIGTERM or SIGHUP 128 + signal."""
-    signal.signal(signal.SIGINT, on_interrupt)
-    for name in ("SIGTERM", "SIGHUP"):
-        if hasattr(signal, name):
-            signal.signal(getattr(signal, name), on_terminate)
+    handle_signals()
     try:
         from .cli import main as cli_main
 

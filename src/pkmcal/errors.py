@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import signal
+
 
 class InputError(ValueError):
     """Bad user input: a file, row, column, key or parameter is named in the message."""
@@ -15,10 +17,10 @@ class Terminated(SystemExit):
     """SIGTERM or SIGHUP: unwind like Ctrl-C (staged outputs discarded), exit 128 + signal."""
 
 
-#: The interruption this process received (set by :func:`on_interrupt` and
-#: :func:`on_terminate`), kept because an extension module may swallow the exception the
-#: signal raised inside it and raise its own instead (pybind11's array conversion turns a
-#: Ctrl-C during a matplotlib draw into "ValueError: Invalid bounding box").
+#: The interruption this process received (set by :func:`on_signal`), kept because an
+#: extension module may swallow the exception the signal raised inside it and raise its own
+#: instead (pybind11's array conversion turns a Ctrl-C during a matplotlib draw into
+#: "ValueError: Invalid bounding box").
 _received: BaseException | None = None
 
 
@@ -28,9 +30,10 @@ def forget_signals() -> None:
     _received = None
 
 
-def on_interrupt(signum, frame) -> None:
-    """Signal handler of SIGINT: raise :class:`KeyboardInterrupt` as Python's own handler does,
-    and remember it for :func:`interruption`.
+def on_signal(signum, frame) -> None:
+    """Signal handler of SIGINT, SIGTERM and SIGHUP: raise :class:`KeyboardInterrupt` for
+    SIGINT (as Python's own handler does), :class:`Terminated` (exit 128 + signal) for the
+    others, and remember it for :func:`interruption`.
 
     Parameters
     ----------
@@ -41,33 +44,21 @@ def on_interrupt(signum, frame) -> None:
 
     Raises
     ------
-    KeyboardInterrupt
+    KeyboardInterrupt or Terminated
         Always.
     """
     global _received
-    _received = KeyboardInterrupt()
-    raise KeyboardInterrupt
+    exc = KeyboardInterrupt() if signum == signal.SIGINT else Terminated(128 + signum)
+    _received = exc
+    raise exc
 
 
-def on_terminate(signum, frame) -> None:
-    """Signal handler of SIGTERM and SIGHUP: raise :class:`Terminated` (exit 128 + signal),
-    and remember it for :func:`interruption`.
-
-    Parameters
-    ----------
-    signum : int
-        The signal's number.
-    frame : frame or None
-        The interrupted frame (unused).
-
-    Raises
-    ------
-    Terminated
-        Always, with code ``128 + signum``.
-    """
-    global _received
-    _received = Terminated(128 + signum)
-    raise Terminated(128 + signum)
+def handle_signals() -> None:
+    """Install :func:`on_signal` for SIGINT, SIGTERM and SIGHUP (where the platform has them);
+    main thread only."""
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), on_signal)
 
 
 def interruption(exc: BaseException | None) -> BaseException | None:
@@ -75,8 +66,8 @@ def interruption(exc: BaseException | None) -> BaseException | None:
     any. A signal that arrives inside an extension module can surface as another exception:
     an ``ImportError`` ("initialization failed") whose cause or context is the signal's
     exception, or - where the module swallowed it - one with no trace of it; so a signal
-    received through :func:`on_interrupt` or :func:`on_terminate` (since
-    :func:`forget_signals`) is the cause of whatever failure follows it.
+    received through :func:`on_signal` (since :func:`forget_signals`) is the cause of
+    whatever failure follows it.
 
     Parameters
     ----------

@@ -24,9 +24,8 @@ from ..errors import (
     InputError,
     Terminated,
     forget_signals,
+    handle_signals,
     interruption,
-    on_interrupt,
-    on_terminate,
 )
 from ..limits import MAX_MEASUREMENTS, MAX_RUNS, MAX_SAMPLES
 
@@ -1053,17 +1052,13 @@ def main(argv: list[str] | None = None, exiting: bool = False) -> None:
         The process ends after this call (the console script): once the outputs are
         committed, signals are held back until exit, so they cannot fail a finished run.
     """
-    import signal
     import warnings
 
     # Batched small matrices: threaded BLAS costs ~10x in start-up and synchronisation.
     for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
     forget_signals()
-    signal.signal(signal.SIGINT, on_interrupt)
-    for name in ("SIGTERM", "SIGHUP"):
-        if hasattr(signal, name):
-            signal.signal(getattr(signal, name), on_terminate)
+    handle_signals()
     args = list(sys.argv[1:] if argv is None else argv)
     if not os.environ.get("PKMCAL_DEBUG"):
         # numpy's floating-point warnings (overflow, invalid value) and library warnings are
