@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import signal
+import sys
 
 
 class InputError(ValueError):
@@ -53,12 +55,66 @@ def on_signal(signum, frame) -> None:
     raise exc
 
 
-def handle_signals() -> None:
-    """Install :func:`on_signal` for SIGINT, SIGTERM and SIGHUP (where the platform has them);
-    main thread only."""
-    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
-        if hasattr(signal, name):
-            signal.signal(getattr(signal, name), on_signal)
+def on_unraisable(unraisable) -> None:
+    """``sys.unraisablehook`` under pkmcal's handlers. An exception Python cannot raise (in a
+    weakref callback, a ``__del__``, a garbage-collector callback) is dropped, and by default
+    printed as "Exception ignored in ..." with a traceback. A signal's exception dropped so
+    is already remembered by :func:`on_signal`: the run stops at its next progress step
+    (:func:`stop_if_signalled`) and commits nothing; it is not printed. Any other is printed
+    only with ``PKMCAL_DEBUG=1`` (a command's error output is one line).
+
+    Parameters
+    ----------
+    unraisable : object
+        What Python passes to ``sys.unraisablehook`` (``exc_value`` is used).
+    """
+    if not isinstance(unraisable.exc_value, (KeyboardInterrupt, Terminated)) and \
+            os.environ.get("PKMCAL_DEBUG"):
+        sys.__unraisablehook__(unraisable)
+
+
+def stop_if_signalled() -> None:
+    """Raise the interruption remembered since :func:`forget_signals`, if any: a signal whose
+    exception something swallowed still stops the run (called at progress steps and before a
+    commit).
+
+    Raises
+    ------
+    KeyboardInterrupt or Terminated
+        A signal came.
+    """
+    if _received is not None:
+        raise _received
+
+
+def handle_signals() -> dict:
+    """Install :func:`on_signal` for SIGINT, SIGTERM and SIGHUP (where the platform has them)
+    and :func:`on_unraisable`; main thread only.
+
+    Returns
+    -------
+    dict
+        What was replaced (handlers by signal, and the hook), for :func:`restore_signals`.
+    """
+    previous = {getattr(signal, name): signal.signal(getattr(signal, name), on_signal)
+                for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)}
+    previous["unraisablehook"] = sys.unraisablehook
+    sys.unraisablehook = on_unraisable
+    return previous
+
+
+def restore_signals(previous: dict) -> None:
+    """Put back what :func:`handle_signals` replaced.
+
+    Parameters
+    ----------
+    previous : dict
+        What :func:`handle_signals` returned.
+    """
+    previous = dict(previous)
+    sys.unraisablehook = previous.pop("unraisablehook", sys.unraisablehook)
+    for signum, handler in previous.items():
+        signal.signal(signum, signal.SIG_DFL if handler is None else handler)
 
 
 def interruption(exc: BaseException | None) -> BaseException | None:

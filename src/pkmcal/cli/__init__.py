@@ -26,6 +26,7 @@ from ..errors import (
     forget_signals,
     handle_signals,
     interruption,
+    restore_signals,
 )
 from ..limits import MAX_MEASUREMENTS, MAX_RUNS, MAX_SAMPLES
 
@@ -1057,8 +1058,6 @@ def main(argv: list[str] | None = None, exiting: bool = False) -> None:
     # Batched small matrices: threaded BLAS costs ~10x in start-up and synchronisation.
     for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
-    forget_signals()
-    handle_signals()
     args = list(sys.argv[1:] if argv is None else argv)
     if not os.environ.get("PKMCAL_DEBUG"):
         # numpy's floating-point warnings (overflow, invalid value) and library warnings are
@@ -1066,6 +1065,19 @@ def main(argv: list[str] | None = None, exiting: bool = False) -> None:
         # against absolute limits and the machine's scale, so none should arise, and pkmcal's
         # own warnings go through the console
         warnings.simplefilter("ignore")
+    forget_signals()
+    previous = handle_signals()
+    try:
+        _main(args, exiting)
+    finally:
+        if not exiting:     # called from Python: the caller's handlers back, the signal gone
+            restore_signals(previous)
+            forget_signals()
+
+
+def _main(args: list[str], exiting: bool) -> None:
+    """:func:`main` under pkmcal's signal handlers: every ending is one line and an exit code
+    (0 on success, 1 for a bug, 2 for bad input, 130 or 128 + n for a signal)."""
     try:
         from ..report.provenance import run_date
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import functools
 import sys
 
+from ..errors import stop_if_signalled
+
 _QUIET = False
 
 
@@ -62,7 +64,8 @@ class progress_tasks:
     def __enter__(self):
         stream = err_console()
         if self.quiet or _QUIET or not stream.is_terminal:
-            return lambda description, total: (lambda n=1, description=None: None)
+            return lambda description, total: (lambda n=1, description=None:
+                                                stop_if_signalled())
         from rich.progress import (
             BarColumn,
             MofNCompleteColumn,
@@ -79,8 +82,12 @@ class progress_tasks:
 
         def new(description: str, total: int):
             task = self.bar.add_task(description, total=total)
-            return lambda n=1, description=None: self.bar.update(task, advance=n,
-                                                                 description=description)
+
+            def advance(n=1, description=None):
+                stop_if_signalled()
+                self.bar.update(task, advance=n, description=description)
+
+            return advance
 
         return new
 

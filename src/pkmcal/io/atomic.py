@@ -38,7 +38,7 @@ import tempfile
 import threading
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import InputError, stop_if_signalled
 
 _TAG = "pkmcal"
 _NEW = Path("/nonexistent/pkmcal-new-file")    # marker: the destination did not exist
@@ -302,9 +302,18 @@ class OutputSet:
         InputError
             An output would replace a file the command read, or a rename failed (the
             destinations written so far are restored first).
+        KeyboardInterrupt or Terminated
+            A signal came before the commit and something swallowed the exception it raised
+            (:func:`pkmcal.errors.stop_if_signalled`): the user asked to stop, so nothing is
+            written.
         """
         if not self._staged:
             return []
+        try:
+            stop_if_signalled()
+        except BaseException:
+            self.discard()
+            raise
         items = list(self._staged.values())
         for user, dest, tmp, _ in items:
             if tmp is not None:
