@@ -248,3 +248,41 @@ def test_a_swallowed_signal_stops_long_work_at_its_next_progress_step(monkeypatc
     finally:
         restore_signals(previous)
         forget_signals()
+
+
+class _FailingDel:
+    def __del__(self):
+        raise ValueError("a bug in a destructor")
+
+
+@pytest.mark.parametrize("debug", [False, True])
+def test_an_unraisable_error_without_a_signal_is_shown_only_when_debugging(monkeypatch, capsys,
+                                                                           tmp_path, debug):
+    """An exception Python drops (here in a ``__del__``) is not a signal: the run goes on and
+    writes; its "Exception ignored" traceback is printed only with PKMCAL_DEBUG=1."""
+    import pkmcal.cli as cli
+    import pkmcal.cli._commands as commands
+
+    monkeypatch.chdir(tmp_path)
+    if debug:
+        monkeypatch.setenv("PKMCAL_DEBUG", "1")
+    else:
+        monkeypatch.delenv("PKMCAL_DEBUG", raising=False)
+    (tmp_path / "poses.csv").write_text("x_mm,y_mm,z_mm,psi_deg,theta_deg,phi_deg\n"
+                                        "0,0,300,0,0,0\n")
+    real_write = commands.write_table
+
+    def write_then_dropped(*args, **kwargs):
+        done = real_write(*args, **kwargs)
+        obj = _FailingDel()
+        del obj
+        return done
+
+    monkeypatch.setattr(commands, "write_table", write_then_dropped)
+    cli.main(["ik", "default", "poses.csv", "-o", "q.csv"])
+    assert (tmp_path / "q.csv").read_text().startswith("q1_mm,")
+    err = capsys.readouterr().err
+    if debug:
+        assert "Exception ignored" in err and "a bug in a destructor" in err, err
+    else:
+        assert err == "", err

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import sys
 
-from .errors import Terminated, handle_signals, interruption
+from .errors import Terminated, handle_signals, interruption, interruption_exit
 
 
 def main() -> None:
@@ -27,8 +27,6 @@ def main() -> None:
         cause = interruption(exc)
         if cause is None:
             raise
-        if isinstance(cause, Terminated):
-            sys.stderr.write(f"error: terminated (signal {int(cause.code) - 128})\n")
-            raise SystemExit(cause.code) from None
-        sys.stderr.write("error: interrupted\n")
-        raise SystemExit(130) from None
+        message, code = interruption_exit(cause)
+        sys.stderr.write(f"error: {message}\n")
+        raise SystemExit(code) from None

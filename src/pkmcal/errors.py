@@ -117,6 +117,25 @@ def restore_signals(previous: dict) -> None:
         signal.signal(signum, signal.SIG_DFL if handler is None else handler)
 
 
+def interruption_exit(cause: BaseException) -> tuple[str, int]:
+    """How a run that ``cause`` (a Ctrl-C or a :class:`Terminated`) interrupted ends: its one
+    line (after ``error: ``) and exit code.
+
+    Parameters
+    ----------
+    cause : KeyboardInterrupt or Terminated
+        The interruption (:func:`interruption`).
+
+    Returns
+    -------
+    tuple of (str, int)
+        ``("interrupted", 130)`` or ``("terminated (signal n)", 128 + n)``.
+    """
+    if isinstance(cause, Terminated):
+        return f"terminated (signal {int(cause.code) - 128})", int(cause.code)
+    return "interrupted", 130
+
+
 def interruption(exc: BaseException | None) -> BaseException | None:
     """The Ctrl-C (:class:`KeyboardInterrupt`) or :class:`Terminated` that caused ``exc``, if
     any. A signal that arrives inside an extension module can surface as another exception:

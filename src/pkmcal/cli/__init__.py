@@ -26,6 +26,7 @@ from ..errors import (
     forget_signals,
     handle_signals,
     interruption,
+    interruption_exit,
     restore_signals,
 )
 from ..limits import MAX_MEASUREMENTS, MAX_RUNS, MAX_SAMPLES
@@ -971,9 +972,7 @@ def _one_line(message: str) -> str:
 
 def _fail_interrupted(cause: BaseException) -> None:
     """End as the signal behind ``cause`` (a :class:`Terminated` or a Ctrl-C) ends a run."""
-    if isinstance(cause, Terminated):
-        _fail(f"terminated (signal {int(cause.code) - 128})", int(cause.code))
-    _fail("interrupted", 130)
+    _fail(*interruption_exit(cause))
 
 
 def _fail(message: str, code: int = 2) -> None:
@@ -1085,13 +1084,11 @@ def _main(args: list[str], exiting: bool) -> None:
         _refuse_empty(args)
         args = _hoist_quiet(args)
         _run(args, final=exiting)
-    except Terminated as exc:
-        _fail(f"terminated (signal {int(exc.code) - 128})", int(exc.code))
-    except KeyboardInterrupt:
-        _fail("interrupted", 130)
+    except (KeyboardInterrupt, Terminated) as exc:
+        _fail_interrupted(exc)
     except SystemExit as exc:
         if exc.code == 130:     # typer turns Ctrl-C into exit code 130, silently
-            _fail("interrupted", 130)
+            _fail_interrupted(KeyboardInterrupt())
         raise
     except Exception as exc:
         # a signal can surface as another exception: an ImportError it broke, or whatever an
