@@ -2,11 +2,22 @@
 
 Read in Marlin's source (``MarlinFirmware/Marlin``):
 
-- ``Marlin/src/gcode/calibrate/M665.cpp``: ``H`` delta height (``delta_height``), ``L``
-  diagonal rod (``delta_diagonal_rod``), ``R`` delta radius, ``S`` segments per second (not
-  kinematics: not written), ``X Y Z`` the tower angle trims (``delta_tower_angle_trim``, deg),
-  ``A B C`` the diagonal rod trims (``delta_diagonal_rod_trim``, mm); ``M665_report`` prints
-  ``M665 L R H S X Y Z A B C``.
+- ``Marlin/src/gcode/calibrate/M665.cpp`` (2.0.9 and later, 2.1): ``H`` delta height
+  (``delta_height``), ``L`` diagonal rod (``delta_diagonal_rod``), ``R`` delta radius, ``S``
+  segments per second (not kinematics: not written), ``X Y Z`` the tower angle trims
+  (``delta_tower_angle_trim``, deg), ``A B C`` the diagonal rod trims
+  (``delta_diagonal_rod_trim``, mm); ``M665_report`` (what ``M503`` prints) writes ``M665 L R
+  H S X Y Z A B C`` under the heading ``Delta settings: ... XYZ<tower angle trim> ABC<rod
+  trim>``.
+- The letters differ between versions (see :func:`marlin_m665_letters`). Marlin 1.1.x
+  (``Marlin/Marlin_main.cpp`` ``gcode_M665``, 1.1.9) and early 2.0.x (``M665.cpp`` before the
+  rod trims) read ``M665 H L R S B X Y Z``: ``B`` is ``delta_calibration_radius`` (the radius
+  ``G33`` probes at, not kinematics), there are no rod trims (``recalc_delta_settings`` takes
+  ``DELTA_DIAGONAL_ROD_TRIM_TOWER`` from ``Configuration.h``), and ``A``, ``C`` are not read;
+  ``configuration_store.cpp`` (``M503``) prints ``M665 L R H S B X Y Z`` under the heading
+  ``Delta settings: ... B<calibration radius> XYZ<tower angle corrections>``. Marlin 1.1.9's
+  own G-code list in ``Marlin_main.cpp`` still names older letters (``A B C`` rod trims, ``I J K``
+  tower angle trims) that its ``gcode_M665`` no longer reads.
 - ``Marlin/src/module/delta.cpp`` ``recalc_delta_settings``: tower ``i`` at ``(cos(base_i +
   trim_i), sin(base_i + trim_i)) (delta_radius + DELTA_RADIUS_TRIM_TOWER_i)`` with ``base`` 210,
   330, 90 deg; ``delta_diagonal_rod_2_tower_i = (delta_diagonal_rod + rod_trim_i)^2``. The
@@ -15,7 +26,8 @@ Read in Marlin's source (``MarlinFirmware/Marlin``):
 - ``Marlin/src/module/delta.h`` ``DELTA_Z``: the carriage height for a position is ``z +
   sqrt(delta_diagonal_rod_2_tower_i - |tower_i - (x, y)|^2)``.
 - ``Marlin/src/gcode/calibrate/M666.cpp``: ``M666 X Y Z`` the endstop adjustments
-  (``delta_endstop_adj``, mm); a positive value is refused ("M666 offsets must be <= 0").
+  (``delta_endstop_adj``, mm); a positive value is refused ("M666 offsets must be <= 0");
+  Marlin 1.1.9's ``gcode_M666`` ignores it silently (``value * Z_HOME_DIR <= 0``).
 - ``Marlin/src/module/motion.cpp`` ``homeaxis`` (DELTA): after each carriage reaches its
   endstop it moves ``delta_endstop_adj`` further (down, for a negative value) when that is more
   than ``MIN_STEPS_PER_SEGMENT`` steps; ``home_delta`` then declares the nozzle at ``(0, 0,
@@ -41,7 +53,17 @@ included (the calibrated frame is fixed: a turn of the three towers moves the pr
 The controller's coordinates are the bed's as in :mod:`pkmcal.export.klipper` (``z = 0`` the
 bed at the centre; its tilt is left to bed levelling, ``G29``). Not modelled: adjustments
 smaller than ``MIN_STEPS_PER_SEGMENT`` steps, which Marlin does not move; a hotend offset;
-``M206``/``G92`` shifts.
+``M206``/``G92`` shifts; ``M851 Z`` (the values are read for ``M851 Z0``).
+
+What people paste
+-----------------
+:meth:`MarlinDelta.parse` reads a G-code file, an ``M503`` report (``echo:  M665 ...``) and a
+host's terminal log (OctoPrint ``Recv: echo:  M665 ...``, with or without the ``serial.log``
+time stamp; Pronterface ``SENDING:``): lines the host sent (``Send:``, ``SENDING:``, ``>>>``)
+are not the firmware's values and are skipped (:func:`host_line`). A letter the firmware does
+not read is harmless and is passed over with a note (:meth:`MarlinDelta.read` returns them); a
+letter whose meaning pkmcal cannot take (``M665 I J K``) or cannot tell (``M665 B`` of an
+unknown version) is refused, naming the file, line and letter.
 """
 
 from __future__ import annotations
@@ -130,10 +152,49 @@ def gcode_words(line: str, source: str, n: int, code: str) -> dict:
     return out
 
 
-def gcode_lines(text: str, codes: tuple):
+#: a host's time stamp (OctoPrint's ``serial.log``: ``2024-05-01 12:00:00,123 - ``)
+_TIME_STAMP = re.compile(r"^\d{4}-\d\d-\d\d[ T]\d\d:\d\d:\d\d(?:[,.]\d+)?\s+-\s+")
+#: what a host sent (OctoPrint ``Send:``, Pronterface ``SENDING:``, ``>>>``)
+_SENT = re.compile(r"^(?:Send:|SENDING:|>>>)\s*", re.I)
+#: what a host received (OctoPrint ``Recv:``, ``<<<``)
+_RECEIVED = re.compile(r"^(?:Recv:|<<<)\s*", re.I)
+
+
+def host_line(raw: str) -> tuple[str, bool]:
+    """One line of a pasted text without what a host or the firmware put before it.
+
+    Removed: a ``serial.log`` time stamp, OctoPrint's ``Recv:``, Marlin's ``echo:`` (its
+    ``SERIAL_ECHO_START``, as ``M503`` prints every line) and a leading ``ok``.
+
+    Parameters
+    ----------
+    raw : str
+        The line.
+
+    Returns
+    -------
+    text : str
+        The line's content, stripped.
+    sent : bool
+        The host sent it (``Send:``, ``SENDING:``, ``>>>``): a command, not the firmware's
+        report.
+    """
+    line = _TIME_STAMP.sub("", raw.strip())
+    if _SENT.match(line):
+        return _SENT.sub("", line).strip(), True
+    line = _RECEIVED.sub("", line)
+    previous = None
+    while previous != line:
+        previous, line = line, re.sub(r"^(?:echo:|ok\b)\s*", "", line, flags=re.I)
+    return line.strip(), False
+
+
+def gcode_lines(text: str, codes: tuple, sent: bool = False):
     """The lines of a G-code file with one of the commands (``M665``), comments removed.
 
-    Marlin's ``M503`` report (``echo:  M665 L...``) and line numbers (``N12``) are accepted.
+    Marlin's ``M503`` report (``echo:  M665 L...``), host logs (:func:`host_line`), line
+    numbers (``N12``) and checksums (``*71``) are accepted; lines a host sent are skipped
+    unless ``sent``.
 
     Parameters
     ----------
@@ -141,6 +202,8 @@ def gcode_lines(text: str, codes: tuple):
         The file's text.
     codes : tuple of str
         Commands, upper case.
+    sent : bool, optional
+        Also yield the commands a host log shows as sent.
 
     Yields
     ------
@@ -148,13 +211,71 @@ def gcode_lines(text: str, codes: tuple):
         ``(line number, command, rest of the line)``.
     """
     for n, raw in enumerate(text.splitlines(), 1):
-        line = raw.split(";", 1)[0]
-        line = re.sub(r"\([^)]*\)", " ", line).strip()
-        line = re.sub(r"^(echo:|ok)\s*", "", line, flags=re.I).strip()
+        line, was_sent = host_line(raw)
+        if was_sent and not sent:
+            continue
+        line = line.split(";", 1)[0]
+        line = re.sub(r"\([^)]*\)", " ", line)
+        line = re.sub(r"\*\d+\s*$", "", line).strip()
         line = re.sub(r"^N\d+\s+", "", line, flags=re.I)
         m = re.match(r"([GMgm])0*(\d+)(?=\s|$|[A-Za-z])(.*)", line)
         if m and f"{m.group(1).upper()}{m.group(2)}" in codes:
             yield n, f"{m.group(1).upper()}{m.group(2)}", m.group(3)
+
+
+#: ``M665`` letters of Marlin 2.0.9+ / 2.1 (``M665.cpp``): letter -> (parameter, kind)
+M665_LETTERS_2 = {"H": "delta_height", "L": "delta_diagonal_rod", "R": "delta_radius",
+                  "X": "delta_tower_angle_trim_a", "Y": "delta_tower_angle_trim_b",
+                  "Z": "delta_tower_angle_trim_c", "A": "delta_diagonal_rod_trim_a",
+                  "B": "delta_diagonal_rod_trim_b", "C": "delta_diagonal_rod_trim_c"}
+#: ``M665`` letters of Marlin 1.1.x and early 2.0.x (``Marlin_main.cpp`` ``gcode_M665``)
+M665_LETTERS_1 = {k: v for k, v in M665_LETTERS_2.items() if k not in "ABC"}
+#: M503 headings: the version's letters (configuration_store.cpp / settings.cpp)
+_HEADING_1 = re.compile(r"B\s*<\s*calibration radius", re.I)
+_HEADING_2 = re.compile(r"ABC\s*<\s*rod", re.I)
+#: M115's firmware name (``FIRMWARE_NAME:Marlin 1.1.9``)
+_FIRMWARE = re.compile(r"FIRMWARE_NAME:\s*Marlin\s+(?:bugfix-)?(\d+)\.(\d+)", re.I)
+
+
+def marlin_m665_letters(text: str) -> tuple[str | None, str]:
+    """Which Marlin the text's ``M665`` lines come from, as far as the text says.
+
+    Evidence, first found wins: an ``M503`` heading (``B<calibration radius>``: Marlin 1.1.x /
+    early 2.0.x, ``configuration_store.cpp``; ``ABC<rod trim>``: 2.0.9+, ``settings.cpp``),
+    then ``M115``'s ``FIRMWARE_NAME:Marlin 1.x`` (1.x) or ``2.1`` and later (rod trims), then an
+    ``M665`` line with ``A`` or ``C`` (only the rod-trim versions read them).
+
+    Parameters
+    ----------
+    text : str
+        The pasted text.
+
+    Returns
+    -------
+    letters : {'1', '2'} or None
+        ``'1'``: ``B`` is the calibration radius, no rod trims; ``'2'``: ``A B C`` are the rod
+        trims; None: the text does not say.
+    why : str
+        The evidence in words.
+    """
+    for n, raw in enumerate(text.splitlines(), 1):
+        line = host_line(raw)[0]
+        if _HEADING_1.search(line):
+            return "1", f"line {n}: M503's heading names B<calibration radius> (Marlin 1.1.x)"
+        if _HEADING_2.search(line):
+            return "2", f"line {n}: M503's heading names ABC<rod trim> (Marlin 2.x)"
+    for n, raw in enumerate(text.splitlines(), 1):
+        m = _FIRMWARE.search(raw)
+        if m and (int(m.group(1)), int(m.group(2))) < (2, 0):
+            return "1", f"line {n}: M115 says Marlin {m.group(1)}.{m.group(2)}"
+        if m and (int(m.group(1)), int(m.group(2))) >= (2, 1):
+            return "2", f"line {n}: M115 says Marlin {m.group(1)}.{m.group(2)}"
+    for n, _, rest in gcode_lines(text, ("M665",)):
+        letters = {w[0].upper() for w in rest.split() if w[:1].isalpha()}
+        letters |= {c.upper() for c in re.findall(r"(?<![A-Za-z])([AaCc])[-+]?[0-9.]", rest)}
+        if letters & {"A", "C"}:
+            return "2", f"line {n}: M665 gives A or C (rod trims: Marlin 2.x)"
+    return None, "nothing in the text says which Marlin"
 
 
 class MarlinDelta(ControllerFormat):
@@ -330,11 +451,8 @@ class MarlinDelta(ControllerFormat):
         return out + bed_values(v[12:15])
 
     def parse(self, text: str, source: str) -> ControllerParameters:
-        """Marlin's values from ``M665`` / ``M666`` lines (a G-code file or an ``M503`` report).
-
-        Later lines override earlier ones, as Marlin executes them; ``H``, ``L`` and ``R``
-        are required (their defaults are compile-time), the trims and adjustments default to
-        0.
+        """Marlin's values from ``M665`` / ``M666`` lines (a G-code file, an ``M503`` report or
+        a host's terminal log); :meth:`read` with its notes kept as ``params.notes``.
 
         Parameters
         ----------
@@ -346,27 +464,83 @@ class MarlinDelta(ControllerFormat):
         Returns
         -------
         ControllerParameters
-            The values, SI.
+            The values, SI, with a ``notes`` attribute (list of str).
 
         Raises
         ------
         InputError
-            Naming the line and key of a value that is not a number, a positive endstop
-            adjustment (Marlin refuses it), a missing ``H``, ``L`` or ``R``, or a rod not
-            longer than the radius.
+            As :meth:`read`.
         """
+        params, notes = self.read(text, source)
+        params.notes = notes
+        return params
+
+    def read(self, text: str, source: str) -> tuple[ControllerParameters, list[str]]:
+        """Marlin's values and notes on what was passed over.
+
+        Later lines override earlier ones, as Marlin executes them; ``H``, ``L`` and ``R``
+        are required (their defaults are compile-time), the trims and adjustments default to
+        0. The ``M665`` letters are those of the version the text shows
+        (:func:`marlin_m665_letters`): Marlin 2.x ``H L R S X Y Z A B C`` (``M665.cpp``), Marlin
+        1.1.x ``H L R S B X Y Z`` with ``B`` the calibration radius (``Marlin_main.cpp``
+        ``gcode_M665``). Where the text does not say, ``B`` is read as 1.1.x's calibration
+        radius only on a line in 1.1.x's ``M503`` order (``B`` after ``S``, before ``X``, no
+        ``A`` or ``C``); any other ``B`` alone is refused. Host lines are handled by
+        :func:`host_line`.
+
+        Parameters
+        ----------
+        text : str
+            The file's text.
+        source : str
+            Its name, for messages.
+
+        Returns
+        -------
+        params : ControllerParameters
+            The values, SI; Marlin 1.1.x's ``M665 B`` (``delta_calibration_radius``, where
+            ``G33`` probes) as ``extras["probe_radius"]``, m, where the parameters have
+            ``extras``.
+        notes : list of str
+            Letters passed over (``S``; 1.1.x's ``B``; letters Marlin does not read), each with
+            the file and line.
+
+        Raises
+        ------
+        InputError
+            Naming the file, line and letter of a value that is not a number, a positive
+            endstop adjustment (Marlin refuses it), ``I J K`` (early 1.1 tower angle trims, not
+            taken), a ``B`` whose meaning the text does not settle, a missing ``H``, ``L`` or
+            ``R``, or a rod not longer than the radius.
+        """
+        version, why = marlin_m665_letters(text)
         got: dict = {}
+        notes: list[str] = []
+        extras: dict = {}
         for n, code, rest in gcode_lines(text, ("M665", "M666")):
-            for letter, word in gcode_words(rest, source, n, code).items():
-                keys = "HLRXYZABC" if code == "M665" else "XYZ"
-                if letter not in keys:
-                    continue                    # S, B: not kinematics
-                value = finite_number(word, source, n, f"{code} {letter}")
-                if code == "M666" and value > 0:
-                    raise InputError(f"{source}: line {n}: M666 {letter}: {word} is positive; "
-                                     "Marlin's endstop adjustments must be <= 0 (M666.cpp)")
-                scale = 1e-3 if (letter in _LENGTH_KEYS or code == "M666") else np.pi / 180
-                got[(code, letter)] = (value * scale, n)
+            words = gcode_words(rest, source, n, code)
+            if code == "M666":
+                for letter, word in words.items():
+                    if letter not in "XYZ":
+                        notes.append(f"{source}: line {n}: M666 {letter}: not a delta endstop "
+                                     "adjustment (M666.cpp reads X Y Z): ignored")
+                        continue
+                    value = finite_number(word, source, n, f"M666 {letter}")
+                    if value > 0:
+                        raise InputError(f"{source}: line {n}: M666 {letter}: {word} is "
+                                         "positive; Marlin's endstop adjustments must be <= 0 "
+                                         "(M666.cpp)")
+                    got[("M666", letter)] = (value * 1e-3, n)
+                continue
+            letters = self._m665_letters(words, version, why, source, n, notes)
+            for letter, word in words.items():
+                if letter == "B" and "B" not in letters:       # 1.1.x: where G33 probes
+                    extras["probe_radius"] = finite_number(word, source, n, "M665 B") * 1e-3
+                if letter not in letters:
+                    continue
+                value = finite_number(word, source, n, f"M665 {letter}")
+                scale = 1e-3 if letter in _LENGTH_KEYS else np.pi / 180
+                got[("M665", letter)] = (value * scale, n)
         for k in "HLR":
             if ("M665", k) not in got:
                 raise InputError(f"{source}: M665 {k}: missing (no M665 line sets it; Marlin's "
@@ -381,9 +555,51 @@ class MarlinDelta(ControllerFormat):
             raise InputError(f"{source}: line {got[('M665', 'R')][1]}: M665 R: the radius "
                              f"({R * 1e3:g} mm) must be > 0 and below every diagonal rod "
                              f"({', '.join(f'{x * 1e3:g}' for x in rods)} mm)")
-        return self.values(H, L, R, [g("M665", k) for k in "XYZ"],
-                           [g("M665", k) for k in "ABC"], [g("M666", k) for k in "XYZ"],
-                           read_bed(text, source))
+        params = self.values(H, L, R, [g("M665", k) for k in "XYZ"],
+                             [g("M665", k) for k in "ABC"], [g("M666", k) for k in "XYZ"],
+                             read_bed(text, source))
+        if isinstance(getattr(params, "extras", None), dict):
+            params.extras.update(extras)
+        return params, notes
+
+    @staticmethod
+    def _m665_letters(words: dict, version, why: str, source: str, n: int,
+                      notes: list) -> set:
+        """The letters of one ``M665`` line to read as kinematics (see :meth:`read`); notes
+        and refusals for the others."""
+        where = f"{source}: line {n}: M665"
+        for k in "IJK":
+            if k in words:
+                raise InputError(f"{where} {k}: a tower angle trim letter of early Marlin 1.1 "
+                                 "(I J K; Marlin_main.cpp's G-code list), which Marlin 1.1.9 "
+                                 "and 2.x no longer read; give the trims as X Y Z")
+        order = list(words)
+        if version is None and "B" in words and not {"A", "C"} & set(words):
+            before_x = "X" not in words or order.index("B") < order.index("X")
+            after_s = "S" in words and order.index("S") < order.index("B")
+            if not (before_x and after_s):
+                raise InputError(
+                    f"{where} B: Marlin 1.1.x reads B as the calibration radius (not "
+                    "kinematics), Marlin 2.x as tower B's diagonal rod trim, and nothing in "
+                    "the text says which Marlin this is; paste M503's heading line with it, "
+                    "or give A and C too (2.x), or leave B out (1.1.x)")
+            version, why = "1", f"line {n}: B follows S and precedes X, as 1.1.x's M503 prints"
+        table = M665_LETTERS_1 if version == "1" else M665_LETTERS_2
+        for letter in words:
+            if letter in table:
+                continue
+            if letter == "S":
+                notes.append(f"{where} S: segments per second (motion planning, not "
+                             "kinematics): ignored")
+            elif letter == "B" and version == "1":
+                notes.append(f"{where} B: Marlin 1.1.x's delta_calibration_radius (where G33 "
+                             f"probes, not kinematics; {why}): not a kinematic value")
+            elif version == "1" and letter in "AC":
+                notes.append(f"{where} {letter}: not read by Marlin 1.1.x ({why}): ignored")
+            else:
+                notes.append(f"{where} {letter}: not an M665 letter of Marlin's delta "
+                             "(M665.cpp): ignored")
+        return set(table)
 
     def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
         """A linear Delta with Marlin's values (vertical towers, one radius).

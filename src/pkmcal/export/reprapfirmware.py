@@ -16,7 +16,14 @@ Read in RepRapFirmware's source (``Duet3D/RepRapFirmware``,
   its endstop to its homed carriage height, so the travel down is the homed height minus that.
 - ``NormaliseEndstopAdjustments``: the adjustments are made to average 0 into
   ``homedHeight``; ``WriteCalibrationParameters`` (``M500``/``config-override.g``) writes
-  ``M665 L R H B X Y Z`` and ``M666 X Y Z A B``.
+  ``; Delta parameters``, ``M665 L<a>:<b>:<c> R H B X Y Z`` (3 decimals, ``B`` 1) and ``M666 X
+  Y Z A B`` (``A B`` 2 decimals); the file holds other lines too (``M307`` heater models,
+  ``G10 L2`` work offsets, ``G31`` probe offsets), which are not read here.
+- ``Configure`` reads ``M665 L R B X Y Z H`` and ``M666 X Y Z`` (``U V W`` for towers 4-6, set
+  up with ``M669``) and ``A B``; other letters it does not look at (harmless: passed over
+  with a note, :meth:`RepRapFirmwareDelta.read`). ``M665`` with no letters replies
+  ``Diagonals ..., delta radius ..., homed height ...``: that reply is not read, paste the
+  ``M665`` line of ``config.g`` / ``config-override.g``.
 
 So Klipper's ``position_endstop`` of tower ``i`` is ``H + adj_i`` (note the sign, opposite to
 Marlin's), and the bed tilt is a shear: the target ``(x, y, z)`` is driven as ``(x, y, z +
@@ -234,10 +241,7 @@ class RepRapFirmwareDelta(ControllerFormat):
 
     def parse(self, text: str, source: str) -> ControllerParameters:
         """RepRapFirmware's values from ``M665`` / ``M666`` lines (``config.g``,
-        ``config-override.g``).
-
-        Later lines override earlier ones, as the firmware executes them; ``L``, ``R`` and
-        ``H`` are required, the corrections, adjustments and tilts default to 0.
+        ``config-override.g``); :meth:`read` with its notes kept as ``params.notes``.
 
         Parameters
         ----------
@@ -249,21 +253,67 @@ class RepRapFirmwareDelta(ControllerFormat):
         Returns
         -------
         ControllerParameters
-            The values, SI.
+            The values, SI, with a ``notes`` attribute (list of str).
 
         Raises
         ------
         InputError
-            Naming the line and key of a value that is not a number, more than three
-            diagonals (extra towers are not a linear Delta of pkmcal's), a missing ``L``,
-            ``R`` or ``H``, or a diagonal not longer than the radius.
+            As :meth:`read`.
+        """
+        params, notes = self.read(text, source)
+        params.notes = notes
+        return params
+
+    def read(self, text: str, source: str) -> tuple[ControllerParameters, list[str]]:
+        """RepRapFirmware's values and notes on what was passed over.
+
+        Later lines override earlier ones, as the firmware executes them; ``L``, ``R`` and
+        ``H`` are required, the corrections, adjustments and tilts default to 0. Lines other
+        than ``M665`` / ``M666`` (``M307``, ``G31``, ``G10``, comments) are not read; host log
+        prefixes are handled as in :func:`~pkmcal.export.marlin.host_line`.
+
+        Parameters
+        ----------
+        text : str
+            The file's text.
+        source : str
+            Its name, for messages.
+
+        Returns
+        -------
+        params : ControllerParameters
+            The values, SI; ``M665 B`` (the printable radius) as ``extras["print_radius"]``, m,
+            where the parameters have ``extras``.
+        notes : list of str
+            Letters passed over (``M665 B``, the printable radius; letters ``Configure`` does
+            not read), each with the file and line.
+
+        Raises
+        ------
+        InputError
+            Naming the file, line and letter of a value that is not a number, more than three
+            diagonals or ``M666 U V W`` (extra towers are not a linear Delta of pkmcal's), a
+            missing ``L``, ``R`` or ``H``, or a diagonal not longer than the radius.
         """
         got: dict = {}
+        notes: list[str] = []
+        extras: dict = {}
         for n, code, rest in gcode_lines(text, ("M665", "M666")):
             for letter, word in gcode_words(rest, source, n, code).items():
                 keys = "LRHXYZ" if code == "M665" else "XYZAB"
+                if code == "M666" and letter in "UVW":
+                    raise InputError(f"{source}: line {n}: M666 {letter}: the endstop "
+                                     "adjustment of a fourth to sixth tower (M669); pkmcal's "
+                                     "linear Delta has three")
+                if code == "M665" and letter == "B":
+                    extras["print_radius"] = finite_number(word, source, n, "M665 B") * 1e-3
+                    notes.append(f"{source}: line {n}: M665 B: the printable radius (a limit, "
+                                 "not kinematics): not a kinematic value")
+                    continue
                 if letter not in keys:
-                    continue                    # M665 B: the printable radius
+                    notes.append(f"{source}: line {n}: {code} {letter}: not a letter "
+                                 "LinearDeltaKinematics::Configure reads: ignored")
+                    continue
                 if code == "M665" and letter == "L":
                     parts = word.split(":")
                     if len(parts) not in (1, 3):
@@ -292,9 +342,12 @@ class RepRapFirmwareDelta(ControllerFormat):
             raise InputError(f"{source}: line {got[('M665', 'R')][1]}: M665 R: the radius "
                              f"({R * 1e3:g} mm) must be > 0 and below every diagonal "
                              f"({', '.join(f'{x * 1e3:g}' for x in diag)} mm)")
-        return self.values(diag, R, g("M665", "H"), [g("M665", k) for k in "XYZ"],
-                           [g("M666", k) for k in "XYZ"], [g("M666", k) for k in "AB"],
-                           read_bed(text, source))
+        params = self.values(diag, R, g("M665", "H"), [g("M665", k) for k in "XYZ"],
+                             [g("M666", k) for k in "XYZ"], [g("M666", k) for k in "AB"],
+                             read_bed(text, source))
+        if isinstance(getattr(params, "extras", None), dict):
+            params.extras.update(extras)
+        return params, notes
 
     def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
         """A linear Delta with RepRapFirmware's values (vertical towers, one radius).
