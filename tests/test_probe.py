@@ -440,15 +440,20 @@ def _linear_delta(tmp_path, parameters=None):
 def test_linear_delta_noise_free_recovery_and_words(tmp_path):
     """Every parameter of the full error model free: 37 probe points recover the identifiable
     directions to 1e-9 (gauge-free through held-out heights); the null directions are the
-    machine's frame motions (the three endstops together absorbed by the bed height, the tilt
-    of the towers by the bed's tilt, ...), each once."""
+    machine's frame motions that no height sees, each once. The printer's frame is its bed
+    (SPEC 8): the three endstops together are its height above the bed and the towers' common
+    lean their tilt against it, both identified; the bed's own tilt cannot be told from that
+    lean, so the bed is square to the towers' frame and the report says so."""
     machine = _linear_delta(tmp_path)
     data, true, truth = simulate_scenario(machine, "probe", 37, noise=False, rng=3)
     result = calibrate_probe(machine, data)
     assert result.success and result.weak == 0
     names = {d.name: d.description for d in result.extras["unidentifiable"]}
-    assert "absorbed by the bed plane" in names["vertical translation"]
-    assert "absorbed by the bed plane" in names["tilt of the towers"]
+    assert "vertical translation" not in names and "tilt of the towers" not in names
+    assert "rotation about z" in names and "horizontal translation" in names
+    bed = result.extras["bed_choice"]
+    assert bed.tilt == "square" and "cannot tell its tilt" in bed.words
+    assert np.all(result.state.nuisance.values == 0.0)
     # the named directions are the null space, each once: on this printer's tilted bed the
     # frame motions span it (no vertical scale is left over to name a second time)
     named = sum(d.dimension for d in result.extras["unidentifiable"] if d.std is None)

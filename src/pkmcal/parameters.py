@@ -20,7 +20,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-KINDS = ("length", "angle", "ratio")
+#: ``ratio``: a gain or other factor (its change shown relative); ``slope``: dz/dx of a plane
+#: (a bed's tilt, its change shown absolute)
+KINDS = ("length", "angle", "ratio", "slope")
 
 
 @dataclass(frozen=True)

@@ -88,12 +88,16 @@ class Workspace:
         E.g. "the 0.1 m cube around home, orientations within +/-10 deg".
     bounds : tuple of ndarray
         ``(lo, hi)``, (3,) each, m: the box the positions span (for maps).
+    surface : ndarray of bool, shape (K,), optional
+        Poses on the bed (a printer's print disk): their z error is the nozzle's height
+        error above the bed.
     """
 
     P: np.ndarray
     R: np.ndarray
     description: str
     bounds: tuple[np.ndarray, np.ndarray]
+    surface: np.ndarray | None = None
 
 
 def box_workspace(machine: Machine, lo, hi, n: int = 500, rng=0,

@@ -385,6 +385,9 @@ class CalibrateOptions:
         ``"auto"``: try the machine's model extensions, adopted by cross-validation
         (full poses); ``"none"``: the plain model; None: not asked for (``"auto"`` where the
         data take extensions).
+    bed_tilt : str or None
+        Probe heights on a printer: ``"auto"`` (None), ``"estimate"`` or ``"square"``
+        (:func:`~pkmcal.calibration.probe.bed_choice`).
     """
 
     method: str | None = None
@@ -395,6 +398,7 @@ class CalibrateOptions:
     robust: bool = False
     fix_frames: bool = False
     extensions: str | None = None
+    bed_tilt: str | None = None
 
 
 @dataclass(frozen=True)
@@ -740,7 +744,8 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
               pose_noise: str | None = None, estimate_lc: bool | None = None,
               two_step: bool = False, robust: bool = False, fix_frames: bool = False,
               holdout: float | str | None = None, seed: int = 0,
-              parameters: str | None = None, extensions: str | None = None) -> Calibration:
+              parameters: str | None = None, extensions: str | None = None,
+              bed_tilt: str | None = None) -> Calibration:
     """Calibrate ``machine`` from measurements; the measurement kind follows from the data.
 
     Parameters
@@ -788,6 +793,14 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         (cross-validation, :mod:`pkmcal.calibration.extensions`); ``"none"`` fits the plain
         model. None (default): ``"auto"`` for full poses; other data take no extensions and
         refuse the option when it is given.
+    bed_tilt : {"auto", "estimate", "square"}, optional
+        Probe heights on a printer (its frame is its bed): whether the bed's tilt against the
+        towers is estimated (default ``"auto"``: where the data tell it from the parameter
+        set; :func:`~pkmcal.calibration.probe.bed_choice`).
+
+    A Klipper ``printer.cfg`` among the data is read for the measurements its
+    ``[delta_calibrate]`` section saved (heights, manual heights, DELTA_ANALYZE distances;
+    :func:`~pkmcal.io.klipper_config.delta_calibrate_data`).
 
     Returns
     -------
@@ -813,6 +826,10 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     chosen = None
     if parameters is not None:
         machine, chosen = apply_parameter_set(machine, parameters), str(parameters)
+    given = data
+    data = expand_firmware_data(data, machine)
+    if bed_tilt is not None and bed_tilt not in ("auto", "estimate", "square"):
+        raise InputError(f"--bed-tilt {bed_tilt}: auto, estimate or square")
     if isinstance(data, (list, tuple)):
         if not data:
             raise InputError("no data file given")
@@ -821,7 +838,8 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
                                           options=CalibrateOptions(method, None, pose_noise,
                                                                    estimate_lc, two_step,
                                                                    robust, fix_frames,
-                                                                   extensions))
+                                                                   extensions, bed_tilt))
+            calibration.inputs = _inputs_of(given, calibration.inputs)
             return _with_parameter_set(calibration, chosen)
         data = data[0]
     if isinstance(noise, dict):     # named as the joint fit names it: the path or its source
@@ -845,15 +863,26 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
                              f"{machine.kind}: {kind.why_not(machine)}; a {machine.kind} is "
                              f"calibrated from {need}")
     options = CalibrateOptions(method, noise, pose_noise, estimate_lc, two_step, robust,
-                               fix_frames, extensions)
+                               fix_frames, extensions, bed_tilt)
     kind.check_options(options, source)
     calibration = kind.calibrate(machine, data, source, options, split)
     inputs = [Path(source)] if isinstance(data, (str, Path)) else []
     machine_file = getattr(machine, "source", None)
     if machine_file and machine_file != "default" and Path(machine_file).is_file():
         inputs.append(Path(machine_file))
-    calibration.inputs = inputs
+    calibration.inputs = _inputs_of(given, inputs)
     return _with_parameter_set(calibration, chosen)
+
+
+def _inputs_of(given, inputs: list) -> list:
+    """The input files to protect: ``inputs`` and every path the user gave (a firmware file
+    read for its measurements is an input too)."""
+    items = list(given) if isinstance(given, (list, tuple)) else [given]
+    out = list(inputs)
+    for item in items:
+        if isinstance(item, (str, Path)) and Path(item) not in out:
+            out.append(Path(item))
+    return out
 
 
 def _load(data, reader, machine):
@@ -879,9 +908,10 @@ def _parameter_table(result, nominal_of: dict, units):
     rows = []
     params = result.parameters
     for i, (name, kind) in enumerate(zip(params.names, params.kinds, strict=True)):
-        f = fl if kind == "length" else fa if kind == "angle" else 1.0
+        f = fl if kind == "length" else fa if kind == "angle" else 1e-3 if kind == "slope" \
+            else 1.0
         unit = units["length"] if kind == "length" else units["angle"] if kind == "angle" \
-            else "1"
+            else "mm/m" if kind == "slope" else "1"
         nominal = nominal_of.get(name, float("nan"))
         fixed = bool(params.fixed[i])
         rows.append({
@@ -2114,6 +2144,10 @@ class JointPart:
     noise: object
     noise_text: str
     kind: str
+    #: ``with_others(equations, unknowns) -> (model, words)``: the part's model once the
+    #: other files are known (a printer's bed tilt, decided on every file's equations)
+    with_others: Callable | None = None
+    frame: str = ""
 
 
 def _joint_tracker(machine, data, source, noise) -> JointPart:
@@ -2149,11 +2183,41 @@ def _joint_distances(machine, data, source, noise) -> JointPart:
                      f"ballbar {noise_model.sigma * 1e6:.4g} um (std)", "distance")
 
 
+def _joint_probe(machine, data, source, noise) -> JointPart:
+    from ..io import read_probe
+    from .probe import bed_choice
+
+    noise_model = _probe_noise(noise, machine)
+    probe = _load(data, read_probe, machine)
+    probe.source = str(source)
+    _check_heights(probe)
+
+    def with_others(equations, unknowns, choice="auto"):
+        bed = bed_choice(machine, probe, noise_model, choice, equations, unknowns)
+        return bed.model(), bed.words
+
+    model, frame = with_others(0, 0, "estimate" if machine.frame_is_bed else "auto")
+    return JointPart(probe, model, noise_model,
+                     f"probe trigger {noise_model.sigma * 1e6:.4g} um along z (std)", "probe",
+                     with_others, frame)
+
+
+def _joint_pairs(machine, data, source, noise) -> JointPart:
+    from ..instruments.pairs import PairDistanceModel
+
+    noise_model = _pair_noise(noise, machine)
+    pairs = _load(data, _read_pairs, machine)
+    pairs.source = str(source)
+    return JointPart(pairs, PairDistanceModel(), noise_model,
+                     f"distances {noise_model.sigma * 1e6:.4g} um (std)", "pair-distances")
+
+
 #: measurement kinds that combine in one fit: kind -> ``prepare(machine, data, source,
 #: noise) -> JointPart``. A kind not listed here combines too when its handler's result has
 #: an :class:`~pkmcal.instruments.InstrumentProblem` in ``extras["problem"]`` (the instrument
 #: layer's kinds); full poses and the constraint link (a pose per measurement) do not.
-JOINT_KINDS: dict[str, Callable] = {"tracker": _joint_tracker, "distance": _joint_distances}
+JOINT_KINDS: dict[str, Callable] = {"tracker": _joint_tracker, "distance": _joint_distances,
+                                    "probe": _joint_probe, "pair-distances": _joint_pairs}
 
 #: kinds refused in a joint fit, with why
 _NOT_JOINT = {"pose": "full poses estimate a platform pose per measurement",
@@ -2291,6 +2355,13 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         part.data, h = _split_rows(part.data, split, source)
         parts.append(part)
         held.append(h)
+    for i, part in enumerate(parts):
+        if part.with_others is not None:
+            others = [p for j, p in enumerate(parts) if j != i]
+            part.model, part.frame = part.with_others(
+                sum(len(p.data) * p.model.size for p in others),
+                sum(int(np.sum(p.model.parameters.free)) for p in others),
+                (options.bed_tilt if options is not None and options.bed_tilt else "auto"))
     names = ", ".join(map(str, sources))
     try:
         result = fit_joint(machine, [(p.data, p.model, p.noise) for p in parts], labels,
@@ -2352,7 +2423,8 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         elif isinstance(model, ProbeModel):
             bed = tuple(float(v) for v in sub.nuisance.values[:3])
             entry["bed"] = {"height": bed[0] / fl, "tilt_x": bed[1], "tilt_y": bed[2],
-                            "unit": units["length"], "tilt": "slopes dz/dx, dz/dy"}
+                            "unit": units["length"], "tilt": "slopes dz/dx, dz/dy",
+                            "frame": part.frame}
             if bed_from is None:
                 bed_from = str(source)
                 calibrated.probe_bed = bed
@@ -2394,6 +2466,8 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         "parameter_names": "each file's instrument unknowns are named FILE:name (e.g. "
                            f"{labels[0]}:{parts[0].model.parameters.names[0]})",
         "instrument_sections": sections,
+        **({"bed_frame": next(p.frame for p in parts if p.frame)}
+           if any(p.frame for p in parts) else {}),
         "convergence": _convergence_json(result),
         "residuals": {
             "of": "every file's whitened residuals (measured - predicted, / assumed noise)",
@@ -2469,6 +2543,172 @@ register_kind(MeasurementKind(
     readings_only=True))
 
 
+# -- distances between two nozzle positions (SPEC 8) ------------------------------------------
+
+#: default noise of a distance between two points of a printed part (caliper), m
+PAIR_SIGMA = 20e-6
+
+
+def _pair_noise(noise, machine):
+    """The noise of two-point distances (``--noise``; default :data:`PAIR_SIGMA`)."""
+    from ..instruments import IsotropicNoise
+    from ..io.plausibility import check_option_scale
+    from ..units import parse_quantity
+
+    if noise is None:
+        return IsotropicNoise(PAIR_SIGMA)
+    if hasattr(noise, "whitening"):
+        return noise
+    sigma = parse_quantity(noise, "length", "--noise") if isinstance(noise, str) \
+        else float(noise)
+    if not sigma > 0:
+        raise InputError(f"--noise: must be > 0 (the standard deviation of a measured "
+                         f"distance), got {noise}")
+    check_option_scale(sigma, machine, "--noise", "noise", str(noise))
+    return IsotropicNoise(sigma)
+
+
+def _read_pairs(path, machine):
+    """Two-point distances from a CSV file: ``q1_<unit>..q<n>_<unit>`` (first position),
+    ``q1b_<unit>..q<n>b_<unit>`` (second) and ``distance_<unit>``."""
+    from ..instruments.pairs import pair_data
+    from ..io.csv_io import _column_values, find_column, joint_quantity, read_table
+
+    header, table = read_table(path)
+    quantity = joint_quantity(machine)
+    cols = []
+    for suffix in ("", "b"):
+        q = []
+        for j in range(machine.n_joints):
+            i, f = find_column(path, header, f"q{j + 1}{suffix}", quantity)
+            q.append(_column_values(path, header, table, i, f))
+        cols.append(np.column_stack(q))
+    i, f = find_column(path, header, "distance", "length")
+    d = _column_values(path, header, table, i, f)
+    rows = np.array([line for line, _ in table], int)
+    bad = np.flatnonzero(~(d > 0))
+    if bad.size:
+        raise InputError(f"{path}: row {rows[bad[0]]}, column {header[i]}: a distance must "
+                         "be > 0")
+    return pair_data(cols[0], cols[1], d, rows, str(path))
+
+
+def _check_pairs(options: CalibrateOptions, source) -> None:
+    _only_for_poses(options, source, "two-point distance")
+    for option, given in (("--method", options.method is not None),
+                          ("--estimate-lc", options.estimate_lc is not None),
+                          ("--two-step", options.two_step),
+                          ("--bed-tilt", options.bed_tilt is not None)):
+        if given:
+            raise InputError(f"{option}: does not apply to two-point distances ({source}); "
+                             "see --noise, --robust")
+
+
+def _calibrate_pairs(machine, data, source, options: CalibrateOptions, split) -> Calibration:
+    from ..instruments import fit_instrument
+    from ..instruments.pairs import PairDistanceModel
+
+    noise = _pair_noise(options.noise, machine)
+
+    def fit(machine_, data_, noise_, **kwargs):
+        return fit_instrument(machine_, data_, PairDistanceModel(), noise_, **kwargs)
+
+    data, held, result, before, calibrated, params, units = _fit_with_baseline(
+        machine, data, source, split, _read_pairs, fit, noise,
+        "measure distances in several directions and at several heights", options)
+    problem = result.extras["problem"]
+    rms_after, r_after = _scalar_rms(problem, result.state, data)
+    rms_before, _ = _scalar_rms(before.extras["problem"], before.state, data)
+    ok = np.isfinite(r_after)
+    n_free = int(np.sum(result.parameters.free))
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    report = {
+        **_report_head(machine, source, "pair-distances", "joint"),
+        "units": units,
+        "measurements": len(data),
+        "noise": f"distances {noise.sigma * 1e6:.4g} um (std)",
+        "convergence": _convergence_json(result),
+        "residuals": {
+            "of": "distances between the two nozzle positions, measured - predicted",
+            "count": int(ok.sum()),
+            "rms_um": rms_after,
+            "max_abs_um": _um(float(np.max(np.abs(r_after[ok])))) if ok.any() else None,
+            "before_rms_um": rms_before,
+            "before": "machine file's model",
+            "residual_variance": float(result.residual_variance),
+            "noise_scale": float(np.sqrt(result.residual_variance))
+            if np.isfinite(result.residual_variance) else None,
+            "dof": int(result.dof),
+        },
+        "identifiability": _identifiability_json(n_free, int(result.rank), unidentifiable,
+                                                 np.asarray(result.singular_values, float)),
+        "parameters": _public(params),
+    }
+    metadata = {"method": "pair-distances", "date": report["date"], "data": str(source),
+                "machine": _source_of(machine), "measurements": len(data),
+                "rms_residual_um": rms_after, "identifiable": int(result.rank),
+                "free_parameters": n_free, **_identifiability_metadata(unidentifiable)}
+    return _finish("pair-distances", machine, calibrated, result, report, metadata, params,
+                   units)
+
+
+register_kind(MeasurementKind(
+    name="pair-distances",
+    columns="the readings at two nozzle positions q1_<unit>.. and q1b_<unit>.. and the "
+            "distance between them, distance_mm (a caliper on a printed part)",
+    detect=lambda header: _has(header, "q1b") and _has(header, "distance"),
+    calibrate=_calibrate_pairs, check_options=_check_pairs, data_class="InstrumentData",
+    priority=5))
+
+
+def _check_heights(data) -> None:
+    """A wrong sign of every probe height refused, naming the fix."""
+    h = np.asarray(data.values, float)[:, 0]
+    if len(h) and np.all(h < 0):
+        raise InputError(f"{data.source}: every probe height is negative (largest "
+                         f"{h.max() * 1e3:.4g} mm): probe_z is the nozzle's height ABOVE the "
+                         "bed when the probe triggers (Klipper's heightN and [probe] z_offset, "
+                         "positive; Marlin's M851 Z is its negative): flip the sign")
+
+
+def expand_firmware_data(data, machine):
+    """Data files that are a firmware's saved state (a Klipper ``printer.cfg`` with
+    ``[delta_calibrate]`` data) replaced by the measurements they hold.
+
+    Parameters
+    ----------
+    data : path, data object or list of them
+        What :func:`calibrate` was given.
+    machine : Machine
+        The machine.
+
+    Returns
+    -------
+    object or list
+        ``data`` with each firmware file replaced by its data objects (a list when that gives
+        more than one).
+    """
+    from ..io.klipper_config import is_klipper_config, read_klipper_data
+
+    items = list(data) if isinstance(data, (list, tuple)) else [data]
+    out, changed = [], False
+    for item in items:
+        if isinstance(item, (str, Path)) and Path(item).is_file():
+            try:
+                with open(item, encoding="utf-8", errors="replace") as f:
+                    head = f.read(4096)
+            except OSError:
+                head = ""
+            if is_klipper_config(item, head):
+                out.extend(read_klipper_data(item, machine))
+                changed = True
+                continue
+        out.append(item)
+    if not changed:
+        return data
+    return out[0] if len(out) == 1 else out
+
+
 # -- bed-probe heights (issue 14 items 2, 3) --------------------------------------------------
 
 
@@ -2507,11 +2747,26 @@ def _probe_noise(noise, machine):
 def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) -> Calibration:
     from ..io import read_probe
     from ..units import LENGTH
-    from .probe import MEASURE_NEXT, POOR_STD, calibrate_probe, poorly_determined_warnings
+    from .probe import (
+        MEASURE_NEXT,
+        POOR_STD,
+        bed_choice,
+        calibrate_probe,
+        poorly_determined_warnings,
+    )
 
     noise = _probe_noise(options.noise, machine)
+    chosen: dict = {}
+
+    def fit(machine_, data_, noise_, **kwargs):
+        # one bed model for the fit and its baseline, chosen on the parameter set's unknowns
+        if "bed" not in chosen:
+            _check_heights(data_)
+            chosen["bed"] = bed_choice(machine, data_, noise_, options.bed_tilt or "auto")
+        return calibrate_probe(machine_, data_, noise_, bed=chosen["bed"], **kwargs)
+
     data, held, result, before, calibrated, params, units = _fit_with_baseline(
-        machine, data, source, split, read_probe, calibrate_probe, noise,
+        machine, data, source, split, read_probe, fit, noise,
         "probe over the whole bed (the centre and rings out to the edge of the reachable "
         "radius)", options)
     fl = LENGTH[units["length"]]
@@ -2537,7 +2792,10 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
         "noise": f"probe trigger {noise.sigma * 1e6:.4g} um along z (std)",
         "bed": {**plane(bed), "before": plane(bed_before),
                 "model": "z = height + tilt_x x + tilt_y y (base frame); heights measured "
-                         "along z"},
+                         "along z",
+                "frame": chosen["bed"].words, "tilt_estimated": chosen["bed"].tilt
+                == "estimated"},
+        "bed_frame": chosen["bed"].words,
         "convergence": _convergence_json(result),
         "residuals": {
             "of": "probe heights, measured - predicted (forward kinematics of the readings, "

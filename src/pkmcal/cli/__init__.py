@@ -346,6 +346,12 @@ def calibrate(
              "platform's per-leg reading curvature) and adopts one only when it predicts rows "
              "held out of the fit better (5-fold cross-validation, in the report); none fits "
              "the plain model. Other data take no extensions and refuse it.")] = None,
+    bed_tilt: Annotated[str | None, typer.Option(
+        "--bed-tilt", metavar="auto|estimate|square", show_default=False,
+        help="Probe heights on a printer (its frame is its bed, z = 0): auto (default) "
+             "estimates the bed's tilt against the towers where the data tell it from the "
+             "parameter set and takes the bed square to the towers otherwise, as the firmware "
+             "does; estimate / square force either.")] = None,
 ) -> None:
     """Identify the geometry from measurements; write the calibrated machine and a report.
 
@@ -376,6 +382,12 @@ def calibrate(
 
     Example: `pkmcal calibrate machine.yaml points.csv ballbar.csv --noise ballbar.csv=2um
     -o cal.yaml`
+
+    A Klipper printer.cfg is data too: the heights, manual heights and DELTA_ANALYZE
+    distances its [delta_calibrate] section saved (step counts turned into millimetres with
+    the steppers' rotation_distance, microsteps, full_steps_per_rotation, gear_ratio).
+
+    Example: `pkmcal calibrate printer.yaml printer.cfg --parameters klipper-basic -o cal.yaml`
     """
     from ._commands import run_calibrate
 
@@ -383,7 +395,8 @@ def calibrate(
                                    noise, estimate_lc, json_output, two_step, robust,
                                    pose_noise=pose_noise, fix_frames=fix_frames,
                                    report_dir=report, holdout=holdout, seed=seed,
-                                   parameters=parameters, extensions=extensions))
+                                   parameters=parameters, extensions=extensions,
+                                   bed_tilt=bed_tilt))
 
 
 @app.command()

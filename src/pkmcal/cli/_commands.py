@@ -511,7 +511,8 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
                   two_step: bool = False, robust: bool = False, pose_noise=None,
                   fix_frames: bool = False, report_dir: Path | None = None,
                   holdout: str | None = None, seed: int = 0,
-                  parameters: str | None = None, extensions: str | None = None) -> int:
+                  parameters: str | None = None, extensions: str | None = None,
+                  bed_tilt: str | None = None) -> int:
     from ..calibration.run import CalibrationNotConverged, calibrate, noise_per_file_arg
 
     paths = list(data_path) if isinstance(data_path, (list, tuple)) else [data_path]
@@ -540,7 +541,7 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
                                 pose_noise=pose_noise, estimate_lc=estimate_lc,
                                 two_step=two_step, robust=robust, fix_frames=fix_frames,
                                 holdout=holdout, seed=seed, parameters=parameters,
-                                extensions=extensions)
+                                extensions=extensions, bed_tilt=bed_tilt)
     except CalibrationNotConverged as exc:
         error(str(exc))
         return 1
@@ -612,6 +613,8 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
                       "residuals")
     for section in report.get("instrument_sections", []):
         table.add_row("calibrated file", section)
+    if report.get("bed_frame"):
+        table.add_row("bed", report["bed_frame"])
     _noise_rows(table, report)
     table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
     out.print(table)
@@ -675,7 +678,9 @@ def _print_changes(params, limit: int = 10) -> None:
         micro = "um" if p["kind"] == "length" else "urad"
         f = (1e3 if p["unit"] == "mm" else 1e6) if p["kind"] == "length" else \
             (math.pi / 180 * 1e6 if p["unit"] == "deg" else 1e6)
-        if p["kind"] not in ("length", "angle"):     # a gain: relative change
+        if p["kind"] == "slope":                    # a plane's slope, mm/m: absolute change
+            micro, f = "um/m", 1e3
+        elif p["kind"] not in ("length", "angle"):     # a gain: relative change
             micro = "ppm" if p["nominal"] else p["unit"]   # from 0 (a curvature): its unit
             f = 1e6 / abs(p["nominal"]) if p["nominal"] else 1.0
         std = f"{p['std'] * f:.3g}" if p["std"] is not None else "fixed"
@@ -868,6 +873,8 @@ def _print_any_calibration(report, params, data_path, output, report_path, machi
                       + f") {unit} (platform)")
     if "validation" in report:
         table.add_row("held-out", report["validation"]["summary"])
+    if report.get("bed_frame"):
+        table.add_row("bed", report["bed_frame"])
     _noise_rows(table, report)
     table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
     out.print(table)

@@ -33,7 +33,7 @@ def export_record(result, calibrated: str, output: Path, nominal: str | None) ->
 def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = None,
                workspace: str | None = None, seed: int = 0) -> int:
     """``pkmcal export``: fit the controller's values, write FILE and FILE.json."""
-    from ..export import controller_format, export
+    from ..export import ControllerFormat, controller_format, export
     from ._planning import workspace_arg
 
     fmt = controller_format(to)
@@ -47,7 +47,17 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
     pinned = _pinned_report(machine, machine_spec)
     if pinned is not None:
         inputs.append(pinned)
-    check_outputs([output] + ([record_path] if record_path is not None else []), inputs)
+    # onto an existing controller file: saved as the controller saves (the previous file kept
+    # beside it, dated), where the format knows how; read before anything is written
+    existing = backup = None
+    if not is_stream(output) and output.is_file():
+        existing = read_input_text(output, f"{fmt.name} file", register=False)
+        if type(fmt).update is not ControllerFormat.update:
+            from ..io.klipper_config import backup_name
+
+            backup = backup_name(output)
+    check_outputs([output] + ([record_path] if record_path is not None else [])
+                  + ([backup] if backup is not None else []), inputs)
     why = fmt.applies(machine)
     if why is not None:
         raise InputError(f"--to {fmt.name}: {machine_spec}: {why}")
@@ -60,9 +70,16 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
         if before.kind != machine.kind:
             raise InputError(f"--nominal {nominal}: a {before.kind} machine, but {machine_spec} "
                              f"is a {machine.kind} machine")
-    ws = workspace_arg(workspace, machine, seed)
-    result = export(fmt, machine, ws.P, ws.R, nominal=before, workspace=ws.description)
-    atomic_write_text(output, result.text)
+    own = getattr(machine, "print_workspace", None)
+    ws = (own(rng=seed) if workspace is None and callable(own)
+          else workspace_arg(workspace, machine, seed))
+    result = export(fmt, machine, ws.P, ws.R, nominal=before, workspace=ws.description,
+                    surface=ws.surface)
+    text = result.text
+    if existing is not None and backup is not None:
+        text = fmt.update(existing, result.params, machine, str(output))
+        atomic_write_text(backup, existing)
+    atomic_write_text(output, text)
     if record_path is not None:
         atomic_write_text(record_path, json.dumps(export_record(result, machine_spec, output,
                                                                 nominal), indent=2) + "\n")
@@ -71,18 +88,31 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
     table = _table("", "", show_header=False)
     table.add_row("format", fmt.name)
     table.add_row("workspace", f"{ws.description} ({len(ws.P)} poses)")
+    if result.height_rms is not None:
+        table.add_row("nozzle height error", f"RMS {_um(result.height_rms)}, max "
+                      f"{_um(result.height_max)} above the bed over the print disk, through "
+                      "the controller's kinematics (what its values cannot hold, the bed's "
+                      "tilt included, and rounding)")
     table.add_row("remaining error", f"RMS {_um(result.remaining_rms)}, max "
-                                      f"{_um(result.remaining_max)} (what the controller "
-                                      "cannot represent, and rounding)")
+                                      f"{_um(result.remaining_max)} (position, what the "
+                                      "controller cannot represent, and rounding)")
     if before is not None:
         table.add_row("error of --nominal", f"RMS {_um(result.before_rms)}, max "
-                                           f"{_um(result.before_max)} (the values of {nominal})")
+                                           f"{_um(result.before_max)} (the values of {nominal})"
+                      + ("" if result.before_height_rms is None else
+                         f"; nozzle height RMS {_um(result.before_height_rms)}, max "
+                         f"{_um(result.before_height_max)}"))
+    if backup is not None:
+        table.add_row("updated", f"{output} as the controller saves its values (previous "
+                                 f"file kept as {backup.name})")
     out.print(table)
     values = _table("value", "written", title="Values written (the controller's units)")
     for name, text in fmt.values_text(result.params):
         values.add_row(name, text)
     out.print(values)
-    out.print(f"wrote {output}" + (f" and {record_path}" if record_path else ""), markup=False)
+    out.print(f"wrote {output}" + (f" and {record_path}" if record_path else "")
+              + (f" (previous {output.name} kept as {backup.name})" if backup else ""),
+              markup=False)
     return 0
 
 

@@ -40,12 +40,17 @@ class ControllerParameters:
     fixed : ndarray of bool, shape (n,)
         Parameters the fit holds (a gauge the controller's format fixes, or a value the
         controller does not let the user set).
+    extras : dict
+        Values beside the kinematics (``print_radius``, ``probe_radius``, m).
     """
 
     names: list
     values: np.ndarray
     kinds: list
     fixed: np.ndarray = field(default=None)  # type: ignore[assignment]
+    #: what the file holds beside the kinematics that a machine file keeps (a printer's
+    #: ``print_radius`` and probing radius, m)
+    extras: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.values = np.asarray(self.values, float).reshape(-1)
@@ -66,7 +71,7 @@ class ControllerParameters:
             The copy.
         """
         return ControllerParameters(list(self.names), np.asarray(values, float),
-                                    list(self.kinds), self.fixed.copy())
+                                    list(self.kinds), self.fixed.copy(), dict(self.extras))
 
     def as_dict(self) -> dict:
         """Name -> value (SI).
@@ -215,6 +220,29 @@ class ControllerFormat(ABC):
             The file's text.
         """
 
+    def update(self, existing: str, params: ControllerParameters, machine: Machine,
+               source: str) -> str | None:
+        """The controller's existing file with these values saved, as the controller itself
+        saves them; None: the format writes whole files only (an existing file is replaced).
+
+        Parameters
+        ----------
+        existing : str
+            The current file's text.
+        params : ControllerParameters
+            The values.
+        machine : Machine
+            The machine they are for.
+        source : str
+            The file's name, for messages.
+
+        Returns
+        -------
+        str or None
+            The new text.
+        """
+        return None
+
     @abstractmethod
     def parse(self, text: str, source: str) -> ControllerParameters:
         """The values of a controller file (import).
@@ -276,6 +304,11 @@ class ExportResult:
         The workspace in words.
     points : int
         Number of workspace poses.
+    height_rms, height_max : float or None
+        A printer's nozzle height error above the bed over the workspace's points on the bed
+        (RMS, max), m; None without such points.
+    before_height_rms, before_height_max : float or None
+        The same for ``nominal``'s values.
     """
 
     format: str
@@ -287,6 +320,10 @@ class ExportResult:
     before_max: float | None
     workspace: str
     points: int
+    height_rms: float | None = None
+    height_max: float | None = None
+    before_height_rms: float | None = None
+    before_height_max: float | None = None
 
     def as_dict(self) -> dict:
         """The result for a report (lengths in um).
@@ -303,7 +340,10 @@ class ExportResult:
                 "workspace": self.workspace, "points": self.points,
                 "remaining_rms_um": um(self.remaining_rms),
                 "remaining_max_um": um(self.remaining_max),
-                "before_rms_um": um(self.before_rms), "before_max_um": um(self.before_max)}
+                "before_rms_um": um(self.before_rms), "before_max_um": um(self.before_max),
+                "height_rms_um": um(self.height_rms), "height_max_um": um(self.height_max),
+                "before_height_rms_um": um(self.before_height_rms),
+                "before_height_max_um": um(self.before_height_max)}
 
 
 def position_errors(fmt: ControllerFormat, params: ControllerParameters, machine: Machine,
@@ -401,7 +441,7 @@ def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
 
 
 def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine | None = None,
-           workspace: str = "") -> ExportResult:
+           workspace: str = "", surface=None) -> ExportResult:
     """The controller file for a calibrated machine: fitted values and the error they leave.
 
     Parameters
@@ -419,6 +459,8 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
         calibration): their error on the calibrated machine is reported too.
     workspace : str, optional
         The workspace in words.
+    surface : array_like of bool, shape (K,), optional
+        Poses on a printer's bed: their z error is reported as the nozzle's height error.
 
     Returns
     -------
@@ -434,14 +476,27 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
     if why is not None:
         raise InputError(f"--to {fmt.name}: {why}")
     params = fit_controller(fmt, machine, P, R)
-    e = np.linalg.norm(position_errors(fmt, params, machine, P, R), axis=-1)
-    before = (None, None)
+    E = position_errors(fmt, params, machine, P, R)
+    e = np.linalg.norm(E, axis=-1)
+    on = None if surface is None else np.asarray(surface, bool)
+    if on is not None and not on.any():
+        on = None
+
+    def heights(errors):
+        if on is None:
+            return None, None
+        z = np.abs(errors[on, 2])
+        return float(np.sqrt(np.nanmean(z**2))), float(np.nanmax(z))
+
+    before, before_h = (None, None), (None, None)
     if nominal is not None:
-        e0 = np.linalg.norm(position_errors(fmt, fmt.initial(nominal), machine, P, R), axis=-1)
+        E0 = position_errors(fmt, fmt.initial(nominal), machine, P, R)
+        e0 = np.linalg.norm(E0, axis=-1)
         before = (float(np.sqrt(np.nanmean(e0**2))), float(np.nanmax(e0)))
+        before_h = heights(E0)
     return ExportResult(fmt.name, params, fmt.text(params, machine),
                         float(np.sqrt(np.nanmean(e**2))), float(np.nanmax(e)), *before,
-                        workspace, len(P))
+                        workspace, len(P), *heights(E), *before_h)
 
 
 def export_workspace(machine: Machine, workspace=None, n: int = 500, rng=0):

@@ -13,7 +13,11 @@ Read in Klipper's source (``Klipper3d/klipper``, ``klippy/kinematics/delta.py``,
   (``DeltaCalibration.calc_stable_position``: steps since the endstop are ``(abs_endstop -
   height) / step_dist``), so the travel down from the endstop is ``abs_endstop - height``;
 - ``SAVE_CONFIG`` writes the values with ``%.6f`` into the ``#*#`` block at the end of
-  ``printer.cfg`` (``DeltaCalibration.save_state``), which overrides the sections above it.
+  ``printer.cfg`` (``DeltaCalibration.save_state``) and comments out the same options in the
+  sections above it; where both define an option, Klipper uses the sections' value
+  (``klippy/configfile.py``, ``_strip_duplicates``). ``pkmcal export -o printer.cfg`` onto an
+  existing config does the same (:meth:`KlipperDelta.update`), keeping the previous file as a
+  dated backup.
 
 ``print_radius`` and ``minimum_z_position`` are not kinematics: the fragment leaves them as the
 user has them. Klipper cannot hold tower tilts or per-tower radii: :func:`fit_controller` finds
@@ -23,13 +27,14 @@ The controller's coordinates
 ----------------------------
 Klipper's ``z = 0`` is the bed. A calibrated machine file with a ``bed`` section (a probe
 calibration, ``machine.probe_bed = (height, tilt_x, tilt_y)``: the bed is the plane ``z =
-height + tilt_x x + tilt_y y`` of the calibrated frame) puts Klipper's origin on the bed at
-the base frame's z axis: the controller's target ``(x, y, z)`` is the calibrated frame's
-``(x, y, z + height)``, so the written ``position_endstop`` values are heights above the bed.
-The bed's tilt is not kinematics for Klipper (``bed_mesh`` corrects it): the fragment names it
-in a comment and the remaining error leaves it out. The bed is carried in the values as three
-fixed entries (``bed.z``, ``bed.tilt_x``, ``bed.tilt_y``) and written as a ``# pkmcal bed:``
-comment, which :meth:`KlipperDelta.parse` reads back.
+height + tilt_x x + tilt_y y`` of the calibrated frame; a printer's probe calibration holds
+its height at 0, SPEC 8) puts Klipper's z = 0 on the bed: the controller's target ``(x, y,
+z)`` is the calibrated frame's ``(x, y, z + height + tilt_x x + tilt_y y)``, a height above
+the bed. Klipper's values cannot hold a tilt of the bed against the towers: the fit folds
+into them what they can hold of it and the remaining error counts the rest (``bed_mesh``
+corrects it). The bed is carried in the values as three fixed entries (``bed.z``,
+``bed.tilt_x``, ``bed.tilt_y``) and written as a ``# pkmcal bed:`` comment, which
+:meth:`KlipperDelta.parse` reads back.
 
 This module also holds the helpers the Marlin and RepRapFirmware formats share
 (:func:`vertical_tower_travel`, :func:`controller_endstops`, :func:`linear_delta_machine`).
@@ -48,7 +53,7 @@ from .base import ControllerFormat, ControllerParameters, finite_number, registe
 
 #: the bed entries every linear-Delta format carries (fixed): height m, slopes dz/dx, dz/dy
 BED = ("bed.z", "bed.tilt_x", "bed.tilt_y")
-BED_KINDS = ("length", "ratio", "ratio")
+BED_KINDS = ("length", "slope", "slope")
 #: the tower letters of Klipper's steppers
 TOWERS = "abc"
 #: ``# pkmcal bed: height=<mm> tilt_x=<dz/dx> tilt_y=<dz/dy>`` (any comment character)
@@ -361,7 +366,10 @@ class KlipperDelta(ControllerFormat):
         v = params.values
         radius, arms, angles, pe, bed = v[0], v[1:4], v[4:7], v[7:10], v[10:13]
         Pc = np.array(P, float).reshape(-1, 3)
-        Pc[:, 2] -= bed[0]
+        # Klipper's z is the height above the bed: the bed's plane (height and tilt) of the
+        # calibrated frame is its z = 0; what Klipper's values cannot fold in of the tilt is
+        # in the remaining error
+        Pc[:, 2] -= bed[0] + bed[1] * Pc[:, 0] + bed[2] * Pc[:, 1]
         tops = pe + np.sqrt(arms**2 - radius**2)
         return vertical_tower_travel(tower_positions(radius, angles), arms, tops, Pc)
 
@@ -383,12 +391,16 @@ class KlipperDelta(ControllerFormat):
         v = params.values
         bed = v[10:13]
         lines = [f"# pkmcal export --to klipper: {machine.name or 'linear Delta'}",
-                 "# Klipper delta kinematics (klippy/kinematics/delta.py); merge into "
-                 "printer.cfg (and remove these keys from a #*# SAVE_CONFIG block, which "
-                 "overrides them)",
-                 "# z = 0 is the bed at the centre" + (
-                     f"; the bed's tilt (dz/dx {bed[1]:.6g}, dz/dy {bed[2]:.6g}) is left to "
-                     "bed_mesh" if np.any(bed[1:] != 0) else ""),
+                 "# Klipper delta kinematics (klippy/kinematics/delta.py). To use it: pkmcal "
+                 "export --to klipper -o printer.cfg onto your printer.cfg saves these values "
+                 "as Klipper's SAVE_CONFIG does; or copy them into the #*# SAVE_CONFIG block "
+                 "and delete the same keys from the sections above it (Klipper uses the "
+                 "main sections' values where both have one)",
+                 "# z = 0 is the bed" + (
+                     f"; the bed's tilt against the towers (dz/dx {bed[1]:.6g}, dz/dy "
+                     f"{bed[2]:.6g}) is folded into these values as far as they can hold it, "
+                     "the rest counted in the remaining error (bed_mesh corrects it)"
+                     if np.any(bed[1:] != 0) else ""),
                  bed_text(bed, "#"),
                  "[printer]", "kinematics: delta", f"delta_radius: {v[0] * 1e3:.6f}"]
         for i, t in enumerate(TOWERS):
@@ -396,6 +408,49 @@ class KlipperDelta(ControllerFormat):
                       f"angle: {np.degrees(v[4 + i]):.9f}",
                       f"position_endstop: {v[7 + i] * 1e3:.6f}"]
         return "\n".join(lines) + "\n"
+
+    def saved_values(self, params: ControllerParameters) -> dict:
+        """The options ``DeltaCalibration.save_state`` writes, as it formats them (``%.6f``).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        dict
+            ``{(section, option): text}``, mm and deg.
+        """
+        v = params.values
+        out = {("printer", "delta_radius"): f"{v[0] * 1e3:.6f}"}
+        for i, t in enumerate(TOWERS):
+            out[(f"stepper_{t}", "angle")] = f"{np.degrees(v[4 + i]):.6f}"
+            out[(f"stepper_{t}", "arm_length")] = f"{v[1 + i] * 1e3:.6f}"
+            out[(f"stepper_{t}", "position_endstop")] = f"{v[7 + i] * 1e3:.6f}"
+        return out
+
+    def update(self, existing: str, params: ControllerParameters, machine: Machine,
+               source: str) -> str | None:
+        """``printer.cfg`` with the values saved as Klipper's ``SAVE_CONFIG`` saves them
+        (:func:`~pkmcal.io.klipper_config.save_config_text`: the body kept, the same options
+        in the body commented out, the auto-save block rewritten with its other options).
+
+        Raises
+        ------
+        InputError
+            When the file is not a Klipper delta config, or an ``[include]`` file defines one
+            of the values (Klipper refuses to save it then).
+        """
+        from ..io.klipper_config import KlipperConfig, save_config_text
+
+        cfg = KlipperConfig.read(source, existing)
+        kin = cfg.entry("printer", "kinematics")
+        if kin is None or kin.value.strip().lower() != "delta":
+            raise InputError(f"{source}: exists and is not a Klipper delta printer's config "
+                             "([printer] kinematics: delta); choose another output name (a "
+                             "new file gets the values as a fragment)")
+        return save_config_text(existing, self.saved_values(params), source, cfg)
 
     def values_text(self, params: ControllerParameters) -> list[tuple[str, str]]:
         """The values as the written file has them, for a printed table.
@@ -419,19 +474,21 @@ class KlipperDelta(ControllerFormat):
         return out + bed_values(v[10:13])
 
     def parse(self, text: str, source: str) -> ControllerParameters:
-        """Klipper's values from a ``printer.cfg`` (or a fragment).
+        """Klipper's values from a ``printer.cfg`` (or a fragment), as Klipper resolves them.
 
         Reads ``[printer] delta_radius`` and ``[stepper_a|b|c] arm_length``, ``angle``,
         ``position_endstop`` with Klipper's defaults (``b``, ``c`` take ``a``'s arm length and
-        endstop; angles 210, 330, 90); a ``#*#`` SAVE_CONFIG block overrides the sections
-        above it, as in Klipper.
+        endstop; angles 210, 330, 90) and Klipper's precedence
+        (:class:`~pkmcal.io.klipper_config.KlipperConfig`: ``[include]`` files where they
+        stand, the body over the ``#*#`` SAVE_CONFIG block); also ``[printer] print_radius``
+        and ``[delta_calibrate] radius`` (kept in the machine file).
 
         Parameters
         ----------
         text : str
             The file's text.
         source : str
-            Its name, for messages.
+            Its name, for messages (includes are resolved beside it).
 
         Returns
         -------
@@ -441,47 +498,26 @@ class KlipperDelta(ControllerFormat):
         Raises
         ------
         InputError
-            Naming the line and key of a value that is not a number, or the key missing.
+            Naming the file, line and key of a value that is not a number, or the key missing.
         """
-        found: dict = {}
-        section = None
-        for n, raw in enumerate(text.splitlines(), 1):
-            line = raw
-            if line.startswith("#*#"):
-                line = line[3:]
-            line = re.split(r"[#;]", line, maxsplit=1)[0].strip()
-            if not line:
-                continue
-            m = re.fullmatch(r"\[([^\]]+)\]", line)
-            if m:
-                section = m.group(1).strip()
-                continue
-            m = re.fullmatch(r"([A-Za-z_0-9]+)\s*[:=]\s*(.*)", line)
-            if m is None or section is None:
-                continue
-            key = m.group(1).strip().lower()
-            if section == "printer" and key == "kinematics" \
-                    and m.group(2).strip().lower() != "delta":
-                raise InputError(f"{source}: line {n}: [printer] kinematics: "
-                                 f"{m.group(2).strip()!r}; this format reads Klipper's delta "
-                                 "kinematics (kinematics: delta)")
-            wanted = ((section == "printer" and key == "delta_radius")
-                      or (section in {f"stepper_{t}" for t in TOWERS}
-                          and key in ("arm_length", "angle", "position_endstop")))
-            if wanted:
-                label = f"[{section}] {key}"
-                found[(section, key)] = (finite_number(m.group(2).strip(), source, n, label),
-                                         n, label)
+        from ..io.klipper_config import KlipperConfig
+
+        cfg = KlipperConfig.read(source, text)
+        kin = cfg.entry("printer", "kinematics")
+        if kin is not None and kin.value.strip().lower() != "delta":
+            raise InputError(f"{kin.where('printer', 'kinematics')}: {kin.value.strip()!r}; "
+                             "this format reads Klipper's delta kinematics (kinematics: delta)")
 
         def get(sec, key, default=None):
-            if (sec, key) in found:
-                return found[(sec, key)][0]
-            if default is None:
+            if cfg.entry(sec, key) is None and default is None:
                 raise InputError(f"{source}: [{sec}] {key}: missing (Klipper's delta "
                                  "kinematics need it)")
-            return default
+            return cfg.number(sec, key, default)
 
-        radius = get("printer", "delta_radius") * 1e-3
+        radius = get("printer", "delta_radius")
+        if not radius > 0:
+            e = cfg.entry("printer", "delta_radius")
+            raise InputError(f"{e.where('printer', 'delta_radius')}: {e.value} must be > 0")
         arm_a = get("stepper_a", "arm_length")
         pe_a = get("stepper_a", "position_endstop")
         arms = np.array([arm_a] + [get(f"stepper_{t}", "arm_length", arm_a) for t in "bc"])
@@ -489,14 +525,18 @@ class KlipperDelta(ControllerFormat):
         angles = np.array([get(f"stepper_{t}", "angle", d)
                            for t, d in zip(TOWERS, (210.0, 330.0, 90.0), strict=True)])
         for i, t in enumerate(TOWERS):
-            if not arms[i] * 1e-3 > radius > 0:
-                key = ((f"stepper_{t}", "arm_length") if (f"stepper_{t}", "arm_length")
-                       in found else ("stepper_a", "arm_length"))
-                n = found[key][1]
-                raise InputError(f"{source}: line {n}: [{key[0]}] arm_length: {arms[i]:g} "
-                                 f"mm must exceed delta_radius ({radius * 1e3:g} mm) > 0")
-        return self.values(radius, arms * 1e-3, np.radians(angles), pe * 1e-3,
-                           read_bed(text, source))
+            if not arms[i] > radius:
+                sec = f"stepper_{t}" if cfg.entry(f"stepper_{t}", "arm_length") else "stepper_a"
+                e = cfg.entry(sec, "arm_length")
+                raise InputError(f"{e.where(sec, 'arm_length')}: {arms[i]:g} mm must exceed "
+                                 f"delta_radius ({radius:g} mm)")
+        params = self.values(radius * 1e-3, arms * 1e-3, np.radians(angles), pe * 1e-3,
+                             read_bed(text, source))
+        for key, (sec, opt) in (("print_radius", ("printer", "print_radius")),
+                                ("probe_radius", ("delta_calibrate", "radius"))):
+            if cfg.entry(sec, opt) is not None:
+                params.extras[key] = cfg.number(sec, opt, above=0.0) * 1e-3
+        return params
 
     def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
         """A linear Delta with Klipper's values (vertical towers, one radius).
@@ -515,8 +555,13 @@ class KlipperDelta(ControllerFormat):
             ``probe_bed`` (the endstops raised by the bed's height).
         """
         v = params.values
-        return linear_delta_machine(v[0], v[1:4], v[4:7], v[7:10], v[10:13], like,
-                                    "linear Delta (imported from Klipper)")
+        # Klipper's z is the height above the bed: its values are the printer in the bed's
+        # frame, square (a tilt named in the pkmcal comment is folded in already)
+        machine = linear_delta_machine(v[0], v[1:4], v[4:7], v[7:10], [v[10], 0.0, 0.0], like,
+                                       "linear Delta (imported from Klipper)")
+        for key, value in params.extras.items():
+            setattr(machine, key, float(value))
+        return machine
 
 
 KLIPPER = register_format(KlipperDelta())

@@ -51,7 +51,8 @@ rods (the trims about it). Everything else is free, all three angle trims
 included (the calibrated frame is fixed: a turn of the three towers moves the print).
 
 The controller's coordinates are the bed's as in :mod:`pkmcal.export.klipper` (``z = 0`` the
-bed at the centre; its tilt is left to bed levelling, ``G29``). Not modelled: adjustments
+bed; a tilt against the towers is folded into the values as far as they hold it and the rest
+counted in the remaining error, for bed levelling, ``G29``). Not modelled: adjustments
 smaller than ``MIN_STEPS_PER_SEGMENT`` steps, which Marlin does not move; a hotend offset;
 ``M206``/``G92`` shifts; ``M851 Z`` (the values are read for ``M851 Z0``).
 
@@ -368,7 +369,8 @@ class MarlinDelta(ControllerFormat):
         H, L, radius = v[0], v[1], v[2]
         trims, rods, adj, bed = v[3:6], L + v[6:9], v[9:12], v[12:15]
         Pc = np.array(P, float).reshape(-1, 3)
-        Pc[:, 2] -= bed[0]
+        # heights above the bed (its tilt folded into the values as far as they hold it)
+        Pc[:, 2] -= bed[0] + bed[1] * Pc[:, 0] + bed[2] * Pc[:, 1]
         towers = tower_positions(radius, np.radians(BASE_ANGLES) + trims)
         tops = H - adj + np.sqrt(rods**2 - radius**2)
         return vertical_tower_travel(towers, rods, tops, Pc)
@@ -417,8 +419,10 @@ class MarlinDelta(ControllerFormat):
         lines = [f"; pkmcal export --to marlin: {machine.name or 'linear Delta'}",
                  "; Marlin delta (module/delta.cpp); send, then M500 to store in EEPROM",
                  "; H is the nozzle height at home for M851 Z0; z = 0 is the bed at the centre"
-                 + (f"; the bed's tilt (dz/dx {bed[1]:.6g}, dz/dy {bed[2]:.6g}) is left to "
-                    "bed levelling" if np.any(bed[1:] != 0) else ""),
+                 + (f"; the bed's tilt against the towers (dz/dx {bed[1]:.6g}, dz/dy "
+                    f"{bed[2]:.6g}) is folded into these values as far as they hold it, the "
+                    "rest counted in the remaining error (bed levelling, G29, corrects it)"
+                    if np.any(bed[1:] != 0) else ""),
                  bed_text(bed, ";"),
                  "M665 " + " ".join([f"H{mm(H)}", f"L{mm(L)}", f"R{mm(v[2])}"]
                                     + [f"{k}{deg(v[3 + i])}" for i, k in enumerate("XYZ")]
@@ -618,8 +622,11 @@ class MarlinDelta(ControllerFormat):
             90 deg plus the trims, ``position_endstop`` ``H - adj``.
         """
         v = params.values
+        # Marlin's z is the height above the bed: its values are the printer in the bed's
+        # frame, square (a tilt named in the pkmcal comment is folded in already)
+        bed = np.array([v[12], 0.0, 0.0])
         return linear_delta_machine(v[2], v[1] + v[6:9], np.radians(BASE_ANGLES) + v[3:6],
-                                    v[0] - v[9:12], v[12:15], like,
+                                    v[0] - v[9:12], bed, like,
                                     "linear Delta (imported from Marlin)")
 
 

@@ -211,7 +211,8 @@ class RepRapFirmwareDelta(ControllerFormat):
                  "; z = 0 is the bed; A and B hold its tilt",
                  bed_text(v[13:16], ";"),
                  "M665 L" + ":".join(mm(x) for x in v[0:3]) + f" R{mm(v[3])} H{mm(H)} "
-                 + " ".join(f"{k}{np.degrees(v[5 + i]):.9f}" for i, k in enumerate("XYZ")),
+                 + " ".join(f"{k}{round(np.degrees(v[5 + i]), 9) + 0.0:.9f}"  # no "-0.0"
+                            for i, k in enumerate("XYZ")),
                  "M666 " + " ".join(f"{k}{mm(adj[i])}" for i, k in enumerate("XYZ"))
                  + f" A{v[11] * 100:.9f} B{v[12] * 100:.9f}"]
         return "\n".join(lines) + "\n"

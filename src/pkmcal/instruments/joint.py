@@ -34,7 +34,12 @@ from ..identifiability import NullGroup, name_null_space, name_weak_directions
 from ..identifiability.rank import RTOL, numerical_rank
 from ..machines.base import Machine
 from ..parameters import ParameterSet
-from .problem import InstrumentProblem, InstrumentState, frame_motion_groups
+from .problem import (
+    InstrumentProblem,
+    InstrumentState,
+    frame_motion_groups,
+    instrument_problem,
+)
 
 #: a machine parameter whose unit vector has a null-space component above this (scaled) is
 #: not determined by the data
@@ -109,7 +114,7 @@ class JointProblem:
             if isinstance(part, InstrumentProblem):
                 problem = part
             elif isinstance(part, tuple) and len(part) == 3:
-                problem = InstrumentProblem(machine, *part)
+                problem = instrument_problem(machine, *part)
             else:
                 raise InputError(f"joint fit: {type(part).__name__} is not an instrument "
                                  "problem; combine points, distances and other instrument "
@@ -118,7 +123,7 @@ class JointProblem:
                 raise InputError(f"{problem.data.source}: per-measurement unknowns; only "
                                  "instrument problems without them combine")
             if problem.machine is not machine or not problem.fit_machine:
-                problem = InstrumentProblem(machine, problem.data, problem.model, problem.noise)
+                problem = instrument_problem(machine, problem.data, problem.model, problem.noise)
             built.append(problem)
         if not built:
             raise InputError("joint fit: no data")
@@ -642,11 +647,9 @@ def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, estimate
 
     def started_on(geometry, data, model, noise):
         """The model started on ``geometry`` and fitted alone (machine held)."""
-        fk = geometry.fk(data.q)
-        if not fk.converged.all():
-            InstrumentProblem(geometry, data, model, noise)         # raises, naming the rows
-        start = model.start(fk.P, fk.R, data.values, data.group, data.source)
-        alone = InstrumentProblem(geometry, data, start, noise, fit_machine=False)
+        check = instrument_problem(geometry, data, model, noise)   # raises, naming the rows
+        start = model.start(check._P0, check._R0, data.values, data.group, data.source)
+        alone = instrument_problem(geometry, data, start, noise, fit_machine=False)
         first = levenberg_marquardt(alone, rtol=rtol, **options)
         first.extras["problem"] = alone
         return start.with_start(first.state.nuisance), first

@@ -542,10 +542,11 @@ class ProbeModel(NuisanceModel):
     size = 1
     words = {"bed": "the bed plane (height and tilt)"}
 
-    def __init__(self, tip=None):
+    def __init__(self, tip=None, fixed=()):
         self.tip = np.zeros(3) if tip is None else np.asarray(tip, float).reshape(3)
-        super().__init__(ParameterSet(["bed.z", "bed.tilt_x", "bed.tilt_y"],
-                                      ["length", "ratio", "ratio"], np.zeros(3)))
+        params = ParameterSet(["bed.z", "bed.tilt_x", "bed.tilt_y"],
+                              ["length", "slope", "slope"], np.zeros(3))
+        super().__init__(params.with_fixed(list(fixed)) if fixed else params)
 
     def tips(self, P, R) -> np.ndarray:
         """Nozzle tips of poses, base frame.
@@ -603,11 +604,17 @@ class ProbeModel(NuisanceModel):
         """
         x = self.tips(P, R)
         values = np.array(self.parameters.values, float)
-        if len(x):
-            x0 = x[:, :2].mean(0)
+        free = np.asarray(self.parameters.free, bool)
+        if len(x) and free.any():
+            # the free part of the plane (a printer's bed is its z = 0: height held)
+            x0 = x[:, :2].mean(0) if free[0] else np.zeros(2)
             A = np.column_stack([np.ones(len(x)), x[:, :2] - x0])
-            sol, *_ = np.linalg.lstsq(A, x[:, 2] - measured[:, 0], rcond=1e-10)
-            values = np.array([sol[0] - sol[1:] @ x0, sol[1], sol[2]])
+            rhs = x[:, 2] - measured[:, 0] - values[~free] @ np.column_stack(
+                [np.ones(len(x)), x[:, :2]])[:, ~free].T
+            sol, *_ = np.linalg.lstsq(A[:, free], rhs, rcond=1e-10)
+            values[free] = sol
+            if free[0]:
+                values[0] -= (values[1:] * free[1:]) @ x0
         new = self.__class__.__new__(self.__class__)
         new.__dict__.update(self.__dict__)
         new.parameters = self.parameters.with_values(values)

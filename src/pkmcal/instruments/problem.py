@@ -323,6 +323,26 @@ class InstrumentProblem:
                                    scales, N, self.model.words)
 
 
+def instrument_problem(machine: Machine, data: InstrumentData, model: NuisanceModel, noise,
+                       fit_machine: bool = True) -> InstrumentProblem:
+    """The instrument problem of a model on a machine: the model's own problem class (an
+    instrument whose rows need more than one pose, :mod:`pkmcal.instruments.pairs`) or
+    :class:`InstrumentProblem`.
+
+    Parameters
+    ----------
+    machine, data, model, noise, fit_machine
+        As :class:`InstrumentProblem`.
+
+    Returns
+    -------
+    InstrumentProblem
+        The problem.
+    """
+    cls = getattr(model, "problem_class", None) or InstrumentProblem
+    return cls(machine, data, model, noise, fit_machine=fit_machine)
+
+
 def problem_null_space(problem, state, rtol: float = RTOL) -> np.ndarray:
     """Numerical null space of any block problem at ``state`` (local unknowns eliminated).
 
@@ -485,17 +505,15 @@ def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel,
     from ..calibration.variance import fit
 
     options = {"max_std": MAX_STD, **options}
-    fk = machine.fk(data.q)
-    if not fk.converged.all():
-        InstrumentProblem(machine, data, model, noise)            # raises, naming the rows
-    start = model.start(fk.P, fk.R, data.values, data.group, data.source)
-    alone = InstrumentProblem(machine, data, start, noise, fit_machine=False)
+    check = instrument_problem(machine, data, model, noise)      # raises, naming the rows
+    start = model.start(check._P0, check._R0, data.values, data.group, data.source)
+    alone = instrument_problem(machine, data, start, noise, fit_machine=False)
     first = levenberg_marquardt(alone, rtol=rtol, **options)
     start = start.with_start(first.state.nuisance)
     if not fit_machine:
         result, problem = first, alone
     else:
-        problem = InstrumentProblem(machine, data, start, noise)
+        problem = instrument_problem(machine, data, start, noise)
         result = fit(problem, estimate_noise, robust=robust, rtol=rtol, **options)
     rows = np.column_stack([data.q, data.values, data.group])
     distinct = len(np.unique(rows[np.all(np.isfinite(rows), axis=1)], axis=0))

@@ -531,7 +531,7 @@ MAX_INPUT_BYTES = 1 << 30
 _STREAM_TEXT: dict[str, str] = {}
 
 
-def read_input_text(path, kind: str, max_bytes: int | None = None) -> str:
+def read_input_text(path, kind: str, max_bytes: int | None = None, register: bool = True) -> str:
     """Text of an input file (UTF-8, BOM allowed); :class:`InputError` naming the file when it
     is missing, a directory, too large or not text. ``kind`` says what was expected ("machine
     file"). At most ``max_bytes`` (default :data:`MAX_INPUT_BYTES`) are accepted; a larger file
@@ -539,10 +539,10 @@ def read_input_text(path, kind: str, max_bytes: int | None = None) -> str:
     binary data (a NUL byte) as soon as it is seen. A pipe is read once: later reads of the
     same path in this process give the same text.
     Inside an :class:`OutputSet` the file becomes one of the command's inputs: no output may
-    replace it."""
+    replace it (``register=False``: the file an output updates, read to be rewritten)."""
     path = Path(path)
     outputs = _ACTIVE.get()
-    if outputs is not None:
+    if outputs is not None and register:
         outputs.add_input(path)
     if str(path) in _STREAM_TEXT:
         return _STREAM_TEXT[str(path)]

@@ -496,6 +496,10 @@ class LinearDeltaFile(_Strict):
     tracker: TrackerPose | None = None
     ballbar: Ballbar | None = None
     bed: BedPlane | None = None
+    #: the firmware's print radius and probing radius (Klipper's [printer] print_radius,
+    #: [delta_calibrate] radius): the export's and the probe plan's disk
+    print_radius: Positive | None = None
+    probe_radius: Positive | None = None
     home: list[Number] | None = None
     joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
     calibration: dict[str, Any] | None = None
@@ -875,6 +879,10 @@ def _build_linear_delta(doc: LinearDeltaFile, source: str) -> LinearDelta:
     machine = linear_delta(doc.delta_radius * fl, arms, np.asarray(doc.tower_angles, float) * fa,
                            np.asarray(doc.position_endstop, float) * fl, chains=chains,
                            home=home, name=doc.name or "")
+    for key in ("print_radius", "probe_radius"):
+        value = getattr(doc, key)
+        if value is not None:
+            setattr(machine, key, float(value) * fl)
     _build_instruments(machine, doc, fl)
     return machine
 
@@ -885,17 +893,23 @@ def _dump_linear_delta(machine: LinearDelta, units: dict) -> dict:
     from ..machines import linear_delta as _nominal_machine
 
     fl, fa = _factors(units)
-    nom = machine.nominal
-    arms = nom["arm_length"]
+    # the top level holds the machine's own values (a calibrated file shows its calibrated
+    # radius, arms, angles and endstops, not the design's); the chains what they cannot
+    pe, theta, _, l, _, _ = machine.towers()
+    radius = float(machine.u[machine.parameters.index("delta_radius")])
+    arms = float(l[0]) if np.all(l == l[0]) else np.asarray(l, float)
     out: dict[str, Any] = {
-        "delta_radius": float(nom["delta_radius"]) / fl,
+        "delta_radius": radius / fl,
         "arm_length": (float(arms) / fl if np.ndim(arms) == 0
                        else [float(v) / fl for v in np.asarray(arms)]),
-        "tower_angles": [float(v) / fa for v in nom["tower_angles"]],
-        "position_endstop": [float(v) / fl for v in nom["position_endstop"]],
+        "tower_angles": [float(v) / fa for v in theta],
+        "position_endstop": [float(v) / fl for v in pe],
     }
-    design = _nominal_machine(nom["delta_radius"], arms, nom["tower_angles"],
-                              nom["position_endstop"])
+    for key in ("print_radius", "probe_radius"):
+        value = getattr(machine, key, None)
+        if value is not None and not callable(value):
+            out[key] = float(value) / fl
+    design = _nominal_machine(radius, arms, theta, pe)
     if (getattr(machine, "from_chains", False) or np.any(machine.b != 0)
             or not np.array_equal(machine.u, design.u)):
         a0, alpha, beta, l, b = machine.chains()
@@ -1005,9 +1019,14 @@ _LINEAR_DELTA_HINTS = {
     "position_endstop": "the nozzle-to-bed distance at each tower's endstop (Klipper's "
                         "position_endstop), e.g. position_endstop: [300, 300, 300]",
     "chains": "a list of 3 chains {a0: [x, y, z], alpha, beta, b: [x, y, z], l}",
+    "print_radius": "the radius of the printable disk on the bed (Klipper's print_radius), "
+                    "e.g. print_radius: 120.0",
+    "probe_radius": "the radius of the probing pattern (Klipper's [delta_calibrate] radius), "
+                    "e.g. probe_radius: 100.0",
 }
 _LINEAR_DELTA_KINDS = {
     ("delta_radius",): "length", ("arm_length",): "length", ("arm_length", "*"): "length",
+    ("print_radius",): "length", ("probe_radius",): "length",
     ("tower_angles", "*"): "angle", ("position_endstop", "*"): "length",
     ("chains", "*", "a0", "*"): "length", ("chains", "*", "b", "*"): "length",
     ("chains", "*", "l"): "length", ("chains", "*", "alpha"): "angle",

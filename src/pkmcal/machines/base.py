@@ -163,6 +163,9 @@ class Machine(ABC):
     #: the instrument a machine is measured with when none is named (a registry name,
     #: :mod:`pkmcal.instruments.registry`)
     default_instrument: str = "tracker"
+    #: the machine's frame is its bed (a printer: z = 0 the probed bed); see
+    #: :func:`pkmcal.calibration.probe.bed_choice`
+    frame_is_bed: bool = False
     #: poses per forward-kinematics chunk (temporaries stay in cache)
     fk_chunk: int = 8192
     #: named parameter subsets (:meth:`parameter_set`); ``full`` (every parameter free) is

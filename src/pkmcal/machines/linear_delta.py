@@ -179,6 +179,10 @@ class LinearDelta(Machine):
     #: the bed's height in the base frame, m: Klipper's coordinates put the bed at z = 0 (the
     #: probe instrument's planned points lie on it)
     bed_height = 0.0
+    #: a printer's frame is its bed (SPEC 8): z = 0 the probed bed, z up its normal; probe
+    #: heights hold the bed's height at 0 (the endstops carry it) and estimate its tilt only
+    #: where the data tell it from the parameter set
+    frame_is_bed = True
 
     PARAMETER_SETS = {
         "klipper": ParameterSubset(
@@ -376,6 +380,60 @@ class LinearDelta(Machine):
             Zeros.
         """
         return np.zeros(3)
+
+    #: the firmware's print radius and probing radius, m (a machine file's ``print_radius``,
+    #: ``probe_radius``; None: not given)
+    print_radius = None
+    probe_radius = None
+    #: height of the print volume an export is judged over, m (capped by the print radius)
+    PRINT_HEIGHT = 0.1
+
+    def print_workspace(self, n: int = 500, rng=0):
+        """Where a printer prints: the print disk on the bed and the volume above it.
+
+        Half the points lie on the bed (the plane of :attr:`probe_bed`, z = 0 without one)
+        within the print radius (:attr:`print_radius`; else the probing radius, else the
+        reachable disk of the probe instrument), half in the cylinder above it up to
+        :attr:`PRINT_HEIGHT` (at most the radius); points the machine cannot reach are
+        dropped.
+
+        Parameters
+        ----------
+        n : int, optional
+            Number of points drawn.
+        rng : int or numpy.random.Generator, optional
+            Seed.
+
+        Returns
+        -------
+        Workspace
+            With ``surface`` marking the points on the bed.
+        """
+        from ..analysis.accuracy import Workspace
+        from ..instruments.registry import probe_radius
+
+        rng = np.random.default_rng(rng)
+        radius = self.print_radius or probe_radius(self)
+        words = (f"print radius {radius * 1e3:.6g} mm" if self.print_radius
+                 else f"radius {radius * 1e3:.6g} mm")
+        height = min(self.PRINT_HEIGHT, radius)
+        m = n // 2
+        rho = radius * np.sqrt(rng.uniform(0.0, 1.0, n))
+        a = rng.uniform(0.0, 2 * np.pi, n)
+        z = np.concatenate([np.zeros(m), rng.uniform(0.0, height, n - m)])
+        bed = np.zeros(3) if getattr(self, "probe_bed", None) is None \
+            else np.asarray(self.probe_bed, float)
+        x, y = rho * np.cos(a), rho * np.sin(a)
+        P = np.column_stack([x, y, z + bed[0] + bed[1] * x + bed[2] * y])
+        R = np.broadcast_to(np.eye(3), (n, 3, 3))
+        with np.errstate(all="ignore"):
+            ok = np.all(np.isfinite(self.ik(P, R)), axis=-1)
+        surface = np.arange(n) < m
+        P, surface = P[ok], surface[ok]
+        return Workspace(P, np.broadcast_to(np.eye(3), (len(P), 3, 3)),
+                         f"the print disk on the bed ({words}) and the volume up to "
+                         f"{height * 1e3:.6g} mm above it",
+                         (P.min(axis=0), P.max(axis=0)), surface)
 
     def firmware_values(self, u=None) -> dict:
         """What a firmware's configuration holds, per tower, in SI units.

@@ -289,7 +289,8 @@ class ModelExtensions(_Section):
 
 #: the measurement kinds pkmcal calibrates (``pkmcal.calibration.run.KINDS``) and ``joint``, a
 #: fit of several data files (a test checks the list against the registry)
-MEASUREMENTS = ("constraint-link", "tracker", "pose", "distance", "probe", "joint")
+MEASUREMENTS = ("constraint-link", "tracker", "pose", "distance", "probe", "pair-distances",
+                "joint")
 
 
 class CalibrationReport(_Section):

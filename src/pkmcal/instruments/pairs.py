@@ -1,0 +1,216 @@
+"""Distances between two platform points: the nozzle at two sets of readings (SPEC 8).
+
+A row holds two sets of joint readings ``q_a``, ``q_b`` and the distance ``d`` measured
+between the platform points there: ``d = |x(q_a) - x(q_b)|`` with ``x = P + R c`` (``c`` the
+point on the platform, the nozzle tip at the platform origin by default). Features of a
+printed object measured with a caliper are such distances (Klipper's ``DELTA_ANALYZE``: the
+object ``docs/prints/calibrate_size.stl`` printed at known stable positions, its distances
+``distanceN`` between ``distanceN_pos1`` and ``distanceN_pos2``). The instrument has no
+unknown of its own and sees no frame: a rigid motion of the base frame changes no distance.
+
+Klipper's test object as the standard plan (``klippy/extras/delta_calibrate.py``,
+``measurements_to_distances``): six directions at 210, 270, 330, 30, 90, 150 deg; the
+centre pillar's ridge at ``4.5 mm`` and the outer pillars at ``65 mm`` (ridge ``69.5 mm``);
+six distances from the inner ridge to the outer ridge along each direction, and six between
+the ridges of the outer pillars, from the pillar at one direction along the direction two
+steps further on.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from ..parameters import ParameterSet
+from .data import InstrumentData
+from .models import NuisanceModel
+from .problem import InstrumentProblem
+
+#: the directions of Klipper's calibration object, deg (``MeasureAngles``)
+MEASURE_ANGLES = (210.0, 270.0, 330.0, 30.0, 90.0, 150.0)
+#: its outer pillars' radius and the ridge's offset, mm (``MeasureOuterRadius``,
+#: ``MeasureRidgeRadius``)
+OUTER_RADIUS, RIDGE_RADIUS = 65.0, 4.5
+
+
+def klipper_object_pairs(scale: float = 1.0, height: float = 0.0) -> tuple[np.ndarray, str]:
+    """The 12 point pairs of Klipper's ``DELTA_ANALYZE`` object, m.
+
+    Parameters
+    ----------
+    scale : float, optional
+        The object's scale (``DELTA_ANALYZE SCALE``).
+    height : float, optional
+        The height of the points above the bed, m.
+
+    Returns
+    -------
+    pairs : ndarray, shape (12, 2, 3)
+        First and second point of each distance, m.
+    words : str
+        The plan in words.
+    """
+    a = np.radians(MEASURE_ANGLES)
+    xy = np.column_stack([np.cos(a), np.sin(a)])
+    inner = xy * RIDGE_RADIUS * scale
+    outer = xy * (OUTER_RADIUS + RIDGE_RADIUS) * scale
+    start = xy * OUTER_RADIUS * scale
+    shifted = np.roll(xy, -2, axis=0)
+    first = shifted * RIDGE_RADIUS * scale + start
+    second = shifted * (OUTER_RADIUS + RIDGE_RADIUS) * scale + start
+    a_pts = np.concatenate([inner, first]) * 1e-3
+    b_pts = np.concatenate([outer, second]) * 1e-3
+    z = np.full((12, 1), float(height))
+    pairs = np.stack([np.hstack([a_pts, z]), np.hstack([b_pts, z])], 1)
+    return pairs, ("Klipper's DELTA_ANALYZE object (calibrate_size.stl): 6 centre-to-outer and "
+                   "6 outer-to-outer ridge distances")
+
+
+class PairDistanceModel(NuisanceModel):
+    """``d = |x_a - x_b|``, the distance between the platform point at two poses.
+
+    Rows of :meth:`residuals` come in two halves: the first ``K`` poses are the rows' first
+    positions, the last ``K`` their second (see :class:`PairProblem`).
+
+    Parameters
+    ----------
+    point : array_like, shape (3,), optional
+        The point on the platform, m (default the platform origin, a printer's nozzle tip).
+    """
+
+    kind = "pair-distances"
+    #: what its measurements are, in words (noise groups, outlier rows)
+    quantity = "distances between two nozzle positions"
+    size = 1
+    words: dict = {}
+
+    def __init__(self, point=None):
+        self.point = np.zeros(3) if point is None else np.asarray(point, float).reshape(3)
+        super().__init__(ParameterSet([], [], np.zeros(0)))
+
+    def points(self, P, R) -> np.ndarray:
+        """``P + R c`` per pose."""
+        return np.asarray(P, float) + np.einsum("kij,j->ki", np.asarray(R, float), self.point)
+
+    def residuals(self, state, P, R, measured, group, jacobian=True):
+        K = len(P) // 2
+        x = self.points(P, R)
+        v = x[:K] - x[K:]
+        d = np.linalg.norm(v, axis=-1)
+        e = measured[:K, :1] - d[:, None]
+        if not jacobian:
+            return e, None, None
+        n = v / np.where(d > 0, d, 1.0)[:, None]
+        from ..kinematics import skew
+
+        Rc = x - np.asarray(P, float)
+        # de/dx_a = -n, de/dx_b = +n; dx/dOmega = -skew(R c)
+        g = np.concatenate([-n, n])
+        de_dpose = np.concatenate([g, np.einsum("ki,kij->kj", g, skew(Rc))], -1)[:, None, :]
+        return e, de_dpose, np.zeros((K, 1, 0))
+
+    def predict(self, state, P, R, group):
+        return -self.residuals(state, P, R, np.zeros((len(P), 1)), group, False)[0]
+
+    def start(self, P, R, measured, group, source="<data>"):
+        return self
+
+
+class PairProblem(InstrumentProblem):
+    """The instrument problem of two-point distances: two forward kinematics per row.
+
+    ``data.q`` holds the two reading sets side by side (``(K, 2 n_joints)``); the state's
+    poses are the first positions followed by the second (``(2K, 3)``).
+    """
+
+    def __init__(self, machine, data, model, noise, fit_machine: bool = True):
+        n = machine.n_joints
+        if data.q.shape[1] != 2 * n:
+            raise InputError(f"{data.source}: {data.q.shape[1]} joint columns; two-point "
+                             f"distances need two sets of {n} readings per row")
+        self.machine, self.data, self.model, self.noise = machine, data, model, noise
+        mp = machine.parameters if fit_machine else machine.parameters.with_fixed(
+            list(machine.parameters.names))
+        self.parameters = mp.concat(model.parameters)
+        self.scales = machine.scales_with(model.parameters)
+        self.n_machine = len(mp)
+        self.fit_machine = fit_machine
+        K = len(data)
+        self.W = (np.broadcast_to(np.eye(1), (K, 1, 1)) if noise is None
+                  else np.asarray(noise.whitening(data.values), float))
+        fk = machine.fk(self._stacked(data.q))
+        ok = fk.converged[:K] & fk.converged[K:]
+        if not ok.all():
+            rows = data.rows[~ok]
+            shown = ", ".join(map(str, rows[:10].tolist())) + (" ..." if len(rows) > 10 else "")
+            raise InputError(f"{data.source}: no platform pose of the machine reproduces the "
+                             f"readings of {len(rows)} row(s): {shown} (outside the workspace, "
+                             "or a wrong joint unit)")
+        self._P0, self._R0 = fk.P, fk.R
+        self.cost_floor = 0.0
+
+    def _stacked(self, q):
+        n = self.machine.n_joints
+        q = np.atleast_2d(np.asarray(q, float))
+        return np.concatenate([q[:, :n], q[:, n:]])
+
+    def poses(self, state, q=None):
+        if q is None:
+            same = np.shape(state.P) == self._P0.shape
+            start = (state.P, state.R) if same else (self._P0, self._R0)
+            return self.machine.fk(self._stacked(self.data.q), state.u, start=start)
+        return self.machine.fk(self._stacked(q), state.u)
+
+    def evaluate(self, state, jacobian=True):
+        fk = self.poses(state)
+        ok2 = fk.converged
+        if np.shape(state.P) == fk.P.shape:
+            state.P = np.where(ok2[:, None], fk.P, state.P)
+            state.R = np.where(ok2[:, None, None], fk.R, state.R)
+        P = np.where(ok2[:, None], fk.P, self._P0)
+        R = np.where(ok2[:, None, None], fk.R, self._R0)
+        K = len(self.data)
+        ok = ok2[:K] & ok2[K:]
+        e, de_dx, _ = self.model.residuals(state.nuisance, P, R, self.data.values,
+                                           self.data.group, jacobian)
+        r = np.einsum("kij,kj->ki", self.W, e)
+        r = np.where(ok[:, None], r, np.nan)
+        if not jacobian:
+            return r, None, None
+        d = self._through_fk(state.u, P, R, de_dx)          # (2K, 1, n_machine)
+        J = np.concatenate([d[:K] + d[K:], np.zeros((K, 1, len(self.model.parameters)))], -1)
+        return r, np.einsum("kij,kjn->kin", self.W, J), None
+
+    def predict(self, state, q, group=None):
+        fk = self.poses(state, q)
+        K = len(fk.P) // 2
+        y = self.model.predict(state.nuisance, fk.P, fk.R, None)
+        ok = fk.converged[:K] & fk.converged[K:]
+        return np.where(ok[:, None], y, np.nan)
+
+
+def pair_data(q_a, q_b, d, rows=None, source: str = "<data>") -> InstrumentData:
+    """Two-point distance data from the two reading sets and the distances (SI).
+
+    Parameters
+    ----------
+    q_a, q_b : array_like, shape (K, n_joints)
+        Readings at the first and second point, internal units.
+    d : array_like, shape (K,)
+        Measured distances, m.
+    rows : array_like of int, optional
+        Row (or line) numbers for messages.
+    source : str, optional
+        Where the data come from.
+
+    Returns
+    -------
+    InstrumentData
+        ``kind="pair-distances"``, ``q`` of shape ``(K, 2 n_joints)``.
+    """
+    q = np.hstack([np.atleast_2d(np.asarray(q_a, float)), np.atleast_2d(np.asarray(q_b, float))])
+    return InstrumentData("pair-distances", q, np.asarray(d, float).reshape(-1, 1), None,
+                          None if rows is None else np.asarray(rows, int), source)
+
+
+PairDistanceModel.problem_class = PairProblem
