@@ -221,7 +221,7 @@ def test_probe_calibration_counts_the_bed_tilt(name):
     e = errors_of_text(name, r.text, m, P)
     tilt = np.abs(m.probe_bed[1] * P[:, 0] + m.probe_bed[2] * P[:, 1])
     if name == "reprapfirmware":
-        assert r.remaining_max < 1e-12 and e.max() < 1e-9
+        assert r.remaining_max < 1e-12 and e.max() < DIGITS
         return
     assert abs(math.sqrt(np.mean(e**2)) - r.remaining_rms) <= 1e-6 * r.remaining_rms + DIGITS
     assert abs(e.max() - r.remaining_max) <= 1e-6 * r.remaining_max + DIGITS

@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MAX_ANGLE_CHANGE", "MAX_LENGTH_CHANGE", "MAX_NOISE_FACTOR", "ParameterChanges",
+__all__ = ["GROSS_RESIDUAL", "MAX_ANGLE_CHANGE", "MAX_LENGTH_CHANGE", "MAX_NOISE_FACTOR",
+           "ParameterChanges",
            "ResidualTest", "chi2_bound",
            "parameter_changes", "residual_test"]
 
@@ -30,6 +31,10 @@ __all__ = ["MAX_ANGLE_CHANGE", "MAX_LENGTH_CHANGE", "MAX_NOISE_FACTOR", "Paramet
 #: the assumed noise: below, the assumed noise is merely a little off (the estimated noise is
 #: printed anyway); above, the model does not explain the data
 MAX_NOISE_FACTOR = 3.0
+#: residuals (RMS, of the lengths measured) beyond this share of the machine's characteristic
+#: length are gross: a data mistake (swapped columns, a wrong unit) rather than noise or an
+#: effect the model lacks (a printer: 0.3 mm)
+GROSS_RESIDUAL = 1e-3
 #: a calibration that changes a length by more than this share of the machine's
 #: characteristic length is suspicious (real build errors are a few per mille)
 MAX_LENGTH_CHANGE = 0.05
@@ -90,8 +95,15 @@ class ResidualTest:
                 "noise_factor": finite(self.noise_factor), "passed": bool(self.passed),
                 "alarming": bool(self.alarming)}
 
-    def message(self) -> str:
+    def message(self, gross: bool | None = None) -> str:
         """The failed test in words, with the usual causes (empty when it passed).
+
+        Parameters
+        ----------
+        gross : bool, optional
+            Whether the residuals are large at the machine's scale (:data:`GROSS_RESIDUAL`):
+            only then are swapped columns, a wrong unit or a wrong geometry named as causes;
+            None: unknown (all causes named).
 
         Returns
         -------
@@ -100,12 +112,14 @@ class ResidualTest:
         """
         if self.passed:
             return ""
+        causes = ("the noise is larger than assumed (give --noise), outlier rows, or an effect "
+                  "the model lacks" if gross is False else
+                  "the noise is larger than assumed (give --noise), outlier rows, swapped or "
+                  "mis-numbered columns or a wrong unit, or the fit stopped in a wrong geometry "
+                  "(a machine file far from the machine)")
         return (f"the residuals are {self.noise_factor:.3g}x the assumed noise (chi2/dof = "
                 f"{self.ratio:.3g}, at most {self.upper:.3g} expected): the calibrated model "
-                "does not explain the data at that noise. Usual causes: the noise is larger "
-                "than assumed (give --noise), outlier rows, swapped or mis-numbered columns or "
-                "a wrong unit, or the fit stopped in a wrong geometry (a machine file far "
-                "from the machine)")
+                f"does not explain the data at that noise. Usual causes: {causes}")
 
 
 def chi2_bound(dof: int, alpha: float = 1e-3) -> float:

@@ -433,6 +433,9 @@ class MeasurementKind:
     instrument : str
         The instrument of the registry (:mod:`pkmcal.instruments.registry`) whose
         ``applies`` decides which machines the kind calibrates (empty: ``machines``).
+    fixes_lengths : bool
+        Its measurements can fix a length of the machine (heights along z alone cannot fix a
+        printer's arms: a parameter set's ``without_lengths`` applies).
     """
 
     name: str
@@ -446,6 +449,7 @@ class MeasurementKind:
     readings_only: bool = False
     missing: tuple[str, str] | None = None
     instrument: str = ""
+    fixes_lengths: bool = True
 
     def why_not(self, machine) -> str | None:
         """Why ``machine`` cannot be calibrated from this kind (None: it can).
@@ -758,7 +762,10 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         :class:`~pkmcal.measurements.TrackerData`,
         :class:`~pkmcal.measurements.FullPoseData`). A list of several: one geometry from all
         of them, each file with its own instrument unknowns and noise (:data:`JOINT_KINDS`
-        combine; see :func:`calibrate_joint`); a list of one is that one.
+        combine; see :func:`calibrate_joint`); a list of one is that one. A Klipper
+        ``printer.cfg`` is read for the measurements its ``[delta_calibrate]`` section saved
+        (heights, manual heights, DELTA_ANALYZE distances:
+        :func:`~pkmcal.io.klipper_config.delta_calibrate_data`).
     method : str, optional
         Constraint link: ``ml`` (default), ``ik`` or ``fk``; full pose: ``ml`` (default) or
         ``ik``; not for tracker data (see ``two_step``).
@@ -798,10 +805,6 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         towers is estimated (default ``"auto"``: where the data tell it from the parameter
         set; :func:`~pkmcal.calibration.probe.bed_choice`).
 
-    A Klipper ``printer.cfg`` among the data is read for the measurements its
-    ``[delta_calibrate]`` section saved (heights, manual heights, DELTA_ANALYZE distances;
-    :func:`~pkmcal.io.klipper_config.delta_calibrate_data`).
-
     Returns
     -------
     Calibration
@@ -823,11 +826,17 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     if extensions is not None and extensions not in ("auto", "none"):
         raise InputError(f"--extensions {extensions}: auto (adopted by cross-validation) or "
                          "none (the plain model)")
-    chosen = None
-    if parameters is not None:
-        machine, chosen = apply_parameter_set(machine, parameters), str(parameters)
     given = data
     data = expand_firmware_data(data, machine)
+    chosen, note = None, ""
+    if parameters is not None:
+        subset = getattr(machine, "PARAMETER_SETS", {}).get(parameters)
+        fallback = getattr(subset, "without_lengths", None)
+        if fallback and not any(k.fixes_lengths for k in _data_kinds(data, machine)):
+            note = (f"{parameters} with heights alone is {fallback}: no measurement fixes a "
+                    "length (as the firmware does without distances)")
+            parameters = fallback
+        machine, chosen = apply_parameter_set(machine, parameters), str(parameters)
     if bed_tilt is not None and bed_tilt not in ("auto", "estimate", "square"):
         raise InputError(f"--bed-tilt {bed_tilt}: auto, estimate or square")
     if isinstance(data, (list, tuple)):
@@ -840,7 +849,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
                                                                    robust, fix_frames,
                                                                    extensions, bed_tilt))
             calibration.inputs = _inputs_of(given, calibration.inputs)
-            return _with_parameter_set(calibration, chosen)
+            return _with_parameter_set(calibration, chosen, note)
         data = data[0]
     if isinstance(noise, dict):     # named as the joint fit names it: the path or its source
         noise = _noise_of(noise, [data if isinstance(data, (str, Path))
@@ -871,7 +880,24 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     if machine_file and machine_file != "default" and Path(machine_file).is_file():
         inputs.append(Path(machine_file))
     calibration.inputs = _inputs_of(given, inputs)
-    return _with_parameter_set(calibration, chosen)
+    return _with_parameter_set(calibration, chosen, note)
+
+
+def _data_kinds(data, machine) -> list:
+    """The measurement kinds of the data (paths by their columns, objects by their class)."""
+    from ..io import read_table
+
+    out = []
+    for item in (list(data) if isinstance(data, (list, tuple)) else [data]):
+        if isinstance(item, (str, Path)):
+            header, _ = read_table(Path(item))
+            out.append(KINDS[measurement_kind(Path(item), header, machine)])
+        else:
+            kind = next((k for k in _kinds() if k.data_class == type(item).__name__
+                         and getattr(item, "kind", k.instrument) in _names_of(k)), None)
+            if kind is not None:
+                out.append(kind)
+    return out
 
 
 def _inputs_of(given, inputs: list) -> list:
@@ -1024,13 +1050,22 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list) -> 
     against the assumed noise, for :data:`WHITENED_METHODS`; size of the changes against the
     machine's scale): warnings in words with the usual causes (appended to ``warnings``), and
     the report's ``acceptance`` section."""
-    from .acceptance import MAX_NOISE_FACTOR, parameter_changes, residual_test
+    from .acceptance import GROSS_RESIDUAL, MAX_NOISE_FACTOR, parameter_changes, residual_test
 
     out = {}
     noise = result.extras.get("noise")
     if method in WHITENED_METHODS or noise is not None:
         test = residual_test(result)
         out["residuals"] = test.as_dict()
+        gross = None
+        if noise is not None and calibrated is not None:
+            # the residuals' size in metres, per group of lengths: tens of micrometres on a
+            # printer are a noisier probe or a missing effect, not swapped columns
+            size = [float(s) * (test.noise_factor if st != "estimated" else 1.0)
+                    for s, k, st in zip(noise.sigma, noise.kinds, noise.status, strict=True)
+                    if k == "length"]
+            if size:
+                gross = max(size) > GROSS_RESIDUAL * calibrated.characteristic_length()
         if test.alarming and noise is not None and noise.estimated:
             high = [f"{name} {ratio:.3g}x" for name, ratio, status
                     in zip(noise.names, noise.ratio, noise.status, strict=True)
@@ -1041,10 +1076,19 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list) -> 
                 "estimated levels weigh the fit and its standard deviations. If the "
                 "instruments are not that noisy, the model misses something: see the "
                 "report's residual checks (per reading, per pose, against each reading) "
-                "and its model_adequacy section, and look for swapped columns, a wrong unit "
-                "or outlier rows")
+                "and its model_adequacy section" + (
+                    ", and look for swapped columns, a wrong unit or outlier rows"
+                    if gross is not False else ", and look for outlier rows"))
+        elif test.alarming and gross is False and noise is not None \
+                and all(st == "assumed" for st in noise.status):
+            # too few rows to estimate any level (Klipper's 7 heights for 6 unknowns): the
+            # residuals' size is shown, not taken for a fault of the data
+            out["residuals"]["note"] = (
+                f"the residuals are {test.noise_factor:.3g}x the assumed noise; the data leave "
+                "too few equations to estimate the noise, so whether the instrument or the "
+                "model is worse than assumed cannot be told")
         elif test.alarming:
-            warnings.append(f"{source}: {test.message()}")
+            warnings.append(f"{source}: {test.message(gross)}")
     else:
         out["residuals"] = {"tested": False, "why": f"the {method} method treats some "
                             "measurements as exact: its residuals exceed the noise by design"}
@@ -1998,14 +2042,15 @@ def apply_parameter_set(machine, name: str):
     return new
 
 
-def _with_parameter_set(calibration: Calibration, name: str | None) -> Calibration:
+def _with_parameter_set(calibration: Calibration, name: str | None,
+                        note: str = "") -> Calibration:
     """Record the parameter set of ``--parameters`` in the report and the calibrated file."""
     if name is None:
         return calibration
     mp = calibration.machine.parameters
     calibration.report["parameter_set"] = {
         "name": name, "free": [n for n, f in zip(mp.names, mp.fixed, strict=True) if not f],
-        "fixed": int(np.sum(mp.fixed))}
+        "fixed": int(np.sum(mp.fixed)), **({"note": note} if note else {})}
     calibration.metadata["parameter_set"] = name
     return calibration
 
@@ -2148,6 +2193,8 @@ class JointPart:
     #: other files are known (a printer's bed tilt, decided on every file's equations)
     with_others: Callable | None = None
     frame: str = ""
+    #: weighed as the data's source weighs them (relative levels held, common level fitted)
+    tied: bool = False
 
 
 def _joint_tracker(machine, data, source, noise) -> JointPart:
@@ -2187,10 +2234,11 @@ def _joint_probe(machine, data, source, noise) -> JointPart:
     from ..io import read_probe
     from .probe import bed_choice
 
-    noise_model = _probe_noise(noise, machine)
     probe = _load(data, read_probe, machine)
+    noise_model = (probe.weights[0] if noise is None and probe.weights is not None
+                   else _probe_noise(noise, machine))
     probe.source = str(source)
-    _check_heights(probe)
+    _check_heights(probe, machine)
 
     def with_others(equations, unknowns, choice="auto"):
         bed = bed_choice(machine, probe, noise_model, choice, equations, unknowns)
@@ -2205,8 +2253,9 @@ def _joint_probe(machine, data, source, noise) -> JointPart:
 def _joint_pairs(machine, data, source, noise) -> JointPart:
     from ..instruments.pairs import PairDistanceModel
 
-    noise_model = _pair_noise(noise, machine)
     pairs = _load(data, _read_pairs, machine)
+    noise_model = (pairs.weights[0] if noise is None and pairs.weights is not None
+                   else _pair_noise(noise, machine))
     pairs.source = str(source)
     return JointPart(pairs, PairDistanceModel(), noise_model,
                      f"distances {noise_model.sigma * 1e6:.4g} um (std)", "pair-distances")
@@ -2312,7 +2361,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     CalibrationNotConverged
         When the estimator did not converge.
     """
-    from ..instruments import DistancesModel, PointsModel, ProbeModel
+    from ..instruments import DistancesModel, IsotropicNoise, PointsModel, ProbeModel
     from ..instruments.joint import file_labels, fit_joint
     from ..io import read_table
     from ..units import LENGTH
@@ -2352,6 +2401,11 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         if given is not None:       # the user's level for this file is held
             hold.append(f"{labels[i]}:*")
         part = _joint_part(machine, item, source, kind, given)
+        weights = getattr(part.data, "weights", None)
+        if given is None and weights is not None:    # the data's own source's weights
+            hold.append(f"{labels[i]}:*")
+            part.noise_text += f" ({weights[1]})"
+            part.tied = True
         part.data, h = _split_rows(part.data, split, source)
         parts.append(part)
         held.append(h)
@@ -2367,6 +2421,20 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         result = fit_joint(machine, [(p.data, p.model, p.noise) for p in parts], labels,
                            estimate_noise=hold,
                            robust=bool(options is not None and options.robust))
+        if all(p.tied for p in parts) and result.dof > 0 \
+                and np.isfinite(result.residual_variance):
+            # every file weighed as its source weighs them (Klipper's DELTA_CALIBRATE): the
+            # relative weights held, their common level from the residuals - the same fit,
+            # with the outlier test and the covariance at the data's level
+            scale = math.sqrt(result.residual_variance)
+            for p in parts:
+                p.noise = IsotropicNoise(p.noise.sigma * scale)
+                p.noise_text = (f"{p.noise.sigma * 1e6:.4g} um (std; the relative weights "
+                                f"as the data's source gives them, x{scale:.3g} from the "
+                                "residuals)")
+            result = fit_joint(machine, [(p.data, p.model, p.noise) for p in parts], labels,
+                               estimate_noise=hold,
+                               robust=bool(options is not None and options.robust))
     except (InputError, ValueError, np.linalg.LinAlgError) as exc:
         message = str(exc) if isinstance(exc, InputError) else \
             f"{names}: joint calibration failed: {exc}"
@@ -2428,7 +2496,8 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
             if bed_from is None:
                 bed_from = str(source)
                 calibrated.probe_bed = bed
-                sections.append(f"bed (height and tilt) from {source}")
+                sections.append(f"bed ({'tilt' if machine.frame_is_bed else 'height and tilt'}"
+                                f") from {source}")
         elif isinstance(model, DistancesModel):
             mine = [(np.array(sub.nuisance.values[model._ip[g]]),
                      np.array(sub.nuisance.values[model._ib[g]]))
@@ -2661,14 +2730,41 @@ register_kind(MeasurementKind(
     priority=5))
 
 
-def _check_heights(data) -> None:
-    """A wrong sign of every probe height refused, naming the fix."""
+#: a common offset of the probe heights against the machine file's model beyond this (m) is
+#: checked for a flipped sign or a wrong unit (below it the two cannot be told from a
+#: machine file's endstop error)
+HEIGHT_CHECK = 2e-4
+
+
+def _check_heights(data, machine) -> None:
+    """Probe heights with a flipped sign or a wrong unit, refused naming the fix.
+
+    On a machine whose frame is its bed the machine file's model puts the nozzle at a height
+    for each row's readings; the saved heights sit about there (the file's values are the
+    firmware's). When they sit ``HEIGHT_CHECK`` or more away from it and their negatives, or
+    the same numbers in mm / um, sit ten times closer, the sign or the unit is wrong.
+    """
+    if not getattr(machine, "frame_is_bed", False) or not len(data):
+        return
+    fk = machine.fk(data.q)
+    if not fk.converged.all():
+        return
+    z = np.asarray(fk.P, float)[:, 2]
     h = np.asarray(data.values, float)[:, 0]
-    if len(h) and np.all(h < 0):
-        raise InputError(f"{data.source}: every probe height is negative (largest "
-                         f"{h.max() * 1e3:.4g} mm): probe_z is the nozzle's height ABOVE the "
-                         "bed when the probe triggers (Klipper's heightN and [probe] z_offset, "
-                         "positive; Marlin's M851 Z is its negative): flip the sign")
+    offset = abs(float(np.median(z - h)))
+    if offset < HEIGHT_CHECK:
+        return
+    fixes = (("the opposite sign", -h, "probe_z is the nozzle's height ABOVE the bed when the "
+              "probe triggers (Klipper's heightN and [probe] z_offset; Marlin's M851 Z is its "
+              "negative): flip the sign"),
+             ("in um", h * 1e-3, "the unit of probe_z is wrong (the numbers are um)"),
+             ("in mm", h * 1e3, "the unit of probe_z is wrong (the numbers are mm)"))
+    for words, other, fix in fixes:
+        if abs(float(np.median(z - other))) < 0.1 * offset:
+            raise InputError(f"{data.source}: the probe heights sit {offset * 1e3:.4g} mm "
+                             f"from where the machine file puts the nozzle, and {words} "
+                             f"within {abs(float(np.median(z - other))) * 1e3:.3g} mm of it: "
+                             f"{fix}")
 
 
 def expand_firmware_data(data, machine):
@@ -2761,7 +2857,7 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
     def fit(machine_, data_, noise_, **kwargs):
         # one bed model for the fit and its baseline, chosen on the parameter set's unknowns
         if "bed" not in chosen:
-            _check_heights(data_)
+            _check_heights(data_, machine)
             chosen["bed"] = bed_choice(machine, data_, noise_, options.bed_tilt or "auto")
         return calibrate_probe(machine_, data_, noise_, bed=chosen["bed"], **kwargs)
 
@@ -2854,4 +2950,4 @@ register_kind(MeasurementKind(
             "nozzle's height above the bed there, 0 for a nozzle-contact probe)",
     detect=lambda header: _has(header, "probe_z"),
     calibrate=_calibrate_probe, check_options=_check_probe, instrument="probe",
-    data_class="InstrumentData", priority=25))
+    data_class="InstrumentData", priority=25, fixes_lengths=False))

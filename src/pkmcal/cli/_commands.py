@@ -587,8 +587,9 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
                   f"{report['measurements']} rows: one geometry, each file's own instrument "
                   "unknowns (named FILE:name)")
     if "parameter_set" in report:
-        table.add_row("parameter set", f"{report['parameter_set']['name']} "
-                      f"({len(report['parameter_set']['free'])} free machine parameters)")
+        ps = report["parameter_set"]
+        table.add_row("parameter set", f"{ps['name']} ({len(ps['free'])} free machine "
+                      "parameters)" + (f"; {ps['note']}" if ps.get("note") else ""))
     for f in report["files"]:
         r = f["residuals"]
         before = "n/a" if r["before_rms_um"] is None else f"{r['before_rms_um']:.4g}"
@@ -848,6 +849,10 @@ def _print_any_calibration(report, params, data_path, output, report_path, machi
                    show_header=False)
     table.add_row("measurement", f"{report['measurement']}, {report['measurements']} rows")
     table.add_row("method", str(report["method"]))
+    if "parameter_set" in report:
+        ps = report["parameter_set"]
+        table.add_row("parameter set", f"{ps['name']} ({len(ps['free'])} free machine "
+                      "parameters)" + (f"; {ps['note']}" if ps.get("note") else ""))
     table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
                   "parameter directions" + (f", of which {len(ident['weakly_identifiable'])} "
                                             "weakly" if ident["weakly_identifiable"] else ""))

@@ -27,6 +27,11 @@ class InstrumentData:
         File name, for messages.
     true_P, true_R : ndarray, optional
         Poses of a simulation, else None.
+    weights : tuple, optional
+        ``(noise model, words)``: the relative weights the data's source fits them with (a
+        firmware's saved calibration data: Klipper's DELTA_CALIBRATE weighs its distances
+        against its heights), held unless the user gives the noise; None: the instrument's
+        default, estimated.
     """
 
     kind: str
@@ -37,6 +42,7 @@ class InstrumentData:
     source: str = "<data>"
     true_P: np.ndarray | None = None
     true_R: np.ndarray | None = None
+    weights: tuple | None = None
 
     def __post_init__(self):
         self.q = np.atleast_2d(np.asarray(self.q, float))
@@ -72,4 +78,4 @@ class InstrumentData:
 
         return InstrumentData(self.kind, self.q[mask], self.values[mask], self.group[mask],
                               self.rows[mask], self.source, pick(self.true_P),
-                              pick(self.true_R))
+                              pick(self.true_R), self.weights)

@@ -451,9 +451,10 @@ def delta_calibrate_data(cfg: KlipperConfig, n_joints: int = 3) -> list:
     Returns
     -------
     list of InstrumentData
-        Probe heights (``kind="probe"``, saved heights then manual heights; rows are the
-        config's line numbers of ``heightN``), and two-point distances
-        (``kind="pair-distances"``) when saved; empty without a ``[delta_calibrate]``.
+        Probe heights (``kind="probe"``, source ``"<path> heights"``: saved heights then
+        manual heights) and two-point distances (``kind="pair-distances"``, ``"<path>
+        distances"``) when saved; their rows are the config's line numbers of ``heightN`` /
+        ``distanceN``; empty without a ``[delta_calibrate]``.
 
     Raises
     ------
@@ -478,12 +479,15 @@ def delta_calibrate_data(cfg: KlipperConfig, n_joints: int = 3) -> list:
         return []
     step = np.array([cfg.step_distance(s) for s in TOWER_STEPPERS]) * 1e-3      # m / step
     out = []
+    weights = (None, None)
+    if heights and distances:
+        weights = klipper_weights(len(_indexed(cfg, "height")), len(distances))
     if heights:
         q = np.array([cfg.numbers("delta_calibrate", pos, 3) for _, pos in heights]) * step
         h = np.array([cfg.number("delta_calibrate", key) for key, _ in heights]) * 1e-3
         rows = [cfg.entry("delta_calibrate", key).line for key, _ in heights]
         out.append(InstrumentData("probe", q, h[:, None], None, np.array(rows),
-                                  f"{cfg.path} [delta_calibrate] heights"))
+                                  f"{cfg.path} heights", weights=weights[0]))
     if distances:
         qa = np.array([cfg.numbers("delta_calibrate", f"distance{i}_pos1", 3)
                        for i in distances]) * step
@@ -492,8 +496,48 @@ def delta_calibrate_data(cfg: KlipperConfig, n_joints: int = 3) -> list:
         d = np.array([cfg.number("delta_calibrate", f"distance{i}", above=0.0)
                       for i in distances]) * 1e-3
         rows = [cfg.entry("delta_calibrate", f"distance{i}").line for i in distances]
-        out.append(pair_data(qa, qb, d, rows, f"{cfg.path} [delta_calibrate] distances"))
+        pairs = pair_data(qa, qb, d, rows, f"{cfg.path} distances")
+        pairs.weights = weights[1]
+        out.append(pairs)
     return out
+
+
+#: Klipper's weight of a distance against a height (``delta_calibrate.MEASURE_WEIGHT``)
+MEASURE_WEIGHT = 0.5
+
+
+def klipper_weights(n_probed: int, n_distances: int) -> tuple:
+    """The relative weights of Klipper's ``DELTA_CALIBRATE`` with DELTA_ANALYZE distances.
+
+    ``calculate_params`` minimises ``z_weight * sum(height errors^2) + sum(distance
+    errors^2)`` with ``z_weight = n_distances / (MEASURE_WEIGHT * n_probed)`` (probed
+    heights; manual heights are weighed but not counted): as noise levels, a height's
+    standard deviation is ``1 / sqrt(z_weight)`` times a distance's. The levels below keep
+    the probe's default for the heights; their common scale is estimated from the residuals
+    (held levels: the covariance scaled by the residual variance).
+
+    Parameters
+    ----------
+    n_probed : int
+        Probed heights (``heightN``).
+    n_distances : int
+        Distances.
+
+    Returns
+    -------
+    tuple
+        ``((IsotropicNoise, words), (IsotropicNoise, words))`` for the heights and the
+        distances.
+    """
+    from ..instruments import IsotropicNoise
+    from ..instruments.registry import PROBE_SIGMA
+
+    z_weight = n_distances / (MEASURE_WEIGHT * max(n_probed, 1))
+    sigma_d = PROBE_SIGMA * float(np.sqrt(z_weight))
+    words = (f"weighed as Klipper's DELTA_CALIBRATE weighs them (z_weight {z_weight:.3g}: a "
+             f"height's std {1 / np.sqrt(z_weight):.3g} of a distance's), their common level "
+             "from the residuals")
+    return ((IsotropicNoise(PROBE_SIGMA), words), (IsotropicNoise(sigma_d), words))
 
 
 def is_klipper_config(path, head: str) -> bool:

@@ -104,10 +104,15 @@ class ParameterSubset:
         other parameter is fixed at its value.
     description : str
         What the set is, in words (the firmware and its command, what it fixes).
+    without_lengths : str or None
+        The set the firmware fits instead when no measurement fixes a length (heights alone:
+        Klipper's DELTA_CALIBRATE holds the arms without DELTA_ANALYZE distances); None: this
+        set always.
     """
 
     free: tuple[str, ...]
     description: str
+    without_lengths: str | None = None
 
 
 @dataclass(frozen=True)

@@ -189,7 +189,8 @@ class LinearDelta(Machine):
             _ENDSTOPS + ("delta_radius",) + _TWO_ANGLES + _ARM_TRIMS,
             "Klipper DELTA_CALIBRATE with DELTA_ANALYZE (extended): position_endstop of the "
             "three towers, delta_radius, the angles of towers 1 and 2 (tower 3's fixes the "
-            "rotation about z) and the three arm lengths"),
+            "rotation about z) and the three arm lengths; with heights alone, as Klipper, "
+            "klipper-basic", without_lengths="klipper-basic"),
         "klipper-basic": ParameterSubset(
             _ENDSTOPS + ("delta_radius",) + _TWO_ANGLES,
             "Klipper DELTA_CALIBRATE (basic, heights only): the three endstops, delta_radius "
