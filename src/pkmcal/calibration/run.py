@@ -2769,7 +2769,10 @@ def _check_heights(data, machine) -> None:
 
 def expand_firmware_data(data, machine):
     """Data files that are a firmware's saved state (a Klipper ``printer.cfg`` with
-    ``[delta_calibrate]`` data) replaced by the measurements they hold.
+    ``[delta_calibrate]`` data) or a pasted probe report (Marlin ``Bed X: Y: Z:`` lines,
+    RepRapFirmware's ``bed probe heights`` reply:
+    :func:`~pkmcal.io.firmware_reports.probe_report_data`) replaced by the measurements they
+    hold.
 
     Parameters
     ----------
@@ -2784,6 +2787,8 @@ def expand_firmware_data(data, machine):
         ``data`` with each firmware file replaced by its data objects (a list when that gives
         more than one).
     """
+    from ..io.atomic import read_input_text
+    from ..io.firmware_reports import is_probe_report, probe_report_data, read_probe_report
     from ..io.klipper_config import is_klipper_config, read_klipper_data
 
     items = list(data) if isinstance(data, (list, tuple)) else [data]
@@ -2797,6 +2802,11 @@ def expand_firmware_data(data, machine):
                 head = ""
             if is_klipper_config(item, head):
                 out.extend(read_klipper_data(item, machine))
+                changed = True
+                continue
+            if not str(item).lower().endswith(".csv") and is_probe_report(head):
+                text = read_input_text(item, "probe report")
+                out.append(probe_report_data(read_probe_report(text, str(item)), machine))
                 changed = True
                 continue
         out.append(item)

@@ -280,3 +280,62 @@ def read_probe_report(text: str, source: str) -> ProbeReport:
     values = _values(firmware, text, source, min(rows), max(rows), notes)
     return ProbeReport(np.array(xy, float), np.array(z, float), np.array(rows, int), firmware,
                        values, source, notes)
+
+
+#: a text holds a probe report (its first lines are searched for one of these)
+_REPORT_HINT = re.compile(r"Bed X:\s*[-+.\d]|bed probe heights:", re.I)
+
+
+def is_probe_report(head: str) -> bool:
+    """Whether a text looks like a Marlin or RepRapFirmware probe report."""
+    return bool(_REPORT_HINT.search(head))
+
+
+def probe_report_data(report: ProbeReport, machine):
+    """A probe report's points as pkmcal probe heights: carriage readings through the
+    firmware's own kinematics.
+
+    The nozzle stood above ``(x, y)`` when the probe triggered there, the bed's surface at
+    the firmware's height ``z``; the firmware commanded the carriages for that point with the
+    values in force: the report's ``M665``/``M666`` lines, else ``machine`` (a machine file
+    imported from the firmware: ``pkmcal import``; the firmwares' delta kinematics are
+    pkmcal's linear Delta with vertical towers). The readings are the firmware's inverse
+    kinematics of ``(x, y, z)`` and the height above the bed is 0: a probe's z offset moves
+    the nozzle vertically, every carriage by the same length, and cancels (to the towers'
+    tilt times the offset, micrometres). The probe's XY offset is taken as 0 (the report
+    prints the probe's position, ``M851 X Y`` is not in it): a probe beside the nozzle
+    measures the bed there, the nozzle's readings are those of the point.
+
+    Parameters
+    ----------
+    report : ProbeReport
+        The report (:func:`read_probe_report`).
+    machine : Machine
+        The machine file given (a linear Delta).
+
+    Returns
+    -------
+    InstrumentData
+        ``kind="probe"``, rows the report's line numbers.
+
+    Raises
+    ------
+    InputError
+        When the firmware values cannot reach a point (naming its line).
+    """
+    from ..export import controller_format
+    from ..instruments import InstrumentData
+
+    firmware = machine
+    if report.values is not None:
+        firmware = controller_format(report.firmware).to_machine(report.values)
+    P = np.column_stack([report.xy, report.z]) * 1e-3
+    R = np.broadcast_to(np.eye(3), (len(P), 3, 3))
+    with np.errstate(all="ignore"):
+        q = firmware.ik(P, R)
+    bad = ~np.all(np.isfinite(q), axis=-1)
+    if bad.any():
+        n = int(report.rows[bad][0])
+        raise InputError(f"{report.source}: line {n}: the firmware's values cannot reach this "
+                         f"point ({report.xy[bad][0][0]:g}, {report.xy[bad][0][1]:g}) mm")
+    return InstrumentData("probe", q, np.zeros((len(P), 1)), None, report.rows, report.source)
