@@ -272,3 +272,27 @@ def test_klipper_set_with_heights_alone_is_klippers_basic_set():
     assert c.report["parameter_set"]["name"] == "klipper-basic"
     assert "heights alone" in c.report["parameter_set"]["note"]
     assert math.isfinite(c.report["residuals"]["rms_um"])
+
+
+def test_the_readme_path_runs_as_written(tmp_path):
+    """README "From printer.cfg to printer.cfg": its commands, as written, on a published
+    config with DELTA_ANALYZE distances."""
+    import re
+    import shlex
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = readme[readme.index("#### From printer.cfg to printer.cfg"):]
+    block = re.search(r"```sh\n(.*?)```", section, re.S).group(1)
+    shutil.copy(DATA / "v400-phnxdrgn536.cfg", tmp_path / "printer.cfg")
+    commands = [line.split("#")[0].strip() for line in block.splitlines()]
+    commands = [c for c in commands if c]
+    assert len(commands) == 3
+    for command in commands:
+        code, out, err = pkmcal(*shlex.split(command)[1:], cwd=tmp_path)
+        assert code == 0, (command, err)
+    assert list(tmp_path.glob("printer-*.cfg"))
+    ds = K.load_data_set(str(DATA / "v400-phnxdrgn536.cfg"))
+    own = K.delta_calibrate(ds.calibration, ds.data).calibration
+    new = K.load_data_set(str(tmp_path / "printer.cfg")).calibration
+    for residuals in (K.height_residuals, K.distance_residuals):
+        assert K.rms(residuals(new, ds.data)) <= 1.02 * K.rms(residuals(own, ds.data))
