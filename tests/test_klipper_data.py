@@ -296,3 +296,18 @@ def test_the_readme_path_runs_as_written(tmp_path):
     new = K.load_data_set(str(tmp_path / "printer.cfg")).calibration
     for residuals in (K.height_residuals, K.distance_residuals):
         assert K.rms(residuals(new, ds.data)) <= 1.02 * K.rms(residuals(own, ds.data))
+
+
+def test_compensate_puts_a_printer_on_its_bed(tmp_path):
+    """compensate works in the printer's frame: a target at z = 0 is on the probed bed, also
+    where the calibration estimated the bed's tilt against the towers."""
+    from pkmcal.compensation import compensate
+    from pkmcal.machines import linear_delta
+
+    m = linear_delta(0.14, 0.25, np.deg2rad([210.0, 330.0, 90.0]), (0.3, 0.3, 0.3))
+    m.probe_bed = (0.0, 2e-3, -1e-3)
+    targets = np.array([[0.0, 0.0, 0.0], [0.05, -0.03, 0.0], [-0.04, 0.06, 0.01]])
+    comp = compensate(m, targets)
+    nozzle = m.fk(comp.q).P
+    above = nozzle[:, 2] - (2e-3 * nozzle[:, 0] - 1e-3 * nozzle[:, 1])
+    np.testing.assert_allclose(above, targets[:, 2], rtol=0, atol=1e-12)

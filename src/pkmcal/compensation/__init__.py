@@ -74,7 +74,9 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
     calibrated : Machine
         The calibrated machine.
     P : array_like, shape (K, 3) or (3,)
-        Target positions, m (base frame, or the instrument's with ``frame``).
+        Target positions, m (base frame - a printer's: heights above its bed,
+        :meth:`~pkmcal.machines.Machine.targets_in_base` - or the instrument's with
+        ``frame``).
     R : array_like, shape (K, 3, 3), optional
         Target orientations (ignored by 3-dof platforms); default identity, or with a tracker
         ``frame`` the home orientation (a tracker's targets are points).
@@ -110,6 +112,8 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
     if frame is not None:
         P, Rb = frame.to_base(P, R)
         R = R if Rb is None else Rb
+    else:       # a printer's targets are heights above its bed (SPEC 8)
+        P = calibrated.targets_in_base(P)
     R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else R
     q = calibrated.ik(P, R)
     ok = calibrated.working_mode(P, R)      # real IK, near home, in home's working mode
