@@ -311,3 +311,34 @@ def test_compensate_puts_a_printer_on_its_bed(tmp_path):
     nozzle = m.fk(comp.q).P
     above = nozzle[:, 2] - (2e-3 * nozzle[:, 0] - 1e-3 * nozzle[:, 1])
     np.testing.assert_allclose(above, targets[:, 2], rtol=0, atol=1e-12)
+
+
+def test_reprapfirmware_config_override_is_updated_as_m500_writes_it(tmp_path):
+    """export onto an existing config-override.g: its M665/M666 lines replaced where they
+    stood (letters pkmcal does not write, M665 B, kept), every other line kept, the previous
+    file kept dated; a file without G-code is refused."""
+    from pkmcal.machines import linear_delta
+
+    rrf = controller_format("reprapfirmware")
+    m = linear_delta(0.132, 0.25, np.deg2rad([210.3, 329.8, 90.0]), (0.285, 0.2853, 0.2848))
+    params = rrf.initial(m)
+    old = ("; config-override.g\nM307 H1 A340 C140 D5.5 B0\n"
+           "M665 L250:250:250 R132 H285 B90 X0 Y0 Z0\nM666 X0 Y0 Z0 A0 B0\nG31 P500 Z-0.1\n")
+    new = rrf.update(old, params, m, "config-override.g")
+    lines = new.splitlines()
+    assert lines[1].startswith("M307") and lines[-1].startswith("G31")
+    assert sum(line.startswith("M665") for line in lines) == 1
+    assert next(line for line in lines if line.startswith("M665")).endswith(" B90")
+    parsed = rrf.parse(new, "config-override.g")
+    np.testing.assert_allclose(parsed.values[:13], params.values[:13], rtol=0, atol=1e-8)
+    with pytest.raises(InputError, match="no G-code"):
+        rrf.update("hello\n", params, m, "notes.txt")
+    # through the command: the backup beside it
+    from pkmcal.io.machine_file import save_machine
+
+    save_machine(m, tmp_path / "m.yaml")
+    (tmp_path / "config-override.g").write_text(old)
+    code, _, err = pkmcal("export", "m.yaml", "--to", "reprapfirmware", "-o",
+                          "config-override.g", cwd=tmp_path)
+    assert code == 0, err
+    assert [p.read_text() for p in tmp_path.glob("config-override-*.g")] == [old]

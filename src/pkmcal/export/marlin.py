@@ -417,7 +417,10 @@ class MarlinDelta(ControllerFormat):
         mm = (lambda x: f"{x * 1e3:.6f}")  # noqa: E731
         deg = (lambda x: f"{np.degrees(x):.9f}")  # noqa: E731
         lines = [f"; pkmcal export --to marlin: {machine.name or 'linear Delta'}",
-                 "; Marlin delta (module/delta.cpp); send, then M500 to store in EEPROM",
+                 "; Marlin delta (module/delta.cpp), Marlin 2.0.9+ letters (A B C the rod "
+                 "trims; Marlin 1.1.x has them at compile time, DELTA_DIAGONAL_ROD_TRIM_TOWER, "
+                 "and reads M665 B as the calibration radius); send, then M500 to store them "
+                 "in EEPROM",
                  "; H is the nozzle height at home for M851 Z0; z = 0 is the bed at the centre"
                  + (f"; the bed's tilt against the towers (dz/dx {bed[1]:.6g}, dz/dy "
                     f"{bed[2]:.6g}) is folded into these values as far as they hold it, the "

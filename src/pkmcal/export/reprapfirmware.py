@@ -49,6 +49,8 @@ tilts. Not modelled: more than three towers (``M669``), ``M556`` axis skew, ``G9
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from ..errors import InputError
@@ -216,6 +218,44 @@ class RepRapFirmwareDelta(ControllerFormat):
                  "M666 " + " ".join(f"{k}{mm(adj[i])}" for i, k in enumerate("XYZ"))
                  + f" A{v[11] * 100:.9f} B{v[12] * 100:.9f}"]
         return "\n".join(lines) + "\n"
+
+    def update(self, existing: str, params: ControllerParameters, machine: Machine,
+               source: str) -> str | None:
+        """``config-override.g`` (or ``config.g``) with the values saved as ``M500`` saves
+        them (``LinearDeltaKinematics::WriteCalibrationParameters``): its ``M665`` and ``M666``
+        lines replaced by the new ones where the first stood, every other line kept.
+
+        Raises
+        ------
+        InputError
+            When the file holds no G-code line (it is not a RepRapFirmware config file).
+        """
+        lines = existing.splitlines()
+        code = [i for i, line in enumerate(lines)
+                if re.match(r"\s*[GMT]\d", line.split(";")[0])]
+        if not code:
+            raise InputError(f"{source}: exists and holds no G-code line (not a "
+                             "RepRapFirmware config file); choose another output name (a new "
+                             "file gets the values alone)")
+        delta = [i for i in code if re.match(r"\s*M66[56]\b", lines[i])]
+        ours = []
+        for line in self.text(params, machine).splitlines():
+            if not line.startswith(("M665", "M666")):
+                continue
+            # letters of the file's own line that pkmcal does not write (M665 B, the
+            # printable radius) are kept
+            mine = set(re.findall(r"\b([A-Z])", line[4:]))
+            for i in delta:
+                words = lines[i].split(";")[0].split()
+                if words and words[0] == line[:4]:
+                    line += "".join(f" {w}" for w in words[1:] if w[:1] not in mine)
+            ours.append(line)
+        at = delta[0] if delta else len(lines)
+        kept = [line for i, line in enumerate(lines) if i not in set(delta)]
+        at -= sum(1 for i in delta if i < at)
+        new = kept[:at] + ["; Delta parameters (pkmcal export --to reprapfirmware)"] + ours \
+            + kept[at:]
+        return "\n".join(new) + "\n"
 
     def values_text(self, params: ControllerParameters) -> list[tuple[str, str]]:
         """The values as the written file has them, for a printed table.

@@ -409,11 +409,12 @@ def save_config_text(text: str, values: dict, source: str,
 
 
 def backup_name(path) -> Path:
-    """Where ``SAVE_CONFIG`` keeps the previous file: ``printer-YYYYMMDD_HHMMSS.cfg``."""
+    """Where ``SAVE_CONFIG`` keeps the previous file: ``printer-YYYYMMDD_HHMMSS.cfg`` (any
+    other suffix likewise: ``config-override-YYYYMMDD_HHMMSS.g``)."""
     path = Path(path)
     stamp = time.strftime("-%Y%m%d_%H%M%S")
-    if path.name.endswith(".cfg"):
-        return path.with_name(path.name[:-4] + stamp + ".cfg")
+    if path.suffix:
+        return path.with_name(path.stem + stamp + path.suffix)
     return path.with_name(path.name + stamp)
 
 
