@@ -2614,13 +2614,10 @@ register_kind(MeasurementKind(
 
 # -- distances between two nozzle positions (SPEC 8) ------------------------------------------
 
-#: default noise of a distance between two points of a printed part (caliper), m
-PAIR_SIGMA = 20e-6
-
-
 def _pair_noise(noise, machine):
     """The noise of two-point distances (``--noise``; default :data:`PAIR_SIGMA`)."""
     from ..instruments import IsotropicNoise
+    from ..instruments.pairs import PAIR_SIGMA
     from ..io.plausibility import check_option_scale
     from ..units import parse_quantity
 
@@ -2727,7 +2724,7 @@ register_kind(MeasurementKind(
             "distance between them, distance_mm (a caliper on a printed part)",
     detect=lambda header: _has(header, "q1b") and _has(header, "distance"),
     calibrate=_calibrate_pairs, check_options=_check_pairs, data_class="InstrumentData",
-    priority=5))
+    priority=5, instrument="pair-distances"))
 
 
 #: a common offset of the probe heights against the machine file's model beyond this (m) is

@@ -58,6 +58,8 @@ class Scenario(enum.StrEnum):
     probe = "probe"
     probe_heights = "probe-heights"
     bed_probe = "bed-probe"
+    pair_distances = "pair-distances"
+    caliper = "caliper"
 
 
 class Deviations(enum.StrEnum):

@@ -318,6 +318,16 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
 
         model = IsotropicNoise(sigma) if sigma > 0 else False
         noise_words = f"probe trigger {sigma * 1e6:.4g} um along z (std)"
+    elif scenario == "pair-distances":
+        text = "20um" if noise is None else noise
+        sigma = parse_quantity(text, "length", "--noise")
+        if not sigma >= 0:
+            raise InputError(f"--noise: must be >= 0 (a standard deviation), got {text}")
+        check_option_scale(sigma, machine, "--noise", "noise", text)
+        from ..instruments import IsotropicNoise
+
+        model = IsotropicNoise(sigma) if sigma > 0 else False
+        noise_words = f"distance {sigma * 1e6:.4g} um (std)"
     else:
         text = "1um" if noise is None else noise
         sigma = parse_quantity(text, "length", "--noise")
@@ -393,6 +403,8 @@ def _write_pose_data(path: Path, data, machine, length_unit: str) -> None:
 
 def _truth_rows(machine, scenario: str, info: dict):
     """The simulated instrument's truth in words (table rows)."""
+    if "rows" in info:                  # an instrument that words its own truth
+        return list(info["rows"])
     if scenario == "constraint-link":
         lc = machine.constraint_link_length
         rows = [("link", f"true length {info['link_length'] * 1e3:.6g} mm")]

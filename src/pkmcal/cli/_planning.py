@@ -56,6 +56,10 @@ def noise_model(scenario: str, noise: str | None, pose_noise: str | None, machin
         from ..calibration.run import _probe_noise
 
         return _probe_noise(noise, machine)
+    if scenario == "pair-distances":
+        from ..calibration.run import _pair_noise
+
+        return _pair_noise(noise, machine)
     return full_pose_noise_arg(noise, pose_noise, strict=True, machine=machine)
 
 
@@ -67,7 +71,10 @@ MEASUREMENT_WORDS = {
                "target places estimated jointly)",
     "pose": "full pose (maximum likelihood; both measurement frames estimated)",
     "distance": "ballbar distances (pivot and ball of each setup estimated jointly)",
-    "probe": "bed-probe heights (bed height and tilt estimated jointly)",
+    "probe": "bed-probe heights (bed height and tilt estimated jointly; on a printer the bed "
+             "is z = 0 and its tilt estimated where the data tell it)",
+    "pair-distances": "distances between the nozzle at two sets of readings (no unknown of "
+                      "their own)",
 }
 
 
@@ -82,7 +89,9 @@ def data_kind(path: Path, header: list[str], machine) -> str:
     def has(base):
         return any(n == base or n.startswith(base + "_") for n in header)
 
-    if has("probe_z"):
+    if has("q1b") and has("distance"):
+        kind = "pair-distances"
+    elif has("probe_z"):
         kind = "probe"
     elif has("d"):
         kind = "distance"
@@ -139,13 +148,20 @@ def measured_problem(machine, data_path: Path, kind: str, noise):
         return inst.problem(machine, data, noise, registration=registration,
                             targets=targets), data
     if kind == "probe":
-        from ..instruments import InstrumentProblem, ProbeModel
+        from ..instruments import InstrumentProblem
+        from ..instruments.bed import bed_choice
         from ..io import read_probe
 
         data = read_probe(data_path, machine)
         fk = _fk_of(machine, data, data_path)
-        model = ProbeModel().start(fk.P, fk.R, data.values, data.group, str(data_path))
+        model = bed_choice(machine, data, noise).model().start(fk.P, fk.R, data.values,
+                                                               data.group, str(data_path))
         return InstrumentProblem(machine, data, model, noise), data
+    if kind == "pair-distances":
+        from ..calibration.run import _read_pairs
+
+        data = _read_pairs(data_path, machine)
+        return inst.problem(machine, data, noise), data
     if kind == "distance":
         from ..instruments import DistancesModel, InstrumentProblem
 

@@ -26,6 +26,8 @@ from .data import InstrumentData
 from .models import NuisanceModel
 from .problem import InstrumentProblem
 
+#: default noise of a distance between two points of a printed part (a caliper), m
+PAIR_SIGMA = 20e-6
 #: the directions of Klipper's calibration object, deg (``MeasureAngles``)
 MEASURE_ANGLES = (210.0, 270.0, 330.0, 30.0, 90.0, 150.0)
 #: its outer pillars' radius and the ridge's offset, mm (``MeasureOuterRadius``,

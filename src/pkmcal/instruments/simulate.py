@@ -437,6 +437,9 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
         raise InputError(f"mounting_error: must be >= 0, got {mounting_error}")
     true = _true_machine(machine, deviations, rng)
     truth: dict = {"scenario": name}
+    own = getattr(inst, "simulate", None)
+    if callable(own):           # an instrument that simulates itself
+        return own(machine, true, n, noise, rng, truth)
 
     if name == "constraint-link":
         from ..measurements import simulate_constraint_link

@@ -1394,10 +1394,11 @@ def write_instrument(path, data, machine, length_unit: str = "mm") -> Path:
     unit, fq = machine.joint_unit()
     fl = _unit_factor(length_unit, "length")
     q = np.atleast_2d(np.asarray(data.q, float))
-    header = [f"q{j + 1}_{unit}" for j in range(q.shape[1])]
+    n = machine.n_joints
+    header = [f"q{j % n + 1}{'b' if j >= n else ''}_{unit}" for j in range(q.shape[1])]
     columns = [q[:, j] / fq for j in range(q.shape[1])]
     names = {"points": [f"m{c}" for c in "xyz"], "distances": ["d"],
-             "probe": ["probe_z"]}[data.kind]
+             "probe": ["probe_z"], "pair-distances": ["distance"]}[data.kind]
     header += [f"{n}_{length_unit}" for n in names]
     columns += [data.values[:, j] / fl for j in range(len(names))]
     if data.n_groups > 1:
