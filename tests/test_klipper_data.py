@@ -342,3 +342,25 @@ def test_reprapfirmware_config_override_is_updated_as_m500_writes_it(tmp_path):
                           "config-override.g", cwd=tmp_path)
     assert code == 0, err
     assert [p.read_text() for p in tmp_path.glob("config-override-*.g")] == [old]
+
+
+def test_import_keeps_the_print_and_probing_radius(tmp_path):
+    """Klipper's [printer] print_radius and [delta_calibrate] radius, Marlin 1.1's M665 B (the
+    G33 calibration radius) and RepRapFirmware's M665 B (the printable radius) end in the
+    machine file, where the probe plan and the export's print disk take them from."""
+    shutil.copy(DATA / "kossel-hpb0412.cfg", tmp_path / "printer.cfg")
+    (tmp_path / "m503.txt").write_text(
+        "Recv: echo:  M665 L215.00 R105.20 H250.55 S160.00 B70.00 X-0.11 Y0.20 Z0.00\n"
+        "Recv: echo:  M666 X-0.31 Y0.00 Z-0.54\n")
+    (tmp_path / "config-override.g").write_text("M665 L215 R105.2 H250 B85\nM666 X0 Y0 Z0\n")
+    for src, fmt in (("printer.cfg", "klipper"), ("m503.txt", "marlin"),
+                     ("config-override.g", "reprapfirmware")):
+        code, out, err = pkmcal("import", src, "--from", fmt, "-o", f"{fmt}.yaml",
+                                cwd=tmp_path)
+        assert code == 0, err
+    cfg = KlipperConfig.read(tmp_path / "printer.cfg")
+    klipper = (tmp_path / "klipper.yaml").read_text()
+    assert f"probe_radius: {cfg.number('delta_calibrate', 'radius'):g}" in klipper.replace(
+        ".0\n", "\n")
+    assert "probe_radius: 70.0" in (tmp_path / "marlin.yaml").read_text()
+    assert "print_radius: 85.0" in (tmp_path / "reprapfirmware.yaml").read_text()

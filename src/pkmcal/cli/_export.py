@@ -156,6 +156,9 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
                          f"{what}") from None
     save_machine(machine, output, units)
     commit_outputs()
-    console().print(f"{len(params.values)} {fmt.name} values of {path} written to {output} "
-                    f"as a {machine.kind} machine file", markup=False)
+    out = console()
+    for note in getattr(params, "notes", None) or []:       # letters passed over, and why
+        out.print(f"note: {note}", markup=False)
+    out.print(f"{len(params.values)} {fmt.name} values of {path} written to {output} "
+              f"as a {machine.kind} machine file", markup=False)
     return 0

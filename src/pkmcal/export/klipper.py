@@ -248,7 +248,8 @@ def wrap_degrees(angle):
 
 
 def linear_delta_machine(radius: float, arms, angles, endstops, bed,
-                         like: Machine | None = None, name: str = "") -> LinearDelta:
+                         like: Machine | None = None, name: str = "",
+                         extras: dict | None = None) -> LinearDelta:
     """A pkmcal linear Delta from a controller's values (vertical towers, one radius).
 
     Parameters
@@ -269,6 +270,9 @@ def linear_delta_machine(radius: float, arms, angles, endstops, bed,
         Name and home pose come from it.
     name : str, optional
         Name when ``like`` gives none.
+    extras : dict, optional
+        ``print_radius`` and ``probe_radius`` (m) the controller's file holds
+        (:attr:`~pkmcal.export.base.ControllerParameters.extras`): kept on the machine.
 
     Returns
     -------
@@ -284,6 +288,9 @@ def linear_delta_machine(radius: float, arms, angles, endstops, bed,
                      home=None if like is None else like.home,
                      name=(like.name if like is not None and like.name else name))
     m.probe_bed = tuple(float(v) for v in bed) if np.any(bed != 0) else None
+    for key, value in (extras or {}).items():
+        if key in ("print_radius", "probe_radius"):
+            setattr(m, key, float(value))
     return m
 
 
@@ -557,11 +564,8 @@ class KlipperDelta(ControllerFormat):
         v = params.values
         # Klipper's z is the height above the bed: its values are the printer in the bed's
         # frame, square (a tilt named in the pkmcal comment is folded in already)
-        machine = linear_delta_machine(v[0], v[1:4], v[4:7], v[7:10], [v[10], 0.0, 0.0], like,
-                                       "linear Delta (imported from Klipper)")
-        for key, value in params.extras.items():
-            setattr(machine, key, float(value))
-        return machine
+        return linear_delta_machine(v[0], v[1:4], v[4:7], v[7:10], [v[10], 0.0, 0.0], like,
+                                    "linear Delta (imported from Klipper)", params.extras)
 
 
 KLIPPER = register_format(KlipperDelta())

@@ -630,7 +630,7 @@ class MarlinDelta(ControllerFormat):
         bed = np.array([v[12], 0.0, 0.0])
         return linear_delta_machine(v[2], v[1] + v[6:9], np.radians(BASE_ANGLES) + v[3:6],
                                     v[0] - v[9:12], bed, like,
-                                    "linear Delta (imported from Marlin)")
+                                    "linear Delta (imported from Marlin)", params.extras)
 
 
 MARLIN = register_format(MarlinDelta())

@@ -412,7 +412,8 @@ class RepRapFirmwareDelta(ControllerFormat):
         bed = np.array([v[13], v[11], v[12]])
         return linear_delta_machine(v[3], v[0:3], np.radians(BASE_ANGLES) + v[5:8],
                                     v[4] + v[8:11], bed, like,
-                                    "linear Delta (imported from RepRapFirmware)")
+                                    "linear Delta (imported from RepRapFirmware)",
+                                    params.extras)
 
 
 REPRAPFIRMWARE = register_format(RepRapFirmwareDelta())
