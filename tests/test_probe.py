@@ -470,12 +470,14 @@ def test_linear_delta_noise_free_recovery_and_words(tmp_path):
 
 def test_linear_delta_klipper_set_warns_of_the_arm_lengths(tmp_path):
     """With Klipper's parameters the arm lengths are fitted from heights with standard
-    deviations of millimetres, each nearly equal to a change of its endstop: warnings say so
-    and what to measure next."""
+    deviations of tenths of millimetres, strongly correlated with the radius or an endstop
+    (in the printer's frame, the bed its z = 0, the endstops are fixed by the heights
+    themselves; a bed height of its own made each arm nearly a change of its endstop, millimetres):
+    warnings say so and what to measure next."""
     machine = _linear_delta(tmp_path, "klipper")
     data, _, _ = simulate_scenario(machine, "probe", 37, rng=3)
     result = calibrate_probe(machine, data)
     poor = {p.name: p for p in result.extras["poorly_determined"]}
     for i in (1, 2, 3):
         p = poor[f"tower{i}.arm_trim"]
-        assert 5e-4 < p.std < 1e-2 and abs(p.correlation) > 0.9
+        assert 1e-4 < p.std < 1e-2 and abs(p.correlation) > 0.7

@@ -380,8 +380,14 @@ def position_errors(fmt: ControllerFormat, params: ControllerParameters, machine
     return out
 
 
+#: weight of the position error against a printer's nozzle height on its bed in the export's
+#: fit (:func:`fit_controller` with ``surface``)
+POSITION_WEIGHT = 0.1
+
+
 def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
-                   start: ControllerParameters | None = None) -> ControllerParameters:
+                   start: ControllerParameters | None = None,
+                   surface=None) -> ControllerParameters:
     """The controller's values that minimise the position error over workspace poses.
 
     Least squares (scipy's trust-region reflective with a finite-difference Jacobian, the
@@ -401,6 +407,12 @@ def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
         Workspace orientations.
     start : ControllerParameters, optional
         Start values; default ``fmt.initial(machine)``.
+    surface : array_like of bool, shape (K,), optional
+        Workspace poses on a printer's bed: the fit is first of all the nozzle's height above
+        the bed there (what a printer's probe heights fix, and its first layer), the position
+        error everywhere weighing :data:`POSITION_WEIGHT` beside it. A controller whose
+        values cannot hold a tilt of the bed against the towers otherwise takes height errors
+        for sideways ones.
 
     Returns
     -------
@@ -419,10 +431,16 @@ def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
     L = machine.characteristic_length()
     scale = np.array([L if k == "length" else 1.0 for k in params.kinds])[free]
 
+    on = None if surface is None else np.asarray(surface, bool)
+    if on is not None and not on.any():
+        on = None
+
     def residual(x):
         v = params.values.copy()
         v[free] = x * scale
         e = position_errors(fmt, params.with_values(v), machine, P, R) / L
+        if on is not None:
+            e = np.concatenate([e[on, 2], POSITION_WEIGHT * e.ravel()])
         return np.nan_to_num(e.ravel(), nan=1.0)      # a target lost weighs a lot
 
     e0 = position_errors(fmt, params, machine, P, R)
@@ -475,7 +493,7 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
     why = fmt.applies(machine)
     if why is not None:
         raise InputError(f"--to {fmt.name}: {why}")
-    params = fit_controller(fmt, machine, P, R)
+    params = fit_controller(fmt, machine, P, R, surface=surface)
     E = position_errors(fmt, params, machine, P, R)
     e = np.linalg.norm(E, axis=-1)
     on = None if surface is None else np.asarray(surface, bool)

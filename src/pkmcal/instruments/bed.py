@@ -59,11 +59,14 @@ def bed_choice(machine: Machine, data: InstrumentData, noise=None, choice: str =
 
     A machine whose frame is its bed (``machine.frame_is_bed``: a printer, z = 0 the probed
     bed) holds the bed's height at 0: the endstops carry it. Its tilt against the towers is
-    estimated (``choice="auto"``) when the data leave at least :data:`TILT_REDUNDANCY`
-    equations beyond the unknowns with it and the heights tell it from the free parameters
-    (it adds two to the rank of the heights' Jacobian at the start geometry); otherwise the
-    bed is square to the towers, as the firmwares model it. Other machines estimate the
-    bed's height and tilt.
+    estimated (``choice="auto"``) when the data determine it beside the parameter set: they
+    leave at least :data:`TILT_REDUNDANCY` equations beyond the unknowns with it, the heights
+    tell it from the free parameters (it adds two to the rank of the heights' Jacobian at the
+    start geometry), and they fix it well: its standard deviation at the assumed noise moves
+    the bed at the edge of the probed disk by no more than that noise. Otherwise the bed is
+    square to the towers, as the firmwares model it (a delta's endstops carry almost all of a
+    tilt: the heights fix it only as well as the endstops' differences). Other machines
+    estimate the bed's height and tilt.
 
     Parameters
     ----------
@@ -106,7 +109,7 @@ def bed_choice(machine: Machine, data: InstrumentData, noise=None, choice: str =
                          f"equation(s) beyond the unknowns (fewer than {TILT_REDUNDANCY}); "
                          "--bed-tilt estimate to fit it anyway")
 
-    ranks = []
+    ranks, tilt_std, reach = [], np.inf, 0.0
     for fixed in (("bed.z",), ("bed.z", "bed.tilt_x", "bed.tilt_y")):
         model = ProbeModel(fixed=fixed)
         problem = instrument_problem(machine, data, model, noise)
@@ -116,11 +119,29 @@ def bed_choice(machine: Machine, data: InstrumentData, noise=None, choice: str =
         free = problem.parameters.free
         Jf = (J[..., free] * problem.scales[free]).reshape(-1, int(free.sum()))
         Jf = Jf[np.all(np.isfinite(Jf), axis=1)]
-        ranks.append(numerical_rank(np.linalg.svd(Jf, compute_uv=False), rtol))
+        s = np.linalg.svd(Jf, compute_uv=False)
+        ranks.append(numerical_rank(s, rtol))
+        if len(ranks) == 1 and ranks[0] == Jf.shape[1]:
+            # the tilt's standard deviation at the assumed noise (whitened Jacobian)
+            cov = np.linalg.pinv(Jf.T @ Jf, hermitian=True)
+            names = [n for n, f in zip(problem.parameters.names, free, strict=True) if f]
+            idx = [names.index("bed.tilt_x"), names.index("bed.tilt_y")]
+            tilt_std = float(np.sqrt(np.max(np.diag(cov)[idx])))
+            reach = float(np.max(np.hypot(problem._P0[:, 0], problem._P0[:, 1])))
     if ranks[0] - ranks[1] < 2:
         return BedChoice(("bed.z", "bed.tilt_x", "bed.tilt_y"), "square",
                          f"{square}: the heights cannot tell its tilt from the free parameters "
                          "(a common lean of the towers); --bed-tilt estimate to fit it anyway")
+    sigma = float(np.min(getattr(noise, "sigma", np.inf)))
+    if not tilt_std * reach <= sigma:
+        # the parameter set holds almost all of a tilt (a delta's endstops do): the heights
+        # fix it only to more than their noise at the edge of the probed disk, and the
+        # firmware's own parameters carry what is seen of it
+        return BedChoice(("bed.z", "bed.tilt_x", "bed.tilt_y"), "square",
+                         f"{square}: the heights fix its tilt only to {tilt_std * 1e3:.2g} "
+                         f"mm/m, {tilt_std * reach * 1e6:.3g} um at the edge of the probed "
+                         f"disk, more than their noise: the parameter set carries what they "
+                         "see of it; --bed-tilt estimate to fit it anyway")
     return BedChoice(("bed.z",), "estimated",
                      f"z = 0 is the probed bed (the printer's frame); its tilt against the "
                      f"towers estimated ({redundancy} equations beyond the unknowns)")
