@@ -187,7 +187,10 @@ def test_step_distance_as_klipper_parses_it(options, expected):
 
 @pytest.mark.parametrize("options, words", [
     ("rotation_distance: -40\nmicrosteps: 16", ["line 2", "rotation_distance", "above 0"]),
-    ("rotation_distance: 40\nmicrosteps: x", ["line 3", "microsteps", "not a number"]),
+    ("rotation_distance: 40\nmicrosteps: x", ["line 3", "microsteps", "a whole number"]),
+    ("rotation_distance: 40\nmicrosteps: 16.0", ["line 3", "microsteps", "a whole number"]),
+    ("rotation_distance: 1e-300\nmicrosteps: 16", ["line 2", "not a stepper"]),
+    ("rotation_distance: 40\nmicrosteps: 16\ngear_ratio: 1e308:1e-308", ["not a stepper"]),
     ("rotation_distance: 40\nmicrosteps: 16\nfull_steps_per_rotation: 202",
      ["line 4", "multiple of 4"]),
     ("rotation_distance: 40\nmicrosteps: 16\ngear_ratio: 3-1", ["line 4", "gear_ratio"]),
@@ -364,3 +367,115 @@ def test_import_keeps_the_print_and_probing_radius(tmp_path):
         ".0\n", "\n")
     assert "probe_radius: 70.0" in (tmp_path / "marlin.yaml").read_text()
     assert "print_radius: 85.0" in (tmp_path / "reprapfirmware.yaml").read_text()
+
+
+# -- what an independent catalogue of malformed configs found (issue 24's review) -----------------
+def _export_onto(tmp_path, text: str):
+    """Calibrate a published config and export onto ``text`` written as printer.cfg."""
+    src = DATA / "kossel-hpb0412.cfg"
+    shutil.copy(src, tmp_path / "data.cfg")
+    assert pkmcal("import", "data.cfg", "--from", "klipper", "-o", "m.yaml",
+                  cwd=tmp_path)[0] == 0
+    code, _, err = pkmcal("calibrate", "m.yaml", "data.cfg", "--parameters", "klipper-basic",
+                          "-o", "cal.yaml", cwd=tmp_path)
+    assert code == 0, err
+    (tmp_path / "printer.cfg").write_bytes(text.encode("utf-8"))
+    return pkmcal("export", "cal.yaml", "--to", "klipper", "-o", "printer.cfg", cwd=tmp_path)
+
+
+def test_export_keeps_what_klipper_runs(tmp_path):
+    """Multi-line block values (a bed mesh) survive; an option the body defines stays the
+    body's (Klipper never read the block's stale value); the backup is the previous file
+    byte for byte (a BOM kept)."""
+    text = ("\ufeff[printer]\nkinematics: delta\ndelta_radius: 140\n[stepper_a]\n"
+            "arm_length: 270\nposition_endstop: 300\n[probe]\nz_offset: 1.5\n" + BLOCK
+            + "#*# [probe]\n#*# z_offset = 16.046\n#*#\n#*# [bed_mesh default]\n"
+              "#*# version = 1\n#*# points =\n#*# \t-0.1, 0.2\n#*# \t0.3, -0.4\n")
+    code, _, err = _export_onto(tmp_path, text)
+    assert code == 0, err
+    new = KlipperConfig.read(tmp_path / "printer.cfg")
+    assert new.number("probe", "z_offset") == 1.5
+    mesh = new.entry("bed_mesh default", "points")
+    assert mesh.more == ["\t-0.1, 0.2", "\t0.3, -0.4"]
+    backup = next(tmp_path.glob("printer-*.cfg"))
+    assert backup.read_bytes() == text.encode("utf-8")
+
+
+@pytest.mark.parametrize("text, words", [
+    ("[printer]\nkinematics: delta\ndelta_radius: 140\n#*# [stepper_a]\n#*# angle = 1\n"
+     + BLOCK + "#*# [printer]\n#*# delta_radius = 150\n", ["ignores its SAVE_CONFIG block"]),
+    ("[printer]\nkinematics: delta\ndelta_radius: 140\n" + BLOCK
+     + "#*# [printer]\n#*# delta_radius = 150\nafter = 1\n", ["does not start with '#*# '"]),
+])
+def test_a_block_klipper_ignores_is_ignored_and_not_saved_into(tmp_path, text, words):
+    cfg = KlipperConfig.read("printer.cfg", text)
+    assert cfg.number("printer", "delta_radius") == 140 and not cfg.autosave
+    for w in words:
+        assert w in cfg.ignored_block
+    with pytest.raises(InputError, match="corrupted"):
+        save_config_text(text, {("printer", "delta_radius"): "141"}, "printer.cfg")
+
+
+@pytest.mark.parametrize("text, words", [
+    ("[printer]\nprint_radius 110\n", ["line 2", "neither a [section] nor an option"]),
+    ("delta_radius: 140\n[printer]\n", ["line 1", "before any [section]"]),
+    ("[printer\ndelta_radius: 140\n", ["line 1"]),
+])
+def test_lines_klipper_refuses_are_refused(text, words):
+    with pytest.raises(InputError) as err:
+        KlipperConfig.read("printer.cfg", text)
+    for w in words:
+        assert w in str(err.value), str(err.value)
+
+
+def test_an_included_file_is_an_input(tmp_path):
+    (tmp_path / "extra.cfg").write_text("[printer]\nprint_radius: 100\n")
+    text = (DATA / "kossel-hpb0412.cfg").read_text()
+    (tmp_path / "printer.cfg").write_text("[include extra.cfg]\n" + text)
+    before = (tmp_path / "extra.cfg").read_text()
+    code, _, err = pkmcal("import", "printer.cfg", "--from", "klipper", "-o", "extra.cfg",
+                          cwd=tmp_path)
+    assert code == 2 and "input file" in err
+    assert (tmp_path / "extra.cfg").read_text() == before
+    (tmp_path / "bin.cfg").write_bytes(b"[printer]\x00\xff\n")
+    (tmp_path / "p2.cfg").write_text("[include bin.cfg]\n" + text)
+    code, _, err = pkmcal("import", "p2.cfg", "--from", "klipper", "-o", "x.yaml", cwd=tmp_path)
+    assert code == 2 and "bin.cfg" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("change, words", [
+    (("#*# height2 = ", "#*# height2 = 1e30 ; "), ["height2", "cannot be meant"]),
+    (("#*# height0_pos = ", "#*# height0_pos = -5,1,1\n#*# old = "), ["height0_pos", ">= 0"]),
+    (("#*# height3_pos = ", "#*# xheight3_pos = "), ["height3", "has no height3_pos"]),
+    (("kinematics: delta", "kinematics: cartesian"), ["kinematics", "delta"]),
+])
+def test_saved_data_that_cannot_be_meant_are_named(tmp_path, change, words):
+    text = (DATA / "kossel-hpb0412.cfg").read_text()
+    assert change[0] in text
+    (tmp_path / "printer.cfg").write_text(text.replace(change[0], change[1], 1))
+    machine = KLIPPER.to_machine(KLIPPER.parse(text, "printer.cfg"))
+    with pytest.raises(InputError) as err:
+        calibrate(machine, tmp_path / "printer.cfg", parameters="klipper-basic")
+    for w in words:
+        assert w in str(err.value), str(err.value)
+
+
+def test_heights_after_a_gap_are_named(tmp_path):
+    text = (DATA / "sr-danorder.cfg").read_text()
+    (tmp_path / "printer.cfg").write_text(text.replace("#*# height5 = ", "#*# xheight5 = "))
+    machine = KLIPPER.to_machine(KLIPPER.parse(text, "printer.cfg"))
+    with pytest.raises(InputError, match="5 rows"):     # 5 heights for 6 unknowns
+        calibrate(machine, tmp_path / "printer.cfg", parameters="klipper-basic")
+    (tmp_path / "p.cfg").write_text(text.replace("#*# height5 = ", "#*# xheight5 = "))
+    with pytest.raises(InputError) as err:           # the refusal names what was not read
+        calibrate(machine, tmp_path / "p.cfg", parameters="klipper-basic")
+    assert "height5 is missing" in str(err.value) and "height6" in str(err.value)
+
+
+def test_backups_never_overwrite_each_other(tmp_path):
+    from pkmcal.io.klipper_config import backup_name
+
+    first = backup_name(tmp_path / "printer.cfg")
+    first.write_text("x")
+    second = backup_name(tmp_path / "printer.cfg")
+    assert second != first and second.name.startswith(first.stem)

@@ -828,6 +828,8 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
                          "none (the plain model)")
     given = data
     data = expand_firmware_data(data, machine)
+    notes = [n for item in (data if isinstance(data, (list, tuple)) else [data])
+             for n in getattr(item, "notes", None) or []]
     chosen, note = None, ""
     if parameters is not None:
         subset = getattr(machine, "PARAMETER_SETS", {}).get(parameters)
@@ -843,12 +845,12 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         if not data:
             raise InputError("no data file given")
         if len(data) > 1:
-            calibration = calibrate_joint(machine, list(data), noise=noise, split=split,
-                                          options=CalibrateOptions(method, None, pose_noise,
-                                                                   estimate_lc, two_step,
-                                                                   robust, fix_frames,
-                                                                   extensions, bed_tilt))
+            options = CalibrateOptions(method, None, pose_noise, estimate_lc, two_step, robust,
+                                       fix_frames, extensions, bed_tilt)
+            calibration = _noting(notes, calibrate_joint, machine, list(data), noise=noise,
+                                  split=split, options=options)
             calibration.inputs = _inputs_of(given, calibration.inputs)
+            calibration.warnings[:0] = notes
             return _with_parameter_set(calibration, chosen, note)
         data = data[0]
     if isinstance(noise, dict):     # named as the joint fit names it: the path or its source
@@ -874,13 +876,25 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     options = CalibrateOptions(method, noise, pose_noise, estimate_lc, two_step, robust,
                                fix_frames, extensions, bed_tilt)
     kind.check_options(options, source)
-    calibration = kind.calibrate(machine, data, source, options, split)
+    calibration = _noting(notes, kind.calibrate, machine, data, source, options, split)
     inputs = [Path(source)] if isinstance(data, (str, Path)) else []
     machine_file = getattr(machine, "source", None)
     if machine_file and machine_file != "default" and Path(machine_file).is_file():
         inputs.append(Path(machine_file))
     calibration.inputs = _inputs_of(given, inputs)
+    calibration.warnings[:0] = notes
     return _with_parameter_set(calibration, chosen, note)
+
+
+def _noting(notes: list, fit, *args, **kwargs):
+    """``fit(*args, **kwargs)``; a refusal also names what the data's reader passed over
+    (heights after a gap in Klipper's indices: why fewer rows than the user sees)."""
+    try:
+        return fit(*args, **kwargs)
+    except InputError as exc:
+        if not notes:
+            raise
+        raise InputError(f"{exc} (note: {'; '.join(notes)})") from None
 
 
 def _data_kinds(data, machine) -> list:

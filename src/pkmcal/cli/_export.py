@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..calibration.run import json_safe as _finite_or_none
 from ..errors import InputError
-from ..io.atomic import atomic_write_text, is_stream, read_input_text
+from ..io.atomic import atomic_write_bytes, atomic_write_text, is_stream, read_input_text
 from ._commands import (
     _machine_inputs,
     _table,
@@ -56,6 +56,10 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
             from ..io.klipper_config import backup_name
 
             backup = backup_name(output)
+            try:                    # the backup is the previous file byte for byte (a BOM)
+                previous = output.read_bytes()
+            except OSError as exc:
+                raise InputError(f"{output}: cannot be read ({exc.strerror or exc})") from None
     check_outputs([output] + ([record_path] if record_path is not None else [])
                   + ([backup] if backup is not None else []), inputs)
     why = fmt.applies(machine)
@@ -78,7 +82,7 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
     text = result.text
     if existing is not None and backup is not None:
         text = fmt.update(existing, result.params, machine, str(output))
-        atomic_write_text(backup, existing)
+        atomic_write_bytes(backup, previous)
     atomic_write_text(output, text)
     if record_path is not None:
         atomic_write_text(record_path, json.dumps(export_record(result, machine_spec, output,

@@ -51,6 +51,8 @@ from ..machines.base import Machine
 from ..machines.linear_delta import LinearDelta, linear_delta
 from .base import ControllerFormat, ControllerParameters, finite_number, register_format
 
+#: the largest length a printer's config can mean, mm (10 m)
+SANE_LENGTH = 1e4
 #: the bed entries every linear-Delta format carries (fixed): height m, slopes dz/dx, dz/dy
 BED = ("bed.z", "bed.tilt_x", "bed.tilt_y")
 BED_KINDS = ("length", "slope", "slope")
@@ -521,16 +523,37 @@ class KlipperDelta(ControllerFormat):
                                  "kinematics need it)")
             return cfg.number(sec, key, default)
 
+        def sane(sec, key, value, low, high, what):
+            # a number that cannot be meant, named in the user's file (not as a key of the
+            # machine file written from it)
+            if not low <= value <= high:
+                e = cfg.entry(sec, key)
+                where = e.where(sec, key) if e is not None else f"{source}: [{sec}] {key}"
+                raise InputError(f"{where}: {value:g} mm cannot be meant "
+                                 f"({what} between {low:g} and {high:g})")
+            return value
+
         radius = get("printer", "delta_radius")
         if not radius > 0:
             e = cfg.entry("printer", "delta_radius")
             raise InputError(f"{e.where('printer', 'delta_radius')}: {e.value} must be > 0")
+        sane("printer", "delta_radius", radius, 1.0, SANE_LENGTH, "a delta radius")
         arm_a = get("stepper_a", "arm_length")
         pe_a = get("stepper_a", "position_endstop")
         arms = np.array([arm_a] + [get(f"stepper_{t}", "arm_length", arm_a) for t in "bc"])
         pe = np.array([pe_a] + [get(f"stepper_{t}", "position_endstop", pe_a) for t in "bc"])
         angles = np.array([get(f"stepper_{t}", "angle", d)
                            for t, d in zip(TOWERS, (210.0, 330.0, 90.0), strict=True)])
+        for i, t in enumerate(TOWERS):
+            sec = f"stepper_{t}"
+            sane(sec if cfg.entry(sec, "arm_length") else "stepper_a", "arm_length", arms[i],
+                 1.0, SANE_LENGTH, "an arm length")
+            sane(sec if cfg.entry(sec, "position_endstop") else "stepper_a", "position_endstop",
+                 pe[i], -SANE_LENGTH, SANE_LENGTH, "a nozzle height")
+            if not -720.0 <= angles[i] <= 720.0:
+                e = cfg.entry(sec, "angle")
+                raise InputError(f"{e.where(sec, 'angle')}: {angles[i]:g} deg cannot be meant "
+                                 "(a tower angle between -720 and 720)")
         for i, t in enumerate(TOWERS):
             if not arms[i] > radius:
                 sec = f"stepper_{t}" if cfg.entry(f"stepper_{t}", "arm_length") else "stepper_a"

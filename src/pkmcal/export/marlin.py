@@ -458,26 +458,7 @@ class MarlinDelta(ControllerFormat):
         return out + bed_values(v[12:15])
 
     def parse(self, text: str, source: str) -> ControllerParameters:
-        """Marlin's values from ``M665`` / ``M666`` lines (a G-code file, an ``M503`` report or
-        a host's terminal log); :meth:`read` with its notes kept as ``params.notes``.
-
-        Parameters
-        ----------
-        text : str
-            The file's text.
-        source : str
-            Its name, for messages.
-
-        Returns
-        -------
-        ControllerParameters
-            The values, SI, with a ``notes`` attribute (list of str).
-
-        Raises
-        ------
-        InputError
-            As :meth:`read`.
-        """
+        """Marlin's values: :meth:`read`, its notes kept as ``params.notes``."""
         params, notes = self.read(text, source)
         params.notes = notes
         return params

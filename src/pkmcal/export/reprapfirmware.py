@@ -281,26 +281,7 @@ class RepRapFirmwareDelta(ControllerFormat):
         return out + bed_values(v[13:16])
 
     def parse(self, text: str, source: str) -> ControllerParameters:
-        """RepRapFirmware's values from ``M665`` / ``M666`` lines (``config.g``,
-        ``config-override.g``); :meth:`read` with its notes kept as ``params.notes``.
-
-        Parameters
-        ----------
-        text : str
-            The file's text.
-        source : str
-            Its name, for messages.
-
-        Returns
-        -------
-        ControllerParameters
-            The values, SI, with a ``notes`` attribute (list of str).
-
-        Raises
-        ------
-        InputError
-            As :meth:`read`.
-        """
+        """RepRapFirmware's values: :meth:`read`, its notes kept as ``params.notes``."""
         params, notes = self.read(text, source)
         params.notes = notes
         return params

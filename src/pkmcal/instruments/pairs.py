@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InputError
 from ..parameters import ParameterSet
 from .data import InstrumentData
 from .models import NuisanceModel
@@ -122,73 +121,12 @@ class PairProblem(InstrumentProblem):
     """The instrument problem of two-point distances: two forward kinematics per row.
 
     ``data.q`` holds the two reading sets side by side (``(K, 2 n_joints)``); the state's
-    poses are the first positions followed by the second (``(2K, 3)``).
+    poses are the first positions followed by the second (``(2K, 3)``); a row's derivatives
+    are the sums over its two poses (:class:`~pkmcal.instruments.problem.InstrumentProblem`
+    with :attr:`readings_per_row` 2).
     """
 
-    def __init__(self, machine, data, model, noise, fit_machine: bool = True):
-        n = machine.n_joints
-        if data.q.shape[1] != 2 * n:
-            raise InputError(f"{data.source}: {data.q.shape[1]} joint columns; two-point "
-                             f"distances need two sets of {n} readings per row")
-        self.machine, self.data, self.model, self.noise = machine, data, model, noise
-        mp = machine.parameters if fit_machine else machine.parameters.with_fixed(
-            list(machine.parameters.names))
-        self.parameters = mp.concat(model.parameters)
-        self.scales = machine.scales_with(model.parameters)
-        self.n_machine = len(mp)
-        self.fit_machine = fit_machine
-        K = len(data)
-        self.W = (np.broadcast_to(np.eye(1), (K, 1, 1)) if noise is None
-                  else np.asarray(noise.whitening(data.values), float))
-        fk = machine.fk(self._stacked(data.q))
-        ok = fk.converged[:K] & fk.converged[K:]
-        if not ok.all():
-            rows = data.rows[~ok]
-            shown = ", ".join(map(str, rows[:10].tolist())) + (" ..." if len(rows) > 10 else "")
-            raise InputError(f"{data.source}: no platform pose of the machine reproduces the "
-                             f"readings of {len(rows)} row(s): {shown} (outside the workspace, "
-                             "or a wrong joint unit)")
-        self._P0, self._R0 = fk.P, fk.R
-        self.cost_floor = 0.0
-
-    def _stacked(self, q):
-        n = self.machine.n_joints
-        q = np.atleast_2d(np.asarray(q, float))
-        return np.concatenate([q[:, :n], q[:, n:]])
-
-    def poses(self, state, q=None):
-        if q is None:
-            same = np.shape(state.P) == self._P0.shape
-            start = (state.P, state.R) if same else (self._P0, self._R0)
-            return self.machine.fk(self._stacked(self.data.q), state.u, start=start)
-        return self.machine.fk(self._stacked(q), state.u)
-
-    def evaluate(self, state, jacobian=True):
-        fk = self.poses(state)
-        ok2 = fk.converged
-        if np.shape(state.P) == fk.P.shape:
-            state.P = np.where(ok2[:, None], fk.P, state.P)
-            state.R = np.where(ok2[:, None, None], fk.R, state.R)
-        P = np.where(ok2[:, None], fk.P, self._P0)
-        R = np.where(ok2[:, None, None], fk.R, self._R0)
-        K = len(self.data)
-        ok = ok2[:K] & ok2[K:]
-        e, de_dx, _ = self.model.residuals(state.nuisance, P, R, self.data.values,
-                                           self.data.group, jacobian)
-        r = np.einsum("kij,kj->ki", self.W, e)
-        r = np.where(ok[:, None], r, np.nan)
-        if not jacobian:
-            return r, None, None
-        d = self._through_fk(state.u, P, R, de_dx)          # (2K, 1, n_machine)
-        J = np.concatenate([d[:K] + d[K:], np.zeros((K, 1, len(self.model.parameters)))], -1)
-        return r, np.einsum("kij,kjn->kin", self.W, J), None
-
-    def predict(self, state, q, group=None):
-        fk = self.poses(state, q)
-        K = len(fk.P) // 2
-        y = self.model.predict(state.nuisance, fk.P, fk.R, None)
-        ok = fk.converged[:K] & fk.converged[K:]
-        return np.where(ok[:, None], y, np.nan)
+    readings_per_row = 2
 
 
 def pair_data(q_a, q_b, d, rows=None, source: str = "<data>") -> InstrumentData:

@@ -77,12 +77,17 @@ class InstrumentProblem:
     """
 
     local_dof = 0
+    #: sets of joint readings per row, side by side in ``data.q`` (two-point distances: 2);
+    #: the poses of the rows' first sets come first, then the second sets' ...
+    readings_per_row = 1
 
     def __init__(self, machine: Machine, data: InstrumentData, model: NuisanceModel, noise,
                  fit_machine: bool = True):
-        if data.q.shape[1] != machine.n_joints:
+        m = self.readings_per_row
+        if data.q.shape[1] != m * machine.n_joints:
             raise InputError(f"{data.source}: {data.q.shape[1]} joint columns, the machine has "
-                             f"{machine.n_joints} joints")
+                             f"{machine.n_joints} joints"
+                             + (f" ({m} sets of them a row)" if m > 1 else ""))
         self.machine, self.data, self.model, self.noise = machine, data, model, noise
         mp = machine.parameters if fit_machine else machine.parameters.with_fixed(
             list(machine.parameters.names))
@@ -93,9 +98,10 @@ class InstrumentProblem:
         K, s = len(data), model.size
         self.W = (np.broadcast_to(np.eye(s), (K, s, s)) if noise is None
                   else np.asarray(noise.whitening(data.values), float))
-        fk = machine.fk(data.q)
-        if not fk.converged.all():
-            rows = data.rows[~fk.converged]
+        fk = machine.fk(self._stacked(data.q))
+        ok = self._rows_ok(fk.converged)
+        if not ok.all():
+            rows = data.rows[~ok]
             shown = ", ".join(map(str, rows[:10].tolist())) + (" ..." if len(rows) > 10 else "")
             raise InputError(f"{data.source}: no platform pose of the machine reproduces the "
                              f"readings of {len(rows)} row(s): {shown} (outside the workspace, "
@@ -104,6 +110,16 @@ class InstrumentProblem:
         #: forward kinematics converge to 1e-12 of the characteristic length: residuals are
         #: no more precise than that, in units of the noise
         self.cost_floor = 0.0
+
+    def _stacked(self, q) -> np.ndarray:
+        """Readings of every pose: each row's sets one below the other (first sets first)."""
+        q = np.atleast_2d(np.asarray(q, float))
+        n = self.machine.n_joints
+        return np.concatenate([q[:, i * n:(i + 1) * n] for i in range(self.readings_per_row)])
+
+    def _rows_ok(self, converged) -> np.ndarray:
+        """Per row: every one of its poses solved."""
+        return np.asarray(converged, bool).reshape(self.readings_per_row, -1).all(axis=0)
 
     def with_machine_fixed(self) -> InstrumentProblem:
         """A copy that holds every machine parameter (fits the instrument's unknowns alone).
@@ -188,8 +204,8 @@ class InstrumentProblem:
             # the rows, starts from this problem's own)
             same = np.shape(state.P) == self._P0.shape
             start = (state.P, state.R) if same else (self._P0, self._R0)
-            return self.machine.fk(self.data.q, state.u, start=start)
-        return self.machine.fk(np.atleast_2d(q), state.u)
+            return self.machine.fk(self._stacked(self.data.q), state.u, start=start)
+        return self.machine.fk(self._stacked(q), state.u)
 
     def evaluate(self, state, jacobian=True):
         """Whitened residuals and their Jacobian (see :class:`BlockProblem`).
@@ -211,19 +227,21 @@ class InstrumentProblem:
             No local unknowns.
         """
         fk = self.poses(state)
-        ok = fk.converged
+        solved = fk.converged
         if np.shape(state.P) == fk.P.shape:
-            state.P = np.where(ok[:, None], fk.P, state.P)     # the next evaluation's start
-            state.R = np.where(ok[:, None, None], fk.R, state.R)
-        P = np.where(ok[:, None], fk.P, self._P0)
-        R = np.where(ok[:, None, None], fk.R, self._R0)
+            state.P = np.where(solved[:, None], fk.P, state.P)     # the next evaluation's start
+            state.R = np.where(solved[:, None, None], fk.R, state.R)
+        P = np.where(solved[:, None], fk.P, self._P0)
+        R = np.where(solved[:, None, None], fk.R, self._R0)
+        ok = self._rows_ok(solved)
         e, de_dx, de_dv = self.model.residuals(state.nuisance, P, R, self.data.values,
                                                self.data.group, jacobian)
         r = np.einsum("kij,kj->ki", self.W, e)
         r = np.where(ok[:, None], r, np.nan)
         if not jacobian:
             return r, None, None
-        de_du = self._through_fk(state.u, P, R, de_dx)
+        d = self._through_fk(state.u, P, R, de_dx)
+        de_du = d.reshape(self.readings_per_row, len(ok), *d.shape[1:]).sum(axis=0)
         J = np.concatenate([de_du, de_dv], -1)
         return r, np.einsum("kij,kjn->kin", self.W, J), None
 
@@ -279,9 +297,10 @@ class InstrumentProblem:
             Predicted measurements, SI units; NaN where the forward kinematics failed.
         """
         fk = self.poses(state, q)
-        group = np.zeros(len(fk.P), int) if group is None else np.asarray(group, int)
+        ok = self._rows_ok(fk.converged)
+        group = np.zeros(len(ok), int) if group is None else np.asarray(group, int)
         y = self.model.predict(state.nuisance, fk.P, fk.R, group)
-        return np.where(fk.converged[:, None], y, np.nan)
+        return np.where(ok[:, None], y, np.nan)
 
     # -- words ----------------------------------------------------------------------------
     def null_space(self, state, rtol: float = RTOL) -> np.ndarray:

@@ -58,7 +58,7 @@ def _temporary_prefix(dest: Path) -> str:
     """``.<name>.pkmcal-<pid>-``: hidden, the process's own; the name shortened so that a
     destination name near the file system's limit (255 bytes) still has a temporary."""
     name = dest.name
-    while len(name.encode()) > 120:
+    while len(os.fsencode(name)) > 120:
         name = name[:-1]
     return f".{name}.{_TAG}-{os.getpid()}-"
 

@@ -123,13 +123,9 @@ class ProbeReport:
 
 def _number(word: str, source: str, n: int, what: str) -> float:
     """A finite number of the report, or an error naming the line and what it is."""
-    try:
-        v = float(word)
-    except ValueError:
-        raise InputError(f"{source}: line {n}: {what}: {word!r} is not a number") from None
-    if not np.isfinite(v):
-        raise InputError(f"{source}: line {n}: {what}: {word!r} is not a finite number")
-    return v
+    from ..export.base import finite_number
+
+    return finite_number(word, source, n, what)
 
 
 def _rrf_points(lines, source: str) -> dict:

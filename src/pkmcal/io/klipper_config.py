@@ -35,6 +35,8 @@ import numpy as np
 
 from ..errors import InputError
 
+#: the distance of one (micro)step a stepper can have, mm (a nanometre to a millimetre)
+STEP_RANGE = (1e-6, 1.0)
 #: the line that opens Klipper's auto-save block (``configfile.AUTOSAVE_HEADER``)
 AUTOSAVE_MARK = "#*# <---------------------- SAVE_CONFIG ---------------------->"
 AUTOSAVE_HEADER = ("\n" + AUTOSAVE_MARK + "\n#*# DO NOT EDIT THIS BLOCK OR BELOW. The contents "
@@ -50,19 +52,23 @@ class Entry:
     Attributes
     ----------
     value : str
-        The value (comments stripped).
+        The value on the option's own line (comments stripped).
     file : str
         The file it was read from.
     line : int
         Its line number there.
     autosave : bool
         It comes from the ``SAVE_CONFIG`` block.
+    more : list of str
+        Continuation lines of a multi-line value (a ``bed_mesh`` mesh, a macro's gcode), as
+        written (their leading whitespace kept).
     """
 
     value: str
     file: str
     line: int
     autosave: bool = False
+    more: list = field(default_factory=list)
 
     def where(self, section: str, key: str) -> str:
         """``printer.cfg: line 12: [stepper_a] arm_length`` for messages."""
@@ -84,17 +90,20 @@ class KlipperConfig:
         The ``SAVE_CONFIG`` block's options, as written (before the body's precedence).
     included : set
         ``(section, option)`` pairs defined in an included file.
+    ignored_block : str
+        Why Klipper ignores this file's ``#*#`` block (empty: it reads it, or there is none).
     """
 
     path: str
     body: dict = field(default_factory=dict)
     autosave: dict = field(default_factory=dict)
     included: set = field(default_factory=set)
+    ignored_block: str = ""
 
     # -- reading --------------------------------------------------------------------------
     @classmethod
     def read(cls, path, text: str | None = None) -> KlipperConfig:
-        """Read a config file (and its includes).
+        """Read a config file (and its includes), as ``configfile.py`` does.
 
         Parameters
         ----------
@@ -111,16 +120,19 @@ class KlipperConfig:
         Raises
         ------
         InputError
-            An include that does not exist or includes itself, or a file that cannot be read.
+            Naming file and line: a line Klipper's parser refuses (neither a section, an
+            option nor a continuation; an option before any section), an include that does
+            not exist, includes itself or is not a text file.
         """
         path = Path(path)
         if text is None:
-            text = _read(path, None)
+            text = _read(path, "Klipper config")
         cfg = cls(str(path))
-        regular, block, start = split_autosave(text)
+        regular, block, start, why = split_autosave(text)
+        cfg.ignored_block = why
         cfg._parse(regular, path, set(), top=True)
         if block is not None:
-            cfg._parse_lines(block, str(path), cfg.autosave, start, autosave=True)
+            cfg._unit(list(enumerate(block, start)), str(path), cfg.autosave, False, True)
         return cfg
 
     def _parse(self, text: str, path: Path, visited: set, top: bool = False) -> None:
@@ -129,13 +141,13 @@ class KlipperConfig:
             raise InputError(f"{path}: included again from itself (recursive [include])")
         visited.add(key)
         buf: list[tuple[int, str]] = []
-        section: list = [None]
         for n, raw in enumerate(text.replace("\r\n", "\n").split("\n"), 1):
             line = raw.split("#", 1)[0]
             m = _SECTION.match(line)
             header = m.group("header").strip() if m else None
             if header is not None and header.startswith("include "):
-                self._lines(buf, str(path), section, top)
+                # configparser reads the lines between includes as one unit
+                self._unit(buf, str(path), self.body, not top)
                 buf = []
                 spec = header[8:].strip()
                 pattern = str(path.parent / spec)
@@ -144,40 +156,49 @@ class KlipperConfig:
                     raise InputError(f"{path}: line {n}: [include {spec}]: {pattern} does not "
                                      "exist")
                 for name in names:
-                    self._parse(_read(Path(name), f"{path}: line {n}"), Path(name), visited)
+                    self._parse(_read(Path(name), "included config file"), Path(name),
+                                visited)
             else:
                 buf.append((n, line))
-        self._lines(buf, str(path), section, top)
+        self._unit(buf, str(path), self.body, not top)
         visited.discard(key)
 
-    def _lines(self, buf, file: str, section: list, top: bool) -> None:
-        # configparser reads each buffer as a unit: a section must be opened inside it
-        section[0] = None
-        for n, line in buf:
-            self._one(line, n, file, section, self.body, not top)
-
-    def _parse_lines(self, lines, file, target, start, autosave=False) -> None:
-        section: list = [None]
-        for n, line in enumerate(lines, start):
-            self._one(line.split("#", 1)[0], n, file, section, target, False, autosave)
-
-    def _one(self, line, n, file, section, target, included, autosave=False) -> None:
-        if not line.strip() or line[0].isspace():
-            return                    # blank, or a continuation line (gcode of a macro)
-        line = re.split(r"\s;", line, maxsplit=1)[0].rstrip()
-        m = _SECTION.match(line)
-        if m:
-            section[0] = m.group("header").strip()
-            target.setdefault(section[0], {})
-            return
-        m = _OPTION.match(line)
-        if m is None or section[0] is None:
-            return
-        key = m.group("key").strip().lower()
-        target.setdefault(section[0], {})[key] = Entry(m.group("value").strip(), file, n,
-                                                       autosave)
-        if included:
-            self.included.add((section[0], key))
+    def _unit(self, lines, file: str, target: dict, included: bool,
+              autosave: bool = False) -> None:
+        """One unit of configparser's reading (``RawConfigParser(strict=False,
+        inline_comment_prefixes=(';', '#'))``): sections, options, continuation lines."""
+        section, last = None, None
+        for n, raw in lines:
+            line = raw.split("#", 1)[0] if not autosave else raw
+            if autosave:
+                line = line.split("#", 1)[0]
+            if not line.strip() or line.lstrip().startswith(";"):
+                continue
+            if line[0].isspace() and last is not None:
+                last.more.append(re.split(r"\s;", line, maxsplit=1)[0].rstrip())
+                continue
+            text = re.split(r"\s;", line, maxsplit=1)[0].rstrip()
+            m = _SECTION.match(text)
+            if m:
+                section, last = m.group("header").strip(), None
+                if autosave and section.startswith("include "):
+                    raise InputError(f"{file}: line {n} (SAVE_CONFIG block): [{section}]: "
+                                     "Klipper reads no [include] inside the SAVE_CONFIG block")
+                target.setdefault(section, {})
+                continue
+            m = _OPTION.match(text.strip())
+            where = f"{file}: line {n}" + (" (SAVE_CONFIG block)" if autosave else "")
+            if m is None:
+                raise InputError(f"{where}: {text.strip()!r} is neither a [section] nor an "
+                                 "option (key: value); Klipper refuses the file")
+            if section is None:
+                raise InputError(f"{where}: {text.strip()!r} stands before any [section]; "
+                                 "Klipper refuses the file")
+            key = m.group("key").strip().lower()
+            last = Entry(m.group("value").strip(), file, n, autosave)
+            target.setdefault(section, {})[key] = last
+            if included:
+                self.included.add((section, key))
 
     # -- access ---------------------------------------------------------------------------
     def entry(self, section: str, key: str) -> Entry | None:
@@ -264,17 +285,24 @@ class KlipperConfig:
         """
         if self.entry(section, "rotation_distance") is None \
                 and self.entry(section, "step_distance") is not None:
-            return self.number(section, "step_distance", above=0.0)
+            step = self.number(section, "step_distance", above=0.0)
+            if not STEP_RANGE[0] <= step <= STEP_RANGE[1]:
+                e = self.entry(section, "step_distance")
+                raise InputError(f"{e.where(section, 'step_distance')}: {e.value}: not a "
+                                 f"stepper's step (between {STEP_RANGE[0]:g} and "
+                                 f"{STEP_RANGE[1]:g} mm)")
+            return step
         if self.entry(section, "rotation_distance") is None:
             raise InputError(f"{self.path}: [{section}] rotation_distance: missing (needed to "
                              "turn the saved step counts into millimetres)")
         rd = self.number(section, "rotation_distance", above=0.0)
+        for key in ("microsteps", "full_steps_per_rotation"):
+            e = self.entry(section, key)
+            if e is not None and not re.fullmatch(r"[+-]?\d+", e.value.strip()):
+                raise InputError(f"{e.where(section, key)}: {e.value!r}: a whole number "
+                                 "(Klipper's getint)")
         micro = self.number(section, "microsteps", above=0.0)
         full = self.number(section, "full_steps_per_rotation", 200.0, above=0.0)
-        for key, v in (("microsteps", micro), ("full_steps_per_rotation", full)):
-            if v != int(v):
-                e = self.entry(section, key)
-                raise InputError(f"{e.where(section, key)}: {e.value}: a whole number")
         if full % 4:
             e = self.entry(section, "full_steps_per_rotation")
             raise InputError(f"{e.where(section, 'full_steps_per_rotation')}: {e.value}: "
@@ -292,24 +320,31 @@ class KlipperConfig:
                     raise InputError(f"{e.where(section, 'gear_ratio')}: {e.value!r}: ratios "
                                      "such as 80:20, 3:1 expected")
                 gearing *= a / b
-        return rd / (full * micro * gearing)
+        step = rd / (full * micro * gearing)
+        if not STEP_RANGE[0] <= step <= STEP_RANGE[1]:
+            e = self.entry(section, "rotation_distance")
+            raise InputError(f"{e.where(section, 'rotation_distance')}: with microsteps, "
+                             f"full_steps_per_rotation and gear_ratio a step is {step:.3g} mm: "
+                             "not a stepper's (between "
+                             f"{STEP_RANGE[0]:g} and {STEP_RANGE[1]:g} mm)")
+        return step
 
     def defines_in_include(self, section: str, key: str) -> bool:
         """Whether an ``[include]`` file defines the option."""
         return (section, key.lower()) in self.included
 
 
-def _read(path: Path, where: str | None) -> str:
-    try:
-        return path.read_text(encoding="utf-8", errors="replace")
-    except OSError as exc:
-        head = f"{where}: " if where else ""
-        raise InputError(f"{head}{path}: cannot be read ({exc.strerror or exc})") from None
+def _read(path: Path, kind: str) -> str:
+    """A config file's text: UTF-8, no NUL byte, registered as an input of the command (no
+    output may replace it)."""
+    from .atomic import read_input_text
+
+    return read_input_text(path, kind)
 
 
-def split_autosave(text: str) -> tuple[str, list[str] | None, int]:
+def split_autosave(text: str) -> tuple[str, list[str] | None, int, str]:
     """The body and the ``SAVE_CONFIG`` block's lines (``#*# `` stripped), as Klipper splits
-    them (``_find_autosave_data``).
+    them (``ConfigAutoSave._find_autosave_data``).
 
     Parameters
     ----------
@@ -319,30 +354,47 @@ def split_autosave(text: str) -> tuple[str, list[str] | None, int]:
     Returns
     -------
     body : str
-        Everything before the block (the whole text when there is none).
+        Everything before the block (the whole text when there is none or Klipper ignores
+        it).
     block : list of str or None
-        The block's lines without their ``#*#`` prefix; None without a block.
+        The block's lines without their ``#*# `` prefix; None without a block Klipper reads.
     start : int
         The file's line number of the block's first line.
+    ignored : str
+        Why Klipper ignores the block ("autosave state corrupted"), empty otherwise.
     """
     text = text.replace("\r\n", "\n")
     pos = text.find(AUTOSAVE_HEADER)
+    body, rest = (text, "") if pos < 0 else (text[:pos], text[pos + len(AUTOSAVE_HEADER):])
+    if "\n#*# " in body or AUTOSAVE_HEADER in rest:
+        where = body.count("\n", 0, body.find("\n#*# ") + 1) + 1 if "\n#*# " in body else 0
+        why = (f"a '#*# ' line stands at line {where + 1}, above the block's header (a header "
+               "changed by hand?)" if where else "a second SAVE_CONFIG header")
+        return text, None, 0, f"Klipper ignores its SAVE_CONFIG block: {why}"
     if pos < 0:
-        # a block whose header lines lost a character is not Klipper's: treated as body
-        return text, None, 0
-    body = text[:pos]
-    rest = text[pos + len(AUTOSAVE_HEADER):]
+        return text, None, 0, ""
     start = body.count("\n") + AUTOSAVE_HEADER.count("\n") + 1
+    stripped = rest.strip()
+    lead = len(rest) - len(rest.lstrip())
+    start += rest[:lead].count("\n")
     lines = []
-    for line in rest.split("\n"):
-        lines.append(line[4:] if line.startswith("#*# ") else
-                     ("" if line.strip() in ("#*#", "") else line))
-    return body, lines, start
+    for k, line in enumerate(stripped.split("\n")):
+        if stripped and (not line.startswith("#*#") or (len(line) >= 4
+                                                        and not line.startswith("#*# "))):
+            return text, None, 0, (f"Klipper ignores its SAVE_CONFIG block: line {start + k} "
+                                   "after the block's header does not start with '#*# '")
+        lines.append(line[4:])
+    return body, lines, start, ""
 
 
 def save_config_text(text: str, values: dict, source: str,
                      cfg: KlipperConfig | None = None) -> str:
     """The file ``SAVE_CONFIG`` would write with ``values`` saved (see the module docstring).
+
+    As ``ConfigAutoSave.cmd_SAVE_CONFIG``: the new block holds what Klipper read of the old
+    one (its options the body does not define: ``_strip_duplicates`` at start-up; multi-line
+    values such as a ``bed_mesh`` mesh kept as written) with ``values`` set; options of the
+    body that the new block defines are commented out.
 
     Parameters
     ----------
@@ -358,26 +410,33 @@ def save_config_text(text: str, values: dict, source: str,
     Returns
     -------
     str
-        The new file: the body with the saved options commented out where it defined them,
-        and the block with the previous block's options and the new values.
+        The new file.
 
     Raises
     ------
     InputError
-        When an included file defines one of the options (Klipper refuses SAVE_CONFIG then).
+        When an included file defines one of the options (Klipper refuses SAVE_CONFIG then),
+        or Klipper ignores the file's block (SAVE_CONFIG refuses it as corrupted).
     """
     cfg = KlipperConfig.read(source, text) if cfg is None else cfg
+    if cfg.ignored_block:
+        raise InputError(f"{source}: {cfg.ignored_block}; Klipper's SAVE_CONFIG refuses such a "
+                         "file (\"Existing config autosave is corrupted\"): repair the block's "
+                         "header or move the lines, then export again")
     for section, key in values:
         if cfg.defines_in_include(section, key):
             raise InputError(f"{source}: [{section}] {key} is defined in an [include] file; "
                              "Klipper's SAVE_CONFIG refuses to save it there (remove it from "
                              "the included file, then export again)")
-    body, block, _ = split_autosave(text)
-    saved: dict[str, dict[str, str]] = {}
+    body, _, _, _ = split_autosave(text)
+    # the block as Klipper holds it: the options the body (with its includes) does not define
+    saved: dict[str, dict[str, Entry]] = {}
     for section, opts in cfg.autosave.items():
-        saved[section] = {k: e.value for k, e in opts.items()}
+        kept = {k: e for k, e in opts.items() if k not in cfg.body.get(section, {})}
+        if kept or not opts:
+            saved[section] = kept
     for (section, key), value in values.items():
-        saved.setdefault(section, {})[key.lower()] = value
+        saved.setdefault(section, {})[key.lower()] = Entry(value, source, 0, True)
     # comment out the body's own definitions of what the block now holds
     lines = body.split("\n")
     section = None
@@ -404,34 +463,48 @@ def save_config_text(text: str, values: dict, source: str,
         if k:
             out.append("#*#")
         out.append(f"#*# [{section}]")
-        out += [f"#*# {key} = {value}" for key, value in opts.items()]
+        for key, entry in opts.items():
+            out.append(f"#*# {key} = {entry.value}".rstrip())
+            out += [f"#*# {more}" for more in entry.more]
     return "\n".join(out) + "\n"
 
 
 def backup_name(path) -> Path:
     """Where ``SAVE_CONFIG`` keeps the previous file: ``printer-YYYYMMDD_HHMMSS.cfg`` (any
-    other suffix likewise: ``config-override-YYYYMMDD_HHMMSS.g``)."""
+    other suffix likewise: ``config-override-YYYYMMDD_HHMMSS.g``; ``_1``, ``_2`` ... after the
+    time where a backup of that second exists)."""
     path = Path(path)
     stamp = time.strftime("-%Y%m%d_%H%M%S")
-    if path.suffix:
-        return path.with_name(path.stem + stamp + path.suffix)
-    return path.with_name(path.name + stamp)
+    for k in range(1000):           # never onto an earlier backup of the same second
+        tail = stamp + (f"_{k}" if k else "")
+        name = (path.stem + tail + path.suffix) if path.suffix else path.name + tail
+        if not path.with_name(name).exists():
+            return path.with_name(name)
+    raise InputError(f"{path}: no free name for the previous file's backup ({stamp})")
 
 
 #: the tower steppers of Klipper's delta kinematics, in tower order
 TOWER_STEPPERS = ("stepper_a", "stepper_b", "stepper_c")
 
 
-def _indexed(cfg: KlipperConfig, prefix: str) -> list[int]:
-    """Klipper's ``prefix0``, ``prefix1``, ... up to the first missing index."""
+def _indexed(cfg: KlipperConfig, prefix: str, notes: list | None = None) -> list[int]:
+    """Klipper's ``prefix0``, ``prefix1``, ... up to the first missing index (later ones,
+    which Klipper does not read either, named in ``notes``)."""
     out = []
     opts = cfg.options("delta_calibrate")
     while f"{prefix}{len(out)}" in opts:
         out.append(len(out))
+    later = sorted(int(k[len(prefix):]) for k in opts
+                   if re.fullmatch(rf"{prefix}\d+", k) and int(k[len(prefix):]) > len(out))
+    if later and notes is not None:
+        notes.append(f"{cfg.path}: [delta_calibrate] {prefix}{len(out)} is missing: Klipper "
+                     f"reads {prefix}0..{prefix}{len(out) - 1} and not "
+                     + ", ".join(f"{prefix}{k}" for k in later[:5])
+                     + (" ..." if len(later) > 5 else "") + "; neither does pkmcal")
     return out
 
 
-def delta_calibrate_data(cfg: KlipperConfig, n_joints: int = 3) -> list:
+def delta_calibrate_data(cfg: KlipperConfig, n_joints: int = 3, scale: float = 1.0) -> list:
     """The measurements Klipper saved in ``[delta_calibrate]``, as pkmcal data (SI).
 
     Read as ``klippy/extras/delta_calibrate.py`` restores them: ``heightN`` (the probe's
@@ -439,8 +512,9 @@ def delta_calibrate_data(cfg: KlipperConfig, n_joints: int = 3) -> list:
     (the "stable position": steps each carriage moved down since its endstop), then
     ``manual_heightN`` / ``manual_heightN_pos`` (DELTA_ANALYZE MANUAL_HEIGHT), and
     ``distanceN`` with ``distanceN_pos1`` / ``distanceN_pos2`` (DELTA_ANALYZE distances, mm);
-    each list up to its first missing index. Steps become carriage travel with each tower
-    stepper's :meth:`KlipperConfig.step_distance`.
+    each list up to its first missing index (what follows a gap is named in the data's
+    ``notes``). Steps become carriage travel with each tower stepper's
+    :meth:`KlipperConfig.step_distance`.
 
     Parameters
     ----------
@@ -448,57 +522,92 @@ def delta_calibrate_data(cfg: KlipperConfig, n_joints: int = 3) -> list:
         The config.
     n_joints : int, optional
         The machine's joints (3).
+    scale : float, optional
+        The machine's size, m: heights, travels and distances beyond ten times it cannot be
+        meant.
 
     Returns
     -------
     list of InstrumentData
         Probe heights (``kind="probe"``, source ``"<path> heights"``: saved heights then
         manual heights) and two-point distances (``kind="pair-distances"``, ``"<path>
-        distances"``) when saved; their rows are the config's line numbers of ``heightN`` /
-        ``distanceN``; empty without a ``[delta_calibrate]``.
+        distances"``) when saved; their rows are the config's line numbers of
+        ``heightN_pos`` / ``distanceN``; each with ``notes`` (list of str); empty without a
+        ``[delta_calibrate]``.
 
     Raises
     ------
     InputError
-        A value that is not a number or a position without three values (file, line,
-        option named), a stepper without its step distance, or a machine that is not a
-        three-tower delta.
+        Naming file, line and option: a value that is not a number or cannot be meant, a
+        position without three values, steps above the endstop, a missing position; a
+        stepper without its step distance; a config of other kinematics.
     """
     from ..instruments import InstrumentData
     from ..instruments.pairs import pair_data
 
     if not cfg.has_section("delta_calibrate"):
         return []
+    kin = cfg.entry("printer", "kinematics")
+    if kin is not None and kin.value.strip().lower() != "delta":
+        raise InputError(f"{kin.where('printer', 'kinematics')}: {kin.value.strip()!r}: the "
+                         "[delta_calibrate] data of a delta printer (kinematics: delta) "
+                         "are read")
     if n_joints != 3:
         raise InputError(f"{cfg.path}: Klipper's [delta_calibrate] data are for a three-tower "
                          f"delta; the machine has {n_joints} joints")
-    heights = [(f"height{i}", f"height{i}_pos") for i in _indexed(cfg, "height")]
+    notes: list[str] = []
+    heights = [(f"height{i}", f"height{i}_pos") for i in _indexed(cfg, "height", notes)]
     heights += [(f"manual_height{i}", f"manual_height{i}_pos")
-                for i in _indexed(cfg, "manual_height")]
-    distances = _indexed(cfg, "distance")
+                for i in _indexed(cfg, "manual_height", notes)]
+    distances = _indexed(cfg, "distance", notes)
     if not heights and not distances:
         return []
     step = np.array([cfg.step_distance(s) for s in TOWER_STEPPERS]) * 1e-3      # m / step
+    limit = 10.0 * scale
+
+    def value(key, above=None):
+        v = cfg.number("delta_calibrate", key, above=above) * 1e-3
+        if not abs(v) <= limit:
+            e = cfg.entry("delta_calibrate", key)
+            raise InputError(f"{e.where('delta_calibrate', key)}: {e.value}: {abs(v) * 1e3:.4g} "
+                             f"mm cannot be meant on this machine (more than ten times its "
+                             f"size, {limit * 1e3:.4g} mm)")
+        return v
+
+    def travel(key, owner):
+        if cfg.entry("delta_calibrate", key) is None:
+            e = cfg.entry("delta_calibrate", owner)
+            raise InputError(f"{e.where('delta_calibrate', owner)}: has no {key} (the steps "
+                             "of the three carriages there)")
+        q = np.array(cfg.numbers("delta_calibrate", key, 3)) * step
+        e = cfg.entry("delta_calibrate", key)
+        if np.any(q < 0) or not np.all(np.abs(q) <= limit):
+            raise InputError(f"{e.where('delta_calibrate', key)}: {e.value}: steps since each "
+                             "endstop must be >= 0 (the carriage below its endstop) and the "
+                             f"travel at most {limit * 1e3:.4g} mm (ten times the machine's "
+                             "size)")
+        return q
+
     out = []
     weights = (None, None)
     if heights and distances:
         weights = klipper_weights(len(_indexed(cfg, "height")), len(distances))
     if heights:
-        q = np.array([cfg.numbers("delta_calibrate", pos, 3) for _, pos in heights]) * step
-        h = np.array([cfg.number("delta_calibrate", key) for key, _ in heights]) * 1e-3
-        rows = [cfg.entry("delta_calibrate", key).line for key, _ in heights]
-        out.append(InstrumentData("probe", q, h[:, None], None, np.array(rows),
-                                  f"{cfg.path} heights", weights=weights[0]))
+        h = np.array([value(key) for key, _ in heights])
+        q = np.array([travel(pos, key) for key, pos in heights])
+        rows = [cfg.entry("delta_calibrate", pos).line for _, pos in heights]
+        data = InstrumentData("probe", q, h[:, None], None, np.array(rows),
+                              f"{cfg.path} heights", weights=weights[0])
+        data.notes = notes
+        out.append(data)
     if distances:
-        qa = np.array([cfg.numbers("delta_calibrate", f"distance{i}_pos1", 3)
-                       for i in distances]) * step
-        qb = np.array([cfg.numbers("delta_calibrate", f"distance{i}_pos2", 3)
-                       for i in distances]) * step
-        d = np.array([cfg.number("delta_calibrate", f"distance{i}", above=0.0)
-                      for i in distances]) * 1e-3
+        d = np.array([value(f"distance{i}", above=0.0) for i in distances])
+        qa = np.array([travel(f"distance{i}_pos1", f"distance{i}") for i in distances])
+        qb = np.array([travel(f"distance{i}_pos2", f"distance{i}") for i in distances])
         rows = [cfg.entry("delta_calibrate", f"distance{i}").line for i in distances]
         pairs = pair_data(qa, qb, d, rows, f"{cfg.path} distances")
         pairs.weights = weights[1]
+        pairs.notes = [] if heights else notes
         out.append(pairs)
     return out
 
@@ -559,10 +668,13 @@ def read_klipper_data(path, machine) -> list:
         When the config has no saved heights or distances (naming what it looked for).
     """
     cfg = KlipperConfig.read(path)
-    data = delta_calibrate_data(cfg, machine.n_joints)
+    data = delta_calibrate_data(cfg, machine.n_joints, machine.characteristic_length())
     if not data:
         raise InputError(f"{path}: no saved calibration data: Klipper's [delta_calibrate] "
                          "section (in the body or the SAVE_CONFIG block) has no height0/"
                          "height0_pos, manual_height0 or distance0 (run DELTA_CALIBRATE and "
-                         "SAVE_CONFIG on the printer first)")
+                         "SAVE_CONFIG on the printer first)"
+                         + (f"; {cfg.ignored_block}" if cfg.ignored_block else ""))
+    if cfg.ignored_block:
+        data[0].notes = list(getattr(data[0], "notes", [])) + [f"{path}: {cfg.ignored_block}"]
     return data
