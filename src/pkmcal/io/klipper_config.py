@@ -322,10 +322,11 @@ class KlipperConfig:
                 gearing *= a / b
         step = rd / (full * micro * gearing)
         if not STEP_RANGE[0] <= step <= STEP_RANGE[1]:
-            e = self.entry(section, "rotation_distance")
-            raise InputError(f"{e.where(section, 'rotation_distance')}: with microsteps, "
-                             f"full_steps_per_rotation and gear_ratio a step is {step:.3g} mm: "
-                             "not a stepper's (between "
+            given = ", ".join(f"{key} {e.value!r} (line {e.line})" for key in (
+                "rotation_distance", "microsteps", "full_steps_per_rotation", "gear_ratio")
+                for e in [self.entry(section, key)] if e is not None)
+            raise InputError(f"{self.entry(section, 'rotation_distance').file}: [{section}] "
+                             f"{given}: a step of {step:.3g} mm is not a stepper's (between "
                              f"{STEP_RANGE[0]:g} and {STEP_RANGE[1]:g} mm)")
         return step
 
