@@ -479,3 +479,24 @@ def test_backups_never_overwrite_each_other(tmp_path):
     first.write_text("x")
     second = backup_name(tmp_path / "printer.cfg")
     assert second != first and second.name.startswith(first.stem)
+
+
+@pytest.mark.parametrize("path", [p for p in SETS if "distance0" in p.read_text()][:4],
+                         ids=lambda p: p.stem)
+def test_basic_set_on_a_config_with_distances_is_klippers_basic_fit(path, tmp_path):
+    """--parameters klipper-basic is Klipper's heights-only DELTA_CALIBRATE: the saved
+    DELTA_ANALYZE distances are left out (named), and the values reproduce the heights as the
+    basic coordinate descent does."""
+    cfg = tmp_path / "printer.cfg"
+    shutil.copy(path, cfg)
+    machine = KLIPPER.to_machine(KLIPPER.parse(cfg.read_text(), str(cfg)))
+    c = calibrate(machine, cfg, parameters="klipper-basic")
+    assert any("distances: left out" in w for w in c.warnings)
+    ws = c.calibrated.print_workspace(rng=0)
+    r = export(KLIPPER, c.calibrated, ws.P, ws.R, surface=ws.surface)
+    cfg.write_text(KLIPPER.update(cfg.read_text(), r.params, c.calibrated, str(cfg)))
+    ds = K.load_data_set(str(path))
+    basic = K.delta_calibrate(ds.calibration, ds.data, extended=False).calibration
+    new = K.load_data_set(str(cfg)).calibration
+    assert K.rms(K.height_residuals(new, ds.data)) <= 1.02 * K.rms(
+        K.height_residuals(basic, ds.data))

@@ -838,6 +838,17 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
             note = (f"{parameters} with heights alone is {fallback}: no measurement fixes a "
                     "length (as the firmware does without distances)")
             parameters = fallback
+        subset = getattr(machine, "PARAMETER_SETS", {}).get(parameters)
+        if getattr(subset, "kinds", None) and isinstance(data, (list, tuple)):
+            kinds = _data_kinds(data, machine)
+            out = [getattr(d, "source", str(d)) for d, k in zip(data, kinds, strict=True)
+                   if k.name not in subset.kinds]
+            if out and len(out) < len(data):
+                data = [d for d, k in zip(data, kinds, strict=True) if k.name in subset.kinds]
+                notes.append(f"{', '.join(map(str, out))}: left out: --parameters "
+                             f"{parameters} is fitted from {' and '.join(subset.kinds)} data "
+                             f"alone ({subset.description.split(':')[0]})")
+                data = data[0] if len(data) == 1 else data
         machine, chosen = apply_parameter_set(machine, parameters), str(parameters)
     if bed_tilt is not None and bed_tilt not in ("auto", "estimate", "square"):
         raise InputError(f"--bed-tilt {bed_tilt}: auto, estimate or square")

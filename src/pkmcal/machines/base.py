@@ -108,11 +108,16 @@ class ParameterSubset:
         The set the firmware fits instead when no measurement fixes a length (heights alone:
         Klipper's DELTA_CALIBRATE holds the arms without DELTA_ANALYZE distances); None: this
         set always.
+    kinds : tuple of str or None
+        The measurement kinds the firmware fits this set from (Klipper's basic
+        DELTA_CALIBRATE: probe heights alone); data of other kinds are left out, named. None:
+        every kind.
     """
 
     free: tuple[str, ...]
     description: str
     without_lengths: str | None = None
+    kinds: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)

@@ -194,7 +194,7 @@ class LinearDelta(Machine):
         "klipper-basic": ParameterSubset(
             _ENDSTOPS + ("delta_radius",) + _TWO_ANGLES,
             "Klipper DELTA_CALIBRATE (basic, heights only): the three endstops, delta_radius "
-            "and the angles of towers 1 and 2; the arm lengths are fixed"),
+            "and the angles of towers 1 and 2; the arm lengths are fixed", kinds=("probe",)),
         "marlin": ParameterSubset(
             _ENDSTOPS + ("delta_radius",) + _TWO_ANGLES,
             "Marlin G33 (P3 and above): endstop adjustments with the delta height (one "
