@@ -189,8 +189,10 @@ class ProbeCase:
                                           self.noise)
 
     def bed_model(self) -> ProbeModel:
-        """A probe model whose start is the true bed."""
-        model = ProbeModel()
+        """A probe model whose start is the true bed, in the printer's frame (SPEC 8): its
+        height held (the endstops carry it), its tilt estimated (``--bed-tilt estimate``:
+        this printer's bed is tilted against the towers by 1.3 mm/m)."""
+        model = ProbeModel(fixed=("bed.z",))
         model.parameters = model.parameters.with_values(np.array(self.bed))
         return model
 
@@ -299,7 +301,7 @@ def identifiability_check(case: ProbeCase, planned: bool = True) -> dict:
 
 def noise_free(case: ProbeCase) -> dict:
     """One calibration on exact data from the nominal start."""
-    result = calibrate_probe(case.nominal, case.data(None), case.noise)
+    result = calibrate_probe(case.nominal, case.data(None), case.noise, bed="estimate")
     start = np.abs(case.nominal.u - case.true.u) / result.scales[:len(case.true.u)]
     return {"success": bool(result.success), "rank": int(result.rank), "weak": int(result.weak),
             "error": case.scaled_error(result), "start_error": float(start.max()),
@@ -313,7 +315,7 @@ def probe_runs(case: ProbeCase, runs: int, seed: int = 7) -> dict:
     rank, C = case.crb
     heights, above, arms, weak, failed = [], [], [], 0, 0
     for _ in range(runs):
-        result = calibrate_probe(case.nominal, case.data(rng), case.noise)
+        result = calibrate_probe(case.nominal, case.data(rng), case.noise, bed="estimate")
         failed += not result.success
         weak += result.rank - result.weak != rank
         heights.append(case.held_heights(result))
@@ -376,7 +378,8 @@ class JointCase:
 
     def fit(self, probe_data, bar):
         """One joint fit from the nominal start."""
-        return fit_joint(self.probe.nominal, [(probe_data, ProbeModel(), self.probe.noise),
+        return fit_joint(self.probe.nominal, [(probe_data, ProbeModel(fixed=("bed.z",)),
+                                               self.probe.noise),
                                               (bar, DistancesModel(self.k), self.bar_noise)])
 
 

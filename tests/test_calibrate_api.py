@@ -160,6 +160,7 @@ def test_not_converged_is_an_exception(data, monkeypatch):
 
 def test_kinds_are_a_registry():
     """Every kind names its data columns, its machines and its handler."""
-    assert set(KINDS) == {"constraint-link", "tracker", "pose", "distance", "probe"}
+    assert set(KINDS) == {"constraint-link", "tracker", "pose", "distance", "probe",
+                          "pair-distances"}
     for kind in KINDS.values():
         assert kind.columns and callable(kind.calibrate) and callable(kind.check_options)

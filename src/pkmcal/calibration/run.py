@@ -828,6 +828,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
                          "none (the plain model)")
     given = data
     data = expand_firmware_data(data, machine)
+    noise = _noise_through_expansion(noise, given, data)
     notes = [n for item in (data if isinstance(data, (list, tuple)) else [data])
              for n in getattr(item, "notes", None) or []]
     chosen, note = None, ""
@@ -839,16 +840,22 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
                     "length (as the firmware does without distances)")
             parameters = fallback
         subset = getattr(machine, "PARAMETER_SETS", {}).get(parameters)
-        if getattr(subset, "kinds", None) and isinstance(data, (list, tuple)):
-            kinds = _data_kinds(data, machine)
-            out = [getattr(d, "source", str(d)) for d, k in zip(data, kinds, strict=True)
+        if getattr(subset, "kinds", None):
+            items = list(data) if isinstance(data, (list, tuple)) else [data]
+            kinds = _data_kinds(items, machine)
+            out = [getattr(d, "source", str(d)) for d, k in zip(items, kinds, strict=True)
                    if k.name not in subset.kinds]
-            if out and len(out) < len(data):
-                data = [d for d, k in zip(data, kinds, strict=True) if k.name in subset.kinds]
+            if len(out) == len(items):
+                raise InputError(f"--parameters {parameters}: fitted from "
+                                 f"{' and '.join(subset.kinds)} data alone "
+                                 f"({subset.description.split(':')[0]}); "
+                                 f"{', '.join(map(str, out))} hold none")
+            if out:
+                items = [d for d, k in zip(items, kinds, strict=True) if k.name in subset.kinds]
                 notes.append(f"{', '.join(map(str, out))}: left out: --parameters "
                              f"{parameters} is fitted from {' and '.join(subset.kinds)} data "
                              f"alone ({subset.description.split(':')[0]})")
-                data = data[0] if len(data) == 1 else data
+                data = items[0] if len(items) == 1 else items
         machine, chosen = apply_parameter_set(machine, parameters), str(parameters)
     if bed_tilt is not None and bed_tilt not in ("auto", "estimate", "square"):
         raise InputError(f"--bed-tilt {bed_tilt}: auto, estimate or square")
@@ -897,6 +904,29 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     return _with_parameter_set(calibration, chosen, note)
 
 
+def _noise_through_expansion(noise, given, data):
+    """``--noise`` for files a firmware reader expanded into several data objects (a
+    printer.cfg's heights and distances): the value given for the file (its FILE=VALUE, or
+    the one value for one file) holds the level of every measurement read from it."""
+    if noise is None or data is given:
+        return noise
+    items = list(given) if isinstance(given, (list, tuple)) else [given]
+    sources = [item if isinstance(item, (str, Path)) else getattr(item, "source", None)
+               or f"data{i + 1}" for i, item in enumerate(items)]
+    objects = list(data) if isinstance(data, (list, tuple)) else [data]
+    out = {}
+    for i, item in enumerate(items):
+        value = _noise_of(noise, sources, i) if isinstance(noise, dict) or len(items) > 1 \
+            else noise
+        if value is None:
+            continue
+        mine = [o for o in objects if getattr(o, "origin", None) == item] or \
+            [o for o in objects if o is item]
+        for obj in mine:
+            out[getattr(obj, "source", None) or str(obj)] = value
+    return out or None
+
+
 def _noting(notes: list, fit, *args, **kwargs):
     """``fit(*args, **kwargs)``; a refusal also names what the data's reader passed over
     (heights after a gap in Klipper's indices: why fewer rows than the user sees)."""
@@ -920,8 +950,10 @@ def _data_kinds(data, machine) -> list:
         else:
             kind = next((k for k in _kinds() if k.data_class == type(item).__name__
                          and getattr(item, "kind", k.instrument) in _names_of(k)), None)
-            if kind is not None:
-                out.append(kind)
+            if kind is None:
+                source = getattr(item, "source", None) or "the data"
+                raise InputError(f"{source}: {type(item).__name__} is no calibration data")
+            out.append(kind)
     return out
 
 
@@ -2265,8 +2297,9 @@ def _joint_probe(machine, data, source, noise) -> JointPart:
     probe.source = str(source)
     _check_heights(probe, machine)
 
-    def with_others(equations, unknowns, choice="auto"):
-        bed = bed_choice(machine, probe, noise_model, choice, equations, unknowns)
+    def with_others(equations, unknowns, choice="auto", data=probe, others=()):
+        bed = bed_choice(machine, data, noise_model, choice, equations, unknowns,
+                         others=others)
         return bed.model(), bed.words
 
     model, frame = with_others(0, 0, "estimate" if machine.frame_is_bed else "auto")
@@ -2440,7 +2473,8 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
             part.model, part.frame = part.with_others(
                 sum(len(p.data) * p.model.size for p in others),
                 sum(int(np.sum(p.model.parameters.free)) for p in others),
-                (options.bed_tilt if options is not None and options.bed_tilt else "auto"))
+                (options.bed_tilt if options is not None and options.bed_tilt else "auto"),
+                part.data, [(p.data, p.model, p.noise) for p in others])
     names = ", ".join(map(str, sources))
     try:
         result = fit_joint(machine, [(p.data, p.model, p.noise) for p in parts], labels,
@@ -2521,8 +2555,9 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
             if bed_from is None:
                 bed_from = str(source)
                 calibrated.probe_bed = bed
-                sections.append(f"bed ({'tilt' if machine.frame_is_bed else 'height and tilt'}"
-                                f") from {source}")
+                words = ("height and tilt" if not machine.frame_is_bed else "tilt"
+                         if "estimated" in part.frame else "square to the towers")
+                sections.append(f"bed ({words}) from {source}")
         elif isinstance(model, DistancesModel):
             mine = [(np.array(sub.nuisance.values[model._ip[g]]),
                      np.array(sub.nuisance.values[model._ib[g]]))
@@ -2640,23 +2675,11 @@ register_kind(MeasurementKind(
 # -- distances between two nozzle positions (SPEC 8) ------------------------------------------
 
 def _pair_noise(noise, machine):
-    """The noise of two-point distances (``--noise``; default :data:`PAIR_SIGMA`)."""
-    from ..instruments import IsotropicNoise
-    from ..instruments.pairs import PAIR_SIGMA
-    from ..io.plausibility import check_option_scale
-    from ..units import parse_quantity
+    """The noise of two-point distances (``--noise``; default
+    :data:`~pkmcal.instruments.pairs.PAIR_SIGMA`)."""
+    from ..instruments.registry import instrument
 
-    if noise is None:
-        return IsotropicNoise(PAIR_SIGMA)
-    if hasattr(noise, "whitening"):
-        return noise
-    sigma = parse_quantity(noise, "length", "--noise") if isinstance(noise, str) \
-        else float(noise)
-    if not sigma > 0:
-        raise InputError(f"--noise: must be > 0 (the standard deviation of a measured "
-                         f"distance), got {noise}")
-    check_option_scale(sigma, machine, "--noise", "noise", str(noise))
-    return IsotropicNoise(sigma)
+    return instrument("pair-distances").noise_arg(noise, machine)
 
 
 def _read_pairs(path, machine):
@@ -2786,7 +2809,9 @@ def _check_heights(data, machine) -> None:
             raise InputError(f"{data.source}: the probe heights sit {offset * 1e3:.4g} mm "
                              f"from where the machine file puts the nozzle, and {words} "
                              f"within {abs(float(np.median(z - other))) * 1e3:.3g} mm of it: "
-                             f"{fix}")
+                             f"{fix} (or, if the machine file's position_endstop values are "
+                             "that far from the ones the data were probed with, import the "
+                             "config the data were saved with)")
 
 
 def expand_firmware_data(data, machine):
@@ -2822,13 +2847,16 @@ def expand_firmware_data(data, machine):
                     head = f.read(4096)
             except OSError:
                 head = ""
+            found = []
             if is_klipper_config(item, head):
-                out.extend(read_klipper_data(item, machine))
-                changed = True
-                continue
-            if not str(item).lower().endswith(".csv") and is_probe_report(head):
+                found = read_klipper_data(item, machine)
+            elif not str(item).lower().endswith(".csv") and is_probe_report(head):
                 text = read_input_text(item, "probe report")
-                out.append(probe_report_data(read_probe_report(text, str(item)), machine))
+                found = [probe_report_data(read_probe_report(text, str(item)), machine)]
+            if found:
+                for obj in found:
+                    obj.origin = item           # --noise FILE=VALUE names the file given
+                out.extend(found)
                 changed = True
                 continue
         out.append(item)

@@ -280,7 +280,7 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
                        setups: int | None, radius: str | None, circles: bool) -> None:
     """Every scenario but the translating tracker grid, through
     :func:`pkmcal.instruments.simulate.simulate_scenario`."""
-    from ..instruments.registry import BALLBAR_LENGTH
+    from ..instruments.registry import BALLBAR_LENGTH, instrument
     from ..instruments.simulate import simulate_scenario
     from ..io import write_instrument
 
@@ -318,16 +318,10 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
 
         model = IsotropicNoise(sigma) if sigma > 0 else False
         noise_words = f"probe trigger {sigma * 1e6:.4g} um along z (std)"
-    elif scenario == "pair-distances":
-        text = "20um" if noise is None else noise
-        sigma = parse_quantity(text, "length", "--noise")
-        if not sigma >= 0:
-            raise InputError(f"--noise: must be >= 0 (a standard deviation), got {text}")
-        check_option_scale(sigma, machine, "--noise", "noise", text)
-        from ..instruments import IsotropicNoise
-
-        model = IsotropicNoise(sigma) if sigma > 0 else False
-        noise_words = f"distance {sigma * 1e6:.4g} um (std)"
+    elif callable(getattr(instrument(scenario), "noise_arg", None)):
+        inst = instrument(scenario)                 # an instrument that reads its own noise
+        model = inst.noise_arg(noise, machine, allow_zero=True)
+        noise_words = "exact" if model is False else inst.describe_noise(model)
     else:
         text = "1um" if noise is None else noise
         sigma = parse_quantity(text, "length", "--noise")

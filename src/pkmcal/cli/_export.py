@@ -50,16 +50,16 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
     # onto an existing controller file: saved as the controller saves (the previous file kept
     # beside it, dated), where the format knows how; read before anything is written
     existing = backup = None
-    if not is_stream(output) and output.is_file():
-        existing = read_input_text(output, f"{fmt.name} file", register=False)
-        if type(fmt).update is not ControllerFormat.update:
-            from ..io.klipper_config import backup_name
+    if not is_stream(output) and output.is_file() \
+            and type(fmt).update is not ControllerFormat.update:
+        from ..io.klipper_config import backup_name
 
-            backup = backup_name(output)
-            try:                    # the backup is the previous file byte for byte (a BOM)
-                previous = output.read_bytes()
-            except OSError as exc:
-                raise InputError(f"{output}: cannot be read ({exc.strerror or exc})") from None
+        existing = read_input_text(output, f"{fmt.name} file", register=False)
+        backup = backup_name(output)
+        try:                        # the backup is the previous file byte for byte (a BOM)
+            previous = output.read_bytes()
+        except OSError as exc:
+            raise InputError(f"{output}: cannot be read ({exc.strerror or exc})") from None
     check_outputs([output] + ([record_path] if record_path is not None else [])
                   + ([backup] if backup is not None else []), inputs)
     why = fmt.applies(machine)
@@ -81,7 +81,7 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
                     surface=ws.surface)
     text = result.text
     if existing is not None and backup is not None:
-        text = fmt.update(existing, result.params, machine, str(output))
+        text = fmt.update(existing, result.params, machine, str(output)) or result.text
         atomic_write_bytes(backup, previous)
     atomic_write_text(output, text)
     if record_path is not None:

@@ -56,10 +56,11 @@ def noise_model(scenario: str, noise: str | None, pose_noise: str | None, machin
         from ..calibration.run import _probe_noise
 
         return _probe_noise(noise, machine)
-    if scenario == "pair-distances":
-        from ..calibration.run import _pair_noise
+    from ..instruments.registry import instrument
 
-        return _pair_noise(noise, machine)
+    own = getattr(instrument(scenario), "noise_arg", None)
+    if callable(own):               # an instrument that reads its own --noise
+        return own(noise, machine)
     return full_pose_noise_arg(noise, pose_noise, strict=True, machine=machine)
 
 

@@ -228,16 +228,21 @@ class RepRapFirmwareDelta(ControllerFormat):
         Raises
         ------
         InputError
-            When the file holds no G-code line (it is not a RepRapFirmware config file).
+            When the file is no RepRapFirmware config file: no unindented G-code line, or
+            ``[section]`` lines (a Klipper ``printer.cfg``).
         """
         lines = existing.splitlines()
-        code = [i for i, line in enumerate(lines)
-                if re.match(r"\s*[GMT]\d", line.split(";")[0])]
-        if not code:
-            raise InputError(f"{source}: exists and holds no G-code line (not a "
-                             "RepRapFirmware config file); choose another output name (a new "
-                             "file gets the values alone)")
-        delta = [i for i in code if re.match(r"\s*M66[56]\b", lines[i])]
+        code = [i for i, line in enumerate(lines) if re.match(r"[GMT]\d", line.split(";")[0])]
+        if not code or any(re.match(r"\s*\[[^]]+\]", line) or line.startswith("#*#")
+                           for line in lines):
+            raise InputError(f"{source}: exists and is not a RepRapFirmware config file (no "
+                             "G-code line, or [sections] of a Klipper config); choose another "
+                             "output name (a new file gets the values alone)")
+        delta = [i for i in code if re.match(r"M66[56]\b", lines[i])]
+        # pkmcal's own comment lines of an earlier export go with the lines they describe
+        delta += [i for i, line in enumerate(lines)
+                  if line.startswith(("; Delta parameters (pkmcal", "; pkmcal bed:"))]
+        delta = sorted(set(delta))
         ours = []
         for line in self.text(params, machine).splitlines():
             if not line.startswith(("M665", "M666")):
@@ -253,8 +258,9 @@ class RepRapFirmwareDelta(ControllerFormat):
         at = delta[0] if delta else len(lines)
         kept = [line for i, line in enumerate(lines) if i not in set(delta)]
         at -= sum(1 for i in delta if i < at)
-        new = kept[:at] + ["; Delta parameters (pkmcal export --to reprapfirmware)"] + ours \
-            + kept[at:]
+        bed = bed_text(params.values[13:16], ";")
+        new = kept[:at] + ["; Delta parameters (pkmcal export --to reprapfirmware)", bed] \
+            + ours + kept[at:]
         return "\n".join(new) + "\n"
 
     def values_text(self, params: ControllerParameters) -> list[tuple[str, str]]:

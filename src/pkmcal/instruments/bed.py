@@ -53,7 +53,7 @@ class BedChoice:
 
 def bed_choice(machine: Machine, data: InstrumentData, noise=None, choice: str = "auto",
                extra_equations: int = 0, extra_unknowns: int = 0,
-               rtol: float = RTOL) -> BedChoice:
+               rtol: float = RTOL, others=()) -> BedChoice:
     """The bed's unknowns for probe heights on ``machine`` (SPEC 8: a printer's frame is its
     bed).
 
@@ -80,6 +80,10 @@ def bed_choice(machine: Machine, data: InstrumentData, noise=None, choice: str =
         ``--bed-tilt``: decide from the data, estimate the tilt, or hold it at 0.
     extra_equations, extra_unknowns : int, optional
         Equations and unknowns of the other files of a joint fit.
+    others : sequence of tuple, optional
+        ``(data, model, noise)`` of the other files of a joint fit: the rank and the tilt's
+        standard deviation are those of the joint problem (a ballbar fixes the arms that
+        heights alone leave loose, and with them the tilt).
     rtol : float, optional
         Rank tolerance.
 
@@ -110,24 +114,28 @@ def bed_choice(machine: Machine, data: InstrumentData, noise=None, choice: str =
                          "--bed-tilt estimate to fit it anyway")
 
     ranks, tilt_std, reach = [], np.inf, 0.0
+    started = [(d, _started(machine, d, m, nz), nz) for d, m, nz in others]
     for fixed in (("bed.z",), ("bed.z", "bed.tilt_x", "bed.tilt_y")):
-        model = ProbeModel(fixed=fixed)
+        model = _started(machine, data, ProbeModel(fixed=fixed), noise)
         problem = instrument_problem(machine, data, model, noise)
-        model = model.start(problem._P0, problem._R0, data.values, data.group, data.source)
-        problem = instrument_problem(machine, data, model, noise)
+        reach = float(np.max(np.hypot(problem._P0[:, 0], problem._P0[:, 1])))
+        if started:
+            from .joint import JointProblem
+
+            problem = JointProblem(machine, [(data, model, noise)] + started,
+                                   [f"part{i}" for i in range(len(started) + 1)])
         _, J, _ = problem.evaluate(problem.initial_state())
         free = problem.parameters.free
         Jf = (J[..., free] * problem.scales[free]).reshape(-1, int(free.sum()))
         Jf = Jf[np.all(np.isfinite(Jf), axis=1)]
         s = np.linalg.svd(Jf, compute_uv=False)
         ranks.append(numerical_rank(s, rtol))
-        if len(ranks) == 1 and ranks[0] == Jf.shape[1]:
+        if len(ranks) == 1:
             # the tilt's standard deviation at the assumed noise (whitened Jacobian)
             cov = np.linalg.pinv(Jf.T @ Jf, hermitian=True)
             names = [n for n, f in zip(problem.parameters.names, free, strict=True) if f]
-            idx = [names.index("bed.tilt_x"), names.index("bed.tilt_y")]
+            idx = [i for i, n in enumerate(names) if n.endswith(("bed.tilt_x", "bed.tilt_y"))]
             tilt_std = float(np.sqrt(np.max(np.diag(cov)[idx])))
-            reach = float(np.max(np.hypot(problem._P0[:, 0], problem._P0[:, 1])))
     if ranks[0] - ranks[1] < 2:
         return BedChoice(("bed.z", "bed.tilt_x", "bed.tilt_y"), "square",
                          f"{square}: the heights cannot tell its tilt from the free parameters "
@@ -145,3 +153,9 @@ def bed_choice(machine: Machine, data: InstrumentData, noise=None, choice: str =
     return BedChoice(("bed.z",), "estimated",
                      f"z = 0 is the probed bed (the printer's frame); its tilt against the "
                      f"towers estimated ({redundancy} equations beyond the unknowns)")
+
+
+def _started(machine: Machine, data, model, noise):
+    """``model`` with its closed-form start values on ``machine``'s poses of ``data``."""
+    problem = instrument_problem(machine, data, model, noise)
+    return model.start(problem._P0, problem._R0, data.values, data.group, data.source)

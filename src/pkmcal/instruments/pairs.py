@@ -107,7 +107,7 @@ class PairDistanceModel(NuisanceModel):
         Rc = x - np.asarray(P, float)
         # de/dx_a = -n, de/dx_b = +n; dx/dOmega = -skew(R c)
         g = np.concatenate([-n, n])
-        de_dpose = np.concatenate([g, np.einsum("ki,kij->kj", g, skew(Rc))], -1)[:, None, :]
+        de_dpose = np.concatenate([g, -np.einsum("ki,kij->kj", g, skew(Rc))], -1)[:, None, :]
         return e, de_dpose, np.zeros((K, 1, 0))
 
     def predict(self, state, P, R, group):

@@ -1044,7 +1044,34 @@ class PairDistance(Instrument):
         return IsotropicNoise(PAIR_SIGMA)
 
     def describe_noise(self, noise):
-        return f"distance {noise.sigma * 1e6:.3g} um (std)"
+        return f"distance {noise.sigma * 1e6:.4g} um (std)"
+
+    def noise_arg(self, text, machine, allow_zero: bool = False):
+        """The noise of ``--noise`` (text with a unit, an SI number or a noise model; None:
+        the default); ``allow_zero``: 0 gives exact data (False), as ``simulate`` takes it.
+
+        Raises
+        ------
+        InputError
+            Naming ``--noise``: not a length, not above 0, or beyond the machine's scale.
+        """
+        from ..io.plausibility import check_option_scale
+        from ..units import parse_quantity
+        from .models import IsotropicNoise
+
+        if text is None:
+            return self.default_noise()
+        if hasattr(text, "whitening"):
+            return text
+        sigma = parse_quantity(text, "length", "--noise") if isinstance(text, str) \
+            else float(text)
+        if not (sigma > 0 or (allow_zero and sigma == 0)):
+            raise InputError(f"--noise: must be > 0 (the standard deviation of a measured "
+                             f"distance), got {text}")
+        if sigma == 0:
+            return False
+        check_option_scale(sigma, machine, "--noise", "noise", str(text))
+        return IsotropicNoise(sigma)
 
     def candidates(self, machine, n, rng):
         raise InputError("pair-distances: poses are chosen in pairs (one distance each); "

@@ -334,4 +334,6 @@ def probe_report_data(report: ProbeReport, machine):
         n = int(report.rows[bad][0])
         raise InputError(f"{report.source}: line {n}: the firmware's values cannot reach this "
                          f"point ({report.xy[bad][0][0]:g}, {report.xy[bad][0][1]:g}) mm")
-    return InstrumentData("probe", q, np.zeros((len(P), 1)), None, report.rows, report.source)
+    data = InstrumentData("probe", q, np.zeros((len(P), 1)), None, report.rows, report.source)
+    data.notes = list(report.notes)
+    return data

@@ -41,7 +41,7 @@ STEP_RANGE = (1e-6, 1.0)
 AUTOSAVE_MARK = "#*# <---------------------- SAVE_CONFIG ---------------------->"
 AUTOSAVE_HEADER = ("\n" + AUTOSAVE_MARK + "\n#*# DO NOT EDIT THIS BLOCK OR BELOW. The contents "
                    "are auto-generated.\n#*#\n")
-_SECTION = re.compile(r"\[(?P<header>[^]]+)\]")
+_SECTION = re.compile(r"\[(?P<header>.+)\]")              # configparser's SECTCRE
 _OPTION = re.compile(r"(?P<key>[^:=\s][^:=]*?)\s*[:=]\s*(?P<value>.*)$")
 
 
@@ -167,17 +167,17 @@ class KlipperConfig:
               autosave: bool = False) -> None:
         """One unit of configparser's reading (``RawConfigParser(strict=False,
         inline_comment_prefixes=(';', '#'))``): sections, options, continuation lines."""
-        section, last = None, None
+        section, last, indent = None, None, 0
         for n, raw in lines:
-            line = raw.split("#", 1)[0] if not autosave else raw
-            if autosave:
-                line = line.split("#", 1)[0]
+            line = raw.split("#", 1)[0]             # Klipper cuts at the first '#'
             if not line.strip() or line.lstrip().startswith(";"):
                 continue
-            if line[0].isspace() and last is not None:
+            level = len(line) - len(line.lstrip())
+            if last is not None and level > indent:     # deeper than its option: continued
                 last.more.append(re.split(r"\s;", line, maxsplit=1)[0].rstrip())
                 continue
-            text = re.split(r"\s;", line, maxsplit=1)[0].rstrip()
+            indent = level
+            text = re.split(r"\s;", line, maxsplit=1)[0].strip()
             m = _SECTION.match(text)
             if m:
                 section, last = m.group("header").strip(), None
@@ -369,7 +369,7 @@ def split_autosave(text: str) -> tuple[str, list[str] | None, int, str]:
     body, rest = (text, "") if pos < 0 else (text[:pos], text[pos + len(AUTOSAVE_HEADER):])
     if "\n#*# " in body or AUTOSAVE_HEADER in rest:
         where = body.count("\n", 0, body.find("\n#*# ") + 1) + 1 if "\n#*# " in body else 0
-        why = (f"a '#*# ' line stands at line {where + 1}, above the block's header (a header "
+        why = (f"a '#*# ' line stands at line {where}, above the block's header (a header "
                "changed by hand?)" if where else "a second SAVE_CONFIG header")
         return text, None, 0, f"Klipper ignores its SAVE_CONFIG block: {why}"
     if pos < 0:

@@ -431,6 +431,11 @@ class LinearDelta(Machine):
             ok = np.all(np.isfinite(self.ik(P, R)), axis=-1)
         surface = np.arange(n) < m
         P, surface = P[ok], surface[ok]
+        if not surface.any():
+            from ..errors import InputError
+
+            raise InputError(f"{self.source or 'the machine'}: no point of the print disk "
+                             f"({words}) can be reached; check print_radius")
         return Workspace(P, np.broadcast_to(np.eye(3), (len(P), 3, 3)),
                          f"the print disk on the bed ({words}) and the volume up to "
                          f"{height * 1e3:.6g} mm above it",
