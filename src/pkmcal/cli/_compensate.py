@@ -245,7 +245,7 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
     table = _table("", "", title=f"pkmcal compensate: {summary['machine_file']}",
                    show_header=False)
     table.add_row("targets", f"{len(P)} from {targets} ("
-                  + ("base frame of the calibrated model" if frame is None
+                  + (machine.working_frame_words if frame is None
                      else frame.description) + ")")
     table.add_row("commands", f"{output} ({', '.join(list(columns)[:machine.n_joints])})")
     pp, po = summary["predicted_position_um"], summary["predicted_orientation_urad"]

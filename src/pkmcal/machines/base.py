@@ -176,6 +176,8 @@ class Machine(ABC):
     #: the machine's frame is its bed (a printer: z = 0 the probed bed); see
     #: :func:`pkmcal.calibration.probe.bed_choice`
     frame_is_bed: bool = False
+    #: the frame targets are given in, in words (:meth:`targets_in_base`)
+    working_frame_words: str = "base frame of the calibrated model"
     #: poses per forward-kinematics chunk (temporaries stay in cache)
     fk_chunk: int = 8192
     #: named parameter subsets (:meth:`parameter_set`); ``full`` (every parameter free) is

@@ -183,6 +183,7 @@ class LinearDelta(Machine):
     #: heights hold the bed's height at 0 (the endstops carry it) and estimate its tilt only
     #: where the data tell it from the parameter set
     frame_is_bed = True
+    working_frame_words = "the printer's frame: z is the height above its bed"
 
     PARAMETER_SETS = {
         "klipper": ParameterSubset(
