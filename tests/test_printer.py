@@ -23,9 +23,7 @@ bed is tilted against the towers). Measured figures (``.venv/bin/python benchmar
 --runs 1000``, at f4545b0): held-out height RMS / Cramér-Rao 0.996 (full, 5.83 / 5.85 um) and
 0.997 (klipper, 4.66 / 4.67 um), 1 mm above the bed 0.994 and 0.997; joint arm-length ratios
 1.011, 0.999, 1.020 (full, bound 42, 43, 57 um) and 1.013, 1.000, 1.024 (klipper, bound 23,
-37, 31 um); arm std from heights alone 3.8 mm (full) and 1.4 mm (klipper). At this file's seeds and run counts: heights 0.991 /
-0.996 (full), 1.02 / 1.02 (klipper); arms (500 runs) 1.020, 0.993, 0.965 (full), 1.033, 1.012,
-1.031 (klipper).
+37, 31 um); arm std from heights alone 3.8 mm (full) and 1.4 mm (klipper).
 """
 
 import importlib.util
