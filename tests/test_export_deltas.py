@@ -300,10 +300,11 @@ def test_klipper_rotary_foreign_config_reads_as_klipper_angles():
 @pytest.mark.parametrize("line, key", [("shoulder_radius: 3x", "shoulder_radius"),
                                        ("shoulder_height: nan", "shoulder_height")])
 def test_klipper_rotary_parse_errors_name_line_and_key(line, key):
-    text = (f"[printer]\nkinematics: rotary_delta\n{line}\nshoulder_radius: 30\n"
-            "shoulder_height: 400\n[stepper_a]\nposition_endstop: 250\n"
+    # the last value of an option is the one Klipper uses (configparser, strict=False)
+    text = (f"[printer]\nkinematics: rotary_delta\nshoulder_radius: 30\n"
+            f"shoulder_height: 400\n{line}\n[stepper_a]\nposition_endstop: 250\n"
             "upper_arm_length: 170\nlower_arm_length: 320\n")
-    with pytest.raises(InputError, match=rf"cfg: line 3: \[printer\] {key}"):
+    with pytest.raises(InputError, match=rf"cfg: line 5: \[printer\] {key}"):
         controller_format("klipper-rotary-delta").parse(text, "printer.cfg")
     with pytest.raises(InputError, match=r"\[stepper_a\] lower_arm_length is missing"):
         controller_format("klipper-rotary-delta").parse(

@@ -500,3 +500,24 @@ def test_basic_set_on_a_config_with_distances_is_klippers_basic_fit(path, tmp_pa
     new = K.load_data_set(str(cfg)).calibration
     assert K.rms(K.height_residuals(new, ds.data)) <= 1.02 * K.rms(
         K.height_residuals(basic, ds.data))
+
+
+def test_rotary_delta_config_is_updated_as_save_config_does():
+    """klipper-rotary-delta reads printer.cfg as Klipper does and saves onto it as
+    SAVE_CONFIG does (the sections' values commented out, the block rewritten)."""
+    rotary = controller_format("klipper-rotary-delta")
+    text = ("[printer]\nkinematics: rotary_delta\nshoulder_radius: 31\nshoulder_height: 400\n"
+            "[stepper_a]\nposition_endstop: 250\nupper_arm_length: 170\n"
+            "lower_arm_length: 320\n" + BLOCK + "#*# [printer]\n#*# shoulder_radius = 30\n")
+    params = rotary.parse(text, "printer.cfg")
+    assert params.as_dict()["shoulder_radius"] == pytest.approx(0.031)    # the body wins
+    values = params.values.copy()
+    values[0] += 1e-3
+    new = rotary.update(text, params.with_values(values), rotary.to_machine(params),
+                        "printer.cfg")
+    again = rotary.parse(new, "printer.cfg")
+    np.testing.assert_allclose(again.values[:15], values[:15], rtol=0, atol=1e-8)
+    assert "#shoulder_radius: 31" in new
+    with pytest.raises(InputError, match="not a Klipper rotary_delta"):
+        rotary.update("[printer]\nkinematics: delta\n", params, rotary.to_machine(params),
+                      "printer.cfg")

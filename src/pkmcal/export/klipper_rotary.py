@@ -379,8 +379,9 @@ class KlipperRotaryDelta(ControllerFormat):
         return "\n".join(lines) + "\n"
 
     def parse(self, text: str, source: str) -> ControllerParameters:
-        """Klipper's rotary_delta values of a ``printer.cfg`` (the last value of a key wins,
-        as in Klipper's ``SAVE_CONFIG`` block).
+        """Klipper's rotary_delta values of a ``printer.cfg``, as Klipper resolves them
+        (:class:`~pkmcal.io.klipper_config.KlipperConfig`: ``[include]`` files, the sections
+        above the ``SAVE_CONFIG`` block over it).
 
         Parameters
         ----------
@@ -403,32 +404,17 @@ class KlipperRotaryDelta(ControllerFormat):
         InputError
             Naming the line and key of a value that is not a number, or the key missing.
         """
-        section, found = None, {}
-        for n, raw in enumerate(text.splitlines(), 1):
-            line = raw.lstrip("#*").strip() if raw.lstrip().startswith("#*#") else raw
-            line = re.split(r"\s[#;]|^[#;]", line)[0].strip()
-            if not line:
-                continue
-            m = re.match(r"^\[([^\]]+)\]$", line)
-            if m:
-                section = m.group(1).strip()
-                continue
-            m = re.match(r"^([A-Za-z_0-9]+)\s*[:=]\s*(.*)$", line)
-            if not m or section is None:
-                continue
-            key, word = m.group(1).strip(), m.group(2).strip()
-            if section == "printer" and key == "kinematics" and word != "rotary_delta":
-                raise InputError(f"{source}: line {n}: kinematics: {word!r} is not "
-                                 "rotary_delta (use the format of that kinematics)")
-            wanted = {"printer": ("shoulder_radius", "shoulder_height")}.get(section, ())
-            if section in (f"stepper_{t}" for t in STEPPERS):
-                wanted = ("position_endstop", "upper_arm_length", "lower_arm_length", "angle")
-            if key in wanted:
-                found[(section, key)] = finite_number(word, source, n, f"[{section}] {key}")
+        from ..io.klipper_config import KlipperConfig
+
+        cfg = KlipperConfig.read(source, text)      # Klipper's precedence and includes
+        kin = cfg.entry("printer", "kinematics")
+        if kin is not None and kin.value.strip() != "rotary_delta":
+            raise InputError(f"{kin.where('printer', 'kinematics')}: {kin.value.strip()!r} is "
+                             "not rotary_delta (use the format of that kinematics)")
 
         def get(section, key, default=None):
-            if (section, key) in found:
-                return found[(section, key)]
+            if cfg.entry(section, key) is not None:
+                return cfg.number(section, key)
             if default is not None:
                 return default
             raise InputError(f"{source}: [{section}] {key} is missing (Klipper's rotary_delta "
@@ -456,6 +442,38 @@ class KlipperRotaryDelta(ControllerFormat):
                              for i, t in enumerate(STEPPERS)])
         params.values[15:18] = readings
         return params
+
+    def update(self, existing: str, params: ControllerParameters, machine: Machine,
+               source: str) -> str | None:
+        """``printer.cfg`` with the values saved as Klipper's ``SAVE_CONFIG`` saves them
+        (:func:`~pkmcal.io.klipper_config.save_config_text`): ``shoulder_radius``,
+        ``shoulder_height`` and per stepper ``angle``, ``position_endstop`` (what
+        ``RotaryDeltaCalibration.save_state`` writes) and the arm lengths pkmcal fits too.
+        The readings' convention is Klipper's (its stepper angles).
+
+        Raises
+        ------
+        InputError
+            When the file is not a Klipper rotary_delta config, or an ``[include]`` file
+            defines one of the values.
+        """
+        from ..io.klipper_config import KlipperConfig, save_config_text
+
+        cfg = KlipperConfig.read(source, existing)
+        kin = cfg.entry("printer", "kinematics")
+        if kin is None or kin.value.strip() != "rotary_delta":
+            raise InputError(f"{source}: exists and is not a Klipper rotary_delta config "
+                             "([printer] kinematics: rotary_delta); choose another output name "
+                             "(a new file gets the values as a fragment)")
+        radius, height, upper, lower, angles, endstops, _, _ = self.unpack(params)
+        values = {("printer", "shoulder_radius"): f"{radius * 1e3:.6f}",
+                  ("printer", "shoulder_height"): f"{height * 1e3:.6f}"}
+        for i, t in enumerate(STEPPERS):
+            values[(f"stepper_{t}", "angle")] = f"{np.degrees(angles[i]):.6f}"
+            values[(f"stepper_{t}", "position_endstop")] = f"{endstops[i] * 1e3:.6f}"
+            values[(f"stepper_{t}", "upper_arm_length")] = f"{upper[i] * 1e3:.6f}"
+            values[(f"stepper_{t}", "lower_arm_length")] = f"{lower[i] * 1e3:.6f}"
+        return save_config_text(existing, values, source, cfg)
 
     def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
         """A Delta with Klipper's values, in Klipper's frame (the bed at ``z = 0``).
