@@ -521,3 +521,15 @@ def test_rotary_delta_config_is_updated_as_save_config_does():
     with pytest.raises(InputError, match="not a Klipper rotary_delta"):
         rotary.update("[printer]\nkinematics: delta\n", params, rotary.to_machine(params),
                       "printer.cfg")
+
+
+def test_without_parameters_the_saved_data_are_fitted_in_klippers_set():
+    """A newcomer who gives no --parameters gets Klipper's own set for Klipper's saved data
+    (7 heights cannot fit every tower quantity), named in the report."""
+    path = DATA / "sr-danorder.cfg"
+    machine = KLIPPER.to_machine(KLIPPER.parse(path.read_text(), str(path)))
+    default = calibrate(machine, path)
+    basic = calibrate(machine, path, parameters="klipper-basic")
+    assert default.report["parameter_set"]["name"] == "klipper-basic"
+    assert "its own set" in default.report["parameter_set"]["note"]
+    np.testing.assert_allclose(default.calibrated.u, basic.calibrated.u, rtol=0, atol=1e-12)

@@ -832,12 +832,21 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     notes = [n for item in (data if isinstance(data, (list, tuple)) else [data])
              for n in getattr(item, "notes", None) or []]
     chosen, note = None, ""
+    items = list(data) if isinstance(data, (list, tuple)) else [data]
+    suggested = {getattr(d, "parameter_set", None) for d in items}
+    if parameters is None and len(suggested) == 1 and None not in suggested \
+            and next(iter(suggested)) in getattr(machine, "PARAMETER_SETS", {}):
+        # a firmware's saved data are fitted in the set that firmware fits them in
+        parameters = next(iter(suggested))
+        note = (f"the firmware's saved data: fitted in its own set (--parameters "
+                f"{parameters}; --parameters full fits every tower quantity)")
     if parameters is not None:
         subset = getattr(machine, "PARAMETER_SETS", {}).get(parameters)
         fallback = getattr(subset, "without_lengths", None)
         if fallback and not any(k.fixes_lengths for k in _data_kinds(data, machine)):
-            note = (f"{parameters} with heights alone is {fallback}: no measurement fixes a "
-                    "length (as the firmware does without distances)")
+            note = ((note + "; ") if note else "") + (
+                f"{parameters} with heights alone is {fallback}: no measurement fixes a "
+                "length (as the firmware does without distances)")
             parameters = fallback
         subset = getattr(machine, "PARAMETER_SETS", {}).get(parameters)
         if getattr(subset, "kinds", None):

@@ -600,6 +600,7 @@ def delta_calibrate_data(cfg: KlipperConfig, n_joints: int = 3, scale: float = 1
         data = InstrumentData("probe", q, h[:, None], None, np.array(rows),
                               f"{cfg.path} heights", weights=weights[0])
         data.notes = notes
+        data.parameter_set = "klipper"     # without --parameters: the set Klipper fits
         out.append(data)
     if distances:
         d = np.array([value(f"distance{i}", above=0.0) for i in distances])
@@ -609,6 +610,7 @@ def delta_calibrate_data(cfg: KlipperConfig, n_joints: int = 3, scale: float = 1
         pairs = pair_data(qa, qb, d, rows, f"{cfg.path} distances")
         pairs.weights = weights[1]
         pairs.notes = [] if heights else notes
+        pairs.parameter_set = "klipper"
         out.append(pairs)
     return out
 
