@@ -254,7 +254,8 @@ def test_klipper_points_with_klippers_set_are_fitted_as_klipper_does(tmp_path):
     assert c.calibrated.probe_bed == (0.0, 0.0, 0.0)
     assert c.report["identifiability"]["identifiable"] == 6
     forced = calibrate(machine, path, parameters="klipper-basic", bed_tilt="square")
-    np.testing.assert_allclose(forced.calibrated.u, c.calibrated.u, rtol=0, atol=1e-12)
+    scale = 1e-9 * np.abs(c.calibrated.u).max()          # one fit, the same options
+    np.testing.assert_allclose(forced.calibrated.u, c.calibrated.u, rtol=0, atol=scale)
 
 
 def test_a_flipped_probe_height_sign_is_named(tmp_path):
@@ -313,7 +314,8 @@ def test_compensate_puts_a_printer_on_its_bed(tmp_path):
     comp = compensate(m, targets)
     nozzle = m.fk(comp.q).P
     above = nozzle[:, 2] - (2e-3 * nozzle[:, 0] - 1e-3 * nozzle[:, 1])
-    np.testing.assert_allclose(above, targets[:, 2], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(above, targets[:, 2], rtol=0,
+                               atol=1e-9 * m.characteristic_length())
 
 
 def test_reprapfirmware_config_override_is_updated_as_m500_writes_it(tmp_path):
@@ -532,4 +534,5 @@ def test_without_parameters_the_saved_data_are_fitted_in_klippers_set():
     basic = calibrate(machine, path, parameters="klipper-basic")
     assert default.report["parameter_set"]["name"] == "klipper-basic"
     assert "its own set" in default.report["parameter_set"]["note"]
-    np.testing.assert_allclose(default.calibrated.u, basic.calibrated.u, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(default.calibrated.u, basic.calibrated.u, rtol=0,
+                               atol=1e-9 * np.abs(basic.calibrated.u).max())
