@@ -168,6 +168,10 @@ class Machine(ABC):
     n_joints: int = 6
     #: pose degrees of freedom of the platform (6 = full pose, 3 = translation only)
     pose_dof: int = 6
+    #: the pose coordinates the platform moves along, indices into (x, y, z, rx, ry, rz) (the
+    #: columns of a pose Jacobian): every one for a platform that moves in space, ``(0, 1, 2)``
+    #: for one that only translates, ``(0, 1, 5)`` for a planar one; None: from ``pose_dof``
+    POSE_SPACE: tuple[int, ...] | None = None
     #: what the joint readings measure: "length" (prismatic) or "angle" (revolute)
     joint_quantity: str = "length"
     #: the instrument a machine is measured with when none is named (a registry name,
@@ -191,6 +195,26 @@ class Machine(ABC):
                                                 np.asarray(home[1], float))
 
     # -- geometry -------------------------------------------------------------------------
+    @property
+    def pose_space(self) -> tuple[int, ...]:
+        """Indices into ``(x, y, z, rx, ry, rz)`` of the pose coordinates the platform moves
+        along (:attr:`POSE_SPACE`; by default the first ``pose_dof``: translations alone, or
+        every coordinate).
+
+        Returns
+        -------
+        tuple of int
+            Sorted column indices of a pose Jacobian.
+        """
+        if self.POSE_SPACE is not None:
+            return tuple(self.POSE_SPACE)
+        return tuple(range(3)) if self.pose_dof == 3 else tuple(range(6))
+
+    @property
+    def rotates(self) -> bool:
+        """True when the platform's orientation moves (some of rx, ry, rz in :attr:`pose_space`)."""
+        return any(i >= 3 for i in self.pose_space)
+
     @property
     def u(self) -> np.ndarray:
         """Current parameter vector (n_params,), internal units (m, rad)."""
