@@ -2692,28 +2692,10 @@ def _pair_noise(noise, machine):
 
 
 def _read_pairs(path, machine):
-    """Two-point distances from a CSV file: ``q1_<unit>..q<n>_<unit>`` (first position),
-    ``q1b_<unit>..q<n>b_<unit>`` (second) and ``distance_<unit>``."""
-    from ..instruments.pairs import pair_data
-    from ..io.csv_io import _column_values, find_column, joint_quantity, read_table
+    """Two-point distances from a CSV file (:func:`~pkmcal.io.read_pairs`)."""
+    from ..io import read_pairs
 
-    header, table = read_table(path)
-    quantity = joint_quantity(machine)
-    cols = []
-    for suffix in ("", "b"):
-        q = []
-        for j in range(machine.n_joints):
-            i, f = find_column(path, header, f"q{j + 1}{suffix}", quantity)
-            q.append(_column_values(path, header, table, i, f))
-        cols.append(np.column_stack(q))
-    i, f = find_column(path, header, "distance", "length")
-    d = _column_values(path, header, table, i, f)
-    rows = np.array([line for line, _ in table], int)
-    bad = np.flatnonzero(~(d > 0))
-    if bad.size:
-        raise InputError(f"{path}: row {rows[bad[0]]}, column {header[i]}: a distance must "
-                         "be > 0")
-    return pair_data(cols[0], cols[1], d, rows, str(path))
+    return read_pairs(path, machine)
 
 
 def _check_pairs(options: CalibrateOptions, source) -> None:
@@ -2889,24 +2871,10 @@ def _check_probe(options: CalibrateOptions, source) -> None:
 
 
 def _probe_noise(noise, machine):
-    """The probe noise of ``--noise`` (text or SI number or model; default
-    :data:`~pkmcal.instruments.registry.PROBE_SIGMA`)."""
-    from ..instruments import IsotropicNoise
-    from ..instruments.registry import PROBE_SIGMA
-    from ..io.plausibility import check_option_scale
-    from ..units import parse_quantity
+    """The probe noise of ``--noise`` (:meth:`~pkmcal.instruments.registry.Probe.noise_arg`)."""
+    from ..instruments.registry import instrument
 
-    if noise is None:
-        return IsotropicNoise(PROBE_SIGMA)
-    if hasattr(noise, "whitening"):
-        return noise
-    sigma = parse_quantity(noise, "length", "--noise") if isinstance(noise, str) \
-        else float(noise)
-    if not sigma > 0:
-        raise InputError(f"--noise: must be > 0 (the standard deviation of the probe's "
-                         f"trigger height), got {noise}")
-    check_option_scale(sigma, machine, "--noise", "noise", str(noise))
-    return IsotropicNoise(sigma)
+    return instrument("probe").noise_arg(noise, machine)
 
 
 def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) -> Calibration:

@@ -243,6 +243,124 @@ class Instrument:
         """
         raise NotImplementedError
 
+    #: the measurement in words, as ``identifiability`` and ``select-poses`` print it
+    measurement_words: str = ""
+    #: the plan file's column naming each pose's group (``target``, ``setup``); None: one
+    group_column: str | None = None
+    #: the plan options the instrument takes (:meth:`planned_machine`)
+    plan_options: tuple = ()
+
+    def noise_arg(self, text, machine: Machine | None = None):
+        """The noise model of ``--noise`` (None: :meth:`default_noise`; a model as it is).
+
+        Parameters
+        ----------
+        text : str or float or object or None
+            A level with its unit, an SI number, a noise model, or None.
+        machine : Machine, optional
+            Levels are checked against its size when given.
+
+        Returns
+        -------
+        object
+            The instrument's noise model.
+
+        Raises
+        ------
+        InputError
+            Naming ``--noise``, when the instrument takes no level.
+        """
+        if text is None:
+            return self.default_noise()
+        if not isinstance(text, (str, int, float)):
+            return text
+        raise InputError(f"--noise: {self.name} measurements take no noise level, got {text}")
+
+    def noise_option(self, noise, pose_noise=None, machine: Machine | None = None):
+        """The noise model of ``--noise`` and ``--pose-noise`` (as ``pkmcal calibrate`` takes
+        them).
+
+        Parameters
+        ----------
+        noise : str or float or object or None
+            ``--noise`` (:meth:`noise_arg`).
+        pose_noise : str or None, optional
+            ``--pose-noise``: full poses alone take it.
+        machine : Machine, optional
+            Levels are checked against its size when given.
+
+        Returns
+        -------
+        object
+            The instrument's noise model.
+
+        Raises
+        ------
+        InputError
+            For ``pose_noise`` on an instrument that measures no pose, or a bad level.
+        """
+        if pose_noise is not None:
+            raise InputError(f"--pose-noise applies to full-pose measurements, not {self.name}")
+        return self.noise_arg(noise, machine)
+
+    def read(self, path, machine: Machine):
+        """The instrument's measurements from a CSV file (:mod:`pkmcal.io`).
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The data file.
+        machine : Machine
+            The machine (joint units, reading columns).
+
+        Returns
+        -------
+        object
+            The instrument's data.
+        """
+        raise NotImplementedError
+
+    def measured_problem(self, machine: Machine, data, noise=None, source: str = ""):
+        """The calibration problem ``pkmcal calibrate`` solves for measured ``data``, unsolved,
+        the instrument's unknowns started from the data on the machine's geometry (a fit with
+        the machine held where they need one).
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        data : object
+            The instrument's measurements (:meth:`read`).
+        noise : object, optional
+            Noise model; default :meth:`default_noise`.
+        source : str, optional
+            Name of the data, for messages.
+
+        Returns
+        -------
+        BlockProblem
+            The problem.
+        """
+        return self.problem(machine, data, noise)
+
+    def planned_machine(self, machine: Machine, **options) -> Machine:
+        """The machine the instrument's plans use, with the plan options of
+        :attr:`plan_options` (e.g. a ballbar's planned mountings).
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        **options
+            The instrument's plan options (None: not given).
+
+        Returns
+        -------
+        Machine
+            ``machine``, or a copy carrying the planned set-up.
+        """
+        return machine
+
 
 class ConstraintLink(Instrument):
     """Seed 000: joint readings with the constraint link mounted, one joint passive."""
@@ -290,6 +408,18 @@ class ConstraintLink(Instrument):
         from ..calibration import ConstraintLinkML
 
         return ConstraintLinkML(machine, data, self.default_noise() if noise is None else noise)
+
+    measurement_words = ("constraint link (maximum likelihood: every reading noisy; one pose on "
+                         "the sphere per measurement)")
+
+    def noise_arg(self, text, machine=None):
+        """The encoder noise of ``--noise`` (default 1 um), m."""
+        return _sigma_arg(text, machine, "encoder noise", 1e-6)
+
+    def read(self, path, machine):
+        from ..io import read_constraint_link
+
+        return read_constraint_link(path, machine)
 
 
 #: constraint-link plans: largest allowed deviation of |P| from Lc (m); poses within it are
@@ -433,6 +563,52 @@ class Tracker(Instrument):
                               tracker_pose(machine) if registration is None else registration,
                               targets=target)
 
+    measurement_words = ("points of a target on the platform (laser tracker; tracker pose and "
+                         "unknown target places estimated jointly)")
+    group_column = "target"
+    plan_options = ("targets",)
+
+    def noise_arg(self, text, machine=None):
+        """The tracker noise of ``--noise``: leica (default), or a length per coordinate."""
+        from ..calibration.run import tracker_noise_arg
+
+        if text is not None and not isinstance(text, str):
+            return text
+        return tracker_noise_arg(text, allow_none=False, machine=machine)[0]
+
+    def read(self, path, machine):
+        from ..io import read_points
+
+        return read_points(path, machine)
+
+    def measured_problem(self, machine, data, noise=None, source=""):
+        """The tracker's pose and the target places started from the data: registered on the
+        machine file's forward kinematics, then (unknown targets) fitted with the machine
+        held."""
+        from ..calibration import levenberg_marquardt
+        from ..calibration.tracker import TrackerProblem, registration_of
+        from .models import PointsModel
+
+        noise = self.default_noise() if noise is None else noise
+        fk = _fk_of(machine, data, source)
+        start = PointsModel(data.n_groups, machine.tracker_target()).start(
+            fk.P, fk.R, data.values, data.group, str(source))
+        registration = (start.rotation_starts[0], start.parameters.values[3:6].copy())
+        targets = None
+        if machine.tracker_target() is None:
+            alone = TrackerProblem(machine, data, noise, registration).with_machine_fixed()
+            first = levenberg_marquardt(alone)
+            registration = registration_of(first.state)
+            targets = first.state.nuisance.values[6:].copy()
+        return self.problem(machine, data, noise, registration=registration, targets=targets)
+
+    def planned_machine(self, machine, targets=None, **options):
+        """The machine (several targets in turn need the target's place unknown)."""
+        if targets is not None and targets > 1 and machine.tracker_target() is not None:
+            raise InputError(f"--targets {targets}: {machine.source} gives the target's place "
+                             "on the platform; one target only")
+        return machine
+
 
 class Pose(Instrument):
     """Full poses of a marker on the platform (motion capture), SPEC 2.4."""
@@ -470,6 +646,37 @@ class Pose(Instrument):
 
         return FullPoseML(machine, data, self.default_noise() if noise is None else noise,
                           measurement_frames(machine) if frames is None else frames)
+
+    measurement_words = "full pose (maximum likelihood; both measurement frames estimated)"
+
+    def noise_option(self, noise, pose_noise=None, machine=None):
+        from ..calibration.run import full_pose_noise_arg
+
+        if noise is not None and not isinstance(noise, str):
+            return noise
+        return full_pose_noise_arg(noise, pose_noise, strict=True, machine=machine)
+
+    def noise_arg(self, text, machine=None):
+        """The full-pose noise of ``--noise`` (the leg readings; poses at their default)."""
+        return self.noise_option(text, None, machine)
+
+    def read(self, path, machine):
+        from ..io import read_full_pose
+
+        return read_full_pose(path, machine)
+
+    def measured_problem(self, machine, data, noise=None, source=""):
+        """The measurement frames of the machine file, else estimated from the data (at least
+        4 poses)."""
+        from ..calibration import estimate_frames
+
+        if len(data) < 4:
+            raise InputError(f"{source}: {len(data)} pose(s); the measurement frames need at "
+                             "least 4")
+        frames = getattr(machine, "measurement_frames", None)
+        if frames is None:
+            frames = estimate_frames(machine, data)
+        return self.problem(machine, data, noise, frames=frames)
 
 
 def measurement_frames(machine: Machine):
@@ -692,6 +899,51 @@ class Distance(Instrument):
         model.parameters = model.parameters.with_values(values)
         return InstrumentProblem(machine, data, model,
                                  self.default_noise() if noise is None else noise)
+
+    measurement_words = "ballbar distances (pivot and ball of each setup estimated jointly)"
+    group_column = "setup"
+    plan_options = ("setups", "radius")
+
+    def noise_arg(self, text, machine=None):
+        """The ballbar length noise of ``--noise`` (default 1 um)."""
+        from .models import IsotropicNoise
+
+        if text is not None and not isinstance(text, (str, int, float)):
+            return text
+        return IsotropicNoise(_sigma_arg(text, machine, "ballbar length noise", 1e-6))
+
+    def read(self, path, machine):
+        from ..io import read_distances
+
+        return read_distances(path, machine)
+
+    def measured_problem(self, machine, data, noise=None, source=""):
+        """The pivot and ball of each setup fitted to the data with the machine held."""
+        from ..calibration import levenberg_marquardt
+        from .models import DistancesModel
+
+        noise = self.default_noise() if noise is None else noise
+        fk = _fk_of(machine, data, source)
+        model = DistancesModel(data.n_groups).start(fk.P, fk.R, data.values, data.group,
+                                                    str(source))
+        alone = InstrumentProblem(machine, data, model, noise).with_machine_fixed()
+        state = levenberg_marquardt(alone).state.nuisance
+        start = machine.with_parameters(machine.u)
+        start.ballbar_setups = [(state.values[model._ip[g]].copy(),
+                                 state.values[model._ib[g]].copy())
+                                for g in range(data.n_groups)]
+        return self.problem(start, data, noise)
+
+    def planned_machine(self, machine, setups=None, length=None, **options):
+        """A copy carrying ``setups`` planned mountings (default 3) of a ballbar of
+        ``length`` (default :data:`BALLBAR_LENGTH`), when either is given."""
+        if setups is None and length is None:
+            return machine
+        out = machine.with_parameters(machine.u)
+        out.ballbar_setups = planned_ballbar_setups(
+            machine, 3 if setups is None else setups, BALLBAR_LENGTH if length is None
+            else length)
+        return out
 
 
 #: the probe's repeatability assumed by default, m (standard deviation of the trigger height).
@@ -1022,6 +1274,44 @@ class Probe(Instrument):
         model.parameters = model.parameters.with_values(values)
         return ProbeProblem(machine, data, model, noise)
 
+    measurement_words = ("bed-probe heights (bed height and tilt estimated jointly; on a "
+                         "printer the bed is z = 0 and its tilt estimated where the data tell "
+                         "it)")
+
+    def noise_arg(self, text, machine=None):
+        """The probe noise of ``--noise`` (text or SI number or model; default
+        :data:`PROBE_SIGMA`)."""
+        from ..io.plausibility import check_option_scale
+        from ..units import parse_quantity
+        from .models import IsotropicNoise
+
+        if text is None:
+            return IsotropicNoise(PROBE_SIGMA)
+        if hasattr(text, "whitening"):
+            return text
+        sigma = parse_quantity(text, "length", "--noise") if isinstance(text, str) \
+            else float(text)
+        if not sigma > 0:
+            raise InputError(f"--noise: must be > 0 (the standard deviation of the probe's "
+                             f"trigger height), got {text}")
+        check_option_scale(sigma, machine, "--noise", "noise", str(text))
+        return IsotropicNoise(sigma)
+
+    def read(self, path, machine):
+        from ..io import read_probe
+
+        return read_probe(path, machine)
+
+    def measured_problem(self, machine, data, noise=None, source=""):
+        """The bed's height and tilt started from the data on the machine's geometry."""
+        from .bed import bed_choice
+
+        noise = self.default_noise() if noise is None else noise
+        fk = _fk_of(machine, data, source)
+        model = bed_choice(machine, data, noise).model().start(fk.P, fk.R, data.values,
+                                                               data.group, str(source))
+        return InstrumentProblem(machine, data, model, noise)
+
 
 class PairDistance(Instrument):
     """Distances between the platform point at two sets of readings (a caliper on a printed
@@ -1134,6 +1424,14 @@ class PairDistance(Instrument):
         return PairProblem(machine, data, PairDistanceModel(),
                            self.default_noise() if noise is None else noise)
 
+    measurement_words = ("distances between the nozzle at two sets of readings (no unknown of "
+                         "their own)")
+
+    def read(self, path, machine):
+        from ..io import read_pairs
+
+        return read_pairs(path, machine)
+
 
 #: the instruments by canonical name
 INSTRUMENTS: dict[str, Instrument] = {i.name: i for i in (ConstraintLink(), Tracker(), Pose(),
@@ -1165,3 +1463,32 @@ def instrument(name: str) -> Instrument:
     known = ", ".join(f"{i.name}" + (f" ({'/'.join(i.aliases)})" if i.aliases else "")
                       for i in INSTRUMENTS.values())
     raise InputError(f"unknown scenario {name!r}; use one of {known}")
+
+
+def _sigma_arg(text, machine, what: str, default: float) -> float:
+    """A standard deviation of ``--noise`` (text with a unit or an SI number; None: the
+    default), m; checked against the machine's size when given."""
+    from ..io.plausibility import check_option_scale
+    from ..units import parse_quantity
+
+    if text is None:
+        return default
+    sigma = parse_quantity(text, "length", "--noise") if isinstance(text, str) \
+        else float(text)
+    if not sigma > 0:
+        raise InputError(f"--noise: must be > 0 (the standard deviation of the {what}), "
+                         f"got {text}")
+    if machine is not None:
+        check_option_scale(sigma, machine, "--noise", "noise", str(text))
+    return sigma
+
+
+def _fk_of(machine: Machine, data, source):
+    """The forward kinematics of measured readings; InputError naming the rows none
+    reproduces."""
+    fk = machine.fk(data.q)
+    if not fk.converged.all():
+        raise InputError(f"{source}: row(s) {_rows(data.rows[~fk.converged])}: no "
+                         f"platform pose of {machine.source} reproduces these readings "
+                         "(outside the workspace, or a wrong unit or zero)")
+    return fk

@@ -9,6 +9,7 @@ from .csv_io import (
     read_full_pose,
     read_groups,
     read_joints,
+    read_pairs,
     read_passive,
     read_points,
     read_poses,
@@ -41,5 +42,6 @@ __all__ = [
     "read_passive", "read_poses", "read_positions", "read_readings", "read_table",
     "read_tracker", "save_machine", "write_full_pose", "write_joints", "write_poses",
     "write_positions", "write_readings", "write_table", "write_tracker", "machine_readings",
-    "read_distances", "read_groups", "read_points", "read_probe", "write_instrument",
+    "read_distances", "read_groups", "read_pairs", "read_points", "read_probe",
+    "write_instrument",
 ]

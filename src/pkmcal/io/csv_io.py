@@ -1300,16 +1300,17 @@ def write_poses(path, P, R, length_unit: str = "mm", angle_unit: str = "deg",
 
 
 def write_readings(path, q, machine, extra: dict | None = None) -> Path:
-    """Write Stewart readings as ``q1_<unit> ...`` in the machine's reading unit.
+    """Write joint readings as ``q1_<unit> ...`` in the machine file's joint unit
+    (:meth:`~pkmcal.machines.Machine.joint_unit`: a Stewart's reading unit).
 
     Parameters
     ----------
     path : str or os.PathLike
         Output file.
-    q : array_like, shape (K, 6)
+    q : array_like, shape (K, n_joints)
         Readings, internal units.
-    machine : Stewart
-        The machine (its ``reading_unit``; default m).
+    machine : Machine
+        The machine (its joint unit).
     extra : dict, optional
         Further columns, name -> sequence.
 
@@ -1319,8 +1320,7 @@ def write_readings(path, q, machine, extra: dict | None = None) -> Path:
         The path written.
     """
     q = np.atleast_2d(np.asarray(q, float))
-    unit = getattr(machine, "reading_unit", "m")
-    f = LENGTH[unit] if unit in LENGTH else 1.0
+    unit, f = machine.joint_unit()
     header = [f"q{j + 1}_{unit}" for j in range(q.shape[1])]
     columns = [q[:, j] / f for j in range(q.shape[1])]
     for name, values in (extra or {}).items():
@@ -1405,3 +1405,47 @@ def write_instrument(path, data, machine, length_unit: str = "mm") -> Path:
         header.append({"points": "target", "distances": "setup"}[data.kind])
         columns.append([int(g) + 1 for g in data.group])
     return write_table(path, header, columns)
+
+
+def read_pairs(path, machine):
+    """Two-point distances from a CSV file.
+
+    Columns ``q1_<unit>..q<n>_<unit>`` (the first position's readings),
+    ``q1b_<unit>..q<n>b_<unit>`` (the second's) and ``distance_<unit>``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The data file.
+    machine : Machine
+        The machine (its joints' quantity).
+
+    Returns
+    -------
+    InstrumentData
+        The distances (:func:`~pkmcal.instruments.pairs.pair_data`).
+
+    Raises
+    ------
+    InputError
+        For a missing column or a distance not above 0, naming the row.
+    """
+    from ..instruments.pairs import pair_data
+
+    header, table = read_table(path)
+    quantity = joint_quantity(machine)
+    cols = []
+    for suffix in ("", "b"):
+        q = []
+        for j in range(machine.n_joints):
+            i, f = find_column(path, header, f"q{j + 1}{suffix}", quantity)
+            q.append(_column_values(path, header, table, i, f))
+        cols.append(np.column_stack(q))
+    i, f = find_column(path, header, "distance", "length")
+    d = _column_values(path, header, table, i, f)
+    rows = np.array([line for line, _ in table], int)
+    bad = np.flatnonzero(~(d > 0))
+    if bad.size:
+        raise InputError(f"{path}: row {rows[bad[0]]}, column {header[i]}: a distance must "
+                         "be > 0")
+    return pair_data(cols[0], cols[1], d, rows, str(path))
