@@ -1,5 +1,17 @@
-"""Measurement planning: scenarios, planned problems and optimal pose selection (SPEC 3)."""
+"""Measurement planning: scenarios, planned problems, identifiability and predicted accuracy
+(:mod:`.assessment`) and optimal pose selection (:mod:`.design`, the policy of
+:mod:`.selection`) (SPEC 3)."""
 
+from .assessment import (
+    MAP_STEPS,
+    WORKSPACE_POSES,
+    IdentifiabilityAnalysis,
+    assess_identifiability,
+    measured_problem,
+    noise_model,
+    prediction_summary,
+    write_prediction_map,
+)
 from .design import (
     CRITERIA,
     Design,
@@ -27,6 +39,14 @@ from .scenarios import (
     standard_plan,
     tracker_pose,
 )
+from .selection import (
+    CRITERION_WORDS,
+    NO_WORSE_RTOL,
+    PoseSelection,
+    criterion_ratio,
+    reachable_standard_plan,
+    select_plan,
+)
 
 __all__ = [
     "CRITERIA", "DEFAULT_PLAN_SIZE", "Design", "SCENARIOS", "SCENARIO_OF", "STANDARD_PLANS",
@@ -35,4 +55,8 @@ __all__ = [
     "describe_noise", "design_from_problem", "measurement_frames", "planned_data",
     "planned_problem", "random_values", "scenario_for", "scenario_problem", "select_poses",
     "standard_plan", "tracker_pose",
+    "CRITERION_WORDS", "IdentifiabilityAnalysis", "MAP_STEPS", "NO_WORSE_RTOL",
+    "PoseSelection", "WORKSPACE_POSES", "assess_identifiability", "criterion_ratio",
+    "measured_problem", "noise_model", "prediction_summary", "reachable_standard_plan",
+    "select_plan", "write_prediction_map",
 ]
