@@ -282,7 +282,7 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
     :func:`pkmcal.instruments.simulate.simulate_scenario`."""
     from ..instruments.registry import BALLBAR_LENGTH, instrument
     from ..instruments.simulate import simulate_scenario
-    from ..io import write_instrument
+    from ..io import write_full_pose, write_instrument
 
     options: dict = {}
     if scenario == "constraint-link":
@@ -318,8 +318,8 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
 
         model = IsotropicNoise(sigma) if sigma > 0 else False
         noise_words = f"probe trigger {sigma * 1e6:.4g} um along z (std)"
-    elif callable(getattr(instrument(scenario), "noise_arg", None)):
-        inst = instrument(scenario)                 # an instrument that reads its own noise
+    elif callable(getattr(instrument(scenario), "simulate", None)):
+        inst = instrument(scenario)     # an instrument that simulates and reads its own noise
         model = inst.noise_arg(noise, machine, allow_zero=True)
         noise_words = "exact" if model is False else inst.describe_noise(model)
     else:
@@ -361,7 +361,7 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
     if scenario == "constraint-link":
         write_joints(output, data.q, unit=units["length"], extra={"passive": data.passive + 1})
     elif scenario == "pose":
-        _write_pose_data(output, data, machine, units["length"])
+        write_full_pose(output, data, machine, units["length"])
     else:
         write_instrument(output, data, machine, units["length"])
     if truth is not None:
@@ -378,21 +378,6 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
     out.print(table)
     commit_outputs()
     out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
-
-
-def _write_pose_data(path: Path, data, machine, length_unit: str) -> None:
-    """Full-pose data: readings in the machine file's joint unit, then ``x, y, z, qx, qy, qz,
-    qw`` (the measured marker pose)."""
-    from ..kinematics import quaternion_from_matrix
-
-    unit, f = machine.joint_unit()
-    fl = LENGTH[length_unit]
-    Q = quaternion_from_matrix(data.R)
-    header = [f"q{j + 1}_{unit}" for j in range(data.q.shape[1])]
-    columns = [data.q[:, j] / f for j in range(data.q.shape[1])]
-    header += [f"{c}_{length_unit}" for c in "xyz"] + ["qx", "qy", "qz", "qw"]
-    columns += [data.P[:, j] / fl for j in range(3)] + [Q[:, j] for j in range(4)]
-    write_table(path, header, columns)
 
 
 def _truth_rows(machine, scenario: str, info: dict):
@@ -1308,15 +1293,3 @@ def _print_errors(machine, where, result, trajectory, mass_kg, f_cut, c_base, c_
                           [output.with_name(output.stem + "_envelope" + output.suffix)])
     commit_outputs()
     out.print("wrote " + ", ".join(map(str, written + list(plots))), markup=False)
-
-
-# --------------------------------------------------------------------------------------------
-# identifiability
-# --------------------------------------------------------------------------------------------
-
-_MEASUREMENT_WORDS = {
-    "constraint-link": "constraint link (maximum likelihood: every reading noisy; one pose "
-                       "on the sphere per measurement)",
-    "tracker": "laser tracker (tracker pose estimated jointly)",
-    "pose": "full pose (maximum likelihood; both measurement frames estimated)",
-}
