@@ -135,14 +135,12 @@ import json
 import re
 import types
 import typing
-from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, field_validator
+from pydantic import BaseModel, Field, Strict, ValidationError, field_validator
 from pydantic_core import PydanticCustomError
 
 from ..errors import InputError
@@ -168,6 +166,8 @@ from ..machines import (
 )
 from ..machines.base import Machine
 from ..machines.delta import LEG_FIELDS
+from ..machines.file_format import MachineFormat, Number, Pose6, Positive, Vector3
+from ..machines.file_format import StrictModel as _Strict
 from ..units import ANGLE, LENGTH, unit_of
 from .atomic import atomic_write_text, read_input_text
 
@@ -337,16 +337,6 @@ def _parse_yaml(text: str, source: str):
 # --------------------------------------------------------------------------------------------
 
 #: a finite number (int or float; not a string, not a bool, not NaN/inf)
-Number = Annotated[float, Strict(), Field(allow_inf_nan=False)]
-Positive = Annotated[float, Strict(), Field(allow_inf_nan=False, gt=0)]
-Vector3 = Annotated[list[Number], Field(min_length=3, max_length=3)]
-Pose6 = Annotated[list[Number], Field(min_length=6, max_length=6)]
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
-
-
 class Units(_Strict):
     """Units of the numbers in this file."""
 
@@ -639,44 +629,6 @@ class StewartFile(_Strict):
 # --------------------------------------------------------------------------------------------
 # Machine formats: schema + builder + dumper per machine type
 # --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class MachineFormat:
-    """How one machine type is read from and written to a file.
-
-    Attributes
-    ----------
-    schema : type of pydantic.BaseModel
-        Validates the file's mapping.
-    build : callable
-        ``build(document, source) -> Machine`` (document validated, file units).
-    dump : callable
-        ``dump(machine, units) -> dict`` of the machine-specific keys, in file order.
-    counts : dict of str to int
-        Required length of each list key (``{"chains": 6}``), for messages.
-    home_text : str, optional
-        What ``home`` holds, for messages.
-    hints : dict of str to str, optional
-        Hints shown with a missing key of this machine type.
-    kinds : dict of tuple to str, optional
-        Key pattern -> ``"length"``, ``"angle"`` or ``"gain"`` (``"*"`` matches any key or
-        index), for the plausibility of the numbers; ``home`` is known to every format.
-    size : callable, optional
-        ``size(document) -> (metres, what it is)``: the machine's own size for plausibility.
-    """
-
-    schema: type[BaseModel]
-    build: Callable[[Any, str], Machine]
-    dump: Callable[[Machine, dict], dict]
-    counts: dict[str, int]
-    home_text: str = "[x, y, z, psi, theta, phi]"
-    hints: dict[str, str] | None = None
-    #: key pattern -> "length", "angle" or "gain" (``"*"`` matches any key or index); ``home``
-    #: is known to every format
-    kinds: dict[tuple, str] | None = None
-    #: ``size(document) -> (metres, what it is)``: the machine's own size for plausibility
-    size: Callable[[Any], tuple[float, str]] | None = None
 
 
 def _factors(units) -> tuple[float, float]:
