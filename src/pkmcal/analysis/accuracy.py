@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kinematics import kabsch, matrix_from_euler, rotation_angle
+from ..kinematics import euler_from_matrix, kabsch, matrix_from_euler, rotation_angle
 from ..machines.base import Machine
 
 
@@ -66,12 +66,56 @@ def machine_workspace(machine: Machine, n: int = 500, rng=0):
     P : ndarray, shape (n, 3)
         Positions, m.
     R : ndarray, shape (n, 3, 3)
-        Orientations; the identity for a translation-only platform (``pose_dof == 3``).
+        Orientations; the identity for a translation-only platform, turned about z alone
+        for a planar one (:func:`in_pose_space`).
     """
     P, R = workspace_poses(machine.home[0], n=n, rng=rng)
-    if machine.pose_dof == 3:
-        R = np.broadcast_to(np.eye(3), R.shape)
+    return in_pose_space(machine, P, R)
+
+
+def in_pose_space(machine: Machine, P, R):
+    """Poses held to the coordinates the platform moves along (:attr:`Machine.pose_space`).
+
+    A coordinate the platform does not move along keeps its home value: the identity
+    orientation of a translation-only platform; a planar platform's home height and its
+    Euler angles about x and y at 0 (angle i turns about axis i). A platform that moves along
+    every coordinate gets the poses unchanged.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine.
+    P : ndarray, shape (K, 3)
+        Positions, m.
+    R : ndarray, shape (K, 3, 3)
+        Orientations.
+
+    Returns
+    -------
+    P : ndarray, shape (K, 3)
+        Positions, m.
+    R : ndarray, shape (K, 3, 3)
+        Orientations.
+    """
+    if not machine.rotates:
+        return P, np.broadcast_to(np.eye(3), np.shape(R))
+    space = machine.pose_space
+    if len(space) == 6:
+        return P, R
+    moves = np.isin(np.arange(6), space)
+    P = np.where(moves[:3], P, np.asarray(machine.home[0], float))
+    R = matrix_from_euler(np.where(moves[3:], euler_from_matrix(R), 0.0))
     return P, R
+
+
+def _orientation_words(machine: Machine, max_angle: float) -> str:
+    """``", orientations within +/-10 deg"`` (``rotations about z`` for a planar platform),
+    empty for a platform that only translates."""
+    if not machine.rotates:
+        return ""
+    axes = [a for i, a in zip((3, 4, 5), "xyz", strict=True) if i in machine.pose_space]
+    what = "orientations" if len(axes) == 3 else "rotations about " + ", ".join(axes)
+    return f", {what} within +/-{np.degrees(max_angle):.3g} deg"
 
 
 @dataclass
@@ -111,7 +155,7 @@ def box_workspace(machine: Machine, lo, hi, n: int = 500, rng=0,
     Parameters
     ----------
     machine : Machine
-        The machine (its ``pose_dof``).
+        The machine (its ``pose_space``).
     lo, hi : array_like, shape (3,)
         Corners of the box, m (``lo < hi``).
     n : int, optional
@@ -133,13 +177,11 @@ def box_workspace(machine: Machine, lo, hi, n: int = 500, rng=0,
     centre, half = (lo + hi) / 2, (hi - lo) / 2
     P = centre + rng.uniform(-1.0, 1.0, (n, 3)) * half
     R = matrix_from_euler(rng.uniform(-max_angle, max_angle, (n, 3)))
-    if machine.pose_dof == 3:
-        R = np.broadcast_to(np.eye(3), R.shape)
+    P, R = in_pose_space(machine, P, R)
     if description is None:
         description = "box " + ", ".join(f"{c} {a * 1e3:.6g}..{b * 1e3:.6g} mm"
                                          for c, a, b in zip("xyz", lo, hi, strict=True))
-    if machine.pose_dof == 6:
-        description += f", orientations within +/-{np.degrees(max_angle):.3g} deg"
+    description += _orientation_words(machine, max_angle)
     return Workspace(P, R, description, (lo, hi))
 
 
@@ -162,8 +204,8 @@ def default_workspace(machine: Machine, n: int = 500, rng=0) -> Workspace:
     """
     P, R = machine_workspace(machine, n, rng)
     c = np.asarray(machine.home[0], float)
-    words = ("0.1 m cube around home" if machine.pose_dof == 3
-             else "0.1 m cube around home, orientations within +/-10 deg")
+    box = "cube" if {0, 1, 2} <= set(machine.pose_space) else "square in the plane"
+    words = f"0.1 m {box} around home" + _orientation_words(machine, np.deg2rad(10.0))
     return Workspace(P, R, words, (c - 0.05, c + 0.05))
 
 

@@ -222,7 +222,7 @@ class MonteCarloSettings:
 
 def _default_poses(settings: MonteCarloSettings):
     """The number of measurements of a run when not given (words for seed 001's grid)."""
-    if settings.scenario == "tracker" and settings.machine.pose_dof == 3:
+    if settings.scenario == "tracker" and not settings.machine.rotates:
         return "3x3x3 grid"
     if settings.scenario == "tracker":
         from ..instruments.registry import instrument

@@ -68,6 +68,17 @@ def frame_parameters(frames: MeasurementFrames, fixed=(False, False)) -> Paramet
     return ParameterSet(names, kinds, values, fixed=[fixed[0]] * 6 + [fixed[1]] * 6)
 
 
+def _require_full_space(machine: Machine) -> None:
+    """InputError unless the platform moves along all six pose coordinates."""
+    if not machine.rotates:
+        raise InputError("full-pose data need a platform that rotates; this machine's "
+                         "platform only translates: calibrate it from points")
+    if len(machine.pose_space) != 6:
+        raise InputError("full-pose data need a platform that moves in space (six pose "
+                         "coordinates); this machine's platform moves in a plane: calibrate "
+                         "it from points")
+
+
 @dataclass
 class FullPoseState:
     """Estimator state: leg parameters, the two frames and (``ml``) the platform poses."""
@@ -130,9 +141,7 @@ class FullPoseProblem:
     def __init__(self, machine: Machine, data: FullPoseData, noise: FullPoseNoise,
                  frames: MeasurementFrames, fixed_frames=(False, False),
                  fit_machine: bool = True):
-        if machine.pose_dof != 6:
-            raise InputError("full-pose data need a platform that rotates; this machine's "
-                             "platform only translates: calibrate it from points")
+        _require_full_space(machine)
         if data.q.shape[1] != machine.n_joints:
             raise InputError(f"{data.source}: {data.q.shape[1]} reading columns, the machine has "
                              f"{machine.n_joints} legs")
@@ -670,9 +679,7 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
     if method not in PROBLEMS:
         raise InputError(f"unknown method {method!r} for full-pose data; choose one of "
                          f"{', '.join(METHODS)}")
-    if machine.pose_dof != 6:
-        raise InputError("full-pose data need a platform that rotates; this machine's "
-                         "platform only translates: calibrate it from points")
+    _require_full_space(machine)
     noise = FullPoseNoise() if noise is None else noise
     fixed = _fixed_pair(fix_frames)
     if any(fixed) and frames is None:

@@ -923,7 +923,7 @@ def run_fk(machine_spec: str, joints: Path, output: Path, frame: str = "base",
     result = machine.fk(q)
     result.raise_if_failed(what=f"{joints}: forward kinematics", rows=rows)
     units = _units(machine)
-    if machine.pose_dof == 3:
+    if not machine.rotates:
         write_positions(output, result.P, units["length"])
         commit_outputs()
         console().print(f"{len(q)} position(s) of the platform point, base frame, written to "
@@ -989,7 +989,7 @@ def _fk_instrument(machine_spec: str, joints: Path, output: Path,
 def read_poses_of(path: Path, machine):
     """Poses ``(P, R, rows)`` of a file for ``machine``: x, y, z and an orientation (other
     columns ignored); x, y, z only (R = I) for a translation-only platform."""
-    if machine.pose_dof == 3:
+    if not machine.rotates:
         P, rows = read_positions(path)
         return P, np.broadcast_to(np.eye(3), (len(P), 3, 3)), rows
     return read_poses(path)
@@ -1039,7 +1039,7 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
                          f"mode (farther than {machine.MAX_REACH:g}x the machine's size from "
                          "home, or beyond a singularity, e.g. mirrored through the base), "
                          f"row(s) {_rows_text(rows[off])}")
-    if machine.pose_dof == 3:
+    if not machine.rotates:
         # the closed-form FK takes the working assembly mode (platform below the base): a
         # position the arms reach only on the other mode cannot be commanded back
         back = machine.fk(q).P

@@ -276,7 +276,7 @@ def _points_workspace(path: Path, machine, seed: int):
     """The poses of a ``--workspace`` points file (x, y, z [+ orientation]; without
     orientation columns, orientations drawn within +/-10 deg as for the default workspace)
     and the file rows: ``(Workspace, rows)``."""
-    from ..analysis.accuracy import Workspace
+    from ..analysis.accuracy import Workspace, in_pose_space
     from ..io import read_positions
     from ..io.csv_io import column_map, has_orientation
     from ..kinematics import matrix_from_euler
@@ -287,15 +287,14 @@ def _points_workspace(path: Path, machine, seed: int):
     with column_map(None):           # --columns renames the data file's columns, not these
         header, _ = read_table(path)
         words = f"{{n}} poses of {path} (--workspace)"
-        if has_orientation(header) and machine.pose_dof == 6:
+        if has_orientation(header) and machine.rotates:
             P, R, rows = read_poses_of(path, machine)
         else:
             P, rows = read_positions(path)
             rng = np.random.default_rng(seed)
             R = matrix_from_euler(rng.uniform(-1, 1, (len(P), 3)) * np.deg2rad(10.0))
-            if machine.pose_dof == 3:
-                R = np.broadcast_to(np.eye(3), R.shape)
-            else:
+            R = in_pose_space(machine, P, R)[1]      # the identity where it only translates
+            if machine.rotates:
                 words = (f"{{n}} points of {path} (--workspace), orientations within "
                          "+/-10 deg")
     return Workspace(P, np.asarray(R), words.format(n=len(P)),
@@ -383,7 +382,7 @@ def write_map(path: Path, machine, design, n_machine, M, plan_P, title: str,
         P = np.tile(c, (A.size, 1))
         P[:, i] += A.ravel()
         P[:, j] += B.ravel()
-        R = np.broadcast_to(machine.home[1] if machine.pose_dof == 6 else np.eye(3),
+        R = np.broadcast_to(machine.home[1] if machine.rotates else np.eye(3),
                             (len(P), 3, 3))
         pred = predict_pose_accuracy(machine, design, P, R, M, n_machine)
         k = 3 - i - j
@@ -881,7 +880,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     column = {"distance": "setup", "tracker": "target"}.get(kind)
     if column is not None and G_all is not None:
         extra[column] = (np.asarray(G_all)[idx] + 1).tolist()
-    if machine.pose_dof == 3:
+    if not machine.rotates:
         write_positions(output, P_all[idx], units["length"], extra=extra)
     else:
         write_poses(output, P_all[idx], R_all[idx], units["length"], units["angle"],

@@ -89,7 +89,7 @@ def fitted_instruments(machine: Machine) -> list[str]:
     out = []
     if getattr(machine, "base_from_tracker", None) is not None:
         out.append("tracker")
-    if getattr(machine, "measurement_frames", None) is not None and machine.pose_dof == 6:
+    if getattr(machine, "measurement_frames", None) is not None and len(machine.pose_space) == 6:
         out.append("pose")
     if getattr(machine, "ballbar_setups", None):
         out.append("distance")

@@ -272,8 +272,7 @@ class InstrumentProblem:
     def _through_fk(self, u, P, R, de_dx):
         """``de/du = de/dx dx/du`` with ``dx/du = -(dq/dx)^-1 dq/du`` (implicit function)."""
         _, Jx, Ju = self.machine.ik_jacobians(P, R, u)
-        d = self.machine.pose_dof
-        cols = slice(0, 3) if d == 3 else slice(None)
+        cols = list(self.machine.pose_space)
         with np.errstate(all="ignore"):
             dx_du = -np.linalg.solve(np.asarray(Jx)[..., cols], Ju)      # (K, d, n_machine)
         return np.einsum("kid,kdn->kin", de_dx[..., cols], dx_du)

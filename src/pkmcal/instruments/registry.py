@@ -252,9 +252,13 @@ class ConstraintLink(Instrument):
     plan_size = 150
 
     def applies(self, machine):
-        if machine.pose_dof != 6:
+        if not machine.rotates:
             return ("the constraint link takes one degree of freedom of a platform that "
                     "rotates; this machine's platform only translates")
+        if len(machine.pose_space) != 6:
+            return ("the constraint link takes one degree of freedom of a platform that moves "
+                    "in space (six pose coordinates); this machine's platform moves along "
+                    f"{_space_words(machine)} only")
         if getattr(machine, "constraint_link_length", None) is None:
             return ("the machine file has no constraint link: add `constraint_link: {length: "
                     "...}` (in the file's length unit)")
@@ -295,6 +299,11 @@ class ConstraintLink(Instrument):
 #: constraint-link plans: largest allowed deviation of |P| from Lc (m); poses within it are
 #: put on the sphere (rounding in a hand-made plan file)
 SPHERE_TOL = 1e-4
+
+
+def _space_words(machine: Machine) -> str:
+    """The pose coordinates a platform moves along, in words (``x, y, rz``)."""
+    return ", ".join(("x", "y", "z", "rx", "ry", "rz")[i] for i in machine.pose_space)
 
 
 def link_length(machine: Machine) -> float:
@@ -443,9 +452,13 @@ class Pose(Instrument):
     plan_size = 60
 
     def applies(self, machine):
-        if machine.pose_dof != 6:
+        if not machine.rotates:
             return ("full poses need a platform that rotates; this machine's platform only "
                     "translates: measure points (tracker) instead")
+        if len(machine.pose_space) != 6:
+            return ("full poses need a platform that moves in space (six pose coordinates); "
+                    f"this machine's platform moves along {_space_words(machine)} only: "
+                    "measure points (tracker) instead")
         return None
 
     def default_noise(self):
@@ -602,6 +615,14 @@ class Distance(Instrument):
     words = "ballbar lengths between a pivot on the base and a ball on the platform"
     plan_size = 90
 
+    def applies(self, machine):
+        # the planned setups sweep spheres around pivots: the platform must move in space
+        if not {0, 1, 2} <= set(machine.pose_space):
+            return ("the ballbar plans sweep spheres around their pivots, and this machine's "
+                    f"platform moves along {_space_words(machine)} only: measure points "
+                    "(tracker) instead")
+        return None
+
     def default_noise(self):
         from .models import IsotropicNoise
 
@@ -622,7 +643,8 @@ class Distance(Instrument):
         arm = P0 + balls @ R0.T - pivots                  # pivot -> ball at home, per setup
         radius = np.linalg.norm(arm, axis=-1)
         normals = arm / np.where(radius > 0, radius, 1.0)[:, None]
-        rotates = machine.pose_dof == 6
+        rotates = machine.rotates
+        turns = np.isin(np.arange(3, 6), machine.pose_space)     # Euler angle i about axis i
 
         def draw(m, rng):
             g = rng.integers(0, len(pivots), m)
@@ -630,8 +652,8 @@ class Distance(Instrument):
             v /= np.linalg.norm(v, axis=-1, keepdims=True)
             cos = np.sum(v * normals[g], -1)
             v = np.where((cos < 0)[:, None], -v, v)
-            R = (matrix_from_euler(rng.uniform(-0.17, 0.17, (m, 3))) @ R0 if rotates
-                 else np.broadcast_to(np.eye(3), (m, 3, 3)).copy())
+            R = (matrix_from_euler(np.where(turns, rng.uniform(-0.17, 0.17, (m, 3)), 0.0)) @ R0
+                 if rotates else np.broadcast_to(np.eye(3), (m, 3, 3)).copy())
             P = pivots[g] + radius[g, None] * v - np.einsum("kij,kj->ki", R, balls[g])
             with np.errstate(all="ignore"):
                 ok = machine.working_mode(P, R) & (np.abs(cos) > 0.5)
@@ -664,7 +686,7 @@ class Distance(Instrument):
         lengths = np.linalg.norm(P0 + balls @ R0.T - pivots, axis=-1) * 1e3
         length = (f"{lengths[0]:.4g} mm" if np.ptp(lengths) < 1e-6
                   else "/".join(f"{v:.4g}" for v in lengths) + " mm")
-        turn = " and orientations within 10 deg" if machine.pose_dof == 6 else ""
+        turn = " and orientations within 10 deg" if machine.rotates else ""
         return StandardPlan(f"a ballbar of {length} on {words}: {n} random poses on the "
                             f"spheres around the pivots{turn} (seed {seed})", P, R,
                             group=group)
@@ -753,10 +775,8 @@ def _probe_ok(machine: Machine, P, R) -> np.ndarray:
     with np.errstate(all="ignore"):
         q, J, _ = machine.ik_jacobians(P, R, want_du=False)
         J = np.array(J, float)
-        if machine.pose_dof == 3:
-            J = J[..., :3]
-        else:
-            J[..., 3:] /= machine.characteristic_length()
+        J[..., 3:] /= machine.characteristic_length()
+        J = J[..., list(machine.pose_space)]
         ok = np.all(np.isfinite(q), -1) & np.all(np.isfinite(J), (-2, -1))
         sv = np.linalg.svd(np.where(ok[:, None, None], J, 1.0), compute_uv=False)
         ok &= sv[..., -1] > PROBE_CONDITIONING * sv[..., 0]
@@ -968,7 +988,11 @@ class Probe(Instrument):
     plan_size = 37
 
     def applies(self, machine):
-        # a vertical probe needs a z axis the platform moves along: every machine here has one
+        # a vertical probe needs a z axis the platform moves along
+        if 2 not in machine.pose_space:
+            return ("probe heights are measured along z, which this machine's platform does "
+                    f"not move along (it moves along {_space_words(machine)}): measure points "
+                    "(tracker) instead")
         return None
 
     def default_noise(self):

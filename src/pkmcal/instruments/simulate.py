@@ -64,19 +64,23 @@ def sample_workspace_poses(machine: Machine, n: int, rng=None, half_range: float
     rng = np.random.default_rng(rng)
     P0, R0 = machine.home
     half = HALF_RANGE * machine.characteristic_length() if half_range is None else half_range
-    rotates = machine.pose_dof == 6
+    rotates = machine.rotates
+    # the pose coordinates the platform moves along (a planar platform: x, y and the angle
+    # about z; Euler angle i turns about axis i, so the angles keep the rotation's axes)
+    space = list(machine.pose_space)
+    moves = np.zeros(6, bool)
+    moves[space] = True
 
     def draw(m, rng):
-        P = P0 + rng.uniform(-half, half, (m, 3))
-        R = (matrix_from_euler(rng.uniform(-max_angle, max_angle, (m, 3))) @ R0 if rotates
+        P = P0 + np.where(moves[:3], rng.uniform(-half, half, (m, 3)), 0.0)
+        R = (matrix_from_euler(np.where(moves[3:], rng.uniform(-max_angle, max_angle, (m, 3)),
+                                        0.0)) @ R0 if rotates
              else np.broadcast_to(np.eye(3), (m, 3, 3)).copy())
         with np.errstate(all="ignore"):
             q, J, _ = machine.ik_jacobians(P, R, want_du=False)
             J = np.array(J, float)
-            if not rotates:
-                J = J[..., :3]
-            else:
-                J[..., 3:] /= machine.characteristic_length()
+            J[..., 3:] /= machine.characteristic_length()
+            J = J[..., space]
             ok = np.all(np.isfinite(q), -1) & np.all(np.isfinite(J), (-2, -1))
             sv = np.linalg.svd(np.where(ok[:, None, None], J, 1.0), compute_uv=False)
             ok &= sv[..., -1] > min_conditioning * sv[..., 0]
@@ -492,7 +496,7 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
         if poses is None:
             P, R, _ = inst.candidates(machine, n, rng)
             words = (f"{n} random workspace poses around home"
-                     + (" with rotations within +/-10 deg" if machine.pose_dof == 6 else ""))
+                     + (" with rotations within +/-10 deg" if machine.rotates else ""))
         else:
             P, R = np.asarray(poses[0], float), np.asarray(poses[1], float)
             words = f"{len(P)} given poses"
@@ -531,7 +535,7 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
     else:
         P, R, group = inst.candidates(nominal, n, rng)
         words = (f"{n} random poses on the spheres around the {k} pivot(s)"
-                 + (" with rotations within +/-10 deg" if machine.pose_dof == 6 else ""))
+                 + (" with rotations within +/-10 deg" if machine.rotates else ""))
     true_setups = [(p + rng.uniform(-mounting_error, mounting_error, 3),
                     b + rng.uniform(-mounting_error, mounting_error, 3)) for p, b in plan]
     model = DistancesModel(k)

@@ -130,6 +130,7 @@ a few ulp, and writes atomically (:func:`~pkmcal.io.atomic.atomic_write_text`).
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import json
 import re
@@ -140,7 +141,14 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, Field, Strict, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    Field,
+    Strict,
+    ValidationError,
+    create_model,
+    field_validator,
+)
 from pydantic_core import PydanticCustomError
 
 from ..errors import InputError
@@ -168,6 +176,7 @@ from ..machines.base import Machine
 from ..machines.delta import LEG_FIELDS
 from ..machines.file_format import MachineFormat, Number, Pose6, Positive, Vector3
 from ..machines.file_format import StrictModel as _Strict
+from ..machines.registry import machine_formats as registered_machine_formats
 from ..units import ANGLE, LENGTH, unit_of
 from .atomic import atomic_write_text, read_input_text
 
@@ -757,7 +766,7 @@ def _dump_instruments(machine: Machine, fl: float) -> dict:
         out["bed"] = {"height": float(bed[0]) / fl, "tilt_x": float(bed[1]),
                       "tilt_y": float(bed[2])}
     frames = getattr(machine, "measurement_frames", None)
-    if frames is not None and getattr(machine, "pose_dof", 6) == 6:
+    if frames is not None and len(machine.pose_space) == 6:
         out["measurement_frames"] = {
             "mocap_from_base": _frame_text(frames.mocap_from_base, fl),
             "platform_from_marker": _frame_text(frames.platform_from_marker, fl)}
@@ -1019,7 +1028,34 @@ def _stewart_size(doc) -> tuple[float, str]:
     return float(np.median(norms)) * fl, "the median distance of the leg joints from the origin"
 
 
-#: machine type (``machine:`` in files) -> format; add new machine types here
+def _with_common_sections(fmt: MachineFormat) -> MachineFormat:
+    """A machine module's format (:mod:`pkmcal.machines.registry`) with what every machine
+    file has: ``pkmcal``, ``machine``, ``name``, ``units``, the instrument sections
+    (``tracker``, ``ballbar``, ``bed``: :func:`_build_instruments`), ``joint_limits`` and
+    ``calibration``. The module states its own keys (and ``home``) alone."""
+    schema = create_model(
+        fmt.schema.__name__, __base__=fmt.schema, __module__=fmt.schema.__module__,
+        pkmcal=(Literal[1], ...), machine=(Literal[fmt.kind], ...), name=(str | None, None),
+        units=(Units, ...), tracker=(TrackerSection | None, None),
+        ballbar=(Ballbar | None, None), bed=(BedPlane | None, None), joint_limits=(Any, None),
+        calibration=(dict[str, Any] | None, None))
+
+    def build(doc, source: str) -> Machine:
+        machine = fmt.build(doc, source)
+        _build_instruments(machine, doc, _factors(doc.units.model_dump())[0])
+        return machine
+
+    def dump(machine: Machine, units: dict) -> dict:
+        out = dict(fmt.dump(machine, units))
+        out.update(_dump_instruments(machine, _factors(units)[0]))
+        return out
+
+    return dataclasses.replace(fmt, schema=schema, build=build, dump=dump,
+                               kinds={**(fmt.kinds or {}), **_INSTRUMENT_KINDS})
+
+
+#: machine type (``machine:`` in files) -> format; the four machines below are defined here,
+#: every other machine type in its own module (:mod:`pkmcal.machines.registry`)
 MACHINE_FORMATS: dict[str, MachineFormat] = {
     "hexaslide": MachineFormat(HexaSlideFile, _build_hexaslide, _dump_hexaslide,
                                {"chains": 6}, kinds=_HEXASLIDE_KINDS, size=_hexaslide_size),
@@ -1032,16 +1068,18 @@ MACHINE_FORMATS: dict[str, MachineFormat] = {
                                   {"chains": 3}, home_text="[x, y, z]",
                                   hints=_LINEAR_DELTA_HINTS, kinds=_LINEAR_DELTA_KINDS,
                                   size=_linear_delta_size),
+    **{kind: _with_common_sections(fmt) for kind, fmt in registered_machine_formats().items()},
 }
 
 
 def _kind_of(path: tuple, kinds: dict) -> str | None:
-    if len(path) == 2 and path[0] == "home" and isinstance(path[1], int):
-        return "length" if path[1] < 3 else "angle"
     for pattern, kind in kinds.items():
         if len(pattern) == len(path) and all(p == "*" or p == k
                                              for p, k in zip(pattern, path, strict=True)):
             return kind
+    # ``home`` is x, y, z [, psi, theta, phi] unless the format says otherwise
+    if len(path) == 2 and path[0] == "home" and isinstance(path[1], int):
+        return "length" if path[1] < 3 else "angle"
     return None
 
 
@@ -1484,12 +1522,15 @@ def machine_to_text(machine: Machine, units: dict | None = None,
         raise InputError(f"units must be {{length: mm|m|in, angle: deg|rad}}, got {units}")
     fl, fa = _factors(units)
     body = MACHINE_FORMATS[kind].dump(machine, units)
+    # home: the pose coordinates the platform moves along (x, y, z; the Euler angles of a
+    # platform that rotates; x, y, phi of a planar one)
     P, R = machine.home
-    home = [float(v) / fl for v in np.asarray(P, float)]
-    home_text = "x, y, z"
-    if getattr(machine, "pose_dof", 6) == 6:
-        home += [float(v) / fa for v in euler_from_matrix(np.asarray(R, float))]
-        home_text += ", psi, theta, phi"
+    pose = [float(v) / fl for v in np.asarray(P, float)]
+    pose += [float(v) / fa for v in euler_from_matrix(np.asarray(R, float))] \
+        if machine.rotates else [0.0] * 3
+    space = list(machine.pose_space)
+    home = [pose[i] for i in space]
+    home_text = ", ".join(("x", "y", "z", "psi", "theta", "phi")[i] for i in space)
     lines = [f"pkmcal: {FORMAT_VERSION}", f"machine: {kind}"]
     if getattr(machine, "name", ""):
         lines.append(f"name: {_flow(str(machine.name))}")

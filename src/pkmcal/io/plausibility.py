@@ -352,7 +352,7 @@ def check_tracker_scale(path, q, q_columns: Columns, m, m_columns: Columns, mach
     InputError
         When the points or the readings look like another unit.
     """
-    if getattr(machine, "pose_dof", 6) != 3 or len(q) < 4:
+    if machine.rotates or len(q) < 4:
         return
     idx = sample_rows(len(q))
     q, m = q[idx], m[idx]
