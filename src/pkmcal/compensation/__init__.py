@@ -112,6 +112,12 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
     if frame is not None:
         P, Rb = frame.to_base(P, R)
         R = R if Rb is None else Rb
+        if calibrated.rotates and len(calibrated.pose_space) < 6:
+            # a planar platform: a measured target is in its plane up to the instrument's
+            # noise; the coordinates it does not move along are its home's
+            from ..analysis.accuracy import in_pose_space
+
+            P, R = in_pose_space(calibrated, P, R)
     else:       # a printer's targets are heights above its bed (SPEC 8)
         P = calibrated.targets_in_base(P)
     R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else R
