@@ -117,9 +117,15 @@ key), checked by ``ik``, ``compensate``, ``select-poses`` and ``simulate``, and 
 ``in``).
 
 Loading dispatches on ``machine:`` through :data:`MACHINE_FORMATS` (one entry per machine
-type: a pydantic schema, a builder and a dumper), so a new machine type is added there
-without touching the loader. Every problem is an :class:`~pkmcal.errors.InputError` whose
-message reads ``FILE: key.path: what is wrong (line N)``, e.g.
+type: a pydantic schema, a builder and a dumper). A new machine type states its own section
+in its module (``FILE_FORMAT``, a :class:`~pkmcal.machines.file_format.MachineFormat`) and is
+listed in :mod:`pkmcal.machines.registry`; this module adds what every machine file has
+(``pkmcal``, ``machine``, ``name``, ``units``, the instrument sections, ``joint_limits``,
+``calibration``), e.g. the 3-RPR planar robot (:mod:`pkmcal.machines.planar_3rpr`), whose
+``home`` is ``[x, y, phi]``: a file's ``home`` lists the pose coordinates the platform moves
+along (:attr:`~pkmcal.machines.Machine.pose_space`). Every problem is an
+:class:`~pkmcal.errors.InputError` whose message reads
+``FILE: key.path: what is wrong (line N)``, e.g.
 ``machine.yaml: chains[3].alpha: not a number: 'abc' (line 12)``; list indices are 0-based.
 
 Values are converted to internal units (m, rad) on loading; the file's units are kept on the

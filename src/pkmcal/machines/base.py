@@ -166,7 +166,8 @@ class Machine(ABC):
     kind: str = ""
     #: number of actuated joints
     n_joints: int = 6
-    #: pose degrees of freedom of the platform (6 = full pose, 3 = translation only)
+    #: pose degrees of freedom of the platform (6 = full pose, 3 = translation only or planar);
+    #: which coordinates move is :attr:`pose_space` (generic code asks it, not this count)
     pose_dof: int = 6
     #: the pose coordinates the platform moves along, indices into (x, y, z, rx, ry, rz) (the
     #: columns of a pose Jacobian): every one for a platform that moves in space, ``(0, 1, 2)``
