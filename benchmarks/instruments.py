@@ -54,8 +54,8 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from pkmcal.calibration import calibrate_constraint_link, calibrate_full_pose  # noqa: E402
+from pkmcal.estimation.rank import RTOL, numerical_rank  # noqa: E402
 from pkmcal.identifiability import CONSTRAINT_LINK_GAUGES, align_gauge  # noqa: E402
-from pkmcal.identifiability.rank import RTOL, numerical_rank  # noqa: E402
 from pkmcal.instruments import (  # noqa: E402
     DistancesModel,
     InstrumentData,

@@ -79,8 +79,8 @@ from pkmcal.calibration import (  # noqa: E402
     calibrate_probe,
 )
 from pkmcal.errors import InputError  # noqa: E402
+from pkmcal.estimation.rank import RTOL, numerical_rank  # noqa: E402
 from pkmcal.identifiability import CONSTRAINT_LINK_GAUGES, align_gauge  # noqa: E402
-from pkmcal.identifiability.rank import RTOL, numerical_rank  # noqa: E402
 from pkmcal.instruments import (  # noqa: E402
     DistancesModel,
     InstrumentData,

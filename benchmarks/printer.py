@@ -57,8 +57,8 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from pkmcal.calibration import calibrate_probe  # noqa: E402
+from pkmcal.estimation.rank import RTOL, numerical_rank  # noqa: E402
 from pkmcal.identifiability import identifiability_report  # noqa: E402
-from pkmcal.identifiability.rank import RTOL, numerical_rank  # noqa: E402
 from pkmcal.instruments import (  # noqa: E402
     DistancesModel,
     InstrumentData,

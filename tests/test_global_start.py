@@ -22,8 +22,8 @@ import pytest
 from pkmcal.calibration import calibrate_constraint_link
 from pkmcal.calibration.acceptance import residual_test
 from pkmcal.calibration.constraint_link import ConstraintLinkML
-from pkmcal.calibration.estimator import MAX_STD, levenberg_marquardt
 from pkmcal.calibration.start import sphere_pose_candidates
+from pkmcal.estimation.estimator import MAX_STD, levenberg_marquardt
 from pkmcal.machines import default_hexaslide, paper_table1_deviations
 from pkmcal.measurements import simulate_constraint_link
 

@@ -42,7 +42,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from pkmcal.calibration.variance import OUTLIER_ALPHA
+from pkmcal.estimation.variance import OUTLIER_ALPHA
 from pkmcal.instruments import IsotropicNoise
 from pkmcal.measurements import FullPoseNoise, TrackerNoise
 

@@ -38,8 +38,8 @@ import pytest
 from clitools import assert_input_error, run
 from pkmcal.calibration import calibrate, calibrate_probe
 from pkmcal.errors import InputError
+from pkmcal.estimation.rank import RTOL, numerical_rank
 from pkmcal.identifiability import identifiability_report
-from pkmcal.identifiability.rank import RTOL, numerical_rank
 from pkmcal.instruments import (
     InstrumentData,
     InstrumentProblem,

@@ -1,5 +1,12 @@
 """Estimators: the shared block Levenberg-Marquardt and the calibration methods built on it."""
 
+from ..estimation.estimator import (
+    BlockProblem,
+    CalibrationResult,
+    levenberg_marquardt,
+    reduce_local,
+)
+from ..estimation.registration import register_points
 from .constraint_link import (
     METHODS,
     ConstraintLinkFK,
@@ -10,7 +17,6 @@ from .constraint_link import (
     solve_sphere_poses,
 )
 from .distances import calibrate_distances
-from .estimator import BlockProblem, CalibrationResult, levenberg_marquardt, reduce_local
 from .full_pose import (
     FullPoseErrors,
     FullPoseIK,
@@ -22,7 +28,6 @@ from .full_pose import (
     gauge_free_error,
 )
 from .probe import calibrate_probe, poorly_determined
-from .registration import register_points
 from .run import (
     KINDS,
     Calibration,

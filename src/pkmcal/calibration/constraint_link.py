@@ -3,7 +3,7 @@
 ``ml`` (default)
     Maximum likelihood, implicit loop: unknowns = geometry + one pose per measurement on the
     sphere ``|P| = Lc`` (2 tangent + 3 rotation coordinates); residuals = all six readings
-    divided by their noise. Solved by :func:`~pkmcal.calibration.estimator.levenberg_marquardt`
+    divided by their noise. Solved by :func:`~pkmcal.estimation.estimator.levenberg_marquardt`
     with the per-pose unknowns eliminated (Schur complement). Treats every encoder as noisy.
 ``ik``
     The paper's inverse-kinematics method (3.4.1): the five active readings and the link fix
@@ -25,6 +25,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..estimation.estimator import (
+    MAX_STD,
+    CalibrationResult,
+    levenberg_marquardt,
+    require_redundancy,
+)
+from ..estimation.variance import fit
 from ..identifiability import (
     CONSTRAINT_LINK_GAUGES,
     gauge_groups,
@@ -35,9 +42,7 @@ from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine, newton_pose_solve
 from ..measurements.constraint_link import ConstraintLinkData
 from ..parameters import ParameterSet
-from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt, require_redundancy
 from .start import continuation_solve
-from .variance import fit
 
 LINK = "link.length"
 METHODS = ("ml", "ik", "fk")
@@ -302,9 +307,9 @@ class ConstraintLinkML(_ConstraintLinkProblem):
         Returns
         -------
         NoiseGroups
-            See :class:`~pkmcal.calibration.variance.NoiseGroups`.
+            See :class:`~pkmcal.estimation.variance.NoiseGroups`.
         """
-        from .variance import NoiseGroups
+        from ..estimation.variance import NoiseGroups
 
         K, n = self.data.q.shape
         groups = NoiseGroups.single((K, n), "reading", "encoder readings",
@@ -629,7 +634,7 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         Rank tolerance of :func:`levenberg_marquardt`.
     estimate_noise : bool, optional
         ``'ml'``: estimate the encoder noise from the residuals (``sigma_m`` its prior;
-        :func:`~pkmcal.calibration.variance.fit`); False holds ``sigma_m``.
+        :func:`~pkmcal.estimation.variance.fit`); False holds ``sigma_m``.
     robust : bool, optional
         ``'ml'``: leave out the rows the outlier test names.
     **options

@@ -6,7 +6,7 @@ fixes them, the two measurement frames, 6 each (``mocap_from_base.rx/ry/rz``: ro
 increments about the measurement axes, applied on the left of the start value;
 ``mocap_from_base.x/y/z``: the translation ``a``; ``platform_from_marker.rx/ry/rz/x/y/z``
 likewise for ``(B, c)``, rotations about the platform axes). Two methods share the estimator
-(:func:`~pkmcal.calibration.estimator.levenberg_marquardt`):
+(:func:`~pkmcal.estimation.estimator.levenberg_marquardt`):
 
 ``ik`` (Zhuang, Yan & Masory 1998)
     Inverse-kinematic residuals: each measured pose is mapped through the frames to a platform
@@ -40,16 +40,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..estimation.estimator import MAX_STD, CalibrationResult, reduce_local, require_redundancy
+from ..estimation.rank import RTOL, rank_rule
+from ..estimation.registration import register_points
+from ..estimation.variance import fit
 from ..identifiability import name_null_space, name_weak_directions
 from ..identifiability.analysis import right_singular
-from ..identifiability.rank import RTOL, rank_rule
 from ..kinematics import matrix_from_rotvec, rotvec_from_matrix, skew
 from ..machines.base import Machine
 from ..measurements.full_pose import FullPoseData, FullPoseNoise, MeasurementFrames
 from ..parameters import ParameterSet
-from .estimator import MAX_STD, CalibrationResult, reduce_local, require_redundancy
-from .registration import register_points
-from .variance import fit
 
 FRAME_NAMES = ("mocap_from_base", "platform_from_marker")
 FRAME_FIELDS = ("rx", "ry", "rz", "x", "y", "z")
@@ -457,9 +457,9 @@ class FullPoseML(FullPoseProblem):
         Returns
         -------
         NoiseGroups
-            See :class:`~pkmcal.calibration.variance.NoiseGroups`.
+            See :class:`~pkmcal.estimation.variance.NoiseGroups`.
         """
-        from .variance import NoiseGroups, row_names
+        from ..estimation.variance import NoiseGroups, row_names
 
         K, n = self.data.q.shape
         labels = np.tile(np.r_[np.zeros(n, int), np.ones(3, int), np.full(3, 2)], (K, 1))
@@ -636,14 +636,14 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
         Raise :class:`InputError` when the poses leave directions other than the frame gauges
         undetermined (degenerate poses: all alike, or no rotation), naming them; False returns
         the fit with those directions reported instead. By the one rank rule
-        (:mod:`pkmcal.identifiability.rank`): unidentifiable directions are refused; weakly
+        (:mod:`pkmcal.estimation.rank`): unidentifiable directions are refused; weakly
         identifiable ones (standard deviation of at least ``max_std`` under the assumed
         noise) only when the measured poses do not vary beyond their noise; otherwise they are
         left at their start values and reported (``weak_space``, ``weak_std``, named in
         ``extras["unidentifiable"]``).
     estimate_noise : bool or collection of str, optional
         ``'ml'``: estimate the noise of the readings, positions and orientations from the
-        residuals (``noise`` their prior; :func:`~pkmcal.calibration.variance.fit`); False
+        residuals (``noise`` their prior; :func:`~pkmcal.estimation.variance.fit`); False
         holds ``noise``; or the group keys to hold (``"reading"``, ``"position"``,
         ``"orientation"``).
     robust : bool, optional
@@ -741,7 +741,7 @@ def _check_identifiable(problem: FullPoseProblem, n_id: int, rtol: float,
                         max_std: float | None) -> None:
     """Refuse poses that leave more than the frame gauges undetermined, in words.
 
-    By the one rank rule (:mod:`pkmcal.identifiability.rank`, as ``pkmcal identifiability``):
+    By the one rank rule (:mod:`pkmcal.estimation.rank`, as ``pkmcal identifiability``):
     directions beyond the gauges that are unidentifiable (numerical null space) are refused.
     Weakly identifiable ones (standard deviation of at least ``max_std`` under the assumed
     noise) are left at their start values and reported, not refused - unless the measured

@@ -25,13 +25,18 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from ..estimation.estimator import (
+    MAX_STD,
+    CalibrationResult,
+    levenberg_marquardt,
+    require_redundancy,
+)
+from ..estimation.rank import RTOL
+from ..estimation.variance import OUTLIER_ALPHA, fit
 from ..identifiability import name_null_space, name_weak_directions
-from ..identifiability.rank import RTOL
 from ..instruments import InstrumentData, InstrumentProblem, InstrumentState, PointsModel
 from ..machines.base import Machine
 from ..measurements.tracker import TrackerData, TrackerNoise
-from .estimator import MAX_STD, CalibrationResult, levenberg_marquardt, require_redundancy
-from .variance import OUTLIER_ALPHA, fit
 
 TRACKER = ("tracker.rx", "tracker.ry", "tracker.rz", "tracker.x", "tracker.y", "tracker.z")
 
@@ -127,7 +132,7 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
 
     The registration starts from the closed form on the nominal model (>= 4 points, not
     collinear). The noise levels along and across the beam are estimated from the residuals
-    (:func:`~pkmcal.calibration.variance.fit`; the given or default ``noise`` is their prior)
+    (:func:`~pkmcal.estimation.variance.fit`; the given or default ``noise`` is their prior)
     and rows the noise cannot explain are named; ``robust=True`` leaves them out.
 
     Parameters
@@ -161,7 +166,7 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
         ``"tracker-two-step"``); ``machine``, the calibrated machine with
         ``base_from_tracker``; ``registration``; ``start_registration``; ``outlier_rows``
         (file rows left out); ``kept`` (mask of the rows used); ``unidentifiable``; ``noise``
-        and ``outliers`` (:func:`~pkmcal.calibration.variance.fit`).
+        and ``outliers`` (:func:`~pkmcal.estimation.variance.fit`).
 
     Raises
     ------

@@ -568,7 +568,7 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
 def _noise_rows(table, report) -> None:
     """The noise levels the fit used (estimated from the residuals, or assumed / given) and
     the rows the outlier test names."""
-    from ..calibration.variance import NoiseEstimate
+    from ..estimation.variance import NoiseEstimate
 
     levels = report.get("noise_model")
     if levels is not None:

@@ -323,7 +323,7 @@ class PointsModel(NuisanceModel):
         return state.values[self._it]
 
     def start(self, P, R, measured, group, source="<data>"):
-        from ..calibration.registration import register_points
+        from ..estimation.registration import register_points
 
         c = (np.zeros((self.n_targets, 3)) if self.known_target is None
              else np.tile(self.known_target, (self.n_targets, 1)))
