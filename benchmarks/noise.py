@@ -91,9 +91,11 @@ from pkmcal.instruments import (  # noqa: E402
     fit_instrument,
     fit_joint,
 )
+from pkmcal.instruments.constraint_link import ConstraintLinkData
+from pkmcal.instruments.pose import FullPoseNoise
 from pkmcal.instruments.simulate import probe_trigger  # noqa: E402
+from pkmcal.instruments.tracker import TrackerNoise
 from pkmcal.kinematics import rotvec_from_matrix, skew  # noqa: E402
-from pkmcal.measurements import ConstraintLinkData, FullPoseNoise, TrackerNoise  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 

@@ -7,17 +7,20 @@ from ..estimation.estimator import (
     reduce_local,
 )
 from ..estimation.registration import register_points
-from .constraint_link import (
+from ..instruments.constraint_link import (
     METHODS,
     ConstraintLinkFK,
     ConstraintLinkIK,
     ConstraintLinkIKExplicit,
     ConstraintLinkML,
+    StartReport,
     calibrate_constraint_link,
+    continuation_solve,
     solve_sphere_poses,
+    sphere_pose_candidates,
+    start_sensitivity,
 )
-from .distances import calibrate_distances
-from .full_pose import (
+from ..instruments.pose import (
     FullPoseErrors,
     FullPoseIK,
     FullPoseML,
@@ -27,6 +30,14 @@ from .full_pose import (
     full_pose_errors,
     gauge_free_error,
 )
+from ..instruments.tracker import (
+    TrackerProblem,
+    calibrate_tracker,
+    distance_ratios,
+    predict_tracker_points,
+    prediction_covariance,
+)
+from .distances import calibrate_distances
 from .probe import calibrate_probe, poorly_determined
 from .run import (
     KINDS,
@@ -37,14 +48,6 @@ from .run import (
     measurement_kind,
     register_kind,
     supported_kinds,
-)
-from .start import StartReport, continuation_solve, sphere_pose_candidates, start_sensitivity
-from .tracker import (
-    TrackerProblem,
-    calibrate_tracker,
-    distance_ratios,
-    predict_tracker_points,
-    prediction_covariance,
 )
 from .validation import constraint_link_reading_rms, holdout_split
 

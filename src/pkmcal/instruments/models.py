@@ -472,7 +472,7 @@ class IsotropicNoise:
 
     def groups(self, measured):
         """One noise group for every component (see :meth:`TrackerNoise.groups
-        <pkmcal.measurements.TrackerNoise.groups>`).
+        <pkmcal.instruments.tracker.TrackerNoise.groups>`).
 
         Parameters
         ----------
