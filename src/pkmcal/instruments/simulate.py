@@ -244,8 +244,8 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
     The true machine is ``machine`` plus ``deviations``; the nominal ``machine`` commands the
     poses; the instrument, with its true unknowns, measures the true machine there:
 
-    - ``constraint-link``: :func:`~pkmcal.instruments.constraint_link.simulate_constraint_link` on the
-      sphere of the true link (the file's length minus ``link_error``); ``noise`` encoder std
+    - ``constraint-link``: :func:`~pkmcal.instruments.constraint_link.simulate_constraint_link` on
+      the sphere of the true link (the file's length minus ``link_error``); ``noise`` encoder std
       (m, default 1 um).
     - ``tracker`` (``points``): ``n`` random workspace poses (registry candidates: rotations
       on platforms that rotate), or ``poses``; ``targets`` targets, rows cycling through them;
