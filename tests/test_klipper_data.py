@@ -26,7 +26,7 @@ import klipper_reference as K
 from pkmcal.calibration.run import calibrate
 from pkmcal.errors import InputError
 from pkmcal.export import controller_format, export
-from pkmcal.export.klipper_config import (
+from pkmcal.io.klipper_config import (
     KlipperConfig,
     delta_calibrate_data,
     klipper_weights,
@@ -475,7 +475,7 @@ def test_heights_after_a_gap_are_named(tmp_path):
 
 
 def test_backups_never_overwrite_each_other(tmp_path):
-    from pkmcal.export.klipper_config import backup_name
+    from pkmcal.io.klipper_config import backup_name
 
     first = backup_name(tmp_path / "printer.cfg")
     first.write_text("x")

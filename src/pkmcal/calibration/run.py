@@ -765,7 +765,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         combine; see :func:`calibrate_joint`); a list of one is that one. A Klipper
         ``printer.cfg`` is read for the measurements its ``[delta_calibrate]`` section saved
         (heights, manual heights, DELTA_ANALYZE distances:
-        :func:`~pkmcal.export.klipper_config.delta_calibrate_data`).
+        :func:`~pkmcal.io.klipper_config.delta_calibrate_data`).
     method : str, optional
         Constraint link: ``ml`` (default), ``ik`` or ``fk``; full pose: ``ml`` (default) or
         ``ik``; not for tracker data (see ``two_step``).
@@ -2837,7 +2837,7 @@ def expand_firmware_data(data, machine):
     """Data files that are a firmware's saved state (a Klipper ``printer.cfg`` with
     ``[delta_calibrate]`` data) or a pasted probe report (Marlin ``Bed X: Y: Z:`` lines,
     RepRapFirmware's ``bed probe heights`` reply:
-    :func:`~pkmcal.io.firmware_reports.probe_report_data`) replaced by the measurements they
+    :func:`~pkmcal.export.firmware_reports.probe_report_data`) replaced by the measurements they
     hold.
 
     Parameters
@@ -2853,9 +2853,9 @@ def expand_firmware_data(data, machine):
         ``data`` with each firmware file replaced by its data objects (a list when that gives
         more than one).
     """
-    from ..export.klipper_config import is_klipper_config, read_klipper_data
+    from ..export.firmware_reports import is_probe_report, probe_report_data, read_probe_report
     from ..io.atomic import read_input_text
-    from ..io.firmware_reports import is_probe_report, probe_report_data, read_probe_report
+    from ..io.klipper_config import is_klipper_config, read_klipper_data
 
     items = list(data) if isinstance(data, (list, tuple)) else [data]
     out, changed = [], False

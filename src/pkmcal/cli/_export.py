@@ -52,7 +52,7 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
     existing = backup = None
     if not is_stream(output) and output.is_file() \
             and type(fmt).update is not ControllerFormat.update:
-        from ..export.klipper_config import backup_name
+        from ..io.klipper_config import backup_name
 
         existing = read_input_text(output, f"{fmt.name} file", register=False)
         backup = backup_name(output)

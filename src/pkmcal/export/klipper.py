@@ -442,7 +442,7 @@ class KlipperDelta(ControllerFormat):
     def update(self, existing: str, params: ControllerParameters, machine: Machine,
                source: str) -> str | None:
         """``printer.cfg`` with the values saved as Klipper's ``SAVE_CONFIG`` saves them
-        (:func:`~pkmcal.export.klipper_config.save_config_text`: the body kept, the same options
+        (:func:`~pkmcal.io.klipper_config.save_config_text`: the body kept, the same options
         in the body commented out, the auto-save block rewritten with its other options).
 
         Raises
@@ -451,7 +451,7 @@ class KlipperDelta(ControllerFormat):
             When the file is not a Klipper delta config, or an ``[include]`` file defines one
             of the values (Klipper refuses to save it then).
         """
-        from .klipper_config import KlipperConfig, save_config_text
+        from ..io.klipper_config import KlipperConfig, save_config_text
 
         cfg = KlipperConfig.read(source, existing)
         kin = cfg.entry("printer", "kinematics")
@@ -488,7 +488,7 @@ class KlipperDelta(ControllerFormat):
         Reads ``[printer] delta_radius`` and ``[stepper_a|b|c] arm_length``, ``angle``,
         ``position_endstop`` with Klipper's defaults (``b``, ``c`` take ``a``'s arm length and
         endstop; angles 210, 330, 90) and Klipper's precedence
-        (:class:`~pkmcal.export.klipper_config.KlipperConfig`: ``[include]`` files where they
+        (:class:`~pkmcal.io.klipper_config.KlipperConfig`: ``[include]`` files where they
         stand, the body over the ``#*#`` SAVE_CONFIG block); also ``[printer] print_radius``
         and ``[delta_calibrate] radius`` (kept in the machine file).
 
@@ -509,7 +509,7 @@ class KlipperDelta(ControllerFormat):
         InputError
             Naming the file, line and key of a value that is not a number, or the key missing.
         """
-        from .klipper_config import KlipperConfig
+        from ..io.klipper_config import KlipperConfig
 
         cfg = KlipperConfig.read(source, text)
         kin = cfg.entry("printer", "kinematics")

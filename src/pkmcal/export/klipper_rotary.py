@@ -380,7 +380,7 @@ class KlipperRotaryDelta(ControllerFormat):
 
     def parse(self, text: str, source: str) -> ControllerParameters:
         """Klipper's rotary_delta values of a ``printer.cfg``, as Klipper resolves them
-        (:class:`~pkmcal.export.klipper_config.KlipperConfig`: ``[include]`` files, the sections
+        (:class:`~pkmcal.io.klipper_config.KlipperConfig`: ``[include]`` files, the sections
         above the ``SAVE_CONFIG`` block over it).
 
         Parameters
@@ -404,7 +404,7 @@ class KlipperRotaryDelta(ControllerFormat):
         InputError
             Naming the line and key of a value that is not a number, or the key missing.
         """
-        from .klipper_config import KlipperConfig
+        from ..io.klipper_config import KlipperConfig
 
         cfg = KlipperConfig.read(source, text)      # Klipper's precedence and includes
         kin = cfg.entry("printer", "kinematics")
@@ -446,7 +446,7 @@ class KlipperRotaryDelta(ControllerFormat):
     def update(self, existing: str, params: ControllerParameters, machine: Machine,
                source: str) -> str | None:
         """``printer.cfg`` with the values saved as Klipper's ``SAVE_CONFIG`` saves them
-        (:func:`~pkmcal.export.klipper_config.save_config_text`): ``shoulder_radius``,
+        (:func:`~pkmcal.io.klipper_config.save_config_text`): ``shoulder_radius``,
         ``shoulder_height`` and per stepper ``angle``, ``position_endstop`` (what
         ``RotaryDeltaCalibration.save_state`` writes) and the arm lengths pkmcal fits too.
         The readings' convention is Klipper's (its stepper angles).
@@ -457,7 +457,7 @@ class KlipperRotaryDelta(ControllerFormat):
             When the file is not a Klipper rotary_delta config, or an ``[include]`` file
             defines one of the values.
         """
-        from .klipper_config import KlipperConfig, save_config_text
+        from ..io.klipper_config import KlipperConfig, save_config_text
 
         cfg = KlipperConfig.read(source, existing)
         kin = cfg.entry("printer", "kinematics")
