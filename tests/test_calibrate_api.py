@@ -13,9 +13,9 @@ import pytest
 from clitools import run
 from pkmcal.calibration import KINDS, Calibration, CalibrationNotConverged, calibrate
 from pkmcal.errors import InputError
+from pkmcal.instruments.tracker import TrackerNoise
 from pkmcal.io import load_machine, read_constraint_link
 from pkmcal.machines import default_hexaslide
-from pkmcal.measurements import TrackerNoise
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 MACHINES = {"constraint-link": "default", "tracker": EXAMPLES / "delta_default.yaml",

@@ -19,9 +19,10 @@ import pytest
 from scipy import stats
 
 from pkmcal.errors import InputError
-from pkmcal.identifiability.rank import RTOL, numerical_rank
+from pkmcal.estimation.rank import RTOL, numerical_rank
 from pkmcal.instruments import InstrumentData, InstrumentProblem, PointsModel, fit_instrument
 from pkmcal.instruments.simulate import sample_workspace_poses, simulate_instrument
+from pkmcal.instruments.tracker import TrackerNoise
 from pkmcal.io.machine_file import (
     MACHINE_FORMATS,
     load_machine,
@@ -30,6 +31,7 @@ from pkmcal.io.machine_file import (
     save_machine,
 )
 from pkmcal.kinematics import matrix_from_euler, matrix_from_rotvec, rotvec_from_matrix
+from pkmcal.machines.deviations import random_deviations
 from pkmcal.machines.planar_3rpr import (
     FILE_FORMAT,
     LEG_FIELDS,
@@ -38,7 +40,6 @@ from pkmcal.machines.planar_3rpr import (
     planar_3rpr_parameters,
 )
 from pkmcal.machines.registry import MACHINE_MODULES, machine_formats
-from pkmcal.measurements import TrackerNoise, random_deviations
 
 
 def skewed_planar() -> Planar3RPR:

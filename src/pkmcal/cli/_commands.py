@@ -37,10 +37,9 @@ from ..io import (
 )
 from ..io.atomic import is_stream
 from ..io.machine_file import DEFAULT_UNITS
-from ..io.plausibility import check_option_scale
 from ..limits import MAX_MEASUREMENTS
-from ..measurements.deviations import DEFAULT_DEVIATIONS
-from ..measurements.deviations import deviations as _deviations
+from ..machines.deviations import deviations as _deviations
+from ..plausibility import check_option_scale
 from ..units import ANGLE, LENGTH, parse_quantity
 from ._console import console, error, warning
 
@@ -239,7 +238,7 @@ def run_simulate(machine_spec: str, output: Path, scenario: str | None, poses: i
 
         usable = [name for name, inst in INSTRUMENTS.items() if inst.applies(machine) is None]
         raise InputError(f"{exc}; this {kind} can simulate: {', '.join(usable)}") from None
-    deviations = deviations or DEFAULT_DEVIATIONS.get(kind, "random")
+    deviations = deviations or machine.DEFAULT_DEVIATIONS
     check_outputs([output] + ([truth] if truth else []), _machine_inputs(machine_spec))
     flag = f"--scenario {requested or scenario}"
     grid_path = (scenario == "tracker" and machine.tracker_grid_spacing() is not None
@@ -432,7 +431,7 @@ def _truth_rows(machine, scenario: str, info: dict):
 
 def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, deviations: str,
                       truth: Path | None, shape: tuple[int, int, int], outliers: int) -> None:
-    from ..measurements import (
+    from ..instruments.tracker import (
         TRACKER_GRID_SPACING,
         default_tracker_pose,
         grid_points,
@@ -568,7 +567,7 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
 def _noise_rows(table, report) -> None:
     """The noise levels the fit used (estimated from the residuals, or assumed / given) and
     the rows the outlier test names."""
-    from ..calibration.variance import NoiseEstimate
+    from ..estimation.variance import NoiseEstimate
 
     levels = report.get("noise_model")
     if levels is not None:

@@ -15,7 +15,7 @@ from ..calibration.run import json_safe as _finite_or_none
 from ..calibration.run import rows_text as _rows_text
 from ..errors import InputError
 from ..io import read_constraint_link, read_full_pose, read_table
-from ..io.plausibility import check_option_scale
+from ..plausibility import check_option_scale
 from ..units import LENGTH, parse_quantity
 from ._commands import (
     _table,
@@ -132,8 +132,8 @@ def measured_problem(machine, data_path: Path, kind: str, noise):
         data = read_constraint_link(data_path, machine)
         return inst.problem(machine, data, noise), data
     if kind == "tracker":
-        from ..calibration.tracker import TrackerProblem, registration_of
         from ..instruments import PointsModel
+        from ..instruments.tracker import TrackerProblem, registration_of
 
         data = read_points(data_path, machine)
         fk = _fk_of(machine, data, data_path)

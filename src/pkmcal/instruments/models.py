@@ -323,7 +323,7 @@ class PointsModel(NuisanceModel):
         return state.values[self._it]
 
     def start(self, P, R, measured, group, source="<data>"):
-        from ..calibration.registration import register_points
+        from ..estimation.registration import register_points
 
         c = (np.zeros((self.n_targets, 3)) if self.known_target is None
              else np.tile(self.known_target, (self.n_targets, 1)))
@@ -472,7 +472,7 @@ class IsotropicNoise:
 
     def groups(self, measured):
         """One noise group for every component (see :meth:`TrackerNoise.groups
-        <pkmcal.measurements.TrackerNoise.groups>`).
+        <pkmcal.instruments.tracker.TrackerNoise.groups>`).
 
         Parameters
         ----------

@@ -18,7 +18,7 @@ instrument      machine attributes           predicted measurement per reading
 
 The prediction is the forward kinematics of the readings followed by the instrument's own
 model (:class:`~pkmcal.instruments.PointsModel`, :class:`~pkmcal.instruments.DistancesModel`,
-:class:`~pkmcal.measurements.MeasurementFrames`), the same models the calibration fitted: a
+:class:`~pkmcal.instruments.pose.MeasurementFrames`), the same models the calibration fitted: a
 user checks a calibration by comparing new measurements with these predictions.
 """
 

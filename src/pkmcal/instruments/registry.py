@@ -31,6 +31,15 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
+from ..machines.reach import (  # noqa: F401  (the probe's plans)
+    PROBE_CONDITIONING,
+    PROBE_MARGIN,
+    _bed_points,
+    _probe_ok,
+    bed_centre,
+    bed_height,
+    probe_radius,
+)
 from .problem import InstrumentProblem
 
 
@@ -171,7 +180,7 @@ class Instrument:
         group : ndarray of int, shape (n,) or None
             0-based setup of each pose (None: one).
         """
-        from .simulate import sample_workspace_poses
+        from ..machines.reach import sample_workspace_poses
 
         P, R = sample_workspace_poses(machine, n, rng)
         return P, R, None
@@ -271,7 +280,7 @@ class ConstraintLink(Instrument):
         return f"encoder noise {noise * 1e6:.4g} um (std)"
 
     def candidates(self, machine, n, rng):
-        from ..measurements import sample_sphere_poses
+        from .constraint_link import sample_sphere_poses
 
         P, R = sample_sphere_poses(machine, link_length(machine), n, rng)
         return P, R, None
@@ -282,7 +291,7 @@ class ConstraintLink(Instrument):
                             P, R)
 
     def planned_data(self, machine, P, R, rows, source, group=None):
-        from ..measurements import ConstraintLinkData
+        from .constraint_link import ConstraintLinkData
 
         P = _on_sphere(P, machine, rows, source)
         q = reachable(machine, P, R, rows, source)
@@ -291,7 +300,7 @@ class ConstraintLink(Instrument):
                                   true_P=P, true_R=R)
 
     def problem(self, machine, data, noise=None, **start):
-        from ..calibration import ConstraintLinkML
+        from .constraint_link import ConstraintLinkML
 
         return ConstraintLinkML(machine, data, self.default_noise() if noise is None else noise)
 
@@ -343,7 +352,7 @@ def tracker_pose(machine: Machine):
     """
     pose = getattr(machine, "base_from_tracker", None)
     if pose is None:
-        from ..measurements import default_tracker_pose
+        from .tracker import default_tracker_pose
 
         pose = default_tracker_pose()
     return pose
@@ -373,7 +382,7 @@ class Tracker(Instrument):
         return self.plan_size if machine.tracker_grid_spacing() is not None else 60
 
     def default_noise(self):
-        from ..measurements import TrackerNoise
+        from .tracker import TrackerNoise
 
         return TrackerNoise()
 
@@ -387,7 +396,7 @@ class Tracker(Instrument):
     def candidates(self, machine, n, rng):
         if machine.tracker_grid_spacing() is None:
             return super().candidates(machine, n, rng)
-        from ..measurements.deviations import draw_accepted
+        from ..machines.deviations import draw_accepted
 
         half = np.asarray(machine.tracker_grid_spacing(), float)   # the 3x3x3 grid: +/- spacing
         centre = machine.home[0]
@@ -410,7 +419,7 @@ class Tracker(Instrument):
     def standard_plan(self, machine, n, seed):
         if machine.tracker_grid_spacing() is None:
             return super().standard_plan(machine, n, seed)
-        from ..measurements import grid_points
+        from .tracker import grid_points
 
         k = int(round(n ** (1.0 / 3.0)))
         if k < 2 or k**3 != n:
@@ -423,7 +432,7 @@ class Tracker(Instrument):
                             np.broadcast_to(np.eye(3), (n, 3, 3)))
 
     def planned_data(self, machine, P, R, rows, source, group=None):
-        from ..measurements import TrackerData
+        from .tracker import TrackerData
 
         q = reachable(machine, P, R, rows, source)
         Rt, t = tracker_pose(machine)
@@ -432,7 +441,7 @@ class Tracker(Instrument):
                            target=None if group is None else np.asarray(group, int))
 
     def problem(self, machine, data, noise=None, registration=None, targets=None, **start):
-        from ..calibration import TrackerProblem
+        from .tracker import TrackerProblem
 
         groups = getattr(data, "target", getattr(data, "group", None))
         n_targets = 1 if groups is None or not len(groups) else int(np.max(groups)) + 1
@@ -462,7 +471,7 @@ class Pose(Instrument):
         return None
 
     def default_noise(self):
-        from ..measurements import FullPoseNoise
+        from .pose import FullPoseNoise
 
         return FullPoseNoise()
 
@@ -472,14 +481,14 @@ class Pose(Instrument):
                 "(std)")
 
     def planned_data(self, machine, P, R, rows, source, group=None):
-        from ..measurements import FullPoseData
+        from .pose import FullPoseData
 
         q = reachable(machine, P, R, rows, source)
         Pm, Rm = measurement_frames(machine).measured(P, R)
         return FullPoseData(q, Pm, Rm, rows, source, true_P=P, true_R=R)
 
     def problem(self, machine, data, noise=None, frames=None, **start):
-        from ..calibration import FullPoseML
+        from .pose import FullPoseML
 
         return FullPoseML(machine, data, self.default_noise() if noise is None else noise,
                           measurement_frames(machine) if frames is None else frames)
@@ -500,7 +509,7 @@ def measurement_frames(machine: Machine):
     """
     frames = getattr(machine, "measurement_frames", None)
     if frames is None:
-        from ..measurements import default_measurement_frames
+        from .pose import default_measurement_frames
 
         frames = default_measurement_frames()
     return frames
@@ -636,7 +645,7 @@ class Distance(Instrument):
         deg of the pivot's direction to home; random orientations within 10 deg on platforms
         that rotate)."""
         from ..kinematics import matrix_from_euler
-        from ..measurements.deviations import draw_accepted
+        from ..machines.deviations import draw_accepted
 
         pivots, balls = ballbar_setups(machine)
         P0, R0 = machine.home
@@ -723,124 +732,6 @@ PROBE_SIGMA = 10e-6
 #: Klipper's DELTA_CALIBRATE points (klippy/extras/delta_calibrate.py): the centre, then six
 #: points at 90 + 60 i deg on circles of these fractions of the probe radius
 KLIPPER_SCATTER = (0.95, 0.90, 0.85, 0.70, 0.75, 0.80)
-#: largest inverse condition number of the joint Jacobian accepted at a probe point
-PROBE_CONDITIONING = 0.05
-#: the probe radius of plans: this fraction of the largest reachable, well-conditioned radius
-PROBE_MARGIN = 0.8
-
-
-def bed_height(machine: Machine) -> float:
-    """Height of the nominal bed (a horizontal plane) in the base frame, m.
-
-    The machine's ``bed_height`` (an attribute or method) when it has one, else the height of
-    its home position (the plane probe plans lie on).
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine.
-
-    Returns
-    -------
-    float
-        The bed's z, m.
-    """
-    own = getattr(machine, "bed_height", None)
-    if callable(own):
-        own = own()
-    return float(machine.home[0][2] if own is None else own)
-
-
-def bed_centre(machine: Machine) -> np.ndarray:
-    """Centre of probe patterns on the bed: the machine's ``bed_centre`` or home's x, y.
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine.
-
-    Returns
-    -------
-    ndarray, shape (2,)
-        x, y, m.
-    """
-    own = getattr(machine, "bed_centre", None)
-    if callable(own):
-        own = own()
-    return np.asarray(machine.home[0][:2] if own is None else own, float)[:2]
-
-
-def _probe_ok(machine: Machine, P, R) -> np.ndarray:
-    """Probe points the machine reaches, within its limits, well conditioned, working mode."""
-    with np.errstate(all="ignore"):
-        q, J, _ = machine.ik_jacobians(P, R, want_du=False)
-        J = np.array(J, float)
-        J[..., 3:] /= machine.characteristic_length()
-        J = J[..., list(machine.pose_space)]
-        ok = np.all(np.isfinite(q), -1) & np.all(np.isfinite(J), (-2, -1))
-        sv = np.linalg.svd(np.where(ok[:, None, None], J, 1.0), compute_uv=False)
-        ok &= sv[..., -1] > PROBE_CONDITIONING * sv[..., 0]
-        ok &= machine.working_mode(P, R)
-        if getattr(machine, "joint_limits", None) is not None and ok.any():
-            ok[ok] = machine.within_limits(q[ok])
-    return ok
-
-
-def _bed_points(machine: Machine, xy):
-    """Poses with the nozzle tip at ``xy`` on the nominal bed, the platform at home
-    orientation (the tip is the platform origin)."""
-    xy = np.atleast_2d(np.asarray(xy, float))
-    P = np.column_stack([xy, np.full(len(xy), bed_height(machine))])
-    return P, np.broadcast_to(machine.home[1], (len(P), 3, 3)).copy()
-
-
-def probe_radius(machine: Machine) -> float:
-    """Radius of probe patterns on the bed, m.
-
-    The machine's ``probe_radius`` when it has one (a printer's configured probe radius), else
-    :data:`PROBE_MARGIN` times the largest radius ``r`` (in steps of 1/40 of the
-    characteristic length) such that the circles of radius up to ``r`` about
-    :func:`bed_centre` on the bed are reachable, within the joint limits and well
-    conditioned (inverse condition number above :data:`PROBE_CONDITIONING`).
-
-    Parameters
-    ----------
-    machine : Machine
-        The nominal machine.
-
-    Returns
-    -------
-    float
-        The radius, m.
-
-    Raises
-    ------
-    InputError
-        When not even the bed's centre can be probed.
-    """
-    own = getattr(machine, "probe_radius", None)
-    if callable(own):
-        own = own()
-    if own is not None:
-        return float(own)
-    L = machine.characteristic_length()
-    centre = bed_centre(machine)
-    t = np.linspace(0.0, 2 * np.pi, 72, endpoint=False)
-    ring = np.column_stack([np.cos(t), np.sin(t)])
-    if not _probe_ok(machine, *_bed_points(machine, centre[None, :])).all():
-        where = str(getattr(machine, "source", "") or "the machine")
-        raise InputError(f"{where}: the bed's centre ({centre[0] * 1e3:.6g}, "
-                         f"{centre[1] * 1e3:.6g}, {bed_height(machine) * 1e3:.6g}) mm cannot be "
-                         "probed (out of reach or badly conditioned); set the bed or home")
-    r = 0.0
-    for k in range(1, 41):
-        radius = k * L / 40
-        if not _probe_ok(machine, *_bed_points(machine, centre + radius * ring)).all():
-            break
-        r = radius
-    return PROBE_MARGIN * (r if r > 0 else L / 80)
-
-
 def probe_pattern(n: int, radius: float, centre=(0.0, 0.0)) -> tuple[np.ndarray, str] | None:
     """The standard probe pattern of ``n`` points on the bed, or None when there is none.
 
@@ -1079,7 +970,7 @@ class PairDistance(Instrument):
         InputError
             Naming ``--noise``: not a length, not above 0, or beyond the machine's scale.
         """
-        from ..io.plausibility import check_option_scale
+        from ..plausibility import check_option_scale
         from ..units import parse_quantity
         from .models import IsotropicNoise
 

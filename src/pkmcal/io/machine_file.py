@@ -60,7 +60,7 @@ squared: ``L = l0 + gain r + curvature r^2``, the reading curvature a calibratio
 held-out data show it); when one leg has it, every leg has it (0 where absent), and a file
 without it is the linear model. ``measurement_frames`` are
 kept on the machine as ``machine.measurement_frames``
-(:class:`~pkmcal.measurements.full_pose.MeasurementFrames`, None without the key); a
+(:class:`~pkmcal.instruments.pose.MeasurementFrames`, None without the key); a
 calibration from full-pose data writes the identified frames there.
 
 A linear Delta 3D printer (issue 14) is described by its design values, in Klipper's names and
@@ -737,7 +737,7 @@ def _build_instruments(machine: Machine, doc, fl: float) -> None:
     if frames is None:
         machine.measurement_frames = None
     else:
-        from ..measurements.full_pose import MeasurementFrames
+        from ..instruments.pose import MeasurementFrames
 
         machine.measurement_frames = MeasurementFrames(
             (_rotation(frames.mocap_from_base.rotation),

@@ -183,6 +183,12 @@ class Machine(ABC):
     frame_is_bed: bool = False
     #: the frame targets are given in, in words (:meth:`targets_in_base`)
     working_frame_words: str = "base frame of the calibrated model"
+    #: half-widths of the uniform random deviations of a simulated true machine: (length m,
+    #: angle rad) (:func:`~pkmcal.machines.deviations.random_deviations`)
+    RANDOM_DEVIATION: tuple[float, float] = (2e-3, 0.02)
+    #: the deviations of simulated true machines by default (``random``, or a name
+    #: :meth:`paper_deviations` knows)
+    DEFAULT_DEVIATIONS: str = "random"
     #: poses per forward-kinematics chunk (temporaries stay in cache)
     fk_chunk: int = 8192
     #: named parameter subsets (:meth:`parameter_set`); ``full`` (every parameter free) is
@@ -194,6 +200,16 @@ class Machine(ABC):
         self.name = name
         self._home = None if home is None else (np.asarray(home[0], float),
                                                 np.asarray(home[1], float))
+
+    def paper_deviations(self):
+        """The parameter errors of a source paper's experiment for this machine type, or None.
+
+        Returns
+        -------
+        ndarray, shape (n_params,) or None
+            Deviations in internal units (``--deviations paper-table1``); None: there are none.
+        """
+        return None
 
     # -- geometry -------------------------------------------------------------------------
     @property

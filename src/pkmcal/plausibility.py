@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
-from ..kinematics import matrix_from_euler
-from ..units import COLUMN_SUFFIXES, QUANTITIES
+from .errors import InputError
+from .kinematics import matrix_from_euler
+from .units import COLUMN_SUFFIXES, QUANTITIES
 
 #: the data are "grossly" off when a scale ratio is beyond this factor (either way)
 GROSS = 20.0
