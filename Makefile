@@ -21,6 +21,7 @@ demo: $(STAMP)
 # one test process per core instead (pytest-xdist), a test file's tests in one process
 test: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks examples
+	$(BIN)/lint-imports --no-cache --no-logo
 	OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist loadfile
 
 bench: $(STAMP)

@@ -40,12 +40,11 @@ import numpy as np
 from pkmcal.analysis.accuracy import machine_workspace, pose_errors
 from pkmcal.analysis.prediction import pose_error_operator, predict_pose_accuracy
 from pkmcal.calibration import calibrate_constraint_link
-from pkmcal.calibration.acceptance import parameter_changes, residual_test
-from pkmcal.calibration.constraint_link import SphereState
 from pkmcal.errors import InputError
+from pkmcal.estimation.acceptance import parameter_changes, residual_test
+from pkmcal.instruments.constraint_link import SphereState, simulate_constraint_link
 from pkmcal.machines import paper_table1_deviations
 from pkmcal.machines.hexaslide import HexaSlide, hexaslide_parameters
-from pkmcal.measurements import simulate_constraint_link
 from pkmcal.planning import design_from_problem
 
 #: nominal dimensions the random geometries are drawn around (m, deg)

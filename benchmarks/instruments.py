@@ -54,8 +54,8 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from pkmcal.calibration import calibrate_constraint_link, calibrate_full_pose  # noqa: E402
+from pkmcal.estimation.rank import RTOL, numerical_rank  # noqa: E402
 from pkmcal.identifiability import CONSTRAINT_LINK_GAUGES, align_gauge  # noqa: E402
-from pkmcal.identifiability.rank import RTOL, numerical_rank  # noqa: E402
 from pkmcal.instruments import (  # noqa: E402
     DistancesModel,
     InstrumentData,
@@ -64,20 +64,18 @@ from pkmcal.instruments import (  # noqa: E402
     PointsModel,
     fit_instrument,
 )
+from pkmcal.instruments.constraint_link import (
+    ConstraintLinkData,
+    sample_sphere_poses,  # noqa: E402
+)
+from pkmcal.instruments.pose import FullPoseNoise, MeasurementFrames, simulate_full_pose
 from pkmcal.instruments.simulate import sample_workspace_poses, simulate_instrument  # noqa: E402
+from pkmcal.instruments.tracker import TrackerNoise
 from pkmcal.kinematics import matrix_from_rotvec, rotvec_from_matrix  # noqa: E402
 from pkmcal.machines import Delta, HexaSlide, Stewart  # noqa: E402
+from pkmcal.machines.deviations import random_deviations
 from pkmcal.machines.hexaslide import hexaslide_parameters  # noqa: E402
 from pkmcal.machines.stewart import stewart_parameters  # noqa: E402
-from pkmcal.measurements import (  # noqa: E402
-    ConstraintLinkData,
-    FullPoseNoise,
-    MeasurementFrames,
-    TrackerNoise,
-    random_deviations,
-    simulate_full_pose,
-)
-from pkmcal.measurements.constraint_link import sample_sphere_poses  # noqa: E402
 
 # -- geometries that are not the examples ---------------------------------------------------
 

@@ -79,8 +79,8 @@ from pkmcal.calibration import (  # noqa: E402
     calibrate_probe,
 )
 from pkmcal.errors import InputError  # noqa: E402
+from pkmcal.estimation.rank import RTOL, numerical_rank  # noqa: E402
 from pkmcal.identifiability import CONSTRAINT_LINK_GAUGES, align_gauge  # noqa: E402
-from pkmcal.identifiability.rank import RTOL, numerical_rank  # noqa: E402
 from pkmcal.instruments import (  # noqa: E402
     DistancesModel,
     InstrumentData,
@@ -91,9 +91,11 @@ from pkmcal.instruments import (  # noqa: E402
     fit_instrument,
     fit_joint,
 )
+from pkmcal.instruments.constraint_link import ConstraintLinkData
+from pkmcal.instruments.pose import FullPoseNoise
 from pkmcal.instruments.simulate import probe_trigger  # noqa: E402
+from pkmcal.instruments.tracker import TrackerNoise
 from pkmcal.kinematics import rotvec_from_matrix, skew  # noqa: E402
-from pkmcal.measurements import ConstraintLinkData, FullPoseNoise, TrackerNoise  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 

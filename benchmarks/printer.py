@@ -57,8 +57,8 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from pkmcal.calibration import calibrate_probe  # noqa: E402
+from pkmcal.estimation.rank import RTOL, numerical_rank  # noqa: E402
 from pkmcal.identifiability import identifiability_report  # noqa: E402
-from pkmcal.identifiability.rank import RTOL, numerical_rank  # noqa: E402
 from pkmcal.instruments import (  # noqa: E402
     DistancesModel,
     InstrumentData,
@@ -68,8 +68,8 @@ from pkmcal.instruments import (  # noqa: E402
 from pkmcal.instruments.joint import JointProblem, fit_joint  # noqa: E402
 from pkmcal.instruments.registry import PROBE_SIGMA, ProbeProblem, instrument  # noqa: E402
 from pkmcal.instruments.simulate import probe_trigger, simulate_scenario  # noqa: E402
+from pkmcal.machines.deviations import random_deviations
 from pkmcal.machines.linear_delta import LinearDelta, linear_delta  # noqa: E402
-from pkmcal.measurements import random_deviations  # noqa: E402
 from pkmcal.planning import standard_plan  # noqa: E402
 
 #: probe points: the centre and 3 rings (Klipper's 7 leave the full model underdetermined)

@@ -3,9 +3,11 @@
 Counts, over ``src/pkmcal``:
 
 - *switches* on an instrument's or a machine's name or class outside the module(s) that own
-  it: a comparison with the name (``kind == "probe"``, ``name in ("tracker", "points")``), a
-  table keyed by names (``{"tracker": ..., "probe": ...}``), ``isinstance`` with the class,
-  a ``match`` case on the name;
+  it: a comparison of a name-bearing expression (its text names a ``kind``, ``name``,
+  ``scenario``, ``instrument``, ``measurement``, ``type`` or ``machine``) with the name
+  (``kind == "probe"``, ``scenario in ("tracker", "points")``), a table keyed by two or more
+  names (``{"tracker": ..., "probe": ...}``), ``isinstance`` with the class, a ``match`` case
+  on the name. A Klipper ``kinematics: delta`` or a design criterion ``"pose"`` is no switch;
 - *translation tests*: comparisons of ``pose_dof`` (``pose_dof == 3`` standing for "the
   platform only translates"; a machine's ``pose_space`` says which coordinates move);
 - *import cycles*: strongly connected components of the module import graph (imports inside
@@ -112,6 +114,15 @@ def _class_subject(node) -> set:
     return out
 
 
+#: words in an expression that make it name-bearing (what a switch compares)
+NAME_WORDS = ("kind", "name", "scenario", "instrument", "measurement", "type", "machine")
+
+
+def _name_bearing(node) -> bool:
+    text = ast.unparse(node).lower()
+    return any(w in text for w in NAME_WORDS)
+
+
 def switches(path: Path, rel: str) -> list:
     """``[(line, what, subjects)]``: switches of a module outside the subjects' owners."""
     tree = ast.parse(path.read_text(), str(path))
@@ -119,15 +130,19 @@ def switches(path: Path, rel: str) -> list:
     for node in ast.walk(tree):
         subjects, what = set(), ""
         if isinstance(node, ast.Compare):
-            for c in [node.left, *node.comparators]:
-                subjects |= _subjects(c)
+            sides = [node.left, *node.comparators]
+            names = [c for c in sides if _subjects(c)]
+            others = [c for c in sides if not _subjects(c)]
+            if names and any(_name_bearing(c) for c in others):
+                for c in names:
+                    subjects |= _subjects(c)
             what = "comparison"
         elif isinstance(node, ast.Dict):
             keys = [k for k in node.keys if k is not None]
             hit = set()
             for k in keys:
                 hit |= _subjects(k)
-            if hit:
+            if sum(bool(_subjects(k)) for k in keys) >= 2:
                 subjects, what = hit, "name-keyed table"
         elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
               and node.func.id in ("isinstance", "issubclass") and len(node.args) == 2):

@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 
 from pkmcal.calibration import calibrate_constraint_link
-from pkmcal.calibration.acceptance import (
+from pkmcal.estimation.acceptance import (
     MAX_LENGTH_CHANGE,
     parameter_changes,
     residual_test,
 )
+from pkmcal.instruments.constraint_link import simulate_constraint_link
 from pkmcal.machines import default_hexaslide
-from pkmcal.measurements import random_deviations, simulate_constraint_link
+from pkmcal.machines.deviations import random_deviations
 
 
 def _calibrate(noise_true, noise_assumed, seed):

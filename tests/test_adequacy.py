@@ -29,15 +29,12 @@ from pkmcal.calibration.extensions import (
 )
 from pkmcal.calibration.run import calibrate
 from pkmcal.errors import InputError
+from pkmcal.instruments.pose import FullPoseNoise, simulate_full_pose
 from pkmcal.io import load_machine, machine_to_text, parse_machine
 from pkmcal.io.csv_io import write_full_pose
 from pkmcal.kinematics import matrix_from_rotvec
 from pkmcal.machines import cubic_6upu
-from pkmcal.measurements import (
-    FullPoseNoise,
-    random_deviations,
-    simulate_full_pose,
-)
+from pkmcal.machines.deviations import random_deviations
 
 MACHINE = Path(__file__).resolve().parents[1] / "examples" / "jugglebot.yaml"
 NOISE = FullPoseNoise(20e-6, 50e-6, 200e-6)
@@ -349,8 +346,8 @@ def test_extensions_option_is_refused_where_the_data_take_none():
     """Data without model extensions (tracker points here) and fits of several files refuse
     ``--extensions``, as they refuse every option that does not fit them; not giving it is the
     default everywhere."""
+    from pkmcal.instruments.tracker import TrackerNoise, grid_points, simulate_tracker
     from pkmcal.machines import default_delta
-    from pkmcal.measurements import TrackerNoise, grid_points, simulate_tracker
 
     delta = default_delta()
     pose = (np.eye(3), np.array([1.5, -2.0, 0.3]))

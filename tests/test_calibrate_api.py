@@ -13,9 +13,9 @@ import pytest
 from clitools import run
 from pkmcal.calibration import KINDS, Calibration, CalibrationNotConverged, calibrate
 from pkmcal.errors import InputError
+from pkmcal.instruments.tracker import TrackerNoise
 from pkmcal.io import load_machine, read_constraint_link
 from pkmcal.machines import default_hexaslide
-from pkmcal.measurements import TrackerNoise
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 MACHINES = {"constraint-link": "default", "tracker": EXAMPLES / "delta_default.yaml",
@@ -142,16 +142,16 @@ def test_a_machine_that_cannot_use_the_data(data):
 
 
 def test_not_converged_is_an_exception(data, monkeypatch):
-    import pkmcal.calibration
+    import pkmcal.instruments.constraint_link as link
 
-    real = pkmcal.calibration.calibrate_constraint_link
+    real = link.calibrate_constraint_link
 
     def one_iteration(*args, **kwargs):
         result = real(*args, **kwargs)
         result.success, result.message = False, "maximum number of iterations"
         return result
 
-    monkeypatch.setattr(pkmcal.calibration, "calibrate_constraint_link", one_iteration)
+    monkeypatch.setattr(link, "calibrate_constraint_link", one_iteration)
     path, _ = data["constraint-link"]
     with pytest.raises(CalibrationNotConverged, match="did not converge") as info:
         calibrate(machine_of("constraint-link"), path)

@@ -62,7 +62,7 @@ def test_the_commands_module_does_not_import_scipy_stats():
     subprocess.run([sys.executable, "-c", code], check=True)
     from scipy import stats
 
-    from pkmcal.calibration.variance import MEDIAN_CHI2_1
+    from pkmcal.estimation.variance import MEDIAN_CHI2_1
 
     assert abs(MEDIAN_CHI2_1 - stats.chi2.ppf(0.5, 1)) <= 1e-14 * MEDIAN_CHI2_1
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from clitools import assert_input_error, digest, run
-from pkmcal.calibration import constraint_link as cl
 from pkmcal.errors import InputError
-from pkmcal.measurements import ConstraintLinkData
+from pkmcal.instruments import constraint_link as cl
+from pkmcal.instruments.constraint_link import ConstraintLinkData
 
 
 @pytest.fixture(scope="module")

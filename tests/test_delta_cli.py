@@ -12,9 +12,9 @@ import pytest
 
 from clitools import assert_input_error, digest, run
 from pkmcal.calibration import predict_tracker_points
+from pkmcal.instruments.tracker import grid_points, neighbour_pairs
 from pkmcal.io import load_machine, read_joints, read_positions, read_tracker, write_positions
 from pkmcal.machines import default_delta
-from pkmcal.measurements import grid_points, neighbour_pairs
 
 DELTA = Path(__file__).resolve().parents[1] / "examples" / "delta_default.yaml"
 

@@ -50,7 +50,7 @@ import numpydoc.validate as validate_mod
 from numpydoc.docscrape import NumpyDocString, get_doc_object
 
 PACKAGES = [
-    "pkmcal.kinematics", "pkmcal.machines", "pkmcal.measurements", "pkmcal.calibration",
+    "pkmcal.kinematics", "pkmcal.machines", "pkmcal.instruments", "pkmcal.calibration",
     "pkmcal.identifiability", "pkmcal.analysis", "pkmcal.io", "pkmcal.planning",
     "pkmcal.compensation",
 ]

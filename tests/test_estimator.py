@@ -25,12 +25,12 @@ from pkmcal.identifiability import (
     align_gauge,
     transport_covariance,
 )
-from pkmcal.machines import default_hexaslide, paper_table1_deviations
-from pkmcal.measurements.constraint_link import (
+from pkmcal.instruments.constraint_link import (
     ConstraintLinkData,
     sample_sphere_poses,
     simulate_constraint_link,
 )
+from pkmcal.machines import default_hexaslide, paper_table1_deviations
 from pkmcal.parameters import ParameterSet
 from test_hexaslide import skewed_hexaslide
 

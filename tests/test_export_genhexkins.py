@@ -22,14 +22,10 @@ from pkmcal.calibration import calibrate_full_pose
 from pkmcal.errors import InputError
 from pkmcal.export import export, export_workspace
 from pkmcal.export.linuxcnc_hexapod import GenhexkinsFormat, linuxcnc_abc
+from pkmcal.instruments.pose import FullPoseNoise, default_measurement_frames, simulate_full_pose
 from pkmcal.io import load_machine, parse_machine
 from pkmcal.machines import default_hexaslide
-from pkmcal.measurements import (
-    FullPoseNoise,
-    default_measurement_frames,
-    random_deviations,
-    simulate_full_pose,
-)
+from pkmcal.machines.deviations import random_deviations
 from pkmcal.units import LENGTH
 
 FMT = GenhexkinsFormat()

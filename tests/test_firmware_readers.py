@@ -1,14 +1,14 @@
 """Reading what people paste from Marlin and RepRapFirmware: M503 reports, terminal logs,
 config-override.g, and probe reports (pkmcal.export.marlin / reprapfirmware parse,
-pkmcal.io.firmware_reports)."""
+pkmcal.export.firmware_reports)."""
 
 import numpy as np
 import pytest
 
 from pkmcal.errors import InputError
+from pkmcal.export.firmware_reports import ProbeReport, read_probe_report
 from pkmcal.export.marlin import MARLIN, host_line, marlin_m665_letters
 from pkmcal.export.reprapfirmware import REPRAPFIRMWARE
-from pkmcal.io.firmware_reports import ProbeReport, read_probe_report
 
 # Marlin 1.1.9's M503 (configuration_store.cpp): B is the calibration radius
 MARLIN_119 = """\

@@ -19,12 +19,12 @@ from pkmcal.instruments import (
     fitted_instruments,
     predict_instrument,
 )
+from pkmcal.instruments.pose import MeasurementFrames, simulate_full_pose
 from pkmcal.instruments.simulate import sample_workspace_poses, simulate_instrument
 from pkmcal.io import load_machine, read_poses, save_machine
 from pkmcal.io.csv_io import write_full_pose, write_instrument
 from pkmcal.kinematics import matrix_from_rotvec
-from pkmcal.measurements import MeasurementFrames, simulate_full_pose
-from pkmcal.measurements.deviations import random_deviations
+from pkmcal.machines.deviations import random_deviations
 from pkmcal.units import LENGTH
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

@@ -21,20 +21,21 @@ from pkmcal.calibration import (
     gauge_free_error,
     reduce_local,
 )
-from pkmcal.calibration.full_pose import FRAME_NAMES, right_jacobian_inverse
 from pkmcal.errors import InputError
-from pkmcal.kinematics import matrix_from_rotvec, rotvec_from_matrix
-from pkmcal.machines import cubic_6upu
-from pkmcal.machines.delta import default_delta
-from pkmcal.measurements import (
+from pkmcal.instruments.pose import (
+    FRAME_NAMES,
     FullPoseData,
     FullPoseNoise,
     MeasurementFrames,
     default_measurement_frames,
-    random_deviations,
+    right_jacobian_inverse,
     sample_platform_poses,
     simulate_full_pose,
 )
+from pkmcal.kinematics import matrix_from_rotvec, rotvec_from_matrix
+from pkmcal.machines import cubic_6upu
+from pkmcal.machines.delta import default_delta
+from pkmcal.machines.deviations import random_deviations
 
 PROBLEMS = {"ik": FullPoseIK, "ml": FullPoseML}
 GAUGES = {"rigid motion of the base frame": 6, "rigid motion of the platform frame": 6}

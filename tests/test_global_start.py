@@ -20,12 +20,14 @@ import numpy as np
 import pytest
 
 from pkmcal.calibration import calibrate_constraint_link
-from pkmcal.calibration.acceptance import residual_test
-from pkmcal.calibration.constraint_link import ConstraintLinkML
-from pkmcal.calibration.estimator import MAX_STD, levenberg_marquardt
-from pkmcal.calibration.start import sphere_pose_candidates
+from pkmcal.estimation.acceptance import residual_test
+from pkmcal.estimation.estimator import MAX_STD, levenberg_marquardt
+from pkmcal.instruments.constraint_link import (
+    ConstraintLinkML,
+    simulate_constraint_link,
+    sphere_pose_candidates,
+)
 from pkmcal.machines import default_hexaslide, paper_table1_deviations
-from pkmcal.measurements import simulate_constraint_link
 
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "global_start.py"
 
@@ -127,7 +129,7 @@ def test_pose_candidates_find_the_branch_the_home_start_misses(bench):
     """Rails from radius 608 mm, 73.4 deg, struts 533 mm, link 349 mm: with the TRUE geometry,
     Newton from home lands 3 rows on another local minimum of the pose fit 60-80 mm away (the
     loop's forward kinematics have several solutions there); the multi-start finds all."""
-    from pkmcal.calibration.constraint_link import solve_sphere_poses
+    from pkmcal.instruments.constraint_link import solve_sphere_poses
 
     nominal = bench.hexaslide(ra=0.608, za=-0.517, beta=73.4, l=0.533, lc=0.349, rb=0.127,
                               ga=24.2, gb=37.9)
@@ -145,7 +147,7 @@ def _stewart_link_case(seed):
     """The cubic 6-UPU (examples/cubic_6upu.yaml) with a 420 mm constraint link, random
     deviations, 150 poses, 2 um noise (the case an independent catalogue found)."""
     from pkmcal.io import load_machine
-    from pkmcal.measurements import random_deviations
+    from pkmcal.machines.deviations import random_deviations
 
     nominal = load_machine(Path(__file__).resolve().parents[1] / "examples" / "cubic_6upu.yaml")
     nominal.constraint_link_length = 0.42

@@ -42,8 +42,9 @@ def _problem(kind, path):
         estimate_frames,
         register_points,
     )
+    from pkmcal.instruments.pose import FullPoseNoise
+    from pkmcal.instruments.tracker import TrackerNoise
     from pkmcal.io import load_machine, read_constraint_link, read_full_pose, read_tracker
-    from pkmcal.measurements import FullPoseNoise, TrackerNoise
 
     machine = load_machine(MACHINES[kind][0])
     if kind == "hexaslide":

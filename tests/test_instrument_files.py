@@ -12,10 +12,10 @@ import pytest
 
 from clitools import assert_input_error, run
 from pkmcal.errors import InputError
+from pkmcal.instruments.pose import MeasurementFrames
 from pkmcal.io import load_machine, parse_machine, save_machine
 from pkmcal.io.machine_file import machine_to_text
 from pkmcal.kinematics import matrix_from_rotvec
-from pkmcal.measurements import MeasurementFrames
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 FILES = {"hexaslide": EXAMPLES / "hexaslide_default.yaml",

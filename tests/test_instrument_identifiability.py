@@ -18,8 +18,8 @@ import pytest
 
 from pkmcal.calibration import reduce_local
 from pkmcal.errors import InputError
+from pkmcal.estimation.rank import RTOL
 from pkmcal.identifiability import identifiability_report
-from pkmcal.identifiability.rank import RTOL
 from pkmcal.planning import planned_problem, scenario_for, standard_plan
 
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "instruments.py"

@@ -17,8 +17,9 @@ from pkmcal.instruments import (
     PointsModel,
 )
 from pkmcal.instruments.simulate import sample_workspace_poses, simulate_instrument
+from pkmcal.instruments.tracker import TrackerNoise
 from pkmcal.kinematics import matrix_from_rotvec
-from pkmcal.measurements import TrackerNoise, random_deviations
+from pkmcal.machines.deviations import random_deviations
 
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "instruments.py"
 

@@ -27,8 +27,9 @@ from pkmcal.instruments.simulate import (  # noqa: E402
     sample_workspace_poses,
     simulate_instrument,
 )
+from pkmcal.instruments.tracker import TrackerNoise
 from pkmcal.io import write_instrument  # noqa: E402
-from pkmcal.measurements import TrackerNoise, random_deviations  # noqa: E402
+from pkmcal.machines.deviations import random_deviations
 from test_instruments import bench  # noqa: E402
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

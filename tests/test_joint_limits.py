@@ -12,9 +12,10 @@ import pytest
 
 from clitools import assert_input_error, run
 from pkmcal.errors import InputError
+from pkmcal.instruments.constraint_link import sample_sphere_poses
+from pkmcal.instruments.pose import sample_platform_poses
 from pkmcal.io import load_machine, parse_machine, save_machine
 from pkmcal.io.machine_file import machine_to_text
-from pkmcal.measurements import sample_platform_poses, sample_sphere_poses
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 HEXASLIDE = (EXAMPLES / "hexaslide_default.yaml").read_text()

@@ -43,8 +43,8 @@ import pytest
 
 from clitools import run
 from pkmcal.calibration import calibrate_full_pose, full_pose_errors
+from pkmcal.instruments.pose import FullPoseNoise
 from pkmcal.io import load_machine, read_full_pose
-from pkmcal.measurements import FullPoseNoise
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "jugglebot"
 MACHINE = Path(__file__).resolve().parents[1] / "examples" / "jugglebot.yaml"

@@ -202,7 +202,7 @@ def test_frame_motions_are_null_directions_of_the_kinematics():
 
 def test_tracker_calibration_recovers_the_truth_noise_free():
     from pkmcal.calibration import calibrate_tracker
-    from pkmcal.measurements.tracker import TrackerNoise, simulate_tracker
+    from pkmcal.instruments.tracker import TrackerNoise, simulate_tracker
 
     nominal = linear_delta(0.118, [0.231, 0.2335, 0.229], np.deg2rad([207.0, 333.0, 91.5]),
                            (0.262, 0.2655, 0.259))

@@ -9,8 +9,8 @@ from pkmcal.calibration import (
     levenberg_marquardt,
 )
 from pkmcal.identifiability import CONSTRAINT_LINK_GAUGES, align_gauge, transport_covariance
+from pkmcal.instruments.constraint_link import simulate_constraint_link
 from pkmcal.machines import default_hexaslide, paper_table1_deviations
-from pkmcal.measurements import simulate_constraint_link
 
 
 @pytest.fixture(scope="module")

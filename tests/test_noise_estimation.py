@@ -42,9 +42,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from pkmcal.calibration.variance import OUTLIER_ALPHA
+from pkmcal.estimation.variance import OUTLIER_ALPHA
 from pkmcal.instruments import IsotropicNoise
-from pkmcal.measurements import FullPoseNoise, TrackerNoise
+from pkmcal.instruments.pose import FullPoseNoise
+from pkmcal.instruments.tracker import TrackerNoise
 
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "noise.py"
 

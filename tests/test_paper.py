@@ -7,13 +7,13 @@ from pkmcal.analysis import pose_accuracy, workspace_poses
 from pkmcal.analysis.sweeps import constraint_link_sweep
 from pkmcal.calibration import calibrate_constraint_link
 from pkmcal.identifiability import CONSTRAINT_LINK_GAUGES, align_gauge
+from pkmcal.instruments.constraint_link import simulate_constraint_link
 from pkmcal.machines import (
     HexaSlide,
     default_hexaslide,
     hexaslide_parameters,
     paper_table1_deviations,
 )
-from pkmcal.measurements import simulate_constraint_link
 
 
 @pytest.fixture(scope="module")

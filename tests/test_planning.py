@@ -163,7 +163,7 @@ def test_prediction_agrees_with_monte_carlo_constraint_link():
     from pkmcal.analysis.accuracy import pose_errors
     from pkmcal.analysis.prediction import predict_pose_accuracy
     from pkmcal.calibration import calibrate_constraint_link
-    from pkmcal.measurements import ConstraintLinkData
+    from pkmcal.instruments.constraint_link import ConstraintLinkData
 
     machine = _other_hexaslide()
     sigma = 1e-6
@@ -194,7 +194,7 @@ def test_prediction_agrees_with_monte_carlo_constraint_link():
 def test_prediction_agrees_with_monte_carlo_tracker():
     from pkmcal.analysis.prediction import predict_pose_accuracy
     from pkmcal.calibration import calibrate_tracker
-    from pkmcal.measurements import TrackerNoise
+    from pkmcal.instruments.tracker import TrackerNoise
     from pkmcal.planning import planned_data
 
     machine = _machine("delta")

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pkmcal.identifiability.rank import RTOL, numerical_rank
+from pkmcal.estimation.rank import RTOL, numerical_rank
 
 ROOT = Path(__file__).resolve().parents[1]
 

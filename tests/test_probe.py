@@ -38,8 +38,8 @@ import pytest
 from clitools import assert_input_error, run
 from pkmcal.calibration import calibrate, calibrate_probe
 from pkmcal.errors import InputError
+from pkmcal.estimation.rank import RTOL, numerical_rank
 from pkmcal.identifiability import identifiability_report
-from pkmcal.identifiability.rank import RTOL, numerical_rank
 from pkmcal.instruments import (
     InstrumentData,
     InstrumentProblem,
@@ -59,7 +59,7 @@ from pkmcal.instruments.simulate import probe_trigger, simulate_scenario
 from pkmcal.io import read_probe, write_instrument
 from pkmcal.kinematics import matrix_from_euler, matrix_from_rotvec
 from pkmcal.machines import default_delta, default_hexaslide
-from pkmcal.measurements import random_deviations
+from pkmcal.machines.deviations import random_deviations
 from pkmcal.planning import planned_problem, standard_plan
 
 ROOT = Path(__file__).resolve().parents[1]

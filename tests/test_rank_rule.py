@@ -2,7 +2,7 @@
 
 "identifiable" is the numerical rank of the whitened, column-scaled, reduced Jacobian
 (``s_i > 1e-7 s_1``); "weakly identifiable" are those of them with a standard deviation of at
-least 0.1 (scaled) under the assumed noise (:mod:`pkmcal.identifiability.rank`). The bug: ML
+least 0.1 (scaled) under the assumed noise (:mod:`pkmcal.estimation.rank`). The bug: ML
 refused the real 60-pose Jugglebot file with realistic noise ("44 of 48 directions") while
 ``identifiability`` said 48. Both now say 48, of which 4 weakly; calibrate leaves those 4 at
 the design values (adjusting them moved leg offsets by 30-49 mm and doubled the held-out leg

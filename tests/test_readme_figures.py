@@ -97,8 +97,8 @@ def hexaslide():
     pose spread at 2 um; seed 0 noise-free; the uncalibrated nominal model."""
     from pkmcal.analysis import pose_accuracy
     from pkmcal.calibration import calibrate_constraint_link
+    from pkmcal.instruments.constraint_link import simulate_constraint_link
     from pkmcal.machines import default_hexaslide, paper_table1_deviations
-    from pkmcal.measurements import simulate_constraint_link
 
     nominal = default_hexaslide()
     true = nominal.with_parameters(nominal.u + paper_table1_deviations(nominal.parameters))
@@ -195,8 +195,8 @@ def test_fig6_wrong_link_length():
     (ratio as printed); estimating Lc leaves round-off (order of magnitude, factor 3)."""
     from pkmcal.analysis import pose_accuracy
     from pkmcal.calibration import calibrate_constraint_link
+    from pkmcal.instruments.constraint_link import simulate_constraint_link
     from pkmcal.machines import default_hexaslide, paper_table1_deviations
-    from pkmcal.measurements import simulate_constraint_link
 
     ratio, left = figure(
         works(), r"with a wrong assumed link length the calibrated error equals that error "
@@ -225,8 +225,8 @@ def test_ik_methods_reported_uncertainty_is_optimistic():
         align_gauge,
         transport_covariance,
     )
+    from pkmcal.instruments.constraint_link import simulate_constraint_link
     from pkmcal.machines import default_hexaslide, paper_table1_deviations
-    from pkmcal.measurements import simulate_constraint_link
 
     ik, n, first, last, ml = figure(
         works(), r"when they are not \(1 um on every encoder, 300 poses\), its errors are "
@@ -257,8 +257,8 @@ def test_ik_methods_reported_uncertainty_is_optimistic():
 
 def test_literal_per_chain_ik_diverges_from_1_percent():
     from pkmcal.calibration import calibrate_constraint_link
+    from pkmcal.instruments.constraint_link import simulate_constraint_link
     from pkmcal.machines import default_hexaslide, paper_table1_deviations
-    from pkmcal.measurements import simulate_constraint_link
 
     pct, = figure(works(), r"`per_chain=True` in the library\) — diverges on this machine "
                            rf"even from {NUM} % of the Table 1 errors", 1)
@@ -336,14 +336,14 @@ def test_delta_two_step_bias_without_noise():
     from pkmcal.bench import DELTA_TRACKER_POSE, _delta_case
     from pkmcal.calibration import calibrate_tracker, predict_tracker_points
     from pkmcal.demo import DELTA_SEED, HELD_OUT_GRID
-    from pkmcal.machines import default_delta
-    from pkmcal.measurements import (
+    from pkmcal.instruments.tracker import (
         TRACKER_GRID_SPACING,
         default_tracker_pose,
         grid_points,
-        random_deviations,
         simulate_tracker,
     )
+    from pkmcal.machines import default_delta
+    from pkmcal.machines.deviations import random_deviations
 
     left, of, bench = figure(
         works(), rf"no leg error can absorb \({NUM} of its {NUM} um remain without noise; "

@@ -127,8 +127,8 @@ def _mc_constraint_link(runs: int):
     from pkmcal.analysis.accuracy import machine_workspace, pose_errors
     from pkmcal.analysis.prediction import pose_error_operator, predict_pose_accuracy
     from pkmcal.calibration import calibrate_constraint_link
+    from pkmcal.instruments.constraint_link import ConstraintLinkData
     from pkmcal.machines import default_hexaslide
-    from pkmcal.measurements import ConstraintLinkData
     from pkmcal.planning import design_from_problem, planned_problem, standard_plan
 
     machine = default_hexaslide()
@@ -162,8 +162,8 @@ def _mc_tracker(runs: int, rng=2):
     from pkmcal.analysis.accuracy import machine_workspace
     from pkmcal.analysis.prediction import pose_error_operator, predict_pose_accuracy
     from pkmcal.calibration import calibrate_tracker
+    from pkmcal.instruments.tracker import TrackerNoise
     from pkmcal.io import load_machine
-    from pkmcal.measurements import TrackerNoise
     from pkmcal.planning import design_from_problem, planned_data, planned_problem, standard_plan
 
     machine = load_machine(DELTA)

@@ -32,9 +32,9 @@ def _delta(tmp_path, angles) -> Path:
 # -- the standard plan of each scenario ---------------------------------------------------------
 
 def test_standard_plan_of_each_scenario():
+    from pkmcal.instruments.tracker import TRACKER_GRID_SPACING, grid_points
     from pkmcal.io import load_machine
     from pkmcal.machines import default_hexaslide
-    from pkmcal.measurements import TRACKER_GRID_SPACING, grid_points
     from pkmcal.planning import DEFAULT_PLAN_SIZE, candidate_poses, standard_plan
 
     delta = load_machine(DELTA)
@@ -198,7 +198,7 @@ def test_a_search_that_ends_worse_returns_the_standard_plan(monkeypatch, capsys,
     def bad(design, n, criterion="d", A=None, max_exchanges=None, starts=(), bound=None):
         return Selection(np.arange(n), 0.0, criterion, 0, None)      # the first n candidates
 
-    monkeypatch.setattr(pkmcal.planning, "select_poses", bad)
+    monkeypatch.setattr(pkmcal.planning.selection, "select_poses", bad)
     plan = tmp_path / "plan.csv"
     main(["select-poses", str(DELTA), "-n", "27", "--random-sets", "5", "--json", "-o",
           str(plan)])
@@ -208,8 +208,8 @@ def test_a_search_that_ends_worse_returns_the_standard_plan(monkeypatch, capsys,
     assert rep["selected_plan"]["origin"] == "the standard plan"
     assert rep["selected_plan"]["position_rms_um"] == pytest.approx(std["position_rms_um"])
     assert std["ratio_to_selected"] == pytest.approx(1.0)
+    from pkmcal.instruments.tracker import grid_points
     from pkmcal.io import load_machine
-    from pkmcal.measurements import grid_points
 
     data = np.genfromtxt(plan, delimiter=",", names=True)
     np.testing.assert_allclose(np.column_stack([data["x_mm"], data["y_mm"], data["z_mm"]]),

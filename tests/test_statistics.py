@@ -12,8 +12,8 @@ import pytest
 from scipy import stats
 
 from pkmcal.bench import cramer_rao_bound, cramer_rao_efficiency
+from pkmcal.instruments.constraint_link import sample_sphere_poses
 from pkmcal.machines import default_hexaslide, paper_table1_deviations
-from pkmcal.measurements.constraint_link import sample_sphere_poses
 
 NOISE = 2e-6
 RUNS = 200
@@ -108,7 +108,7 @@ def test_scipy_reference_solves_the_same_problem():
     from pkmcal.bench import scipy_ml
     from pkmcal.calibration import calibrate_constraint_link
     from pkmcal.identifiability import CONSTRAINT_LINK_GAUGES, align_gauge
-    from pkmcal.measurements import simulate_constraint_link
+    from pkmcal.instruments.constraint_link import simulate_constraint_link
 
     nominal = default_hexaslide()
     true = nominal.with_parameters(nominal.u + paper_table1_deviations(nominal.parameters))

@@ -12,6 +12,7 @@ import pytest
 
 from clitools import assert_input_error, digest, run
 from pkmcal.errors import InputError
+from pkmcal.instruments.pose import default_measurement_frames, simulate_full_pose
 from pkmcal.io import (
     load_machine,
     machine_to_text,
@@ -24,7 +25,6 @@ from pkmcal.io import (
 )
 from pkmcal.kinematics import matrix_from_euler
 from pkmcal.machines import cubic_6upu
-from pkmcal.measurements import default_measurement_frames, simulate_full_pose
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 CUBIC = EXAMPLES / "cubic_6upu.yaml"

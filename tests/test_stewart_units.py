@@ -22,14 +22,10 @@ import numpy as np
 import pytest
 
 from pkmcal.calibration import calibrate_full_pose, full_pose_errors, gauge_free_error
+from pkmcal.instruments.pose import FullPoseNoise, default_measurement_frames, simulate_full_pose
 from pkmcal.io import load_machine, machine_to_text, parse_machine, read_full_pose, read_readings
 from pkmcal.machines import cubic_6upu
-from pkmcal.measurements import (
-    FullPoseNoise,
-    default_measurement_frames,
-    random_deviations,
-    simulate_full_pose,
-)
+from pkmcal.machines.deviations import random_deviations
 
 #: case -> (file length unit, reading unit, file gain, internal gain, CSV reading column)
 CASES = {

@@ -19,16 +19,16 @@ from pkmcal.calibration import (
     register_points,
 )
 from pkmcal.errors import InputError
-from pkmcal.kinematics import matrix_from_rotvec, rotvec_from_matrix
-from pkmcal.machines import Delta, default_delta
-from pkmcal.machines.delta import LEG_FIELDS
-from pkmcal.measurements import (
+from pkmcal.instruments.tracker import (
     TrackerData,
     TrackerNoise,
     grid_points,
     neighbour_pairs,
     simulate_tracker,
 )
+from pkmcal.kinematics import matrix_from_rotvec, rotvec_from_matrix
+from pkmcal.machines import Delta, default_delta
+from pkmcal.machines.delta import LEG_FIELDS
 
 deg = np.deg2rad
 #: base_from_tracker of the simulations: the tracker ~2.5 m away, turned ~115 deg about Z
@@ -362,7 +362,8 @@ def test_planar_grid_converges_and_reports_its_weak_directions():
     """Regression: a 1x3x3 grid (one plane) left three directions with standard deviations
     of 0.17-2.8 (scaled: up to 0.85 m) counted as identifiable; stepping along them stalled
     LM for 100 iterations. They are now reported as weakly identifiable and not adjusted."""
-    from pkmcal.measurements import default_tracker_pose, random_deviations
+    from pkmcal.instruments.tracker import default_tracker_pose
+    from pkmcal.machines.deviations import random_deviations
 
     nominal = default_delta()
     true = nominal.with_parameters(random_deviations(nominal, 1))

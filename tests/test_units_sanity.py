@@ -1,6 +1,6 @@
 """Data in the wrong unit (a new-user test): the readers that know the machine compare the
 data's scale with the nominal machine and refuse values off by a unit factor with a message
-naming the columns and the unit they look like (pkmcal.io.plausibility). Legitimate data -
+naming the columns and the unit they look like (pkmcal.plausibility). Legitimate data -
 pkmcal's own simulations of the example machines and of geometries scaled by 0.5 and 2, data
 written in other units, the real Jugglebot measurements - pass. Also: quaternion norms, the
 field separator of spreadsheet exports, and no numpy overflow warning for huge readings.

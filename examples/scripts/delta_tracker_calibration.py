@@ -19,15 +19,15 @@ import numpy as np
 
 from pkmcal.calibration import calibrate_tracker, predict_tracker_points
 from pkmcal.compensation import compensate
-from pkmcal.io import load_machine
-from pkmcal.measurements import (
+from pkmcal.instruments.tracker import (
     TRACKER_GRID_SPACING,
     TrackerNoise,
     default_tracker_pose,
     grid_points,
-    random_deviations,
     simulate_tracker,
 )
+from pkmcal.io import load_machine
+from pkmcal.machines.deviations import random_deviations
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "delta_default.yaml"
 

@@ -22,9 +22,9 @@ from pkmcal.analysis import pose_accuracy
 from pkmcal.analysis.prediction import pose_error_operator
 from pkmcal.calibration import calibrate_constraint_link
 from pkmcal.compensation import compensate
+from pkmcal.instruments.constraint_link import ConstraintLinkData
 from pkmcal.io import load_machine, save_machine
 from pkmcal.machines import default_hexaslide, paper_table1_deviations
-from pkmcal.measurements import ConstraintLinkData
 from pkmcal.planning import (
     candidate_poses,
     criterion_value,

@@ -39,23 +39,28 @@ from pathlib import Path
 import numpy as np
 
 from .calibration import calibrate_constraint_link, levenberg_marquardt
-from .calibration.constraint_link import ConstraintLinkML, SphereState, sphere_tangents
-from .calibration.tracker import (
+from .identifiability import CONSTRAINT_LINK_GAUGES, align_gauge
+from .instruments.constraint_link import (
+    ConstraintLinkData,
+    ConstraintLinkML,
+    SphereState,
+    sample_sphere_poses,
+    simulate_constraint_link,
+    sphere_tangents,
+)
+from .instruments.tracker import (
+    TrackerNoise,
     calibrate_tracker,
     distance_ratios,
+    grid_points,
+    neighbour_pairs,
     predict_tracker_points,
     prediction_covariance,
+    simulate_tracker,
 )
-from .identifiability import CONSTRAINT_LINK_GAUGES, align_gauge
 from .kinematics import matrix_from_euler, matrix_from_rotvec, rotation_angle
 from .machines import default_delta, default_hexaslide, paper_table1_deviations
 from .machines.delta import LEG_FIELDS
-from .measurements.constraint_link import (
-    ConstraintLinkData,
-    sample_sphere_poses,
-    simulate_constraint_link,
-)
-from .measurements.tracker import TrackerNoise, grid_points, neighbour_pairs, simulate_tracker
 
 
 def _paper_case():

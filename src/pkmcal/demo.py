@@ -53,11 +53,11 @@ def run_demo(outdir: Path, quick: bool = False, rng=0,
     from .analysis.sweeps import constraint_link_sweep
     from .calibration import calibrate_constraint_link
     from .identifiability import CONSTRAINT_LINK_GAUGES, align_gauge
+    from .instruments.constraint_link import simulate_constraint_link
     from .io.atomic import atomic_write_text, output_directory
     from .io.csv_io import write_joints
     from .io.machine_file import save_machine
     from .machines import default_hexaslide, paper_table1_deviations
-    from .measurements import simulate_constraint_link
     from .report import plots
 
     outdir = output_directory(outdir)
@@ -172,18 +172,18 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
     """Seed 001 on the default Delta; appends rows, notes and files to ``out`` and returns
     the numbers (for ``summary.json``)."""
     from .calibration import calibrate_tracker, distance_ratios, predict_tracker_points
-    from .io.csv_io import write_tracker
-    from .io.machine_file import save_machine
-    from .machines import default_delta
-    from .measurements import (
+    from .instruments.tracker import (
         TRACKER_GRID_SPACING,
         TrackerNoise,
         default_tracker_pose,
         grid_points,
         neighbour_pairs,
-        random_deviations,
         simulate_tracker,
     )
+    from .io.csv_io import write_tracker
+    from .io.machine_file import save_machine
+    from .machines import default_delta
+    from .machines.deviations import random_deviations
     from .report import plots
 
     rng = np.random.default_rng(seed)

@@ -14,157 +14,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kinematics import kabsch, matrix_from_euler, rotation_angle
+from ..kinematics import kabsch, rotation_angle
 from ..machines.base import Machine
-
-
-def workspace_poses(center, half_size: float = 0.05, max_angle: float = np.deg2rad(10.0),
-                    n: int = 500, rng=None):
-    """``n`` poses uniform in the cube ``center +/- half_size`` with Euler angles uniform in
-    ``+/- max_angle``.
-
-    Parameters
-    ----------
-    center : array_like, shape (3,)
-        Centre of the cube, m.
-    half_size : float, optional
-        Half-width of the cube, m.
-    max_angle : float, optional
-        Bound of each Euler angle, rad.
-    n : int, optional
-        Number of poses.
-    rng : int, numpy.random.Generator or None, optional
-        Random generator or seed.
-
-    Returns
-    -------
-    P : ndarray, shape (n, 3)
-        Positions, m.
-    R : ndarray, shape (n, 3, 3)
-        Orientations (about the identity).
-    """
-    rng = np.random.default_rng(rng)
-    P = np.asarray(center, float) + rng.uniform(-half_size, half_size, (n, 3))
-    R = matrix_from_euler(rng.uniform(-max_angle, max_angle, (n, 3)))
-    return P, R
-
-
-def machine_workspace(machine: Machine, n: int = 500, rng=0):
-    """:func:`workspace_poses` around ``machine``'s home (SPEC 5 defaults).
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine; its home position is the centre.
-    n : int, optional
-        Number of poses.
-    rng : int, numpy.random.Generator or None, optional
-        Random generator or seed (default 0: the same poses every call).
-
-    Returns
-    -------
-    P : ndarray, shape (n, 3)
-        Positions, m.
-    R : ndarray, shape (n, 3, 3)
-        Orientations; the identity for a translation-only platform (``pose_dof == 3``).
-    """
-    P, R = workspace_poses(machine.home[0], n=n, rng=rng)
-    if machine.pose_dof == 3:
-        R = np.broadcast_to(np.eye(3), R.shape)
-    return P, R
-
-
-@dataclass
-class Workspace:
-    """Poses where accuracy is evaluated, with what they are in words.
-
-    Attributes
-    ----------
-    P : ndarray, shape (K, 3)
-        Positions, m.
-    R : ndarray, shape (K, 3, 3)
-        Orientations.
-    description : str
-        E.g. "the 0.1 m cube around home, orientations within +/-10 deg".
-    bounds : tuple of ndarray
-        ``(lo, hi)``, (3,) each, m: the box the positions span (for maps).
-    surface : ndarray of bool, shape (K,), optional
-        Poses on the bed (a printer's print disk): their z error is the nozzle's height
-        error above the bed.
-    """
-
-    P: np.ndarray
-    R: np.ndarray
-    description: str
-    bounds: tuple[np.ndarray, np.ndarray]
-    surface: np.ndarray | None = None
-
-
-def box_workspace(machine: Machine, lo, hi, n: int = 500, rng=0,
-                  max_angle: float = np.deg2rad(10.0), description: str | None = None):
-    """``n`` poses uniform in the box ``lo..hi`` with Euler angles uniform in ``+/-
-    max_angle`` (the identity for a translation-only platform).
-
-    The draws are those of :func:`workspace_poses` for a cube: a box equal to the SPEC 5
-    cube around home gives the poses of :func:`machine_workspace` with the same ``rng``.
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine (its ``pose_dof``).
-    lo, hi : array_like, shape (3,)
-        Corners of the box, m (``lo < hi``).
-    n : int, optional
-        Number of poses.
-    rng : int, numpy.random.Generator or None, optional
-        Random generator or seed.
-    max_angle : float, optional
-        Bound of each Euler angle, rad.
-    description : str, optional
-        The box in words; default: its corners in mm.
-
-    Returns
-    -------
-    Workspace
-        The poses, their description and the box.
-    """
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    rng = np.random.default_rng(rng)
-    centre, half = (lo + hi) / 2, (hi - lo) / 2
-    P = centre + rng.uniform(-1.0, 1.0, (n, 3)) * half
-    R = matrix_from_euler(rng.uniform(-max_angle, max_angle, (n, 3)))
-    if machine.pose_dof == 3:
-        R = np.broadcast_to(np.eye(3), R.shape)
-    if description is None:
-        description = "box " + ", ".join(f"{c} {a * 1e3:.6g}..{b * 1e3:.6g} mm"
-                                         for c, a, b in zip("xyz", lo, hi, strict=True))
-    if machine.pose_dof == 6:
-        description += f", orientations within +/-{np.degrees(max_angle):.3g} deg"
-    return Workspace(P, R, description, (lo, hi))
-
-
-def default_workspace(machine: Machine, n: int = 500, rng=0) -> Workspace:
-    """The SPEC 5 workspace of ``machine`` (:func:`machine_workspace`) as a :class:`Workspace`.
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine; its home position is the centre.
-    n : int, optional
-        Number of poses.
-    rng : int, numpy.random.Generator or None, optional
-        Random generator or seed.
-
-    Returns
-    -------
-    Workspace
-        The 0.1 m cube around home, orientations within +/-10 deg.
-    """
-    P, R = machine_workspace(machine, n, rng)
-    c = np.asarray(machine.home[0], float)
-    words = ("0.1 m cube around home" if machine.pose_dof == 3
-             else "0.1 m cube around home, orientations within +/-10 deg")
-    return Workspace(P, R, words, (c - 0.05, c + 0.05))
+from ..machines.reach import (  # noqa: F401  (where accuracy is evaluated)
+    Workspace,
+    box_workspace,
+    default_workspace,
+    in_pose_space,
+    machine_workspace,
+    workspace_poses,
+)
 
 
 @dataclass

@@ -38,7 +38,7 @@ true link is ``Lc`` minus this while the calibration assumes ``Lc``; constraint 
 ``poses`` (number of measurements; tracker: commanded points uniform in the box of seed 001's
 3x3x3 grid instead of the grid itself), ``tolerance`` (half-width of uniform random
 deviations of the lengths; angles and gains scaled in proportion to
-:data:`~pkmcal.measurements.RANDOM_DEVIATION`).
+:attr:`~pkmcal.machines.base.Machine.RANDOM_DEVIATION`).
 """
 
 from __future__ import annotations
@@ -54,8 +54,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..errors import ConvergenceError, InputError
-from ..io.plausibility import check_option_scale
 from ..machines.base import Machine
+from ..plausibility import check_option_scale
 
 #: the variables a Monte Carlo can sweep: quantity, display unit, factor of that unit to SI
 VARIABLES = {
@@ -185,15 +185,13 @@ class MonteCarloSettings:
 
     def resolved(self) -> MonteCarloSettings:
         """These settings with the defaults filled in and checked (:class:`InputError`)."""
-        from ..measurements.deviations import DEFAULT_DEVIATIONS
-        from ..planning import scenario_for
+        from ..instruments.scenarios import scenario_for
 
-        kind = self.machine.kind
         scenario = scenario_for(self.machine, self.scenario)
         deviations = self.deviations
         if deviations is None:
-            deviations = "random" if self.tolerance is not None else \
-                DEFAULT_DEVIATIONS.get(kind, "random")
+            deviations = ("random" if self.tolerance is not None
+                          else self.machine.DEFAULT_DEVIATIONS)
         out = replace(self, scenario=scenario, deviations=deviations)
         _check_settings(out)
         return out
@@ -222,7 +220,7 @@ class MonteCarloSettings:
 
 def _default_poses(settings: MonteCarloSettings):
     """The number of measurements of a run when not given (words for seed 001's grid)."""
-    if settings.scenario == "tracker" and settings.machine.pose_dof == 3:
+    if settings.scenario == "tracker" and not settings.machine.rotates:
         return "3x3x3 grid"
     if settings.scenario == "tracker":
         from ..instruments.registry import instrument
@@ -294,14 +292,13 @@ def _check_settings(s: MonteCarloSettings, what: dict | None = None) -> None:
 
 
 def _true_machine(s: MonteCarloSettings, rng) -> Machine:
-    from ..measurements import RANDOM_DEVIATION
-    from ..measurements.deviations import deviations as _deviations
+    from ..machines.deviations import deviations as _deviations
 
     machine = s.machine
     if isinstance(s.deviations, str):
         du = _deviations(machine, s.deviations, rng)
         if s.tolerance is not None:
-            du = du * (s.tolerance / RANDOM_DEVIATION.get(machine.kind, (2e-3, 0.02))[0])
+            du = du * (s.tolerance / machine.RANDOM_DEVIATION[0])
     else:
         du = np.asarray(s.deviations, float)
     return machine.with_parameters(machine.u + du)
@@ -313,7 +310,7 @@ def _weight(noise: float) -> float:
 
 def _constraint_link_run(s: MonteCarloSettings, rng):
     from ..calibration import calibrate_constraint_link
-    from ..measurements import simulate_constraint_link
+    from ..instruments.constraint_link import simulate_constraint_link
     from .accuracy import pose_accuracy, workspace_poses
 
     nominal = s.machine
@@ -334,7 +331,7 @@ def _constraint_link_run(s: MonteCarloSettings, rng):
 
 def _tracker_noises(s: MonteCarloSettings):
     """Simulated and fitted tracker noise of a run."""
-    from ..measurements import TrackerNoise
+    from ..instruments.tracker import TrackerNoise
 
     if s.noise is None:
         return TrackerNoise(), TrackerNoise()
@@ -438,8 +435,9 @@ def _probe_run(s: MonteCarloSettings, rng):
 
 def _tracker_run(s: MonteCarloSettings, rng):
     from ..calibration import calibrate_tracker, predict_tracker_points
-    from ..measurements import grid_points, simulate_tracker
-    from ..planning import candidate_poses, tracker_pose
+    from ..instruments.registry import tracker_pose
+    from ..instruments.scenarios import candidate_poses
+    from ..instruments.tracker import grid_points, simulate_tracker
 
     nominal = s.machine
     if nominal.tracker_target() is None:
@@ -465,9 +463,9 @@ def _tracker_run(s: MonteCarloSettings, rng):
 
 def _pose_run(s: MonteCarloSettings, rng):
     from ..calibration import calibrate_full_pose, full_pose_errors, gauge_free_error
+    from ..instruments.pose import FullPoseNoise, simulate_full_pose
+    from ..instruments.registry import measurement_frames
     from ..instruments.simulate import sample_workspace_poses
-    from ..measurements import FullPoseNoise, simulate_full_pose
-    from ..planning import measurement_frames
 
     nominal = s.machine
     true = _true_machine(s, rng)
@@ -583,7 +581,7 @@ def acceptance(result, settings: MonteCarloSettings,
     reason : str
         Empty when ``ok``, else the status and why, in words.
     """
-    from ..calibration.acceptance import chi2_bound
+    from ..estimation.acceptance import chi2_bound
 
     dof = int(getattr(result, "dof", 0) or 0)
     chi2_dof = float(getattr(result, "residual_variance", math.nan))

@@ -31,14 +31,22 @@ FRAME_TOL = 1e-6
 
 def pose_sensitivity(machine: Machine, P, R, u=None) -> np.ndarray:
     """``dx/du`` at fixed joints, (K, d, n_params): ``d = 6`` (position, small rotation in base
-    axes) or 3 for translation-only machines; NaN where a pose is singular or unreachable."""
+    axes) or 3 for translation-only machines; NaN where a pose is singular or unreachable.
+    The pose moves along :attr:`~pkmcal.machines.Machine.pose_space` (the rows of the other
+    coordinates are 0: a planar platform's z, rx, ry)."""
     q, Jp, Ju = machine.ik_jacobians(P, R, u)
-    d = machine.pose_dof
-    Jp = Jp[..., :d]
+    d = 6 if machine.rotates else 3
+    space = list(machine.pose_space)
+    Jp = Jp[..., space]
     ok = np.all(np.isfinite(q), -1) & np.all(np.isfinite(Jp), (-1, -2))
     S = np.full(Ju.shape[:-2] + (d, Ju.shape[-1]), np.nan)
     if ok.any():
-        S[ok] = -np.linalg.solve(Jp[ok], Ju[ok])
+        if len(space) == d:
+            S[ok] = -np.linalg.solve(Jp[ok], Ju[ok])
+        else:
+            Sk = np.zeros((int(ok.sum()), d, Ju.shape[-1]))
+            Sk[:, space] = -np.linalg.solve(Jp[ok], Ju[ok])
+            S[ok] = Sk
     return S
 
 

@@ -1,17 +1,26 @@
 """Estimators: the shared block Levenberg-Marquardt and the calibration methods built on it."""
 
-from .constraint_link import (
+from ..estimation.estimator import (
+    BlockProblem,
+    CalibrationResult,
+    levenberg_marquardt,
+    reduce_local,
+)
+from ..estimation.registration import register_points
+from ..instruments.constraint_link import (
     METHODS,
     ConstraintLinkFK,
     ConstraintLinkIK,
     ConstraintLinkIKExplicit,
     ConstraintLinkML,
+    StartReport,
     calibrate_constraint_link,
+    continuation_solve,
     solve_sphere_poses,
+    sphere_pose_candidates,
+    start_sensitivity,
 )
-from .distances import calibrate_distances
-from .estimator import BlockProblem, CalibrationResult, levenberg_marquardt, reduce_local
-from .full_pose import (
+from ..instruments.pose import (
     FullPoseErrors,
     FullPoseIK,
     FullPoseML,
@@ -21,8 +30,15 @@ from .full_pose import (
     full_pose_errors,
     gauge_free_error,
 )
+from ..instruments.tracker import (
+    TrackerProblem,
+    calibrate_tracker,
+    distance_ratios,
+    predict_tracker_points,
+    prediction_covariance,
+)
+from .distances import calibrate_distances
 from .probe import calibrate_probe, poorly_determined
-from .registration import register_points
 from .run import (
     KINDS,
     Calibration,
@@ -32,14 +48,6 @@ from .run import (
     measurement_kind,
     register_kind,
     supported_kinds,
-)
-from .start import StartReport, continuation_solve, sphere_pose_candidates, start_sensitivity
-from .tracker import (
-    TrackerProblem,
-    calibrate_tracker,
-    distance_ratios,
-    predict_tracker_points,
-    prediction_covariance,
 )
 from .validation import constraint_link_reading_rms, holdout_split
 

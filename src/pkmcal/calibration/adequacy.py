@@ -182,7 +182,7 @@ def model_adequacy(result, length_factor: float = 1e-6, angle_factor: float = 1e
         strongest significant ones), ``tests``, ``alpha``, ``verdict`` (words); None when the
         result has no problem or residuals to examine.
     """
-    from .variance import noise_groups_of
+    from ..estimation.variance import noise_groups_of
 
     problem = result.extras.get("problem")
     r = np.asarray(result.residuals, float)

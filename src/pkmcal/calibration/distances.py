@@ -18,10 +18,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from ..identifiability.rank import RTOL
+from ..estimation.estimator import CalibrationResult
+from ..estimation.rank import RTOL
 from ..instruments import DistancesModel, InstrumentData, IsotropicNoise, fit_instrument
 from ..machines.base import Machine
-from .estimator import CalibrationResult
 
 
 def calibrate_distances(machine: Machine, data: InstrumentData, noise=None, rtol: float = RTOL,
@@ -42,7 +42,7 @@ def calibrate_distances(machine: Machine, data: InstrumentData, noise=None, rtol
         False fits the mountings alone with the machine file's model (the "before
         calibration" baseline).
     **options
-        Passed to :func:`~pkmcal.calibration.estimator.levenberg_marquardt`.
+        Passed to :func:`~pkmcal.estimation.estimator.levenberg_marquardt`.
 
     Returns
     -------

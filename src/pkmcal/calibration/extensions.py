@@ -341,7 +341,7 @@ def choose_full_pose_extensions(machine, data, method: str = "ml", noise=None, f
     frames : MeasurementFrames, optional
         Start (or fixed) frames, as for the calibration.
     fix_frames : bool or str or sequence of str, optional
-        As for :func:`~pkmcal.calibration.full_pose.calibrate_full_pose`.
+        As for :func:`~pkmcal.instruments.pose.calibrate_full_pose`.
     folds, seed : int, optional
         Cross-validation folds and their seed.
     candidates : list of ModelExtension, optional
@@ -354,8 +354,7 @@ def choose_full_pose_extensions(machine, data, method: str = "ml", noise=None, f
     ExtensionChoice
         The model to calibrate and what was tried.
     """
-    from ..measurements import FullPoseNoise
-    from .full_pose import calibrate_full_pose, full_pose_errors
+    from ..instruments.pose import FullPoseNoise, calibrate_full_pose, full_pose_errors
 
     noise = FullPoseNoise() if noise is None else noise
 
@@ -405,7 +404,7 @@ def held_out_loss(machine, frames, data, method: str, noise) -> np.ndarray:
     ndarray, shape (len(data),)
         Sum of squared whitened residuals per row.
     """
-    from .full_pose import calibrate_full_pose
+    from ..instruments.pose import calibrate_full_pose
 
     fit = calibrate_full_pose(machine, data, method=method, noise=noise, frames=frames,
                               fix_frames=True, fit_machine=False, estimate_noise=False,

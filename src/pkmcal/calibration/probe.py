@@ -34,15 +34,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..identifiability.rank import RTOL
+from ..estimation.rank import RTOL
 from ..instruments import InstrumentData, IsotropicNoise, fit_instrument
 from ..instruments.bed import BED_TILT_CHOICES, TILT_REDUNDANCY, BedChoice, bed_choice
 
 __all__ = ["BED_TILT_CHOICES", "MEASURE_NEXT", "POOR_STD", "TILT_REDUNDANCY", "BedChoice",
            "PoorParameter", "bed_choice", "calibrate_probe", "poorly_determined",
            "poorly_determined_warnings"]
+from ..estimation.estimator import CalibrationResult
 from ..machines.base import Machine
-from .estimator import CalibrationResult
 
 #: the displacement at the machine's scale (m) beyond which a fitted parameter's standard
 #: deviation makes it poorly determined (see the module docstring)
@@ -235,7 +235,7 @@ def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: fl
     bed : BedChoice or str, optional
         The bed's unknowns (:func:`bed_choice`; a string is its ``choice``).
     **options
-        Passed to :func:`~pkmcal.calibration.estimator.levenberg_marquardt`.
+        Passed to :func:`~pkmcal.estimation.estimator.levenberg_marquardt`.
 
     Returns
     -------

@@ -27,6 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConvergenceError, InputError
+from ..instruments.constraint_link import link_noise_arg  # noqa: F401
+from ..instruments.pose import full_pose_noise_arg  # noqa: F401
+from ..instruments.tracker import _tracker_noise_text, tracker_noise_arg  # noqa: F401
 
 __all__ = ["JOINT_KINDS", "KINDS", "WHITENED_METHODS", "Calibration",
            "CalibrationNotConverged", "CalibrateOptions", "JointPart", "MeasurementKind",
@@ -207,153 +210,6 @@ def holdout_arg(text: str) -> float:
         raise InputError(f"--holdout {text}: give the share of rows to hold out (e.g. 0.2 or "
                          "20%) or their number (e.g. 30)")
     return value
-
-
-def link_noise_arg(text: str | float | None, machine=None) -> float:
-    """The encoder noise of constraint-link data (``--noise``, default 1 um), m.
-
-    Parameters
-    ----------
-    text : str or float or None
-        A length with its unit (``"2um"``), a number in metres, or None for 1 um.
-    machine : Machine, optional
-        Checked against its size when given.
-
-    Returns
-    -------
-    float
-        The standard deviation, m.
-
-    Raises
-    ------
-    InputError
-        When it is not a positive length or implausible for the machine.
-    """
-    from ..io.plausibility import check_option_scale
-    from ..units import parse_quantity
-
-    if text is None or (isinstance(text, str) and not text):
-        text = "1um"
-    sigma = float(text) if isinstance(text, (int, float)) else \
-        parse_quantity(text, "length", "--noise")
-    if not sigma > 0:
-        raise InputError(f"--noise: must be > 0 (the standard deviation of the encoder "
-                         f"noise), got {text}")
-    if machine is not None:
-        check_option_scale(sigma, machine, "--noise", "noise", str(text))
-    return sigma
-
-
-def tracker_noise_arg(text: str | None, allow_none: bool, machine=None):
-    """The tracker noise model of ``--noise``: leica (default), none, or a length.
-
-    Parameters
-    ----------
-    text : str or None
-        ``leica`` or None (the default model), ``none``, or a length for isotropic noise.
-    allow_none : bool
-        Whether ``none`` (exact points, a simulation) is allowed.
-    machine : Machine, optional
-        The length is checked against its size when given.
-
-    Returns
-    -------
-    tuple
-        ``(TrackerNoise or None, description)``.
-
-    Raises
-    ------
-    InputError
-        When the text is not a noise model allowed here.
-    """
-    from ..io.plausibility import check_option_scale
-    from ..measurements import TrackerNoise
-    from ..units import parse_quantity
-
-    if text is None or text.strip().lower() == "leica":
-        return TrackerNoise(), "leica (5 um along the beam, 7.5 um + 3 um/m across)"
-    if text.strip().lower() == "none":
-        if not allow_none:
-            raise InputError("--noise none: the calibration weighs the points by their noise; "
-                             "give leica or a length such as 10um")
-        return None, "none"
-    sigma = parse_quantity(text, "length", "--noise")
-    if sigma == 0 and allow_none:
-        return None, "none"
-    if not sigma > 0:
-        raise InputError(f"--noise: must be > 0 (a standard deviation), leica or none; got "
-                         f"{text}")
-    if machine is not None:
-        check_option_scale(sigma, machine, "--noise", "noise", text)
-    return TrackerNoise(sigma, sigma, 0.0), f"isotropic {sigma * 1e6:.4g} um"
-
-
-def _tracker_noise_text(model) -> str:
-    """Words of a :class:`~pkmcal.measurements.TrackerNoise` given as an object."""
-    from ..measurements import TrackerNoise
-
-    if model == TrackerNoise():
-        return tracker_noise_arg(None, allow_none=False)[1]
-    if model.distance == model.transverse and model.transverse_per_m == 0:
-        return f"isotropic {model.distance * 1e6:.4g} um"
-    return (f"{model.distance * 1e6:.4g} um along the beam, {model.transverse * 1e6:.4g} um + "
-            f"{model.transverse_per_m * 1e6:.4g} um/m across")
-
-
-def full_pose_noise_arg(noise: str | None, pose_noise: str | None, strict: bool,
-                        machine=None):
-    """The full-pose noise model of ``--noise`` and ``--pose-noise``.
-
-    Parameters
-    ----------
-    noise : str or None
-        Noise of the readings, as a leg length (default: the model's).
-    pose_noise : str or None
-        ``POSITION,ORIENTATION`` with units (e.g. ``20um,50urad``; default: the model's).
-    strict : bool
-        Every standard deviation must be > 0 (a calibration weighs by them); else >= 0 (a
-        simulation may be exact).
-    machine : Machine, optional
-        The values are checked against its size when given.
-
-    Returns
-    -------
-    FullPoseNoise
-        The noise model, SI units.
-
-    Raises
-    ------
-    InputError
-        When a value is malformed, out of range or implausible for the machine.
-    """
-    from ..io.plausibility import check_option_scale
-    from ..measurements import FullPoseNoise
-    from ..units import parse_quantity
-
-    default = FullPoseNoise()
-    reading = default.reading_m if noise is None else parse_quantity(noise, "length", "--noise")
-    if pose_noise is None:
-        position, orientation = default.position_m, default.orientation_rad
-    else:
-        parts = [p.strip() for p in str(pose_noise).split(",")]
-        if len(parts) != 2:
-            raise InputError(f"--pose-noise: expected POSITION,ORIENTATION with units (e.g. "
-                             f"20um,50urad), got {pose_noise!r}")
-        position = parse_quantity(parts[0], "length", "--pose-noise (position)")
-        orientation = parse_quantity(parts[1], "angle", "--pose-noise (orientation)")
-    for option, value, text in (("--noise", reading, noise),
-                                ("--pose-noise", position, pose_noise),
-                                ("--pose-noise", orientation, pose_noise)):
-        if not (math.isfinite(value) and (value > 0 if strict else value >= 0)):
-            need = ("must be > 0 (a standard deviation that weighs the residuals)" if strict
-                    else "must be >= 0")
-            raise InputError(f"{option}: {need}, got {text}")
-    if machine is not None:
-        check_option_scale(reading, machine, "--noise", "noise", noise)
-        check_option_scale(position, machine, "--pose-noise (position)", "noise", pose_noise)
-        check_option_scale(orientation, machine, "--pose-noise (orientation)", "angle noise",
-                           pose_noise)
-    return FullPoseNoise(reading, position, orientation)
 
 
 # --------------------------------------------------------------------------------------------
@@ -758,9 +614,9 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         The machine's nominal model (the start of the estimation).
     data : str or os.PathLike or data object, or a list of them
         A data file (its columns give the kind, see :data:`KINDS`) or data read already
-        (:class:`~pkmcal.measurements.ConstraintLinkData`,
-        :class:`~pkmcal.measurements.TrackerData`,
-        :class:`~pkmcal.measurements.FullPoseData`). A list of several: one geometry from all
+        (:class:`~pkmcal.instruments.constraint_link.ConstraintLinkData`,
+        :class:`~pkmcal.instruments.tracker.TrackerData`,
+        :class:`~pkmcal.instruments.pose.FullPoseData`). A list of several: one geometry from all
         of them, each file with its own instrument unknowns and noise (:data:`JOINT_KINDS`
         combine; see :func:`calibrate_joint`); a list of one is that one. A Klipper
         ``printer.cfg`` is read for the measurements its ``[delta_calibrate]`` section saved
@@ -771,8 +627,8 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         ``ik``; not for tracker data (see ``two_step``).
     noise : str or float or noise model, optional
         Constraint link: the encoder noise (m, or text such as ``"1um"``, the default).
-        Tracker: a :class:`~pkmcal.measurements.TrackerNoise`, or ``"leica"`` (default) or
-        a length. Full pose: a :class:`~pkmcal.measurements.FullPoseNoise`, or the readings'
+        Tracker: a :class:`~pkmcal.instruments.tracker.TrackerNoise`, or ``"leica"`` (default) or
+        a length. Full pose: a :class:`~pkmcal.instruments.pose.FullPoseNoise`, or the readings'
         noise as a leg length (text).
     pose_noise : str, optional
         Full pose: noise of the measured poses, ``"POSITION,ORIENTATION"`` with units.
@@ -1026,7 +882,7 @@ def _split_rows(data, split, source):
     """``(calibration data, held-out data or None)`` for ``holdout``/``seed``."""
     if split is None:
         return data, None
-    from . import holdout_split
+    from .validation import holdout_split
 
     try:
         train, held = holdout_split(len(data), *split)
@@ -1116,7 +972,12 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list) -> 
     against the assumed noise, for :data:`WHITENED_METHODS`; size of the changes against the
     machine's scale): warnings in words with the usual causes (appended to ``warnings``), and
     the report's ``acceptance`` section."""
-    from .acceptance import GROSS_RESIDUAL, MAX_NOISE_FACTOR, parameter_changes, residual_test
+    from ..estimation.acceptance import (
+        GROSS_RESIDUAL,
+        MAX_NOISE_FACTOR,
+        parameter_changes,
+        residual_test,
+    )
 
     out = {}
     noise = result.extras.get("noise")
@@ -1299,13 +1160,14 @@ def _calibrate_constraint_link(machine, data, source, options: CalibrateOptions,
     kind = "constraint-link"
     data, held = _split_rows(_load(data, read_constraint_link, machine), split, source)
 
-    from . import calibrate_constraint_link, constraint_link_reading_rms
+    from ..instruments.constraint_link import calibrate_constraint_link
+    from .validation import constraint_link_reading_rms
 
     result = _solve(source, calibrate_constraint_link, machine, data, held=held,
                     method=method, sigma_m=sigma, estimate_link_length=estimate_lc,
                     estimate_noise=options.noise is None, robust=options.robust)
     _require_converged(result, source)
-    from .constraint_link import PROBLEMS
+    from ..instruments.constraint_link import PROBLEMS
 
     kw = {} if estimate_lc is None else {"estimate_link_length": estimate_lc}
     result.extras["rebuild_problem"] = lambda: PROBLEMS[method](machine, data, sigma, **kw)
@@ -1498,7 +1360,7 @@ def _as_tracker_data(data):
     """Points given as the instrument layer's data, as tracker data (others unchanged)."""
     if getattr(data, "kind", None) != "points":
         return data
-    from ..measurements import TrackerData
+    from ..instruments.tracker import TrackerData
 
     return TrackerData(data.q, data.values, data.rows, data.source, data.true_P,
                        target=data.group if data.n_groups > 1 else None)
@@ -1524,9 +1386,9 @@ def _check_tracker(options: CalibrateOptions, source) -> None:
 
 
 def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) -> Calibration:
+    from ..instruments.tracker import calibrate_tracker, distance_ratios, predict_tracker_points
     from ..io import read_tracker
     from ..units import LENGTH
-    from . import calibrate_tracker, distance_ratios, predict_tracker_points
 
     two_step, robust = options.two_step, options.robust
     if options.noise is None or isinstance(options.noise, str):
@@ -1714,11 +1576,15 @@ def _check_full_pose(options: CalibrateOptions, source) -> None:
 
 def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
                          split) -> Calibration:
+    from ..instruments.pose import (
+        FullPoseNoise,
+        MeasurementFrames,
+        calibrate_full_pose,
+        full_pose_errors,
+    )
     from ..io import read_full_pose
     from ..io.machine_file import reading_factor
-    from ..measurements import FullPoseNoise, MeasurementFrames
     from ..units import LENGTH
-    from . import calibrate_full_pose, full_pose_errors
 
     method, fix_frames = options.method or "ml", options.fix_frames
     if isinstance(options.noise, FullPoseNoise):
@@ -1892,7 +1758,7 @@ def _check_distances(options: CalibrateOptions, source) -> None:
 def _distance_noise(noise, machine):
     """The ballbar noise of ``--noise`` (text or SI number or model; default 1 um)."""
     from ..instruments import IsotropicNoise
-    from ..io.plausibility import check_option_scale
+    from ..plausibility import check_option_scale
     from ..units import parse_quantity
 
     if noise is None:
@@ -2265,8 +2131,8 @@ class JointPart:
 
 def _joint_tracker(machine, data, source, noise) -> JointPart:
     from ..instruments import PointsModel
+    from ..instruments.tracker import as_points
     from ..io import read_tracker
-    from .tracker import as_points
 
     if noise is None or isinstance(noise, str):
         noise_model, text = tracker_noise_arg(noise, allow_none=False, machine=machine)
@@ -2809,7 +2675,7 @@ def expand_firmware_data(data, machine):
     """Data files that are a firmware's saved state (a Klipper ``printer.cfg`` with
     ``[delta_calibrate]`` data) or a pasted probe report (Marlin ``Bed X: Y: Z:`` lines,
     RepRapFirmware's ``bed probe heights`` reply:
-    :func:`~pkmcal.io.firmware_reports.probe_report_data`) replaced by the measurements they
+    :func:`~pkmcal.export.firmware_reports.probe_report_data`) replaced by the measurements they
     hold.
 
     Parameters
@@ -2825,8 +2691,8 @@ def expand_firmware_data(data, machine):
         ``data`` with each firmware file replaced by its data objects (a list when that gives
         more than one).
     """
+    from ..export.firmware_reports import is_probe_report, probe_report_data, read_probe_report
     from ..io.atomic import read_input_text
-    from ..io.firmware_reports import is_probe_report, probe_report_data, read_probe_report
     from ..io.klipper_config import is_klipper_config, read_klipper_data
 
     items = list(data) if isinstance(data, (list, tuple)) else [data]

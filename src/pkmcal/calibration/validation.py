@@ -77,8 +77,8 @@ def constraint_link_reading_rms(machine, data, sigma_m: float, max_iter: int = 2
     float
         RMS over all readings (m); NaN when the poses cannot be fitted.
     """
-    from .constraint_link import ConstraintLinkML
-    from .estimator import levenberg_marquardt
+    from ..estimation.estimator import levenberg_marquardt
+    from ..instruments.constraint_link import ConstraintLinkML
 
     try:
         problem = ConstraintLinkML(machine.with_parameters(machine.u), data, sigma_m)

@@ -37,10 +37,9 @@ from ..io import (
 )
 from ..io.atomic import is_stream
 from ..io.machine_file import DEFAULT_UNITS
-from ..io.plausibility import check_option_scale
 from ..limits import MAX_MEASUREMENTS
-from ..measurements.deviations import DEFAULT_DEVIATIONS
-from ..measurements.deviations import deviations as _deviations
+from ..machines.deviations import deviations as _deviations
+from ..plausibility import check_option_scale
 from ..units import ANGLE, LENGTH, parse_quantity
 from ._console import console, error, warning
 
@@ -239,7 +238,7 @@ def run_simulate(machine_spec: str, output: Path, scenario: str | None, poses: i
 
         usable = [name for name, inst in INSTRUMENTS.items() if inst.applies(machine) is None]
         raise InputError(f"{exc}; this {kind} can simulate: {', '.join(usable)}") from None
-    deviations = deviations or DEFAULT_DEVIATIONS.get(kind, "random")
+    deviations = deviations or machine.DEFAULT_DEVIATIONS
     check_outputs([output] + ([truth] if truth else []), _machine_inputs(machine_spec))
     flag = f"--scenario {requested or scenario}"
     grid_path = (scenario == "tracker" and machine.tracker_grid_spacing() is not None
@@ -417,7 +416,7 @@ def _truth_rows(machine, scenario: str, info: dict):
 
 def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, deviations: str,
                       truth: Path | None, shape: tuple[int, int, int], outliers: int) -> None:
-    from ..measurements import (
+    from ..instruments.tracker import (
         TRACKER_GRID_SPACING,
         default_tracker_pose,
         grid_points,
@@ -553,7 +552,7 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
 def _noise_rows(table, report) -> None:
     """The noise levels the fit used (estimated from the residuals, or assumed / given) and
     the rows the outlier test names."""
-    from ..calibration.variance import NoiseEstimate
+    from ..estimation.variance import NoiseEstimate
 
     levels = report.get("noise_model")
     if levels is not None:
@@ -908,7 +907,7 @@ def run_fk(machine_spec: str, joints: Path, output: Path, frame: str = "base",
     result = machine.fk(q)
     result.raise_if_failed(what=f"{joints}: forward kinematics", rows=rows)
     units = _units(machine)
-    if machine.pose_dof == 3:
+    if not machine.rotates:
         write_positions(output, result.P, units["length"])
         commit_outputs()
         console().print(f"{len(q)} position(s) of the platform point, base frame, written to "
@@ -974,7 +973,7 @@ def _fk_instrument(machine_spec: str, joints: Path, output: Path,
 def read_poses_of(path: Path, machine):
     """Poses ``(P, R, rows)`` of a file for ``machine``: x, y, z and an orientation (other
     columns ignored); x, y, z only (R = I) for a translation-only platform."""
-    if machine.pose_dof == 3:
+    if not machine.rotates:
         P, rows = read_positions(path)
         return P, np.broadcast_to(np.eye(3), (len(P), 3, 3)), rows
     return read_poses(path)
@@ -1024,7 +1023,7 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
                          f"mode (farther than {machine.MAX_REACH:g}x the machine's size from "
                          "home, or beyond a singularity, e.g. mirrored through the base), "
                          f"row(s) {_rows_text(rows[off])}")
-    if machine.pose_dof == 3:
+    if not machine.rotates:
         # the closed-form FK takes the working assembly mode (platform below the base): a
         # position the arms reach only on the other mode cannot be commanded back
         back = machine.fk(q).P

@@ -123,9 +123,9 @@ def read_instrument_targets(path: Path, machine, frame):
         P, R, rows = read_poses_of(path, machine)
         return P, R, rows, None
     header, table = read_table(path)
-    if machine.pose_dof == 6 and has_orientation(header):
+    if machine.rotates and has_orientation(header):
         P, R, rows = read_poses_of(path, machine)
-    elif machine.pose_dof == 6:
+    elif machine.rotates:
         (P, rows), R = read_positions(path), None
     else:
         P, _, rows = read_poses_of(path, machine)
@@ -205,7 +205,7 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
 
     if group is not None:
         columns = {"target": (group + 1).tolist(), **columns}
-    if machine.pose_dof == 3 or R is None:
+    if not machine.rotates or R is None:
         write_positions(output, P, units["length"], extra=columns)
     else:
         write_poses(output, P, R, units["length"], units["angle"], extra=columns)

@@ -17,8 +17,8 @@ from ..calibration.run import rows_text as _rows_text
 from ..errors import InputError
 from ..instruments.registry import INSTRUMENTS, instrument
 from ..io import read_table
-from ..io.plausibility import check_option_scale
 from ..planning import WORKSPACE_POSES, measured_problem, noise_model  # noqa: F401
+from ..plausibility import check_option_scale
 from ..units import LENGTH, parse_quantity
 from ._commands import (
     _table,

@@ -112,13 +112,19 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
     if frame is not None:
         P, Rb = frame.to_base(P, R)
         R = R if Rb is None else Rb
+        if calibrated.rotates and len(calibrated.pose_space) < 6:
+            # a planar platform: a measured target is in its plane up to the instrument's
+            # noise; the coordinates it does not move along are its home's
+            from ..analysis.accuracy import in_pose_space
+
+            P, R = in_pose_space(calibrated, P, R)
     else:       # a printer's targets are heights above its bed (SPEC 8)
         P = calibrated.targets_in_base(P)
     R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else R
     q = calibrated.ik(P, R)
     ok = calibrated.working_mode(P, R)      # real IK, near home, in home's working mode
     out = Compensation(q, ok)
-    d = calibrated.pose_dof
+    d = 6 if calibrated.rotates else 3
     needs_fit = null is not None and np.size(null) and (nominal is not None or frame is None)
     S = pose_sensitivity(calibrated, P, R) if covariance is not None or needs_fit else None
     workspace = None
@@ -173,7 +179,7 @@ def _old_command_error(calibrated, nominal, P, R):
     ``nominal`` model's commands are sent for poses ``(P, R)``; NaN where it cannot tell."""
     from ..kinematics import rotvec_from_matrix
 
-    d = calibrated.pose_dof
+    d = 6 if calibrated.rotates else 3
     err = np.full((len(P), d), np.nan)
     qn = nominal.ik(P, R)
     good = np.all(np.isfinite(qn), -1) & np.all(np.isfinite(calibrated.ik(P, R)), -1)
@@ -211,7 +217,7 @@ def _instrument_jacobian(calibrated, frame, P, R, S, h: float = 1e-6):
     part through the frame's parameters; central differences of the rigid frame maps."""
     from ..kinematics import matrix_from_rotvec, rotvec_from_matrix
 
-    d = calibrated.pose_dof
+    d = 6 if calibrated.rotates else 3
     Pm0, Rm0 = frame.measure(P, R)
 
     def error(Pm, Rm):

@@ -272,11 +272,11 @@ def instrument_frames(machine) -> dict:
         else:
             targets, estimated = np.asarray(targets, float).reshape(-1, 3), True
         home_R = (np.asarray(machine.home[1], float)
-                  if getattr(machine, "pose_dof", 3) == 6 else None)
+                  if machine.rotates else None)
         out["tracker"] = TrackerFrame(np.asarray(R, float), np.asarray(t, float), targets,
                                       estimated, home_R)
     frames = getattr(machine, "measurement_frames", None)
-    if frames is not None and getattr(machine, "pose_dof", 3) == 6:
+    if frames is not None and len(machine.pose_space) == 6:
         out["pose"] = MocapFrames(frames)
     return out
 

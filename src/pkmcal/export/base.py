@@ -540,7 +540,7 @@ def export_workspace(machine: Machine, workspace=None, n: int = 500, rng=0):
     Workspace
         Poses ``P`` (K, 3), ``R`` (K, 3, 3) and the description.
     """
-    from ..analysis.accuracy import Workspace, default_workspace
+    from ..machines.reach import Workspace, default_workspace
 
     if workspace is None:
         return default_workspace(machine, n, rng)

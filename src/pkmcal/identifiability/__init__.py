@@ -1,5 +1,6 @@
 """What data can and cannot identify: gauges, rank, named null directions, observability."""
 
+from ..estimation.rank import MAX_STD, RTOL, Rank, numerical_rank, rank_rule, weak_words
 from .analysis import (
     IdentifiabilityReport,
     NullDirection,
@@ -21,7 +22,6 @@ from .gauge import (
     gauge_groups,
     transport_covariance,
 )
-from .rank import MAX_STD, RTOL, Rank, numerical_rank, rank_rule, weak_words
 from .report import (
     correlated_pairs,
     identifiability_report,

@@ -7,8 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..estimation.rank import MAX_STD, RTOL, Rank, rank_rule, weak_words
 from ..parameters import ParameterSet
-from .rank import MAX_STD, RTOL, Rank, rank_rule, weak_words
 
 
 @dataclass
@@ -55,7 +55,7 @@ class IdentifiabilityReport:
         Number of free parameters (columns of the Jacobian).
     identifiable : int
         Numerical rank: the number of identifiable directions (the weak ones included), by
-        :func:`~pkmcal.identifiability.rank.rank_rule`.
+        :func:`~pkmcal.estimation.rank.rank_rule`.
     singular_values : ndarray
         Singular values of the scaled reduced Jacobian, largest first.
     unidentifiable : list of NullDirection, optional
@@ -97,7 +97,7 @@ class IdentifiabilityReport:
 
     @property
     def rank(self) -> Rank:
-        """The counts as a :class:`~pkmcal.identifiability.rank.Rank`."""
+        """The counts as a :class:`~pkmcal.estimation.rank.Rank`."""
         return Rank(self.identifiable, self.weakly_identifiable, self.parameters,
                     self.max_std)
 
@@ -335,7 +335,7 @@ def analyze(jacobian_scaled, parameters: ParameterSet, rtol: float = RTOL,
         All parameters (their ``free`` mask places the columns).
     rtol : float, optional
         Singular values at or below ``rtol`` times the largest count as zero
-        (:func:`~pkmcal.identifiability.rank.rank_rule`).
+        (:func:`~pkmcal.estimation.rank.rank_rule`).
     groups : sequence of NullGroup, optional
         Known groups that name null directions first.
     max_std : float or None, optional

@@ -2,7 +2,7 @@
 identifiability``).
 
 The problem is evaluated at its initial state (the nominal machine and the data's poses), the
-per-pose unknowns are eliminated (:func:`~pkmcal.calibration.estimator.reduce_local`) and the
+per-pose unknowns are eliminated (:func:`~pkmcal.estimation.estimator.reduce_local`) and the
 free columns are scaled by ``problem.scales`` (lengths by a characteristic length, angles by
 1). On that scaled reduced Jacobian: the numerical rank and the unidentifiable directions in
 words (:func:`~pkmcal.identifiability.analysis.analyze`), a minimal identifiable parameter set
@@ -17,8 +17,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..estimation.rank import MAX_STD, RTOL
 from .analysis import IdentifiabilityReport, NullGroup, analyze
-from .rank import MAX_STD, RTOL
 
 #: parameter pairs with a larger absolute correlation are reported
 CORRELATION_THRESHOLD = 0.9
@@ -152,8 +152,8 @@ def identifiability_report(problem, groups: Sequence[NullGroup] | Callable | Non
         Where to evaluate (default ``problem.initial_state()``).
     max_std : float or None, optional
         Weak-direction threshold (scaled units), as the calibrations apply it
-        (:data:`~pkmcal.identifiability.rank.MAX_STD`): with the problem's noise model the
-        counts are ``calibrate``'s (:mod:`pkmcal.identifiability.rank`).
+        (:data:`~pkmcal.estimation.rank.MAX_STD`): with the problem's noise model the
+        counts are ``calibrate``'s (:mod:`pkmcal.estimation.rank`).
 
     Returns
     -------
@@ -170,8 +170,8 @@ def identifiability_report(problem, groups: Sequence[NullGroup] | Callable | Non
     InputError
         When the residuals or Jacobians are not finite at the state.
     """
-    from ..calibration.estimator import reduce_local
-    from .rank import rank_rule
+    from ..estimation.estimator import reduce_local
+    from ..estimation.rank import rank_rule
 
     rank_rule(np.zeros(0), rtol, max_std)      # checks rtol and max_std (ValueError)
     state = problem.initial_state() if state is None else state

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..identifiability.rank import RTOL, numerical_rank
+from ..estimation.rank import RTOL, numerical_rank
 from ..machines.base import Machine
 from .data import InstrumentData
 from .models import ProbeModel

@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..estimation.rank import RTOL, numerical_rank
 from ..identifiability import NullGroup, name_null_space, name_weak_directions
-from ..identifiability.rank import RTOL, numerical_rank
 from ..machines.base import Machine
 from ..parameters import ParameterSet
 from .problem import (
@@ -280,9 +280,9 @@ class JointProblem:
         Returns
         -------
         NoiseGroups or None
-            See :class:`~pkmcal.calibration.variance.NoiseGroups`.
+            See :class:`~pkmcal.estimation.variance.NoiseGroups`.
         """
-        from ..calibration.variance import concat_groups
+        from ..estimation.variance import concat_groups
 
         parts, offset = [], 0
         for label, problem in zip(self.labels, self.parts, strict=True):
@@ -615,13 +615,13 @@ def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, estimate
         Rank tolerance.
     estimate_noise : bool or collection of str, optional
         Estimate each file's noise levels from its residuals (its noise model the prior;
-        :func:`~pkmcal.calibration.variance.fit`); False holds them; or the group keys to
+        :func:`~pkmcal.estimation.variance.fit`); False holds them; or the group keys to
         hold (``"label:key"``).
     robust : bool, optional
         Leave out the rows the outlier test names.
     **options
-        Passed to :func:`~pkmcal.calibration.estimator.levenberg_marquardt` (``max_std``
-        defaults to :data:`~pkmcal.identifiability.rank.MAX_STD`).
+        Passed to :func:`~pkmcal.estimation.estimator.levenberg_marquardt` (``max_std``
+        defaults to :data:`~pkmcal.estimation.rank.MAX_STD`).
 
     Returns
     -------
@@ -638,8 +638,8 @@ def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, estimate
         When the start geometry cannot reproduce some readings or a file cannot register its
         instrument.
     """
-    from ..calibration.estimator import MAX_STD, levenberg_marquardt
-    from ..calibration.variance import fit
+    from ..estimation.estimator import MAX_STD, levenberg_marquardt
+    from ..estimation.variance import fit
 
     options = {"max_std": MAX_STD, **options}
     parts = list(parts)

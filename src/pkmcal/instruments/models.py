@@ -48,6 +48,13 @@ class NuisanceModel(ABC):
 
     Subclasses set :attr:`kind`, :attr:`size`, build :attr:`parameters` and implement
     :meth:`residuals` and :meth:`start`.
+
+    Parameters
+    ----------
+    parameters : ParameterSet
+        The instrument's unknowns (names, kinds, start values, fixed flags).
+    rotation_starts : sequence of ndarray, shape (3, 3), optional
+        Start orientations of its rotation parameters (default the identity each).
     """
 
     #: measurement kind as users name it (``points``, ``poses``, ``distances``)
@@ -323,7 +330,7 @@ class PointsModel(NuisanceModel):
         return state.values[self._it]
 
     def start(self, P, R, measured, group, source="<data>"):
-        from ..calibration.registration import register_points
+        from ..estimation.registration import register_points
 
         c = (np.zeros((self.n_targets, 3)) if self.known_target is None
              else np.tile(self.known_target, (self.n_targets, 1)))
@@ -472,7 +479,7 @@ class IsotropicNoise:
 
     def groups(self, measured):
         """One noise group for every component (see :meth:`TrackerNoise.groups
-        <pkmcal.measurements.TrackerNoise.groups>`).
+        <pkmcal.instruments.tracker.TrackerNoise.groups>`).
 
         Parameters
         ----------
@@ -534,6 +541,9 @@ class ProbeModel(NuisanceModel):
     ----------
     tip : array_like, shape (3,), optional
         The nozzle tip in the platform frame, m; default the platform origin.
+    fixed : sequence of str, optional
+        Names of the bed's unknowns held at their values (``bed.z`` on a printer, whose
+        frame is its bed; the tilt where the data cannot tell it).
     """
 
     kind = "probe"

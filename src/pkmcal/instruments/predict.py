@@ -18,7 +18,7 @@ instrument      machine attributes           predicted measurement per reading
 
 The prediction is the forward kinematics of the readings followed by the instrument's own
 model (:class:`~pkmcal.instruments.PointsModel`, :class:`~pkmcal.instruments.DistancesModel`,
-:class:`~pkmcal.measurements.MeasurementFrames`), the same models the calibration fitted: a
+:class:`~pkmcal.instruments.pose.MeasurementFrames`), the same models the calibration fitted: a
 user checks a calibration by comparing new measurements with these predictions.
 """
 
@@ -89,7 +89,7 @@ def fitted_instruments(machine: Machine) -> list[str]:
     out = []
     if getattr(machine, "base_from_tracker", None) is not None:
         out.append("tracker")
-    if getattr(machine, "measurement_frames", None) is not None and machine.pose_dof == 6:
+    if getattr(machine, "measurement_frames", None) is not None and len(machine.pose_space) == 6:
         out.append("pose")
     if getattr(machine, "ballbar_setups", None):
         out.append("distance")

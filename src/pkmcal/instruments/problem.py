@@ -8,7 +8,7 @@ parameters go through the implicit function theorem, ``dx/du = -(dq/dx)^-1 dq/du
 :class:`~pkmcal.machines.Machine` with analytic inverse-kinematics Jacobians serves. Global
 unknowns: the machine's parameters followed by the model's nuisance parameters; no per-row
 unknowns. The problem plugs into the shared estimator
-(:func:`~pkmcal.calibration.estimator.levenberg_marquardt`).
+(:func:`~pkmcal.estimation.estimator.levenberg_marquardt`).
 
 Identifiability in words (:meth:`InstrumentProblem.null_groups`): the machine names the frame
 motions it can represent (:meth:`~pkmcal.machines.Machine.frame_motions`: a rigid motion of
@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from ..estimation.rank import RTOL, numerical_rank
 from ..identifiability import NullGroup, name_null_space, name_weak_directions
-from ..identifiability.rank import RTOL, numerical_rank
 from ..machines.base import Machine
 from .data import InstrumentData
 from .models import NuisanceModel, NuisanceState
@@ -44,6 +44,8 @@ class InstrumentState:
         Instrument unknowns.
     P, R : ndarray
         Platform poses of the rows (warm start of the forward kinematics).
+    converged : ndarray of bool, optional
+        Rows whose forward kinematics converged at the last evaluation.
     """
 
     u: np.ndarray
@@ -252,9 +254,9 @@ class InstrumentProblem:
         Returns
         -------
         NoiseGroups or None
-            See :class:`~pkmcal.calibration.variance.NoiseGroups`.
+            See :class:`~pkmcal.estimation.variance.NoiseGroups`.
         """
-        from ..calibration.variance import NoiseGroups, row_names
+        from ..estimation.variance import NoiseGroups, row_names
 
         groups = getattr(self.noise, "groups", None)
         if not callable(groups):
@@ -272,8 +274,7 @@ class InstrumentProblem:
     def _through_fk(self, u, P, R, de_dx):
         """``de/du = de/dx dx/du`` with ``dx/du = -(dq/dx)^-1 dq/du`` (implicit function)."""
         _, Jx, Ju = self.machine.ik_jacobians(P, R, u)
-        d = self.machine.pose_dof
-        cols = slice(0, 3) if d == 3 else slice(None)
+        cols = list(self.machine.pose_space)
         with np.errstate(all="ignore"):
             dx_du = -np.linalg.solve(np.asarray(Jx)[..., cols], Ju)      # (K, d, n_machine)
         return np.einsum("kid,kdn->kin", de_dx[..., cols], dx_du)
@@ -379,7 +380,7 @@ def problem_null_space(problem, state, rtol: float = RTOL) -> np.ndarray:
     ndarray, shape (n, k)
         Orthonormal unidentifiable directions in scaled coordinates (fixed parameters 0).
     """
-    from ..calibration.estimator import reduce_local
+    from ..estimation.estimator import reduce_local
 
     r, Jg, Jl = problem.evaluate(state)
     free = problem.parameters.free
@@ -500,19 +501,19 @@ def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel,
         Rank tolerance.
     estimate_noise : bool or collection of str, optional
         Estimate the noise levels from the residuals (``noise`` their prior;
-        :func:`~pkmcal.calibration.variance.fit`); False holds ``noise``.
+        :func:`~pkmcal.estimation.variance.fit`); False holds ``noise``.
     robust : bool, optional
         Leave out the rows the outlier test names.
     **options
-        Passed to :func:`~pkmcal.calibration.estimator.levenberg_marquardt` (``max_std``
-        defaults to :data:`~pkmcal.identifiability.rank.MAX_STD`).
+        Passed to :func:`~pkmcal.estimation.estimator.levenberg_marquardt` (``max_std``
+        defaults to :data:`~pkmcal.estimation.rank.MAX_STD`).
 
     Returns
     -------
     CalibrationResult
         With ``extras``: ``problem``, ``machine`` (calibrated), ``model`` (at the estimate),
         ``start_model``, ``unidentifiable`` (named null and weak directions); ``noise``,
-        ``outliers`` (:func:`~pkmcal.calibration.variance.fit`).
+        ``outliers`` (:func:`~pkmcal.estimation.variance.fit`).
 
     Raises
     ------
@@ -520,8 +521,8 @@ def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel,
         When the start geometry cannot reproduce the readings, or the data cannot register the
         instrument.
     """
-    from ..calibration.estimator import MAX_STD, levenberg_marquardt
-    from ..calibration.variance import fit
+    from ..estimation.estimator import MAX_STD, levenberg_marquardt
+    from ..estimation.variance import fit
 
     options = {"max_std": MAX_STD, **options}
     check = instrument_problem(machine, data, model, noise)      # raises, naming the rows

@@ -3,7 +3,7 @@
 Every instrument knows, for any :class:`~pkmcal.machines.Machine`: whether it applies (and why
 not), its default noise model, candidate poses and its standard plan, the noise-free data of a
 plan on the nominal machine, and the calibration problem ``pkmcal calibrate`` solves. Planning
-(:mod:`pkmcal.planning.scenarios`), simulation and calibration look an instrument up here by
+(:mod:`pkmcal.instruments.scenarios`), simulation and calibration look an instrument up here by
 name; adding one is adding an entry, touching neither the estimator nor the CLI.
 
 ===================  ==================================================  =====================
@@ -31,6 +31,15 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
+from ..machines.reach import (  # noqa: F401  (the probe's plans)
+    PROBE_CONDITIONING,
+    PROBE_MARGIN,
+    _bed_points,
+    _probe_ok,
+    bed_centre,
+    bed_height,
+    probe_radius,
+)
 from .problem import InstrumentProblem
 
 
@@ -171,7 +180,7 @@ class Instrument:
         group : ndarray of int, shape (n,) or None
             0-based setup of each pose (None: one).
         """
-        from .simulate import sample_workspace_poses
+        from ..machines.reach import sample_workspace_poses
 
         P, R = sample_workspace_poses(machine, n, rng)
         return P, R, None
@@ -303,22 +312,9 @@ class Instrument:
             raise InputError(f"--pose-noise applies to full-pose measurements, not {self.name}")
         return self.noise_arg(noise, machine)
 
-    def read(self, path, machine: Machine):
-        """The instrument's measurements from a CSV file (:mod:`pkmcal.io`).
-
-        Parameters
-        ----------
-        path : str or os.PathLike
-            The data file.
-        machine : Machine
-            The machine (joint units, reading columns).
-
-        Returns
-        -------
-        object
-            The instrument's data.
-        """
-        raise NotImplementedError
+    #: the name of the :mod:`pkmcal.io` function reading its CSV files
+    #: (:func:`pkmcal.io.read_measurements`); instruments sit below io and name it
+    reader: str = ""
 
     def measured_problem(self, machine: Machine, data, noise=None, source: str = ""):
         """The calibration problem ``pkmcal calibrate`` solves for measured ``data``, unsolved,
@@ -370,9 +366,13 @@ class ConstraintLink(Instrument):
     plan_size = 150
 
     def applies(self, machine):
-        if machine.pose_dof != 6:
+        if not machine.rotates:
             return ("the constraint link takes one degree of freedom of a platform that "
                     "rotates; this machine's platform only translates")
+        if len(machine.pose_space) != 6:
+            return ("the constraint link takes one degree of freedom of a platform that moves "
+                    "in space (six pose coordinates); this machine's platform moves along "
+                    f"{_space_words(machine)} only")
         if getattr(machine, "constraint_link_length", None) is None:
             return ("the machine file has no constraint link: add `constraint_link: {length: "
                     "...}` (in the file's length unit)")
@@ -385,7 +385,7 @@ class ConstraintLink(Instrument):
         return f"encoder noise {noise * 1e6:.4g} um (std)"
 
     def candidates(self, machine, n, rng):
-        from ..measurements import sample_sphere_poses
+        from .constraint_link import sample_sphere_poses
 
         P, R = sample_sphere_poses(machine, link_length(machine), n, rng)
         return P, R, None
@@ -396,7 +396,7 @@ class ConstraintLink(Instrument):
                             P, R)
 
     def planned_data(self, machine, P, R, rows, source, group=None):
-        from ..measurements import ConstraintLinkData
+        from .constraint_link import ConstraintLinkData
 
         P = _on_sphere(P, machine, rows, source)
         q = reachable(machine, P, R, rows, source)
@@ -405,7 +405,7 @@ class ConstraintLink(Instrument):
                                   true_P=P, true_R=R)
 
     def problem(self, machine, data, noise=None, **start):
-        from ..calibration import ConstraintLinkML
+        from .constraint_link import ConstraintLinkML
 
         return ConstraintLinkML(machine, data, self.default_noise() if noise is None else noise)
 
@@ -416,15 +416,18 @@ class ConstraintLink(Instrument):
         """The encoder noise of ``--noise`` (default 1 um), m."""
         return _sigma_arg(text, machine, "encoder noise", 1e-6)
 
-    def read(self, path, machine):
-        from ..io import read_constraint_link
-
-        return read_constraint_link(path, machine)
+    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
+    reader = "read_constraint_link"
 
 
 #: constraint-link plans: largest allowed deviation of |P| from Lc (m); poses within it are
 #: put on the sphere (rounding in a hand-made plan file)
 SPHERE_TOL = 1e-4
+
+
+def _space_words(machine: Machine) -> str:
+    """The pose coordinates a platform moves along, in words (``x, y, rz``)."""
+    return ", ".join(("x", "y", "z", "rx", "ry", "rz")[i] for i in machine.pose_space)
 
 
 def link_length(machine: Machine) -> float:
@@ -464,7 +467,7 @@ def tracker_pose(machine: Machine):
     """
     pose = getattr(machine, "base_from_tracker", None)
     if pose is None:
-        from ..measurements import default_tracker_pose
+        from .tracker import default_tracker_pose
 
         pose = default_tracker_pose()
     return pose
@@ -494,7 +497,7 @@ class Tracker(Instrument):
         return self.plan_size if machine.tracker_grid_spacing() is not None else 60
 
     def default_noise(self):
-        from ..measurements import TrackerNoise
+        from .tracker import TrackerNoise
 
         return TrackerNoise()
 
@@ -508,7 +511,7 @@ class Tracker(Instrument):
     def candidates(self, machine, n, rng):
         if machine.tracker_grid_spacing() is None:
             return super().candidates(machine, n, rng)
-        from ..measurements.deviations import draw_accepted
+        from ..machines.deviations import draw_accepted
 
         half = np.asarray(machine.tracker_grid_spacing(), float)   # the 3x3x3 grid: +/- spacing
         centre = machine.home[0]
@@ -531,7 +534,7 @@ class Tracker(Instrument):
     def standard_plan(self, machine, n, seed):
         if machine.tracker_grid_spacing() is None:
             return super().standard_plan(machine, n, seed)
-        from ..measurements import grid_points
+        from .tracker import grid_points
 
         k = int(round(n ** (1.0 / 3.0)))
         if k < 2 or k**3 != n:
@@ -544,7 +547,7 @@ class Tracker(Instrument):
                             np.broadcast_to(np.eye(3), (n, 3, 3)))
 
     def planned_data(self, machine, P, R, rows, source, group=None):
-        from ..measurements import TrackerData
+        from .tracker import TrackerData
 
         q = reachable(machine, P, R, rows, source)
         Rt, t = tracker_pose(machine)
@@ -553,7 +556,7 @@ class Tracker(Instrument):
                            target=None if group is None else np.asarray(group, int))
 
     def problem(self, machine, data, noise=None, registration=None, targets=None, **start):
-        from ..calibration import TrackerProblem
+        from .tracker import TrackerProblem
 
         groups = getattr(data, "target", getattr(data, "group", None))
         n_targets = 1 if groups is None or not len(groups) else int(np.max(groups)) + 1
@@ -570,24 +573,22 @@ class Tracker(Instrument):
 
     def noise_arg(self, text, machine=None):
         """The tracker noise of ``--noise``: leica (default), or a length per coordinate."""
-        from ..calibration.run import tracker_noise_arg
+        from .tracker import tracker_noise_arg
 
         if text is not None and not isinstance(text, str):
             return text
         return tracker_noise_arg(text, allow_none=False, machine=machine)[0]
 
-    def read(self, path, machine):
-        from ..io import read_points
-
-        return read_points(path, machine)
+    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
+    reader = "read_points"
 
     def measured_problem(self, machine, data, noise=None, source=""):
         """The tracker's pose and the target places started from the data: registered on the
         machine file's forward kinematics, then (unknown targets) fitted with the machine
         held."""
-        from ..calibration import levenberg_marquardt
-        from ..calibration.tracker import TrackerProblem, registration_of
+        from ..estimation.estimator import levenberg_marquardt
         from .models import PointsModel
+        from .tracker import TrackerProblem, registration_of
 
         noise = self.default_noise() if noise is None else noise
         fk = _fk_of(machine, data, source)
@@ -619,13 +620,17 @@ class Pose(Instrument):
     plan_size = 60
 
     def applies(self, machine):
-        if machine.pose_dof != 6:
+        if not machine.rotates:
             return ("full poses need a platform that rotates; this machine's platform only "
                     "translates: measure points (tracker) instead")
+        if len(machine.pose_space) != 6:
+            return ("full poses need a platform that moves in space (six pose coordinates); "
+                    f"this machine's platform moves along {_space_words(machine)} only: "
+                    "measure points (tracker) instead")
         return None
 
     def default_noise(self):
-        from ..measurements import FullPoseNoise
+        from .pose import FullPoseNoise
 
         return FullPoseNoise()
 
@@ -635,14 +640,14 @@ class Pose(Instrument):
                 "(std)")
 
     def planned_data(self, machine, P, R, rows, source, group=None):
-        from ..measurements import FullPoseData
+        from .pose import FullPoseData
 
         q = reachable(machine, P, R, rows, source)
         Pm, Rm = measurement_frames(machine).measured(P, R)
         return FullPoseData(q, Pm, Rm, rows, source, true_P=P, true_R=R)
 
     def problem(self, machine, data, noise=None, frames=None, **start):
-        from ..calibration import FullPoseML
+        from .pose import FullPoseML
 
         return FullPoseML(machine, data, self.default_noise() if noise is None else noise,
                           measurement_frames(machine) if frames is None else frames)
@@ -650,7 +655,7 @@ class Pose(Instrument):
     measurement_words = "full pose (maximum likelihood; both measurement frames estimated)"
 
     def noise_option(self, noise, pose_noise=None, machine=None):
-        from ..calibration.run import full_pose_noise_arg
+        from .pose import full_pose_noise_arg
 
         if noise is not None and not isinstance(noise, str):
             return noise
@@ -660,15 +665,13 @@ class Pose(Instrument):
         """The full-pose noise of ``--noise`` (the leg readings; poses at their default)."""
         return self.noise_option(text, None, machine)
 
-    def read(self, path, machine):
-        from ..io import read_full_pose
-
-        return read_full_pose(path, machine)
+    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
+    reader = "read_full_pose"
 
     def measured_problem(self, machine, data, noise=None, source=""):
         """The measurement frames of the machine file, else estimated from the data (at least
         4 poses)."""
-        from ..calibration import estimate_frames
+        from .pose import estimate_frames
 
         if len(data) < 4:
             raise InputError(f"{source}: {len(data)} pose(s); the measurement frames need at "
@@ -694,7 +697,7 @@ def measurement_frames(machine: Machine):
     """
     frames = getattr(machine, "measurement_frames", None)
     if frames is None:
-        from ..measurements import default_measurement_frames
+        from .pose import default_measurement_frames
 
         frames = default_measurement_frames()
     return frames
@@ -809,6 +812,14 @@ class Distance(Instrument):
     words = "ballbar lengths between a pivot on the base and a ball on the platform"
     plan_size = 90
 
+    def applies(self, machine):
+        # the planned setups sweep spheres around pivots: the platform must move in space
+        if not {0, 1, 2} <= set(machine.pose_space):
+            return ("the ballbar plans sweep spheres around their pivots, and this machine's "
+                    f"platform moves along {_space_words(machine)} only: measure points "
+                    "(tracker) instead")
+        return None
+
     def default_noise(self):
         from .models import IsotropicNoise
 
@@ -822,14 +833,15 @@ class Distance(Instrument):
         deg of the pivot's direction to home; random orientations within 10 deg on platforms
         that rotate)."""
         from ..kinematics import matrix_from_euler
-        from ..measurements.deviations import draw_accepted
+        from ..machines.deviations import draw_accepted
 
         pivots, balls = ballbar_setups(machine)
         P0, R0 = machine.home
         arm = P0 + balls @ R0.T - pivots                  # pivot -> ball at home, per setup
         radius = np.linalg.norm(arm, axis=-1)
         normals = arm / np.where(radius > 0, radius, 1.0)[:, None]
-        rotates = machine.pose_dof == 6
+        rotates = machine.rotates
+        turns = np.isin(np.arange(3, 6), machine.pose_space)     # Euler angle i about axis i
 
         def draw(m, rng):
             g = rng.integers(0, len(pivots), m)
@@ -837,8 +849,8 @@ class Distance(Instrument):
             v /= np.linalg.norm(v, axis=-1, keepdims=True)
             cos = np.sum(v * normals[g], -1)
             v = np.where((cos < 0)[:, None], -v, v)
-            R = (matrix_from_euler(rng.uniform(-0.17, 0.17, (m, 3))) @ R0 if rotates
-                 else np.broadcast_to(np.eye(3), (m, 3, 3)).copy())
+            R = (matrix_from_euler(np.where(turns, rng.uniform(-0.17, 0.17, (m, 3)), 0.0)) @ R0
+                 if rotates else np.broadcast_to(np.eye(3), (m, 3, 3)).copy())
             P = pivots[g] + radius[g, None] * v - np.einsum("kij,kj->ki", R, balls[g])
             with np.errstate(all="ignore"):
                 ok = machine.working_mode(P, R) & (np.abs(cos) > 0.5)
@@ -871,7 +883,7 @@ class Distance(Instrument):
         lengths = np.linalg.norm(P0 + balls @ R0.T - pivots, axis=-1) * 1e3
         length = (f"{lengths[0]:.4g} mm" if np.ptp(lengths) < 1e-6
                   else "/".join(f"{v:.4g}" for v in lengths) + " mm")
-        turn = " and orientations within 10 deg" if machine.pose_dof == 6 else ""
+        turn = " and orientations within 10 deg" if machine.rotates else ""
         return StandardPlan(f"a ballbar of {length} on {words}: {n} random poses on the "
                             f"spheres around the pivots{turn} (seed {seed})", P, R,
                             group=group)
@@ -912,14 +924,12 @@ class Distance(Instrument):
             return text
         return IsotropicNoise(_sigma_arg(text, machine, "ballbar length noise", 1e-6))
 
-    def read(self, path, machine):
-        from ..io import read_distances
-
-        return read_distances(path, machine)
+    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
+    reader = "read_distances"
 
     def measured_problem(self, machine, data, noise=None, source=""):
         """The pivot and ball of each setup fitted to the data with the machine held."""
-        from ..calibration import levenberg_marquardt
+        from ..estimation.estimator import levenberg_marquardt
         from .models import DistancesModel
 
         noise = self.default_noise() if noise is None else noise
@@ -953,126 +963,6 @@ PROBE_SIGMA = 10e-6
 #: Klipper's DELTA_CALIBRATE points (klippy/extras/delta_calibrate.py): the centre, then six
 #: points at 90 + 60 i deg on circles of these fractions of the probe radius
 KLIPPER_SCATTER = (0.95, 0.90, 0.85, 0.70, 0.75, 0.80)
-#: largest inverse condition number of the joint Jacobian accepted at a probe point
-PROBE_CONDITIONING = 0.05
-#: the probe radius of plans: this fraction of the largest reachable, well-conditioned radius
-PROBE_MARGIN = 0.8
-
-
-def bed_height(machine: Machine) -> float:
-    """Height of the nominal bed (a horizontal plane) in the base frame, m.
-
-    The machine's ``bed_height`` (an attribute or method) when it has one, else the height of
-    its home position (the plane probe plans lie on).
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine.
-
-    Returns
-    -------
-    float
-        The bed's z, m.
-    """
-    own = getattr(machine, "bed_height", None)
-    if callable(own):
-        own = own()
-    return float(machine.home[0][2] if own is None else own)
-
-
-def bed_centre(machine: Machine) -> np.ndarray:
-    """Centre of probe patterns on the bed: the machine's ``bed_centre`` or home's x, y.
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine.
-
-    Returns
-    -------
-    ndarray, shape (2,)
-        x, y, m.
-    """
-    own = getattr(machine, "bed_centre", None)
-    if callable(own):
-        own = own()
-    return np.asarray(machine.home[0][:2] if own is None else own, float)[:2]
-
-
-def _probe_ok(machine: Machine, P, R) -> np.ndarray:
-    """Probe points the machine reaches, within its limits, well conditioned, working mode."""
-    with np.errstate(all="ignore"):
-        q, J, _ = machine.ik_jacobians(P, R, want_du=False)
-        J = np.array(J, float)
-        if machine.pose_dof == 3:
-            J = J[..., :3]
-        else:
-            J[..., 3:] /= machine.characteristic_length()
-        ok = np.all(np.isfinite(q), -1) & np.all(np.isfinite(J), (-2, -1))
-        sv = np.linalg.svd(np.where(ok[:, None, None], J, 1.0), compute_uv=False)
-        ok &= sv[..., -1] > PROBE_CONDITIONING * sv[..., 0]
-        ok &= machine.working_mode(P, R)
-        if getattr(machine, "joint_limits", None) is not None and ok.any():
-            ok[ok] = machine.within_limits(q[ok])
-    return ok
-
-
-def _bed_points(machine: Machine, xy):
-    """Poses with the nozzle tip at ``xy`` on the nominal bed, the platform at home
-    orientation (the tip is the platform origin)."""
-    xy = np.atleast_2d(np.asarray(xy, float))
-    P = np.column_stack([xy, np.full(len(xy), bed_height(machine))])
-    return P, np.broadcast_to(machine.home[1], (len(P), 3, 3)).copy()
-
-
-def probe_radius(machine: Machine) -> float:
-    """Radius of probe patterns on the bed, m.
-
-    The machine's ``probe_radius`` when it has one (a printer's configured probe radius), else
-    :data:`PROBE_MARGIN` times the largest radius ``r`` (in steps of 1/40 of the
-    characteristic length) such that the circles of radius up to ``r`` about
-    :func:`bed_centre` on the bed are reachable, within the joint limits and well
-    conditioned (inverse condition number above :data:`PROBE_CONDITIONING`).
-
-    Parameters
-    ----------
-    machine : Machine
-        The nominal machine.
-
-    Returns
-    -------
-    float
-        The radius, m.
-
-    Raises
-    ------
-    InputError
-        When not even the bed's centre can be probed.
-    """
-    own = getattr(machine, "probe_radius", None)
-    if callable(own):
-        own = own()
-    if own is not None:
-        return float(own)
-    L = machine.characteristic_length()
-    centre = bed_centre(machine)
-    t = np.linspace(0.0, 2 * np.pi, 72, endpoint=False)
-    ring = np.column_stack([np.cos(t), np.sin(t)])
-    if not _probe_ok(machine, *_bed_points(machine, centre[None, :])).all():
-        where = str(getattr(machine, "source", "") or "the machine")
-        raise InputError(f"{where}: the bed's centre ({centre[0] * 1e3:.6g}, "
-                         f"{centre[1] * 1e3:.6g}, {bed_height(machine) * 1e3:.6g}) mm cannot be "
-                         "probed (out of reach or badly conditioned); set the bed or home")
-    r = 0.0
-    for k in range(1, 41):
-        radius = k * L / 40
-        if not _probe_ok(machine, *_bed_points(machine, centre + radius * ring)).all():
-            break
-        r = radius
-    return PROBE_MARGIN * (r if r > 0 else L / 80)
-
-
 def probe_pattern(n: int, radius: float, centre=(0.0, 0.0)) -> tuple[np.ndarray, str] | None:
     """The standard probe pattern of ``n`` points on the bed, or None when there is none.
 
@@ -1220,7 +1110,11 @@ class Probe(Instrument):
     plan_size = 37
 
     def applies(self, machine):
-        # a vertical probe needs a z axis the platform moves along: every machine here has one
+        # a vertical probe needs a z axis the platform moves along
+        if 2 not in machine.pose_space:
+            return ("probe heights are measured along z, which this machine's platform does "
+                    f"not move along (it moves along {_space_words(machine)}): measure points "
+                    "(tracker) instead")
         return None
 
     def default_noise(self):
@@ -1281,7 +1175,7 @@ class Probe(Instrument):
     def noise_arg(self, text, machine=None):
         """The probe noise of ``--noise`` (text or SI number or model; default
         :data:`PROBE_SIGMA`)."""
-        from ..io.plausibility import check_option_scale
+        from ..plausibility import check_option_scale
         from ..units import parse_quantity
         from .models import IsotropicNoise
 
@@ -1297,10 +1191,8 @@ class Probe(Instrument):
         check_option_scale(sigma, machine, "--noise", "noise", str(text))
         return IsotropicNoise(sigma)
 
-    def read(self, path, machine):
-        from ..io import read_probe
-
-        return read_probe(path, machine)
+    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
+    reader = "read_probe"
 
     def measured_problem(self, machine, data, noise=None, source=""):
         """The bed's height and tilt started from the data on the machine's geometry."""
@@ -1345,7 +1237,7 @@ class PairDistance(Instrument):
         InputError
             Naming ``--noise``: not a length, not above 0, or beyond the machine's scale.
         """
-        from ..io.plausibility import check_option_scale
+        from ..plausibility import check_option_scale
         from ..units import parse_quantity
         from .models import IsotropicNoise
 
@@ -1427,10 +1319,8 @@ class PairDistance(Instrument):
     measurement_words = ("distances between the nozzle at two sets of readings (no unknown of "
                          "their own)")
 
-    def read(self, path, machine):
-        from ..io import read_pairs
-
-        return read_pairs(path, machine)
+    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
+    reader = "read_pairs"
 
 
 #: the instruments by canonical name
@@ -1468,7 +1358,7 @@ def instrument(name: str) -> Instrument:
 def _sigma_arg(text, machine, what: str, default: float) -> float:
     """A standard deviation of ``--noise`` (text with a unit or an SI number; None: the
     default), m; checked against the machine's size when given."""
-    from ..io.plausibility import check_option_scale
+    from ..plausibility import check_option_scale
     from ..units import parse_quantity
 
     if text is None:

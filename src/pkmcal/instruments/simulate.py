@@ -10,83 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from ..kinematics import matrix_from_euler
 from ..machines.base import Machine
-from ..measurements.deviations import draw_accepted
+from ..machines.reach import HALF_RANGE, MAX_ANGLE, sample_workspace_poses  # noqa: F401
 from .data import InstrumentData
 from .models import NuisanceModel, NuisanceState
-
-#: half-width of the sampled workspace box, in characteristic lengths of the machine
-HALF_RANGE = 0.25
-#: bound of each sampled Euler angle (rad) for platforms that rotate
-MAX_ANGLE = np.deg2rad(10.0)
-
-
-def sample_workspace_poses(machine: Machine, n: int, rng=None, half_range: float | None = None,
-                           max_angle: float = MAX_ANGLE, min_conditioning: float = 0.05):
-    """``n`` random poses around home that the machine can command, well conditioned.
-
-    Positions uniform in a cube of half-width ``half_range`` (default :data:`HALF_RANGE`
-    characteristic lengths) around home; for platforms that rotate, Euler angles uniform in
-    ``+/- max_angle`` on the home orientation. Kept: reachable poses of the working mode
-    (:meth:`~pkmcal.machines.Machine.working_mode`) within the joint limits whose joint
-    Jacobian's inverse condition number (rotations scaled) is above ``min_conditioning``.
-
-    Parameters
-    ----------
-    machine : Machine
-        The nominal machine.
-    n : int
-        Number of poses (>= 1).
-    rng : int, numpy.random.Generator or None, optional
-        Random generator or seed.
-    half_range : float, optional
-        Half-width of the position cube, m.
-    max_angle : float, optional
-        Bound of each Euler angle, rad (unused for translation-only platforms).
-    min_conditioning : float, optional
-        Smallest accepted inverse condition number.
-
-    Returns
-    -------
-    P : ndarray, shape (n, 3)
-        Positions, m.
-    R : ndarray, shape (n, 3, 3)
-        Orientations.
-
-    Raises
-    ------
-    InputError
-        When ``n < 1`` or not enough feasible poses are found.
-    """
-    if n < 1:
-        raise InputError(f"the number of poses must be >= 1, got {n}")
-    rng = np.random.default_rng(rng)
-    P0, R0 = machine.home
-    half = HALF_RANGE * machine.characteristic_length() if half_range is None else half_range
-    rotates = machine.pose_dof == 6
-
-    def draw(m, rng):
-        P = P0 + rng.uniform(-half, half, (m, 3))
-        R = (matrix_from_euler(rng.uniform(-max_angle, max_angle, (m, 3))) @ R0 if rotates
-             else np.broadcast_to(np.eye(3), (m, 3, 3)).copy())
-        with np.errstate(all="ignore"):
-            q, J, _ = machine.ik_jacobians(P, R, want_du=False)
-            J = np.array(J, float)
-            if not rotates:
-                J = J[..., :3]
-            else:
-                J[..., 3:] /= machine.characteristic_length()
-            ok = np.all(np.isfinite(q), -1) & np.all(np.isfinite(J), (-2, -1))
-            sv = np.linalg.svd(np.where(ok[:, None, None], J, 1.0), compute_uv=False)
-            ok &= sv[..., -1] > min_conditioning * sv[..., 0]
-            ok &= machine.working_mode(P, R)
-        return P, R, ok
-
-    where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")
-    return draw_accepted(draw, n, rng, (f"{where}: " if where else "")
-                         + "only {have} of {n} random poses around home are reachable and "
-                         "well conditioned: check the geometry and home", machine=machine)
 
 
 def circle_poses(machine: Machine, centre, radius: float, n: int, normal=(0.0, 0.0, 1.0)):
@@ -295,9 +222,9 @@ def circle_plan(machine: Machine, n: int, setups=None):
 
 
 def _true_machine(machine: Machine, deviations, rng) -> Machine:
-    """``machine`` plus deviations (a name of :func:`~pkmcal.measurements.deviations.deviations`
+    """``machine`` plus deviations (a name of :func:`~pkmcal.machines.deviations.deviations`
     or a vector), every other attribute kept."""
-    from ..measurements.deviations import deviations as draw
+    from ..machines.deviations import deviations as draw
 
     du = draw(machine, deviations, rng) if isinstance(deviations, str) else \
         np.asarray(deviations, float)
@@ -317,8 +244,8 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
     The true machine is ``machine`` plus ``deviations``; the nominal ``machine`` commands the
     poses; the instrument, with its true unknowns, measures the true machine there:
 
-    - ``constraint-link``: :func:`~pkmcal.measurements.simulate_constraint_link` on the
-      sphere of the true link (the file's length minus ``link_error``); ``noise`` encoder std
+    - ``constraint-link``: :func:`~pkmcal.instruments.constraint_link.simulate_constraint_link` on
+      the sphere of the true link (the file's length minus ``link_error``); ``noise`` encoder std
       (m, default 1 um).
     - ``tracker`` (``points``): ``n`` random workspace poses (registry candidates: rotations
       on platforms that rotate), or ``poses``; ``targets`` targets, rows cycling through them;
@@ -327,7 +254,7 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
       ``mounting_error`` per coordinate (the file's target when it gives one). ``noise`` a
       tracker noise model (default ``TrackerNoise()``; None-valued noise: pass
       ``noise=False`` for exact data).
-    - ``pose`` (``poses``): :func:`~pkmcal.measurements.simulate_full_pose` at ``n`` random
+    - ``pose`` (``poses``): :func:`~pkmcal.instruments.pose.simulate_full_pose` at ``n`` random
       poses, through the machine file's ``measurement_frames`` (else the default);
       ``noise`` a ``FullPoseNoise``.
     - ``distance`` (``distances``): ``setups`` mountings of a ballbar of ``length`` (the
@@ -442,7 +369,7 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
         return own(machine, true, n, noise, rng, truth)
 
     if name == "constraint-link":
-        from ..measurements import simulate_constraint_link
+        from .constraint_link import simulate_constraint_link
 
         Lc = float(machine.constraint_link_length) - float(link_error)
         if not Lc > 0:
@@ -457,7 +384,7 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
         return data, true, truth
 
     if name == "pose":
-        from ..measurements import FullPoseNoise, simulate_full_pose
+        from .pose import FullPoseNoise, simulate_full_pose
 
         frames = measurement_frames(machine)
         true.measurement_frames = frames
@@ -474,8 +401,8 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
         return data, true, truth
 
     if name == "tracker":
-        from ..measurements import TrackerNoise
         from .models import PointsModel
+        from .tracker import TrackerNoise
 
         k = int(targets)
         planned = planned_targets(machine, k)
@@ -492,7 +419,7 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
         if poses is None:
             P, R, _ = inst.candidates(machine, n, rng)
             words = (f"{n} random workspace poses around home"
-                     + (" with rotations within +/-10 deg" if machine.pose_dof == 6 else ""))
+                     + (" with rotations within +/-10 deg" if machine.rotates else ""))
         else:
             P, R = np.asarray(poses[0], float), np.asarray(poses[1], float)
             words = f"{len(P)} given poses"
@@ -531,7 +458,7 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
     else:
         P, R, group = inst.candidates(nominal, n, rng)
         words = (f"{n} random poses on the spheres around the {k} pivot(s)"
-                 + (" with rotations within +/-10 deg" if machine.pose_dof == 6 else ""))
+                 + (" with rotations within +/-10 deg" if machine.rotates else ""))
     true_setups = [(p + rng.uniform(-mounting_error, mounting_error, 3),
                     b + rng.uniform(-mounting_error, mounting_error, 3)) for p, b in plan]
     model = DistancesModel(k)

@@ -36,8 +36,36 @@ from .machine_file import (
     save_machine,
 )
 
+
+def read_measurements(instrument, path, machine):
+    """An instrument's measurements from a CSV file, by the reader it names.
+
+    Parameters
+    ----------
+    instrument : Instrument
+        A registry entry (:mod:`pkmcal.instruments.registry`); its ``reader`` names the
+        function of this package that reads its files.
+    path : str or os.PathLike
+        The data file.
+    machine : Machine
+        The machine (joint units, reading columns).
+
+    Returns
+    -------
+    object
+        The instrument's data.
+
+    Raises
+    ------
+    InputError
+        Naming the file, row and column of what cannot be read.
+    """
+    return globals()[instrument.reader](path, machine)
+
+
 __all__ = [
-    "MACHINE_FORMATS", "MachineFormat", "atomic_write_text", "joint_quantity", "load_machine",
+    "read_measurements", "MACHINE_FORMATS", "MachineFormat", "atomic_write_text",
+    "joint_quantity", "load_machine",
     "machine_to_text", "parse_machine", "read_constraint_link", "read_full_pose", "read_joints",
     "read_passive", "read_poses", "read_positions", "read_readings", "read_table",
     "read_tracker", "save_machine", "write_full_pose", "write_joints", "write_poses",

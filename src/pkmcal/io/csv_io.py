@@ -15,7 +15,7 @@ Columns read here:
   :func:`read_full_pose`).
 
 The readers that get the machine also check that the data's scale fits the nominal machine
-(:mod:`pkmcal.io.plausibility`): values off by a unit factor (metres under ``_mm``, radians under
+(:mod:`pkmcal.plausibility`): values off by a unit factor (metres under ``_mm``, radians under
 ``_deg``) are refused with the unit they look like. A header with ``;`` or tabs (a spreadsheet's
 export) is refused as such.
 
@@ -38,12 +38,13 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..instruments.constraint_link import ConstraintLinkData
+from ..instruments.pose import FullPoseData
+from ..instruments.tracker import TrackerData
 from ..kinematics import euler_from_matrix, matrix_from_euler, matrix_from_quaternion
-from ..measurements import ConstraintLinkData, TrackerData
-from ..measurements.full_pose import FullPoseData
+from ..plausibility import Columns, check_full_pose_scale, check_reading_levels, check_tracker_scale
 from ..units import COLUMN_SUFFIXES, LENGTH, QUANTITIES
 from .atomic import atomic_write_text, read_input_text
-from .plausibility import Columns, check_full_pose_scale, check_reading_levels, check_tracker_scale
 
 Row = tuple[int, list[str]]
 
@@ -424,7 +425,7 @@ def _unit_groups(names: list[str], bases: list[str], quantity: str) -> list[tupl
 
 
 def _check_levels(path, q, names: list[str], quantity: str, machine) -> None:
-    """:func:`~pkmcal.io.plausibility.check_reading_levels` per unit of the joint columns."""
+    """:func:`~pkmcal.plausibility.check_reading_levels` per unit of the joint columns."""
     bases = [f"q{j + 1}" for j in range(len(names))]
     for ks, cols in _unit_groups(names, bases, quantity):
         check_reading_levels(path, q, cols, machine, ks)
@@ -496,7 +497,7 @@ def read_constraint_link(path, machine) -> ConstraintLinkData:
     InputError
         When the machine has no constraint-link length or the file is not valid, or the
         readings look like another unit than their columns say (far from the machine's
-        readings at home, :func:`~pkmcal.io.plausibility.check_reading_levels`).
+        readings at home, :func:`~pkmcal.plausibility.check_reading_levels`).
     """
     if getattr(machine, "constraint_link_length", None) is None:
         source = getattr(machine, "source", "the machine")
@@ -532,7 +533,7 @@ def machine_readings(path, machine):
         Column name -> raw strings, for every column.
     columns : Columns or None
         The reading columns when they share one unit of a physical quantity (for the
-        cross-checks of :mod:`~pkmcal.io.plausibility`), else None.
+        cross-checks of :mod:`~pkmcal.plausibility`), else None.
 
     Raises
     ------
@@ -759,7 +760,7 @@ def read_tracker(path, machine) -> TrackerData:
     InputError
         When the file is not valid (file, row and column named), or the points or the
         readings look like another unit than their columns say
-        (:func:`~pkmcal.io.plausibility.check_tracker_scale`).
+        (:func:`~pkmcal.plausibility.check_tracker_scale`).
     """
     points = read_points(path, machine)
     return TrackerData(points.q, points.values, points.rows, source=str(path),
@@ -950,7 +951,7 @@ def read_full_pose(path, machine) -> FullPoseData:
     InputError
         When the file is not valid, a quaternion is not normalised, or positions, Euler
         angles or length readings look like another unit than their columns say
-        (:func:`~pkmcal.io.plausibility.check_full_pose_scale`).
+        (:func:`~pkmcal.plausibility.check_full_pose_scale`).
     """
     q, rows, q_units = _read_readings(path, machine)
     P, R, _, p_units, euler, e_units = _read_poses(path)

@@ -60,7 +60,7 @@ squared: ``L = l0 + gain r + curvature r^2``, the reading curvature a calibratio
 held-out data show it); when one leg has it, every leg has it (0 where absent), and a file
 without it is the linear model. ``measurement_frames`` are
 kept on the machine as ``machine.measurement_frames``
-(:class:`~pkmcal.measurements.full_pose.MeasurementFrames`, None without the key); a
+(:class:`~pkmcal.instruments.pose.MeasurementFrames`, None without the key); a
 calibration from full-pose data writes the identified frames there.
 
 A linear Delta 3D printer (issue 14) is described by its design values, in Klipper's names and
@@ -117,9 +117,15 @@ key), checked by ``ik``, ``compensate``, ``select-poses`` and ``simulate``, and 
 ``in``).
 
 Loading dispatches on ``machine:`` through :data:`MACHINE_FORMATS` (one entry per machine
-type: a pydantic schema, a builder and a dumper), so a new machine type is added there
-without touching the loader. Every problem is an :class:`~pkmcal.errors.InputError` whose
-message reads ``FILE: key.path: what is wrong (line N)``, e.g.
+type: a pydantic schema, a builder and a dumper). A new machine type states its own section
+in its module (``FILE_FORMAT``, a :class:`~pkmcal.machines.file_format.MachineFormat`) and is
+listed in :mod:`pkmcal.machines.registry`; this module adds what every machine file has
+(``pkmcal``, ``machine``, ``name``, ``units``, the instrument sections, ``joint_limits``,
+``calibration``), e.g. the 3-RPR planar robot (:mod:`pkmcal.machines.planar_3rpr`), whose
+``home`` is ``[x, y, phi]``: a file's ``home`` lists the pose coordinates the platform moves
+along (:attr:`~pkmcal.machines.Machine.pose_space`). Every problem is an
+:class:`~pkmcal.errors.InputError` whose message reads
+``FILE: key.path: what is wrong (line N)``, e.g.
 ``machine.yaml: chains[3].alpha: not a number: 'abc' (line 12)``; list indices are 0-based.
 
 Values are converted to internal units (m, rad) on loading; the file's units are kept on the
@@ -130,19 +136,25 @@ a few ulp, and writes atomically (:func:`~pkmcal.io.atomic.atomic_write_text`).
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import json
 import re
 import types
 import typing
-from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    Field,
+    Strict,
+    ValidationError,
+    create_model,
+    field_validator,
+)
 from pydantic_core import PydanticCustomError
 
 from ..errors import InputError
@@ -168,6 +180,9 @@ from ..machines import (
 )
 from ..machines.base import Machine
 from ..machines.delta import LEG_FIELDS
+from ..machines.file_format import MachineFormat, Number, Pose6, Positive, Vector3
+from ..machines.file_format import StrictModel as _Strict
+from ..machines.registry import machine_formats as registered_machine_formats
 from ..units import ANGLE, LENGTH, unit_of
 from .atomic import atomic_write_text, read_input_text
 
@@ -337,16 +352,6 @@ def _parse_yaml(text: str, source: str):
 # --------------------------------------------------------------------------------------------
 
 #: a finite number (int or float; not a string, not a bool, not NaN/inf)
-Number = Annotated[float, Strict(), Field(allow_inf_nan=False)]
-Positive = Annotated[float, Strict(), Field(allow_inf_nan=False, gt=0)]
-Vector3 = Annotated[list[Number], Field(min_length=3, max_length=3)]
-Pose6 = Annotated[list[Number], Field(min_length=6, max_length=6)]
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
-
-
 class Units(_Strict):
     """Units of the numbers in this file."""
 
@@ -641,44 +646,6 @@ class StewartFile(_Strict):
 # --------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class MachineFormat:
-    """How one machine type is read from and written to a file.
-
-    Attributes
-    ----------
-    schema : type of pydantic.BaseModel
-        Validates the file's mapping.
-    build : callable
-        ``build(document, source) -> Machine`` (document validated, file units).
-    dump : callable
-        ``dump(machine, units) -> dict`` of the machine-specific keys, in file order.
-    counts : dict of str to int
-        Required length of each list key (``{"chains": 6}``), for messages.
-    home_text : str, optional
-        What ``home`` holds, for messages.
-    hints : dict of str to str, optional
-        Hints shown with a missing key of this machine type.
-    kinds : dict of tuple to str, optional
-        Key pattern -> ``"length"``, ``"angle"`` or ``"gain"`` (``"*"`` matches any key or
-        index), for the plausibility of the numbers; ``home`` is known to every format.
-    size : callable, optional
-        ``size(document) -> (metres, what it is)``: the machine's own size for plausibility.
-    """
-
-    schema: type[BaseModel]
-    build: Callable[[Any, str], Machine]
-    dump: Callable[[Machine, dict], dict]
-    counts: dict[str, int]
-    home_text: str = "[x, y, z, psi, theta, phi]"
-    hints: dict[str, str] | None = None
-    #: key pattern -> "length", "angle" or "gain" (``"*"`` matches any key or index); ``home``
-    #: is known to every format
-    kinds: dict[tuple, str] | None = None
-    #: ``size(document) -> (metres, what it is)``: the machine's own size for plausibility
-    size: Callable[[Any], tuple[float, str]] | None = None
-
-
 def _factors(units) -> tuple[float, float]:
     return LENGTH[units["length"]], ANGLE[units["angle"]]
 
@@ -770,7 +737,7 @@ def _build_instruments(machine: Machine, doc, fl: float) -> None:
     if frames is None:
         machine.measurement_frames = None
     else:
-        from ..measurements.full_pose import MeasurementFrames
+        from ..instruments.pose import MeasurementFrames
 
         machine.measurement_frames = MeasurementFrames(
             (_rotation(frames.mocap_from_base.rotation),
@@ -805,7 +772,7 @@ def _dump_instruments(machine: Machine, fl: float) -> dict:
         out["bed"] = {"height": float(bed[0]) / fl, "tilt_x": float(bed[1]),
                       "tilt_y": float(bed[2])}
     frames = getattr(machine, "measurement_frames", None)
-    if frames is not None and getattr(machine, "pose_dof", 6) == 6:
+    if frames is not None and len(machine.pose_space) == 6:
         out["measurement_frames"] = {
             "mocap_from_base": _frame_text(frames.mocap_from_base, fl),
             "platform_from_marker": _frame_text(frames.platform_from_marker, fl)}
@@ -1067,7 +1034,34 @@ def _stewart_size(doc) -> tuple[float, str]:
     return float(np.median(norms)) * fl, "the median distance of the leg joints from the origin"
 
 
-#: machine type (``machine:`` in files) -> format; add new machine types here
+def _with_common_sections(fmt: MachineFormat) -> MachineFormat:
+    """A machine module's format (:mod:`pkmcal.machines.registry`) with what every machine
+    file has: ``pkmcal``, ``machine``, ``name``, ``units``, the instrument sections
+    (``tracker``, ``ballbar``, ``bed``: :func:`_build_instruments`), ``joint_limits`` and
+    ``calibration``. The module states its own keys (and ``home``) alone."""
+    schema = create_model(
+        fmt.schema.__name__, __base__=fmt.schema, __module__=fmt.schema.__module__,
+        pkmcal=(Literal[1], ...), machine=(Literal[fmt.kind], ...), name=(str | None, None),
+        units=(Units, ...), tracker=(TrackerSection | None, None),
+        ballbar=(Ballbar | None, None), bed=(BedPlane | None, None), joint_limits=(Any, None),
+        calibration=(dict[str, Any] | None, None))
+
+    def build(doc, source: str) -> Machine:
+        machine = fmt.build(doc, source)
+        _build_instruments(machine, doc, _factors(doc.units.model_dump())[0])
+        return machine
+
+    def dump(machine: Machine, units: dict) -> dict:
+        out = dict(fmt.dump(machine, units))
+        out.update(_dump_instruments(machine, _factors(units)[0]))
+        return out
+
+    return dataclasses.replace(fmt, schema=schema, build=build, dump=dump,
+                               kinds={**(fmt.kinds or {}), **_INSTRUMENT_KINDS})
+
+
+#: machine type (``machine:`` in files) -> format; the four machines below are defined here,
+#: every other machine type in its own module (:mod:`pkmcal.machines.registry`)
 MACHINE_FORMATS: dict[str, MachineFormat] = {
     "hexaslide": MachineFormat(HexaSlideFile, _build_hexaslide, _dump_hexaslide,
                                {"chains": 6}, kinds=_HEXASLIDE_KINDS, size=_hexaslide_size),
@@ -1080,16 +1074,18 @@ MACHINE_FORMATS: dict[str, MachineFormat] = {
                                   {"chains": 3}, home_text="[x, y, z]",
                                   hints=_LINEAR_DELTA_HINTS, kinds=_LINEAR_DELTA_KINDS,
                                   size=_linear_delta_size),
+    **{kind: _with_common_sections(fmt) for kind, fmt in registered_machine_formats().items()},
 }
 
 
 def _kind_of(path: tuple, kinds: dict) -> str | None:
-    if len(path) == 2 and path[0] == "home" and isinstance(path[1], int):
-        return "length" if path[1] < 3 else "angle"
     for pattern, kind in kinds.items():
         if len(pattern) == len(path) and all(p == "*" or p == k
                                              for p, k in zip(pattern, path, strict=True)):
             return kind
+    # ``home`` is x, y, z [, psi, theta, phi] unless the format says otherwise
+    if len(path) == 2 and path[0] == "home" and isinstance(path[1], int):
+        return "length" if path[1] < 3 else "angle"
     return None
 
 
@@ -1532,12 +1528,15 @@ def machine_to_text(machine: Machine, units: dict | None = None,
         raise InputError(f"units must be {{length: mm|m|in, angle: deg|rad}}, got {units}")
     fl, fa = _factors(units)
     body = MACHINE_FORMATS[kind].dump(machine, units)
+    # home: the pose coordinates the platform moves along (x, y, z; the Euler angles of a
+    # platform that rotates; x, y, phi of a planar one)
     P, R = machine.home
-    home = [float(v) / fl for v in np.asarray(P, float)]
-    home_text = "x, y, z"
-    if getattr(machine, "pose_dof", 6) == 6:
-        home += [float(v) / fa for v in euler_from_matrix(np.asarray(R, float))]
-        home_text += ", psi, theta, phi"
+    pose = [float(v) / fl for v in np.asarray(P, float)]
+    pose += [float(v) / fa for v in euler_from_matrix(np.asarray(R, float))] \
+        if machine.rotates else [0.0] * 3
+    space = list(machine.pose_space)
+    home = [pose[i] for i in space]
+    home_text = ", ".join(("x", "y", "z", "psi", "theta", "phi")[i] for i in space)
     lines = [f"pkmcal: {FORMAT_VERSION}", f"machine: {kind}"]
     if getattr(machine, "name", ""):
         lines.append(f"name: {_flow(str(machine.name))}")

@@ -166,7 +166,8 @@ class Machine(ABC):
     kind: str = ""
     #: number of actuated joints
     n_joints: int = 6
-    #: pose degrees of freedom of the platform (6 = full pose, 3 = translation only)
+    #: pose degrees of freedom of the platform (6 = full pose, 3 = translation only or planar);
+    #: which coordinates move is :attr:`pose_space` (generic code asks it, not this count)
     pose_dof: int = 6
     #: the pose coordinates the platform moves along, indices into (x, y, z, rx, ry, rz) (the
     #: columns of a pose Jacobian): every one for a platform that moves in space, ``(0, 1, 2)``
@@ -182,6 +183,12 @@ class Machine(ABC):
     frame_is_bed: bool = False
     #: the frame targets are given in, in words (:meth:`targets_in_base`)
     working_frame_words: str = "base frame of the calibrated model"
+    #: half-widths of the uniform random deviations of a simulated true machine: (length m,
+    #: angle rad) (:func:`~pkmcal.machines.deviations.random_deviations`)
+    RANDOM_DEVIATION: tuple[float, float] = (2e-3, 0.02)
+    #: the deviations of simulated true machines by default (``random``, or a name
+    #: :meth:`paper_deviations` knows)
+    DEFAULT_DEVIATIONS: str = "random"
     #: poses per forward-kinematics chunk (temporaries stay in cache)
     fk_chunk: int = 8192
     #: named parameter subsets (:meth:`parameter_set`); ``full`` (every parameter free) is
@@ -193,6 +200,16 @@ class Machine(ABC):
         self.name = name
         self._home = None if home is None else (np.asarray(home[0], float),
                                                 np.asarray(home[1], float))
+
+    def paper_deviations(self):
+        """The parameter errors of a source paper's experiment for this machine type, or None.
+
+        Returns
+        -------
+        ndarray, shape (n_params,) or None
+            Deviations in internal units (``--deviations paper-table1``); None: there are none.
+        """
+        return None
 
     # -- geometry -------------------------------------------------------------------------
     @property
@@ -405,7 +422,7 @@ class Machine(ABC):
                 return bad, True
             Js = np.array(J, float).reshape(self.n_joints, 6)
             Js[:, 3:] /= self.characteristic_length()
-            Js = Js[:, :3] if self.pose_dof == 3 else Js
+            Js = Js[:, list(self.pose_space)]
             if not np.all(np.isfinite(Js)):
                 return bad, True
             sv = np.linalg.svd(Js, compute_uv=False)
@@ -641,7 +658,7 @@ class Machine(ABC):
 
         A pose qualifies when its inverse kinematics is real, it lies within
         :attr:`MAX_REACH` characteristic lengths of home, and the joint Jacobian's determinant
-        (translation columns for a 3-dof platform) has the sign it has at home: the sign
+        (its columns along :attr:`pose_space`) has the sign it has at home: the sign
         changes only across a singularity, which the machine cannot pass, so a pose of the
         other sign belongs to another working or assembly mode (a platform mirrored through
         the base, say) that the joints could reach only by being taken apart.
@@ -664,7 +681,7 @@ class Machine(ABC):
             q, J, _ = self.ik_jacobians(P, R, u, want_du=False)
             P0, R0 = self.home
             J0 = self.ik_jacobians(P0, R0, u, want_du=False)[1]
-            cols = slice(0, 3) if self.pose_dof == 3 else slice(None)
+            cols = list(self.pose_space)
             sign = np.sign(np.linalg.det(np.nan_to_num(np.asarray(J, float)[..., cols])))
             sign0 = np.sign(np.linalg.det(np.asarray(J0, float).reshape(self.n_joints, 6)[
                 :, cols]))
@@ -787,12 +804,16 @@ class Machine(ABC):
         # One start pose for the whole batch: Newton's first step uses the same Jacobian for
         # every pose, so it is computed once (same step, same clamping as the first iteration
         # of newton_pose_solve).
+        # a platform that moves along fewer than the six pose coordinates (a planar one) is
+        # solved along its own (:attr:`pose_space`)
+        space = None if len(self.pose_space) == 6 else list(self.pose_space)
         shared = None
         if P0.ndim == 1 and R0.ndim == 2 and max_iter >= 2 and K > 1:
             q0, J0, _ = self.ik_jacobians(P0, R0, u, want_du=False)
+            J0s = J0 if space is None else np.asarray(J0)[..., space]
             if np.all(np.isfinite(q0)) and np.all(np.isfinite(J0)) \
-                    and np.linalg.matrix_rank(J0) == J0.shape[-1] == J0.shape[-2]:
-                shared = (q0, J0)
+                    and np.linalg.matrix_rank(J0s) == J0s.shape[-1] == J0s.shape[-2]:
+                shared = (q0, J0s)
         parts = []
         # chunks keep the temporaries in cache: large batches are much faster this way
         for lo in range(0, K, self.fk_chunk) if K else [0]:
@@ -802,10 +823,10 @@ class Machine(ABC):
             R = np.broadcast_to(R0, (K, 3, 3))[lo:lo + k].copy()
             iters = max_iter
             if shared is not None:
-                _shared_first_step(shared, qc, P, R, tol_q)
+                _shared_first_step(shared, qc, P, R, tol_q, space=space)
                 iters -= 1
             part = newton_pose_solve(lambda idx, P, R, qc=qc: self._fk_system(qc[idx], P, R, u),
-                                     P, R, tol_q, iters)
+                                     P, R, tol_q, iters, space=space)
             if shared is not None:
                 part.iterations += 1
             parts.append(part)
@@ -946,7 +967,7 @@ def closed_form_positions_fk(machine: Machine, q, u=None,
 
 
 def newton_pose_solve(system, P, R, tol, max_iter, raise_on_failure=False,
-                      max_step=0.05, max_rot=0.2, step_tol=None) -> FKResult:
+                      max_step=0.05, max_rot=0.2, step_tol=None, space=None) -> FKResult:
     """Batched (Gauss-)Newton over full poses.
 
     Each pose is updated ``P += dP``, ``R <- exp(dOmega) R``; steps are limited to ``max_step``
@@ -975,6 +996,9 @@ def newton_pose_solve(system, P, R, tol, max_iter, raise_on_failure=False,
         Largest rotation step per iteration, rad.
     step_tol : float, optional
         Also converged when every component of the step is below this (least squares).
+    space : sequence of int, optional
+        The pose coordinates (indices into ``[dP, dOmega]``) the poses move along
+        (:attr:`Machine.pose_space` of a planar platform); default: all six.
 
     Returns
     -------
@@ -1006,11 +1030,17 @@ def newton_pose_solve(system, P, R, tol, max_iter, raise_on_failure=False,
             active, r, J, Pa, Ra = active[keep], r[keep], J[keep], Pa[keep], Ra[keep]
         if active.size == 0:
             break
+        if space is not None:
+            J = J[..., space]
         if J.shape[-2] == J.shape[-1]:
             dx = -solve_batched(J, r)
         else:   # least squares by the normal equations (Newton corrects any rounding)
             Jt = np.swapaxes(J, -1, -2)
             dx = -solve_batched(Jt @ J, (Jt @ r[..., None])[..., 0])
+        if space is not None:
+            full = np.zeros(dx.shape[:-1] + (6,))
+            full[..., space] = dx
+            dx = full
         dp, dw = dx[:, :3], dx[:, 3:]
         # readings far outside the workspace (1e300) give steps whose squares overflow: an
         # infinite norm, and the step limit below then stops that pose, which fails to converge
@@ -1037,16 +1067,20 @@ def newton_pose_solve(system, P, R, tol, max_iter, raise_on_failure=False,
     return result
 
 
-def _shared_first_step(shared, q, P, R, tol, max_step=0.05, max_rot=0.2):
+def _shared_first_step(shared, q, P, R, tol, max_step=0.05, max_rot=0.2, space=None):
     """First Newton step of :meth:`Machine.fk` when every pose starts from the same pose.
 
-    ``shared = (q0, J0)``: joints and Jacobian at the start pose. Updates ``P``, ``R`` in place
-    exactly as the first iteration of :func:`newton_pose_solve` would (poses already within
-    ``tol`` do not move).
+    ``shared = (q0, J0)``: joints and Jacobian at the start pose (its columns along ``space``
+    when given). Updates ``P``, ``R`` in place exactly as the first iteration of
+    :func:`newton_pose_solve` would (poses already within ``tol`` do not move).
     """
     q0, J0 = shared
     r = q0 - q                                                     # (k, n)
     dx = -np.linalg.solve(J0, r.T).T
+    if space is not None:
+        full = np.zeros((len(dx), 6))
+        full[:, space] = dx
+        dx = full
     dx[np.max(np.abs(r), axis=-1) < tol] = 0.0
     dp, dw = dx[:, :3], dx[:, 3:]
     with np.errstate(over="ignore"):    # huge readings: an infinite norm, no step (as above)

@@ -35,6 +35,10 @@ LEG_KINDS = ("length",) * 3 + ("angle",) + ("length",) * 5
 DEFAULT_LEG_ANGLES = np.deg2rad([90.0, 180.0, -90.0])
 
 
+#: seed 001's tracker grid around home: dx = dy = 150 mm, dz = 40 mm (3 x 3 x 3 points), m
+TRACKER_GRID_SPACING = (0.15, 0.15, 0.04)
+
+
 def delta_parameters(values=None, n_legs: int = 3) -> ParameterSet:
     """Registry of the 9 error parameters per leg, ``leg{i}.da.x`` ... ``leg{i}.db.z``.
 
@@ -91,6 +95,8 @@ class Delta(Machine):
     default_instrument = "tracker"
     n_joints = 3
     pose_dof = 3
+    #: random deviations of simulated true machines (m, rad)
+    RANDOM_DEVIATION = (1e-3, float(np.deg2rad(0.5)))
     joint_quantity = "angle"
 
     def __init__(self, base_radius: float, platform_radius: float, upper_arm: float,
@@ -482,8 +488,6 @@ class Delta(Machine):
         tuple of float
             The spacing, m.
         """
-        from ..measurements import TRACKER_GRID_SPACING
-
         return tuple(TRACKER_GRID_SPACING)
 
     def tracker_target(self) -> np.ndarray:

@@ -128,6 +128,17 @@ class HexaSlide(Machine):
     default_instrument = "constraint-link"
     n_joints = 6
     pose_dof = 6
+    DEFAULT_DEVIATIONS = "paper-table1"
+
+    def paper_deviations(self):
+        """Seed 000 Table 1's build errors (:func:`paper_table1_deviations`).
+
+        Returns
+        -------
+        ndarray, shape (n_params,)
+            Deviations, internal units.
+        """
+        return paper_table1_deviations(self.parameters)
 
     def __init__(self, parameters: ParameterSet, home=None, name: str = "",
                  constraint_link_length: float | None = None):

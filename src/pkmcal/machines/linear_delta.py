@@ -173,6 +173,9 @@ class LinearDelta(Machine):
     default_instrument = "probe"
     n_joints = 3
     pose_dof = 3
+    #: random deviations of simulated true machines (m, rad): endstops, radius and arms off
+    #: by up to 1 mm, towers leaning and turned by up to 0.3 deg
+    RANDOM_DEVIATION = (1e-3, float(np.deg2rad(0.3)))
     joint_quantity = "length"
     #: the tracker's reflector below the nozzle tip, m: 0 (:meth:`tracker_target`)
     smr_offset = 0.0
@@ -411,8 +414,7 @@ class LinearDelta(Machine):
         Workspace
             With ``surface`` marking the points on the bed.
         """
-        from ..analysis.accuracy import Workspace
-        from ..instruments.registry import probe_radius
+        from .reach import Workspace, probe_radius
 
         rng = np.random.default_rng(rng)
         radius = self.print_radius or probe_radius(self)

@@ -2,6 +2,24 @@
 (:mod:`.assessment`) and optimal pose selection (:mod:`.design`, the policy of
 :mod:`.selection`) (SPEC 3)."""
 
+from ..instruments.scenarios import (
+    DEFAULT_PLAN_SIZE,
+    SCENARIO_OF,
+    SCENARIOS,
+    STANDARD_PLANS,
+    StandardPlan,
+    candidate_poses,
+    candidate_set,
+    default_noise,
+    describe_noise,
+    measurement_frames,
+    planned_data,
+    planned_problem,
+    scenario_for,
+    scenario_problem,
+    standard_plan,
+    tracker_pose,
+)
 from .assessment import (
     MAP_STEPS,
     WORKSPACE_POSES,
@@ -20,24 +38,6 @@ from .design import (
     design_from_problem,
     random_values,
     select_poses,
-)
-from .scenarios import (
-    DEFAULT_PLAN_SIZE,
-    SCENARIO_OF,
-    SCENARIOS,
-    STANDARD_PLANS,
-    StandardPlan,
-    candidate_poses,
-    candidate_set,
-    default_noise,
-    describe_noise,
-    measurement_frames,
-    planned_data,
-    planned_problem,
-    scenario_for,
-    scenario_problem,
-    standard_plan,
-    tracker_pose,
 )
 from .selection import (
     CRITERION_WORDS,

@@ -19,8 +19,14 @@ import numpy as np
 
 from ..errors import InputError
 from ..instruments.registry import instrument
+from ..instruments.scenarios import (
+    candidate_set,
+    describe_noise,
+    planned_problem,
+    scenario_for,
+    standard_plan,
+)
 from .design import Design, design_from_problem
-from .scenarios import candidate_set, describe_noise, planned_problem, scenario_for, standard_plan
 
 __all__ = ["MAP_STEPS", "WORKSPACE_POSES", "IdentifiabilityAnalysis", "assess_identifiability",
            "measured_problem", "noise_model", "prediction_summary", "write_prediction_map"]
@@ -90,7 +96,9 @@ def measured_problem(machine, data_path, scenario: str, noise=None):
         When the file cannot be read or its readings are out of the machine's reach.
     """
     inst = instrument(scenario)
-    data = inst.read(data_path, machine)
+    from ..io import read_measurements
+
+    data = read_measurements(inst, data_path, machine)
     return inst.measured_problem(machine, data, noise, str(data_path)), data
 
 

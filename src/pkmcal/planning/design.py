@@ -2,7 +2,7 @@
 
 Each measurement k adds the information ``F_k^T F_k`` on the global parameters, where ``F_k``
 are its reduced rows: the whitened, column-scaled identification Jacobian with the pose's own
-unknowns eliminated (:func:`~pkmcal.calibration.estimator.reduce_local`; a constraint-link pose
+unknowns eliminated (:func:`~pkmcal.estimation.estimator.reduce_local`; a constraint-link pose
 gives 6 readings - 5 pose unknowns = 1 row, a tracker point 3 rows). The information of a set
 S is ``M(S) = sum_k F_k^T F_k``; its inverse is the Cramer-Rao bound of the scaled parameters
 (identifiable part). Everything is expressed in an orthonormal basis ``V`` of the directions
@@ -95,8 +95,8 @@ def design_from_problem(problem, rtol: float | None = None) -> Design:
         A calibration problem whose measurements are the candidates.
     rtol : float, optional
         Singular values at or below ``rtol`` times the largest count as unidentified; default
-        :data:`~pkmcal.identifiability.rank.RTOL`, the one rank rule of ``calibrate`` and
-        ``identifiability`` (:func:`~pkmcal.identifiability.rank.numerical_rank`).
+        :data:`~pkmcal.estimation.rank.RTOL`, the one rank rule of ``calibrate`` and
+        ``identifiability`` (:func:`~pkmcal.estimation.rank.numerical_rank`).
 
     Returns
     -------
@@ -108,9 +108,9 @@ def design_from_problem(problem, rtol: float | None = None) -> Design:
     InputError
         When the residuals or the Jacobian are not finite at the initial state.
     """
-    from ..calibration.estimator import reduce_local
+    from ..estimation.estimator import reduce_local
+    from ..estimation.rank import RTOL, numerical_rank
     from ..identifiability.analysis import right_singular
-    from ..identifiability.rank import RTOL, numerical_rank
 
     state = problem.initial_state()
     r, Jg, Jl = problem.evaluate(state)

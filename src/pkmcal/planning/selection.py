@@ -16,15 +16,22 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..errors import InputError
-from .assessment import WORKSPACE_POSES, prediction_summary, write_prediction_map
-from .design import Design, Selection, criterion_value, design_from_problem, random_values
-from .scenarios import (
+from ..instruments.scenarios import (
     StandardPlan,
     candidate_set,
     describe_noise,
     planned_problem,
     scenario_for,
     standard_plan,
+)
+from .assessment import WORKSPACE_POSES, prediction_summary, write_prediction_map
+from .design import (
+    Design,
+    Selection,
+    criterion_value,
+    design_from_problem,
+    random_values,
+    select_poses,
 )
 
 __all__ = ["CRITERION_WORDS", "NO_WORSE_RTOL", "PoseSelection", "criterion_ratio",
@@ -484,13 +491,9 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
     as_start = bool(k and selectable > K and np.isfinite(std_ms))
     step(1, f"select-poses: choosing {n} of {selectable} (greedy and the standard plan, "
          "then exchanges)")
-    # the search looked up on the package at each call: the seam where a test puts a search
-    # that ends worse
-    from .. import planning
-
-    sel: Selection = planning.select_poses(pool, n, criterion, A=A,
-                                           starts=[std_idx] if as_start else (),
-                                           bound=std_ms * (1 + 1e-9) if as_start else None)
+    sel: Selection = select_poses(pool, n, criterion, A=A,
+                                  starts=[std_idx] if as_start else (),
+                                  bound=std_ms * (1 + 1e-9) if as_start else None)
     idx = np.asarray(sel.index)
     value = criterion_value(design.information(idx), criterion, A)
     ms = criterion_value(design.information(idx), "pose", A)

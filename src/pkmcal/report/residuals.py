@@ -36,7 +36,7 @@ def leverages(problem, result) -> np.ndarray:
         ``h_ii`` per whitened residual, in [0, 1]; their sum is the number of unknowns fitted
         (local unknowns + identified directions).
     """
-    from ..calibration.variance import _leverages, hat_factors
+    from ..estimation.variance import _leverages, hat_factors
 
     return _leverages(*hat_factors(problem, result))
 

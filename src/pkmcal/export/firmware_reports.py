@@ -123,14 +123,14 @@ class ProbeReport:
 
 def _number(word: str, source: str, n: int, what: str) -> float:
     """A finite number of the report, or an error naming the line and what it is."""
-    from ..export.base import finite_number
+    from .base import finite_number
 
     return finite_number(word, source, n, what)
 
 
 def _rrf_points(lines, source: str) -> dict:
     """``G30 P<i> X<x> Y<y>`` commands: index -> list of (line, x, y), in text order."""
-    from ..export.marlin import gcode_lines, gcode_words
+    from .marlin import gcode_lines, gcode_words
 
     points: dict = {}
     for n, _, rest in gcode_lines("\n".join(lines), ("G30",), sent=True):
@@ -168,8 +168,8 @@ def _values(firmware: str, text: str, source: str, first: int, last: int, notes:
     """The firmware values of the text's ``M665`` / ``M666`` lines (None without any), as the
     whole text leaves them; refused where a line between the first and the last probe line
     changes values already complete before it."""
-    from ..export import controller_format
-    from ..export.marlin import gcode_lines
+    from .base import controller_format
+    from .marlin import gcode_lines
 
     rows = [n for n, _, _ in gcode_lines(text, ("M665", "M666"))]
     if not rows:
@@ -217,7 +217,7 @@ def read_probe_report(text: str, source: str) -> ProbeReport:
         point, a RepRapFirmware height without its ``G30 P<i>`` command, both firmwares'
         reports in one text, or no probe report at all.
     """
-    from ..export.marlin import host_line
+    from .marlin import host_line
 
     raw_lines = text.splitlines()
     marlin, rrf = [], []
@@ -319,8 +319,8 @@ def probe_report_data(report: ProbeReport, machine):
     InputError
         When the firmware values cannot reach a point (naming its line).
     """
-    from ..export import controller_format
     from ..instruments import InstrumentData
+    from .base import controller_format
 
     firmware = machine
     if report.values is not None:

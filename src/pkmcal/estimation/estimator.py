@@ -29,9 +29,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-# MAX_STD: the machine calibrations' default max_std, re-exported for them (one rank rule)
-from ..identifiability.rank import MAX_STD, RTOL, rank_rule  # noqa: F401
 from ..parameters import ParameterSet
+
+# MAX_STD: the machine calibrations' default max_std, re-exported for them (one rank rule)
+from .rank import MAX_STD, RTOL, rank_rule  # noqa: F401
 
 
 class BlockProblem(Protocol):
@@ -147,7 +148,7 @@ class CalibrationResult:
         Residual evaluations.
     rank : int
         Number of identifiable directions of the free parameters (numerical rank,
-        :func:`~pkmcal.identifiability.rank.rank_rule`); includes the weak ones, which are not
+        :func:`~pkmcal.estimation.rank.rank_rule`); includes the weak ones, which are not
         stepped along (``adjusted`` are).
     singular_values : ndarray
         Singular values of the scaled reduced Jacobian of the free parameters.
@@ -212,7 +213,7 @@ class CalibrationResult:
         return int(self.rank) - self.weak
 
     def rank_words(self) -> str:
-        """The identifiable and weak counts in words (:meth:`~pkmcal.identifiability.rank.
+        """The identifiable and weak counts in words (:meth:`~pkmcal.estimation.rank.
         Rank.words`).
 
         Returns
@@ -221,7 +222,7 @@ class CalibrationResult:
             One line, e.g. ``"48 of 60 free parameter directions identifiable, of which 4
             weakly (...)"``.
         """
-        from ..identifiability.rank import Rank
+        from .rank import Rank
 
         n = int(self.parameters.free.sum()) if self.parameters is not None else 0
         return Rank(int(self.rank), self.weak, n, self.max_std).words()
@@ -321,7 +322,7 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
     rtol : float, optional
         Relative tolerance on singular values of the scaled reduced Jacobian; directions with
         ``s_i <= rtol * s_1`` are unidentifiable and never stepped along (the one rank rule,
-        :func:`~pkmcal.identifiability.rank.rank_rule`).
+        :func:`~pkmcal.estimation.rank.rank_rule`).
     xtol : float, optional
         Stop when the largest component of the (undamped) Gauss-Newton step, in scaled
         coordinates, is below ``xtol``, or when that step would lower the cost by less than

@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
-from ..kinematics import matrix_from_euler
-from ..units import COLUMN_SUFFIXES, QUANTITIES
+from .errors import InputError
+from .kinematics import matrix_from_euler
+from .units import COLUMN_SUFFIXES, QUANTITIES
 
 #: the data are "grossly" off when a scale ratio is beyond this factor (either way)
 GROSS = 20.0
@@ -352,7 +352,7 @@ def check_tracker_scale(path, q, q_columns: Columns, m, m_columns: Columns, mach
     InputError
         When the points or the readings look like another unit.
     """
-    if getattr(machine, "pose_dof", 6) != 3 or len(q) < 4:
+    if machine.rotates or len(q) < 4:
         return
     idx = sample_rows(len(q))
     q, m = q[idx], m[idx]

@@ -1,12 +1,12 @@
 """Calibration of a six-leg platform from full-pose measurements (SPEC 2.4).
 
 The measured marker pose is ``mocap_from_base * base_from_platform(q; u) * platform_from_marker``
-(:mod:`pkmcal.measurements.full_pose`). Unknowns: the 48 leg parameters and, unless the user
+(:mod:`pkmcal.instruments.pose`). Unknowns: the 48 leg parameters and, unless the user
 fixes them, the two measurement frames, 6 each (``mocap_from_base.rx/ry/rz``: rotation
 increments about the measurement axes, applied on the left of the start value;
 ``mocap_from_base.x/y/z``: the translation ``a``; ``platform_from_marker.rx/ry/rz/x/y/z``
 likewise for ``(B, c)``, rotations about the platform axes). Two methods share the estimator
-(:func:`~pkmcal.calibration.estimator.levenberg_marquardt`):
+(:func:`~pkmcal.estimation.estimator.levenberg_marquardt`):
 
 ``ik`` (Zhuang, Yan & Masory 1998)
     Inverse-kinematic residuals: each measured pose is mapped through the frames to a platform
@@ -31,25 +31,343 @@ directions are identifiable. A frame the user fixes breaks its gauge, and all 48
 parameters become identifiable by themselves. Both gauges are named in words
 (:meth:`FullPoseProblem.null_groups`); anything else the data cannot fix (e.g. ``l0`` against
 ``gain`` when a leg's readings barely vary) is named by its parameters.
+
+Full-pose measurements of a six-leg platform (SPEC 2.4): leg readings + a measured pose.
+
+A motion-capture system (or a 6-D tracker) measures the pose of a *marker frame* fixed to the
+platform, in its own *measurement frame*. Neither frame is the machine's: the measured pose is ::
+
+    mocap_from_marker = mocap_from_base * base_from_platform(q; u) * platform_from_marker
+
+with ``mocap_from_base = (A, a)`` (a base-frame point ``x`` is ``A x + a`` in the measurement
+frame) and ``platform_from_marker = (B, c)`` (a marker-frame point ``y`` is ``B y + c`` in the
+platform frame). One measurement = the six leg readings and the measured pose ``(Pm, Rm)``.
+
+Noise model (:class:`FullPoseNoise`): every reading has a standard deviation given as a leg
+length (``reading_m``; the reading's own standard deviation is ``reading_m / |gain|``), the
+measured position an isotropic ``position_m``, the measured orientation an isotropic
+``orientation_rad`` (a small rotation about the measurement axes, applied on the left).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import InputError
+from ..estimation.estimator import MAX_STD, CalibrationResult, reduce_local, require_redundancy
+from ..estimation.rank import RTOL, rank_rule
+from ..estimation.registration import register_points
+from ..estimation.variance import fit
 from ..identifiability import name_null_space, name_weak_directions
 from ..identifiability.analysis import right_singular
-from ..identifiability.rank import RTOL, rank_rule
-from ..kinematics import matrix_from_rotvec, rotvec_from_matrix, skew
+from ..kinematics import matrix_from_euler, matrix_from_rotvec, rotvec_from_matrix, skew
 from ..machines.base import Machine
-from ..measurements.full_pose import FullPoseData, FullPoseNoise, MeasurementFrames
+from ..machines.deviations import draw_accepted
 from ..parameters import ParameterSet
-from .estimator import MAX_STD, CalibrationResult, reduce_local, require_redundancy
-from .registration import register_points
-from .variance import fit
+
+Frame = tuple[np.ndarray, np.ndarray]
+
+
+@dataclass(frozen=True)
+class FullPoseNoise:
+    """Standard deviations of full-pose data, SI units.
+
+    Attributes
+    ----------
+    reading_m : float, optional
+        Of a leg reading, expressed as a leg length, m.
+    position_m : float, optional
+        Of each coordinate of the measured position, m.
+    orientation_rad : float, optional
+        Of each component of the measured orientation (small rotation), rad.
+
+    Raises
+    ------
+    InputError
+        When a value is negative or not finite.
+    """
+
+    reading_m: float = 2e-6
+    position_m: float = 20e-6
+    orientation_rad: float = 50e-6
+
+    def __post_init__(self):
+        for name in ("reading_m", "position_m", "orientation_rad"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise InputError(f"noise {name}: must be a finite number >= 0, got {value}")
+
+
+@dataclass(frozen=True)
+class MeasurementFrames:
+    """The two frames that separate the measured poses from the machine's.
+
+    Attributes
+    ----------
+    mocap_from_base : tuple of ndarray
+        ``(A (3, 3), a (3,))``: a base point ``x`` is measured at ``A x + a``.
+    platform_from_marker : tuple of ndarray
+        ``(B (3, 3), c (3,))``: a marker point ``y`` is ``B y + c`` in the platform frame.
+    """
+
+    mocap_from_base: Frame
+    platform_from_marker: Frame
+
+    @classmethod
+    def identity(cls) -> MeasurementFrames:
+        """Both frames the identity: the measured pose is the platform pose.
+
+        Returns
+        -------
+        MeasurementFrames
+            Identity rotations, zero offsets.
+        """
+        return cls((np.eye(3), np.zeros(3)), (np.eye(3), np.zeros(3)))
+
+    def measured(self, P, R):
+        """Measured marker poses ``(Pm, Rm)`` of platform poses ``(P, R)`` (base frame).
+
+        Parameters
+        ----------
+        P : array_like, shape (..., 3)
+            Platform positions, m, base frame.
+        R : array_like, shape (..., 3, 3)
+            Platform orientations.
+
+        Returns
+        -------
+        Pm : ndarray, shape (..., 3)
+            Marker positions in the measurement frame, m.
+        Rm : ndarray, shape (..., 3, 3)
+            Marker orientations in the measurement frame.
+        """
+        (A, a), (B, c) = self.mocap_from_base, self.platform_from_marker
+        P, R = np.asarray(P, float), np.asarray(R, float)
+        Pm = (P + np.einsum("...ij,j->...i", R, c)) @ A.T + a
+        return Pm, A @ R @ B
+
+    def platform(self, Pm, Rm):
+        """Platform poses in the base frame of measured marker poses (inverse of :meth:`measured`).
+
+        ``R = A^T Rm B^T``, ``P = A^T (Pm - a) - R c``.
+
+        Parameters
+        ----------
+        Pm : array_like, shape (..., 3)
+            Marker positions in the measurement frame, m.
+        Rm : array_like, shape (..., 3, 3)
+            Marker orientations in the measurement frame.
+
+        Returns
+        -------
+        P : ndarray, shape (..., 3)
+            Platform positions, m, base frame.
+        R : ndarray, shape (..., 3, 3)
+            Platform orientations.
+        """
+        (A, a), (B, c) = self.mocap_from_base, self.platform_from_marker
+        Pm, Rm = np.asarray(Pm, float), np.asarray(Rm, float)
+        R = A.T @ Rm @ B.T
+        P = (Pm - a) @ A - np.einsum("...ij,j->...i", R, c)
+        return P, R
+
+
+@dataclass
+class FullPoseData:
+    """Leg readings and measured marker poses.
+
+    Attributes
+    ----------
+    q : ndarray, shape (K, 6)
+        Readings, internal units (m for length readings, else the reading unit).
+    P : ndarray, shape (K, 3)
+        Measured marker positions, measurement frame, m.
+    R : ndarray, shape (K, 3, 3)
+        Measured marker orientations.
+    rows : ndarray of int, shape (K,), optional
+        Row numbers in the source file, for messages; default 1..K.
+    source : str, optional
+        File name, for messages.
+    true_P, true_R : ndarray, optional
+        Platform poses of a simulation (base frame), (K, 3) m and (K, 3, 3), else None.
+
+    Raises
+    ------
+    InputError
+        When ``q``, ``P``, ``R`` and ``rows`` do not have the same number of rows.
+    """
+
+    q: np.ndarray
+    P: np.ndarray
+    R: np.ndarray
+    rows: np.ndarray | None = None
+    source: str = "<data>"
+    true_P: np.ndarray | None = None
+    true_R: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.q = np.atleast_2d(np.asarray(self.q, float))
+        self.P = np.atleast_2d(np.asarray(self.P, float))
+        self.R = np.asarray(self.R, float).reshape(-1, 3, 3)
+        if self.rows is None:
+            self.rows = np.arange(1, len(self.q) + 1)
+        self.rows = np.asarray(self.rows)
+        if not (len(self.q) == len(self.P) == len(self.R) == len(self.rows)):
+            raise InputError(f"{self.source}: readings, positions and orientations have "
+                             f"different lengths ({len(self.q)}, {len(self.P)}, {len(self.R)})")
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def subset(self, mask) -> FullPoseData:
+        """The measurements selected by a boolean mask or index array.
+
+        Parameters
+        ----------
+        mask : array_like of bool or int
+            Boolean mask (K,) or indices of the rows to keep.
+
+        Returns
+        -------
+        FullPoseData
+            The selected rows, same source.
+        """
+        pick = (lambda a: None if a is None else a[mask])
+        return FullPoseData(self.q[mask], self.P[mask], self.R[mask], self.rows[mask],
+                            self.source, pick(self.true_P), pick(self.true_R))
+
+
+def default_measurement_frames() -> MeasurementFrames:
+    """The true frames of simulations without ``measurement_frames`` in the machine file.
+
+    ``mocap_from_base``: the base origin is at (1.2, -0.4, -0.3) m in the measurement frame,
+    whose axes are turned 30 deg about Z and tilted 2 deg about X relative to the base axes;
+    ``platform_from_marker``: the marker origin at (10, -5, 25) mm in the platform frame,
+    turned 90 deg about X (a Y-up marker body) and 3 deg about Z.
+
+    Returns
+    -------
+    MeasurementFrames
+        The default frames.
+    """
+    A = matrix_from_rotvec([0.0, 0.0, np.deg2rad(30.0)]) @ matrix_from_rotvec(
+        [np.deg2rad(2.0), 0.0, 0.0])
+    B = matrix_from_rotvec([np.deg2rad(90.0), 0.0, 0.0]) @ matrix_from_rotvec(
+        [0.0, 0.0, np.deg2rad(3.0)])
+    return MeasurementFrames((A, np.array([1.2, -0.4, -0.3])),
+                             (B, np.array([0.01, -0.005, 0.025])))
+
+
+#: default pose set of simulations (SPEC 5 workspace): a 0.1 m cube around home, Euler angles
+#: within +/-10 deg
+POSE_HALF_RANGE = 0.05
+POSE_MAX_ANGLE = np.deg2rad(10.0)
+
+
+def sample_platform_poses(machine: Machine, n: int, rng=None, half_range=POSE_HALF_RANGE,
+                          max_angle=POSE_MAX_ANGLE, min_conditioning: float = 0.05):
+    """``n`` random platform poses around the machine's home.
+
+    Positions are uniform in a cube of half-width ``half_range`` around the home position,
+    Euler angles uniform in ``+/- max_angle`` applied to the home orientation. Poses whose leg
+    Jacobian is badly conditioned (smallest singular value below ``min_conditioning`` times the
+    largest, rotation columns scaled by the characteristic length), whose legs would be
+    shorter than a tenth of their home length or whose readings break the machine's
+    ``joint_limits`` (machine file) are drawn again.
+
+    Parameters
+    ----------
+    machine : Stewart
+        The six-leg platform (uses ``leg_vectors`` and ``lengths``).
+    n : int
+        Number of poses (>= 1).
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed.
+    half_range : float, optional
+        Half-width of the position cube, m.
+    max_angle : float, optional
+        Bound of each Euler angle, rad.
+    min_conditioning : float, optional
+        Smallest accepted inverse condition number of the leg Jacobian.
+
+    Returns
+    -------
+    P : ndarray, shape (n, 3)
+        Platform positions, m.
+    R : ndarray, shape (n, 3, 3)
+        Platform orientations.
+
+    Raises
+    ------
+    InputError
+        When ``n < 1`` or not enough well-conditioned poses are found.
+    """
+    if n < 1:
+        raise InputError(f"the number of poses must be >= 1, got {n}")
+    rng = np.random.default_rng(rng)
+    P0, R0 = machine.home
+    _, _, L0 = machine.leg_vectors(P0, R0)
+
+    def draw(m, rng):
+        P = P0 + rng.uniform(-half_range, half_range, (m, 3))
+        R = matrix_from_euler(rng.uniform(-max_angle, max_angle, (m, 3))) @ R0
+        q, J, _ = machine.ik_jacobians(P, R, want_du=False)
+        ok = (machine.pose_conditioning(P, R, dq_dpose=J) > min_conditioning) \
+            & np.all(machine.lengths(q) > 0.1 * L0, axis=-1)
+        return P, R, ok
+
+    where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")
+    return draw_accepted(draw, n, rng, (f"{where}: " if where else "")
+                         + "only {have} of {n} random poses around home are well conditioned: "
+                         "reduce the pose range or check the geometry (legs) and home",
+                         machine=machine)
+
+
+def simulate_full_pose(true_machine: Machine, poses, frames: MeasurementFrames | None = None,
+                       noise: FullPoseNoise | None = FullPoseNoise(), rng=None) -> FullPoseData:
+    """Full-pose data of ``true_machine`` at given or random platform poses.
+
+    Exact readings and measured marker poses through ``frames``, plus Gaussian noise: the
+    readings ``reading_m`` as a length (:meth:`~pkmcal.machines.Machine.reading_sigma`: over
+    ``|gain|`` for a Stewart), the positions ``position_m`` per coordinate and the
+    orientations a small rotation of ``orientation_rad`` per component, applied on the left.
+
+    Parameters
+    ----------
+    true_machine : Machine
+        The true machine (a platform that rotates).
+    poses : tuple of array_like or int
+        Platform poses ``(P (K, 3), R (K, 3, 3))`` in the base frame, or a number of random
+        poses (:func:`sample_platform_poses`).
+    frames : MeasurementFrames, optional
+        True measurement frames; default :func:`default_measurement_frames`.
+    noise : FullPoseNoise or None, optional
+        Noise levels; None for exact data.
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed.
+
+    Returns
+    -------
+    FullPoseData
+        The readings and measured poses, with the true platform poses in ``true_P``,
+        ``true_R``.
+    """
+    rng = np.random.default_rng(rng)
+    if isinstance(poses, (int, np.integer)):
+        poses = sample_platform_poses(true_machine, int(poses), rng)
+    P, R = (np.asarray(poses[0], float), np.asarray(poses[1], float))
+    frames = default_measurement_frames() if frames is None else frames
+    q = true_machine.ik(P, R)
+    Pm, Rm = frames.measured(P, R)
+    if noise is not None:
+        q = q + true_machine.reading_sigma(noise.reading_m) * rng.standard_normal(q.shape)
+        Pm = Pm + noise.position_m * rng.standard_normal(Pm.shape)
+        Rm = matrix_from_rotvec(noise.orientation_rad * rng.standard_normal(Pm.shape)) @ Rm
+    return FullPoseData(q, Pm, Rm, source="<simulated>", true_P=P, true_R=R)
+
 
 FRAME_NAMES = ("mocap_from_base", "platform_from_marker")
 FRAME_FIELDS = ("rx", "ry", "rz", "x", "y", "z")
@@ -66,6 +384,17 @@ def frame_parameters(frames: MeasurementFrames, fixed=(False, False)) -> Paramet
     kinds = (("angle",) * 3 + ("length",) * 3) * 2
     values = np.concatenate([np.zeros(3), a, np.zeros(3), c])
     return ParameterSet(names, kinds, values, fixed=[fixed[0]] * 6 + [fixed[1]] * 6)
+
+
+def _require_full_space(machine: Machine) -> None:
+    """InputError unless the platform moves along all six pose coordinates."""
+    if not machine.rotates:
+        raise InputError("full-pose data need a platform that rotates; this machine's "
+                         "platform only translates: calibrate it from points")
+    if len(machine.pose_space) != 6:
+        raise InputError("full-pose data need a platform that moves in space (six pose "
+                         "coordinates); this machine's platform moves in a plane: calibrate "
+                         "it from points")
 
 
 @dataclass
@@ -130,9 +459,7 @@ class FullPoseProblem:
     def __init__(self, machine: Machine, data: FullPoseData, noise: FullPoseNoise,
                  frames: MeasurementFrames, fixed_frames=(False, False),
                  fit_machine: bool = True):
-        if machine.pose_dof != 6:
-            raise InputError("full-pose data need a platform that rotates; this machine's "
-                             "platform only translates: calibrate it from points")
+        _require_full_space(machine)
         if data.q.shape[1] != machine.n_joints:
             raise InputError(f"{data.source}: {data.q.shape[1]} reading columns, the machine has "
                              f"{machine.n_joints} legs")
@@ -267,7 +594,7 @@ class FullPoseProblem:
         list of NullGroup
             The groups found.
         """
-        from ..instruments.problem import frame_motion_groups, problem_null_space
+        from .problem import frame_motion_groups, problem_null_space
 
         N = problem_null_space(self, state) if null_space is None else null_space
         return frame_motion_groups(self.machine, state.u, self.parameters, self.n_machine,
@@ -457,9 +784,9 @@ class FullPoseML(FullPoseProblem):
         Returns
         -------
         NoiseGroups
-            See :class:`~pkmcal.calibration.variance.NoiseGroups`.
+            See :class:`~pkmcal.estimation.variance.NoiseGroups`.
         """
-        from .variance import NoiseGroups, row_names
+        from ..estimation.variance import NoiseGroups, row_names
 
         K, n = self.data.q.shape
         labels = np.tile(np.r_[np.zeros(n, int), np.ones(3, int), np.full(3, 2)], (K, 1))
@@ -636,14 +963,14 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
         Raise :class:`InputError` when the poses leave directions other than the frame gauges
         undetermined (degenerate poses: all alike, or no rotation), naming them; False returns
         the fit with those directions reported instead. By the one rank rule
-        (:mod:`pkmcal.identifiability.rank`): unidentifiable directions are refused; weakly
+        (:mod:`pkmcal.estimation.rank`): unidentifiable directions are refused; weakly
         identifiable ones (standard deviation of at least ``max_std`` under the assumed
         noise) only when the measured poses do not vary beyond their noise; otherwise they are
         left at their start values and reported (``weak_space``, ``weak_std``, named in
         ``extras["unidentifiable"]``).
     estimate_noise : bool or collection of str, optional
         ``'ml'``: estimate the noise of the readings, positions and orientations from the
-        residuals (``noise`` their prior; :func:`~pkmcal.calibration.variance.fit`); False
+        residuals (``noise`` their prior; :func:`~pkmcal.estimation.variance.fit`); False
         holds ``noise``; or the group keys to hold (``"reading"``, ``"position"``,
         ``"orientation"``).
     robust : bool, optional
@@ -670,9 +997,7 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
     if method not in PROBLEMS:
         raise InputError(f"unknown method {method!r} for full-pose data; choose one of "
                          f"{', '.join(METHODS)}")
-    if machine.pose_dof != 6:
-        raise InputError("full-pose data need a platform that rotates; this machine's "
-                         "platform only translates: calibrate it from points")
+    _require_full_space(machine)
     noise = FullPoseNoise() if noise is None else noise
     fixed = _fixed_pair(fix_frames)
     if any(fixed) and frames is None:
@@ -741,7 +1066,7 @@ def _check_identifiable(problem: FullPoseProblem, n_id: int, rtol: float,
                         max_std: float | None) -> None:
     """Refuse poses that leave more than the frame gauges undetermined, in words.
 
-    By the one rank rule (:mod:`pkmcal.identifiability.rank`, as ``pkmcal identifiability``):
+    By the one rank rule (:mod:`pkmcal.estimation.rank`, as ``pkmcal identifiability``):
     directions beyond the gauges that are unidentifiable (numerical null space) are refused.
     Weakly identifiable ones (standard deviation of at least ``max_std`` under the assumed
     noise) are left at their start values and reported, not refused - unless the measured
@@ -965,3 +1290,57 @@ def gauge_free_error(machine: Machine, result: CalibrationResult, u_true,
                         rotvec_from_matrix(B @ Bt.T), c - ct])
     return e / result.scales
 
+
+def full_pose_noise_arg(noise: str | None, pose_noise: str | None, strict: bool,
+                        machine=None):
+    """The full-pose noise model of ``--noise`` and ``--pose-noise``.
+
+    Parameters
+    ----------
+    noise : str or None
+        Noise of the readings, as a leg length (default: the model's).
+    pose_noise : str or None
+        ``POSITION,ORIENTATION`` with units (e.g. ``20um,50urad``; default: the model's).
+    strict : bool
+        Every standard deviation must be > 0 (a calibration weighs by them); else >= 0 (a
+        simulation may be exact).
+    machine : Machine, optional
+        The values are checked against its size when given.
+
+    Returns
+    -------
+    FullPoseNoise
+        The noise model, SI units.
+
+    Raises
+    ------
+    InputError
+        When a value is malformed, out of range or implausible for the machine.
+    """
+    from ..plausibility import check_option_scale
+    from ..units import parse_quantity
+
+    default = FullPoseNoise()
+    reading = default.reading_m if noise is None else parse_quantity(noise, "length", "--noise")
+    if pose_noise is None:
+        position, orientation = default.position_m, default.orientation_rad
+    else:
+        parts = [p.strip() for p in str(pose_noise).split(",")]
+        if len(parts) != 2:
+            raise InputError(f"--pose-noise: expected POSITION,ORIENTATION with units (e.g. "
+                             f"20um,50urad), got {pose_noise!r}")
+        position = parse_quantity(parts[0], "length", "--pose-noise (position)")
+        orientation = parse_quantity(parts[1], "angle", "--pose-noise (orientation)")
+    for option, value, text in (("--noise", reading, noise),
+                                ("--pose-noise", position, pose_noise),
+                                ("--pose-noise", orientation, pose_noise)):
+        if not (math.isfinite(value) and (value > 0 if strict else value >= 0)):
+            need = ("must be > 0 (a standard deviation that weighs the residuals)" if strict
+                    else "must be >= 0")
+            raise InputError(f"{option}: {need}, got {text}")
+    if machine is not None:
+        check_option_scale(reading, machine, "--noise", "noise", noise)
+        check_option_scale(position, machine, "--pose-noise (position)", "noise", pose_noise)
+        check_option_scale(orientation, machine, "--pose-noise (orientation)", "angle noise",
+                           pose_noise)
+    return FullPoseNoise(reading, position, orientation)

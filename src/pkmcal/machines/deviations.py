@@ -4,18 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-#: half-widths of the uniform random deviations per machine type: (length m, angle rad)
-RANDOM_DEVIATION = {"hexaslide": (2e-3, 0.02), "delta": (1e-3, np.deg2rad(0.5)),
-                    # a printer: endstops, radius and arms off by up to 1 mm, towers leaning
-                    # and turned by up to 0.3 deg
-                    "linear_delta": (1e-3, np.deg2rad(0.3))}
-
-
 #: half-width of random deviations of ratio parameters (gains), relative to their value
 RATIO_DEVIATION = 1e-3
 
-#: deviations of simulated true machines by default, per machine type
-DEFAULT_DEVIATIONS = {"hexaslide": "paper-table1", "delta": "random", "stewart": "random"}
 
 
 def deviations(machine, which: str, rng) -> np.ndarray:
@@ -27,12 +18,11 @@ def deviations(machine, which: str, rng) -> np.ndarray:
     if which == "none":
         return np.zeros(len(params))
     if which == "paper-table1":
-        if machine.kind != "hexaslide":
+        du = machine.paper_deviations()
+        if du is None:
             raise InputError(f"--deviations paper-table1 applies to hexaslide machines (seed "
                              f"000 Table 1), not {machine.kind}; use random or none")
-        from ..machines import paper_table1_deviations
-
-        return paper_table1_deviations(params)
+        return du
     if which != "random":
         raise InputError(f"--deviations: unknown kind {which!r}; use random, paper-table1 or "
                          "none")
@@ -42,8 +32,8 @@ def deviations(machine, which: str, rng) -> np.ndarray:
 def random_deviations(machine, rng) -> np.ndarray:
     """Uniform random errors of every parameter of a machine.
 
-    Lengths and angles are drawn within :data:`RANDOM_DEVIATION` for the machine type (else
-    2 mm / 0.02 rad), ratios (a leg's gain, in whatever reading unit) within
+    Lengths and angles are drawn within the machine's ``RANDOM_DEVIATION`` (2 mm / 0.02 rad
+    unless its type says otherwise), ratios (a leg's gain, in whatever reading unit) within
     :data:`RATIO_DEVIATION` of their own value.
 
     Parameters
@@ -59,7 +49,7 @@ def random_deviations(machine, rng) -> np.ndarray:
         Deviations in internal units (m, rad, ratio), to add to ``machine.u``.
     """
     params = machine.parameters
-    length, angle = RANDOM_DEVIATION.get(getattr(machine, "kind", ""), (2e-3, 0.02))
+    length, angle = machine.RANDOM_DEVIATION
     kinds = np.array(params.kinds)
     ratio = RATIO_DEVIATION * np.abs(params.values)
     size = np.where(kinds == "length", length, np.where(kinds == "angle", angle, ratio))

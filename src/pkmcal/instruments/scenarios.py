@@ -19,7 +19,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from ..instruments.registry import (
+from ..machines.base import Machine
+from .registry import (
     INSTRUMENTS,
     SPHERE_TOL,  # noqa: F401  (re-exported: plans off the sphere by more are refused)
     StandardPlan,
@@ -28,7 +29,6 @@ from ..instruments.registry import (
     measurement_frames,
     tracker_pose,
 )
-from ..machines.base import Machine
 
 __all__ = ["DEFAULT_PLAN_SIZE", "SCENARIOS", "SCENARIO_OF", "STANDARD_PLANS", "StandardPlan",
            "candidate_poses", "candidate_set", "default_noise", "describe_noise",

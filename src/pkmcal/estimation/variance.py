@@ -45,8 +45,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..identifiability.rank import RTOL
 from .estimator import CalibrationResult, levenberg_marquardt
+from .rank import RTOL
 
 __all__ = ["MIN_REDUNDANCY", "NoiseEstimate", "NoiseGroups", "OutlierTest",
            "Weighted", "fit", "hat_factors", "noise_groups_of"]

@@ -1,0 +1,702 @@
+"""Calibration from laser-tracker points (seed 001 eq. 12-15), jointly with the registration.
+
+Any machine: the points instrument of :mod:`pkmcal.instruments`
+(:class:`~pkmcal.instruments.PointsModel`) on the machine's forward kinematics. Unknowns: the
+machine's parameters, the tracker pose ``base_from_tracker = (R, t)`` (``tracker.rx/ry/rz``:
+rotation increments about the base axes, applied on the left of the closed-form start;
+``tracker.x/y/z``: translation) and, unless the machine gives it (a Delta's ``smr_offset``),
+the place ``c_k`` of every target on the platform (``target<k>.x/y/z``). Residual of point i,
+whitened with the tracker's anisotropic noise (:class:`~pkmcal.instruments.tracker.TrackerNoise`)::
+
+    e_i = W_i (m_i - R^T (P(q_i; u) + R_p(q_i; u) c_k - t))
+
+Seed 001 registers first (with the nominal model) and then identifies the errors with the
+registration fixed (``joint=False`` reproduces that); ``joint=True`` (default) estimates both
+together, which removes the bias the nominal model leaves in the registration.
+
+Identifiability is found from the data and named by the machine's frame motions: on the Delta
+(SPEC 2.2) ``da`` and ``db`` enter only as ``db - da`` (9 directions) and a translation of the
+platform frame is absorbed by the tracker frame (3): 21 of 33; on a platform that rotates a
+rigid motion of the base frame is absorbed by the tracker frame and one of the platform frame
+by the targets (12).
+
+Laser-tracker measurements of a reflector (SMR) on the platform (seed 001 section 3).
+
+The tracker measures the SMR centre, ``h_M`` below the platform point, in its own frame:
+``m = R^T (p + (0, 0, -h_M) - t)`` with ``(R, t)`` = base_from_tracker (a base vector
+``x_base = R m + t``). One measurement = the actuator readings and the measured point.
+
+Noise model (documented, Leica-type): the maximum permissible error (MPE) is
+``+/-(15 um + 6 um/m * range)`` transverse to the beam and ``+/-10 um`` along it; the typical
+error is about half the MPE, so the standard deviations are half these values. The noise is
+anisotropic: each point has its own 3x3 covariance in the tracker frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..estimation.estimator import (
+    MAX_STD,
+    CalibrationResult,
+    levenberg_marquardt,
+    require_redundancy,
+)
+from ..estimation.rank import RTOL
+from ..estimation.variance import OUTLIER_ALPHA, fit
+from ..identifiability import name_null_space, name_weak_directions
+from ..kinematics import matrix_from_rotvec
+from ..machines.base import Machine
+from ..machines.delta import TRACKER_GRID_SPACING  # noqa: F401  (seed 001's grid)
+from .data import InstrumentData
+from .models import PointsModel
+from .problem import InstrumentProblem, InstrumentState
+
+
+@dataclass(frozen=True)
+class TrackerNoise:
+    """Standard deviations of a laser tracker (half the MPE by default), SI units.
+
+    Attributes
+    ----------
+    distance : float, optional
+        Along the beam, m.
+    transverse : float, optional
+        Across the beam, constant part, m.
+    transverse_per_m : float, optional
+        Across the beam, per metre of range (m/m).
+    """
+
+    distance: float = 5e-6            # along the beam
+    transverse: float = 7.5e-6        # across the beam, constant part
+    transverse_per_m: float = 3e-6    # across the beam, per metre of range
+
+    def _beam(self, m):
+        """Beam directions ``r`` (K, 3; +z at the tracker's origin, where there is none), the
+        projector on them ``rr`` (K, 3, 3) and the transverse std ``st`` (K,)."""
+        m = np.asarray(m, float)
+        rng = np.linalg.norm(m, axis=-1)
+        r = np.where(rng[..., None] > 0, m / np.where(rng > 0, rng, 1.0)[..., None],
+                     np.array([0.0, 0.0, 1.0]))
+        return (r, r[..., :, None] * r[..., None, :],
+                self.transverse + self.transverse_per_m * rng)
+
+    def covariance(self, m):
+        """Per-point covariance in the tracker frame.
+
+        Parameters
+        ----------
+        m : array_like, shape (K, 3)
+            Tracker points, m, tracker frame.
+
+        Returns
+        -------
+        ndarray, shape (K, 3, 3)
+            Covariance of each point, m^2.
+        """
+        _, rr, st = self._beam(m)
+        return self.distance**2 * rr + (st**2)[..., None, None] * (np.eye(3) - rr)
+
+    def whitening(self, m):
+        """Whitening matrices ``W`` with ``W^T W = Cov^-1``, rows along the beam first.
+
+        Row 0 is along the beam (``r / s_d``), rows 1-2 across it (two unit vectors normal
+        to the beam, ``/ s_t``, range-dependent): each whitened residual component belongs to
+        one noise group (:meth:`groups`).
+
+        Parameters
+        ----------
+        m : array_like, shape (K, 3)
+            Tracker points, m, tracker frame.
+
+        Returns
+        -------
+        ndarray, shape (K, 3, 3)
+            Whitening matrix of each point, 1/m.
+        """
+        r, _, st = self._beam(m)
+        # a vector normal to the beam: the axis least aligned with it, projected
+        axis = np.eye(3)[np.argmin(np.abs(r), axis=-1)]
+        t1 = axis - np.sum(axis * r, -1)[..., None] * r
+        t1 /= np.linalg.norm(t1, axis=-1)[..., None]
+        t2 = np.cross(r, t1)
+        return np.stack([r / self.distance, t1 / st[..., None], t2 / st[..., None]], -2)
+
+    def groups(self, m):
+        """Noise groups of the whitened components (:meth:`whitening`'s rows).
+
+        Parameters
+        ----------
+        m : array_like, shape (K, 3)
+            Tracker points, m, tracker frame.
+
+        Returns
+        -------
+        labels : ndarray of int, shape (K, 3)
+            0 along the beam, 1 across it.
+        keys, names : list of str
+            The groups.
+        assumed : ndarray, shape (2,)
+            Along the beam, and the RMS across it over the points, m.
+        kinds : list of str
+            Both ``"length"``.
+        """
+        _, _, st = self._beam(m)
+        K = len(np.asarray(m))
+        across = float(np.sqrt(np.mean(st**2))) if K else self.transverse
+        return (np.tile([0, 1, 1], (K, 1)), ["along", "across"],
+                ["tracker along the beam", "tracker across the beam"],
+                np.array([self.distance, across]), ["length", "length"])
+
+    def sample(self, m, rng):
+        """Noise vectors for tracker points, drawn from :meth:`covariance`.
+
+        Parameters
+        ----------
+        m : array_like, shape (K, 3)
+            Tracker points, m, tracker frame.
+        rng : numpy.random.Generator
+            Random generator.
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            Noise to add to the points, m.
+        """
+        m = np.asarray(m, float)
+        L = np.linalg.cholesky(self.covariance(m))
+        return np.einsum("kij,kj->ki", L, rng.standard_normal(m.shape))
+
+
+@dataclass
+class TrackerData:
+    """Actuator readings and tracker points.
+
+    Attributes
+    ----------
+    q : ndarray, shape (K, n_joints)
+        Joint readings, rad.
+    m : ndarray, shape (K, 3)
+        SMR positions in the tracker frame, m.
+    rows : ndarray of int, shape (K,), optional
+        File row numbers for messages; default 1..K.
+    source : str, optional
+        File name, for messages.
+    true_P : ndarray, shape (K, 3), optional
+        Simulated platform positions (base frame), m; None for real data.
+    outliers : ndarray of bool, shape (K,), optional
+        Rows a simulation corrupted on purpose; None for real data.
+    target : ndarray of int, shape (K,), optional
+        0-based target (reflector nest) of each row when there are several; None: one.
+    """
+
+    q: np.ndarray
+    m: np.ndarray
+    rows: np.ndarray | None = None
+    source: str = "<data>"
+    true_P: np.ndarray | None = None
+    outliers: np.ndarray | None = None
+    target: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.q = np.atleast_2d(np.asarray(self.q, float))
+        self.m = np.atleast_2d(np.asarray(self.m, float))
+        if self.target is not None:
+            self.target = np.asarray(self.target, int)
+        if self.rows is None:
+            self.rows = np.arange(1, len(self.q) + 1)
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def subset(self, mask) -> TrackerData:
+        """The measurements selected by a boolean mask or index array.
+
+        Parameters
+        ----------
+        mask : array_like of bool or int
+            Boolean mask (K,) or indices of the rows to keep.
+
+        Returns
+        -------
+        TrackerData
+            The selected rows, same source.
+        """
+        def pick(a):
+            return None if a is None else a[mask]
+
+        return TrackerData(self.q[mask], self.m[mask], self.rows[mask], self.source,
+                           pick(self.true_P), pick(self.outliers), pick(self.target))
+
+
+#: where simulations put the tracker in the base frame (m): 2.5 m from the robot's axis, on
+#: the floor 1.4 m below the base plane
+TRACKER_POSITION = (2.0, -1.5, -1.4)
+#: its tilt about its own y axis (rad)
+TRACKER_TILT = np.deg2rad(1.0)
+
+
+def default_tracker_pose() -> tuple[np.ndarray, np.ndarray]:
+    """The true ``base_from_tracker = (R, t)`` of simulations without a tracker in the machine file.
+
+    The tracker stands at :data:`TRACKER_POSITION` (2.5 m from the robot's axis), its x axis
+    turned about Z toward the robot's axis (143.13 deg) and tilted by :data:`TRACKER_TILT`
+    (1 deg) about its y axis.
+
+    Returns
+    -------
+    R : ndarray, shape (3, 3)
+        Orientation of the tracker frame in the base frame.
+    t : ndarray, shape (3,)
+        Tracker origin in the base frame, m.
+    """
+    t = np.array(TRACKER_POSITION, float)
+    yaw = np.arctan2(-t[1], -t[0])
+    R = matrix_from_rotvec([0.0, 0.0, yaw]) @ matrix_from_rotvec([0.0, TRACKER_TILT, 0.0])
+    return R, t
+
+
+def grid_points(center, spacing=TRACKER_GRID_SPACING, shape=(3, 3, 3)):
+    """Points of a regular grid (seed 001: 3x3x3, dx = dy = 150 mm, dz = 40 mm).
+
+    Parameters
+    ----------
+    center : array_like, shape (3,)
+        Centre of the grid, m.
+    spacing : tuple of float, optional
+        Distance between neighbouring points along x, y, z, m.
+    shape : tuple of int, optional
+        Number of points along x, y, z.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        The points, m, x slowest and z fastest (``N = prod(shape)``).
+    """
+    axes = [(np.arange(n) - (n - 1) / 2) * d for n, d in zip(shape, spacing, strict=True)]
+    X, Y, Z = np.meshgrid(*axes, indexing="ij")
+    return np.asarray(center, float) + np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+
+
+def neighbour_pairs(shape=(3, 3, 3)):
+    """Index pairs of grid points that are neighbours along one axis (for distance ratios).
+
+    Parameters
+    ----------
+    shape : tuple of int, optional
+        Grid shape, as in :func:`grid_points`.
+
+    Returns
+    -------
+    ndarray of int, shape (M, 2)
+        Indices into the rows of :func:`grid_points`, pairs along x, then y, then z.
+    """
+    idx = np.arange(int(np.prod(shape))).reshape(shape)
+    pairs = []
+    for axis in range(3):
+        a = np.moveaxis(idx, axis, 0)
+        pairs.append(np.stack([a[:-1].ravel(), a[1:].ravel()], -1))
+    return np.concatenate(pairs)
+
+
+def simulate_tracker(true_machine: Machine, nominal_machine: Machine, targets,
+                     base_from_tracker, noise: TrackerNoise | None = TrackerNoise(),
+                     outliers: int = 0, outlier_size: float = 1e-3, rng=None) -> TrackerData:
+    """The experiment of seed 001: command points with the nominal model, measure the true machine.
+
+    The *nominal* model commands ``targets``, the *true* machine goes elsewhere, and the
+    tracker measures the SMR there (``smr_offset`` below the platform point), with noise.
+    ``outliers`` random rows get an extra error of ``outlier_size`` in a random direction (beam
+    breaks, a mis-seated SMR); they are flagged in ``outliers``.
+
+    Parameters
+    ----------
+    true_machine : Delta
+        The true machine (needs ``smr_offset``).
+    nominal_machine : Delta
+        The model that computes the commands.
+    targets : array_like, shape (N, 3)
+        Commanded platform positions, m, base frame.
+    base_from_tracker : tuple of array_like
+        ``(R (3, 3), t (3,))``: a tracker point ``m`` is ``R m + t`` in the base frame.
+    noise : TrackerNoise or None, optional
+        Tracker noise; None for exact points.
+    outliers : int, optional
+        Number of rows to corrupt.
+    outlier_size : float, optional
+        Size of the outlier error, m.
+    rng : int, numpy.random.Generator or None, optional
+        Random generator or seed.
+
+    Returns
+    -------
+    TrackerData
+        Commanded joints, measured points, the true positions and the outlier flags.
+
+    Raises
+    ------
+    InputError
+        When a target is outside the nominal workspace or the true machine cannot reach a
+        commanded point.
+    """
+    rng = np.random.default_rng(rng)
+    q = nominal_machine.ik(np.asarray(targets, float))
+    if not np.all(np.isfinite(q)):
+        bad = np.flatnonzero(~np.all(np.isfinite(q), -1)) + 1
+        raise InputError(f"targets {bad.tolist()} are outside the nominal workspace")
+    fk = true_machine.fk(q)
+    if not fk.converged.all():
+        raise InputError("the true machine cannot reach some commanded points")
+    R, t = base_from_tracker
+    smr = fk.P - np.array([0.0, 0.0, true_machine.smr_offset])
+    m = (smr - t) @ np.asarray(R)            # R^T (x - t) for each row
+    if noise is not None:
+        m = m + noise.sample(m, rng)
+    flagged = np.zeros(len(m), bool)
+    if outliers:
+        flagged[rng.choice(len(m), size=outliers, replace=False)] = True
+        d = rng.standard_normal((outliers, 3))
+        m[flagged] += outlier_size * d / np.linalg.norm(d, axis=-1, keepdims=True)
+    return TrackerData(q, m, source="<simulated>", true_P=fk.P, outliers=flagged)
+
+
+TRACKER = ("tracker.rx", "tracker.ry", "tracker.rz", "tracker.x", "tracker.y", "tracker.z")
+
+
+class TrackerProblem(InstrumentProblem):
+    """The points instrument (:class:`~pkmcal.instruments.PointsModel`) on a machine, started
+    from a registration: the block problem of tracker calibration.
+
+    Global unknowns: the machine's parameters, ``tracker.rx/ry/rz/x/y/z`` (rotation increments
+    about the base axes from the start registration, and the translation) and, unless the
+    machine gives it (:meth:`~pkmcal.machines.Machine.tracker_target`, a Delta's
+    ``smr_offset``), the place of each target on the platform, ``target<k>.x/y/z``.
+
+    Parameters
+    ----------
+    machine : Machine
+        Start geometry.
+    data : TrackerData
+        Actuator readings and tracker points (``target``: 0-based target of each row).
+    noise : TrackerNoise or None
+        Whitens the residuals; None: unit weights (to differentiate predictions, not to fit).
+    registration : tuple of ndarray
+        Start ``base_from_tracker = (R (3, 3), t (3,))``.
+    joint : bool, optional
+        Estimate the tracker pose together with the errors; False holds it at
+        ``registration`` (seed 001's two-step method).
+    targets : array_like, shape (n_targets, 3), optional
+        Start places of the targets on the platform (m); default the machine's, else 0.
+
+    Raises
+    ------
+    InputError
+        When the machine's forward kinematics cannot reproduce some readings.
+    """
+
+    def __init__(self, machine: Machine, data: TrackerData, noise: TrackerNoise | None,
+                 registration, joint: bool = True, targets=None):
+        idata = as_points(data)
+        model = PointsModel(idata.n_groups, machine.tracker_target(), fix_frame=not joint)
+        R0, t0 = (np.asarray(v, float) for v in registration)
+        values = np.array(model.parameters.values, float)
+        values[3:6] = t0
+        if targets is not None and machine.tracker_target() is None:
+            values[6:] = np.asarray(targets, float).reshape(-1)
+        model.parameters = model.parameters.with_values(values)
+        model.rotation_starts = [R0]
+        model.m0 = idata.values.mean(0) if len(idata) else np.zeros(3)
+        super().__init__(machine, idata, model, noise)
+        self.R0, self.t0 = R0, t0
+
+    def predict(self, state, q=None):
+        """Predicted tracker points, and the forward kinematics behind them.
+
+        Parameters
+        ----------
+        state : InstrumentState
+            Machine parameters and tracker pose.
+        q : array_like, shape (K, n_joints), optional
+            Actuator readings, rad; default: the data's (and their targets).
+
+        Returns
+        -------
+        m : ndarray, shape (K, 3)
+            Predicted points in the tracker frame, m (NaN where the FK failed).
+        fk : FKResult
+            Forward kinematics of the readings.
+        """
+        fk = self.poses(state, q)
+        group = self.data.group if q is None else np.zeros(len(fk.P), int)
+        m = self.model.predict(state.nuisance, fk.P, fk.R, group)
+        return np.where(fk.converged[:, None], m, np.nan), fk
+
+
+def as_points(data) -> InstrumentData:
+    """Tracker data as the points instrument's data (``target`` kept as the group)."""
+    if isinstance(data, InstrumentData):
+        return data
+    return InstrumentData("points", data.q, data.m, getattr(data, "target", None), data.rows,
+                          data.source, data.true_P)
+
+
+def registration_of(state) -> tuple[np.ndarray, np.ndarray]:
+    """``base_from_tracker = (R, t)`` of a tracker problem's state."""
+    v = state.nuisance.values
+    return state.nuisance.rotations[0], np.array(v[3:6], float)
+
+
+def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise | None = None,
+                      joint: bool = True, robust: bool = False,
+                      outlier_alpha: float = OUTLIER_ALPHA, estimate_noise=True,
+                      rtol: float = RTOL, **options) -> CalibrationResult:
+    """Identify the error parameters (and the tracker pose) from tracker points.
+
+    The registration starts from the closed form on the nominal model (>= 4 points, not
+    collinear). The noise levels along and across the beam are estimated from the residuals
+    (:func:`~pkmcal.estimation.variance.fit`; the given or default ``noise`` is their prior)
+    and rows the noise cannot explain are named; ``robust=True`` leaves them out.
+
+    Parameters
+    ----------
+    machine : Delta
+        Start geometry; not modified.
+    data : TrackerData
+        Actuator readings and tracker points.
+    noise : TrackerNoise, optional
+        Tracker noise (default values when None).
+    joint : bool, optional
+        Estimate the tracker pose together with the errors (default); False: seed 001's
+        two-step method, registration fixed.
+    robust : bool, optional
+        Leave out the rows the outlier test names, and fit again until none is named.
+    outlier_alpha : float, optional
+        False-alarm rate of the outlier test over all rows.
+    estimate_noise : bool or collection of str, optional
+        True: estimate the levels along and across the beam; False: hold ``noise`` (the
+        covariance is scaled by the residual variance); or the keys to hold.
+    rtol : float, optional
+        Rank tolerance of :func:`levenberg_marquardt`.
+    **options
+        Passed to :func:`levenberg_marquardt` (``xtol``, ``ftol``, ``max_iter``, ``max_std``;
+        ``max_std`` defaults to :data:`MAX_STD`).
+
+    Returns
+    -------
+    CalibrationResult
+        With ``extras``: ``problem``; ``method`` (``"tracker-joint"`` or
+        ``"tracker-two-step"``); ``machine``, the calibrated machine with
+        ``base_from_tracker``; ``registration``; ``start_registration``; ``outlier_rows``
+        (file rows left out); ``kept`` (mask of the rows used); ``unidentifiable``; ``noise``
+        and ``outliers`` (:func:`~pkmcal.estimation.variance.fit`).
+
+    Raises
+    ------
+    InputError
+        When the model cannot reproduce some readings, the points cannot be registered, or
+        there are fewer equations than identifiable parameters.
+    """
+    noise = TrackerNoise() if noise is None else noise
+    fk = machine.fk(data.q)
+    if not fk.converged.all():
+        rows = data.rows[~fk.converged].tolist()
+        raise InputError(f"{data.source}: rows {rows[:10]}: no platform position reproduces "
+                         "these actuator readings")
+    idata = as_points(data)
+    start_model = PointsModel(idata.n_groups, machine.tracker_target()).start(
+        fk.P, fk.R, idata.values, idata.group, data.source)
+    registration = (start_model.rotation_starts[0], start_model.parameters.values[3:6].copy())
+    targets = None
+    if machine.tracker_target() is None:
+        # the targets' places are unknown: fit them with the frame on the start geometry
+        # first (the closed-form registration puts them at the platform origin)
+        alone = TrackerProblem(machine, data, noise, registration, True).with_machine_fixed()
+        first = levenberg_marquardt(alone, rtol=rtol, **{"max_std": MAX_STD, **options})
+        registration = registration_of(first.state)
+        targets = first.state.nuisance.values[6:].copy()
+    problem = TrackerProblem(machine, data, noise, registration, joint, targets)
+    n_id = int(problem.parameters.free.sum()) - (12 if joint else 9)
+    require_redundancy(data.source, f"{len(data)} points", 3 * len(data), n_id,
+                       "measure more points spread over the workspace")
+    # the two-step method holds a registration of the nominal model: its residuals exceed the
+    # noise by design, they cannot tell its level
+    result = fit(problem, estimate_noise if joint else False, robust=robust,
+                 alpha=outlier_alpha, rtol=rtol, **{"max_std": MAX_STD, **options})
+    test = result.extras["outliers"]
+    keep = test.kept if test is not None else np.ones(len(data), bool)
+    state = result.state
+    calibrated = machine.with_parameters(state.u)
+    calibrated.base_from_tracker = registration_of(state)
+    result.extras.update(
+        problem=problem,
+        method="tracker-joint" if joint else "tracker-two-step", machine=calibrated,
+        registration=registration_of(state), start_registration=registration,
+        targets=problem.model.targets(state.nuisance).copy(),
+        start_targets=(problem.model.targets(problem.model.initial()).copy()),
+        outlier_rows=data.rows[~keep], kept=keep,
+        unidentifiable=name_null_space(result.null_space, problem.parameters,
+                                       problem.null_groups(state, result.scales,
+                                                           result.null_space))
+        + name_weak_directions(result, problem.parameters),
+    )
+    return result
+
+
+def predict_tracker_points(machine: Machine, q, base_from_tracker, targets=None, target=None):
+    """Tracker-frame target points predicted by a model for actuator readings.
+
+    Parameters
+    ----------
+    machine : Machine
+        The model (its :meth:`~pkmcal.machines.Machine.tracker_target`, a Delta's
+        ``smr_offset``, when it gives one).
+    q : array_like, shape (K, n_joints)
+        Actuator readings, rad.
+    base_from_tracker : tuple of array_like
+        ``(R (3, 3), t (3,))``: a tracker point ``m`` is ``R m + t`` in the base frame.
+    targets : array_like, shape (n_targets, 3), optional
+        Places of the targets on the platform (m) when the machine gives none (a calibration's
+        ``extras["targets"]``); default the platform origin.
+    target : array_like of int, shape (K,), optional
+        0-based target of each row; default 0.
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+        Predicted points, m, tracker frame (NaN where the forward kinematics fail).
+    """
+    R, t = base_from_tracker
+    fk = machine.fk(q)
+    c = machine.tracker_target()
+    if c is None:
+        c = np.zeros(3) if targets is None else np.asarray(targets, float).reshape(-1, 3)
+    c = np.asarray(c, float)
+    if c.ndim == 2:
+        c = c[np.zeros(len(fk.P), int) if target is None else np.asarray(target, int)]
+    c = np.broadcast_to(c, fk.P.shape)
+    x = fk.P + np.einsum("kij,kj->ki", fk.R, c)
+    return (x - t) @ R
+
+
+def distance_ratios(machine: Machine, q, m, pairs, targets=None, target=None):
+    """Seed 001 Fig. 6: model distance / tracker distance x 100 % for point pairs (frame-free).
+
+    The model's distance is between the target points the readings put in the base frame
+    (the platform point on a Delta; ``P + R c`` with the targets' places ``c`` otherwise).
+
+    Parameters
+    ----------
+    machine : Machine
+        The model.
+    q : array_like, shape (K, n_joints)
+        Actuator readings.
+    m : ndarray, shape (K, 3)
+        Measured tracker points, m.
+    pairs : ndarray of int, shape (M, 2)
+        Row index pairs (e.g. :func:`~pkmcal.instruments.tracker.neighbour_pairs`).
+    targets : array_like, shape (n_targets, 3), optional
+        Places of the targets on the platform when the machine gives none, m.
+    target : array_like of int, shape (K,), optional
+        0-based target of each row.
+
+    Returns
+    -------
+    ndarray, shape (M,)
+        Ratios in percent (100 = distances agree).
+    """
+    x = predict_tracker_points(machine, q, (np.eye(3), np.zeros(3)), targets, target)
+    d_model = np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=-1)
+    d_meas = np.linalg.norm(m[pairs[:, 0]] - m[pairs[:, 1]], axis=-1)
+    return 100.0 * d_model / d_meas
+
+
+def prediction_covariance(result: CalibrationResult, q):
+    """Covariance of the tracker points a calibrated model predicts for readings ``q``.
+
+    ``J C J^T`` with ``C`` the estimate's covariance (first order; the Cramér-Rao prediction
+    when ``C`` is at the truth with exact noise). Gauge-free: the unidentifiable directions
+    change no prediction.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        Result of :func:`calibrate_tracker` (uses ``extras["problem"]``, ``state`` and
+        ``covariance``).
+    q : array_like, shape (K, n_joints) or (n_joints,)
+        Actuator readings, rad.
+
+    Returns
+    -------
+    ndarray, shape (K, 3, 3)
+        Covariance of each predicted point, m^2, tracker frame.
+
+    Raises
+    ------
+    InputError
+        When the model cannot reproduce some readings.
+    """
+    problem = result.extras["problem"]
+    q = np.atleast_2d(q)
+    pseudo = InstrumentData("points", q, np.zeros((len(q), 3)))
+    unit = InstrumentProblem(problem.machine, pseudo, problem.model, None)
+    start = unit.initial_state()
+    state = InstrumentState(result.state.u, result.state.nuisance, start.P, start.R)
+    _, J, _ = unit.evaluate(state)                           # = -d(prediction)/dx
+    return np.einsum("kin,nm,kjm->kij", J, result.covariance, J)
+
+
+def tracker_noise_arg(text: str | None, allow_none: bool, machine=None):
+    """The tracker noise model of ``--noise``: leica (default), none, or a length.
+
+    Parameters
+    ----------
+    text : str or None
+        ``leica`` or None (the default model), ``none``, or a length for isotropic noise.
+    allow_none : bool
+        Whether ``none`` (exact points, a simulation) is allowed.
+    machine : Machine, optional
+        The length is checked against its size when given.
+
+    Returns
+    -------
+    tuple
+        ``(TrackerNoise or None, description)``.
+
+    Raises
+    ------
+    InputError
+        When the text is not a noise model allowed here.
+    """
+    from ..plausibility import check_option_scale
+    from ..units import parse_quantity
+
+    if text is None or text.strip().lower() == "leica":
+        return TrackerNoise(), "leica (5 um along the beam, 7.5 um + 3 um/m across)"
+    if text.strip().lower() == "none":
+        if not allow_none:
+            raise InputError("--noise none: the calibration weighs the points by their noise; "
+                             "give leica or a length such as 10um")
+        return None, "none"
+    sigma = parse_quantity(text, "length", "--noise")
+    if sigma == 0 and allow_none:
+        return None, "none"
+    if not sigma > 0:
+        raise InputError(f"--noise: must be > 0 (a standard deviation), leica or none; got "
+                         f"{text}")
+    if machine is not None:
+        check_option_scale(sigma, machine, "--noise", "noise", text)
+    return TrackerNoise(sigma, sigma, 0.0), f"isotropic {sigma * 1e6:.4g} um"
+
+
+def _tracker_noise_text(model) -> str:
+    """Words of a :class:`~pkmcal.instruments.tracker.TrackerNoise` given as an object."""
+
+    if model == TrackerNoise():
+        return tracker_noise_arg(None, allow_none=False)[1]
+    if model.distance == model.transverse and model.transverse_per_m == 0:
+        return f"isotropic {model.distance * 1e6:.4g} um"
+    return (f"{model.distance * 1e6:.4g} um along the beam, {model.transverse * 1e6:.4g} um + "
+            f"{model.transverse_per_m * 1e6:.4g} um/m across")

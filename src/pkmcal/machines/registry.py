@@ -1,0 +1,34 @@
+"""The machine types of machine modules: one line per module.
+
+A machine module (``pkmcal.machines.<module>``) holding its :class:`~pkmcal.machines.Machine`
+subclass and its file section exports ``FILE_FORMAT``, a
+:class:`~pkmcal.machines.file_format.MachineFormat` whose ``kind`` is the machine type files
+name (``machine: planar_3rpr``). Listing the module here is all it takes for machine files
+(:data:`pkmcal.io.machine_file.MACHINE_FORMATS`), and through them every command, to know it.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from .file_format import MachineFormat
+
+#: machine modules (under :mod:`pkmcal.machines`) that state their own file section
+MACHINE_MODULES: tuple[str, ...] = (
+    "planar_3rpr",
+)
+
+
+def machine_formats() -> dict[str, MachineFormat]:
+    """The file formats of the registered machine modules, by machine type.
+
+    Returns
+    -------
+    dict of str to MachineFormat
+        ``{kind: FILE_FORMAT}`` in the order of :data:`MACHINE_MODULES`.
+    """
+    out: dict[str, MachineFormat] = {}
+    for name in MACHINE_MODULES:
+        fmt = importlib.import_module(f"{__package__}.{name}").FILE_FORMAT
+        out[fmt.kind] = fmt
+    return out

@@ -1,0 +1,59 @@
+"""The package's structure holds (issue 25): no import cycle, and no new switch on an
+instrument's or a machine's name outside the modules that own it.
+
+The counts come from :mod:`structure_audit` (AST and the import graph, imports inside
+functions included). Switches still standing are held to their per-file ceilings below, a
+ratchet towards zero: a file may lose switches, never gain them, and a file not listed may
+have none. Lower a ceiling when a switch goes.
+"""
+
+from __future__ import annotations
+
+import structure_audit as audit
+
+#: switches on instrument/machine names still standing, per module (target: none)
+SWITCH_CEILINGS = {
+    "cli/_commands.py": 28, "analysis/montecarlo.py": 14, "calibration/run.py": 8,
+    "instruments/simulate.py": 8, "instruments/predict.py": 5, "cli/_compensate.py": 2,
+    "cli/_planning.py": 2, "export/linuxcnc_hexapod.py": 2, "io/csv_io.py": 2,
+    "io/machine_file.py": 2, "analysis/tolerance.py": 1, "calibration/distances.py": 1,
+    "calibration/probe.py": 1, "cli/_montecarlo.py": 1, "export/klipper_rotary.py": 1,
+    "instruments/scenarios.py": 1, "plausibility.py": 1, "report/schema.py": 1,
+}
+#: ``pose_dof`` comparisons still standing, per module (a machine's ``pose_space`` says which
+#: pose coordinates move; target: none outside machines/base.py)
+POSE_DOF_CEILINGS = {"machines/base.py": 1}
+
+_AUDIT = audit.audit()
+
+
+def test_no_import_cycle_between_modules_or_packages():
+    assert _AUDIT["module_cycles"] == [], _AUDIT["module_cycles"]
+    assert _AUDIT["package_cycles"] == [], _AUDIT["package_cycles"]
+
+
+def test_switches_on_names_only_fall():
+    over = {rel: [ln for ln, _, _ in found] for rel, found in _AUDIT["switches"].items()
+            if len(found) > SWITCH_CEILINGS.get(rel, 0)}
+    assert not over, ("new switches on an instrument's or machine's name outside its module "
+                      f"(ask the registry or the machine instead): {over}")
+
+
+def test_translation_tests_only_fall():
+    over = {rel: lines for rel, lines in _AUDIT["translation_tests"].items()
+            if len(lines) > POSE_DOF_CEILINGS.get(rel, 0)}
+    assert not over, f"new pose_dof tests (use machine.pose_space / machine.rotates): {over}"
+
+
+def test_audit_sees_a_switch_and_a_cycle(tmp_path):
+    """The audit is not blind: a planted switch and a planted cycle are found."""
+    module = tmp_path / "m.py"
+    module.write_text("def f(kind, data):\n"
+                      "    if kind == 'tracker':\n        return 1\n"
+                      "    table = {'probe': 1, 'distance': 2}\n"
+                      "    return isinstance(data, TrackerData) or table\n")
+    found = audit.switches(module, "cli/x.py")
+    assert sorted(what for _, what, _ in found) == ["comparison", "isinstance",
+                                                    "name-keyed table"]
+    assert audit.switches(module, "instruments/tracker.py")[0][2] == ("distance", "probe")
+    assert audit.cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
