@@ -243,7 +243,7 @@ class CalibrateOptions:
         data take extensions).
     bed_tilt : str or None
         Probe heights on a printer: ``"auto"`` (None), ``"estimate"`` or ``"square"``
-        (:func:`~pkmcal.calibration.probe.bed_choice`).
+        (:func:`~pkmcal.instruments.probe.bed_choice`).
     """
 
     method: str | None = None
@@ -659,7 +659,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     bed_tilt : {"auto", "estimate", "square"}, optional
         Probe heights on a printer (its frame is its bed): whether the bed's tilt against the
         towers is estimated (default ``"auto"``: where the data tell it from the parameter
-        set; :func:`~pkmcal.calibration.probe.bed_choice`).
+        set; :func:`~pkmcal.instruments.probe.bed_choice`).
 
     Returns
     -------
@@ -1809,9 +1809,9 @@ def _fit_with_baseline(machine, data, source, split, reader, fit, noise, advice:
 
 def _calibrate_distances(machine, data, source, options: CalibrateOptions,
                          split) -> Calibration:
+    from ..instruments.distance import calibrate_distances
     from ..io import read_distances
     from ..units import LENGTH
-    from .distances import calibrate_distances
 
     noise = _distance_noise(options.noise, machine)
     data, held, result, before, calibrated, params, units = _fit_with_baseline(
@@ -2163,8 +2163,8 @@ def _joint_distances(machine, data, source, noise) -> JointPart:
 
 
 def _joint_probe(machine, data, source, noise) -> JointPart:
+    from ..instruments.probe import bed_choice
     from ..io import read_probe
-    from .probe import bed_choice
 
     probe = _load(data, read_probe, machine)
     noise_model = (probe.weights[0] if noise is None and probe.weights is not None
@@ -2737,22 +2737,22 @@ def _check_probe(options: CalibrateOptions, source) -> None:
 
 
 def _probe_noise(noise, machine):
-    """The probe noise of ``--noise`` (:meth:`~pkmcal.instruments.registry.Probe.noise_arg`)."""
+    """The probe noise of ``--noise`` (:meth:`~pkmcal.instruments.probe.Probe.noise_arg`)."""
     from ..instruments.registry import instrument
 
     return instrument("probe").noise_arg(noise, machine)
 
 
 def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) -> Calibration:
-    from ..io import read_probe
-    from ..units import LENGTH
-    from .probe import (
+    from ..instruments.probe import (
         MEASURE_NEXT,
         POOR_STD,
         bed_choice,
         calibrate_probe,
         poorly_determined_warnings,
     )
+    from ..io import read_probe
+    from ..units import LENGTH
 
     noise = _probe_noise(options.noise, machine)
     chosen: dict = {}

@@ -1,4 +1,8 @@
-"""Calibration from bed-probe heights, and what heights fix only weakly.
+"""Bed-probe heights: the nozzle's height above a flat bed at the probe's trigger, its plans
+(Klipper's DELTA_CALIBRATE pattern, rings), the vertical scale heights cannot see, and its
+calibration.
+
+Calibration from bed-probe heights, and what heights fix only weakly.
 
 The instrument's model is :class:`~pkmcal.instruments.ProbeModel`: the bed is the plane
 ``z = bed.z + bed.tilt_x x + bed.tilt_y y`` (base frame) and each row is the nozzle's height
@@ -13,7 +17,7 @@ absorbs (a translation along z of the base frame - on a printer, every endstop s
 same amount - with ``bed.z``, a tilt of the base frame with the bed's tilt), the motions no
 height sees at all (translations and turns in the bed's plane), a vertical scale about the bed
 (invisible while every probe point lies on the bed: probing at a second height sees it;
-:func:`~pkmcal.instruments.registry.height_groups`) and the parameter combinations nothing
+:func:`~pkmcal.instruments.probe.height_groups`) and the parameter combinations nothing
 explains.
 
 What heights fix only *weakly* is another matter: a parameter may be determined, but with a
@@ -34,15 +38,270 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..estimation.rank import RTOL
-from ..instruments import InstrumentData, IsotropicNoise, fit_instrument
-from ..instruments.bed import BED_TILT_CHOICES, TILT_REDUNDANCY, BedChoice, bed_choice
-
-__all__ = ["BED_TILT_CHOICES", "MEASURE_NEXT", "POOR_STD", "TILT_REDUNDANCY", "BedChoice",
-           "PoorParameter", "bed_choice", "calibrate_probe", "poorly_determined",
-           "poorly_determined_warnings"]
 from ..estimation.estimator import CalibrationResult
+from ..estimation.rank import RTOL
 from ..machines.base import Machine
+from ..machines.reach import (
+    _bed_points,
+    bed_centre,
+    bed_height,
+    probe_radius,
+)
+from .base import Instrument, StandardPlan, _fk_of, _space_words, reachable
+from .bed import BedChoice, bed_choice
+from .data import InstrumentData
+from .models import IsotropicNoise
+from .problem import InstrumentProblem, fit_instrument
+
+#: the probe's repeatability assumed by default, m (standard deviation of the trigger height).
+#: An assumption, not a datum: the order of the spread that Klipper's PROBE_ACCURACY reports for
+#: common bed probes (a few um for a good touch or piezo probe, 10-20 um for inductive ones)
+PROBE_SIGMA = 10e-6
+
+
+#: Klipper's DELTA_CALIBRATE points (klippy/extras/delta_calibrate.py): the centre, then six
+#: points at 90 + 60 i deg on circles of these fractions of the probe radius
+KLIPPER_SCATTER = (0.95, 0.90, 0.85, 0.70, 0.75, 0.80)
+
+
+def probe_pattern(n: int, radius: float, centre=(0.0, 0.0)) -> tuple[np.ndarray, str] | None:
+    """The standard probe pattern of ``n`` points on the bed, or None when there is none.
+
+    ``n = 7``: Klipper's ``DELTA_CALIBRATE`` points (``klippy/extras/delta_calibrate.py``):
+    the centre and six points at ``90 + 60 i`` deg on circles of ``0.95, 0.90, 0.85, 0.70,
+    0.75, 0.80`` times the radius. ``n = 1 + 3 m (m + 1)`` (19, 37, 61, ...): the centre and
+    ``m`` rings, ring ``k`` of ``6 k`` points at radius ``k / m`` of the radius, starting at
+    90 deg (Klipper's first direction).
+
+    Parameters
+    ----------
+    n : int
+        Number of points.
+    radius : float
+        Probe radius, m.
+    centre : array_like, shape (2,), optional
+        Centre of the pattern, m.
+
+    Returns
+    -------
+    tuple or None
+        ``(xy (n, 2), words)``; None for other ``n``.
+    """
+    centre = np.asarray(centre, float)
+    if n == 7:
+        a = np.deg2rad(90.0 + 60.0 * np.arange(6))
+        d = radius * np.asarray(KLIPPER_SCATTER)
+        xy = np.vstack([[0.0, 0.0], np.column_stack([np.cos(a) * d, np.sin(a) * d])])
+        return centre + xy, (f"Klipper's DELTA_CALIBRATE pattern (centre + 6 points at 0.7-0.95 "
+                             f"of a {radius * 1e3:.4g} mm radius)")
+    m = int(round((-3 + np.sqrt(9 + 12 * (n - 1))) / 6)) if n >= 1 else 0
+    if m < 1 or 1 + 3 * m * (m + 1) != n:
+        return None
+    pts = [np.zeros(2)]
+    for k in range(1, m + 1):
+        a = np.deg2rad(90.0) + 2 * np.pi * np.arange(6 * k) / (6 * k)
+        pts += list(radius * k / m * np.column_stack([np.cos(a), np.sin(a)]))
+    return centre + np.array(pts), (f"the centre and {m} ring(s) of 6, 12, ... points within "
+                                    f"a {radius * 1e3:.4g} mm radius")
+
+
+#: relative lift (of the characteristic length) of the probe points of :func:`height_groups`
+LIFT = 0.01
+
+
+def height_groups(problem, state, scales, null_space) -> list:
+    """Null directions of probe heights that probing at other heights would see, named.
+
+    With every tip on the bed (the same ``probe_z`` everywhere), a change of the machine
+    that moves the nozzle along z in proportion to its height above the bed (a vertical
+    scale about the bed) changes no height. The directions of the null space that the same
+    points, every other one lifted by :data:`LIFT` characteristic lengths, would see are
+    returned as one group.
+
+    Parameters
+    ----------
+    problem : InstrumentProblem
+        A probe problem.
+    state : InstrumentState
+        The state to linearise at.
+    scales : ndarray, shape (n,)
+        Column scales.
+    null_space : ndarray, shape (n, k)
+        The problem's null space (scaled).
+
+    Returns
+    -------
+    list of NullGroup
+        Empty, or one group ``vertical scale about the bed``.
+    """
+    from ..identifiability import NullGroup
+
+    N = np.asarray(null_space, float)
+    if N.shape[1] == 0:
+        return []
+    machine = problem.machine.with_parameters(state.u)
+    fk = machine.fk(problem.data.q)
+    if not fk.converged.all():
+        return []
+    P = np.array(fk.P, float)
+    P[::2, 2] += LIFT * machine.characteristic_length()
+    q = machine.ik(P, fk.R)
+    if not np.all(np.isfinite(q)):
+        return []
+    model = problem.model.with_start(state.nuisance)
+    lifted = InstrumentData("probe", q, model.predict(model.initial(), P, fk.R,
+                                                      np.zeros(len(P), int)))
+    other = InstrumentProblem(machine, lifted, model, problem.noise)
+    _, J, _ = other.evaluate(other.initial_state())
+    J = (J * scales).reshape(-1, len(scales))
+    s0 = np.linalg.svd(J, compute_uv=False)[0]
+    _, s, Vt = np.linalg.svd(J @ N, full_matrices=False)
+    seen = s > 1e-6 * s0
+    if not seen.any():
+        return []
+    return [NullGroup("vertical scale about the bed",
+                      "moving the nozzle along z in proportion to its height above the bed "
+                      "changes no height while every probe point lies on the bed (one "
+                      "probe_z); probe at a second height too (on a gauge block of known "
+                      "thickness, its thickness as probe_z) to see it", N @ Vt[seen].T)]
+
+
+class ProbeProblem(InstrumentProblem):
+    """The instrument problem of probe heights; its null directions are named by the
+    machine's frame motions (what absorbs them) and :func:`height_groups`."""
+
+    def null_groups(self, state, scales, null_space=None):
+        """The null directions in words.
+
+        Parameters
+        ----------
+        state : InstrumentState
+            The state to linearise at.
+        scales : ndarray, shape (n,)
+            Column scales.
+        null_space : ndarray, shape (n, k), optional
+            The null space when known.
+
+        Returns
+        -------
+        list of NullGroup
+            Frame motions, then the vertical scale about the bed when it is null.
+        """
+        N = self.null_space(state) if null_space is None else np.asarray(null_space, float)
+        groups = super().null_groups(state, scales, N)
+        # the vertical scale is searched for outside what the frame motions already name: on
+        # a tilted bed lifted points see the towers' tilt slightly (heights are vertical, the
+        # bed slopes), which would otherwise be named a second time as a "vertical scale"
+        rest = N
+        if groups and N.shape[1]:
+            Q, _ = np.linalg.qr(np.column_stack([g.tangents for g in groups]))
+            U, sv, _ = np.linalg.svd(N - Q @ (Q.T @ N), full_matrices=False)
+            rest = U[:, sv > 1e-3]
+        return groups + height_groups(self, state, scales, rest)
+
+
+class Probe(Instrument):
+    """Bed-probe heights: the nozzle's height above a flat bed of unknown height and tilt."""
+
+    name = "probe"
+    aliases = ("probe-heights", "bed-probe")
+    words = ("bed-probe heights: the nozzle's height above the bed at the trigger (bed height "
+             "and tilt estimated)")
+    plan_size = 37
+
+    def applies(self, machine):
+        # a vertical probe needs a z axis the platform moves along
+        if 2 not in machine.pose_space:
+            return ("probe heights are measured along z, which this machine's platform does "
+                    f"not move along (it moves along {_space_words(machine)}): measure points "
+                    "(tracker) instead")
+        return None
+
+    def default_noise(self):
+        from .models import IsotropicNoise
+
+        return IsotropicNoise(PROBE_SIGMA)
+
+    def describe_noise(self, noise):
+        return f"probe trigger {noise.sigma * 1e6:.3g} um along z (std)"
+
+    def candidates(self, machine, n, rng):
+        """Random points uniform on the disk of :func:`probe_radius` on the nominal bed."""
+        r = probe_radius(machine)
+        centre = bed_centre(machine)
+        rho = r * np.sqrt(rng.uniform(0.0, 1.0, n))
+        a = rng.uniform(0.0, 2 * np.pi, n)
+        P, R = _bed_points(machine, centre + np.column_stack([rho * np.cos(a),
+                                                             rho * np.sin(a)]))
+        return P, R, None
+
+    def standard_plan(self, machine, n, seed):
+        pattern = probe_pattern(n, probe_radius(machine), bed_centre(machine))
+        if pattern is None:
+            return StandardPlan("a probe pattern of rings on the bed",
+                                reason=f"the probe patterns have 7 points (Klipper's "
+                                       f"DELTA_CALIBRATE) or 1 + 3 m (m + 1) points (centre and "
+                                       f"m rings: 19, 37, 61, ...), not {n}")
+        xy, words = pattern
+        P, R = _bed_points(machine, xy)
+        return StandardPlan(words, P, R)
+
+    def planned_data(self, machine, P, R, rows, source, group=None):
+        from .models import ProbeModel
+
+        q = reachable(machine, P, R, rows, source)
+        model = ProbeModel()
+        state = model.initial()
+        state.values[0] = bed_height(machine)
+        h = model.predict(state, P, R, np.zeros(len(P), int))
+        return InstrumentData("probe", q, h, np.zeros(len(P), int), rows, source, P, R)
+
+    def problem(self, machine, data, noise=None, **start):
+
+        noise = self.default_noise() if noise is None else noise
+        # a printer's frame is its bed: its height held at 0, its tilt where the data tell it
+        model = bed_choice(machine, data, noise).model()
+        values = np.array(model.parameters.values, float)
+        values[0] = bed_height(machine)
+        model.parameters = model.parameters.with_values(values)
+        return ProbeProblem(machine, data, model, noise)
+
+    measurement_words = ("bed-probe heights (bed height and tilt estimated jointly; on a "
+                         "printer the bed is z = 0 and its tilt estimated where the data tell "
+                         "it)")
+
+    def noise_arg(self, text, machine=None):
+        """The probe noise of ``--noise`` (text or SI number or model; default
+        :data:`PROBE_SIGMA`)."""
+        from ..plausibility import check_option_scale
+        from ..units import parse_quantity
+        from .models import IsotropicNoise
+
+        if text is None:
+            return IsotropicNoise(PROBE_SIGMA)
+        if hasattr(text, "whitening"):
+            return text
+        sigma = parse_quantity(text, "length", "--noise") if isinstance(text, str) \
+            else float(text)
+        if not sigma > 0:
+            raise InputError(f"--noise: must be > 0 (the standard deviation of the probe's "
+                             f"trigger height), got {text}")
+        check_option_scale(sigma, machine, "--noise", "noise", str(text))
+        return IsotropicNoise(sigma)
+
+    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
+    reader = "read_probe"
+
+    def measured_problem(self, machine, data, noise=None, source=""):
+        """The bed's height and tilt started from the data on the machine's geometry."""
+
+        noise = self.default_noise() if noise is None else noise
+        fk = _fk_of(machine, data, source)
+        model = bed_choice(machine, data, noise).model().start(fk.P, fk.R, data.values,
+                                                               data.group, str(source))
+        return InstrumentProblem(machine, data, model, noise)
+
+
 
 #: the displacement at the machine's scale (m) beyond which a fitted parameter's standard
 #: deviation makes it poorly determined (see the module docstring)
@@ -226,7 +485,7 @@ def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: fl
         there (m).
     noise : IsotropicNoise, optional
         The probe's repeatability along z (default
-        :data:`~pkmcal.instruments.registry.PROBE_SIGMA`, 10 um).
+        :data:`~pkmcal.instruments.probe.PROBE_SIGMA`, 10 um).
     rtol : float, optional
         Rank tolerance.
     fit_machine : bool, optional
@@ -250,7 +509,6 @@ def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: fl
         When the data are not probe heights, there are fewer than 3 rows (the bed plane), or
         the machine file's model cannot reproduce some readings.
     """
-    from ..instruments.registry import PROBE_SIGMA
 
     noise = IsotropicNoise(PROBE_SIGMA) if noise is None else noise
     if data.kind != "probe":
@@ -265,7 +523,6 @@ def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: fl
     result.extras["bed_choice"] = bed
     # the null directions named with the probe's own words (a vertical scale about the bed)
     from ..identifiability import name_null_space, name_weak_directions
-    from ..instruments.registry import ProbeProblem
 
     problem = ProbeProblem.__new__(ProbeProblem)
     problem.__dict__.update(result.extras["problem"].__dict__)
@@ -282,3 +539,8 @@ def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: fl
         poorly_determined(result, n_machine, machine.characteristic_length())
         if fit_machine else [])
     return result
+
+
+
+#: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
+INSTRUMENT = Probe()
