@@ -199,6 +199,223 @@ class Instrument:
         """
         raise NotImplementedError
 
+    #: the report sections a calibration with this instrument must carry, each with why (the
+    #: report schema checks them: :class:`pkmcal.report.schema.CalibrationReport`)
+    report_sections: dict = {}
+
+    #: the machine-file section a calibration with this instrument writes its fitted
+    #: unknowns to (None: it writes none, and nothing can be predicted for it)
+    section: str | None = None
+    #: which calibration writes :attr:`section`, in words
+    section_words: str = ""
+
+    def carried_by(self, machine: Machine) -> bool:
+        """True when ``machine`` (a calibrated one) carries this instrument's fitted unknowns
+        (its :attr:`section`).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        bool
+            Whether :meth:`predict` can use it.
+        """
+        return False
+
+    def predict(self, machine: Machine, P, R, ok, group, rows=None, source=None):
+        """The measurements this instrument, with the unknowns ``machine`` carries, makes at
+        platform poses (:func:`~pkmcal.instruments.predict_instrument`).
+
+        Parameters
+        ----------
+        machine : Machine
+            The calibrated machine carrying the instrument (:meth:`carried_by`).
+        P : ndarray, shape (K, 3)
+            Platform positions, m (0 where the forward kinematics failed).
+        R : ndarray, shape (K, 3, 3)
+            Platform orientations.
+        ok : ndarray of bool, shape (K,)
+            Rows whose forward kinematics converged.
+        group : ndarray of int, shape (K,)
+            0-based target / setup of each row.
+        rows : array_like of int, optional
+            File line numbers, for messages.
+        source : str, optional
+            The readings' file, for messages.
+
+        Returns
+        -------
+        values : ndarray, shape (K, m)
+            The predicted measurements, SI.
+        R : ndarray, shape (K, 3, 3) or None
+            Predicted orientations (a marker's), else None.
+        group : ndarray of int, shape (K,)
+            The groups the prediction used.
+
+        Raises
+        ------
+        InputError
+            For a target / setup number beyond those of the machine file.
+        """
+        raise NotImplementedError
+
+    #: the options of :meth:`simulate` this instrument takes beyond every instrument's, with
+    #: their defaults (a value other than its default is an option given)
+    simulate_options: dict = {}
+    #: those options and this instrument in words, for a message refusing them elsewhere
+    simulate_options_words: str = ""
+
+    def simulate(self, machine: Machine, true: Machine, n: int, noise, rng, truth: dict, *,
+                 poses=None, mounting_error: float = 1e-3, **options):
+        """A simulated experiment of this instrument (see
+        :func:`~pkmcal.instruments.simulate.simulate_scenario`, which checks the options and
+        draws the true machine first).
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine (it commands the poses).
+        true : Machine
+            The true machine; it is given the true instrument (frames, targets, setups).
+        n : int
+            Number of measurements.
+        noise : object
+            The instrument's noise model; None its default; False exact data.
+        rng : numpy.random.Generator
+            Random generator (poses, mounting errors, noise).
+        truth : dict
+            ``{"scenario": name}``, completed here.
+        poses : tuple, optional
+            ``(P, R)`` or ``(P, R, group)``: commanded poses instead of the instrument's.
+        mounting_error : float, optional
+            Half-width of the uniform error of true targets, pivots and balls, m.
+        **options
+            The options of :attr:`simulate_options`.
+
+        Returns
+        -------
+        tuple
+            ``(data, true, truth)``: ``truth`` with ``poses`` (the plan in words), the
+            instrument's truth and ``rows``, that truth in words (``(name, text)`` pairs).
+        """
+        raise NotImplementedError
+
+    #: the ``pkmcal simulate`` options this instrument takes (beyond ``--noise``), each with
+    #: where it applies in words (``--targets``: ``--scenario points (tracker)``)
+    simulate_flags: dict = {}
+
+    def simulates_grid(self, machine: Machine, targets=None) -> bool:
+        """True when ``pkmcal simulate`` measures a grid of points on ``machine`` (seed 001's
+        tracker on a platform that only translates) instead of :meth:`simulate`.
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        targets : int, optional
+            ``--targets`` (None: not given).
+
+        Returns
+        -------
+        bool
+            False unless the instrument measures a grid there.
+        """
+        return False
+
+    def simulate_arguments(self, machine: Machine, noise, **flags):
+        """The noise model and :meth:`simulate` options of ``pkmcal simulate``'s option texts.
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine (levels are checked against its size).
+        noise : str or None
+            ``--noise``; None the simulation's default.
+        **flags
+            The other options as given (``pose_noise``, ``lc_error``, ``targets``, ``setups``,
+            ``radius``, ``circles``); an instrument reads those of :attr:`simulate_flags`.
+
+        Returns
+        -------
+        model : object
+            The noise model (False: exact data).
+        words : str
+            The noise in words.
+        options : dict
+            Options of :meth:`simulate`.
+        """
+        raise NotImplementedError
+
+    #: the name of the :mod:`pkmcal.io` function writing its data
+    #: (:func:`pkmcal.io.write_measurements`)
+    writer: str = "write_instrument"
+    #: the columns of its measurement in a data file (without unit), one per value of a row
+    data_columns: tuple = ()
+    #: what ``pkmcal fk --frame instrument`` writes, in words
+    prediction_words: str = ""
+
+    def prediction_columns(self, prediction, unit: str) -> dict:
+        """The columns ``pkmcal fk --frame instrument`` writes for predicted measurements.
+
+        Parameters
+        ----------
+        prediction : InstrumentPrediction
+            The predicted measurements (``values``, SI).
+        unit : str
+            The machine file's length unit.
+
+        Returns
+        -------
+        dict
+            Column name -> values, in ``unit`` (:attr:`data_columns` with the unit).
+        """
+        from ..units import LENGTH
+
+        f = LENGTH[unit]
+        return {f"{c}_{unit}": prediction.values[:, j] / f
+                for j, c in enumerate(self.data_columns)}
+
+    def calibration_summary(self, report: dict) -> list:
+        """The rows of ``pkmcal calibrate``'s summary of a calibration with this instrument,
+        in order: ``(name, text)`` pairs; the names of rows every summary may share, which the
+        CLI fills in from the report (``"parameter set"``, ``"identifiable"`` or
+        ``"identifiable, grouped"`` (one line per description of what is not identifiable),
+        ``"held-out"``, ``"bed"``, ``"noise levels"``, ``"convergence"``); and
+        ``("note", text)`` pairs, printed after the parameter changes.
+
+        Parameters
+        ----------
+        report : dict
+            The calibration report (JSON-ready).
+
+        Returns
+        -------
+        list
+            The rows, in order.
+        """
+        rows = [("measurement", f"{report['measurement']}, {report['measurements']} rows"),
+                ("method", str(report["method"])), "parameter set", "identifiable"]
+        res = report.get("residuals", {})
+        if res.get("rms_um") is not None:
+            before = (f"; before calibration {res['before_rms_um']:.4g} um ({res['before']})"
+                      if res.get("before_rms_um") is not None else "")
+            rows.append(("RMS residual", f"{res['rms_um']:.4g} um over {res.get('count')} "
+                         f"rows ({res.get('of', 'measured - predicted')}){before}"))
+        if report.get("noise") is not None:
+            scale = res.get("noise_scale")
+            rows.append(("noise", f"{report['noise']}" + (
+                f"; residuals / assumed noise = {scale:.3g}" if scale is not None else "")))
+        for setup in report.get("setups", []):
+            unit = setup["unit"]
+            rows.append((f"setup {setup['setup']}", f"{setup['rows']} rows; pivot ("
+                         + ", ".join(f"{v:.6g}" for v in setup["pivot"]) + f") {unit} "
+                         "(base), ball (" + ", ".join(f"{v:.6g}" for v in setup["ball"])
+                         + f") {unit} (platform)"))
+        return rows + ["held-out", "bed", "noise levels", "convergence"]
+
     def problem(self, machine: Machine, data, noise=None, **start):
         """The calibration problem ``pkmcal calibrate`` solves by default, unsolved.
 
@@ -347,6 +564,31 @@ def _sigma_arg(text, machine, what: str, default: float) -> float:
     if machine is not None:
         check_option_scale(sigma, machine, "--noise", "noise", str(text))
     return sigma
+
+
+def _simulated_sigma(noise, default: str, machine: Machine) -> float:
+    """A standard deviation of ``pkmcal simulate --noise`` (text with a unit; None:
+    ``default``), m; 0 allowed (exact data), checked against the machine's size."""
+    from ..plausibility import check_option_scale
+    from ..units import parse_quantity
+
+    text = default if noise is None else noise
+    sigma = parse_quantity(text, "length", "--noise")
+    if not sigma >= 0:
+        raise InputError(f"--noise: must be >= 0 (a standard deviation), got {text}")
+    check_option_scale(sigma, machine, "--noise", "noise", text)
+    return sigma
+
+
+def _check_groups(group, n: int, what: str, section: str, rows, source) -> None:
+    """Refuse target / setup numbers beyond the ``n`` of the machine file's ``section``."""
+    bad = np.flatnonzero((group < 0) | (group >= n))
+    if bad.size:
+        k = int(bad[0])
+        where = (f"{source}: " if source else "") + (
+            f"row {int(rows[k])}, column {what}: " if rows is not None else f"{what} ")
+        raise InputError(f"{where}{what} {int(group[k]) + 1}, but the machine file's "
+                         f"{section} has {n} (numbered 1..{n})")
 
 
 def _fk_of(machine: Machine, data, source):

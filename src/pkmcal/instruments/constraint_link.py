@@ -1737,6 +1737,85 @@ class ConstraintLink(Instrument):
                                   np.arange(len(P)) % machine.n_joints, rows, source,
                                   true_P=P, true_R=R)
 
+    report_sections = {"link_length": "a constraint-link report states the link length it used"}
+
+    simulate_options = {"link_error": 0.0}
+    simulate_options_words = "link_error: applies to the constraint-link scenario"
+
+    def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
+                 mounting_error=1e-3, link_error=0.0):
+        """:func:`simulate_constraint_link` on the sphere of the true link (the file's length
+        minus ``link_error``); ``noise`` the encoder std (m, default 1 um; False: exact).
+        See :meth:`Instrument.simulate <pkmcal.instruments.base.Instrument.simulate>`.
+
+        Returns
+        -------
+        tuple
+            ``(data, true, truth)``; ``truth`` with ``link_length``.
+        """
+        Lc = float(machine.constraint_link_length) - float(link_error)
+        if not Lc > 0:
+            raise InputError(f"link_error: the true link length {Lc * 1e3:.6g} mm is not "
+                             "positive")
+        true.constraint_link_length = Lc
+        sigma = 1e-6 if noise is None else (0.0 if noise is False else float(noise))
+        data = simulate_constraint_link(true, n, sigma, link_length=Lc,
+                                        link_length_error=float(link_error), rng=rng)
+        lc = machine.constraint_link_length
+        rows = [("link", f"true length {Lc * 1e3:.6g} mm")]
+        if abs(lc - Lc) > 0:
+            rows.append(("Lc error", f"machine file says {lc * 1e3:.6g} mm, true link "
+                         f"{Lc * 1e3:.6g} mm"))
+        truth.update(link_length=Lc, poses=f"{n} poses on the true link's sphere |P| = "
+                     f"{Lc * 1e3:.6g} mm", rows=rows)
+        return data, true, truth
+
+    simulate_flags = {"--lc-error": "--scenario constraint-link"}
+
+    def simulate_arguments(self, machine, noise, lc_error="0", **flags):
+        from ..plausibility import check_option_scale
+        from ..units import parse_quantity
+
+        text = "2um" if noise is None else noise
+        noise_m = parse_quantity(text, "length", "--noise")
+        if not noise_m >= 0:
+            raise InputError(f"--noise: must be >= 0, got {text}")
+        check_option_scale(noise_m, machine, "--noise", "noise", text)
+        lc_error_m = check_option_scale(parse_quantity(lc_error, "length", "--lc-error"),
+                                        machine, "--lc-error", "error", lc_error)
+        lc = machine.constraint_link_length
+        if not lc - lc_error_m > 0:
+            raise InputError(f"--lc-error: the true link length {(lc - lc_error_m) * 1e3:.6g} "
+                             "mm is not positive")
+        return noise_m, f"encoder noise {noise_m * 1e6:.4g} um", {"link_error": lc_error_m}
+
+    writer = "write_constraint_link"
+
+    def calibration_summary(self, report):
+        res, ident, lc = report["residuals"], report["identifiability"], report["link_length"]
+        noise = res["estimated_noise_um"]
+        if lc["estimated"]:
+            std = f" +/- {lc['std']:.3g} {lc['unit']}" if lc["std"] is not None else ""
+            link = (f"{lc['value']:.9g} {lc['unit']} (estimated{std}; machine file "
+                    f"{lc['assumed']:.9g} {lc['unit']})")
+        else:
+            link = f"{lc['value']:.9g} {lc['unit']} (fixed: machine file)"
+        rows = [("measurement", f"{report['measurement']}, {report['measurements']} poses"),
+                ("method", {"ml": "ml (maximum likelihood, all readings noisy)",
+                            "ik": "ik (paper 3.4.1, inverse kinematics of the passive chain)",
+                            "fk": "fk (paper 3.4.2, spread of the link length)"}
+                 [report["method"]]),
+                "identifiable",
+                ("RMS residual", f"{res['rms_um']:.4g} um ({res['of']}; assumed noise "
+                 f"{report['noise_sigma_um']:.4g} um"
+                 + (f", estimated {noise:.3g} um)" if noise is not None else ")")),
+                "held-out", "noise levels", "convergence", ("link length Lc", link)]
+        if ident["unidentifiable"]:
+            rows.append(("note", "note: the data do not fix the directions listed as not "
+                         "identifiable; the changes are the smallest ones (scaled) that fit "
+                         "the data, and std is for the identifiable part."))
+        return rows
+
     def problem(self, machine, data, noise=None, **start):
 
         return ConstraintLinkML(machine, data, self.default_noise() if noise is None else noise)

@@ -24,8 +24,18 @@ from ..errors import InputError
 from ..estimation.estimator import CalibrationResult
 from ..estimation.rank import RTOL
 from ..machines.base import Machine
-from .base import Instrument, StandardPlan, _fk_of, _sigma_arg, _space_words, reachable
+from .base import (
+    Instrument,
+    StandardPlan,
+    _check_groups,
+    _fk_of,
+    _sigma_arg,
+    _simulated_sigma,
+    _space_words,
+    reachable,
+)
 from .data import InstrumentData
+from .experiment import circle_poses
 from .models import DistancesModel, IsotropicNoise
 from .problem import InstrumentProblem, fit_instrument
 
@@ -132,6 +142,69 @@ def ballbar_setups(machine: Machine, length: float | None = None):
     return pivots, balls
 
 
+def circle_plan(machine: Machine, n: int, setups=None):
+    """ISO 230-4 style ballbar circles, one per setup, the platform at its home orientation.
+
+    For setup ``g`` (pivot ``p``, ball ``b``, ballbar length ``L = |home + R0 b - p|``) the ball
+    runs on the circle of radius ``L sin 45 deg`` about the pivot's direction to home, ``L cos
+    45 deg`` above the pivot; the ``n`` poses are shared out among the setups in turn.
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    n : int
+        Number of poses (at least 3 per setup).
+    setups : list of tuple, optional
+        ``[(pivot, ball), ...]``; default
+        :func:`ballbar_setups` of the machine.
+
+    Returns
+    -------
+    P : ndarray, shape (n, 3)
+        Positions, m.
+    R : ndarray, shape (n, 3, 3)
+        Orientations.
+    group : ndarray of int, shape (n,)
+        0-based setup of each pose.
+
+    Raises
+    ------
+    InputError
+        When there are fewer than 3 poses per setup or the machine cannot reach a pose.
+    """
+    if setups is None:
+        pivots, balls = ballbar_setups(machine)
+    else:
+        pivots = np.array([np.asarray(p, float) for p, _ in setups])
+        balls = np.array([np.asarray(b, float) for _, b in setups])
+    k = len(pivots)
+    if n < 3 * k:
+        raise InputError(f"{k} ballbar circles need at least {3 * k} poses, got {n}")
+    P0, R0 = machine.home
+    Ps, Rs, gs = [], [], []
+    for g in range(k):
+        m = n // k + (1 if g < n % k else 0)
+        arm = P0 + R0 @ balls[g] - pivots[g]
+        L = np.linalg.norm(arm)
+        normal = arm / L
+        h = L * np.cos(np.deg2rad(45.0))
+        P, R = circle_poses(machine, pivots[g] + h * normal, h, m, normal)
+        Ps.append(P - np.einsum("kij,j->ki", R, balls[g]))
+        Rs.append(R)
+        gs.append(np.full(m, g))
+    P, R, group = np.concatenate(Ps), np.concatenate(Rs), np.concatenate(gs)
+    with np.errstate(all="ignore"):
+        ok = np.all(np.isfinite(machine.ik(P, R)), -1) & machine.working_mode(P, R)
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        raise InputError(f"ballbar circle {group[bad[0]] + 1}: {bad.size} of its poses are out "
+                         "of the machine's reach (e.g. at ("
+                         + ", ".join(f"{v * 1e3:.6g}" for v in P[bad[0]]) + ") mm); use a "
+                         "shorter ballbar or fewer setups")
+    return P, R, group
+
+
 class Distance(Instrument):
     """A measuring ballbar between a pivot on the base and a ball on the platform."""
 
@@ -224,6 +297,112 @@ class Distance(Instrument):
         pivots, balls = pivots[group % len(pivots)], balls[group % len(pivots)]
         d = np.linalg.norm(P + np.einsum("kij,kj->ki", R, balls) - pivots, axis=-1)
         return InstrumentData("distances", q, d[:, None], group, rows, source, P, R)
+
+    section = "ballbar"
+    section_words = "a calibration from distances (d: ballbar) writes the ballbar section"
+
+    def carried_by(self, machine):
+        return bool(getattr(machine, "ballbar_setups", None))
+
+    def predict(self, machine, P, R, ok, group, rows=None, source=None):
+        from .models import NuisanceState
+
+        setups = list(machine.ballbar_setups)
+        _check_groups(group, len(setups), "setup", "ballbar", rows, source)
+        model = DistancesModel(len(setups))
+        values = np.zeros(len(model.parameters))
+        for g, (pivot, ball) in enumerate(setups):
+            values[model.parameters.indices([f"setup{g + 1}.pivot.{c}" for c in "xyz"])] = pivot
+            values[model.parameters.indices([f"setup{g + 1}.ball.{c}" for c in "xyz"])] = ball
+        return model.predict(NuisanceState(values, []), P, R, group), None, group
+
+    simulate_options = {"setups": None, "length": None, "circles": False}
+    simulate_options_words = "setups, length and circles: apply to the distance scenario"
+
+    def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
+                 mounting_error=1e-3, setups=None, length=None, circles=False):
+        """``setups`` mountings of a ballbar of ``length`` (the machine's ``ballbar_setups``
+        when neither is given, else :func:`planned_ballbar_setups`, 3 and
+        :data:`BALLBAR_LENGTH` by default); ``n`` poses on the spheres around the pivots
+        (:meth:`candidates`), ``poses``, or with ``circles`` ISO 230-4 circles
+        (:func:`circle_plan`); true pivots and balls = planned + a uniform error of
+        ``mounting_error``; ``noise`` an ``IsotropicNoise`` (default 1 um; False: exact).
+        See :meth:`Instrument.simulate <pkmcal.instruments.base.Instrument.simulate>`.
+
+        Returns
+        -------
+        tuple
+            ``(data, true, truth)``; ``truth`` with ``setups``, ``planned_setups`` and
+            ``length`` (per setup, m).
+        """
+        from .experiment import given_poses, mm_text, noise_model, simulate_instrument
+
+        if setups is None and length is None and getattr(machine, "ballbar_setups", None):
+            plan = [(np.asarray(p, float), np.asarray(b, float))
+                    for p, b in machine.ballbar_setups]
+        else:
+            plan = planned_ballbar_setups(machine, 3 if setups is None else int(setups),
+                                          BALLBAR_LENGTH if length is None else float(length))
+        nominal = machine.with_parameters(machine.u)
+        nominal.ballbar_setups = plan
+        k = len(plan)
+        if poses is not None:
+            P, R = given_poses(poses)
+            group = (np.arange(len(P)) % k if len(poses) < 3 or poses[2] is None
+                     else np.asarray(poses[2], int))
+            words = f"{len(P)} given poses"
+        elif circles:
+            P, R, group = circle_plan(nominal, n, plan)
+            words = f"{k} ISO 230-4 circle(s), {n} poses"
+        else:
+            P, R, group = self.candidates(nominal, n, rng)
+            words = (f"{n} random poses on the spheres around the {k} pivot(s)"
+                     + (" with rotations within +/-10 deg" if machine.rotates else ""))
+        true_setups = [(p + rng.uniform(-mounting_error, mounting_error, 3),
+                        b + rng.uniform(-mounting_error, mounting_error, 3)) for p, b in plan]
+        model = DistancesModel(k)
+        state = model.initial()
+        for g, (p, b) in enumerate(true_setups):
+            state.values[model._ip[g]] = p
+            state.values[model._ib[g]] = b
+        data = simulate_instrument(true, machine, model, state, P, R, group,
+                                   noise_model(noise, IsotropicNoise(1e-6)), rng)
+        true.ballbar_setups = true_setups
+        P0, R0 = machine.home
+        L = [float(np.linalg.norm(P0 + R0 @ b - p)) for p, b in plan]
+        lengths = sorted({round(v * 1e3, 6) for v in L})
+        rows = [("ballbar", f"{'/'.join(f'{v:.6g}' for v in lengths)} mm (planned), true "
+                 "pivots and balls off the planned ones by the mounting error")]
+        rows += [(f"setup {g + 1}", f"pivot {mm_text(p)} mm, ball {mm_text(b)} mm (platform)")
+                 for g, (p, b) in enumerate(true_setups)]
+        truth.update(setups=true_setups, planned_setups=plan, length=L, poses=words, rows=rows)
+        return data, true, truth
+
+    simulate_flags = {"--setups": "--scenario distance", "--radius": "--scenario distance",
+                      "--circles": "--scenario distance"}
+
+    def simulate_arguments(self, machine, noise, setups=None, radius=None, circles=False,
+                           **flags):
+        from ..plausibility import check_option_scale
+        from ..units import parse_quantity
+
+        sigma = _simulated_sigma(noise, "1um", machine)
+        model = IsotropicNoise(sigma) if sigma > 0 else False
+        if setups is not None and setups < 1:
+            raise InputError(f"--setups: must be >= 1, got {setups}")
+        length = None
+        if radius is not None:
+            length = parse_quantity(radius, "length", "--radius")
+            if not length > 0:
+                raise InputError(f"--radius: the ballbar length must be > 0, got {radius}")
+            check_option_scale(length, machine, "--radius", "size", radius)
+        elif setups is not None:
+            length = BALLBAR_LENGTH
+        return model, f"ballbar length {sigma * 1e6:.4g} um (std)", {
+            "setups": setups, "length": length, "circles": bool(circles)}
+
+    data_columns = ("d",)
+    prediction_words = "predicted ballbar length(s)"
 
     def problem(self, machine, data, noise=None, **start):
         from .models import DistancesModel

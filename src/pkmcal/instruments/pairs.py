@@ -233,11 +233,13 @@ class PairDistance(Instrument):
         d = np.linalg.norm(P[0::2] - P[1::2], axis=-1)
         return pair_data(q[0::2], q[1::2], d, np.asarray(rows)[0::2], source)
 
-    def simulate(self, machine, true, n, noise, rng, truth):
+    def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
+                 mounting_error=1e-3):
         """Klipper's object printed by the nominal model's commands on the true machine and
         measured: each distance between the true nozzle positions of the commanded pair,
         plus the noise (``noise`` an ``IsotropicNoise``, default :data:`PAIR_SIGMA`; False:
-        exact). ``n`` must be the plan's poses (24).
+        exact). ``n`` must be the plan's poses (24); ``poses`` and ``mounting_error`` do not
+        apply (the object is the plan, the nozzle no mounting).
 
         Returns
         -------
@@ -261,6 +263,12 @@ class PairDistance(Instrument):
             ("object", f"printed at the nominal model's commands; the distances of the true "
                        f"nozzle positions, {d.min() * 1e3:.6g}..{d.max() * 1e3:.6g} mm")])
         return data, true, truth
+
+    def simulate_arguments(self, machine, noise, **flags):
+        model = self.noise_arg(noise, machine, allow_zero=True)
+        return model, ("exact" if model is False else self.describe_noise(model)), {}
+
+    data_columns = ("distance",)
 
     def problem(self, machine, data, noise=None, **start):
 

@@ -1380,6 +1380,122 @@ class Pose(Instrument):
         Pm, Rm = measurement_frames(machine).measured(P, R)
         return FullPoseData(q, Pm, Rm, rows, source, true_P=P, true_R=R)
 
+    section = "measurement_frames"
+    section_words = ("a calibration from poses (x, y, z, qx..qw: motion capture) writes "
+                     "measurement_frames")
+
+    def carried_by(self, machine):
+        return (getattr(machine, "measurement_frames", None) is not None
+                and len(machine.pose_space) == 6)
+
+    def predict(self, machine, P, R, ok, group, rows=None, source=None):
+        values, Rm = machine.measurement_frames.measured(P, R)
+        return values, np.where(ok[:, None, None], Rm, np.nan), np.zeros(len(P), int)
+
+    def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
+                 mounting_error=1e-3):
+        """:func:`simulate_full_pose` at ``n`` random poses (or ``poses``), through the machine
+        file's ``measurement_frames`` (else the default); ``noise`` a ``FullPoseNoise``
+        (False: exact). See
+        :meth:`Instrument.simulate <pkmcal.instruments.base.Instrument.simulate>`.
+
+        Returns
+        -------
+        tuple
+            ``(data, true, truth)``; ``truth`` with ``frames``.
+        """
+        from ..machines.reach import sample_workspace_poses
+        from .experiment import given_poses, mm_text, noise_model
+
+        frames = measurement_frames(machine)
+        true.measurement_frames = frames
+        model = noise_model(noise, FullPoseNoise())
+        if poses is None:
+            poses = sample_workspace_poses(true, n, rng)
+            words = (f"{n} random poses in the 0.1 m cube around home, Euler angles within "
+                     "+/-10 deg")
+        else:
+            poses = given_poses(poses)
+            words = f"{len(poses[0])} given poses"
+        data = simulate_full_pose(true, poses, frames, model, rng)
+        rows = [("frames", f"measurement origin at {mm_text(frames.mocap_from_base[1])} mm; "
+                 f"marker origin at {mm_text(frames.platform_from_marker[1])} mm in the "
+                 "platform frame")]
+        truth.update(frames=frames, poses=words, rows=rows)
+        return data, true, truth
+
+    simulate_flags = {"--pose-noise": "--scenario pose"}
+
+    def simulate_arguments(self, machine, noise, pose_noise=None, **flags):
+        model = full_pose_noise_arg(noise, pose_noise, strict=False, machine=machine)
+        return model, (f"readings {model.reading_m * 1e6:.4g} um (as leg length), position "
+                       f"{model.position_m * 1e6:.4g} um, orientation "
+                       f"{model.orientation_rad * 1e6:.4g} urad"), {}
+
+    writer = "write_full_pose"
+
+    def calibration_summary(self, report):
+        res, ident = report["residuals"], report["identifiability"]
+        unit = report["units"]["length"]
+        b, a = res["before_calibration"], res["after_calibration"]
+        n = report["noise"]
+        scale = res["noise_scale"]
+        fr = report["frames"]
+        m, k = fr["mocap_from_base"], fr["platform_from_marker"]
+        rows = [("measurement", f"full pose, {report['measurements']} poses (readings in "
+                 f"{report['reading_unit']}, marker pose in the measurement frame)"),
+                ("method", {"ml": "ml (maximum likelihood: readings and measured poses "
+                                  "noisy, one pose unknown per measurement)",
+                            "ik": "ik (inverse-kinematic residuals, Zhuang, Yan & Masory "
+                                  "1998: measured poses exact)"}[report["method"]]),
+                "identifiable",
+                ("leg-length RMS", f"{b['leg_length_rms']:.4g} {unit} before, "
+                 f"{a['leg_length_rms']:.4g} {unit} after ({res['before']})"),
+                ("pose error RMS", f"position {b['position_rms']:.4g} -> "
+                 f"{a['position_rms']:.4g} {unit}, orientation "
+                 f"{b['orientation_rms_deg']:.4g} -> {a['orientation_rms_deg']:.4g} deg "
+                 "(forward kinematics of the readings vs measured)"),
+                ("noise", f"readings {n['reading_um']:.4g} um, position "
+                 f"{n['position_um']:.4g} um, orientation {n['orientation_urad']:.4g} urad"
+                 + (f"; residuals / assumed noise = {scale:.3g}" if scale is not None
+                    else "")),
+                ("frames", ("fixed: " if fr["fixed"] else f"estimated ({fr['from']}): ")
+                 + "mocap_from_base turned "
+                 f"{m['rotation_angle_deg']:.4g} deg, base origin at "
+                 f"({', '.join(f'{v:.6g}' for v in m['translation'])}) {unit} measured; "
+                 f"platform_from_marker turned {k['rotation_angle_deg']:.4g} deg, marker at "
+                 f"({', '.join(f'{v:.6g}' for v in k['translation'])}) {unit}"),
+                "held-out", "noise levels"]
+        ext = report.get("model_extensions") or {}
+        for t in ext.get("trials", []):
+            rows.append(("model extension", f"{t['name']}: {t['why']} ({ext['folds']}-fold "
+                         f"cross-validation: held-out loss {t['cv_loss']:.4g} vs "
+                         f"{t['cv_loss_baseline']:.4g} per pose)"))
+        if "model_adequacy" in report:
+            rows.append(("model adequacy", report["model_adequacy"]["verdict"]))
+        rows.append("convergence")
+        if scale is not None and scale > 3:
+            rows.append(("note", f"note: the residuals are {scale:.3g} times the assumed "
+                         "noise: give the real noise (--noise, --pose-noise), or the model "
+                         "lacks errors the machine has."))
+        if ident["unidentifiable"]:
+            rows.append(("note", "note: the data fix the legs only relative to the "
+                         "measurement frames; the changes are the smallest ones (scaled) that "
+                         "fit the data, and std is for the identifiable part."))
+        return rows
+    prediction_words = "predicted marker pose(s) (motion-capture frame)"
+
+    def prediction_columns(self, prediction, unit):
+        """``x, y, z`` (``unit``) and ``qx, qy, qz, qw`` of the predicted marker poses."""
+        from ..kinematics import quaternion_from_matrix
+        from ..units import LENGTH
+
+        f = LENGTH[unit]
+        Q = quaternion_from_matrix(prediction.R)
+        columns = {f"{c}_{unit}": prediction.values[:, j] / f for j, c in enumerate("xyz")}
+        columns.update({c: Q[:, j] for j, c in enumerate(("qx", "qy", "qz", "qw"))})
+        return columns
+
     def problem(self, machine, data, noise=None, frames=None, **start):
 
         return FullPoseML(machine, data, self.default_noise() if noise is None else noise,

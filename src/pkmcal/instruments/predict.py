@@ -30,20 +30,15 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
-from .models import DistancesModel, NuisanceState, PointsModel
+from .tracker import tracker_targets  # noqa: F401  (the tracker's targets, kept here)
 
-#: the instruments a calibrated machine can carry, in the order they are offered, with their
-#: other names (as :mod:`pkmcal.instruments.registry`), machine-file section and maker
-INSTRUMENT_SECTIONS = {
-    "tracker": (("points",), "tracker", "a calibration from points (mx, my, mz: laser "
-                                        "tracker, CMM) writes the tracker section"),
-    "pose": (("poses",), "measurement_frames", "a calibration from poses (x, y, z, qx..qw: "
-                                               "motion capture) writes measurement_frames"),
-    "distance": (("distances", "ballbar"), "ballbar", "a calibration from distances (d: "
-                                                      "ballbar) writes the ballbar section"),
-    "probe": (("probe-heights", "bed-probe"), "bed", "a calibration from probe heights "
-                                                     "(probe_z) writes the bed section"),
-}
+
+def _sections() -> list:
+    """The instruments a calibrated machine can carry (those with a machine-file section), in
+    the order they are offered (the registry's)."""
+    from .registry import INSTRUMENTS
+
+    return [inst for inst in INSTRUMENTS.values() if inst.section is not None]
 
 
 def instrument_name(name: str) -> str:
@@ -65,11 +60,11 @@ def instrument_name(name: str) -> str:
     InputError
         For another name, listing the known ones.
     """
-    for canonical, (aliases, _, _) in INSTRUMENT_SECTIONS.items():
-        if name == canonical or name in aliases:
-            return canonical
+    for inst in _sections():
+        if name == inst.name or name in inst.aliases:
+            return inst.name
     raise InputError(f"unknown instrument {name!r}; use one of "
-                     f"{', '.join(INSTRUMENT_SECTIONS)}")
+                     f"{', '.join(inst.name for inst in _sections())}")
 
 
 def fitted_instruments(machine: Machine) -> list[str]:
@@ -86,16 +81,7 @@ def fitted_instruments(machine: Machine) -> list[str]:
     list of str
         Among ``"tracker"``, ``"pose"``, ``"distance"``, in that order.
     """
-    out = []
-    if getattr(machine, "base_from_tracker", None) is not None:
-        out.append("tracker")
-    if getattr(machine, "measurement_frames", None) is not None and len(machine.pose_space) == 6:
-        out.append("pose")
-    if getattr(machine, "ballbar_setups", None):
-        out.append("distance")
-    if getattr(machine, "probe_bed", None) is not None:
-        out.append("probe")
-    return out
+    return [inst.name for inst in _sections() if inst.carried_by(machine)]
 
 
 def _where(machine: Machine) -> str:
@@ -133,14 +119,16 @@ def choose_instrument(machine: Machine, instrument: str | None = None,
     if instrument is not None:
         name = instrument_name(instrument)
         if name not in have:
-            section = INSTRUMENT_SECTIONS[name][1]
+            from .registry import instrument as entry
+
+            inst = entry(name)
             offered = (f"; it has: {', '.join(have)}" if have else
                        "; it has no instrument section")
-            raise InputError(f"{option} {instrument}: {where} has no {section} section "
-                             f"({INSTRUMENT_SECTIONS[name][2]}){offered}")
+            raise InputError(f"{option} {instrument}: {where} has no {inst.section} section "
+                             f"({inst.section_words}){offered}")
         return name
     if not have:
-        makers = "; ".join(text for _, _, text in INSTRUMENT_SECTIONS.values())
+        makers = "; ".join(inst.section_words for inst in _sections())
         raise InputError(f"{where} carries no instrument (no tracker, measurement_frames or "
                          f"ballbar section): {makers}; a constraint-link calibration measures "
                          "in no instrument frame")
@@ -148,32 +136,6 @@ def choose_instrument(machine: Machine, instrument: str | None = None,
         raise InputError(f"{where} carries several instruments: name one with {option} "
                          f"({'|'.join(have)})")
     return have[0]
-
-
-def tracker_targets(machine: Machine) -> tuple[np.ndarray, bool]:
-    """Places of the tracker's targets on the platform, and whether they are one for all.
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine: its :meth:`~pkmcal.machines.Machine.tracker_target` (a Delta's
-        reflector, the same for every target number), else its ``tracker_targets``, else the
-        platform origin.
-
-    Returns
-    -------
-    targets : ndarray, shape (K, 3)
-        Platform-frame places, m.
-    shared : bool
-        True when every target number is the same place (the machine file fixes it).
-    """
-    known = machine.tracker_target()
-    if known is not None:
-        return np.asarray(known, float).reshape(1, 3), True
-    targets = getattr(machine, "tracker_targets", None)
-    if targets is None:
-        return np.zeros((1, 3)), False
-    return np.asarray(targets, float).reshape(-1, 3), False
 
 
 @dataclass
@@ -203,16 +165,6 @@ class InstrumentPrediction:
     group: np.ndarray
     converged: np.ndarray
     fk: object
-
-
-def _check_groups(group, n: int, what: str, section: str, rows, source) -> None:
-    bad = np.flatnonzero((group < 0) | (group >= n))
-    if bad.size:
-        k = int(bad[0])
-        where = (f"{source}: " if source else "") + (
-            f"row {int(rows[k])}, column {what}: " if rows is not None else f"{what} ")
-        raise InputError(f"{where}{what} {int(group[k]) + 1}, but the machine file's "
-                         f"{section} has {n} (numbered 1..{n})")
 
 
 def predict_instrument(machine: Machine, q, instrument: str | None = None, group=None,
@@ -257,42 +209,12 @@ def predict_instrument(machine: Machine, q, instrument: str | None = None, group
     q = np.atleast_2d(np.asarray(q, float))
     K = len(q)
     group = np.zeros(K, int) if group is None else np.asarray(group, int).reshape(K)
-    if name == "pose":
-        group = np.zeros(K, int)
     fk = machine.fk(q, start=start)
     ok = np.asarray(fk.converged, bool)
     P = np.where(ok[:, None], np.asarray(fk.P, float), 0.0)
     R = np.where(ok[:, None, None], np.asarray(fk.R, float), np.eye(3))
-    Rm = None
-    if name == "tracker":
-        targets, shared = tracker_targets(machine)
-        if shared:
-            group = np.zeros(K, int)          # every target number is the file's reflector
-        _check_groups(group, len(targets), "target", "tracker.targets" if getattr(
-            machine, "tracker_targets", None) is not None else "tracker (one target: the "
-            "platform origin, no targets key)", rows, source)
-        A, a = (np.asarray(v, float) for v in machine.base_from_tracker)
-        model = PointsModel(len(targets), targets[0] if shared else None)
-        values = np.concatenate([np.zeros(3), a] + ([] if shared else [targets.ravel()]))
-        values = model.predict(NuisanceState(values, [A]), P, R, group)
-    elif name == "distance":
-        setups = list(machine.ballbar_setups)
-        _check_groups(group, len(setups), "setup", "ballbar", rows, source)
-        model = DistancesModel(len(setups))
-        values = np.zeros(len(model.parameters))
-        for g, (pivot, ball) in enumerate(setups):
-            values[model.parameters.indices([f"setup{g + 1}.pivot.{c}" for c in "xyz"])] = pivot
-            values[model.parameters.indices([f"setup{g + 1}.ball.{c}" for c in "xyz"])] = ball
-        values = model.predict(NuisanceState(values, []), P, R, group)
-    elif name == "probe":
-        from .models import ProbeModel
+    from .registry import instrument as entry
 
-        group = np.zeros(K, int)
-        model = ProbeModel()
-        values = model.predict(NuisanceState(np.asarray(machine.probe_bed, float), []), P, R,
-                               group)
-    else:
-        values, Rm = machine.measurement_frames.measured(P, R)
-        Rm = np.where(ok[:, None, None], Rm, np.nan)
+    values, Rm, group = entry(name).predict(machine, P, R, ok, group, rows, source)
     values = np.where(ok[:, None], values, np.nan)
     return InstrumentPrediction(name, values, Rm, group, ok, fk)

@@ -47,10 +47,17 @@ from ..machines.reach import (
     bed_height,
     probe_radius,
 )
-from .base import Instrument, StandardPlan, _fk_of, _space_words, reachable
+from .base import (
+    Instrument,
+    StandardPlan,
+    _fk_of,
+    _simulated_sigma,
+    _space_words,
+    reachable,
+)
 from .bed import BedChoice, bed_choice
 from .data import InstrumentData
-from .models import IsotropicNoise
+from .models import IsotropicNoise, ProbeModel
 from .problem import InstrumentProblem, fit_instrument
 
 #: the probe's repeatability assumed by default, m (standard deviation of the trigger height).
@@ -58,6 +65,11 @@ from .problem import InstrumentProblem, fit_instrument
 #: common bed probes (a few um for a good touch or piezo probe, 10-20 um for inductive ones)
 PROBE_SIGMA = 10e-6
 
+
+#: half-width of the random error of a simulated bed's height, m
+BED_ERROR = 1e-3
+#: half-width of a simulated bed's random slopes dz/dx, dz/dy (1 mm over a metre)
+TILT_ERROR = 1e-3
 
 #: Klipper's DELTA_CALIBRATE points (klippy/extras/delta_calibrate.py): the centre, then six
 #: points at 90 + 60 i deg on circles of these fractions of the probe radius
@@ -200,6 +212,70 @@ class ProbeProblem(InstrumentProblem):
         return groups + height_groups(self, state, scales, rest)
 
 
+def probe_trigger(true_machine: Machine, nominal_machine: Machine, P, R, bed, heights,
+                  tip=None, tol: float = 1e-13, max_iter: int = 50):
+    """Readings at which a probe triggers: the nominal model lowers the nozzle along the
+    vertical through each commanded point until the true machine's nozzle tip is ``heights``
+    above the true bed (vertically).
+
+    Parameters
+    ----------
+    true_machine : Machine
+        The machine that moves.
+    nominal_machine : Machine
+        The model that commands (inverse kinematics).
+    P : array_like, shape (K, 3)
+        Commanded points (their x, y; z the start of the search), m.
+    R : array_like, shape (K, 3, 3)
+        Commanded orientations (kept).
+    bed : array_like, shape (3,)
+        True bed ``(height, tilt_x, tilt_y)`` (:class:`~pkmcal.instruments.ProbeModel`).
+    heights : array_like, shape (K,)
+        True heights of the tip at the trigger, m.
+    tip : array_like, shape (3,), optional
+        The nozzle tip on the platform, m; default the platform origin.
+    tol : float, optional
+        Tolerance on the height, m.
+    max_iter : int, optional
+        Largest number of steps.
+
+    Returns
+    -------
+    q : ndarray, shape (K, n_joints)
+        Readings at the trigger.
+    fk : FKResult
+        The true machine's poses there.
+
+    Raises
+    ------
+    InputError
+        When a point cannot be reached or the search does not converge.
+    """
+    model = ProbeModel(tip)
+    state = model.initial()
+    state.values[:] = np.asarray(bed, float)
+    P = np.array(P, float)
+    R = np.asarray(R, float)
+    heights = np.asarray(heights, float)
+    zero = np.zeros(len(P), int)
+    for _ in range(max_iter):
+        q = nominal_machine.ik(P, R)
+        if not np.all(np.isfinite(q)):
+            bad = np.flatnonzero(~np.all(np.isfinite(q), -1)) + 1
+            raise InputError(f"probe points {bad[:10].tolist()}: the nominal model cannot "
+                             "reach them on the way down to the bed")
+        fk = true_machine.fk(q, start=(P, R))
+        if not fk.converged.all():
+            raise InputError("the true machine cannot reach some probe readings")
+        # the height changes with the commanded z at a rate of about 1: Newton with slope 1
+        miss = model.predict(state, fk.P, fk.R, zero)[:, 0] - heights
+        if np.max(np.abs(miss)) <= tol:
+            return q, fk
+        P[:, 2] -= miss
+    raise InputError(f"the probe search did not converge to {tol * 1e3:g} mm in {max_iter} "
+                     "steps: the true machine's heights do not follow the commanded ones")
+
+
 class Probe(Instrument):
     """Bed-probe heights: the nozzle's height above a flat bed of unknown height and tilt."""
 
@@ -255,6 +331,80 @@ class Probe(Instrument):
         state.values[0] = bed_height(machine)
         h = model.predict(state, P, R, np.zeros(len(P), int))
         return InstrumentData("probe", q, h, np.zeros(len(P), int), rows, source, P, R)
+
+    section = "bed"
+    section_words = "a calibration from probe heights (probe_z) writes the bed section"
+
+    def carried_by(self, machine):
+        return getattr(machine, "probe_bed", None) is not None
+
+    def predict(self, machine, P, R, ok, group, rows=None, source=None):
+        from .models import NuisanceState
+
+        group = np.zeros(len(P), int)
+        state = NuisanceState(np.asarray(machine.probe_bed, float), [])
+        return ProbeModel().predict(state, P, R, group), None, group
+
+    simulate_options = {"bed_error": BED_ERROR, "tilt_error": TILT_ERROR}
+    simulate_options_words = "bed_error and tilt_error: apply to the probe scenario"
+
+    def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
+                 mounting_error=1e-3, bed_error=BED_ERROR, tilt_error=TILT_ERROR):
+        """The standard probe pattern of ``n`` points when there is one
+        (:func:`probe_pattern`: 7 = Klipper's DELTA_CALIBRATE, 19, 37, ...), else ``n``
+        random points on the bed's disk, or ``poses``; the true bed is the nominal one
+        (:func:`~pkmcal.machines.reach.bed_height`) raised by a uniform ``+/- bed_error`` and
+        tilted by uniform slopes ``+/- tilt_error``. Each point is probed as a firmware does:
+        the nominal model moves the nozzle down the vertical through the point until the
+        true machine's nozzle is at the probe's trigger height (0 plus the trigger noise,
+        ``noise`` an ``IsotropicNoise``, default :data:`PROBE_SIGMA`; False: exact) above the
+        true bed (:func:`probe_trigger`); the readings there are recorded with
+        ``probe_z = 0``. See
+        :meth:`Instrument.simulate <pkmcal.instruments.base.Instrument.simulate>`.
+
+        Returns
+        -------
+        tuple
+            ``(data, true, truth)``; ``truth`` with ``bed`` (``(height, tilt_x, tilt_y)`` of
+            the true bed, also the true machine's ``probe_bed``).
+        """
+        from .experiment import given_poses, noise_model
+
+        if not (bed_error >= 0 and tilt_error >= 0):
+            raise InputError(f"bed_error and tilt_error: must be >= 0, got {bed_error}, "
+                             f"{tilt_error}")
+        if poses is not None:
+            P, R = given_poses(poses)
+            words = f"{len(P)} given points"
+        else:
+            plan = self.standard_plan(machine, n, 0)
+            if plan.available:
+                P, R, words = plan.P, plan.R, f"{n} points: {plan.name}"
+            else:
+                P, R, _ = self.candidates(machine, n, rng)
+                words = f"{n} random points on the bed's disk"
+        bed = np.array([bed_height(machine) + rng.uniform(-bed_error, bed_error),
+                        *rng.uniform(-tilt_error, tilt_error, 2)])
+        model = noise_model(noise, self.default_noise())
+        eps = (np.zeros((len(P), 1)) if model is None
+               else model.sample(np.zeros((len(P), 1)), rng))
+        q, fk = probe_trigger(true, machine, P, R, bed, eps[:, 0])
+        data = InstrumentData("probe", q, np.zeros((len(P), 1)), None, source="<simulated>",
+                              true_P=fk.P, true_R=fk.R)
+        true.probe_bed = tuple(float(v) for v in bed)
+        z, tx, ty = true.probe_bed
+        rows = [("bed", f"true bed at z = {z * 1e3:.6g} mm, slopes dz/dx = {tx:.3g}, dz/dy = "
+                 f"{ty:.3g}; the probe triggers at probe_z = 0 (nozzle contact)")]
+        truth.update(bed=true.probe_bed, poses=words, rows=rows)
+        return data, true, truth
+
+    def simulate_arguments(self, machine, noise, **flags):
+        sigma = _simulated_sigma(noise, "10um", machine)
+        return (IsotropicNoise(sigma) if sigma > 0 else False,
+                f"probe trigger {sigma * 1e6:.4g} um along z (std)", {})
+
+    data_columns = ("probe_z",)
+    prediction_words = "predicted probe height(s) above the bed"
 
     def problem(self, machine, data, noise=None, **start):
 

@@ -51,9 +51,9 @@ from ..identifiability import name_null_space, name_weak_directions
 from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine
 from ..machines.delta import TRACKER_GRID_SPACING  # noqa: F401  (seed 001's grid)
-from .base import Instrument, StandardPlan, _fk_of, reachable
+from .base import Instrument, StandardPlan, _check_groups, _fk_of, reachable
 from .data import InstrumentData
-from .models import PointsModel
+from .models import NuisanceState, PointsModel
 from .problem import InstrumentProblem, InstrumentState
 
 
@@ -734,6 +734,74 @@ def plan_target(machine: Machine) -> np.ndarray:
     return TARGET_OFFSET * machine.characteristic_length() if c is None else c
 
 
+def planned_targets(machine: Machine, n_targets: int = 1) -> np.ndarray:
+    """Planned places of ``n_targets`` tracker targets (reflector nests) on the platform.
+
+    The machine's own target when its file gives one (a Delta's ``smr_offset``; then only one
+    target makes sense); else target 1 at
+    :func:`plan_target` and the others turned about the platform
+    z axis by ``360 deg g / n_targets``.
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    n_targets : int, optional
+        Number of targets (>= 1).
+
+    Returns
+    -------
+    ndarray, shape (n_targets, 3)
+        Places in the platform frame, m.
+
+    Raises
+    ------
+    InputError
+        When ``n_targets < 1``, or several targets are asked for on a machine whose file
+        gives the target's place.
+    """
+    n_targets = int(n_targets)
+    if n_targets < 1:
+        raise InputError(f"the number of targets must be >= 1, got {n_targets}")
+    known = machine.tracker_target()
+    if known is not None:
+        if n_targets > 1:
+            raise InputError(f"{getattr(machine, 'source', None) or 'the machine file'} gives "
+                             "the target's place on the platform (e.g. a Delta's "
+                             "smr_offset): one target only")
+        return np.asarray(known, float)[None, :]
+    c = plan_target(machine)
+    t = 2 * np.pi * np.arange(n_targets) / n_targets
+    return np.column_stack([np.cos(t) * c[0] - np.sin(t) * c[1],
+                            np.sin(t) * c[0] + np.cos(t) * c[1], np.full(n_targets, c[2])])
+
+
+def tracker_targets(machine: Machine) -> tuple[np.ndarray, bool]:
+    """Places of the tracker's targets on the platform, and whether they are one for all.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine: its :meth:`~pkmcal.machines.Machine.tracker_target` (a Delta's
+        reflector, the same for every target number), else its ``tracker_targets``, else the
+        platform origin.
+
+    Returns
+    -------
+    targets : ndarray, shape (K, 3)
+        Platform-frame places, m.
+    shared : bool
+        True when every target number is the same place (the machine file fixes it).
+    """
+    known = machine.tracker_target()
+    if known is not None:
+        return np.asarray(known, float).reshape(1, 3), True
+    targets = getattr(machine, "tracker_targets", None)
+    if targets is None:
+        return np.zeros((1, 3)), False
+    return np.asarray(targets, float).reshape(-1, 3), False
+
+
 class Tracker(Instrument):
     """Points of a target on the platform in the instrument's frame (seed 001's tracker)."""
 
@@ -801,6 +869,161 @@ class Tracker(Instrument):
         x = P + np.einsum("kij,j->ki", R, plan_target(machine))
         return TrackerData(q, (x - t) @ Rt, rows=rows, source=source, true_P=P,
                            target=None if group is None else np.asarray(group, int))
+
+    section = "tracker"
+    section_words = ("a calibration from points (mx, my, mz: laser tracker, CMM) writes the "
+                     "tracker section")
+
+    def carried_by(self, machine):
+        return getattr(machine, "base_from_tracker", None) is not None
+
+    def predict(self, machine, P, R, ok, group, rows=None, source=None):
+        targets, shared = tracker_targets(machine)
+        if shared:
+            group = np.zeros(len(P), int)     # every target number is the file's reflector
+        _check_groups(group, len(targets), "target", "tracker.targets" if getattr(
+            machine, "tracker_targets", None) is not None else "tracker (one target: the "
+            "platform origin, no targets key)", rows, source)
+        A, a = (np.asarray(v, float) for v in machine.base_from_tracker)
+        model = PointsModel(len(targets), targets[0] if shared else None)
+        values = np.concatenate([np.zeros(3), a] + ([] if shared else [targets.ravel()]))
+        return model.predict(NuisanceState(values, [A]), P, R, group), None, group
+
+    simulate_options = {"targets": 1}
+    simulate_options_words = "targets: apply to the tracker (points) scenario"
+
+    def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
+                 mounting_error=1e-3, targets=1):
+        """``n`` random workspace poses (:meth:`candidates`: rotations on platforms that
+        rotate), or ``poses``; ``targets`` targets, rows cycling through them; the tracker at
+        the machine file's ``base_from_tracker`` (else the simulations' default); true target
+        places = planned (:func:`planned_targets`) + a uniform error of ``mounting_error`` per
+        coordinate (the file's target when it gives one). ``noise`` a tracker noise model
+        (default ``TrackerNoise()``; False: exact data). See
+        :meth:`Instrument.simulate <pkmcal.instruments.base.Instrument.simulate>`.
+
+        Returns
+        -------
+        tuple
+            ``(data, true, truth)``; ``truth`` with ``base_from_tracker``, ``targets`` and
+            ``planned_targets``.
+        """
+        from .experiment import given_poses, mm_text, noise_model, simulate_instrument
+
+        k = int(targets)
+        planned = planned_targets(machine, k)
+        known = machine.tracker_target() is not None
+        c = planned if known else planned + rng.uniform(-mounting_error, mounting_error,
+                                                        planned.shape)
+        Rt, t = tracker_pose(machine)
+        model = PointsModel(k, machine.tracker_target())
+        state = model.initial()
+        state.rotations = [np.asarray(Rt, float)]
+        state.values[3:6] = t
+        if not known:
+            state.values[model._it.ravel()] = c.ravel()
+        if poses is None:
+            P, R, _ = self.candidates(machine, n, rng)
+            words = (f"{n} random workspace poses around home"
+                     + (" with rotations within +/-10 deg" if machine.rotates else ""))
+        else:
+            P, R = given_poses(poses)
+            words = f"{len(P)} given poses"
+        group = np.arange(len(P)) % k
+        data = simulate_instrument(true, machine, model, state, P, R, group,
+                                   noise_model(noise, TrackerNoise()), rng)
+        true.base_from_tracker = (np.asarray(Rt, float), np.asarray(t, float))
+        true.tracker_targets = None if known else c
+        R_true, t_true = true.base_from_tracker
+        angle = np.degrees(np.arccos(np.clip((np.trace(R_true) - 1) / 2, -1, 1)))
+        rows = [("tracker pose", f"at {mm_text(t_true)} mm in the base frame, rotated "
+                 f"{angle:.4g} deg relative to it")]
+        rows += [(f"target {g + 1}", f"{mm_text(cg)} mm on the platform (true)")
+                 for g, cg in enumerate(c)]
+        truth.update(base_from_tracker=true.base_from_tracker, targets=c,
+                     planned_targets=planned, poses=words, rows=rows)
+        return data, true, truth
+
+    simulate_flags = {"--targets": "--scenario points (tracker)"}
+
+    def simulates_grid(self, machine, targets=None):
+        # seed 001's grid on a platform that only translates (its file gives the spacing)
+        return machine.tracker_grid_spacing() is not None and not targets
+
+    def simulate_arguments(self, machine, noise, targets=None, **flags):
+        model, words = tracker_noise_arg(noise, allow_none=True, machine=machine)
+        model = False if model is None else model
+        targets = 1 if targets is None else targets
+        if targets < 1:
+            raise InputError(f"--targets: must be >= 1, got {targets}")
+        return model, words, {"targets": targets}
+
+    data_columns = ("mx", "my", "mz")
+
+    def calibration_summary(self, report):
+        res, ident = report["residuals"], report["identifiability"]
+        reg, dr = report["registration"], report["distance_ratio"]
+        unit = report["units"]["length"]
+        if "smr_offset" in report:
+            where = f"reflector {report['smr_offset']:.6g} {unit} below the platform point"
+        else:
+            places = report["targets"]["places"]
+            where = (f"{len(places)} target(s) at estimated places on the platform: "
+                     + ", ".join("(" + ", ".join(f"{v:.6g}" for v in c) + ")" for c in places)
+                     + f" {unit}")
+        scale = res["noise_scale"]
+        rows = [("measurement", f"laser tracker, {report['measurements']} points ({where})"),
+                ("method", "joint: the leg errors and the tracker pose together"
+                 if report["method"] == "joint" else
+                 "two-step (seed 001): tracker registered first with the nominal model, then "
+                 "the leg errors with the registration fixed"),
+                "identifiable, grouped",
+                ("RMS residual", f"{res['rms_um']:.4g} um over {res['count']} points (3-D, "
+                 f"measured - predicted tracker point); before calibration "
+                 f"{res['before_rms_um']:.4g} um ({res['before']})"),
+                ("noise", f"{report['noise']}" + (f"; residuals / assumed noise = {scale:.3g}"
+                                                  if scale is not None else ""))]
+        if report["robust"]:
+            if res["outliers"]:
+                worst = ", ".join(f"row {o['row']}: {o['residual_um']:.4g} um"
+                                  for o in res["outliers"][:10])
+                rows.append(("outliers", f"{len(res['outliers'])} row(s) left out (--robust): "
+                             f"{worst}"))
+            else:
+                rows.append(("outliers", "none found (--robust)"))
+        if dr["pairs"] and dr["before"]["std"] is not None:
+            b, a = dr["before"], dr["after"]
+            change = 100 * (1 - a["std"] / b["std"]) if b["std"] > 0 else 0.0
+            change_text = (f"{change:.3g} % smaller" if change >= 0
+                           else f"{-change:.3g} % larger")
+            rows.append(("distance ratio", f"spread (std) {b['std']:.4g} % before, "
+                         f"{a['std']:.4g} % after ({change_text}); range {b['min']:.3f}.."
+                         f"{b['max']:.3f} % -> {a['min']:.3f}..{a['max']:.3f} %; "
+                         f"{dr['pairs']} pairs ({dr['pairs_from']})"))
+        t = reg["translation"]
+        rows += [("tracker pose", f"base_from_tracker: tracker origin at ({t[0]:.6g}, "
+                  f"{t[1]:.6g}, {t[2]:.6g}) {unit}; "
+                  + ("estimated: " if reg["estimated"] else "fixed: ")
+                  + f"{reg['rotation_change_deg']:.3g} deg and "
+                  f"{reg['translation_change']:.3g} {unit} from the closed-form registration"),
+                 "held-out", "noise levels", "convergence"]
+        if scale is not None and scale > 3:
+            causes = ["outliers (try --robust)" if not report["robust"] else None,
+                      "a registration biased by the nominal model (drop --two-step)"
+                      if report["method"] == "two-step" else None,
+                      "a wrong smr_offset or noise model", "errors the model does not have"]
+            rows.append(("note", f"note: the residuals are {scale:.3g} times the assumed "
+                         f"noise: {', '.join(c for c in causes if c)}."))
+        if ident["unidentifiable"] and "identifiable_combinations" in report:
+            what = report["identifiable_combinations"]["description"].split(" (file length")[0]
+            rows.append(("note", f"note: {what}; the changes are the smallest ones (scaled) "
+                         "that fit the data, and std is for the identifiable part."))
+        elif ident["unidentifiable"]:
+            rows.append(("note", "note: the data fix the machine only relative to the tracker "
+                         "frame and the targets; the changes are the smallest ones (scaled) "
+                         "that fit the data, and std is for the identifiable part."))
+        return rows
+    prediction_words = "predicted tracker point(s) (target in the tracker frame)"
 
     def problem(self, machine, data, noise=None, registration=None, targets=None, **start):
 
