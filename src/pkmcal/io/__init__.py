@@ -18,6 +18,7 @@ from .csv_io import (
     read_readings,
     read_table,
     read_tracker,
+    write_constraint_link,
     write_full_pose,
     write_instrument,
     write_joints,
@@ -63,8 +64,35 @@ def read_measurements(instrument, path, machine):
     return globals()[instrument.reader](path, machine)
 
 
+def write_measurements(instrument, path, data, machine, length_unit: str = "mm"):
+    """Write an instrument's measurements to a CSV file, by the writer it names (the file its
+    reader reads back).
+
+    Parameters
+    ----------
+    instrument : Instrument
+        A registry entry (:mod:`pkmcal.instruments.registry`); its ``writer`` names the
+        function of this package that writes its data.
+    path : str or os.PathLike
+        Output file.
+    data : object
+        The instrument's data.
+    machine : Machine
+        The machine (joint units).
+    length_unit : str, optional
+        Column unit of lengths.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+    """
+    return globals()[instrument.writer](path, data, machine, length_unit)
+
+
 __all__ = [
-    "read_measurements", "MACHINE_FORMATS", "MachineFormat", "atomic_write_text",
+    "read_measurements", "write_measurements", "write_constraint_link", "MACHINE_FORMATS",
+    "MachineFormat", "atomic_write_text",
     "joint_quantity", "load_machine",
     "machine_to_text", "parse_machine", "read_constraint_link", "read_full_pose", "read_joints",
     "read_passive", "read_poses", "read_positions", "read_readings", "read_table",

@@ -1145,6 +1145,29 @@ def _unit_factor(unit: str, quantity: str) -> float:
     return QUANTITIES[quantity][unit]
 
 
+def write_constraint_link(path, data, machine, length_unit: str = "mm") -> Path:
+    """Write constraint-link data: the joint readings ``q1_<unit> ...`` and the passive joint
+    (1..n) of each pose (:func:`read_constraint_link` reads them back).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file.
+    data : ConstraintLinkData
+        The data (``q``, 0-based ``passive``).
+    machine : Machine
+        The machine (unused: its joints are lengths in ``length_unit``).
+    length_unit : str, optional
+        Column unit of the readings.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+    """
+    return write_joints(path, data.q, unit=length_unit, extra={"passive": data.passive + 1})
+
+
 def write_joints(path, q, unit: str = "mm", extra: dict | None = None,
                  quantity: str = "length") -> Path:
     """Write joint values as ``q1_<unit> ...``, plus ``extra`` columns.
@@ -1398,12 +1421,14 @@ def write_instrument(path, data, machine, length_unit: str = "mm") -> Path:
     n = machine.n_joints
     header = [f"q{j % n + 1}{'b' if j >= n else ''}_{unit}" for j in range(q.shape[1])]
     columns = [q[:, j] / fq for j in range(q.shape[1])]
-    names = {"points": [f"m{c}" for c in "xyz"], "distances": ["d"],
-             "probe": ["probe_z"], "pair-distances": ["distance"]}[data.kind]
+    from ..instruments.registry import instrument
+
+    inst = instrument(data.kind)          # the data kind is the instrument's name or alias
+    names = list(inst.data_columns)
     header += [f"{n}_{length_unit}" for n in names]
     columns += [data.values[:, j] / fl for j in range(len(names))]
     if data.n_groups > 1:
-        header.append({"points": "target", "distances": "setup"}[data.kind])
+        header.append(inst.group_column)
         columns.append([int(g) + 1 for g in data.group])
     return write_table(path, header, columns)
 
