@@ -327,9 +327,12 @@ class CalibrationReport(_Section):
 
     @model_validator(mode="after")
     def _sections_of_the_measurement(self):
-        if self.measurement == "constraint-link" and self.link_length is None:
-            raise ValueError("link_length: missing (a constraint-link report states the link "
-                             "length it used)")
+        from ..instruments.registry import INSTRUMENTS
+
+        inst = INSTRUMENTS.get(self.measurement)
+        for section, why in (inst.report_sections.items() if inst is not None else ()):
+            if getattr(self, section) is None:
+                raise ValueError(f"{section}: missing ({why})")
         return self
 
 
