@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from ..calibration.run import file_units as _units
-from ..calibration.run import full_pose_noise_arg, tracker_noise_arg
 from ..calibration.run import json_safe as _finite_or_none
 from ..calibration.run import rows_text as _rows_text
+from ..calibration.run import tracker_noise_arg
 from ..errors import InputError
 from ..io import (
     atomic_write_text,
@@ -29,7 +29,6 @@ from ..io import (
     read_positions,
     read_readings,
     read_table,
-    write_joints,
     write_poses,
     write_positions,
     write_table,
@@ -226,6 +225,7 @@ def run_simulate(machine_spec: str, output: Path, scenario: str | None, poses: i
                  setups: int | None = None, radius: str | None = None,
                  circles: bool = False) -> None:
     """``pkmcal simulate``: any instrument of the registry on any machine it applies to."""
+    from ..instruments.registry import INSTRUMENTS, instrument
     from ..planning import scenario_for
 
     machine = load_machine_arg(machine_spec)
@@ -234,32 +234,26 @@ def run_simulate(machine_spec: str, output: Path, scenario: str | None, poses: i
     try:
         scenario = scenario_for(machine, scenario)      # the reason when it does not apply
     except InputError as exc:
-        from ..instruments.registry import INSTRUMENTS
-
         usable = [name for name, inst in INSTRUMENTS.items() if inst.applies(machine) is None]
         raise InputError(f"{exc}; this {kind} can simulate: {', '.join(usable)}") from None
     deviations = deviations or machine.DEFAULT_DEVIATIONS
     check_outputs([output] + ([truth] if truth else []), _machine_inputs(machine_spec))
     flag = f"--scenario {requested or scenario}"
-    grid_path = (scenario == "tracker" and machine.tracker_grid_spacing() is not None
-                 and not targets)
-    given = {"--pose-noise": (pose_noise is not None, scenario == "pose"),
-             "--lc-error": (not _zero(lc_error), scenario == "constraint-link"),
-             "--grid": (grid is not None, grid_path),
-             "--outliers": (bool(outliers), grid_path),
-             "--targets": (targets is not None, scenario == "tracker"),
-             "--setups": (setups is not None, scenario == "distance"),
-             "--radius": (radius is not None, scenario == "distance"),
-             "--circles": (bool(circles), scenario == "distance")}
-    for option, (is_given, applies) in given.items():
+    inst = instrument(scenario)
+    grid_path = inst.simulates_grid(machine, targets)
+    grid_where = {"--grid": "a tracker on a platform that only translates (its grid; on a "
+                            "platform that rotates use --poses)",
+                  "--outliers": "a tracker on a platform that only translates (its grid)"}
+    given = {"--pose-noise": pose_noise is not None, "--lc-error": not _zero(lc_error),
+             "--grid": grid is not None, "--outliers": bool(outliers),
+             "--targets": targets is not None, "--setups": setups is not None,
+             "--radius": radius is not None, "--circles": bool(circles)}
+    for option, is_given in given.items():
+        applies = grid_path if option in grid_where else option in inst.simulate_flags
         if is_given and not applies:
-            where = {"--grid": "a tracker on a platform that only translates (its grid; on a "
-                               "platform that rotates use --poses)",
-                     "--outliers": "a tracker on a platform that only translates (its grid)",
-                     "--pose-noise": "--scenario pose", "--lc-error": "--scenario "
-                     "constraint-link", "--targets": "--scenario points (tracker)",
-                     "--setups": "--scenario distance", "--radius": "--scenario distance",
-                     "--circles": "--scenario distance"}[option]
+            where = grid_where.get(option) or next(
+                other.simulate_flags[option] for other in INSTRUMENTS.values()
+                if option in other.simulate_flags)
             raise InputError(f"{option}: does not apply to {flag} on this {kind}; it applies "
                              f"to {where}")
     if grid_path:
@@ -278,71 +272,17 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
                        deviations: str, truth: Path | None, targets: int | None,
                        setups: int | None, radius: str | None, circles: bool) -> None:
     """Every scenario but the translating tracker grid, through
-    :func:`pkmcal.instruments.simulate.simulate_scenario`."""
-    from ..instruments.distance import BALLBAR_LENGTH
+    :func:`pkmcal.instruments.simulate.simulate_scenario`: the instrument reads its options
+    (:meth:`~pkmcal.instruments.base.Instrument.simulate_arguments`), simulates itself and
+    words its truth."""
     from ..instruments.registry import instrument
     from ..instruments.simulate import simulate_scenario
-    from ..io import write_full_pose, write_instrument
+    from ..io import write_measurements
 
-    options: dict = {}
-    if scenario == "constraint-link":
-        text = "2um" if noise is None else noise
-        noise_m = parse_quantity(text, "length", "--noise")
-        if not noise_m >= 0:
-            raise InputError(f"--noise: must be >= 0, got {text}")
-        check_option_scale(noise_m, machine, "--noise", "noise", text)
-        lc_error_m = check_option_scale(parse_quantity(lc_error, "length", "--lc-error"),
-                                        machine, "--lc-error", "error", lc_error)
-        lc = machine.constraint_link_length
-        if not lc - lc_error_m > 0:
-            raise InputError(f"--lc-error: the true link length {(lc - lc_error_m) * 1e3:.6g} "
-                             "mm is not positive")
-        model, noise_words = noise_m, f"encoder noise {noise_m * 1e6:.4g} um"
-        options["link_error"] = lc_error_m
-    elif scenario == "pose":
-        model = full_pose_noise_arg(noise, pose_noise, strict=False, machine=machine)
-        noise_words = _noise_text(model)
-    elif scenario == "tracker":
-        model, noise_words = tracker_noise_arg(noise, allow_none=True, machine=machine)
-        model = False if model is None else model
-        options["targets"] = 1 if targets is None else targets
-        if options["targets"] < 1:
-            raise InputError(f"--targets: must be >= 1, got {targets}")
-    elif scenario == "probe":
-        text = "10um" if noise is None else noise
-        sigma = parse_quantity(text, "length", "--noise")
-        if not sigma >= 0:
-            raise InputError(f"--noise: must be >= 0 (a standard deviation), got {text}")
-        check_option_scale(sigma, machine, "--noise", "noise", text)
-        from ..instruments import IsotropicNoise
-
-        model = IsotropicNoise(sigma) if sigma > 0 else False
-        noise_words = f"probe trigger {sigma * 1e6:.4g} um along z (std)"
-    elif callable(getattr(instrument(scenario), "simulate", None)):
-        inst = instrument(scenario)     # an instrument that simulates and reads its own noise
-        model = inst.noise_arg(noise, machine, allow_zero=True)
-        noise_words = "exact" if model is False else inst.describe_noise(model)
-    else:
-        text = "1um" if noise is None else noise
-        sigma = parse_quantity(text, "length", "--noise")
-        if not sigma >= 0:
-            raise InputError(f"--noise: must be >= 0 (a standard deviation), got {text}")
-        check_option_scale(sigma, machine, "--noise", "noise", text)
-        from ..instruments import IsotropicNoise
-
-        model = IsotropicNoise(sigma) if sigma > 0 else False
-        noise_words = f"ballbar length {sigma * 1e6:.4g} um (std)"
-        if setups is not None and setups < 1:
-            raise InputError(f"--setups: must be >= 1, got {setups}")
-        length = None
-        if radius is not None:
-            length = parse_quantity(radius, "length", "--radius")
-            if not length > 0:
-                raise InputError(f"--radius: the ballbar length must be > 0, got {radius}")
-            check_option_scale(length, machine, "--radius", "size", radius)
-        elif setups is not None:
-            length = BALLBAR_LENGTH
-        options.update(setups=setups, length=length, circles=bool(circles))
+    inst = instrument(scenario)
+    model, noise_words, options = inst.simulate_arguments(
+        machine, noise, pose_noise=pose_noise, lc_error=lc_error, targets=targets,
+        setups=setups, radius=radius, circles=circles)
     rng = np.random.default_rng(seed)
     try:
         data, true, truth_info = simulate_scenario(machine, scenario, poses, model, rng,
@@ -358,12 +298,7 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
         truth_text = machine_to_text(true, units)
         parse_machine(truth_text, str(truth))
     # outputs, at the very end
-    if scenario == "constraint-link":
-        write_joints(output, data.q, unit=units["length"], extra={"passive": data.passive + 1})
-    elif scenario == "pose":
-        write_full_pose(output, data, machine, units["length"])
-    else:
-        write_instrument(output, data, machine, units["length"])
+    write_measurements(inst, output, data, machine, units["length"])
     if truth is not None:
         atomic_write_text(truth, truth_text)
     out = console()
@@ -373,46 +308,11 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
     table.add_row("deviations", deviations + (f" (seed {seed})" if deviations == "random"
                                               else ""))
     table.add_row("noise", f"{noise_words} (seed {seed})")
-    for name, value in _truth_rows(machine, scenario, truth_info):
+    for name, value in truth_info["rows"]:
         table.add_row(name, value)
     out.print(table)
     commit_outputs()
     out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
-
-
-def _truth_rows(machine, scenario: str, info: dict):
-    """The simulated instrument's truth in words (table rows)."""
-    if "rows" in info:                  # an instrument that words its own truth
-        return list(info["rows"])
-    if scenario == "constraint-link":
-        lc = machine.constraint_link_length
-        rows = [("link", f"true length {info['link_length'] * 1e3:.6g} mm")]
-        if abs(lc - info["link_length"]) > 0:
-            rows.append(("Lc error", f"machine file says {lc * 1e3:.6g} mm, true link "
-                         f"{info['link_length'] * 1e3:.6g} mm"))
-        return rows
-    if scenario == "pose":
-        frames = info["frames"]
-        return [("frames", f"measurement origin at {_mm(frames.mocap_from_base[1])} mm; marker "
-                 f"origin at {_mm(frames.platform_from_marker[1])} mm in the platform frame")]
-    if scenario == "tracker":
-        R, t = info["base_from_tracker"]
-        rows = [("tracker pose", f"at {_mm(t)} mm in the base frame, rotated "
-                 f"{np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))):.4g} deg "
-                 "relative to it")]
-        for g, c in enumerate(info["targets"]):
-            rows.append((f"target {g + 1}", f"{_mm(c)} mm on the platform (true)"))
-        return rows
-    if scenario == "probe":
-        z, tx, ty = info["bed"]
-        return [("bed", f"true bed at z = {z * 1e3:.6g} mm, slopes dz/dx = {tx:.3g}, dz/dy = "
-                 f"{ty:.3g}; the probe triggers at probe_z = 0 (nozzle contact)")]
-    lengths = sorted({round(L * 1e3, 6) for L in info["length"]})
-    rows = [("ballbar", f"{'/'.join(f'{v:.6g}' for v in lengths)} mm (planned), true pivots "
-             "and balls off the planned ones by the mounting error")]
-    for g, (p, b) in enumerate(info["setups"]):
-        rows.append((f"setup {g + 1}", f"pivot {_mm(p)} mm, ball {_mm(b)} mm (platform)"))
-    return rows
 
 
 def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, deviations: str,
@@ -482,12 +382,6 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
     out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
 
 
-def _noise_text(noise) -> str:
-    return (f"readings {noise.reading_m * 1e6:.4g} um (as leg length), position "
-            f"{noise.position_m * 1e6:.4g} um, orientation {noise.orientation_rad * 1e6:.4g} "
-            "urad")
-
-
 def _mm(v) -> str:
     return "(" + ", ".join(f"{x * 1e3:.6g}" for x in np.asarray(v, float)) + ")"
 
@@ -543,10 +437,17 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
     if json_output:
         print(json_text, end="")
     else:
-        printer = _CALIBRATION_PRINTERS.get(calibration.kind, _print_any_calibration)
-        printer(calibration.report, calibration.params,
-                data_path if len(paths) == 1 else ", ".join(map(str, paths)), output,
-                report_path, machine)
+        shown = data_path if len(paths) == 1 else ", ".join(map(str, paths))
+        if calibration.kind == "joint":         # several files: no one instrument's summary
+            _print_joint_calibration(calibration.report, calibration.params, shown, output,
+                                     report_path, machine)
+        else:
+            from ..instruments.base import Instrument
+            from ..instruments.registry import INSTRUMENTS
+
+            inst = INSTRUMENTS.get(calibration.kind) or Instrument()
+            _print_instrument_calibration(inst, calibration.report, calibration.params, shown,
+                                          output, report_path, machine)
     return 0
 
 
@@ -615,50 +516,6 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
     out.print(_wrote(output, report_path), markup=False)
 
 
-def _print_calibration(report, params, data_path, output, report_path, machine) -> None:
-    out = console()
-    res, ident, conv = report["residuals"], report["identifiability"], report["convergence"]
-    lc = report["link_length"]
-    table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
-                   show_header=False)
-    table.add_row("measurement", f"{report['measurement']}, {report['measurements']} poses")
-    table.add_row("method", {"ml": "ml (maximum likelihood, all readings noisy)",
-                             "ik": "ik (paper 3.4.1, inverse kinematics of the passive chain)",
-                             "fk": "fk (paper 3.4.2, spread of the link length)"}
-                  [report["method"]])
-    table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
-                  "parameter directions" + (f", of which {len(ident['weakly_identifiable'])} "
-                                            "weakly" if ident["weakly_identifiable"] else ""))
-    for d in ident["unidentifiable"]:
-        table.add_row("not identifiable", f"{d['dimension']} x {d['name']}: {d['description']}")
-    for d in ident["weakly_identifiable"]:
-        table.add_row("weakly identifiable", f"{d['name']}: {d['description']}")
-    rms = res["rms_um"]
-    noise = res["estimated_noise_um"]
-    table.add_row("RMS residual", f"{rms:.4g} um ({res['of']}; assumed noise "
-                  f"{report['noise_sigma_um']:.4g} um"
-                  + (f", estimated {noise:.3g} um)" if noise is not None else ")"))
-    if "validation" in report:
-        table.add_row("held-out", report["validation"]["summary"])
-    _noise_rows(table, report)
-    table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
-    if lc["estimated"]:
-        std = f" +/- {lc['std']:.3g} {lc['unit']}" if lc["std"] is not None else ""
-        table.add_row("link length Lc", f"{lc['value']:.9g} {lc['unit']} (estimated{std}; "
-                      f"machine file {lc['assumed']:.9g} {lc['unit']})")
-    else:
-        table.add_row("link length Lc", f"{lc['value']:.9g} {lc['unit']} (fixed: machine file)")
-    out.print(table)
-
-    _print_changes(params)
-    if ident["unidentifiable"]:
-        out.print("note: the data do not fix the directions listed as not identifiable; the "
-                  "changes are the smallest ones (scaled) that fit the data, and std is for "
-                  "the identifiable part.", markup=False)
-    commit_outputs()
-    out.print(_wrote(output, report_path), markup=False)
-
-
 def _print_changes(params, limit: int = 10) -> None:
     """The largest parameter changes (scaled), in um / urad."""
     out = console()
@@ -682,208 +539,73 @@ def _print_changes(params, limit: int = 10) -> None:
     out.print(changes)
 
 
-def _print_tracker_calibration(report, params, data_path, output, report_path, machine):
-    out = console()
-    res, ident, conv = report["residuals"], report["identifiability"], report["convergence"]
-    reg, dr = report["registration"], report["distance_ratio"]
-    unit = report["units"]["length"]
-    table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
-                   show_header=False)
-    if "smr_offset" in report:
-        where = f"reflector {report['smr_offset']:.6g} {unit} below the platform point"
+def _identifiable_rows(table, ident, grouped: bool = False) -> None:
+    """How many parameter directions the data identify, and which they do not (``grouped``:
+    one line per description)."""
+    table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
+                  "parameter directions" + (f", of which {len(ident['weakly_identifiable'])} "
+                                            "weakly" if ident["weakly_identifiable"] else ""))
+    if grouped:
+        groups: dict[str, list[str]] = {}
+        for d in ident["unidentifiable"]:
+            groups.setdefault(d["description"], []).append(f"{d['dimension']} x {d['name']}")
+        for description, names in groups.items():
+            table.add_row("not identifiable", f"{', '.join(names)}: {description}")
     else:
-        places = report["targets"]["places"]
-        where = (f"{len(places)} target(s) at estimated places on the platform: "
-                 + ", ".join("(" + ", ".join(f"{v:.6g}" for v in c) + ")" for c in places)
-                 + f" {unit}")
-    table.add_row("measurement", f"laser tracker, {report['measurements']} points ({where})")
-    table.add_row("method", "joint: the leg errors and the tracker pose together"
-                  if report["method"] == "joint" else
-                  "two-step (seed 001): tracker registered first with the nominal model, then "
-                  "the leg errors with the registration fixed")
-    table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
-                  "parameter directions" + (f", of which {len(ident['weakly_identifiable'])} "
-                                            "weakly" if ident["weakly_identifiable"] else ""))
-    groups: dict[str, list[str]] = {}                 # one line per description
-    for d in ident["unidentifiable"]:
-        groups.setdefault(d["description"], []).append(f"{d['dimension']} x {d['name']}")
-    for description, names in groups.items():
-        table.add_row("not identifiable", f"{', '.join(names)}: {description}")
+        for d in ident["unidentifiable"]:
+            table.add_row("not identifiable", f"{d['dimension']} x {d['name']}: "
+                          f"{d['description']}")
     for d in ident["weakly_identifiable"]:
         table.add_row("weakly identifiable", f"{d['name']}: {d['description']}")
-    scale = res["noise_scale"]
-    table.add_row("RMS residual", f"{res['rms_um']:.4g} um over {res['count']} points (3-D, "
-                  f"measured - predicted tracker point); before calibration "
-                  f"{res['before_rms_um']:.4g} um ({res['before']})")
-    table.add_row("noise", f"{report['noise']}" + (f"; residuals / assumed noise = {scale:.3g}"
-                                                   if scale is not None else ""))
-    if report["robust"]:
-        if res["outliers"]:
-            worst = ", ".join(f"row {o['row']}: {o['residual_um']:.4g} um"
-                              for o in res["outliers"][:10])
-            table.add_row("outliers", f"{len(res['outliers'])} row(s) left out (--robust): "
-                          f"{worst}")
+
+
+def _shared_rows(table, name: str, report) -> None:
+    """A row every calibration summary may have, from the report (see
+    :meth:`~pkmcal.instruments.base.Instrument.calibration_summary`)."""
+    if name in ("identifiable", "identifiable, grouped"):
+        _identifiable_rows(table, report["identifiability"], name != "identifiable")
+    elif name == "parameter set":
+        if "parameter_set" in report:
+            ps = report["parameter_set"]
+            table.add_row("parameter set", f"{ps['name']} ({len(ps['free'])} free machine "
+                          "parameters)" + (f"; {ps['note']}" if ps.get("note") else ""))
+    elif name == "held-out":
+        if "validation" in report:
+            table.add_row("held-out", report["validation"]["summary"])
+    elif name == "bed":
+        if report.get("bed_frame"):
+            table.add_row("bed", report["bed_frame"])
+    elif name == "noise levels":
+        _noise_rows(table, report)
+    elif name == "convergence":
+        conv = report["convergence"]
+        table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
+    else:
+        raise ValueError(f"unknown summary row {name!r}")
+
+
+def _print_instrument_calibration(inst, report, params, data_path, output, report_path,
+                                  machine) -> None:
+    """The summary of a calibration with one instrument: the rows it gives
+    (:meth:`~pkmcal.instruments.base.Instrument.calibration_summary`), the parameter changes,
+    its notes."""
+    out = console()
+    table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
+                   show_header=False)
+    notes = []
+    for row in inst.calibration_summary(report):
+        if isinstance(row, str):
+            _shared_rows(table, row, report)
+        elif row[0] == "note":
+            notes.append(row[1])
         else:
-            table.add_row("outliers", "none found (--robust)")
-    if dr["pairs"] and dr["before"]["std"] is not None:
-        b, a = dr["before"], dr["after"]
-        change = 100 * (1 - a["std"] / b["std"]) if b["std"] > 0 else 0.0
-        change_text = f"{change:.3g} % smaller" if change >= 0 else f"{-change:.3g} % larger"
-        table.add_row("distance ratio", f"spread (std) {b['std']:.4g} % before, {a['std']:.4g} % "
-                      f"after ({change_text}); range {b['min']:.3f}..{b['max']:.3f} % -> "
-                      f"{a['min']:.3f}..{a['max']:.3f} %; {dr['pairs']} pairs "
-                      f"({dr['pairs_from']})")
-    t = reg["translation"]
-    table.add_row("tracker pose", f"base_from_tracker: tracker origin at ({t[0]:.6g}, "
-                  f"{t[1]:.6g}, {t[2]:.6g}) {unit}; "
-                  + ("estimated: " if reg["estimated"] else "fixed: ")
-                  + f"{reg['rotation_change_deg']:.3g} deg and {reg['translation_change']:.3g} "
-                  f"{unit} from the closed-form registration")
-    if "validation" in report:
-        table.add_row("held-out", report["validation"]["summary"])
-    _noise_rows(table, report)
-    table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
+            table.add_row(*row)
     out.print(table)
     _print_changes(params)
-    if scale is not None and scale > 3:
-        causes = ["outliers (try --robust)" if not report["robust"] else None,
-                  "a registration biased by the nominal model (drop --two-step)"
-                  if report["method"] == "two-step" else None,
-                  "a wrong smr_offset or noise model", "errors the model does not have"]
-        out.print(f"note: the residuals are {scale:.3g} times the assumed noise: "
-                  f"{', '.join(c for c in causes if c)}.", markup=False)
-    if ident["unidentifiable"] and "identifiable_combinations" in report:
-        what = report["identifiable_combinations"]["description"].split(" (file length")[0]
-        out.print(f"note: {what}; the changes are the smallest ones (scaled) that fit the "
-                  "data, and std is for the identifiable part.", markup=False)
-    elif ident["unidentifiable"]:
-        out.print("note: the data fix the machine only relative to the tracker frame and the "
-                  "targets; the changes are the smallest ones (scaled) that fit the data, and "
-                  "std is for the identifiable part.", markup=False)
+    for note in notes:
+        out.print(note, markup=False)
     commit_outputs()
     out.print(_wrote(output, report_path), markup=False)
-
-
-def _print_full_pose_calibration(report, params, data_path, output, report_path,
-                                 machine) -> None:
-    out = console()
-    res, ident, conv = report["residuals"], report["identifiability"], report["convergence"]
-    unit = report["units"]["length"]
-    b, a = res["before_calibration"], res["after_calibration"]
-    table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
-                   show_header=False)
-    table.add_row("measurement", f"full pose, {report['measurements']} poses (readings in "
-                  f"{report['reading_unit']}, marker pose in the measurement frame)")
-    table.add_row("method", {"ml": "ml (maximum likelihood: readings and measured poses "
-                                   "noisy, one pose unknown per measurement)",
-                             "ik": "ik (inverse-kinematic residuals, Zhuang, Yan & Masory "
-                                   "1998: measured poses exact)"}[report["method"]])
-    table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
-                  "parameter directions" + (f", of which {len(ident['weakly_identifiable'])} "
-                                            "weakly" if ident["weakly_identifiable"] else ""))
-    for d in ident["unidentifiable"]:
-        table.add_row("not identifiable", f"{d['dimension']} x {d['name']}: {d['description']}")
-    for d in ident["weakly_identifiable"]:
-        table.add_row("weakly identifiable", f"{d['name']}: {d['description']}")
-    table.add_row("leg-length RMS", f"{b['leg_length_rms']:.4g} {unit} before, "
-                  f"{a['leg_length_rms']:.4g} {unit} after ({res['before']})")
-    table.add_row("pose error RMS", f"position {b['position_rms']:.4g} -> "
-                  f"{a['position_rms']:.4g} {unit}, orientation "
-                  f"{b['orientation_rms_deg']:.4g} -> {a['orientation_rms_deg']:.4g} deg "
-                  "(forward kinematics of the readings vs measured)")
-    n = report["noise"]
-    scale = res["noise_scale"]
-    table.add_row("noise", f"readings {n['reading_um']:.4g} um, position "
-                  f"{n['position_um']:.4g} um, orientation {n['orientation_urad']:.4g} urad"
-                  + (f"; residuals / assumed noise = {scale:.3g}" if scale is not None
-                     else ""))
-    fr = report["frames"]
-    m, k = fr["mocap_from_base"], fr["platform_from_marker"]
-    table.add_row("frames", ("fixed: " if fr["fixed"] else f"estimated ({fr['from']}): ")
-                  + "mocap_from_base turned "
-                  f"{m['rotation_angle_deg']:.4g} deg, base origin at "
-                  f"({', '.join(f'{v:.6g}' for v in m['translation'])}) {unit} measured; "
-                  f"platform_from_marker turned {k['rotation_angle_deg']:.4g} deg, marker at "
-                  f"({', '.join(f'{v:.6g}' for v in k['translation'])}) {unit}")
-    if "validation" in report:
-        table.add_row("held-out", report["validation"]["summary"])
-    _noise_rows(table, report)
-    ext = report.get("model_extensions") or {}
-    for t in ext.get("trials", []):
-        table.add_row("model extension", f"{t['name']}: {t['why']} ({ext['folds']}-fold "
-                      f"cross-validation: held-out loss {t['cv_loss']:.4g} vs "
-                      f"{t['cv_loss_baseline']:.4g} per pose)")
-    if "model_adequacy" in report:
-        table.add_row("model adequacy", report["model_adequacy"]["verdict"])
-    table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
-    out.print(table)
-    _print_changes(params)
-    if scale is not None and scale > 3:
-        out.print(f"note: the residuals are {scale:.3g} times the assumed noise: give the real "
-                  "noise (--noise, --pose-noise), or the model lacks errors the machine has.",
-                  markup=False)
-    if ident["unidentifiable"]:
-        out.print("note: the data fix the legs only relative to the measurement frames; the "
-                  "changes are the smallest ones (scaled) that fit the data, and std is for "
-                  "the identifiable part.", markup=False)
-    commit_outputs()
-    out.print(_wrote(output, report_path), markup=False)
-
-
-
-def _print_any_calibration(report, params, data_path, output, report_path, machine) -> None:
-    """The summary of a measurement kind without a summary of its own: what every report
-    has."""
-    out = console()
-    ident, conv = report["identifiability"], report["convergence"]
-    table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
-                   show_header=False)
-    table.add_row("measurement", f"{report['measurement']}, {report['measurements']} rows")
-    table.add_row("method", str(report["method"]))
-    if "parameter_set" in report:
-        ps = report["parameter_set"]
-        table.add_row("parameter set", f"{ps['name']} ({len(ps['free'])} free machine "
-                      "parameters)" + (f"; {ps['note']}" if ps.get("note") else ""))
-    table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
-                  "parameter directions" + (f", of which {len(ident['weakly_identifiable'])} "
-                                            "weakly" if ident["weakly_identifiable"] else ""))
-    for d in ident["unidentifiable"]:
-        table.add_row("not identifiable", f"{d['dimension']} x {d['name']}: {d['description']}")
-    for d in ident["weakly_identifiable"]:
-        table.add_row("weakly identifiable", f"{d['name']}: {d['description']}")
-    res = report.get("residuals", {})
-    if res.get("rms_um") is not None:
-        before = (f"; before calibration {res['before_rms_um']:.4g} um ({res['before']})"
-                  if res.get("before_rms_um") is not None else "")
-        table.add_row("RMS residual", f"{res['rms_um']:.4g} um over {res.get('count')} "
-                      f"rows ({res.get('of', 'measured - predicted')}){before}")
-    if report.get("noise") is not None:
-        scale = res.get("noise_scale")
-        table.add_row("noise", f"{report['noise']}" + (
-            f"; residuals / assumed noise = {scale:.3g}" if scale is not None else ""))
-    for setup in report.get("setups", []):
-        unit = setup["unit"]
-        table.add_row(f"setup {setup['setup']}", f"{setup['rows']} rows; pivot ("
-                      + ", ".join(f"{v:.6g}" for v in setup["pivot"]) + f") {unit} (base), "
-                      "ball (" + ", ".join(f"{v:.6g}" for v in setup["ball"])
-                      + f") {unit} (platform)")
-    if "validation" in report:
-        table.add_row("held-out", report["validation"]["summary"])
-    if report.get("bed_frame"):
-        table.add_row("bed", report["bed_frame"])
-    _noise_rows(table, report)
-    table.add_row("convergence", f"{conv['message']} ({conv['iterations']} iterations)")
-    out.print(table)
-    _print_changes(params)
-    commit_outputs()
-    out.print(_wrote(output, report_path), markup=False)
-
-
-#: the summary of each measurement kind (others: :func:`_print_any_calibration`)
-_CALIBRATION_PRINTERS = {"constraint-link": _print_calibration,
-                         "tracker": _print_tracker_calibration,
-                         "pose": _print_full_pose_calibration,
-                         "joint": _print_joint_calibration}
 
 
 # --------------------------------------------------------------------------------------------
@@ -920,13 +642,6 @@ def run_fk(machine_spec: str, joints: Path, output: Path, frame: str = "base",
                     f"{units['angle']})", markup=False)
 
 
-#: what ``fk --frame instrument`` writes per instrument, in words
-_FK_INSTRUMENT_WORDS = {"tracker": "predicted tracker point(s) (target in the tracker frame)",
-                        "pose": "predicted marker pose(s) (motion-capture frame)",
-                        "distance": "predicted ballbar length(s)",
-                        "probe": "predicted probe height(s) above the bed"}
-
-
 def group_numbers(path: Path, extra: dict, rows, column: str):
     """0-based groups of an optional integer column (``target``, ``setup``: 1, 2, ...) of a
     file whose rows are predicted or commanded, not fitted: any of the numbers may be absent;
@@ -942,32 +657,25 @@ def _fk_instrument(machine_spec: str, joints: Path, output: Path,
     readings (:func:`~pkmcal.instruments.predict_instrument`), in the machine file's length
     unit: ``mx, my, mz`` (+ ``target``), ``x, y, z, qx, qy, qz, qw`` or ``d`` (+ ``setup``)."""
     from ..instruments import choose_instrument, predict_instrument
+    from ..instruments.registry import instrument as entry
     from ..io.csv_io import machine_readings
-    from ..kinematics import quaternion_from_matrix
 
     machine = load_machine_arg(machine_spec)
     name = choose_instrument(machine, instrument, option="--instrument")
+    inst = entry(name)
     check_outputs([output], [joints] + _machine_inputs(machine_spec))
     q, rows, extra, _ = machine_readings(joints, machine)
-    column = {"tracker": "target", "distance": "setup"}.get(name)
+    column = inst.group_column
     group = group_numbers(joints, extra, rows, column) if column else None
     pred = predict_instrument(machine, q, name, group, rows=rows, source=str(joints))
     pred.fk.raise_if_failed(what=f"{joints}: forward kinematics", rows=rows)
     unit = _units(machine)["length"]
-    f = LENGTH[unit]
-    if name == "pose":
-        Q = quaternion_from_matrix(pred.R)
-        columns = {f"{c}_{unit}": pred.values[:, j] / f for j, c in enumerate("xyz")}
-        columns.update({c: Q[:, j] for j, c in enumerate(("qx", "qy", "qz", "qw"))})
-    elif name == "tracker":
-        columns = {f"m{c}_{unit}": pred.values[:, j] / f for j, c in enumerate("xyz")}
-    else:
-        columns = {f"{'probe_z' if name == 'probe' else 'd'}_{unit}": pred.values[:, 0] / f}
+    columns = inst.prediction_columns(pred, unit)
     if group is not None:
         columns[column] = (group + 1).tolist()
     write_table(output, list(columns), [list(v) for v in columns.values()])
     commit_outputs()
-    console().print(f"{len(q)} {_FK_INSTRUMENT_WORDS[name]} written to {output} ({unit})",
+    console().print(f"{len(q)} {inst.prediction_words} written to {output} ({unit})",
                     markup=False)
 
 

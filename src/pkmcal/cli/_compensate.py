@@ -88,6 +88,7 @@ def choose_frame(machine, machine_spec: str, instrument: str | None):
     only one the calibrated file carries (a tracker's or motion capture's)."""
     from ..compensation import instrument_frames
     from ..instruments import instrument_name
+    from ..instruments.registry import instrument as entry
 
     where = getattr(machine, "source", machine_spec)
     frames = instrument_frames(machine)
@@ -103,8 +104,8 @@ def choose_frame(machine, machine_spec: str, instrument: str | None):
         name = instrument_name(instrument)
         if name not in frames:
             raise InputError(f"--instrument {instrument}: {where} has no "
-                             f"{'tracker' if name == 'tracker' else 'measurement_frames'} "
-                             f"frame to give targets in; it has: {', '.join(frames)}")
+                             f"{entry(name).section} frame to give targets in; it has: "
+                             f"{', '.join(frames)}")
         return frames[name]
     if len(frames) > 1:
         raise InputError(f"--frame instrument: {where} carries several instrument frames: "
@@ -117,9 +118,11 @@ def read_instrument_targets(path: Path, machine, frame):
     x, y, z, with an optional orientation (a platform that rotates; tracker frame; without it
     the home orientation: R None) and an optional ``target`` column (1..K); marker poses are
     full poses."""
+    from ..instruments.registry import instrument
     from ..io.csv_io import has_orientation, read_positions, read_table
 
-    if frame.instrument != "tracker":
+    column = instrument(frame.instrument).group_column     # numbered targets (a tracker's)
+    if column is None:
         P, R, rows = read_poses_of(path, machine)
         return P, R, rows, None
     header, table = read_table(path)
@@ -131,7 +134,7 @@ def read_instrument_targets(path: Path, machine, frame):
         P, _, rows = read_poses_of(path, machine)
         R = None
     extra = {name: [f[k] for _, f in table] for k, name in enumerate(header)}
-    group = group_numbers(path, extra, rows, "target")
+    group = group_numbers(path, extra, rows, column)
     n = len(frame.targets)
     if group is not None and machine.tracker_target() is None and group.max() >= n:
         k = int(np.argmax(group >= n))
