@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
+from .experiment import MOUNTING_ERROR
 
 
 @dataclass
@@ -269,7 +270,7 @@ class Instrument:
     simulate_options_words: str = ""
 
     def simulate(self, machine: Machine, true: Machine, n: int, noise, rng, truth: dict, *,
-                 poses=None, mounting_error: float = 1e-3, **options):
+                 poses=None, mounting_error: float = MOUNTING_ERROR, **options):
         """A simulated experiment of this instrument (see
         :func:`~pkmcal.instruments.simulate.simulate_scenario`, which checks the options and
         draws the true machine first).

@@ -85,6 +85,7 @@ from ..machines.base import Machine, newton_pose_solve
 from ..machines.deviations import draw_accepted
 from ..parameters import ParameterSet
 from .base import Instrument, StandardPlan, _rows, _sigma_arg, _space_words, reachable
+from .experiment import MOUNTING_ERROR
 
 
 @dataclass
@@ -1743,7 +1744,7 @@ class ConstraintLink(Instrument):
     simulate_options_words = "link_error: applies to the constraint-link scenario"
 
     def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
-                 mounting_error=1e-3, link_error=0.0):
+                 mounting_error=MOUNTING_ERROR, link_error=0.0):
         """:func:`simulate_constraint_link` on the sphere of the true link (the file's length
         minus ``link_error``); ``noise`` the encoder std (m, default 1 um; False: exact).
         See :meth:`Instrument.simulate <pkmcal.instruments.base.Instrument.simulate>`.

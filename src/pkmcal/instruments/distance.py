@@ -35,7 +35,7 @@ from .base import (
     reachable,
 )
 from .data import InstrumentData
-from .experiment import circle_poses
+from .experiment import MOUNTING_ERROR, circle_poses
 from .models import DistancesModel, IsotropicNoise
 from .problem import InstrumentProblem, fit_instrument
 
@@ -320,7 +320,7 @@ class Distance(Instrument):
     simulate_options_words = "setups, length and circles: apply to the distance scenario"
 
     def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
-                 mounting_error=1e-3, setups=None, length=None, circles=False):
+                 mounting_error=MOUNTING_ERROR, setups=None, length=None, circles=False):
         """``setups`` mountings of a ballbar of ``length`` (the machine's ``ballbar_setups``
         when neither is given, else :func:`planned_ballbar_setups`, 3 and
         :data:`BALLBAR_LENGTH` by default); ``n`` poses on the spheres around the pivots

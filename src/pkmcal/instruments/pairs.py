@@ -27,6 +27,7 @@ from ..machines.reach import (
 from ..parameters import ParameterSet
 from .base import Instrument, StandardPlan, reachable
 from .data import InstrumentData
+from .experiment import MOUNTING_ERROR
 from .models import NuisanceModel
 from .problem import InstrumentProblem
 
@@ -234,7 +235,7 @@ class PairDistance(Instrument):
         return pair_data(q[0::2], q[1::2], d, np.asarray(rows)[0::2], source)
 
     def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
-                 mounting_error=1e-3):
+                 mounting_error=MOUNTING_ERROR):
         """Klipper's object printed by the nominal model's commands on the true machine and
         measured: each distance between the true nozzle positions of the commanded pair,
         plus the noise (``noise`` an ``IsotropicNoise``, default :data:`PAIR_SIGMA`; False:

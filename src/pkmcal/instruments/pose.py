@@ -68,6 +68,7 @@ from ..machines.base import Machine
 from ..machines.deviations import draw_accepted
 from ..parameters import ParameterSet
 from .base import Instrument, _space_words, reachable
+from .experiment import MOUNTING_ERROR
 
 Frame = tuple[np.ndarray, np.ndarray]
 
@@ -1393,7 +1394,7 @@ class Pose(Instrument):
         return values, np.where(ok[:, None, None], Rm, np.nan), np.zeros(len(P), int)
 
     def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
-                 mounting_error=1e-3):
+                 mounting_error=MOUNTING_ERROR):
         """:func:`simulate_full_pose` at ``n`` random poses (or ``poses``), through the machine
         file's ``measurement_frames`` (else the default); ``noise`` a ``FullPoseNoise``
         (False: exact). See

@@ -57,6 +57,7 @@ from .base import (
 )
 from .bed import BedChoice, bed_choice
 from .data import InstrumentData
+from .experiment import MOUNTING_ERROR
 from .models import IsotropicNoise, ProbeModel
 from .problem import InstrumentProblem, fit_instrument
 
@@ -349,7 +350,7 @@ class Probe(Instrument):
     simulate_options_words = "bed_error and tilt_error: apply to the probe scenario"
 
     def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
-                 mounting_error=1e-3, bed_error=BED_ERROR, tilt_error=TILT_ERROR):
+                 mounting_error=MOUNTING_ERROR, bed_error=BED_ERROR, tilt_error=TILT_ERROR):
         """The standard probe pattern of ``n`` points when there is one
         (:func:`probe_pattern`: 7 = Klipper's DELTA_CALIBRATE, 19, 37, ...), else ``n``
         random points on the bed's disk, or ``poses``; the true bed is the nominal one

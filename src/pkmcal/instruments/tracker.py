@@ -53,6 +53,7 @@ from ..machines.base import Machine
 from ..machines.delta import TRACKER_GRID_SPACING  # noqa: F401  (seed 001's grid)
 from .base import Instrument, StandardPlan, _check_groups, _fk_of, reachable
 from .data import InstrumentData
+from .experiment import MOUNTING_ERROR
 from .models import NuisanceState, PointsModel
 from .problem import InstrumentProblem, InstrumentState
 
@@ -893,7 +894,7 @@ class Tracker(Instrument):
     simulate_options_words = "targets: apply to the tracker (points) scenario"
 
     def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
-                 mounting_error=1e-3, targets=1):
+                 mounting_error=MOUNTING_ERROR, targets=1):
         """``n`` random workspace poses (:meth:`candidates`: rotations on platforms that
         rotate), or ``poses``; ``targets`` targets, rows cycling through them; the tracker at
         the machine file's ``base_from_tracker`` (else the simulations' default); true target
