@@ -491,13 +491,7 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
                       "file's model, this file's instrument fitted alone)")
         if "validation" in f:
             table.add_row("", f"held-out: {f['validation']['summary']}")
-    table.add_row("identifiable", f"{ident['identifiable']} of {ident['free_parameters']} free "
-                  "parameter directions" + (f", of which {len(ident['weakly_identifiable'])} "
-                                            "weakly" if ident["weakly_identifiable"] else ""))
-    for d in ident["unidentifiable"]:
-        table.add_row("not identifiable", f"{d['dimension']} x {d['name']}: {d['description']}")
-    for d in ident["weakly_identifiable"]:
-        table.add_row("weakly identifiable", f"{d['name']}: {d['description']}")
+    _identifiable_rows(table, ident)
     for i, line in enumerate(report["contributions"]["summary"]):
         table.add_row("each file adds" if i == 0 else "", line)
     scale = res["noise_scale"]
