@@ -16,6 +16,7 @@ from pkmcal.analysis import montecarlo as mc
 from pkmcal.analysis.montecarlo import MonteCarloSettings, montecarlo, run_once, run_seed
 from pkmcal.cli._commands import load_machine_arg
 from pkmcal.errors import InputError
+from pkmcal.instruments.registry import instrument
 from pkmcal.machines import default_hexaslide
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -170,7 +171,8 @@ def test_a_failing_run_is_recorded_not_raised(monkeypatch, hexaslide):
     def broken(settings, rng):
         raise InputError("the true machine cannot reach some commanded points")
 
-    monkeypatch.setitem(mc._RUNS, "constraint-link", broken)
+    monkeypatch.setattr(type(instrument("constraint-link")), "montecarlo_run",
+                        lambda self, run: broken(run.settings, run.rng))
     row = run_once(MonteCarloSettings(hexaslide).resolved(), run_seed(0, 0, 0))
     assert row["converged"] is False and math.isnan(row["position_mean"])
     assert "cannot reach" in row["failure"]

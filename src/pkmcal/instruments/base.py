@@ -3,6 +3,7 @@ for any machine (the base class), its standard plan and the reach of planned pos
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -126,6 +127,94 @@ class Instrument:
             One line.
         """
         raise NotImplementedError
+
+    # -- Monte Carlo (:mod:`pkmcal.analysis.montecarlo`) --------------------------------------
+
+    #: the Monte Carlo variables (:data:`pkmcal.analysis.montecarlo.VARIABLES`) a run of this
+    #: instrument can sweep; empty: the instrument has no Monte Carlo run
+    montecarlo_variables: tuple = ()
+    #: accuracy metrics of a Monte Carlo run: name -> (unit suffix, factor of that unit to SI,
+    #: words)
+    montecarlo_metrics: dict = {}
+    #: metrics a machine may not define (NaN then, without rejecting the run)
+    montecarlo_optional_metrics: frozenset = frozenset()
+    #: held-out evaluation poses of a Monte Carlo run
+    montecarlo_evaluation_poses: int = 100
+    #: measurements of a Monte Carlo run when ``poses`` is not given
+    montecarlo_poses: int = 60
+    #: whether noise 0 simulates exact data (weighed as if ``NOISE_FLOOR`` noisy and judged by
+    #: the residual RMS); False when some noise stays at its default anyway
+    montecarlo_exact_data: bool = False
+    #: words ``pkmcal montecarlo --noise`` takes for the instrument's default noise
+    montecarlo_noise_words: tuple = ()
+
+    def montecarlo_default_poses(self, machine: Machine):
+        """The number of measurements of a Monte Carlo run when not given, as
+        ``summary.json`` states it.
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+
+        Returns
+        -------
+        int or str
+            :attr:`montecarlo_poses`, or the plan in words.
+        """
+        return self.montecarlo_poses
+
+    def montecarlo_minimum_poses(self, settings) -> int:
+        """Fewest measurements a Monte Carlo run's calibration accepts (default: 6 equations
+        per pose, 12 gauges).
+
+        Parameters
+        ----------
+        settings : MonteCarloSettings
+            The run's settings (``machine``, ``estimate_lc``).
+
+        Returns
+        -------
+        int
+            The minimum.
+        """
+        return max(4, math.ceil(len(settings.machine.parameters) / 6))
+
+    def check_montecarlo(self, settings, what: dict) -> None:
+        """Raise :class:`InputError` for Monte Carlo settings no run of this instrument can
+        use (beyond the generic checks).
+
+        Parameters
+        ----------
+        settings : MonteCarloSettings
+            Resolved settings.
+        what : dict
+            The option naming each field (``lc_error`` -> ``--lc-error``).
+        """
+        return None
+
+    def montecarlo_run(self, run):
+        """One Monte Carlo run: the true machine measured by the instrument, the default
+        calibration, and the accuracy of the calibrated model against the truth.
+
+        Parameters
+        ----------
+        run : MonteCarloRun
+            The run (:class:`pkmcal.analysis.montecarlo.MonteCarloRun`): its ``settings`` and
+            random generator ``rng`` (every draw comes from it, in a fixed order), and what
+            the layers above the instruments provide: ``true_machine()``, ``deviations()``,
+            ``weight(noise)`` (the noise the calibration assumes), ``simulate(n, noise)``
+            (:func:`~pkmcal.instruments.simulate.simulate_scenario` of this instrument) and
+            ``workspace_accuracy(true, calibrated, n)``.
+
+        Returns
+        -------
+        result : CalibrationResult
+            The calibration.
+        metrics : dict
+            The metrics of :attr:`montecarlo_metrics` (SI).
+        """
+        raise NotImplementedError(f"{self.name}: no Monte Carlo run")
 
     def candidates(self, machine: Machine, n: int, rng):
         """``n`` feasible candidate poses and their setups.

@@ -33,6 +33,7 @@ printer's useful accuracy.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -224,6 +225,40 @@ class Probe(Instrument):
 
     def describe_noise(self, noise):
         return f"probe trigger {noise.sigma * 1e6:.3g} um along z (std)"
+
+    montecarlo_variables = ("noise", "poses", "tolerance")
+    montecarlo_metrics = {
+        "height_mean": ("um", 1e-6, "mean held-out error of the nozzle's height over the bed"),
+        "height_max": ("um", 1e-6, "max held-out error of the nozzle's height over the bed"),
+    }
+    montecarlo_evaluation_poses = 100
+    montecarlo_poses = 37
+
+    def montecarlo_run(self, run):
+        """Bed-probe heights at the standard pattern (the true bed off by a random height and
+        tilt), the bed plane estimated with the machine; held out: the height of the nozzle
+        over the bed at other points of the bed, 1 mm above it, with the readings the nominal
+        model commands there - the calibrated model and its bed against the truth."""
+        s = run.settings
+        nominal = s.machine
+        noise = 1e-5 if s.noise is None else s.noise
+        data, true, truth = run.simulate(s.poses or self.montecarlo_poses,
+                                         IsotropicNoise(noise) if noise > 0 else False)
+        res = calibrate_probe(nominal, data, IsotropicNoise(run.weight(noise)))
+        P, R, _ = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng)
+        q = nominal.ik(P + np.array([0.0, 0.0, 1e-3]), R)
+
+        def heights(machine, bed):
+            fk = machine.fk(q, start=(P, R))
+            z0, tx, ty = bed
+            h = fk.P[:, 2] - (z0 + tx * fk.P[:, 0] + ty * fk.P[:, 1])
+            return np.where(fk.converged, h, np.nan)
+
+        e = np.abs(heights(res.extras["machine"], res.extras["bed"])
+                   - heights(true, truth["bed"]))
+        ok = np.isfinite(e)
+        return res, {"height_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
+                     "height_max": float(np.max(e[ok])) if ok.any() else math.nan}
 
     def candidates(self, machine, n, rng):
         """Random points uniform on the disk of :func:`probe_radius` on the nominal bed."""
