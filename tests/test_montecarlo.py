@@ -195,6 +195,29 @@ def test_bad_settings_are_input_errors(spec, variable, values, kwargs, words):
         assert w in str(exc.value)
 
 
+def test_an_instrument_without_a_run_is_refused_by_name():
+    """Pair distances have no Monte Carlo run: an input error naming the scenarios that do,
+    not an internal error."""
+    with pytest.raises(InputError) as exc:
+        montecarlo(MonteCarloSettings(machine(DELTA), "pair-distances"), "noise", [1e-6],
+                   runs=1)
+    assert "no Monte Carlo" in str(exc.value) and "tracker" in str(exc.value)
+
+
+def test_every_instrument_with_variables_runs_and_names_its_metrics():
+    """The registry is the Monte Carlo's only list of scenarios: an instrument that sweeps
+    variables performs its own run and names its metrics."""
+    from pkmcal.instruments.base import Instrument
+    from pkmcal.instruments.registry import INSTRUMENTS
+
+    runnable = [i for i in INSTRUMENTS.values() if i.montecarlo_variables]
+    assert {i.name for i in runnable} >= {"constraint-link", "tracker", "pose", "distance",
+                                          "probe"}
+    for inst in runnable:
+        assert type(inst).montecarlo_run is not Instrument.montecarlo_run, inst.name
+        assert inst.montecarlo_metrics and set(inst.montecarlo_variables) <= set(mc.VARIABLES)
+
+
 def test_tolerance_does_not_apply_to_fixed_deviations(hexaslide):
     with pytest.raises(InputError, match="random deviations"):
         montecarlo(MonteCarloSettings(hexaslide, deviations="paper-table1"), "tolerance",

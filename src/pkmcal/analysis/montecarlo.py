@@ -180,11 +180,13 @@ def _default_poses(settings: MonteCarloSettings):
 
 
 def scenarios_varying(variable: str) -> str:
-    """``the constraint-link scenario``: the instruments whose runs can sweep ``variable``."""
+    """``the constraint-link scenario``: the instruments whose runs can sweep ``variable``, in
+    words."""
     from ..instruments.registry import INSTRUMENTS
 
     names = [i.name for i in INSTRUMENTS.values() if variable in i.montecarlo_variables]
-    return f"the {' and '.join(names)} scenario" + ("s" if len(names) > 1 else "")
+    listed = names[0] if len(names) < 2 else f"{', '.join(names[:-1])} or {names[-1]}"
+    return f"the {listed} scenario"
 
 
 def _check_settings(s: MonteCarloSettings, what: dict | None = None) -> None:

@@ -100,7 +100,7 @@ def run_montecarlo(machine_spec: str, vary: str, output: Path, runs: int = 20,
         if noise_value not in inst.montecarlo_noise_words:
             users = [i.name for i in INSTRUMENTS.values()
                      if noise_value in i.montecarlo_noise_words]
-            raise InputError(f"--noise {noise_value}: applies to the {' and '.join(users)} "
+            raise InputError(f"--noise {noise_value}: applies to the {' or '.join(users)} "
                              f"scenario, not {resolved}")
         noise_value = None
     # Lc estimated where the link length can be wrong
