@@ -112,10 +112,10 @@ def run_montecarlo(machine_spec: str, vary: str, output: Path, runs: int = 20,
         lc_error=_length_option(lc_error, "--lc-error") or 0.0,
         deviations=deviations, tolerance=_length_option(tolerance, "--tolerance"),
         estimate_lc=estimate_lc)
-    if lc_error is not None and "lc-error" not in settings.resolved().instrument() \
-            .montecarlo_variables:
+    if lc_error is not None and "lc-error" not in \
+            settings.resolved().instrument().montecarlo_variables:     # checks the settings
         raise InputError(f"--lc-error: applies to {scenarios_varying('lc-error')}, not "
-                         f"{settings.resolved().scenario} ({machine.kind})")
+                         f"{resolved} ({machine.kind})")
 
     total = len(values) * runs
     with progress_tasks(quiet) as new:
