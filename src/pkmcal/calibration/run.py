@@ -1583,7 +1583,7 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
         full_pose_errors,
     )
     from ..io import read_full_pose
-    from ..io.machine_file import reading_factor
+    from ..machines.stewart import reading_factor
     from ..units import LENGTH
 
     method, fix_frames = options.method or "ml", options.fix_frames
