@@ -280,7 +280,7 @@ def _check_settings(s: MonteCarloSettings, what: dict | None = None) -> None:
     if isinstance(dev, str):
         if dev not in ("random", "none", "paper-table1"):
             raise InputError(f"--deviations {dev}: use random, paper-table1 or none")
-        if dev == "paper-table1" and s.machine.kind != "hexaslide":
+        if dev == "paper-table1" and s.machine.paper_deviations() is None:
             raise InputError(f"--deviations paper-table1 applies to hexaslide machines (seed "
                              f"000 Table 1), not {s.machine.kind}; use random or none")
     elif np.shape(dev) != (len(s.machine.parameters),):

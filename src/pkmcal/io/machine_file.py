@@ -391,13 +391,11 @@ _INSTRUMENT_KINDS = {
 #: it itself (``machine`` is always the format's own type): the head, the instrument sections
 #: (``tracker`` with its ``targets``), then ``joint_limits`` (checked by :func:`_joint_limits`,
 #: per-joint messages) and ``calibration``
-_COMMON_FIELDS: dict[str, tuple | None] = {
-    "pkmcal": (Literal[1], ...), "machine": None,          # the format's own type
-    "name": (str | None, None), "units": (Units, ...),
-    "tracker": (TrackerSection | None, None), "ballbar": (Ballbar | None, None),
-    "bed": (BedPlane | None, None), "joint_limits": (Any, None),
-    "calibration": (dict[str, Any] | None, None),
-}
+_COMMON_FIELDS: dict[str, tuple | None] = dict(
+    pkmcal=(Literal[1], ...), machine=None,                 # machine: the format's own type
+    name=(str | None, None), units=(Units, ...), tracker=(TrackerSection | None, None),
+    ballbar=(Ballbar | None, None), bed=(BedPlane | None, None), joint_limits=(Any, None),
+    calibration=(dict[str, Any] | None, None))
 
 
 def _with_common_sections(fmt: MachineFormat) -> MachineFormat:

@@ -132,6 +132,8 @@ class Delta(Machine):
     kind = "delta"
     #: the instrument of its source paper (seed 001)
     default_instrument = "tracker"
+    chain_word = "leg"
+    joints_read_words = "arm angles are"
     n_joints = 3
     pose_dof = 3
     #: random deviations of simulated true machines (m, rad)
@@ -159,6 +161,11 @@ class Delta(Machine):
         self._idx = np.stack([self.parameters.indices(f"leg{i + 1}") for i in range(3)])
 
     # -- geometry -------------------------------------------------------------------------
+    @property
+    def platform_radius(self) -> float:
+        """The radius ``b`` of the platform joints, m (the file's ``platform_radius``)."""
+        return self.b
+
     def legs(self, u=None):
         """Per-leg error arrays, the legs along the first axis.
 

@@ -161,6 +161,8 @@ class HexaSlide(Machine):
     kind = "hexaslide"
     #: the instrument of its source paper (seed 000): the calibrations' default scenario
     default_instrument = "constraint-link"
+    joints_read_words = "sliders read"
+    actuation_words = "a Hexa Slide moves fixed-length legs with sliders on rails"
     n_joints = 6
     pose_dof = 6
     DEFAULT_DEVIATIONS = "paper-table1"

@@ -160,6 +160,9 @@ class Stewart(Machine):
     kind = "stewart"
     #: the instrument of SPEC 2.4 (motion capture)
     default_instrument = "pose"
+    chain_word = "leg"
+    joint_vector_word = "leg reading"
+    joints_read_words = "legs read"
     n_joints = 6
     pose_dof = 6
 
@@ -178,8 +181,6 @@ class Stewart(Machine):
     @property
     def joint_quantity(self) -> str:
         """"length" when the readings are lengths (mm, m, ...), else "reading"."""
-        from ..units import LENGTH
-
         return "length" if self.reading_unit in LENGTH else "reading"
 
     # -- geometry -------------------------------------------------------------------------
@@ -204,6 +205,40 @@ class Stewart(Machine):
         """
         u = self.u if u is None else np.asarray(u, float)
         return u[self._ib], u[self._ip], u[self._il0], u[self._ig]
+
+    def reading_gains(self) -> np.ndarray:
+        """Leg length per reading unit of each leg (``gain_i``; :meth:`legs`).
+
+        Returns
+        -------
+        ndarray, shape (6,)
+            The gains, m per reading unit (a ratio for readings in a length unit).
+        """
+        return self.legs()[3]
+
+    def leg_joints(self, q, u=None):
+        """Base joints, platform joints and lengths ``l0 + gain q`` of the six legs at the
+        readings ``q`` (the linear reading model: the curvature extension is left out).
+
+        Parameters
+        ----------
+        q : array_like, shape (6,)
+            Readings (internal units).
+        u : array_like, shape (n_params,) or (K, n_params), optional
+            Parameter vector(s); default: :attr:`u`.
+
+        Returns
+        -------
+        base : ndarray, shape (..., 6, 3)
+            Base joints, m.
+        platform : ndarray, shape (..., 6, 3)
+            Platform joints, m.
+        lengths : ndarray, shape (..., 6)
+            Leg lengths, m.
+        """
+        u = self.u if u is None else np.asarray(u, float)
+        return (u[..., self._ib], u[..., self._ip],
+                u[..., self._il0] + u[..., self._ig] * np.asarray(q, float))
 
     @property
     def has_curvature(self) -> bool:
