@@ -900,7 +900,7 @@ def run_fk(machine_spec: str, joints: Path, output: Path, frame: str = "base",
                          "instrument's predicted measurements); --frame base writes poses")
     machine = load_machine_arg(machine_spec)
     check_outputs([output], [joints] + _machine_inputs(machine_spec))
-    if machine.reading_unit is not None:
+    if getattr(machine, "reading_unit", None) is not None:   # readings in their own unit
         q, rows = read_readings(joints, machine)
     else:
         q, rows, _ = read_joints(joints, machine.n_joints, joint_quantity(machine), machine)

@@ -183,10 +183,6 @@ class Machine(ABC):
     frame_is_bed: bool = False
     #: the frame targets are given in, in words (:meth:`targets_in_base`)
     working_frame_words: str = "base frame of the calibrated model"
-    #: the unit of joint readings kept in their own unit (a leg encoder's ``rev``, ``counts``,
-    #: or a length unit it reads in; :meth:`joint_unit`); None: the joints read lengths or
-    #: angles in the machine file's units
-    reading_unit: str | None = None
     #: what one chain of the machine is called in messages ("leg(s) 2, 3")
     chain_word: str = "chain"
     #: what one vector of joint values is called in messages ("12 joint vector(s)")
@@ -495,8 +491,8 @@ class Machine(ABC):
 
     def reading_gains(self) -> np.ndarray | None:
         """Length per reading unit of each joint whose readings are kept in their own unit
-        (:attr:`reading_unit`: ``L = l0 + gain r``), or None (the default: the joint values are
-        the joints' travel in the machine file's units).
+        (a machine with a ``reading_unit``, :meth:`joint_unit`: ``L = l0 + gain r``), or None
+        (the default: the joint values are the joints' travel in the machine file's units).
 
         Returns
         -------
