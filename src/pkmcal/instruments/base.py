@@ -60,6 +60,24 @@ def reachable(machine: Machine, P, R, rows, source) -> np.ndarray:
     return q
 
 
+def has_column(header, base: str) -> bool:
+    """Whether a header has the column ``base`` (alone or with a unit suffix, ``base_mm``).
+
+    Parameters
+    ----------
+    header : list of str
+        Column names.
+    base : str
+        The column's name without its unit.
+
+    Returns
+    -------
+    bool
+        True when present.
+    """
+    return any(n == base or n.startswith(base + "_") for n in header)
+
+
 class Instrument:
     """An instrument (see the module docstring); subclasses fill in the methods."""
 
@@ -71,6 +89,36 @@ class Instrument:
     words: str = ""
     #: default number of planned poses
     plan_size: int = 60
+    #: what its data files hold, in words (messages)
+    columns: str = ""
+    #: data files are recognised in increasing priority (a readings-only fallback last)
+    priority: int = 50
+    #: its data files hold joint readings alone (no column of its own)
+    readings_only: bool = False
+    #: ``(columns, words)`` named when readings-only data come for a machine measured with it
+    missing: tuple[str, str] | None = None
+    #: its measurements can fix a length of the machine (heights along z alone cannot fix a
+    #: printer's arms: a parameter set's ``without_lengths`` applies)
+    fixes_lengths: bool = True
+    #: class name of its data objects (data given in memory)
+    data_class: str = "InstrumentData"
+    #: why its files cannot be fitted together with other files in one fit (empty: they can)
+    joint_refusal: str = ""
+
+    def detect(self, header) -> bool:
+        """Whether a data file's columns are this instrument's.
+
+        Parameters
+        ----------
+        header : list of str
+            The file's column names.
+
+        Returns
+        -------
+        bool
+            True for its files (:func:`has_column` of its own columns).
+        """
+        return False
 
     def plan_size_for(self, machine: Machine) -> int:
         """The default number of planned poses for ``machine``.

@@ -25,7 +25,7 @@ from ..machines.reach import (
     bed_height,
 )
 from ..parameters import ParameterSet
-from .base import Instrument, StandardPlan, reachable
+from .base import Instrument, StandardPlan, has_column, reachable
 from .data import InstrumentData
 from .models import NuisanceModel
 from .problem import InstrumentProblem
@@ -171,6 +171,12 @@ class PairDistance(Instrument):
     words = ("distances between the nozzle at two sets of readings (a caliper on a printed "
              "part; Klipper's DELTA_ANALYZE object)")
     plan_size = 24
+    columns = ("the readings at two nozzle positions q1_<unit>.. and q1b_<unit>.. and the "
+               "distance between them, distance_mm (a caliper on a printed part)")
+    priority = 5
+
+    def detect(self, header):
+        return has_column(header, "q1b") and has_column(header, "distance")
 
     def applies(self, machine):
         return None
