@@ -22,6 +22,7 @@ import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -344,6 +345,13 @@ def register_kind(kind: MeasurementKind) -> MeasurementKind:
 
 
 def _kinds() -> list[MeasurementKind]:
+    """Every instrument's calibration (its registered handlers, else the generic path), in
+    the order data files are recognised."""
+    from ..instruments.registry import INSTRUMENTS
+
+    for name, inst in INSTRUMENTS.items():
+        if name not in KINDS and inst.fit_model is not None:
+            KINDS[name] = instrument_kind(inst)
     return sorted(KINDS.values(), key=lambda k: k.priority)
 
 
@@ -2168,20 +2176,9 @@ def _joint_probe(machine, data, source, noise) -> JointPart:
                      with_others, frame)
 
 
-def _joint_pairs(machine, data, source, noise) -> JointPart:
-    from ..instruments.pairs import PairDistanceModel
-
-    pairs = _load(data, _read_pairs, machine)
-    noise_model = (pairs.weights[0] if noise is None and pairs.weights is not None
-                   else _pair_noise(noise, machine))
-    pairs.source = str(source)
-    return JointPart(pairs, PairDistanceModel(), noise_model,
-                     f"distances {noise_model.sigma * 1e6:.4g} um (std)", "pair-distances")
-
-
 def _combining() -> str:
     """The kinds whose files combine in one fit, in words."""
-    return ", ".join(sorted(k.name for k in KINDS.values() if not k.joint_refusal))
+    return ", ".join(sorted(k.name for k in _kinds() if not k.joint_refusal))
 
 
 def _joint_part(machine, data, source, kind: MeasurementKind, noise) -> JointPart:
@@ -2202,7 +2199,7 @@ def _joint_part(machine, data, source, kind: MeasurementKind, noise) -> JointPar
     if not isinstance(problem, InstrumentProblem) or getattr(problem, "local_dof", 0):
         raise InputError(f"{source}: {kind.name} data cannot be combined with other files in "
                          f"one fit (no instrument model of the shared layer); the kinds that "
-                         f"combine: {', '.join(sorted(k.name for k in KINDS.values() if k.joint))}")
+                         f"combine: {', '.join(sorted(k.name for k in _kinds() if k.joint))}")
     text = alone.report.get("noise")
     return JointPart(problem.data, problem.model, problem.noise,
                      str(text) if text is not None else f"{kind.name} default", kind.name)
@@ -2500,46 +2497,50 @@ register_kind(MeasurementKind("constraint-link", _calibrate_constraint_link,
                               _check_constraint_link))
 
 
-# -- distances between two nozzle positions (SPEC 8) ------------------------------------------
+# -- any instrument of the shared layer: a model without unknowns of the machine's frame ----
 
-def _pair_noise(noise, machine):
-    """The noise of two-point distances (``--noise``; default
-    :data:`~pkmcal.instruments.pairs.PAIR_SIGMA`)."""
-    from ..instruments.registry import instrument
-
-    return instrument("pair-distances").noise_arg(noise, machine)
-
-
-def _read_pairs(path, machine):
-    """Two-point distances from a CSV file (:func:`~pkmcal.io.read_pairs`)."""
-    from ..io import read_pairs
-
-    return read_pairs(path, machine)
-
-
-def _check_pairs(options: CalibrateOptions, source) -> None:
-    _only_for_poses(options, source, "two-point distance")
+def _check_instrument(options: CalibrateOptions, source, inst) -> None:
+    """Options an instrument of the generic path does not take, refused naming it."""
+    _only_for_poses(options, source, inst.singular)
     for option, given in (("--method", options.method is not None),
                           ("--estimate-lc", options.estimate_lc is not None),
                           ("--two-step", options.two_step),
                           ("--bed-tilt", options.bed_tilt is not None)):
         if given:
-            raise InputError(f"{option}: does not apply to two-point distances ({source}); "
-                             "see --noise, --robust")
+            raise InputError(f"{option}: does not apply to {inst.plural} ({source}); see "
+                             "--noise, --robust")
 
 
-def _calibrate_pairs(machine, data, source, options: CalibrateOptions, split) -> Calibration:
+def _reader_of(inst):
+    """``reader(path, machine)``: the instrument's data from a CSV file."""
+    from ..io import read_measurements
+
+    return lambda path, machine: read_measurements(inst, path, machine)
+
+
+def _instrument_noise(inst, data, noise, machine):
+    """The noise of ``--noise`` (the data's own weights when none is given)."""
+    weights = getattr(data, "weights", None)
+    if noise is None and weights is not None:
+        return weights[0]
+    return inst.noise_arg(noise, machine)
+
+
+def _calibrate_instrument(machine, data, source, options: CalibrateOptions, split,
+                          inst) -> Calibration:
+    """Calibration from an instrument of the shared layer that brings no handler of its own:
+    its :meth:`~pkmcal.instruments.base.Instrument.fit_model`, noise and words."""
     from ..instruments import fit_instrument
-    from ..instruments.pairs import PairDistanceModel
 
-    noise = _pair_noise(options.noise, machine)
+    data = _load(data, _reader_of(inst), machine)
+    noise = _instrument_noise(inst, data, options.noise, machine)
 
     def fit(machine_, data_, noise_, **kwargs):
-        return fit_instrument(machine_, data_, PairDistanceModel(), noise_, **kwargs)
+        return fit_instrument(machine_, data_, inst.fit_model(machine_, data_), noise_,
+                              **kwargs)
 
     data, held, result, before, calibrated, params, units = _fit_with_baseline(
-        machine, data, source, split, _read_pairs, fit, noise,
-        "measure distances in several directions and at several heights", options)
+        machine, data, source, split, _reader_of(inst), fit, noise, inst.advice, options)
     problem = result.extras["problem"]
     rms_after, r_after = _scalar_rms(problem, result.state, data)
     rms_before, _ = _scalar_rms(before.extras["problem"], before.state, data)
@@ -2547,13 +2548,13 @@ def _calibrate_pairs(machine, data, source, options: CalibrateOptions, split) ->
     n_free = int(np.sum(result.parameters.free))
     unidentifiable = list(result.extras.get("unidentifiable", []))
     report = {
-        **_report_head(machine, source, "pair-distances", "joint"),
+        **_report_head(machine, source, inst.name, "joint"),
         "units": units,
         "measurements": len(data),
-        "noise": f"distances {noise.sigma * 1e6:.4g} um (std)",
+        "noise": inst.noise_text(noise),
         "convergence": _convergence_json(result),
         "residuals": {
-            "of": "distances between the two nozzle positions, measured - predicted",
+            "of": inst.residual_words,
             "count": int(ok.sum()),
             "rms_um": rms_after,
             "max_abs_um": _um(float(np.max(np.abs(r_after[ok])))) if ok.any() else None,
@@ -2568,15 +2569,39 @@ def _calibrate_pairs(machine, data, source, options: CalibrateOptions, split) ->
                                                  np.asarray(result.singular_values, float)),
         "parameters": _public(params),
     }
-    metadata = {"method": "pair-distances", "date": report["date"], "data": str(source),
+    metadata = {"method": inst.name, "date": report["date"], "data": str(source),
                 "machine": _source_of(machine), "measurements": len(data),
                 "rms_residual_um": rms_after, "identifiable": int(result.rank),
                 "free_parameters": n_free, **_identifiability_metadata(unidentifiable)}
-    return _finish("pair-distances", machine, calibrated, result, report, metadata, params,
-                   units)
+    return _finish(inst.name, machine, calibrated, result, report, metadata, params, units)
 
 
-register_kind(MeasurementKind("pair-distances", _calibrate_pairs, _check_pairs, _joint_pairs))
+def _joint_instrument(machine, data, source, noise, inst) -> JointPart:
+    """The file's part of a fit of several files, for an instrument of the generic path."""
+    data = _load(data, _reader_of(inst), machine)
+    noise_model = _instrument_noise(inst, data, noise, machine)
+    data.source = str(source)
+    return JointPart(data, inst.fit_model(machine, data), noise_model,
+                     inst.noise_text(noise_model), inst.name)
+
+
+def instrument_kind(inst) -> MeasurementKind:
+    """The calibration of an instrument that registers no handler of its own: the generic
+    path of the shared layer (:func:`_calibrate_instrument`).
+
+    Parameters
+    ----------
+    inst : Instrument
+        A registry entry with a :meth:`~pkmcal.instruments.base.Instrument.fit_model`.
+
+    Returns
+    -------
+    MeasurementKind
+        Its calibration, option check and joint part.
+    """
+    return MeasurementKind(inst.name, partial(_calibrate_instrument, inst=inst),
+                           partial(_check_instrument, inst=inst),
+                           partial(_joint_instrument, inst=inst))
 
 
 #: a common offset of the probe heights against the machine file's model beyond this (m) is
@@ -2795,3 +2820,6 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
 
 
 register_kind(MeasurementKind("probe", _calibrate_probe, _check_probe, _joint_probe))
+
+# every instrument without handlers of its own calibrates by the generic path
+_kinds()

@@ -1704,6 +1704,8 @@ class ConstraintLink(Instrument):
     readings_only = True
     data_class = "ConstraintLinkData"
     joint_refusal = "the constraint link estimates a platform pose per measurement"
+    report_sections = {"link_length": "a constraint-link report states the link length it "
+                                      "used"}
 
     def detect(self, header):
         return has_column(header, "q1")

@@ -175,8 +175,20 @@ class PairDistance(Instrument):
                "distance between them, distance_mm (a caliper on a printed part)")
     priority = 5
 
+    singular = "two-point distance"
+    plural = "two-point distances"
+    residual_words = "distances between the two nozzle positions, measured - predicted"
+    advice = "measure distances in several directions and at several heights"
+
     def detect(self, header):
         return has_column(header, "q1b") and has_column(header, "distance")
+
+    def fit_model(self, machine, data):
+        """No unknown of its own: :class:`PairDistanceModel` of the nozzle tip."""
+        return PairDistanceModel()
+
+    def noise_text(self, noise):
+        return f"distances {noise.sigma * 1e6:.4g} um (std)"
 
     def applies(self, machine):
         return None
@@ -276,8 +288,12 @@ class PairDistance(Instrument):
     measurement_words = ("distances between the nozzle at two sets of readings (no unknown of "
                          "their own)")
 
-    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
-    reader = "read_pairs"
+    reading_sets = ("", "b")
+    value_columns = (("distance", "length"),)
+    positive_values = True
+
+    def from_columns(self, readings, values, rows, source):
+        return pair_data(readings[0], readings[1], values[:, 0], rows, source)
 
 
 #: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
