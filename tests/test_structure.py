@@ -93,3 +93,15 @@ def test_the_planar_robot_is_one_module_and_one_registry_line():
     registry's list, nowhere else in the package's code."""
     mentions = _code_mentions({"planar_3rpr", "Planar3RPR"})
     assert set(mentions) == {"machines/planar_3rpr.py", "machines/registry.py"}, mentions
+
+
+def test_the_two_point_distances_are_one_module_and_one_registry_line():
+    """The second proof of issue 25: the two-point distance instrument is named in its module,
+    in the instrument registry's list ("pairs") and in Klipper's format, whose saved
+    DELTA_ANALYZE distances are its data; nowhere else in the package's code."""
+    mentions = _code_mentions({"pair-distances", "PairDistance", "pair_data", "PairProblem",
+                               "PairDistanceModel", "instruments.pairs"})
+    assert set(mentions) <= {"instruments/pairs.py", "io/klipper_config.py"}, mentions
+    from pkmcal.instruments.registry import INSTRUMENT_MODULES
+
+    assert "pairs" in INSTRUMENT_MODULES
