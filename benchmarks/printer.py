@@ -6,7 +6,7 @@ leaning by a few hundredths of a degree. The true machine is the nominal one plu
 deviations of printer size (:func:`~pkmcal.measurements.random_deviations`: 1 mm, 0.3 deg) in
 the parameters the firmware set adjusts (the others stay as assumed: a firmware's model is
 then exact); the true bed is raised 0.8 mm and tilted by 1.1 and -0.7 mm/m. 37 probe points
-(the centre and 3 rings), 10 um trigger noise (:data:`~pkmcal.instruments.registry.PROBE_SIGMA`).
+(the centre and 3 rings), 10 um trigger noise (:data:`~pkmcal.instruments.probe.PROBE_SIGMA`).
 
 For the ``full`` error model (18 tower parameters) and Klipper's set (9) the script reports:
 
@@ -66,7 +66,8 @@ from pkmcal.instruments import (  # noqa: E402
     ProbeModel,
 )
 from pkmcal.instruments.joint import JointProblem, fit_joint  # noqa: E402
-from pkmcal.instruments.registry import PROBE_SIGMA, ProbeProblem, instrument  # noqa: E402
+from pkmcal.instruments.probe import PROBE_SIGMA, ProbeProblem
+from pkmcal.instruments.registry import instrument
 from pkmcal.instruments.simulate import probe_trigger, simulate_scenario  # noqa: E402
 from pkmcal.machines.deviations import random_deviations
 from pkmcal.machines.linear_delta import LinearDelta, linear_delta  # noqa: E402

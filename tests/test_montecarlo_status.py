@@ -105,7 +105,7 @@ def test_residuals_20x_the_noise_are_rejected_in_every_scenario(monkeypatch, spe
         honest = mc._weight
         monkeypatch.setattr(mc, "_weight", lambda n: honest(n) / 20)
     else:
-        import pkmcal.instruments as measurements
+        import pkmcal.instruments.pose as measurements
 
         simulate = measurements.simulate_full_pose
 

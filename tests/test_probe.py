@@ -47,19 +47,14 @@ from pkmcal.instruments import (
     NuisanceState,
     ProbeModel,
 )
-from pkmcal.instruments.registry import (
-    PROBE_SIGMA,
-    bed_centre,
-    bed_height,
-    instrument,
-    probe_pattern,
-    probe_radius,
-)
+from pkmcal.instruments.probe import PROBE_SIGMA, probe_pattern
+from pkmcal.instruments.registry import instrument
 from pkmcal.instruments.simulate import probe_trigger, simulate_scenario
 from pkmcal.io import read_probe, write_instrument
 from pkmcal.kinematics import matrix_from_euler, matrix_from_rotvec
 from pkmcal.machines import default_delta, default_hexaslide
 from pkmcal.machines.deviations import random_deviations
+from pkmcal.machines.reach import bed_centre, bed_height, probe_radius
 from pkmcal.planning import planned_problem, standard_plan
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -406,8 +406,8 @@ def _probe_run(s: MonteCarloSettings, rng):
     height and tilt), the bed plane estimated with the machine; held out: the height of the
     nozzle over the bed at other points of the bed, 1 mm above it, with the readings the
     nominal model commands there - the calibrated model and its bed against the truth."""
-    from ..calibration.probe import calibrate_probe
     from ..instruments import IsotropicNoise
+    from ..instruments.probe import calibrate_probe
     from ..instruments.registry import instrument
     from ..instruments.simulate import simulate_scenario
 
@@ -435,9 +435,8 @@ def _probe_run(s: MonteCarloSettings, rng):
 
 def _tracker_run(s: MonteCarloSettings, rng):
     from ..calibration import calibrate_tracker, predict_tracker_points
-    from ..instruments.registry import tracker_pose
     from ..instruments.scenarios import candidate_poses
-    from ..instruments.tracker import grid_points, simulate_tracker
+    from ..instruments.tracker import grid_points, simulate_tracker, tracker_pose
 
     nominal = s.machine
     if nominal.tracker_target() is None:
@@ -463,8 +462,7 @@ def _tracker_run(s: MonteCarloSettings, rng):
 
 def _pose_run(s: MonteCarloSettings, rng):
     from ..calibration import calibrate_full_pose, full_pose_errors, gauge_free_error
-    from ..instruments.pose import FullPoseNoise, simulate_full_pose
-    from ..instruments.registry import measurement_frames
+    from ..instruments.pose import FullPoseNoise, measurement_frames, simulate_full_pose
     from ..instruments.simulate import sample_workspace_poses
 
     nominal = s.machine

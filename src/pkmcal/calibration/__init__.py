@@ -20,6 +20,7 @@ from ..instruments.constraint_link import (
     sphere_pose_candidates,
     start_sensitivity,
 )
+from ..instruments.distance import calibrate_distances
 from ..instruments.pose import (
     FullPoseErrors,
     FullPoseIK,
@@ -30,6 +31,7 @@ from ..instruments.pose import (
     full_pose_errors,
     gauge_free_error,
 )
+from ..instruments.probe import calibrate_probe, poorly_determined
 from ..instruments.tracker import (
     TrackerProblem,
     calibrate_tracker,
@@ -37,8 +39,6 @@ from ..instruments.tracker import (
     predict_tracker_points,
     prediction_covariance,
 )
-from .distances import calibrate_distances
-from .probe import calibrate_probe, poorly_determined
 from .run import (
     KINDS,
     Calibration,

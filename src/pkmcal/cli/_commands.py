@@ -279,7 +279,8 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
                        setups: int | None, radius: str | None, circles: bool) -> None:
     """Every scenario but the translating tracker grid, through
     :func:`pkmcal.instruments.simulate.simulate_scenario`."""
-    from ..instruments.registry import BALLBAR_LENGTH, instrument
+    from ..instruments.distance import BALLBAR_LENGTH
+    from ..instruments.registry import instrument
     from ..instruments.simulate import simulate_scenario
     from ..io import write_full_pose, write_instrument
 

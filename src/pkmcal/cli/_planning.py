@@ -53,7 +53,7 @@ def plan_groups(path: Path, kind: str, rows):
 
 def planning_machine(machine, kind: str, setups: int | None, radius: str | None,
                      targets: int | None):
-    """The machine ``kind``'s plans use (:meth:`~pkmcal.instruments.registry.Instrument.
+    """The machine ``kind``'s plans use (:meth:`~pkmcal.instruments.base.Instrument.
     planned_machine`: with ``--setups`` / ``--radius`` a ballbar's planned mountings);
     refuses the options the instrument does not take."""
     inst = instrument(kind)

@@ -84,6 +84,7 @@ from ..kinematics import matrix_from_euler, matrix_from_rotvec
 from ..machines.base import Machine, newton_pose_solve
 from ..machines.deviations import draw_accepted
 from ..parameters import ParameterSet
+from .base import Instrument, StandardPlan, _rows, _sigma_arg, _space_words, has_column, reachable
 
 
 @dataclass
@@ -1690,3 +1691,103 @@ def link_noise_arg(text: str | float | None, machine=None) -> float:
     if machine is not None:
         check_option_scale(sigma, machine, "--noise", "noise", str(text))
     return sigma
+
+
+class ConstraintLink(Instrument):
+    """Seed 000: joint readings with the constraint link mounted, one joint passive."""
+
+    name = "constraint-link"
+    words = "a fixed-length constraint link, one joint passive (no external sensor)"
+    plan_size = 150
+    columns = "q1_mm..q6_mm (optionally passive) with a constraint_link in the machine file"
+    priority = 90
+    readings_only = True
+    data_class = "ConstraintLinkData"
+    joint_refusal = "the constraint link estimates a platform pose per measurement"
+    report_sections = {"link_length": "a constraint-link report states the link length it "
+                                      "used"}
+
+    def detect(self, header):
+        return has_column(header, "q1")
+
+    def applies(self, machine):
+        if not machine.rotates:
+            return ("the constraint link takes one degree of freedom of a platform that "
+                    "rotates; this machine's platform only translates")
+        if len(machine.pose_space) != 6:
+            return ("the constraint link takes one degree of freedom of a platform that moves "
+                    "in space (six pose coordinates); this machine's platform moves along "
+                    f"{_space_words(machine)} only")
+        if getattr(machine, "constraint_link_length", None) is None:
+            return ("the machine file has no constraint link: add `constraint_link: {length: "
+                    "...}` (in the file's length unit)")
+        return None
+
+    def default_noise(self):
+        return 1e-6
+
+    def describe_noise(self, noise):
+        return f"encoder noise {noise * 1e6:.4g} um (std)"
+
+    def candidates(self, machine, n, rng):
+
+        P, R = sample_sphere_poses(machine, link_length(machine), n, rng)
+        return P, R, None
+
+    def standard_plan(self, machine, n, seed):
+        P, R, _ = self.candidates(machine, n, np.random.default_rng(seed))
+        return StandardPlan(f"{n} random planned poses on the constraint sphere (seed {seed})",
+                            P, R)
+
+    def planned_data(self, machine, P, R, rows, source, group=None):
+
+        P = _on_sphere(P, machine, rows, source)
+        q = reachable(machine, P, R, rows, source)
+        return ConstraintLinkData(q, link_length(machine),
+                                  np.arange(len(P)) % machine.n_joints, rows, source,
+                                  true_P=P, true_R=R)
+
+    def problem(self, machine, data, noise=None, **start):
+
+        return ConstraintLinkML(machine, data, self.default_noise() if noise is None else noise)
+
+    measurement_words = ("constraint link (maximum likelihood: every reading noisy; one pose on "
+                         "the sphere per measurement)")
+
+    def noise_arg(self, text, machine=None):
+        """The encoder noise of ``--noise`` (default 1 um), m."""
+        return _sigma_arg(text, machine, "encoder noise", 1e-6)
+
+    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
+    reader = "read_constraint_link"
+
+
+#: constraint-link plans: largest allowed deviation of |P| from Lc (m); poses within it are
+#: put on the sphere (rounding in a hand-made plan file)
+SPHERE_TOL = 1e-4
+
+
+def link_length(machine: Machine) -> float:
+    """The machine file's constraint-link length, m; InputError when it has none."""
+    Lc = getattr(machine, "constraint_link_length", None)
+    if Lc is None:
+        raise InputError(f"{getattr(machine, 'source', 'the machine file')}: no "
+                         "constraint_link length; constraint-link plans need it")
+    return float(Lc)
+
+
+def _on_sphere(P, machine, rows, source):
+    """Constraint-link plan poses put exactly on ``|P| = Lc`` (refused beyond SPHERE_TOL)."""
+    Lc = link_length(machine)
+    norm = np.linalg.norm(P, axis=-1)
+    off = ~(np.abs(norm - Lc) <= SPHERE_TOL)
+    if off.any():
+        raise InputError(f"{source}: row(s) {_rows(rows[off])}: |P| differs from the "
+                         f"constraint-link length {Lc * 1e3:.6g} mm by more than "
+                         f"{SPHERE_TOL * 1e3:g} mm; a constraint-link plan has its poses on "
+                         "that sphere")
+    return P * (Lc / norm)[:, None]
+
+
+#: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
+INSTRUMENT = ConstraintLink()

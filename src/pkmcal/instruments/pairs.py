@@ -20,7 +20,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
+from ..machines.reach import (
+    bed_height,
+)
 from ..parameters import ParameterSet
+from .base import Instrument, StandardPlan, has_column, reachable
 from .data import InstrumentData
 from .models import NuisanceModel
 from .problem import InstrumentProblem
@@ -154,3 +159,142 @@ def pair_data(q_a, q_b, d, rows=None, source: str = "<data>") -> InstrumentData:
 
 
 PairDistanceModel.problem_class = PairProblem
+
+
+class PairDistance(Instrument):
+    """Distances between the platform point at two sets of readings (a caliper on a printed
+    part, Klipper's DELTA_ANALYZE object): :mod:`pkmcal.instruments.pairs`. A plan's poses
+    come in pairs, rows ``2k`` and ``2k + 1`` one distance."""
+
+    name = "pair-distances"
+    aliases = ("caliper", "two-point-distances")
+    words = ("distances between the nozzle at two sets of readings (a caliper on a printed "
+             "part; Klipper's DELTA_ANALYZE object)")
+    plan_size = 24
+    columns = ("the readings at two nozzle positions q1_<unit>.. and q1b_<unit>.. and the "
+               "distance between them, distance_mm (a caliper on a printed part)")
+    priority = 5
+
+    singular = "two-point distance"
+    plural = "two-point distances"
+    residual_words = "distances between the two nozzle positions, measured - predicted"
+    advice = "measure distances in several directions and at several heights"
+
+    def detect(self, header):
+        return has_column(header, "q1b") and has_column(header, "distance")
+
+    def fit_model(self, machine, data):
+        """No unknown of its own: :class:`PairDistanceModel` of the nozzle tip."""
+        return PairDistanceModel()
+
+    def noise_text(self, noise):
+        return f"distances {noise.sigma * 1e6:.4g} um (std)"
+
+    def applies(self, machine):
+        return None
+
+    def default_noise(self):
+        from .models import IsotropicNoise
+
+        return IsotropicNoise(PAIR_SIGMA)
+
+    def describe_noise(self, noise):
+        return f"distance {noise.sigma * 1e6:.4g} um (std)"
+
+    def noise_arg(self, text, machine, allow_zero: bool = False):
+        """The noise of ``--noise`` (text with a unit, an SI number or a noise model; None:
+        the default); ``allow_zero``: 0 gives exact data (False), as ``simulate`` takes it.
+
+        Raises
+        ------
+        InputError
+            Naming ``--noise``: not a length, not above 0, or beyond the machine's scale.
+        """
+        from ..plausibility import check_option_scale
+        from ..units import parse_quantity
+        from .models import IsotropicNoise
+
+        if text is None:
+            return self.default_noise()
+        if hasattr(text, "whitening"):
+            return text
+        sigma = parse_quantity(text, "length", "--noise") if isinstance(text, str) \
+            else float(text)
+        if not (sigma > 0 or (allow_zero and sigma == 0)):
+            raise InputError(f"--noise: must be > 0 (the standard deviation of a measured "
+                             f"distance), got {text}")
+        if sigma == 0:
+            return False
+        check_option_scale(sigma, machine, "--noise", "noise", str(text))
+        return IsotropicNoise(sigma)
+
+    def candidates(self, machine, n, rng):
+        raise InputError("pair-distances: poses are chosen in pairs (one distance each); "
+                         "pose selection picks single poses - use the standard plan, "
+                         "Klipper's DELTA_ANALYZE object (--scenario pair-distances)")
+
+    def standard_plan(self, machine, n, seed):
+
+        pairs, words = klipper_object_pairs(height=bed_height(machine))
+        if n != 2 * len(pairs):
+            return StandardPlan(words, reason=f"Klipper's object has {len(pairs)} distances "
+                                              f"({2 * len(pairs)} poses), not {n} poses")
+        P = pairs.reshape(-1, 3)
+        return StandardPlan(words, P, np.broadcast_to(np.eye(3), (len(P), 3, 3)).copy())
+
+    def planned_data(self, machine, P, R, rows, source, group=None):
+
+        if len(P) % 2:
+            raise InputError(f"{source}: {len(P)} poses; two-point distances take them in "
+                             "pairs")
+        q = reachable(machine, P, R, rows, source)
+        d = np.linalg.norm(P[0::2] - P[1::2], axis=-1)
+        return pair_data(q[0::2], q[1::2], d, np.asarray(rows)[0::2], source)
+
+    def simulate(self, machine, true, n, noise, rng, truth):
+        """Klipper's object printed by the nominal model's commands on the true machine and
+        measured: each distance between the true nozzle positions of the commanded pair,
+        plus the noise (``noise`` an ``IsotropicNoise``, default :data:`PAIR_SIGMA`; False:
+        exact). ``n`` must be the plan's poses (24).
+
+        Returns
+        -------
+        tuple
+            ``(data, true, truth)`` as :func:`~pkmcal.instruments.simulate.simulate_scenario`.
+        """
+
+        plan = self.standard_plan(machine, n, 0)
+        if not plan.available:
+            raise InputError(f"--poses {n}: {plan.reason}")
+        q = reachable(machine, plan.P, plan.R, np.arange(1, len(plan.P) + 1), "the plan")
+        fk = true.fk(q)
+        if not fk.converged.all():
+            raise InputError("the true machine cannot reach the plan's points")
+        d = np.linalg.norm(fk.P[0::2] - fk.P[1::2], axis=-1)
+        model = self.default_noise() if noise is None else noise
+        if model is not False and model is not None:
+            d = d + model.sample(d[:, None], rng)[:, 0]
+        data = pair_data(q[0::2], q[1::2], d, None, "<simulated>")
+        truth.update(poses=plan.name, rows=[
+            ("object", f"printed at the nominal model's commands; the distances of the true "
+                       f"nozzle positions, {d.min() * 1e3:.6g}..{d.max() * 1e3:.6g} mm")])
+        return data, true, truth
+
+    def problem(self, machine, data, noise=None, **start):
+
+        return PairProblem(machine, data, PairDistanceModel(),
+                           self.default_noise() if noise is None else noise)
+
+    measurement_words = ("distances between the nozzle at two sets of readings (no unknown of "
+                         "their own)")
+
+    reading_sets = ("", "b")
+    value_columns = (("distance", "length"),)
+    positive_values = True
+
+    def from_columns(self, readings, values, rows, source):
+        return pair_data(readings[0], readings[1], values[:, 0], rows, source)
+
+
+#: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
+INSTRUMENT = PairDistance()

@@ -67,6 +67,7 @@ from ..kinematics import matrix_from_euler, matrix_from_rotvec, rotvec_from_matr
 from ..machines.base import Machine
 from ..machines.deviations import draw_accepted
 from ..parameters import ParameterSet
+from .base import Instrument, _space_words, has_column, reachable
 
 Frame = tuple[np.ndarray, np.ndarray]
 
@@ -1344,3 +1345,103 @@ def full_pose_noise_arg(noise: str | None, pose_noise: str | None, strict: bool,
         check_option_scale(orientation, machine, "--pose-noise (orientation)", "angle noise",
                            pose_noise)
     return FullPoseNoise(reading, position, orientation)
+
+
+class Pose(Instrument):
+    """Full poses of a marker on the platform (motion capture), SPEC 2.4."""
+
+    name = "pose"
+    aliases = ("poses",)
+    words = "the marker pose (motion capture, 6-D tracker)"
+    plan_size = 60
+    columns = ("the leg readings q1_<unit>..q6_<unit> (the machine's reading unit) and the "
+               "measured pose x_mm, y_mm, z_mm with qx, qy, qz, qw or psi_deg, theta_deg, "
+               "phi_deg")
+    priority = 20
+    data_class = "FullPoseData"
+    joint_refusal = "full poses estimate a platform pose per measurement"
+
+    def detect(self, header):
+        return (has_column(header, "x") or has_column(header, "y") or has_column(header, "z")
+                or "qw" in header)
+
+    def applies(self, machine):
+        if not machine.rotates:
+            return ("full poses need a platform that rotates; this machine's platform only "
+                    "translates: measure points (tracker) instead")
+        if len(machine.pose_space) != 6:
+            return ("full poses need a platform that moves in space (six pose coordinates); "
+                    f"this machine's platform moves along {_space_words(machine)} only: "
+                    "measure points (tracker) instead")
+        return None
+
+    def default_noise(self):
+
+        return FullPoseNoise()
+
+    def describe_noise(self, noise):
+        return (f"leg readings {noise.reading_m * 1e6:.3g} um, poses "
+                f"{noise.position_m * 1e6:.3g} um / {noise.orientation_rad * 1e6:.3g} urad "
+                "(std)")
+
+    def planned_data(self, machine, P, R, rows, source, group=None):
+
+        q = reachable(machine, P, R, rows, source)
+        Pm, Rm = measurement_frames(machine).measured(P, R)
+        return FullPoseData(q, Pm, Rm, rows, source, true_P=P, true_R=R)
+
+    def problem(self, machine, data, noise=None, frames=None, **start):
+
+        return FullPoseML(machine, data, self.default_noise() if noise is None else noise,
+                          measurement_frames(machine) if frames is None else frames)
+
+    measurement_words = "full pose (maximum likelihood; both measurement frames estimated)"
+
+    def noise_option(self, noise, pose_noise=None, machine=None):
+
+        if noise is not None and not isinstance(noise, str):
+            return noise
+        return full_pose_noise_arg(noise, pose_noise, strict=True, machine=machine)
+
+    def noise_arg(self, text, machine=None):
+        """The full-pose noise of ``--noise`` (the leg readings; poses at their default)."""
+        return self.noise_option(text, None, machine)
+
+    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
+    reader = "read_full_pose"
+
+    def measured_problem(self, machine, data, noise=None, source=""):
+        """The measurement frames of the machine file, else estimated from the data (at least
+        4 poses)."""
+
+        if len(data) < 4:
+            raise InputError(f"{source}: {len(data)} pose(s); the measurement frames need at "
+                             "least 4")
+        frames = getattr(machine, "measurement_frames", None)
+        if frames is None:
+            frames = estimate_frames(machine, data)
+        return self.problem(machine, data, noise, frames=frames)
+
+
+def measurement_frames(machine: Machine):
+    """``measurement_frames`` of the machine file, else the simulations' default.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (its ``measurement_frames``, if any).
+
+    Returns
+    -------
+    MeasurementFrames
+        The frames.
+    """
+    frames = getattr(machine, "measurement_frames", None)
+    if frames is None:
+
+        frames = default_measurement_frames()
+    return frames
+
+
+#: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
+INSTRUMENT = Pose()

@@ -20,15 +20,11 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
-from .registry import (
-    INSTRUMENTS,
-    SPHERE_TOL,  # noqa: F401  (re-exported: plans off the sphere by more are refused)
-    StandardPlan,
-    instrument,
-    link_length,  # noqa: F401
-    measurement_frames,
-    tracker_pose,
-)
+from .base import StandardPlan
+from .constraint_link import SPHERE_TOL, link_length  # noqa: F401  (re-exported: plan checks)
+from .pose import measurement_frames
+from .registry import INSTRUMENTS, instrument
+from .tracker import tracker_pose
 
 __all__ = ["DEFAULT_PLAN_SIZE", "SCENARIOS", "STANDARD_PLANS", "StandardPlan",
            "candidate_poses", "candidate_set", "default_noise", "describe_noise",

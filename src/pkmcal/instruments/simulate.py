@@ -117,7 +117,7 @@ def planned_targets(machine: Machine, n_targets: int = 1) -> np.ndarray:
 
     The machine's own target when its file gives one (a Delta's ``smr_offset``; then only one
     target makes sense); else target 1 at
-    :func:`~pkmcal.instruments.registry.plan_target` and the others turned about the platform
+    :func:`~pkmcal.instruments.tracker.plan_target` and the others turned about the platform
     z axis by ``360 deg g / n_targets``.
 
     Parameters
@@ -138,7 +138,7 @@ def planned_targets(machine: Machine, n_targets: int = 1) -> np.ndarray:
         When ``n_targets < 1``, or several targets are asked for on a machine whose file
         gives the target's place.
     """
-    from .registry import plan_target
+    from .tracker import plan_target
 
     n_targets = int(n_targets)
     if n_targets < 1:
@@ -171,7 +171,7 @@ def circle_plan(machine: Machine, n: int, setups=None):
         Number of poses (at least 3 per setup).
     setups : list of tuple, optional
         ``[(pivot, ball), ...]``; default
-        :func:`~pkmcal.instruments.registry.ballbar_setups` of the machine.
+        :func:`~pkmcal.instruments.distance.ballbar_setups` of the machine.
 
     Returns
     -------
@@ -187,7 +187,7 @@ def circle_plan(machine: Machine, n: int, setups=None):
     InputError
         When there are fewer than 3 poses per setup or the machine cannot reach a pose.
     """
-    from .registry import ballbar_setups
+    from .distance import ballbar_setups
 
     if setups is None:
         pivots, balls = ballbar_setups(machine)
@@ -259,14 +259,14 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
       ``noise`` a ``FullPoseNoise``.
     - ``distance`` (``distances``): ``setups`` mountings of a ballbar of ``length`` (the
       machine's ``ballbar_setups`` when neither is given, else
-      :func:`~pkmcal.instruments.registry.planned_ballbar_setups`, 3 and 100 mm by default);
+      :func:`~pkmcal.instruments.distance.planned_ballbar_setups`, 3 and 100 mm by default);
       ``n`` poses on the spheres around the pivots (registry candidates) or, with
       ``circles``, ISO 230-4 circles (:func:`circle_plan`); true pivots and balls = planned +
       a uniform error of ``mounting_error``; ``noise`` an ``IsotropicNoise`` (default 1 um).
     - ``probe`` (``probe-heights``, ``bed-probe``): the standard probe pattern of ``n`` points
-      when there is one (:func:`~pkmcal.instruments.registry.probe_pattern`: 7 = Klipper's
+      when there is one (:func:`~pkmcal.instruments.probe.probe_pattern`: 7 = Klipper's
       DELTA_CALIBRATE, 19, 37, ...), else ``n`` random points on the bed's disk, or ``poses``;
-      the true bed is the nominal one (:func:`~pkmcal.instruments.registry.bed_height`)
+      the true bed is the nominal one (:func:`~pkmcal.machines.reach.bed_height`)
       raised by a uniform ``+/- bed_error`` and tilted by uniform slopes ``+/- tilt_error``.
       Each point is probed as a firmware does: the nominal model moves the nozzle down the
       vertical through the point until the true machine's nozzle is at the probe's trigger
@@ -293,7 +293,7 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
         distance: number of ballbar mountings (default 3).
     length : float, optional
         distance: ballbar length, m (default
-        :data:`~pkmcal.instruments.registry.BALLBAR_LENGTH`).
+        :data:`~pkmcal.instruments.distance.BALLBAR_LENGTH`).
     circles : bool, optional
         distance: ISO 230-4 circles instead of poses on the spheres.
     mounting_error : float, optional
@@ -330,13 +330,10 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
         When the scenario does not apply to the machine (with the reason), an option does
         not apply to it, or the poses cannot be drawn or reached.
     """
-    from .registry import (
-        BALLBAR_LENGTH,
-        instrument,
-        measurement_frames,
-        planned_ballbar_setups,
-        tracker_pose,
-    )
+    from .distance import BALLBAR_LENGTH, planned_ballbar_setups
+    from .pose import measurement_frames
+    from .registry import instrument
+    from .tracker import tracker_pose
 
     inst = instrument(scenario)
     why = inst.applies(machine)
@@ -543,7 +540,7 @@ def probe_trigger(true_machine: Machine, nominal_machine: Machine, P, R, bed, he
 
 def _simulate_probe(machine, true, inst, n, noise, rng, poses, bed_error, tilt_error, truth):
     """The probe branch of :func:`simulate_scenario` (see there)."""
-    from .registry import bed_height
+    from ..machines.reach import bed_height
 
     if poses is not None:
         P, R = np.asarray(poses[0], float), np.asarray(poses[1], float)

@@ -51,6 +51,7 @@ from ..identifiability import name_null_space, name_weak_directions
 from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine
 from ..machines.delta import TRACKER_GRID_SPACING  # noqa: F401  (seed 001's grid)
+from .base import Instrument, StandardPlan, _fk_of, has_column, reachable
 from .data import InstrumentData
 from .models import PointsModel
 from .problem import InstrumentProblem, InstrumentState
@@ -700,3 +701,166 @@ def _tracker_noise_text(model) -> str:
         return f"isotropic {model.distance * 1e6:.4g} um"
     return (f"{model.distance * 1e6:.4g} um along the beam, {model.transverse * 1e6:.4g} um + "
             f"{model.transverse_per_m * 1e6:.4g} um/m across")
+
+
+def tracker_pose(machine: Machine):
+    """``base_from_tracker`` of the machine file, else the simulations' default.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (its ``base_from_tracker``, if any).
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(R (3, 3), t (3,))``.
+    """
+    pose = getattr(machine, "base_from_tracker", None)
+    if pose is None:
+
+        pose = default_tracker_pose()
+    return pose
+
+
+#: where plans and simulations put an unknown target on the platform (platform frame, in
+#: characteristic lengths): off the platform origin, as a reflector nest on a tool would be
+TARGET_OFFSET = np.array([0.1, -0.05, -0.15])
+
+
+def plan_target(machine: Machine) -> np.ndarray:
+    """The target's place on the platform for plans: the machine's, else an offset one."""
+    c = machine.tracker_target()
+    return TARGET_OFFSET * machine.characteristic_length() if c is None else c
+
+
+class Tracker(Instrument):
+    """Points of a target on the platform in the instrument's frame (seed 001's tracker)."""
+
+    name = "tracker"
+    aliases = ("points",)
+    words = "a target on the platform measured in the instrument frame (laser tracker, CMM)"
+    plan_size = 27
+    columns = "q1_deg..q3_deg and the tracker points mx_mm, my_mm, mz_mm"
+    priority = 10
+    missing = ("mx_<unit>, my_<unit>, mz_<unit> (e.g. mx_mm)", "laser-tracker points")
+    data_class = "TrackerData"
+
+    def detect(self, header):
+        return has_column(header, "mx") or has_column(header, "my") or has_column(header, "mz")
+
+    def plan_size_for(self, machine):
+        # the source paper's 3x3x3 grid (seed 001, the Delta); random poses otherwise
+        return self.plan_size if machine.tracker_grid_spacing() is not None else 60
+
+    def default_noise(self):
+
+        return TrackerNoise()
+
+    def describe_noise(self, noise):
+        if hasattr(noise, "sigma"):
+            return f"points: {noise.sigma * 1e6:.3g} um per coordinate (std)"
+        return (f"laser tracker: {noise.distance * 1e6:.3g} um along the beam, "
+                f"{noise.transverse * 1e6:.3g} um + {noise.transverse_per_m * 1e6:.3g} um/m "
+                "across (std)")
+
+    def candidates(self, machine, n, rng):
+        if machine.tracker_grid_spacing() is None:
+            return super().candidates(machine, n, rng)
+        from ..machines.deviations import draw_accepted
+
+        half = np.asarray(machine.tracker_grid_spacing(), float)   # the 3x3x3 grid: +/- spacing
+        centre = machine.home[0]
+
+        def draw(m, rng):
+            P = centre + rng.uniform(-1.0, 1.0, (m, 3)) * half
+            R = np.broadcast_to(np.eye(3), (m, 3, 3))
+            q, J, _ = machine.ik_jacobians(P, R, want_du=False)
+            ok = np.all(np.isfinite(q), -1)
+            sv = np.linalg.svd(np.asarray(J)[ok][..., :3], compute_uv=False)
+            ok[ok] = sv[..., -1] / sv[..., 0] > 0.05
+            return P, R, ok
+
+        where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")
+        P, R = draw_accepted(draw, n, rng, (f"{where}: " if where else "")
+                             + "only {have} of {n} candidate points around home are reachable "
+                             "and well conditioned: check the geometry and home")
+        return P, R, None
+
+    def standard_plan(self, machine, n, seed):
+        if machine.tracker_grid_spacing() is None:
+            return super().standard_plan(machine, n, seed)
+
+        k = int(round(n ** (1.0 / 3.0)))
+        if k < 2 or k**3 != n:
+            return StandardPlan("seed 001's grid around home",
+                                reason=f"seed 001's grid has 3 x 3 x 3 = 27 points (k x k x k "
+                                       f"grids in its box: 8, 27, 64, ...), not {n}")
+        span = 2.0 * np.asarray(machine.tracker_grid_spacing(), float)   # 3x3x3 extent
+        P = grid_points(machine.home[0], span / (k - 1), (k, k, k))
+        return StandardPlan(f"the {k}x{k}x{k} grid of seed 001 around home", P,
+                            np.broadcast_to(np.eye(3), (n, 3, 3)))
+
+    def planned_data(self, machine, P, R, rows, source, group=None):
+
+        q = reachable(machine, P, R, rows, source)
+        Rt, t = tracker_pose(machine)
+        x = P + np.einsum("kij,j->ki", R, plan_target(machine))
+        return TrackerData(q, (x - t) @ Rt, rows=rows, source=source, true_P=P,
+                           target=None if group is None else np.asarray(group, int))
+
+    def problem(self, machine, data, noise=None, registration=None, targets=None, **start):
+
+        groups = getattr(data, "target", getattr(data, "group", None))
+        n_targets = 1 if groups is None or not len(groups) else int(np.max(groups)) + 1
+        target = None if machine.tracker_target() is not None else \
+            np.tile(plan_target(machine), (n_targets, 1)) if targets is None else targets
+        return TrackerProblem(machine, data, self.default_noise() if noise is None else noise,
+                              tracker_pose(machine) if registration is None else registration,
+                              targets=target)
+
+    measurement_words = ("points of a target on the platform (laser tracker; tracker pose and "
+                         "unknown target places estimated jointly)")
+    group_column = "target"
+    plan_options = ("targets",)
+
+    def noise_arg(self, text, machine=None):
+        """The tracker noise of ``--noise``: leica (default), or a length per coordinate."""
+
+        if text is not None and not isinstance(text, str):
+            return text
+        return tracker_noise_arg(text, allow_none=False, machine=machine)[0]
+
+    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
+    reader = "read_points"
+
+    def measured_problem(self, machine, data, noise=None, source=""):
+        """The tracker's pose and the target places started from the data: registered on the
+        machine file's forward kinematics, then (unknown targets) fitted with the machine
+        held."""
+        from ..estimation.estimator import levenberg_marquardt
+        from .models import PointsModel
+
+        noise = self.default_noise() if noise is None else noise
+        fk = _fk_of(machine, data, source)
+        start = PointsModel(data.n_groups, machine.tracker_target()).start(
+            fk.P, fk.R, data.values, data.group, str(source))
+        registration = (start.rotation_starts[0], start.parameters.values[3:6].copy())
+        targets = None
+        if machine.tracker_target() is None:
+            alone = TrackerProblem(machine, data, noise, registration).with_machine_fixed()
+            first = levenberg_marquardt(alone)
+            registration = registration_of(first.state)
+            targets = first.state.nuisance.values[6:].copy()
+        return self.problem(machine, data, noise, registration=registration, targets=targets)
+
+    def planned_machine(self, machine, targets=None, **options):
+        """The machine (several targets in turn need the target's place unknown)."""
+        if targets is not None and targets > 1 and machine.tracker_target() is not None:
+            raise InputError(f"--targets {targets}: {machine.source} gives the target's place "
+                             "on the platform; one target only")
+        return machine
+
+
+#: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
+INSTRUMENT = Tracker()

@@ -643,7 +643,7 @@ def klipper_weights(n_probed: int, n_distances: int) -> tuple:
         distances.
     """
     from ..instruments import IsotropicNoise
-    from ..instruments.registry import PROBE_SIGMA
+    from ..instruments.probe import PROBE_SIGMA
 
     z_weight = n_distances / (MEASURE_WEIGHT * max(n_probed, 1))
     sigma_d = PROBE_SIGMA * float(np.sqrt(z_weight))

@@ -179,7 +179,7 @@ class Machine(ABC):
     #: :mod:`pkmcal.instruments.registry`)
     default_instrument: str = "tracker"
     #: the machine's frame is its bed (a printer: z = 0 the probed bed); see
-    #: :func:`pkmcal.calibration.probe.bed_choice`
+    #: :func:`pkmcal.instruments.probe.bed_choice`
     frame_is_bed: bool = False
     #: the frame targets are given in, in words (:meth:`targets_in_base`)
     working_frame_words: str = "base frame of the calibrated model"

@@ -38,7 +38,7 @@ MAP_STEPS = 31
 
 def noise_model(scenario: str, noise=None, pose_noise: str | None = None, machine=None):
     """The noise model of ``--noise`` / ``--pose-noise`` for a scenario, as ``pkmcal
-    calibrate`` takes them (:meth:`~pkmcal.instruments.registry.Instrument.noise_option`).
+    calibrate`` takes them (:meth:`~pkmcal.instruments.base.Instrument.noise_option`).
 
     Parameters
     ----------
@@ -304,7 +304,7 @@ def assess_identifiability(machine, scenario: str | None = None, *, data=None, p
     ----------
     machine : Machine
         The nominal machine (for a ballbar plan, carrying its planned set-ups:
-        :meth:`~pkmcal.instruments.registry.Instrument.planned_machine`).
+        :meth:`~pkmcal.instruments.base.Instrument.planned_machine`).
     scenario : str, optional
         The instrument; default, for ``data`` the file's measurement kind
         (:func:`~pkmcal.calibration.run.measurement_kind`), else the machine's.

@@ -352,7 +352,7 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
     ----------
     machine : Machine
         The nominal machine (for a ballbar, carrying its planned set-ups:
-        :meth:`~pkmcal.instruments.registry.Instrument.planned_machine`).
+        :meth:`~pkmcal.instruments.base.Instrument.planned_machine`).
     scenario : str or None
         The instrument; None: the machine's default.
     n : int

@@ -1,0 +1,465 @@
+"""The instrument concept: what every instrument of :mod:`pkmcal.instruments.registry` knows
+for any machine (the base class), its standard plan and the reach of planned poses."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..machines.base import Machine
+
+
+@dataclass
+class StandardPlan:
+    """The instrument's standard measurement plan (what one measures without planning), or
+    the reason there is none of a given size.
+
+    Attributes
+    ----------
+    name : str
+        The plan in words, e.g. "seed 001's 3x3x3 grid around home".
+    P : ndarray, shape (n, 3) or None
+        Positions, m; None when there is no standard plan of the size asked for.
+    R : ndarray, shape (n, 3, 3) or None
+        Orientations.
+    reason : str
+        Why there is none (empty when there is one).
+    group : ndarray of int, shape (n,) or None
+        0-based setup of each pose (distance plans), else None.
+    """
+
+    name: str
+    P: np.ndarray | None = None
+    R: np.ndarray | None = None
+    reason: str = ""
+    group: np.ndarray | None = None
+
+    @property
+    def available(self) -> bool:
+        """True when the plan has poses."""
+        return self.P is not None
+
+    def __len__(self) -> int:
+        return 0 if self.P is None else len(self.P)
+
+
+def _rows(rows, limit: int = 10) -> str:
+    rows = [int(r) for r in rows]
+    return ", ".join(map(str, rows[:limit])) + (" ..." if len(rows) > limit else "")
+
+
+def reachable(machine: Machine, P, R, rows, source) -> np.ndarray:
+    """Joint values of planned poses; InputError naming the rows the machine cannot reach."""
+    q = machine.ik(P, R)
+    bad = ~np.all(np.isfinite(q), -1)
+    if bad.any():
+        raise InputError(f"{source}: row(s) {_rows(rows[bad])}: pose(s) the machine cannot "
+                         "reach")
+    return q
+
+
+def has_column(header, base: str) -> bool:
+    """Whether a header has the column ``base`` (alone or with a unit suffix, ``base_mm``).
+
+    Parameters
+    ----------
+    header : list of str
+        Column names.
+    base : str
+        The column's name without its unit.
+
+    Returns
+    -------
+    bool
+        True when present.
+    """
+    return any(n == base or n.startswith(base + "_") for n in header)
+
+
+class Instrument:
+    """An instrument (see the module docstring); subclasses fill in the methods."""
+
+    #: canonical name (scenario and measurement type)
+    name: str = ""
+    #: other names users may give (``--scenario points``)
+    aliases: tuple = ()
+    #: what it measures, in words
+    words: str = ""
+    #: default number of planned poses
+    plan_size: int = 60
+    #: what its data files hold, in words (messages)
+    columns: str = ""
+    #: data files are recognised in increasing priority (a readings-only fallback last)
+    priority: int = 50
+    #: its data files hold joint readings alone (no column of its own)
+    readings_only: bool = False
+    #: ``(columns, words)`` named when readings-only data come for a machine measured with it
+    missing: tuple[str, str] | None = None
+    #: its measurements can fix a length of the machine (heights along z alone cannot fix a
+    #: printer's arms: a parameter set's ``without_lengths`` applies)
+    fixes_lengths: bool = True
+    #: class name of its data objects (data given in memory)
+    data_class: str = "InstrumentData"
+    #: why its files cannot be fitted together with other files in one fit (empty: they can)
+    joint_refusal: str = ""
+    #: its measurements in words, one and several (messages: "does not apply to ...")
+    singular: str = ""
+    plural: str = ""
+    #: what the residuals of its calibration report are, in words
+    residual_words: str = "measured - predicted"
+    #: sections its calibration reports must have, with why (``{"link_length": "..."}``)
+    report_sections: dict = {}
+    #: what to measure when its calibration does not converge
+    advice: str = "measure more, in other directions"
+    #: ``fit_model(machine, data) -> NuisanceModel``: the model :func:`pkmcal.calibrate`
+    #: fits by the calibration layer's generic path; None: the calibration layer registers
+    #: handlers of its own for this instrument
+    fit_model = None
+
+    def noise_text(self, noise) -> str:
+        """The noise in the report's words (default :meth:`describe_noise`).
+
+        Parameters
+        ----------
+        noise : object
+            A noise model of this instrument.
+
+        Returns
+        -------
+        str
+            One line.
+        """
+        return self.describe_noise(noise)
+
+    def detect(self, header) -> bool:
+        """Whether a data file's columns are this instrument's.
+
+        Parameters
+        ----------
+        header : list of str
+            The file's column names.
+
+        Returns
+        -------
+        bool
+            True for its files (:func:`has_column` of its own columns).
+        """
+        return False
+
+    def plan_size_for(self, machine: Machine) -> int:
+        """The default number of planned poses for ``machine``.
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        int
+            :attr:`plan_size` unless the instrument says otherwise.
+        """
+        return self.plan_size
+
+    def applies(self, machine: Machine) -> str | None:
+        """Why this instrument cannot calibrate ``machine`` (None: it can).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        str or None
+            The reason in words.
+        """
+        return None
+
+    def default_noise(self):
+        """The noise model ``pkmcal calibrate`` assumes by default.
+
+        Returns
+        -------
+        object
+            The instrument's noise model.
+        """
+        raise NotImplementedError
+
+    def describe_noise(self, noise) -> str:
+        """The noise model in words (um, urad).
+
+        Parameters
+        ----------
+        noise : object
+            A noise model of this instrument.
+
+        Returns
+        -------
+        str
+            One line.
+        """
+        raise NotImplementedError
+
+    def candidates(self, machine: Machine, n: int, rng):
+        """``n`` feasible candidate poses and their setups.
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        n : int
+            Number of poses.
+        rng : numpy.random.Generator
+            Random generator.
+
+        Returns
+        -------
+        P : ndarray, shape (n, 3)
+            Positions, m.
+        R : ndarray, shape (n, 3, 3)
+            Orientations.
+        group : ndarray of int, shape (n,) or None
+            0-based setup of each pose (None: one).
+        """
+        from ..machines.reach import sample_workspace_poses
+
+        P, R = sample_workspace_poses(machine, n, rng)
+        return P, R, None
+
+    def standard_plan(self, machine: Machine, n: int, seed: int) -> StandardPlan:
+        """The standard plan of ``n`` poses (default: the candidate sample of ``seed``).
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        n : int
+            Number of poses.
+        seed : int
+            Seed of sampled plans.
+
+        Returns
+        -------
+        StandardPlan
+            The plan.
+        """
+        P, R, group = self.candidates(machine, n, np.random.default_rng(seed))
+        return StandardPlan(f"{n} random planned poses around home (seed {seed})", P, R,
+                            group=group)
+
+    def planned_data(self, machine: Machine, P, R, rows, source, group=None):
+        """Noise-free measurements of the nominal machine at planned poses.
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        P : ndarray, shape (K, 3)
+            Positions, m.
+        R : ndarray, shape (K, 3, 3)
+            Orientations.
+        rows : ndarray of int, shape (K,)
+            Row labels for messages.
+        source : str
+            Name of the plan.
+        group : ndarray of int, shape (K,), optional
+            0-based setup of each pose.
+
+        Returns
+        -------
+        object
+            The instrument's data.
+        """
+        raise NotImplementedError
+
+    def problem(self, machine: Machine, data, noise=None, **start):
+        """The calibration problem ``pkmcal calibrate`` solves by default, unsolved.
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        data : object
+            The instrument's data.
+        noise : object, optional
+            Noise model; default :meth:`default_noise`.
+        **start
+            Start values of the instrument's unknowns (``registration``, ``frames``).
+
+        Returns
+        -------
+        BlockProblem
+            The problem.
+        """
+        raise NotImplementedError
+
+    #: the measurement in words, as ``identifiability`` and ``select-poses`` print it
+    measurement_words: str = ""
+    #: the plan file's column naming each pose's group (``target``, ``setup``); None: one
+    group_column: str | None = None
+    #: the plan options the instrument takes (:meth:`planned_machine`)
+    plan_options: tuple = ()
+
+    def noise_arg(self, text, machine: Machine | None = None):
+        """The noise model of ``--noise`` (None: :meth:`default_noise`; a model as it is).
+
+        Parameters
+        ----------
+        text : str or float or object or None
+            A level with its unit, an SI number, a noise model, or None.
+        machine : Machine, optional
+            Levels are checked against its size when given.
+
+        Returns
+        -------
+        object
+            The instrument's noise model.
+
+        Raises
+        ------
+        InputError
+            Naming ``--noise``, when the instrument takes no level.
+        """
+        if text is None:
+            return self.default_noise()
+        if not isinstance(text, (str, int, float)):
+            return text
+        raise InputError(f"--noise: {self.name} measurements take no noise level, got {text}")
+
+    def noise_option(self, noise, pose_noise=None, machine: Machine | None = None):
+        """The noise model of ``--noise`` and ``--pose-noise`` (as ``pkmcal calibrate`` takes
+        them).
+
+        Parameters
+        ----------
+        noise : str or float or object or None
+            ``--noise`` (:meth:`noise_arg`).
+        pose_noise : str or None, optional
+            ``--pose-noise``: full poses alone take it.
+        machine : Machine, optional
+            Levels are checked against its size when given.
+
+        Returns
+        -------
+        object
+            The instrument's noise model.
+
+        Raises
+        ------
+        InputError
+            For ``pose_noise`` on an instrument that measures no pose, or a bad level.
+        """
+        if pose_noise is not None:
+            raise InputError(f"--pose-noise applies to full-pose measurements, not {self.name}")
+        return self.noise_arg(noise, machine)
+
+    #: the readings of a row of its CSV files, by column suffix (``q1<s>..``): one set
+    reading_sets: tuple[str, ...] = ("",)
+    #: its value columns ``(name, quantity)`` (read by :func:`pkmcal.io.read_measurements`
+    #: when no ``reader`` is named)
+    value_columns: tuple = ()
+    #: its values must be above 0
+    positive_values: bool = False
+
+    def from_columns(self, readings, values, rows, source):
+        """Its data from the columns it declares (``reading_sets``, ``value_columns``).
+
+        Parameters
+        ----------
+        readings : list of ndarray, shape (K, n_joints)
+            The joint readings of each set, SI.
+        values : ndarray, shape (K, m)
+            The value columns, SI.
+        rows : ndarray of int, shape (K,)
+            The file's row numbers.
+        source : str
+            The file.
+
+        Returns
+        -------
+        object
+            The instrument's data.
+        """
+        raise NotImplementedError
+
+    #: the name of the :mod:`pkmcal.io` function reading its CSV files
+    #: (:func:`pkmcal.io.read_measurements`); instruments sit below io and name it
+    reader: str = ""
+
+    def measured_problem(self, machine: Machine, data, noise=None, source: str = ""):
+        """The calibration problem ``pkmcal calibrate`` solves for measured ``data``, unsolved,
+        the instrument's unknowns started from the data on the machine's geometry (a fit with
+        the machine held where they need one).
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        data : object
+            The instrument's measurements (:meth:`read`).
+        noise : object, optional
+            Noise model; default :meth:`default_noise`.
+        source : str, optional
+            Name of the data, for messages.
+
+        Returns
+        -------
+        BlockProblem
+            The problem.
+        """
+        return self.problem(machine, data, noise)
+
+    def planned_machine(self, machine: Machine, **options) -> Machine:
+        """The machine the instrument's plans use, with the plan options of
+        :attr:`plan_options` (e.g. a ballbar's planned mountings).
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        **options
+            The instrument's plan options (None: not given).
+
+        Returns
+        -------
+        Machine
+            ``machine``, or a copy carrying the planned set-up.
+        """
+        return machine
+
+
+def _space_words(machine: Machine) -> str:
+    """The pose coordinates a platform moves along, in words (``x, y, rz``)."""
+    return ", ".join(("x", "y", "z", "rx", "ry", "rz")[i] for i in machine.pose_space)
+
+
+def _sigma_arg(text, machine, what: str, default: float) -> float:
+    """A standard deviation of ``--noise`` (text with a unit or an SI number; None: the
+    default), m; checked against the machine's size when given."""
+    from ..plausibility import check_option_scale
+    from ..units import parse_quantity
+
+    if text is None:
+        return default
+    sigma = parse_quantity(text, "length", "--noise") if isinstance(text, str) \
+        else float(text)
+    if not sigma > 0:
+        raise InputError(f"--noise: must be > 0 (the standard deviation of the {what}), "
+                         f"got {text}")
+    if machine is not None:
+        check_option_scale(sigma, machine, "--noise", "noise", str(text))
+    return sigma
+
+
+def _fk_of(machine: Machine, data, source):
+    """The forward kinematics of measured readings; InputError naming the rows none
+    reproduces."""
+    fk = machine.fk(data.q)
+    if not fk.converged.all():
+        raise InputError(f"{source}: row(s) {_rows(data.rows[~fk.converged])}: no "
+                         f"platform pose of {machine.source} reproduces these readings "
+                         "(outside the workspace, or a wrong unit or zero)")
+    return fk

@@ -1,0 +1,345 @@
+"""The ballbar: lengths between a pivot on the base and a ball on the platform (ISO 230-4
+circles), its set-ups, plans and calibration.
+
+Calibration from ballbar distances (a pivot on the base, a ball on the platform).
+
+The instrument's model is :class:`~pkmcal.instruments.DistancesModel`: per mounting (column
+``setup``) an unknown pivot ``p`` (base frame) and ball ``b`` (platform frame), and the
+measured length ``d = |P + R b - p|`` at the platform pose the readings give. The machine's
+parameters and every mounting's pivot and ball are estimated together by the shared estimator
+(:func:`~pkmcal.instruments.fit_instrument`): the pivots start from a sphere fit on the
+machine file's model, then the mountings alone are fitted, then everything.
+
+What distances cannot fix, named from the data (:mod:`pkmcal.instruments.problem`): on a
+platform that rotates, a rigid motion of the base frame absorbed by the pivots and one of the
+platform frame absorbed by the balls; on a translating platform (Delta) a ball and its pivot
+enter only through their difference, per mounting.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from ..estimation.estimator import CalibrationResult
+from ..estimation.rank import RTOL
+from ..machines.base import Machine
+from .base import Instrument, StandardPlan, _fk_of, _sigma_arg, _space_words, has_column, reachable
+from .data import InstrumentData
+from .models import DistancesModel, IsotropicNoise
+from .problem import InstrumentProblem, fit_instrument
+
+#: the ballbar length of plans and simulations, m (a common measuring-ballbar length)
+BALLBAR_LENGTH = 0.1
+
+
+#: setups of a distance plan: the circle planes of ISO 230-4 tests (normals)
+CIRCLE_NORMALS = ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0))
+
+
+def setup_normals(n_setups: int) -> np.ndarray:
+    """Directions from the pivots to home of ``n_setups`` planned ballbar mountings.
+
+    The first three are the normals of the ISO 230-4 circle planes (:data:`CIRCLE_NORMALS`:
+    z, y, x), the next four the diagonals of the upper half space, further ones spread over
+    the upper hemisphere (a Fibonacci lattice).
+
+    Parameters
+    ----------
+    n_setups : int
+        Number of mountings (>= 1).
+
+    Returns
+    -------
+    ndarray, shape (n_setups, 3)
+        Unit vectors.
+    """
+    base = [np.asarray(v, float) for v in CIRCLE_NORMALS]
+    base += [np.array([sx, sy, 1.0]) / np.sqrt(3.0) for sx, sy in ((1, 1), (-1, 1), (-1, -1),
+                                                                    (1, -1))]
+    extra = max(0, n_setups - len(base))
+    for k in range(extra):
+        z = 1.0 - (k + 0.5) / extra * 0.8                       # z in (0.2, 1)
+        phi = k * np.pi * (3.0 - np.sqrt(5.0))
+        r = np.sqrt(1.0 - z * z)
+        base.append(np.array([r * np.cos(phi), r * np.sin(phi), z]))
+    return np.array(base[:n_setups])
+
+
+def planned_ballbar_setups(machine: Machine, n_setups: int = 3,
+                           length: float = BALLBAR_LENGTH) -> list:
+    """The planned ballbar mountings: pivots ``length`` from home, balls at the platform origin.
+
+    The pivot of setup ``g`` stands ``length`` from the home position against the ``g``-th
+    direction of :func:`setup_normals`, so the ball at the platform origin, on a ballbar of
+    ``length``, sweeps a sphere through home.
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine (its home).
+    n_setups : int, optional
+        Number of mountings.
+    length : float, optional
+        Ballbar length, m.
+
+    Returns
+    -------
+    list of tuple
+        ``[(pivot (3,) base frame, ball (3,) platform frame), ...]``, m.
+
+    Raises
+    ------
+    InputError
+        When ``n_setups < 1`` or ``length`` is not > 0.
+    """
+    if int(n_setups) < 1:
+        raise InputError(f"the number of ballbar setups must be >= 1, got {n_setups}")
+    if not length > 0:
+        raise InputError(f"the ballbar length must be > 0, got {length} m")
+    P0 = machine.home[0]
+    return [(P0 - length * n, np.zeros(3)) for n in setup_normals(int(n_setups))]
+
+
+def ballbar_setups(machine: Machine, length: float | None = None):
+    """Pivots (base frame) and balls (platform frame) of the ballbar setups of plans.
+
+    The machine's own ``ballbar_setups`` (a calibrated machine file, or set by a planning
+    command for ``--radius`` / ``--setups``) when it has them and ``length`` is not given,
+    else the three planned setups of :func:`planned_ballbar_setups` (ballbar ``length``,
+    default :data:`BALLBAR_LENGTH`).
+
+    Parameters
+    ----------
+    machine : Machine
+        The nominal machine.
+    length : float, optional
+        Ballbar length, m.
+
+    Returns
+    -------
+    pivots : ndarray, shape (K, 3)
+        One pivot per setup, m.
+    balls : ndarray, shape (K, 3)
+        One ball per setup, m (platform frame).
+    """
+    setups = getattr(machine, "ballbar_setups", None) if length is None else None
+    if not setups:
+        setups = planned_ballbar_setups(machine, len(CIRCLE_NORMALS),
+                                        BALLBAR_LENGTH if length is None else length)
+    pivots = np.array([np.asarray(p, float) for p, _ in setups])
+    balls = np.array([np.asarray(b, float) for _, b in setups])
+    return pivots, balls
+
+
+class Distance(Instrument):
+    """A measuring ballbar between a pivot on the base and a ball on the platform."""
+
+    name = "distance"
+    aliases = ("distances", "ballbar")
+    words = "ballbar lengths between a pivot on the base and a ball on the platform"
+    plan_size = 90
+    columns = ("the joint readings q1_<unit>.. and the ballbar length d_mm, optionally setup "
+               "(1..K, one per mounting)")
+    priority = 30
+
+    def detect(self, header):
+        return has_column(header, "d")
+
+    def applies(self, machine):
+        # the planned setups sweep spheres around pivots: the platform must move in space
+        if not {0, 1, 2} <= set(machine.pose_space):
+            return ("the ballbar plans sweep spheres around their pivots, and this machine's "
+                    f"platform moves along {_space_words(machine)} only: measure points "
+                    "(tracker) instead")
+        return None
+
+    def default_noise(self):
+        from .models import IsotropicNoise
+
+        return IsotropicNoise(1e-6)
+
+    def describe_noise(self, noise):
+        return f"ballbar length {noise.sigma * 1e6:.3g} um (std)"
+
+    def candidates(self, machine, n, rng):
+        """Poses on the setups' spheres (:func:`ballbar_setups`: random directions within 60
+        deg of the pivot's direction to home; random orientations within 10 deg on platforms
+        that rotate)."""
+        from ..kinematics import matrix_from_euler
+        from ..machines.deviations import draw_accepted
+
+        pivots, balls = ballbar_setups(machine)
+        P0, R0 = machine.home
+        arm = P0 + balls @ R0.T - pivots                  # pivot -> ball at home, per setup
+        radius = np.linalg.norm(arm, axis=-1)
+        normals = arm / np.where(radius > 0, radius, 1.0)[:, None]
+        rotates = machine.rotates
+        turns = np.isin(np.arange(3, 6), machine.pose_space)     # Euler angle i about axis i
+
+        def draw(m, rng):
+            g = rng.integers(0, len(pivots), m)
+            v = rng.standard_normal((m, 3))
+            v /= np.linalg.norm(v, axis=-1, keepdims=True)
+            cos = np.sum(v * normals[g], -1)
+            v = np.where((cos < 0)[:, None], -v, v)
+            R = (matrix_from_euler(np.where(turns, rng.uniform(-0.17, 0.17, (m, 3)), 0.0)) @ R0
+                 if rotates else np.broadcast_to(np.eye(3), (m, 3, 3)).copy())
+            P = pivots[g] + radius[g, None] * v - np.einsum("kij,kj->ki", R, balls[g])
+            with np.errstate(all="ignore"):
+                ok = machine.working_mode(P, R) & (np.abs(cos) > 0.5)
+            draw.group = g
+            return P, R, ok
+
+        groups = []
+
+        def tracked(m, rng):
+            P, R, ok = draw(m, rng)
+            groups.append(draw.group[ok])
+            return P, R, ok
+
+        where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")
+        P, R = draw_accepted(tracked, n, rng, (f"{where}: " if where else "")
+                             + "only {have} of {n} ballbar poses around home are reachable: "
+                             "check the geometry and home", machine=machine)
+        return P, R, np.concatenate(groups)[:n]
+
+    def standard_plan(self, machine, n, seed):
+        pivots, balls = ballbar_setups(machine)
+        k = len(pivots)
+        words = {1: "one mounting", 2: "two mountings", 3: "three mountings"}.get(
+            k, f"{k} mountings")
+        if n < 3 * k:
+            return StandardPlan(f"ballbar on {words}", reason=f"{words} need at least {3 * k} "
+                                f"poses, not {n}")
+        P, R, group = self.candidates(machine, n, np.random.default_rng(seed))
+        P0, R0 = machine.home
+        lengths = np.linalg.norm(P0 + balls @ R0.T - pivots, axis=-1) * 1e3
+        length = (f"{lengths[0]:.4g} mm" if np.ptp(lengths) < 1e-6
+                  else "/".join(f"{v:.4g}" for v in lengths) + " mm")
+        turn = " and orientations within 10 deg" if machine.rotates else ""
+        return StandardPlan(f"a ballbar of {length} on {words}: {n} random poses on the "
+                            f"spheres around the pivots{turn} (seed {seed})", P, R,
+                            group=group)
+
+    def planned_data(self, machine, P, R, rows, source, group=None):
+
+        q = reachable(machine, P, R, rows, source)
+        group = np.zeros(len(P), int) if group is None else np.asarray(group, int)
+        pivots, balls = ballbar_setups(machine)
+        pivots, balls = pivots[group % len(pivots)], balls[group % len(pivots)]
+        d = np.linalg.norm(P + np.einsum("kij,kj->ki", R, balls) - pivots, axis=-1)
+        return InstrumentData("distances", q, d[:, None], group, rows, source, P, R)
+
+    def problem(self, machine, data, noise=None, **start):
+        from .models import DistancesModel
+        from .problem import InstrumentProblem
+
+        model = DistancesModel(data.n_groups)
+        pivots, balls = ballbar_setups(machine)
+        values = np.array(model.parameters.values, float)
+        for g in range(data.n_groups):
+            values[model._ip[g]] = pivots[g % len(pivots)]
+            values[model._ib[g]] = balls[g % len(pivots)]
+        model.parameters = model.parameters.with_values(values)
+        return InstrumentProblem(machine, data, model,
+                                 self.default_noise() if noise is None else noise)
+
+    measurement_words = "ballbar distances (pivot and ball of each setup estimated jointly)"
+    group_column = "setup"
+    plan_options = ("setups", "radius")
+
+    def noise_arg(self, text, machine=None):
+        """The ballbar length noise of ``--noise`` (default 1 um)."""
+        from .models import IsotropicNoise
+
+        if text is not None and not isinstance(text, (str, int, float)):
+            return text
+        return IsotropicNoise(_sigma_arg(text, machine, "ballbar length noise", 1e-6))
+
+    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
+    reader = "read_distances"
+
+    def measured_problem(self, machine, data, noise=None, source=""):
+        """The pivot and ball of each setup fitted to the data with the machine held."""
+        from ..estimation.estimator import levenberg_marquardt
+        from .models import DistancesModel
+
+        noise = self.default_noise() if noise is None else noise
+        fk = _fk_of(machine, data, source)
+        model = DistancesModel(data.n_groups).start(fk.P, fk.R, data.values, data.group,
+                                                    str(source))
+        alone = InstrumentProblem(machine, data, model, noise).with_machine_fixed()
+        state = levenberg_marquardt(alone).state.nuisance
+        start = machine.with_parameters(machine.u)
+        start.ballbar_setups = [(state.values[model._ip[g]].copy(),
+                                 state.values[model._ib[g]].copy())
+                                for g in range(data.n_groups)]
+        return self.problem(start, data, noise)
+
+    def planned_machine(self, machine, setups=None, length=None, **options):
+        """A copy carrying ``setups`` planned mountings (default 3) of a ballbar of
+        ``length`` (default :data:`BALLBAR_LENGTH`), when either is given."""
+        if setups is None and length is None:
+            return machine
+        out = machine.with_parameters(machine.u)
+        out.ballbar_setups = planned_ballbar_setups(
+            machine, 3 if setups is None else setups, BALLBAR_LENGTH if length is None
+            else length)
+        return out
+
+
+def calibrate_distances(machine: Machine, data: InstrumentData, noise=None, rtol: float = RTOL,
+                        fit_machine: bool = True, **options) -> CalibrationResult:
+    """Identify the machine's parameters (and every mounting) from ballbar lengths.
+
+    Parameters
+    ----------
+    machine : Machine
+        Start geometry; not modified.
+    data : InstrumentData
+        ``kind="distances"``: readings, lengths (m) and setups.
+    noise : IsotropicNoise, optional
+        The ballbar's noise (default 1 um).
+    rtol : float, optional
+        Rank tolerance.
+    fit_machine : bool, optional
+        False fits the mountings alone with the machine file's model (the "before
+        calibration" baseline).
+    **options
+        Passed to :func:`~pkmcal.estimation.estimator.levenberg_marquardt`.
+
+    Returns
+    -------
+    CalibrationResult
+        With ``extras``: ``problem``, ``machine`` (calibrated, with ``ballbar_setups``: a
+        ``(pivot, ball)`` pair per setup, m), ``model``, ``start_model``, ``setups``,
+        ``unidentifiable``.
+
+    Raises
+    ------
+    InputError
+        When there are fewer lengths than identifiable unknowns per mounting, or the machine
+        file's model cannot reproduce some readings.
+    """
+    noise = IsotropicNoise(1e-6) if noise is None else noise
+    if data.kind != "distances":
+        raise InputError(f"{data.source}: {data.kind} data, not ballbar distances")
+    counts = np.bincount(data.group, minlength=data.n_groups)
+    few = np.flatnonzero(counts < 6)
+    if few.size:
+        raise InputError(f"{data.source}: setup {few[0] + 1} has {counts[few[0]]} row(s); each "
+                         "mounting needs at least 6 lengths (its pivot and ball are unknown)")
+    result = fit_instrument(machine, data, DistancesModel(data.n_groups), noise,
+                            fit_machine=fit_machine, rtol=rtol, **options)
+    model, state = result.extras["model"], result.state.nuisance
+    setups = [(np.array(state.values[model._ip[g]]), np.array(state.values[model._ib[g]]))
+              for g in range(data.n_groups)]
+    result.extras["machine"].ballbar_setups = setups
+    result.extras["setups"] = setups
+    return result
+
+
+
+#: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
+INSTRUMENT = Distance()

@@ -1,0 +1,553 @@
+"""Bed-probe heights: the nozzle's height above a flat bed at the probe's trigger, its plans
+(Klipper's DELTA_CALIBRATE pattern, rings), the vertical scale heights cannot see, and its
+calibration.
+
+Calibration from bed-probe heights, and what heights fix only weakly.
+
+The instrument's model is :class:`~pkmcal.instruments.ProbeModel`: the bed is the plane
+``z = bed.z + bed.tilt_x x + bed.tilt_y y`` (base frame) and each row is the nozzle's height
+above it, along z, at the readings where the probe triggered (``probe_z``, 0 for a probe that
+triggers on nozzle contact). The machine's parameters and the bed are estimated together by
+the shared estimator (:func:`~pkmcal.instruments.fit_instrument`): the bed starts from a plane
+fit on the machine file's model, then the bed alone is fitted, then everything.
+
+What heights cannot fix is found in the numerical null space and named
+(:mod:`pkmcal.instruments.problem`): a frame motion of the machine that the bed plane
+absorbs (a translation along z of the base frame - on a printer, every endstop shifted by the
+same amount - with ``bed.z``, a tilt of the base frame with the bed's tilt), the motions no
+height sees at all (translations and turns in the bed's plane), a vertical scale about the bed
+(invisible while every probe point lies on the bed: probing at a second height sees it;
+:func:`~pkmcal.instruments.probe.height_groups`) and the parameter combinations nothing
+explains.
+
+What heights fix only *weakly* is another matter: a parameter may be determined, but with a
+standard deviation far beyond what a calibration is for (a Delta printer's arm lengths, fitted
+from heights with a standard deviation of the order of a millimetre, nearly equal to a change
+of the radius). :func:`poorly_determined` names every such parameter with its standard
+deviation, its strongest correlation and what to measure next; the threshold is
+:data:`POOR_STD`: a parameter whose standard deviation moves points at the machine's scale by
+more than 0.1 mm (lengths: std above 0.1 mm; angles and ratios: std times the characteristic
+length above 0.1 mm), ten times the probe's default repeatability and the order of a 3D
+printer's useful accuracy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..estimation.estimator import CalibrationResult
+from ..estimation.rank import RTOL
+from ..machines.base import Machine
+from ..machines.reach import (
+    _bed_points,
+    bed_centre,
+    bed_height,
+    probe_radius,
+)
+from .base import Instrument, StandardPlan, _fk_of, _space_words, has_column, reachable
+from .bed import BedChoice, bed_choice
+from .data import InstrumentData
+from .models import IsotropicNoise
+from .problem import InstrumentProblem, fit_instrument
+
+#: the probe's repeatability assumed by default, m (standard deviation of the trigger height).
+#: An assumption, not a datum: the order of the spread that Klipper's PROBE_ACCURACY reports for
+#: common bed probes (a few um for a good touch or piezo probe, 10-20 um for inductive ones)
+PROBE_SIGMA = 10e-6
+
+
+#: Klipper's DELTA_CALIBRATE points (klippy/extras/delta_calibrate.py): the centre, then six
+#: points at 90 + 60 i deg on circles of these fractions of the probe radius
+KLIPPER_SCATTER = (0.95, 0.90, 0.85, 0.70, 0.75, 0.80)
+
+
+def probe_pattern(n: int, radius: float, centre=(0.0, 0.0)) -> tuple[np.ndarray, str] | None:
+    """The standard probe pattern of ``n`` points on the bed, or None when there is none.
+
+    ``n = 7``: Klipper's ``DELTA_CALIBRATE`` points (``klippy/extras/delta_calibrate.py``):
+    the centre and six points at ``90 + 60 i`` deg on circles of ``0.95, 0.90, 0.85, 0.70,
+    0.75, 0.80`` times the radius. ``n = 1 + 3 m (m + 1)`` (19, 37, 61, ...): the centre and
+    ``m`` rings, ring ``k`` of ``6 k`` points at radius ``k / m`` of the radius, starting at
+    90 deg (Klipper's first direction).
+
+    Parameters
+    ----------
+    n : int
+        Number of points.
+    radius : float
+        Probe radius, m.
+    centre : array_like, shape (2,), optional
+        Centre of the pattern, m.
+
+    Returns
+    -------
+    tuple or None
+        ``(xy (n, 2), words)``; None for other ``n``.
+    """
+    centre = np.asarray(centre, float)
+    if n == 7:
+        a = np.deg2rad(90.0 + 60.0 * np.arange(6))
+        d = radius * np.asarray(KLIPPER_SCATTER)
+        xy = np.vstack([[0.0, 0.0], np.column_stack([np.cos(a) * d, np.sin(a) * d])])
+        return centre + xy, (f"Klipper's DELTA_CALIBRATE pattern (centre + 6 points at 0.7-0.95 "
+                             f"of a {radius * 1e3:.4g} mm radius)")
+    m = int(round((-3 + np.sqrt(9 + 12 * (n - 1))) / 6)) if n >= 1 else 0
+    if m < 1 or 1 + 3 * m * (m + 1) != n:
+        return None
+    pts = [np.zeros(2)]
+    for k in range(1, m + 1):
+        a = np.deg2rad(90.0) + 2 * np.pi * np.arange(6 * k) / (6 * k)
+        pts += list(radius * k / m * np.column_stack([np.cos(a), np.sin(a)]))
+    return centre + np.array(pts), (f"the centre and {m} ring(s) of 6, 12, ... points within "
+                                    f"a {radius * 1e3:.4g} mm radius")
+
+
+#: relative lift (of the characteristic length) of the probe points of :func:`height_groups`
+LIFT = 0.01
+
+
+def height_groups(problem, state, scales, null_space) -> list:
+    """Null directions of probe heights that probing at other heights would see, named.
+
+    With every tip on the bed (the same ``probe_z`` everywhere), a change of the machine
+    that moves the nozzle along z in proportion to its height above the bed (a vertical
+    scale about the bed) changes no height. The directions of the null space that the same
+    points, every other one lifted by :data:`LIFT` characteristic lengths, would see are
+    returned as one group.
+
+    Parameters
+    ----------
+    problem : InstrumentProblem
+        A probe problem.
+    state : InstrumentState
+        The state to linearise at.
+    scales : ndarray, shape (n,)
+        Column scales.
+    null_space : ndarray, shape (n, k)
+        The problem's null space (scaled).
+
+    Returns
+    -------
+    list of NullGroup
+        Empty, or one group ``vertical scale about the bed``.
+    """
+    from ..identifiability import NullGroup
+
+    N = np.asarray(null_space, float)
+    if N.shape[1] == 0:
+        return []
+    machine = problem.machine.with_parameters(state.u)
+    fk = machine.fk(problem.data.q)
+    if not fk.converged.all():
+        return []
+    P = np.array(fk.P, float)
+    P[::2, 2] += LIFT * machine.characteristic_length()
+    q = machine.ik(P, fk.R)
+    if not np.all(np.isfinite(q)):
+        return []
+    model = problem.model.with_start(state.nuisance)
+    lifted = InstrumentData("probe", q, model.predict(model.initial(), P, fk.R,
+                                                      np.zeros(len(P), int)))
+    other = InstrumentProblem(machine, lifted, model, problem.noise)
+    _, J, _ = other.evaluate(other.initial_state())
+    J = (J * scales).reshape(-1, len(scales))
+    s0 = np.linalg.svd(J, compute_uv=False)[0]
+    _, s, Vt = np.linalg.svd(J @ N, full_matrices=False)
+    seen = s > 1e-6 * s0
+    if not seen.any():
+        return []
+    return [NullGroup("vertical scale about the bed",
+                      "moving the nozzle along z in proportion to its height above the bed "
+                      "changes no height while every probe point lies on the bed (one "
+                      "probe_z); probe at a second height too (on a gauge block of known "
+                      "thickness, its thickness as probe_z) to see it", N @ Vt[seen].T)]
+
+
+class ProbeProblem(InstrumentProblem):
+    """The instrument problem of probe heights; its null directions are named by the
+    machine's frame motions (what absorbs them) and :func:`height_groups`."""
+
+    def null_groups(self, state, scales, null_space=None):
+        """The null directions in words.
+
+        Parameters
+        ----------
+        state : InstrumentState
+            The state to linearise at.
+        scales : ndarray, shape (n,)
+            Column scales.
+        null_space : ndarray, shape (n, k), optional
+            The null space when known.
+
+        Returns
+        -------
+        list of NullGroup
+            Frame motions, then the vertical scale about the bed when it is null.
+        """
+        N = self.null_space(state) if null_space is None else np.asarray(null_space, float)
+        groups = super().null_groups(state, scales, N)
+        # the vertical scale is searched for outside what the frame motions already name: on
+        # a tilted bed lifted points see the towers' tilt slightly (heights are vertical, the
+        # bed slopes), which would otherwise be named a second time as a "vertical scale"
+        rest = N
+        if groups and N.shape[1]:
+            Q, _ = np.linalg.qr(np.column_stack([g.tangents for g in groups]))
+            U, sv, _ = np.linalg.svd(N - Q @ (Q.T @ N), full_matrices=False)
+            rest = U[:, sv > 1e-3]
+        return groups + height_groups(self, state, scales, rest)
+
+
+class Probe(Instrument):
+    """Bed-probe heights: the nozzle's height above a flat bed of unknown height and tilt."""
+
+    name = "probe"
+    aliases = ("probe-heights", "bed-probe")
+    words = ("bed-probe heights: the nozzle's height above the bed at the trigger (bed height "
+             "and tilt estimated)")
+    plan_size = 37
+    columns = ("the joint readings q1_<unit>.. where the probe triggered and probe_z_mm (the "
+               "nozzle's height above the bed there, 0 for a nozzle-contact probe)")
+    priority = 25
+    fixes_lengths = False
+
+    def detect(self, header):
+        return has_column(header, "probe_z")
+
+    def applies(self, machine):
+        # a vertical probe needs a z axis the platform moves along
+        if 2 not in machine.pose_space:
+            return ("probe heights are measured along z, which this machine's platform does "
+                    f"not move along (it moves along {_space_words(machine)}): measure points "
+                    "(tracker) instead")
+        return None
+
+    def default_noise(self):
+        from .models import IsotropicNoise
+
+        return IsotropicNoise(PROBE_SIGMA)
+
+    def describe_noise(self, noise):
+        return f"probe trigger {noise.sigma * 1e6:.3g} um along z (std)"
+
+    def candidates(self, machine, n, rng):
+        """Random points uniform on the disk of :func:`probe_radius` on the nominal bed."""
+        r = probe_radius(machine)
+        centre = bed_centre(machine)
+        rho = r * np.sqrt(rng.uniform(0.0, 1.0, n))
+        a = rng.uniform(0.0, 2 * np.pi, n)
+        P, R = _bed_points(machine, centre + np.column_stack([rho * np.cos(a),
+                                                             rho * np.sin(a)]))
+        return P, R, None
+
+    def standard_plan(self, machine, n, seed):
+        pattern = probe_pattern(n, probe_radius(machine), bed_centre(machine))
+        if pattern is None:
+            return StandardPlan("a probe pattern of rings on the bed",
+                                reason=f"the probe patterns have 7 points (Klipper's "
+                                       f"DELTA_CALIBRATE) or 1 + 3 m (m + 1) points (centre and "
+                                       f"m rings: 19, 37, 61, ...), not {n}")
+        xy, words = pattern
+        P, R = _bed_points(machine, xy)
+        return StandardPlan(words, P, R)
+
+    def planned_data(self, machine, P, R, rows, source, group=None):
+        from .models import ProbeModel
+
+        q = reachable(machine, P, R, rows, source)
+        model = ProbeModel()
+        state = model.initial()
+        state.values[0] = bed_height(machine)
+        h = model.predict(state, P, R, np.zeros(len(P), int))
+        return InstrumentData("probe", q, h, np.zeros(len(P), int), rows, source, P, R)
+
+    def problem(self, machine, data, noise=None, **start):
+
+        noise = self.default_noise() if noise is None else noise
+        # a printer's frame is its bed: its height held at 0, its tilt where the data tell it
+        model = bed_choice(machine, data, noise).model()
+        values = np.array(model.parameters.values, float)
+        values[0] = bed_height(machine)
+        model.parameters = model.parameters.with_values(values)
+        return ProbeProblem(machine, data, model, noise)
+
+    measurement_words = ("bed-probe heights (bed height and tilt estimated jointly; on a "
+                         "printer the bed is z = 0 and its tilt estimated where the data tell "
+                         "it)")
+
+    def noise_arg(self, text, machine=None):
+        """The probe noise of ``--noise`` (text or SI number or model; default
+        :data:`PROBE_SIGMA`)."""
+        from ..plausibility import check_option_scale
+        from ..units import parse_quantity
+        from .models import IsotropicNoise
+
+        if text is None:
+            return IsotropicNoise(PROBE_SIGMA)
+        if hasattr(text, "whitening"):
+            return text
+        sigma = parse_quantity(text, "length", "--noise") if isinstance(text, str) \
+            else float(text)
+        if not sigma > 0:
+            raise InputError(f"--noise: must be > 0 (the standard deviation of the probe's "
+                             f"trigger height), got {text}")
+        check_option_scale(sigma, machine, "--noise", "noise", str(text))
+        return IsotropicNoise(sigma)
+
+    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
+    reader = "read_probe"
+
+    def measured_problem(self, machine, data, noise=None, source=""):
+        """The bed's height and tilt started from the data on the machine's geometry."""
+
+        noise = self.default_noise() if noise is None else noise
+        fk = _fk_of(machine, data, source)
+        model = bed_choice(machine, data, noise).model().start(fk.P, fk.R, data.values,
+                                                               data.group, str(source))
+        return InstrumentProblem(machine, data, model, noise)
+
+
+
+#: the displacement at the machine's scale (m) beyond which a fitted parameter's standard
+#: deviation makes it poorly determined (see the module docstring)
+POOR_STD = 1e-4
+#: what to measure next, per instrument that measured (what heights cannot give: lengths)
+MEASURE_NEXT = {
+    "probe": "distances (a ballbar, or caliper distances between features of a printed "
+             "object, as Klipper's enhanced DELTA_CALIBRATE) or points (a laser tracker)",
+}
+
+
+@dataclass
+class PoorParameter:
+    """A fitted parameter whose standard deviation is beyond :data:`POOR_STD`.
+
+    Attributes
+    ----------
+    name : str
+        The parameter.
+    std : float
+        Its standard deviation, internal units (m, rad, 1).
+    kind : str
+        ``length``, ``angle`` or ``ratio``.
+    partner : str or None
+        The parameter it correlates most strongly with (None when it correlates with none).
+    correlation : float
+        That correlation.
+    combined : bool, optional
+        The parameter also moves along an unidentifiable direction: its standard deviation is
+        that of its identifiable part (the minimum-norm covariance), the value itself is fixed
+        only in combination with others.
+    """
+
+    name: str
+    std: float
+    kind: str
+    partner: str | None
+    correlation: float
+    combined: bool = False
+
+    def text(self, unit_length: str = "mm", unit_angle: str = "deg") -> str:
+        """The parameter in words, in the given units.
+
+        Parameters
+        ----------
+        unit_length : str, optional
+            Length unit of the text.
+        unit_angle : str, optional
+            Angle unit of the text.
+
+        Returns
+        -------
+        str
+            ``"leg1.dl2: std 1.2 mm, correlation +0.98 with leg1.da.x"``.
+        """
+        from ..units import ANGLE, LENGTH
+
+        if self.kind == "length":
+            value = f"{self.std / LENGTH[unit_length]:.3g} {unit_length}"
+        elif self.kind == "angle":
+            value = f"{self.std / ANGLE[unit_angle]:.3g} {unit_angle}"
+        else:
+            value = f"{self.std:.3g}"
+        corr = ("" if self.partner is None else
+                f", correlation {self.correlation:+.3f} with {self.partner}")
+        combined = " (its identifiable part)" if self.combined else ""
+        return f"{self.name}: std {value}{combined}{corr}"
+
+
+def poorly_determined(result, n_machine: int, length: float,
+                      threshold: float = POOR_STD) -> list[PoorParameter]:
+    """The fitted machine parameters whose standard deviation is beyond ``threshold``.
+
+    A parameter counts when it is free and its standard deviation - a length's, or an angle's
+    or ratio's times ``length`` - exceeds ``threshold``; for a parameter that also moves along
+    the null space (named by :func:`~pkmcal.identifiability.name_null_space`) that is the
+    standard deviation of its identifiable part (``combined``: a linear Delta's arm trim, of
+    which the data see only the sum with the common arm length). A parameter along a weakly
+    identifiable direction (left at its start value) counts as well, with that direction's
+    standard deviation when it is larger.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        A calibration (``std``, ``covariance``, ``null_space``, ``weak_space``, ``scales``).
+    n_machine : int
+        Number of machine parameters (the first in ``result.parameters``).
+    length : float
+        The machine's characteristic length, m.
+    threshold : float, optional
+        The displacement at the machine's scale, m (:data:`POOR_STD`).
+
+    Returns
+    -------
+    list of PoorParameter
+        Largest (scaled) standard deviation first.
+    """
+    params = result.parameters
+    cov = np.asarray(result.covariance, float)
+    std = np.asarray(result.std, float)
+    scales = np.asarray(result.scales, float)
+    N = np.asarray(result.null_space, float)
+    W = np.asarray(result.weak_space, float)
+    weak_std = np.asarray(result.weak_std, float)
+    free = np.asarray(params.free, bool)
+    out = []
+    for i in range(n_machine):
+        if not free[i]:
+            continue
+        combined = bool(N.shape[1] and np.linalg.norm(N[i]) > 1e-6)
+        s = float(std[i])
+        if W.shape[1] and np.linalg.norm(W[i]) > 1e-6:
+            s = max(s, float(np.max(np.abs(W[i]) * weak_std)) * scales[i])
+        kind = params.kinds[i]
+        size = s if kind == "length" else s * length
+        if not size > threshold:
+            continue
+        partner, best = None, 0.0
+        for j in range(len(params.names)):
+            if j == i or not free[j] or std[j] <= 0 or std[i] <= 0:
+                continue
+            c = cov[i, j] / (std[i] * std[j])
+            if abs(c) > abs(best):
+                partner, best = params.names[j], float(c)
+        out.append(PoorParameter(params.names[i], s, kind, partner, best, combined))
+    out.sort(key=lambda p: -(p.std if p.kind == "length" else p.std * length))
+    return out
+
+
+def poorly_determined_warnings(poor: list[PoorParameter], source, instrument: str = "probe",
+                               units: dict | None = None,
+                               threshold: float = POOR_STD, shown: int = 4) -> list[str]:
+    """One warning in words for the :func:`poorly_determined` parameters (empty when none).
+
+    Parameters
+    ----------
+    poor : list of PoorParameter
+        The parameters, largest standard deviation first.
+    source : str
+        The data, named in the warning.
+    instrument : str, optional
+        The instrument that measured (what to measure next: :data:`MEASURE_NEXT`).
+    units : dict, optional
+        ``{"length": ..., "angle": ...}`` of the text; default mm and deg.
+    threshold : float, optional
+        The threshold used, m.
+    shown : int, optional
+        How many parameters the warning names (the report lists all).
+
+    Returns
+    -------
+    list of str
+        No warning, or one naming the worst ``shown`` parameters and how many there are.
+    """
+    if not poor:
+        return []
+    units = units or {"length": "mm", "angle": "deg"}
+    from ..units import LENGTH
+
+    limit = f"{threshold / LENGTH[units['length']]:.3g} {units['length']}"
+    nxt = MEASURE_NEXT.get(instrument, "another instrument (distances or points)")
+    named = "; ".join(p.text(units["length"], units["angle"]) for p in poor[:shown])
+    more = (f"; and {len(poor) - shown} more (the report's poorly_determined lists them)"
+            if len(poor) > shown else "")
+    return [f"{source}: {len(poor)} parameter(s) poorly determined by these {instrument} "
+            f"measurements (standard deviation beyond {limit} at the machine's scale): "
+            f"{named}{more}; to fix them, measure {nxt}"]
+
+
+def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: float = RTOL,
+                    fit_machine: bool = True, bed: BedChoice | str = "auto",
+                    **options) -> CalibrationResult:
+    """Identify the machine's parameters (and the bed plane) from probe heights.
+
+    Parameters
+    ----------
+    machine : Machine
+        Start geometry; not modified.
+    data : InstrumentData
+        ``kind="probe"``: readings at the triggers and the nozzle's heights above the bed
+        there (m).
+    noise : IsotropicNoise, optional
+        The probe's repeatability along z (default
+        :data:`~pkmcal.instruments.probe.PROBE_SIGMA`, 10 um).
+    rtol : float, optional
+        Rank tolerance.
+    fit_machine : bool, optional
+        False fits the bed alone with the machine file's model (the "before calibration"
+        baseline).
+    bed : BedChoice or str, optional
+        The bed's unknowns (:func:`bed_choice`; a string is its ``choice``).
+    **options
+        Passed to :func:`~pkmcal.estimation.estimator.levenberg_marquardt`.
+
+    Returns
+    -------
+    CalibrationResult
+        With ``extras``: ``problem``, ``machine`` (calibrated, with ``probe_bed``: ``(height,
+        tilt_x, tilt_y)``), ``model``, ``start_model``, ``bed``, ``unidentifiable`` and
+        ``poorly_determined`` (:func:`poorly_determined`).
+
+    Raises
+    ------
+    InputError
+        When the data are not probe heights, there are fewer than 3 rows (the bed plane), or
+        the machine file's model cannot reproduce some readings.
+    """
+
+    noise = IsotropicNoise(PROBE_SIGMA) if noise is None else noise
+    if data.kind != "probe":
+        raise InputError(f"{data.source}: {data.kind} data, not probe heights")
+    if len(data) < 3:
+        raise InputError(f"{data.source}: {len(data)} probe height(s); at least 3 points not "
+                         "on one line are needed")
+    if isinstance(bed, str):
+        bed = bed_choice(machine, data, noise, bed, rtol=rtol)
+    result = fit_instrument(machine, data, bed.model(), noise, fit_machine=fit_machine,
+                            rtol=rtol, **options)
+    result.extras["bed_choice"] = bed
+    # the null directions named with the probe's own words (a vertical scale about the bed)
+    from ..identifiability import name_null_space, name_weak_directions
+
+    problem = ProbeProblem.__new__(ProbeProblem)
+    problem.__dict__.update(result.extras["problem"].__dict__)
+    groups = problem.null_groups(result.state, result.scales, result.null_space)
+    result.extras["problem"] = problem
+    result.extras["unidentifiable"] = (
+        name_null_space(result.null_space, problem.parameters, groups)
+        + name_weak_directions(result, problem.parameters))
+    bed = tuple(float(v) for v in result.state.nuisance.values[:3])
+    result.extras["machine"].probe_bed = bed
+    result.extras["bed"] = bed
+    n_machine = len(machine.parameters)
+    result.extras["poorly_determined"] = (
+        poorly_determined(result, n_machine, machine.characteristic_length())
+        if fit_machine else [])
+    return result
+
+
+
+#: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
+INSTRUMENT = Probe()
