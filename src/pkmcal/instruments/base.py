@@ -61,6 +61,24 @@ def reachable(machine: Machine, P, R, rows, source) -> np.ndarray:
     return q
 
 
+def has_column(header, base: str) -> bool:
+    """Whether a header has the column ``base`` (alone or with a unit suffix, ``base_mm``).
+
+    Parameters
+    ----------
+    header : list of str
+        Column names.
+    base : str
+        The column's name without its unit.
+
+    Returns
+    -------
+    bool
+        True when present.
+    """
+    return any(n == base or n.startswith(base + "_") for n in header)
+
+
 class Instrument:
     """An instrument (see the module docstring); subclasses fill in the methods."""
 
@@ -72,6 +90,64 @@ class Instrument:
     words: str = ""
     #: default number of planned poses
     plan_size: int = 60
+    #: what its data files hold, in words (messages)
+    columns: str = ""
+    #: data files are recognised in increasing priority (a readings-only fallback last)
+    priority: int = 50
+    #: its data files hold joint readings alone (no column of its own)
+    readings_only: bool = False
+    #: ``(columns, words)`` named when readings-only data come for a machine measured with it
+    missing: tuple[str, str] | None = None
+    #: its measurements can fix a length of the machine (heights along z alone cannot fix a
+    #: printer's arms: a parameter set's ``without_lengths`` applies)
+    fixes_lengths: bool = True
+    #: class name of its data objects (data given in memory)
+    data_class: str = "InstrumentData"
+    #: why its files cannot be fitted together with other files in one fit (empty: they can)
+    joint_refusal: str = ""
+    #: its measurements in words, one and several (messages: "does not apply to ...")
+    singular: str = ""
+    plural: str = ""
+    #: what the residuals of its calibration report are, in words
+    residual_words: str = "measured - predicted"
+    #: sections its calibration reports must have, with why (``{"link_length": "..."}``)
+    report_sections: dict = {}
+    #: what to measure when its calibration does not converge
+    advice: str = "measure more, in other directions"
+    #: ``fit_model(machine, data) -> NuisanceModel``: the model :func:`pkmcal.calibrate`
+    #: fits by the calibration layer's generic path; None: the calibration layer registers
+    #: handlers of its own for this instrument
+    fit_model = None
+
+    def noise_text(self, noise) -> str:
+        """The noise in the report's words (default :meth:`describe_noise`).
+
+        Parameters
+        ----------
+        noise : object
+            A noise model of this instrument.
+
+        Returns
+        -------
+        str
+            One line.
+        """
+        return self.describe_noise(noise)
+
+    def detect(self, header) -> bool:
+        """Whether a data file's columns are this instrument's.
+
+        Parameters
+        ----------
+        header : list of str
+            The file's column names.
+
+        Returns
+        -------
+        bool
+            True for its files (:func:`has_column` of its own columns).
+        """
+        return False
 
     def plan_size_for(self, machine: Machine) -> int:
         """The default number of planned poses for ``machine``.
@@ -368,6 +444,35 @@ class Instrument:
         if pose_noise is not None:
             raise InputError(f"--pose-noise applies to full-pose measurements, not {self.name}")
         return self.noise_arg(noise, machine)
+
+    #: the readings of a row of its CSV files, by column suffix (``q1<s>..``): one set
+    reading_sets: tuple[str, ...] = ("",)
+    #: its value columns ``(name, quantity)`` (read by :func:`pkmcal.io.read_measurements`
+    #: when no ``reader`` is named)
+    value_columns: tuple = ()
+    #: its values must be above 0
+    positive_values: bool = False
+
+    def from_columns(self, readings, values, rows, source):
+        """Its data from the columns it declares (``reading_sets``, ``value_columns``).
+
+        Parameters
+        ----------
+        readings : list of ndarray, shape (K, n_joints)
+            The joint readings of each set, SI.
+        values : ndarray, shape (K, m)
+            The value columns, SI.
+        rows : ndarray of int, shape (K,)
+            The file's row numbers.
+        source : str
+            The file.
+
+        Returns
+        -------
+        object
+            The instrument's data.
+        """
+        raise NotImplementedError
 
     #: the name of the :mod:`pkmcal.io` function reading its CSV files
     #: (:func:`pkmcal.io.read_measurements`); instruments sit below io and name it

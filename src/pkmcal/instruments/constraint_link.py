@@ -84,7 +84,7 @@ from ..kinematics import matrix_from_euler, matrix_from_rotvec
 from ..machines.base import Machine, newton_pose_solve
 from ..machines.deviations import draw_accepted
 from ..parameters import ParameterSet
-from .base import Instrument, StandardPlan, _rows, _sigma_arg, _space_words, reachable
+from .base import Instrument, StandardPlan, _rows, _sigma_arg, _space_words, has_column, reachable
 
 
 @dataclass
@@ -1699,6 +1699,16 @@ class ConstraintLink(Instrument):
     name = "constraint-link"
     words = "a fixed-length constraint link, one joint passive (no external sensor)"
     plan_size = 150
+    columns = "q1_mm..q6_mm (optionally passive) with a constraint_link in the machine file"
+    priority = 90
+    readings_only = True
+    data_class = "ConstraintLinkData"
+    joint_refusal = "the constraint link estimates a platform pose per measurement"
+    report_sections = {"link_length": "a constraint-link report states the link length it "
+                                      "used"}
+
+    def detect(self, header):
+        return has_column(header, "q1")
 
     def applies(self, machine):
         if not machine.rotates:

@@ -26,7 +26,7 @@ from ..errors import InputError
 from ..estimation.estimator import CalibrationResult
 from ..estimation.rank import RTOL
 from ..machines.base import Machine
-from .base import Instrument, StandardPlan, _fk_of, _sigma_arg, _space_words, reachable
+from .base import Instrument, StandardPlan, _fk_of, _sigma_arg, _space_words, has_column, reachable
 from .data import InstrumentData
 from .models import DistancesModel, IsotropicNoise
 from .problem import InstrumentProblem, fit_instrument
@@ -141,6 +141,12 @@ class Distance(Instrument):
     aliases = ("distances", "ballbar")
     words = "ballbar lengths between a pivot on the base and a ball on the platform"
     plan_size = 90
+    columns = ("the joint readings q1_<unit>.. and the ballbar length d_mm, optionally setup "
+               "(1..K, one per mounting)")
+    priority = 30
+
+    def detect(self, header):
+        return has_column(header, "d")
 
     def applies(self, machine):
         # the planned setups sweep spheres around pivots: the platform must move in space

@@ -67,7 +67,7 @@ from ..kinematics import matrix_from_euler, matrix_from_rotvec, rotvec_from_matr
 from ..machines.base import Machine
 from ..machines.deviations import draw_accepted
 from ..parameters import ParameterSet
-from .base import Instrument, _space_words, reachable
+from .base import Instrument, _space_words, has_column, reachable
 
 Frame = tuple[np.ndarray, np.ndarray]
 
@@ -1354,6 +1354,16 @@ class Pose(Instrument):
     aliases = ("poses",)
     words = "the marker pose (motion capture, 6-D tracker)"
     plan_size = 60
+    columns = ("the leg readings q1_<unit>..q6_<unit> (the machine's reading unit) and the "
+               "measured pose x_mm, y_mm, z_mm with qx, qy, qz, qw or psi_deg, theta_deg, "
+               "phi_deg")
+    priority = 20
+    data_class = "FullPoseData"
+    joint_refusal = "full poses estimate a platform pose per measurement"
+
+    def detect(self, header):
+        return (has_column(header, "x") or has_column(header, "y") or has_column(header, "z")
+                or "qw" in header)
 
     def applies(self, machine):
         if not machine.rotates:

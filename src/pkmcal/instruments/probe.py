@@ -48,7 +48,7 @@ from ..machines.reach import (
     bed_height,
     probe_radius,
 )
-from .base import Instrument, StandardPlan, _fk_of, _space_words, reachable
+from .base import Instrument, StandardPlan, _fk_of, _space_words, has_column, reachable
 from .bed import BedChoice, bed_choice
 from .data import InstrumentData
 from .models import IsotropicNoise
@@ -209,6 +209,13 @@ class Probe(Instrument):
     words = ("bed-probe heights: the nozzle's height above the bed at the trigger (bed height "
              "and tilt estimated)")
     plan_size = 37
+    columns = ("the joint readings q1_<unit>.. where the probe triggered and probe_z_mm (the "
+               "nozzle's height above the bed there, 0 for a nozzle-contact probe)")
+    priority = 25
+    fixes_lengths = False
+
+    def detect(self, header):
+        return has_column(header, "probe_z")
 
     def applies(self, machine):
         # a vertical probe needs a z axis the platform moves along

@@ -52,7 +52,7 @@ from ..identifiability import name_null_space, name_weak_directions
 from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine
 from ..machines.delta import TRACKER_GRID_SPACING  # noqa: F401  (seed 001's grid)
-from .base import Instrument, StandardPlan, _fk_of, reachable
+from .base import Instrument, StandardPlan, _fk_of, has_column, reachable
 from .data import InstrumentData
 from .models import PointsModel
 from .problem import InstrumentProblem, InstrumentState
@@ -751,6 +751,13 @@ class Tracker(Instrument):
     aliases = ("points",)
     words = "a target on the platform measured in the instrument frame (laser tracker, CMM)"
     plan_size = 27
+    columns = "q1_deg..q3_deg and the tracker points mx_mm, my_mm, mz_mm"
+    priority = 10
+    missing = ("mx_<unit>, my_<unit>, mz_<unit> (e.g. mx_mm)", "laser-tracker points")
+    data_class = "TrackerData"
+
+    def detect(self, header):
+        return has_column(header, "mx") or has_column(header, "my") or has_column(header, "mz")
 
     def plan_size_for(self, machine):
         # the source paper's 3x3x3 grid (seed 001, the Delta); random poses otherwise
