@@ -29,8 +29,12 @@ import numpy as np
 
 from ..errors import ConvergenceError, InputError
 from ..instruments.constraint_link import link_noise_arg  # noqa: F401
-from ..instruments.pose import full_pose_noise_arg  # noqa: F401
-from ..instruments.tracker import _tracker_noise_text, tracker_noise_arg  # noqa: F401
+from ..instruments.pose import full_pose_noise_arg, pose_noise_option  # noqa: F401
+from ..instruments.tracker import (  # noqa: F401
+    _tracker_noise_text,
+    as_tracker_data,
+    tracker_noise_arg,
+)
 
 __all__ = ["KINDS", "WHITENED_METHODS", "Calibration",
            "CalibrationNotConverged", "CalibrateOptions", "JointPart", "MeasurementKind",
@@ -1349,16 +1353,6 @@ def _check_spread(data, noise_model) -> None:
                          "points spread in 2-3 directions (e.g. a 3x3x3 grid)")
 
 
-def _as_tracker_data(data):
-    """Points given as the instrument layer's data, as tracker data (others unchanged)."""
-    if getattr(data, "kind", None) != "points":
-        return data
-    from ..instruments.tracker import TrackerData
-
-    return TrackerData(data.q, data.values, data.rows, data.source, data.true_P,
-                       target=data.group if data.n_groups > 1 else None)
-
-
 def _rotvec(R):
     from ..kinematics import rotvec_from_matrix
 
@@ -1389,7 +1383,7 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
                                                     machine=machine)
     else:
         noise_model, noise_text = options.noise, _tracker_noise_text(options.noise)
-    data, held = _split_rows(_as_tracker_data(_load(data, read_tracker, machine)), split,
+    data, held = _split_rows(as_tracker_data(_load(data, read_tracker, machine)), split,
                              source)
     _check_spread(data, noise_model)
     fk = machine.fk(data.q)
@@ -1580,14 +1574,7 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
     from ..units import LENGTH
 
     method, fix_frames = options.method or "ml", options.fix_frames
-    if isinstance(options.noise, FullPoseNoise):
-        if options.pose_noise is not None:
-            raise InputError("--pose-noise: the noise model given as noise holds the pose "
-                             "noise already")
-        noise_model = options.noise
-    else:
-        noise_model = full_pose_noise_arg(options.noise, options.pose_noise, strict=True,
-                                          machine=machine)
+    noise_model, hold = pose_noise_option(options.noise, options.pose_noise, machine)
     data, held = _split_rows(_load(data, read_full_pose, machine), split, source)
     file_frames = getattr(machine, "measurement_frames", None)
     if fix_frames:
@@ -1598,10 +1585,6 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
         frames = file_frames
         frames_from = ("start: the machine file's measurement_frames" if file_frames is not None
                        else "start: closed form from the design model")
-    # levels the user gave are held, the others estimated from the residuals
-    hold = (["reading", "position", "orientation"] if isinstance(options.noise, FullPoseNoise)
-            else (["reading"] if options.noise is not None else [])
-            + (["position", "orientation"] if options.pose_noise is not None else []))
     result = _solve(source, calibrate_full_pose, machine, data, held=held, method=method,
                     noise=noise_model, frames=frames, fix_frames=fix_frames,
                     estimate_noise=hold, robust=options.robust)
@@ -2131,7 +2114,7 @@ def _joint_tracker(machine, data, source, noise) -> JointPart:
         noise_model, text = tracker_noise_arg(noise, allow_none=False, machine=machine)
     else:
         noise_model, text = noise, _tracker_noise_text(noise)
-    raw = _as_tracker_data(_load(data, read_tracker, machine))
+    raw = as_tracker_data(_load(data, read_tracker, machine))
     _check_spread(raw, noise_model)
     points = as_points(raw)
     points.source = str(source)
@@ -2267,7 +2250,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     CalibrationNotConverged
         When the estimator did not converge.
     """
-    from ..instruments import DistancesModel, IsotropicNoise, PointsModel, ProbeModel
+    from ..instruments import IsotropicNoise
     from ..instruments.joint import file_labels, fit_joint
     from ..io import read_table
     from ..units import LENGTH
@@ -2362,7 +2345,9 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
             start.parameters.names, start.parameters.values, strict=True)})
     params = _parameter_table(result, nominal_of, units)
 
-    files, sections, setups, tracker_from, bed_from = [], [], [], None, None
+    # what the files' instruments set on the calibrated machine file (the first file of each
+    # instrument its frame, every ballbar file its setups), shared among the files
+    files, sections, taken = [], [], {}
     for i, (part, label, source) in enumerate(zip(parts, labels, sources, strict=True)):
         sub = problem.part_state(state, i)
         before = result.extras["before"][i]
@@ -2380,42 +2365,11 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                                "chi_square": float(np.nansum(problem.split(
                                    result.residuals)[i] ** 2)),
                                "count": int(np.sum(np.isfinite(r_after).all(axis=1)))}}
-        if isinstance(model, PointsModel):
-            R = model.rotation(sub.nuisance, "tracker")
-            t = np.array(model.vector(sub.nuisance, "tracker"))
-            targets = model.targets(sub.nuisance)
-            entry["registration"] = {"rotation": R.tolist(), "translation": (t / fl).tolist(),
-                                     "unit": units["length"]}
-            entry["targets"] = {"given_by_machine_file": machine.tracker_target() is not None,
-                                "places": (np.asarray(targets) / fl).tolist(),
-                                "unit": units["length"]}
-            if tracker_from is None:
-                tracker_from = str(source)
-                calibrated.base_from_tracker = (R, t)
-                calibrated.tracker_targets = (None if machine.tracker_target() is not None
-                                              else np.array(targets, float))
-                sections.append(f"tracker (frame and targets) from {source}")
-        elif isinstance(model, ProbeModel):
-            bed = tuple(float(v) for v in sub.nuisance.values[:3])
-            entry["bed"] = {"height": bed[0] / fl, "tilt_x": bed[1], "tilt_y": bed[2],
-                            "unit": units["length"], "tilt": "slopes dz/dx, dz/dy",
-                            "frame": part.frame}
-            if bed_from is None:
-                bed_from = str(source)
-                calibrated.probe_bed = bed
-                words = ("height and tilt" if not machine.frame_is_bed else "tilt"
-                         if "estimated" in part.frame else "square to the towers")
-                sections.append(f"bed ({words}) from {source}")
-        elif isinstance(model, DistancesModel):
-            mine = [(np.array(sub.nuisance.values[model._ip[g]]),
-                     np.array(sub.nuisance.values[model._ib[g]]))
-                    for g in range(model.n_setups)]
-            entry["setups"] = [{"setup": len(setups) + g + 1, "in_file": g + 1,
-                                "pivot": (p / fl).tolist(), "ball": (b / fl).tolist(),
-                                "unit": units["length"]} for g, (p, b) in enumerate(mine)]
-            sections.append(f"ballbar setups {len(setups) + 1}..{len(setups) + len(mine)} "
-                            f"from {source}")
-            setups.extend(mine)
+        found, words = model.joint_section(sub.nuisance, machine, calibrated, str(source), fl,
+                                           units, part.frame, taken)
+        entry.update(found)
+        if words:
+            sections.append(words)
         if held[i] is not None:
             entry["validation"] = _validation(
                 split, held[i], f"{part.kind} of the held-out rows of {source}, measured - "
@@ -2424,8 +2378,6 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                 _part_rms(bproblem, before.state, held[i])[0],
                 _part_rms(problem.parts[i], sub, held[i])[0], rms_after)
         files.append(entry)
-    if setups:
-        calibrated.ballbar_setups = setups
     rank = int(result.rank)
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)

@@ -1491,3 +1491,39 @@ def measurement_frames(machine: Machine):
 
 #: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
 INSTRUMENT = Pose()
+
+
+def pose_noise_option(noise, pose_noise, machine):
+    """The noise model of a full-pose calibration and the levels held (those the user gave;
+    the others are estimated from the residuals).
+
+    Parameters
+    ----------
+    noise : str, float, FullPoseNoise or None
+        ``--noise`` (the leg readings' std), or a whole noise model.
+    pose_noise : str or None
+        ``--pose-noise`` (``POSITION,ORIENTATION``).
+    machine : Machine
+        The machine (levels checked against its size).
+
+    Returns
+    -------
+    noise_model : FullPoseNoise
+        The model.
+    hold : list of str
+        Its levels given by the user (``reading``, ``position``, ``orientation``).
+
+    Raises
+    ------
+    InputError
+        For ``pose_noise`` beside a whole model, or a bad level.
+    """
+    if isinstance(noise, FullPoseNoise):
+        if pose_noise is not None:
+            raise InputError("--pose-noise: the noise model given as noise holds the pose "
+                             "noise already")
+        return noise, ["reading", "position", "orientation"]
+    model = full_pose_noise_arg(noise, pose_noise, strict=True, machine=machine)
+    hold = ((["reading"] if noise is not None else [])
+            + (["position", "orientation"] if pose_noise is not None else []))
+    return model, hold

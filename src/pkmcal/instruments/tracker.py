@@ -939,3 +939,23 @@ class Tracker(Instrument):
 
 #: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
 INSTRUMENT = Tracker()
+
+
+def as_tracker_data(data):
+    """Points given as the instrument layer's data (``kind == "points"``), as tracker data;
+    other data unchanged.
+
+    Parameters
+    ----------
+    data : object
+        Tracker data, or the instrument layer's points.
+
+    Returns
+    -------
+    object
+        :class:`TrackerData` for points, else ``data``.
+    """
+    if getattr(data, "kind", None) != "points":
+        return data
+    return TrackerData(data.q, data.values, data.rows, data.source, data.true_P,
+                       target=data.group if data.n_groups > 1 else None)
