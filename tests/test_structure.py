@@ -13,7 +13,7 @@ import structure_audit as audit
 
 #: switches on instrument/machine names still standing, per module (target: none)
 SWITCH_CEILINGS = {
-    "cli/_commands.py": 23, "instruments/simulate.py": 8, 
+    "cli/_commands.py": 23, "instruments/simulate.py": 8,
     "instruments/predict.py": 5, "cli/_compensate.py": 2, "io/csv_io.py": 2,
     "io/machine_file.py": 1,
 }
