@@ -90,6 +90,9 @@ class Instrument:
     words: str = ""
     #: default number of planned poses
     plan_size: int = 60
+    #: the quantities of its machine-file section, ``{key path: "length" | "angle"}`` (``*``
+    #: matches any key or index): unit conversion and magnitude checks of machine files
+    file_quantities: dict = {}
     #: what its data files hold, in words (messages)
     columns: str = ""
     #: data files are recognised in increasing priority (a readings-only fallback last)

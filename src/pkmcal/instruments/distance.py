@@ -141,6 +141,9 @@ class Distance(Instrument):
     aliases = ("distances", "ballbar")
     words = "ballbar lengths between a pivot on the base and a ball on the platform"
     plan_size = 90
+    #: the quantities of its machine-file section (unit conversion, magnitude checks)
+    file_quantities = {("ballbar", "*", "pivot", "*"): "length",
+                       ("ballbar", "*", "ball", "*"): "length"}
     columns = ("the joint readings q1_<unit>.. and the ballbar length d_mm, optionally setup "
                "(1..K, one per mounting)")
     priority = 30

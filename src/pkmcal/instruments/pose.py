@@ -1354,6 +1354,8 @@ class Pose(Instrument):
     aliases = ("poses",)
     words = "the marker pose (motion capture, 6-D tracker)"
     plan_size = 60
+    #: the quantities of its machine-file section (unit conversion, magnitude checks)
+    file_quantities = {("measurement_frames", "*", "translation", "*"): "length"}
     columns = ("the leg readings q1_<unit>..q6_<unit> (the machine's reading unit) and the "
                "measured pose x_mm, y_mm, z_mm with qx, qy, qz, qw or psi_deg, theta_deg, "
                "phi_deg")

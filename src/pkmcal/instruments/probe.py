@@ -209,6 +209,8 @@ class Probe(Instrument):
     words = ("bed-probe heights: the nozzle's height above the bed at the trigger (bed height "
              "and tilt estimated)")
     plan_size = 37
+    #: the quantities of its machine-file section (unit conversion, magnitude checks)
+    file_quantities = {("bed", "height"): "length"}
     columns = ("the joint readings q1_<unit>.. where the probe triggered and probe_z_mm (the "
                "nozzle's height above the bed there, 0 for a nozzle-contact probe)")
     priority = 25

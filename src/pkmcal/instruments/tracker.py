@@ -751,6 +751,9 @@ class Tracker(Instrument):
     aliases = ("points",)
     words = "a target on the platform measured in the instrument frame (laser tracker, CMM)"
     plan_size = 27
+    #: the quantities of its machine-file section (unit conversion, magnitude checks)
+    file_quantities = {("tracker", "translation", "*"): "length",
+                       ("tracker", "targets", "*", "*"): "length"}
     columns = "q1_deg..q3_deg and the tracker points mx_mm, my_mm, mz_mm"
     priority = 10
     missing = ("mx_<unit>, my_<unit>, mz_<unit> (e.g. mx_mm)", "laser-tracker points")

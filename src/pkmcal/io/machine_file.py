@@ -90,6 +90,7 @@ import yaml
 from pydantic import BaseModel, ValidationError, create_model
 
 from ..errors import InputError
+from ..instruments.registry import INSTRUMENTS
 from ..kinematics import euler_from_matrix
 from ..limits import (
     MAX_ANGLE,
@@ -380,12 +381,10 @@ def _frame_text(pose, fl: float) -> dict:
             "translation": [float(v) / fl for v in np.asarray(t, float)]}
 
 
-#: quantities of the instrument sections (every machine type; a key a type lacks never matches)
-_INSTRUMENT_KINDS = {
-    ("tracker", "translation", "*"): "length", ("tracker", "targets", "*", "*"): "length",
-    ("ballbar", "*", "pivot", "*"): "length", ("ballbar", "*", "ball", "*"): "length",
-    ("measurement_frames", "*", "translation", "*"): "length", ("bed", "height"): "length",
-}
+#: quantities of the instrument sections (every machine type; a key a type lacks never
+#: matches): each instrument's ``file_quantities``
+_INSTRUMENT_KINDS = {path: kind for inst in INSTRUMENTS.values()
+                     for path, kind in inst.file_quantities.items()}
 
 #: what every machine file may have, in file order, where a machine's schema does not state
 #: it itself (``machine`` is always the format's own type): the head, the instrument sections
