@@ -266,17 +266,17 @@ def test_unreachable_pose_for_ik(tmp_path, cli):
 def test_calibration_that_does_not_converge_writes_nothing(run_dir, tmp_path, monkeypatch,
                                                            capsys):
     """Exit code 1, the reason on stderr, no calibrated file and no report."""
-    import pkmcal.calibration
+    import pkmcal.instruments.constraint_link as link
     from pkmcal.cli import main
 
-    real = pkmcal.calibration.calibrate_constraint_link
+    real = link.calibrate_constraint_link
 
     def not_converged(*args, **kwargs):
         result = real(*args, **kwargs)
         result.success, result.status, result.message = False, 0, "maximum number of iterations"
         return result
 
-    monkeypatch.setattr(pkmcal.calibration, "calibrate_constraint_link", not_converged)
+    monkeypatch.setattr(link, "calibrate_constraint_link", not_converged)
     with pytest.raises(SystemExit) as info:
         main(["calibrate", "default", str(run_dir / "data.csv"), "-o", str(tmp_path / "c.yaml")])
     assert info.value.code == 1

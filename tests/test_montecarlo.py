@@ -16,6 +16,7 @@ from pkmcal.analysis import montecarlo as mc
 from pkmcal.analysis.montecarlo import MonteCarloSettings, montecarlo, run_once, run_seed
 from pkmcal.cli._commands import load_machine_arg
 from pkmcal.errors import InputError
+from pkmcal.instruments.registry import instrument
 from pkmcal.machines import default_hexaslide
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -170,7 +171,8 @@ def test_a_failing_run_is_recorded_not_raised(monkeypatch, hexaslide):
     def broken(settings, rng):
         raise InputError("the true machine cannot reach some commanded points")
 
-    monkeypatch.setitem(mc._RUNS, "constraint-link", broken)
+    monkeypatch.setattr(type(instrument("constraint-link")), "montecarlo_run",
+                        lambda self, run: broken(run.settings, run.rng))
     row = run_once(MonteCarloSettings(hexaslide).resolved(), run_seed(0, 0, 0))
     assert row["converged"] is False and math.isnan(row["position_mean"])
     assert "cannot reach" in row["failure"]
@@ -191,6 +193,29 @@ def test_bad_settings_are_input_errors(spec, variable, values, kwargs, words):
                    **{"runs": 1, **kwargs})
     for w in words:
         assert w in str(exc.value)
+
+
+def test_an_instrument_without_a_run_is_refused_by_name():
+    """Pair distances have no Monte Carlo run: an input error naming the scenarios that do,
+    not an internal error."""
+    with pytest.raises(InputError) as exc:
+        montecarlo(MonteCarloSettings(machine(DELTA), "pair-distances"), "noise", [1e-6],
+                   runs=1)
+    assert "no Monte Carlo" in str(exc.value) and "tracker" in str(exc.value)
+
+
+def test_every_instrument_with_variables_runs_and_names_its_metrics():
+    """The registry is the Monte Carlo's only list of scenarios: an instrument that sweeps
+    variables performs its own run and names its metrics."""
+    from pkmcal.instruments.base import Instrument
+    from pkmcal.instruments.registry import INSTRUMENTS
+
+    runnable = [i for i in INSTRUMENTS.values() if i.montecarlo_variables]
+    assert {i.name for i in runnable} >= {"constraint-link", "tracker", "pose", "distance",
+                                          "probe"}
+    for inst in runnable:
+        assert type(inst).montecarlo_run is not Instrument.montecarlo_run, inst.name
+        assert inst.montecarlo_metrics and set(inst.montecarlo_variables) <= set(mc.VARIABLES)
 
 
 def test_tolerance_does_not_apply_to_fixed_deviations(hexaslide):

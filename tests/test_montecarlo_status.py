@@ -14,11 +14,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import pkmcal.calibration
+import pkmcal.instruments.constraint_link as constraint_link
+import pkmcal.instruments.pose as pose
 from pkmcal.analysis import montecarlo as mc
 from pkmcal.analysis.montecarlo import MonteCarloSettings, montecarlo
 from pkmcal.cli._commands import load_machine_arg
 from pkmcal.cli._montecarlo import run_montecarlo
+from pkmcal.instruments.registry import instrument
 from pkmcal.io.atomic import OutputSet
 from pkmcal.machines import default_hexaslide
 
@@ -47,9 +49,9 @@ def every_other(calls, bad, good):
 def test_a_run_that_does_not_converge_is_counted_never_averaged(monkeypatch, hexaslide):
     """One LM iteration: the estimator says it did not converge; its (poor) accuracy must
     not enter the mean, and it is not 'failed' either."""
-    original = pkmcal.calibration.calibrate_constraint_link
+    original = constraint_link.calibrate_constraint_link
     # (one iteration of one fit: the noise held, else its estimation refits several times)
-    monkeypatch.setattr(pkmcal.calibration, "calibrate_constraint_link", every_other(
+    monkeypatch.setattr(constraint_link, "calibrate_constraint_link", every_other(
         [], functools.partial(original, max_iter=1, estimate_noise=False), original))
     res = montecarlo(MonteCarloSettings(hexaslide), "noise", [1e-6], runs=4, seed=5,
                      workers=1)
@@ -105,16 +107,14 @@ def test_residuals_20x_the_noise_are_rejected_in_every_scenario(monkeypatch, spe
         honest = mc._weight
         monkeypatch.setattr(mc, "_weight", lambda n: honest(n) / 20)
     else:
-        import pkmcal.instruments as measurements
-
-        simulate = measurements.simulate_full_pose
+        simulate = pose.simulate_full_pose
 
         def noisier(machine, n, frames, noise, rng):
             if noise is not None:
                 noise = mc.replace(noise, reading_m=20 * noise.reading_m)
             return simulate(machine, n, frames, noise, rng)
 
-        monkeypatch.setattr(measurements, "simulate_full_pose", noisier)
+        monkeypatch.setattr(pose, "simulate_full_pose", noisier)
     res = montecarlo(MonteCarloSettings(machine), "noise", [noise], runs=2, seed=6,
                      workers=1)
     assert [row["status"] for row in res.rows] == ["rejected"] * 2, res.rows
@@ -203,6 +203,12 @@ def test_one_run_per_value_writes_empty_cells_and_null(cli, tmp_path):
     assert "median" in proc.stdout and "1/1" in proc.stdout
 
 
+def fake_runs(monkeypatch, run):
+    """The constraint link's Monte Carlo run replaced by ``run(settings, rng)``."""
+    monkeypatch.setattr(type(instrument("constraint-link")), "montecarlo_run",
+                        lambda self, mc_run: run(mc_run.settings, mc_run.rng))
+
+
 def fake_run(settings, rng):
     """A quick stand-in for a scenario's run: converged, honest residuals, unless the draw
     says otherwise."""
@@ -225,7 +231,7 @@ def command(*args, **kwargs) -> int:
 
 
 def test_cli_warns_about_runs_not_ok_and_fails_without_any(monkeypatch, tmp_path, capsys):
-    monkeypatch.setitem(mc._RUNS, "constraint-link", fake_run)
+    fake_runs(monkeypatch, fake_run)
     code = command("default", "noise=1,2um", tmp_path / "a", runs=12)
     err = capsys.readouterr().err
     rows = list(zip(*mc.runs_table(mc.montecarlo(
@@ -248,7 +254,7 @@ def test_cli_warns_about_runs_not_ok_and_fails_without_any(monkeypatch, tmp_path
         res.success = False
         return res, metrics
 
-    monkeypatch.setitem(mc._RUNS, "constraint-link", never)
+    fake_runs(monkeypatch, never)
     code = command("default", "noise=1um", tmp_path / "b", runs=2)
     err = capsys.readouterr().err
     assert code == 1 and "no run ok" in err and "noise 1 um" in err
@@ -303,7 +309,7 @@ def test_rows_without_a_status_are_read_as_before():
 
 
 def test_plot_shows_the_median_and_survives_values_without_ok_runs(monkeypatch, tmp_path):
-    monkeypatch.setitem(mc._RUNS, "constraint-link", fake_run)
+    fake_runs(monkeypatch, fake_run)
     res = montecarlo(MonteCarloSettings(default_hexaslide()), "noise", [1e-6, 2e-6], runs=1,
                      seed=3, workers=1)
     path = mc.plot_montecarlo(res, tmp_path / "mc.png")

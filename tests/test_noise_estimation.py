@@ -413,7 +413,7 @@ def test_robust_fit_that_leaves_no_row_out_is_the_plain_fit(name, true_noise, mo
     mismatch = dataclasses.replace(CASES[name][0], true=true_noise)
     case = bench.NoiseCase(mismatch, seed=0)
     data = case.simulate(np.random.default_rng(3))
-    from pkmcal.calibration import variance
+    from pkmcal.estimation import variance
 
     searched = []
     robust_candidates = variance._robust_candidates

@@ -2,23 +2,16 @@
 instrument's or a machine's name outside the modules that own it.
 
 The counts come from :mod:`structure_audit` (AST and the import graph, imports inside
-functions included). Switches still standing are held to their per-file ceilings below, a
-ratchet towards zero: a file may lose switches, never gain them, and a file not listed may
-have none. Lower a ceiling when a switch goes.
+functions included). There is no switch left (742829e had 100); the ceilings below are
+empty, so any new one fails: ask the instrument or the machine instead.
 """
 
 from __future__ import annotations
 
 import structure_audit as audit
 
-#: switches on instrument/machine names still standing, per module (target: none)
-SWITCH_CEILINGS = {
-    "cli/_commands.py": 5, "analysis/montecarlo.py": 14, "calibration/run.py": 8,
-    "cli/_planning.py": 2, "export/linuxcnc_hexapod.py": 2,
-    "io/machine_file.py": 2, "analysis/tolerance.py": 1,
-    "cli/_montecarlo.py": 1, "export/klipper_rotary.py": 1,
-    "instruments/scenarios.py": 1, "plausibility.py": 1,
-}
+#: switches on instrument/machine names still standing, per module: none
+SWITCH_CEILINGS: dict[str, int] = {}
 #: ``pose_dof`` comparisons still standing, per module (a machine's ``pose_space`` says which
 #: pose coordinates move; target: none outside machines/base.py)
 POSE_DOF_CEILINGS = {"machines/base.py": 1}
@@ -56,3 +49,51 @@ def test_audit_sees_a_switch_and_a_cycle(tmp_path):
                                                     "name-keyed table"]
     assert audit.switches(module, "instruments/tracker.py")[0][2] == ("distance", "probe")
     assert audit.cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def _code_mentions(words: set) -> dict:
+    """Modules whose code (not docstrings or comments) names any of ``words``: string
+    constants, identifiers and attributes."""
+    import ast
+
+    out = {}
+    for path in sorted(audit.ROOT.rglob("*.py")):
+        tree = ast.parse(path.read_text())
+        docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                      if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef,
+                                           ast.AsyncFunctionDef))
+                      and node.body and isinstance(node.body[0], ast.Expr)
+                      and isinstance(node.body[0].value, ast.Constant)}
+        hits = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) \
+                    and id(node) not in docstrings:
+                hits |= {w for w in words if w in node.value}
+            elif isinstance(node, ast.Name) and node.id in words:
+                hits.add(node.id)
+            elif isinstance(node, ast.Attribute) and node.attr in words:
+                hits.add(node.attr)
+            elif isinstance(node, ast.alias) and any(w in node.name for w in words):
+                hits.add(node.name)
+        if hits:
+            out[str(path.relative_to(audit.ROOT))] = hits
+    return out
+
+
+def test_the_planar_robot_is_one_module_and_one_registry_line():
+    """The proof of issue 25: the 3-RPR machine is named in its module and in the machine
+    registry's list, nowhere else in the package's code."""
+    mentions = _code_mentions({"planar_3rpr", "Planar3RPR"})
+    assert set(mentions) == {"machines/planar_3rpr.py", "machines/registry.py"}, mentions
+
+
+def test_the_two_point_distances_are_one_module_and_one_registry_line():
+    """The second proof of issue 25: the two-point distance instrument is named in its module,
+    in the instrument registry's list ("pairs") and in Klipper's format, whose saved
+    DELTA_ANALYZE distances are its data; nowhere else in the package's code."""
+    mentions = _code_mentions({"pair-distances", "PairDistance", "pair_data", "PairProblem",
+                               "PairDistanceModel", "instruments.pairs"})
+    assert set(mentions) <= {"instruments/pairs.py", "io/klipper_config.py"}, mentions
+    from pkmcal.instruments.registry import INSTRUMENT_MODULES
+
+    assert "pairs" in INSTRUMENT_MODULES

@@ -54,8 +54,6 @@ MIN_NOISE_RATIO = 1e-12
 #: largest angular noise (rad): orientation noise of a pose measurement
 MAX_ANGLE_NOISE = 0.1
 
-_JOINTS = {"hexaslide": "sliders read", "stewart": "legs read", "delta": "arm angles are"}
-
 
 @dataclass
 class Columns:
@@ -317,7 +315,7 @@ def check_reading_levels(path, q, columns: Columns, machine, joints=None) -> Non
     at_home = np.abs(home[joints[cols]]) / columns.factor
     home_text = (_fmt(at_home.min()) if np.ptp(at_home) <= 1e-3 * at_home.max()
                  else f"{_fmt(at_home.min())}..{_fmt(at_home.max())}")
-    what = _JOINTS.get(getattr(machine, "kind", ""), "joints read")
+    what = getattr(machine, "joints_read_words", "joints read")
     _raise(path, sub, unit, f"values {_fmt(np.min(raw))}..{_fmt(np.max(raw))}, but the "
            f"{what} about {home_text} {columns.unit} at the home pose of {_source(machine)}")
 

@@ -4,19 +4,13 @@
 One *run* is: the true machine (nominal + deviations), simulated data of the machine's
 measurement scenario, the default calibration (what ``pkmcal calibrate`` does), and the
 accuracy of the calibrated model against the truth, measured so that the frames the data
-cannot fix do not count:
-
-- ``constraint-link`` (Hexa Slide): maximum likelihood; pose accuracy over the SPEC 5
-  workspace (0.1 m cube around home, +/-10 deg), gauge-aligned (best-fit base rotation about
-  O, constant platform re-orientation), 300 poses: position and orientation, mean and max.
-- ``tracker`` (Delta): errors jointly with the tracker pose; held-out validation as in
-  ``tests/test_tracker.py``: the calibrated model with its identified registration predicts
-  the tracker points at 200 readings in the grid's box that were not measured, against the
-  true machine's exact points: position mean and max (a Delta platform does not rotate).
-- ``pose`` (six-leg platform): maximum likelihood with both measurement frames estimated;
-  held-out validation at 100 exact poses through the identified frames (position and
-  orientation of the marker, mean and max), and the gauge-free parameter error
-  (:func:`~pkmcal.calibration.gauge_free_error`), RMS in the estimator's scaled coordinates.
+cannot fix do not count. The scenario's instrument performs it
+(:meth:`~pkmcal.instruments.base.Instrument.montecarlo_run`, e.g. the constraint link's
+pose accuracy over the SPEC 5 workspace, the tracker's and the full poses' held-out
+validation) and names its metrics, default and minimum poses and the variables it can sweep
+(``montecarlo_*`` of :mod:`pkmcal.instruments.base`); this module asks it, never its name,
+and provides what sits above the instruments (:class:`MonteCarloRun`: the true machine, the
+simulated experiment, the pose accuracy over the workspace).
 
 Every run gets a status (:func:`acceptance`): ``ok``; ``not converged`` (the estimator
 said so); ``rejected`` (it claimed convergence, but the residuals are more than the simulated
@@ -32,13 +26,13 @@ variable draws everything (deviations, poses, noise, evaluation poses) from
 whatever the executor: in process (``workers=1``), local processes (``spawn`` context, one
 BLAS thread each), or a Dask cluster (``scheduler=ADDRESS``).
 
-Variables (SI internally): ``noise`` (constraint-link: encoder noise std; tracker: isotropic
-point noise std, default Leica-type; pose: leg-reading noise as a length), ``lc-error`` (the
-true link is ``Lc`` minus this while the calibration assumes ``Lc``; constraint link only),
-``poses`` (number of measurements; tracker: commanded points uniform in the box of seed 001's
-3x3x3 grid instead of the grid itself), ``tolerance`` (half-width of uniform random
-deviations of the lengths; angles and gains scaled in proportion to
-:attr:`~pkmcal.machines.base.Machine.RANDOM_DEVIATION`).
+Variables (SI internally): ``noise`` (the instrument's measurement noise std: encoder noise
+of the constraint link, point noise of a tracker, leg-reading noise of full poses, ...),
+``lc-error`` (the true link is ``Lc`` minus this while the calibration assumes ``Lc``),
+``poses`` (number of measurements), ``tolerance`` (half-width of uniform random deviations of
+the lengths; angles and gains scaled in proportion to
+:attr:`~pkmcal.machines.base.Machine.RANDOM_DEVIATION`); an instrument's
+``montecarlo_variables`` say which apply to it.
 """
 
 from __future__ import annotations
@@ -54,6 +48,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..errors import ConvergenceError, InputError
+from ..instruments.base import Instrument
 from ..machines.base import Machine
 from ..plausibility import check_option_scale
 
@@ -64,45 +59,6 @@ VARIABLES = {
     "poses": ("count", "", 1.0),
     "tolerance": ("length", "mm", 1e-3),
 }
-#: the variables each scenario can sweep
-APPLIES = {
-    "constraint-link": ("noise", "lc-error", "poses", "tolerance"),
-    "tracker": ("noise", "poses", "tolerance"),
-    "pose": ("noise", "poses", "tolerance"),
-    "distance": ("noise", "poses", "tolerance"),
-    "probe": ("noise", "poses", "tolerance"),
-}
-#: accuracy metrics per scenario: name -> (unit suffix, factor of that unit to SI, words)
-METRICS = {
-    "constraint-link": {
-        "position_mean": ("um", 1e-6, "mean position error over the workspace, aligned"),
-        "position_max": ("um", 1e-6, "max position error over the workspace, aligned"),
-        "orientation_mean": ("urad", 1e-6, "mean orientation error, aligned"),
-        "orientation_max": ("urad", 1e-6, "max orientation error, aligned"),
-    },
-    "tracker": {
-        "position_mean": ("um", 1e-6, "mean held-out tracker-point error"),
-        "position_max": ("um", 1e-6, "max held-out tracker-point error"),
-    },
-    "pose": {
-        "position_mean": ("um", 1e-6, "mean held-out marker position error"),
-        "position_max": ("um", 1e-6, "max held-out marker position error"),
-        "orientation_mean": ("urad", 1e-6, "mean held-out marker orientation error"),
-        "orientation_max": ("urad", 1e-6, "max held-out marker orientation error"),
-        "parameter_rms": ("", 1.0, "RMS gauge-free parameter error, scaled coordinates"),
-    },
-    "distance": {
-        "distance_mean": ("um", 1e-6, "mean held-out ballbar-length error"),
-        "distance_max": ("um", 1e-6, "max held-out ballbar-length error"),
-    },
-    "probe": {
-        "height_mean": ("um", 1e-6, "mean held-out error of the nozzle's height over the bed"),
-        "height_max": ("um", 1e-6, "max held-out error of the nozzle's height over the bed"),
-    },
-}
-#: metrics a machine may not define (NaN then, without rejecting the run): the gauge-free
-#: parameter error of full poses needs a six-leg platform's leg layout
-OPTIONAL_METRICS = frozenset({"parameter_rms"})
 #: statistics of each metric in a summary, over the ``ok`` runs of a value: mean, std (ddof
 #: 1), 95 % confidence interval of the mean (Student t), median, robust spread (1.4826 x the
 #: median absolute deviation: the std for normal data, blind to a few outliers), 5 % and 95 %
@@ -127,13 +83,6 @@ ACCEPTANCE_MIN_RATIO = 2.0
 EXACT_RESIDUAL_RATIO = 1e-9
 #: scaled median absolute deviation: 1 / Phi^-1(3/4), the std of normal data
 MAD_SCALE = 1.4826
-#: evaluation poses per run (constraint-link workspace, tracker and pose held out)
-EVALUATION_POSES = {"constraint-link": 300, "tracker": 200, "pose": 100, "distance": 100,
-                    "probe": 100}
-#: default number of measurements (tracker: None = seed 001's 3x3x3 grid on a platform that
-#: only translates, the instrument's plan size otherwise)
-DEFAULT_POSES = {"constraint-link": 150, "tracker": None, "pose": 60, "distance": 90,
-                 "probe": 37}
 #: the calibration weighs by the noise; exact data are weighed as if this noisy (m)
 NOISE_FLOOR = 1e-7
 #: a run whose noise levels were estimated is rejected when a level exceeds the simulated one
@@ -214,56 +163,51 @@ class MonteCarloSettings:
             "lc_error_m": self.lc_error,
             "deviations": dev if isinstance(dev, str) else "given vector",
             "tolerance_m": self.tolerance, "estimate_lc": self.estimate_lc,
-            "evaluation_poses": EVALUATION_POSES[self.scenario],
+            "evaluation_poses": self.instrument().montecarlo_evaluation_poses,
         }
+
+    def instrument(self) -> Instrument:
+        """The instrument of :attr:`scenario` (resolved settings): it performs the runs and
+        names their metrics."""
+        from ..instruments.registry import instrument
+
+        return instrument(self.scenario)
 
 
 def _default_poses(settings: MonteCarloSettings):
     """The number of measurements of a run when not given (words for seed 001's grid)."""
-    if settings.scenario == "tracker" and not settings.machine.rotates:
-        return "3x3x3 grid"
-    if settings.scenario == "tracker":
-        from ..instruments.registry import instrument
-
-        return instrument("tracker").plan_size_for(settings.machine)
-    return DEFAULT_POSES.get(settings.scenario)
+    return settings.instrument().montecarlo_default_poses(settings.machine)
 
 
-def _minimum_poses(settings: MonteCarloSettings) -> int:
-    """Fewest measurements the scenario's calibration accepts."""
-    n = len(settings.machine.parameters)
-    if settings.scenario == "constraint-link":
-        return n - 6 + int(settings.estimate_lc)               # one equation per pose
-    if settings.scenario == "tracker":
-        return max(4, math.ceil((n + 6 - 12) / 3))             # 3 per point, 12 gauges
-    if settings.scenario == "distance":
-        return max(9, n - 6)                                   # 1 per pose, 3 mountings
-    return max(4, math.ceil(n / 6))                            # 6 per pose, 12 gauges
+def scenarios_varying(variable: str) -> str:
+    """``the constraint-link scenario``: the instruments whose runs can sweep ``variable``, in
+    words."""
+    from ..instruments.registry import INSTRUMENTS
+
+    names = [i.name for i in INSTRUMENTS.values() if variable in i.montecarlo_variables]
+    listed = names[0] if len(names) < 2 else f"{', '.join(names[:-1])} or {names[-1]}"
+    return f"the {listed} scenario"
 
 
 def _check_settings(s: MonteCarloSettings, what: dict | None = None) -> None:
     """InputError for settings no run can use; ``what`` names the option of each field."""
     what = {"noise": "--noise", "lc_error": "--lc-error", "poses": "--poses",
             "tolerance": "--tolerance", **(what or {})}
+    inst = s.instrument()
+    if not inst.montecarlo_variables:
+        raise InputError(f"--scenario {s.scenario}: no Monte Carlo of this instrument; use "
+                         f"{scenarios_varying('noise')}")
     if s.noise is not None and not (math.isfinite(s.noise) and s.noise >= 0):
         raise InputError(f"{what['noise']}: must be >= 0 (a standard deviation), got "
                          f"{s.noise:g} m")
     if not math.isfinite(s.lc_error):
         raise InputError(f"{what['lc_error']}: must be finite")
-    if s.lc_error and s.scenario != "constraint-link":
-        raise InputError(f"{what['lc_error']}: applies to the constraint-link scenario "
+    if s.lc_error and "lc-error" not in inst.montecarlo_variables:
+        raise InputError(f"{what['lc_error']}: applies to {scenarios_varying('lc-error')} "
                          f"(hexaslide), not {s.scenario} ({s.machine.kind})")
-    if s.scenario == "constraint-link":
-        Lc = getattr(s.machine, "constraint_link_length", None)
-        if Lc is None:
-            raise InputError(f"{getattr(s.machine, 'source', 'the machine')}: constraint_link: "
-                             "the machine has no constraint-link length; add "
-                             "`constraint_link: {length: ...}` to the machine file")
-        if not Lc - s.lc_error > 0:
-            raise InputError(f"{what['lc_error']}: the true link length "
-                             f"{(Lc - s.lc_error) * 1e3:.6g} mm is not positive")
+    inst.check_montecarlo(s, what)
     if s.poses is not None:
-        low = _minimum_poses(s)
+        low = inst.montecarlo_minimum_poses(s)
         if s.poses < low:
             raise InputError(f"{what['poses']}: {s.poses} measurements; a {s.scenario} "
                              f"calibration of this machine needs at least {low}")
@@ -280,7 +224,7 @@ def _check_settings(s: MonteCarloSettings, what: dict | None = None) -> None:
     if isinstance(dev, str):
         if dev not in ("random", "none", "paper-table1"):
             raise InputError(f"--deviations {dev}: use random, paper-table1 or none")
-        if dev == "paper-table1" and s.machine.kind != "hexaslide":
+        if dev == "paper-table1" and s.machine.paper_deviations() is None:
             raise InputError(f"--deviations paper-table1 applies to hexaslide machines (seed "
                              f"000 Table 1), not {s.machine.kind}; use random or none")
     elif np.shape(dev) != (len(s.machine.parameters),):
@@ -308,192 +252,58 @@ def _weight(noise: float) -> float:
     return max(noise, NOISE_FLOOR)
 
 
-def _constraint_link_run(s: MonteCarloSettings, rng):
-    from ..calibration import calibrate_constraint_link
-    from ..instruments.constraint_link import simulate_constraint_link
-    from .accuracy import pose_accuracy, workspace_poses
-
-    nominal = s.machine
-    true = _true_machine(s, rng)
-    lc_true = nominal.constraint_link_length - s.lc_error
-    true.constraint_link_length = lc_true
-    noise = 2e-6 if s.noise is None else s.noise
-    data = simulate_constraint_link(true, s.poses or DEFAULT_POSES[s.scenario], noise,
-                                    link_length=lc_true, link_length_error=s.lc_error, rng=rng)
-    res = calibrate_constraint_link(nominal, data, sigma_m=_weight(noise),
-                                    estimate_link_length=s.estimate_lc)
-    P, R = workspace_poses(true.home[0], n=EVALUATION_POSES[s.scenario], rng=rng)
-    acc = pose_accuracy(true, res.extras["machine"], P, R)
-    return res, {"position_mean": acc.position_mean, "position_max": acc.position_max,
-                 "orientation_mean": acc.orientation_mean,
-                 "orientation_max": acc.orientation_max}
-
-
-def _tracker_noises(s: MonteCarloSettings):
-    """Simulated and fitted tracker noise of a run."""
-    from ..instruments.tracker import TrackerNoise
-
-    if s.noise is None:
-        return TrackerNoise(), TrackerNoise()
-    sim_noise = TrackerNoise(s.noise, s.noise, 0.0) if s.noise > 0 else None
-    return sim_noise, TrackerNoise(_weight(s.noise), _weight(s.noise), 0.0)
-
-
-def _points_run(s: MonteCarloSettings, rng):
-    """A tracker on a machine whose file does not give the target's place (a platform that
-    rotates): random workspace poses with rotations, the target's place estimated; held out:
-    the points at other poses through the identified registration and target."""
-    from ..calibration import calibrate_tracker, predict_tracker_points
-    from ..instruments.simulate import simulate_scenario
-
-    nominal = s.machine
-    sim_noise, fit_noise = _tracker_noises(s)
-    data, true, truth = simulate_scenario(nominal, "tracker", s.poses,
-                                          False if sim_noise is None else sim_noise, rng,
-                                          deviations=_deviation_vector(s, rng))
-    res = calibrate_tracker(nominal, data, fit_noise)
-    from ..instruments.registry import instrument
-
-    P, R, _ = instrument("tracker").candidates(nominal, EVALUATION_POSES[s.scenario], rng)
-    q = nominal.ik(P, R)
-    m = predict_tracker_points(res.extras["machine"], q, res.extras["registration"],
-                               targets=res.extras["targets"])
-    e = np.linalg.norm(m - predict_tracker_points(true, q, truth["base_from_tracker"],
-                                                  targets=truth["targets"]), axis=-1)
-    ok = np.isfinite(e)
-    return res, {"position_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
-                 "position_max": float(np.max(e[ok])) if ok.any() else math.nan}
-
-
 def _deviation_vector(s: MonteCarloSettings, rng) -> np.ndarray:
     """True minus nominal parameters of a run (drawn as :func:`_true_machine` does)."""
     return _true_machine(s, rng).u - s.machine.u
 
 
-def _distance_run(s: MonteCarloSettings, rng):
-    """A ballbar on three mountings (the registry's plan, random mounting errors), the pivots
-    and balls estimated with the machine; held out: ballbar lengths at other poses on the
-    spheres through the identified pivots and balls, against the true ones."""
-    from ..instruments import DistancesModel, IsotropicNoise, fit_instrument
-    from ..instruments.registry import instrument
-    from ..instruments.simulate import simulate_scenario
+class MonteCarloRun:
+    """One run as its instrument's :meth:`~pkmcal.instruments.base.Instrument.montecarlo_run`
+    sees it: the settings, the run's random generator, and what the layers above the
+    instruments provide (the true machine of the settings, the noise the calibration assumes,
+    the simulated experiment, the pose accuracy over the workspace).
 
-    nominal = s.machine
-    noise = 1e-6 if s.noise is None else s.noise
-    data, true, truth = simulate_scenario(
-        nominal, "distance", s.poses or DEFAULT_POSES[s.scenario],
-        IsotropicNoise(noise) if noise > 0 else False, rng,
-        deviations=_deviation_vector(s, rng))
-    res = fit_instrument(nominal, data, DistancesModel(data.n_groups),
-                         IsotropicNoise(_weight(noise)))
-    P, R, g = instrument("distance").candidates(nominal, EVALUATION_POSES[s.scenario], rng)
-    q = nominal.ik(P, R)
-    model = res.extras["model"]
-    fit = res.extras["machine"].fk(q, start=(P, R))
-    d_fit = model.predict(model.initial(), fit.P, fit.R, g)[:, 0]
-    exact = true.fk(q, start=(P, R))
-    pivots = np.array([p for p, _ in truth["setups"]])[g]
-    balls = np.array([b for _, b in truth["setups"]])[g]
-    d_true = np.linalg.norm(exact.P + np.einsum("kij,kj->ki", exact.R, balls) - pivots, axis=-1)
-    e = np.abs(np.where(fit.converged & exact.converged, d_fit - d_true, np.nan))
-    ok = np.isfinite(e)
-    return res, {"distance_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
-                 "distance_max": float(np.max(e[ok])) if ok.any() else math.nan}
+    Every draw comes from ``rng`` in the order the instrument asks: the same seed gives the
+    same run.
+    """
 
+    def __init__(self, settings: MonteCarloSettings, rng: np.random.Generator):
+        self.settings = settings
+        self.rng = rng
 
-def _probe_run(s: MonteCarloSettings, rng):
-    """Bed-probe heights at the instrument's standard pattern (the true bed off by a random
-    height and tilt), the bed plane estimated with the machine; held out: the height of the
-    nozzle over the bed at other points of the bed, 1 mm above it, with the readings the
-    nominal model commands there - the calibrated model and its bed against the truth."""
-    from ..instruments import IsotropicNoise
-    from ..instruments.probe import calibrate_probe
-    from ..instruments.registry import instrument
-    from ..instruments.simulate import simulate_scenario
+    def true_machine(self) -> Machine:
+        """The true machine: nominal plus the settings' deviations (drawn now)."""
+        return _true_machine(self.settings, self.rng)
 
-    nominal = s.machine
-    noise = 1e-5 if s.noise is None else s.noise
-    data, true, truth = simulate_scenario(
-        nominal, "probe", s.poses or DEFAULT_POSES[s.scenario],
-        IsotropicNoise(noise) if noise > 0 else False, rng,
-        deviations=_deviation_vector(s, rng))
-    res = calibrate_probe(nominal, data, IsotropicNoise(_weight(noise)))
-    P, R, _ = instrument("probe").candidates(nominal, EVALUATION_POSES[s.scenario], rng)
-    q = nominal.ik(P + np.array([0.0, 0.0, 1e-3]), R)
+    def deviations(self) -> np.ndarray:
+        """True minus nominal parameters (drawn now, as :meth:`true_machine` does)."""
+        return _deviation_vector(self.settings, self.rng)
 
-    def heights(machine, bed):
-        fk = machine.fk(q, start=(P, R))
-        z0, tx, ty = bed
-        h = fk.P[:, 2] - (z0 + tx * fk.P[:, 0] + ty * fk.P[:, 1])
-        return np.where(fk.converged, h, np.nan)
+    @staticmethod
+    def weight(noise: float) -> float:
+        """The noise level the calibration assumes for simulated ``noise`` (m)."""
+        return _weight(noise)
 
-    e = np.abs(heights(res.extras["machine"], res.extras["bed"]) - heights(true, truth["bed"]))
-    ok = np.isfinite(e)
-    return res, {"height_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
-                 "height_max": float(np.max(e[ok])) if ok.any() else math.nan}
+    def simulate(self, n: int | None, noise):
+        """:func:`~pkmcal.instruments.simulate.simulate_scenario` of the run's instrument on
+        the nominal machine, the deviations drawn first: ``(data, true, truth)``."""
+        from ..instruments.simulate import simulate_scenario
 
+        s = self.settings
+        return simulate_scenario(s.machine, s.scenario, n, noise, self.rng,
+                                 deviations=self.deviations())
 
-def _tracker_run(s: MonteCarloSettings, rng):
-    from ..calibration import calibrate_tracker, predict_tracker_points
-    from ..instruments.scenarios import candidate_poses
-    from ..instruments.tracker import grid_points, simulate_tracker, tracker_pose
+    def workspace_accuracy(self, true: Machine, calibrated: Machine, n: int) -> dict:
+        """Pose accuracy of ``calibrated`` against ``true`` at ``n`` poses of the SPEC 5
+        workspace (0.1 m cube around home, +/-10 deg), gauge-aligned: position and
+        orientation, mean and max (m, rad)."""
+        from .accuracy import pose_accuracy, workspace_poses
 
-    nominal = s.machine
-    if nominal.tracker_target() is None:
-        return _points_run(s, rng)
-    true = _true_machine(s, rng)
-    pose = tracker_pose(nominal)
-    true.base_from_tracker = pose
-    sim_noise, fit_noise = _tracker_noises(s)
-    if s.poses is None and nominal.tracker_grid_spacing() is not None:
-        targets = grid_points(nominal.home[0], nominal.tracker_grid_spacing())
-    else:
-        targets = candidate_poses(nominal, "tracker", s.poses or 60, rng)[0]
-    data = simulate_tracker(true, nominal, targets, pose, sim_noise, rng=rng)
-    res = calibrate_tracker(nominal, data, fit_noise)
-    held = candidate_poses(nominal, "tracker", EVALUATION_POSES[s.scenario], rng)[0]
-    q = nominal.ik(held)
-    m = predict_tracker_points(res.extras["machine"], q, res.extras["registration"])
-    e = np.linalg.norm(m - predict_tracker_points(true, q, pose), axis=-1)
-    ok = np.isfinite(e)
-    return res, {"position_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
-                 "position_max": float(np.max(e[ok])) if ok.any() else math.nan}
-
-
-def _pose_run(s: MonteCarloSettings, rng):
-    from ..calibration import calibrate_full_pose, full_pose_errors, gauge_free_error
-    from ..instruments.pose import FullPoseNoise, measurement_frames, simulate_full_pose
-    from ..instruments.simulate import sample_workspace_poses
-
-    nominal = s.machine
-    true = _true_machine(s, rng)
-    frames = measurement_frames(nominal)
-    true.measurement_frames = frames
-    default = FullPoseNoise()
-    noise = default.reading_m if s.noise is None else s.noise
-    data = simulate_full_pose(true, sample_workspace_poses(true, s.poses or
-                                                           DEFAULT_POSES[s.scenario], rng),
-                              frames, replace(default, reading_m=noise), rng)
-    res = calibrate_full_pose(nominal, data, "ml", noise=replace(default,
-                                                                 reading_m=_weight(noise)))
-    held = simulate_full_pose(true, sample_workspace_poses(true, EVALUATION_POSES[s.scenario],
-                                                           rng), frames, None, rng)
-    err = full_pose_errors(res.extras["machine"], res.extras["frames"], held)
-    ok = err.converged
-    e = gauge_free_error(nominal, res, true.u, frames)
-
-    def stat(f, v):
-        return float(f(v[ok])) if ok.any() else math.nan
-
-    return res, {"position_mean": stat(np.mean, err.position),
-                 "position_max": stat(np.max, err.position),
-                 "orientation_mean": stat(np.mean, err.orientation),
-                 "orientation_max": stat(np.max, err.orientation),
-                 "parameter_rms": float(np.sqrt(np.mean(e**2)))}
-
-
-_RUNS = {"constraint-link": _constraint_link_run, "tracker": _tracker_run, "pose": _pose_run,
-         "distance": _distance_run, "probe": _probe_run}
+        P, R = workspace_poses(true.home[0], n=n, rng=self.rng)
+        acc = pose_accuracy(true, calibrated, P, R)
+        return {"position_mean": acc.position_mean, "position_max": acc.position_max,
+                "orientation_mean": acc.orientation_mean,
+                "orientation_max": acc.orientation_max}
 
 
 def run_once(settings: MonteCarloSettings, seed) -> dict:
@@ -517,16 +327,16 @@ def run_once(settings: MonteCarloSettings, seed) -> dict:
         ``seconds``.
     """
     t0 = time.perf_counter()
-    rng = np.random.default_rng(seed)
+    inst = settings.instrument()
     try:
-        res, metrics = _RUNS[settings.scenario](settings, rng)
+        res, metrics = inst.montecarlo_run(MonteCarloRun(settings, np.random.default_rng(seed)))
         converged = bool(res.success and np.all(np.isfinite(res.x)))
         status, chi2_dof, why = acceptance(res, settings, metrics)
         row = {"converged": converged, "iterations": int(res.nit), "status": status,
                "chi2_dof": chi2_dof, **metrics, "failure": why}
     except (InputError, ConvergenceError, ValueError, np.linalg.LinAlgError) as exc:
         row = {"converged": False, "iterations": 0, "status": "failed", "chi2_dof": math.nan,
-               **dict.fromkeys(METRICS[settings.scenario], math.nan),
+               **dict.fromkeys(inst.montecarlo_metrics, math.nan),
                "failure": " ".join(f"{type(exc).__name__}: {exc}".split())}
     row["seconds"] = time.perf_counter() - t0
     return row
@@ -535,8 +345,7 @@ def run_once(settings: MonteCarloSettings, seed) -> dict:
 def _exact_data(settings: MonteCarloSettings) -> bool:
     """Whether the simulated data carry no noise at all (the calibration then weighs them
     as if :data:`NOISE_FLOOR` noisy); the pose scenario's pose noise stays at its default."""
-    return settings.scenario in ("constraint-link", "tracker", "distance") and \
-        settings.noise == 0
+    return settings.instrument().montecarlo_exact_data and settings.noise == 0
 
 
 def acceptance(result, settings: MonteCarloSettings,
@@ -624,8 +433,9 @@ def acceptance(result, settings: MonteCarloSettings,
             return "rejected", chi2_dof, (
                 f"rejected: residuals {math.sqrt(chi2_dof):.3g} x the noise (chi2/dof "
                 f"{chi2_dof:.3g} > {limit:.3g}, {dof} dof): a wrong geometry")
+    optional = settings.instrument().montecarlo_optional_metrics
     bad = [name for name, v in (metrics or {}).items()
-           if not np.isfinite(v) and name not in OPTIONAL_METRICS]
+           if not np.isfinite(v) and name not in optional]
     if bad:
         return "rejected", chi2_dof, (f"rejected: {', '.join(bad)} not finite: the calibrated "
                                       "model fails at the evaluation poses")
@@ -881,10 +691,11 @@ def montecarlo(settings: MonteCarloSettings, variable: str, values: Sequence, ru
     if variable == "tolerance" and settings.deviations is None:
         settings = replace(settings, deviations="random")
     settings = settings.resolved()
-    if variable not in APPLIES[settings.scenario]:
+    applies = settings.instrument().montecarlo_variables
+    if variable not in applies:
         raise InputError(f"--vary {variable}: does not apply to the {settings.scenario} "
                          f"scenario ({settings.machine.kind}); it can vary "
-                         f"{', '.join(APPLIES[settings.scenario])}")
+                         f"{', '.join(applies)}")
     values = parse_values(variable, values)
     option = {"noise": "noise", "lc-error": "lc_error", "poses": "poses",
               "tolerance": "tolerance"}[variable]
@@ -911,7 +722,7 @@ def montecarlo(settings: MonteCarloSettings, variable: str, values: Sequence, ru
     seconds = time.perf_counter() - t0
     for row in rows:
         row["value"] = values[row["value_index"]]
-    metrics = METRICS[settings.scenario]
+    metrics = settings.instrument().montecarlo_metrics
     summary = [summarize([row for row in rows if row["value_index"] == i], metrics, value)
                for i, value in enumerate(values)]
     return MonteCarloResult(settings, variable, values, int(runs), int(seed), rows, summary,
@@ -930,7 +741,8 @@ def summarize(rows: list[dict], metrics, value=None) -> dict:
     rows : list of dict
         The runs of the value (:func:`run_once` rows with their metrics).
     metrics : iterable of str
-        Names of the metrics to summarize (the keys of a :data:`METRICS` entry).
+        Names of the metrics to summarize (the keys of an instrument's
+        :attr:`~pkmcal.instruments.base.Instrument.montecarlo_metrics`).
     value : object, optional
         The swept value, copied into the summary.
 

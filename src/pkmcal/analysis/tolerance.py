@@ -307,13 +307,14 @@ def monte_carlo(machine, P, R, tol: Tolerances, samples: int = 10000, rng=None,
     if not np.all(np.isfinite(S)):
         raise InputError("the pose cannot be reached by the nominal machine")
     du = tol.sample(int(samples), rng)
-    is_stewart = getattr(machine, "kind", "") == "stewart"
-    exact = is_stewart if exact is None else bool(exact)
-    if exact and not is_stewart:
+    q = machine.ik(P, R)                                   # nominal readings, held
+    legs = machine.leg_joints(q) is not None               # straight legs: closure solvable
+    exact = legs if exact is None else bool(exact)
+    if exact and not legs:
         raise InputError(f"exact Monte Carlo is implemented for stewart machines, not "
                          f"{machine.kind}; use exact=False (linear model)")
     if exact:
-        dx, converged = _stewart_closure_errors(machine, P, R, du)
+        dx, converged = _closure_errors(machine, P, R, q, du)
     else:
         dx, converged = du @ S.T, np.ones(len(du), bool)
     good = dx[converged]
@@ -321,16 +322,10 @@ def monte_carlo(machine, P, R, tol: Tolerances, samples: int = 10000, rng=None,
                             linear_covariance(S, tol), worst_case(S, tol), exact, converged)
 
 
-def _stewart_closure_errors(machine, P, R, du):
-    names = machine.parameters
-    idx = lambda field: np.stack([names.indices(f"leg{i + 1}.{field}") for i in range(6)])
-    ib, ip = idx("base"), idx("platform")
-    il0 = np.array([names.index(f"leg{i + 1}.l0") for i in range(6)])
-    ig = np.array([names.index(f"leg{i + 1}.gain") for i in range(6)])
-    q = machine.ik(P, R)                                   # nominal readings, held
-    u = machine.u + du                                     # (n, n_params)
-    lengths = u[:, il0] + u[:, ig] * q
-    sol = closure_pose(P, R, u[:, ib], u[:, ip], lengths)
+def _closure_errors(machine, P, R, q, du):
+    """Pose errors of the machines ``u + du`` at the readings ``q`` (exact: the legs closed)."""
+    base, platform, lengths = machine.leg_joints(q, machine.u + du)    # (n, ...) per sample
+    sol = closure_pose(P, R, base, platform, lengths)
     return pose_difference(sol.P, sol.R, P, R), sol.converged
 
 

@@ -22,16 +22,21 @@ import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ConvergenceError, InputError
 from ..instruments.constraint_link import link_noise_arg  # noqa: F401
-from ..instruments.pose import full_pose_noise_arg  # noqa: F401
-from ..instruments.tracker import _tracker_noise_text, tracker_noise_arg  # noqa: F401
+from ..instruments.pose import full_pose_noise_arg, pose_noise_option  # noqa: F401
+from ..instruments.tracker import (  # noqa: F401
+    _tracker_noise_text,
+    as_tracker_data,
+    tracker_noise_arg,
+)
 
-__all__ = ["JOINT_KINDS", "KINDS", "WHITENED_METHODS", "Calibration",
+__all__ = ["KINDS", "WHITENED_METHODS", "Calibration",
            "CalibrationNotConverged", "CalibrateOptions", "JointPart", "MeasurementKind",
            "apply_parameter_set", "calibrate", "calibrate_joint", "distance_ratio_pairs",
            "file_units", "full_pose_noise_arg", "grid_neighbour_pairs", "holdout_arg",
@@ -259,53 +264,52 @@ class CalibrateOptions:
 
 @dataclass(frozen=True)
 class MeasurementKind:
-    """One kind of calibration data: how to recognise it and how to calibrate from it.
+    """How :func:`calibrate` calibrates from one instrument's data (the calibration layer's
+    part of an instrument of :mod:`pkmcal.instruments.registry`).
+
+    What its files hold, how they are recognised, which machines it applies to: the
+    instrument's (:attr:`columns`, :meth:`detect`, ...); how the calibration layer fits and
+    reports it: this entry's handlers.
 
     Attributes
     ----------
-    name : str
-        The kind's name (the report's ``measurement``).
-    columns : str
-        What a data file of this kind holds, for messages.
-    detect : callable
-        ``detect(header) -> bool``: whether a data file's columns are of this kind.
+    instrument : str
+        The instrument's registry name (also the report's ``measurement``).
     calibrate : callable
         ``calibrate(machine, data, source, options, split) -> Calibration``; ``data`` is a
         path or a data object, ``split`` None or ``(holdout, seed)``.
     check_options : callable
         ``check_options(options, source)``: raise :class:`InputError` for options that do not
         apply.
-    machines : tuple of str or None
-        Machine types (``Machine.kind``) calibrated from this kind; None: every machine.
-    data_class : str
-        Class name of the data objects of this kind (data given in memory).
-    priority : int
-        Kinds are tried in increasing priority (a fallback such as readings-only data last).
-    readings_only : bool
-        The kind's data are joint readings alone (no instrument column).
-    missing : tuple of str or None
-        ``(columns, words)``: when readings-only data are given for a machine calibrated from
-        this kind, the message names these missing columns and the instrument.
-    instrument : str
-        The instrument of the registry (:mod:`pkmcal.instruments.registry`) whose
-        ``applies`` decides which machines the kind calibrates (empty: ``machines``).
-    fixes_lengths : bool
-        Its measurements can fix a length of the machine (heights along z alone cannot fix a
-        printer's arms: a parameter set's ``without_lengths`` applies).
+    joint : callable or None
+        ``joint(machine, data, source, noise) -> JointPart``: the file's part of a fit of
+        several files (None: from the instrument problem of its own calibration, unless the
+        instrument's ``joint_refusal`` says why it cannot combine).
     """
 
-    name: str
-    columns: str
-    detect: Callable
+    instrument: str
     calibrate: Callable
     check_options: Callable
-    machines: tuple[str, ...] | None = None
-    data_class: str = ""
-    priority: int = 50
-    readings_only: bool = False
-    missing: tuple[str, str] | None = None
-    instrument: str = ""
-    fixes_lengths: bool = True
+    joint: Callable | None = None
+
+    @property
+    def entry(self):
+        """The instrument (:func:`~pkmcal.instruments.registry.instrument`)."""
+        from ..instruments.registry import instrument
+
+        return instrument(self.instrument)
+
+    @property
+    def name(self) -> str:
+        """The kind's name: the instrument's."""
+        return self.entry.name
+
+    def __getattr__(self, attr):
+        # what the data are (columns, detect, priority, readings_only, missing,
+        # fixes_lengths, data_class, joint_refusal): the instrument's
+        if attr.startswith("_") or attr in ("instrument", "calibrate", "check_options", "joint"):
+            raise AttributeError(attr)
+        return getattr(self.entry, attr)
 
     def why_not(self, machine) -> str | None:
         """Why ``machine`` cannot be calibrated from this kind (None: it can).
@@ -318,16 +322,9 @@ class MeasurementKind:
         Returns
         -------
         str or None
-            The instrument's reason (:mod:`pkmcal.instruments.registry`), or a machine type
-            the kind is not for.
+            The instrument's reason (:meth:`~pkmcal.instruments.base.Instrument.applies`).
         """
-        if self.instrument:
-            from ..instruments.registry import instrument
-
-            return instrument(self.instrument).applies(machine)
-        if self.machines is not None and machine.kind not in self.machines:
-            return f"this version calibrates {', '.join(self.machines)} machines from it"
-        return None
+        return self.entry.applies(machine)
 
 
 #: the measurement kinds :func:`calibrate` knows, by name (:func:`register_kind`)
@@ -352,6 +349,13 @@ def register_kind(kind: MeasurementKind) -> MeasurementKind:
 
 
 def _kinds() -> list[MeasurementKind]:
+    """Every instrument's calibration (its registered handlers, else the generic path), in
+    the order data files are recognised."""
+    from ..instruments.registry import INSTRUMENTS
+
+    for name, inst in INSTRUMENTS.items():
+        if name not in KINDS and inst.fit_model is not None:
+            KINDS[name] = instrument_kind(inst)
     return sorted(KINDS.values(), key=lambda k: k.priority)
 
 
@@ -423,17 +427,10 @@ def measurement_kind(path, header: list[str], machine) -> str:
 
 
 def _names_of(kind: MeasurementKind) -> tuple:
-    """The kind's names: its own, its instrument's and the instrument's aliases."""
-    if not kind.instrument:
-        return (kind.name,)
-    from ..instruments.registry import instrument
-
-    inst = instrument(kind.instrument)
-    return (kind.name, inst.name, *inst.aliases)
+    """The kind's names: its instrument's and the instrument's aliases."""
+    return (kind.entry.name, *kind.entry.aliases)
 
 
-def _has(header, base: str) -> bool:
-    return any(n == base or n.startswith(base + "_") for n in header)
 
 
 # --------------------------------------------------------------------------------------------
@@ -617,7 +614,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         (:class:`~pkmcal.instruments.constraint_link.ConstraintLinkData`,
         :class:`~pkmcal.instruments.tracker.TrackerData`,
         :class:`~pkmcal.instruments.pose.FullPoseData`). A list of several: one geometry from all
-        of them, each file with its own instrument unknowns and noise (:data:`JOINT_KINDS`
+        of them, each file with its own instrument unknowns and noise (a kind's ``joint``
         combine; see :func:`calibrate_joint`); a list of one is that one. A Klipper
         ``printer.cfg`` is read for the measurements its ``[delta_calibrate]`` section saved
         (heights, manual heights, DELTA_ANALYZE distances:
@@ -1356,16 +1353,6 @@ def _check_spread(data, noise_model) -> None:
                          "points spread in 2-3 directions (e.g. a 3x3x3 grid)")
 
 
-def _as_tracker_data(data):
-    """Points given as the instrument layer's data, as tracker data (others unchanged)."""
-    if getattr(data, "kind", None) != "points":
-        return data
-    from ..instruments.tracker import TrackerData
-
-    return TrackerData(data.q, data.values, data.rows, data.source, data.true_P,
-                       target=data.group if data.n_groups > 1 else None)
-
-
 def _rotvec(R):
     from ..kinematics import rotvec_from_matrix
 
@@ -1396,7 +1383,7 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
                                                     machine=machine)
     else:
         noise_model, noise_text = options.noise, _tracker_noise_text(options.noise)
-    data, held = _split_rows(_as_tracker_data(_load(data, read_tracker, machine)), split,
+    data, held = _split_rows(as_tracker_data(_load(data, read_tracker, machine)), split,
                              source)
     _check_spread(data, noise_model)
     fk = machine.fk(data.q)
@@ -1583,18 +1570,11 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
         full_pose_errors,
     )
     from ..io import read_full_pose
-    from ..io.machine_file import reading_factor
+    from ..machines.stewart import reading_factor
     from ..units import LENGTH
 
     method, fix_frames = options.method or "ml", options.fix_frames
-    if isinstance(options.noise, FullPoseNoise):
-        if options.pose_noise is not None:
-            raise InputError("--pose-noise: the noise model given as noise holds the pose "
-                             "noise already")
-        noise_model = options.noise
-    else:
-        noise_model = full_pose_noise_arg(options.noise, options.pose_noise, strict=True,
-                                          machine=machine)
+    noise_model, hold = pose_noise_option(options.noise, options.pose_noise, machine)
     data, held = _split_rows(_load(data, read_full_pose, machine), split, source)
     file_frames = getattr(machine, "measurement_frames", None)
     if fix_frames:
@@ -1605,10 +1585,6 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
         frames = file_frames
         frames_from = ("start: the machine file's measurement_frames" if file_frames is not None
                        else "start: closed form from the design model")
-    # levels the user gave are held, the others estimated from the residuals
-    hold = (["reading", "position", "orientation"] if isinstance(options.noise, FullPoseNoise)
-            else (["reading"] if options.noise is not None else [])
-            + (["position", "orientation"] if options.pose_noise is not None else []))
     result = _solve(source, calibrate_full_pose, machine, data, held=held, method=method,
                     noise=noise_model, frames=frames, fix_frames=fix_frames,
                     estimate_noise=hold, robust=options.robust)
@@ -2138,7 +2114,7 @@ def _joint_tracker(machine, data, source, noise) -> JointPart:
         noise_model, text = tracker_noise_arg(noise, allow_none=False, machine=machine)
     else:
         noise_model, text = noise, _tracker_noise_text(noise)
-    raw = _as_tracker_data(_load(data, read_tracker, machine))
+    raw = as_tracker_data(_load(data, read_tracker, machine))
     _check_spread(raw, noise_model)
     points = as_points(raw)
     points.source = str(source)
@@ -2183,50 +2159,30 @@ def _joint_probe(machine, data, source, noise) -> JointPart:
                      with_others, frame)
 
 
-def _joint_pairs(machine, data, source, noise) -> JointPart:
-    from ..instruments.pairs import PairDistanceModel
-
-    pairs = _load(data, _read_pairs, machine)
-    noise_model = (pairs.weights[0] if noise is None and pairs.weights is not None
-                   else _pair_noise(noise, machine))
-    pairs.source = str(source)
-    return JointPart(pairs, PairDistanceModel(), noise_model,
-                     f"distances {noise_model.sigma * 1e6:.4g} um (std)", "pair-distances")
-
-
-#: measurement kinds that combine in one fit: kind -> ``prepare(machine, data, source,
-#: noise) -> JointPart``. A kind not listed here combines too when its handler's result has
-#: an :class:`~pkmcal.instruments.InstrumentProblem` in ``extras["problem"]`` (the instrument
-#: layer's kinds); full poses and the constraint link (a pose per measurement) do not.
-JOINT_KINDS: dict[str, Callable] = {"tracker": _joint_tracker, "distance": _joint_distances,
-                                    "probe": _joint_probe, "pair-distances": _joint_pairs}
-
-#: kinds refused in a joint fit, with why
-_NOT_JOINT = {"pose": "full poses estimate a platform pose per measurement",
-              "constraint-link": "the constraint link estimates a platform pose per "
-                                 "measurement"}
+def _combining() -> str:
+    """The kinds whose files combine in one fit, in words."""
+    return ", ".join(sorted(k.name for k in _kinds() if not k.joint_refusal))
 
 
 def _joint_part(machine, data, source, kind: MeasurementKind, noise) -> JointPart:
-    """The joint fit's view of one file (its kind's preparation, else the kind's own
-    calibration's instrument problem)."""
+    """The joint fit's view of one file (its kind's ``joint`` preparation, else the kind's
+    own calibration's instrument problem); refused for instruments with a ``joint_refusal``
+    (full poses and the constraint link: a pose per measurement)."""
     from ..instruments import InstrumentProblem
 
-    if kind.name in _NOT_JOINT:
-        combine = ", ".join(sorted(set(JOINT_KINDS) | (set(KINDS) - set(_NOT_JOINT))))
+    if kind.joint_refusal:
         raise InputError(f"{source}: {kind.name} data cannot be combined with other files in "
-                         f"one fit ({_NOT_JOINT[kind.name]}); the kinds that combine: "
-                         f"{combine}; calibrate from {source} on its own")
-    prepare = JOINT_KINDS.get(kind.name)
-    if prepare is not None:
-        return prepare(machine, data, source, noise)
+                         f"one fit ({kind.joint_refusal}); the kinds that combine: "
+                         f"{_combining()}; calibrate from {source} on its own")
+    if kind.joint is not None:
+        return kind.joint(machine, data, source, noise)
     kind.check_options(CalibrateOptions(noise=noise), source)
     alone = kind.calibrate(machine, data, source, CalibrateOptions(noise=noise), None)
     problem = alone.result.extras.get("problem")
     if not isinstance(problem, InstrumentProblem) or getattr(problem, "local_dof", 0):
         raise InputError(f"{source}: {kind.name} data cannot be combined with other files in "
                          f"one fit (no instrument model of the shared layer); the kinds that "
-                         f"combine: {', '.join(sorted(JOINT_KINDS))}")
+                         f"combine: {', '.join(sorted(k.name for k in _kinds() if k.joint))}")
     text = alone.report.get("noise")
     return JointPart(problem.data, problem.model, problem.noise,
                      str(text) if text is not None else f"{kind.name} default", kind.name)
@@ -2294,7 +2250,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     CalibrationNotConverged
         When the estimator did not converge.
     """
-    from ..instruments import DistancesModel, IsotropicNoise, PointsModel, ProbeModel
+    from ..instruments import IsotropicNoise
     from ..instruments.joint import file_labels, fit_joint
     from ..io import read_table
     from ..units import LENGTH
@@ -2389,7 +2345,9 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
             start.parameters.names, start.parameters.values, strict=True)})
     params = _parameter_table(result, nominal_of, units)
 
-    files, sections, setups, tracker_from, bed_from = [], [], [], None, None
+    # what the files' instruments set on the calibrated machine file (the first file of each
+    # instrument its frame, every ballbar file its setups), shared among the files
+    files, sections, taken = [], [], {}
     for i, (part, label, source) in enumerate(zip(parts, labels, sources, strict=True)):
         sub = problem.part_state(state, i)
         before = result.extras["before"][i]
@@ -2407,42 +2365,11 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                                "chi_square": float(np.nansum(problem.split(
                                    result.residuals)[i] ** 2)),
                                "count": int(np.sum(np.isfinite(r_after).all(axis=1)))}}
-        if isinstance(model, PointsModel):
-            R = model.rotation(sub.nuisance, "tracker")
-            t = np.array(model.vector(sub.nuisance, "tracker"))
-            targets = model.targets(sub.nuisance)
-            entry["registration"] = {"rotation": R.tolist(), "translation": (t / fl).tolist(),
-                                     "unit": units["length"]}
-            entry["targets"] = {"given_by_machine_file": machine.tracker_target() is not None,
-                                "places": (np.asarray(targets) / fl).tolist(),
-                                "unit": units["length"]}
-            if tracker_from is None:
-                tracker_from = str(source)
-                calibrated.base_from_tracker = (R, t)
-                calibrated.tracker_targets = (None if machine.tracker_target() is not None
-                                              else np.array(targets, float))
-                sections.append(f"tracker (frame and targets) from {source}")
-        elif isinstance(model, ProbeModel):
-            bed = tuple(float(v) for v in sub.nuisance.values[:3])
-            entry["bed"] = {"height": bed[0] / fl, "tilt_x": bed[1], "tilt_y": bed[2],
-                            "unit": units["length"], "tilt": "slopes dz/dx, dz/dy",
-                            "frame": part.frame}
-            if bed_from is None:
-                bed_from = str(source)
-                calibrated.probe_bed = bed
-                words = ("height and tilt" if not machine.frame_is_bed else "tilt"
-                         if "estimated" in part.frame else "square to the towers")
-                sections.append(f"bed ({words}) from {source}")
-        elif isinstance(model, DistancesModel):
-            mine = [(np.array(sub.nuisance.values[model._ip[g]]),
-                     np.array(sub.nuisance.values[model._ib[g]]))
-                    for g in range(model.n_setups)]
-            entry["setups"] = [{"setup": len(setups) + g + 1, "in_file": g + 1,
-                                "pivot": (p / fl).tolist(), "ball": (b / fl).tolist(),
-                                "unit": units["length"]} for g, (p, b) in enumerate(mine)]
-            sections.append(f"ballbar setups {len(setups) + 1}..{len(setups) + len(mine)} "
-                            f"from {source}")
-            setups.extend(mine)
+        found, words = model.joint_section(sub.nuisance, machine, calibrated, str(source), fl,
+                                           units, part.frame, taken)
+        entry.update(found)
+        if words:
+            sections.append(words)
         if held[i] is not None:
             entry["validation"] = _validation(
                 split, held[i], f"{part.kind} of the held-out rows of {source}, measured - "
@@ -2451,8 +2378,6 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                 _part_rms(bproblem, before.state, held[i])[0],
                 _part_rms(problem.parts[i], sub, held[i])[0], rms_after)
         files.append(entry)
-    if setups:
-        calibrated.ballbar_setups = setups
     rank = int(result.rank)
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
@@ -2516,77 +2441,58 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
 # the kinds of today
 # --------------------------------------------------------------------------------------------
 
-register_kind(MeasurementKind(
-    name="tracker",
-    columns="q1_deg..q3_deg and the tracker points mx_mm, my_mm, mz_mm",
-    detect=lambda header: _has(header, "mx") or _has(header, "my") or _has(header, "mz"),
-    calibrate=_calibrate_tracker, check_options=_check_tracker, instrument="tracker",
-    data_class="TrackerData", priority=10,
-    missing=("mx_<unit>, my_<unit>, mz_<unit> (e.g. mx_mm)", "laser-tracker points")))
-register_kind(MeasurementKind(
-    name="pose",
-    columns="the leg readings q1_<unit>..q6_<unit> (the machine's reading unit) and the "
-            "measured pose x_mm, y_mm, z_mm with qx, qy, qz, qw or psi_deg, theta_deg, phi_deg",
-    detect=lambda header: (_has(header, "x") or _has(header, "y") or _has(header, "z")
-                           or "qw" in header),
-    calibrate=_calibrate_full_pose, check_options=_check_full_pose, instrument="pose",
-    data_class="FullPoseData", priority=20))
-register_kind(MeasurementKind(
-    name="distance",
-    columns="the joint readings q1_<unit>.. and the ballbar length d_mm, optionally setup "
-            "(1..K, one per mounting)",
-    detect=lambda header: _has(header, "d"),
-    calibrate=_calibrate_distances, check_options=_check_distances, instrument="distance",
-    data_class="InstrumentData", priority=30))
-register_kind(MeasurementKind(
-    name="constraint-link",
-    columns="q1_mm..q6_mm (optionally passive) with a constraint_link in the machine file",
-    detect=lambda header: _has(header, "q1"),
-    calibrate=_calibrate_constraint_link, check_options=_check_constraint_link,
-    instrument="constraint-link", data_class="ConstraintLinkData", priority=90,
-    readings_only=True))
+register_kind(MeasurementKind("tracker", _calibrate_tracker, _check_tracker, _joint_tracker))
+register_kind(MeasurementKind("pose", _calibrate_full_pose, _check_full_pose))
+register_kind(MeasurementKind("distance", _calibrate_distances, _check_distances,
+                              _joint_distances))
+register_kind(MeasurementKind("constraint-link", _calibrate_constraint_link,
+                              _check_constraint_link))
 
 
-# -- distances between two nozzle positions (SPEC 8) ------------------------------------------
+# -- any instrument of the shared layer: a model without unknowns of the machine's frame ----
 
-def _pair_noise(noise, machine):
-    """The noise of two-point distances (``--noise``; default
-    :data:`~pkmcal.instruments.pairs.PAIR_SIGMA`)."""
-    from ..instruments.registry import instrument
-
-    return instrument("pair-distances").noise_arg(noise, machine)
-
-
-def _read_pairs(path, machine):
-    """Two-point distances from a CSV file (:func:`~pkmcal.io.read_pairs`)."""
-    from ..io import read_pairs
-
-    return read_pairs(path, machine)
-
-
-def _check_pairs(options: CalibrateOptions, source) -> None:
-    _only_for_poses(options, source, "two-point distance")
+def _check_instrument(options: CalibrateOptions, source, inst) -> None:
+    """Options an instrument of the generic path does not take, refused naming it."""
+    _only_for_poses(options, source, inst.singular)
     for option, given in (("--method", options.method is not None),
                           ("--estimate-lc", options.estimate_lc is not None),
                           ("--two-step", options.two_step),
                           ("--bed-tilt", options.bed_tilt is not None)):
         if given:
-            raise InputError(f"{option}: does not apply to two-point distances ({source}); "
-                             "see --noise, --robust")
+            raise InputError(f"{option}: does not apply to {inst.plural} ({source}); see "
+                             "--noise, --robust")
 
 
-def _calibrate_pairs(machine, data, source, options: CalibrateOptions, split) -> Calibration:
+def _reader_of(inst):
+    """``reader(path, machine)``: the instrument's data from a CSV file."""
+    from ..io import read_measurements
+
+    return lambda path, machine: read_measurements(inst, path, machine)
+
+
+def _instrument_noise(inst, data, noise, machine):
+    """The noise of ``--noise`` (the data's own weights when none is given)."""
+    weights = getattr(data, "weights", None)
+    if noise is None and weights is not None:
+        return weights[0]
+    return inst.noise_arg(noise, machine)
+
+
+def _calibrate_instrument(machine, data, source, options: CalibrateOptions, split,
+                          inst) -> Calibration:
+    """Calibration from an instrument of the shared layer that brings no handler of its own:
+    its :meth:`~pkmcal.instruments.base.Instrument.fit_model`, noise and words."""
     from ..instruments import fit_instrument
-    from ..instruments.pairs import PairDistanceModel
 
-    noise = _pair_noise(options.noise, machine)
+    data = _load(data, _reader_of(inst), machine)
+    noise = _instrument_noise(inst, data, options.noise, machine)
 
     def fit(machine_, data_, noise_, **kwargs):
-        return fit_instrument(machine_, data_, PairDistanceModel(), noise_, **kwargs)
+        return fit_instrument(machine_, data_, inst.fit_model(machine_, data_), noise_,
+                              **kwargs)
 
     data, held, result, before, calibrated, params, units = _fit_with_baseline(
-        machine, data, source, split, _read_pairs, fit, noise,
-        "measure distances in several directions and at several heights", options)
+        machine, data, source, split, _reader_of(inst), fit, noise, inst.advice, options)
     problem = result.extras["problem"]
     rms_after, r_after = _scalar_rms(problem, result.state, data)
     rms_before, _ = _scalar_rms(before.extras["problem"], before.state, data)
@@ -2594,13 +2500,13 @@ def _calibrate_pairs(machine, data, source, options: CalibrateOptions, split) ->
     n_free = int(np.sum(result.parameters.free))
     unidentifiable = list(result.extras.get("unidentifiable", []))
     report = {
-        **_report_head(machine, source, "pair-distances", "joint"),
+        **_report_head(machine, source, inst.name, "joint"),
         "units": units,
         "measurements": len(data),
-        "noise": f"distances {noise.sigma * 1e6:.4g} um (std)",
+        "noise": inst.noise_text(noise),
         "convergence": _convergence_json(result),
         "residuals": {
-            "of": "distances between the two nozzle positions, measured - predicted",
+            "of": inst.residual_words,
             "count": int(ok.sum()),
             "rms_um": rms_after,
             "max_abs_um": _um(float(np.max(np.abs(r_after[ok])))) if ok.any() else None,
@@ -2615,21 +2521,39 @@ def _calibrate_pairs(machine, data, source, options: CalibrateOptions, split) ->
                                                  np.asarray(result.singular_values, float)),
         "parameters": _public(params),
     }
-    metadata = {"method": "pair-distances", "date": report["date"], "data": str(source),
+    metadata = {"method": inst.name, "date": report["date"], "data": str(source),
                 "machine": _source_of(machine), "measurements": len(data),
                 "rms_residual_um": rms_after, "identifiable": int(result.rank),
                 "free_parameters": n_free, **_identifiability_metadata(unidentifiable)}
-    return _finish("pair-distances", machine, calibrated, result, report, metadata, params,
-                   units)
+    return _finish(inst.name, machine, calibrated, result, report, metadata, params, units)
 
 
-register_kind(MeasurementKind(
-    name="pair-distances",
-    columns="the readings at two nozzle positions q1_<unit>.. and q1b_<unit>.. and the "
-            "distance between them, distance_mm (a caliper on a printed part)",
-    detect=lambda header: _has(header, "q1b") and _has(header, "distance"),
-    calibrate=_calibrate_pairs, check_options=_check_pairs, data_class="InstrumentData",
-    priority=5, instrument="pair-distances"))
+def _joint_instrument(machine, data, source, noise, inst) -> JointPart:
+    """The file's part of a fit of several files, for an instrument of the generic path."""
+    data = _load(data, _reader_of(inst), machine)
+    noise_model = _instrument_noise(inst, data, noise, machine)
+    data.source = str(source)
+    return JointPart(data, inst.fit_model(machine, data), noise_model,
+                     inst.noise_text(noise_model), inst.name)
+
+
+def instrument_kind(inst) -> MeasurementKind:
+    """The calibration of an instrument that registers no handler of its own: the generic
+    path of the shared layer (:func:`_calibrate_instrument`).
+
+    Parameters
+    ----------
+    inst : Instrument
+        A registry entry with a :meth:`~pkmcal.instruments.base.Instrument.fit_model`.
+
+    Returns
+    -------
+    MeasurementKind
+        Its calibration, option check and joint part.
+    """
+    return MeasurementKind(inst.name, partial(_calibrate_instrument, inst=inst),
+                           partial(_check_instrument, inst=inst),
+                           partial(_joint_instrument, inst=inst))
 
 
 #: a common offset of the probe heights against the machine file's model beyond this (m) is
@@ -2847,10 +2771,7 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
     return calibration
 
 
-register_kind(MeasurementKind(
-    name="probe",
-    columns="the joint readings q1_<unit>.. where the probe triggered and probe_z_mm (the "
-            "nozzle's height above the bed there, 0 for a nozzle-contact probe)",
-    detect=lambda header: _has(header, "probe_z"),
-    calibrate=_calibrate_probe, check_options=_check_probe, instrument="probe",
-    data_class="InstrumentData", priority=25, fixes_lengths=False))
+register_kind(MeasurementKind("probe", _calibrate_probe, _check_probe, _joint_probe))
+
+# every instrument without handlers of its own calibrates by the generic path
+_kinds()

@@ -46,22 +46,6 @@ app = typer.Typer(
 )
 
 
-class Scenario(enum.StrEnum):
-    constraint_link = "constraint-link"
-    tracker = "tracker"
-    points = "points"
-    pose = "pose"
-    poses = "poses"
-    distance = "distance"
-    distances = "distances"
-    ballbar = "ballbar"
-    probe = "probe"
-    probe_heights = "probe-heights"
-    bed_probe = "bed-probe"
-    pair_distances = "pair-distances"
-    caliper = "caliper"
-
-
 class Deviations(enum.StrEnum):
     paper_table1 = "paper-table1"
     none = "none"
@@ -169,7 +153,7 @@ def demo(
 def simulate(
     machine: MachineArg,
     output: OutFile,
-    scenario: Annotated[Scenario | None, typer.Option(
+    scenario: Annotated[str | None, typer.Option(metavar="SCENARIO",
         help="Measurement scenario (instrument), on every machine it applies to: "
              "constraint-link (a platform that rotates with `constraint_link` in its file; the "
              "Hexa Slide's default), tracker = points (laser tracker, every machine; the "
@@ -270,7 +254,7 @@ def simulate(
     """
     from ._commands import run_simulate
 
-    run_simulate(machine, output, scenario.value if scenario else None, poses, noise,
+    run_simulate(machine, output, scenario, poses, noise,
                  lc_error, seed, deviations.value if deviations else None, truth, grid,
                  outliers, pose_noise=pose_noise, targets=targets, setups=setups,
                  radius=radius, circles=circles)
@@ -438,7 +422,7 @@ def identifiability(
                        "correlated, predicted_accuracy, singular_values).")] = False,
     columns: ColumnsOpt = None,
     workspace: WorkspaceOpt = None,
-    scenario: Annotated[Scenario | None, typer.Option(
+    scenario: Annotated[str | None, typer.Option(metavar="SCENARIO",
         help="Without DATA or with --planned: the instrument (constraint-link, tracker = "
              "points, pose = poses, distance = distances = ballbar) on any machine it applies "
              "to; default the machine's (constraint link on a Hexa Slide, tracker on a Delta, "
@@ -488,7 +472,7 @@ def identifiability(
 
     raise typer.Exit(run_identifiability(machine, data, json_output, planned, poses, seed,
                                          noise, pose_noise, map_path, workspace=workspace,
-                                         scenario=scenario.value if scenario else None,
+                                         scenario=scenario,
                                          setups=setups, radius=radius, targets=targets,
                                          parameters=parameters))
 
@@ -539,7 +523,7 @@ def select_poses(
     = False,
     columns: ColumnsOpt = None,
     workspace: WorkspaceOpt = None,
-    scenario: Annotated[Scenario | None, typer.Option(
+    scenario: Annotated[str | None, typer.Option(metavar="SCENARIO",
         help="The instrument (constraint-link, tracker = points, pose = poses, distance = "
              "distances = ballbar) on any machine it applies to; default the machine's.",
         show_default=False)] = None,
@@ -590,7 +574,7 @@ def select_poses(
                                       criterion.value, random_sets, noise, pose_noise, seed,
                                       map_path, json_output, joint_range,
                                       workspace=workspace,
-                                      scenario=scenario.value if scenario else None,
+                                      scenario=scenario,
                                       setups=setups, radius=radius, targets=targets,
                                       parameters=parameters))
 
@@ -894,7 +878,7 @@ def montecarlo(
              "(created if missing; each file written atomically).")],
     runs: Annotated[int, typer.Option(min=1, max=MAX_RUNS,
                                       help="Simulated calibrations per value.")] = 20,
-    scenario: Annotated[Scenario | None, typer.Option(
+    scenario: Annotated[str | None, typer.Option(metavar="SCENARIO",
         help="Measurement scenario (default: the machine's: constraint-link for a hexaslide, "
              "tracker for a delta, pose for a stewart).", show_default=False)] = None,
     poses: Annotated[int | None, typer.Option(
@@ -959,7 +943,7 @@ def montecarlo(
     from ._montecarlo import run_montecarlo
 
     raise typer.Exit(run_montecarlo(
-        machine, vary, output, runs=runs, scenario=scenario.value if scenario else None,
+        machine, vary, output, runs=runs, scenario=scenario,
         poses=poses, noise=noise, lc_error=lc_error, tolerance=tolerance,
         deviations=deviations.value if deviations else None, estimate_lc=estimate_lc,
         seed=seed, workers=workers, scheduler=scheduler, quiet=quiet))

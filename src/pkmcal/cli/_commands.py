@@ -39,7 +39,7 @@ from ..io.machine_file import DEFAULT_UNITS
 from ..limits import MAX_MEASUREMENTS
 from ..machines.deviations import deviations as _deviations
 from ..plausibility import check_option_scale
-from ..units import ANGLE, LENGTH, parse_quantity
+from ..units import parse_quantity
 from ._console import console, error, warning
 
 # --------------------------------------------------------------------------------------------
@@ -617,7 +617,7 @@ def run_fk(machine_spec: str, joints: Path, output: Path, frame: str = "base",
                          "instrument's predicted measurements); --frame base writes poses")
     machine = load_machine_arg(machine_spec)
     check_outputs([output], [joints] + _machine_inputs(machine_spec))
-    if machine.kind == "stewart":
+    if getattr(machine, "reading_unit", None) is not None:   # readings in their own unit
         q, rows = read_readings(joints, machine)
     else:
         q, rows, _ = read_joints(joints, machine.n_joints, joint_quantity(machine), machine)
@@ -685,15 +685,7 @@ def read_poses_of(path: Path, machine):
 def joint_columns(machine, q, units) -> dict:
     """``q1_<unit> ...`` columns of joint values (K, n) in the file's units: the machine
     file's length or angle unit, a Stewart's reading unit."""
-    if machine.kind == "stewart":
-        unit = getattr(machine, "reading_unit", "m")
-        f = LENGTH.get(unit, 1.0)
-    elif joint_quantity(machine) == "angle":
-        unit = units["angle"]
-        f = ANGLE[unit]
-    else:
-        unit = units["length"]
-        f = LENGTH[unit]
+    unit, f = machine.joint_unit(units)
     return {f"q{j + 1}_{unit}": (q[:, j] / f).tolist() for j in range(q.shape[1])}
 
 
@@ -714,7 +706,7 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
     P, R, rows = read_poses_of(poses, machine)
     q = machine.ik(P, R)
     bad = ~np.all(np.isfinite(q), axis=1)
-    what = "leg" if machine.kind in ("delta", "stewart") else "chain"
+    what = machine.chain_word
     if bad.any():
         chains = np.flatnonzero((~np.isfinite(q[bad])).any(axis=0)) + 1
         raise InputError(f"{poses}: {int(bad.sum())} pose(s) cannot be reached by the machine "
@@ -740,8 +732,8 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
     write_table(output, list(columns), list(columns.values()))
     unit = next(iter(columns)).split("_", 1)[1]
     commit_outputs()
-    console().print(f"{len(q)} {'leg reading' if machine.kind == 'stewart' else 'joint'} "
-                    f"vector(s) written to {output} ({unit})", markup=False)
+    console().print(f"{len(q)} {machine.joint_vector_word} vector(s) written to {output} "
+                    f"({unit})", markup=False)
 
 
 # --------------------------------------------------------------------------------------------
@@ -762,7 +754,7 @@ def _errors_machine(spec: str):
         machine.source = "cubic"
         return machine
     machine = load_machine_arg(spec)
-    if getattr(machine, "kind", "") != "stewart":
+    if machine.n_joints != 6 or machine.leg_joints(np.zeros(6)) is None:
         raise InputError(f"{spec}: pkmcal errors needs a six-leg machine (machine: stewart; "
                          f"or 'cubic' for the embedded seed 003 device), not "
                          f"{getattr(machine, 'kind', 'this machine')}")

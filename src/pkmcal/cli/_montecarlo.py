@@ -77,7 +77,7 @@ def run_montecarlo(machine_spec: str, vary: str, output: Path, runs: int = 20,
                    tolerance: str | None = None, deviations: str | None = None,
                    estimate_lc: bool = False, seed: int = 0, workers: int | None = None,
                    scheduler: str | None = None, quiet: bool = False) -> int:
-    from ..analysis.montecarlo import MonteCarloSettings, montecarlo
+    from ..analysis.montecarlo import MonteCarloSettings, montecarlo, scenarios_varying
 
     check_outputs([output / name for name in OUTPUT_FILES], [], [output])
     if runs < 1:
@@ -88,26 +88,34 @@ def run_montecarlo(machine_spec: str, vary: str, output: Path, runs: int = 20,
         raise InputError("--workers: does not apply with --scheduler (the Dask cluster has "
                          "its own workers)")
     variable, values = parse_vary(vary)
+    from ..instruments.registry import INSTRUMENTS, instrument
     from ..planning import scenario_for
 
     machine = load_machine_arg(machine_spec)
     resolved = scenario_for(machine, scenario)      # the reason when it does not apply
-    noise_value = _length_option(noise, "--noise", allow=("leica",))
-    if noise_value == "leica":
-        if resolved != "tracker":
-            raise InputError(f"--noise leica: applies to the tracker scenario, not {resolved}")
+    inst = instrument(resolved)
+    words = tuple(w for i in INSTRUMENTS.values() for w in i.montecarlo_noise_words)
+    noise_value = _length_option(noise, "--noise", allow=words)
+    if noise_value in words:
+        if noise_value not in inst.montecarlo_noise_words:
+            users = [i.name for i in INSTRUMENTS.values()
+                     if noise_value in i.montecarlo_noise_words]
+            raise InputError(f"--noise {noise_value}: applies to the {' or '.join(users)} "
+                             f"scenario, not {resolved}")
         noise_value = None
-    if estimate_lc and resolved != "constraint-link":
-        raise InputError(f"--estimate-lc: applies to the constraint-link scenario, not "
+    # Lc estimated where the link length can be wrong
+    if estimate_lc and "lc-error" not in inst.montecarlo_variables:
+        raise InputError(f"--estimate-lc: applies to {scenarios_varying('lc-error')}, not "
                          f"{resolved}")
     settings = MonteCarloSettings(
         machine, resolved, poses=poses, noise=noise_value,
         lc_error=_length_option(lc_error, "--lc-error") or 0.0,
         deviations=deviations, tolerance=_length_option(tolerance, "--tolerance"),
         estimate_lc=estimate_lc)
-    if lc_error is not None and settings.resolved().scenario != "constraint-link":
-        raise InputError(f"--lc-error: applies to the constraint-link scenario, not "
-                         f"{settings.resolved().scenario} ({machine.kind})")
+    if lc_error is not None and "lc-error" not in \
+            settings.resolved().instrument().montecarlo_variables:     # checks the settings
+        raise InputError(f"--lc-error: applies to {scenarios_varying('lc-error')}, not "
+                         f"{resolved} ({machine.kind})")
 
     total = len(values) * runs
     with progress_tasks(quiet) as new:

@@ -289,7 +289,8 @@ def parse_joint_range(text: str, machine) -> tuple[float, float]:
     """``MIN,MAX`` of ``--joint-range`` in the joints' quantity (length or angle), SI."""
     from ..io import joint_quantity
 
-    quantity = "length" if machine.kind == "stewart" else joint_quantity(machine)
+    gains = machine.reading_gains()          # readings in their own unit: give lengths
+    quantity = "length" if gains is not None else joint_quantity(machine)
     parts = [p.strip() for p in str(text).split(",")]
     if len(parts) != 2:
         raise InputError(f"--joint-range: expected MIN,MAX with units (e.g. 100mm,600mm or "
@@ -297,9 +298,8 @@ def parse_joint_range(text: str, machine) -> tuple[float, float]:
     lo, hi = (parse_quantity(p, quantity, "--joint-range") for p in parts)
     if not lo < hi:
         raise InputError(f"--joint-range: MIN must be below MAX, got {text}")
-    if machine.kind == "stewart":
-        gain = np.abs(machine.legs()[3])
-        if not np.allclose(gain, 1.0):
+    if gains is not None:
+        if not np.allclose(np.abs(gains), 1.0):
             raise InputError("--joint-range: this Stewart's readings are not lengths (gain "
                              "!= 1); give candidates within its range with --from")
     return lo, hi

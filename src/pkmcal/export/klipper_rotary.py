@@ -496,7 +496,7 @@ class KlipperRotaryDelta(ControllerFormat):
             the machine's, so :meth:`initial` of it gives the values back.
         """
         radius, height, upper, lower, angles, endstops, _, readings = self.unpack(params)
-        b = float(like.b) if isinstance(like, Delta) else 0.0
+        b = float(getattr(like, "platform_radius", 0.0))
         l1, l2 = float(np.mean(upper)), float(np.mean(lower))
         dth = self.abs_endstops(params) - readings
         u = np.zeros((3, 9))

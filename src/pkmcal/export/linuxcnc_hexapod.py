@@ -159,6 +159,8 @@ class GenhexkinsFormat(ControllerFormat):
              "the drive's reading (LinuxCNC src/emc/kinematics/genhexkins.c)")
     suffix = ".hal"
     exact = True
+    #: the machine type genhexkins drives (six struts between base and platform joints)
+    machine_kind = "stewart"
 
     def applies(self, machine: Machine) -> str | None:
         """Why genhexkins cannot hold ``machine`` (None for a six-strut platform).
@@ -173,17 +175,15 @@ class GenhexkinsFormat(ControllerFormat):
         str or None
             The reason in words.
         """
-        from ..machines.stewart import Stewart
-
-        if isinstance(machine, Stewart):
-            return None
         kind = getattr(machine, "kind", type(machine).__name__)
-        if kind == "hexaslide":
-            return ("a Hexa Slide moves fixed-length legs with sliders on rails; genhexkins' "
-                    "joints are the lengths of six struts between a base and a platform joint "
-                    "(a pkmcal machine: stewart)")
+        if kind == self.machine_kind:
+            return None
+        how = getattr(machine, "actuation_words", None)
+        if how is not None:
+            return (f"{how}; genhexkins' joints are the lengths of six struts between a base "
+                    f"and a platform joint (a pkmcal machine: {self.machine_kind})")
         return (f"genhexkins drives six struts between base and platform joints (a pkmcal "
-                f"machine: stewart), not a {kind} machine")
+                f"machine: {self.machine_kind}), not a {kind} machine")
 
     def initial(self, machine: Machine) -> GenhexParameters:
         """The values of a Stewart machine (exact).

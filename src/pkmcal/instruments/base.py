@@ -3,6 +3,7 @@ for any machine (the base class), its standard plan and the reach of planned pos
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,6 +62,24 @@ def reachable(machine: Machine, P, R, rows, source) -> np.ndarray:
     return q
 
 
+def has_column(header, base: str) -> bool:
+    """Whether a header has the column ``base`` (alone or with a unit suffix, ``base_mm``).
+
+    Parameters
+    ----------
+    header : list of str
+        Column names.
+    base : str
+        The column's name without its unit.
+
+    Returns
+    -------
+    bool
+        True when present.
+    """
+    return any(n == base or n.startswith(base + "_") for n in header)
+
+
 class Instrument:
     """An instrument (see the module docstring); subclasses fill in the methods."""
 
@@ -72,6 +91,65 @@ class Instrument:
     words: str = ""
     #: default number of planned poses
     plan_size: int = 60
+    #: the quantities of its machine-file section, ``{key path: "length" | "angle"}`` (``*``
+    #: matches any key or index): unit conversion and magnitude checks of machine files
+    file_quantities: dict = {}
+    #: what its data files hold, in words (messages)
+    columns: str = ""
+    #: data files are recognised in increasing priority (a readings-only fallback last)
+    priority: int = 50
+    #: its data files hold joint readings alone (no column of its own)
+    readings_only: bool = False
+    #: ``(columns, words)`` named when readings-only data come for a machine measured with it
+    missing: tuple[str, str] | None = None
+    #: its measurements can fix a length of the machine (heights along z alone cannot fix a
+    #: printer's arms: a parameter set's ``without_lengths`` applies)
+    fixes_lengths: bool = True
+    #: class name of its data objects (data given in memory)
+    data_class: str = "InstrumentData"
+    #: why its files cannot be fitted together with other files in one fit (empty: they can)
+    joint_refusal: str = ""
+    #: its measurements in words, one and several (messages: "does not apply to ...")
+    singular: str = ""
+    plural: str = ""
+    #: what the residuals of its calibration report are, in words
+    residual_words: str = "measured - predicted"
+    #: what to measure when its calibration does not converge
+    advice: str = "measure more, in other directions"
+    #: ``fit_model(machine, data) -> NuisanceModel``: the model :func:`pkmcal.calibrate`
+    #: fits by the calibration layer's generic path; None: the calibration layer registers
+    #: handlers of its own for this instrument
+    fit_model = None
+
+    def noise_text(self, noise) -> str:
+        """The noise in the report's words (default :meth:`describe_noise`).
+
+        Parameters
+        ----------
+        noise : object
+            A noise model of this instrument.
+
+        Returns
+        -------
+        str
+            One line.
+        """
+        return self.describe_noise(noise)
+
+    def detect(self, header) -> bool:
+        """Whether a data file's columns are this instrument's.
+
+        Parameters
+        ----------
+        header : list of str
+            The file's column names.
+
+        Returns
+        -------
+        bool
+            True for its files (:func:`has_column` of its own columns).
+        """
+        return False
 
     def plan_size_for(self, machine: Machine) -> int:
         """The default number of planned poses for ``machine``.
@@ -127,6 +205,94 @@ class Instrument:
             One line.
         """
         raise NotImplementedError
+
+    # -- Monte Carlo (:mod:`pkmcal.analysis.montecarlo`) --------------------------------------
+
+    #: the Monte Carlo variables (:data:`pkmcal.analysis.montecarlo.VARIABLES`) a run of this
+    #: instrument can sweep; empty: the instrument has no Monte Carlo run
+    montecarlo_variables: tuple = ()
+    #: accuracy metrics of a Monte Carlo run: name -> (unit suffix, factor of that unit to SI,
+    #: words)
+    montecarlo_metrics: dict = {}
+    #: metrics a machine may not define (NaN then, without rejecting the run)
+    montecarlo_optional_metrics: frozenset = frozenset()
+    #: held-out evaluation poses of a Monte Carlo run
+    montecarlo_evaluation_poses: int = 100
+    #: measurements of a Monte Carlo run when ``poses`` is not given
+    montecarlo_poses: int = 60
+    #: whether noise 0 simulates exact data (weighed as if ``NOISE_FLOOR`` noisy and judged by
+    #: the residual RMS); False when some noise stays at its default anyway
+    montecarlo_exact_data: bool = False
+    #: words ``pkmcal montecarlo --noise`` takes for the instrument's default noise
+    montecarlo_noise_words: tuple = ()
+
+    def montecarlo_default_poses(self, machine: Machine):
+        """The number of measurements of a Monte Carlo run when not given, as
+        ``summary.json`` states it.
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+
+        Returns
+        -------
+        int or str
+            :attr:`montecarlo_poses`, or the plan in words.
+        """
+        return self.montecarlo_poses
+
+    def montecarlo_minimum_poses(self, settings) -> int:
+        """Fewest measurements a Monte Carlo run's calibration accepts (default: 6 equations
+        per pose, 12 gauges).
+
+        Parameters
+        ----------
+        settings : MonteCarloSettings
+            The run's settings (``machine``, ``estimate_lc``).
+
+        Returns
+        -------
+        int
+            The minimum.
+        """
+        return max(4, math.ceil(len(settings.machine.parameters) / 6))
+
+    def check_montecarlo(self, settings, what: dict) -> None:
+        """Raise :class:`InputError` for Monte Carlo settings no run of this instrument can
+        use (beyond the generic checks).
+
+        Parameters
+        ----------
+        settings : MonteCarloSettings
+            Resolved settings.
+        what : dict
+            The option naming each field (``lc_error`` -> ``--lc-error``).
+        """
+        return None
+
+    def montecarlo_run(self, run):
+        """One Monte Carlo run: the true machine measured by the instrument, the default
+        calibration, and the accuracy of the calibrated model against the truth.
+
+        Parameters
+        ----------
+        run : MonteCarloRun
+            The run (:class:`pkmcal.analysis.montecarlo.MonteCarloRun`): its ``settings`` and
+            random generator ``rng`` (every draw comes from it, in a fixed order), and what
+            the layers above the instruments provide: ``true_machine()``, ``deviations()``,
+            ``weight(noise)`` (the noise the calibration assumes), ``simulate(n, noise)``
+            (:func:`~pkmcal.instruments.simulate.simulate_scenario` of this instrument) and
+            ``workspace_accuracy(true, calibrated, n)``.
+
+        Returns
+        -------
+        result : CalibrationResult
+            The calibration.
+        metrics : dict
+            The metrics of :attr:`montecarlo_metrics` (SI).
+        """
+        raise NotImplementedError(f"{self.name}: no Monte Carlo run")
 
     def candidates(self, machine: Machine, n: int, rng):
         """``n`` feasible candidate poses and their setups.
@@ -497,6 +663,35 @@ class Instrument:
         if pose_noise is not None:
             raise InputError(f"--pose-noise applies to full-pose measurements, not {self.name}")
         return self.noise_arg(noise, machine)
+
+    #: the readings of a row of its CSV files, by column suffix (``q1<s>..``): one set
+    reading_sets: tuple[str, ...] = ("",)
+    #: its value columns ``(name, quantity)`` (read by :func:`pkmcal.io.read_measurements`
+    #: when no ``reader`` is named)
+    value_columns: tuple = ()
+    #: its values must be above 0
+    positive_values: bool = False
+
+    def from_columns(self, readings, values, rows, source):
+        """Its data from the columns it declares (``reading_sets``, ``value_columns``).
+
+        Parameters
+        ----------
+        readings : list of ndarray, shape (K, n_joints)
+            The joint readings of each set, SI.
+        values : ndarray, shape (K, m)
+            The value columns, SI.
+        rows : ndarray of int, shape (K,)
+            The file's row numbers.
+        source : str
+            The file.
+
+        Returns
+        -------
+        object
+            The instrument's data.
+        """
+        raise NotImplementedError
 
     #: the name of the :mod:`pkmcal.io` function reading its CSV files
     #: (:func:`pkmcal.io.read_measurements`); instruments sit below io and name it

@@ -84,7 +84,7 @@ from ..kinematics import matrix_from_euler, matrix_from_rotvec
 from ..machines.base import Machine, newton_pose_solve
 from ..machines.deviations import draw_accepted
 from ..parameters import ParameterSet
-from .base import Instrument, StandardPlan, _rows, _sigma_arg, _space_words, reachable
+from .base import Instrument, StandardPlan, _rows, _sigma_arg, _space_words, has_column, reachable
 from .experiment import MOUNTING_ERROR
 
 
@@ -1700,6 +1700,14 @@ class ConstraintLink(Instrument):
     name = "constraint-link"
     words = "a fixed-length constraint link, one joint passive (no external sensor)"
     plan_size = 150
+    columns = "q1_mm..q6_mm (optionally passive) with a constraint_link in the machine file"
+    priority = 90
+    readings_only = True
+    data_class = "ConstraintLinkData"
+    joint_refusal = "the constraint link estimates a platform pose per measurement"
+
+    def detect(self, header):
+        return has_column(header, "q1")
 
     def applies(self, machine):
         if not machine.rotates:
@@ -1719,6 +1727,48 @@ class ConstraintLink(Instrument):
 
     def describe_noise(self, noise):
         return f"encoder noise {noise * 1e6:.4g} um (std)"
+
+    montecarlo_variables = ("noise", "lc-error", "poses", "tolerance")
+    montecarlo_metrics = {
+        "position_mean": ("um", 1e-6, "mean position error over the workspace, aligned"),
+        "position_max": ("um", 1e-6, "max position error over the workspace, aligned"),
+        "orientation_mean": ("urad", 1e-6, "mean orientation error, aligned"),
+        "orientation_max": ("urad", 1e-6, "max orientation error, aligned"),
+    }
+    montecarlo_evaluation_poses = 300
+    montecarlo_poses = 150
+    montecarlo_exact_data = True
+
+    def montecarlo_minimum_poses(self, settings):
+        # one equation per pose
+        return len(settings.machine.parameters) - 6 + int(settings.estimate_lc)
+
+    def check_montecarlo(self, settings, what):
+        Lc = getattr(settings.machine, "constraint_link_length", None)
+        if Lc is None:
+            raise InputError(f"{getattr(settings.machine, 'source', 'the machine')}: "
+                             "constraint_link: the machine has no constraint-link length; add "
+                             "`constraint_link: {length: ...}` to the machine file")
+        if not Lc - settings.lc_error > 0:
+            raise InputError(f"{what['lc_error']}: the true link length "
+                             f"{(Lc - settings.lc_error) * 1e3:.6g} mm is not positive")
+
+    def montecarlo_run(self, run):
+        """Maximum likelihood (Lc estimated with ``estimate_lc``) from encoder readings on the
+        true link's sphere; pose accuracy over the SPEC 5 workspace, gauge-aligned."""
+        s = run.settings
+        nominal = s.machine
+        true = run.true_machine()
+        lc_true = nominal.constraint_link_length - s.lc_error
+        true.constraint_link_length = lc_true
+        noise = 2e-6 if s.noise is None else s.noise
+        data = simulate_constraint_link(true, s.poses or self.montecarlo_poses, noise,
+                                        link_length=lc_true, link_length_error=s.lc_error,
+                                        rng=run.rng)
+        res = calibrate_constraint_link(nominal, data, sigma_m=run.weight(noise),
+                                        estimate_link_length=s.estimate_lc)
+        return res, run.workspace_accuracy(true, res.extras["machine"],
+                                           self.montecarlo_evaluation_poses)
 
     def candidates(self, machine, n, rng):
 

@@ -18,6 +18,8 @@ enter only through their difference, per mounting.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..errors import InputError
@@ -32,6 +34,7 @@ from .base import (
     _sigma_arg,
     _simulated_sigma,
     _space_words,
+    has_column,
     reachable,
 )
 from .data import InstrumentData
@@ -212,6 +215,15 @@ class Distance(Instrument):
     aliases = ("distances", "ballbar")
     words = "ballbar lengths between a pivot on the base and a ball on the platform"
     plan_size = 90
+    #: the quantities of its machine-file section (unit conversion, magnitude checks)
+    file_quantities = {("ballbar", "*", "pivot", "*"): "length",
+                       ("ballbar", "*", "ball", "*"): "length"}
+    columns = ("the joint readings q1_<unit>.. and the ballbar length d_mm, optionally setup "
+               "(1..K, one per mounting)")
+    priority = 30
+
+    def detect(self, header):
+        return has_column(header, "d")
 
     def applies(self, machine):
         # the planned setups sweep spheres around pivots: the platform must move in space
@@ -228,6 +240,45 @@ class Distance(Instrument):
 
     def describe_noise(self, noise):
         return f"ballbar length {noise.sigma * 1e6:.3g} um (std)"
+
+    montecarlo_variables = ("noise", "poses", "tolerance")
+    montecarlo_metrics = {
+        "distance_mean": ("um", 1e-6, "mean held-out ballbar-length error"),
+        "distance_max": ("um", 1e-6, "max held-out ballbar-length error"),
+    }
+    montecarlo_evaluation_poses = 100
+    montecarlo_poses = 90
+    montecarlo_exact_data = True
+
+    def montecarlo_minimum_poses(self, settings):
+        # 1 equation per pose, 3 mountings
+        return max(9, len(settings.machine.parameters) - 6)
+
+    def montecarlo_run(self, run):
+        """A ballbar on three mountings (the registry's plan, random mounting errors), the
+        pivots and balls estimated with the machine; held out: ballbar lengths at other poses
+        on the spheres through the identified pivots and balls, against the true ones."""
+        s = run.settings
+        nominal = s.machine
+        noise = 1e-6 if s.noise is None else s.noise
+        data, true, truth = run.simulate(s.poses or self.montecarlo_poses,
+                                         IsotropicNoise(noise) if noise > 0 else False)
+        res = fit_instrument(nominal, data, DistancesModel(data.n_groups),
+                             IsotropicNoise(run.weight(noise)))
+        P, R, g = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng)
+        q = nominal.ik(P, R)
+        model = res.extras["model"]
+        fit = res.extras["machine"].fk(q, start=(P, R))
+        d_fit = model.predict(model.initial(), fit.P, fit.R, g)[:, 0]
+        exact = true.fk(q, start=(P, R))
+        pivots = np.array([p for p, _ in truth["setups"]])[g]
+        balls = np.array([b for _, b in truth["setups"]])[g]
+        d_true = np.linalg.norm(exact.P + np.einsum("kij,kj->ki", exact.R, balls) - pivots,
+                                axis=-1)
+        e = np.abs(np.where(fit.converged & exact.converged, d_fit - d_true, np.nan))
+        ok = np.isfinite(e)
+        return res, {"distance_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
+                     "distance_max": float(np.max(e[ok])) if ok.any() else math.nan}
 
     def candidates(self, machine, n, rng):
         """Poses on the setups' spheres (:func:`ballbar_setups`: random directions within 60

@@ -216,6 +216,39 @@ class NuisanceModel(ABC):
         zero = np.zeros((len(P), self.size))
         return -self.residuals(state, P, R, zero, group, jacobian=False)[0]
 
+    def joint_section(self, nuisance, machine, calibrated, source: str, fl: float,
+                      units: dict, frame: str, taken: dict) -> tuple[dict, str | None]:
+        """This file's instrument unknowns in a joint fit's report, and what they set on the
+        calibrated machine file.
+
+        Parameters
+        ----------
+        nuisance : NuisanceState
+            The fitted unknowns of this file.
+        machine : Machine
+            The nominal machine.
+        calibrated : Machine
+            The calibrated machine (its instrument sections are set here).
+        source : str
+            The data file.
+        fl : float
+            Metres per unit of the file's lengths.
+        units : dict
+            The machine file's units.
+        frame : str
+            The file's frame in words (a printer's bed).
+        taken : dict
+            Shared among the files of the fit: what earlier files already set.
+
+        Returns
+        -------
+        entry : dict
+            Keys added to the file's entry of the report.
+        words : str or None
+            The instrument section it set, in words (None: none).
+        """
+        return {}, None
+
     @abstractmethod
     def start(self, P, R, measured, group, source: str = "<data>") -> NuisanceModel:
         """A copy of this model with start values from poses of the start geometry.
@@ -329,6 +362,23 @@ class PointsModel(NuisanceModel):
             return np.tile(self.known_target, (self.n_targets, 1))
         return state.values[self._it]
 
+    def joint_section(self, nuisance, machine, calibrated, source, fl, units, frame, taken):
+        R = self.rotation(nuisance, "tracker")
+        t = np.array(self.vector(nuisance, "tracker"))
+        targets = self.targets(nuisance)
+        entry = {"registration": {"rotation": R.tolist(), "translation": (t / fl).tolist(),
+                                  "unit": units["length"]},
+                 "targets": {"given_by_machine_file": machine.tracker_target() is not None,
+                             "places": (np.asarray(targets) / fl).tolist(),
+                             "unit": units["length"]}}
+        if "tracker" in taken:
+            return entry, None
+        taken["tracker"] = source
+        calibrated.base_from_tracker = (R, t)
+        calibrated.tracker_targets = (None if machine.tracker_target() is not None
+                                      else np.array(targets, float))
+        return entry, f"tracker (frame and targets) from {source}"
+
     def start(self, P, R, measured, group, source="<data>"):
         from ..estimation.registration import register_points
 
@@ -395,6 +445,18 @@ class DistancesModel(NuisanceModel):
             de_dv[rows[:, None], 0, self._ip[g][None, :]] = nvec[rows]
             de_dv[rows[:, None], 0, self._ib[g][None, :]] = nR[rows]
         return e, de_dpose, de_dv
+
+    def joint_section(self, nuisance, machine, calibrated, source, fl, units, frame, taken):
+        setups = taken.setdefault("ballbar setups", [])
+        mine = [(np.array(nuisance.values[self._ip[g]]), np.array(nuisance.values[self._ib[g]]))
+                for g in range(self.n_setups)]
+        entry = {"setups": [{"setup": len(setups) + g + 1, "in_file": g + 1,
+                             "pivot": (p / fl).tolist(), "ball": (b / fl).tolist(),
+                             "unit": units["length"]} for g, (p, b) in enumerate(mine)]}
+        words = (f"ballbar setups {len(setups) + 1}..{len(setups) + len(mine)} from {source}")
+        setups.extend(mine)
+        calibrated.ballbar_setups = setups
+        return entry, words
 
     def start(self, P, R, measured, group, source="<data>"):
         values = np.array(self.parameters.values, float)
@@ -589,6 +651,19 @@ class ProbeModel(NuisanceModel):
         de_dpose = np.concatenate([-n, np.einsum("ki,kij->kj", n, skew(Rc))], -1)[:, None, :]
         de_dv = np.stack([np.ones(K), x[:, 0], x[:, 1]], -1)[:, None, :]
         return e, de_dpose, de_dv
+
+    def joint_section(self, nuisance, machine, calibrated, source, fl, units, frame, taken):
+        bed = tuple(float(v) for v in nuisance.values[:3])
+        entry = {"bed": {"height": bed[0] / fl, "tilt_x": bed[1], "tilt_y": bed[2],
+                         "unit": units["length"], "tilt": "slopes dz/dx, dz/dy",
+                         "frame": frame}}
+        if "bed" in taken:
+            return entry, None
+        taken["bed"] = source
+        calibrated.probe_bed = bed
+        words = ("height and tilt" if not machine.frame_is_bed else "tilt"
+                 if "estimated" in frame else "square to the towers")
+        return entry, f"bed ({words}) from {source}"
 
     def start(self, P, R, measured, group, source="<data>"):
         """The bed plane through the tips lowered by their measured heights (least squares).

@@ -25,7 +25,7 @@ from ..machines.reach import (
     bed_height,
 )
 from ..parameters import ParameterSet
-from .base import Instrument, StandardPlan, reachable
+from .base import Instrument, StandardPlan, has_column, reachable
 from .data import InstrumentData
 from .experiment import MOUNTING_ERROR
 from .models import NuisanceModel
@@ -172,6 +172,24 @@ class PairDistance(Instrument):
     words = ("distances between the nozzle at two sets of readings (a caliper on a printed "
              "part; Klipper's DELTA_ANALYZE object)")
     plan_size = 24
+    columns = ("the readings at two nozzle positions q1_<unit>.. and q1b_<unit>.. and the "
+               "distance between them, distance_mm (a caliper on a printed part)")
+    priority = 5
+
+    singular = "two-point distance"
+    plural = "two-point distances"
+    residual_words = "distances between the two nozzle positions, measured - predicted"
+    advice = "measure distances in several directions and at several heights"
+
+    def detect(self, header):
+        return has_column(header, "q1b") and has_column(header, "distance")
+
+    def fit_model(self, machine, data):
+        """No unknown of its own: :class:`PairDistanceModel` of the nozzle tip."""
+        return PairDistanceModel()
+
+    def noise_text(self, noise):
+        return f"distances {noise.sigma * 1e6:.4g} um (std)"
 
     def applies(self, machine):
         return None
@@ -279,8 +297,12 @@ class PairDistance(Instrument):
     measurement_words = ("distances between the nozzle at two sets of readings (no unknown of "
                          "their own)")
 
-    #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
-    reader = "read_pairs"
+    reading_sets = ("", "b")
+    value_columns = (("distance", "length"),)
+    positive_values = True
+
+    def from_columns(self, readings, values, rows, source):
+        return pair_data(readings[0], readings[1], values[:, 0], rows, source)
 
 
 #: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)

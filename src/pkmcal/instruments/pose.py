@@ -52,7 +52,7 @@ measured position an isotropic ``position_m``, the measured orientation an isotr
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -67,7 +67,7 @@ from ..kinematics import matrix_from_euler, matrix_from_rotvec, rotvec_from_matr
 from ..machines.base import Machine
 from ..machines.deviations import draw_accepted
 from ..parameters import ParameterSet
-from .base import Instrument, _space_words, reachable
+from .base import Instrument, _space_words, has_column, reachable
 from .experiment import MOUNTING_ERROR
 
 Frame = tuple[np.ndarray, np.ndarray]
@@ -1355,6 +1355,18 @@ class Pose(Instrument):
     aliases = ("poses",)
     words = "the marker pose (motion capture, 6-D tracker)"
     plan_size = 60
+    #: the quantities of its machine-file section (unit conversion, magnitude checks)
+    file_quantities = {("measurement_frames", "*", "translation", "*"): "length"}
+    columns = ("the leg readings q1_<unit>..q6_<unit> (the machine's reading unit) and the "
+               "measured pose x_mm, y_mm, z_mm with qx, qy, qz, qw or psi_deg, theta_deg, "
+               "phi_deg")
+    priority = 20
+    data_class = "FullPoseData"
+    joint_refusal = "full poses estimate a platform pose per measurement"
+
+    def detect(self, header):
+        return (has_column(header, "x") or has_column(header, "y") or has_column(header, "z")
+                or "qw" in header)
 
     def applies(self, machine):
         if not machine.rotates:
@@ -1374,6 +1386,52 @@ class Pose(Instrument):
         return (f"leg readings {noise.reading_m * 1e6:.3g} um, poses "
                 f"{noise.position_m * 1e6:.3g} um / {noise.orientation_rad * 1e6:.3g} urad "
                 "(std)")
+
+    montecarlo_variables = ("noise", "poses", "tolerance")
+    montecarlo_metrics = {
+        "position_mean": ("um", 1e-6, "mean held-out marker position error"),
+        "position_max": ("um", 1e-6, "max held-out marker position error"),
+        "orientation_mean": ("urad", 1e-6, "mean held-out marker orientation error"),
+        "orientation_max": ("urad", 1e-6, "max held-out marker orientation error"),
+        "parameter_rms": ("", 1.0, "RMS gauge-free parameter error, scaled coordinates"),
+    }
+    #: the gauge-free parameter error needs a six-leg platform's leg layout
+    montecarlo_optional_metrics = frozenset({"parameter_rms"})
+    montecarlo_evaluation_poses = 100
+    montecarlo_poses = 60
+
+    def montecarlo_run(self, run):
+        """Maximum likelihood with both measurement frames estimated, the noise of leg
+        readings varied (the pose noise at its default); held out: exact poses through the
+        identified frames, and the gauge-free parameter error (:func:`gauge_free_error`)."""
+        from ..machines.reach import sample_workspace_poses
+
+        s = run.settings
+        nominal = s.machine
+        true = run.true_machine()
+        frames = measurement_frames(nominal)
+        true.measurement_frames = frames
+        default = FullPoseNoise()
+        noise = default.reading_m if s.noise is None else s.noise
+        data = simulate_full_pose(true, sample_workspace_poses(true, s.poses or
+                                                               self.montecarlo_poses, run.rng),
+                                  frames, replace(default, reading_m=noise), run.rng)
+        res = calibrate_full_pose(nominal, data, "ml",
+                                  noise=replace(default, reading_m=run.weight(noise)))
+        held = simulate_full_pose(true, sample_workspace_poses(
+            true, self.montecarlo_evaluation_poses, run.rng), frames, None, run.rng)
+        err = full_pose_errors(res.extras["machine"], res.extras["frames"], held)
+        ok = err.converged
+        e = gauge_free_error(nominal, res, true.u, frames)
+
+        def stat(f, v):
+            return float(f(v[ok])) if ok.any() else math.nan
+
+        return res, {"position_mean": stat(np.mean, err.position),
+                     "position_max": stat(np.max, err.position),
+                     "orientation_mean": stat(np.mean, err.orientation),
+                     "orientation_max": stat(np.max, err.orientation),
+                     "parameter_rms": float(np.sqrt(np.mean(e**2)))}
 
     def planned_data(self, machine, P, R, rows, source, group=None):
 
@@ -1552,3 +1610,39 @@ def measurement_frames(machine: Machine):
 
 #: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
 INSTRUMENT = Pose()
+
+
+def pose_noise_option(noise, pose_noise, machine):
+    """The noise model of a full-pose calibration and the levels held (those the user gave;
+    the others are estimated from the residuals).
+
+    Parameters
+    ----------
+    noise : str, float, FullPoseNoise or None
+        ``--noise`` (the leg readings' std), or a whole noise model.
+    pose_noise : str or None
+        ``--pose-noise`` (``POSITION,ORIENTATION``).
+    machine : Machine
+        The machine (levels checked against its size).
+
+    Returns
+    -------
+    noise_model : FullPoseNoise
+        The model.
+    hold : list of str
+        Its levels given by the user (``reading``, ``position``, ``orientation``).
+
+    Raises
+    ------
+    InputError
+        For ``pose_noise`` beside a whole model, or a bad level.
+    """
+    if isinstance(noise, FullPoseNoise):
+        if pose_noise is not None:
+            raise InputError("--pose-noise: the noise model given as noise holds the pose "
+                             "noise already")
+        return noise, ["reading", "position", "orientation"]
+    model = full_pose_noise_arg(noise, pose_noise, strict=True, machine=machine)
+    hold = ((["reading"] if noise is not None else [])
+            + (["position", "orientation"] if pose_noise is not None else []))
+    return model, hold

@@ -33,6 +33,7 @@ printer's useful accuracy.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,6 +54,7 @@ from .base import (
     _fk_of,
     _simulated_sigma,
     _space_words,
+    has_column,
     reachable,
 )
 from .bed import BedChoice, bed_choice
@@ -285,6 +287,15 @@ class Probe(Instrument):
     words = ("bed-probe heights: the nozzle's height above the bed at the trigger (bed height "
              "and tilt estimated)")
     plan_size = 37
+    #: the quantities of its machine-file section (unit conversion, magnitude checks)
+    file_quantities = {("bed", "height"): "length"}
+    columns = ("the joint readings q1_<unit>.. where the probe triggered and probe_z_mm (the "
+               "nozzle's height above the bed there, 0 for a nozzle-contact probe)")
+    priority = 25
+    fixes_lengths = False
+
+    def detect(self, header):
+        return has_column(header, "probe_z")
 
     def applies(self, machine):
         # a vertical probe needs a z axis the platform moves along
@@ -301,6 +312,40 @@ class Probe(Instrument):
 
     def describe_noise(self, noise):
         return f"probe trigger {noise.sigma * 1e6:.3g} um along z (std)"
+
+    montecarlo_variables = ("noise", "poses", "tolerance")
+    montecarlo_metrics = {
+        "height_mean": ("um", 1e-6, "mean held-out error of the nozzle's height over the bed"),
+        "height_max": ("um", 1e-6, "max held-out error of the nozzle's height over the bed"),
+    }
+    montecarlo_evaluation_poses = 100
+    montecarlo_poses = 37
+
+    def montecarlo_run(self, run):
+        """Bed-probe heights at the standard pattern (the true bed off by a random height and
+        tilt), the bed plane estimated with the machine; held out: the height of the nozzle
+        over the bed at other points of the bed, 1 mm above it, with the readings the nominal
+        model commands there - the calibrated model and its bed against the truth."""
+        s = run.settings
+        nominal = s.machine
+        noise = 1e-5 if s.noise is None else s.noise
+        data, true, truth = run.simulate(s.poses or self.montecarlo_poses,
+                                         IsotropicNoise(noise) if noise > 0 else False)
+        res = calibrate_probe(nominal, data, IsotropicNoise(run.weight(noise)))
+        P, R, _ = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng)
+        q = nominal.ik(P + np.array([0.0, 0.0, 1e-3]), R)
+
+        def heights(machine, bed):
+            fk = machine.fk(q, start=(P, R))
+            z0, tx, ty = bed
+            h = fk.P[:, 2] - (z0 + tx * fk.P[:, 0] + ty * fk.P[:, 1])
+            return np.where(fk.converged, h, np.nan)
+
+        e = np.abs(heights(res.extras["machine"], res.extras["bed"])
+                   - heights(true, truth["bed"]))
+        ok = np.isfinite(e)
+        return res, {"height_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
+                     "height_max": float(np.max(e[ok])) if ok.any() else math.nan}
 
     def candidates(self, machine, n, rng):
         """Random points uniform on the disk of :func:`probe_radius` on the nominal bed."""

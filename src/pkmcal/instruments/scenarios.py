@@ -26,13 +26,11 @@ from .pose import measurement_frames
 from .registry import INSTRUMENTS, instrument
 from .tracker import tracker_pose
 
-__all__ = ["DEFAULT_PLAN_SIZE", "SCENARIOS", "SCENARIO_OF", "STANDARD_PLANS", "StandardPlan",
+__all__ = ["DEFAULT_PLAN_SIZE", "SCENARIOS", "STANDARD_PLANS", "StandardPlan",
            "candidate_poses", "candidate_set", "default_noise", "describe_noise",
            "measurement_frames", "planned_data", "planned_problem", "scenario_for",
            "scenario_problem", "standard_plan", "tracker_pose"]
 
-#: the instrument each machine type is calibrated from by default (its source paper's)
-SCENARIO_OF = {"hexaslide": "constraint-link", "delta": "tracker", "stewart": "pose"}
 #: every scenario (canonical names; aliases are accepted by :func:`scenario_for`)
 SCENARIOS = tuple(INSTRUMENTS)
 #: default plan sizes (seed 000: 150 poses; seed 001: a 3x3x3 grid; SPEC 2.4: 60 poses)
@@ -61,8 +59,7 @@ def scenario_for(machine: Machine, scenario: str | None = None) -> str:
         the machine has no default.
     """
     if scenario is None:
-        name = getattr(machine, "default_instrument", None) or \
-            SCENARIO_OF.get(getattr(machine, "kind", ""))
+        name = getattr(machine, "default_instrument", None)   # the machine's own (paper's)
         if name is None:
             raise InputError(f"no measurement scenario for machines of type "
                              f"{getattr(machine, 'kind', '')!r}")

@@ -34,6 +34,7 @@ anisotropic: each point has its own 3x3 covariance in the tracker frame.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,7 +52,7 @@ from ..identifiability import name_null_space, name_weak_directions
 from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine
 from ..machines.delta import TRACKER_GRID_SPACING  # noqa: F401  (seed 001's grid)
-from .base import Instrument, StandardPlan, _check_groups, _fk_of, reachable
+from .base import Instrument, StandardPlan, _check_groups, _fk_of, has_column, reachable
 from .data import InstrumentData
 from .experiment import MOUNTING_ERROR
 from .models import NuisanceState, PointsModel
@@ -803,6 +804,15 @@ def tracker_targets(machine: Machine) -> tuple[np.ndarray, bool]:
     return np.asarray(targets, float).reshape(-1, 3), False
 
 
+def _point_errors(measured, exact) -> dict:
+    """Mean and max distance between predicted and exact tracker points (NaN where a
+    prediction failed; NaN metrics when all did)."""
+    e = np.linalg.norm(measured - exact, axis=-1)
+    ok = np.isfinite(e)
+    return {"position_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
+            "position_max": float(np.max(e[ok])) if ok.any() else math.nan}
+
+
 class Tracker(Instrument):
     """Points of a target on the platform in the instrument's frame (seed 001's tracker)."""
 
@@ -810,6 +820,16 @@ class Tracker(Instrument):
     aliases = ("points",)
     words = "a target on the platform measured in the instrument frame (laser tracker, CMM)"
     plan_size = 27
+    #: the quantities of its machine-file section (unit conversion, magnitude checks)
+    file_quantities = {("tracker", "translation", "*"): "length",
+                       ("tracker", "targets", "*", "*"): "length"}
+    columns = "q1_deg..q3_deg and the tracker points mx_mm, my_mm, mz_mm"
+    priority = 10
+    missing = ("mx_<unit>, my_<unit>, mz_<unit> (e.g. mx_mm)", "laser-tracker points")
+    data_class = "TrackerData"
+
+    def detect(self, header):
+        return has_column(header, "mx") or has_column(header, "my") or has_column(header, "mz")
 
     def plan_size_for(self, machine):
         # the source paper's 3x3x3 grid (seed 001, the Delta); random poses otherwise
@@ -825,6 +845,71 @@ class Tracker(Instrument):
         return (f"laser tracker: {noise.distance * 1e6:.3g} um along the beam, "
                 f"{noise.transverse * 1e6:.3g} um + {noise.transverse_per_m * 1e6:.3g} um/m "
                 "across (std)")
+
+    montecarlo_variables = ("noise", "poses", "tolerance")
+    montecarlo_metrics = {
+        "position_mean": ("um", 1e-6, "mean held-out tracker-point error"),
+        "position_max": ("um", 1e-6, "max held-out tracker-point error"),
+    }
+    montecarlo_evaluation_poses = 200
+    montecarlo_exact_data = True
+    montecarlo_noise_words = ("leica",)
+
+    def montecarlo_default_poses(self, machine):
+        # seed 001's grid on a platform that only translates, the plan size otherwise
+        return "3x3x3 grid" if not machine.rotates else self.plan_size_for(machine)
+
+    def montecarlo_minimum_poses(self, settings):
+        # 3 equations per point, 12 gauges
+        return max(4, math.ceil((len(settings.machine.parameters) + 6 - 12) / 3))
+
+    @staticmethod
+    def _montecarlo_noises(run):
+        """Simulated and fitted tracker noise of a run (None: Leica-type)."""
+        noise = run.settings.noise
+        if noise is None:
+            return TrackerNoise(), TrackerNoise()
+        sim_noise = TrackerNoise(noise, noise, 0.0) if noise > 0 else None
+        return sim_noise, TrackerNoise(run.weight(noise), run.weight(noise), 0.0)
+
+    def montecarlo_run(self, run):
+        """Errors jointly with the tracker pose; held out: the tracker points at readings in
+        the grid's box that were not measured, the calibrated model with its registration
+        against the true machine's exact points. A machine whose file does not give the
+        target's place (a platform that rotates): :meth:`_montecarlo_points_run`."""
+        s = run.settings
+        nominal = s.machine
+        if nominal.tracker_target() is None:
+            return self._montecarlo_points_run(run)
+        true = run.true_machine()
+        pose = tracker_pose(nominal)
+        true.base_from_tracker = pose
+        sim_noise, fit_noise = self._montecarlo_noises(run)
+        if s.poses is None and nominal.tracker_grid_spacing() is not None:
+            targets = grid_points(nominal.home[0], nominal.tracker_grid_spacing())
+        else:
+            targets = self.candidates(nominal, s.poses or self.montecarlo_poses, run.rng)[0]
+        data = simulate_tracker(true, nominal, targets, pose, sim_noise, rng=run.rng)
+        res = calibrate_tracker(nominal, data, fit_noise)
+        held = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng)[0]
+        q = nominal.ik(held)
+        m = predict_tracker_points(res.extras["machine"], q, res.extras["registration"])
+        return res, _point_errors(m, predict_tracker_points(true, q, pose))
+
+    def _montecarlo_points_run(self, run):
+        """Random workspace poses with rotations, the target's place estimated; held out: the
+        points at other poses through the identified registration and target."""
+        nominal = run.settings.machine
+        sim_noise, fit_noise = self._montecarlo_noises(run)
+        data, true, truth = run.simulate(run.settings.poses,
+                                         False if sim_noise is None else sim_noise)
+        res = calibrate_tracker(nominal, data, fit_noise)
+        P, R, _ = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng)
+        q = nominal.ik(P, R)
+        m = predict_tracker_points(res.extras["machine"], q, res.extras["registration"],
+                                   targets=res.extras["targets"])
+        return res, _point_errors(m, predict_tracker_points(true, q, truth["base_from_tracker"],
+                                                            targets=truth["targets"]))
 
     def candidates(self, machine, n, rng):
         if machine.tracker_grid_spacing() is None:
@@ -1081,3 +1166,23 @@ class Tracker(Instrument):
 
 #: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
 INSTRUMENT = Tracker()
+
+
+def as_tracker_data(data):
+    """Points given as the instrument layer's data (``kind == "points"``), as tracker data;
+    other data unchanged.
+
+    Parameters
+    ----------
+    data : object
+        Tracker data, or the instrument layer's points.
+
+    Returns
+    -------
+    object
+        :class:`TrackerData` for points, else ``data``.
+    """
+    if getattr(data, "kind", None) != "points":
+        return data
+    return TrackerData(data.q, data.values, data.rows, data.source, data.true_P,
+                       target=data.group if data.n_groups > 1 else None)

@@ -5,11 +5,11 @@ from .csv_io import (
     joint_quantity,
     machine_readings,
     read_constraint_link,
+    read_declared,
     read_distances,
     read_full_pose,
     read_groups,
     read_joints,
-    read_pairs,
     read_passive,
     read_points,
     read_poses,
@@ -45,7 +45,8 @@ def read_measurements(instrument, path, machine):
     ----------
     instrument : Instrument
         A registry entry (:mod:`pkmcal.instruments.registry`); its ``reader`` names the
-        function of this package that reads its files.
+        function of this package that reads its files, else its declared columns are read
+        (:func:`~pkmcal.io.csv_io.read_declared`).
     path : str or os.PathLike
         The data file.
     machine : Machine
@@ -61,6 +62,8 @@ def read_measurements(instrument, path, machine):
     InputError
         Naming the file, row and column of what cannot be read.
     """
+    if not instrument.reader:
+        return read_declared(instrument, path, machine)
     return globals()[instrument.reader](path, machine)
 
 
@@ -98,6 +101,6 @@ __all__ = [
     "read_passive", "read_poses", "read_positions", "read_readings", "read_table",
     "read_tracker", "save_machine", "write_full_pose", "write_joints", "write_poses",
     "write_positions", "write_readings", "write_table", "write_tracker", "machine_readings",
-    "read_distances", "read_groups", "read_pairs", "read_points", "read_probe",
+    "read_distances", "read_groups", "read_declared", "read_points", "read_probe",
     "write_instrument",
 ]

@@ -1433,14 +1433,19 @@ def write_instrument(path, data, machine, length_unit: str = "mm") -> Path:
     return write_table(path, header, columns)
 
 
-def read_pairs(path, machine):
-    """Two-point distances from a CSV file.
+def read_declared(instrument, path, machine):
+    """An instrument's measurements from a CSV file, by the columns it declares.
 
-    Columns ``q1_<unit>..q<n>_<unit>`` (the first position's readings),
-    ``q1b_<unit>..q<n>b_<unit>`` (the second's) and ``distance_<unit>``.
+    Columns ``q1<s>_<unit>..q<n><s>_<unit>`` for each suffix ``s`` of the instrument's
+    ``reading_sets`` (``("", "b")``: two sets of readings per row) and one column per entry
+    ``(name, quantity)`` of its ``value_columns``, converted to SI; values the instrument
+    requires to be positive (``positive_values``) are checked; its ``from_columns(readings,
+    values, rows, source)`` makes the data.
 
     Parameters
     ----------
+    instrument : Instrument
+        The registry entry.
     path : str or os.PathLike
         The data file.
     machine : Machine
@@ -1448,30 +1453,31 @@ def read_pairs(path, machine):
 
     Returns
     -------
-    InstrumentData
-        The distances (:func:`~pkmcal.instruments.pairs.pair_data`).
+    object
+        The instrument's data.
 
     Raises
     ------
     InputError
-        For a missing column or a distance not above 0, naming the row.
+        For a missing column or a value not above 0, naming the file, row and column.
     """
-    from ..instruments.pairs import pair_data
-
     header, table = read_table(path)
     quantity = joint_quantity(machine)
-    cols = []
-    for suffix in ("", "b"):
+    readings = []
+    for suffix in instrument.reading_sets:
         q = []
         for j in range(machine.n_joints):
             i, f = find_column(path, header, f"q{j + 1}{suffix}", quantity)
             q.append(_column_values(path, header, table, i, f))
-        cols.append(np.column_stack(q))
-    i, f = find_column(path, header, "distance", "length")
-    d = _column_values(path, header, table, i, f)
+        readings.append(np.column_stack(q))
     rows = np.array([line for line, _ in table], int)
-    bad = np.flatnonzero(~(d > 0))
-    if bad.size:
-        raise InputError(f"{path}: row {rows[bad[0]]}, column {header[i]}: a distance must "
-                         "be > 0")
-    return pair_data(cols[0], cols[1], d, rows, str(path))
+    values = []
+    for name, kind in instrument.value_columns:
+        i, f = find_column(path, header, name, kind)
+        v = _column_values(path, header, table, i, f)
+        bad = np.flatnonzero(~(v > 0)) if instrument.positive_values else []
+        if len(bad):
+            raise InputError(f"{path}: row {rows[bad[0]]}, column {header[i]}: a {name} must "
+                             "be > 0")
+        values.append(v)
+    return instrument.from_columns(readings, np.column_stack(values), rows, str(path))

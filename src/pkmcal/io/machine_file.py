@@ -1,6 +1,7 @@
 """Machine files (YAML, SPEC 6): load, validate, save.
 
-A machine file states its format version, machine type and units, then the geometry::
+A machine file states its format version, machine type and units, then the machine's own
+section (its geometry, in the file's units) and its home pose::
 
     pkmcal: 1
     machine: hexaslide
@@ -12,78 +13,14 @@ A machine file states its format version, machine type and units, then the geome
       - {a0: [451.05, -164.17, -400.0], alpha: 160.0, beta: 70.0, b: [84.85, -84.85, 0.0], l: 450.0}
     calibration: {...}                         # optional metadata written by `pkmcal calibrate`
 
-A Delta robot (SPEC 2.2) is described by its nominal dimensions, its error parameters per leg
-(optional, default 0) and, optionally, the pose of a laser tracker::
-
-    pkmcal: 1
-    machine: delta
-    units: {length: mm, angle: deg}
-    base_radius: 200.0
-    platform_radius: 50.0
-    upper_arm: 300.0
-    forearm: 800.0
-    leg_angles: [90.0, 180.0, -90.0]
-    smr_offset: 30.0                           # optional: reflector below the platform point
-    legs:                                      # optional: exactly 3, every key optional (0)
-      - {da: [0.0, 0.0, 0.0], dtheta: 0.0, dl1: 0.0, dl2: 0.0, db: [0.0, 0.0, 0.0]}
-    tracker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0]}
-    home: [0.0, 0.0, -750.0]                   # x, y, z (the platform does not rotate)
-
-``tracker`` is ``base_from_tracker`` (``x_base = rotation @ m + translation``), kept on the
-machine as ``machine.base_from_tracker = (R, t)`` (None without the key); a calibrated Delta
-file carries the identified errors in ``legs``, the identified registration in ``tracker``,
-and ``home``. A Delta ``home`` may also be written with six numbers when the three angles are
-zero.
-
-A six-leg platform (SPEC 2.4) lists its legs; ``gain`` is the file's length unit per reading
-unit, ``readings`` (optional, default: the file's length unit) names what the legs report::
-
-    pkmcal: 1
-    machine: stewart
-    units: {length: mm, angle: deg}
-    readings: {unit: rev}                      # optional: mm, m, um or any word (rev, counts)
-    legs:                                      # exactly 6: L = l0 + gain * reading
-      - {base: [-385.3, -140.2, 0.0], platform: [-197.4, 95.0, 0.0], l0: 640.2, gain: 75.7}
-    measurement_frames:                        # optional: frames of full-pose measurements
-      mocap_from_base: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0]}
-      platform_from_marker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0]}
-    home: [0.0, 0.0, 565.0, 0.0, 0.0, 0.0]
-
-``gain`` is always the file's length unit per reading unit: 1 when the readings are lengths in
-the file's unit, 0.001 for ``length: mm`` with ``readings: {unit: counts}`` and 1 um per count
-(or with ``readings: {unit: um}``), 0.001 for ``length: m`` with ``readings: {unit: mm}``
-(``gain: 1`` there would mean 1 m per mm). Internally, readings in a length unit are converted
-to metres (the gain is then a ratio, 1 for readings that are the length); readings in any other
-unit are kept as read and the gain carries metres per unit (1e-6 for 1 um per count); ``l0`` is
-always in metres. A leg may carry ``curvature`` (the file's length unit per reading unit
-squared: ``L = l0 + gain r + curvature r^2``, the reading curvature a calibration adopts when
-held-out data show it); when one leg has it, every leg has it (0 where absent), and a file
-without it is the linear model. ``measurement_frames`` are
-kept on the machine as ``machine.measurement_frames``
-(:class:`~pkmcal.instruments.pose.MeasurementFrames`, None without the key); a
-calibration from full-pose data writes the identified frames there.
-
-A linear Delta 3D printer (issue 14) is described by its design values, in Klipper's names and
-meanings, and optionally by the full chain of each tower (Hexa Slide keys, SPEC 2.1, absolute
-values; the top-level keys stay the design)::
-
-    pkmcal: 1
-    machine: linear_delta
-    units: {length: mm, angle: deg}
-    delta_radius: 140.0                        # carriage joint line to effector joint line
-    arm_length: 270.0                          # or a list of three
-    tower_angles: [210.0, 330.0, 90.0]         # counter-clockwise from +X
-    position_endstop: [300.0, 300.0, 300.0]    # nozzle-to-bed distance at each endstop
-    chains:                                    # optional: exactly 3
-      - {a0: [-121.2, -70.0, 518.2], alpha: 210.0, beta: -90.0, b: [0, 0, 0], l: 270.0}
-    home: [0.0, 0.0, 120.0]                    # x, y, z of the nozzle
-
-``a0`` is the carriage joint at the endstop, ``alpha``/``beta`` the direction down the tower,
-``l`` the arm and ``b`` the effector joint relative to the nozzle tip; the readings
-``q1_mm..q3_mm`` are the carriages' travels down from their endstops. With ``chains`` the
-machine's common ``delta_radius`` and ``arm_length`` parameters take the top-level values and
-the per-tower trims the differences (:mod:`pkmcal.machines.linear_delta`); a file is written
-with ``chains`` whenever its geometry is not exactly the design's (a calibrated file).
+Each machine type states its section in its own module (``FILE_FORMAT``, a
+:class:`~pkmcal.machines.file_format.MachineFormat`, documented there): the Hexa Slide
+(:mod:`pkmcal.machines.hexaslide`), the Delta robot (:mod:`pkmcal.machines.delta`), the
+six-leg platform (:mod:`pkmcal.machines.stewart`, with its reading units and gains), the
+linear Delta printer (:mod:`pkmcal.machines.linear_delta`) and the 3-RPR planar robot
+(:mod:`pkmcal.machines.planar_3rpr`). A file's ``home`` lists the pose coordinates the
+platform moves along (:attr:`~pkmcal.machines.Machine.pose_space`): ``[x, y, z]`` for a
+platform that only translates, ``[x, y, phi]`` for a planar one.
 
 Every machine file may carry what an instrument's calibration fitted (issue 13), in the
 file's length unit; all optional::
@@ -93,16 +30,20 @@ file's length unit; all optional::
        targets: [[10.0, -5.0, -15.0]]}          # not on a Delta (its target is smr_offset)
     ballbar:                                   # distances: one mounting per setup 1..K
       - {pivot: [0.0, 0.0, 200.0], ball: [0.0, 0.0, 0.0]}   # pivot base frame, ball platform
-    measurement_frames: {...}                  # poses (Hexa Slide, Stewart), as above
+    measurement_frames:                        # poses (a platform that moves in space)
+      mocap_from_base: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0]}
+      platform_from_marker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0]}
     bed: {height: 0.5, tilt_x: -0.0004, tilt_y: 0.0}   # probe heights: the bed plane
 
 kept on the machine as ``machine.base_from_tracker = (R, t)``, ``machine.tracker_targets``
 ((K, 3) platform-frame places, m; None without ``targets``: the platform origin, or the
 Delta's reflector), ``machine.ballbar_setups`` (list of ``(pivot, ball)``, m),
 ``machine.probe_bed`` (``(height m, tilt_x, tilt_y)``) and ``machine.measurement_frames``;
-each is None without its key. ``pkmcal fk --frame
-instrument`` predicts the instrument's measurements from them, ``pkmcal compensate --frame
-instrument`` takes targets in the instrument's frame.
+each is None without its key (``measurement_frames``: :class:`~pkmcal.instruments.pose.
+MeasurementFrames`, a mocap point is ``mocap_from_base`` of a base point, a platform point
+``platform_from_marker`` of a marker point). ``pkmcal fk --frame instrument`` predicts the
+instrument's measurements from them, ``pkmcal compensate --frame instrument`` takes targets
+in the instrument's frame.
 
 Every machine file may state the joints' travel (issue 12 item 7)::
 
@@ -117,14 +58,13 @@ key), checked by ``ik``, ``compensate``, ``select-poses`` and ``simulate``, and 
 ``in``).
 
 Loading dispatches on ``machine:`` through :data:`MACHINE_FORMATS` (one entry per machine
-type: a pydantic schema, a builder and a dumper). A new machine type states its own section
-in its module (``FILE_FORMAT``, a :class:`~pkmcal.machines.file_format.MachineFormat`) and is
-listed in :mod:`pkmcal.machines.registry`; this module adds what every machine file has
-(``pkmcal``, ``machine``, ``name``, ``units``, the instrument sections, ``joint_limits``,
-``calibration``), e.g. the 3-RPR planar robot (:mod:`pkmcal.machines.planar_3rpr`), whose
-``home`` is ``[x, y, phi]``: a file's ``home`` lists the pose coordinates the platform moves
-along (:attr:`~pkmcal.machines.Machine.pose_space`). Every problem is an
-:class:`~pkmcal.errors.InputError` whose message reads
+type: a pydantic schema, a builder and a dumper), built from the modules listed in
+:mod:`pkmcal.machines.registry`: a new machine type is its module and one line there. This
+module adds what every machine file has (``pkmcal``, ``machine``, ``name``, ``units``, the
+instrument sections, ``joint_limits``, ``calibration``) where the machine's schema does not
+state it, reads and writes the instrument sections and ``home``, and checks that the numbers
+are plausible (each format says which are lengths, dimensions, angles or gains). Every
+problem is an :class:`~pkmcal.errors.InputError` whose message reads
 ``FILE: key.path: what is wrong (line N)``, e.g.
 ``machine.yaml: chains[3].alpha: not a number: 'abc' (line 12)``; list indices are 0-based.
 
@@ -147,18 +87,11 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import (
-    BaseModel,
-    Field,
-    Strict,
-    ValidationError,
-    create_model,
-    field_validator,
-)
-from pydantic_core import PydanticCustomError
+from pydantic import BaseModel, ValidationError, create_model
 
 from ..errors import InputError
-from ..kinematics import euler_from_matrix, matrix_from_euler
+from ..instruments.registry import INSTRUMENTS
+from ..kinematics import euler_from_matrix
 from ..limits import (
     MAX_ANGLE,
     MAX_LENGTH,
@@ -168,22 +101,18 @@ from ..limits import (
     MAX_YAML_NODES,
     MIN_GAIN,
 )
-from ..machines import (
-    Delta,
-    HexaSlide,
-    LinearDelta,
-    Stewart,
-    delta_parameters,
-    hexaslide_parameters,
-    linear_delta,
-    stewart_parameters,
-)
 from ..machines.base import Machine
-from ..machines.delta import LEG_FIELDS
-from ..machines.file_format import MachineFormat, Number, Pose6, Positive, Vector3
-from ..machines.file_format import StrictModel as _Strict
+from ..machines.file_format import (
+    Ballbar,
+    BedPlane,
+    MachineFormat,
+    TrackerSection,
+    Units,
+    factors,
+    vector,
+)
+from ..machines.file_format import show as _show
 from ..machines.registry import machine_formats as registered_machine_formats
-from ..units import ANGLE, LENGTH, unit_of
 from .atomic import atomic_write_text, read_input_text
 
 FORMAT_VERSION = 1
@@ -348,306 +277,8 @@ def _parse_yaml(text: str, source: str):
 
 
 # --------------------------------------------------------------------------------------------
-# Schemas (pydantic v2): strict numbers, no unknown keys
+# Machine formats: each machine module's section, with what every machine file has
 # --------------------------------------------------------------------------------------------
-
-#: a finite number (int or float; not a string, not a bool, not NaN/inf)
-class Units(_Strict):
-    """Units of the numbers in this file."""
-
-    length: Literal["mm", "m", "in", "inch"]
-    angle: Literal["deg", "rad"]
-
-
-class ConstraintLink(_Strict):
-    """Constraint link between base point O and platform point P (SPEC 2.1)."""
-
-    length: Positive
-
-
-class HexaSlideChain(_Strict):
-    """One 6-PUS chain: rail start ``a0``, rail angles, platform joint ``b``, link length."""
-
-    a0: Vector3
-    alpha: Number
-    beta: Number
-    b: Vector3
-    l: Positive
-
-
-NonNegative = Annotated[float, Strict(), Field(allow_inf_nan=False, ge=0)]
-Matrix3 = Annotated[list[Vector3], Field(min_length=3, max_length=3)]
-
-#: a rotation matrix read from a file may deviate from orthonormal by this much (6-digit
-#: exports); it is then replaced by the nearest rotation. Within 1e-12 it is kept as written.
-ROTATION_TOL = 1e-5
-
-
-class DeltaLeg(_Strict):
-    """Error parameters of one Delta leg (seed 001 eq. 3, leg frame); every key defaults to 0."""
-
-    da: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
-    dtheta: Number = 0.0
-    dl1: Number = 0.0
-    dl2: Number = 0.0
-    db: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
-
-
-class TrackerPose(_Strict):
-    """``base_from_tracker``: a tracker point ``m`` is ``rotation @ m + translation`` in the
-    base frame."""
-
-    rotation: Matrix3
-    translation: Vector3
-
-    @field_validator("rotation")
-    @classmethod
-    def _proper_rotation(cls, value):
-        R = np.asarray(value, float)
-        dev = float(np.max(np.abs(R.T @ R - np.eye(3))))
-        det = float(np.linalg.det(R))
-        if dev > ROTATION_TOL or det <= 0:
-            raise PydanticCustomError(
-                "rotation_matrix",
-                "not a rotation matrix (rows must be orthonormal with determinant +1; "
-                "|R^T R - I| = {dev}, det = {det})",
-                {"dev": f"{dev:.3g}", "det": f"{det:.6g}"})
-        return value
-
-
-class TrackerSection(TrackerPose):
-    """``tracker`` of a Hexa Slide or a Stewart platform: ``base_from_tracker`` and, optionally,
-    the places of the targets on the platform (platform frame, file length unit), one per
-    value of a data file's ``target`` column (1..K); without ``targets`` the target is the
-    platform origin."""
-
-    targets: Annotated[list[Vector3], Field(min_length=1)] | None = None
-
-
-class BallbarSetup(_Strict):
-    """One ballbar mounting: ``pivot`` (base frame) and ``ball`` (platform frame), file length
-    unit; the measured length is ``|P + R ball - pivot|``."""
-
-    pivot: Vector3
-    ball: Vector3
-
-
-#: ``ballbar``: one mounting per value of a data file's ``setup`` column (1..K)
-Ballbar = Annotated[list[BallbarSetup], Field(min_length=1)]
-
-
-class BedPlane(_Strict):
-    """The bed a probe measured: the plane ``z = height + tilt_x x + tilt_y y`` of the base
-    frame (``height`` in the file's length unit; ``tilt_x``, ``tilt_y`` slopes dz/dx, dz/dy)."""
-
-    height: Number
-    #: slopes beyond 1 (45 deg) are no bed a probe measured
-    tilt_x: Annotated[float, Strict(), Field(allow_inf_nan=False, ge=-1.0, le=1.0)] = 0.0
-    tilt_y: Annotated[float, Strict(), Field(allow_inf_nan=False, ge=-1.0, le=1.0)] = 0.0
-
-
-class DeltaFile(_Strict):
-    """``machine: delta`` (SPEC 6)."""
-
-    pkmcal: Literal[1]
-    machine: Literal["delta"]
-    name: str | None = None
-    units: Units
-    base_radius: Positive
-    platform_radius: NonNegative
-    upper_arm: Positive
-    forearm: Positive
-    leg_angles: Vector3
-    smr_offset: Number = 0.0
-    legs: Annotated[list[DeltaLeg], Field(min_length=3, max_length=3)] | None = None
-    tracker: TrackerPose | None = None
-    ballbar: Ballbar | None = None
-    bed: BedPlane | None = None
-    home: list[Number] | None = None
-    joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
-    calibration: dict[str, Any] | None = None
-
-    @field_validator("home")
-    @classmethod
-    def _position_home(cls, value):
-        if value is None:
-            return value
-        if len(value) not in (3, 6):
-            raise PydanticCustomError(
-                "home_length", "expected 3 numbers [x, y, z] (the Delta platform does not "
-                "rotate), got {n}", {"n": len(value)})
-        if len(value) == 6 and any(abs(v) > 1e-9 for v in value[3:]):
-            raise PydanticCustomError(
-                "home_rotation", "the Delta platform does not rotate: psi, theta, phi must be "
-                "0, got {angles}; write home: [x, y, z]", {"angles": value[3:]})
-        return value
-
-
-class LinearDeltaFile(_Strict):
-    """``machine: linear_delta``: the design values (Klipper's names and meanings) and,
-    optionally, the full chain of each tower (Hexa Slide keys, absolute values)."""
-
-    pkmcal: Literal[1]
-    machine: Literal["linear_delta"]
-    name: str | None = None
-    units: Units
-    delta_radius: Positive
-    arm_length: Any                            # one number or 3: checked by _arm_lengths
-    tower_angles: Vector3
-    #: nozzle-to-bed distances at the endstops: above the bed
-    position_endstop: Annotated[list[Annotated[float, Strict(), Field(
-        allow_inf_nan=False, gt=0)]], Field(min_length=3, max_length=3)]
-    chains: Annotated[list[HexaSlideChain], Field(min_length=3, max_length=3)] | None = None
-    tracker: TrackerPose | None = None
-    ballbar: Ballbar | None = None
-    bed: BedPlane | None = None
-    #: the firmware's print radius and probing radius (Klipper's [printer] print_radius,
-    #: [delta_calibrate] radius): the export's and the probe plan's disk
-    print_radius: Positive | None = None
-    probe_radius: Positive | None = None
-    home: list[Number] | None = None
-    joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
-    calibration: dict[str, Any] | None = None
-
-    @field_validator("arm_length")
-    @classmethod
-    def _arm_lengths(cls, value):
-        items = value if isinstance(value, list) else [value]
-        if isinstance(value, list) and len(value) != 3:
-            raise PydanticCustomError(
-                "arm_lengths", "expected one number or a list of 3 (one per tower), got "
-                "{n} numbers", {"n": len(value)})
-        for x in items:
-            if isinstance(x, bool) or not isinstance(x, (int, float)):
-                raise PydanticCustomError(
-                    "arm_lengths", "not a number: {value} (one arm length, or a list of 3)",
-                    {"value": _show(x)})
-            if not np.isfinite(x) or x <= 0:
-                raise PydanticCustomError(
-                    "arm_lengths", "an arm length must be a finite number > 0, got {value}",
-                    {"value": _show(x)})
-        return value
-
-    @field_validator("home")
-    @classmethod
-    def _position_home(cls, value):
-        if value is None:
-            return value
-        if len(value) not in (3, 6):
-            raise PydanticCustomError(
-                "home_length", "expected 3 numbers [x, y, z] (the effector does not rotate), "
-                "got {n}", {"n": len(value)})
-        if len(value) == 6 and any(abs(v) > 1e-9 for v in value[3:]):
-            raise PydanticCustomError(
-                "home_rotation", "the effector does not rotate: psi, theta, phi must be 0, got "
-                "{angles}; write home: [x, y, z]", {"angles": value[3:]})
-        return value
-
-
-#: units a Stewart leg may read in and that are converted to metres (data-file suffixes)
-READING_LENGTH_UNITS = ("mm", "m", "um", "in")
-_READING_UNIT = re.compile(r"^[A-Za-z][A-Za-z0-9]*$")
-
-
-class Readings(_Strict):
-    """What a Stewart leg reports: ``unit`` is a length unit (mm, m, um: the reading is a
-    length, converted to metres) or any other word (rev, counts, deg: kept as read; the gain
-    converts it)."""
-
-    unit: str
-
-    @field_validator("unit")
-    @classmethod
-    def _unit_word(cls, value):
-        if not _READING_UNIT.match(value):
-            raise PydanticCustomError(
-                "reading_unit", "a reading unit is one word of letters and digits (mm, rev, "
-                "counts), got {value}", {"value": repr(value)})
-        if value in LENGTH and value not in READING_LENGTH_UNITS:
-            raise PydanticCustomError(
-                "reading_unit", "{value} is a length unit the data files do not use: readings "
-                "in a length unit are mm, m, um or in", {"value": repr(value)})
-        quantity = unit_of(value)
-        if quantity not in (None, "length", "angle"):
-            raise PydanticCustomError(
-                "reading_unit", "{value} is a unit of {quantity}, not of what a leg reads: a "
-                "length (mm, m, um), an angle (deg, rad) or a count (rev, counts)",
-                {"value": repr(value), "quantity": quantity.replace("_", " ")})
-        return value
-
-
-class StewartLeg(_Strict):
-    """One leg: base joint (base frame), platform joint (platform frame), length at zero
-    reading ``l0`` and ``gain`` (file length unit per reading unit): ``L = l0 + gain r``.
-    Without ``l0`` and ``gain`` the leg reads its length (``l0 = 0``, ``gain = 1``, SPEC 7)."""
-
-    base: Vector3
-    platform: Vector3
-    l0: Number = 0.0
-    gain: Number = 1.0
-    curvature: Number | None = None
-
-    @field_validator("gain")
-    @classmethod
-    def _nonzero_gain(cls, value):
-        if value == 0:
-            raise PydanticCustomError("zero_gain", "must not be 0 (length per reading unit)")
-        return value
-
-
-class MeasurementFramesSection(_Strict):
-    """Frames of full-pose measurements (SPEC 2.4): ``mocap_from_base`` (a base point ``x`` is
-    ``rotation @ x + translation`` in the measurement frame) and ``platform_from_marker`` (a
-    marker point ``y`` is ``rotation @ y + translation`` in the platform frame)."""
-
-    mocap_from_base: TrackerPose
-    platform_from_marker: TrackerPose
-
-
-class HexaSlideFile(_Strict):
-    """``machine: hexaslide`` (SPEC 6)."""
-
-    pkmcal: Literal[1]
-    machine: Literal["hexaslide"]
-    name: str | None = None
-    units: Units
-    constraint_link: ConstraintLink | None = None
-    home: Pose6 | None = None
-    chains: Annotated[list[HexaSlideChain], Field(min_length=6, max_length=6)]
-    tracker: TrackerSection | None = None
-    ballbar: Ballbar | None = None
-    bed: BedPlane | None = None
-    measurement_frames: MeasurementFramesSection | None = None
-    joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
-    calibration: dict[str, Any] | None = None
-
-
-class StewartFile(_Strict):
-    """``machine: stewart`` (SPEC 6)."""
-
-    pkmcal: Literal[1]
-    machine: Literal["stewart"]
-    name: str | None = None
-    units: Units
-    readings: Readings | None = None
-    constraint_link: ConstraintLink | None = None
-    legs: Annotated[list[StewartLeg], Field(min_length=6, max_length=6)]
-    tracker: TrackerSection | None = None
-    ballbar: Ballbar | None = None
-    bed: BedPlane | None = None
-    measurement_frames: MeasurementFramesSection | None = None
-    home: Pose6 | None = None
-    joint_limits: Any = None                   # checked by _joint_limits (per-joint messages)
-    calibration: dict[str, Any] | None = None
-
-
-# --------------------------------------------------------------------------------------------
-# Machine formats: schema + builder + dumper per machine type
-# --------------------------------------------------------------------------------------------
-
-
-def _factors(units) -> tuple[float, float]:
-    return LENGTH[units["length"]], ANGLE[units["angle"]]
 
 
 def _file_units(units: dict) -> dict:
@@ -655,30 +286,6 @@ def _file_units(units: dict) -> dict:
     units = dict(units)
     units["length"] = LENGTH_ALIASES.get(units.get("length"), units.get("length"))
     return units
-
-
-def _home_pose(home, fl: float, fa: float):
-    if home is None:
-        return None
-    h = np.asarray(home, float)
-    return h[:3] * fl, matrix_from_euler(h[3:] * fa)
-
-
-def _build_hexaslide(doc: HexaSlideFile, source: str) -> HexaSlide:
-    fl, fa = _factors(doc.units.model_dump())
-    ch = doc.chains
-    params = hexaslide_parameters(
-        b=np.array([c.b for c in ch]) * fl,
-        a0=np.array([c.a0 for c in ch]) * fl,
-        alpha=np.array([c.alpha for c in ch]) * fa,
-        beta=np.array([c.beta for c in ch]) * fa,
-        l=np.array([c.l for c in ch]) * fl,
-    )
-    lc = doc.constraint_link.length * fl if doc.constraint_link is not None else None
-    machine = HexaSlide(params, home=_home_pose(doc.home, fl, fa), name=doc.name or "",
-                        constraint_link_length=lc)
-    _build_instruments(machine, doc, fl)
-    return machine
 
 
 def _fmt(x: float) -> str:
@@ -691,27 +298,6 @@ def _fmt(x: float) -> str:
         mant, exp = s.split("e")
         s = f"{mant}.0e{exp}"
     return s
-
-
-def _dump_hexaslide(machine: HexaSlide, units: dict) -> dict:
-    fl, fa = _factors(units)
-    b, a0, alpha, beta, l = machine.chains()
-    out: dict[str, Any] = {}
-    if machine.constraint_link_length is not None:
-        out["constraint_link"] = {"length": float(machine.constraint_link_length) / fl}
-    out["chains"] = [
-        {"a0": [float(v) / fl for v in a0[i]], "alpha": float(alpha[i]) / fa,
-         "beta": float(beta[i]) / fa, "b": [float(v) / fl for v in b[i]],
-         "l": float(l[i]) / fl}
-        for i in range(6)
-    ]
-    out.update(_dump_instruments(machine, fl))
-    return out
-
-
-def _vector(value, fl: float) -> list[float]:
-    """A 3-vector in metres as file numbers (file length unit)."""
-    return [float(v) / fl for v in np.asarray(value, float).reshape(3)]
 
 
 def _build_instruments(machine: Machine, doc, fl: float) -> None:
@@ -758,7 +344,7 @@ def _dump_instruments(machine: Machine, fl: float) -> dict:
             targets = np.asarray(targets, float).reshape(-1, 3)
             known = machine.tracker_target()
             if known is None:
-                section["targets"] = [_vector(c, fl) for c in targets]
+                section["targets"] = [vector(c, fl) for c in targets]
             elif not np.allclose(targets, known, rtol=0, atol=1e-12):
                 raise InputError(f"cannot save tracker targets for a {machine.kind}: its "
                                  "target on the platform is fixed by the machine file "
@@ -766,7 +352,7 @@ def _dump_instruments(machine: Machine, fl: float) -> dict:
         out["tracker"] = section
     setups = getattr(machine, "ballbar_setups", None)
     if setups is not None:
-        out["ballbar"] = [{"pivot": _vector(p, fl), "ball": _vector(b, fl)} for p, b in setups]
+        out["ballbar"] = [{"pivot": vector(p, fl), "ball": vector(b, fl)} for p, b in setups]
     bed = getattr(machine, "probe_bed", None)
     if bed is not None:
         out["bed"] = {"height": float(bed[0]) / fl, "tilt_x": float(bed[1]),
@@ -789,293 +375,58 @@ def _rotation(value) -> np.ndarray:
     return U @ Vt
 
 
-def _build_delta(doc: DeltaFile, source: str) -> Delta:
-    fl, fa = _factors(doc.units.model_dump())
-    legs = doc.legs if doc.legs is not None else [DeltaLeg() for _ in range(3)]
-    factor = {"da": fl, "dtheta": fa, "dl1": fl, "dl2": fl, "db": fl}
-    values = []
-    for leg in legs:
-        for field in LEG_FIELDS:                 # da.x, ..., dtheta, dl1, dl2, db.x, ...
-            key, _, axis = field.partition(".")
-            v = getattr(leg, key)
-            values.append((v["xyz".index(axis)] if axis else v) * factor[key])
-    home = None
-    if doc.home is not None:
-        home = (np.asarray(doc.home[:3], float) * fl, np.eye(3))
-    machine = Delta(doc.base_radius * fl, doc.platform_radius * fl, doc.upper_arm * fl,
-                    doc.forearm * fl, np.asarray(doc.leg_angles, float) * fa,
-                    parameters=delta_parameters(values), smr_offset=doc.smr_offset * fl,
-                    home=home, name=doc.name or "")
-    _build_instruments(machine, doc, fl)
-    return machine
-
-
-def _dump_delta(machine: Delta, units: dict) -> dict:
-    fl, fa = _factors(units)
-    da, dth, dl1, dl2, db = machine.legs()
-    out: dict[str, Any] = {
-        "base_radius": machine.a / fl,
-        "platform_radius": machine.b / fl,
-        "upper_arm": machine.l1 / fl,
-        "forearm": machine.l2 / fl,
-        "leg_angles": [float(v) / fa for v in machine.leg_angles],
-        "smr_offset": machine.smr_offset / fl,
-        "legs": [{"da": [float(v) / fl for v in da[i]], "dtheta": float(dth[i]) / fa,
-                  "dl1": float(dl1[i]) / fl, "dl2": float(dl2[i]) / fl,
-                  "db": [float(v) / fl for v in db[i]]} for i in range(3)],
-    }
-    out.update(_dump_instruments(machine, fl))
-    return out
-
-
-def _build_linear_delta(doc: LinearDeltaFile, source: str) -> LinearDelta:
-    fl, fa = _factors(doc.units.model_dump())
-    arms = doc.arm_length
-    arms = [float(v) * fl for v in arms] if isinstance(arms, list) else float(arms) * fl
-    chains = None
-    if doc.chains is not None:
-        ch = doc.chains
-        chains = (np.array([c.a0 for c in ch], float) * fl,
-                  np.array([c.alpha for c in ch], float) * fa,
-                  np.array([c.beta for c in ch], float) * fa,
-                  np.array([c.l for c in ch], float) * fl,
-                  np.array([c.b for c in ch], float) * fl)
-    home = None
-    if doc.home is not None:
-        home = (np.asarray(doc.home[:3], float) * fl, np.eye(3))
-    machine = linear_delta(doc.delta_radius * fl, arms, np.asarray(doc.tower_angles, float) * fa,
-                           np.asarray(doc.position_endstop, float) * fl, chains=chains,
-                           home=home, name=doc.name or "")
-    for key in ("print_radius", "probe_radius"):
-        value = getattr(doc, key)
-        if value is not None:
-            setattr(machine, key, float(value) * fl)
-    _build_instruments(machine, doc, fl)
-    return machine
-
-
-def _dump_linear_delta(machine: LinearDelta, units: dict) -> dict:
-    """The top level (the design values, as read) and, when the geometry is not exactly the
-    design's, the chains."""
-    from ..machines import linear_delta as _nominal_machine
-
-    fl, fa = _factors(units)
-    # the top level holds the machine's own values (a calibrated file shows its calibrated
-    # radius, arms, angles and endstops, not the design's); the chains what they cannot
-    pe, theta, _, l, _, _ = machine.towers()
-    radius = float(machine.u[machine.parameters.index("delta_radius")])
-    arms = float(l[0]) if np.all(l == l[0]) else np.asarray(l, float)
-    out: dict[str, Any] = {
-        "delta_radius": radius / fl,
-        "arm_length": (float(arms) / fl if np.ndim(arms) == 0
-                       else [float(v) / fl for v in np.asarray(arms)]),
-        "tower_angles": [float(v) / fa for v in theta],
-        "position_endstop": [float(v) / fl for v in pe],
-    }
-    for key in ("print_radius", "probe_radius"):
-        value = getattr(machine, key, None)
-        if value is not None and not callable(value):
-            out[key] = float(value) / fl
-    design = _nominal_machine(radius, arms, theta, pe)
-    if (getattr(machine, "from_chains", False) or np.any(machine.b != 0)
-            or not np.array_equal(machine.u, design.u)):
-        a0, alpha, beta, l, b = machine.chains()
-        out["chains"] = [
-            {"a0": _vector(a0[i], fl), "alpha": float(alpha[i]) / fa,
-             "beta": float(beta[i]) / fa, "b": _vector(b[i], fl), "l": float(l[i]) / fl}
-            for i in range(3)]
-    out.update(_dump_instruments(machine, fl))
-    return out
-
-
-def reading_factor(unit: str) -> float:
-    """SI factor of a Stewart reading unit: a length unit's factor, 1 for any other word."""
-    return LENGTH[unit] if unit in LENGTH else 1.0
-
-
-def _build_stewart(doc: StewartFile, source: str) -> Stewart:
-    fl, fa = _factors(doc.units.model_dump())
-    unit = doc.readings.unit if doc.readings is not None else doc.units.length
-    gain_factor = fl / reading_factor(unit)          # file gain -> internal gain
-    legs = doc.legs
-    params = stewart_parameters(
-        base=np.array([leg.base for leg in legs]) * fl,
-        platform=np.array([leg.platform for leg in legs]) * fl,
-        l0=np.array([leg.l0 for leg in legs]) * fl,
-        gain=np.array([leg.gain for leg in legs]) * gain_factor,
-        # file length unit per reading unit squared -> internal
-        curvature=None if all(leg.curvature is None for leg in legs) else np.array(
-            [leg.curvature or 0.0 for leg in legs]) * fl / reading_factor(unit) ** 2,
-    )
-    machine = Stewart(params, home=_home_pose(doc.home, fl, fa), name=doc.name or "",
-                      reading_unit=unit)
-    # without ``readings:`` the data's column suffix says the unit (SPEC 7): the first data
-    # file read fixes it (csv_io.adopt_reading_unit); until then the legs read lengths
-    machine.reading_unit_declared = doc.readings is not None
-    machine.constraint_link_length = (doc.constraint_link.length * fl
-                                      if doc.constraint_link is not None else None)
-    _build_instruments(machine, doc, fl)
-    return machine
-
-
 def _frame_text(pose, fl: float) -> dict:
     R, t = pose
     return {"rotation": [[float(v) for v in row] for row in np.asarray(R, float)],
             "translation": [float(v) / fl for v in np.asarray(t, float)]}
 
 
-def _dump_stewart(machine: Stewart, units: dict) -> dict:
-    fl, _ = _factors(units)
-    unit = getattr(machine, "reading_unit", units["length"])
-    gain_factor = fl / reading_factor(unit)
-    b, p, l0, g = machine.legs()
-    out: dict[str, Any] = {"readings": {"unit": unit}}
-    lc = getattr(machine, "constraint_link_length", None)
-    if lc is not None:
-        out["constraint_link"] = {"length": float(lc) / fl}
-    out["legs"] = [
-        {"base": [float(v) / fl for v in b[i]], "platform": [float(v) / fl for v in p[i]],
-         "l0": float(l0[i]) / fl, "gain": float(g[i]) / gain_factor}
-        for i in range(6)
-    ]
-    if machine.has_curvature:
-        for leg, c in zip(out["legs"], machine.curvature(), strict=True):
-            leg["curvature"] = float(c) * reading_factor(unit) ** 2 / fl
-    out.update(_dump_instruments(machine, fl))
-    return out
+#: quantities of the instrument sections (every machine type; a key a type lacks never
+#: matches): each instrument's ``file_quantities``
+_INSTRUMENT_KINDS = {path: kind for inst in INSTRUMENTS.values()
+                     for path, kind in inst.file_quantities.items()}
 
-
-_STEWART_HINTS = {
-    "legs": "a list of 6 legs {base: [x, y, z], platform: [x, y, z], l0, gain}",
-}
-
-_DELTA_HINTS = {
-    "base_radius": "the radius a of the actuator axes, e.g. base_radius: 200.0",
-    "platform_radius": "the radius b of the platform joints, e.g. platform_radius: 50.0",
-    "upper_arm": "the upper-arm length l1, e.g. upper_arm: 300.0",
-    "forearm": "the parallelogram forearm length l2, e.g. forearm: 800.0",
-    "leg_angles": "the azimuths of the 3 legs, e.g. leg_angles: [90.0, 180.0, -90.0]",
-    "legs": "a list of 3 legs {da: [x, y, z], dtheta, dl1, dl2, db: [x, y, z]}",
-}
-
-#: quantities of the instrument sections (every machine type; a key a type lacks never matches)
-_INSTRUMENT_KINDS = {
-    ("tracker", "translation", "*"): "length", ("tracker", "targets", "*", "*"): "length",
-    ("ballbar", "*", "pivot", "*"): "length", ("ballbar", "*", "ball", "*"): "length",
-    ("measurement_frames", "*", "translation", "*"): "length", ("bed", "height"): "length",
-}
-_HEXASLIDE_KINDS = {
-    ("chains", "*", "a0", "*"): "length", ("chains", "*", "b", "*"): "length",
-    ("chains", "*", "l"): "length", ("chains", "*", "alpha"): "angle",
-    ("chains", "*", "beta"): "angle", ("constraint_link", "length"): "length",
-    **_INSTRUMENT_KINDS,
-}
-_DELTA_KINDS = {
-    ("base_radius",): "length", ("platform_radius",): "length", ("upper_arm",): "length",
-    ("forearm",): "length", ("smr_offset",): "length", ("leg_angles", "*"): "angle",
-    ("legs", "*", "da", "*"): "length", ("legs", "*", "dtheta"): "angle",
-    ("legs", "*", "dl1"): "length", ("legs", "*", "dl2"): "length",
-    ("legs", "*", "db", "*"): "length", **_INSTRUMENT_KINDS,
-}
-_LINEAR_DELTA_HINTS = {
-    "delta_radius": "the horizontal distance from the carriage joint line to the effector joint "
-                    "line, e.g. delta_radius: 140.0",
-    "arm_length": "the arm (diagonal rod) length, one or one per tower, e.g. arm_length: 270.0",
-    "tower_angles": "the tower angles counter-clockwise from +X, e.g. tower_angles: [210, 330, "
-                    "90]",
-    "position_endstop": "the nozzle-to-bed distance at each tower's endstop (Klipper's "
-                        "position_endstop), e.g. position_endstop: [300, 300, 300]",
-    "chains": "a list of 3 chains {a0: [x, y, z], alpha, beta, b: [x, y, z], l}",
-    "print_radius": "the radius of the printable disk on the bed (Klipper's print_radius), "
-                    "e.g. print_radius: 120.0",
-    "probe_radius": "the radius of the probing pattern (Klipper's [delta_calibrate] radius), "
-                    "e.g. probe_radius: 100.0",
-}
-_LINEAR_DELTA_KINDS = {
-    ("delta_radius",): "length", ("arm_length",): "length", ("arm_length", "*"): "length",
-    ("print_radius",): "length", ("probe_radius",): "length",
-    ("tower_angles", "*"): "angle", ("position_endstop", "*"): "length",
-    ("chains", "*", "a0", "*"): "length", ("chains", "*", "b", "*"): "length",
-    ("chains", "*", "l"): "length", ("chains", "*", "alpha"): "angle",
-    ("chains", "*", "beta"): "angle", **_INSTRUMENT_KINDS,
-}
-_STEWART_KINDS = {
-    ("legs", "*", "base", "*"): "length", ("legs", "*", "platform", "*"): "length",
-    ("legs", "*", "l0"): "length", ("legs", "*", "gain"): "gain",
-    ("constraint_link", "length"): "length", **_INSTRUMENT_KINDS,
-}
-
-
-def _hexaslide_size(doc) -> tuple[float, str]:
-    fl = LENGTH[doc.units.length]
-    return float(np.median([c.l for c in doc.chains])) * fl, "the median link length l"
-
-
-def _delta_size(doc) -> tuple[float, str]:
-    fl = LENGTH[doc.units.length]
-    return (float(np.median([doc.base_radius, doc.upper_arm, doc.forearm])) * fl,
-            "the median of base_radius, upper_arm and forearm")
-
-
-def _linear_delta_size(doc) -> tuple[float, str]:
-    fl = LENGTH[doc.units.length]
-    arms = doc.arm_length if isinstance(doc.arm_length, list) else [doc.arm_length]
-    with np.errstate(all="ignore"):
-        return (float(np.median([doc.delta_radius, float(np.median(arms)),
-                                 float(np.median(doc.position_endstop))])) * fl,
-                "the median of delta_radius, arm_length and position_endstop")
-
-
-def _stewart_size(doc) -> tuple[float, str]:
-    fl = LENGTH[doc.units.length]
-    with np.errstate(all="ignore"):
-        norms = [float(np.linalg.norm(np.asarray(v, float) / 2)) * 2
-                 for leg in doc.legs for v in (leg.base, leg.platform)]
-    return float(np.median(norms)) * fl, "the median distance of the leg joints from the origin"
+#: what every machine file may have, in file order, where a machine's schema does not state
+#: it itself (``machine`` is always the format's own type): the head, the instrument sections
+#: (``tracker`` with its ``targets``), then ``joint_limits`` (checked by :func:`_joint_limits`,
+#: per-joint messages) and ``calibration``
+_COMMON_FIELDS: dict[str, tuple | None] = dict(
+    pkmcal=(Literal[1], ...), machine=None,                 # machine: the format's own type
+    name=(str | None, None), units=(Units, ...), tracker=(TrackerSection | None, None),
+    ballbar=(Ballbar | None, None), bed=(BedPlane | None, None), joint_limits=(Any, None),
+    calibration=(dict[str, Any] | None, None))
 
 
 def _with_common_sections(fmt: MachineFormat) -> MachineFormat:
     """A machine module's format (:mod:`pkmcal.machines.registry`) with what every machine
-    file has: ``pkmcal``, ``machine``, ``name``, ``units``, the instrument sections
-    (``tracker``, ``ballbar``, ``bed``: :func:`_build_instruments`), ``joint_limits`` and
-    ``calibration``. The module states its own keys (and ``home``) alone."""
-    schema = create_model(
-        fmt.schema.__name__, __base__=fmt.schema, __module__=fmt.schema.__module__,
-        pkmcal=(Literal[1], ...), machine=(Literal[fmt.kind], ...), name=(str | None, None),
-        units=(Units, ...), tracker=(TrackerSection | None, None),
-        ballbar=(Ballbar | None, None), bed=(BedPlane | None, None), joint_limits=(Any, None),
-        calibration=(dict[str, Any] | None, None))
+    file has: ``machine`` (the format's type), and the fields of :data:`_COMMON_FIELDS` its
+    schema does not state (``pkmcal``, ``name``, ``units``, the instrument sections
+    ``tracker``, ``ballbar``, ``bed``: :func:`_build_instruments`, ``joint_limits`` and
+    ``calibration``), added after its own. The module states its own keys (and ``home``)."""
+    own = fmt.schema.model_fields
+    fields = {key: (Literal[fmt.kind], ...) if key == "machine" else field
+              for key, field in _COMMON_FIELDS.items() if key == "machine" or key not in own}
+    schema = create_model(fmt.schema.__name__, __base__=fmt.schema,
+                          __module__=fmt.schema.__module__, **fields)
 
     def build(doc, source: str) -> Machine:
         machine = fmt.build(doc, source)
-        _build_instruments(machine, doc, _factors(doc.units.model_dump())[0])
+        _build_instruments(machine, doc, factors(doc.units.model_dump())[0])
         return machine
 
     def dump(machine: Machine, units: dict) -> dict:
         out = dict(fmt.dump(machine, units))
-        out.update(_dump_instruments(machine, _factors(units)[0]))
+        out.update(_dump_instruments(machine, factors(units)[0]))
         return out
 
     return dataclasses.replace(fmt, schema=schema, build=build, dump=dump,
                                kinds={**(fmt.kinds or {}), **_INSTRUMENT_KINDS})
 
 
-#: machine type (``machine:`` in files) -> format; the four machines below are defined here,
-#: every other machine type in its own module (:mod:`pkmcal.machines.registry`)
+#: machine type (``machine:`` in files) -> format: every machine module's
+#: (:mod:`pkmcal.machines.registry`), with what every machine file has
 MACHINE_FORMATS: dict[str, MachineFormat] = {
-    "hexaslide": MachineFormat(HexaSlideFile, _build_hexaslide, _dump_hexaslide,
-                               {"chains": 6}, kinds=_HEXASLIDE_KINDS, size=_hexaslide_size),
-    "delta": MachineFormat(DeltaFile, _build_delta, _dump_delta, {"legs": 3},
-                           home_text="[x, y, z]", hints=_DELTA_HINTS, kinds=_DELTA_KINDS,
-                           size=_delta_size),
-    "stewart": MachineFormat(StewartFile, _build_stewart, _dump_stewart, {"legs": 6},
-                             hints=_STEWART_HINTS, kinds=_STEWART_KINDS, size=_stewart_size),
-    "linear_delta": MachineFormat(LinearDeltaFile, _build_linear_delta, _dump_linear_delta,
-                                  {"chains": 3}, home_text="[x, y, z]",
-                                  hints=_LINEAR_DELTA_HINTS, kinds=_LINEAR_DELTA_KINDS,
-                                  size=_linear_delta_size),
-    **{kind: _with_common_sections(fmt) for kind, fmt in registered_machine_formats().items()},
-}
+    kind: _with_common_sections(fmt) for kind, fmt in registered_machine_formats().items()}
 
 
 def _kind_of(path: tuple, kinds: dict) -> str | None:
@@ -1110,11 +461,8 @@ def _line_of(lines: dict, key: tuple) -> int | None:
     return None
 
 
-#: keys of the machine's dimensions (positive lengths: links, arms, radii, the constraint
-#: link): a dimension this small relative to the machine is a typo, and it divides
-_DIMENSIONS = ("l", "length", "base_radius", "upper_arm", "forearm", "delta_radius",
-               "arm_length")
-#: smallest such dimension relative to the machine's size
+#: smallest dimension of a machine (a number of kind ``"dimension"``: a link, an arm, a radius,
+#: the constraint link) relative to the machine's size: one this small is a typo, and it divides
 MIN_LENGTH_RATIO = 1e-6
 
 
@@ -1128,7 +476,7 @@ def _check_magnitudes(data: dict, doc, fmt: MachineFormat, source: str, lines: d
     largest length. Beyond these, squares and products overflow or lose every digit.
     """
     units = doc.units.model_dump()
-    fl, fa = _factors(units)
+    fl, fa = factors(units)
     lu, au = units["length"], units["angle"]
     with np.errstate(all="ignore"):
         size, what = fmt.size(doc) if fmt.size is not None else (float("nan"), "")
@@ -1139,9 +487,9 @@ def _check_magnitudes(data: dict, doc, fmt: MachineFormat, source: str, lines: d
     for path, value in _numbers(data):
         kind = _kind_of(path, fmt.kinds or {})
         problem = None
-        if kind == "length" and not abs(value) * fl <= limit:
+        if kind in ("length", "dimension") and not abs(value) * fl <= limit:
             problem = f"{value:.6g} {lu} is not a plausible length: {why}"
-        elif (kind == "length" and relative and path and path[-1] in _DIMENSIONS
+        elif (kind == "dimension" and relative
               and 0 < value * fl < MIN_LENGTH_RATIO * size):
             problem = (f"{value:.6g} {lu} is not a plausible length: less than "
                        f"{MIN_LENGTH_RATIO:g} of the machine's size ({size / fl:.6g} {lu}, "
@@ -1206,15 +554,9 @@ def _model_at(model: type[BaseModel], loc) -> type[BaseModel] | None:
     return current if isinstance(current, type) and issubclass(current, BaseModel) else None
 
 
-def _show(value) -> str:
-    text = repr(value) if not isinstance(value, bool) else str(value).lower()
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
 _HINTS = {
     "units": "every machine file states its units, e.g. units: {length: mm, angle: deg}",
     "pkmcal": "the file format version; write pkmcal: 1",
-    "chains": "a list of 6 chains {a0: [x, y, z], alpha, beta, b: [x, y, z], l}",
 }
 
 
@@ -1526,7 +868,7 @@ def machine_to_text(machine: Machine, units: dict | None = None,
     if set(units) != {"length", "angle"} or units["length"] not in LENGTH_UNITS \
             or units["angle"] not in ANGLE_UNITS:
         raise InputError(f"units must be {{length: mm|m|in, angle: deg|rad}}, got {units}")
-    fl, fa = _factors(units)
+    fl, fa = factors(units)
     body = MACHINE_FORMATS[kind].dump(machine, units)
     # home: the pose coordinates the platform moves along (x, y, z; the Euler angles of a
     # platform that rotates; x, y, phi of a planar one)

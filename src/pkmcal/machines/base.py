@@ -183,6 +183,15 @@ class Machine(ABC):
     frame_is_bed: bool = False
     #: the frame targets are given in, in words (:meth:`targets_in_base`)
     working_frame_words: str = "base frame of the calibrated model"
+    #: what one chain of the machine is called in messages ("leg(s) 2, 3")
+    chain_word: str = "chain"
+    #: what one vector of joint values is called in messages ("12 joint vector(s)")
+    joint_vector_word: str = "joint"
+    #: the joints and what they read, in messages ("the sliders read about 300 mm at home")
+    joints_read_words: str = "joints read"
+    #: how the joints move the platform, in words, for a format or an instrument that refuses
+    #: the machine for it (None: nothing to say beyond the machine type)
+    actuation_words: str | None = None
     #: half-widths of the uniform random deviations of a simulated true machine: (length m,
     #: angle rad) (:func:`~pkmcal.machines.deviations.random_deviations`)
     RANDOM_DEVIATION: tuple[float, float] = (2e-3, 0.02)
@@ -477,6 +486,38 @@ class Machine(ABC):
         -------
         ndarray, shape (3,) or None
             Platform-frame point, m; None (the default): the calibration estimates it.
+        """
+        return None
+
+    def reading_gains(self) -> np.ndarray | None:
+        """Length per reading unit of each joint whose readings are kept in their own unit
+        (a machine with a ``reading_unit``, :meth:`joint_unit`: ``L = l0 + gain r``), or None
+        (the default: the joint values are the joints' travel in the machine file's units).
+
+        Returns
+        -------
+        ndarray, shape (n_joints,) or None
+            The gains, m per reading unit (a ratio for readings in a length unit).
+        """
+        return None
+
+    def leg_joints(self, q, u=None):
+        """The legs of a machine whose chains are straight legs of variable length between a
+        base joint and a platform joint (a Gough-Stewart platform): their joints and their
+        lengths at the readings ``q`` (the linear reading model); None for any other machine.
+
+        Parameters
+        ----------
+        q : array_like, shape (n_joints,)
+            Readings (internal units).
+        u : array_like, shape (n_params,) or (K, n_params), optional
+            Parameter vector(s); default: :attr:`u`.
+
+        Returns
+        -------
+        tuple of ndarray or None
+            ``(base (..., n, 3), platform (..., n, 3), lengths (..., n))``, m, with a leading
+            axis per parameter vector; None (the default): the machine has no such legs.
         """
         return None
 

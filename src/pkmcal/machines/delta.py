@@ -20,15 +20,54 @@ gives two planes (eq. 8), whose line is intersected with the first sphere (eq. 9
 with the line's direction so no 2x2 sub-determinant can vanish). Of the two roots the one on
 the platform side is taken: the lower one (Z up, the platform hangs below the base).
 Inverse kinematics: ``w_x cos(t) + w_z sin(t) = K`` per leg, elbow-out root.
+
+The machine file (SPEC 6) holds the nominal dimensions, the error parameters per leg
+(optional, default 0) and, optionally, the pose of a laser tracker::
+
+    pkmcal: 1
+    machine: delta
+    units: {length: mm, angle: deg}
+    base_radius: 200.0
+    platform_radius: 50.0
+    upper_arm: 300.0
+    forearm: 800.0
+    leg_angles: [90.0, 180.0, -90.0]
+    smr_offset: 30.0                           # optional: reflector below the platform point
+    legs:                                      # optional: exactly 3, every key optional (0)
+      - {da: [0.0, 0.0, 0.0], dtheta: 0.0, dl1: 0.0, dl2: 0.0, db: [0.0, 0.0, 0.0]}
+    tracker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0]}
+    home: [0.0, 0.0, -750.0]                   # x, y, z (the platform does not rotate)
+
+A calibrated Delta file carries the identified errors in ``legs``, the identified registration
+in ``tracker`` (no ``targets``: the target is the reflector, ``smr_offset``), and ``home``. A
+Delta ``home`` may also be written with six numbers when the three angles are zero.
 """
 
 from __future__ import annotations
 
+from typing import Annotated, Any, Literal
+
 import numpy as np
+from pydantic import Field, field_validator
+from pydantic_core import PydanticCustomError
 
 from ..errors import InputError
 from ..parameters import ParameterSet
+from ..units import LENGTH
 from .base import FKResult, Machine, closed_form_positions_fk
+from .file_format import (
+    Ballbar,
+    BedPlane,
+    MachineFileHead,
+    MachineFormat,
+    NonNegative,
+    Number,
+    Positive,
+    StrictModel,
+    TrackerPose,
+    Vector3,
+    factors,
+)
 
 LEG_FIELDS = ("da.x", "da.y", "da.z", "dtheta", "dl1", "dl2", "db.x", "db.y", "db.z")
 LEG_KINDS = ("length",) * 3 + ("angle",) + ("length",) * 5
@@ -93,6 +132,8 @@ class Delta(Machine):
     kind = "delta"
     #: the instrument of its source paper (seed 001)
     default_instrument = "tracker"
+    chain_word = "leg"
+    joints_read_words = "arm angles are"
     n_joints = 3
     pose_dof = 3
     #: random deviations of simulated true machines (m, rad)
@@ -120,6 +161,11 @@ class Delta(Machine):
         self._idx = np.stack([self.parameters.indices(f"leg{i + 1}") for i in range(3)])
 
     # -- geometry -------------------------------------------------------------------------
+    @property
+    def platform_radius(self) -> float:
+        """The radius ``b`` of the platform joints, m (the file's ``platform_radius``)."""
+        return self.b
+
     def legs(self, u=None):
         """Per-leg error arrays, the legs along the first axis.
 
@@ -589,3 +635,112 @@ def default_delta() -> Delta:
     return Delta(0.2, 0.05, 0.3, 0.8, DEFAULT_LEG_ANGLES, smr_offset=0.03,
                  home=(np.array([0.0, 0.0, -0.75]), np.eye(3)),
                  name="pkmcal default 90-degree Delta (SPEC 2.2)")
+
+
+# --------------------------------------------------------------------------------------------
+# The machine file section (``machine: delta``)
+# --------------------------------------------------------------------------------------------
+
+
+class DeltaLeg(StrictModel):
+    """Error parameters of one Delta leg (seed 001 eq. 3, leg frame); every key defaults to 0."""
+
+    da: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+    dtheta: Number = 0.0
+    dl1: Number = 0.0
+    dl2: Number = 0.0
+    db: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+class DeltaFile(MachineFileHead):
+    """``machine: delta`` (SPEC 6)."""
+
+    machine: Literal["delta"]
+    base_radius: Positive
+    platform_radius: NonNegative
+    upper_arm: Positive
+    forearm: Positive
+    leg_angles: Vector3
+    smr_offset: Number = 0.0
+    legs: Annotated[list[DeltaLeg], Field(min_length=3, max_length=3)] | None = None
+    tracker: TrackerPose | None = None
+    ballbar: Ballbar | None = None
+    bed: BedPlane | None = None
+    home: list[Number] | None = None
+
+    @field_validator("home")
+    @classmethod
+    def _position_home(cls, value):
+        if value is None:
+            return value
+        if len(value) not in (3, 6):
+            raise PydanticCustomError(
+                "home_length", "expected 3 numbers [x, y, z] (the Delta platform does not "
+                "rotate), got {n}", {"n": len(value)})
+        if len(value) == 6 and any(abs(v) > 1e-9 for v in value[3:]):
+            raise PydanticCustomError(
+                "home_rotation", "the Delta platform does not rotate: psi, theta, phi must be "
+                "0, got {angles}; write home: [x, y, z]", {"angles": value[3:]})
+        return value
+
+
+def _build(doc: DeltaFile, source: str) -> Delta:
+    fl, fa = factors(doc.units.model_dump())
+    legs = doc.legs if doc.legs is not None else [DeltaLeg() for _ in range(3)]
+    factor = {"da": fl, "dtheta": fa, "dl1": fl, "dl2": fl, "db": fl}
+    values = []
+    for leg in legs:
+        for field in LEG_FIELDS:                 # da.x, ..., dtheta, dl1, dl2, db.x, ...
+            key, _, axis = field.partition(".")
+            v = getattr(leg, key)
+            values.append((v["xyz".index(axis)] if axis else v) * factor[key])
+    home = None
+    if doc.home is not None:
+        home = (np.asarray(doc.home[:3], float) * fl, np.eye(3))
+    return Delta(doc.base_radius * fl, doc.platform_radius * fl, doc.upper_arm * fl,
+                 doc.forearm * fl, np.asarray(doc.leg_angles, float) * fa,
+                 parameters=delta_parameters(values), smr_offset=doc.smr_offset * fl,
+                 home=home, name=doc.name or "")
+
+
+def _dump(machine: Delta, units: dict) -> dict[str, Any]:
+    fl, fa = factors(units)
+    da, dth, dl1, dl2, db = machine.legs()
+    return {
+        "base_radius": machine.a / fl,
+        "platform_radius": machine.b / fl,
+        "upper_arm": machine.l1 / fl,
+        "forearm": machine.l2 / fl,
+        "leg_angles": [float(v) / fa for v in machine.leg_angles],
+        "smr_offset": machine.smr_offset / fl,
+        "legs": [{"da": [float(v) / fl for v in da[i]], "dtheta": float(dth[i]) / fa,
+                  "dl1": float(dl1[i]) / fl, "dl2": float(dl2[i]) / fl,
+                  "db": [float(v) / fl for v in db[i]]} for i in range(3)],
+    }
+
+
+def _size(doc) -> tuple[float, str]:
+    fl = LENGTH[doc.units.length]
+    return (float(np.median([doc.base_radius, doc.upper_arm, doc.forearm])) * fl,
+            "the median of base_radius, upper_arm and forearm")
+
+
+#: the machine file section of a Delta robot (:mod:`pkmcal.machines.registry`)
+FILE_FORMAT = MachineFormat(
+    DeltaFile, _build, _dump, {"legs": 3}, home_text="[x, y, z]",
+    hints={
+        "base_radius": "the radius a of the actuator axes, e.g. base_radius: 200.0",
+        "platform_radius": "the radius b of the platform joints, e.g. platform_radius: 50.0",
+        "upper_arm": "the upper-arm length l1, e.g. upper_arm: 300.0",
+        "forearm": "the parallelogram forearm length l2, e.g. forearm: 800.0",
+        "leg_angles": "the azimuths of the 3 legs, e.g. leg_angles: [90.0, 180.0, -90.0]",
+        "legs": "a list of 3 legs {da: [x, y, z], dtheta, dl1, dl2, db: [x, y, z]}",
+    },
+    kinds={
+        ("base_radius",): "dimension", ("platform_radius",): "length",
+        ("upper_arm",): "dimension", ("forearm",): "dimension", ("smr_offset",): "length",
+        ("leg_angles", "*"): "angle", ("legs", "*", "da", "*"): "length",
+        ("legs", "*", "dtheta"): "angle", ("legs", "*", "dl1"): "length",
+        ("legs", "*", "dl2"): "length", ("legs", "*", "db", "*"): "length",
+    },
+    size=_size, kind=Delta.kind)

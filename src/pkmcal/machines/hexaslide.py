@@ -14,14 +14,49 @@ Derivatives (SPEC appendix A), with link vector ``n = d - q a`` and ``s = a.n`` 
 working branch): ``dq/dP = n/s``, ``dq/dOmega = (R B) x n / s``, ``dq/dB = R^T n / s``,
 ``dq/dA0 = -n/s``, ``dq/dl = -l/s``, ``dq/da = -q d/s`` (projected on ``da/dalpha``,
 ``da/dbeta``).
+
+The machine file (SPEC 6)::
+
+    pkmcal: 1
+    machine: hexaslide
+    name: any text
+    units: {length: mm, angle: deg}
+    constraint_link: {length: 300.0}
+    home: [0.0, 0.0, 300.0, 0.0, 0.0, 0.0]      # x, y, z, psi, theta, phi (file units)
+    chains:                                    # exactly 6
+      - {a0: [451.05, -164.17, -400.0], alpha: 160.0, beta: 70.0, b: [84.85, -84.85, 0.0], l: 450.0}
+
+with the instrument sections ``tracker`` (with ``targets``), ``ballbar``, ``bed`` and
+``measurement_frames`` (:data:`FILE_FORMAT`; :mod:`pkmcal.io.machine_file` reads and writes
+them).
 """
 
 from __future__ import annotations
 
+from typing import Annotated, Any, Literal
+
 import numpy as np
+from pydantic import Field
 
 from ..parameters import ParameterSet
+from ..units import LENGTH
 from .base import Machine
+from .file_format import (
+    Ballbar,
+    BedPlane,
+    ConstraintLink,
+    MachineFileHead,
+    MachineFormat,
+    MeasurementFramesSection,
+    Number,
+    Pose6,
+    Positive,
+    StrictModel,
+    TrackerSection,
+    Vector3,
+    factors,
+    home_pose,
+)
 
 CHAIN_FIELDS = ("b.x", "b.y", "b.z", "a0.x", "a0.y", "a0.z", "alpha", "beta", "l")
 CHAIN_KINDS = ("length",) * 6 + ("angle", "angle", "length")
@@ -126,6 +161,8 @@ class HexaSlide(Machine):
     kind = "hexaslide"
     #: the instrument of its source paper (seed 000): the calibrations' default scenario
     default_instrument = "constraint-link"
+    joints_read_words = "sliders read"
+    actuation_words = "a Hexa Slide moves fixed-length legs with sliders on rails"
     n_joints = 6
     pose_dof = 6
     DEFAULT_DEVIATIONS = "paper-table1"
@@ -403,3 +440,76 @@ def paper_table1_deviations(parameters: ParameterSet) -> np.ndarray:
         for i, v in enumerate(values):
             du[parameters.index(f"chain{i + 1}.{field}")] = v
     return du
+
+
+# --------------------------------------------------------------------------------------------
+# The machine file section (``machine: hexaslide``)
+# --------------------------------------------------------------------------------------------
+
+
+class HexaSlideChain(StrictModel):
+    """One 6-PUS chain: rail start ``a0``, rail angles, platform joint ``b``, link length."""
+
+    a0: Vector3
+    alpha: Number
+    beta: Number
+    b: Vector3
+    l: Positive
+
+
+class HexaSlideFile(MachineFileHead):
+    """``machine: hexaslide`` (SPEC 6)."""
+
+    machine: Literal["hexaslide"]
+    constraint_link: ConstraintLink | None = None
+    home: Pose6 | None = None
+    chains: Annotated[list[HexaSlideChain], Field(min_length=6, max_length=6)]
+    tracker: TrackerSection | None = None
+    ballbar: Ballbar | None = None
+    bed: BedPlane | None = None
+    measurement_frames: MeasurementFramesSection | None = None
+
+
+def _build(doc: HexaSlideFile, source: str) -> HexaSlide:
+    fl, fa = factors(doc.units.model_dump())
+    ch = doc.chains
+    params = hexaslide_parameters(
+        b=np.array([c.b for c in ch]) * fl,
+        a0=np.array([c.a0 for c in ch]) * fl,
+        alpha=np.array([c.alpha for c in ch]) * fa,
+        beta=np.array([c.beta for c in ch]) * fa,
+        l=np.array([c.l for c in ch]) * fl,
+    )
+    lc = doc.constraint_link.length * fl if doc.constraint_link is not None else None
+    return HexaSlide(params, home=home_pose(doc.home, fl, fa), name=doc.name or "",
+                     constraint_link_length=lc)
+
+
+def _dump(machine: HexaSlide, units: dict) -> dict[str, Any]:
+    fl, fa = factors(units)
+    b, a0, alpha, beta, l = machine.chains()
+    out: dict[str, Any] = {}
+    if machine.constraint_link_length is not None:
+        out["constraint_link"] = {"length": float(machine.constraint_link_length) / fl}
+    out["chains"] = [
+        {"a0": [float(v) / fl for v in a0[i]], "alpha": float(alpha[i]) / fa,
+         "beta": float(beta[i]) / fa, "b": [float(v) / fl for v in b[i]],
+         "l": float(l[i]) / fl}
+        for i in range(6)
+    ]
+    return out
+
+
+def _size(doc) -> tuple[float, str]:
+    fl = LENGTH[doc.units.length]
+    return float(np.median([c.l for c in doc.chains])) * fl, "the median link length l"
+
+
+#: the machine file section of a Hexa Slide (:mod:`pkmcal.machines.registry`)
+FILE_FORMAT = MachineFormat(
+    HexaSlideFile, _build, _dump, {"chains": 6},
+    hints={"chains": "a list of 6 chains {a0: [x, y, z], alpha, beta, b: [x, y, z], l}"},
+    kinds={("chains", "*", "a0", "*"): "length", ("chains", "*", "b", "*"): "length",
+           ("chains", "*", "l"): "dimension", ("chains", "*", "alpha"): "angle",
+           ("chains", "*", "beta"): "angle", ("constraint_link", "length"): "dimension"},
+    size=_size, kind=HexaSlide.kind)

@@ -92,17 +92,59 @@ Firmware parameter sets (:attr:`LinearDelta.PARAMETER_SETS`), from the sources r
     every tower quantity (endstop, angle, radius and arm trims, both tilts; the common
     radius and arm length are fixed: with the trims free they add nothing). No gauge is
     fixed: the estimator names the rotation about z and what the instrument cannot see.
+
+The machine file (SPEC 6, issue 14)
+-----------------------------------
+The design values, in Klipper's names and meanings, and optionally the full chain of each
+tower (Hexa Slide keys, SPEC 2.1, absolute values; the top-level keys stay the design)::
+
+    pkmcal: 1
+    machine: linear_delta
+    units: {length: mm, angle: deg}
+    delta_radius: 140.0                        # carriage joint line to effector joint line
+    arm_length: 270.0                          # or a list of three
+    tower_angles: [210.0, 330.0, 90.0]         # counter-clockwise from +X
+    position_endstop: [300.0, 300.0, 300.0]    # nozzle-to-bed distance at each endstop
+    chains:                                    # optional: exactly 3
+      - {a0: [-121.2, -70.0, 518.2], alpha: 210.0, beta: -90.0, b: [0, 0, 0], l: 270.0}
+    home: [0.0, 0.0, 120.0]                    # x, y, z of the nozzle
+
+``a0`` is the carriage joint at the endstop, ``alpha``/``beta`` the direction down the tower,
+``l`` the arm and ``b`` the effector joint relative to the nozzle tip; the readings
+``q1_mm..q3_mm`` are the carriages' travels down from their endstops. With ``chains`` the
+machine's common ``delta_radius`` and ``arm_length`` parameters take the top-level values and
+the per-tower trims the differences; a file is written with ``chains`` whenever its geometry
+is not exactly the design's (a calibrated file). ``print_radius`` and ``probe_radius``
+(optional) are the firmware's print and probing radii.
 """
 
 from __future__ import annotations
 
+from typing import Annotated, Any, Literal
+
 import numpy as np
+from pydantic import Field, Strict, field_validator
+from pydantic_core import PydanticCustomError
 
 from ..errors import InputError
 from ..kinematics import matrix_from_rotvec
 from ..parameters import ParameterSet
+from ..units import LENGTH
 from .base import FKResult, FrameMotion, Machine, ParameterSubset, closed_form_positions_fk
-from .hexaslide import rail_direction, slider_link_solve
+from .file_format import (
+    Ballbar,
+    BedPlane,
+    MachineFileHead,
+    MachineFormat,
+    Number,
+    Positive,
+    TrackerPose,
+    Vector3,
+    factors,
+    show,
+    vector,
+)
+from .hexaslide import HexaSlideChain, rail_direction, slider_link_solve
 
 TOWER_FIELDS = ("endstop", "angle", "radius_trim", "arm_trim", "tilt_radial", "tilt_tangential")
 TOWER_KINDS = ("length", "angle", "length", "length", "angle", "angle")
@@ -908,3 +950,158 @@ def default_linear_delta() -> LinearDelta:
     """
     return linear_delta(0.14, 0.27, DEFAULT_TOWER_ANGLES, (0.3, 0.3, 0.3),
                         name="pkmcal default linear Delta (Kossel size)")
+
+
+# --------------------------------------------------------------------------------------------
+# The machine file section (``machine: linear_delta``)
+# --------------------------------------------------------------------------------------------
+
+
+class LinearDeltaFile(MachineFileHead):
+    """``machine: linear_delta``: the design values (Klipper's names and meanings) and,
+    optionally, the full chain of each tower (Hexa Slide keys, absolute values)."""
+
+    machine: Literal["linear_delta"]
+    delta_radius: Positive
+    arm_length: Any                            # one number or 3: checked by _arm_lengths
+    tower_angles: Vector3
+    #: nozzle-to-bed distances at the endstops: above the bed
+    position_endstop: Annotated[list[Annotated[float, Strict(), Field(
+        allow_inf_nan=False, gt=0)]], Field(min_length=3, max_length=3)]
+    chains: Annotated[list[HexaSlideChain], Field(min_length=3, max_length=3)] | None = None
+    tracker: TrackerPose | None = None
+    ballbar: Ballbar | None = None
+    bed: BedPlane | None = None
+    #: the firmware's print radius and probing radius (Klipper's [printer] print_radius,
+    #: [delta_calibrate] radius): the export's and the probe plan's disk
+    print_radius: Positive | None = None
+    probe_radius: Positive | None = None
+    home: list[Number] | None = None
+
+    @field_validator("arm_length")
+    @classmethod
+    def _arm_lengths(cls, value):
+        items = value if isinstance(value, list) else [value]
+        if isinstance(value, list) and len(value) != 3:
+            raise PydanticCustomError(
+                "arm_lengths", "expected one number or a list of 3 (one per tower), got "
+                "{n} numbers", {"n": len(value)})
+        for x in items:
+            if isinstance(x, bool) or not isinstance(x, (int, float)):
+                raise PydanticCustomError(
+                    "arm_lengths", "not a number: {value} (one arm length, or a list of 3)",
+                    {"value": show(x)})
+            if not np.isfinite(x) or x <= 0:
+                raise PydanticCustomError(
+                    "arm_lengths", "an arm length must be a finite number > 0, got {value}",
+                    {"value": show(x)})
+        return value
+
+    @field_validator("home")
+    @classmethod
+    def _position_home(cls, value):
+        if value is None:
+            return value
+        if len(value) not in (3, 6):
+            raise PydanticCustomError(
+                "home_length", "expected 3 numbers [x, y, z] (the effector does not rotate), "
+                "got {n}", {"n": len(value)})
+        if len(value) == 6 and any(abs(v) > 1e-9 for v in value[3:]):
+            raise PydanticCustomError(
+                "home_rotation", "the effector does not rotate: psi, theta, phi must be 0, got "
+                "{angles}; write home: [x, y, z]", {"angles": value[3:]})
+        return value
+
+
+def _build(doc: LinearDeltaFile, source: str) -> LinearDelta:
+    fl, fa = factors(doc.units.model_dump())
+    arms = doc.arm_length
+    arms = [float(v) * fl for v in arms] if isinstance(arms, list) else float(arms) * fl
+    chains = None
+    if doc.chains is not None:
+        ch = doc.chains
+        chains = (np.array([c.a0 for c in ch], float) * fl,
+                  np.array([c.alpha for c in ch], float) * fa,
+                  np.array([c.beta for c in ch], float) * fa,
+                  np.array([c.l for c in ch], float) * fl,
+                  np.array([c.b for c in ch], float) * fl)
+    home = None
+    if doc.home is not None:
+        home = (np.asarray(doc.home[:3], float) * fl, np.eye(3))
+    machine = linear_delta(doc.delta_radius * fl, arms, np.asarray(doc.tower_angles, float) * fa,
+                           np.asarray(doc.position_endstop, float) * fl, chains=chains,
+                           home=home, name=doc.name or "")
+    for key in ("print_radius", "probe_radius"):
+        value = getattr(doc, key)
+        if value is not None:
+            setattr(machine, key, float(value) * fl)
+    return machine
+
+
+def _dump(machine: LinearDelta, units: dict) -> dict[str, Any]:
+    """The top level (the design values, as read) and, when the geometry is not exactly the
+    design's, the chains."""
+    fl, fa = factors(units)
+    # the top level holds the machine's own values (a calibrated file shows its calibrated
+    # radius, arms, angles and endstops, not the design's); the chains what they cannot
+    pe, theta, _, l, _, _ = machine.towers()
+    radius = float(machine.u[machine.parameters.index("delta_radius")])
+    arms = float(l[0]) if np.all(l == l[0]) else np.asarray(l, float)
+    out: dict[str, Any] = {
+        "delta_radius": radius / fl,
+        "arm_length": (float(arms) / fl if np.ndim(arms) == 0
+                       else [float(v) / fl for v in np.asarray(arms)]),
+        "tower_angles": [float(v) / fa for v in theta],
+        "position_endstop": [float(v) / fl for v in pe],
+    }
+    for key in ("print_radius", "probe_radius"):
+        value = getattr(machine, key, None)
+        if value is not None and not callable(value):
+            out[key] = float(value) / fl
+    design = linear_delta(radius, arms, theta, pe)
+    if (getattr(machine, "from_chains", False) or np.any(machine.b != 0)
+            or not np.array_equal(machine.u, design.u)):
+        a0, alpha, beta, l, b = machine.chains()
+        out["chains"] = [
+            {"a0": vector(a0[i], fl), "alpha": float(alpha[i]) / fa,
+             "beta": float(beta[i]) / fa, "b": vector(b[i], fl), "l": float(l[i]) / fl}
+            for i in range(3)]
+    return out
+
+
+def _size(doc) -> tuple[float, str]:
+    fl = LENGTH[doc.units.length]
+    arms = doc.arm_length if isinstance(doc.arm_length, list) else [doc.arm_length]
+    with np.errstate(all="ignore"):
+        return (float(np.median([doc.delta_radius, float(np.median(arms)),
+                                 float(np.median(doc.position_endstop))])) * fl,
+                "the median of delta_radius, arm_length and position_endstop")
+
+
+#: the machine file section of a linear Delta printer (:mod:`pkmcal.machines.registry`)
+FILE_FORMAT = MachineFormat(
+    LinearDeltaFile, _build, _dump, {"chains": 3}, home_text="[x, y, z]",
+    hints={
+        "delta_radius": "the horizontal distance from the carriage joint line to the effector "
+                        "joint line, e.g. delta_radius: 140.0",
+        "arm_length": "the arm (diagonal rod) length, one or one per tower, e.g. arm_length: "
+                      "270.0",
+        "tower_angles": "the tower angles counter-clockwise from +X, e.g. tower_angles: [210, "
+                        "330, 90]",
+        "position_endstop": "the nozzle-to-bed distance at each tower's endstop (Klipper's "
+                            "position_endstop), e.g. position_endstop: [300, 300, 300]",
+        "chains": "a list of 3 chains {a0: [x, y, z], alpha, beta, b: [x, y, z], l}",
+        "print_radius": "the radius of the printable disk on the bed (Klipper's print_radius), "
+                        "e.g. print_radius: 120.0",
+        "probe_radius": "the radius of the probing pattern (Klipper's [delta_calibrate] "
+                        "radius), e.g. probe_radius: 100.0",
+    },
+    kinds={
+        ("delta_radius",): "dimension", ("arm_length",): "dimension",
+        ("arm_length", "*"): "length", ("print_radius",): "length",
+        ("probe_radius",): "length", ("tower_angles", "*"): "angle",
+        ("position_endstop", "*"): "length", ("chains", "*", "a0", "*"): "length",
+        ("chains", "*", "b", "*"): "length", ("chains", "*", "l"): "dimension",
+        ("chains", "*", "alpha"): "angle", ("chains", "*", "beta"): "angle",
+    },
+    size=_size, kind=LinearDelta.kind)

@@ -13,8 +13,13 @@ import importlib
 
 from .file_format import MachineFormat
 
-#: machine modules (under :mod:`pkmcal.machines`) that state their own file section
+#: the machine modules (under :mod:`pkmcal.machines`), each stating its own file section;
+#: the order is the order messages list the machine types in
 MACHINE_MODULES: tuple[str, ...] = (
+    "hexaslide",
+    "delta",
+    "stewart",
+    "linear_delta",
     "planar_3rpr",
 )
 

@@ -19,15 +19,61 @@ The cubic 6-UPU device of seed 003 is one instance (``examples/cubic_6upu.yaml``
 of seed 003 eq. 1-10: ``s_i = R p_i``, ``w_i = t + s_i - b_i = l_i z_i``,
 ``J_p`` row i = ``[z_i^T, (s_i x z_i)^T]``, ``J_s`` row i = ``[z_i^T R, -z_i^T]`` on
 ``[dp_i (platform frame), db_i]``.
+
+The machine file (SPEC 6) lists the legs; ``gain`` is the file's length unit per reading unit,
+``readings`` (optional, default: the file's length unit) names what the legs report::
+
+    pkmcal: 1
+    machine: stewart
+    units: {length: mm, angle: deg}
+    readings: {unit: rev}                      # optional: mm, m, um or any word (rev, counts)
+    legs:                                      # exactly 6: L = l0 + gain * reading
+      - {base: [-385.3, -140.2, 0.0], platform: [-197.4, 95.0, 0.0], l0: 640.2, gain: 75.7}
+    measurement_frames:                        # optional: frames of full-pose measurements
+      mocap_from_base: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0]}
+      platform_from_marker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0]}
+    home: [0.0, 0.0, 565.0, 0.0, 0.0, 0.0]
+
+``gain`` is always the file's length unit per reading unit: 1 when the readings are lengths in
+the file's unit, 0.001 for ``length: mm`` with ``readings: {unit: counts}`` and 1 um per count
+(or with ``readings: {unit: um}``), 0.001 for ``length: m`` with ``readings: {unit: mm}``
+(``gain: 1`` there would mean 1 m per mm). Internally, readings in a length unit are converted
+to metres (the gain is then a ratio, 1 for readings that are the length); readings in any other
+unit are kept as read and the gain carries metres per unit (1e-6 for 1 um per count); ``l0`` is
+always in metres. A leg may carry ``curvature`` (the file's length unit per reading unit
+squared: ``L = l0 + gain r + curvature r^2``, the reading curvature a calibration adopts when
+held-out data show it); when one leg has it, every leg has it (0 where absent), and a file
+without it is the linear model.
 """
 
 from __future__ import annotations
 
+import re
+from typing import Annotated, Any, Literal
+
 import numpy as np
+from pydantic import Field, field_validator
+from pydantic_core import PydanticCustomError
 
 from ..kinematics import matrix_from_euler
 from ..parameters import ParameterSet
+from ..units import LENGTH, unit_of
 from .base import FKResult, Machine, ModelExtension
+from .file_format import (
+    Ballbar,
+    BedPlane,
+    ConstraintLink,
+    MachineFileHead,
+    MachineFormat,
+    MeasurementFramesSection,
+    Number,
+    Pose6,
+    StrictModel,
+    TrackerSection,
+    Vector3,
+    factors,
+    home_pose,
+)
 
 LEG_FIELDS = ("base.x", "base.y", "base.z", "platform.x", "platform.y", "platform.z", "l0",
               "gain")
@@ -114,6 +160,9 @@ class Stewart(Machine):
     kind = "stewart"
     #: the instrument of SPEC 2.4 (motion capture)
     default_instrument = "pose"
+    chain_word = "leg"
+    joint_vector_word = "leg reading"
+    joints_read_words = "legs read"
     n_joints = 6
     pose_dof = 6
 
@@ -132,8 +181,6 @@ class Stewart(Machine):
     @property
     def joint_quantity(self) -> str:
         """"length" when the readings are lengths (mm, m, ...), else "reading"."""
-        from ..units import LENGTH
-
         return "length" if self.reading_unit in LENGTH else "reading"
 
     # -- geometry -------------------------------------------------------------------------
@@ -158,6 +205,40 @@ class Stewart(Machine):
         """
         u = self.u if u is None else np.asarray(u, float)
         return u[self._ib], u[self._ip], u[self._il0], u[self._ig]
+
+    def reading_gains(self) -> np.ndarray:
+        """Leg length per reading unit of each leg (``gain_i``; :meth:`legs`).
+
+        Returns
+        -------
+        ndarray, shape (6,)
+            The gains, m per reading unit (a ratio for readings in a length unit).
+        """
+        return self.legs()[3]
+
+    def leg_joints(self, q, u=None):
+        """Base joints, platform joints and lengths ``l0 + gain q`` of the six legs at the
+        readings ``q`` (the linear reading model: the curvature extension is left out).
+
+        Parameters
+        ----------
+        q : array_like, shape (6,)
+            Readings (internal units).
+        u : array_like, shape (n_params,) or (K, n_params), optional
+            Parameter vector(s); default: :attr:`u`.
+
+        Returns
+        -------
+        base : ndarray, shape (..., 6, 3)
+            Base joints, m.
+        platform : ndarray, shape (..., 6, 3)
+            Platform joints, m.
+        lengths : ndarray, shape (..., 6)
+            Leg lengths, m.
+        """
+        u = self.u if u is None else np.asarray(u, float)
+        return (u[..., self._ib], u[..., self._ip],
+                u[..., self._il0] + u[..., self._ig] * np.asarray(q, float))
 
     @property
     def has_curvature(self) -> bool:
@@ -596,3 +677,139 @@ def cubic_6upu(a=0.16, b=0.14, c=0.195, d=0.270, e=0.055, f=0.205, g=0.130, z1=0
     return Stewart(stewart_parameters(base, platform), home=(np.array([0, 0, height]),
                                                              matrix_from_euler([0, 0, 0])),
                    name="cubic 6-UPU parallel device (seed 003 Table 2, P5 = (c, e, -d))")
+
+
+# --------------------------------------------------------------------------------------------
+# The machine file section (``machine: stewart``)
+# --------------------------------------------------------------------------------------------
+
+#: units a Stewart leg may read in and that are converted to metres (data-file suffixes)
+READING_LENGTH_UNITS = ("mm", "m", "um", "in")
+_READING_UNIT = re.compile(r"^[A-Za-z][A-Za-z0-9]*$")
+
+
+def reading_factor(unit: str) -> float:
+    """SI factor of a Stewart reading unit: a length unit's factor, 1 for any other word."""
+    return LENGTH[unit] if unit in LENGTH else 1.0
+
+
+class Readings(StrictModel):
+    """What a Stewart leg reports: ``unit`` is a length unit (mm, m, um: the reading is a
+    length, converted to metres) or any other word (rev, counts, deg: kept as read; the gain
+    converts it)."""
+
+    unit: str
+
+    @field_validator("unit")
+    @classmethod
+    def _unit_word(cls, value):
+        if not _READING_UNIT.match(value):
+            raise PydanticCustomError(
+                "reading_unit", "a reading unit is one word of letters and digits (mm, rev, "
+                "counts), got {value}", {"value": repr(value)})
+        if value in LENGTH and value not in READING_LENGTH_UNITS:
+            raise PydanticCustomError(
+                "reading_unit", "{value} is a length unit the data files do not use: readings "
+                "in a length unit are mm, m, um or in", {"value": repr(value)})
+        quantity = unit_of(value)
+        if quantity not in (None, "length", "angle"):
+            raise PydanticCustomError(
+                "reading_unit", "{value} is a unit of {quantity}, not of what a leg reads: a "
+                "length (mm, m, um), an angle (deg, rad) or a count (rev, counts)",
+                {"value": repr(value), "quantity": quantity.replace("_", " ")})
+        return value
+
+
+class StewartLeg(StrictModel):
+    """One leg: base joint (base frame), platform joint (platform frame), length at zero
+    reading ``l0`` and ``gain`` (file length unit per reading unit): ``L = l0 + gain r``.
+    Without ``l0`` and ``gain`` the leg reads its length (``l0 = 0``, ``gain = 1``, SPEC 7)."""
+
+    base: Vector3
+    platform: Vector3
+    l0: Number = 0.0
+    gain: Number = 1.0
+    curvature: Number | None = None
+
+    @field_validator("gain")
+    @classmethod
+    def _nonzero_gain(cls, value):
+        if value == 0:
+            raise PydanticCustomError("zero_gain", "must not be 0 (length per reading unit)")
+        return value
+
+
+class StewartFile(MachineFileHead):
+    """``machine: stewart`` (SPEC 6)."""
+
+    machine: Literal["stewart"]
+    readings: Readings | None = None
+    constraint_link: ConstraintLink | None = None
+    legs: Annotated[list[StewartLeg], Field(min_length=6, max_length=6)]
+    tracker: TrackerSection | None = None
+    ballbar: Ballbar | None = None
+    bed: BedPlane | None = None
+    measurement_frames: MeasurementFramesSection | None = None
+    home: Pose6 | None = None
+
+
+def _build(doc: StewartFile, source: str) -> Stewart:
+    fl, fa = factors(doc.units.model_dump())
+    unit = doc.readings.unit if doc.readings is not None else doc.units.length
+    gain_factor = fl / reading_factor(unit)          # file gain -> internal gain
+    legs = doc.legs
+    params = stewart_parameters(
+        base=np.array([leg.base for leg in legs]) * fl,
+        platform=np.array([leg.platform for leg in legs]) * fl,
+        l0=np.array([leg.l0 for leg in legs]) * fl,
+        gain=np.array([leg.gain for leg in legs]) * gain_factor,
+        # file length unit per reading unit squared -> internal
+        curvature=None if all(leg.curvature is None for leg in legs) else np.array(
+            [leg.curvature or 0.0 for leg in legs]) * fl / reading_factor(unit) ** 2,
+    )
+    machine = Stewart(params, home=home_pose(doc.home, fl, fa), name=doc.name or "",
+                      reading_unit=unit)
+    # without ``readings:`` the data's column suffix says the unit (SPEC 7): the first data
+    # file read fixes it (csv_io.adopt_reading_unit); until then the legs read lengths
+    machine.reading_unit_declared = doc.readings is not None
+    machine.constraint_link_length = (doc.constraint_link.length * fl
+                                      if doc.constraint_link is not None else None)
+    return machine
+
+
+def _dump(machine: Stewart, units: dict) -> dict[str, Any]:
+    fl, _ = factors(units)
+    unit = getattr(machine, "reading_unit", units["length"])
+    gain_factor = fl / reading_factor(unit)
+    b, p, l0, g = machine.legs()
+    out: dict[str, Any] = {"readings": {"unit": unit}}
+    lc = getattr(machine, "constraint_link_length", None)
+    if lc is not None:
+        out["constraint_link"] = {"length": float(lc) / fl}
+    out["legs"] = [
+        {"base": [float(v) / fl for v in b[i]], "platform": [float(v) / fl for v in p[i]],
+         "l0": float(l0[i]) / fl, "gain": float(g[i]) / gain_factor}
+        for i in range(6)
+    ]
+    if machine.has_curvature:
+        for leg, c in zip(out["legs"], machine.curvature(), strict=True):
+            leg["curvature"] = float(c) * reading_factor(unit) ** 2 / fl
+    return out
+
+
+def _size(doc) -> tuple[float, str]:
+    fl = LENGTH[doc.units.length]
+    with np.errstate(all="ignore"):
+        norms = [float(np.linalg.norm(np.asarray(v, float) / 2)) * 2
+                 for leg in doc.legs for v in (leg.base, leg.platform)]
+    return float(np.median(norms)) * fl, "the median distance of the leg joints from the origin"
+
+
+#: the machine file section of a six-leg platform (:mod:`pkmcal.machines.registry`)
+FILE_FORMAT = MachineFormat(
+    StewartFile, _build, _dump, {"legs": 6},
+    hints={"legs": "a list of 6 legs {base: [x, y, z], platform: [x, y, z], l0, gain}"},
+    kinds={("legs", "*", "base", "*"): "length", ("legs", "*", "platform", "*"): "length",
+           ("legs", "*", "l0"): "length", ("legs", "*", "gain"): "gain",
+           ("constraint_link", "length"): "dimension"},
+    size=_size, kind=Stewart.kind)

@@ -4,7 +4,6 @@
 
 from ..instruments.scenarios import (
     DEFAULT_PLAN_SIZE,
-    SCENARIO_OF,
     SCENARIOS,
     STANDARD_PLANS,
     StandardPlan,
@@ -49,7 +48,7 @@ from .selection import (
 )
 
 __all__ = [
-    "CRITERIA", "DEFAULT_PLAN_SIZE", "Design", "SCENARIOS", "SCENARIO_OF", "STANDARD_PLANS",
+    "CRITERIA", "DEFAULT_PLAN_SIZE", "Design", "SCENARIOS", "STANDARD_PLANS",
     "Selection", "StandardPlan", "candidate_poses", "candidate_set", "criterion_value",
     "default_noise",
     "describe_noise", "design_from_problem", "measurement_frames", "planned_data",

@@ -18,7 +18,15 @@ import json
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from ..errors import InputError
 
@@ -287,10 +295,22 @@ class ModelExtensions(_Section):
         return self
 
 
-#: the measurement kinds pkmcal calibrates (``pkmcal.calibration.run.KINDS``) and ``joint``, a
-#: fit of several data files (a test checks the list against the registry)
-MEASUREMENTS = ("constraint-link", "tracker", "pose", "distance", "probe", "pair-distances",
-                "joint")
+#: a report's ``measurement`` beside the instruments' names: a fit of several data files
+JOINT = "joint"
+
+
+def measurements() -> tuple[str, ...]:
+    """The measurements a calibration report may state: every instrument of the registry
+    (:mod:`pkmcal.instruments.registry`) and :data:`JOINT`.
+
+    Returns
+    -------
+    tuple of str
+        Names.
+    """
+    from ..instruments.registry import INSTRUMENTS
+
+    return (*INSTRUMENTS, JOINT)
 
 
 class CalibrationReport(_Section):
@@ -299,7 +319,7 @@ class CalibrationReport(_Section):
 
     command: Literal["calibrate"]
     pkmcal_report: Literal[1]
-    measurement: Literal[MEASUREMENTS]
+    measurement: str
     method: str
     units: Units
     measurements: Int = Field(ge=1)
@@ -325,14 +345,23 @@ class CalibrationReport(_Section):
     model_adequacy: ModelAdequacy | None = None
     model_extensions: ModelExtensions | None = None
 
+    @field_validator("measurement")
+    @classmethod
+    def _known_measurement(cls, value):
+        known = measurements()
+        if value not in known:
+            raise ValueError("Input should be " + ", ".join(repr(k) for k in known))
+        return value
+
     @model_validator(mode="after")
     def _sections_of_the_measurement(self):
-        from ..instruments.registry import INSTRUMENTS
+        if self.measurement == JOINT:
+            return self
+        from ..instruments.registry import instrument
 
-        inst = INSTRUMENTS.get(self.measurement)
-        for section, why in (inst.report_sections.items() if inst is not None else ()):
+        for section, words in instrument(self.measurement).report_sections.items():
             if getattr(self, section) is None:
-                raise ValueError(f"{section}: missing ({why})")
+                raise ValueError(f"{section}: missing ({words})")
         return self
 
 
