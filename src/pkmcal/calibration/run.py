@@ -1732,22 +1732,11 @@ def _check_distances(options: CalibrateOptions, source) -> None:
 
 
 def _distance_noise(noise, machine):
-    """The ballbar noise of ``--noise`` (text or SI number or model; default 1 um)."""
-    from ..instruments import IsotropicNoise
-    from ..plausibility import check_option_scale
-    from ..units import parse_quantity
+    """The ballbar noise of ``--noise`` (:meth:`~pkmcal.instruments.distance.Distance.noise_arg`;
+    default 1 um)."""
+    from ..instruments.registry import instrument
 
-    if noise is None:
-        return IsotropicNoise(1e-6)
-    if hasattr(noise, "whitening"):
-        return noise
-    sigma = parse_quantity(noise, "length", "--noise") if isinstance(noise, str) \
-        else float(noise)
-    if not sigma > 0:
-        raise InputError(f"--noise: must be > 0 (the standard deviation of the ballbar "
-                         f"lengths), got {noise}")
-    check_option_scale(sigma, machine, "--noise", "noise", str(noise))
-    return IsotropicNoise(sigma)
+    return instrument("distance").noise_arg(noise, machine)
 
 
 def _scalar_rms(problem, state, data) -> tuple[float | None, np.ndarray]:

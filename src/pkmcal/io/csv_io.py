@@ -34,17 +34,20 @@ import math
 import re
 from contextvars import ContextVar
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError
-from ..instruments.constraint_link import ConstraintLinkData
-from ..instruments.pose import FullPoseData
-from ..instruments.tracker import TrackerData
 from ..kinematics import euler_from_matrix, matrix_from_euler, matrix_from_quaternion
 from ..plausibility import Columns, check_full_pose_scale, check_reading_levels, check_tracker_scale
 from ..units import COLUMN_SUFFIXES, LENGTH, QUANTITIES
 from .atomic import atomic_write_text, read_input_text
+
+if TYPE_CHECKING:                        # the data classes load with their instruments
+    from ..instruments.constraint_link import ConstraintLinkData
+    from ..instruments.pose import FullPoseData
+    from ..instruments.tracker import TrackerData
 
 Row = tuple[int, list[str]]
 
@@ -506,6 +509,8 @@ def read_constraint_link(path, machine) -> ConstraintLinkData:
                          "unit) to the machine file")
     q, rows, extra, _ = machine_readings(path, machine)
     passive = read_passive(path, extra, rows, machine.n_joints)
+    from ..instruments.constraint_link import ConstraintLinkData
+
     return ConstraintLinkData(q, float(machine.constraint_link_length), passive, rows,
                               source=str(path))
 
@@ -763,6 +768,8 @@ def read_tracker(path, machine) -> TrackerData:
         (:func:`~pkmcal.plausibility.check_tracker_scale`).
     """
     points = read_points(path, machine)
+    from ..instruments.tracker import TrackerData
+
     return TrackerData(points.q, points.values, points.rows, source=str(path),
                        target=points.group if points.n_groups > 1 else None)
 
@@ -957,6 +964,8 @@ def read_full_pose(path, machine) -> FullPoseData:
     P, R, _, p_units, euler, e_units = _read_poses(path)
     if p_units is not None:
         check_full_pose_scale(path, q, q_units, P, p_units, R, euler, e_units, machine)
+    from ..instruments.pose import FullPoseData
+
     return FullPoseData(q, P, R, rows, source=str(path))
 
 

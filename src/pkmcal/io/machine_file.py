@@ -78,6 +78,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as _dt
+import functools
 import json
 import re
 import types
@@ -90,7 +91,6 @@ import yaml
 from pydantic import BaseModel, ValidationError, create_model
 
 from ..errors import InputError
-from ..instruments.registry import INSTRUMENTS
 from ..kinematics import euler_from_matrix
 from ..limits import (
     MAX_ANGLE,
@@ -381,10 +381,15 @@ def _frame_text(pose, fl: float) -> dict:
             "translation": [float(v) / fl for v in np.asarray(t, float)]}
 
 
-#: quantities of the instrument sections (every machine type; a key a type lacks never
-#: matches): each instrument's ``file_quantities``
-_INSTRUMENT_KINDS = {path: kind for inst in INSTRUMENTS.values()
-                     for path, kind in inst.file_quantities.items()}
+@functools.cache
+def _instrument_kinds() -> dict:
+    """Quantities of the instrument sections (every machine type; a key a type lacks never
+    matches): each instrument's ``file_quantities``, looked up when a number is not the
+    machine's own (the instruments are not imported to load a machine file without them)."""
+    from ..instruments.registry import INSTRUMENTS
+
+    return {path: kind for inst in INSTRUMENTS.values()
+            for path, kind in inst.file_quantities.items()}
 
 #: what every machine file may have, in file order, where a machine's schema does not state
 #: it itself (``machine`` is always the format's own type): the head, the instrument sections
@@ -420,7 +425,7 @@ def _with_common_sections(fmt: MachineFormat) -> MachineFormat:
         return out
 
     return dataclasses.replace(fmt, schema=schema, build=build, dump=dump,
-                               kinds={**(fmt.kinds or {}), **_INSTRUMENT_KINDS})
+                               kinds=fmt.kinds)
 
 
 #: machine type (``machine:`` in files) -> format: every machine module's
@@ -486,6 +491,8 @@ def _check_magnitudes(data: dict, doc, fmt: MachineFormat, source: str, lines: d
            f"{what})") if relative else f"more than {MAX_LENGTH / 1000:g} km"
     for path, value in _numbers(data):
         kind = _kind_of(path, fmt.kinds or {})
+        if kind is None:                     # an instrument section's number, or none
+            kind = _kind_of(path, _instrument_kinds())
         problem = None
         if kind in ("length", "dimension") and not abs(value) * fl <= limit:
             problem = f"{value:.6g} {lu} is not a plausible length: {why}"
