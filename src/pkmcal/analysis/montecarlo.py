@@ -48,6 +48,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..errors import ConvergenceError, InputError
+from ..estimation.distributions import t_ppf
 from ..instruments.base import Instrument
 from ..machines.base import Machine
 from ..plausibility import check_option_scale
@@ -756,8 +757,6 @@ def summarize(rows: list[dict], metrics, value=None) -> dict:
         5 % and 95 % quantiles; NaN where undefined (no ok run; std, confidence interval,
         spread and quantiles of one run).
     """
-    from scipy import stats
-
     status = [_status(row) for row in rows]
     good = [row for row, st in zip(rows, status, strict=True) if st == "ok"]
     out = {"value": value, "runs": len(rows),
@@ -775,7 +774,7 @@ def summarize(rows: list[dict], metrics, value=None) -> dict:
             st["median"] = float(np.median(v))
         if n > 1:
             std = float(v.std(ddof=1))
-            half = float(stats.t.ppf(0.975, n - 1) * std / math.sqrt(n))
+            half = float(t_ppf(0.975, n - 1) * std / math.sqrt(n))
             q05, q95 = np.quantile(v, [0.05, 0.95])
             st.update(std=std, ci95_low=st["mean"] - half, ci95_high=st["mean"] + half,
                       mad_std=MAD_SCALE * float(np.median(np.abs(v - st["median"]))),

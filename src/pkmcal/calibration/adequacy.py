@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..estimation.distributions import f_sf
+
 __all__ = ["ALPHA", "FAR_ABOVE", "add_to_report", "model_adequacy", "trend_tests"]
 
 #: family-wise significance level of the trend tests (Bonferroni over all tests)
@@ -82,10 +84,8 @@ def trend_tests(y, x) -> dict:
     ss2, c2 = _fit_ss(t, y, 2)
     f1 = (ss0 - ss1) / max(ss1 / (n - 2), 1e-300)
     f2 = (ss1 - ss2) / max(ss2 / (n - 3), 1e-300)
-    from scipy import stats
-
-    return {"linear_p": float(stats.f.sf(max(f1, 0.0), 1, n - 2)),
-            "quadratic_p": float(stats.f.sf(max(f2, 0.0), 1, n - 3)),
+    return {"linear_p": f_sf(max(f1, 0.0), 1, n - 2),
+            "quadratic_p": f_sf(max(f2, 0.0), 1, n - 3),
             "explained_linear": max(0.0, 1.0 - ss1 / ss0),
             "explained_quadratic": max(0.0, 1.0 - ss2 / ss0),
             "slope": float(c1[1] / span), "curvature": float(c2[2] / span**2)}

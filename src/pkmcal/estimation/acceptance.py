@@ -138,9 +138,9 @@ def chi2_bound(dof: int, alpha: float = 1e-3) -> float:
     float
         The bound (NaN when ``dof <= 0``).
     """
-    from scipy import stats
+    from .distributions import chi2_ppf
 
-    return float(stats.chi2.ppf(1.0 - alpha, dof)) / dof if dof > 0 else math.nan
+    return chi2_ppf(1.0 - alpha, dof) / dof if dof > 0 else math.nan
 
 
 def residual_test(result, alpha: float = 1e-3) -> ResidualTest:

@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .distributions import chi2_ppf, chi2_sf
 from .estimator import CalibrationResult, levenberg_marquardt
 from .rank import RTOL
 
@@ -513,9 +514,7 @@ def _outlier_test(weighted: Weighted, result, L, G, alpha: float,
         z = V[:, good].T @ r[S]
         stat[i] = float(np.sum(z**2 / w[good]))
         dof[i] = int(good.sum())
-    from scipy import stats
-
-    p = np.where(dof > 0, stats.chi2.sf(stat, np.maximum(dof, 1)), 1.0)
+    p = np.where(dof > 0, chi2_sf(stat, np.maximum(dof, 1)), 1.0)
     n_tested = max(int(np.sum(dof > 0)), 1)
     return OutlierTest(stat, dof, p, alpha / n_tested, weighted.kept.copy(),
                        list(groups.id_names))
@@ -535,14 +534,12 @@ def _robust_candidates(problem, groups: NoiseGroups, theta, state, rtol, options
     with Tukey's biweight on each row's chi-square per degree of freedom, over a median scale
     (a least-squares fit bends to gross errors, most with few rows per unknown; the robust one
     does not), its first fit without the rows of ``out``. Returns a mask over the rows."""
-    from scipy import stats
-
     n = len(groups.id_names)
     ids = groups.ids.reshape(-1)
     d = int(getattr(problem, "local_dof", 0) or 0)
     dof = np.maximum(np.bincount(ids, minlength=n) - d, 1)
-    cut = stats.chi2.ppf(1.0 - alpha / max(n, 1), dof) / dof
-    med = stats.chi2.ppf(0.5, dof) / dof
+    cut = chi2_ppf(1.0 - alpha / max(n, 1), dof) / dof
+    med = chi2_ppf(0.5, dof) / dof
     f = 1.0 / np.sqrt(np.asarray(theta, float)[groups.labels]).reshape(-1)
     w = np.ones(n) if out is None else np.where(out, 0.0, 1.0)
     u = np.zeros(n)

@@ -67,6 +67,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..estimation.acceptance import MAX_NOISE_FACTOR, residual_test
+from ..estimation.distributions import chi2_ppf
 from ..estimation.estimator import (
     MAX_STD,
     CalibrationResult,
@@ -629,9 +630,7 @@ def _median_noise_factor(result) -> float:
     dof = int(getattr(result, "dof", 0) or 0)
     if not r.size or dof <= 0:
         return 0.0
-    from scipy import stats
-
-    return float(np.sqrt(np.median(r**2) / (stats.chi2.ppf(0.5, 1) * dof / r.size)))
+    return float(np.sqrt(np.median(r**2) / (chi2_ppf(0.5, 1) * dof / r.size)))
 
 
 def continuation_solve(problem, solve, direct=None, noise_known: bool = True) -> tuple:

@@ -23,6 +23,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from ..estimation.distributions import chi2_ppf
+
 STYLE = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;
 max-width:1100px;color:#222;line-height:1.4;padding:0 1em}
@@ -231,16 +233,14 @@ def chi_square_summary(normalised, dof) -> dict | None:
         ``interval99`` (central intervals of chi2/dof for a correct fit), ``within99`` (bool);
         None without residuals or with ``dof <= 0``.
     """
-    from scipy import stats
-
     r = np.asarray([np.nan if v is None else v for v in normalised or []], float)
     r = r[np.isfinite(r)]
     if not r.size or not dof or dof <= 0:
         return None
     chi2 = float(np.sum(r**2))
     ratio = chi2 / dof
-    i95 = tuple(float(x) / dof for x in stats.chi2.ppf([0.025, 0.975], dof))
-    i99 = tuple(float(x) / dof for x in stats.chi2.ppf([0.005, 0.995], dof))
+    i95 = tuple(float(x) / dof for x in chi2_ppf([0.025, 0.975], dof))
+    i99 = tuple(float(x) / dof for x in chi2_ppf([0.005, 0.995], dof))
     return {"chi2": chi2, "dof": int(dof), "ratio": ratio, "interval95": i95,
             "interval99": i99, "within99": bool(i99[0] <= ratio <= i99[1])}
 
