@@ -1,20 +1,74 @@
-"""Helpers of the command-line tests: the installed ``pkmcal`` script as a subprocess."""
+"""Helpers of the command-line tests: the ``pkmcal`` command, run in this process (what a
+test of a command's outputs, messages and exit code needs) or as the installed script in a
+subprocess (where the process is what is tested: signals, kill -9, start-up)."""
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
+import os
 import signal
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 PKMCAL = Path(sys.executable).parent / "pkmcal"
 
+#: PKMCAL_TEST_SUBPROCESS=1 runs every command of the tests as a subprocess (slower: ~0.5 s
+#: of start-up each; the in-process runner must give the same outputs, which this checks)
+SUBPROCESS = os.environ.get("PKMCAL_TEST_SUBPROCESS", "") not in ("", "0")
+
 
 def run(*args, cwd):
     """Run ``pkmcal *args`` in ``cwd``; the CompletedProcess (text output)."""
+    if SUBPROCESS:
+        return run_process(*args, cwd=cwd)
+    return run_in_process(*args, cwd=cwd)
+
+
+def run_process(*args, cwd, **kwargs):
+    """``pkmcal *args`` in ``cwd`` as a subprocess of the installed script."""
     return subprocess.run([str(PKMCAL), *map(str, args)], cwd=cwd, capture_output=True,
-                          text=True, timeout=120)
+                          text=True, timeout=kwargs.pop("timeout", 120), **kwargs)
+
+
+def run_in_process(*args, cwd):
+    """``pkmcal *args`` in ``cwd`` through :func:`pkmcal.cli.main`, as the console script
+    runs it, in this process: stdout and stderr captured, the exit code from its
+    ``SystemExit``; the working directory, ``sys.argv``, the warning filters, numpy's error
+    state and the console's ``--quiet`` are put back afterwards."""
+    import numpy as np
+
+    from pkmcal.cli import _console, main
+
+    args = [str(a) for a in args]
+    out, err = io.StringIO(), io.StringIO()
+    here, argv, np_err = os.getcwd(), sys.argv, np.geterr()
+    code = 0
+    try:
+        os.chdir(cwd)
+        sys.argv = ["pkmcal", *args]
+        with warnings.catch_warnings(), contextlib.redirect_stdout(out), \
+                contextlib.redirect_stderr(err):
+            try:
+                main(args)
+            except SystemExit as exc:
+                code = exc.code
+                if code is None:
+                    code = 0
+                elif not isinstance(code, int):
+                    err.write(f"{code}\n")
+                    code = 1
+    finally:
+        os.chdir(here)
+        sys.argv = argv
+        np.seterr(**np_err)
+        _console._QUIET = False
+        _console.console.cache_clear()
+        _console.err_console.cache_clear()
+    return subprocess.CompletedProcess(["pkmcal", *args], code, out.getvalue(), err.getvalue())
 
 
 def _default_sigint():
