@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean env
+.PHONY: demo test studies lint bench clean env
 
 env: $(STAMP)
 
@@ -22,7 +22,14 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks examples
 	$(BIN)/lint-imports --no-cache --no-logo
-	OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist loadfile
+	OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist loadfile \
+		-m "not study"
+
+# the statistical studies at their full size (make test runs each at a quick size, its
+# tolerance sized by its power); .ci/run runs them after make test
+studies: $(STAMP)
+	OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist loadfile \
+		-m study
 
 bench: $(STAMP)
 	$(BIN)/pkmcal bench
