@@ -77,9 +77,8 @@ def _child(conn: socket.socket, fds: list[int], request: dict) -> None:
 
 def serve(path: str) -> None:
     """Import the CLI, listen on ``path`` and fork one child per command, until killed."""
-    import signal
-
     import importlib
+    import signal
 
     # what the commands import on their way (the CLI imports them lazily, per command)
     for name in ("pkmcal._entry", "pkmcal.cli", "pkmcal.calibration", "pkmcal.io",
