@@ -1,9 +1,10 @@
-"""Every figure of the README's "What works today" and "Speed" sections is what the tool
-computes or what ``pkmcal bench`` stored (issue 12 item 5).
+"""Every figure of the researcher's page's "The papers' cases" section (docs/researcher.md) and
+of the studies page's "Speed" section (docs/studies.md) is what the tool computes or what
+``pkmcal bench`` stored (issue 12 item 5; the sections were the README's until issue 26).
 
-The figures are parsed from README.md (a regex on the exact sentence or table row), so the
-README cannot drift from the tool, and recomputed through the library with the seeds the README
-names:
+The figures are parsed from the pages (a regex on the exact sentence or table row), so the
+pages cannot drift from the tool, and recomputed through the library with the seeds they
+name:
 
 * Hexa Slide table and bullets: ``simulate_constraint_link(rng=0..9)`` at 2 um (seed 0
   noise-free), maximum-likelihood calibrations, accuracy over the 0.1 m cube;
@@ -39,14 +40,18 @@ NUM = r"(-?\d+(?:\.\d+)?(?:e-?\d+)?)"
 DASH = r"\s*[–-]\s*"
 
 
-def _readme() -> str:
-    return (ROOT / "README.md").read_text(encoding="utf-8")
+RESEARCHER = ROOT / "docs" / "researcher.md"
+STUDIES = ROOT / "docs" / "studies.md"
 
 
-def _between(start: str, end: str) -> str:
-    text = _readme()
+def _page(path: Path = RESEARCHER) -> str:
+    return path.read_text(encoding="utf-8")
+
+
+def _between(start: str, end: str | None, path: Path = RESEARCHER) -> str:
+    text = _page(path)
     i = text.index(start)
-    return text[i:text.index(end, i + len(start))]
+    return text[i:] if end is None else text[i:text.index(end, i + len(start))]
 
 
 def _prose(section: str) -> str:
@@ -55,17 +60,18 @@ def _prose(section: str) -> str:
 
 
 def works() -> str:
-    return _prose(_between("## What works today", "\n## A session"))
+    return _prose(_between("## The papers' cases: what works today",
+                           "\n## Every instrument on every machine"))
 
 
 def speed() -> str:
-    return _prose(_between("## Speed (`pkmcal bench`", "\n## Status"))
+    return _prose(_between("## Speed (`pkmcal bench`", None, STUDIES))
 
 
 def figure(text: str, pattern: str, count: int) -> list[str]:
     """The ``count`` groups of the one sentence matching ``pattern`` (as printed)."""
     match = re.search(pattern, text)
-    assert match, f"README: no sentence matching {pattern!r}"
+    assert match, f"docs: no sentence matching {pattern!r}"
     assert len(match.groups()) == count
     return list(match.groups())
 
@@ -537,7 +543,7 @@ def test_speed_section_is_the_stored_benchmark_output():
     it is benchmark output and that select-poses is not part of it."""
     text = speed()
     environment = json.loads(RESULTS.read_text(encoding="utf-8"))["environment"]
-    cores, = figure(_readme(), r"## Speed \(`pkmcal bench`, (\d+) cores\)", 1)
+    cores, = figure(_page(STUDIES), r"## Speed \(`pkmcal bench`, (\d+) cores\)", 1)
     assert int(cores) == environment["cpus"]
     assert re.search(r"Benchmark output, not test results: the figures below are the last "
                      r"full run of `pkmcal bench` \(`benchmarks/run_benchmarks\.py`, stored in "

@@ -1,7 +1,8 @@
-"""Every figure of the README's planning section ("Before measuring: what will the plan
-identify, how accurate will it be?") is what the tool computes (issue 12 item 5).
+"""Every figure of the planning section of docs/integrator.md ("Before measuring: what will the
+plan identify, how accurate will it be?", the README's until issue 26) is what the tool
+computes (issue 12 item 5).
 
-The figures are parsed from README.md, so the README cannot drift from the tool: the
+The figures are parsed from the page, so it cannot drift from the tool: the
 ``select-poses`` block is compared row by row with the command's console output, the Delta
 sentence with ``select-poses --json`` on the default and a 120-degree Delta, and the Monte-Carlo
 ratios with 300 noisy calibrations at the standard plans' poses.
@@ -27,9 +28,9 @@ NUMBER = re.compile(r"(?<![\w.])-?\d+(?:\.\d+)?")
 
 
 def _section() -> str:
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    start = text.index("### Before measuring: what will the plan identify")
-    return text[start:text.index("\n### ", start + 10)]
+    text = (ROOT / "docs" / "integrator.md").read_text(encoding="utf-8")
+    start = text.index("## Before measuring: what will the plan identify")
+    return text[start:text.index("\n## ", start + 10)]
 
 
 def _prose() -> str:
@@ -68,7 +69,7 @@ def _figure(pattern: str, count: int) -> list[float]:
 def test_select_poses_block_is_the_tools_output(cli, tmp_path):
     """The README block of ``select-poses default -n 150 --noise 2um`` against the command's
     console output, row by row: the same numbers within RTOL."""
-    blocks = re.findall(r"```\n(pkmcal select-poses: default\n.*?)```", _section(), re.S)
+    blocks = re.findall(r"```text\n(pkmcal select-poses: default\n.*?)```", _section(), re.S)
     assert len(blocks) == 1, "README: the select-poses block of the default Hexa Slide"
     readme = _rows(blocks[0])
     proc = cli("select-poses", "default", "-n", "150", "--noise", "2um", "-o", "plan.csv",
