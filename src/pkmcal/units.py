@@ -171,3 +171,134 @@ def parse_vector(text: str, quantity: str, n: int, what: str = "value") -> list[
     unit = m.group(2) if m else ""
     parts[-1] = m.group(1) if m else parts[-1]
     return [parse_quantity(p + unit, quantity, what) for p in parts]
+
+
+# -- numbers for people to read (tables and lines of the CLI and reports; JSON keeps its own
+# numbers): a unit that reads naturally, never exponent notation for ordinary magnitudes ------
+
+#: the readable unit of a magnitude, per quantity: the first unit whose upper bound (SI,
+#: exclusive) the magnitude is below, else the last (um below 1 mm, then mm; urad below
+#: 1 mrad, mrad below 0.1 rad, then deg)
+READABLE_UNITS: dict[str, tuple[tuple[str, float], ...]] = {
+    "length": (("um", 1e-3), ("mm", float("inf"))),
+    "angle": (("urad", 1e-3), ("mrad", 0.1), ("deg", float("inf"))),
+}
+
+
+def readable_unit(value: float, quantity: str) -> str:
+    """The unit in which ``value`` reads naturally (:data:`READABLE_UNITS`).
+
+    Parameters
+    ----------
+    value : float
+        A magnitude in SI (m or rad); its sign does not matter. Not finite: the smallest unit.
+    quantity : str
+        ``"length"`` or ``"angle"``.
+
+    Returns
+    -------
+    str
+        ``"um"`` or ``"mm"``; ``"urad"``, ``"mrad"`` or ``"deg"``.
+    """
+    units = READABLE_UNITS[quantity]
+    magnitude = abs(value)
+    for unit, bound in units:
+        if magnitude < bound:
+            return unit
+    return units[0][0]                          # nan
+
+
+def format_number(value: float, digits: int = 4, sign: bool = False) -> str:
+    """``value`` to ``digits`` significant digits in positional notation: ``20180`` where
+    ``format(value, '.4g')`` gives ``2.018e+04``; trailing zeros dropped as ``g`` drops them.
+    Magnitudes below 1e-4 (far below anything a table here shows) keep ``g``'s exponent.
+
+    Parameters
+    ----------
+    value : float
+        The number.
+    digits : int, optional
+        Significant digits (integers with more digits are rounded to this many: 20180).
+    sign : bool, optional
+        A ``+`` before positive numbers (a change).
+
+    Returns
+    -------
+    str
+        The number; ``nan``, ``inf`` or ``-inf`` as Python prints them.
+    """
+    plus = "+" if sign else ""
+    value = float(value)
+    if value == 0 or not (abs(value) >= 1e-4) or value != value or abs(value) == float("inf"):
+        return format(value, f"{plus}.{digits}g")
+    exponent = int(format(value, f".{digits - 1}e").rsplit("e", 1)[1])   # after rounding
+    decimals = max(digits - 1 - exponent, 0)
+    rounded = value if decimals else round(value, digits - 1 - exponent)   # 20180, not 20184
+    text = format(rounded, f"{plus}.{decimals}f")
+    if "." in text:
+        text = text.rstrip("0").rstrip(".")
+    return text
+
+
+def format_quantity(value: float, quantity: str, digits: int = 4, sign: bool = False,
+                    unit: str | None = None) -> str:
+    """``value`` (SI) with its unit, for people: ``3.59 mm``, ``850 um``, ``15.94 mrad``.
+
+    Parameters
+    ----------
+    value : float
+        The value in SI (m or rad).
+    quantity : str
+        ``"length"`` or ``"angle"``.
+    digits : int, optional
+        Significant digits (:func:`format_number`).
+    sign : bool, optional
+        A ``+`` before positive values.
+    unit : str, optional
+        The unit to use (e.g. a table's row shares one unit between two columns); default
+        :func:`readable_unit` of ``value``.
+
+    Returns
+    -------
+    str
+        Number and unit separated by a space.
+    """
+    unit = unit or readable_unit(value, quantity)
+    return f"{format_number(value / factor(unit, quantity), digits, sign)} {unit}"
+
+
+def format_um(value_um: float | None, digits: int = 4) -> str:
+    """A length given in um (a report's ``*_um`` number), for people (:func:`format_quantity`).
+
+    Parameters
+    ----------
+    value_um : float or None
+        The length in um.
+    digits : int, optional
+        Significant digits.
+
+    Returns
+    -------
+    str
+        ``850 um``, ``3.59 mm``; ``n/a`` for None.
+    """
+    return "n/a" if value_um is None else format_quantity(value_um * 1e-6, "length", digits)
+
+
+def format_urad(value_urad: float | None, digits: int = 4) -> str:
+    """An angle given in urad (a report's ``*_urad`` number), for people
+    (:func:`format_quantity`).
+
+    Parameters
+    ----------
+    value_urad : float or None
+        The angle in urad.
+    digits : int, optional
+        Significant digits.
+
+    Returns
+    -------
+    str
+        ``85 urad``, ``1.2 mrad``; ``n/a`` for None.
+    """
+    return "n/a" if value_urad is None else format_quantity(value_urad * 1e-6, "angle", digits)

@@ -30,14 +30,15 @@ from ..errors import (
     restore_signals,
 )
 from ..limits import MAX_MEASUREMENTS, MAX_RUNS, MAX_SAMPLES
+from ._names import formats, machine_types
 
 app = typer.Typer(
     name="pkmcal",
     help="Calibration, identifiability and error analysis of parallel kinematic machines.\n\n"
-         "MACHINE arguments are a machine file (YAML: hexaslide, delta or stewart; examples/) or "
-         "the word 'default' for the embedded Hexa Slide (examples/delta_default.yaml is the "
-         "default Delta). Numbers on the command line take a unit suffix (2um, 300mm, 10deg); "
-         "a bare number is SI.",
+         f"MACHINE arguments are a machine file (YAML, `machine:` {machine_types()}; "
+         "examples/) or the word 'default' for the embedded Hexa Slide "
+         "(examples/delta_default.yaml is the default Delta). Numbers on the command line "
+         "take a unit suffix (2um, 300mm, 10deg); a bare number is SI.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -64,7 +65,7 @@ class TargetFrame(enum.StrEnum):
 
 
 MachineArg = Annotated[str, typer.Argument(
-    metavar="MACHINE", help="Machine file (YAML: hexaslide, delta or stewart) or 'default' "
+    metavar="MACHINE", help=f"Machine file (YAML, machine: {machine_types()}) or 'default' "
                             "for the embedded Hexa Slide.",
     show_default=False)]
 def _file_name(text: str) -> Path:
@@ -100,15 +101,16 @@ def _reset_column_map() -> None:
 ColumnsOpt = Annotated[str | None, typer.Option(
     "--columns", metavar="PKMCAL=FILE,...", callback=_column_map, show_default=False,
     help="Rename the data file's columns to pkmcal's names before reading, for files from "
-         "other tools: e.g. q1_rev=leg_length_1,...,x_mm=position_x,...,qx=orientation_x "
-         "(left: pkmcal's name with its unit, right: the file's column). A name pkmcal does "
-         "not read, or a column the file does not have, is refused.")]
+         "other tools: comma-separated pairs PKMCAL=FILE, left pkmcal's name with its unit, "
+         "right the file's column, e.g. q1_rev=leg_length_1 (and so on per leg), "
+         "x_mm=position_x, qx=orientation_x. A name pkmcal does not read, or a column the "
+         "file does not have, is refused.")]
 WorkspaceOpt = Annotated[str | None, typer.Option(
     "--workspace", metavar="BOX|POINTS.csv", show_default=False,
     help="Where the predicted accuracy is evaluated (default: the 0.1 m cube around home, "
          "orientations within +/-10 deg): a box X0,X1,Y0,Y1,Z0,Z1 with units (e.g. "
-         "-50mm,50mm,-50mm,50mm,250mm,350mm; orientations as by default), or a CSV of points "
-         "x_<len>, y_<len>, z_<len> [+ psi/theta/phi_<ang> or qx..qw].")]
+         "'-50mm, 50mm, -50mm, 50mm, 250mm, 350mm'; orientations as by default), or a CSV of "
+         "points `x_<len>, y_<len>, z_<len>` [+ `psi/theta/phi_<ang>` or qx..qw].")]
 
 
 def _version(value: bool) -> None:
@@ -155,10 +157,11 @@ def simulate(
     output: OutFile,
     scenario: Annotated[str | None, typer.Option(metavar="SCENARIO",
         help="Measurement scenario (instrument), on every machine it applies to: "
-             "constraint-link (a platform that rotates with `constraint_link` in its file; the "
-             "Hexa Slide's default), tracker = points (laser tracker, every machine; the "
-             "Delta's default), pose = poses (motion capture, a platform that rotates; the "
-             "Stewart's default), distance = distances = ballbar (every machine).",
+             "constraint-link (a platform that rotates with `constraint_link` in its file), "
+             "tracker = points (laser tracker, every machine), pose = poses (motion capture, "
+             "a platform that rotates), distance = distances = ballbar (every machine). "
+             "Default: the machine type's own (e.g. constraint-link on a hexaslide, tracker "
+             "on a delta, pose on a stewart, probe on a linear_delta).",
         show_default=False)] = None,
     poses: Annotated[int | None, typer.Option(
         min=1, max=MAX_MEASUREMENTS,
@@ -196,9 +199,10 @@ def simulate(
     seed: Annotated[int, typer.Option(
         min=0, help="Random seed (poses, noise, random deviations).")] = 0,
     deviations: Annotated[Deviations | None, typer.Option(
-        help="True machine = MACHINE + deviations: paper-table1 (seed 000 Table 1; default for "
-             "a hexaslide), none, or random (uniform; hexaslide: lengths +/-2 mm, angles "
-             "+/-0.02 rad; delta: +/-1 mm, +/-0.5 deg per error; default for a delta).",
+        help="True machine = MACHINE + deviations: paper-table1 (seed 000 Table 1), none, "
+             "or random (uniform per error within the machine type's half-widths, e.g. "
+             "hexaslide: lengths +/-2 mm, angles +/-0.02 rad; delta: +/-1 mm, +/-0.5 deg). "
+             "Default: paper-table1 on a hexaslide, random on the others.",
         show_default=False)] = None,
     grid: Annotated[str | None, typer.Option(
         help="tracker: points commanded on an NXxNYxNZ grid with dx = dy = 150 mm, dz = 40 mm, "
@@ -425,8 +429,9 @@ def identifiability(
     scenario: Annotated[str | None, typer.Option(metavar="SCENARIO",
         help="Without DATA or with --planned: the instrument (constraint-link, tracker = "
              "points, pose = poses, distance = distances = ballbar) on any machine it applies "
-             "to; default the machine's (constraint link on a Hexa Slide, tracker on a Delta, "
-             "pose on a Stewart). With measurements it follows from the columns.",
+             "to; default the machine type's own (e.g. constraint-link on a hexaslide, "
+             "tracker on a delta, pose on a stewart, probe on a linear_delta). With "
+             "measurements it follows from the columns.",
         show_default=False)] = None,
     setups: Annotated[int | None, typer.Option(
         min=1, max=100, help="distance plans: number of ballbar mountings (default 3).",
@@ -445,16 +450,16 @@ def identifiability(
 ) -> None:
     """What the measurements will identify and how accurate the calibration will be.
 
-    From measurements (DATA; the type follows from the columns, as in `pkmcal calibrate`),
-    from planned poses (`--planned DATA`), or, without DATA, from random planned poses of the
-    machine's scenario (constraint link on a Hexa Slide, laser tracker on a Delta, full pose
-    on a Stewart). The problem is evaluated at the machine file's geometry; on its scaled
-    reduced Jacobian: the number of identifiable parameter directions, the unidentifiable
-    ones in words (frame gauges first, then parameter combinations), observability indices
-    O1..O5, the condition number, a minimal identifiable set (parameters to hold fixed; QR
-    with column pivoting), parameter pairs correlated beyond 0.9, and the predicted pose
-    accuracy after calibration (Cramer-Rao bound with the --noise model, propagated to the
-    0.1 m workspace cube around home; frames the data cannot fix removed by a best fit).
+    From measurements (DATA; the type follows from the columns, as in `pkmcal calibrate`), from
+    planned poses (`--planned DATA`), or, without DATA, from random planned poses of the
+    machine type's own scenario (see --scenario). The problem is evaluated at the machine
+    file's geometry; on its scaled reduced Jacobian: the number of identifiable parameter
+    directions, the unidentifiable ones in words (frame gauges first, then parameter
+    combinations), observability indices O1..O5, the condition number, a minimal identifiable
+    set (parameters to hold fixed; QR with column pivoting), parameter pairs correlated beyond
+    0.9, and the predicted pose accuracy after calibration (Cramer-Rao bound with the --noise
+    model, propagated to the 0.1 m workspace cube around home; frames the data cannot fix
+    removed by a best fit).
 
     Example: `pkmcal identifiability default data.csv`
 
@@ -584,7 +589,7 @@ def fk(
     machine: MachineArg,
     joints: Annotated[Path, typer.Argument(
         metavar="JOINTS.csv", show_default=False,
-        help="Joint readings q1_<unit>..q6_<unit> (Delta: q1_deg..q3_deg; Stewart: the legs' "
+        help="Joint readings `q1_<unit>..q6_<unit>` (Delta: q1_deg..q3_deg; Stewart: the legs' "
              "reading unit, e.g. q1_rev; other columns are ignored).")],
     output: OutFile,
     frame: Annotated[TargetFrame, typer.Option(
@@ -620,7 +625,7 @@ def ik(
     machine: MachineArg,
     poses: Annotated[Path, typer.Argument(
         metavar="POSES.csv", show_default=False,
-        help="Poses x_<unit>, y_<unit>, z_<unit> + psi/theta/phi_<unit> or qx, qy, qz, qw "
+        help="Poses `x_<unit>, y_<unit>, z_<unit>` + `psi/theta/phi_<unit>` or qx, qy, qz, qw "
              "(Delta: x, y, z only).")],
     output: OutFile,
     columns: ColumnsOpt = None,
@@ -644,7 +649,7 @@ def compensate(
         help="The calibrated machine file (from pkmcal calibrate).")],
     targets: Annotated[Path, typer.Argument(
         metavar="TARGETS.csv", show_default=False,
-        help="Target poses x_<unit>, y_<unit>, z_<unit> + psi/theta/phi_<unit> or qx..qw "
+        help="Target poses `x_<unit>, y_<unit>, z_<unit>` + `psi/theta/phi_<unit>` or qx..qw "
              "(Delta: x, y, z), one per row: single poses or a whole trajectory.")],
     output: OutFile,
     report: Annotated[Path | None, typer.Option(
@@ -690,12 +695,6 @@ def compensate(
                                     TargetFrame(frame).value, instrument))
 
 
-#: ``--to`` / ``--from`` in words (the names of :data:`pkmcal.export.FORMATS`; not loaded
-#: here: the CLI imports no format module before a command runs)
-FORMAT_NAMES = ("linuxcnc-genhexkins|linuxcnc-rotarydelta|linuxcnc-lineardelta|klipper|"
-                "klipper-rotary-delta|marlin|reprapfirmware")
-
-
 @app.command("export")
 def export_command(
     machine: Annotated[str, typer.Argument(
@@ -703,7 +702,7 @@ def export_command(
         help="The calibrated machine file (from pkmcal calibrate).")],
     to: Annotated[str, typer.Option(
         "--to", metavar="FORMAT", show_default=False,
-        help=f"The controller's parameter format: {FORMAT_NAMES}.")],
+        help=f"The controller's parameter format: {formats()}.")],
     output: OutFile,
     nominal: Annotated[str | None, typer.Option(
         help="The machine file the controller's current values come from (e.g. the nominal "
@@ -740,7 +739,7 @@ def import_command(
         help="The controller's parameter file (e.g. a .hal, printer.cfg or G-code lines).")],
     source_format: Annotated[str, typer.Option(
         "--from", metavar="FORMAT", show_default=False,
-        help=f"The file's format: {FORMAT_NAMES}.")],
+        help=f"The file's format: {formats()}.")],
     output: OutFile,
     like: Annotated[str | None, typer.Option(
         help="A machine file to take what the controller's file does not hold from (name, "
@@ -879,8 +878,9 @@ def montecarlo(
     runs: Annotated[int, typer.Option(min=1, max=MAX_RUNS,
                                       help="Simulated calibrations per value.")] = 20,
     scenario: Annotated[str | None, typer.Option(metavar="SCENARIO",
-        help="Measurement scenario (default: the machine's: constraint-link for a hexaslide, "
-             "tracker for a delta, pose for a stewart).", show_default=False)] = None,
+        help="Measurement scenario (default: the machine type's own, e.g. constraint-link "
+             "on a hexaslide, tracker on a delta, pose on a stewart, probe on a "
+             "linear_delta).", show_default=False)] = None,
     poses: Annotated[int | None, typer.Option(
         min=1, max=MAX_MEASUREMENTS,
         help="Measurements per calibration when not swept (constraint-link 150, pose 60; "
@@ -896,11 +896,12 @@ def montecarlo(
         show_default=False)] = None,
     tolerance: Annotated[str | None, typer.Option(
         help="Half-width of the random length deviations of the true machines (default: "
-             "hexaslide 2mm, delta 1mm, stewart 2mm); implies --deviations random.",
+             "the machine type's, e.g. hexaslide 2mm, delta 1mm); implies --deviations "
+             "random.",
         show_default=False)] = None,
     deviations: Annotated[Deviations | None, typer.Option(
-        help="True machine = MACHINE + deviations: paper-table1 (hexaslide default), random "
-             "(a new draw per run; delta and stewart default) or none.",
+        help="True machine = MACHINE + deviations: paper-table1, random (a new draw per "
+             "run) or none (default: paper-table1 on a hexaslide, random on the others).",
         show_default=False)] = None,
     estimate_lc: Annotated[bool, typer.Option(
         "--estimate-lc", help="constraint-link: estimate Lc too (seed 000 Fig. 6, second "

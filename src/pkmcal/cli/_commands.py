@@ -39,7 +39,14 @@ from ..io.machine_file import DEFAULT_UNITS
 from ..limits import MAX_MEASUREMENTS
 from ..machines.deviations import deviations as _deviations
 from ..plausibility import check_option_scale
-from ..units import parse_quantity
+from ..units import (
+    factor,
+    format_number,
+    format_quantity,
+    format_um,
+    parse_quantity,
+    readable_unit,
+)
 from ._console import console, error, warning
 
 # --------------------------------------------------------------------------------------------
@@ -484,10 +491,9 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
                       "parameters)" + (f"; {ps['note']}" if ps.get("note") else ""))
     for f in report["files"]:
         r = f["residuals"]
-        before = "n/a" if r["before_rms_um"] is None else f"{r['before_rms_um']:.4g}"
-        after = "n/a" if r["rms_um"] is None else f"{r['rms_um']:.4g}"
+        before, after = format_um(r["before_rms_um"]), format_um(r["rms_um"])
         table.add_row(f["label"], f"{f['measurement']}, {f['measurements']} rows, noise "
-                      f"{f['noise']}; RMS residual {before} -> {after} um (before: the machine "
+                      f"{f['noise']}; RMS residual {before} -> {after} (before: the machine "
                       "file's model, this file's instrument fitted alone)")
         if "validation" in f:
             table.add_row("", f"held-out: {f['validation']['summary']}")
@@ -511,25 +517,27 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
 
 
 def _print_changes(params, limit: int = 10) -> None:
-    """The largest parameter changes (scaled), in um / urad."""
+    """The largest parameter changes (scaled): lengths and angles in the unit the change reads
+    naturally in (um below 1 mm, then mm; urad, mrad, deg), the std in the same unit."""
     out = console()
     top = sorted((p for p in params if not p["fixed"]), key=lambda p: -p["scaled_change"])[:limit]
     changes = _table("parameter", "nominal", "identified", "change", "std", "",
                      title="largest parameter changes", justify={1: "right", 2: "right",
                                                                  3: "right", 4: "right"})
     for p in top:
-        micro = "um" if p["kind"] == "length" else "urad"
-        f = (1e3 if p["unit"] == "mm" else 1e6) if p["kind"] == "length" else \
-            (math.pi / 180 * 1e6 if p["unit"] == "deg" else 1e6)
-        if p["kind"] == "slope":                    # a plane's slope, mm/m: absolute change
-            micro, f = "um/m", 1e3
-        elif p["kind"] not in ("length", "angle"):     # a gain: relative change
-            micro = "ppm" if p["nominal"] else p["unit"]   # from 0 (a curvature): its unit
+        if p["kind"] in ("length", "angle"):
+            si = factor(p["unit"], p["kind"])           # the file's unit -> m or rad
+            unit = readable_unit(p["change"] * si, p["kind"])
+            f = si / factor(unit, p["kind"])
+        elif p["kind"] == "slope":                  # a plane's slope, mm/m: absolute change
+            unit, f = "um/m", 1e3
+        else:                                       # a gain: relative change
+            unit = "ppm" if p["nominal"] else p["unit"]    # from 0 (a curvature): its unit
             f = 1e6 / abs(p["nominal"]) if p["nominal"] else 1.0
-        std = f"{p['std'] * f:.3g}" if p["std"] is not None else "fixed"
+        std = format_number(p["std"] * f, 3) if p["std"] is not None else "fixed"
         changes.add_row(p["name"], f"{p['nominal']:.6f} {p['unit']}",
-                        f"{p['identified']:.6f} {p['unit']}", f"{p['change'] * f:+.4g}", std,
-                        micro)
+                        f"{p['identified']:.6f} {p['unit']}",
+                        format_number(p["change"] * f, 4, sign=True), std, unit)
     out.print(changes)
 
 
@@ -907,11 +915,12 @@ def _errors_plots(outdir: Path, machine, path, result, trajectory, mass_kg, f_cu
         plots.plot_link_forces(x, result.forces, outdir / "link_forces.png", xlabel,
                                undetermined=e.undetermined),
         plots.plot_pose_errors(x, e.dx, e.dx_min, e.dx_max, outdir / "pose_errors.png", xlabel,
-                               title=f"pose error from joint clearance {c_base * 1e6:.3g} um"
-                                     + (f" (platform {c_platform * 1e6:.3g} um)"
+                               title="pose error from joint clearance "
+                                     + format_quantity(c_base, "length", 3)
+                                     + (f" (platform {format_quantity(c_platform, 'length', 3)})"
                                         if c_platform != c_base else "")
-                                     + (f", backlash {backlash * 1e6:.3g} um" if backlash
-                                        else "")),
+                                     + (f", backlash {format_quantity(backlash, 'length', 3)}"
+                                        if backlash else "")),
     ]
     lo, hi = path.P[:, :2].min(axis=0), path.P[:, :2].max(axis=0)
     mid, half = (lo + hi) / 2, np.max(hi - lo) * 0.75
@@ -952,8 +961,9 @@ def _print_errors(machine, where, result, trajectory, mass_kg, f_cut, c_base, c_
     table.add_row("loads", f"weight {mass_kg * STANDARD_GRAVITY:.5g} N ({mass_kg:.6g} kg), "
                   f"cutting force ({', '.join(f'{v:.6g}' for v in f_cut)}) N, inertia up to "
                   f"{inertia:.5g} N")
-    table.add_row("clearance", f"{c_base * 1e6:.6g} um (base joints), {c_platform * 1e6:.6g} um "
-                  f"(platform joints); backlash {backlash * 1e6:.6g} um; side undetermined "
+    table.add_row("clearance", f"{format_quantity(c_base, 'length', 6)} (base joints), "
+                  f"{format_quantity(c_platform, 'length', 6)} (platform joints); backlash "
+                  f"{format_quantity(backlash, 'length', 6)}; side undetermined "
                   f"below {tol_n:.6g} N")
     out.print(table)
     forces = _table("leg", "min [N]", "max [N]", "changes side at [" + unit + "]",
@@ -968,8 +978,9 @@ def _print_errors(machine, where, result, trajectory, mass_kg, f_cut, c_base, c_
     for j, name in enumerate(ERROR_COMPONENTS):
         v = e.dx[:, j] * 1e6
         cross = zero_crossings(x, v, period)
-        errors.add_row(name, f"{v.min():.4g}", f"{v.max():.4g}",
-                       f"{e.dx_min[:, j].min() * 1e6:.4g} .. {e.dx_max[:, j].max() * 1e6:.4g}",
+        errors.add_row(name, format_number(v.min()), format_number(v.max()),
+                       f"{format_number(e.dx_min[:, j].min() * 1e6)} .. "
+                       f"{format_number(e.dx_max[:, j].max() * 1e6)}",
                        ", ".join(f"{c:.4g}" for c in cross[:8])
                        + (" ..." if cross.size > 8 else "") if cross.size else "-")
     out.print(errors)

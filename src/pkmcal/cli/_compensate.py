@@ -13,6 +13,7 @@ from ..calibration.run import rows_text as _rows_text
 from ..calibration.run import text_digest
 from ..errors import InputError
 from ..io.atomic import read_input_text
+from ..units import format_um, format_urad
 from ._commands import (
     _machine_inputs,
     _table,
@@ -253,18 +254,19 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
     table.add_row("commands", f"{output} ({', '.join(list(columns)[:machine.n_joints])})")
     pp, po = summary["predicted_position_um"], summary["predicted_orientation_urad"]
     if pp:
-        text = f"position {pp['rms']:.3g} um RMS, {pp['max']:.3g} um max"
+        text = f"position {format_um(pp['rms'], 3)} RMS, {format_um(pp['max'], 3)} max"
         if po:
-            text += f"; orientation {po['rms']:.3g} urad RMS, {po['max']:.3g} urad max"
+            text += (f"; orientation {format_urad(po['rms'], 3)} RMS, "
+                     f"{format_urad(po['max'], 3)} max")
         table.add_row("predicted residual", f"{text} (1 sigma, from the calibration's "
                       f"covariance in {report_path}; " + (
                           "frames the data cannot fix aligned)" if frame is None else
                           "in the instrument's frame, its pose uncertainty included)"))
     up, uo = summary["uncompensated_position_um"], summary["uncompensated_orientation_urad"]
     if up:
-        text = f"position {up['rms']:.4g} um RMS, {up['max']:.4g} um max"
+        text = f"position {format_um(up['rms'])} RMS, {format_um(up['max'])} max"
         if uo:
-            text += f"; orientation {uo['rms']:.4g} urad RMS, {uo['max']:.4g} urad max"
+            text += f"; orientation {format_urad(uo['rms'])} RMS, {format_urad(uo['max'])} max"
         table.add_row("without compensation", f"{text} (commands of {nominal_spec}, as the "
                       "calibrated model sees them; frames the data cannot fix aligned)")
     console().print(table)

@@ -9,6 +9,7 @@ from pathlib import Path
 from ..calibration.run import json_safe as _finite_or_none
 from ..errors import InputError
 from ..io.atomic import atomic_write_bytes, atomic_write_text, is_stream, read_input_text
+from ..units import format_quantity
 from ._commands import (
     _machine_inputs,
     _table,
@@ -20,7 +21,8 @@ from ._console import console
 
 
 def _um(value) -> str:
-    return "-" if value is None else f"{value * 1e6:.4g} um"
+    """A length in m, for people (um below 1 mm, then mm); ``-`` for None."""
+    return "-" if value is None else format_quantity(value, "length")
 
 
 def export_record(result, calibrated: str, output: Path, nominal: str | None) -> dict:

@@ -20,7 +20,7 @@ from ..calibration.run import json_safe as _finite_or_none
 from ..calibration.run import versions
 from ..errors import InputError
 from ..report.provenance import run_date
-from ..units import parse_quantity
+from ..units import format_number, format_quantity, parse_quantity
 from ._commands import _table, check_outputs, commit_outputs, load_machine_arg
 from ._console import console, progress_tasks, warning
 
@@ -160,7 +160,7 @@ def _value_text(result, value) -> str:
     _, unit, factor = VARIABLES[result.variable]
     if result.variable == "poses":
         return f"poses {int(value)}"
-    return f"{result.variable} {value / factor:.4g}" + (f" {unit}" if unit else "")
+    return f"{result.variable} {format_number(value / factor)}" + (f" {unit}" if unit else "")
 
 
 def _write_outputs(result, outdir: Path, machine_spec: str) -> list[Path]:
@@ -281,15 +281,16 @@ def _print_summary(result, files) -> None:
     for p in result.summary:
         v = int(p["value"]) if result.variable == "poses" else p["value"] / factor
         bad = ", ".join(f"{p[k]} {w}" for k, w in short.items() if p[k])
-        row = [f"{v:.4g}", f"{p['ok']}/{p['runs']}", bad or "-"]
+        row = [format_number(v), f"{p['ok']}/{p['runs']}", bad or "-"]
         for name in metrics:
             scale = result.metrics[name][1]
             st = {k: p[name][k] / scale for k in p[name]}
             half = (st["ci95_high"] - st["ci95_low"]) / 2
-            mean = (f"{st['mean']:.4g} +/- {half:.2g}" if math.isfinite(half) else
-                    _number(st["mean"], ".4g"))
-            spread = (f"{st['q05']:.3g}..{st['q95']:.3g}" if math.isfinite(st["q05"]) else "-")
-            row += [mean, _number(st["median"], ".4g"), spread]
+            mean = (f"{format_number(st['mean'])} +/- {format_number(half, 2)}"
+                    if math.isfinite(half) else _number(st["mean"], 4))
+            spread = (f"{format_number(st['q05'], 3)}..{format_number(st['q95'], 3)}"
+                      if math.isfinite(st["q05"]) else "-")
+            row += [mean, _number(st["median"], 4), spread]
         table.add_row(*row)
     out.print(table)
     out.print("mean +/- half-width of its 95 % confidence interval, median and 5-95 % of the ok "
@@ -299,10 +300,11 @@ def _print_summary(result, files) -> None:
     sys.stdout.flush()
 
 
-def _number(v: float, fmt: str) -> str:
-    """``v`` formatted, or ``-`` when undefined (no ok run)."""
-    return format(v, fmt) if math.isfinite(v) else "-"
+def _number(v: float, digits: int) -> str:
+    """``v`` to ``digits`` significant digits, or ``-`` when undefined (no ok run)."""
+    return format_number(v, digits) if math.isfinite(v) else "-"
 
 
 def _um(v: float) -> str:
-    return f"{v * 1e6:.4g} um"
+    """A length in m, for people (um below 1 mm, then mm)."""
+    return format_quantity(v, "length")

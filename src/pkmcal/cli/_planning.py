@@ -19,7 +19,7 @@ from ..instruments.registry import INSTRUMENTS, instrument
 from ..io import read_table
 from ..planning import WORKSPACE_POSES, measured_problem, noise_model  # noqa: F401
 from ..plausibility import check_option_scale
-from ..units import LENGTH, parse_quantity
+from ..units import LENGTH, format_quantity, format_um, format_urad, parse_quantity
 from ._commands import (
     _table,
     check_outputs,
@@ -167,11 +167,11 @@ def _prediction_rows(table, section: dict) -> None:
                       "unidentifiable direction(s) move the platform relative to every frame; "
                       "add measurements that see them")
         return
-    text = (f"position {section['position_rms_um']:.3g} um RMS, "
-            f"{section['position_max_um']:.3g} um max")
+    text = (f"position {format_um(section['position_rms_um'], 3)} RMS, "
+            f"{format_um(section['position_max_um'], 3)} max")
     if "orientation_rms_urad" in section:
-        text += (f"; orientation {section['orientation_rms_urad']:.3g} urad RMS, "
-                 f"{section['orientation_max_urad']:.3g} urad max")
+        text += (f"; orientation {format_urad(section['orientation_rms_urad'], 3)} RMS, "
+                 f"{format_urad(section['orientation_max_urad'], 3)} max")
     table.add_row("predicted accuracy", f"{text} (1 sigma, Cramer-Rao, over the "
                   f"{section['workspace']}; {section['noise']})")
 
@@ -424,8 +424,9 @@ def _print_selection(sel, machine_file: str, output: Path, map_path: Path | None
         table.add_row("standard plan", f"{std.name}: leaves parameter directions that move the "
                       "platform unidentified (no bounded prediction); not a start")
     elif k:
-        text = (f"{std.name}: predicted position error {std_rms * 1e6:.3g} um RMS, "
-                f"{std_rms / rms:.2f}x the selected set's {rms * 1e6:.3g} um")
+        text = (f"{std.name}: predicted position error {format_quantity(std_rms, 'length', 3)} "
+                f"RMS, {std_rms / rms:.2f}x the selected set's "
+                f"{format_quantity(rms, 'length', 3)}")
         if sel.note:
             text += f"; {sel.note}"
         table.add_row("standard plan", text)
@@ -433,9 +434,10 @@ def _print_selection(sel, machine_file: str, output: Path, map_path: Path | None
         table.add_row("standard plan", f"none of {n} poses: {std.reason}")
     median, crit_median = sel.random_median, sel.random_criterion_median
     if sel.random_sets:
-        table.add_row("random sets", f"median predicted position error {median * 1e6:.3g} um "
-                      f"RMS over {sel.random_sets} random sets of {n} candidates: "
-                      f"{median / rms:.2f}x the selected set's {rms * 1e6:.3g} um")
+        table.add_row("random sets", "median predicted position error "
+                      f"{format_quantity(median, 'length', 3)} RMS over {sel.random_sets} "
+                      f"random sets of {n} candidates: {median / rms:.2f}x the selected set's "
+                      f"{format_quantity(rms, 'length', 3)}")
     words, ratio_words = criterion_words[criterion]
     crit = f"{criterion} ({words}): selected {sel.value:.5g}"
     ratios = []

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
+from ..units import format_um
 from .experiment import MOUNTING_ERROR
 
 
@@ -567,9 +568,9 @@ class Instrument:
                 ("method", str(report["method"])), "parameter set", "identifiable"]
         res = report.get("residuals", {})
         if res.get("rms_um") is not None:
-            before = (f"; before calibration {res['before_rms_um']:.4g} um ({res['before']})"
-                      if res.get("before_rms_um") is not None else "")
-            rows.append(("RMS residual", f"{res['rms_um']:.4g} um over {res.get('count')} "
+            before = (f"; before calibration {format_um(res['before_rms_um'])} "
+                      f"({res['before']})" if res.get("before_rms_um") is not None else "")
+            rows.append(("RMS residual", f"{format_um(res['rms_um'])} over {res.get('count')} "
                          f"rows ({res.get('of', 'measured - predicted')}){before}"))
         if report.get("noise") is not None:
             scale = res.get("noise_scale")

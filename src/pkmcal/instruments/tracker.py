@@ -52,6 +52,7 @@ from ..identifiability import name_null_space, name_weak_directions
 from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine
 from ..machines.delta import TRACKER_GRID_SPACING  # noqa: F401  (seed 001's grid)
+from ..units import format_um
 from .base import Instrument, StandardPlan, _check_groups, _fk_of, has_column, reachable
 from .data import InstrumentData
 from .experiment import MOUNTING_ERROR
@@ -1064,9 +1065,9 @@ class Tracker(Instrument):
                  "two-step (seed 001): tracker registered first with the nominal model, then "
                  "the leg errors with the registration fixed"),
                 "identifiable, grouped",
-                ("RMS residual", f"{res['rms_um']:.4g} um over {res['count']} points (3-D, "
-                 f"measured - predicted tracker point); before calibration "
-                 f"{res['before_rms_um']:.4g} um ({res['before']})"),
+                ("RMS residual", f"{format_um(res['rms_um'])} over {res['count']} points "
+                 f"(3-D, measured - predicted tracker point); before calibration "
+                 f"{format_um(res['before_rms_um'])} ({res['before']})"),
                 ("noise", f"{report['noise']}" + (f"; residuals / assumed noise = {scale:.3g}"
                                                   if scale is not None else ""))]
         if report["robust"]:

@@ -24,6 +24,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from ..estimation.distributions import chi2_ppf
+from ..units import format_um
 
 STYLE = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;
@@ -739,8 +740,8 @@ def build_html(report: Mapping, title: str | None = None) -> str:
             sigma = ""
             if chi is not None and not chi["within99"] and report.get("noise_sigma_um"):
                 sigma = (f"; the noise the residuals suggest is "
-                         f"{report['noise_sigma_um'] * np.sqrt(chi['ratio']):.3g} um "
-                         f"(assumed {report['noise_sigma_um']:.3g} um)")
+                         f"{format_um(report['noise_sigma_um'] * np.sqrt(chi['ratio']), 3)} "
+                         f"(assumed {format_um(report['noise_sigma_um'], 3)})")
             levels = report.get("noise_model")
             noise = ("the noise levels used (estimated from these residuals: see Noise "
                      "levels)" if isinstance(levels, Mapping) and levels.get("estimated")
