@@ -187,20 +187,27 @@ def test_no_clean_row_is_left_out_from_the_true_geometry():
     assert residual_test(res).passed
 
 
-def test_monte_carlo_over_random_geometries(bench):
-    """200 calibrations on random non-default Hexa Slides (around the default and the
+#: (runs, least ok, least fallback runs): the study's 200 (measured: 196 ok, fallback 36) and
+#: make test's first 60 (measured: 58 ok, 2 flagged, fallback 12, worst ratio 2.32)
+GEOMETRY_SIZES = [pytest.param(60, 57, 6, id="quick"),
+                  pytest.param(200, 195, 20, id="study", marks=pytest.mark.study)]
+
+
+@pytest.mark.parametrize("runs, least_ok, least_fallback", GEOMETRY_SIZES)
+def test_monte_carlo_over_random_geometries(bench, runs, least_ok, least_fallback):
+    """``runs`` calibrations on random non-default Hexa Slides (around the default and the
     reporter's dimensions), Table-1-sized errors, 2 um noise, 120 poses: every run is either
     ok (converged, no warning, gauge-free pose error within 3x the Cramer-Rao prediction) or
-    flagged (an error, no convergence, or a warning of the acceptance test). Measured: 196
-    ok (worst ratio 2.32), 4 flagged; the plain fit failed the residual test in 35 runs, the
-    fallback ran in 36. Every row is clean: no ok run leaves one out (2 ok runs left out 4
+    flagged (an error, no convergence, or a warning of the acceptance test). Measured over 200:
+    196 ok (worst ratio 2.32), 4 flagged; the plain fit failed the residual test in 35 runs,
+    the fallback ran in 36. Every row is clean: no ok run leaves one out (2 ok runs left out 4
     clean rows before the left-out rows also started from their neighbours' poses); one row
     is tolerated (another BLAS may round a borderline pose search the other way)."""
-    rows = [bench.one_run(seed, 120) for seed in range(200)]
+    rows = [bench.one_run(seed, 120) for seed in range(runs)]
     s = bench.summary(rows)
     silent = [r for r in rows if r["status"] == "silent"]
     assert not silent, silent
-    assert s["ok"] >= 195
-    assert s["fallback"] >= 20                 # the fallback is exercised, and works
+    assert s["ok"] >= least_ok
+    assert s["fallback"] >= least_fallback     # the fallback is exercised, and works
     assert s["worst_ok_ratio"] <= 3
     assert sum(r["dropped"] for r in rows if r["status"] == "ok") <= 1

@@ -50,7 +50,11 @@ def _bench():
 
 bench = _bench()
 RUNS = 150
-JOINT_RUNS = 500
+#: (runs, tolerance of each arm's RMS / CRB) of the joint fits: the study's 500 runs, and make
+#: test's first 150 with the tolerance their power allows (a per-arm RMS from N runs spreads by
+#: 1 / sqrt(2 N): 3.2 % at 500, 5.8 % at 150; 10 % and 18 % are ~3 of those)
+JOINT_SIZES = [pytest.param(150, 0.18, id="quick"),
+               pytest.param(500, 0.10, id="study", marks=pytest.mark.study)]
 #: the named unidentifiable directions of probe heights, per parameter set and problem: in the
 #: printer's frame (SPEC 8) the bed's height is held (the three endstops together are fixed);
 #: the plan takes the bed square to the towers (``--bed-tilt auto``), the true-bed problem
@@ -125,16 +129,17 @@ def test_held_out_heights_attain_the_cramer_rao_bound(name):
     assert min(out["arm_crb"]) > 5e-4 and min(out["arm_rms"]) > 5e-4
 
 
+@pytest.mark.parametrize("runs, tolerance", JOINT_SIZES)
 @pytest.mark.parametrize("name", ["full", "klipper"])
-def test_probe_and_ballbar_fix_the_arm_lengths_to_the_bound(name):
-    """JOINT_RUNS joint fits of probe heights and 30 ballbar lengths: each arm length's RMS
-    error within 10 % of its Cramér-Rao standard deviation from the joint bound, which is
-    tens of um against millimetres from the heights alone."""
+def test_probe_and_ballbar_fix_the_arm_lengths_to_the_bound(name, runs, tolerance):
+    """``runs`` joint fits of probe heights and 30 ballbar lengths: each arm length's RMS
+    error within ``tolerance`` of its Cramér-Rao standard deviation from the joint bound,
+    which is tens of um against millimetres from the heights alone."""
     j = joint_case(name)
-    out = bench.joint_runs(j, JOINT_RUNS)
+    out = bench.joint_runs(j, runs)
     assert out["failed"] == 0 and out["weak_runs"] == 0
     for ratio in out["ratio"]:
-        assert abs(ratio - 1) <= 0.10, out["ratio"]
+        assert abs(ratio - 1) <= tolerance, out["ratio"]
     assert max(out["arm_crb"]) < 1e-4
     assert min(np.divide(out["probe_alone_crb"], out["arm_crb"])) > 20
 

@@ -1,7 +1,9 @@
 """Statistical efficiency of the maximum-likelihood calibration (SPEC 3: "Monte Carlo must
 agree with the Cramer-Rao bound").
 
-200 noisy ML calibrations (150 fixed, seeded sphere poses; fresh 2 um encoder noise per run;
+200 noisy ML calibrations (``make studies``; ``make test`` runs 50, its RMS tolerance widened
+by sqrt(200 / 50), the chi-square bounds of 50 runs) (150 fixed, seeded sphere poses; fresh
+2 um encoder noise per run;
 nominal start, truth = nominal + seed 000 Table 1). The bound is built twice: by the estimator
 (reduced QR rows, ``absolute_sigma=True``, at the true geometry and poses) and here, densely,
 as the pseudo-inverse of the Schur complement of the full whitened normal matrix.
@@ -16,12 +18,16 @@ from pkmcal.instruments.constraint_link import sample_sphere_poses
 from pkmcal.machines import default_hexaslide, paper_table1_deviations
 
 NOISE = 2e-6
-RUNS = 200
+#: (runs, tolerance of RMS / CRB): make test's quick size and the study's
+SIZES = [pytest.param((50, 0.20), id="quick"),
+         pytest.param((200, 0.10), id="study", marks=pytest.mark.study)]
 
 
-@pytest.fixture(scope="module")
-def monte_carlo():
-    return cramer_rao_efficiency(runs=RUNS, n_poses=150, noise_m=NOISE, rng=3)
+@pytest.fixture(scope="module", params=SIZES)
+def monte_carlo(request):
+    runs, tolerance = request.param
+    mc = cramer_rao_efficiency(runs=runs, n_poses=150, noise_m=NOISE, rng=3)
+    return {**mc, "runs": runs, "tolerance": tolerance}
 
 
 def dense_schur_complement(true, P, R, sigma, scales):
@@ -59,20 +65,20 @@ def test_crb_equals_dense_schur_complement():
     assert np.abs(S @ N).max() < 1e-9 * s[0]
 
 
-@pytest.mark.slow
 def test_ml_attains_the_cramer_rao_bound(monte_carlo):
-    """RMS error in the identifiable directions within 10 % of the CRB prediction."""
+    """RMS error in the identifiable directions within 10 % (200 runs; 20 % at 50) of the
+    CRB prediction."""
     mc = monte_carlo
+    runs, tolerance = mc["runs"], mc["tolerance"]
     assert mc["success"].all()
     assert mc["rank"] == 48
-    assert abs(mc["rms_ratio"] - 1) <= 0.10, mc["rms_ratio"]
-    assert abs(np.sqrt(mc["chi2_ratio"]) - 1) <= 0.10, mc["chi2_ratio"]
-    # chi2 statistic per run ~ chi2(48): its mean over 200 runs has std sqrt(96 / 200)
-    lo, hi = stats.chi2.ppf([1e-4, 1 - 1e-4], 48 * RUNS) / RUNS
+    assert abs(mc["rms_ratio"] - 1) <= tolerance, mc["rms_ratio"]
+    assert abs(np.sqrt(mc["chi2_ratio"]) - 1) <= tolerance, mc["chi2_ratio"]
+    # chi2 statistic per run ~ chi2(48): its mean over the runs has std sqrt(96 / runs)
+    lo, hi = stats.chi2.ppf([1e-4, 1 - 1e-4], 48 * runs) / runs
     assert lo < np.mean(mc["chi2"]) < hi
 
 
-@pytest.mark.slow
 def test_ml_is_efficient_in_every_identifiable_direction(monte_carlo):
     """Whitened along each eigen-direction of the bound, the errors have unit variance (not
     only on average) and no bias."""
@@ -84,14 +90,14 @@ def test_ml_is_efficient_in_every_identifiable_direction(monte_carlo):
     W = (E @ V[:, keep]) / np.sqrt(lam[keep])                    # (runs, 48), ~ N(0, 1)
     variance = np.mean(W**2, axis=0)
     alpha = 1e-4 / 48                                            # Bonferroni over directions
-    lo, hi = stats.chi2.ppf([alpha, 1 - alpha], RUNS) / RUNS
+    runs = mc["runs"]
+    lo, hi = stats.chi2.ppf([alpha, 1 - alpha], runs) / runs
     assert np.all((variance > lo) & (variance < hi)), variance
     # bias: the mean error is ~ N(0, C / runs)
-    mean = W.mean(axis=0) * np.sqrt(RUNS)
+    mean = W.mean(axis=0) * np.sqrt(runs)
     assert np.sum(mean**2) < stats.chi2.ppf(1 - 1e-4, 48)
 
 
-@pytest.mark.slow
 def test_alignment_leaves_errors_in_the_identifiable_subspace(monte_carlo):
     """The gauge alignment alone already removes the error along the unidentifiable
     directions (to second order): the projection before the comparison only trims it."""
