@@ -276,6 +276,7 @@ def test_literal_per_chain_ik_diverges_from_1_percent():
     assert not res.success and "diverge" in res.message
 
 
+@pytest.mark.study      # a study's figure (make studies): hundreds of runs
 def test_ml_attains_the_cramer_rao_bound_as_pkmcal_bench_d():
     """``pkmcal bench`` (d) in full (200 runs, its seed): the README's ratio and the stored
     benchmark figure."""
@@ -382,6 +383,7 @@ def test_delta_two_step_bias_without_noise():
                    bench, scale=1e-6, rtol=0.02)
 
 
+@pytest.mark.study      # a study's figure (make studies): hundreds of runs
 def test_delta_joint_estimate_meets_the_cramer_rao_prediction():
     """``pkmcal bench`` (g) in full (200 runs, its seed: about 2 s)."""
     from pkmcal.bench import delta_tracker_monte_carlo

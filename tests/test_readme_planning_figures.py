@@ -189,6 +189,7 @@ def _mc_tracker(runs: int, rng=2):
     return np.sqrt(np.mean(np.square(errs))) / pred["position"]["rms"]
 
 
+@pytest.mark.study      # a study's figure (make studies): hundreds of runs
 def test_monte_carlo_figures():
     """300 noisy calibrations at the standard plans' poses: measured / predicted RMS errors as
     the README states them (and near 1: the prediction is the Cramer-Rao bound)."""
