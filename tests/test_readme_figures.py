@@ -466,6 +466,7 @@ def test_tolerance_monte_carlo_agrees_with_the_linear_covariance():
         assert np.max(np.abs(mc.std / sd - 1)) <= float(pct) / 100
 
 
+@pytest.mark.study      # a study's figure (make studies): 100 runs, as test_full_pose's
 def test_full_pose_identifiability_and_cramer_rao_ratio():
     """The ML Monte Carlo of tests/test_full_pose.py in full (100 runs, its seeds: about 2 s)."""
     from pkmcal.calibration import calibrate_full_pose
