@@ -341,6 +341,52 @@ def gross_fits(name: str):
 
 
 
+def _row_by_row_statistics(weighted, result, L, G):
+    """Baarda's statistic of each row, one row at a time (the loop the library's batched
+    test replaced): ``r_S^T M_S^+ r_S`` with ``M = I - H`` restricted to the row (its left-out
+    form ``I + G G^T / w^2`` for a row out of the fit), and its rank."""
+    from pkmcal.estimation.variance import LEFT_OUT_WEIGHT
+
+    groups = weighted.groups
+    ids = groups.ids.reshape(-1)
+    K, m = groups.labels.shape
+    r = np.asarray(result.residuals, float).reshape(-1) / np.where(
+        weighted.kept[ids], 1.0, LEFT_OUT_WEIGHT)
+    Gf, block = G.reshape(K * m, -1), np.repeat(np.arange(K), m)
+    stat, dof = np.zeros(len(groups.id_names)), np.zeros(len(groups.id_names), int)
+    for i in range(len(groups.id_names)):
+        S = np.flatnonzero(ids == i)
+        M = np.eye(len(S))
+        if L is not None:
+            Lf = L.reshape(K * m, -1)[S]
+            M -= (Lf @ Lf.T) * (block[S][:, None] == block[S][None, :])
+        Gs = Gf[S] if weighted.kept[i] else Gf[S] / LEFT_OUT_WEIGHT
+        M += (-1.0 if weighted.kept[i] else 1.0) * (Gs @ Gs.T)
+        w, V = np.linalg.eigh(0.5 * (M + M.T))
+        good = w > 1e-8 * max(1.0, w.max())
+        z = V[:, good].T @ r[S]
+        stat[i], dof[i] = np.sum(z**2 / w[good]), good.sum()
+    return stat, dof
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_batched_outlier_test_is_the_row_by_row_one(name):
+    """The outlier test evaluates every row at once; on fits with gross errors (rows left out
+    by the robust fit, whose statistic carries the left-out weight) its statistics and
+    degrees of freedom are those of one row at a time."""
+    from pkmcal.estimation.variance import _outlier_test, hat_factors
+
+    for result in gross_fits(name)[:2]:
+        weighted = result.extras["weighted"]
+        restored = dataclasses.replace(result, residuals=result.extras["weighted_residuals"])
+        L, G = hat_factors(weighted, restored)
+        test = _outlier_test(weighted, restored, L, G, OUTLIER_ALPHA)
+        stat, dof = _row_by_row_statistics(weighted, restored, L, G)
+        np.testing.assert_array_equal(test.dof, dof)
+        np.testing.assert_allclose(test.statistic, stat, rtol=1e-9,
+                                   atol=1e-12 * np.abs(stat).max())
+
+
 @pytest.mark.parametrize("name", NAMES)
 def test_robust_leaves_out_exactly_the_gross_errors(name):
     """``robust=True``: exactly the rows with gross errors left out, and the levels estimated

@@ -493,8 +493,31 @@ def _outlier_test(weighted: Weighted, result, L, G, alpha: float,
     block = np.repeat(np.arange(K), m)
     order = np.argsort(ids, kind="stable")
     starts = np.searchsorted(ids[order], np.arange(n_ids + 1))
+    sizes = np.diff(starts)
     stat = np.zeros(n_ids)
     dof = np.zeros(n_ids, int)
+    if n_ids and np.all(sizes == sizes[0]) and sizes[0] > 0:
+        # every row has as many residuals (the usual case): all rows at once, as the loop below
+        S = order.reshape(n_ids, sizes[0])                           # (rows, n)
+        M = np.broadcast_to(np.eye(sizes[0]), (n_ids, sizes[0], sizes[0])).copy()
+        if Lf is not None:
+            same = block[S][:, :, None] == block[S][:, None, :]
+            M -= (Lf[S] @ np.swapaxes(Lf[S], 1, 2)) * same
+        Gs = Gf[S] / np.where(weighted.kept, 1.0, LEFT_OUT_WEIGHT)[:, None, None]
+        # kept: minus its part of the hat matrix; left out: its residual against the
+        # prediction (uncertainty of the fit added; its rows of the factors carry the
+        # left-out weight)
+        M += np.where(weighted.kept, -1.0, 1.0)[:, None, None] * (Gs @ np.swapaxes(Gs, 1, 2))
+        w, V = np.linalg.eigh(0.5 * (M + np.swapaxes(M, 1, 2)))
+        good = w > 1e-8 * np.maximum(1.0, w.max(axis=1, initial=0.0))[:, None]
+        rs = r[S]
+        finite = np.all(np.isfinite(rs), axis=1)
+        z = np.einsum("kij,ki->kj", V, np.where(finite[:, None], rs, 0.0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            terms = np.where(good, z**2 / np.where(good, w, 1.0), 0.0)
+        stat = np.where(finite, terms.sum(axis=1), 0.0)
+        dof = np.where(finite, good.sum(axis=1), 0).astype(int)
+        return _outlier_verdict(stat, dof, alpha, weighted, groups)
     for i in range(n_ids):
         S = order[starts[i]:starts[i + 1]]
         if len(S) == 0 or not np.all(np.isfinite(r[S])):
@@ -514,6 +537,12 @@ def _outlier_test(weighted: Weighted, result, L, G, alpha: float,
         z = V[:, good].T @ r[S]
         stat[i] = float(np.sum(z**2 / w[good]))
         dof[i] = int(good.sum())
+    return _outlier_verdict(stat, dof, alpha, weighted, groups)
+
+
+def _outlier_verdict(stat, dof, alpha: float, weighted: Weighted, groups) -> OutlierTest:
+    """Each row's chi-square statistic against its degrees of freedom, Bonferroni over the
+    rows tested."""
     p = np.where(dof > 0, chi2_sf(stat, np.maximum(dof, 1)), 1.0)
     n_tested = max(int(np.sum(dof > 0)), 1)
     return OutlierTest(stat, dof, p, alpha / n_tested, weighted.kept.copy(),
@@ -638,7 +667,10 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
     out = (np.zeros(n_ids, bool) if left_out is None
            else np.asarray(left_out, bool).reshape(n_ids))
 
+    robust_first = [None]       # the first round's test on the robust levels, when made
+
     def rounds(n_rounds, state, candidates):
+        robust_first[0] = None
         levels = _Levels(np.ones(G), held.copy(), np.zeros(G, bool))
         kept = np.ones(len(groups.id_names), bool)
         if candidates is not None and candidates.any() and (~candidates).any():
@@ -659,8 +691,12 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
             # the rows named now are out, the others in (a row left out in an earlier round
             # comes back when its prediction explains it); a set seen before ends the rounds.
             # The first round's candidates are judged on the robust levels (masking)
-            named = test.flagged if round_ or candidates is not None else _outlier_test(
-                weighted, result, L, G_, alpha, robust_scale=True).flagged
+            if round_ or candidates is not None:
+                named = test.flagged
+            else:
+                robust_first[0] = _outlier_test(weighted, result, L, G_, alpha,
+                                                robust_scale=True)
+                named = robust_first[0].flagged
             new_kept = np.ones(len(kept), bool)
             new_kept[named] = False
             # never so many out that nothing is left to check the fit
@@ -681,7 +717,8 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         1, start, out if out.any() else None)
     suspect = (out.any() or test.flagged.size > 0
                or bool(np.any(levels.theta > MAX_NOISE_RATIO**2))
-               or _outlier_test(weighted, result, L, G_, alpha, robust_scale=True).flagged.size)
+               or (robust_first[0] if robust_first[0] is not None else _outlier_test(
+                   weighted, result, L, G_, alpha, robust_scale=True)).flagged.size)
     if suspect:
         # gross errors can bend a least-squares fit until no test names them (few rows for
         # many unknowns): the candidates of a robust fit start the rounds, which re-admit
@@ -895,10 +932,14 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
             # its level far above the others' (not at the assumed level, where a group
             # assumed far too precise is fitted almost exactly)
             for c in np.flatnonzero(levels.estimated):
-                theta = levels.theta.copy()
-                theta[c] *= 1e6
-                alone = Weighted(problem, groups, theta, kept)
-                h = _leverages(*hat_factors(alone, result)).reshape(-1)
+                if G == 1:      # one group: scaling its level scales every row alike, and
+                    # leaves the hat matrix as it is
+                    h = _leverages(L, Gf).reshape(-1)
+                else:
+                    theta = levels.theta.copy()
+                    theta[c] *= 1e6
+                    alone = Weighted(problem, groups, theta, kept)
+                    h = _leverages(*hat_factors(alone, result)).reshape(-1)
                 use = kept[groups.ids.reshape(-1)] & (lab == c)
                 levels.capacity[c] = float(np.sum(1.0 - h[use]))
             levels.guessed |= levels.estimated & (levels.capacity < MIN_REDUNDANCY)
