@@ -16,9 +16,9 @@ name      what is measured                                                      
 (g)       Delta tracker Monte Carlo (200 runs, Leica-type noise): held-out         within 1.3 x
           validation RMS of the joint fit against its Cramer-Rao prediction;
           the paper's two-step method against the joint fit                     (figure)
-(h)       ``pkmcal montecarlo`` engine: 1000 Hexa Slide calibrations (150 poses,    <= 60 s
+(h)       ``pkmcal montecarlo`` engine: 1000 Hexa Slide calibrations (150 poses,    <= 30 s
           2 um noise, each simulated, calibrated and evaluated) on all cores;
-          speed-up over one process (a timed subset, scaled)                    (figure)
+          speed-up over one process (a timed subset, scaled)                    >= 1.8 x
 ========  ====================================================================  ==========
 
 :func:`run_all` returns one dict per figure (``name, value, unit, target, ok, detail``);
@@ -481,20 +481,26 @@ def montecarlo_throughput(runs: int = 1000, baseline_runs: int = 100, n_poses: i
             "position_mean": float(par.summary[0]["position_mean"]["mean"])}
 
 
+#: targets of (h): 1000 runs on 2 cores, and the speed-up of 2 workers over one process
+MC_SECONDS, MC_SPEEDUP = 30.0, 1.8
+
+
 def montecarlo_entries(runs: int = 1000, baseline_runs: int = 100) -> list[dict]:
     out = montecarlo_throughput(runs, baseline_runs)
     seconds, single, w = out["seconds"], out["single_seconds"], out["workers"]
-    ok = seconds <= 60 and out["converged"] == runs and out["identical"]
+    ok = seconds <= MC_SECONDS and out["converged"] == runs and out["identical"]
+    speedup = single / seconds
     return [
         _entry(f"(h) Monte Carlo, {runs} Hexa Slide calibrations, {w} workers", seconds, "s",
-               "<= 60 s", ok,
+               f"<= {MC_SECONDS:g} s", ok,
                f"150 poses, 2 um noise, Table 1 truth; simulate + ML calibration + accuracy "
                f"over 300 workspace poses per run; {runs / seconds:.1f} runs/s on {w} local "
                f"processes (start included); {out['converged']}/{runs} converged; mean "
                f"position error {out['position_mean'] * 1e6:.2f} um; first {baseline_runs} "
                f"runs bit-identical in one process: {out['identical']}"),
-        _entry("(h) Monte Carlo speed-up over one process", single / seconds, "x",
-               "(figure)", single > seconds,
+        _entry("(h) Monte Carlo speed-up over one process", speedup, "x",
+               f">= {MC_SPEEDUP:g} x" if w >= 2 else "(figure)",
+               speedup >= MC_SPEEDUP if w >= 2 else speedup > 0.9,
                f"one process: {runs / single:.1f} runs/s ({baseline_runs} runs timed, scaled "
                f"to {runs}: {single:.1f} s) vs {runs / seconds:.1f} runs/s on {w} workers"),
     ]
