@@ -962,8 +962,15 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
         new[bound] = levels.theta[bound]
         levels.bounded |= bound
         levels.S = S
-        change = float(np.max(np.abs(np.log(new / levels.theta)), initial=0.0))
+        step = new / levels.theta
+        change = float(np.max(np.abs(np.log(step)), initial=0.0))
         levels.theta = new
         if change < VCE_TOL:
+            break
+        if G == 1 and not bound.any() and 1.0 / MAX_STEP < step[0] < MAX_STEP:
+            # one group: its new level scales every residual alike, which moves no optimum
+            # and leaves the hat matrix as it is; the fit at the new level is this one, and
+            # its step would be exactly 1 (converged) - counted, not refitted
+            levels.iterations += 1
             break
     return state
