@@ -27,6 +27,7 @@ from pkmcal.identifiability import (
 )
 from pkmcal.instruments.constraint_link import (
     ConstraintLinkData,
+    ConstraintLinkML,
     sample_sphere_poses,
     simulate_constraint_link,
 )
@@ -321,6 +322,24 @@ def test_ml_with_noise_is_consistent_with_its_uncertainty():
     assert stats.chi2.ppf(1e-4, 48) < chi2 < stats.chi2.ppf(1 - 1e-4, 48)
     # and the error is small in absolute terms: of the order of the noise
     assert np.max(np.abs(e[res.parameters.kinds[:54] == np.array("length")])) < 100 * sigma
+
+
+@pytest.mark.parametrize("seed", [0, 2, 4])
+def test_a_fit_started_at_its_optimum_stops_at_once(seed):
+    """A converged fit started again (as the noise-level rounds do: the same problem, or its
+    residuals all scaled by a new level): the first Gauss-Newton step can gain only
+    rounding; when it gains nothing the fit stops at once (2 evaluations) where it stood,
+    instead of shrinking the step until one gains exactly nothing (3-7 evaluations here)."""
+    nominal = default_hexaslide()
+    true = nominal.with_parameters(nominal.u + paper_table1_deviations(nominal.parameters))
+    data = simulate_constraint_link(true, 60, 2e-6, rng=seed)
+    first = levenberg_marquardt(ConstraintLinkML(nominal, data, 2e-6))
+    assert first.success
+    for sigma in (2e-6, 6e-6):
+        again = levenberg_marquardt(ConstraintLinkML(nominal, data, sigma), state=first.state)
+        assert again.success, again.message
+        assert again.nfev <= 2, (again.nfev, again.message)
+        np.testing.assert_allclose(again.x, first.x, rtol=0, atol=1e-6 * np.max(first.std))
 
 
 def test_sigma_whitening_does_not_change_the_estimate(default_case):

@@ -404,6 +404,10 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
             if new_cost <= cost:
                 accepted = True
                 break
+            if predicted <= 1e-8 * cost:
+                # the Gauss-Newton step could gain only rounding and did not: at the optimum
+                # (a converged fit started again, reweighted); shorter steps gain no more
+                break
             lam = max(lam * 10.0, 1e-6 * s1**2)
         if not accepted:
             if predicted <= 1e-8 * cost:   # only rounding left to gain: converged
