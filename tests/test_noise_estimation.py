@@ -201,6 +201,18 @@ def test_one_group_estimated_is_the_old_behaviour(name):
     sigma = new.extras["noise"].sigma[0]
     assumed = new.extras["noise"].assumed[0]
     assert abs(sigma**2 / assumed**2 / old.residual_variance - 1) < 5e-3
+    # the level's redundancy and std come from the last Helmert step's matrix (one group:
+    # the hat matrix does not depend on the level): those of the final fit's own
+    from pkmcal.estimation.variance import hat_factors, helmert_matrix
+
+    weighted = new.extras["weighted"]
+    final = dataclasses.replace(new, residuals=new.extras["weighted_residuals"])
+    L, G = hat_factors(weighted, final)
+    used = np.broadcast_to(new.extras["used"], weighted.groups.labels.shape)
+    S, red = helmert_matrix(L, G, weighted.groups.labels, used, 1)
+    noise = new.extras["noise"]
+    np.testing.assert_allclose(noise.redundancy, red, rtol=1e-8)
+    np.testing.assert_allclose(noise.std, sigma / np.sqrt(2.0 * S[0, 0]), rtol=1e-6)
 
 
 # -- (b) the reported uncertainty is honest -----------------------------------------------------

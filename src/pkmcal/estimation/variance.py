@@ -761,7 +761,12 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
                                 if result.dof > 0 else float("nan"))
     lab = groups.labels.reshape(-1)
     count = np.bincount(lab[ok.reshape(-1)], minlength=G)
-    S, red = helmert_matrix(L, G_, groups.labels, ok, G)
+    if G == 1 and levels.use is not None and np.array_equal(levels.use, ok):
+        # one group: the hat matrix does not depend on its level, and these are the rows of
+        # the last Helmert step: its matrix and redundancy
+        S, red = levels.S, levels.red
+    else:
+        S, red = helmert_matrix(L, G_, groups.labels, ok, G)
     sigma = groups.assumed * np.sqrt(levels.theta)
     std = np.full(G, np.nan)
     est = np.flatnonzero(levels.estimated)
@@ -868,6 +873,9 @@ class _Levels:
     iterations: int = 0
     S: np.ndarray | None = None
     capacity: np.ndarray | None = None
+    #: redundancies and rows used (K, m) of the last Helmert step (with ``S``)
+    red: np.ndarray | None = None
+    use: np.ndarray | None = None
     bounded: np.ndarray | None = None
 
     def __post_init__(self):
@@ -961,7 +969,7 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
         bound |= floor
         new[bound] = levels.theta[bound]
         levels.bounded |= bound
-        levels.S = S
+        levels.S, levels.red, levels.use = S, red, use.reshape(groups.labels.shape)
         step = new / levels.theta
         change = float(np.max(np.abs(np.log(step)), initial=0.0))
         levels.theta = new
