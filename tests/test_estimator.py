@@ -339,7 +339,11 @@ def test_a_fit_started_at_its_optimum_stops_at_once(seed):
         again = levenberg_marquardt(ConstraintLinkML(nominal, data, sigma), state=first.state)
         assert again.success, again.message
         assert again.nfev <= 2, (again.nfev, again.message)
-        np.testing.assert_allclose(again.x, first.x, rtol=0, atol=1e-6 * np.max(first.std))
+        # where it stood: a step another BLAS might still accept gains only rounding (cost
+        # 1e-8 of itself, ~1e-3 standard deviations at most), per parameter in its own std
+        known = first.std > 0
+        moved = np.abs(again.x - first.x)[known] / first.std[known]
+        assert moved.max() < 1e-3, moved.max()
 
 
 def test_sigma_whitening_does_not_change_the_estimate(default_case):

@@ -3,6 +3,7 @@ in a fresh interpreter, not a timing (timings are ``pkmcal bench`` (c))."""
 
 from __future__ import annotations
 
+import ast
 import subprocess
 import sys
 import textwrap
@@ -29,7 +30,7 @@ def _imported_after(code: str, cwd) -> list[str]:
     proc = subprocess.run([sys.executable, "-c", probe], cwd=cwd, capture_output=True,
                           text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
-    return eval(proc.stdout.strip().splitlines()[-1])
+    return ast.literal_eval(proc.stdout.strip().splitlines()[-1])
 
 
 def test_cli_import_imports_no_numerics(tmp_path):

@@ -667,10 +667,11 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
     out = (np.zeros(n_ids, bool) if left_out is None
            else np.asarray(left_out, bool).reshape(n_ids))
 
-    robust_first = [None]       # the first round's test on the robust levels, when made
+    robust_first = None         # the first round's test on the robust levels, when made
 
     def rounds(n_rounds, state, candidates):
-        robust_first[0] = None
+        nonlocal robust_first
+        robust_first = None
         levels = _Levels(np.ones(G), held.copy(), np.zeros(G, bool))
         kept = np.ones(len(groups.id_names), bool)
         if candidates is not None and candidates.any() and (~candidates).any():
@@ -694,9 +695,9 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
             if round_ or candidates is not None:
                 named = test.flagged
             else:
-                robust_first[0] = _outlier_test(weighted, result, L, G_, alpha,
-                                                robust_scale=True)
-                named = robust_first[0].flagged
+                robust_first = _outlier_test(weighted, result, L, G_, alpha,
+                                             robust_scale=True)
+                named = robust_first.flagged
             new_kept = np.ones(len(kept), bool)
             new_kept[named] = False
             # never so many out that nothing is left to check the fit
@@ -717,7 +718,7 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         1, start, out if out.any() else None)
     suspect = (out.any() or test.flagged.size > 0
                or bool(np.any(levels.theta > MAX_NOISE_RATIO**2))
-               or (robust_first[0] if robust_first[0] is not None else _outlier_test(
+               or (robust_first if robust_first is not None else _outlier_test(
                    weighted, result, L, G_, alpha, robust_scale=True)).flagged.size)
     if suspect:
         # gross errors can bend a least-squares fit until no test names them (few rows for
