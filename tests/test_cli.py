@@ -46,6 +46,32 @@ def test_help_of_every_command(cli):
         assert "Example" in proc.stdout and f"pkmcal {c}" in proc.stdout
 
 
+def test_a_run_builds_its_command_alone_and_says_the_same():
+    """pkmcal builds only the named command for a run (typer builds every command's options
+    from its signature): its help and its usage errors read exactly as the whole app's."""
+    from typer.main import get_command_name
+    from typer.testing import CliRunner
+
+    from pkmcal.cli import _command_app, app
+
+    runner = CliRunner()
+    names = [info.name or get_command_name(info.callback.__name__)
+             for info in app.registered_commands]
+    assert set(COMMANDS) <= set(names)
+    for name in names:
+        one = _command_app(["-q", name, "--help"])
+        assert [i.callback for i in one.registered_commands] == \
+            [i.callback for i in app.registered_commands
+             if (i.name or get_command_name(i.callback.__name__)) == name]
+        for args in ([name, "--help"], [name, "--no-such-option"]):
+            whole = runner.invoke(app, args, prog_name="pkmcal")
+            alone = runner.invoke(_command_app(args), args, prog_name="pkmcal")
+            assert (alone.exit_code, alone.output) == (whole.exit_code, whole.output), args
+    # no command, an unknown one, or only options: the whole app (its help, its message)
+    for args in ([], ["--help"], ["calibrat"], ["-q"]):
+        assert _command_app(args) is app
+
+
 def test_simulate_writes_readings_and_truth(run_dir):
     q, rows, extra = read_joints(run_dir / "data.csv", 6)
     assert q.shape == (150, 6) and rows[0] == 2
