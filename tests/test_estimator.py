@@ -346,6 +346,27 @@ def test_a_fit_started_at_its_optimum_stops_at_once(seed):
         assert moved.max() < 1e-3, moved.max()
 
 
+def test_noise_free_data_fitted_exactly_and_started_again_converge(default_case):
+    """Noise-free data fitted exactly leave residuals at the rounding of the readings (a few
+    1e-16 m): a fit started there (the start strategy re-fits all rows from a subset's exact
+    geometry) finds no step that lowers that cost, and must say converged, not "stuck at a
+    local minimum" (which made the strategy keep a wrong plain fit instead, issue 27)."""
+    nominal, true, _ = default_case
+    data = simulate_constraint_link(true, 60, 0.0, rng=5)
+    first = levenberg_marquardt(ConstraintLinkML(nominal, data, 1e-6))
+    assert first.success
+    problem = ConstraintLinkML(nominal, data, 1e-6)
+    scale = nominal.characteristic_length()
+    rms = np.sqrt(2 * first.cost / first.residuals.size) * 1e-6     # m
+    assert rms < 10 * np.finfo(float).eps * scale                   # exact to rounding
+    again = levenberg_marquardt(problem, state=first.state)
+    assert again.success, again.message
+    assert first.cost <= problem.cost_floor
+    # where it stood, to rounding (the std are relative to the rounding residuals here)
+    moved = np.abs(again.x - first.x) / np.asarray(problem.scales)
+    assert moved.max() < 1e-10, moved.max()
+
+
 def test_sigma_whitening_does_not_change_the_estimate(default_case):
     nominal, _, data = default_case
     a = calibrate_constraint_link(nominal, data, sigma_m=1e-6)

@@ -1226,6 +1226,8 @@ def _calibrate_constraint_link(machine, data, source, options: CalibrateOptions,
         "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
         "parameters": _public(params),
     }
+    if "start_from" in result.extras:       # the paper's methods: where they started
+        report["start"] = result.extras["start_from"]
     if held is not None:
         report["validation"] = _validation(
             split, held, "joint readings of the held-out rows (poses fitted, geometry and Lc "

@@ -405,7 +405,8 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
                   holdout: str | None = None, seed: int = 0,
                   parameters: str | None = None, extensions: str | None = None,
                   bed_tilt: str | None = None) -> int:
-    from ..calibration.run import CalibrationNotConverged, calibrate, noise_per_file_arg
+    from ..calibration.run import calibrate, noise_per_file_arg
+    from ..errors import ConvergenceError
 
     paths = list(data_path) if isinstance(data_path, (list, tuple)) else [data_path]
     noise = noise_per_file_arg(noise if isinstance(noise, (list, tuple)) or noise is None
@@ -434,7 +435,7 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
                                 two_step=two_step, robust=robust, fix_frames=fix_frames,
                                 holdout=holdout, seed=seed, parameters=parameters,
                                 extensions=extensions, bed_tilt=bed_tilt)
-    except CalibrationNotConverged as exc:
+    except ConvergenceError as exc:     # the fit ran and did not succeed: exit 1, nothing written
         error(str(exc))
         return 1
     # staged first: a calibrated geometry that cannot be written is the one message (exit 2)

@@ -327,7 +327,8 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
         Stop when the largest component of the (undamped) Gauss-Newton step, in scaled
         coordinates, is below ``xtol``, or when that step would lower the cost by less than
         ``1e-12`` of it (the optimum of noisy data), or when the cost is below the problem's
-        ``cost_floor`` (the precision of residuals computed by an inner solve).
+        ``cost_floor`` (the precision of its residuals: the readings' rounding, an inner
+        solve's tolerance); a step that lowers no cost from there is convergence too.
     ftol : float, optional
         Stop when the relative cost decrease of an accepted undamped step is below ``ftol``.
     max_iter : int, optional
@@ -404,13 +405,14 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
             if new_cost <= cost:
                 accepted = True
                 break
-            if predicted <= 1e-8 * cost:
+            if predicted <= 1e-8 * cost or cost <= cost_floor:
                 # the Gauss-Newton step could gain only rounding and did not: at the optimum
-                # (a converged fit started again, reweighted); shorter steps gain no more
+                # (a converged fit started again, reweighted; noise-free data fitted to the
+                # precision of the residuals); shorter steps gain no more
                 break
             lam = max(lam * 10.0, 1e-6 * s1**2)
         if not accepted:
-            if predicted <= 1e-8 * cost:   # only rounding left to gain: converged
+            if predicted <= 1e-8 * cost or cost <= cost_floor:   # only rounding left to gain
                 status, message = 2, "cost cannot decrease beyond rounding (converged)"
             else:
                 status, message = 3, "no step reduces the cost (stuck at a local minimum?)"

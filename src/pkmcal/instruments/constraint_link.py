@@ -61,12 +61,18 @@ sphere, plus which actuator was passive (optional).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError
-from ..estimation.acceptance import MAX_NOISE_FACTOR, residual_test
+from ..errors import ConvergenceError, InputError
+from ..estimation.acceptance import (
+    MAX_NOISE_FACTOR,
+    ResidualTest,
+    chi2_bound,
+    residual_test,
+)
 from ..estimation.distributions import chi2_ppf
 from ..estimation.estimator import (
     MAX_STD,
@@ -979,10 +985,28 @@ class SphereState:
     R: np.ndarray
 
 
+def _require_passive(data: ConstraintLinkData) -> None:
+    if data.passive is None:
+        raise InputError(f"{data.source}: the inverse-kinematics method needs the 'passive' "
+                         "column (which actuator was passive at each row)")
+
+
 class _ConstraintLinkProblem:
     """What the three methods share: parameters = machine's + ``link.length``."""
 
     local_dof = 0
+    #: whether ``link.length`` is estimated when the caller does not say
+    estimates_link_length = False
+
+    @staticmethod
+    def check_data(data: ConstraintLinkData) -> None:
+        """Refuse data the method cannot use (before any fit).
+
+        Raises
+        ------
+        InputError
+            Naming the data and what is missing.
+        """
 
     def __init__(self, machine: Machine, data: ConstraintLinkData, sigma_m=1e-6,
                  estimate_link_length: bool = False):
@@ -1090,6 +1114,17 @@ class ConstraintLinkML(_ConstraintLinkProblem):
     """
 
     local_dof = 5
+    #: the readings' residuals are no more precise than this share of the machine's
+    #: characteristic length (a few ulps of the joint values, through the kinematics)
+    rounding = 4e-15
+
+    @property
+    def cost_floor(self):
+        """Cost of residuals at the rounding of the readings (whitened): noise-free data
+        fitted exactly can do no better, and the estimator stops there (a fit started at
+        such an optimum finds no step that lowers its cost: converged, not stuck)."""
+        precision = self.rounding * self.machine.characteristic_length()
+        return 0.5 * self.data.q.size * float(np.max(precision / self.reading_sigma())) ** 2
 
     def initial_state(self):
         # all six readings + the constraint in the least-squares sense: robust to a far start
@@ -1225,10 +1260,19 @@ class ConstraintLinkIK(ConstraintLinkML):
     #: the active readings are taken as exact: its residuals are not the noise's
     noise_groups = None
 
+    @staticmethod
+    def check_data(data: ConstraintLinkData) -> None:
+        """Refuse data without the ``passive`` column (the method needs it).
+
+        Raises
+        ------
+        InputError
+            Naming the data and the column.
+        """
+        _require_passive(data)
+
     def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=False):
-        if data.passive is None:
-            raise InputError(f"{data.source}: the inverse-kinematics method needs the "
-                             "'passive' column (which actuator was passive at each row)")
+        self.check_data(data)
         super().__init__(machine, data, sigma_m, estimate_link_length)
         weights = np.full(data.q.shape, self.active_weight)
         weights[np.arange(len(data)), data.passive] = 1.0
@@ -1265,6 +1309,9 @@ class _ImplicitPoseProblem(_ConstraintLinkProblem):
             raise InputError(f"{data.source}: no row can be solved for a pose with the "
                              "start geometry")
 
+    #: start values of the global unknowns (None: the machine's, ``parameters.values``)
+    _u0 = None
+
     def initial_state(self):
         """Start state: the start geometry and the poses solved for it.
 
@@ -1273,7 +1320,8 @@ class _ImplicitPoseProblem(_ConstraintLinkProblem):
         SphereState
             Global values and the poses of the rows kept.
         """
-        return SphereState(self.parameters.values.copy(), *self._start)
+        u = self.parameters.values if self._u0 is None else self._u0
+        return SphereState(u.copy(), *self._start)
 
     def retract(self, state, du, dl):
         """The state after a global step (poses are recomputed in :meth:`evaluate`).
@@ -1335,9 +1383,7 @@ class ConstraintLinkIKExplicit(_ImplicitPoseProblem):
     """
 
     def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=False, start=None):
-        if data.passive is None:
-            raise InputError(f"{data.source}: the inverse-kinematics method needs the "
-                             "'passive' column (which actuator was passive at each row)")
+        _require_passive(data)
         super().__init__(machine, data, sigma_m, estimate_link_length)
         # the five active readings + the constraint may have no solution with the start
         # geometry (seed 000's method needs a start close enough): such rows are left out
@@ -1413,10 +1459,15 @@ class ConstraintLinkFK(_ImplicitPoseProblem):
         can be solved.
     """
 
-    def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=True):
+    estimates_link_length = True
+
+    def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=True, start=None):
         super().__init__(machine, data, sigma_m, estimate_link_length)
-        um, _ = self.split(self.parameters.values)
-        self._keep_solved_rows(machine.fk(data.q, um, start=self.start_poses(None)))
+        if start is not None:           # a state near the solution (the ml estimate's)
+            self._u0 = np.asarray(start.u, float).copy()
+        um, _ = self.split(self.parameters.values if self._u0 is None else self._u0)
+        poses = self.start_poses(None) if start is None else (start.P, start.R)
+        self._keep_solved_rows(machine.fk(data.q, um, start=poses))
 
     def evaluate(self, state, jacobian=True):
         """Link-length residuals ``|FK(q)| - Lc`` of the forward kinematics of all six readings.
@@ -1516,9 +1567,14 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         raise InputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     if per_chain and method != "ik":
         raise InputError("per_chain applies to the inverse-kinematics method (method='ik')")
-    kwargs = {} if estimate_link_length is None else {"estimate_link_length":
-                                                       estimate_link_length}
-    problem = PROBLEMS[method](machine, data, sigma_m, **kwargs)
+    cls = PROBLEMS[method]
+    if estimate_link_length is None:
+        estimate_link_length = cls.estimates_link_length
+    paper = method != "ml" and not per_chain        # the paper's methods start from ml's
+    if paper:
+        cls.check_data(data)
+    problem = (ConstraintLinkML if paper else cls)(machine, data, sigma_m,
+                                                   estimate_link_length=estimate_link_length)
     n_id = int(problem.parameters.free.sum()) - 6
     distinct, repeats = data.distinct()
     n_rows = distinct * (machine.n_joints - 5 if method == "ml" else 1)
@@ -1554,7 +1610,8 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         if left_out is not None:
             start.readmit(~result.extras["outliers"].kept, data.rows)
     else:
-        result = levenberg_marquardt(problem, rtol=rtol, **{"max_std": MAX_STD, **options})
+        result, problem, start = _paper_method(cls, problem, method, rtol,
+                                               {"max_std": MAX_STD, **options})
     _refuse_degenerate(data, result, n_id, repeats)
     um, Lc = problem.split(result.x)
     calibrated = machine.with_parameters(um)
@@ -1578,6 +1635,91 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         + name_weak_directions(result, problem.parameters),
     )
     return result
+
+
+#: where the paper's methods start (the report's ``start``, the console's ``start`` row)
+PAPER_METHOD_START = ("the maximum-likelihood estimate (seed 000's methods converge only from "
+                      "a start close to the machine; the ml method's global start finds one "
+                      "on any geometry)")
+
+
+def _paper_method(cls, ml: ConstraintLinkML, method: str, rtol: float, lm_options: dict):
+    """Seed 000's inverse- or forward-kinematics method (problem class ``cls``) from the
+    maximum-likelihood estimate of ``ml``: the paper's methods converge only from a start
+    close to the machine, which the machine file is not on other geometries (Table 1's errors
+    from a far start: no convergence, a wrong geometry or too few rows solvable); the ml
+    method's global start and continuation find one on any geometry. The method's own optimum
+    is then returned (with noise, its estimate, not the ml one).
+
+    Its geometry is then tested like an ml fit: every reading noisy, the poses refitted with
+    the geometry held (:func:`_paper_method_test`, ``extras["residual_test"]``). A geometry
+    the readings reject (residuals :data:`MAX_NOISE_FACTOR` times the assumed noise beyond the
+    chi-square bound) is refused (:class:`~pkmcal.errors.ConvergenceError`): these methods
+    estimate no noise level, so no wrong geometry is returned with success.
+
+    Returns
+    -------
+    result : CalibrationResult
+        The method's fit (``extras``: ``residual_test``, ``start_from``).
+    problem : ConstraintLinkIK or ConstraintLinkFK
+        The problem solved (its data: the rows the ml start kept).
+    start : StartReport
+        The ml start's report (rows left out, strategy).
+    """
+    machine, data = ml.machine, ml.data
+    estimate = not ml.parameters.fixed[-1]
+    # the start's tests as the ml method's with the noise estimated (a typical residual within
+    # MAX_NOISE_FACTOR of the assumed noise): data noisier than assumed are not a far start;
+    # the method's own geometry is tested at the assumed noise below
+    ml_result, ml_problem, start = continuation_solve(
+        ml, lambda p, state: levenberg_marquardt(p, rtol=rtol, state=state, **lm_options),
+        noise_known=False)
+    state = ml_result.state
+    if issubclass(cls, _ImplicitPoseProblem):
+        problem = cls(machine, ml_problem.data, ml.sigma, estimate_link_length=estimate,
+                      start=state)
+        result = levenberg_marquardt(problem, rtol=rtol, **lm_options)
+    else:
+        problem = cls(machine, ml_problem.data, ml.sigma, estimate_link_length=estimate)
+        result = levenberg_marquardt(problem, rtol=rtol, state=state, **lm_options)
+    if not result.success:
+        return result, problem, start
+    test, ml_test = _paper_method_test(problem, result), residual_test(ml_result)
+    if test.alarming:
+        # the paper's methods do not estimate the noise: residuals far beyond the assumed
+        # noise are a wrong geometry or a wrong assumed noise, and either way no result
+        why = ("the data are noisier than assumed (give --noise) or the start geometry is "
+               "far from the machine" if ml_test.alarming else
+               "the maximum-likelihood estimate explains them: use --method ml")
+        raise ConvergenceError(
+            f"{data.source}: the {method} method converged to a geometry the readings reject: "
+            f"residuals {test.noise_factor:.3g}x the assumed noise with every reading noisy "
+            f"and the poses refitted (chi2/dof = {test.ratio:.3g}, at most {test.upper:.3g} "
+            f"expected; the maximum-likelihood start: {ml_test.noise_factor:.3g}x); {why}; "
+            "no file written")
+    result.extras.update(residual_test=test, start_from=PAPER_METHOD_START)
+    return result, problem, start
+
+
+def _paper_method_test(problem, result) -> ResidualTest:
+    """The chi-square test of a paper method's geometry in the ml model's terms: every reading
+    noisy (the assumed noise), each pose refitted to its six readings on the link's sphere
+    with the geometry (and link length) held. Degrees of freedom as an ml fit's: the readings
+    minus 5 per pose and the identified parameters (the geometry was fitted to the same
+    readings)."""
+    u = np.asarray(result.x, float)
+    held = ConstraintLinkML(problem.machine, problem.data, problem.sigma)
+    held.parameters = ParameterSet(held.parameters.names, held.parameters.kinds, u,
+                                   np.ones(len(u), bool))
+    P, R = result.state.P.copy(), result.state.R.copy()
+    P *= (u[-1] / np.linalg.norm(P, axis=-1))[:, None]          # onto the sphere
+    poses = levenberg_marquardt(held, state=SphereState(u.copy(), P, R))
+    dof = int(poses.dof) - int(result.rank)
+    chi2 = 2.0 * float(poses.cost)
+    if dof <= 0 or not math.isfinite(chi2):
+        return ResidualTest(chi2, dof, math.nan, math.nan, True)
+    ratio, upper = chi2 / dof, chi2_bound(dof)
+    return ResidualTest(chi2, dof, ratio, upper, bool(ratio <= upper))
 
 
 def _refuse_degenerate(data, result, n_id: int, repeats: str) -> None:
@@ -1855,6 +1997,7 @@ class ConstraintLink(Instrument):
                             "ik": "ik (paper 3.4.1, inverse kinematics of the passive chain)",
                             "fk": "fk (paper 3.4.2, spread of the link length)"}
                  [report["method"]]),
+                *([("start", report["start"])] if "start" in report else []),
                 "identifiable",
                 ("RMS residual", f"{res['rms_um']:.4g} um ({res['of']}; assumed noise "
                  f"{report['noise_sigma_um']:.4g} um"
