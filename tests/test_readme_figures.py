@@ -276,6 +276,37 @@ def test_literal_per_chain_ik_diverges_from_1_percent():
     assert not res.success and "diverge" in res.message
 
 
+@pytest.mark.study      # a study's figure (make studies): 50 + 30 geometries, 3 methods
+def test_the_paper_methods_on_other_geometries_as_the_page_says():
+    """docs/researcher.md's figures of benchmarks/paper_methods.py: noise-free, 50 of 50 and
+    the worst error; with 2 um noise, the RMS error / Cramer-Rao bound per method."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "paper_methods_bench", Path(__file__).resolve().parents[1] / "benchmarks"
+        / "paper_methods.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    runs, ok, total, worst = figure(works(), r"On (\d+)\s+random Hexa Slides that are not "
+                                    r"the default one .*? both land on the truth in (\d+) of "
+                                    rf"(\d+) \(every\s+position error below {NUM} m, rounding\)", 4)
+    rows = [bench.one_run(seed, m) for seed in range(int(runs)) for m in ("ik", "fk")]
+    s = bench.summary(rows)
+    for m in ("ik", "fk"):
+        assert s[m]["ok"] == int(ok) and s[m]["runs"] == int(total) and s[m]["wrong"] == 0
+    assert max(s[m]["worst_ok_position_m"] for m in ("ik", "fk")) < float(worst)
+    noisy, *ratios = figure(works(), r"With 2 um encoder noise \((\d+) of those machines\).*?"
+                            rf"ML {NUM} \(position\) / {NUM}\s+\(orientation\), IK {NUM} / "
+                            rf"{NUM}, FK {NUM} / {NUM}", 7)
+    rows = [bench.one_run(seed, m, noise=2e-6) for seed in range(int(noisy))
+            for m in ("ml", "ik", "fk")]
+    s = bench.summary(rows)
+    for i, m in enumerate(("ml", "ik", "fk")):
+        assert s[m]["ok"] == int(noisy)
+        assert_printed(s[m]["rms_ratio_position"], ratios[2 * i])
+        assert_printed(s[m]["rms_ratio_orientation"], ratios[2 * i + 1])
+
+
 @pytest.mark.study      # a study's figure (make studies): hundreds of runs
 def test_ml_attains_the_cramer_rao_bound_as_pkmcal_bench_d():
     """``pkmcal bench`` (d) in full (200 runs, its seed): the README's ratio and the stored
