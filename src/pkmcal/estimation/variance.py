@@ -46,7 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .distributions import chi2_ppf, chi2_sf
-from .estimator import CalibrationResult, levenberg_marquardt
+from .estimator import CalibrationResult, levenberg_marquardt, linearisation_of
 from .rank import RTOL
 
 __all__ = ["MIN_REDUNDANCY", "NoiseEstimate", "NoiseGroups", "OutlierTest",
@@ -256,26 +256,36 @@ def hat_factors(problem, result):
 
 def _linearised(problem, result):
     """:func:`hat_factors` and ``log det`` of the normal matrix of the fitted directions
-    (local unknowns included): the REML likelihood's determinant term."""
-    _, Jg, Jl = problem.evaluate(result.state)
-    free = np.asarray(result.parameters.free, bool)
-    scales = np.asarray(result.scales, float)
-    Jg = np.asarray(Jg, float)[..., free] * scales[free]
-    K, m, _ = Jg.shape
+    (local unknowns included): the REML likelihood's determinant term. The estimator's own
+    factors when ``result`` is a fit of ``problem`` (the same Jacobian)."""
     rank = int(getattr(result, "adjusted", result.rank))
-    with np.errstate(divide="ignore"):
+    lin = linearisation_of(result, problem)
+    if lin is not None:
+        (K, m), qr, U, s = lin.shape, lin.qr, lin.U, lin.s
+    else:
+        _, Jg, Jl = problem.evaluate(result.state)
+        free = np.asarray(result.parameters.free, bool)
+        scales = np.asarray(result.scales, float)
+        Jg = np.asarray(Jg, float)[..., free] * scales[free]
+        K, m, _ = Jg.shape
         if Jl is None or np.asarray(Jl).shape[-1] == 0:
+            qr = None
             U, s, _ = np.linalg.svd(Jg.reshape(K * m, -1), full_matrices=False)
+        else:
+            Jl = np.asarray(Jl, float)
+            d = Jl.shape[-1]
+            Q, Rl = np.linalg.qr(Jl, mode="complete")
+            qr = (Q[..., :d], Q[..., d:], Rl[..., :d, :])
+            Jr = np.einsum("kmi,kmn->kin", qr[1], Jg)
+            U, s, _ = np.linalg.svd(Jr.reshape(K * (m - d), -1), full_matrices=False)
+    with np.errstate(divide="ignore"):
+        if qr is None:
             return None, U[:, :rank].reshape(K, m, rank), float(np.sum(np.log(s[:rank] ** 2)))
-        Jl = np.asarray(Jl, float)
-        d = Jl.shape[-1]
-        Q, Rl = np.linalg.qr(Jl, mode="complete")
-        Q1, Q2 = Q[..., :d], Q[..., d:]
-        Jr = np.einsum("kmi,kmn->kin", Q2, Jg)
-        U, s, _ = np.linalg.svd(Jr.reshape(K * (m - d), -1), full_matrices=False)
+        Q1, Q2, R1 = qr
+        d = Q1.shape[-1]
         Ur = U[:, :rank].reshape(K, m - d, rank)
         logdet = float(np.sum(np.log(s[:rank] ** 2))
-                       + np.sum(np.log(np.diagonal(Rl[..., :d, :], axis1=-2, axis2=-1) ** 2)))
+                       + np.sum(np.log(np.diagonal(R1, axis1=-2, axis2=-1) ** 2)))
     return Q1, np.einsum("kmi,kir->kmr", Q2, Ur), logdet
 
 
