@@ -186,10 +186,15 @@ class Weighted:
         Rows used.
     weights : array_like, shape (n_ids,), optional
         Row weights of a robust fit (1: full weight).
+    evaluations : Evaluations, optional
+        The problem's evaluations shared by the reweighted problems of one fit.
     """
 
-    def __init__(self, problem, groups: NoiseGroups, theta, kept, weights=None):
+    def __init__(self, problem, groups: NoiseGroups, theta, kept, weights=None,
+                 evaluations=None):
         self.problem, self.groups = problem, groups
+        self.evaluations = evaluations if evaluations is not None \
+            and evaluations.problem is problem else None
         self.theta = np.asarray(theta, float)
         self.kept = np.asarray(kept, bool)
         f = 1.0 / np.sqrt(self.theta[groups.labels])
@@ -200,7 +205,7 @@ class Weighted:
             np.min(self.factor) ** 2)
 
     def __getattr__(self, name):
-        if name in ("problem", "groups", "theta", "kept", "factor"):
+        if name in ("problem", "groups", "theta", "kept", "factor", "evaluations"):
             raise AttributeError(name)
         return getattr(self.problem, name)
 
@@ -214,7 +219,8 @@ class Weighted:
         return self.problem.retract(state, du, dl)
 
     def evaluate(self, state, jacobian=True):
-        r, Jg, Jl = self.problem.evaluate(state, jacobian)
+        source = self.problem if self.evaluations is None else self.evaluations
+        r, Jg, Jl = source.evaluate(state, jacobian)
         f = self.factor
         r = r * f
         if not jacobian:
@@ -227,6 +233,31 @@ class Weighted:
         """Residuals of this problem whitened by the assumed levels again (left-out rows
         unscaled)."""
         return np.asarray(residuals, float) / self.factor
+
+
+class Evaluations:
+    """A problem's last few evaluations, looked up by state (the same object; a problem's
+    states are never modified, a step makes a new one).
+
+    The rounds of :func:`fit` evaluate one state under several noise levels (a fit's end
+    state is the start of the next refit at new levels, and each group's capacity is a hat
+    matrix at it): the same residuals and Jacobians, which :class:`Weighted` only scales.
+    Results are only read (:class:`Weighted` scales them into new arrays).
+    """
+
+    SIZE = 4
+
+    def __init__(self, problem):
+        self.problem = problem
+        self._kept = []
+
+    def evaluate(self, state, jacobian=True):
+        for kept_state, kept_jacobian, out in self._kept:
+            if kept_state is state and kept_jacobian == jacobian:
+                return out
+        out = self.problem.evaluate(state, jacobian)
+        self._kept = [(state, jacobian, out)] + self._kept[:self.SIZE - 1]
+        return out
 
 
 def hat_factors(problem, result):
@@ -568,7 +599,7 @@ MAX_NOISE_RATIO = 3.0
 
 
 def _robust_candidates(problem, groups: NoiseGroups, theta, state, rtol, options,
-                       alpha: float, out=None) -> np.ndarray:
+                       alpha: float, out=None, evaluations=None) -> np.ndarray:
     """Rows a robust fit finds far beyond the others: iteratively reweighted least squares
     with Tukey's biweight on each row's chi-square per degree of freedom, over a median scale
     (a least-squares fit bends to gross errors, most with few rows per unknown; the robust one
@@ -583,7 +614,8 @@ def _robust_candidates(problem, groups: NoiseGroups, theta, state, rtol, options
     w = np.ones(n) if out is None else np.where(out, 0.0, 1.0)
     u = np.zeros(n)
     for _ in range(IRLS_ITER):
-        weighted = Weighted(problem, groups, theta, np.ones(n, bool), np.maximum(w, 1e-12))
+        weighted = Weighted(problem, groups, theta, np.ones(n, bool), np.maximum(w, 1e-12),
+                            evaluations)
         result = _refit(weighted, state, rtol, options)
         state = result.state
         r, _, _ = problem.evaluate(state, jacobian=False)
@@ -678,6 +710,7 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
            else np.asarray(left_out, bool).reshape(n_ids))
 
     robust_first = None         # the first round's test on the robust levels, when made
+    evaluations = Evaluations(problem)      # shared by the reweighted problems of this fit
 
     def rounds(n_rounds, state, candidates):
         nonlocal robust_first
@@ -691,8 +724,9 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         for round_ in range(n_rounds):
             # every round from the start: a fit bent by gross errors can hold the next one,
             # without them, in its local minimum
-            state = _estimate_levels(problem, groups, levels, kept, first, rtol, options)
-            weighted = Weighted(problem, groups, levels.theta, kept)
+            state = _estimate_levels(problem, groups, levels, kept, first, rtol, options,
+                                     evaluations)
+            weighted = Weighted(problem, groups, levels.theta, kept, evaluations=evaluations)
             estimated = bool(levels.estimated.any() or levels.bounded.any())
             result = _refit(weighted, state, rtol, options,
                             absolute_sigma=bool(estimated or absolute))
@@ -735,7 +769,8 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         # many unknowns): the candidates of a robust fit start the rounds, which re-admit
         # what the fit without them predicts
         candidates = _robust_candidates(problem, groups, levels.theta, start, rtol,
-                                        options, alpha, out if out.any() else None)
+                                        options, alpha, out if out.any() else None,
+                                        evaluations)
         again = rounds(ROBUST_ROUNDS, start, candidates)
         if robust and np.any(~again[4] & ~out):
             # robust=True leaves out a row the plain fit keeps
@@ -795,6 +830,7 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         robust=bool(robust))
     # downstream, residuals are "measured - predicted over the assumed noise" for every problem
     result.residuals = assumed_r
+    weighted.evaluations = None     # the problem handed out evaluates afresh
     return result
 
 
@@ -914,7 +950,7 @@ def _refit(weighted: Weighted, state, rtol, options, absolute_sigma: bool = Fals
 
 
 def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state, rtol,
-                     options):
+                     options, evaluations=None):
     """Helmert's iteration to convergence (see the module docstring), updating ``levels``
     in place. First, each group's *capacity* (its redundancy were its level far above the
     others') decides whether the data can check it at all: below :data:`MIN_REDUNDANCY` it
@@ -931,7 +967,7 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
     for it in range(VCE_MAX_ITER):
         if not levels.estimated.any():
             return state
-        weighted = Weighted(problem, groups, levels.theta, kept)
+        weighted = Weighted(problem, groups, levels.theta, kept, evaluations=evaluations)
         result = _refit(weighted, state, rtol, options)
         levels.iterations += 1
         L, Gf, logdet = _linearised(weighted, result)
@@ -957,7 +993,7 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
                 else:
                     theta = levels.theta.copy()
                     theta[c] *= 1e6
-                    alone = Weighted(problem, groups, theta, kept)
+                    alone = Weighted(problem, groups, theta, kept, evaluations=evaluations)
                     h = _leverages(*hat_factors(alone, result)).reshape(-1)
                 use = kept[groups.ids.reshape(-1)] & (lab == c)
                 levels.capacity[c] = float(np.sum(1.0 - h[use]))
