@@ -505,21 +505,104 @@ class OutlierTest:
                 "left_out": [self.names[i] for i in self.left_out]}
 
 
+class _RowSpaces:
+    """What Baarda's test of each row needs besides the residuals: the eigen-decomposition of
+    the matrix whose pseudo-inverse weighs the row's residuals (kept: ``I - H_SS``; left out:
+    ``I`` plus the uncertainty of its prediction). It depends on the fit only (hat factors,
+    rows kept), so one fit's tests (plain and on the robust levels) share it."""
+
+    def __init__(self, weighted: Weighted, L, G):
+        groups = weighted.groups
+        self.kept = weighted.kept
+        ids = groups.ids.reshape(-1)
+        self.n_ids = n_ids = len(groups.id_names)
+        K, m = groups.labels.shape
+        self.Gf = G.reshape(K * m, -1)
+        self.Lf = None if L is None else L.reshape(K * m, -1)
+        self.block = np.repeat(np.arange(K), m)
+        self.order = np.argsort(ids, kind="stable")
+        self.starts = np.searchsorted(ids[self.order], np.arange(n_ids + 1))
+        sizes = np.diff(self.starts)
+        self.batched = bool(n_ids and np.all(sizes == sizes[0]) and sizes[0] > 0)
+        self._rows = {}
+        if not self.batched:
+            return
+        # every row has as many residuals (the usual case): all rows at once, as row() below
+        Gf, Lf, block = self.Gf, self.Lf, self.block
+        S = self.order.reshape(n_ids, sizes[0])                      # (rows, n)
+        M = np.broadcast_to(np.eye(sizes[0]), (n_ids, sizes[0], sizes[0])).copy()
+        if Lf is not None:
+            same = block[S][:, :, None] == block[S][:, None, :]
+            M -= (Lf[S] @ np.swapaxes(Lf[S], 1, 2)) * same
+        Gs = Gf[S] / np.where(self.kept, 1.0, LEFT_OUT_WEIGHT)[:, None, None]
+        # kept: minus its part of the hat matrix; left out: its residual against the
+        # prediction (uncertainty of the fit added; its rows of the factors carry the
+        # left-out weight)
+        M += np.where(self.kept, -1.0, 1.0)[:, None, None] * (Gs @ np.swapaxes(Gs, 1, 2))
+        w, V = np.linalg.eigh(0.5 * (M + np.swapaxes(M, 1, 2)))
+        good = w > 1e-8 * np.maximum(1.0, w.max(axis=1, initial=0.0))[:, None]
+        self.S, self.w, self.V, self.good = S, w, V, good
+
+    def row(self, i):
+        """``(S, w, V, good)`` of row ``i`` alone (residual indices, eigenvalues, vectors,
+        the eigenvalues counted)."""
+        if i not in self._rows:
+            S = self.order[self.starts[i]:self.starts[i + 1]]
+            Gf, Lf, block = self.Gf, self.Lf, self.block
+            M = np.eye(len(S))
+            if Lf is not None:
+                same = block[S][:, None] == block[S][None, :]
+                M -= (Lf[S] @ Lf[S].T) * same
+            if self.kept[i]:
+                M -= Gf[S] @ Gf[S].T
+            else:   # left out: its residual against the prediction (uncertainty of the fit
+                # added; its rows of the factors carry the left-out weight)
+                Gs = Gf[S] / LEFT_OUT_WEIGHT
+                M += Gs @ Gs.T
+            w, V = np.linalg.eigh(0.5 * (M + M.T))
+            good = w > 1e-8 * max(1.0, float(w.max(initial=0.0)))
+            self._rows[i] = (S, w, V, good)
+        return self._rows[i]
+
+    def statistics(self, r):
+        """Each row's ``r_S^T M^+ r_S`` and its degrees of freedom (0, 0 where a residual is
+        not finite or the row has none)."""
+        n_ids = self.n_ids
+        if self.batched:
+            S, w, V, good = self.S, self.w, self.V, self.good
+            rs = r[S]
+            finite = np.all(np.isfinite(rs), axis=1)
+            z = np.einsum("kij,ki->kj", V, np.where(finite[:, None], rs, 0.0))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                terms = np.where(good, z**2 / np.where(good, w, 1.0), 0.0)
+            stat = np.where(finite, terms.sum(axis=1), 0.0)
+            dof = np.where(finite, good.sum(axis=1), 0).astype(int)
+            return stat, dof
+        stat = np.zeros(n_ids)
+        dof = np.zeros(n_ids, int)
+        for i in range(n_ids):
+            S = self.order[self.starts[i]:self.starts[i + 1]]
+            if len(S) == 0 or not np.all(np.isfinite(r[S])):
+                continue
+            _, w, V, good = self.row(i)
+            z = V[:, good].T @ r[S]
+            stat[i] = float(np.sum(z**2 / w[good]))
+            dof[i] = int(good.sum())
+        return stat, dof
+
+
 def _outlier_test(weighted: Weighted, result, L, G, alpha: float,
-                  robust_scale: bool = False) -> OutlierTest:
+                  robust_scale: bool = False, spaces: _RowSpaces | None = None) -> OutlierTest:
     """Baarda's test of every row (see the module docstring). ``robust_scale``: each group's
     residuals over its robust level (median of ``r_i^2 / (1 - h_ii)``) where that is below
     :data:`ROBUST_SHRINK` of the estimated one (in variance; clean data's medians scatter far
     less): gross errors in the fit inflate the estimate and can hide every one of them (the
-    first round's candidates; later rounds re-admit what their prediction explains)."""
+    first round's candidates; later rounds re-admit what their prediction explains).
+    ``spaces``: the rows' :class:`_RowSpaces` of this fit, when already made."""
     groups = weighted.groups
     ids = groups.ids.reshape(-1)
-    n_ids = len(groups.id_names)
-    K, m = groups.labels.shape
     r = np.asarray(result.residuals, float).reshape(-1) / np.where(
         weighted.kept[ids], 1.0, LEFT_OUT_WEIGHT)
-    Gf = G.reshape(K * m, -1)
-    Lf = None if L is None else L.reshape(K * m, -1)
     if robust_scale:
         h = _leverages(L, G).reshape(-1)
         lab = groups.labels.reshape(-1)
@@ -531,53 +614,9 @@ def _outlier_test(weighted: Weighted, result, L, G, alpha: float,
             if rho < ROBUST_SHRINK:
                 scale[c] = max(rho, 1e-4)
         r = r / np.sqrt(scale[lab])
-    block = np.repeat(np.arange(K), m)
-    order = np.argsort(ids, kind="stable")
-    starts = np.searchsorted(ids[order], np.arange(n_ids + 1))
-    sizes = np.diff(starts)
-    stat = np.zeros(n_ids)
-    dof = np.zeros(n_ids, int)
-    if n_ids and np.all(sizes == sizes[0]) and sizes[0] > 0:
-        # every row has as many residuals (the usual case): all rows at once, as the loop below
-        S = order.reshape(n_ids, sizes[0])                           # (rows, n)
-        M = np.broadcast_to(np.eye(sizes[0]), (n_ids, sizes[0], sizes[0])).copy()
-        if Lf is not None:
-            same = block[S][:, :, None] == block[S][:, None, :]
-            M -= (Lf[S] @ np.swapaxes(Lf[S], 1, 2)) * same
-        Gs = Gf[S] / np.where(weighted.kept, 1.0, LEFT_OUT_WEIGHT)[:, None, None]
-        # kept: minus its part of the hat matrix; left out: its residual against the
-        # prediction (uncertainty of the fit added; its rows of the factors carry the
-        # left-out weight)
-        M += np.where(weighted.kept, -1.0, 1.0)[:, None, None] * (Gs @ np.swapaxes(Gs, 1, 2))
-        w, V = np.linalg.eigh(0.5 * (M + np.swapaxes(M, 1, 2)))
-        good = w > 1e-8 * np.maximum(1.0, w.max(axis=1, initial=0.0))[:, None]
-        rs = r[S]
-        finite = np.all(np.isfinite(rs), axis=1)
-        z = np.einsum("kij,ki->kj", V, np.where(finite[:, None], rs, 0.0))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            terms = np.where(good, z**2 / np.where(good, w, 1.0), 0.0)
-        stat = np.where(finite, terms.sum(axis=1), 0.0)
-        dof = np.where(finite, good.sum(axis=1), 0).astype(int)
-        return _outlier_verdict(stat, dof, alpha, weighted, groups)
-    for i in range(n_ids):
-        S = order[starts[i]:starts[i + 1]]
-        if len(S) == 0 or not np.all(np.isfinite(r[S])):
-            continue
-        M = np.eye(len(S))
-        if Lf is not None:
-            same = block[S][:, None] == block[S][None, :]
-            M -= (Lf[S] @ Lf[S].T) * same
-        if weighted.kept[i]:
-            M -= Gf[S] @ Gf[S].T
-        else:   # left out: its residual against the prediction (uncertainty of the fit added;
-            # its rows of the factors carry the left-out weight)
-            Gs = Gf[S] / LEFT_OUT_WEIGHT
-            M += Gs @ Gs.T
-        w, V = np.linalg.eigh(0.5 * (M + M.T))
-        good = w > 1e-8 * max(1.0, float(w.max(initial=0.0)))
-        z = V[:, good].T @ r[S]
-        stat[i] = float(np.sum(z**2 / w[good]))
-        dof[i] = int(good.sum())
+    if spaces is None:
+        spaces = _RowSpaces(weighted, L, G)
+    stat, dof = spaces.statistics(r)
     return _outlier_verdict(stat, dof, alpha, weighted, groups)
 
 
@@ -732,7 +771,8 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
                             absolute_sigma=bool(estimated or absolute))
             state = result.state
             L, G_ = hat_factors(weighted, result)
-            test = _outlier_test(weighted, result, L, G_, alpha)
+            spaces = _RowSpaces(weighted, L, G_)       # both tests of this fit
+            test = _outlier_test(weighted, result, L, G_, alpha, spaces=spaces)
             # the rows named now are out, the others in (a row left out in an earlier round
             # comes back when its prediction explains it); a set seen before ends the rounds.
             # The first round's candidates are judged on the robust levels (masking)
@@ -740,7 +780,7 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
                 named = test.flagged
             else:
                 robust_first = _outlier_test(weighted, result, L, G_, alpha,
-                                             robust_scale=True)
+                                             robust_scale=True, spaces=spaces)
                 named = robust_first.flagged
             new_kept = np.ones(len(kept), bool)
             new_kept[named] = False
@@ -811,8 +851,10 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         # one group: the hat matrix does not depend on its level, and these are the rows of
         # the last Helmert step: its matrix and redundancy
         S, red = levels.S, levels.red
-    else:
+    elif levels.estimated.any():
         S, red = helmert_matrix(L, G_, groups.labels, ok, G)
+    else:   # no level estimated: its matrix would give no standard deviation
+        S, red = None, redundancies(L, G_, groups.labels, ok, G)
     sigma = groups.assumed * np.sqrt(levels.theta)
     std = np.full(G, np.nan)
     est = np.flatnonzero(levels.estimated)
@@ -858,13 +900,7 @@ def helmert_matrix(L, G, labels, use, n_groups: int):
     S : ndarray, shape (n_groups, n_groups)
     redundancy : ndarray, shape (n_groups,)
     """
-    K, m = labels.shape
-    E = np.zeros((K, m, n_groups))
-    E[np.arange(K)[:, None], np.arange(m)[None, :], labels] = 1.0
-    E *= np.asarray(use, bool)[..., None]
-    Ef = E.reshape(K * m, n_groups)
-    Gf = G.reshape(K * m, -1)
-    h = np.sum(Gf**2, axis=1)
+    E, Ef, Gf, h, red = _redundancy_parts(L, G, labels, use, n_groups)
     # between any two residuals: (G_i . G_j)^2 summed over groups = tr(T_c T_d)
     T = np.einsum("ic,ir,is->crs", Ef, Gf, Gf)
     S = np.einsum("crs,dsr->cd", T, T)
@@ -874,11 +910,30 @@ def helmert_matrix(L, G, labels, use, n_groups: int):
         B = np.einsum("kir,kjr->kij", G, G)
         X = A * A + 2.0 * A * B
         S = S + np.einsum("kic,kij,kjd->cd", E, X, E)
-        h = h + np.sum(L.reshape(K * m, -1) ** 2, axis=1)
-    h = np.clip(h, 0.0, 1.0)
-    red = Ef.T @ (1.0 - h)
     S = S + np.diag(Ef.T @ (1.0 - 2.0 * h))
     return S, red
+
+
+def redundancies(L, G, labels, use, n_groups: int) -> np.ndarray:
+    """The groups' redundancies ``sum_{i in c} M_ii`` alone (those of
+    :func:`helmert_matrix`, without its matrix)."""
+    return _redundancy_parts(L, G, labels, use, n_groups)[-1]
+
+
+def _redundancy_parts(L, G, labels, use, n_groups: int):
+    """Group indicators ``E`` (K, m, G) and flat ``Ef``, flat global factors ``Gf``, the
+    leverages ``h`` and the groups' redundancies."""
+    K, m = labels.shape
+    E = np.zeros((K, m, n_groups))
+    E[np.arange(K)[:, None], np.arange(m)[None, :], labels] = 1.0
+    E *= np.asarray(use, bool)[..., None]
+    Ef = E.reshape(K * m, n_groups)
+    Gf = G.reshape(K * m, -1)
+    h = np.sum(Gf**2, axis=1)
+    if L is not None:
+        h = h + np.sum(L.reshape(K * m, -1) ** 2, axis=1)
+    h = np.clip(h, 0.0, 1.0)
+    return E, Ef, Gf, h, Ef.T @ (1.0 - h)
 
 
 #: a level is at least this share of the assumed one (std): exact (simulated) data would drive
