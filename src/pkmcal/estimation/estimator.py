@@ -326,8 +326,21 @@ def _reduce(r, Jg, Jl):
     return Jr, er, back, (Q1, Q2, R1)
 
 
-def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float = 1e-12,
-                        ftol: float = 1e-14, max_iter: int = 100,
+#: :func:`levenberg_marquardt`'s default step and cost tolerances and iteration limit
+XTOL, FTOL, MAX_ITER = 1e-12, 1e-14, 100
+
+
+def settings_of(rtol: float = RTOL, absolute_sigma: bool = False, xtol: float = XTOL,
+                ftol: float = FTOL, max_iter: int = MAX_ITER, max_std: float | None = None,
+                **_) -> tuple:
+    """The settings of a :func:`levenberg_marquardt` call (its keywords, defaults applied) as
+    a :class:`Linearisation` records them."""
+    return (float(rtol), float(xtol), float(ftol), int(max_iter),
+            None if max_std is None else float(max_std), bool(absolute_sigma))
+
+
+def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float = XTOL,
+                        ftol: float = FTOL, max_iter: int = MAX_ITER,
                         absolute_sigma: bool = False, state=None,
                         max_std: float | None = None) -> CalibrationResult:
     """Solve a :class:`BlockProblem` by Levenberg-Marquardt on the reduced (Schur) system.
@@ -476,7 +489,9 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
         std=np.sqrt(np.clip(np.diag(cov), 0, None)), residual_variance=variance, dof=dof,
         state=state, max_std=max_std,
     )
-    result._linear = Linearisation(problem, state, r.shape, qr, U, s)
+    result._linear = Linearisation(problem, state, r.shape, qr, U, s,
+                                   settings_of(rtol, absolute_sigma, xtol, ftol, max_iter,
+                                               max_std))
     return result
 
 
@@ -484,8 +499,9 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
 class Linearisation:
     """The factors of the scaled reduced Jacobian a fit ended with (at ``state`` of
     ``problem``): the local Jacobians' QR ``(Q1, Q2, R1)`` (None without local unknowns) and
-    the SVD's ``U``, ``s``. Hat matrices and likelihoods of the fit (:mod:`.variance`) take
-    them from here instead of evaluating and factoring the same Jacobian again."""
+    the SVD's ``U``, ``s``; and the call's settings (:func:`settings_of`). Hat matrices and
+    likelihoods of the fit (:mod:`.variance`) take them from here instead of evaluating and
+    factoring the same Jacobian again."""
 
     problem: Any
     state: Any
@@ -493,6 +509,7 @@ class Linearisation:
     qr: tuple | None
     U: np.ndarray
     s: np.ndarray
+    settings: tuple = ()
 
 
 def linearisation_of(result, problem) -> Linearisation | None:

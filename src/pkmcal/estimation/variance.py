@@ -46,7 +46,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .distributions import chi2_ppf, chi2_sf
-from .estimator import CalibrationResult, levenberg_marquardt, linearisation_of
+from .estimator import (
+    CalibrationResult,
+    Linearisation,
+    levenberg_marquardt,
+    linearisation_of,
+    settings_of,
+)
 from .rank import RTOL
 
 __all__ = ["MIN_REDUNDANCY", "NoiseEstimate", "NoiseGroups", "OutlierTest",
@@ -688,7 +694,8 @@ def _hold_mask(groups: NoiseGroups, noise) -> np.ndarray:
 
 
 def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPHA,
-        rtol: float = RTOL, state=None, left_out=None, **options) -> CalibrationResult:
+        rtol: float = RTOL, state=None, left_out=None, fitted=None,
+        **options) -> CalibrationResult:
     """Fit a calibration problem with its noise levels estimated from the residuals.
 
     Parameters
@@ -716,6 +723,11 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         the first candidates of the outlier rounds, which bring back those the fit without
         them predicts. Without ``robust`` the rows the rounds keep out stay out; the other
         rows named are kept in the fit, as always.
+    fitted : CalibrationResult, optional
+        The :func:`levenberg_marquardt` fit of ``problem`` (with ``rtol`` and ``options``)
+        that ended at ``state``, when it is where ``state`` comes from: a refit of the same
+        problem from there (every level at its assumed value, every row in) is that fit when
+        it converged (its Gauss-Newton step negligible), and is not made again.
     **options
         Passed to :func:`levenberg_marquardt`; ``absolute_sigma=True`` (the noise is known
         exactly) holds every level and does not scale the covariance.
@@ -764,11 +776,11 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
             # every round from the start: a fit bent by gross errors can hold the next one,
             # without them, in its local minimum
             state = _estimate_levels(problem, groups, levels, kept, first, rtol, options,
-                                     evaluations)
+                                     evaluations, fitted)
             weighted = Weighted(problem, groups, levels.theta, kept, evaluations=evaluations)
             estimated = bool(levels.estimated.any() or levels.bounded.any())
             result = _refit(weighted, state, rtol, options,
-                            absolute_sigma=bool(estimated or absolute))
+                            absolute_sigma=bool(estimated or absolute), fitted=fitted)
             state = result.state
             L, G_ = hat_factors(weighted, result)
             spaces = _RowSpaces(weighted, L, G_)       # both tests of this fit
@@ -991,10 +1003,21 @@ class _Levels:
         return ~(self.held | self.guessed | self.bounded)
 
 
-def _refit(weighted: Weighted, state, rtol, options, absolute_sigma: bool = False):
+def _refit(weighted: Weighted, state, rtol, options, absolute_sigma: bool = False,
+           fitted=None):
     """The estimator on the reweighted problem from ``state``. A state that is already the
     optimum up to rounding (exact data, a converged fit reweighted) may admit no step that
-    lowers the cost on the first try: that is convergence, not a failure."""
+    lowers the cost on the first try: that is convergence, not a failure.
+
+    ``fitted``: a fit that ended at ``state`` (see :func:`fit`). When ``weighted`` is its
+    problem unchanged (every level at its assumed value, every row in: each factor exactly
+    1) and the settings are its own, the refit would start where that fit found its
+    Gauss-Newton step negligible and take only that step: ``fitted`` is the result (a copy).
+    """
+    if fitted is not None:
+        again = _same_fit(weighted, state, rtol, options, absolute_sigma, fitted)
+        if again is not None:
+            return again
     first = state is None
     result = levenberg_marquardt(weighted, rtol=rtol, state=state,
                                  absolute_sigma=absolute_sigma, **options)
@@ -1004,8 +1027,26 @@ def _refit(weighted: Weighted, state, rtol, options, absolute_sigma: bool = Fals
     return result
 
 
+def _same_fit(weighted: Weighted, state, rtol, options, absolute_sigma, fitted):
+    """A copy of ``fitted`` as the fit of ``weighted`` from ``state`` (:func:`_refit`), or
+    None when that is not the same fit."""
+    lin = getattr(fitted, "_linear", None)
+    if (lin is None or state is None or state is not fitted.state or lin.state is not state
+            or fitted.status != 1 or lin.problem is not weighted.problem
+            or not np.all(weighted.factor == 1.0)
+            or lin.settings != settings_of(rtol, absolute_sigma, **options)):
+        return None
+    again = dataclasses.replace(
+        fitted, x=fitted.x.copy(), residuals=np.array(fitted.residuals, float),
+        covariance=fitted.covariance.copy(), std=fitted.std.copy(), extras={})
+    # its factors are those of the reweighted problem (each factor 1: the same Jacobian)
+    again._linear = Linearisation(weighted, state, lin.shape, lin.qr, lin.U, lin.s,
+                                  lin.settings)
+    return again
+
+
 def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state, rtol,
-                     options, evaluations=None):
+                     options, evaluations=None, fitted=None):
     """Helmert's iteration to convergence (see the module docstring), updating ``levels``
     in place. First, each group's *capacity* (its redundancy were its level far above the
     others') decides whether the data can check it at all: below :data:`MIN_REDUNDANCY` it
@@ -1023,7 +1064,7 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
         if not levels.estimated.any():
             return state
         weighted = Weighted(problem, groups, levels.theta, kept, evaluations=evaluations)
-        result = _refit(weighted, state, rtol, options)
+        result = _refit(weighted, state, rtol, options, fitted=fitted)
         levels.iterations += 1
         L, Gf, logdet = _linearised(weighted, result)
         likelihood = _reml(weighted, result, logdet)
