@@ -914,7 +914,9 @@ def helmert_matrix(L, G, labels, use, n_groups: int):
     """
     E, Ef, Gf, h, red = _redundancy_parts(L, G, labels, use, n_groups)
     # between any two residuals: (G_i . G_j)^2 summed over groups = tr(T_c T_d)
-    T = np.einsum("ic,ir,is->crs", Ef, Gf, Gf)
+    # (T_c = G^T diag(E_c) G by matrix products: the three-operand einsum loops in C over
+    # every residual and pair of directions, ~10x slower)
+    T = np.stack([(Gf * Ef[:, c, None]).T @ Gf for c in range(n_groups)])
     S = np.einsum("crs,dsr->cd", T, T)
     if L is not None:
         # within a measurement the local unknowns add A = L L^T: (A + B)^2 - B^2 = A^2 + 2AB
