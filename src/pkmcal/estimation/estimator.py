@@ -318,7 +318,7 @@ def _reduce(r, Jg, Jl):
 
     def back(du):
         if not parts:
-            parts.extend((np.einsum("kmi,km->ki", Q1, r), np.einsum("kmi,kmn->kin", Q1, Jg)))
+            parts.extend((np.einsum("kmi,km->ki", Q1, r), np.swapaxes(Q1, -1, -2) @ Jg))
         Q1r, Q1J = parts
         rhs = Q1r + Q1J @ du
         return -np.linalg.solve(R1, rhs[..., None])[..., 0]
