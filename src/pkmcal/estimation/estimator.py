@@ -231,7 +231,9 @@ class CalibrationResult:
         return getattr(self, key)
 
     def __getstate__(self):
-        # the estimator's final factors (``_linear``) refer to the problem: not pickled
+        # levenberg_marquardt keeps its final factors on the result (``_linear``, a
+        # Linearisation: used again by the noise rounds and the report's leverages); they
+        # refer to the problem: not pickled (nor copied)
         state = dict(self.__dict__)
         state.pop("_linear", None)
         return state
@@ -334,7 +336,18 @@ def settings_of(rtol: float = RTOL, absolute_sigma: bool = False, xtol: float = 
                 ftol: float = FTOL, max_iter: int = MAX_ITER, max_std: float | None = None,
                 **_) -> tuple:
     """The settings of a :func:`levenberg_marquardt` call (its keywords, defaults applied) as
-    a :class:`Linearisation` records them."""
+    a :class:`Linearisation` records them.
+
+    Parameters
+    ----------
+    rtol, absolute_sigma, xtol, ftol, max_iter, max_std
+        As :func:`levenberg_marquardt`; other keywords (``state``) are ignored.
+
+    Returns
+    -------
+    tuple
+        ``(rtol, xtol, ftol, max_iter, max_std, absolute_sigma)``.
+    """
     return (float(rtol), float(xtol), float(ftol), int(max_iter),
             None if max_std is None else float(max_std), bool(absolute_sigma))
 
@@ -513,8 +526,22 @@ class Linearisation:
 
 
 def linearisation_of(result, problem) -> Linearisation | None:
-    """The :class:`Linearisation` ``result`` ended with when it is that of ``problem`` at
-    ``result.state`` (the same objects), else None."""
+    """The :class:`Linearisation` a fit ended with, when it is that of ``problem`` at
+    ``result.state`` (the same objects).
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        A fit (:func:`levenberg_marquardt` keeps its factors; a copy or an unpickled result
+        has none).
+    problem : BlockProblem
+        The problem the factors must be of.
+
+    Returns
+    -------
+    Linearisation or None
+        The factors, or None when ``result`` has none of ``problem`` at its state.
+    """
     lin = getattr(result, "_linear", None)
     if lin is None or lin.problem is not problem or lin.state is not result.state:
         return None

@@ -929,8 +929,19 @@ def helmert_matrix(L, G, labels, use, n_groups: int):
 
 
 def redundancies(L, G, labels, use, n_groups: int) -> np.ndarray:
-    """The groups' redundancies ``sum_{i in c} M_ii`` alone (those of
-    :func:`helmert_matrix`, without its matrix)."""
+    """The groups' redundancies ``sum_{i in c} M_ii`` alone: those of
+    :func:`helmert_matrix`, without its matrix.
+
+    Parameters
+    ----------
+    L, G, labels, use, n_groups
+        As :func:`helmert_matrix`.
+
+    Returns
+    -------
+    ndarray, shape (n_groups,)
+        The redundancies.
+    """
     return _redundancy_parts(L, G, labels, use, n_groups)[-1]
 
 
