@@ -230,6 +230,14 @@ class CalibrationResult:
     def __getitem__(self, key):  # scipy-style access: result["x"]
         return getattr(self, key)
 
+    def __getstate__(self):
+        # levenberg_marquardt keeps its final factors on the result (``_linear``, a
+        # Linearisation: used again by the noise rounds and the report's leverages); they
+        # refer to the problem: not pickled (nor copied)
+        state = dict(self.__dict__)
+        state.pop("_linear", None)
+        return state
+
 
 
 
@@ -291,26 +299,61 @@ def reduce_local(r, Jg, Jl):
         ``back(du) -> dl`` (K, d): the local step that goes with a global step ``du`` (in the
         columns of ``Jg``); returns None without local unknowns.
     """
+    Jr, er, back, _ = _reduce(r, Jg, Jl)
+    return Jr, er, back
+
+
+def _reduce(r, Jg, Jl):
+    """:func:`reduce_local` and the factors of the local Jacobians' QR, ``(Q1, Q2, R1)``
+    (None without local unknowns)."""
     K, m = r.shape
     if Jl is None or Jl.shape[-1] == 0:
-        return Jg.reshape(K * m, -1), r.reshape(-1), (lambda du: None)
+        return Jg.reshape(K * m, -1), r.reshape(-1), (lambda du: None), None
     d = Jl.shape[-1]
     Q, Rf = np.linalg.qr(Jl, mode="complete")             # (K, m, m), (K, m, d)
     Q1, Q2, R1 = Q[..., :d], Q[..., d:], Rf[..., :d, :]
     Jr = np.einsum("kmi,kmn->kin", Q2, Jg).reshape(K * (m - d), -1)
     er = np.einsum("kmi,km->ki", Q2, r).reshape(-1)
-    Q1r = np.einsum("kmi,km->ki", Q1, r)
-    Q1J = np.einsum("kmi,kmn->kin", Q1, Jg)
+    # Q1^T r and Q1^T J_g only when a step is taken: an iteration that converges, the final
+    # statistics and the rank analyses take none (Q1^T J_g is the costliest product here)
+    parts = []
 
     def back(du):
+        if not parts:
+            parts.extend((np.einsum("kmi,km->ki", Q1, r), np.swapaxes(Q1, -1, -2) @ Jg))
+        Q1r, Q1J = parts
         rhs = Q1r + Q1J @ du
         return -np.linalg.solve(R1, rhs[..., None])[..., 0]
 
-    return Jr, er, back
+    return Jr, er, back, (Q1, Q2, R1)
 
 
-def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float = 1e-12,
-                        ftol: float = 1e-14, max_iter: int = 100,
+#: :func:`levenberg_marquardt`'s default step and cost tolerances and iteration limit
+XTOL, FTOL, MAX_ITER = 1e-12, 1e-14, 100
+
+
+def settings_of(rtol: float = RTOL, absolute_sigma: bool = False, xtol: float = XTOL,
+                ftol: float = FTOL, max_iter: int = MAX_ITER, max_std: float | None = None,
+                **_) -> tuple:
+    """The settings of a :func:`levenberg_marquardt` call (its keywords, defaults applied) as
+    a :class:`Linearisation` records them.
+
+    Parameters
+    ----------
+    rtol, absolute_sigma, xtol, ftol, max_iter, max_std
+        As :func:`levenberg_marquardt`; other keywords (``state``) are ignored.
+
+    Returns
+    -------
+    tuple
+        ``(rtol, xtol, ftol, max_iter, max_std, absolute_sigma)``.
+    """
+    return (float(rtol), float(xtol), float(ftol), int(max_iter),
+            None if max_std is None else float(max_std), bool(absolute_sigma))
+
+
+def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float = XTOL,
+                        ftol: float = FTOL, max_iter: int = MAX_ITER,
                         absolute_sigma: bool = False, state=None,
                         max_std: float | None = None) -> CalibrationResult:
     """Solve a :class:`BlockProblem` by Levenberg-Marquardt on the reduced (Schur) system.
@@ -378,9 +421,11 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
     lam = 0.0
     status, message = 0, "maximum number of iterations reached"
     nit = 0
+    current = None      # (QR factors, U, s, Vt) of r, Jg, Jl as they are now
     for nit in range(1, max_iter + 1):  # noqa: B007
-        Jr, er, back = reduce_local(r, Jg[..., free] * scales[free], Jl)
+        Jr, er, back, qr = _reduce(r, Jg[..., free] * scales[free], Jl)
         U, s, Vt = np.linalg.svd(Jr, full_matrices=False)
+        current = (qr, U, s, Vt)
         rank = rank_rule(s, rtol, max_std).adjusted
         Ur, sr, Vr = U[:, :rank], s[:rank], Vt[:rank].T
         g = Ur.T @ er
@@ -420,14 +465,19 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
         decrease = (cost - new_cost) / max(cost, 1e-300)
         lam_used = lam
         state, r, Jg, Jl, cost = new_state, new_r, new_Jg, new_Jl, new_cost
+        current = None
         lam = lam / 10.0 if lam > 1e-12 * s1**2 else 0.0
         if (decrease < ftol and cost > 0 and lam_used == 0.0) or decrease <= 0.0:
             # an accepted step that gains exactly nothing: rounding has the last word
             status, message = 2, "relative cost decrease below ftol"
             break
-    # final statistics at the solution
-    Jr, er, _ = reduce_local(r, Jg[..., free] * scales[free], Jl)
-    U, s, Vt = np.linalg.svd(Jr, full_matrices=False)
+    # final statistics at the solution: the last iteration's factors when it took no step (a
+    # converged fit, or one that cannot go on), else those of the state it ended at
+    if current is None:
+        Jr, _, _, qr = _reduce(r, Jg[..., free] * scales[free], Jl)
+        U, s, Vt = np.linalg.svd(Jr, full_matrices=False)
+        current = (qr, U, s, Vt)
+    qr, U, s, Vt = current
     decision = rank_rule(s, rtol, max_std)
     numerical, rank = decision.identifiable, decision.adjusted   # rank: adjusted directions
     n_free = int(free.sum())
@@ -446,7 +496,7 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
     sf = scales[free]
     cov[np.ix_(free, free)] = cov_free_scaled * np.outer(sf, sf) * factor
     x = problem.global_values(state)
-    return CalibrationResult(
+    result = CalibrationResult(
         x=x, parameters=params.with_values(x), cost=cost, residuals=r,
         success=status in (1, 2), status=status, message=message, nit=nit, nfev=nfev,
         rank=numerical, singular_values=s, null_space=null_space, scales=scales,
@@ -454,6 +504,50 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
         std=np.sqrt(np.clip(np.diag(cov), 0, None)), residual_variance=variance, dof=dof,
         state=state, max_std=max_std,
     )
+    result._linear = Linearisation(problem, state, r.shape, qr, U, s,
+                                   settings_of(rtol, absolute_sigma, xtol, ftol, max_iter,
+                                               max_std))
+    return result
+
+
+@dataclass
+class Linearisation:
+    """The factors of the scaled reduced Jacobian a fit ended with (at ``state`` of
+    ``problem``): the local Jacobians' QR ``(Q1, Q2, R1)`` (None without local unknowns) and
+    the SVD's ``U``, ``s``; and the call's settings (:func:`settings_of`). Hat matrices and
+    likelihoods of the fit (:mod:`.variance`) take them from here instead of evaluating and
+    factoring the same Jacobian again."""
+
+    problem: Any
+    state: Any
+    shape: tuple
+    qr: tuple | None
+    U: np.ndarray
+    s: np.ndarray
+    settings: tuple = ()
+
+
+def linearisation_of(result, problem) -> Linearisation | None:
+    """The :class:`Linearisation` a fit ended with, when it is that of ``problem`` at
+    ``result.state`` (the same objects).
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        A fit (:func:`levenberg_marquardt` keeps its factors; a copy or an unpickled result
+        has none).
+    problem : BlockProblem
+        The problem the factors must be of.
+
+    Returns
+    -------
+    Linearisation or None
+        The factors, or None when ``result`` has none of ``problem`` at its state.
+    """
+    lin = getattr(result, "_linear", None)
+    if lin is None or lin.problem is not problem or lin.state is not result.state:
+        return None
+    return lin
 
 
 def _complete_null(row_basis: np.ndarray, n: int) -> np.ndarray:

@@ -46,7 +46,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .distributions import chi2_ppf, chi2_sf
-from .estimator import CalibrationResult, levenberg_marquardt
+from .estimator import (
+    CalibrationResult,
+    Linearisation,
+    levenberg_marquardt,
+    linearisation_of,
+    settings_of,
+)
 from .rank import RTOL
 
 __all__ = ["MIN_REDUNDANCY", "NoiseEstimate", "NoiseGroups", "OutlierTest",
@@ -186,10 +192,15 @@ class Weighted:
         Rows used.
     weights : array_like, shape (n_ids,), optional
         Row weights of a robust fit (1: full weight).
+    evaluations : Evaluations, optional
+        The problem's evaluations shared by the reweighted problems of one fit.
     """
 
-    def __init__(self, problem, groups: NoiseGroups, theta, kept, weights=None):
+    def __init__(self, problem, groups: NoiseGroups, theta, kept, weights=None,
+                 evaluations=None):
         self.problem, self.groups = problem, groups
+        self.evaluations = evaluations if evaluations is not None \
+            and evaluations.problem is problem else None
         self.theta = np.asarray(theta, float)
         self.kept = np.asarray(kept, bool)
         f = 1.0 / np.sqrt(self.theta[groups.labels])
@@ -200,7 +211,7 @@ class Weighted:
             np.min(self.factor) ** 2)
 
     def __getattr__(self, name):
-        if name in ("problem", "groups", "theta", "kept", "factor"):
+        if name in ("problem", "groups", "theta", "kept", "factor", "evaluations"):
             raise AttributeError(name)
         return getattr(self.problem, name)
 
@@ -214,7 +225,8 @@ class Weighted:
         return self.problem.retract(state, du, dl)
 
     def evaluate(self, state, jacobian=True):
-        r, Jg, Jl = self.problem.evaluate(state, jacobian)
+        source = self.problem if self.evaluations is None else self.evaluations
+        r, Jg, Jl = source.evaluate(state, jacobian)
         f = self.factor
         r = r * f
         if not jacobian:
@@ -227,6 +239,31 @@ class Weighted:
         """Residuals of this problem whitened by the assumed levels again (left-out rows
         unscaled)."""
         return np.asarray(residuals, float) / self.factor
+
+
+class Evaluations:
+    """A problem's last few evaluations, looked up by state (the same object; a problem's
+    states are never modified, a step makes a new one).
+
+    The rounds of :func:`fit` evaluate one state under several noise levels (a fit's end
+    state is the start of the next refit at new levels, and each group's capacity is a hat
+    matrix at it): the same residuals and Jacobians, which :class:`Weighted` only scales.
+    Results are only read (:class:`Weighted` scales them into new arrays).
+    """
+
+    SIZE = 4
+
+    def __init__(self, problem):
+        self.problem = problem
+        self._kept = []
+
+    def evaluate(self, state, jacobian=True):
+        for kept_state, kept_jacobian, out in self._kept:
+            if kept_state is state and kept_jacobian == jacobian:
+                return out
+        out = self.problem.evaluate(state, jacobian)
+        self._kept = [(state, jacobian, out)] + self._kept[:self.SIZE - 1]
+        return out
 
 
 def hat_factors(problem, result):
@@ -256,26 +293,36 @@ def hat_factors(problem, result):
 
 def _linearised(problem, result):
     """:func:`hat_factors` and ``log det`` of the normal matrix of the fitted directions
-    (local unknowns included): the REML likelihood's determinant term."""
-    _, Jg, Jl = problem.evaluate(result.state)
-    free = np.asarray(result.parameters.free, bool)
-    scales = np.asarray(result.scales, float)
-    Jg = np.asarray(Jg, float)[..., free] * scales[free]
-    K, m, _ = Jg.shape
+    (local unknowns included): the REML likelihood's determinant term. The estimator's own
+    factors when ``result`` is a fit of ``problem`` (the same Jacobian)."""
     rank = int(getattr(result, "adjusted", result.rank))
-    with np.errstate(divide="ignore"):
+    lin = linearisation_of(result, problem)
+    if lin is not None:
+        (K, m), qr, U, s = lin.shape, lin.qr, lin.U, lin.s
+    else:
+        _, Jg, Jl = problem.evaluate(result.state)
+        free = np.asarray(result.parameters.free, bool)
+        scales = np.asarray(result.scales, float)
+        Jg = np.asarray(Jg, float)[..., free] * scales[free]
+        K, m, _ = Jg.shape
         if Jl is None or np.asarray(Jl).shape[-1] == 0:
+            qr = None
             U, s, _ = np.linalg.svd(Jg.reshape(K * m, -1), full_matrices=False)
+        else:
+            Jl = np.asarray(Jl, float)
+            d = Jl.shape[-1]
+            Q, Rl = np.linalg.qr(Jl, mode="complete")
+            qr = (Q[..., :d], Q[..., d:], Rl[..., :d, :])
+            Jr = np.einsum("kmi,kmn->kin", qr[1], Jg)
+            U, s, _ = np.linalg.svd(Jr.reshape(K * (m - d), -1), full_matrices=False)
+    with np.errstate(divide="ignore"):
+        if qr is None:
             return None, U[:, :rank].reshape(K, m, rank), float(np.sum(np.log(s[:rank] ** 2)))
-        Jl = np.asarray(Jl, float)
-        d = Jl.shape[-1]
-        Q, Rl = np.linalg.qr(Jl, mode="complete")
-        Q1, Q2 = Q[..., :d], Q[..., d:]
-        Jr = np.einsum("kmi,kmn->kin", Q2, Jg)
-        U, s, _ = np.linalg.svd(Jr.reshape(K * (m - d), -1), full_matrices=False)
+        Q1, Q2, R1 = qr
+        d = Q1.shape[-1]
         Ur = U[:, :rank].reshape(K, m - d, rank)
         logdet = float(np.sum(np.log(s[:rank] ** 2))
-                       + np.sum(np.log(np.diagonal(Rl[..., :d, :], axis1=-2, axis2=-1) ** 2)))
+                       + np.sum(np.log(np.diagonal(R1, axis1=-2, axis2=-1) ** 2)))
     return Q1, np.einsum("kmi,kir->kmr", Q2, Ur), logdet
 
 
@@ -464,21 +511,104 @@ class OutlierTest:
                 "left_out": [self.names[i] for i in self.left_out]}
 
 
+class _RowSpaces:
+    """What Baarda's test of each row needs besides the residuals: the eigen-decomposition of
+    the matrix whose pseudo-inverse weighs the row's residuals (kept: ``I - H_SS``; left out:
+    ``I`` plus the uncertainty of its prediction). It depends on the fit only (hat factors,
+    rows kept), so one fit's tests (plain and on the robust levels) share it."""
+
+    def __init__(self, weighted: Weighted, L, G):
+        groups = weighted.groups
+        self.kept = weighted.kept
+        ids = groups.ids.reshape(-1)
+        self.n_ids = n_ids = len(groups.id_names)
+        K, m = groups.labels.shape
+        self.Gf = G.reshape(K * m, -1)
+        self.Lf = None if L is None else L.reshape(K * m, -1)
+        self.block = np.repeat(np.arange(K), m)
+        self.order = np.argsort(ids, kind="stable")
+        self.starts = np.searchsorted(ids[self.order], np.arange(n_ids + 1))
+        sizes = np.diff(self.starts)
+        self.batched = bool(n_ids and np.all(sizes == sizes[0]) and sizes[0] > 0)
+        self._rows = {}
+        if not self.batched:
+            return
+        # every row has as many residuals (the usual case): all rows at once, as row() below
+        Gf, Lf, block = self.Gf, self.Lf, self.block
+        S = self.order.reshape(n_ids, sizes[0])                      # (rows, n)
+        M = np.broadcast_to(np.eye(sizes[0]), (n_ids, sizes[0], sizes[0])).copy()
+        if Lf is not None:
+            same = block[S][:, :, None] == block[S][:, None, :]
+            M -= (Lf[S] @ np.swapaxes(Lf[S], 1, 2)) * same
+        Gs = Gf[S] / np.where(self.kept, 1.0, LEFT_OUT_WEIGHT)[:, None, None]
+        # kept: minus its part of the hat matrix; left out: its residual against the
+        # prediction (uncertainty of the fit added; its rows of the factors carry the
+        # left-out weight)
+        M += np.where(self.kept, -1.0, 1.0)[:, None, None] * (Gs @ np.swapaxes(Gs, 1, 2))
+        w, V = np.linalg.eigh(0.5 * (M + np.swapaxes(M, 1, 2)))
+        good = w > 1e-8 * np.maximum(1.0, w.max(axis=1, initial=0.0))[:, None]
+        self.S, self.w, self.V, self.good = S, w, V, good
+
+    def row(self, i):
+        """``(S, w, V, good)`` of row ``i`` alone (residual indices, eigenvalues, vectors,
+        the eigenvalues counted)."""
+        if i not in self._rows:
+            S = self.order[self.starts[i]:self.starts[i + 1]]
+            Gf, Lf, block = self.Gf, self.Lf, self.block
+            M = np.eye(len(S))
+            if Lf is not None:
+                same = block[S][:, None] == block[S][None, :]
+                M -= (Lf[S] @ Lf[S].T) * same
+            if self.kept[i]:
+                M -= Gf[S] @ Gf[S].T
+            else:   # left out: its residual against the prediction (uncertainty of the fit
+                # added; its rows of the factors carry the left-out weight)
+                Gs = Gf[S] / LEFT_OUT_WEIGHT
+                M += Gs @ Gs.T
+            w, V = np.linalg.eigh(0.5 * (M + M.T))
+            good = w > 1e-8 * max(1.0, float(w.max(initial=0.0)))
+            self._rows[i] = (S, w, V, good)
+        return self._rows[i]
+
+    def statistics(self, r):
+        """Each row's ``r_S^T M^+ r_S`` and its degrees of freedom (0, 0 where a residual is
+        not finite or the row has none)."""
+        n_ids = self.n_ids
+        if self.batched:
+            S, w, V, good = self.S, self.w, self.V, self.good
+            rs = r[S]
+            finite = np.all(np.isfinite(rs), axis=1)
+            z = np.einsum("kij,ki->kj", V, np.where(finite[:, None], rs, 0.0))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                terms = np.where(good, z**2 / np.where(good, w, 1.0), 0.0)
+            stat = np.where(finite, terms.sum(axis=1), 0.0)
+            dof = np.where(finite, good.sum(axis=1), 0).astype(int)
+            return stat, dof
+        stat = np.zeros(n_ids)
+        dof = np.zeros(n_ids, int)
+        for i in range(n_ids):
+            S = self.order[self.starts[i]:self.starts[i + 1]]
+            if len(S) == 0 or not np.all(np.isfinite(r[S])):
+                continue
+            _, w, V, good = self.row(i)
+            z = V[:, good].T @ r[S]
+            stat[i] = float(np.sum(z**2 / w[good]))
+            dof[i] = int(good.sum())
+        return stat, dof
+
+
 def _outlier_test(weighted: Weighted, result, L, G, alpha: float,
-                  robust_scale: bool = False) -> OutlierTest:
+                  robust_scale: bool = False, spaces: _RowSpaces | None = None) -> OutlierTest:
     """Baarda's test of every row (see the module docstring). ``robust_scale``: each group's
     residuals over its robust level (median of ``r_i^2 / (1 - h_ii)``) where that is below
     :data:`ROBUST_SHRINK` of the estimated one (in variance; clean data's medians scatter far
     less): gross errors in the fit inflate the estimate and can hide every one of them (the
-    first round's candidates; later rounds re-admit what their prediction explains)."""
+    first round's candidates; later rounds re-admit what their prediction explains).
+    ``spaces``: the rows' :class:`_RowSpaces` of this fit, when already made."""
     groups = weighted.groups
     ids = groups.ids.reshape(-1)
-    n_ids = len(groups.id_names)
-    K, m = groups.labels.shape
     r = np.asarray(result.residuals, float).reshape(-1) / np.where(
         weighted.kept[ids], 1.0, LEFT_OUT_WEIGHT)
-    Gf = G.reshape(K * m, -1)
-    Lf = None if L is None else L.reshape(K * m, -1)
     if robust_scale:
         h = _leverages(L, G).reshape(-1)
         lab = groups.labels.reshape(-1)
@@ -490,53 +620,9 @@ def _outlier_test(weighted: Weighted, result, L, G, alpha: float,
             if rho < ROBUST_SHRINK:
                 scale[c] = max(rho, 1e-4)
         r = r / np.sqrt(scale[lab])
-    block = np.repeat(np.arange(K), m)
-    order = np.argsort(ids, kind="stable")
-    starts = np.searchsorted(ids[order], np.arange(n_ids + 1))
-    sizes = np.diff(starts)
-    stat = np.zeros(n_ids)
-    dof = np.zeros(n_ids, int)
-    if n_ids and np.all(sizes == sizes[0]) and sizes[0] > 0:
-        # every row has as many residuals (the usual case): all rows at once, as the loop below
-        S = order.reshape(n_ids, sizes[0])                           # (rows, n)
-        M = np.broadcast_to(np.eye(sizes[0]), (n_ids, sizes[0], sizes[0])).copy()
-        if Lf is not None:
-            same = block[S][:, :, None] == block[S][:, None, :]
-            M -= (Lf[S] @ np.swapaxes(Lf[S], 1, 2)) * same
-        Gs = Gf[S] / np.where(weighted.kept, 1.0, LEFT_OUT_WEIGHT)[:, None, None]
-        # kept: minus its part of the hat matrix; left out: its residual against the
-        # prediction (uncertainty of the fit added; its rows of the factors carry the
-        # left-out weight)
-        M += np.where(weighted.kept, -1.0, 1.0)[:, None, None] * (Gs @ np.swapaxes(Gs, 1, 2))
-        w, V = np.linalg.eigh(0.5 * (M + np.swapaxes(M, 1, 2)))
-        good = w > 1e-8 * np.maximum(1.0, w.max(axis=1, initial=0.0))[:, None]
-        rs = r[S]
-        finite = np.all(np.isfinite(rs), axis=1)
-        z = np.einsum("kij,ki->kj", V, np.where(finite[:, None], rs, 0.0))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            terms = np.where(good, z**2 / np.where(good, w, 1.0), 0.0)
-        stat = np.where(finite, terms.sum(axis=1), 0.0)
-        dof = np.where(finite, good.sum(axis=1), 0).astype(int)
-        return _outlier_verdict(stat, dof, alpha, weighted, groups)
-    for i in range(n_ids):
-        S = order[starts[i]:starts[i + 1]]
-        if len(S) == 0 or not np.all(np.isfinite(r[S])):
-            continue
-        M = np.eye(len(S))
-        if Lf is not None:
-            same = block[S][:, None] == block[S][None, :]
-            M -= (Lf[S] @ Lf[S].T) * same
-        if weighted.kept[i]:
-            M -= Gf[S] @ Gf[S].T
-        else:   # left out: its residual against the prediction (uncertainty of the fit added;
-            # its rows of the factors carry the left-out weight)
-            Gs = Gf[S] / LEFT_OUT_WEIGHT
-            M += Gs @ Gs.T
-        w, V = np.linalg.eigh(0.5 * (M + M.T))
-        good = w > 1e-8 * max(1.0, float(w.max(initial=0.0)))
-        z = V[:, good].T @ r[S]
-        stat[i] = float(np.sum(z**2 / w[good]))
-        dof[i] = int(good.sum())
+    if spaces is None:
+        spaces = _RowSpaces(weighted, L, G)
+    stat, dof = spaces.statistics(r)
     return _outlier_verdict(stat, dof, alpha, weighted, groups)
 
 
@@ -558,7 +644,7 @@ MAX_NOISE_RATIO = 3.0
 
 
 def _robust_candidates(problem, groups: NoiseGroups, theta, state, rtol, options,
-                       alpha: float, out=None) -> np.ndarray:
+                       alpha: float, out=None, evaluations=None) -> np.ndarray:
     """Rows a robust fit finds far beyond the others: iteratively reweighted least squares
     with Tukey's biweight on each row's chi-square per degree of freedom, over a median scale
     (a least-squares fit bends to gross errors, most with few rows per unknown; the robust one
@@ -573,7 +659,8 @@ def _robust_candidates(problem, groups: NoiseGroups, theta, state, rtol, options
     w = np.ones(n) if out is None else np.where(out, 0.0, 1.0)
     u = np.zeros(n)
     for _ in range(IRLS_ITER):
-        weighted = Weighted(problem, groups, theta, np.ones(n, bool), np.maximum(w, 1e-12))
+        weighted = Weighted(problem, groups, theta, np.ones(n, bool), np.maximum(w, 1e-12),
+                            evaluations)
         result = _refit(weighted, state, rtol, options)
         state = result.state
         r, _, _ = problem.evaluate(state, jacobian=False)
@@ -607,7 +694,8 @@ def _hold_mask(groups: NoiseGroups, noise) -> np.ndarray:
 
 
 def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPHA,
-        rtol: float = RTOL, state=None, left_out=None, **options) -> CalibrationResult:
+        rtol: float = RTOL, state=None, left_out=None, fitted=None,
+        **options) -> CalibrationResult:
     """Fit a calibration problem with its noise levels estimated from the residuals.
 
     Parameters
@@ -635,6 +723,11 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         the first candidates of the outlier rounds, which bring back those the fit without
         them predicts. Without ``robust`` the rows the rounds keep out stay out; the other
         rows named are kept in the fit, as always.
+    fitted : CalibrationResult, optional
+        The :func:`levenberg_marquardt` fit of ``problem`` (with ``rtol`` and ``options``)
+        that ended at ``state``, when it is where ``state`` comes from: a refit of the same
+        problem from there (every level at its assumed value, every row in) is that fit when
+        it converged (its Gauss-Newton step negligible), and is not made again.
     **options
         Passed to :func:`levenberg_marquardt`; ``absolute_sigma=True`` (the noise is known
         exactly) holds every level and does not scale the covariance.
@@ -668,6 +761,7 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
            else np.asarray(left_out, bool).reshape(n_ids))
 
     robust_first = None         # the first round's test on the robust levels, when made
+    evaluations = Evaluations(problem)      # shared by the reweighted problems of this fit
 
     def rounds(n_rounds, state, candidates):
         nonlocal robust_first
@@ -681,14 +775,16 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         for round_ in range(n_rounds):
             # every round from the start: a fit bent by gross errors can hold the next one,
             # without them, in its local minimum
-            state = _estimate_levels(problem, groups, levels, kept, first, rtol, options)
-            weighted = Weighted(problem, groups, levels.theta, kept)
+            state = _estimate_levels(problem, groups, levels, kept, first, rtol, options,
+                                     evaluations, fitted)
+            weighted = Weighted(problem, groups, levels.theta, kept, evaluations=evaluations)
             estimated = bool(levels.estimated.any() or levels.bounded.any())
             result = _refit(weighted, state, rtol, options,
-                            absolute_sigma=bool(estimated or absolute))
+                            absolute_sigma=bool(estimated or absolute), fitted=fitted)
             state = result.state
             L, G_ = hat_factors(weighted, result)
-            test = _outlier_test(weighted, result, L, G_, alpha)
+            spaces = _RowSpaces(weighted, L, G_)       # both tests of this fit
+            test = _outlier_test(weighted, result, L, G_, alpha, spaces=spaces)
             # the rows named now are out, the others in (a row left out in an earlier round
             # comes back when its prediction explains it); a set seen before ends the rounds.
             # The first round's candidates are judged on the robust levels (masking)
@@ -696,7 +792,7 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
                 named = test.flagged
             else:
                 robust_first = _outlier_test(weighted, result, L, G_, alpha,
-                                             robust_scale=True)
+                                             robust_scale=True, spaces=spaces)
                 named = robust_first.flagged
             new_kept = np.ones(len(kept), bool)
             new_kept[named] = False
@@ -725,7 +821,8 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         # many unknowns): the candidates of a robust fit start the rounds, which re-admit
         # what the fit without them predicts
         candidates = _robust_candidates(problem, groups, levels.theta, start, rtol,
-                                        options, alpha, out if out.any() else None)
+                                        options, alpha, out if out.any() else None,
+                                        evaluations)
         again = rounds(ROBUST_ROUNDS, start, candidates)
         if robust and np.any(~again[4] & ~out):
             # robust=True leaves out a row the plain fit keeps
@@ -766,8 +863,10 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         # one group: the hat matrix does not depend on its level, and these are the rows of
         # the last Helmert step: its matrix and redundancy
         S, red = levels.S, levels.red
-    else:
+    elif levels.estimated.any():
         S, red = helmert_matrix(L, G_, groups.labels, ok, G)
+    else:   # no level estimated: its matrix would give no standard deviation
+        S, red = None, redundancies(L, G_, groups.labels, ok, G)
     sigma = groups.assumed * np.sqrt(levels.theta)
     std = np.full(G, np.nan)
     est = np.flatnonzero(levels.estimated)
@@ -785,6 +884,7 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         robust=bool(robust))
     # downstream, residuals are "measured - predicted over the assumed noise" for every problem
     result.residuals = assumed_r
+    weighted.evaluations = None     # the problem handed out evaluates afresh
     return result
 
 
@@ -812,15 +912,11 @@ def helmert_matrix(L, G, labels, use, n_groups: int):
     S : ndarray, shape (n_groups, n_groups)
     redundancy : ndarray, shape (n_groups,)
     """
-    K, m = labels.shape
-    E = np.zeros((K, m, n_groups))
-    E[np.arange(K)[:, None], np.arange(m)[None, :], labels] = 1.0
-    E *= np.asarray(use, bool)[..., None]
-    Ef = E.reshape(K * m, n_groups)
-    Gf = G.reshape(K * m, -1)
-    h = np.sum(Gf**2, axis=1)
+    E, Ef, Gf, h, red = _redundancy_parts(L, G, labels, use, n_groups)
     # between any two residuals: (G_i . G_j)^2 summed over groups = tr(T_c T_d)
-    T = np.einsum("ic,ir,is->crs", Ef, Gf, Gf)
+    # (T_c = G^T diag(E_c) G by matrix products: the three-operand einsum loops in C over
+    # every residual and pair of directions, ~10x slower)
+    T = np.stack([(Gf * Ef[:, c, None]).T @ Gf for c in range(n_groups)])
     S = np.einsum("crs,dsr->cd", T, T)
     if L is not None:
         # within a measurement the local unknowns add A = L L^T: (A + B)^2 - B^2 = A^2 + 2AB
@@ -828,11 +924,41 @@ def helmert_matrix(L, G, labels, use, n_groups: int):
         B = np.einsum("kir,kjr->kij", G, G)
         X = A * A + 2.0 * A * B
         S = S + np.einsum("kic,kij,kjd->cd", E, X, E)
-        h = h + np.sum(L.reshape(K * m, -1) ** 2, axis=1)
-    h = np.clip(h, 0.0, 1.0)
-    red = Ef.T @ (1.0 - h)
     S = S + np.diag(Ef.T @ (1.0 - 2.0 * h))
     return S, red
+
+
+def redundancies(L, G, labels, use, n_groups: int) -> np.ndarray:
+    """The groups' redundancies ``sum_{i in c} M_ii`` alone: those of
+    :func:`helmert_matrix`, without its matrix.
+
+    Parameters
+    ----------
+    L, G, labels, use, n_groups
+        As :func:`helmert_matrix`.
+
+    Returns
+    -------
+    ndarray, shape (n_groups,)
+        The redundancies.
+    """
+    return _redundancy_parts(L, G, labels, use, n_groups)[-1]
+
+
+def _redundancy_parts(L, G, labels, use, n_groups: int):
+    """Group indicators ``E`` (K, m, G) and flat ``Ef``, flat global factors ``Gf``, the
+    leverages ``h`` and the groups' redundancies."""
+    K, m = labels.shape
+    E = np.zeros((K, m, n_groups))
+    E[np.arange(K)[:, None], np.arange(m)[None, :], labels] = 1.0
+    E *= np.asarray(use, bool)[..., None]
+    Ef = E.reshape(K * m, n_groups)
+    Gf = G.reshape(K * m, -1)
+    h = np.sum(Gf**2, axis=1)
+    if L is not None:
+        h = h + np.sum(L.reshape(K * m, -1) ** 2, axis=1)
+    h = np.clip(h, 0.0, 1.0)
+    return E, Ef, Gf, h, Ef.T @ (1.0 - h)
 
 
 #: a level is at least this share of the assumed one (std): exact (simulated) data would drive
@@ -890,10 +1016,21 @@ class _Levels:
         return ~(self.held | self.guessed | self.bounded)
 
 
-def _refit(weighted: Weighted, state, rtol, options, absolute_sigma: bool = False):
+def _refit(weighted: Weighted, state, rtol, options, absolute_sigma: bool = False,
+           fitted=None):
     """The estimator on the reweighted problem from ``state``. A state that is already the
     optimum up to rounding (exact data, a converged fit reweighted) may admit no step that
-    lowers the cost on the first try: that is convergence, not a failure."""
+    lowers the cost on the first try: that is convergence, not a failure.
+
+    ``fitted``: a fit that ended at ``state`` (see :func:`fit`). When ``weighted`` is its
+    problem unchanged (every level at its assumed value, every row in: each factor exactly
+    1) and the settings are its own, the refit would start where that fit found its
+    Gauss-Newton step negligible and take only that step: ``fitted`` is the result (a copy).
+    """
+    if fitted is not None:
+        again = _same_fit(weighted, state, rtol, options, absolute_sigma, fitted)
+        if again is not None:
+            return again
     first = state is None
     result = levenberg_marquardt(weighted, rtol=rtol, state=state,
                                  absolute_sigma=absolute_sigma, **options)
@@ -903,8 +1040,26 @@ def _refit(weighted: Weighted, state, rtol, options, absolute_sigma: bool = Fals
     return result
 
 
+def _same_fit(weighted: Weighted, state, rtol, options, absolute_sigma, fitted):
+    """A copy of ``fitted`` as the fit of ``weighted`` from ``state`` (:func:`_refit`), or
+    None when that is not the same fit."""
+    lin = getattr(fitted, "_linear", None)
+    if (lin is None or state is None or state is not fitted.state or lin.state is not state
+            or fitted.status != 1 or lin.problem is not weighted.problem
+            or not np.all(weighted.factor == 1.0)
+            or lin.settings != settings_of(rtol, absolute_sigma, **options)):
+        return None
+    again = dataclasses.replace(
+        fitted, x=fitted.x.copy(), residuals=np.array(fitted.residuals, float),
+        covariance=fitted.covariance.copy(), std=fitted.std.copy(), extras={})
+    # its factors are those of the reweighted problem (each factor 1: the same Jacobian)
+    again._linear = Linearisation(weighted, state, lin.shape, lin.qr, lin.U, lin.s,
+                                  lin.settings)
+    return again
+
+
 def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state, rtol,
-                     options):
+                     options, evaluations=None, fitted=None):
     """Helmert's iteration to convergence (see the module docstring), updating ``levels``
     in place. First, each group's *capacity* (its redundancy were its level far above the
     others') decides whether the data can check it at all: below :data:`MIN_REDUNDANCY` it
@@ -921,8 +1076,8 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
     for it in range(VCE_MAX_ITER):
         if not levels.estimated.any():
             return state
-        weighted = Weighted(problem, groups, levels.theta, kept)
-        result = _refit(weighted, state, rtol, options)
+        weighted = Weighted(problem, groups, levels.theta, kept, evaluations=evaluations)
+        result = _refit(weighted, state, rtol, options, fitted=fitted)
         levels.iterations += 1
         L, Gf, logdet = _linearised(weighted, result)
         likelihood = _reml(weighted, result, logdet)
@@ -947,7 +1102,7 @@ def _estimate_levels(problem, groups: NoiseGroups, levels: _Levels, kept, state,
                 else:
                     theta = levels.theta.copy()
                     theta[c] *= 1e6
-                    alone = Weighted(problem, groups, theta, kept)
+                    alone = Weighted(problem, groups, theta, kept, evaluations=evaluations)
                     h = _leverages(*hat_factors(alone, result)).reshape(-1)
                 use = kept[groups.ids.reshape(-1)] & (lab == c)
                 levels.capacity[c] = float(np.sum(1.0 - h[use]))

@@ -1604,9 +1604,11 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
             P[left_out], R[left_out] = start.left_out_poses
             state = SphereState(state.u.copy(), P, R)
         # the encoder noise from the residuals, rows the noise cannot explain named (or left
-        # out with robust): from the solution the start strategy found
+        # out with robust): from the solution the start strategy found (its fit is the plain
+        # refit's, when that fit ended there: it is not made again)
         result = fit(problem, estimate_noise, robust=robust, rtol=rtol, state=state,
-                     left_out=left_out, **lm_options)
+                     left_out=left_out, fitted=result if left_out is None else None,
+                     **lm_options)
         if left_out is not None:
             start.readmit(~result.extras["outliers"].kept, data.rows)
     else:
