@@ -77,10 +77,10 @@ WHITENED_METHODS = ("ml", "joint")
 #: why a method's residuals are not tested against the noise (``result.extras["method"]`` or
 #: the report's method)
 UNTESTED_METHODS = {
-    "ik": "the ik method takes the five active readings as exact: its residuals (the passive "
-          "readings) exceed the noise by design",
-    "fk": "the fk method takes every reading as exact: its residual (the spread of the "
-          "computed link length) is not the readings' noise",
+    "ik": "the ik method takes the five active readings as exact (its residuals, the passive "
+          "readings, exceed the noise by design)",
+    "fk": "the fk method takes every reading as exact (its residual, the spread of the "
+          "computed link length, is not the readings' noise)",
 }
 
 
@@ -295,7 +295,7 @@ class ResidualVerdict:
     test : ResidualTest or None
         The chi-square test (None when not tested).
     why : str
-        Why the residuals were not tested (empty otherwise).
+        Why the residuals were not tested, a clause that follows "as" (empty otherwise).
     """
 
     status: str
@@ -323,7 +323,7 @@ class ResidualVerdict:
         """
         head = VERDICT_WORDS[self.status]
         if not self.tested:
-            return f"{head}: the residuals are not compared with the noise: {self.why}"
+            return f"{head}: the residuals are not compared with the noise, as {self.why}"
         t = self.test
         numbers = (f"the residuals are {t.noise_ratio:.3g} times the assumed noise (chi2/dof "
                    f"= {t.ratio:.3g} over {t.dof} degrees of freedom, at most {t.upper:.3g} "
@@ -331,8 +331,8 @@ class ResidualVerdict:
         if self.status == PASSED:
             return f"{head}: {numbers}: they agree with it"
         if self.status == FAILED_SMALL:
-            return (f"{head}: {numbers}: the noise is a little larger than assumed (less than "
-                    f"{MAX_NOISE_FACTOR:g} times it)")
+            return (f"{head}: {numbers}: the noise is a little larger than assumed (or the "
+                    "model lacks a small effect)")
         return (f"{head}: {numbers}: the calibrated model does not explain the data at that "
                 "noise")
 
@@ -409,8 +409,9 @@ def residual_verdict_of(test: ResidualTest) -> ResidualVerdict:
         (``dof <= 0``) or no finite statistic.
     """
     if test.dof <= 0 or not math.isfinite(test.ratio):
-        return ResidualVerdict(NOT_TESTED, None, f"{test.dof} degrees of freedom (no more "
-                               "residuals than unknowns): the fit can match any data")
+        return ResidualVerdict(NOT_TESTED, None, f"there are {max(test.dof, 0)} degrees of "
+                               "freedom (no more residuals than unknowns: the fit can match "
+                               "any data)")
     if test.passed:
         return ResidualVerdict(PASSED, test)
     return ResidualVerdict(FAILED_ALARMING if test.alarming else FAILED_SMALL, test)
@@ -449,8 +450,8 @@ def residual_verdict(result, method: str | None = None, alpha: float = ALPHA
         if method in WHITENED_METHODS or extras.get("noise") is not None:
             test = residual_test(result, alpha)
         else:
-            why = UNTESTED_METHODS.get(method, f"the {method or 'fit'}'s residuals are not "
-                                               "whitened by the whole noise model")
+            why = UNTESTED_METHODS.get(method, f"the {method or 'fit'} method's residuals are "
+                                               "not whitened by the whole noise model")
             return ResidualVerdict(NOT_TESTED, None, why)
     return residual_verdict_of(test)
 

@@ -288,7 +288,7 @@ def verdict_html(report) -> str:
                  f"{format_um(report['noise_sigma_um'] * verdict.noise_ratio, 3)} (assumed "
                  f"{format_um(report['noise_sigma_um'], 3)}).")
     return (f"<table><tr><th>quantity</th><th>value</th><th>unit</th></tr>"
-            f"<tr><th>chi-square (sum of squared residuals / assumed noise)</th>"
+            f"<tr><th>chi-square (sum of squared residual / assumed noise std)</th>"
             f"<td class=num>{t.chi2:.5g}</td><td class=unit>1</td></tr>"
             f"<tr><th>degrees of freedom</th><td class=num>{t.dof}</td>"
             f"<td class=unit>count</td></tr>"
@@ -296,7 +296,7 @@ def verdict_html(report) -> str:
             f"<td class=unit>1</td></tr>"
             f"<tr><th>largest chi2 / dof expected (99.9 %)</th><td class=num>{t.upper:.4g}"
             f"</td><td class=unit>1</td></tr>"
-            f"<tr><th>noise ratio: residuals / assumed noise, sqrt(chi2 / dof)</th>"
+            f"<tr><th>noise ratio: residuals over the assumed noise, sqrt(chi2 / dof)</th>"
             f"<td class=num>{t.noise_ratio:.4g}</td><td class=unit>1</td></tr></table>"
             f"<p class=verdict>Residual test <span class={ok}>{_e(words)}</span>: "
             f"{_e(rest)}{_e(note)}.{_e(sigma)}</p>")
