@@ -144,6 +144,8 @@ def run_demo(outdir: Path) -> None:
         result = module.run_demo(outdir, progress=new)
     commit_outputs()
     out = console()
+    for i, line in enumerate(getattr(result, "settings", []) or []):
+        out.print(f"{'settings: ' if i == 0 else '          '}{line}", markup=False)
     table = _table("quantity", "before calibration", "after calibration",
                    title="pkmcal demo: calibration (embedded Hexa Slide and Delta)")
     for row in result.rows:
