@@ -98,3 +98,22 @@ def assert_input_error(proc, *words):
     assert "Traceback" not in err and len(err.splitlines()) == 1, err
     for w in words:
         assert w in err, err
+
+
+def console_rows(text: str) -> dict[str, str]:
+    """The rows ``label │ text`` of a command's summary table, continuation lines joined and
+    spaces normalised (a label printed twice: its texts joined by ``" | "``)."""
+    rows: list[list[str]] = []
+    for line in text.splitlines():
+        if "│" not in line:
+            continue
+        head, _, tail = line.partition("│")
+        if head.strip() or not rows:
+            rows.append([head.strip(), tail.strip()])
+        else:
+            rows[-1][1] += " " + tail.strip()
+    out: dict[str, str] = {}
+    for label, body in rows:
+        body = " ".join(body.split())
+        out[label] = f"{out[label]} | {body}" if label in out else body
+    return out

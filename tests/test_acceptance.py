@@ -11,9 +11,17 @@ import pytest
 
 from pkmcal.calibration import calibrate_constraint_link
 from pkmcal.estimation.acceptance import (
+    FAILED_ALARMING,
+    FAILED_SMALL,
     MAX_LENGTH_CHANGE,
+    NOT_TESTED,
+    PASSED,
+    ResidualVerdict,
+    chi_square_test,
+    noise_ratio,
     parameter_changes,
     residual_test,
+    residual_verdict,
 )
 from pkmcal.instruments.constraint_link import simulate_constraint_link
 from pkmcal.machines import default_hexaslide
@@ -42,11 +50,56 @@ def test_residuals_far_above_the_assumed_noise_fail_and_alarm():
     assert not r.passed and r.alarming
     assert 15 < r.noise_factor < 25
     msg = r.message()
-    assert "x the assumed noise" in msg and "--noise" in msg and "columns" in msg
+    assert f"{r.noise_ratio:.3g} times the assumed noise" in msg
+    assert "--noise" in msg and "columns" in msg
     mild = residual_test(_calibrate(2e-6, 1e-6, 0))      # the assumed noise a little off
     assert not mild.passed and not mild.alarming
     d = r.as_dict()
     assert d["passed"] is False and d["alarming"] is True and d["dof"] == r.dof
+
+
+def test_one_verdict_per_calibration():
+    """passed / failed by a little / failed, each in its own words; a failed test is never
+    called consistent, and the number is always sqrt(chi2/dof)."""
+    verdicts = {}
+    for key, noise_true in (("right", 1e-6), ("mild", 2e-6), ("far", 20e-6)):
+        result = _calibrate(noise_true, 1e-6, 0)
+        v = residual_verdict(result)
+        test = residual_test(result)
+        assert v.noise_ratio == pytest.approx(math.sqrt(test.chi2 / test.dof), rel=1e-12)
+        assert v.noise_ratio == pytest.approx(noise_ratio(test.chi2, test.dof), rel=1e-12)
+        verdicts[key] = v
+    assert [v.status for v in verdicts.values()] == [PASSED, FAILED_SMALL, FAILED_ALARMING]
+    sentences = {k: v.sentence() for k, v in verdicts.items()}
+    assert sentences["right"].startswith("passed: ") and "agree" in sentences["right"]
+    assert sentences["mild"].startswith("failed, by a little: ")
+    assert "a little larger than assumed" in sentences["mild"]
+    assert sentences["far"].startswith("failed: ")
+    for key in ("mild", "far"):
+        assert "agree" not in sentences[key] and "consistent" not in sentences[key]
+    for v in verdicts.values():
+        assert f"{v.noise_ratio:.3g} times the assumed noise" in v.sentence()
+        d = v.as_dict()
+        assert d["verdict"] == v.status and d["sentence"] == v.sentence()
+        assert d["noise_ratio"] == pytest.approx(v.noise_ratio, rel=1e-12)
+        back = ResidualVerdict.from_dict(d)         # what the HTML report reads back
+        assert back.status == v.status and back.sentence() == v.sentence()
+
+
+def test_a_method_that_takes_readings_as_exact_is_not_tested_unless_it_states_a_test():
+    result = _calibrate(1e-6, 1e-6, 0)
+    result.extras.pop("noise", None)
+    v = residual_verdict(result, "ik")
+    assert v.status == NOT_TESTED and v.noise_ratio is None
+    assert v.sentence().startswith("not tested: ") and "exact" in v.sentence()
+    assert ResidualVerdict.from_dict(v.as_dict()).sentence() == v.sentence()
+    # a test stated in the whitened model's terms is used as any other
+    result.extras["residual_test"] = chi_square_test(900.0, 100)
+    v = residual_verdict(result, "ik")
+    assert v.status == FAILED_ALARMING and v.noise_ratio == pytest.approx(3.0, rel=1e-12)
+    # an older report's section (no verdict key) gives the same verdict
+    old = {k: val for k, val in v.as_dict().items() if k not in ("verdict", "sentence")}
+    assert ResidualVerdict.from_dict(old).sentence() == v.sentence()
 
 
 def test_without_redundancy_there_is_nothing_to_test():
@@ -55,6 +108,8 @@ def test_without_redundancy_there_is_nothing_to_test():
 
     r = residual_test(Result())
     assert r.passed and r.message() == "" and r.as_dict()["chi2_per_dof"] is None
+    v = residual_verdict(Result(), "ml")
+    assert v.status == NOT_TESTED and "0 degrees of freedom" in v.sentence()
 
 
 @pytest.mark.parametrize("name,change,flagged", [

@@ -29,6 +29,7 @@ from pkmcal.calibration.extensions import (
 )
 from pkmcal.calibration.run import calibrate
 from pkmcal.errors import InputError
+from pkmcal.estimation.acceptance import FAILED_ALARMING, PASSED, residual_verdict
 from pkmcal.instruments.pose import FullPoseNoise, simulate_full_pose
 from pkmcal.io import load_machine, machine_to_text, parse_machine
 from pkmcal.io.csv_io import write_full_pose
@@ -211,13 +212,22 @@ def test_adequacy_finds_nothing_when_the_model_is_right(design):
     result = calibrate_full_pose(design, data, noise=NOISE, estimate_noise=False)
     a = model_adequacy(result)
     assert not a["far_above_noise"] and a["significant_trends"] == 0
-    assert a["verdict"].startswith("the residuals are consistent with the assumed noise")
+    verdict = residual_verdict(result)
+    assert verdict.status == PASSED and a["residual_verdict"] == PASSED
+    assert a["verdict"].startswith(f"residual test {verdict.sentence()}")
+    assert a["noise_ratio"] == verdict.noise_ratio
 
 
 def test_adequacy_of_a_method_that_takes_the_poses_as_exact(design):
+    """The ik method's residuals are compared with the noise through their whole covariance
+    (readings + measured poses, its residual test): the adequacy states that verdict."""
     _, data = simulated(design, CURVED, seed=4)
-    a = model_adequacy(calibrate_full_pose(design, data, method="ik"))
-    assert a["noise_ratio"] is None and "not compared with the noise" in a["verdict"]
+    result = calibrate_full_pose(design, data, method="ik")
+    a = model_adequacy(result)
+    verdict = residual_verdict(result)
+    assert verdict.status == FAILED_ALARMING and a["far_above_noise"]
+    assert a["noise_ratio"] == verdict.noise_ratio
+    assert a["verdict"].startswith(f"residual test {verdict.sentence()}")
     assert a["trends"][0]["shape"] == "quadratic"
 
 

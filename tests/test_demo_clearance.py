@@ -138,3 +138,69 @@ def test_physical_signs(demo):
         assert f"link {i} force (tension +)" in notes
     assert notes.count("compression all along") >= 3
     assert "2 c_b = 20 um" in notes
+
+
+# -- what the demo states (issue 27 item 4) ----------------------------------------------------
+
+
+def test_the_demo_states_its_seeds_and_settings(demo):
+    from pkmcal.demo import (
+        DELTA_SEED,
+        HEXASLIDE_NOISE,
+        HEXASLIDE_POSES,
+        HEXASLIDE_SEED,
+        hexaslide_settings,
+    )
+
+    outdir, result, _ = demo
+    hexa, sweeps, delta, cubic = result.settings
+    assert hexa == hexaslide_settings(HEXASLIDE_SEED) and f"seed {HEXASLIDE_SEED};" in hexa
+    assert f"{HEXASLIDE_POSES} constraint-link poses" in hexa and "Table 1 deviations" in hexa
+    assert f"{HEXASLIDE_NOISE * 1e6:g} um encoder noise" in hexa
+    assert f"seed {HEXASLIDE_SEED}" in sweeps and "1 simulated calibration(s)" in sweeps
+    assert f"Delta: seed {DELTA_SEED};" in delta and "+/-1 mm, +/-0.5 deg" in delta
+    assert f"{CLEARANCE_QUICK_SAMPLES} samples" in cubic
+    summary = json.loads((outdir / "summary.json").read_text())
+    assert summary["settings"] == result.settings and summary["seed"] == HEXASLIDE_SEED
+    # the 2 um calibration's residual verdict, in the library's words
+    assert any(n.startswith("Hexa Slide, 2 um noise: residual test passed: ")
+               for n in result.notes)
+
+
+def test_the_demo_prints_the_figures_the_docs_quote(demo):
+    """docs/researcher.md quotes the demo's Hexa Slide figures at 2 um (its seed 0): the
+    rows the demo prints are those figures (tests/test_readme_figures.py checks that they are
+    seed 0 of the page's table)."""
+    import re
+    from pathlib import Path
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "researcher.md").read_text()
+    text = " ".join(page.split())
+    m = re.search(r"`pkmcal demo` runs seed (\d+) of this table .*? after calibration at "
+                  r"(\d+) um it prints a mean position error of ([\d.]+) um and a mean "
+                  r"orientation error of ([\d.]+) urad", text)
+    assert m, "docs/researcher.md: the sentence on pkmcal demo's figures is missing"
+    _, result, _ = demo
+    rows = {q: after for q, _, after in result.rows}
+    assert rows[f"mean position error ({m.group(2)} um noise)"] == f"{m.group(3)} um"
+    assert rows[f"mean orientation error ({m.group(2)} um noise)"] == f"{m.group(4)} urad"
+
+
+def test_pkmcal_demo_prints_the_settings_before_its_table(demo, tmp_path, monkeypatch):
+    """The command prints every setting line first (the run itself replaced by the quick
+    demo's result: the full demo's Monte Carlo takes minutes)."""
+    from clitools import SUBPROCESS, run
+
+    if SUBPROCESS:
+        pytest.skip("the demo's run is replaced in this process only")
+    import pkmcal.demo
+
+    _, result, _ = demo
+    monkeypatch.setattr(pkmcal.demo, "run_demo", lambda outdir, progress=None: result)
+    proc = run("demo", "-o", "out", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    printed = " ".join(proc.stdout.split())
+    assert printed.startswith("settings: Hexa Slide: seed 0;"), proc.stdout[:300]
+    for line in result.settings:
+        assert " ".join(line.split()) in printed
+    assert printed.index(" ".join(result.settings[-1].split())) < printed.index("pkmcal demo:")

@@ -174,6 +174,33 @@ def test_hexaslide_table(hexaslide):
         assert_printed(got, printed)
 
 
+def test_the_demo_prints_seed_0_of_the_table(hexaslide):
+    """The sentence under the table: ``pkmcal demo``'s Hexa Slide case is seed 0 of the table
+    (the same draws, calibration and workspace: its figures are the fixture's seed 0), it
+    states its seed and settings, and prints the figures quoted, as it rounds them."""
+    from pkmcal.demo import HEXASLIDE_NOISE, HEXASLIDE_POSES, hexaslide_case, hexaslide_settings
+
+    seed, noise, pos, ori = figure(
+        works(), r"`pkmcal demo` runs seed (\d+) of this table and prints its seed and "
+                 r"settings first \(noise, poses, deviations, the workspace of the accuracy "
+                 rf"figures\); after calibration at (\d+) um it prints a mean position error "
+                 rf"of {NUM} um and a mean orientation error of {NUM} urad", 4)
+    assert int(seed) == 0 and float(noise) * 1e-6 == pytest.approx(HEXASLIDE_NOISE)
+    case = hexaslide_case(int(seed))
+    acc = case["acc"]
+    # as the demo prints them (2 and 1 decimals), and the table's seed 0
+    assert (f"{acc.position_mean * 1e6:.2f}", f"{acc.orientation_mean * 1e6:.1f}") == (pos, ori)
+    assert acc.position_mean == pytest.approx(hexaslide["2um"][0][0] * HEXASLIDE_NOISE,
+                                              rel=RTOL)
+    assert acc.orientation_mean == pytest.approx(hexaslide["2um"][1][0], rel=RTOL)
+    pos_all = hexaslide["2um"][0]
+    assert "largest position error of the ten seeds" in works()
+    assert np.argmax(pos_all) == int(seed)
+    settings = hexaslide_settings(int(seed))
+    assert f"seed {seed};" in settings and f"{HEXASLIDE_POSES} constraint-link poses" in settings
+    assert f"{HEXASLIDE_NOISE * 1e6:g} um encoder noise" in settings
+
+
 def test_fig5_linear_in_the_noise_and_the_pose_spread(hexaslide):
     """Fig. 5 bullet: the same noise draw scaled by 0.1 and 10 gives the same error / noise
     ratio (within the stated %); its range and median over seeds 0-9. The spread bullet: the

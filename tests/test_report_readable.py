@@ -1,6 +1,7 @@
 """Reports a person can read (issue 12, item 6): no raw dictionaries or '(N values)', a unit
 for every number, standardised (leverage-corrected) residuals with their chi-square, and
-parameters that are not identifiable one by one never flagged significant."""
+parameters that are not identifiable one by one never flagged significant; the residual verdict
+is the one the JSON report states."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ import numpy as np
 import pytest
 
 from clitools import run
-from pkmcal.report.html import build_html, chi_square_summary, gauge_parameters
+from pkmcal.estimation.acceptance import FAILED_SMALL, PASSED, report_verdict
+from pkmcal.report.html import build_html, gauge_parameters
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 #: (machine, scenario, calibrate options): simulated with the noise calibrate assumes
@@ -74,6 +76,13 @@ def _tables(page: str):
     return parser.tables
 
 
+def _verdict_paragraph(page: str) -> str:
+    """The text of the page's residual verdict (its one ``<p class=verdict>``)."""
+    found = re.findall(r"<p class=verdict>(.*?)</p>", page, flags=re.S)
+    assert len(found) == 1, found
+    return html.unescape(re.sub(r"<[^>]+>", "", found[0]))
+
+
 def _numeric(text: str) -> bool:
     return bool(re.search(r"\d", text)) and not re.search(r"[A-Za-z_/]{4,}", text)
 
@@ -119,11 +128,10 @@ def test_standardised_residuals_of_a_correct_fit(reports, kind):
     assert np.sum((r[ok] / st[ok]) ** 2) == pytest.approx(dof, rel=1e-6)
     # N(0, 1) for the right noise, while the raw whitened residuals are too narrow
     assert 0.8 < np.mean(st[np.isfinite(st)] ** 2) < 1.25
-    chi = chi_square_summary(report["normalised_residuals"], dof)
-    assert chi["within99"], chi
-    assert chi["interval99"][0] < chi["interval95"][0] < 1 < chi["interval95"][1]
-    assert "within its 99 % interval" in page
-    assert f"{chi['ratio']:.4g}" in page and "leverage-corrected" in page
+    verdict = report_verdict(report)
+    assert verdict.status == PASSED, verdict.sentence()
+    assert _verdict_paragraph(page).startswith(f"Residual test {verdict.sentence()}")
+    assert f"{verdict.test.ratio:.4g}" in page and "leverage-corrected" in page
 
 
 def test_a_wrong_noise_is_named(reports, tmp_path):
@@ -135,9 +143,11 @@ def test_a_wrong_noise_is_named(reports, tmp_path):
                cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     report = json.loads((tmp_path / "cal.json").read_text())
-    chi = chi_square_summary(report["normalised_residuals"], report["residuals"]["dof"])
-    assert not chi["within99"] and 3 < chi["ratio"] < 5.5
-    assert "above its 99 % interval" in build_html(report)
+    verdict = report_verdict(report)
+    assert verdict.status == FAILED_SMALL and 3 < verdict.test.ratio < 5.5
+    page = build_html(report)
+    assert _verdict_paragraph(page).startswith(f"Residual test {verdict.sentence()}")
+    assert "a little larger than assumed" in page
 
 
 def test_older_reports_get_the_global_dof_correction(reports):

@@ -1,10 +1,14 @@
 """The main job on the embedded defaults, no input needed (``pkmcal demo``).
 
-Seed 000 section 4 on our default Hexa Slide: the true machine is nominal + Table 1 deviations;
-constraint-link data are simulated; the maximum-likelihood calibration identifies the geometry;
-accuracy over the 0.1 m workspace cube is compared before and after; then the paper's Fig. 5
-(accuracy vs encoder noise) and Fig. 6 (accuracy vs error in the assumed link length) are
-reproduced as plots.
+Every case runs with fixed seeds and states them with its settings (:attr:`DemoResult.settings`,
+printed first by ``pkmcal demo`` and written to ``summary.json``).
+
+Seed 000 section 4 on our default Hexa Slide (:func:`hexaslide_case`, seed
+:data:`HEXASLIDE_SEED`: seed 0 of the table on the researcher's page): the true machine is
+nominal + Table 1 deviations; constraint-link data are simulated; the maximum-likelihood
+calibration identifies the geometry; accuracy over the 0.1 m workspace cube is compared before
+and after; then the paper's Fig. 5 (accuracy vs encoder noise) and Fig. 6 (accuracy vs error in
+the assumed link length) are reproduced as plots.
 
 Seed 001 on our default Delta (:func:`delta_demo`): random errors of about 1 mm / 0.5 deg
 (fixed seed), a laser tracker 2.5 m away (:func:`default_tracker_pose`) measures the 3x3x3
@@ -30,12 +34,14 @@ import numpy as np
 
 @dataclass
 class DemoResult:
-    """What the demo found: table rows ``(quantity, before, after)``, files, notes."""
+    """What the demo found: its settings (seeds, noise, poses, deviations), table rows
+    ``(quantity, before, after)``, files, notes."""
 
     rows: list[tuple[str, str, str]] = field(default_factory=list)
     files: list[Path] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     figures: dict = field(default_factory=dict)
+    settings: list[str] = field(default_factory=list)
 
 
 NOISE_LEVELS = (0.1e-6, 0.3e-6, 1e-6, 3e-6, 10e-6)
@@ -43,42 +49,105 @@ LC_ERRORS = (1e-6, 3e-6, 10e-6, 30e-6, 100e-6)
 #: simulated calibrations per value of Figs. 5 and 6
 SWEEP_RUNS = 10
 
-def run_demo(outdir: Path, quick: bool = False, rng=0,
-             progress: Callable[[str, int], Callable[[], None]] | None = None) -> DemoResult:
-    """Run the demo, write its files to ``outdir`` and return the summary.
+#: the Hexa Slide case (seed 000 section 4): seed of the simulated measurements (the
+#: researcher's page's table quotes seeds 0-9; the demo runs this one), measurement poses,
+#: encoder noise (m; simulated and assumed), workspace poses of the accuracy figures and
+#: their seed
+HEXASLIDE_SEED = 0
+HEXASLIDE_POSES = 150
+HEXASLIDE_NOISE = 2e-6
+WORKSPACE_POSES = 500
+WORKSPACE_SEED = 0
 
-    ``progress(description, total)`` may return a callback called once per calibration.
+
+def hexaslide_case(seed: int = HEXASLIDE_SEED) -> dict:
+    """The demo's Hexa Slide case: the default machine + seed 000's Table 1 deviations,
+    :data:`HEXASLIDE_POSES` constraint-link poses simulated with ``rng=seed`` noise-free and
+    with :data:`HEXASLIDE_NOISE` of encoder noise, each calibrated by maximum likelihood (told
+    that noise); accuracy over :data:`WORKSPACE_POSES` poses of the 0.1 m cube (seed
+    :data:`WORKSPACE_SEED`), after aligning the frames the data cannot fix.
+
+    Parameters
+    ----------
+    seed : int, optional
+        Seed of the simulated measurements.
+
+    Returns
+    -------
+    dict
+        ``nominal``, ``true``, ``data0``, ``res0``, ``data``, ``res``, ``before``, ``acc0``,
+        ``acc`` (:class:`~pkmcal.analysis.AccuracyReport`), ``aligned0``, ``scales``.
     """
-    from .analysis import pose_accuracy, workspace_poses
-    from .analysis.sweeps import constraint_link_sweep
+    from .analysis import pose_accuracy
     from .calibration import calibrate_constraint_link
     from .identifiability import CONSTRAINT_LINK_GAUGES, align_gauge
     from .instruments.constraint_link import simulate_constraint_link
-    from .io.atomic import atomic_write_text, output_directory
-    from .io.csv_io import write_joints
-    from .io.machine_file import save_machine
     from .machines import default_hexaslide, paper_table1_deviations
-    from .report import plots
 
-    outdir = output_directory(outdir)
-    rng = np.random.default_rng(rng)
     nominal = default_hexaslide()
     true = nominal.with_parameters(nominal.u + paper_table1_deviations(nominal.parameters))
     scales = nominal.parameters.scales(nominal.characteristic_length())
-    P, R = workspace_poses(true.home[0], n=500, rng=rng)
-    out = DemoResult()
-
-    before = pose_accuracy(true, nominal, P, R, align=False)
+    ws = {"n": WORKSPACE_POSES, "rng": WORKSPACE_SEED}
+    before = pose_accuracy(true, nominal, align=False, **ws)
     # 1. noise-free data: the paper's Table 2 check
-    data0 = simulate_constraint_link(true, 150, rng=rng)
+    data0 = simulate_constraint_link(true, HEXASLIDE_POSES, rng=seed)
     res0 = calibrate_constraint_link(nominal, data0)
     aligned0, _ = align_gauge(nominal, res0.x[:-1], true.u, CONSTRAINT_LINK_GAUGES, scales)
-    acc0 = pose_accuracy(true, res0.extras["machine"], P, R)
-    # 2. 2 um encoder noise: the realistic case
-    noise = 2e-6
-    data = simulate_constraint_link(true, 150, noise_m=noise, rng=rng)
-    res = calibrate_constraint_link(nominal, data, sigma_m=noise)
-    acc = pose_accuracy(true, res.extras["machine"], P, R)
+    # 2. encoder noise: the realistic case
+    data = simulate_constraint_link(true, HEXASLIDE_POSES, noise_m=HEXASLIDE_NOISE, rng=seed)
+    res = calibrate_constraint_link(nominal, data, sigma_m=HEXASLIDE_NOISE)
+    return {"nominal": nominal, "true": true, "scales": scales, "before": before,
+            "data0": data0, "res0": res0, "aligned0": aligned0,
+            "acc0": pose_accuracy(true, res0.extras["machine"], **ws),
+            "data": data, "res": res, "acc": pose_accuracy(true, res.extras["machine"], **ws)}
+
+
+def hexaslide_settings(seed: int = HEXASLIDE_SEED) -> str:
+    """The Hexa Slide case's settings in words (what :func:`hexaslide_case` simulates).
+
+    Parameters
+    ----------
+    seed : int, optional
+        Seed of the simulated measurements.
+
+    Returns
+    -------
+    str
+        One line.
+    """
+    return (f"Hexa Slide: seed {seed}; true machine = embedded default + seed 000 Table 1 "
+            f"deviations; {HEXASLIDE_POSES} constraint-link poses (35 deg tilt, 25 deg "
+            f"rotation), noise-free and with {HEXASLIDE_NOISE * 1e6:g} um encoder noise "
+            "(simulated and assumed); maximum-likelihood calibration; accuracy over "
+            f"{WORKSPACE_POSES} poses in the 0.1 m cube around home, orientations within "
+            f"+/-10 deg (seed {WORKSPACE_SEED})")
+
+
+def run_demo(outdir: Path, quick: bool = False, rng=HEXASLIDE_SEED,
+             progress: Callable[[str, int], Callable[[], None]] | None = None) -> DemoResult:
+    """Run the demo, write its files to ``outdir`` and return the summary.
+
+    ``rng`` is the seed of the Hexa Slide case's measurements (:func:`hexaslide_case`) and of
+    its Figs. 5 and 6; ``progress(description, total)`` may return a callback called once per
+    calibration. The settings of every case are in :attr:`DemoResult.settings`.
+    """
+    from .analysis.sweeps import constraint_link_sweep
+    from .estimation.acceptance import residual_verdict
+    from .identifiability import CONSTRAINT_LINK_GAUGES, align_gauge
+    from .io.atomic import atomic_write_text, output_directory
+    from .io.csv_io import write_joints
+    from .io.machine_file import save_machine
+    from .report import plots
+
+    outdir = output_directory(outdir)
+    seed = int(rng)
+    case = hexaslide_case(seed)
+    nominal, true, scales = case["nominal"], case["true"], case["scales"]
+    before, acc0, acc = case["before"], case["acc0"], case["acc"]
+    aligned0, data, res = case["aligned0"], case["data"], case["res"]
+    noise = HEXASLIDE_NOISE
+    out = DemoResult()
+    out.settings.append(hexaslide_settings(seed))
     um, mm, urad = 1e6, 1e3, 1e6
     out.rows += [
         ("mean position error (noise-free data)", f"{before.position_mean * mm:.3f} mm",
@@ -96,7 +165,7 @@ def run_demo(outdir: Path, quick: bool = False, rng=0,
          f"{acc.position_max * um:.2f} um"),
         (f"mean orientation error ({noise * um:g} um noise)",
          f"{before.orientation_mean * urad:.0f} urad", f"{acc.orientation_mean * urad:.1f} urad"),
-        ("RMS joint residual (2 um noise)", "",
+        (f"RMS joint residual ({noise * um:g} um noise)", "",
          f"{np.sqrt(np.mean(res.residuals**2)) * noise * um:.2f} um"),
     ]
     out.notes.append(f"identifiable: {res.rank} of {int(res.parameters.free.sum())} parameter "
@@ -104,6 +173,8 @@ def run_demo(outdir: Path, quick: bool = False, rng=0,
     out.notes += [f"  {d.dimension} x {d.name}" for d in res.extras["unidentifiable"]]
     out.notes.append("accuracy is compared after aligning the frames the data cannot fix "
                      "(SPEC 5)")
+    out.notes.append(f"Hexa Slide, {noise * um:g} um noise: residual test "
+                     f"{residual_verdict(res).sentence()}")
 
     # files: data, truth, calibrated machine, report
     passive = {"passive": data.passive + 1}
@@ -117,10 +188,16 @@ def run_demo(outdir: Path, quick: bool = False, rng=0,
     out.files += [outdir / "nominal.yaml", outdir / "true.yaml", outdir / "calibrated.yaml"]
 
     # 3. seed 000 Figs. 5 and 6: the Monte-Carlo engine (pkmcal montecarlo), on every core
+    rng = np.random.default_rng(seed)
     seeds = 1 if quick else SWEEP_RUNS
     workers = 1 if quick else None
     levels = NOISE_LEVELS[::2] if quick else NOISE_LEVELS
     lc_errs = LC_ERRORS[::2] if quick else LC_ERRORS
+    out.settings.append(
+        f"Hexa Slide Figs. 5 and 6: {seeds} simulated calibration(s) per value (random "
+        f"stream of seed {seed}), {HEXASLIDE_POSES} poses; encoder noise "
+        + ", ".join(f"{v * um:g}" for v in levels) + " um; link-length errors "
+        + ", ".join(f"{v * um:g}" for v in lc_errs) + " um (noise-free)")
     cb = progress("Fig. 5: accuracy vs encoder noise", len(levels) * seeds) if progress else None
     fig5 = constraint_link_sweep(nominal, true, "noise", levels, seeds=seeds, rng=rng,
                                  progress=cb, workers=workers)
@@ -151,7 +228,8 @@ def run_demo(outdir: Path, quick: bool = False, rng=0,
     clearance = clearance_demo(outdir, out, samples=CLEARANCE_QUICK_SAMPLES if quick
                                else CLEARANCE_CASE["samples"])
     summary = {
-        "rows": out.rows, "notes": out.notes, "delta": delta, "clearance": clearance,
+        "settings": out.settings, "seed": seed, "rows": out.rows, "notes": out.notes,
+        "delta": delta, "clearance": clearance,
         "fig5_noise": [p.__dict__ for p in fig5],
         "fig6_link_length_error": [p.__dict__ for p in fig6],
         "fig6_link_length_error_lc_estimated": [p.__dict__ for p in fig6_est],
@@ -179,6 +257,7 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
         grid_points,
         neighbour_pairs,
         simulate_tracker,
+        tracker_noise_arg,
     )
     from .io.csv_io import write_tracker
     from .io.machine_file import save_machine
@@ -190,6 +269,13 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
     nominal = default_delta()
     true = nominal.with_parameters(nominal.u + random_deviations(nominal, rng))
     pose = default_tracker_pose()
+    length, angle = nominal.RANDOM_DEVIATION
+    out.settings.append(
+        f"Delta: seed {seed}; true machine = embedded default + random errors (uniform within "
+        f"+/-{length * 1e3:g} mm, +/-{np.degrees(angle):g} deg); 27 tracker points on the "
+        "3x3x3 grid (150/150/40 mm) at home, tracker noise "
+        f"{tracker_noise_arg(None, allow_none=False)[1]}, tracker 2.5 m away; held-out: a "
+        f"{'x'.join(map(str, HELD_OUT_GRID[0]))} grid")
     true.base_from_tracker = pose
     true.name = "simulated true Delta (random errors, seed 1) with the true tracker pose"
     noise = TrackerNoise()
@@ -304,6 +390,11 @@ def clearance_demo(outdir: Path, out: DemoResult, samples: int = CLEARANCE_CASE[
 
     case = CLEARANCE_CASE
     machine = cubic_6upu()
+    out.settings.append(
+        f"cubic 6-UPU: no random draw; circle r = {case['radius'] * 1e3:g} mm at z = "
+        f"{case['height'] * 1e3:g} mm, {case['omega']:g} rad/s, {samples} samples, "
+        f"{case['mass']:g} kg, {-case['cutting_force'][2]:g} N cutting force, clearance "
+        f"{case['clearance'] * 1e6:g} um")
     path = err.circle_trajectory(case["radius"], case["height"], case["omega"], samples)
     cb = case["clearance"]
     result = err.trajectory_errors(machine, path, case["mass"], case["cutting_force"], cb)

@@ -1,5 +1,14 @@
-"""Estimators: the shared block Levenberg-Marquardt and the calibration methods built on it."""
+"""Estimators: the shared block Levenberg-Marquardt and the calibration methods built on it,
+and the one verdict on a calibration's residuals (:func:`residual_verdict`: do they agree with
+the noise model; :func:`noise_ratio`: by how much)."""
 
+from ..estimation.acceptance import (
+    ResidualTest,
+    ResidualVerdict,
+    noise_ratio,
+    report_verdict,
+    residual_verdict,
+)
 from ..estimation.estimator import (
     BlockProblem,
     CalibrationResult,
@@ -62,4 +71,5 @@ __all__ = ["METHODS", "BlockProblem", "CalibrationResult", "ConstraintLinkFK",
            "sphere_pose_candidates", "start_sensitivity", "KINDS", "Calibration",
            "CalibrationNotConverged", "MeasurementKind", "calibrate", "measurement_kind",
            "register_kind", "supported_kinds", "calibrate_distances", "calibrate_probe",
-           "poorly_determined"]
+           "poorly_determined", "ResidualTest", "ResidualVerdict", "noise_ratio",
+           "report_verdict", "residual_verdict"]

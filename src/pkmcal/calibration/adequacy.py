@@ -25,14 +25,23 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..estimation.acceptance import (
+    FAILED_ALARMING,
+    FAILED_SMALL,
+    MAX_NOISE_FACTOR,
+    residual_verdict,
+)
 from ..estimation.distributions import f_sf
 
 __all__ = ["ALPHA", "FAR_ABOVE", "add_to_report", "model_adequacy", "trend_tests"]
 
 #: family-wise significance level of the trend tests (Bonferroni over all tests)
 ALPHA = 0.01
-#: residuals more than this many times the assumed noise are "far above" it
-FAR_ABOVE = 3.0
+#: residuals more than this many times the assumed noise are "far above" it (the residual
+#: verdict's threshold, :data:`~pkmcal.estimation.acceptance.MAX_NOISE_FACTOR`)
+FAR_ABOVE = MAX_NOISE_FACTOR
+#: the residual verdicts of a failed test
+FAILED = (FAILED_SMALL, FAILED_ALARMING)
 #: fewest rows for trend tests
 MIN_ROWS = 8
 #: strongest trends listed in the report
@@ -157,7 +166,8 @@ def regressors(problem, state, K: int) -> dict:
 
 
 def model_adequacy(result, length_factor: float = 1e-6, angle_factor: float = 1e-6,
-                   units: tuple = ("um", "urad"), alpha: float = ALPHA) -> dict | None:
+                   units: tuple = ("um", "urad"), alpha: float = ALPHA,
+                   verdict=None) -> dict | None:
     """The model-adequacy checks of a calibration (see the module docstring).
 
     Parameters
@@ -171,16 +181,21 @@ def model_adequacy(result, length_factor: float = 1e-6, angle_factor: float = 1e
         Their names.
     alpha : float, optional
         Family-wise significance level of the trend tests.
+    verdict : ResidualVerdict, optional
+        The residual verdict (default :func:`~pkmcal.estimation.acceptance.residual_verdict`
+        of ``result``): whether the residuals agree with the noise is stated as it says.
 
     Returns
     -------
     dict or None
-        JSON-ready: ``noise_ratio`` (RMS of the residuals over the assumed noise; None for a
-        problem without noise groups, whose residuals are not whitened by the whole noise),
-        ``far_above_noise``, ``groups`` (per noise group: RMS, assumed, estimated),
-        ``columns`` (per residual column: RMS and its strongest trend), ``trends`` (the
-        strongest significant ones), ``tests``, ``alpha``, ``verdict`` (words); None when the
-        result has no problem or residuals to examine.
+        JSON-ready: ``noise_ratio`` (the verdict's: ``sqrt(chi2 / dof)`` against the assumed
+        noise; None when the residuals are not tested), ``far_above_noise`` (the verdict
+        failed by at least :data:`FAR_ABOVE`), ``residual_verdict`` (the verdict's status),
+        ``groups`` (per noise group: RMS, assumed, used), ``columns`` (per residual column:
+        RMS and its strongest trend), ``trends`` (the strongest significant ones), ``tests``,
+        ``alpha``, ``findings`` (what the trend tests found, in words), ``verdict`` (the
+        residual verdict's sentence, then the findings); None when the result has no problem
+        or residuals to examine.
     """
     from ..estimation.variance import noise_groups_of
 
@@ -198,8 +213,11 @@ def model_adequacy(result, length_factor: float = 1e-6, angle_factor: float = 1e
     rows = np.all(used & np.isfinite(r), axis=1)
 
     def display(kind):
+        # residuals of a problem without noise groups are whitened by the method's weights
+        # only (a method that takes some measurements as exact): not by the noise model
         return ((length_factor, units[0]) if kind == "length" else
-                (angle_factor, units[1]) if kind == "angle" else (1.0, "x assumed noise"))
+                (angle_factor, units[1]) if kind == "angle" else
+                (1.0, "residual / the method's weight"))
 
     # residuals in SI (whitened x the assumed level of their group), and in display units
     if groups is not None:
@@ -215,19 +233,15 @@ def model_adequacy(result, length_factor: float = 1e-6, angle_factor: float = 1e
     phys = r * sigma
     names = _column_names(groups, m)
     ok = rows[:, None] & np.isfinite(r)
-    # without noise groups the residuals are not whitened by the whole noise model (a method
-    # that takes some measurements as exact): their size is not compared with the noise
-    ratio = (float(np.sqrt(np.mean(r[ok] ** 2))) if ok.any() and groups is not None
-             else float("nan"))
+    verdict = verdict if verdict is not None else residual_verdict(result)
+    ratio = verdict.noise_ratio
     out_groups = []
     for g in range(len(groups.keys) if groups is not None else 1):
         sel = ok & (labels == g)
         f, unit = display(groups.kinds[g] if groups is not None else None)
         rms = float(np.sqrt(np.mean(phys[sel] ** 2))) if sel.any() else float("nan")
         entry = {"name": groups.names[g] if groups is not None else "residuals",
-                 "unit": unit, "rms": rms / f, "count": int(sel.sum()),
-                 "over_assumed": float(np.sqrt(np.mean(r[sel] ** 2))) if sel.any()
-                 else float("nan")}
+                 "unit": unit, "rms": rms / f, "count": int(sel.sum())}
         if groups is not None:
             entry.update(key=groups.keys[g], assumed=float(groups.assumed[g]) / f,
                          used=float(used_sigma[g]) / f)
@@ -263,11 +277,10 @@ def model_adequacy(result, length_factor: float = 1e-6, angle_factor: float = 1e
         if best is not None:
             col["strongest_trend"] = {k: v for k, v in best.items() if k != "column"}
         columns.append(col)
-    far = bool(np.isfinite(ratio) and ratio > FAR_ABOVE)
-    if groups is None:
-        ratio = None
+    far = verdict.status == FAILED_ALARMING
     section = {
         "noise_ratio": ratio, "far_above_noise": far, "far_above": FAR_ABOVE,
+        "residual_verdict": verdict.status,
         "groups": out_groups, "columns": columns,
         "trends": [{k: v for k, v in d.items() if k != "column"} for d in trends[:TOP]],
         "significant_trends": len(trends), "tests": n_tests, "alpha": alpha,
@@ -276,21 +289,14 @@ def model_adequacy(result, length_factor: float = 1e-6, angle_factor: float = 1e
                   "reading and each pose coordinate; F-tests (line vs constant, parabola vs "
                   "line), Bonferroni over all tests",
     }
-    section["verdict"] = _verdict(section, result.extras.get("extensions"))
+    section["findings"] = _findings(section, result.extras.get("extensions"))
+    section["verdict"] = f"residual test {verdict.sentence()}; {section['findings']}"
     return section
 
 
-def _verdict(section: dict, extensions=None) -> str:
-    ratio, trends = section["noise_ratio"], section["trends"]
-    if ratio is None:
-        head = ("the method takes some measurements as exact: the residuals' size is not "
-                "compared with the noise")
-    elif not np.isfinite(ratio):
-        return "no residuals to examine"
-    else:
-        head = (f"the residuals are {ratio:.3g} times the assumed noise"
-                if section["far_above_noise"] else
-                f"the residuals are consistent with the assumed noise ({ratio:.3g} times it)")
+def _findings(section: dict, extensions=None) -> str:
+    """What the trend tests (and the model extensions tried) found, in words."""
+    trends = section["trends"]
     if trends:
         t = trends[0]
         shape = "curved" if t["shape"] == "quadratic" else "linear"
@@ -304,11 +310,12 @@ def _verdict(section: dict, extensions=None) -> str:
                    f"({section['tests']} tests)" + (": the excess behaves like noise (the "
                                                     "instruments noisier than assumed, or "
                                                     "errors no reading or pose coordinate "
-                                                    "explains)" if section["far_above_noise"]
+                                                    "explains)" if section[
+                                                        "residual_verdict"] in FAILED
                                                     else ""))
     else:
         pattern = "too few rows for trend tests"
-    text = f"{head}; {pattern}"
+    text = pattern
     if extensions is not None and getattr(extensions, "trials", None):
         adopted = list(getattr(extensions, "adopted", []))
         text += ("; model extension adopted by cross-validation: " + ", ".join(adopted)
@@ -316,7 +323,7 @@ def _verdict(section: dict, extensions=None) -> str:
     return text
 
 
-def add_to_report(result, report: dict) -> None:
+def add_to_report(result, report: dict, verdict=None) -> None:
     """Add the ``model_adequacy`` section to a calibration report (nothing when the result
     cannot be examined; never raises for a problem it cannot read).
 
@@ -326,6 +333,8 @@ def add_to_report(result, report: dict) -> None:
         The calibration.
     report : dict
         The report, changed in place.
+    verdict : ResidualVerdict, optional
+        The residual verdict the report states (default: that of ``result``).
     """
     units = report.get("units") or {}
     from ..units import ANGLE, LENGTH
@@ -335,7 +344,8 @@ def add_to_report(result, report: dict) -> None:
     fa = ANGLE.get(au, 1e-6) if au in ANGLE else 1e-6
     try:
         section = model_adequacy(result, fl, fa, (lu if lu in LENGTH else "um",
-                                                  au if au in ANGLE else "urad"))
+                                                  au if au in ANGLE else "urad"),
+                                 verdict=verdict)
     except (ValueError, TypeError, AttributeError, IndexError, np.linalg.LinAlgError):
         section = None
     if section is not None:

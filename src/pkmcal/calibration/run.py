@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConvergenceError, InputError
+from ..estimation.acceptance import WHITENED_METHODS
 from ..instruments.constraint_link import link_noise_arg  # noqa: F401
 from ..instruments.pose import full_pose_noise_arg, pose_noise_option  # noqa: F401
 from ..instruments.tracker import (  # noqa: F401
@@ -957,74 +958,80 @@ def _identifiability_metadata(unidentifiable) -> dict:
             "weakly_identifiable": [d.name for d in unidentifiable if d.std is not None]}
 
 
-#: methods whose residuals are whitened by the whole noise model (every measurement noisy):
-#: only their chi-square can be tested against the noise. The paper's methods (constraint
-#: link ik/fk, full-pose ik, the tracker's two-step) treat some measurements as exact, so
-#: their residuals exceed the noise by design.
-WHITENED_METHODS = ("ml", "joint")
-
-
-def _acceptance(result, nominal, calibrated, source, method, warnings: list) -> dict:
-    """The believability checks of a converged calibration (chi-square of the residuals
-    against the assumed noise, for :data:`WHITENED_METHODS`; size of the changes against the
-    machine's scale): warnings in words with the usual causes (appended to ``warnings``), and
-    the report's ``acceptance`` section."""
+def _acceptance(result, nominal, calibrated, source, method, warnings: list,
+                verdict=None) -> dict:
+    """The believability checks of a converged calibration (the residual verdict of
+    :func:`~pkmcal.estimation.acceptance.residual_verdict`; size of the changes against the
+    machine's scale): warnings in words with the usual causes (appended to ``warnings``; each
+    opens with the verdict's sentence), and the report's ``acceptance`` section."""
     from ..estimation.acceptance import (
+        FAILED_ALARMING,
         GROSS_RESIDUAL,
         MAX_NOISE_FACTOR,
         parameter_changes,
-        residual_test,
+        residual_verdict,
     )
 
     out = {}
     noise = result.extras.get("noise")
-    # a method that takes some readings as exact may state its own test in the whitened
-    # model's terms (its geometry, every reading noisy: constraint link ik/fk)
-    test = result.extras.get("residual_test")
-    if method in WHITENED_METHODS or noise is not None or test is not None:
-        test = test if test is not None else residual_test(result)
-        out["residuals"] = test.as_dict()
+    verdict = verdict if verdict is not None else residual_verdict(result, method)
+    out["residuals"] = verdict.as_dict()
+    test = verdict.test
+    if verdict.status == FAILED_ALARMING:
         gross = None
         if noise is not None and calibrated is not None:
             # the residuals' size in metres, per group of lengths: tens of micrometres on a
             # printer are a noisier probe or a missing effect, not swapped columns
-            size = [float(s) * (test.noise_factor if st != "estimated" else 1.0)
+            size = [float(s) * (test.noise_ratio if st != "estimated" else 1.0)
                     for s, k, st in zip(noise.sigma, noise.kinds, noise.status, strict=True)
                     if k == "length"]
             if size:
                 gross = max(size) > GROSS_RESIDUAL * calibrated.characteristic_length()
-        if test.alarming and noise is not None and noise.estimated:
-            high = [f"{name} {ratio:.3g}x" for name, ratio, status
+        if noise is not None and noise.estimated:
+            high = [f"{name} {ratio:.3g}x the assumed" for name, ratio, status
                     in zip(noise.names, noise.ratio, noise.status, strict=True)
                     if status == "estimated" and ratio >= MAX_NOISE_FACTOR]
+            high = ", ".join(high) or f"none {MAX_NOISE_FACTOR:g}x the assumed"
             warnings.append(
-                f"{source}: the residuals are {test.noise_factor:.3g}x the assumed noise "
-                f"(estimated from them: {', '.join(high) or 'no single group'}); the "
-                "estimated levels weigh the fit and its standard deviations. If the "
-                "instruments are not that noisy, the model misses something: see the "
-                "report's residual checks (per reading, per pose, against each reading) "
-                "and its model_adequacy section" + (
+                f"{source}: residual test {verdict.sentence()}; the noise levels estimated "
+                f"from the residuals ({high}) weigh the fit and its standard deviations. If "
+                "the instruments are not that noisy, the model misses something: see the "
+                "report's residual checks (per "
+                "reading, per pose, against each reading) and its model_adequacy section" + (
                     ", and look for swapped columns, a wrong unit or outlier rows"
                     if gross is not False else ", and look for outlier rows"))
-        elif test.alarming and gross is False and noise is not None \
+        elif gross is False and noise is not None \
                 and all(st == "assumed" for st in noise.status):
             # too few rows to estimate any level (Klipper's 7 heights for 6 unknowns): the
             # residuals' size is shown, not taken for a fault of the data
             out["residuals"]["note"] = (
-                f"the residuals are {test.noise_factor:.3g}x the assumed noise; the data leave "
-                "too few equations to estimate the noise, so whether the instrument or the "
-                "model is worse than assumed cannot be told")
-        elif test.alarming:
-            warnings.append(f"{source}: {test.message(gross)}")
-    else:
-        out["residuals"] = {"tested": False, "why": f"the {method} method treats some "
-                            "measurements as exact: its residuals exceed the noise by design"}
+                "the data leave too few equations to estimate the noise, so whether the "
+                "instrument or the model is worse than assumed cannot be told")
+        else:
+            warnings.append(f"{source}: residual test {test.message(gross)}")
     if nominal is not None:
         changes = parameter_changes(nominal, calibrated)
         out["parameter_changes"] = {"suspicious": changes.suspicious}
         if changes.suspicious:
             warnings.append(f"{source}: {changes.message()}")
     return out
+
+
+def _state_verdict(report: dict, verdict, sigma_um=None) -> None:
+    """The residuals section's numbers that compare the residuals with the noise, from the
+    verdict (one definition: ``noise_scale`` is the noise ratio, ``residual_variance`` its
+    square; None when the residuals are not tested)."""
+    res = report.get("residuals")
+    if not isinstance(res, dict):
+        return
+    ratio = verdict.noise_ratio
+    tested = ratio is not None and math.isfinite(ratio)
+    for key, value in (("residual_variance", verdict.test.ratio if tested else None),
+                       ("noise_scale", ratio if tested else None),
+                       ("estimated_noise_um", ratio * sigma_um if tested and sigma_um
+                        else None)):
+        if key in res:
+            res[key] = value
 
 
 def _standardised(result):
@@ -1084,11 +1091,15 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
     warnings: list[str] = []
     source = report.get("data_file", "the data")
     _noise_report(result, report, source, warnings, result.extras.get("robust", True))
+    from ..estimation.acceptance import residual_verdict
     from .adequacy import add_to_report
 
-    add_to_report(result, report)       # model_adequacy: residuals against readings and pose
+    # the one verdict on the residuals against the noise: every section states it
+    verdict = residual_verdict(result, report.get("method"))
+    _state_verdict(report, verdict, report.get("noise_sigma_um"))
+    add_to_report(result, report, verdict)  # model_adequacy: residuals against readings, pose
     report["acceptance"] = _acceptance(result, machine, calibrated, source,
-                                       report.get("method"), warnings)
+                                       report.get("method"), warnings, verdict)
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,
@@ -1652,12 +1663,10 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
     unidentifiable = list(result.extras.get("unidentifiable", []))
+    # the ik estimate takes the poses as exact, but their noise is in the residuals: its
+    # residual test is against the whole noise (readings + poses through the IK); the residuals
+    # section states the verdict's numbers (_finish)
     variance = float(result.residual_variance)
-    if hasattr(result.extras.get("problem"), "noise_whitened") and result.dof > 0:
-        # the ik estimate takes the poses as exact, but their noise is in the residuals: the
-        # residual variance relative to the whole noise (readings + poses through the IK)
-        r = result.extras["problem"].noise_whitened(result.state)
-        variance = float(np.sum(r**2) / result.dof)
     after, before_rep = _errors_report(err_after, fl), _errors_report(err_before, fl)
     extensions = (choice.as_dict({"leg_length": (fl, units["length"]), "position": (
         fl, units["length"]), "orientation": (math.pi / 180, "deg")}) if choice is not None

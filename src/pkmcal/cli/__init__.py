@@ -144,6 +144,9 @@ def demo(
 ) -> None:
     """Run the main job on the embedded defaults: simulate, calibrate, compare. No input needed.
 
+    Fixed seeds: the settings of every case (seed, noise, poses, deviations) are printed first
+    and written to summary.json; the Hexa Slide case is seed 0 of the researcher's page's table.
+
     Example: `pkmcal demo -o demo-out`
     """
     from ._commands import run_demo

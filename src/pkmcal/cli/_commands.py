@@ -144,6 +144,8 @@ def run_demo(outdir: Path) -> None:
         result = module.run_demo(outdir, progress=new)
     commit_outputs()
     out = console()
+    for i, line in enumerate(getattr(result, "settings", []) or []):
+        out.print(f"{'settings: ' if i == 0 else '          '}{line}", markup=False)
     table = _table("quantity", "before calibration", "after calibration",
                    title="pkmcal demo: calibration (embedded Hexa Slide and Delta)")
     for row in result.rows:
@@ -480,7 +482,7 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
     """Summary of a fit of several files: per file before/after, the joint identifiability,
     what each file adds."""
     out = console()
-    ident, conv, res = report["identifiability"], report["convergence"], report["residuals"]
+    ident, conv = report["identifiability"], report["convergence"]
     table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
                    show_header=False)
     table.add_row("measurement", f"{len(report['files'])} files fitted together, "
@@ -501,10 +503,7 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
     _identifiable_rows(table, ident)
     for i, line in enumerate(report["contributions"]["summary"]):
         table.add_row("each file adds" if i == 0 else "", line)
-    scale = res["noise_scale"]
-    if scale is not None:
-        table.add_row("noise", f"residuals / assumed noise = {scale:.3g} over {res['count']} "
-                      "residuals")
+    _verdict_row(table, report)
     for section in report.get("instrument_sections", []):
         table.add_row("calibrated file", section)
     if report.get("bed_frame"):
@@ -562,10 +561,24 @@ def _identifiable_rows(table, ident, grouped: bool = False) -> None:
         table.add_row("weakly identifiable", f"{d['name']}: {d['description']}")
 
 
+def _verdict_row(table, report) -> None:
+    """The residual verdict the report states (``acceptance.residuals``, the one verdict of
+    :func:`~pkmcal.estimation.acceptance.residual_verdict`), in its sentence."""
+    from ..estimation.acceptance import report_verdict
+
+    section = (report.get("acceptance") or {}).get("residuals")
+    text = report_verdict(report).sentence()
+    if section and section.get("note"):
+        text += f"; {section['note']}"
+    table.add_row("residual test", text)
+
+
 def _shared_rows(table, name: str, report) -> None:
     """A row every calibration summary may have, from the report (see
     :meth:`~pkmcal.instruments.base.Instrument.calibration_summary`)."""
-    if name in ("identifiable", "identifiable, grouped"):
+    if name == "residual test":
+        _verdict_row(table, report)
+    elif name in ("identifiable", "identifiable, grouped"):
         _identifiable_rows(table, report["identifiability"], name != "identifiable")
     elif name == "parameter set":
         if "parameter_set" in report:
@@ -596,7 +609,12 @@ def _print_instrument_calibration(inst, report, params, data_path, output, repor
     table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
                    show_header=False)
     notes = []
-    for row in inst.calibration_summary(report):
+    rows = list(inst.calibration_summary(report))
+    if "residual test" not in rows:
+        # every summary states the residual verdict: before the convergence, else last
+        at = rows.index("convergence") if "convergence" in rows else len(rows)
+        rows.insert(at, "residual test")
+    for row in rows:
         if isinstance(row, str):
             _shared_rows(table, row, report)
         elif row[0] == "note":

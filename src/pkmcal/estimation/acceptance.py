@@ -11,8 +11,18 @@ in which case the fit bends the geometry far from the machine file to absorb the
 - :func:`parameter_changes`: how far the calibration moved the geometry, relative to the
   machine's own size; a sizeable fraction is not a calibration but a symptom.
 
-Both return plain results; the command line turns a failed check into a warning with the
-usual causes, and the report records it.
+One verdict per question. Whether the residuals agree with the noise model is decided here
+and only here: :func:`residual_verdict` gives a :class:`ResidualVerdict` (passed, failed but
+small, failed, or not tested and why) and its one sentence; the console, the JSON and HTML
+reports, the model-adequacy section and the warnings all state that verdict. Its number is
+the *noise ratio* (:func:`noise_ratio`): the residuals' standard deviation over the assumed
+noise, ``sqrt(chi2 / dof)``, the degrees of freedom corrected for every unknown the fit
+absorbed. Other numbers that compare residuals with a noise level (an RMS of whitened
+residuals without that correction, an estimated level over its assumed one) are named
+differently wherever they are shown.
+
+The functions return plain results; the command line turns a failed check into a warning with
+the usual causes, and the report records it.
 """
 
 from __future__ import annotations
@@ -22,10 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GROSS_RESIDUAL", "MAX_ANGLE_CHANGE", "MAX_LENGTH_CHANGE", "MAX_NOISE_FACTOR",
-           "ParameterChanges",
-           "ResidualTest", "chi2_bound",
-           "parameter_changes", "residual_test"]
+__all__ = ["FAILED_ALARMING", "FAILED_SMALL", "GROSS_RESIDUAL", "MAX_ANGLE_CHANGE",
+           "MAX_LENGTH_CHANGE", "MAX_NOISE_FACTOR", "NOT_TESTED", "PASSED", "VERDICTS",
+           "WHITENED_METHODS", "ParameterChanges", "ResidualTest", "ResidualVerdict",
+           "chi2_bound", "chi_square_test", "noise_ratio", "parameter_changes",
+           "residual_test", "residual_verdict"]
 
 #: a failed residual test is worth a warning when the residuals are at least this many times
 #: the assumed noise: below, the assumed noise is merely a little off (the estimated noise is
@@ -40,6 +51,62 @@ GROSS_RESIDUAL = 1e-3
 MAX_LENGTH_CHANGE = 0.05
 #: ... or an angle by more than this, rad (5 deg)
 MAX_ANGLE_CHANGE = math.radians(5.0)
+#: false-alarm rate of the residual test: a correct calibration with the right noise fails it
+#: with this probability
+ALPHA = 1e-3
+
+#: the verdicts of :func:`residual_verdict`: the chi-square test passed ...
+PASSED = "passed"
+#: ... failed, the residuals less than :data:`MAX_NOISE_FACTOR` times the assumed noise (the
+#: noise a little larger than assumed) ...
+FAILED_SMALL = "failed-small"
+#: ... failed, the residuals at least :data:`MAX_NOISE_FACTOR` times the assumed noise (the
+#: model does not explain the data at that noise: a warning) ...
+FAILED_ALARMING = "failed-alarming"
+#: ... or not tested (a method that takes some measurements as exact, no redundancy)
+NOT_TESTED = "not-tested"
+VERDICTS = (PASSED, FAILED_SMALL, FAILED_ALARMING, NOT_TESTED)
+#: the words that open each verdict's sentence
+VERDICT_WORDS = {PASSED: "passed", FAILED_SMALL: "failed, by a little",
+                 FAILED_ALARMING: "failed", NOT_TESTED: "not tested"}
+
+#: methods whose residuals are whitened by the whole noise model (every measurement noisy):
+#: their chi-square is the test. Other methods are tested when they state a test in the
+#: whitened model's terms (``result.extras["residual_test"]``) or fit noise groups.
+WHITENED_METHODS = ("ml", "joint")
+#: why a method's residuals are not tested against the noise (``result.extras["method"]`` or
+#: the report's method)
+UNTESTED_METHODS = {
+    "ik": "the ik method takes the five active readings as exact (its residuals, the passive "
+          "readings, exceed the noise by design)",
+    "fk": "the fk method takes every reading as exact (its residual, the spread of the "
+          "computed link length, is not the readings' noise)",
+}
+
+
+def noise_ratio(chi2: float, dof: int) -> float:
+    """The noise ratio: how many times the assumed noise the residuals are.
+
+    ``sqrt(chi2 / dof)``, the chi-square of the residuals whitened by the assumed noise over
+    its degrees of freedom (residuals minus every unknown the fit absorbed): 1 for a correct
+    model with the right noise. This is the one number pkmcal calls the residuals' size
+    relative to the noise, in every output.
+
+    Parameters
+    ----------
+    chi2 : float
+        Sum of the squared whitened residuals.
+    dof : int
+        Degrees of freedom.
+
+    Returns
+    -------
+    float
+        The ratio (NaN when ``dof <= 0`` or ``chi2`` is not finite).
+    """
+    if not dof or dof <= 0 or not math.isfinite(chi2) or chi2 < 0:
+        return math.nan
+    return math.sqrt(chi2 / dof)
 
 
 @dataclass
@@ -62,7 +129,8 @@ class ResidualTest:
     Notes
     -----
     :attr:`alarming` is what deserves a warning: failed and the residuals at least
-    :data:`MAX_NOISE_FACTOR` times the assumed noise.
+    :data:`MAX_NOISE_FACTOR` times the assumed noise. :func:`residual_verdict` turns a test
+    into the verdict every output states.
     """
 
     chi2: float
@@ -74,12 +142,18 @@ class ResidualTest:
     @property
     def alarming(self) -> bool:
         """Failed, with residuals at least :data:`MAX_NOISE_FACTOR` times the assumed noise."""
-        return not self.passed and self.noise_factor >= MAX_NOISE_FACTOR
+        return not self.passed and self.noise_ratio >= MAX_NOISE_FACTOR
+
+    @property
+    def noise_ratio(self) -> float:
+        """How many times the assumed noise the residuals are: :func:`noise_ratio`
+        (``sqrt(chi2 / dof)``)."""
+        return noise_ratio(self.chi2, self.dof)
 
     @property
     def noise_factor(self) -> float:
-        """How many times the assumed noise the residuals are (``sqrt(ratio)``)."""
-        return math.sqrt(self.ratio) if self.ratio >= 0 else math.nan
+        """The same number as :attr:`noise_ratio` (its earlier name)."""
+        return self.noise_ratio
 
     def as_dict(self) -> dict:
         """The test as JSON-ready numbers (for the calibration report).
@@ -87,12 +161,13 @@ class ResidualTest:
         Returns
         -------
         dict
-            ``chi2``, ``dof``, ``chi2_per_dof``, ``upper_999``, ``noise_factor``, ``passed``.
+            ``chi2``, ``dof``, ``chi2_per_dof``, ``upper_999``, ``noise_ratio``, ``passed``,
+            ``alarming``.
         """
         finite = lambda v: float(v) if math.isfinite(v) else None
         return {"chi2": finite(self.chi2), "dof": int(self.dof),
                 "chi2_per_dof": finite(self.ratio), "upper_999": finite(self.upper),
-                "noise_factor": finite(self.noise_factor), "passed": bool(self.passed),
+                "noise_ratio": finite(self.noise_ratio), "passed": bool(self.passed),
                 "alarming": bool(self.alarming)}
 
     def message(self, gross: bool | None = None) -> str:
@@ -117,9 +192,7 @@ class ResidualTest:
                   "the noise is larger than assumed (give --noise), outlier rows, swapped or "
                   "mis-numbered columns or a wrong unit, or the fit stopped in a wrong geometry "
                   "(a machine file far from the machine)")
-        return (f"the residuals are {self.noise_factor:.3g}x the assumed noise (chi2/dof = "
-                f"{self.ratio:.3g}, at most {self.upper:.3g} expected): the calibrated model "
-                f"does not explain the data at that noise. Usual causes: {causes}")
+        return f"{residual_verdict_of(self).sentence()}. Usual causes: {causes}"
 
 
 def chi2_bound(dof: int, alpha: float = 1e-3) -> float:
@@ -143,7 +216,39 @@ def chi2_bound(dof: int, alpha: float = 1e-3) -> float:
     return chi2_ppf(1.0 - alpha, dof) / dof if dof > 0 else math.nan
 
 
-def residual_test(result, alpha: float = 1e-3) -> ResidualTest:
+def chi_square_test(chi2: float, dof: int, alpha: float = ALPHA) -> ResidualTest:
+    """The chi-square test of residuals whitened by the assumed noise, from their sum of
+    squares.
+
+    A method that takes some measurements as exact states its test through this in the
+    whitened model's terms (``result.extras["residual_test"]``), e.g. its residuals whitened
+    by their whole covariance.
+
+    Parameters
+    ----------
+    chi2 : float
+        Sum of the squared whitened residuals.
+    dof : int
+        Degrees of freedom (residuals minus every unknown fitted).
+    alpha : float, optional
+        Probability of failing a correct calibration with the right noise.
+
+    Returns
+    -------
+    ResidualTest
+        The statistic, its bound and whether it passed (True, NaN ratio: nothing to test,
+        ``dof <= 0``).
+    """
+    dof = int(dof or 0)
+    chi2 = float(chi2)
+    if dof <= 0 or not math.isfinite(chi2):
+        return ResidualTest(chi2, dof, math.nan, math.nan, True)
+    ratio = chi2 / dof
+    upper = chi2_bound(dof, alpha)
+    return ResidualTest(chi2, dof, ratio, upper, bool(ratio <= upper))
+
+
+def residual_test(result, alpha: float = ALPHA) -> ResidualTest:
     """Chi-square test of a calibration result's whitened residuals.
 
     Parameters
@@ -167,11 +272,188 @@ def residual_test(result, alpha: float = 1e-3) -> ResidualTest:
         r = np.asarray(result.residuals, float)
         used = np.asarray(extras.get("used", np.ones(r.shape, bool)), bool)
         chi2 = float(np.sum(r[used & np.isfinite(r)] ** 2))
-    if dof <= 0 or not math.isfinite(chi2):
-        return ResidualTest(chi2, dof, math.nan, math.nan, True)
-    ratio = chi2 / dof
-    upper = chi2_bound(dof, alpha)
-    return ResidualTest(chi2, dof, ratio, upper, bool(ratio <= upper))
+    return chi_square_test(chi2, dof, alpha)
+
+
+def _number(value) -> float:
+    """A JSON number (None: NaN)."""
+    return math.nan if value is None else float(value)
+
+
+@dataclass(frozen=True)
+class ResidualVerdict:
+    """Whether a calibration's residuals agree with the noise model: the one verdict every
+    output states (:func:`residual_verdict`).
+
+    Attributes
+    ----------
+    status : str
+        :data:`PASSED` (the chi-square test passed), :data:`FAILED_SMALL` (failed, the
+        residuals less than :data:`MAX_NOISE_FACTOR` times the assumed noise: the noise a
+        little larger than assumed), :data:`FAILED_ALARMING` (failed, at least that: the model
+        does not explain the data at the assumed noise) or :data:`NOT_TESTED`.
+    test : ResidualTest or None
+        The chi-square test (None when not tested).
+    why : str
+        Why the residuals were not tested, a clause that follows "as" (empty otherwise).
+    """
+
+    status: str
+    test: ResidualTest | None = None
+    why: str = ""
+
+    @property
+    def tested(self) -> bool:
+        """Whether the residuals were tested against the noise."""
+        return self.status != NOT_TESTED
+
+    @property
+    def noise_ratio(self) -> float | None:
+        """The noise ratio (:func:`noise_ratio`); None when not tested."""
+        return self.test.noise_ratio if self.tested and self.test is not None else None
+
+    def sentence(self) -> str:
+        """The verdict in one sentence, opened by its words (``passed:``, ``failed, by a
+        little:``, ``failed:``, ``not tested:``).
+
+        Returns
+        -------
+        str
+            The sentence (no final period).
+        """
+        head = VERDICT_WORDS[self.status]
+        if not self.tested:
+            return f"{head}: the residuals are not compared with the noise, as {self.why}"
+        t = self.test
+        numbers = (f"the residuals are {t.noise_ratio:.3g} times the assumed noise (chi2/dof "
+                   f"= {t.ratio:.3g} over {t.dof} degrees of freedom, at most {t.upper:.3g} "
+                   "expected)")
+        if self.status == PASSED:
+            return f"{head}: {numbers}: they agree with it"
+        if self.status == FAILED_SMALL:
+            return (f"{head}: {numbers}: the noise is a little larger than assumed (or the "
+                    "model lacks a small effect)")
+        return (f"{head}: {numbers}: the calibrated model does not explain the data at that "
+                "noise")
+
+    def as_dict(self) -> dict:
+        """The verdict as the report's ``acceptance.residuals`` section.
+
+        Returns
+        -------
+        dict
+            ``verdict`` (the status), ``sentence``, ``tested``; tested: the test's numbers
+            (:meth:`ResidualTest.as_dict`, ``noise_ratio`` among them); not tested: ``why``.
+        """
+        out = {"verdict": self.status, "sentence": self.sentence(), "tested": self.tested}
+        if self.tested:
+            out.update(self.test.as_dict())
+        else:
+            out["why"] = self.why
+        return out
+
+    @classmethod
+    def from_dict(cls, section) -> ResidualVerdict:
+        """The verdict a report states (its ``acceptance.residuals``), also of reports written
+        before the verdict was (the test's numbers, or ``tested: false`` and ``why``).
+
+        Parameters
+        ----------
+        section : mapping or None
+            The report's ``acceptance.residuals`` (None: the report has none).
+
+        Returns
+        -------
+        ResidualVerdict
+            The verdict (not tested, saying so, when the report states no test).
+        """
+        if not section:
+            return cls(NOT_TESTED, None, "the report states no residual test")
+        if section.get("tested") is False or section.get("verdict") == NOT_TESTED:
+            return cls(NOT_TESTED, None, str(section.get("why") or "not stated"))
+        dof = int(section.get("dof") or 0)
+        chi2 = _number(section.get("chi2"))
+        test = ResidualTest(chi2, dof, _number(section.get("chi2_per_dof")),
+                            _number(section.get("upper_999")), bool(section.get("passed")))
+        return residual_verdict_of(test)
+
+
+def report_verdict(report) -> ResidualVerdict:
+    """The residual verdict a calibration report states (its ``acceptance.residuals``).
+
+    Parameters
+    ----------
+    report : mapping
+        A calibration report (JSON-ready).
+
+    Returns
+    -------
+    ResidualVerdict
+        :meth:`ResidualVerdict.from_dict` of the section (not tested when there is none).
+    """
+    return ResidualVerdict.from_dict((report.get("acceptance") or {}).get("residuals"))
+
+
+def residual_verdict_of(test: ResidualTest) -> ResidualVerdict:
+    """The verdict of a chi-square test.
+
+    Parameters
+    ----------
+    test : ResidualTest
+        The test.
+
+    Returns
+    -------
+    ResidualVerdict
+        Passed, failed by a little, failed; not tested when there is no redundancy
+        (``dof <= 0``) or no finite statistic.
+    """
+    if test.dof <= 0 or not math.isfinite(test.ratio):
+        return ResidualVerdict(NOT_TESTED, None, f"there are {max(test.dof, 0)} degrees of "
+                               "freedom (no more residuals than unknowns: the fit can match "
+                               "any data)")
+    if test.passed:
+        return ResidualVerdict(PASSED, test)
+    return ResidualVerdict(FAILED_ALARMING if test.alarming else FAILED_SMALL, test)
+
+
+def residual_verdict(result, method: str | None = None, alpha: float = ALPHA
+                     ) -> ResidualVerdict:
+    """Whether a calibration's residuals agree with the noise model: the one function that
+    decides it.
+
+    Tested: the test a method states in the whitened model's terms
+    (``result.extras["residual_test"]``, e.g. residuals whitened by their whole covariance),
+    else the chi-square of the residuals when they are whitened by the whole noise model
+    (:data:`WHITENED_METHODS`, or noise groups fitted: ``result.extras["noise"]``). Not tested:
+    a method that takes some measurements as exact and states no test
+    (:data:`UNTESTED_METHODS`), or no redundancy.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        The calibration.
+    method : str, optional
+        Its method (default ``result.extras["method"]``).
+    alpha : float, optional
+        Probability of failing a correct calibration with the right noise.
+
+    Returns
+    -------
+    ResidualVerdict
+        The verdict, its test and its sentence.
+    """
+    extras = getattr(result, "extras", None) or {}
+    test = extras.get("residual_test")
+    if test is None:
+        method = method or extras.get("method") or ""
+        if method in WHITENED_METHODS or extras.get("noise") is not None:
+            test = residual_test(result, alpha)
+        else:
+            why = UNTESTED_METHODS.get(method, f"the {method or 'fit'} method's residuals are "
+                                               "not whitened by the whole noise model")
+            return ResidualVerdict(NOT_TESTED, None, why)
+    return residual_verdict_of(test)
 
 
 @dataclass

@@ -551,8 +551,10 @@ class Instrument:
         in order: ``(name, text)`` pairs; the names of rows every summary may share, which the
         CLI fills in from the report (``"parameter set"``, ``"identifiable"`` or
         ``"identifiable, grouped"`` (one line per description of what is not identifiable),
-        ``"held-out"``, ``"bed"``, ``"noise levels"``, ``"convergence"``); and
-        ``("note", text)`` pairs, printed after the parameter changes.
+        ``"held-out"``, ``"bed"``, ``"noise levels"``, ``"residual test"`` (the residual
+        verdict, added before ``"convergence"`` when the rows do not place it),
+        ``"convergence"``); and ``("note", text)`` pairs, printed after the parameter
+        changes.
 
         Parameters
         ----------
@@ -573,16 +575,14 @@ class Instrument:
             rows.append(("RMS residual", f"{format_um(res['rms_um'])} over {res.get('count')} "
                          f"rows ({res.get('of', 'measured - predicted')}){before}"))
         if report.get("noise") is not None:
-            scale = res.get("noise_scale")
-            rows.append(("noise", f"{report['noise']}" + (
-                f"; residuals / assumed noise = {scale:.3g}" if scale is not None else "")))
+            rows.append(("noise", f"{report['noise']}"))
         for setup in report.get("setups", []):
             unit = setup["unit"]
             rows.append((f"setup {setup['setup']}", f"{setup['rows']} rows; pivot ("
                          + ", ".join(f"{v:.6g}" for v in setup["pivot"]) + f") {unit} "
                          "(base), ball (" + ", ".join(f"{v:.6g}" for v in setup["ball"])
                          + f") {unit} (platform)"))
-        return rows + ["held-out", "bed", "noise levels", "convergence"]
+        return rows + ["held-out", "bed", "noise levels", "residual test", "convergence"]
 
     def problem(self, machine: Machine, data, noise=None, **start):
         """The calibration problem ``pkmcal calibrate`` solves by default, unsolved.

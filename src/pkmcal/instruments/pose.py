@@ -57,6 +57,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import InputError
+from ..estimation.acceptance import FAILED_ALARMING, chi_square_test, report_verdict
 from ..estimation.estimator import MAX_STD, CalibrationResult, reduce_local, require_redundancy
 from ..estimation.rank import RTOL, rank_rule
 from ..estimation.registration import register_points
@@ -986,7 +987,9 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
     CalibrationResult
         With ``extras``: ``method``; ``machine``, the calibrated machine (with
         ``measurement_frames``, home kept); ``frames``; ``start_frames``; ``fixed_frames``;
-        ``unidentifiable``, the named null and weak directions; ``problem``.
+        ``unidentifiable``, the named null and weak directions; ``problem``; ``'ik'``:
+        ``residual_test``, the chi-square of its residuals whitened by their whole covariance
+        (:meth:`FullPoseIK.noise_whitened`).
 
     Raises
     ------
@@ -1025,6 +1028,12 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
     calibrated.measurement_frames = state.frames()
     calibrated.home = machine.home
     groups = problem.null_groups(state, result.scales)
+    if hasattr(problem, "noise_whitened") and result.dof > 0:
+        # the ik estimate takes the poses as exact, but their noise is in its residuals: its
+        # residual test is in the whole noise model's terms (readings + poses through the IK)
+        r = problem.noise_whitened(state)
+        result.extras["residual_test"] = chi_square_test(float(np.sum(r[np.isfinite(r)] ** 2)),
+                                                         result.dof)
     result.extras.update(
         problem=problem, method=method, machine=calibrated, frames=state.frames(),
         start_frames=start, fixed_frames=fixed,
@@ -1498,7 +1507,6 @@ class Pose(Instrument):
         unit = report["units"]["length"]
         b, a = res["before_calibration"], res["after_calibration"]
         n = report["noise"]
-        scale = res["noise_scale"]
         fr = report["frames"]
         m, k = fr["mocap_from_base"], fr["platform_from_marker"]
         rows = [("measurement", f"full pose, {report['measurements']} poses (readings in "
@@ -1515,9 +1523,8 @@ class Pose(Instrument):
                  f"{b['orientation_rms_deg']:.4g} -> {a['orientation_rms_deg']:.4g} deg "
                  "(forward kinematics of the readings vs measured)"),
                 ("noise", f"readings {n['reading_um']:.4g} um, position "
-                 f"{n['position_um']:.4g} um, orientation {n['orientation_urad']:.4g} urad"
-                 + (f"; residuals / assumed noise = {scale:.3g}" if scale is not None
-                    else "")),
+                 f"{n['position_um']:.4g} um, orientation {n['orientation_urad']:.4g} urad "
+                 "(assumed)"),
                 ("frames", ("fixed: " if fr["fixed"] else f"estimated ({fr['from']}): ")
                  + "mocap_from_base turned "
                  f"{m['rotation_angle_deg']:.4g} deg, base origin at "
@@ -1531,12 +1538,13 @@ class Pose(Instrument):
                          f"cross-validation: held-out loss {t['cv_loss']:.4g} vs "
                          f"{t['cv_loss_baseline']:.4g} per pose)"))
         if "model_adequacy" in report:
-            rows.append(("model adequacy", report["model_adequacy"]["verdict"]))
-        rows.append("convergence")
-        if scale is not None and scale > 3:
-            rows.append(("note", f"note: the residuals are {scale:.3g} times the assumed "
-                         "noise: give the real noise (--noise, --pose-noise), or the model "
-                         "lacks errors the machine has."))
+            adequacy = report["model_adequacy"]
+            rows.append(("model adequacy", adequacy.get("findings", adequacy["verdict"])))
+        rows += ["residual test", "convergence"]
+        if report_verdict(report).status == FAILED_ALARMING:
+            rows.append(("note", "note: the residual test failed: give the real noise "
+                         "(--noise, --pose-noise), or the model lacks errors the machine "
+                         "has."))
         if ident["unidentifiable"]:
             rows.append(("note", "note: the data fix the legs only relative to the "
                          "measurement frames; the changes are the smallest ones (scaled) that "

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..estimation.acceptance import FAILED_ALARMING, report_verdict
 from ..estimation.estimator import (
     MAX_STD,
     CalibrationResult,
@@ -1058,7 +1059,6 @@ class Tracker(Instrument):
             where = (f"{len(places)} target(s) at estimated places on the platform: "
                      + ", ".join("(" + ", ".join(f"{v:.6g}" for v in c) + ")" for c in places)
                      + f" {unit}")
-        scale = res["noise_scale"]
         rows = [("measurement", f"laser tracker, {report['measurements']} points ({where})"),
                 ("method", "joint: the leg errors and the tracker pose together"
                  if report["method"] == "joint" else
@@ -1068,8 +1068,7 @@ class Tracker(Instrument):
                 ("RMS residual", f"{format_um(res['rms_um'])} over {res['count']} points "
                  f"(3-D, measured - predicted tracker point); before calibration "
                  f"{format_um(res['before_rms_um'])} ({res['before']})"),
-                ("noise", f"{report['noise']}" + (f"; residuals / assumed noise = {scale:.3g}"
-                                                  if scale is not None else ""))]
+                ("noise", f"{report['noise']}")]
         if report["robust"]:
             if res["outliers"]:
                 worst = ", ".join(f"row {o['row']}: {o['residual_um']:.4g} um"
@@ -1093,14 +1092,14 @@ class Tracker(Instrument):
                   + ("estimated: " if reg["estimated"] else "fixed: ")
                   + f"{reg['rotation_change_deg']:.3g} deg and "
                   f"{reg['translation_change']:.3g} {unit} from the closed-form registration"),
-                 "held-out", "noise levels", "convergence"]
-        if scale is not None and scale > 3:
+                 "held-out", "noise levels", "residual test", "convergence"]
+        if report_verdict(report).status == FAILED_ALARMING:
             causes = ["outliers (try --robust)" if not report["robust"] else None,
                       "a registration biased by the nominal model (drop --two-step)"
                       if report["method"] == "two-step" else None,
                       "a wrong smr_offset or noise model", "errors the model does not have"]
-            rows.append(("note", f"note: the residuals are {scale:.3g} times the assumed "
-                         f"noise: {', '.join(c for c in causes if c)}."))
+            rows.append(("note", "note: the residual test failed; usual causes: "
+                         f"{', '.join(c for c in causes if c)}."))
         if ident["unidentifiable"] and "identifiable_combinations" in report:
             what = report["identifiable_combinations"]["description"].split(" (file length")[0]
             rows.append(("note", f"note: {what}; the changes are the smallest ones (scaled) "

@@ -4,10 +4,10 @@ The input is the JSON report ``pkmcal calibrate`` writes beside the calibrated m
 (the "JSON twin"); the HTML has no external resource: styles inline, plots as embedded PNG
 (base64). Sections appear when the report has the data: summary, identifiability (words,
 singular values), residuals (table; histogram of the standardised residuals, leverage-corrected,
-against N(0, 1) with the chi-square test of the assumed noise), before/after accuracy, distance
-ratios (Delta), registration and frames, parameters (nominal, identified, change, standard
-deviation, unit; one panel per chain or leg) and the identifiable combinations of parameters
-that are not identifiable one by one.
+against N(0, 1); the residual verdict the report states, :func:`verdict_html`), before/after
+accuracy, distance ratios (Delta), registration and frames, parameters (nominal, identified,
+change, standard deviation, unit; one panel per chain or leg) and the identifiable combinations
+of parameters that are not identifiable one by one.
 
 Every number is shown with its unit (a unit column, or the unit in the column's header); vectors
 are written out with their axis names, rotations as an angle about an axis.
@@ -23,7 +23,6 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ..estimation.distributions import chi2_ppf
 from ..units import format_um
 
 STYLE = """
@@ -63,11 +62,14 @@ _COUNTS = {"count": "residuals", "dof": "degrees of freedom", "pairs": "pairs",
            "tests": "tests", "column": "column"}
 #: dimensionless quantities: key -> unit text
 _RATIOS = {"residual_variance": "x assumed variance (chi2/dof)",
-           "noise_scale": "x assumed noise std", "held_out_over_calibration": "ratio",
+           "noise_scale": "x assumed noise std (noise ratio, sqrt(chi2/dof))",
+           "held_out_over_calibration": "ratio",
            "holdout": "share or rows", "estimated": "", "fixed": "", "robust": "",
            # model_adequacy (calibration.adequacy)
-           "noise_ratio": "x assumed noise std", "far_above": "x assumed noise std",
-           "over_assumed": "x assumed noise std", "explained": "share of variance",
+           "noise_ratio": "x assumed noise std (noise ratio, sqrt(chi2/dof))",
+           "far_above": "x assumed noise std (noise ratio)",
+           "over_assumed": "RMS / assumed noise std, not corrected for the fitted unknowns",
+           "explained": "share of variance",
            "p": "probability", "p_adjusted": "probability", "alpha": "probability",
            "statistic": "chi-square", "threshold_p": "probability"}
 #: keys whose value is a length in the section's "unit"
@@ -217,35 +219,6 @@ def _plt():
     return plt
 
 
-def chi_square_summary(normalised, dof) -> dict | None:
-    """The chi-square test of the assumed noise from the whitened residuals.
-
-    Parameters
-    ----------
-    normalised : sequence of float or None
-        Whitened residuals (residual / assumed noise std) of the fit.
-    dof : int
-        Degrees of freedom (residuals minus fitted unknowns).
-
-    Returns
-    -------
-    dict or None
-        ``chi2`` (sum of squares), ``dof``, ``ratio`` (chi2/dof), ``interval95`` and
-        ``interval99`` (central intervals of chi2/dof for a correct fit), ``within99`` (bool);
-        None without residuals or with ``dof <= 0``.
-    """
-    r = np.asarray([np.nan if v is None else v for v in normalised or []], float)
-    r = r[np.isfinite(r)]
-    if not r.size or not dof or dof <= 0:
-        return None
-    chi2 = float(np.sum(r**2))
-    ratio = chi2 / dof
-    i95 = tuple(float(x) / dof for x in chi2_ppf([0.025, 0.975], dof))
-    i99 = tuple(float(x) / dof for x in chi2_ppf([0.005, 0.995], dof))
-    return {"chi2": chi2, "dof": int(dof), "ratio": ratio, "interval95": i95,
-            "interval99": i99, "within99": bool(i99[0] <= ratio <= i99[1])}
-
-
 def _standardised(report) -> tuple[np.ndarray, str] | None:
     """Standardised residuals and how they were corrected."""
     st = report.get("standardised_residuals")
@@ -283,32 +256,50 @@ def _residual_plot(r, how: str) -> str:
     return _png(fig)
 
 
-def _chi_text(c, sigma_text: str, noise: str = "the assumed noise") -> str:
-    lo95, hi95 = c["interval95"]
-    lo99, hi99 = c["interval99"]
-    if c["within99"]:
-        verdict = ("<span class=ok>within its 99 % interval</span>: the residuals agree with "
-                   f"{noise}")
-    elif c["ratio"] > hi99:
-        verdict = ("<span class=bad>above its 99 % interval</span>: the residuals are larger "
-                   f"than {noise} (by a factor {np.sqrt(c['ratio']):.3g} in std): "
-                   "the noise is larger than assumed, outliers, or errors the model lacks")
-    else:
-        verdict = ("<span class=bad>below its 99 % interval</span>: the residuals are smaller "
-                   f"than {noise} (factor {np.sqrt(c['ratio']):.3g} in std): the "
-                   "assumed noise is too large, so the standard deviations are too")
+def verdict_html(report) -> str:
+    """The residual verdict a report states, as HTML: the chi-square test's numbers and the
+    verdict's sentence (:func:`~pkmcal.estimation.acceptance.report_verdict`; the HTML never
+    tests the residuals itself).
+
+    Parameters
+    ----------
+    report : mapping
+        A calibration report (``acceptance.residuals``; ``noise_sigma_um`` when given).
+
+    Returns
+    -------
+    str
+        A table (when tested) and a paragraph of class ``verdict``.
+    """
+    from ..estimation.acceptance import PASSED, report_verdict
+
+    verdict = report_verdict(report)
+    section = (report.get("acceptance") or {}).get("residuals") or {}
+    note = f"; {section['note']}" if section.get("note") else ""
+    ok = "ok" if verdict.status == PASSED else "bad"
+    words, rest = verdict.sentence().split(": ", 1)
+    if not verdict.tested:
+        return (f"<p class=verdict>Residual test <b>{_e(words)}</b>: {_e(rest)}{_e(note)}."
+                "</p>")
+    t = verdict.test
+    sigma = ""
+    if verdict.status != PASSED and _is_number(report.get("noise_sigma_um")):
+        sigma = (f" At that noise ratio the noise would be "
+                 f"{format_um(report['noise_sigma_um'] * verdict.noise_ratio, 3)} (assumed "
+                 f"{format_um(report['noise_sigma_um'], 3)}).")
     return (f"<table><tr><th>quantity</th><th>value</th><th>unit</th></tr>"
-            f"<tr><th>chi-square (sum of squared whitened residuals)</th>"
-            f"<td class=num>{c['chi2']:.5g}</td><td class=unit>1</td></tr>"
-            f"<tr><th>degrees of freedom</th><td class=num>{c['dof']}</td>"
+            f"<tr><th>chi-square (sum of squared residual / assumed noise std)</th>"
+            f"<td class=num>{t.chi2:.5g}</td><td class=unit>1</td></tr>"
+            f"<tr><th>degrees of freedom</th><td class=num>{t.dof}</td>"
             f"<td class=unit>count</td></tr>"
-            f"<tr><th>chi2 / dof</th><td class=num>{c['ratio']:.4g}</td>"
+            f"<tr><th>chi2 / dof</th><td class=num>{t.ratio:.4g}</td>"
             f"<td class=unit>1</td></tr>"
-            f"<tr><th>95 % interval of chi2/dof</th><td class=num>{lo95:.3g} .. {hi95:.3g}"
+            f"<tr><th>largest chi2 / dof expected (99.9 %)</th><td class=num>{t.upper:.4g}"
             f"</td><td class=unit>1</td></tr>"
-            f"<tr><th>99 % interval of chi2/dof</th><td class=num>{lo99:.3g} .. {hi99:.3g}"
-            f"</td><td class=unit>1</td></tr></table>"
-            f"<p class=verdict>chi2/dof = {c['ratio']:.4g} is {verdict}{sigma_text}.</p>")
+            f"<tr><th>noise ratio: residuals over the assumed noise, sqrt(chi2 / dof)</th>"
+            f"<td class=num>{t.noise_ratio:.4g}</td><td class=unit>1</td></tr></table>"
+            f"<p class=verdict>Residual test <span class={ok}>{_e(words)}</span>: "
+            f"{_e(rest)}{_e(note)}.{_e(sigma)}</p>")
 
 
 def _singular_plot(s, rank) -> str:
@@ -735,25 +726,21 @@ def build_html(report: Mapping, title: str | None = None) -> str:
             {k: v for k, v in res.items() if k not in ("before_calibration",
                                                        "after_calibration")}, "", unit))))
         st = _standardised(report)
-        chi = chi_square_summary(report.get("normalised_residuals"), res.get("dof"))
+        text = verdict_html(report)
         if st is not None and st[0].size:
-            sigma = ""
-            if chi is not None and not chi["within99"] and report.get("noise_sigma_um"):
-                sigma = (f"; the noise the residuals suggest is "
-                         f"{format_um(report['noise_sigma_um'] * np.sqrt(chi['ratio']), 3)} "
-                         f"(assumed {format_um(report['noise_sigma_um'], 3)})")
             levels = report.get("noise_model")
             noise = ("the noise levels used (estimated from these residuals: see Noise "
                      "levels)" if isinstance(levels, Mapping) and levels.get("estimated")
                      else "the assumed noise")
-            text = _chi_text(chi, sigma, noise) if chi is not None else ""
             parts.append(
                 "<div class=side><div>" + _residual_plot(*st) + "</div><div>"
                 "<p><b>Standardised residuals</b> ("
-                + _e(st[1]) + "): N(0, 1) for a correct fit with the right noise. The fit "
-                "absorbs part of every residual (the poses and the identified parameters): "
-                "raw residual / assumed std would look too narrow for a correct fit.</p>"
-                + text + "</div></div>")
+                + _e(st[1]) + f"), each over {_e(noise)}: N(0, 1) for a correct fit with "
+                "that noise. The fit absorbs part of every residual (the poses and the "
+                "identified parameters): raw residual / assumed std would look too narrow for "
+                "a correct fit.</p>" + text + "</div></div>")
+        else:
+            parts.append(text)
         parts.append(_before_after(res))
     parts.append(_noise_section(report))
     ratio = report.get("distance_ratio")
