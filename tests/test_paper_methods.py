@@ -113,4 +113,4 @@ def test_a_geometry_the_readings_reject_is_refused_with_exit_1(bench, tmp_path):
     report = json.loads(out.with_suffix(".json").read_text())
     assert report["start"] == PAPER_METHOD_START
     residuals = report["acceptance"]["residuals"]
-    assert residuals["noise_factor"] < MAX_NOISE_FACTOR and not residuals["alarming"]
+    assert residuals["noise_ratio"] < MAX_NOISE_FACTOR and residuals["verdict"] == "passed"

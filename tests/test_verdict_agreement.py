@@ -73,8 +73,8 @@ CASES = {
     "link ml, noise estimated": ("default", ["link"], [], {FAILED_SMALL}),
     "link ml, 10x the noise told": ("default", ["link_20um"], ["--noise", "2um"],
                                     {FAILED_ALARMING}),
-    "link ik": ("default", ["link"], ["--method", "ik", "--noise", "2um"], {NOT_TESTED}),
-    "link fk": ("default", ["link"], ["--method", "fk", "--noise", "2um"], {NOT_TESTED}),
+    "link ik": ("default", ["link"], ["--method", "ik", "--noise", "2um"], {PASSED}),
+    "link fk": ("default", ["link"], ["--method", "fk", "--noise", "2um"], {PASSED}),
     "points joint": (DELTA, ["points"], [], {PASSED}),
     "points, 10x the noise told": (DELTA, ["points_60um"], ["--noise", "leica"],
                                    {FAILED_ALARMING}),
@@ -220,7 +220,10 @@ def test_the_runs_cover_every_instrument_and_every_verdict(runs):
     measured = {r["report"]["measurement"] for r in runs.values()}
     # the pair distances are fitted with other files only (a joint fit): "joint" stands for it
     assert set(INSTRUMENTS) - {"pair-distances"} | {"joint"} <= measured, measured
-    assert {report_verdict(r["report"]).status for r in runs.values()} == set(VERDICTS)
+    # not tested: no calibration leaves it now (the paper's methods state their test in the
+    # whitened model's terms; no redundancy is refused up front); test_acceptance has it
+    assert {report_verdict(r["report"]).status for r in runs.values()} \
+        == set(VERDICTS) - {NOT_TESTED}
 
 
 @pytest.mark.skipif(not (JUGGLEBOT / "calibration_108_poses.csv").is_file(),
