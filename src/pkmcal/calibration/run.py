@@ -41,7 +41,7 @@ __all__ = ["KINDS", "WHITENED_METHODS", "Calibration",
            "CalibrationNotConverged", "CalibrateOptions", "JointPart", "MeasurementKind",
            "apply_parameter_set", "calibrate", "calibrate_joint", "distance_ratio_pairs",
            "file_units", "full_pose_noise_arg", "grid_neighbour_pairs", "holdout_arg",
-           "json_safe", "link_noise_arg", "measurement_kind", "noise_per_file_arg",
+           "json_safe", "link_noise_arg", "report_json", "measurement_kind", "noise_per_file_arg",
            "parameter_set_names", "provenance", "register_kind", "rows_text",
            "supported_kinds", "text_digest", "tracker_noise_arg", "versions"]
 
@@ -49,6 +49,37 @@ __all__ = ["KINDS", "WHITENED_METHODS", "Calibration",
 # --------------------------------------------------------------------------------------------
 # small helpers shared with the command line
 # --------------------------------------------------------------------------------------------
+
+
+def report_json(value, indent: str = "") -> str:
+    """JSON text of a JSON-safe value (:func:`json_safe`), indented by two spaces, with every
+    list of numbers or strings on one line: a 54 x 54 covariance reads as 54 rows, not 2,916
+    lines, and the lines are written by :mod:`json`'s C encoder (an indented dump is not).
+
+    Parameters
+    ----------
+    value : object
+        Dicts, lists, strings, numbers, booleans and None (no NaN: ``ValueError``).
+    indent : str, optional
+        The indentation of the line the value starts on.
+
+    Returns
+    -------
+    str
+        The text (no final newline); :func:`json.loads` gives ``value`` back.
+    """
+    if isinstance(value, dict):
+        if not value:
+            return "{}"
+        inner = indent + "  "
+        return ("{\n" + ",\n".join(f"{inner}{json.dumps(str(k))}: {report_json(v, inner)}"
+                                    for k, v in value.items()) + "\n" + indent + "}")
+    if isinstance(value, (list, tuple)) and any(isinstance(v, (dict, list, tuple))
+                                                for v in value):
+        inner = indent + "  "
+        return ("[\n" + ",\n".join(inner + report_json(v, inner) for v in value) + "\n"
+                + indent + "]")
+    return json.dumps(value, allow_nan=False)
 
 
 def json_safe(value):
@@ -70,6 +101,8 @@ def json_safe(value):
     if isinstance(value, (list, tuple)):
         return [json_safe(v) for v in value]
     if isinstance(value, np.ndarray):
+        if value.dtype.kind in "biu" or (value.dtype.kind == "f" and np.isfinite(value).all()):
+            return value.tolist()           # Python numbers already, every one finite
         return json_safe(value.tolist())
     if isinstance(value, (bool, np.bool_)):
         return bool(value)
@@ -504,9 +537,10 @@ class Calibration:
         Returns
         -------
         str
-            Indented JSON ending with a newline.
+            Indented JSON ending with a newline, lists of numbers on one line
+            (:func:`report_json`).
         """
-        return json.dumps(json_safe(self.report), indent=2, allow_nan=False) + "\n"
+        return report_json(json_safe(self.report)) + "\n"
 
     def write(self, output, report_dir=None) -> str:
         """Write the calibrated machine file, its JSON report beside it (same name, .json) and

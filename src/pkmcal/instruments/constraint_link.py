@@ -1002,6 +1002,11 @@ class _ConstraintLinkProblem:
     def check_data(data: ConstraintLinkData) -> None:
         """Refuse data the method cannot use (before any fit).
 
+        Parameters
+        ----------
+        data : ConstraintLinkData
+            The readings.
+
         Raises
         ------
         InputError
@@ -1264,6 +1269,11 @@ class ConstraintLinkIK(ConstraintLinkML):
     def check_data(data: ConstraintLinkData) -> None:
         """Refuse data without the ``passive`` column (the method needs it).
 
+        Parameters
+        ----------
+        data : ConstraintLinkData
+            The readings.
+
         Raises
         ------
         InputError
@@ -1451,6 +1461,9 @@ class ConstraintLinkFK(_ImplicitPoseProblem):
         Encoder noise standard deviation, m; the residuals are divided by its mean.
     estimate_link_length : bool, optional
         Estimate ``Lc`` too (default True: the method needs it).
+    start : SphereState, optional
+        Start values of the global unknowns and poses near the solution (the ml estimate's);
+        default: the machine's values and the poses solved for them.
 
     Raises
     ------
