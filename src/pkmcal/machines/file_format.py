@@ -49,7 +49,7 @@ ROTATION_TOL = 1e-5
 class StrictModel(BaseModel):
     """A file section: unknown keys refused, no type coercion (``"1"`` is not a number)."""
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
 
 
 @dataclass(frozen=True)
