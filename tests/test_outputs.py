@@ -76,6 +76,8 @@ def test_a_failed_rename_restores_the_files_already_replaced(tmp_path, monkeypat
     calls = []
 
     def flaky(src, dst):
+        if Path(dst).name.startswith("."):      # the commit journal's own rename
+            return real(src, dst)
         calls.append(dst)
         if len(calls) == 3:
             raise OSError(28, "No space left on device")

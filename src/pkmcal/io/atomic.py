@@ -41,10 +41,82 @@ from pathlib import Path
 from ..errors import InputError, stop_if_signalled
 
 _TAG = "pkmcal"
-_NEW = Path("/nonexistent/pkmcal-new-file")    # marker: the destination did not exist
 _STALE = re.compile(r"^\..+\.pkmcal-(\d+)-[^.]+\.(tmp|bak)$")
+_JOURNAL = re.compile(r"^\.commit\.pkmcal-(\d+)-[0-9a-f]+\.journal$")
 _ACTIVE: contextvars.ContextVar[OutputSet | None] = contextvars.ContextVar(
     "pkmcal_output_set", default=None)
+#: fault injection for the tests (read by the commit code alone): ``<k>`` kills the process
+#: (SIGKILL) right before step k of its commits (counted from 1 over the process), ``list``
+#: writes each step's number and name to stderr instead
+_KILL_AT = "PKMCAL_TEST_KILL_AT"
+_step_count = 0
+_HELD_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP")
+                      if hasattr(signal, name))
+
+
+def _step(name: str) -> None:
+    """A step of the commit protocol: the fault-injection point of ``PKMCAL_TEST_KILL_AT``."""
+    spec = os.environ.get(_KILL_AT)
+    if not spec:
+        return
+    global _step_count
+    _step_count += 1
+    if spec == "list":
+        os.write(2, f"pkmcal-test-step {_step_count} {name}\n".encode())
+    elif spec.isdigit() and int(spec) == _step_count:
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+class _Deferred:
+    """SIGINT, SIGTERM and SIGHUP held back while a block runs (main thread only).
+
+    The signals are blocked (a default handler cannot end the process) and pkmcal's Python
+    handlers are replaced by one that only records the signal: a signal the C level received
+    just before the block, whose Python handler had not run yet, is recorded too instead of
+    raising inside the block. Leaving the block puts both back and then runs the handler of
+    the first recorded signal (it raises there, outside the block), unless ``keep``."""
+
+    def __init__(self):
+        self.caught: list[int] = []
+        self._handlers: dict[int, object] = {}
+        self._mask = None
+        self._active = False
+
+    def _record(self, signum, frame) -> None:
+        self.caught.append(signum)
+
+    def __enter__(self) -> _Deferred:
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        self._active = True
+        try:
+            for signum in _HELD_SIGNALS:
+                handler = signal.getsignal(signum)
+                if callable(handler):
+                    self._handlers[signum] = handler
+                    signal.signal(signum, self._record)
+            if hasattr(signal, "pthread_sigmask"):
+                self._mask = signal.pthread_sigmask(signal.SIG_BLOCK, set(_HELD_SIGNALS))
+        except BaseException:       # a signal's handler ran before its own was replaced
+            self.caught.clear()
+            self.release()
+            raise
+        return self
+
+    def release(self, keep: bool = False) -> None:
+        """End the block; ``keep``: hold the signals until the process exits."""
+        if not self._active or keep:
+            return
+        self._active = False
+        if self._mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, self._mask)
+        for signum, handler in self._handlers.items():
+            signal.signal(signum, handler)
+        if self.caught and self.caught[0] in self._handlers:
+            self._handlers[self.caught[0]](self.caught[0], None)
+
+    def __exit__(self, *exc) -> None:
+        self.release()
 
 
 def _default_mode() -> int:
@@ -75,17 +147,194 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _fsync_directory(directory) -> None:
+    """Make the renames and removals in ``directory`` durable (best effort)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        with contextlib.suppress(OSError):
+            os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _relative(path, directory) -> str:
+    """``path`` relative to ``directory`` (both resolved: the kernel resolves ``..`` the same
+    way when the journal is read back)."""
+    return os.path.relpath(os.path.realpath(path), os.path.realpath(directory))
+
+
+def _write_journal(path: Path, data: bytes) -> None:
+    """Write one copy of a commit journal: a hidden temporary, flushed, renamed into place,
+    the directory flushed; a copy is whole or absent."""
+    tmp = path.with_name(path.name.removesuffix(".journal") + ".tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    try:
+        os.write(fd, data)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    os.replace(tmp, path)
+    _fsync_directory(path.parent)
+
+
+def _read_journal(path: Path) -> dict | None:
+    import json
+
+    try:
+        with open(path, "rb") as fh:
+            doc = json.loads(fh.read().decode("utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(doc, dict) or doc.get("format") != "pkmcal-commit-journal-1":
+        return None
+    return doc
+
+
+def _roll_back(base: Path, doc: dict) -> None:
+    """Undo what the commit of journal ``doc`` (a copy found in ``base``) did: every
+    destination the commit replaced gets its backup back, a destination it created is removed,
+    the temporaries and the directories it created go; idempotent, so a rollback that is itself
+    interrupted is finished by the next one. A destination that is no longer the commit's file
+    (the inode differs: a later run replaced it) is left alone and its backup dropped."""
+    touched = {str(base)}
+    for entry in doc["files"]:
+        tmp, dest = base / entry["tmp"], base / entry["dest"]
+        touched.add(str(dest.parent))
+        try:
+            st = os.lstat(dest)
+        except OSError:
+            st = None
+        ours = st is not None and [st.st_dev, st.st_ino] == entry["id"]
+        if entry["backup"] is not None:
+            backup = base / entry["backup"]
+            if os.path.lexists(backup):
+                if ours or st is None:
+                    os.replace(backup, dest)
+                else:
+                    os.unlink(backup)
+        elif ours:
+            os.unlink(dest)
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+    for d in reversed(doc["created"]):
+        with contextlib.suppress(OSError):
+            os.rmdir(base / d)
+    for d in touched:
+        _fsync_directory(d)
+
+
+def _forget_journal(base: Path, doc: dict) -> None:
+    """Remove every copy of a journal (the last removal is a commit's point of no return)."""
+    for copy in doc["copies"]:
+        _step("forget")
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(base / copy)
+        _fsync_directory((base / copy).parent)
+
+
+def recover_commits(directory) -> int:
+    """Finish what a killed run's commit left in ``directory``: each commit journal there
+    whose run no longer holds its directories is rolled back (the previous files restored
+    whole) and removed. Returns the number of journals handled.
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        A directory a command reads from or writes to.
+
+    Returns
+    -------
+    int
+        How many journals were rolled back.
+
+    Notes
+    -----
+    A run holds an exclusive lock of every directory its commit touches from before it
+    writes its journal until after it removes it; a journal seen under those locks is an
+    orphan. Nothing is done where the directory cannot be written.
+    """
+    directory = Path(directory)
+    try:
+        names = [e.name for e in os.scandir(directory) if _JOURNAL.match(e.name)]
+    except OSError:
+        return 0
+    if not names or not os.access(directory, os.W_OK | os.X_OK):
+        return 0
+    done = 0
+    for name in names:
+        path = directory / name
+        doc = _read_journal(path)
+        if doc is None:
+            continue
+        with _Deferred():
+            locks = _lock([directory / d for d in doc["locks"]] + [directory])
+            try:
+                doc = _read_journal(path)        # gone: another run handled it meanwhile
+                if doc is None:
+                    continue
+                try:
+                    _roll_back(directory, doc)
+                    _forget_journal(directory, doc)
+                except OSError:
+                    continue
+                done += 1
+            finally:
+                for fd in locks:
+                    os.close(fd)
+    return done
+
+
+def _journal_references(directory) -> set[str]:
+    """Names in ``directory`` that a commit journal there still needs."""
+    names = set()
+    try:
+        journals = [e.path for e in os.scandir(directory) if _JOURNAL.match(e.name)]
+    except OSError:
+        return names
+    for j in journals:
+        doc = _read_journal(Path(j))
+        for entry in doc["files"] if doc else ():
+            for key in ("tmp", "backup"):
+                if entry[key] is not None:
+                    p = os.path.join(directory, entry[key])
+                    if os.path.realpath(os.path.dirname(p)) == os.path.realpath(directory):
+                        names.add(os.path.basename(p))
+    return names
+
+
 def remove_stale_temporaries(directory) -> list[Path]:
-    """Remove the temporaries (``.<name>.pkmcal-<pid>-<random>.tmp`` and ``.bak``) that a
-    process which no longer runs left in ``directory``; return the removed paths."""
+    """Clean up after killed runs in ``directory``: roll back the commits they left
+    (:func:`recover_commits`), then remove the temporaries (``.<name>.pkmcal-<pid>-<random>
+    .tmp`` and ``.bak``) of processes that no longer run; a file a remaining journal needs
+    is kept.
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        The directory.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The removed files.
+    """
+    recover_commits(directory)
     removed = []
     try:
         entries = list(os.scandir(directory))
     except OSError:
         return removed
+    needed = None
     for entry in entries:
         m = _STALE.match(entry.name)
         if m is None or _pid_alive(int(m.group(1))):
+            continue
+        if needed is None:
+            needed = _journal_references(directory)
+        if entry.name in needed:
             continue
         with contextlib.suppress(OSError):
             os.unlink(entry.path)
@@ -159,6 +408,7 @@ class OutputSet:
         self._directories: list[Path] = []
         self._token = None
         self._declared: dict[str, Path] = {}
+        self._recovered: set[str] = set()
         for d in directories:
             self.add_directory(d)
         for p in inputs:
@@ -172,7 +422,10 @@ class OutputSet:
 
     # -- inputs --------------------------------------------------------------------------
     def add_input(self, path) -> None:
-        """Register a file the command reads: no output may replace it."""
+        """Register a file the command reads: no output may replace it. A commit that a killed
+        run left unfinished in the file's directory is rolled back first (the file read is
+        then one of a whole set)."""
+        self._recover(Path(path).parent)
         fid = _file_id(path)
         if fid is not None:
             self._inputs.setdefault(fid, Path(path))
@@ -187,6 +440,15 @@ class OutputSet:
             raise InputError(f"{user}: the output would overwrite the input file "
                              f"{self._inputs[fid]}; choose another name")
 
+    def _recover(self, directory: Path) -> None:
+        """Clean up after killed runs in ``directory`` (once per set): their unfinished
+        commits rolled back, their temporaries removed (:func:`remove_stale_temporaries`)."""
+        key = os.path.realpath(directory if str(directory) else ".")
+        if key not in self._recovered:
+            self._recovered.add(key)
+            if os.path.isdir(key) and os.access(key, os.W_OK | os.X_OK):
+                remove_stale_temporaries(key)
+
     # -- outputs -------------------------------------------------------------------------
     def add_directory(self, directory) -> Path:
         """An output directory (created at the commit when missing); return it."""
@@ -200,6 +462,7 @@ class OutputSet:
         key = os.path.realpath(d)
         if key in self._declared:
             raise InputError(f"{d}: used for an output file and an output directory")
+        self._recover(_existing_ancestor(d))
         if all(os.path.realpath(e) != key for e in self._directories):
             self._directories.append(d)
         return d
@@ -238,6 +501,7 @@ class OutputSet:
                                  "(permission denied)")
         if dest.is_dir():
             raise InputError(f"{path}: is a directory, expected a file name")
+        self._recover(_existing_ancestor(directory))
         key = os.path.realpath(dest)
         for d in self._directories:
             if os.path.realpath(d) == key:
@@ -258,11 +522,15 @@ class OutputSet:
         self._discard_one(key)
         where = _existing_ancestor(dest.parent if str(dest.parent) else Path("."))
         remove_stale_temporaries(where)
-        try:
-            fd, tmp = tempfile.mkstemp(dir=where, prefix=_temporary_prefix(dest), suffix=".tmp")
-        except OSError as exc:
-            raise InputError(f"{path}: cannot write: {_describe(exc)}") from None
-        self._staged[key] = (path, dest, Path(tmp), None)
+        # created and registered with the signals held back: a SIGTERM between the two would
+        # leave a temporary that no cleanup knows of
+        with _Deferred():
+            try:
+                fd, tmp = tempfile.mkstemp(dir=where, prefix=_temporary_prefix(dest),
+                                           suffix=".tmp")
+            except OSError as exc:
+                raise InputError(f"{path}: cannot write: {_describe(exc)}") from None
+            self._staged[key] = (path, dest, Path(tmp), None)
         try:
             with os.fdopen(fd, "wb") as fh:
                 fh.write(data)
@@ -279,15 +547,17 @@ class OutputSet:
         return path
 
     def _discard_one(self, key: str) -> None:
-        old = self._staged.pop(key, None)
-        if old is not None and old[2] is not None:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(old[2])
+        with _Deferred():           # forgotten and removed together
+            old = self._staged.pop(key, None)
+            if old is not None and old[2] is not None:
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(old[2])
 
     def discard(self) -> None:
         """Remove every staged temporary: nothing of the set is written."""
-        for key in list(self._staged):
-            self._discard_one(key)
+        with _Deferred():           # a second signal does not cut the cleanup short
+            for key in list(self._staged):
+                self._discard_one(key)
 
     @property
     def staged(self) -> list[Path]:
@@ -311,76 +581,134 @@ class OutputSet:
             return []
         try:
             stop_if_signalled()
+            items = list(self._staged.values())
+            for user, dest, tmp, _ in items:
+                if tmp is not None:
+                    self._check_not_input(user, dest)
+            # streams first, interruptible (a FIFO without a reader blocks until Ctrl-C) and
+            # before any file is replaced: a stream that cannot be written (/dev/full) leaves
+            # the files as they were. What a stream received cannot be taken back.
+            for user, _, tmp, data in items:
+                if tmp is None:
+                    try:
+                        with open(user, "wb") as fh:
+                            fh.write(data)
+                    except OSError as exc:
+                        raise InputError(f"{user}: cannot write: {_describe(exc)}") from None
+            files = [(user, dest, tmp) for user, dest, tmp, _ in items if tmp is not None]
+            for d in {str(t.parent) for _, _, t in files}:
+                recover_commits(d)      # a run killed meanwhile: its set back first
         except BaseException:
             self.discard()
             raise
-        items = list(self._staged.values())
-        for user, dest, tmp, _ in items:
-            if tmp is not None:
-                self._check_not_input(user, dest)
-        # streams first, interruptible (a FIFO without a reader blocks until Ctrl-C) and before
-        # any file is replaced: a stream that cannot be written (/dev/full) leaves the files as
-        # they were. What a stream received cannot be taken back.
-        for user, _, tmp, data in items:
-            if tmp is None:
-                try:
-                    with open(user, "wb") as fh:
-                        fh.write(data)
-                except OSError as exc:
-                    self.discard()
-                    raise InputError(f"{user}: cannot write: {_describe(exc)}") from None
-        held = _hold_signals()
+        held = _Deferred()
         committed = False
-        locks = []
-        created: list[Path] = []
-        done: list[tuple[Path, Path | None]] = []     # (destination, backup or None)
         try:
-            locks = _lock([d.parent for _, d, t, _ in items if t is not None])
-            for d in self._directories:
-                created += _make_directories(d)
-            for user, dest, tmp, data in items:
-                if tmp is None:
-                    continue
-                backup = _NEW           # a destination that did not exist: removed on a rollback
-                if dest.exists():
+            held.__enter__()
+            if files:
+                self._commit_files(files)
+            else:
+                for d in self._directories:
+                    _make_directories(d)
+            self._staged.clear()
+            committed = True
+        except BaseException:
+            self.discard()
+            raise
+        finally:
+            held.release(keep=committed and self.final)
+        return [user for user, *_ in items]
+
+    def _commit_files(self, files: list[tuple[Path, Path, Path]]) -> None:
+        """The commit protocol (the directories locked, the signals held back):
+
+        1. each destination that exists gets a hard-linked backup (a copy where the file
+           system has no hard links);
+        2. a journal listing every (temporary, destination, backup) is written, flushed, into
+           every directory involved (``.commit.pkmcal-<pid>-<random>.journal``);
+        3. missing output directories are created, the temporaries renamed over their
+           destinations one by one, the directories flushed;
+        4. the journal's copies are removed: the commit is done;
+        5. the backups are removed.
+
+        A failure or a kill before step 4 ends is rolled back, in this process or by the next
+        run that reads or writes in one of the directories (:func:`recover_commits`): every
+        state in between is undone to the previous set. A kill in step 5 leaves backups no
+        journal names, removed by the next run as stale temporaries."""
+        tmp_dirs = {os.path.realpath(t.parent) for _, _, t in files}
+        dest_dirs = {os.path.realpath(d.parent if str(d.parent) else ".") for _, d, _ in files}
+        created: list[str] = []
+        for d in [*self._directories, *(Path(p) for p in sorted(dest_dirs))]:
+            for m in _missing_directories(Path(os.path.realpath(d))):
+                if m not in created:
+                    created.append(m)
+        lock_dirs = sorted({os.path.realpath(_existing_ancestor(Path(d)))
+                            for d in tmp_dirs | dest_dirs})
+        journal_dirs = sorted(tmp_dirs | dest_dirs)
+        name = f".commit.{_TAG}-{os.getpid()}-{secrets.token_hex(6)}.journal"
+        home = Path(next(d for d in journal_dirs if d not in created))
+        locks = _lock(lock_dirs)
+        backups: list[Path] = []
+        doc = None
+        try:
+            _step("backup")
+            entries = []
+            for user, dest, tmp in files:
+                backup = None
+                if os.path.lexists(dest):
                     backup = dest.with_name(_temporary_prefix(dest) + secrets.token_hex(4)
                                             + ".bak")
                     try:
-                        os.link(dest, backup)
-                    except OSError:
-                        backup = None   # no hard links here: no rollback for this file
+                        _backup(dest, backup)
+                    except OSError as exc:
+                        raise InputError(f"{user}: cannot write: {_describe(exc)}") from None
+                    backups.append(backup)
+                st = os.stat(tmp)
+                entries.append({"tmp": os.path.realpath(tmp),
+                                "dest": os.path.join(os.path.realpath(dest.parent), dest.name),
+                                "backup": None if backup is None else os.path.realpath(backup),
+                                "id": [st.st_dev, st.st_ino]})
+            plan = {"locks": lock_dirs, "copies": [os.path.join(d, name) for d in journal_dirs],
+                    "created": created, "files": entries}
+            doc = _journal(plan, home)
+            for d in journal_dirs:
+                if d not in created:
+                    _step("journal")
+                    _write_journal(Path(d) / name, _journal_bytes(_journal(plan, Path(d))))
+            for d in created:
+                _step("mkdir")
+                os.mkdir(d)
+                if d in journal_dirs:
+                    _write_journal(Path(d) / name, _journal_bytes(_journal(plan, Path(d))))
+            for user, dest, tmp in files:
+                _step("rename")
                 try:
                     os.replace(tmp, dest)
                 except OSError as exc:
-                    if backup not in (None, _NEW):
-                        os.unlink(backup)
                     raise InputError(f"{user}: cannot write: {_describe(exc)}") from None
-                done.append((dest, backup))
-        except BaseException:
-            for dest, backup in reversed(done):
+            for d in dest_dirs | tmp_dirs:
+                _fsync_directory(d)
+            _forget_journal(home, doc)
+            doc = None
+            _step("cleanup")
+            for backup in backups:
                 with contextlib.suppress(OSError):
-                    if backup is _NEW:
-                        os.unlink(dest)
-                    elif backup is not None:
-                        os.replace(backup, dest)
-            for d in reversed(created):
-                with contextlib.suppress(OSError):
-                    d.rmdir()
-            self.discard()
-            raise
-        else:
-            for _, backup in done:
-                if backup not in (None, _NEW):
+                    os.unlink(backup)
+        except BaseException as exc:
+            if doc is not None:
+                with contextlib.suppress(OSError):   # else the next run finishes it
+                    _roll_back(home, doc)
+                    _forget_journal(home, doc)
+            else:
+                for backup in backups:
                     with contextlib.suppress(OSError):
                         os.unlink(backup)
-            self._staged.clear()
-            committed = True
+            if isinstance(exc, OSError):
+                raise InputError(f"{files[0][0]}: cannot write: {_describe(exc)}") from None
+            raise
         finally:
             for fd in locks:
                 os.close(fd)
-            if not (committed and self.final):
-                _release_signals(held)
-        return [user for user, *_ in items]
 
     # -- context manager -----------------------------------------------------------------
     def __enter__(self) -> OutputSet:
@@ -390,26 +718,68 @@ class OutputSet:
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
             if exc_type is None:
-                self.commit()
+                try:
+                    self.commit()
+                except BaseException:
+                    self.discard()
+                    raise
             else:
                 self.discard()
         finally:
             _ACTIVE.reset(self._token)
 
 
-def _make_directories(directory: Path) -> list[Path]:
-    """Create ``directory`` and its missing parents; return the created ones, outermost
-    first."""
+def _journal(plan: dict, base: Path) -> dict:
+    """The journal of a commit ``plan`` (absolute paths) as a copy in ``base`` holds it: every
+    path relative to ``base``, so the journal still applies where the tree was moved."""
+    def rel(p):
+        return None if p is None else _relative(p, base)
+
+    return {"format": "pkmcal-commit-journal-1", "pid": os.getpid(),
+            "locks": [rel(d) for d in plan["locks"]],
+            "copies": [rel(c) for c in plan["copies"]],
+            "created": [rel(d) for d in plan["created"]],
+            "files": [dict(e, tmp=rel(e["tmp"]), dest=rel(e["dest"]), backup=rel(e["backup"]))
+                      for e in plan["files"]]}
+
+
+def _journal_bytes(doc: dict) -> bytes:
+    """JSON, ASCII: a name that is not UTF-8 is kept as its escaped surrogates."""
+    import json
+
+    return (json.dumps(doc, ensure_ascii=True, indent=1) + "\n").encode("ascii")
+
+
+def _backup(dest: Path, backup: Path) -> None:
+    """``backup``: the file ``dest`` is now (a hard link; a flushed copy where the file system
+    has none)."""
+    try:
+        os.link(dest, backup)
+        return
+    except OSError:
+        pass
+    fd = os.open(backup, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "wb") as out, open(dest, "rb") as src:
+        while chunk := src.read(1 << 20):
+            out.write(chunk)
+        out.flush()
+        os.fchmod(fd, os.stat(dest).st_mode & 0o7777)
+        os.fsync(fd)
+
+
+def _missing_directories(directory: Path) -> list[str]:
+    """``directory`` and its parents that do not exist, outermost first."""
     missing = []
     d = directory
     while not d.exists() and d != d.parent:
-        missing.append(d)
+        missing.append(str(d))
         d = d.parent
-    created = []
-    for d in reversed(missing):
-        d.mkdir()
-        created.append(d)
-    return created
+    return missing[::-1]
+
+
+def _make_directories(directory: Path) -> None:
+    for d in _missing_directories(directory):
+        os.mkdir(d)
 
 
 def _lock(directories) -> list[int]:
@@ -431,20 +801,6 @@ def _lock(directories) -> list[int]:
         with contextlib.suppress(OSError):
             fcntl.flock(fd, fcntl.LOCK_EX)
     return fds
-
-
-def _hold_signals():
-    """Hold SIGINT, SIGTERM and SIGHUP back (delivered after the commit); main thread only."""
-    if threading.current_thread() is not threading.main_thread() or \
-            not hasattr(signal, "pthread_sigmask"):
-        return None
-    return signal.pthread_sigmask(signal.SIG_BLOCK,
-                                  {signal.SIGINT, signal.SIGTERM, signal.SIGHUP})
-
-
-def _release_signals(previous) -> None:
-    if previous is not None:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def active_output_set() -> OutputSet | None:
