@@ -10,17 +10,27 @@ to a uniquely named hidden temporary beside its destination and flushed to disk;
 - before the first rename, every output is checked against every file the command read
   (:func:`read_input_text` registers them by device and inode, so symbolic and hard links
   are caught too) and against the other outputs;
-- the renames of one set run with SIGINT/SIGTERM held back and under a lock of the
-  destination directories, so two runs at once commit one after the other and a reader sees
-  either the previous set or the new one, never a mix; a destination that existed is kept as
-  a hard-linked backup until the whole set is in place, and restored if a rename fails;
+- the renames of one set run with SIGINT/SIGTERM/SIGHUP held back and under a lock of the
+  directories involved, so two runs at once commit one after the other; a destination that
+  existed is kept as a hard-linked backup (``.<name>.pkmcal-<pid>-<random>.bak``) until the
+  whole set is in place;
+- before the first rename a *commit journal* (``.commit.pkmcal-<pid>-<random>.journal``,
+  flushed to disk) listing every (temporary, destination, backup) is written into every
+  directory involved, and removed after the last rename. A commit cut short - a failed
+  rename, or ``kill -9`` between two renames - is settled from its journal, by this process
+  or by the next one that reads or writes in one of those directories
+  (:func:`recover_commits`): rolled back to the previous set while a temporary was still to
+  be renamed, else completed (the new set stands). A backup a journal names is never removed
+  as a stale temporary;
+- temporaries are created and registered, and removed, with the signals held back: a SIGTERM
+  in between cannot leave one that no cleanup knows of;
 - on an error or an interrupt before the commit, the temporaries are removed and no output
   directory has been created: nothing of the new set remains, the previous set is untouched;
 - a destination that is not a regular file (``/dev/null``, a FIFO, ``/dev/stdout``) is
   written into, never replaced, and needs no writable directory;
 - temporaries are named ``.<name>.pkmcal-<pid>-<random>.tmp``: unique per run, hidden, never
   mistaken for output. Those left by a killed process (``kill -9``) are removed by the next
-  output set that writes to the same directory.
+  run that writes to (or reads from) the same directory.
 
 Messages name the user's file, never a temporary.
 """
@@ -46,10 +56,12 @@ _JOURNAL = re.compile(r"^\.commit\.pkmcal-(\d+)-[0-9a-f]+\.journal$")
 _ACTIVE: contextvars.ContextVar[OutputSet | None] = contextvars.ContextVar(
     "pkmcal_output_set", default=None)
 #: fault injection for the tests (read by the commit code alone): ``<k>`` kills the process
-#: (SIGKILL) right before step k of its commits (counted from 1 over the process), ``list``
-#: writes each step's number and name to stderr instead
+#: (SIGKILL) right before step k of its commits (counted from 1 over the process); ``<k>:TERM``
+#: (``INT``, ``HUP``) sends that signal instead; ``stage<k>:TERM`` sends it when the k-th
+#: temporary has been created, before the set knows of it; ``list`` writes each commit step's
+#: number and name to stderr
 _KILL_AT = "PKMCAL_TEST_KILL_AT"
-_step_count = 0
+_step_count = {"": 0, "stage": 0}
 _HELD_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP")
                       if hasattr(signal, name))
 
@@ -59,12 +71,15 @@ def _step(name: str) -> None:
     spec = os.environ.get(_KILL_AT)
     if not spec:
         return
-    global _step_count
-    _step_count += 1
+    kind = "stage" if name == "stage" else ""
+    _step_count[kind] += 1
     if spec == "list":
-        os.write(2, f"pkmcal-test-step {_step_count} {name}\n".encode())
-    elif spec.isdigit() and int(spec) == _step_count:
-        os.kill(os.getpid(), signal.SIGKILL)
+        if not kind:
+            os.write(2, f"pkmcal-test-step {_step_count[kind]} {name}\n".encode())
+        return
+    at, _, sig = spec.partition(":")
+    if at == f"{kind}{_step_count[kind]}":
+        os.kill(os.getpid(), getattr(signal, f"SIG{sig or 'KILL'}"))
 
 
 class _Deferred:
@@ -193,23 +208,32 @@ def _read_journal(path: Path) -> dict | None:
     return doc
 
 
-def _roll_back(base: Path, doc: dict) -> None:
-    """Undo what the commit of journal ``doc`` (a copy found in ``base``) did: every
-    destination the commit replaced gets its backup back, a destination it created is removed,
-    the temporaries and the directories it created go; idempotent, so a rollback that is itself
-    interrupted is finished by the next one. A destination that is no longer the commit's file
-    (the inode differs: a later run replaced it) is left alone and its backup dropped."""
+def _settle(base: Path, doc: dict) -> None:
+    """Settle the commit of journal ``doc`` (a copy found in ``base``), idempotently (a
+    settlement that is itself interrupted is finished by the next one).
+
+    Every temporary renamed (none left): the commit is complete, only its backups go. Else it
+    is rolled back: every destination it replaced gets its backup back, a destination it
+    created is removed, then the temporaries and the directories it created go. A destination
+    that is no longer the commit's file (the inode differs: a later run replaced it) is left
+    alone and its backup dropped."""
     touched = {str(base)}
+    pending = [e for e in doc["files"] if os.path.lexists(base / e["tmp"])]
     for entry in doc["files"]:
-        tmp, dest = base / entry["tmp"], base / entry["dest"]
+        dest = base / entry["dest"]
         touched.add(str(dest.parent))
+        backup = None if entry["backup"] is None else base / entry["backup"]
+        if not pending:
+            if backup is not None:
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(backup)
+            continue
         try:
             st = os.lstat(dest)
         except OSError:
             st = None
         ours = st is not None and [st.st_dev, st.st_ino] == entry["id"]
-        if entry["backup"] is not None:
-            backup = base / entry["backup"]
+        if backup is not None:
             if os.path.lexists(backup):
                 if ours or st is None:
                     os.replace(backup, dest)
@@ -217,9 +241,14 @@ def _roll_back(base: Path, doc: dict) -> None:
                     os.unlink(backup)
         elif ours:
             os.unlink(dest)
+    for entry in pending:               # last: while one is left, the next run rolls back
         with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-    for d in reversed(doc["created"]):
+            os.unlink(base / entry["tmp"])
+    for d in reversed(doc["created"] if pending else ()):   # with the journal's copy inside
+        for copy in doc["copies"]:
+            if os.path.dirname(copy) == d:
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(base / copy)
         with contextlib.suppress(OSError):
             os.rmdir(base / d)
     for d in touched:
@@ -227,8 +256,9 @@ def _roll_back(base: Path, doc: dict) -> None:
 
 
 def _forget_journal(base: Path, doc: dict) -> None:
-    """Remove every copy of a journal (the last removal is a commit's point of no return)."""
-    for copy in doc["copies"]:
+    """Remove every copy of a journal, the one in ``base`` last (the run that settled it, or
+    the next run in ``base``, finds that one until all are gone)."""
+    for copy in sorted(doc["copies"], key=lambda c: os.path.dirname(c) in ("", ".")):
         _step("forget")
         with contextlib.suppress(FileNotFoundError):
             os.unlink(base / copy)
@@ -237,8 +267,9 @@ def _forget_journal(base: Path, doc: dict) -> None:
 
 def recover_commits(directory) -> int:
     """Finish what a killed run's commit left in ``directory``: each commit journal there
-    whose run no longer holds its directories is rolled back (the previous files restored
-    whole) and removed. Returns the number of journals handled.
+    whose run no longer holds its directories is settled - rolled back (the previous files
+    restored whole) when a temporary was still to be renamed, else completed (the new files
+    are all in place; the backups go) - and removed.
 
     Parameters
     ----------
@@ -248,7 +279,7 @@ def recover_commits(directory) -> int:
     Returns
     -------
     int
-        How many journals were rolled back.
+        How many journals were settled.
 
     Notes
     -----
@@ -276,7 +307,7 @@ def recover_commits(directory) -> int:
                 if doc is None:
                     continue
                 try:
-                    _roll_back(directory, doc)
+                    _settle(directory, doc)
                     _forget_journal(directory, doc)
                 except OSError:
                     continue
@@ -306,7 +337,7 @@ def _journal_references(directory) -> set[str]:
 
 
 def remove_stale_temporaries(directory) -> list[Path]:
-    """Clean up after killed runs in ``directory``: roll back the commits they left
+    """Clean up after killed runs in ``directory``: settle the commits they left
     (:func:`recover_commits`), then remove the temporaries (``.<name>.pkmcal-<pid>-<random>
     .tmp`` and ``.bak``) of processes that no longer run; a file a remaining journal needs
     is kept.
@@ -423,7 +454,7 @@ class OutputSet:
     # -- inputs --------------------------------------------------------------------------
     def add_input(self, path) -> None:
         """Register a file the command reads: no output may replace it. A commit that a killed
-        run left unfinished in the file's directory is rolled back first (the file read is
+        run left unfinished in the file's directory is settled first (the file read is
         then one of a whole set)."""
         self._recover(Path(path).parent)
         fid = _file_id(path)
@@ -442,7 +473,7 @@ class OutputSet:
 
     def _recover(self, directory: Path) -> None:
         """Clean up after killed runs in ``directory`` (once per set): their unfinished
-        commits rolled back, their temporaries removed (:func:`remove_stale_temporaries`)."""
+        commits settled, their temporaries removed (:func:`remove_stale_temporaries`)."""
         key = os.path.realpath(directory if str(directory) else ".")
         if key not in self._recovered:
             self._recovered.add(key)
@@ -530,6 +561,7 @@ class OutputSet:
                                            suffix=".tmp")
             except OSError as exc:
                 raise InputError(f"{path}: cannot write: {_describe(exc)}") from None
+            _step("stage")
             self._staged[key] = (path, dest, Path(tmp), None)
         try:
             with os.fdopen(fd, "wb") as fh:
@@ -628,12 +660,13 @@ class OutputSet:
            every directory involved (``.commit.pkmcal-<pid>-<random>.journal``);
         3. missing output directories are created, the temporaries renamed over their
            destinations one by one, the directories flushed;
-        4. the journal's copies are removed: the commit is done;
+        4. the journal's copies are removed;
         5. the backups are removed.
 
-        A failure or a kill before step 4 ends is rolled back, in this process or by the next
-        run that reads or writes in one of the directories (:func:`recover_commits`): every
-        state in between is undone to the previous set. A kill in step 5 leaves backups no
+        A failure or a kill while a temporary is still to be renamed is rolled back to the
+        previous set, in this process or by the next run that reads or writes in one of the
+        directories (:func:`recover_commits`); after the last rename the new set stands and
+        that run only removes the journal and the backups. A kill in step 5 leaves backups no
         journal names, removed by the next run as stale temporaries."""
         tmp_dirs = {os.path.realpath(t.parent) for _, _, t in files}
         dest_dirs = {os.path.realpath(d.parent if str(d.parent) else ".") for _, d, _ in files}
@@ -697,7 +730,7 @@ class OutputSet:
         except BaseException as exc:
             if doc is not None:
                 with contextlib.suppress(OSError):   # else the next run finishes it
-                    _roll_back(home, doc)
+                    _settle(home, doc)
                     _forget_journal(home, doc)
             else:
                 for backup in backups:
