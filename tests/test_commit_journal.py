@@ -366,3 +366,24 @@ def test_two_runs_at_once_after_a_killed_one(calibrated, tmp_path):
     info = yaml.safe_load((d / "cal.yaml").read_text())["calibration"]
     assert info["report_sha256"] == digest(d / "cal.json")
     assert _leftovers(d) == []
+
+
+def test_every_promise_names_tests_that_exist():
+    """docs/integrator.md "Your files are safe": one numbered line of tests per promise (a
+    bullet of the section), and every test named there is defined in its file."""
+    import re
+
+    docs = Path(__file__).resolve().parents[1] / "docs" / "integrator.md"
+    text = docs.read_text()
+    section = text.split("## Your files are safe", 1)[1].split("\n## ", 1)[0]
+    promises = [line for line in section.splitlines() if line.startswith("- ")]
+    mapped = re.split(r"\n(?=\d+\. )", section[section.index("\n1. "):].strip())
+    assert promises and len(mapped) == len(promises), (promises, mapped)
+    root = docs.parents[1]
+    for k, item in enumerate(mapped, 1):
+        assert item.startswith(f"{k}. "), item
+        names = re.findall(r"`(tests/[\w/]+\.py)::(test_\w+)`", item)
+        assert names, item
+        for path, name in names:
+            source = (root / path).read_text()
+            assert re.search(rf"^def {name}\(", source, re.M), f"{path}::{name} is not defined"
