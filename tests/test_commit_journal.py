@@ -277,6 +277,31 @@ def test_a_journal_in_two_directories_is_rolled_back_from_either(tmp_path):
         assert _leftovers(top) == []
 
 
+def test_names_that_are_not_utf8_survive_the_journal(tmp_path):
+    """The journal keeps any file name (bytes that are not UTF-8 included) and the rollback
+    finds the files again."""
+    code = (
+        "import os, sys\n"
+        "from pkmcal.io.atomic import OutputSet, atomic_write_text\n"
+        "a, b = (os.fsdecode(x) for x in (b'out-\\xff.txt', b'b.txt'))\n"
+        "with OutputSet([a, b]):\n"
+        "    atomic_write_text(a, 'new a')\n"
+        "    atomic_write_text(b, 'new b')\n")
+    a, b = os.fsdecode(b"out-\xff.txt"), "b.txt"
+    (tmp_path / a).write_text("old a")
+    (tmp_path / b).write_text("old b")
+    env = dict(ENV, PKMCAL_TEST_KILL_AT="4")      # backup, journal, rename a, | rename b
+    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=HANG)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    assert (tmp_path / a).read_text() == "new a" and (tmp_path / b).read_text() == "old b"
+    assert recover_commits(tmp_path) == 1
+    assert (tmp_path / a).read_text() == "old a" and (tmp_path / b).read_text() == "old b"
+    with OutputSet([tmp_path / "c.txt"]):
+        atomic_write_text(tmp_path / "c.txt", "c")
+    assert _leftovers(tmp_path) == []
+
+
 CAL = ["calibrate", "default", "data.csv", "-o", "cal.yaml", "--noise", "3um", "--report",
        "rep"]
 CAL_FILES = ["cal.yaml", "cal.json", "rep/report.html", "rep/report.json"]

@@ -456,7 +456,8 @@ class OutputSet:
         """Register a file the command reads: no output may replace it. A commit that a killed
         run left unfinished in the file's directory is settled first (the file read is
         then one of a whole set)."""
-        self._recover(Path(path).parent)
+        if _file_id(path) is not None:      # a regular file (not a pipe or /dev/stdin)
+            self._recover(Path(path).parent)
         fid = _file_id(path)
         if fid is not None:
             self._inputs.setdefault(fid, Path(path))
@@ -667,7 +668,8 @@ class OutputSet:
         previous set, in this process or by the next run that reads or writes in one of the
         directories (:func:`recover_commits`); after the last rename the new set stands and
         that run only removes the journal and the backups. A kill in step 5 leaves backups no
-        journal names, removed by the next run as stale temporaries."""
+        journal names, removed by the next run as stale temporaries. A set of one file that
+        creates no directory is one rename: no backup, no journal."""
         tmp_dirs = {os.path.realpath(t.parent) for _, _, t in files}
         dest_dirs = {os.path.realpath(d.parent if str(d.parent) else ".") for _, d, _ in files}
         created: list[str] = []
@@ -681,6 +683,18 @@ class OutputSet:
         name = f".commit.{_TAG}-{os.getpid()}-{secrets.token_hex(6)}.journal"
         home = Path(next(d for d in journal_dirs if d not in created))
         locks = _lock(lock_dirs)
+        if len(files) == 1 and not created:     # one rename is atomic: no journal needed
+            user, dest, tmp = files[0]
+            try:
+                _step("rename")
+                os.replace(tmp, dest)
+                _fsync_directory(dest.parent if str(dest.parent) else ".")
+            except OSError as exc:
+                raise InputError(f"{user}: cannot write: {_describe(exc)}") from None
+            finally:
+                for fd in locks:
+                    os.close(fd)
+            return
         backups: list[Path] = []
         doc = None
         try:
