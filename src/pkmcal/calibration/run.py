@@ -36,6 +36,7 @@ from ..instruments.tracker import (  # noqa: F401
     as_tracker_data,
     tracker_noise_arg,
 )
+from ..paths import file_identity, path_text, same_file
 
 __all__ = ["KINDS", "WHITENED_METHODS", "Calibration",
            "CalibrationNotConverged", "CalibrateOptions", "JointPart", "MeasurementKind",
@@ -2069,12 +2070,9 @@ def _match_file(name: str, sources) -> int | None:
     for i, s in enumerate(sources):
         if str(s) == name or Path(str(s)) == Path(name):
             return i
-    for i, s in enumerate(sources):        # the same file spelled another way (absolute path)
-        try:
-            if Path(str(s)).resolve() == Path(name).resolve():
-                return i
-        except (OSError, RuntimeError):    # RuntimeError: a symbolic link loop (3.11)
-            continue
+    for i, s in enumerate(sources):        # the same file by another name (links, spelling)
+        if isinstance(s, (str, Path)) and same_file(s, name):
+            return i
     labels = file_labels(sources)
     if name in labels:
         return labels.index(name)
@@ -2310,16 +2308,16 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                 raise InputError(f"{source}: {type(item).__name__} is no calibration data")
             kinds.append(kind)
         sources.append(source)
-    def _same(a):
-        # a path names the same file through links and relative spellings
-        try:
-            return Path(a).resolve() if isinstance(a, (str, Path)) else str(a)
-        except OSError:
-            return str(a)
-
-    if len({_same(s) for s in sources}) != len(sources):
-        raise InputError("the same data file is given twice: "
-                         + ", ".join(str(s) for s in sources))
+    seen: dict = {}
+    for s in sources:       # one file by two names (hard or symbolic links, ./x and x)
+        key = file_identity(s) if isinstance(s, (str, Path)) else ("data", str(s))
+        if key in seen:
+            first = seen[key]
+            how = ("given twice" if str(first) == str(s) else
+                   f"given twice: {path_text(first)} and {path_text(s)} are the same file")
+            raise InputError(f"{path_text(s)}: the same data file is {how}; give each "
+                             "file once")
+        seen[key] = s
     labels = file_labels(sources)
     parts, held, hold = [], [], []
     for i, (item, source, kind) in enumerate(zip(data, sources, kinds, strict=True)):

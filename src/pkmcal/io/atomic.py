@@ -39,6 +39,7 @@ import threading
 from pathlib import Path
 
 from ..errors import InputError, stop_if_signalled
+from ..paths import file_identity
 
 _TAG = "pkmcal"
 _NEW = Path("/nonexistent/pkmcal-new-file")    # marker: the destination did not exist
@@ -113,12 +114,10 @@ def _existing_ancestor(directory: Path) -> Path:
     return d
 
 
-def _file_id(path) -> tuple[int, int] | None:
-    try:
-        st = os.stat(path)
-    except OSError:
-        return None
-    return (st.st_dev, st.st_ino) if stat.S_ISREG(st.st_mode) else None
+def _file_id(path) -> tuple | None:
+    # the one identity of pkmcal.paths (device + inode), for regular files only
+    ident = file_identity(path)
+    return ident if ident[0] == "inode" and os.path.isfile(path) else None
 
 
 def _describe(exc: OSError) -> str:
