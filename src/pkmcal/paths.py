@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 import re
 
-__all__ = ["file_identity", "path_from_text", "path_text", "same_file"]
+__all__ = ["file_identity", "path_from_text", "path_text", "same_file", "undecodable_escaped"]
 
 
 def file_identity(path) -> tuple:
@@ -123,3 +123,26 @@ def path_from_text(text: str) -> str:
         return chr(code) if code < 0x80 else chr(0xDC00 + code)
 
     return _ESCAPED.sub(byte, text)
+
+
+_UNDECODABLE = re.compile("[\ud800-\udfff]")
+
+
+def undecodable_escaped(text: str) -> str:
+    """``text`` with the bytes of file names that are not UTF-8 written ``\\xNN`` (as
+    :func:`path_text` writes them), everything else kept (line breaks, terminal codes): what
+    reaches the terminal cannot fail to encode, whichever message named a file.
+
+    Parameters
+    ----------
+    text : str
+        Output text (a table, a "wrote ..." line).
+
+    Returns
+    -------
+    str
+        The text, encodable as UTF-8.
+    """
+    if not _UNDECODABLE.search(text):
+        return text
+    return _UNDECODABLE.sub(lambda m: _escape(m.group()), text)

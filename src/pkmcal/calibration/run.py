@@ -207,14 +207,22 @@ def provenance() -> dict:
     import shlex
     import sys
 
-    return {"command": "pkmcal " + shlex.join(sys.argv[1:]), **versions(),
+    def word(arg: str) -> str:
+        # a name that is not UTF-8 as bash's $'...' (path_text's \xNN): UTF-8 text that
+        # still runs
+        text = path_text(arg)
+        if text == arg:
+            return shlex.quote(arg)
+        return "$'" + text.replace("'", "\\'") + "'"
+
+    return {"command": "pkmcal " + " ".join(word(a) for a in sys.argv[1:]), **versions(),
             "platform": platform.platform()}
 
 
 def _source_of(machine) -> str:
     """The machine's file (``default`` for the embedded one), else its name."""
-    return str(getattr(machine, "source", None) or getattr(machine, "name", None)
-               or "the machine")
+    return path_text(getattr(machine, "source", None) or getattr(machine, "name", None)
+                     or "the machine")
 
 
 # --------------------------------------------------------------------------------------------
@@ -580,13 +588,14 @@ class Calibration:
         report_dir = None if report_dir is None else Path(report_dir)
         report_path = output.with_suffix(".json")
         beside = not is_stream(output)      # no JSON report beside /dev/null or a pipe
-        self.report["calibrated_file"] = str(output)
+        self.report["calibrated_file"] = path_text(output)
         json_text = self.json_text()
         # the machine file names its report and pins it by digest: a report of another run
         # (or a half-replaced pair) is refused by compensate and report
         metadata = {k: v for k, v in self.metadata.items() if k != "report"}
         if beside:
-            metadata.update(report=report_path.name, report_sha256=text_digest(json_text))
+            metadata.update(report=path_text(report_path.name),
+                            report_sha256=text_digest(json_text))
         yaml_text = machine_to_text(self.calibrated, self.units, calibration=metadata)
         try:                                    # the calibrated file must load back
             parse_machine(yaml_text, str(output))
@@ -1173,7 +1182,7 @@ def _report_head(machine, source, kind: str, method: str, units=None) -> dict:
     from ..report.provenance import run_date
 
     head = {"pkmcal_report": 1, "command": "calibrate", "date": run_date(),
-            "machine_file": _source_of(machine), "data_file": str(source),
+            "machine_file": _source_of(machine), "data_file": path_text(source),
             "calibrated_file": None, "measurement": kind, "method": method}
     return head if units is None else {**head, "units": units}
 
@@ -1285,7 +1294,7 @@ def _calibrate_constraint_link(machine, data, source, options: CalibrateOptions,
     metadata = {
         "method": method,
         "date": report["date"],
-        "data": str(source),
+        "data": path_text(source),
         "machine": _source_of(machine),
         "measurements": len(data),
         "rms_residual_um": report["residuals"]["rms_um"],
@@ -1563,7 +1572,7 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
     metadata = {
         "method": f"tracker-{method}",
         "date": report["date"],
-        "data": str(source),
+        "data": path_text(source),
         "machine": _source_of(machine),
         "measurements": len(data),
         "outlier_rows": outlier_rows,
@@ -1751,7 +1760,7 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
     metadata = {
         "method": f"full-pose-{method}",
         "date": report["date"],
-        "data": str(source),
+        "data": path_text(source),
         "machine": _source_of(machine),
         "measurements": len(data),
         "leg_length_rms": {"before": before_rep["leg_length_rms"],
@@ -1876,7 +1885,7 @@ def _calibrate_distances(machine, data, source, options: CalibrateOptions,
     metadata = {
         "method": "ballbar",
         "date": report["date"],
-        "data": str(source),
+        "data": path_text(source),
         "machine": _source_of(machine),
         "measurements": len(data),
         "rms_residual_um": rms_after,
@@ -2390,7 +2399,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         rms_after, r_after = _part_rms(problem.parts[i], sub, part.data)
         rms_before, _ = _part_rms(bproblem, before.state, part.data)
         model = problem.parts[i].model
-        entry = {"file": str(source), "label": label, "measurement": part.kind,
+        entry = {"file": path_text(source), "label": label, "measurement": part.kind,
                  "measurements": len(part.data), "noise": part.noise_text,
                  "residuals": {"of": ("3-D distance of the points" if model.size == 3 else
                                       "measured - predicted"),
@@ -2424,7 +2433,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     r = np.asarray(result.residuals, float)
     report = {
         **_report_head(machine, names, "joint", "joint", units),
-        "data_files": [str(s) for s in sources],
+        "data_files": [path_text(s) for s in sources],
         "measurements": int(sum(len(p.data) for p in parts)),
         "files": files,
         "parameter_names": "each file's instrument unknowns are named FILE:name (e.g. "
@@ -2454,7 +2463,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     metadata = {
         "method": "joint",
         "date": report["date"],
-        "data": [str(s) for s in sources],
+        "data": [path_text(s) for s in sources],
         "machine": _source_of(machine),
         "measurements": report["measurements"],
         "rms_residual_um": {f["label"]: f["residuals"]["rms_um"] for f in files},
@@ -2556,7 +2565,7 @@ def _calibrate_instrument(machine, data, source, options: CalibrateOptions, spli
                                                  np.asarray(result.singular_values, float)),
         "parameters": _public(params),
     }
-    metadata = {"method": inst.name, "date": report["date"], "data": str(source),
+    metadata = {"method": inst.name, "date": report["date"], "data": path_text(source),
                 "machine": _source_of(machine), "measurements": len(data),
                 "rms_residual_um": rms_after, "identifiable": int(result.rank),
                 "free_parameters": n_free, **_identifiability_metadata(unidentifiable)}
@@ -2792,7 +2801,7 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
     metadata = {
         "method": "probe",
         "date": report["date"],
-        "data": str(source),
+        "data": path_text(source),
         "machine": _source_of(machine),
         "measurements": len(data),
         "rms_residual_um": rms_after,

@@ -13,6 +13,7 @@ from ..calibration.run import rows_text as _rows_text
 from ..calibration.run import text_digest
 from ..errors import InputError
 from ..io.atomic import read_input_text
+from ..paths import path_from_text, path_text
 from ..units import format_um, format_urad
 from ._commands import (
     _machine_inputs,
@@ -41,7 +42,7 @@ def calibration_report_path(machine, machine_spec: str, report: Path | None) -> 
         if not isinstance(name, str) or not name.strip() or Path(name).name != name:
             raise InputError(f"{machine_spec}: calibration.report: expected the file name of "
                              f"the JSON report beside it, got {name!r}")
-        path = Path(machine_spec).parent / name
+        path = Path(machine_spec).parent / path_from_text(name)    # recorded by path_text
         if not path.exists():
             return None             # the YAML travelled without its report: warned later
         if not path.is_file():
@@ -225,12 +226,12 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
     summary = {
         "pkmcal_report": 1,
         "command": "compensate",
-        "machine_file": str(getattr(machine, "source", machine_spec)),
-        "targets_file": str(targets),
-        "commands_file": str(output),
+        "machine_file": path_text(getattr(machine, "source", machine_spec)),
+        "targets_file": path_text(targets),
+        "commands_file": path_text(output),
         "targets": int(len(P)),
         "targets_frame": "base" if frame is None else frame.description,
-        "covariance_from": None if report_path is None else str(report_path),
+        "covariance_from": None if report_path is None else path_text(report_path),
         "nominal_file": nominal_spec,
         "predicted_position_um": stats(comp.position_std, 1e6),
         "predicted_orientation_urad": stats(comp.orientation_std, 1e6),
@@ -239,7 +240,8 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
     }
     if report_path is None:
         named = (getattr(machine, "calibration_info", None) or {}).get("report")
-        where = (f"{Path(machine_spec).parent / named} (named by {machine_spec}) is missing"
+        where = (f"{path_text(Path(machine_spec).parent / path_from_text(str(named)))} (named by "
+                 f"{path_text(machine_spec)}) is missing"
                  if named else "no calibration report (JSON with a covariance) beside the "
                                "machine file")
         warning(f"{where}: the predicted residual error is not given; pass --report FILE.json")

@@ -17,6 +17,7 @@ from ..calibration.run import rows_text as _rows_text
 from ..errors import InputError
 from ..instruments.registry import INSTRUMENTS, instrument
 from ..io import read_table
+from ..paths import path_text
 from ..planning import WORKSPACE_POSES, measured_problem, noise_model  # noqa: F401
 from ..plausibility import check_option_scale
 from ..units import LENGTH, format_quantity, format_um, format_urad, parse_quantity
@@ -238,8 +239,8 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
     report = {
         "pkmcal_report": 1,
         "command": "identifiability",
-        "machine_file": str(getattr(machine, "source", machine_spec)),
-        "data_file": None if data_path is None else str(data_path),
+        "machine_file": path_text(getattr(machine, "source", machine_spec)),
+        "data_file": None if data_path is None else path_text(data_path),
         **result.as_dict(),
     }
     if map_path is not None:
@@ -380,7 +381,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                           targets=targets, progress=step, poses=given, rows=rows,
                           groups=groups, source=candidates_path and str(candidates_path))
     report = {"pkmcal_report": 1, "command": "select-poses",
-              "machine_file": str(getattr(machine, "source", machine_spec)),
+              "machine_file": path_text(getattr(machine, "source", machine_spec)),
               **sel.as_dict(), "output": str(output)}
     units = _units(machine)
     extra = {"candidate": sel.candidate.tolist()}
