@@ -444,26 +444,29 @@ def measurement_kind(path, header: list[str], machine) -> str:
     need = "; ".join(f"{k}: {v}" for k, v in supported.items()) or "none yet"
     matches = [k for k in _kinds() if k.detect(header) and not k.readings_only]
     if len(matches) > 1:
-        raise InputError(f"{path}: columns of {len(matches)} kinds of measurement in one file ("
+        raise InputError(f"{path_text(path)}: "
+                         f"columns of {len(matches)} kinds of measurement in one file ("
                          + "; ".join(f"{k.name}: {k.columns}" for k in matches)
                          + "): give each instrument's rows in a file of its own (several files "
                          "are fitted together: pkmcal calibrate MACHINE A.csv B.csv)")
     found = next((k for k in _kinds() if k.detect(header)), None)
     if found is None:
-        raise InputError(f"{path}: cannot tell the measurement type from the columns "
+        raise InputError(f"{path_text(path)}: cannot tell the measurement type from the columns "
                          f"({', '.join(header)}); a {machine.kind} is calibrated from {need}")
     if found.name not in supported:
         hints = [KINDS[k].missing for k in supported if KINDS[k].missing]
         if found.readings_only and found.instrument == machine.default_instrument:
             # the machine's own instrument lacks something in the machine file
-            raise InputError(f"{_source_of(machine)}: {found.why_not(machine)}; {path} has "
+            raise InputError(f"{_source_of(machine)}: {found.why_not(machine)}; {path_text(path)} "
+                             "has "
                              f"joint readings alone ({found.name} data)")
         if found.readings_only and hints:
             columns, words = hints[0]
-            raise InputError(f"{path}: missing columns {columns}: a {machine.kind} is "
+            raise InputError(f"{path_text(path)}: missing columns {columns}: a {machine.kind} is "
                              f"calibrated from {words} ({need}); columns found: "
                              f"{', '.join(header)}")
-        raise InputError(f"{path}: {found.name} measurements cannot calibrate a {machine.kind}: "
+        raise InputError(f"{path_text(path)}: "
+                         f"{found.name} measurements cannot calibrate a {machine.kind}: "
                          f"{found.why_not(machine)}; a {machine.kind} is calibrated from "
                          f"{need}")
     return found.name
@@ -583,7 +586,8 @@ class Calibration:
 
         output = Path(output)
         if output.suffix.lower() == ".json":
-            raise InputError(f"{output}: the calibrated machine is a YAML file; choose a name "
+            raise InputError(f"{path_text(output)}: "
+                             "the calibrated machine is a YAML file; choose a name "
                              "ending in .yaml (the JSON report is written beside it)")
         report_dir = None if report_dir is None else Path(report_dir)
         report_path = output.with_suffix(".json")
@@ -606,7 +610,7 @@ class Calibration:
             data = self.report.get("data_file") or "the data"
             raise InputError(f"{data}: the calibrated geometry is not a working machine "
                              f"({what}); the data do not determine it, or do not belong to "
-                             f"this machine file (see identifiability); {output} not "
+                             f"this machine file (see identifiability); {path_text(output)} not "
                              "written") from None
         html_text = None
         if report_dir is not None:
@@ -790,12 +794,13 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         kind = next((k for k in _kinds() if k.data_class == type(data).__name__
                      and getattr(data, "kind", k.instrument) in _names_of(k)), None)
         if kind is None:
-            raise InputError(f"{source}: {type(data).__name__} is no calibration data (known: "
+            raise InputError(f"{path_text(source)}: "
+                             f"{type(data).__name__} is no calibration data (known: "
                              f"{', '.join(k.data_class for k in _kinds())})")
         supported = supported_kinds(machine)
         if kind.name not in supported:
             need = "; ".join(f"{k}: {v}" for k, v in supported.items()) or "none yet"
-            raise InputError(f"{source}: {kind.name} measurements cannot calibrate a "
+            raise InputError(f"{path_text(source)}: {kind.name} measurements cannot calibrate a "
                              f"{machine.kind}: {kind.why_not(machine)}; a {machine.kind} is "
                              f"calibrated from {need}")
     options = CalibrateOptions(method, noise, pose_noise, estimate_lc, two_step, robust,
@@ -859,7 +864,8 @@ def _data_kinds(data, machine) -> list:
                          and getattr(item, "kind", k.instrument) in _names_of(k)), None)
             if kind is None:
                 source = getattr(item, "source", None) or "the data"
-                raise InputError(f"{source}: {type(item).__name__} is no calibration data")
+                raise InputError(f"{path_text(source)}: "
+                                 f"{type(item).__name__} is no calibration data")
             out.append(kind)
     return out
 
@@ -886,7 +892,7 @@ def _only_for_poses(options: CalibrateOptions, source, kind: str) -> None:
                           ("--extensions", options.extensions is not None)):
         if given:
             raise InputError(f"{option}: applies to full-pose data (a Stewart with x, y, z "
-                             f"and orientation columns); {source} has {kind} data")
+                             f"and orientation columns); {path_text(source)} has {kind} data")
 
 
 def _parameter_table(result, nominal_of: dict, units):
@@ -929,7 +935,7 @@ def _split_rows(data, split, source):
     try:
         train, held = holdout_split(len(data), *split)
     except ValueError as exc:
-        raise InputError(f"--holdout: {source}: {exc}") from None
+        raise InputError(f"--holdout: {path_text(source)}: {exc}") from None
     return data.subset(train), data.subset(held)
 
 
@@ -958,7 +964,7 @@ def _solve(source, estimator, *args, held=None, **kwargs):
         return estimator(*args, **kwargs)
     except (InputError, ValueError, np.linalg.LinAlgError) as exc:
         message = str(exc) if isinstance(exc, InputError) else \
-            f"{source}: calibration failed: {exc}"
+            f"{path_text(source)}: calibration failed: {exc}"
         if held is not None:
             message = (f"--holdout: holding out {len(held)} row(s) leaves {len(args[1])} "
                        f"to calibrate on: {message}")
@@ -971,7 +977,7 @@ def _require_converged(result, source, advice: str = "") -> None:
     if result.success and np.all(np.isfinite(result.x)):
         return
     raise CalibrationNotConverged(
-        f"{source}: calibration did not converge: {result.message} (after {result.nit} "
+        f"{path_text(source)}: calibration did not converge: {result.message} (after {result.nit} "
         "iterations)" + (f"; {advice}" if advice else "") + "; check the columns (order, "
         "units) and the machine file; no file written", result)
 
@@ -1037,7 +1043,8 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list,
                     if status == "estimated" and ratio >= MAX_NOISE_FACTOR]
             high = ", ".join(high) or f"none {MAX_NOISE_FACTOR:g}x the assumed"
             warnings.append(
-                f"{source}: residual test {verdict.sentence()}; the noise levels estimated "
+                f"{path_text(source)}: "
+                f"residual test {verdict.sentence()}; the noise levels estimated "
                 f"from the residuals ({high}) weigh the fit and its standard deviations. If "
                 "the instruments are not that noisy, the model misses something: see the "
                 "report's residual checks (per "
@@ -1052,12 +1059,12 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list,
                 "the data leave too few equations to estimate the noise, so whether the "
                 "instrument or the model is worse than assumed cannot be told")
         else:
-            warnings.append(f"{source}: residual test {test.message(gross)}")
+            warnings.append(f"{path_text(source)}: residual test {test.message(gross)}")
     if nominal is not None:
         changes = parameter_changes(nominal, calibrated)
         out["parameter_changes"] = {"suspicious": changes.suspicious}
         if changes.suspicious:
-            warnings.append(f"{source}: {changes.message()}")
+            warnings.append(f"{path_text(source)}: {changes.message()}")
     return out
 
 
@@ -1166,7 +1173,8 @@ def _noise_report(result, report: dict, source, warnings: list, robust: bool = T
     if flagged:
         shown = ", ".join(flagged[:10]) + (f" and {len(flagged) - 10} more"
                                             if len(flagged) > 10 else "")
-        warnings.append(f"{source}: {shown}: residuals the noise does not explain (chi-square "
+        warnings.append(f"{path_text(source)}: "
+                        f"{shown}: residuals the noise does not explain (chi-square "
                         f"test of each row, p < {test.threshold:.2g}); check "
                         f"{'them' if len(flagged) > 1 else 'it'} (a beam break, a mis-read "
                         "marker, a wrong row) or leave them out with --robust")
@@ -1174,7 +1182,8 @@ def _noise_report(result, report: dict, source, warnings: list, robust: bool = T
         shown = ", ".join(left[:10]) + (f" and {len(left) - 10} more" if len(left) > 10 else "")
         why = ("--robust" if robust else "the start could not fit them, and the outlier "
                "test agrees")
-        warnings.append(f"{source}: {len(left)} row(s) left out as outliers ({why}): {shown}")
+        warnings.append(f"{path_text(source)}: "
+                        f"{len(left)} row(s) left out as outliers ({why}): {shown}")
 
 
 def _report_head(machine, source, kind: str, method: str, units=None) -> dict:
@@ -1198,7 +1207,7 @@ def _check_constraint_link(options: CalibrateOptions, source) -> None:
     _only_for_poses(options, source, "constraint-link")
     if options.two_step:
         raise InputError(f"--two-step: applies to laser-tracker data (mx, my, mz columns); "
-                         f"{source} has constraint-link data")
+                         f"{path_text(source)} has constraint-link data")
     if options.robust and options.method not in (None, "ml"):
         raise InputError(f"--robust: applies to the ml method (its residuals are the noise's); "
                          f"--method {options.method} takes some readings as exact")
@@ -1305,10 +1314,12 @@ def _calibrate_constraint_link(machine, data, source, options: CalibrateOptions,
     }
     calibration = _finish(kind, machine, calibrated, result, report, metadata, params, units)
     if "warnings" in result.extras:         # ml: the start strategy says what it left out
-        calibration.warnings += [f"{source}: {text}" for text in result.extras["warnings"]]
+        calibration.warnings += [f"{path_text(source)}: "
+                                 f"{text}" for text in result.extras["warnings"]]
     elif dropped:
         calibration.warnings.append(
-            f"{source}: {len(dropped)} row(s) left out (no pose from the five active readings "
+            f"{path_text(source)}: "
+            f"{len(dropped)} row(s) left out (no pose from the five active readings "
             f"and the link with the start geometry): {rows_text(dropped)}")
     return calibration
 
@@ -1399,14 +1410,16 @@ def _check_spread(data, noise_model) -> None:
     would be fixed only by the noise. Also fewer than 4 points (seed 001 eq. 12-14)."""
     K = len(data)
     if K < 4:
-        raise InputError(f"{data.source}: {K} point(s): the tracker registration needs at "
+        raise InputError(f"{path_text(data.source)}: "
+                         f"{K} point(s): the tracker registration needs at "
                          "least 4 points that are not on one line (seed 001 uses a 3x3x3 grid)")
     m = data.m - data.m.mean(0)
     sv = np.linalg.svd(m, compute_uv=False)
     off_line = sv[1] / math.sqrt(K)                       # RMS distance from the best line
     sigma = float(np.sqrt(np.max(np.trace(noise_model.covariance(data.m), axis1=1, axis2=2))))
     if off_line <= max(20 * sigma, 1e-6 * sv[0]):
-        raise InputError(f"{data.source}: the {K} tracker points lie on one line or nearly (RMS "
+        raise InputError(f"{path_text(data.source)}: "
+                         f"the {K} tracker points lie on one line or nearly (RMS "
                          f"distance from the best line {off_line * 1e6:.3g} um, tracker noise "
                          f"{sigma * 1e6:.3g} um): the "
                          "rotation of the tracker about that line cannot be found; measure "
@@ -1424,7 +1437,7 @@ def _check_tracker(options: CalibrateOptions, source) -> None:
     for option, given in (("--method", options.method is not None),
                           ("--estimate-lc", options.estimate_lc is not None)):
         if given:
-            raise InputError(f"{option}: applies to constraint-link data; {source} has "
+            raise InputError(f"{option}: applies to constraint-link data; {path_text(source)} has "
                              "tracker points (see --two-step, --robust)")
     if options.two_step and options.robust:
         raise InputError("--robust: applies to the joint method (its residuals are the "
@@ -1448,7 +1461,7 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
     _check_spread(data, noise_model)
     fk = machine.fk(data.q)
     if not fk.converged.all():
-        raise InputError(f"{source}: row(s) {rows_text(data.rows[~fk.converged])}: no "
+        raise InputError(f"{path_text(source)}: row(s) {rows_text(data.rows[~fk.converged])}: no "
                          f"platform pose of {_source_of(machine)} reproduces these readings "
                          "(outside the workspace, or a wrong unit or zero)")
     result = _solve(source, calibrate_tracker, machine, data, noise_model, held=held,
@@ -1611,7 +1624,7 @@ def _check_full_pose(options: CalibrateOptions, source) -> None:
     for option, given in (("--estimate-lc", options.estimate_lc is not None),
                           ("--two-step", options.two_step)):
         if given:
-            raise InputError(f"{option}: does not apply to full-pose data ({source}); "
+            raise InputError(f"{option}: does not apply to full-pose data ({path_text(source)}); "
                              "see --method ml|ik, --fix-frames, --noise, --pose-noise, --robust")
     if options.robust and options.method == "ik":
         raise InputError("--robust: applies to the ml method (its residuals are the noise's); "
@@ -1784,7 +1797,7 @@ def _check_distances(options: CalibrateOptions, source) -> None:
                           ("--estimate-lc", options.estimate_lc is not None),
                           ("--two-step", options.two_step)):
         if given:
-            raise InputError(f"{option}: does not apply to ballbar data ({source}); see "
+            raise InputError(f"{option}: does not apply to ballbar data ({path_text(source)}); see "
                              "--noise (the ballbar's standard deviation, default 1um), "
                              "--robust")
 
@@ -2175,7 +2188,8 @@ def _joint_distances(machine, data, source, noise) -> JointPart:
     counts = np.bincount(dist.group, minlength=dist.n_groups)
     few = np.flatnonzero(counts < 6)
     if few.size:
-        raise InputError(f"{source}: setup {few[0] + 1} has {counts[few[0]]} row(s); each "
+        raise InputError(f"{path_text(source)}: "
+                         f"setup {few[0] + 1} has {counts[few[0]]} row(s); each "
                          "mounting needs at least 6 lengths (its pivot and ball are unknown)")
     dist.source = str(source)
     return JointPart(dist, DistancesModel(dist.n_groups), noise_model,
@@ -2215,16 +2229,18 @@ def _joint_part(machine, data, source, kind: MeasurementKind, noise) -> JointPar
     from ..instruments import InstrumentProblem
 
     if kind.joint_refusal:
-        raise InputError(f"{source}: {kind.name} data cannot be combined with other files in "
+        raise InputError(f"{path_text(source)}: "
+                         f"{kind.name} data cannot be combined with other files in "
                          f"one fit ({kind.joint_refusal}); the kinds that combine: "
-                         f"{_combining()}; calibrate from {source} on its own")
+                         f"{_combining()}; calibrate from {path_text(source)} on its own")
     if kind.joint is not None:
         return kind.joint(machine, data, source, noise)
     kind.check_options(CalibrateOptions(noise=noise), source)
     alone = kind.calibrate(machine, data, source, CalibrateOptions(noise=noise), None)
     problem = alone.result.extras.get("problem")
     if not isinstance(problem, InstrumentProblem) or getattr(problem, "local_dof", 0):
-        raise InputError(f"{source}: {kind.name} data cannot be combined with other files in "
+        raise InputError(f"{path_text(source)}: "
+                         f"{kind.name} data cannot be combined with other files in "
                          f"one fit (no instrument model of the shared layer); the kinds that "
                          f"combine: {', '.join(sorted(k.name for k in _kinds() if k.joint))}")
     text = alone.report.get("noise")
@@ -2314,7 +2330,8 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
             kind = next((k for k in _kinds() if k.data_class == type(item).__name__
                          and getattr(item, "kind", k.instrument) in _names_of(k)), None)
             if kind is None:
-                raise InputError(f"{source}: {type(item).__name__} is no calibration data")
+                raise InputError(f"{path_text(source)}: "
+                                 f"{type(item).__name__} is no calibration data")
             kinds.append(kind)
         sources.append(source)
     seen: dict = {}
@@ -2416,7 +2433,8 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
             sections.append(words)
         if held[i] is not None:
             entry["validation"] = _validation(
-                split, held[i], f"{part.kind} of the held-out rows of {source}, measured - "
+                split, held[i], f"{part.kind} of the held-out rows of {path_text(source)}, "
+                                "measured - "
                 "predicted with the identified instrument; before: the machine file's model "
                 "with the instrument fitted alone", "um",
                 _part_rms(bproblem, before.state, held[i])[0],
@@ -2503,7 +2521,8 @@ def _check_instrument(options: CalibrateOptions, source, inst) -> None:
                           ("--two-step", options.two_step),
                           ("--bed-tilt", options.bed_tilt is not None)):
         if given:
-            raise InputError(f"{option}: does not apply to {inst.plural} ({source}); see "
+            raise InputError(f"{option}: does not apply to {inst.plural} ({path_text(source)}); "
+                             "see "
                              "--noise, --robust")
 
 
@@ -2631,7 +2650,8 @@ def _check_heights(data, machine) -> None:
              ("in mm", h * 1e3, "the unit of probe_z is wrong (the numbers are mm)"))
     for words, other, fix in fixes:
         if abs(float(np.median(z - other))) < 0.1 * offset:
-            raise InputError(f"{data.source}: the probe heights sit {offset * 1e3:.4g} mm "
+            raise InputError(f"{path_text(data.source)}: "
+                             f"the probe heights sit {offset * 1e3:.4g} mm "
                              f"from where the machine file puts the nozzle, and {words} "
                              f"within {abs(float(np.median(z - other))) * 1e3:.3g} mm of it: "
                              f"{fix} (or, if the machine file's position_endstop values are "
@@ -2699,7 +2719,8 @@ def _check_probe(options: CalibrateOptions, source) -> None:
                           ("--estimate-lc", options.estimate_lc is not None),
                           ("--two-step", options.two_step)):
         if given:
-            raise InputError(f"{option}: does not apply to probe heights ({source}); see "
+            raise InputError(f"{option}: does not apply to probe heights ({path_text(source)}); "
+                             "see "
                              "--noise (the probe's repeatability along z, default 10um), "
                              "--robust")
 

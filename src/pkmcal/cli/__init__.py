@@ -30,6 +30,7 @@ from ..errors import (
     restore_signals,
 )
 from ..limits import MAX_MEASUREMENTS, MAX_RUNS, MAX_SAMPLES
+from ..paths import path_text
 from ._names import formats, machine_types
 
 app = typer.Typer(
@@ -1133,10 +1134,10 @@ def _fail_exception(exc: Exception) -> None:
     if isinstance(exc, ConvergenceError):
         _fail(str(exc))
     if isinstance(exc, FileNotFoundError):
-        _fail(f"{exc.filename}: file not found" if exc.filename else str(exc))
+        _fail(f"{path_text(exc.filename)}: file not found" if exc.filename else str(exc))
     if isinstance(exc, OSError):
         if exc.filename:
-            _fail(f"{exc.filename}: {exc.strerror or exc}")
+            _fail(f"{path_text(exc.filename)}: {exc.strerror or exc}")
         _fail(str(exc))
     if os.environ.get("PKMCAL_DEBUG"):
         raise exc

@@ -28,7 +28,9 @@ def _um(value) -> str:
 
 def export_record(result, calibrated: str, output: Path, nominal: str | None) -> dict:
     """The JSON record beside the written file: the result and where it came from."""
-    record = {"calibrated": calibrated, "nominal": nominal, "file": path_text(output)}
+    record = {"calibrated": path_text(calibrated),
+              "nominal": None if nominal is None else path_text(nominal),
+              "file": path_text(output)}
     record.update(result.as_dict())
     return _finite_or_none(record)
 
@@ -62,12 +64,13 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
         try:                        # the backup is the previous file byte for byte (a BOM)
             previous = output.read_bytes()
         except OSError as exc:
-            raise InputError(f"{output}: cannot be read ({exc.strerror or exc})") from None
+            raise InputError(f"{path_text(output)}: "
+                             f"cannot be read ({exc.strerror or exc})") from None
     check_outputs([output] + ([record_path] if record_path is not None else [])
                   + ([backup] if backup is not None else []), inputs)
     why = fmt.applies(machine)
     if why is not None:
-        raise InputError(f"--to {fmt.name}: {machine_spec}: {why}")
+        raise InputError(f"--to {fmt.name}: {path_text(machine_spec)}: {why}")
     before = None
     if nominal is not None:
         before = load_machine_arg(nominal)
@@ -75,7 +78,8 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
         if why is not None:
             raise InputError(f"--nominal {nominal}: {why}")
         if before.kind != machine.kind:
-            raise InputError(f"--nominal {nominal}: a {before.kind} machine, but {machine_spec} "
+            raise InputError(f"--nominal {nominal}: a {before.kind} machine, but "
+                             f"{path_text(machine_spec)} "
                              f"is a {machine.kind} machine")
     own = getattr(machine, "print_workspace", None)
     ws = (own(rng=seed) if workspace is None and callable(own)
@@ -110,15 +114,18 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
                          f"; nozzle height RMS {_um(result.before_height_rms)}, max "
                          f"{_um(result.before_height_max)}"))
     if backup is not None:
-        table.add_row("updated", f"{output} as the controller saves its values (previous "
-                                 f"file kept as {backup.name})")
+        table.add_row("updated", f"{path_text(output)} as the controller saves its values "
+                                 "(previous "
+                                 f"file kept as {path_text(backup.name)})")
     out.print(table)
     values = _table("value", "written", title="Values written (the controller's units)")
     for name, text in fmt.values_text(result.params):
         values.add_row(name, text)
     out.print(values)
-    out.print(f"wrote {output}" + (f" and {record_path}" if record_path else "")
-              + (f" (previous {output.name} kept as {backup.name})" if backup else ""),
+    out.print(f"wrote {path_text(output)}"
+              + (f" and {path_text(record_path)}" if record_path else "")
+              + (f" (previous {path_text(output.name)} kept as {path_text(backup.name)})"
+                 if backup else ""),
               markup=False)
     return 0
 
@@ -148,7 +155,7 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
     machine = fmt.to_machine(params, model)
     problems = machine.geometry_problems(home_given=model is not None)
     if problems:
-        raise InputError(f"{path}: the imported values do not make a working machine: "
+        raise InputError(f"{path_text(path)}: the imported values do not make a working machine: "
                          f"{problems[0][1]}")
     from ..io.machine_file import machine_to_text, parse_machine
 
@@ -159,13 +166,15 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
         import re
 
         what = re.sub(r" \(line \d+\)$", "", str(exc).split(": ", 1)[-1])
-        raise InputError(f"{path}: the imported values do not make a plausible machine file: "
+        raise InputError(f"{path_text(path)}: "
+                         "the imported values do not make a plausible machine file: "
                          f"{what}") from None
     save_machine(machine, output, units)
     commit_outputs()
     out = console()
     for note in getattr(params, "notes", None) or []:       # letters passed over, and why
         out.print(f"note: {note}", markup=False)
-    out.print(f"{len(params.values)} {fmt.name} values of {path} written to {output} "
+    out.print(f"{len(params.values)} {fmt.name} values of {path_text(path)} written to "
+              f"{path_text(output)} "
               f"as a {machine.kind} machine file", markup=False)
     return 0

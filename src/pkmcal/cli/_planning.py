@@ -118,11 +118,12 @@ def _points_workspace(path: Path, machine, seed: int):
     from ..kinematics import matrix_from_euler
 
     if not path.exists():
-        raise InputError(f"--workspace {path}: neither a box X0,X1,Y0,Y1,Z0,Z1 (six lengths "
+        raise InputError(f"--workspace {path_text(path)}: neither a box X0,X1,Y0,Y1,Z0,Z1 (six "
+                         "lengths "
                          "with units) nor an existing points file")
     with column_map(None):           # --columns renames the data file's columns, not these
         header, _ = read_table(path)
-        words = f"{{n}} poses of {path} (--workspace)"
+        words = f"{{n}} poses of {path_text(path)} (--workspace)"
         if has_orientation(header) and machine.rotates:
             P, R, rows = read_poses_of(path, machine)
         else:
@@ -132,7 +133,7 @@ def _points_workspace(path: Path, machine, seed: int):
             if not machine.rotates:
                 R = np.broadcast_to(np.eye(3), R.shape)
             else:
-                words = (f"{{n}} points of {path} (--workspace), orientations within "
+                words = (f"{{n}} points of {path_text(path)} (--workspace), orientations within "
                          "+/-10 deg")
     return Workspace(P, np.asarray(R), words.format(n=len(P)),
                      (P.min(axis=0), P.max(axis=0))), rows
@@ -214,14 +215,15 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
     if measured:
         kind = measurement_kind(data_path, read_table(data_path)[0], machine)
         if scenario is not None and scenario_for(machine, scenario) != kind:
-            raise InputError(f"--scenario {scenario}: {data_path} holds {kind} measurements "
+            raise InputError(f"--scenario {scenario}: {path_text(data_path)} holds {kind} "
+                             "measurements "
                              "(from its columns); leave --scenario out or give a plan with "
                              "--planned")
         for option, value in (("--setups", setups), ("--radius", radius),
                               ("--targets", targets)):
             if value is not None:
                 raise InputError(f"{option}: applies to planned measurements; the "
-                                 f"measurements of {data_path} have their own")
+                                 f"measurements of {path_text(data_path)} have their own")
     else:
         kind = scenario_for(machine, scenario)
         machine = planning_machine(machine, kind, setups, radius, targets)
@@ -323,7 +325,7 @@ def joint_bounds(machine, joint_range: str | None):
     words = []
     if limits is not None:
         lo, hi = np.maximum(lo, limits[0]), np.minimum(hi, limits[1])
-        words.append(f"the joint limits of {source} ({machine.joint_limits_text()})")
+        words.append(f"the joint limits of {path_text(source)} ({machine.joint_limits_text()})")
     if joint_range is not None:
         a, b = parse_joint_range(joint_range, machine)
         lo, hi = np.maximum(lo, a), np.minimum(hi, b)
@@ -333,7 +335,7 @@ def joint_bounds(machine, joint_range: str | None):
         if empty.size:
             raise InputError(f"--joint-range {joint_range}: no value of "
                              f"{', '.join(f'q{j + 1}' for j in empty)} is both within it and "
-                             f"within the joint limits of {source} "
+                             f"within the joint limits of {path_text(source)} "
                              f"({machine.joint_limits_text()})")
     return (lo, hi), " and ".join(words)
 
@@ -456,5 +458,5 @@ def _print_selection(sel, machine_file: str, output: Path, map_path: Path | None
         crit += (f"; the selected set is {' and '.join(ratios)} "
                  f"({ratio_words.format(p=rank)})")
     table.add_row("criterion", crit)
-    table.add_row("written", str(output) + (f", {map_path}" if map_path else ""))
+    table.add_row("written", path_text(output) + (f", {path_text(map_path)}" if map_path else ""))
     out.print(table)

@@ -48,6 +48,7 @@ from ..machines.reach import (
     bed_height,
     probe_radius,
 )
+from ..paths import path_text
 from .base import (
     Instrument,
     StandardPlan,
@@ -662,7 +663,8 @@ def poorly_determined_warnings(poor: list[PoorParameter], source, instrument: st
     named = "; ".join(p.text(units["length"], units["angle"]) for p in poor[:shown])
     more = (f"; and {len(poor) - shown} more (the report's poorly_determined lists them)"
             if len(poor) > shown else "")
-    return [f"{source}: {len(poor)} parameter(s) poorly determined by these {instrument} "
+    return [f"{path_text(source)}: "
+            f"{len(poor)} parameter(s) poorly determined by these {instrument} "
             f"measurements (standard deviation beyond {limit} at the machine's scale): "
             f"{named}{more}; to fix them, measure {nxt}"]
 
@@ -708,9 +710,10 @@ def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: fl
 
     noise = IsotropicNoise(PROBE_SIGMA) if noise is None else noise
     if data.kind != "probe":
-        raise InputError(f"{data.source}: {data.kind} data, not probe heights")
+        raise InputError(f"{path_text(data.source)}: {data.kind} data, not probe heights")
     if len(data) < 3:
-        raise InputError(f"{data.source}: {len(data)} probe height(s); at least 3 points not "
+        raise InputError(f"{path_text(data.source)}: "
+                         f"{len(data)} probe height(s); at least 3 points not "
                          "on one line are needed")
     if isinstance(bed, str):
         bed = bed_choice(machine, data, noise, bed, rtol=rtol)

@@ -113,6 +113,7 @@ from ..machines.file_format import (
 )
 from ..machines.file_format import show as _show
 from ..machines.registry import machine_formats as registered_machine_formats
+from ..paths import path_text
 from .atomic import atomic_write_text, read_input_text
 
 FORMAT_VERSION = 1
@@ -252,25 +253,28 @@ def _parse_yaml(text: str, source: str):
         loader = _Loader(text)
     except yaml.YAMLError as exc:       # e.g. a control character: the reader refuses it
         reason = " ".join(str(exc).split())
-        raise InputError(f"{source}: not a YAML text file: {reason}") from None
+        raise InputError(f"{path_text(source)}: not a YAML text file: {reason}") from None
     try:
         node = loader.get_single_node()
         if node is None:
-            raise InputError(f"{source}: the file is empty (expected a machine description "
+            raise InputError(f"{path_text(source)}: "
+                             "the file is empty (expected a machine description "
                              "starting with 'pkmcal: 1')")
         data = loader.construct_document(node)
     except _Refused as exc:
         line = exc.problem_mark.line + 1
-        raise InputError(f"{source}: {exc.context}: {exc.problem} (line {line})") from None
+        raise InputError(f"{path_text(source)}: "
+                         f"{exc.context}: {exc.problem} (line {line})") from None
     except RecursionError:       # not reached within MAX_YAML_DEPTH; never a traceback
-        raise InputError(f"{source}: nested too deeply to be a machine file") from None
+        raise InputError(f"{path_text(source)}: nested too deeply to be a machine file") from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
         what = exc.problem or exc.context or "invalid YAML"
-        raise InputError(f"{source}: {where}YAML syntax error: {what}") from None
+        raise InputError(f"{path_text(source)}: {where}YAML syntax error: {what}") from None
     except yaml.YAMLError as exc:
-        raise InputError(f"{source}: YAML syntax error: {' '.join(str(exc).split())}") from None
+        raise InputError(f"{path_text(source)}: "
+                         f"YAML syntax error: {' '.join(str(exc).split())}") from None
     finally:
         loader.dispose()
     return data, _line_map(node)
@@ -511,7 +515,7 @@ def _check_magnitudes(data: dict, doc, fmt: MachineFormat, source: str, lines: d
                           f"{lu})" if relative else f"{MAX_LENGTH / 1000:g} km"))
         if problem is not None:
             line = _line_of(lines, path)
-            raise InputError(f"{source}: {_key_path(path)}: {problem}"
+            raise InputError(f"{path_text(source)}: {_key_path(path)}: {problem}"
                              + (f" (line {line})" if line else ""))
 
 
@@ -642,7 +646,7 @@ def _validation_message(exc: ValidationError, source: str, lines: dict,
         where = f" (line {line})" if line else ""
         parts.append(f"{_key_path(loc)}: {_describe(err, fmt)}{where}")
     more = f"; and {len(errors) - 3} more problem(s)" if len(errors) > 3 else ""
-    return f"{source}: " + "; ".join(parts) + more
+    return f"{path_text(source)}: " + "; ".join(parts) + more
 
 
 # --------------------------------------------------------------------------------------------
@@ -673,21 +677,24 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     """
     data, lines = _parse_yaml(text, source)
     if not isinstance(data, dict):
-        raise InputError(f"{source}: expected a mapping of keys (pkmcal: 1, machine: ..., "
+        raise InputError(f"{path_text(source)}: "
+                         "expected a mapping of keys (pkmcal: 1, machine: ..., "
                          f"units: ...), got {type(data).__name__}")
     if "pkmcal" not in data:
-        raise InputError(f"{source}: pkmcal: missing key ({_HINTS['pkmcal']})")
+        raise InputError(f"{path_text(source)}: pkmcal: missing key ({_HINTS['pkmcal']})")
     version = data["pkmcal"]
     if type(version) is not int or version != FORMAT_VERSION:
-        raise InputError(f"{source}: pkmcal: unsupported file format version {_show(version)} "
+        raise InputError(f"{path_text(source)}: "
+                         f"pkmcal: unsupported file format version {_show(version)} "
                          f"(line {lines.get(('pkmcal',), '?')}); this pkmcal reads version "
                          f"{FORMAT_VERSION}")
     known = ", ".join(MACHINE_FORMATS)
     if "machine" not in data:
-        raise InputError(f"{source}: machine: missing key (the machine type, one of: {known})")
+        raise InputError(f"{path_text(source)}: "
+                         f"machine: missing key (the machine type, one of: {known})")
     kind = data["machine"]
     if not isinstance(kind, str) or kind not in MACHINE_FORMATS:
-        raise InputError(f"{source}: machine: unknown machine type {_show(kind)} (line "
+        raise InputError(f"{path_text(source)}: machine: unknown machine type {_show(kind)} (line "
                          f"{lines.get(('machine',), '?')}); known types: {known}")
     fmt = MACHINE_FORMATS[kind]
     try:
@@ -702,7 +709,7 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     if problems:
         key, what = problems[0]
         line = _line_of(lines, key)
-        raise InputError(f"{source}: {_key_path(key)}: {what}"
+        raise InputError(f"{path_text(source)}: {_key_path(key)}: {what}"
                          + (f" (line {line})" if line else ""))
     machine.joint_limits = _joint_limits(data.get("joint_limits"), machine, source, lines)
     machine.source = source
@@ -727,7 +734,7 @@ def _joint_limits(value, machine: Machine, source: str, lines: dict):
 
     def fail(path: tuple, what: str):
         line = _line_of(lines, path)
-        raise InputError(f"{source}: {_key_path(path)}: {what}"
+        raise InputError(f"{path_text(source)}: {_key_path(path)}: {what}"
                          + (f" (line {line})" if line else ""))
 
     if not isinstance(value, dict):

@@ -29,6 +29,7 @@ from pydantic import (
 )
 
 from ..errors import InputError
+from ..paths import path_text
 
 __all__ = ["MAX_DEPTH", "MAX_REPORT_BYTES", "CalibrationReport", "load_report",
            "validate_report"]
@@ -421,10 +422,11 @@ def validate_report(doc: Any, source: str | Path = "report") -> dict:
         Naming the file and the first wrong key.
     """
     if not isinstance(doc, dict):
-        raise InputError(f"{source}: not a calibration report (a JSON object was expected, "
+        raise InputError(f"{path_text(source)}: "
+                         "not a calibration report (a JSON object was expected, "
                          f"got {type(doc).__name__})")
     if doc.get("command") != "calibrate":
-        raise InputError(f"{source}: not a calibration report of pkmcal calibrate (no "
+        raise InputError(f"{path_text(source)}: not a calibration report of pkmcal calibrate (no "
                          "\"command\": \"calibrate\")")
     try:
         CalibrationReport.model_validate(doc)
@@ -437,7 +439,7 @@ def validate_report(doc: Any, source: str | Path = "report") -> dict:
         shown = "" if isinstance(value, (dict, list)) else f": {value!r}"[:80]
         loc = err.get("loc", ())
         where = f"{_key_path(loc)}: " if loc else ""
-        raise InputError(f"{source}: {where}{msg}{shown}") from None
+        raise InputError(f"{path_text(source)}: {where}{msg}{shown}") from None
     return doc
 
 
@@ -469,17 +471,17 @@ def load_report(path: str | Path, what: str = "calibration report") -> dict:
     except OSError:
         size = 0
     if size > MAX_REPORT_BYTES:
-        raise InputError(f"{path}: {size} bytes is too large for a {what} (at most "
+        raise InputError(f"{path_text(path)}: {size} bytes is too large for a {what} (at most "
                          f"{MAX_REPORT_BYTES // 2**20} MiB)")
     text = read_input_text(path, what)
     if _depth(text) > MAX_DEPTH:
-        raise InputError(f"{path}: not a {what}: JSON nested more than {MAX_DEPTH} deep")
+        raise InputError(f"{path_text(path)}: not a {what}: JSON nested more than {MAX_DEPTH} deep")
     try:
         doc = json.loads(text, parse_constant=_refuse_constant)
     except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not JSON (line {exc.lineno}, column {exc.colno}): "
+        raise InputError(f"{path_text(path)}: not JSON (line {exc.lineno}, column {exc.colno}): "
                          f"{exc.msg}") from None
     except ValueError as exc:  # NaN / Infinity literals
-        raise InputError(f"{path}: not a {what}: {exc}") from None
+        raise InputError(f"{path_text(path)}: not a {what}: {exc}") from None
     return validate_report(doc, path)
 
