@@ -376,3 +376,19 @@ def test_a_strict_utf8_stdout_does_not_end_in_an_internal_error(workdir, tmp_pat
     assert os.path.isfile(os.fsencode(d) + b"/out-\xff.yaml")
     proc = run_process("fk", "cal.yaml", X + "none.csv", "-o", "p.csv", cwd=d, env=env)
     assert_input_error(proc, f"{SHOWN}none.csv")
+
+
+def test_export_reads_the_pinned_report_of_a_name_that_is_not_utf8(workdir, tmp_path):
+    """export takes the report a calibrated file names as an input: mapped back from its
+    escaped record, it is found (and protected: FILE.json may not replace it)."""
+    d = _copy(workdir, tmp_path)
+    cal = X + "l.yaml"
+    assert run("calibrate", "m.yaml", "probe.csv", "-o", cal, cwd=d).returncode == 0
+    proc = run("export", cal, "--to", "klipper", "-o", X + "o.cfg", cwd=d)
+    assert proc.returncode == 0, proc.stderr
+    record = json.loads((d / (X + "o.cfg.json")).read_text())
+    assert record["calibrated"] == f"{SHOWN}l.yaml" and record["file"] == f"{SHOWN}o.cfg"
+    before = digest(d / (X + "l.json"))
+    proc = run("export", cal, "--to", "klipper", "-o", X + "l", cwd=d)   # record: \xffl.json
+    assert_input_error(proc, f"{SHOWN}l.json")
+    assert digest(d / (X + "l.json")) == before

@@ -29,7 +29,7 @@ def run_report(result: Path, output: Path) -> None:
         machine = load_machine_arg(str(result))
         found = calibration_report_path(machine, str(result), None)
         if found is None:
-            raise InputError(f"{result}: names no calibration report beside it (is it a "
+            raise InputError(f"{path_text(result)}: names no calibration report beside it (is it a "
                              "calibrated file?); give the JSON report")
         source = found
     check_outputs([output] + ([twin] if twin else []), [result, source])
@@ -40,5 +40,5 @@ def run_report(result: Path, output: Path) -> None:
     atomic_write_text(output, page)
     commit_outputs()
     console().print(f"wrote {path_text(output)} ({len(page) // 1024} kB, self-contained)"
-                    + (f" and {twin}" if twin else ""),
+                    + (f" and {path_text(twin)}" if twin else ""),
                     markup=False)
