@@ -392,3 +392,27 @@ def test_export_reads_the_pinned_report_of_a_name_that_is_not_utf8(workdir, tmp_
     proc = run("export", cal, "--to", "klipper", "-o", X + "l", cwd=d)   # record: \xffl.json
     assert_input_error(proc, f"{SHOWN}l.json")
     assert digest(d / (X + "l.json")) == before
+
+
+def test_the_library_refuses_one_file_twice(workdir, tmp_path):
+    """pkmcal.calibration.calibrate decides "the same file" as the command does."""
+    from pkmcal.calibration.run import calibrate
+    from pkmcal.errors import InputError
+    from pkmcal.io.machine_file import load_machine
+
+    d = _copy(workdir, tmp_path)
+    os.link(d / "probe.csv", d / "hard.csv")
+    machine = load_machine(d / "m.yaml")
+    with pytest.raises(InputError, match="probe.csv and .*hard.csv are the same file"):
+        calibrate(machine, [d / "probe.csv", d / "hard.csv"])
+
+
+def test_a_report_directory_file_that_is_an_input_is_refused(workdir, tmp_path):
+    """--report DIR: DIR/report.json a hard link of the data file is the data file."""
+    d = _copy(workdir, tmp_path)
+    (d / "rep").mkdir()
+    os.link(d / "probe.csv", d / "rep" / "report.json")
+    before = digest(d / "probe.csv")
+    proc = run("calibrate", "m.yaml", "probe.csv", "-o", "c.yaml", "--report", "rep", cwd=d)
+    assert_input_error(proc, "report.json", "probe.csv")
+    assert digest(d / "probe.csv") == before and not (d / "c.yaml").exists()
