@@ -416,3 +416,13 @@ def test_a_report_directory_file_that_is_an_input_is_refused(workdir, tmp_path):
     proc = run("calibrate", "m.yaml", "probe.csv", "-o", "c.yaml", "--report", "rep", cwd=d)
     assert_input_error(proc, "report.json", "probe.csv")
     assert digest(d / "probe.csv") == before and not (d / "c.yaml").exists()
+
+
+def test_a_klipper_include_of_the_same_file_by_another_name(workdir, tmp_path):
+    """[include] of a hard link of the config itself is the recursion it is."""
+    d = _copy(workdir, tmp_path)
+    (d / "main.cfg").write_text("[include again.cfg]\n" + (d / "in.cfg").read_text())
+    os.link(d / "main.cfg", d / "again.cfg")
+    proc = run("import", "main.cfg", "--from", "klipper", "-o", "imp.yaml", cwd=d)
+    assert_input_error(proc, "again.cfg", "included again from itself")
+    assert not (d / "imp.yaml").exists()
