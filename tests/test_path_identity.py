@@ -433,3 +433,15 @@ def test_a_klipper_include_of_the_same_file_by_another_name(workdir, tmp_path):
     proc = run("import", "main.cfg", "--from", "klipper", "-o", "imp.yaml", cwd=d)
     assert_input_error(proc, "again.cfg", "included again from itself")
     assert not (d / "imp.yaml").exists()
+
+
+def test_a_name_holding_a_backslash_is_not_read_as_an_escape(workdir, tmp_path):
+    """A calibrated file named ``c\\x41.yaml`` (a real backslash) names its report as it is,
+    not as ``cA.json``."""
+    d = _copy(workdir, tmp_path)
+    cal = "c\\x41.yaml"
+    assert run("calibrate", "default", "data.csv", "-o", cal, cwd=d).returncode == 0
+    assert (d / "c\\x41.json").is_file() and not (d / "cA.json").exists()
+    proc = run("compensate", cal, "targets.csv", "-o", "cmd.csv", "--json", cwd=d)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["covariance_from"] == "c\\x41.json"

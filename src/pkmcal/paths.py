@@ -16,7 +16,8 @@ from __future__ import annotations
 import os
 import re
 
-__all__ = ["file_identity", "path_from_text", "path_text", "same_file", "undecodable_escaped"]
+__all__ = ["file_identity", "path_from_text", "path_text", "recorded_path", "same_file",
+           "undecodable_escaped"]
 
 
 def file_identity(path) -> tuple:
@@ -146,3 +147,28 @@ def undecodable_escaped(text: str) -> str:
     if not _UNDECODABLE.search(text):
         return text
     return _UNDECODABLE.sub(lambda m: _escape(m.group()), text)
+
+
+def recorded_path(directory, text: str):
+    """The file a record (a calibrated file's ``calibration.report``) names in
+    ``directory``: the name as written when such a file exists (a name that holds a
+    backslash), else the name :func:`path_text` rendered as ``text``.
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        Where the named file lies (the recording file's directory).
+    text : str
+        The recorded name.
+
+    Returns
+    -------
+    pathlib.Path
+        The file's path (it may not exist).
+    """
+    from pathlib import Path
+
+    literal = Path(directory) / text
+    if os.path.lexists(literal):
+        return literal
+    return Path(directory) / path_from_text(text)

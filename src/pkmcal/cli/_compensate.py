@@ -13,7 +13,7 @@ from ..calibration.run import rows_text as _rows_text
 from ..calibration.run import text_digest
 from ..errors import InputError
 from ..io.atomic import read_input_text
-from ..paths import path_from_text, path_text
+from ..paths import path_text, recorded_path
 from ..units import format_um, format_urad
 from ._commands import (
     _machine_inputs,
@@ -43,7 +43,7 @@ def calibration_report_path(machine, machine_spec: str, report: Path | None) -> 
             raise InputError(f"{path_text(machine_spec)}: "
                              "calibration.report: expected the file name of "
                              f"the JSON report beside it, got {name!r}")
-        path = Path(machine_spec).parent / path_from_text(name)    # recorded by path_text
+        path = recorded_path(Path(machine_spec).parent, name)      # recorded by path_text
         if not path.exists():
             return None             # the YAML travelled without its report: warned later
         if not path.is_file():
@@ -245,7 +245,7 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
     }
     if report_path is None:
         named = (getattr(machine, "calibration_info", None) or {}).get("report")
-        where = (f"{path_text(Path(machine_spec).parent / path_from_text(str(named)))} (named by "
+        where = (f"{path_text(recorded_path(Path(machine_spec).parent, str(named)))} (named by "
                  f"{path_text(machine_spec)}) is missing"
                  if named else "no calibration report (JSON with a covariance) beside the "
                                "machine file")

@@ -9,7 +9,7 @@ from pathlib import Path
 from ..calibration.run import json_safe as _finite_or_none
 from ..errors import InputError
 from ..io.atomic import atomic_write_bytes, atomic_write_text, is_stream, read_input_text
-from ..paths import path_from_text, path_text
+from ..paths import path_text, recorded_path
 from ..units import format_quantity
 from ._commands import (
     _machine_inputs,
@@ -136,7 +136,7 @@ def _pinned_report(machine, machine_spec: str) -> Path | None:
     if not isinstance(name, str) or not name.strip() or Path(name).name != name \
             or machine_spec == "default":
         return None
-    return Path(machine_spec).parent / path_from_text(name)       # recorded by path_text
+    return recorded_path(Path(machine_spec).parent, name)         # recorded by path_text
 
 
 def run_import(path: Path, source_format: str, output: Path, like: str | None = None) -> int:
