@@ -483,7 +483,7 @@ class KlipperRotaryDelta(ControllerFormat):
         params : ControllerParameters
             The values.
         like : Machine, optional
-            Platform radius ``b``, ``smr_offset`` and name come from it (default ``b = 0``:
+            Platform radius ``b``, home, ``smr_offset`` and name come from it (default ``b = 0``:
             Klipper folds the effector's radius into ``shoulder_radius``).
 
         Returns
@@ -492,10 +492,11 @@ class KlipperRotaryDelta(ControllerFormat):
             ``a = shoulder_radius + b``, ``l1``/``l2`` the mean arms with the per-stepper
             differences as ``dl1``/``dl2``, the shoulders at ``shoulder_height`` (``da.z``),
             ``dtheta = abs_endstop - endstop_reading`` (the arm's angle at reading 0), no
-            other errors; home at the centre at the mean endstop height. Its readings are
+            other errors; home at the centre at the mean endstop height (``like``'s home,
+            in Klipper's frame, when given). Its readings are
             the machine's, so :meth:`initial` of it gives the values back.
         """
-        radius, height, upper, lower, angles, endstops, _, readings = self.unpack(params)
+        radius, height, upper, lower, angles, endstops, bed_z, readings = self.unpack(params)
         b = float(getattr(like, "platform_radius", 0.0))
         l1, l2 = float(np.mean(upper)), float(np.mean(lower))
         dth = self.abs_endstops(params) - readings
@@ -505,6 +506,9 @@ class KlipperRotaryDelta(ControllerFormat):
         u[:, 4] = upper - l1
         u[:, 5] = lower - l2
         home = (np.array([0.0, 0.0, float(np.mean(endstops))]), np.eye(3))
+        if like is not None:            # --like's home, in Klipper's frame (z = 0 at bed_z)
+            home = (np.asarray(like.home[0], float) - np.array([0.0, 0.0, bed_z]),
+                    np.asarray(like.home[1], float))
         name = like.name if like is not None and like.name else "imported from Klipper"
         return Delta(radius + b, b, l1, l2, np.asarray(angles, float),
                      delta_parameters(u.reshape(-1)),

@@ -375,7 +375,7 @@ class LinuxCNCRotaryDelta(ControllerFormat):
         params : ControllerParameters
             The values.
         like : Machine, optional
-            ``smr_offset`` and name come from it.
+            Home, ``smr_offset`` and name come from it.
 
         Returns
         -------
@@ -390,7 +390,8 @@ class LinuxCNCRotaryDelta(ControllerFormat):
         name = like.name if like is not None and like.name else "imported from LinuxCNC"
         return Delta(v[0], v[3], v[1], v[2], np.radians(np.asarray(ROTARY_HIPS)[joint]),
                      delta_parameters(u.reshape(-1)),
-                     smr_offset=float(getattr(like, "smr_offset", 0.0) or 0.0), name=name)
+                     smr_offset=float(getattr(like, "smr_offset", 0.0) or 0.0),
+                     home=None if like is None else like.home, name=name)
 
 
 class LinuxCNCLinearDelta(ControllerFormat):
