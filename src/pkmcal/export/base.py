@@ -61,6 +61,17 @@ class Origin:
         return f"{self.key} (line {self.line}" + (f", {self.note})" if self.note else ")")
 
 
+    def text_in_file(self) -> str:
+        """``printer.cfg: [printer] delta_radius (line 3)``.
+
+        Returns
+        -------
+        str
+            The file, key and line.
+        """
+        return f"{self.file}: {self.text()}"
+
+
 def where(origins) -> str:
     """Origins for a message: ``config.g: M665 H (line 3), M666 X (line 4)``.
 

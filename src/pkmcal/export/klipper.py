@@ -134,6 +134,26 @@ def read_bed(text: str, source: str) -> np.ndarray:
     return bed
 
 
+def entry_origin(entry, section: str, key: str) -> Origin:
+    """The :class:`~pkmcal.export.base.Origin` of a Klipper option
+    (:class:`~pkmcal.io.klipper_config.Entry`): its file, ``[section] key`` and line.
+
+    Parameters
+    ----------
+    entry : Entry
+        The option as read.
+    section, key : str
+        Its section and name.
+
+    Returns
+    -------
+    Origin
+        ``printer.cfg: [printer] delta_radius (line 3)`` in words.
+    """
+    return Origin(entry.file, f"[{section}] {key}", entry.line,
+                  "SAVE_CONFIG block" if entry.autosave else "")
+
+
 def bed_origins(text: str, source: str) -> dict:
     """Where the ``pkmcal bed:`` comment stands (the source map of the bed entries).
 
@@ -193,7 +213,7 @@ def linear_delta_keys(radius, arms, angles, endstops, bed=BED) -> dict:
 
 
 def check_printer_values(params, source: str, size_names, dimensions=(), corrections=(),
-                         turns=(), slopes=(), radius: float = 0.0) -> None:
+                         turns=(), slopes=(), radius: float = 0.0, spreads=()) -> None:
     """Refuse values of a printer's controller file that cannot be meant, naming the file's
     key and line (:func:`~pkmcal.export.base.refuse_implausible`), before anything is
     computed with them; the bounds are relative to the printer's size, as a machine file's.
@@ -217,6 +237,9 @@ def check_printer_values(params, source: str, size_names, dimensions=(), correct
         Values by kind; ``shown`` formats the value as the file writes it.
     radius : float, optional
         The towers' radius, m (the lever of the angle trims and tilts).
+    spreads : sequence of (names, what, shown)
+        Per-tower values of one quantity (Klipper's three arm lengths): one may differ from
+        their median by no more than a correction.
 
     Raises
     ------
@@ -243,6 +266,12 @@ def check_printer_values(params, source: str, size_names, dimensions=(), correct
         if not abs(v[name]) <= error:
             refuse_implausible(params, name, shown(v[name]), f"a correction of more than "
                                f"{scale}", source)
+    for names, what, shown in spreads:
+        middle = float(np.median([v[n] for n in names]))
+        for name in names:
+            if not abs(v[name] - middle) <= error:
+                refuse_implausible(params, name, shown(v[name]), f"{what} {shown(middle)} of "
+                                   f"the other towers by more than {scale}", source)
     lever = abs(radius) if abs(radius) > 0 else size
     for name, shown in turns:
         if not abs(v[name]) * lever <= error:
@@ -662,7 +691,8 @@ class KlipperDelta(ControllerFormat):
         radius = get("printer", "delta_radius")
         if not radius > 0:
             e = cfg.entry("printer", "delta_radius")
-            raise InputError(f"{e.where('printer', 'delta_radius')}: {e.value} must be > 0")
+            raise InputError(f"{entry_origin(e, 'printer', 'delta_radius').text_in_file()}: "
+                             f"{e.value.strip()} must be > 0 (the delta radius)")
         sane("printer", "delta_radius", radius, 1.0, SANE_LENGTH, "a delta radius")
         arm_a = get("stepper_a", "arm_length")
         pe_a = get("stepper_a", "position_endstop")
@@ -688,11 +718,49 @@ class KlipperDelta(ControllerFormat):
                                  f"delta_radius ({radius:g} mm)")
         params = self.values(radius * 1e-3, arms * 1e-3, np.radians(angles), pe * 1e-3,
                              read_bed(text, source))
+        params.origins.update(bed_origins(text, source))
+        mm = (lambda x: f"{x * 1e3:g} mm")  # noqa: E731
+        params.origins["delta_radius"] = entry_origin(cfg.entry("printer", "delta_radius"),
+                                                      "printer", "delta_radius")
+        for t, default in zip(TOWERS, (210.0, 330.0, 90.0), strict=True):
+            for key, name in (("arm_length", "arm_length"), ("position_endstop",
+                                                             "position_endstop")):
+                sec = f"stepper_{t}" if cfg.entry(f"stepper_{t}", key) else "stepper_a"
+                params.origins[f"{name}_{t}"] = entry_origin(cfg.entry(sec, key), sec, key)
+            e = cfg.entry(f"stepper_{t}", "angle")
+            params.origins[f"angle_{t}"] = (
+                entry_origin(e, f"stepper_{t}", "angle") if e is not None else
+                Origin(source, f"[stepper_{t}] angle", None, f"not set: Klipper's {default:g}"))
         for key, (sec, opt) in (("print_radius", ("printer", "print_radius")),
                                 ("probe_radius", ("delta_calibrate", "radius"))):
             if cfg.entry(sec, opt) is not None:
                 params.extras[key] = cfg.number(sec, opt, above=0.0) * 1e-3
+                params.origins[key] = entry_origin(cfg.entry(sec, opt), sec, opt)
+        check_printer_values(
+            params, source, ["delta_radius", "arm_length_a", "position_endstop_a"],
+            spreads=[([f"{key}_{t}" for t in TOWERS], f"differs from the {words}", mm)
+                     for key, words in (("arm_length", "arm length"),
+                                        ("position_endstop", "endstop height"))])
         return params
+
+    def machine_keys(self, params: ControllerParameters) -> dict:
+        """The source map of an import (see :meth:`ControllerFormat.machine_keys`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Klipper's values.
+
+        Returns
+        -------
+        dict
+            Each machine-file key from the option of the same meaning (``delta_radius``,
+            and per stepper ``arm_length``, ``angle``, ``position_endstop`` with the bed's
+            height).
+        """
+        return linear_delta_keys(["delta_radius"], [[f"arm_length_{t}"] for t in TOWERS],
+                                 [[f"angle_{t}"] for t in TOWERS],
+                                 [[f"position_endstop_{t}", "bed.z"] for t in TOWERS])
 
     def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
         """A linear Delta with Klipper's values (vertical towers, one radius).
