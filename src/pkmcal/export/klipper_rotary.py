@@ -70,7 +70,13 @@ import numpy as np
 from ..errors import InputError
 from ..machines.base import Machine
 from ..machines.delta import Delta, delta_parameters
-from .base import ControllerFormat, ControllerParameters, finite_number, register_format
+from .base import (
+    ControllerFormat,
+    ControllerParameters,
+    Origin,
+    finite_number,
+    register_format,
+)
 
 #: the letters of Klipper's steppers
 STEPPERS = "abc"
@@ -441,7 +447,51 @@ class KlipperRotaryDelta(ControllerFormat):
                              if f"endstop_reading_{t}_deg" in notes else ends[i]
                              for i, t in enumerate(STEPPERS)])
         params.values[15:18] = readings
+        from .klipper import entry_origin
+
+        for sec, key, name in ([("printer", "shoulder_radius", "shoulder_radius"),
+                                ("printer", "shoulder_height", "shoulder_height")]
+                               + [(f"stepper_{t}", key, f"{key}_{t}") for t in STEPPERS
+                                  for key in ("upper_arm_length", "lower_arm_length",
+                                              "position_endstop", "angle")]):
+            at = sec if cfg.entry(sec, key) is not None or key == "angle" else "stepper_a"
+            e = cfg.entry(at, key)
+            params.origins[name] = (entry_origin(e, at, key) if e is not None else
+                                    Origin(source, f"[{sec}] {key}", None,
+                                           "not set: Klipper's default"))
+        for key, (_, n) in notes.items():
+            params.origins[re.sub(r"_(mm|deg)$", "", key)] = Origin(source, f"#pkmcal {key}", n)
         return params
+
+    def machine_keys(self, params: ControllerParameters) -> dict:
+        """The source map of an import (see :meth:`ControllerFormat.machine_keys`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Klipper's values.
+
+        Returns
+        -------
+        dict
+            ``base_radius`` from ``shoulder_radius``; the arms from the steppers'
+            ``upper_arm_length`` / ``lower_arm_length``; the leg angles from ``angle``; each
+            leg's shoulder height, arm trims and endstop angle from its options; the home
+            from the endstops.
+        """
+        ends = [f"position_endstop_{t}" for t in STEPPERS]
+        keys = {("base_radius",): ["shoulder_radius"],
+                ("upper_arm",): [f"upper_arm_length_{t}" for t in STEPPERS],
+                ("forearm",): [f"lower_arm_length_{t}" for t in STEPPERS],
+                ("home",): ends}
+        for i, t in enumerate(STEPPERS):
+            keys[("leg_angles", i)] = [f"angle_{t}"]
+            keys[("legs", i, "da")] = ["shoulder_height"]
+            keys[("legs", i, "dl1")] = [f"upper_arm_length_{t}"]
+            keys[("legs", i, "dl2")] = [f"lower_arm_length_{t}"]
+            keys[("legs", i, "dtheta")] = [f"position_endstop_{t}", f"endstop_reading_{t}",
+                                           "shoulder_radius", "shoulder_height"]
+        return keys
 
     def update(self, existing: str, params: ControllerParameters, machine: Machine,
                source: str) -> str | None:
