@@ -185,9 +185,11 @@ def _check_imported(fmt, params, machine, path: Path, like: str | None) -> None:
             problems = machine.geometry_problems(home_given=like is not None)
             if problems:
                 key, what = problems[0]
-    place = fmt.imported_key(params, key)
-    if place is None and like is not None and key and (key[0] in _LIKE_KEYS or key[0] == "home"):
-        place = f"--like {like}: {_key_path(key)}"
+    place = None
+    if like is not None and key and (key[0] in _LIKE_KEYS or key[0] == "home"):
+        place = f"--like {like}: {_key_path(key)}"          # what --like gave
+    if place is None:
+        place = fmt.imported_key(params, key)
     if place is None:
         raise InputError(f"{path}: the imported values do not make a working machine "
                          f"({_key_path(key)} of its machine file): {what}") from None

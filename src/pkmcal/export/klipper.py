@@ -248,7 +248,6 @@ def check_printer_values(params, source: str, size_names, dimensions=(), correct
     """
     from ..limits import MAX_LENGTH, MAX_LENGTH_RATIO
     from ..plausibility import OPTION_SCALE
-
     from .base import refuse_implausible
 
     v = params.as_dict()

@@ -75,6 +75,7 @@ from .base import (
     ControllerParameters,
     Origin,
     finite_number,
+    origin_of,
     register_format,
 )
 
@@ -438,16 +439,7 @@ class KlipperRotaryDelta(ControllerFormat):
         bed_z = notes.get("bed_z_mm", (0.0, 0))[0] * 1e-3
         params = self.values(radius, height, per["upper_arm_length"], per["lower_arm_length"],
                              angles, per["position_endstop"], bed_z)
-        ends = self.abs_endstops(params)
-        for i, t in enumerate(STEPPERS):
-            if not np.isfinite(ends[i]):
-                raise InputError(f"{source}: [stepper_{t}] position_endstop: the arm cannot "
-                                 "reach the centre at that height with these arm lengths")
-        readings = np.array([np.radians(notes[f"endstop_reading_{t}_deg"][0])
-                             if f"endstop_reading_{t}_deg" in notes else ends[i]
-                             for i, t in enumerate(STEPPERS)])
-        params.values[15:18] = readings
-        from .klipper import entry_origin
+        from .klipper import check_printer_values, entry_origin
 
         for sec, key, name in ([("printer", "shoulder_radius", "shoulder_radius"),
                                 ("printer", "shoulder_height", "shoulder_height")]
@@ -461,6 +453,21 @@ class KlipperRotaryDelta(ControllerFormat):
                                            "not set: Klipper's default"))
         for key, (_, n) in notes.items():
             params.origins[re.sub(r"_(mm|deg)$", "", key)] = Origin(source, f"#pkmcal {key}", n)
+        mm = (lambda x: f"{x * 1e3:g} mm")  # noqa: E731
+        check_printer_values(params, source, ["shoulder_radius", "upper_arm_length_a",
+                                              "lower_arm_length_a"],
+                             dimensions=[(n, mm) for n in self.NAMES[:8] + self.NAMES[11:14]])
+        ends = self.abs_endstops(params)
+        for i, t in enumerate(STEPPERS):
+            if not np.isfinite(ends[i]):
+                raise InputError(f"{origin_of(params, f'position_endstop_{t}')}: the arm "
+                                 "cannot reach the centre at that height with these arm "
+                                 f"lengths ({origin_of(params, f'upper_arm_length_{t}')}, "
+                                 f"{origin_of(params, f'lower_arm_length_{t}')})")
+        readings = np.array([np.radians(notes[f"endstop_reading_{t}_deg"][0])
+                             if f"endstop_reading_{t}_deg" in notes else ends[i]
+                             for i, t in enumerate(STEPPERS)])
+        params.values[15:18] = readings
         return params
 
     def machine_keys(self, params: ControllerParameters) -> dict:

@@ -78,10 +78,11 @@ from .marlin import BASE_ANGLES, gcode_lines, gcode_words
 _XYZ = "xyz"
 #: the values each letter sets (the source map of an import)
 _LETTER_NAMES = {("M665", "L"): [f"diagonal_{t}" for t in _XYZ], ("M665", "R"): ["radius"],
-                 ("M665", "H"): ["homed_height"],
-                 **{("M665", k): [f"angle_correction_{t}"] for k, t in zip("XYZ", _XYZ)},
-                 **{("M666", k): [f"endstop_adjustment_{t}"] for k, t in zip("XYZ", _XYZ)},
-                 ("M666", "A"): ["x_tilt"], ("M666", "B"): ["y_tilt"]}
+                 ("M665", "H"): ["homed_height"], ("M666", "A"): ["x_tilt"],
+                 ("M666", "B"): ["y_tilt"]}
+for _k, _t in zip("XYZ", _XYZ, strict=True):
+    _LETTER_NAMES[("M665", _k)] = [f"angle_correction_{_t}"]
+    _LETTER_NAMES[("M666", _k)] = [f"endstop_adjustment_{_t}"]
 
 
 class RepRapFirmwareDelta(ControllerFormat):
