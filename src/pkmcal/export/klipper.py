@@ -253,7 +253,9 @@ def check_printer_values(params, source: str, size_names, dimensions=(), correct
     v = params.as_dict()
     with np.errstate(all="ignore"):
         size = float(np.median([abs(v[n]) for n in size_names]))
-    size_text = f"{size * 1e3:.6g} mm, the median of the radius, arm and height"
+    origins = getattr(params, "origins", {})
+    named = [origins[n].key if n in origins else n for n in size_names]
+    size_text = f"{size * 1e3:.6g} mm, the median of {', '.join(dict.fromkeys(named))}"
     top = min(MAX_LENGTH, MAX_LENGTH_RATIO * size)
     for name, shown in dimensions:
         if not abs(v[name]) <= top:

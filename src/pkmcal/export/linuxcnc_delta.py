@@ -397,7 +397,8 @@ class LinuxCNCRotaryDelta(ControllerFormat):
         Raises
         ------
         InputError
-            Naming the line and pin of a value that is not a number, or a pin missing.
+            Naming the line and pin of a value that is not a number or cannot be meant
+            (:func:`~pkmcal.export.klipper.check_printer_values`), or a pin missing.
         """
         at: dict = {}
         pins = hal_values(text, source, "rotarydeltakins", self.PINS, at)
@@ -406,6 +407,10 @@ class LinuxCNCRotaryDelta(ControllerFormat):
         params = self.values(*(pins[p] * 1e-3 for p in self.PINS), zeros,
                              reading_joints(notes, source))
         params.origins.update(hal_origins(source, "rotarydeltakins", at, notes))
+        from .klipper import check_printer_values
+
+        check_printer_values(params, source, ["platformradius", "thighlength", "shinlength"],
+                             dimensions=[(n, lambda x: f"{x * 1e3:g} mm") for n in self.PINS])
         return params
 
     def machine_keys(self, params: ControllerParameters) -> dict:
