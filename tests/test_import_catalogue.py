@@ -362,7 +362,9 @@ def _like_stewart() -> str:
 
     text = (Path(__file__).parent.parent / "examples" / "cubic_6upu.yaml").read_text()
     text = re.sub(r"(?m)^name: .*$", "name: the like file's name", text)
-    return re.sub(r"(?m)^home:", "joint_limits: {min: 100.0, max: 600.0}\nhome:", text)
+    return re.sub(r"(?m)^home:", "joint_limits: {min: 100.0, max: 600.0}\n"
+                  "tracker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, "
+                  "0], targets: [[10.0, 20.0, 30.0], [-10.0, 5.0, 0.0]]}\nhome:", text)
 
 
 #: format -> (file name, text, --like text, home expected (m), joint limits expected (SI))
@@ -412,6 +414,9 @@ def test_like_carries_every_documented_field(tmp_path, fmt):
         np.testing.assert_allclose(m.home[0], like.home[0], atol=1e-12)
     if like.kind == "delta":                  # the effector offset of a Delta robot
         assert m.smr_offset == pytest.approx(0.03), written
+    if like.kind == "stewart":                # the targets' places on the platform
+        np.testing.assert_allclose(m.tracker_targets, [[0.01, 0.02, 0.03], [-0.01, 0.005, 0]],
+                                   atol=1e-15)
 
 
 def test_like_keeps_compensate_checking_limits(tmp_path):
@@ -422,3 +427,32 @@ def test_like_keeps_compensate_checking_limits(tmp_path):
     proc = run("compensate", "m.yaml", "t.csv", "-o", "q.csv", cwd=tmp_path)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert "limit" in proc.stderr, proc.stderr
+
+
+# -- every number of every file replaced by one that cannot be meant ------------------------------
+
+#: format -> (file name, text)
+FILES = {fmt: (v[0], v[1]) for fmt, v in LIKE.items()}
+
+
+def _numbers(text: str, every: int = 1):
+    found = list(re.finditer(r"(?<=[A-Za-z: =])-?\d+(?:\.\d+)?(?=[\s:]|$)", text))
+    return found[::every]
+
+
+GENERATED = [(fmt, k, value) for fmt, (_, text) in sorted(FILES.items())
+             for k, _ in enumerate(_numbers(text, 7 if fmt == "linuxcnc-genhexkins" else 1))
+             for value in ("1e300", "-1e300")]
+
+
+@pytest.mark.parametrize("fmt, k, value", GENERATED,
+                         ids=[f"{f}-{k}-{v}" for f, k, v in GENERATED])
+def test_every_number_absurd(tmp_path, fmt, k, value):
+    """Any number of any file replaced by +/-1e300: imported (a value the firmware ignores)
+    or refused in one line naming the file and a line; never an internal error."""
+    name, text = FILES[fmt]
+    m = _numbers(text, 7 if fmt == "linuxcnc-genhexkins" else 1)[k]
+    (tmp_path / name).write_text(text[:m.start()] + value + text[m.end():])
+    proc = run("import", name, "--from", fmt, "-o", "m.yaml", cwd=tmp_path)
+    if proc.returncode != 0:
+        assert_input_error(proc, name, "line ")

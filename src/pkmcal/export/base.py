@@ -744,7 +744,9 @@ def carry_like(machine: Machine, like: Machine | None) -> Machine:
         machine.smr_offset = float(getattr(like, "smr_offset", 0.0) or 0.0)
     targets = getattr(like, "tracker_targets", None)
     if targets is not None and machine.tracker_target() is None:
+        # the targets' places on the platform, with the tracker section that holds them
         machine.tracker_targets = np.array(targets, float)
+        machine.base_from_tracker = like.base_from_tracker
     return machine
 
 
