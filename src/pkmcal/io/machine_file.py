@@ -708,7 +708,9 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     ------
     InputError
         For invalid YAML, a missing or unsupported ``pkmcal`` version, an unknown machine
-        type, or a schema error (``FILE: key.path: what is wrong (line N)``).
+        type, or a schema error (``FILE: key.path: what is wrong (line N)``); a problem of
+        a value (schema, magnitude, geometry, joint limits) is a :class:`MachineFileError`
+        that keeps the key path and the problem apart.
     """
     data, lines = _parse_yaml(text, source)
     if not isinstance(data, dict):
