@@ -456,3 +456,13 @@ def test_every_number_absurd(tmp_path, fmt, k, value):
     proc = run("import", name, "--from", fmt, "-o", "m.yaml", cwd=tmp_path)
     if proc.returncode != 0:
         assert_input_error(proc, name, "line ")
+
+
+def test_included_file_named(tmp_path):
+    """A value of an ``[include]`` file is named by that file and its own line."""
+    (tmp_path / "kinematics.cfg").write_text("# towers\n[printer]\ndelta_radius: 100\n"
+                                             "\n[stepper_b]\narm_length: 9000\n")
+    (tmp_path / "printer.cfg").write_text("[include kinematics.cfg]\n" + KLIPPER.replace(
+        "delta_radius: 132.5\n", ""))
+    proc = run("import", "printer.cfg", "--from", "klipper", "-o", "m.yaml", cwd=tmp_path)
+    assert_input_error(proc, "kinematics.cfg", "[stepper_b] arm_length", "line 6")
