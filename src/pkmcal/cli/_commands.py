@@ -781,6 +781,8 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
             raise InputError(f"{poses}: {int(off.sum())} position(s) outside the working "
                              f"assembly mode (the platform must hang below the base), row(s) "
                              f"{_rows_text(rows[off])}")
+    refuse_unreachable(machine, machine.reachability(P, R), f"{poses}: {{n}} pose(s) cannot "
+                       "be reached by the machine", rows, (P, R))
     refuse_outside_limits(machine, q, rows, f"{poses}: {{n}} pose(s)")
     columns = joint_columns(machine, q, _units(machine))
     write_table(output, list(columns), list(columns.values()))

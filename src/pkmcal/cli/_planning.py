@@ -27,6 +27,7 @@ from ._commands import (
     joint_columns,
     load_machine_arg,
     read_poses_of,
+    refuse_unreachable,
 )
 from ._console import console, progress_tasks
 
@@ -371,6 +372,9 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
         given = rows = groups = None
         if candidates_path is not None:
             *given, rows = read_poses_of(candidates_path, machine)
+            refuse_unreachable(machine, machine.reachability(*given), f"{candidates_path}: "
+                               "{n} candidate pose(s) cannot be reached by the machine", rows,
+                               given)
             groups = plan_groups(candidates_path, kind, rows)
         elif candidates < n:
             raise InputError(f"-n/--poses {n}: more than the {candidates} candidate poses "
