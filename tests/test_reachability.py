@@ -347,3 +347,44 @@ def test_delta_export_workspace_partly_out_of_reach(tmp_path):
     assert_input_error(proc, "--workspace -50,50,-50,50,-2500,-700mm:",
                        "no real inverse kinematics (leg(s)")
     assert not (tmp_path / "d.cfg").exists()
+
+
+# -- planar 3-RPR ------------------------------------------------------------------------------
+
+RPR = """\
+pkmcal: 1
+machine: planar_3rpr
+units: {length: mm, angle: deg}
+legs:
+  - {base: [0.0, 500.0], platform: [-100.0, 0.0], l0: 300.0, gain: 1.0}
+  - {base: [-433.0127, -250.0], platform: [50.0, -86.6025], l0: 300.0}
+  - {base: [433.0127, -250.0], platform: [50.0, 86.6025], l0: 300.0, gain: 1.0}
+home: [10.0, -5.0, 3.0]
+"""
+RPR_TARGETS = "x_mm,y_mm,z_mm,psi_deg,theta_deg,phi_deg\n10,-5,0,0,0,3\n9000,0,0,0,0,0\n"
+
+
+def test_planar_target_too_far_is_named(tmp_path):
+    m = write(tmp_path, "rpr.yaml", RPR)
+    t = write(tmp_path, "t.csv", RPR_TARGETS)
+    proc = run("compensate", m, t, "-o", "c.csv", cwd=tmp_path)
+    assert_input_error(proc, "t.csv: 1 target(s) cannot be reached", "row 3 at (9000, 0, 0) "
+                       "mm", "8990 mm from home, farther than 10x the machine's size")
+
+
+def test_planar_targets_outside_the_joint_limits(tmp_path):
+    m = write(tmp_path, "rpr.yaml", RPR + "joint_limits: {min: 150, max: 250}\n")
+    t = write(tmp_path, "t.csv", "x_mm,y_mm,z_mm,psi_deg,theta_deg,phi_deg\n10,-5,0,0,0,3\n"
+              "10,-5,0,0,0,60\n")
+    proc = run("compensate", m, t, "-o", "c.csv", cwd=tmp_path)
+    assert_input_error(proc, "t.csv: 1 target(s) need joint values outside the joint limits",
+                       "row 3: q1 = 292.953 mm above max 250 mm")
+
+
+def test_planar_reachable_targets_still_work(tmp_path):
+    m = write(tmp_path, "rpr.yaml", RPR)
+    t = write(tmp_path, "t.csv", "x_mm,y_mm,z_mm,psi_deg,theta_deg,phi_deg\n10,-5,0,0,0,3\n"
+              "30,5,0,0,0,-2\n")
+    proc = run("compensate", m, t, "-o", "c.csv", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert len(column(tmp_path / "c.csv", "q1_mm")) == 2
