@@ -388,3 +388,13 @@ def test_planar_reachable_targets_still_work(tmp_path):
     proc = run("compensate", m, t, "-o", "c.csv", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert len(column(tmp_path / "c.csv", "q1_mm")) == 2
+
+
+def test_stewart_errors_trajectory_outside_the_joint_limits(tmp_path):
+    m = example(tmp_path, STEWART, extra="joint_limits: {min: 380, max: 420}\n")
+    proc = run("errors", m, "-o", "e.csv", cwd=tmp_path)
+    assert_input_error(proc, "the circle has 360 pose(s) the machine cannot take",
+                       "sample 0 at (100, 0, 410) mm, psi 0 theta 0 phi 0 deg",
+                       "q1 = 422.019 mm, 2.01896 mm above its max 420 mm",
+                       "change --radius or --height")
+    assert not (tmp_path / "e.csv").exists()

@@ -817,12 +817,12 @@ class Machine(ABC):
 
         units = getattr(self, "file_units", None) or {"length": "m", "angle": "rad"}
         fl = LENGTH.get(units.get("length", "m"), 1.0)
-        text = ("(" + ", ".join(f"{float(v) / fl:.6g}" for v in np.asarray(P, float)[:3])
+        text = ("(" + ", ".join(f"{float(v) / fl + 0.0:.6g}" for v in np.asarray(P, float)[:3])
                 + f") {units.get('length', 'm')}")
         if R is not None and self.rotates:
             fa = ANGLE.get(units.get("angle", "rad"), 1.0)
             angles = euler_from_matrix(np.asarray(R, float)) / fa
-            text += ", " + " ".join(f"{n} {a:.6g}" for n, a in zip(
+            text += ", " + " ".join(f"{n} {a + 0.0:.6g}" for n, a in zip(
                 ("psi", "theta", "phi"), angles, strict=True)) + f" {units.get('angle', 'rad')}"
         return text
 
