@@ -725,8 +725,7 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
         raise InputError(f"{path_text(source)}: pkmcal: missing key ({_HINTS['pkmcal']})")
     version = data["pkmcal"]
     if type(version) is not int or version != FORMAT_VERSION:
-        raise InputError(f"{path_text(source)}: "
-                         f"pkmcal: unsupported file format version {_show(version)} "
+        raise InputError(f"{source}: pkmcal: unsupported file format version {_show(version)} "
                          f"(line {lines.get(('pkmcal',), '?')}); this pkmcal reads version "
                          f"{FORMAT_VERSION}")
     known = ", ".join(MACHINE_FORMATS)

@@ -473,7 +473,7 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
     step(1, "select-poses: pose-error operator over the workspace")
     op = pose_error_operator(machine, design, ws.P, ws.R, problem.n_machine)
     if op.unbounded:
-        raise InputError(f"{path_text(src)}: even all {len(P_all)} candidates leave {op.unbounded} "
+        raise InputError(f"{src}: even all {len(P_all)} candidates leave {op.unbounded} "
                          "direction(s) that move the platform unidentified; widen the "
                          "candidate set")
     per = design.F.shape[1]

@@ -439,7 +439,7 @@ def validate_report(doc: Any, source: str | Path = "report") -> dict:
         shown = "" if isinstance(value, (dict, list)) else f": {value!r}"[:80]
         loc = err.get("loc", ())
         where = f"{_key_path(loc)}: " if loc else ""
-        raise InputError(f"{path_text(source)}: {where}{msg}{shown}") from None
+        raise InputError(f"{source}: {where}{msg}{shown}") from None
     return doc
 
 
@@ -482,6 +482,6 @@ def load_report(path: str | Path, what: str = "calibration report") -> dict:
         raise InputError(f"{path_text(path)}: not JSON (line {exc.lineno}, column {exc.colno}): "
                          f"{exc.msg}") from None
     except ValueError as exc:  # NaN / Infinity literals
-        raise InputError(f"{path_text(path)}: not a {what}: {exc}") from None
+        raise InputError(f"{path}: not a {what}: {exc}") from None
     return validate_report(doc, path)
 
