@@ -305,6 +305,17 @@ class Probe(Instrument):
                     "(tracker) instead")
         return None
 
+    def unbounded_cause(self, machine):
+        if getattr(machine, "frame_is_bed", False):
+            return None
+        from ..machines.registry import bed_frame_kinds
+
+        printers = " or ".join(f"machine: {k}" for k in bed_frame_kinds()) or "a printer"
+        return (f"a {machine.kind} has no bed (its frame is not a probed bed, as that of "
+                f"{printers} is; a bed section does not make it one): probe heights see the "
+                "tool's height above a bed plane they estimate, whose height and tilt take "
+                "up moves of the whole platform, whatever the points probed")
+
     def default_noise(self):
         from .models import IsotropicNoise
 
