@@ -518,6 +518,67 @@ def _constant_place(text: str) -> str:
     return ""
 
 
+#: keys whose values pkmcal writes as numbers (or lists of numbers, or null) wherever they
+#: stand in a report: the sections shown as written (registration, frames, files, ...) are
+#: held to them too, so that text where a number belongs is named by its key path
+NUMBER_KEYS = frozenset((
+    "alpha", "assumed", "ball", "capacity", "change", "chi2", "chi2_per_dof", "chi_square",
+    "condition_number", "correlation", "count", "cv_gain", "cv_loss", "cv_loss_baseline",
+    "cv_se", "dimension", "dof", "evaluations", "explained", "far_above", "fk_failed", "folds",
+    "free_parameters", "height", "identifiable", "identifiable_alone", "identified",
+    "in_file", "iterations", "joint_identifiable", "leg_length_max", "leg_length_rms",
+    "leg_length_rms_per_leg", "matrix", "max", "mean", "measurements", "min",
+    "min_redundancy", "noise_ratio", "noise_scale", "nominal", "normalised_residuals",
+    "null_space", "p", "p_adjusted", "pairs", "pivot", "places", "position_max",
+    "position_rms", "ratio", "redundancy", "residual_variance", "rms", "rotation", "seed",
+    "setup", "sigma", "significant_trends", "singular_values", "smr_offset",
+    "rows", "standardised_residuals", "std", "tests", "threshold_p", "tilt_x", "tilt_y",
+    "translation", "translation_change", "upper_999", "used", "value"))
+#: so are keys ending in a unit
+NUMBER_SUFFIX = re.compile(r"_(um|mm|m|in|deg|rad|urad|percent)$")
+
+
+def _number_leaves(value) -> bool:
+    """A number, null, or a (nested) list of them."""
+    if value is None or (isinstance(value, (int, float)) and not isinstance(value, bool)):
+        return True
+    return isinstance(value, list) and all(_number_leaves(v) for v in value)
+
+
+def _first_non_number(value, loc: tuple):
+    """``(loc, value)`` of the first leaf of ``value`` that is not a number or null."""
+    if isinstance(value, list):
+        for i, v in enumerate(value):
+            found = _first_non_number(v, (*loc, i))
+            if found is not None:
+                return found
+        return None
+    return None if _number_leaves(value) else (loc, value)
+
+
+def _text_in_numbers(doc, loc: tuple = ()):
+    """``(loc, value)`` of the first value under a number key (:data:`NUMBER_KEYS`,
+    :data:`NUMBER_SUFFIX`, a combination ``"a - b"`` of ``identifiable_combinations``) that is
+    not a number, anywhere in the report; None."""
+    if isinstance(doc, dict):
+        for key, value in doc.items():
+            here = (*loc, key)
+            if isinstance(key, str) and (key in NUMBER_KEYS or NUMBER_SUFFIX.search(key)
+                                         or (loc[-1:] == ("identifiable_combinations",)
+                                             and " - " in key)) \
+                    and not _number_leaves(value):
+                return _first_non_number(value, here)
+            found = _text_in_numbers(value, here)
+            if found is not None:
+                return found
+    elif isinstance(doc, list):
+        for i, value in enumerate(doc):
+            found = _text_in_numbers(value, (*loc, i))
+            if found is not None:
+                return found
+    return None
+
+
 def _refuse_constant(name: str):
     raise ValueError(f"{name} is not a number JSON allows")
 
@@ -555,6 +616,11 @@ def validate_report(doc: Any, source: str | Path = "report") -> dict:
         loc = err.get("loc", ())
         where = f"{_key_path(loc)}: " if loc else ""
         raise InputError(f"{source}: {where}{_error_words(err)}") from None
+    found = _text_in_numbers(doc)
+    if found is not None:
+        loc, value = found
+        raise InputError(f"{source}: {_key_path(loc)}: expected a number, got "
+                         f"{_json_value(value)}")
     return doc
 
 
