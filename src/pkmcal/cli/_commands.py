@@ -351,6 +351,10 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
         raise InputError(f"--grid {'x'.join(map(str, shape))}: {bad.size} grid point(s) "
                          f"outside the workspace of {machine.source} (e.g. "
                          f"{_mm(targets[bad[0]])} mm); use a smaller grid or another home")
+    refuse_unreachable(machine, machine.reachability(targets), f"--grid "
+                       f"{'x'.join(map(str, shape))}: {{n}} grid point(s) (rows of the data "
+                       f"file) cannot be reached by {machine.source}",
+                       np.arange(2, n_points + 2), (targets, None))
     refuse_outside_limits(machine, machine.ik(targets), np.arange(2, n_points + 2),
                           f"--grid {'x'.join(map(str, shape))}: {{n}} grid point(s) (rows of "
                           "the data file)")
@@ -716,6 +720,29 @@ def joint_columns(machine, q, units) -> dict:
     return {f"q{j + 1}_{unit}": (q[:, j] / f).tolist() for j in range(q.shape[1])}
 
 
+def refuse_unreachable(machine, reach, what: str, rows=None, shown=None,
+                       sampled: str = "") -> None:
+    """Refuse poses the machine cannot take (:meth:`~pkmcal.machines.Machine.reachability`):
+    one line, ``what`` first (``{n}``: the count of such poses; e.g. ``"t.csv: {n}
+    target(s) cannot be reached by the calibrated machine"``), then the rows (or, for
+    ``sampled`` poses of a box, how many of them), the first such pose as the user gave it
+    (``shown``: ``(P, R)``, R may be None) and why, in the machine file's units. Poses outside
+    the file's ``joint_limits`` alone are left to :func:`refuse_outside_limits`."""
+    bad = np.flatnonzero(~reach.ok & ~reach.limits_only)
+    if not bad.size:
+        return
+    P, R = shown
+    k = int(bad[0])
+    pose = machine.pose_text(P[k], None if R is None else R[k])
+    if rows is not None:
+        rows = np.asarray(rows)
+        where = (f", row(s) {_rows_text(rows[bad])}: row {rows[k]} at {pose}: "
+                 f"{reach.reasons[k]}")
+    else:
+        where = f" ({bad.size} of {sampled}), e.g. at {pose}: {reach.reasons[k]}"
+    raise InputError(what.format(n=bad.size) + where)
+
+
 def refuse_outside_limits(machine, q, rows, what: str) -> None:
     """Refuse joint values ``q`` (K, n) outside the machine file's ``joint_limits``, naming
     the rows and joints; ``what`` starts the message (``{n}``: the count of such rows)."""
@@ -754,6 +781,8 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
             raise InputError(f"{poses}: {int(off.sum())} position(s) outside the working "
                              f"assembly mode (the platform must hang below the base), row(s) "
                              f"{_rows_text(rows[off])}")
+    refuse_unreachable(machine, machine.reachability(P, R), f"{poses}: {{n}} pose(s) cannot "
+                       "be reached by the machine", rows, (P, R))
     refuse_outside_limits(machine, q, rows, f"{poses}: {{n}} pose(s)")
     columns = joint_columns(machine, q, _units(machine))
     write_table(output, list(columns), list(columns.values()))

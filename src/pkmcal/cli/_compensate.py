@@ -9,7 +9,6 @@ import numpy as np
 
 from ..calibration.run import file_units as _units
 from ..calibration.run import json_safe as _finite_or_none
-from ..calibration.run import rows_text as _rows_text
 from ..calibration.run import text_digest
 from ..errors import InputError
 from ..io.atomic import read_input_text
@@ -23,6 +22,7 @@ from ._commands import (
     load_machine_arg,
     read_poses_of,
     refuse_outside_limits,
+    refuse_unreachable,
 )
 from ._console import console, warning
 
@@ -187,12 +187,8 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
         comp = compensate(machine, P, R, C, nominal, N, frame=frame, names=names)
     except ValueError as exc:
         raise InputError(f"{report_path}: {exc}") from None
-    if not comp.reachable.all():
-        raise InputError(f"{targets}: {int((~comp.reachable).sum())} target(s) cannot be reached "
-                         f"by the calibrated machine (no real inverse kinematics, farther than "
-                         f"{machine.MAX_REACH:g}x its size from home, or beyond a singularity), "
-                         f"row(s) "
-                         f"{_rows_text(rows[~comp.reachable])}")
+    refuse_unreachable(machine, comp.reach, f"{targets}: {{n}} target(s) cannot be reached "
+                       "by the calibrated machine", rows, (P, R))
     refuse_outside_limits(machine, comp.q, rows, f"{targets}: {{n}} target(s)")
     units = _units(machine)
     columns = joint_columns(machine, comp.q, units)

@@ -134,6 +134,7 @@ def _pinned_report(machine, machine_spec: str) -> Path | None:
 def run_import(path: Path, source_format: str, output: Path, like: str | None = None) -> int:
     """``pkmcal import``: a controller file's values as a pkmcal machine file."""
     from ..export import controller_format
+    from ..export.base import carry_like
     from ..io.machine_file import save_machine
 
     fmt = controller_format(source_format)
@@ -144,22 +145,9 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
     if model is not None and fmt.machine_kind and model.kind != fmt.machine_kind:
         raise InputError(f"--like {like}: a {model.kind} machine; {fmt.name} files describe a "
                          f"{fmt.machine_words} (machine: {fmt.machine_kind})")
-    machine = fmt.to_machine(params, model)
-    problems = machine.geometry_problems(home_given=model is not None)
-    if problems:
-        raise InputError(f"{path}: the imported values do not make a working machine: "
-                         f"{problems[0][1]}")
-    from ..io.machine_file import machine_to_text, parse_machine
-
+    machine = carry_like(fmt.to_machine(params, model), model)
+    _check_imported(fmt, params, machine, path, like)
     units = getattr(machine, "file_units", None)
-    try:                   # the values must make a plausible machine file: name the input
-        parse_machine(machine_to_text(machine, units), str(output))
-    except InputError as exc:
-        import re
-
-        what = re.sub(r" \(line \d+\)$", "", str(exc).split(": ", 1)[-1])
-        raise InputError(f"{path}: the imported values do not make a plausible machine file: "
-                         f"{what}") from None
     save_machine(machine, output, units)
     commit_outputs()
     out = console()
@@ -168,3 +156,41 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
     out.print(f"{len(params.values)} {fmt.name} values of {path} written to {output} "
               f"as a {machine.kind} machine file", markup=False)
     return 0
+
+
+#: machine-file keys an import takes from ``--like`` (:func:`~pkmcal.export.base.carry_like`)
+_LIKE_KEYS = ("name", "units", "joint_limits", "smr_offset", "tracker")
+
+
+def _check_imported(fmt, params, machine, path: Path, like: str | None) -> None:
+    """Validate an imported machine as its machine file is validated (schema, magnitudes,
+    geometry, joint limits) and name a problem in the user's terms: the controller file's
+    keys and lines that make the machine-file key concerned (the format's source map,
+    :meth:`~pkmcal.export.base.ControllerFormat.imported_key`), or ``--like``'s key."""
+    from ..io.machine_file import (
+        MachineFileError,
+        machine_to_text,
+        parse_machine,
+    )
+    from ..io.machine_file import key_path_text as _key_path
+
+    units = getattr(machine, "file_units", None)
+    try:
+        parse_machine(machine_to_text(machine, units), str(path))
+        return
+    except MachineFileError as exc:
+        key, what = exc.key, exc.what
+        if exc.stage == "geometry":
+            # the home an import makes is its default home unless --like gave one: say so
+            problems = machine.geometry_problems(home_given=like is not None)
+            if problems:
+                key, what = problems[0]
+    place = None
+    if like is not None and key and (key[0] in _LIKE_KEYS or key[0] == "home"):
+        place = f"--like {like}: {_key_path(key)}"          # what --like gave
+    if place is None:
+        place = fmt.imported_key(params, key)
+    if place is None:
+        raise InputError(f"{path}: the imported values do not make a working machine "
+                         f"({_key_path(key)} of its machine file): {what}") from None
+    raise InputError(f"{place}: {what} (the imported machine's {_key_path(key)})") from None

@@ -27,6 +27,7 @@ from ._commands import (
     joint_columns,
     load_machine_arg,
     read_poses_of,
+    refuse_unreachable,
 )
 from ._console import console, progress_tasks
 
@@ -138,19 +139,21 @@ def _points_workspace(path: Path, machine, seed: int):
 
 
 def _check_workspace(machine, ws, text: str, rows) -> None:
-    """Refuse workspace poses the machine cannot take (unreachable, another working mode,
-    joints outside its limits), naming the rows of a points file."""
-    with np.errstate(all="ignore"):
-        q = machine.ik(ws.P, ws.R)
-        ok = np.all(np.isfinite(q), axis=-1) & machine.working_mode(ws.P, ws.R)
-    if not ok.all():
-        k = np.flatnonzero(~ok)
-        where = (f"row(s) {_rows_text(np.asarray(rows)[k])}" if rows is not None else
-                 f"{k.size} of its {len(ws.P)} sampled poses, e.g. at ("
-                 + ", ".join(f"{v * 1e3:.6g}" for v in ws.P[k[0]]) + ") mm")
-        raise InputError(f"--workspace {text}: {where}: out of the machine's reach (no real "
-                         "inverse kinematics, or beyond a singularity from home); give a "
-                         "workspace the machine reaches")
+    """Refuse workspace poses the machine cannot take (:meth:`~pkmcal.machines.Machine.
+    reachability`: unreachable, another working mode, past the machine's physical limits such
+    as a printer's endstops and bed, joints outside its limits), naming the rows of a points
+    file or, for a box, the first such pose, and why."""
+    reach = machine.reachability(ws.P, ws.R)
+    q = reach.q
+    k = np.flatnonzero(~reach.ok & ~reach.limits_only)
+    if k.size:
+        R = ws.R[k[0]] if machine.rotates else None
+        pose = f"{machine.pose_text(ws.P[k[0]], R)}: {reach.reasons[int(k[0])]}"
+        where = (f"row(s) {_rows_text(np.asarray(rows)[k])}: out of the machine's reach: row "
+                 f"{np.asarray(rows)[k[0]]} at {pose}" if rows is not None else
+                 f"{k.size} of its {len(ws.P)} sampled poses: out of the machine's reach, "
+                 f"e.g. at {pose}")
+        raise InputError(f"--workspace {text}: {where}; give a workspace the machine reaches")
     if rows is None:
         rows = np.arange(1, len(q) + 1)
         what = f"--workspace {text}: {{n}} of its sampled poses"
@@ -369,6 +372,9 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
         given = rows = groups = None
         if candidates_path is not None:
             *given, rows = read_poses_of(candidates_path, machine)
+            refuse_unreachable(machine, machine.reachability(*given), f"{candidates_path}: "
+                               "{n} candidate pose(s) cannot be reached by the machine", rows,
+                               given)
             groups = plan_groups(candidates_path, kind, rows)
         elif candidates < n:
             raise InputError(f"-n/--poses {n}: more than the {candidates} candidate poses "

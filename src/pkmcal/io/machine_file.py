@@ -512,13 +512,52 @@ def _check_magnitudes(data: dict, doc, fmt: MachineFormat, source: str, lines: d
                           f"{lu})" if relative else f"{MAX_LENGTH / 1000:g} km"))
         if problem is not None:
             line = _line_of(lines, path)
-            raise InputError(f"{source}: {_key_path(path)}: {problem}"
-                             + (f" (line {line})" if line else ""))
+            raise MachineFileError(f"{source}: {_key_path(path)}: {problem}"
+                                   + (f" (line {line})" if line else ""), path, problem,
+                                   "magnitude")
 
 
 # --------------------------------------------------------------------------------------------
 # Validation errors in words
 # --------------------------------------------------------------------------------------------
+
+
+class MachineFileError(InputError):
+    """A machine file's value that is wrong, with the key path and the problem kept apart
+    (the message is ``FILE: key.path: what (line N)``): a reader of another format that
+    writes a machine file (``pkmcal import``) names its own file's key instead.
+
+    Attributes
+    ----------
+    key : tuple
+        The key path (``("position_endstop", 0)``).
+    what : str
+        The problem in words, without the file, key and line.
+    stage : str
+        ``"schema"``, ``"magnitude"``, ``"geometry"`` or ``"joint_limits"``.
+    """
+
+    def __init__(self, message: str, key: tuple = (), what: str = "", stage: str = ""):
+        super().__init__(message)
+        self.key = tuple(key)
+        self.what = what or message
+        self.stage = stage
+
+
+def key_path_text(loc) -> str:
+    """A key path as messages write it: ``legs[2].dtheta`` (list indices 0-based).
+
+    Parameters
+    ----------
+    loc : sequence of str or int
+        The key path.
+
+    Returns
+    -------
+    str
+        The path in words (``(top level)`` for an empty one).
+    """
+    return _key_path(loc)
 
 
 def _key_path(loc) -> str:
@@ -679,7 +718,9 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     ------
     InputError
         For invalid YAML, a missing or unsupported ``pkmcal`` version, an unknown machine
-        type, or a schema error (``FILE: key.path: what is wrong (line N)``).
+        type, or a schema error (``FILE: key.path: what is wrong (line N)``); a problem of
+        a value (schema, magnitude, geometry, joint limits) is a :class:`MachineFileError`
+        that keeps the key path and the problem apart.
     """
     data, lines = _parse_yaml(text, source)
     if not isinstance(data, dict):
@@ -710,7 +751,9 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     try:
         doc = fmt.schema.model_validate(data)
     except ValidationError as exc:
-        raise InputError(_validation_message(exc, source, lines, fmt)) from None
+        first = exc.errors()[0]
+        raise MachineFileError(_validation_message(exc, source, lines, fmt), first["loc"],
+                               _describe(first, fmt), "schema") from None
     _check_magnitudes(data, doc, fmt, source, lines)
     with np.errstate(all="ignore"):         # no numpy warning ever reaches the user
         machine = fmt.build(doc, source)
@@ -719,8 +762,8 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     if problems:
         key, what = problems[0]
         line = _line_of(lines, key)
-        raise InputError(f"{source}: {_key_path(key)}: {what}"
-                         + (f" (line {line})" if line else ""))
+        raise MachineFileError(f"{source}: {_key_path(key)}: {what}"
+                               + (f" (line {line})" if line else ""), key, what, "geometry")
     machine.joint_limits = _joint_limits(data.get("joint_limits"), machine, source, lines)
     machine.source = source
     machine.calibration_info = doc.calibration
@@ -744,8 +787,9 @@ def _joint_limits(value, machine: Machine, source: str, lines: dict):
 
     def fail(path: tuple, what: str):
         line = _line_of(lines, path)
-        raise InputError(f"{source}: {_key_path(path)}: {what}"
-                         + (f" (line {line})" if line else ""))
+        raise MachineFileError(f"{source}: {_key_path(path)}: {what}"
+                               + (f" (line {line})" if line else ""), path, what,
+                               "joint_limits")
 
     if not isinstance(value, dict):
         fail(("joint_limits",), f"expected a mapping, got {_show(value)}; write {form}")

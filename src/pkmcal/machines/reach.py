@@ -88,7 +88,8 @@ def bed_centre(machine: Machine) -> np.ndarray:
 
 
 def _probe_ok(machine: Machine, P, R) -> np.ndarray:
-    """Probe points the machine reaches, within its limits, well conditioned, working mode."""
+    """Probe points the machine reaches, within its physical and joint limits, well
+    conditioned, in the working mode."""
     with np.errstate(all="ignore"):
         q, J, _ = machine.ik_jacobians(P, R, want_du=False)
         space = list(machine.pose_space)
@@ -98,6 +99,7 @@ def _probe_ok(machine: Machine, P, R) -> np.ndarray:
         sv = np.linalg.svd(np.where(ok[:, None, None], J, 1.0), compute_uv=False)
         ok &= sv[..., -1] > PROBE_CONDITIONING * sv[..., 0]
         ok &= machine.working_mode(P, R)
+        ok &= machine.within_physical_limits(P, R, q)
         if getattr(machine, "joint_limits", None) is not None and ok.any():
             ok[ok] = machine.within_limits(q[ok])
     return ok
@@ -357,7 +359,8 @@ def sample_workspace_poses(machine: Machine, n: int, rng=None, half_range: float
     characteristic lengths) around home; for platforms that rotate, Euler angles uniform in
     ``+/- max_angle`` on the home orientation. Kept: reachable poses of the working mode
     (:meth:`~pkmcal.machines.Machine.working_mode`) within the joint limits whose joint
-    Jacobian's inverse condition number (rotations scaled) is above ``min_conditioning``.
+    Jacobian's inverse condition number (rotations scaled) is above ``min_conditioning``,
+    within the machine's physical limits (:meth:`~pkmcal.machines.Machine.physical_limits`).
 
     Parameters
     ----------
@@ -412,6 +415,7 @@ def sample_workspace_poses(machine: Machine, n: int, rng=None, half_range: float
             sv = np.linalg.svd(np.where(ok[:, None, None], J, 1.0), compute_uv=False)
             ok &= sv[..., -1] > min_conditioning * sv[..., 0]
             ok &= machine.working_mode(P, R)
+            ok &= machine.within_physical_limits(P, R, q)
         return P, R, ok
 
     where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")
