@@ -102,6 +102,17 @@ def test_limits_above_the_centre_are_named_by_their_min(tmp_path):
             ["lim.yaml", "joint_limits", "below min 290 mm"], wrong=["set the bed or home"])
 
 
+def test_limits_that_exclude_a_set_probe_radius_are_named(tmp_path):
+    """With probe_radius in the file the pattern is not fitted to the limits: the points
+    outside them are named with the limits (the simulated data were written before)."""
+    text = with_limits(LINEAR, "{min: 0, max: 300}").replace("\nhome:",
+                                                            "\nprobe_radius: 120\nhome:")
+    (tmp_path / "lim.yaml").write_text(text)
+    refused(tmp_path, LIMIT_COMMANDS["simulate"],
+            ["lim.yaml", "joint_limits (q1..q3 within 0..300 mm) exclude 33 of the 37 probe "
+             "points", "above max 300 mm", "widen joint_limits or lower probe_radius"])
+
+
 def test_limits_that_hold_the_centre_still_plan(tmp_path):
     (tmp_path / "lim.yaml").write_text(with_limits(LINEAR, "{min: 0, max: 400}"))
     assert run(*LIMIT_COMMANDS["simulate"], cwd=tmp_path).returncode == 0
