@@ -330,7 +330,8 @@ def key_path(loc) -> str:
 def reports(probe, tmp_path_factory):
     """Reports of other kinds: a Delta from a tracker (registration, identifiable
     combinations), a six-leg platform from full poses (frames, noise levels), a linear Delta
-    from probe heights and a ballbar together (files of a joint fit)."""
+    from probe heights and a ballbar together (files of a joint fit), a Hexa Slide with rows
+    held out (validation, link length)."""
     d = tmp_path_factory.mktemp("reports")
     (d / "ld.yaml").write_bytes(probe["ld.yaml"])
     (d / "probe.csv").write_bytes(probe["probe.csv"])
@@ -340,17 +341,19 @@ def reports(probe, tmp_path_factory):
               "60", "-o", "po.csv"),
              ("calibrate", str(EXAMPLES / "cubic_6upu.yaml"), "po.csv", "-o", "six.yaml"),
              ("simulate", "ld.yaml", "--scenario", "distance", "-o", "bb.csv"),
-             ("calibrate", "ld.yaml", "probe.csv", "bb.csv", "-o", "joint.yaml")]
+             ("calibrate", "ld.yaml", "probe.csv", "bb.csv", "-o", "joint.yaml"),
+             ("simulate", "default", "-o", "cl.csv"),
+             ("calibrate", "default", "cl.csv", "--holdout", "0.2", "-o", "held.yaml")]
     for step in steps:
         proc = run("-q", *step, cwd=d)
         assert proc.returncode == 0, proc.stderr
     docs = {"probe": json.loads(probe["cal.json"])}
     docs.update({name: json.loads((d / f"{name}.json").read_text())
-                 for name in ("delta", "six", "joint")})
+                 for name in ("delta", "six", "joint", "held")})
     return docs
 
 
-@pytest.mark.parametrize("kind", ["probe", "delta", "six", "joint"])
+@pytest.mark.parametrize("kind", ["probe", "delta", "six", "joint", "held"])
 def test_every_number_of_a_report_as_text_is_named(tmp_path, reports, kind):
     """Each number of a report (two elements of each long list) replaced by text, in turn:
     refused naming its key path, in the schema's sections and in those shown as written."""

@@ -522,18 +522,19 @@ def _constant_place(text: str) -> str:
 #: stand in a report: the sections shown as written (registration, frames, files, ...) are
 #: held to them too, so that text where a number belongs is named by its key path
 NUMBER_KEYS = frozenset((
-    "alpha", "assumed", "ball", "capacity", "change", "chi2", "chi2_per_dof", "chi_square",
-    "condition_number", "correlation", "count", "cv_gain", "cv_loss", "cv_loss_baseline",
-    "cv_se", "dimension", "dof", "evaluations", "explained", "far_above", "fk_failed", "folds",
-    "free_parameters", "height", "identifiable", "identifiable_alone", "identified",
-    "in_file", "iterations", "joint_identifiable", "leg_length_max", "leg_length_rms",
-    "leg_length_rms_per_leg", "matrix", "max", "mean", "measurements", "min",
-    "min_redundancy", "noise_ratio", "noise_scale", "nominal", "normalised_residuals",
-    "null_space", "p", "p_adjusted", "pairs", "pivot", "places", "position_max",
-    "position_rms", "ratio", "redundancy", "residual_variance", "rms", "rotation", "seed",
-    "setup", "sigma", "significant_trends", "singular_values", "smr_offset",
-    "rows", "standardised_residuals", "std", "tests", "threshold_p", "tilt_x", "tilt_y",
-    "translation", "translation_change", "upper_999", "used", "value"))
+    "after_rms", "alpha", "assumed", "ball", "before_rms", "calibration_rms", "capacity",
+    "change", "chi2", "chi2_per_dof", "chi_square", "condition_number", "correlation",
+    "count", "cv_gain", "cv_loss", "cv_loss_baseline", "cv_se", "dimension", "dof",
+    "evaluations", "explained", "far_above", "fk_failed", "folds", "free_parameters",
+    "height", "held_out", "held_out_over_calibration", "holdout", "identifiable",
+    "identifiable_alone", "identified", "in_file", "iterations", "joint_identifiable",
+    "leg_length_max", "leg_length_rms", "leg_length_rms_per_leg", "matrix", "max", "mean",
+    "measurements", "min", "min_redundancy", "noise_ratio", "noise_scale", "nominal",
+    "normalised_residuals", "null_space", "p", "p_adjusted", "pairs", "pivot", "places",
+    "position_max", "position_rms", "ratio", "redundancy", "residual_variance", "rms",
+    "rotation", "rows", "seed", "setup", "sigma", "significant_trends", "singular_values",
+    "smr_offset", "standardised_residuals", "std", "tests", "threshold_p", "tilt_x",
+    "tilt_y", "translation", "translation_change", "upper_999", "used", "value"))
 #: so are keys ending in a unit
 NUMBER_SUFFIX = re.compile(r"_(um|mm|m|in|deg|rad|urad|percent)$")
 
