@@ -1021,8 +1021,8 @@ def _empty_name(args: list[str], i: int) -> str:
     except Exception:       # noqa: BLE001 - an unknown command: the position alone
         return fallback
     options = {o: p for p in cmd.params for o in getattr(p, "opts", ())
-               if type(p).__name__ != "TyperArgument"}
-    positional = [p for p in cmd.params if type(p).__name__ == "TyperArgument"]
+               if p.param_type_name == "option"}
+    positional = [p for p in cmd.params if p.param_type_name == "argument"]
     k, skip = 0, False
     for a in args[command + 1:i]:
         if skip:
