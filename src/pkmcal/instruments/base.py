@@ -184,6 +184,22 @@ class Instrument:
         """
         return None
 
+    def unbounded_cause(self, machine: Machine) -> str | None:
+        """Why this instrument leaves directions that move ``machine``'s platform unidentified
+        whatever the poses measured (so that more or other poses cannot help).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        str or None
+            The reason in words; None when other poses may see those directions.
+        """
+        return None
+
     def default_noise(self):
         """The noise model ``pkmcal calibrate`` assumes by default.
 

@@ -226,9 +226,11 @@ def read_table(path) -> tuple[list[str], list[Row]]:
     header: list[str] | None = None
     header_line = 0
     rows: list[Row] = []
+    last = 0
     try:
         for fields in reader:
-            line = reader.line_num
+            line, start, last = reader.line_num, last + 1, reader.line_num
+            _refuse_open_quote(path, text, fields, start, line, header)
             if not fields or all(not f.strip() for f in fields) or fields[0].lstrip(
                     ).startswith("#"):
                 continue
@@ -260,6 +262,45 @@ def read_table(path) -> tuple[list[str], list[Row]]:
     if not rows:
         raise InputError(f"{path_text(path)}: no data rows after the header")
     return header, rows
+
+
+def _refuse_open_quote(path, text: str, fields: list[str], start: int, end: int,
+                       header: list[str] | None) -> None:
+    """Refuse a record that a quote left open, naming the row the quote opened on.
+
+    The csv module reads a quoted field on over line breaks to its closing quote or to the end
+    of the file, and counts the record's rows to where it ended: a record of rows
+    ``start..end`` with a line break in a field, or one ending the file without a final line
+    break, whose quote is never closed, is refused at row ``start``, column of the field."""
+    broken = [i for i, f in enumerate(fields) if "\n" in f or "\r" in f]
+    if not broken and (text.endswith(("\n", "\r")) or end != start):
+        return
+    lines = _LINE_BREAK.split(text)
+    segment = "".join(lines[start - 1:end])
+    if not broken and (end != len(lines) or not _open_at_end(segment)):
+        return
+    i = broken[0] if broken else len(fields) - 1
+    column = f", column {header[i]}" if header is not None and 0 <= i < len(header) else ""
+    runs = ("to the end of the file" if end == start or _open_at_end(segment)
+            else f"on to row {end}, where a quote closes it")
+    raise InputError(f"{path}: row {start}{column}: a quote (\") opens a field that this row "
+                     f"does not close (the field runs {runs}); remove the quote or close it on "
+                     "this row")
+
+
+#: where the csv module ends a line (its ``line_num``)
+_LINE_BREAK = re.compile(r"(?<=\r\n)|(?<=\n)|(?<=\r)(?!\n)")
+
+
+def _open_at_end(segment: str) -> bool:
+    """Whether ``segment`` ends inside a quoted field (a closing quote would complete it)."""
+    def parses(t):
+        try:
+            list(csv.reader(io.StringIO(t, newline=""), strict=True))
+        except csv.Error:
+            return False
+        return True
+    return not parses(segment) and parses(segment + '"')
 
 
 def _check_separator(path, line: int, header: list[str]) -> None:

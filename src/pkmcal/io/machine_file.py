@@ -76,6 +76,7 @@ a few ulp, and writes atomically (:func:`~pkmcal.io.atomic.atomic_write_text`).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime as _dt
 import functools
@@ -617,6 +618,15 @@ _LIST_SECTIONS = {
 }
 
 
+def _not_a_number(value) -> str:
+    """``not a number: 'abc'``; a number written as text (in quotes) says so."""
+    if isinstance(value, str):
+        with contextlib.suppress(ValueError):
+            float(value)
+            return f"not a number: the text {_show(value)} (write it without quotes)"
+    return f"not a number: {_show(value)}"
+
+
 def _describe(err: dict, fmt: MachineFormat) -> str:
     schema, counts = fmt.schema, fmt.counts
     kind, loc, value = err["type"], err["loc"], err.get("input")
@@ -631,7 +641,7 @@ def _describe(err: dict, fmt: MachineFormat) -> str:
         allowed = f" (allowed here: {', '.join(model.model_fields)})" if model else ""
         return "unknown key" + allowed
     if kind in ("float_type", "float_parsing", "int_type"):
-        return f"not a number: {_show(value)}"
+        return _not_a_number(value)
     if kind == "finite_number":
         return f"must be a finite number, got {_show(value)}"
     if kind == "greater_than":
@@ -724,10 +734,17 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     if "pkmcal" not in data:
         raise InputError(f"{path_text(source)}: pkmcal: missing key ({_HINTS['pkmcal']})")
     version = data["pkmcal"]
-    if type(version) is not int or version != FORMAT_VERSION:
-        raise InputError(f"{source}: pkmcal: unsupported file format version {_show(version)} "
-                         f"(line {lines.get(('pkmcal',), '?')}); this pkmcal reads version "
-                         f"{FORMAT_VERSION}")
+    line = lines.get(("pkmcal",), "?")
+    if type(version) is not int:
+        # the version as text ("1" in quotes), 1.0 or true: not the number the format has
+        quoted = isinstance(version, str) and version.strip() == str(FORMAT_VERSION)
+        got = (f"the text {_show(version)}" if isinstance(version, str) else _show(version))
+        raise InputError(f"{source}: pkmcal: the file format version must be the number "
+                         f"{FORMAT_VERSION}, not {got} (line {line}); write pkmcal: "
+                         f"{FORMAT_VERSION}" + (" without quotes" if quoted else ""))
+    if version != FORMAT_VERSION:
+        raise InputError(f"{source}: pkmcal: unsupported file format version {version} "
+                         f"(line {line}); this pkmcal reads version {FORMAT_VERSION}")
     known = ", ".join(MACHINE_FORMATS)
     if "machine" not in data:
         raise InputError(f"{path_text(source)}: "
@@ -797,7 +814,7 @@ def _joint_limits(value, machine: Machine, source: str, lines: dict):
         for i, x in enumerate(items):
             path = ("joint_limits", key) + ((i,) if isinstance(v, list) else ())
             if isinstance(x, bool) or not isinstance(x, (int, float)):
-                fail(path, f"not a number: {_show(x)}")
+                fail(path, _not_a_number(x))
             if not np.isfinite(x):
                 fail(path, f"must be a finite number, got {_show(x)}")
         sides.append(np.broadcast_to(np.asarray(items, float), (n,)) * factor)

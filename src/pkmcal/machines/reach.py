@@ -3,6 +3,7 @@ point reaches within its limits, well conditioned (probe plans, a printer's prin
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -112,6 +113,29 @@ def _bed_points(machine: Machine, xy):
     return P, np.broadcast_to(machine.home[1], (len(P), 3, 3)).copy()
 
 
+def _centre_unprobed(machine: Machine, centre) -> str:
+    """Why the bed's centre cannot be probed, for a message: the joint limits when the
+    centre is reached, well conditioned, but needs joint values outside them (the cause to
+    fix is then ``joint_limits``, not the bed or home); else out of reach or badly
+    conditioned."""
+    where = str(getattr(machine, "source", "") or "the machine")
+    point = (f"the bed's centre ({centre[0] * 1e3:.6g}, {centre[1] * 1e3:.6g}, "
+             f"{bed_height(machine) * 1e3:.6g}) mm")
+    P, R = _bed_points(machine, centre[None, :])
+    if getattr(machine, "joint_limits", None) is not None:
+        with np.errstate(all="ignore"):
+            q = np.asarray(machine.ik(P, R), float).reshape(1, -1)
+        free = copy.copy(machine)
+        free.joint_limits = None
+        if _probe_ok(free, P, R).all() and not machine.within_limits(q).all():
+            broken = machine.limit_violation_text(q).removeprefix("row 1: ")
+            return (f"{where}: joint_limits ({machine.joint_limits_text()}) exclude "
+                    f"{point}, where every probe pattern is centred: it needs {broken}; "
+                    "widen joint_limits")
+    return (f"{where}: {point} cannot be probed (out of reach or badly conditioned); set "
+            "the bed or home")
+
+
 def probe_radius(machine: Machine) -> float:
     """Radius of probe patterns on the bed, m.
 
@@ -146,10 +170,7 @@ def probe_radius(machine: Machine) -> float:
     t = np.linspace(0.0, 2 * np.pi, 72, endpoint=False)
     ring = np.column_stack([np.cos(t), np.sin(t)])
     if not _probe_ok(machine, *_bed_points(machine, centre[None, :])).all():
-        where = str(getattr(machine, "source", "") or "the machine")
-        raise InputError(f"{where}: the bed's centre ({centre[0] * 1e3:.6g}, "
-                         f"{centre[1] * 1e3:.6g}, {bed_height(machine) * 1e3:.6g}) mm cannot be "
-                         "probed (out of reach or badly conditioned); set the bed or home")
+        raise InputError(_centre_unprobed(machine, centre))
     r = 0.0
     for k in range(1, 41):
         radius = k * L / 40

@@ -473,6 +473,17 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
     step(1, "select-poses: pose-error operator over the workspace")
     op = pose_error_operator(machine, design, ws.P, ws.R, problem.n_machine)
     if op.unbounded:
+        cause = instrument(kind).unbounded_cause(machine)
+        if cause is not None:
+            from ..instruments.registry import INSTRUMENTS
+
+            other = [name for name, inst in INSTRUMENTS.items() if inst.applies(machine)
+                     is None and inst.unbounded_cause(machine) is None]
+            where = getattr(machine, "source", None) or "the machine"
+            raise InputError(f"--scenario {kind} on {where}: {cause}; they leave "
+                             f"{op.unbounded} direction(s) that move the platform "
+                             "unidentified; choose a scenario that measures the platform: "
+                             + ", ".join(other))
         raise InputError(f"{src}: even all {len(P_all)} candidates leave {op.unbounded} "
                          "direction(s) that move the platform unidentified; widen the "
                          "candidate set")
