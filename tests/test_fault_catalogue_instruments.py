@@ -131,7 +131,7 @@ def test_export_to_a_stream_writes_nothing_beside_it(files, tmp_path):
     ("[printer]\nkinematics: cartesian\ndelta_radius: 130\n[stepper_a]\narm_length: 250\n"
      "position_endstop: 280\n", ["--from", "klipper"], ["in.cfg", "line 2", "kinematics"]),
     ("M665 H285 L250 R132.5 X0 Y0 Z0\nM666 X0 Y-0.3 Z-1e9\n", ["--from", "marlin"],
-     ["in.cfg", "position_endstop[2]", "not a plausible length"]),
+     ["in.cfg", "M666 Z", "line 2", "cannot be meant"]),      # the user's letter (issue 28)
     ("[printer]\nkinematics: delta\ndelta_radius: 130\n[stepper_a]\narm_length: 250\n"
      "position_endstop: 280\n", ["--from", "klipper", "--like",
                                  str(EXAMPLES / "cubic_6upu.yaml")], ["--like", "stewart"]),

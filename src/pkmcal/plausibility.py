@@ -32,6 +32,7 @@ import numpy as np
 
 from .errors import InputError
 from .kinematics import matrix_from_euler
+from .paths import path_text
 from .units import COLUMN_SUFFIXES, QUANTITIES
 
 #: the data are "grossly" off when a scale ratio is beyond this factor (either way)
@@ -131,7 +132,8 @@ def _source(machine) -> str:
 
 def _raise(path, columns: Columns, unit: str, why: str) -> None:
     word = "column" if len(columns.names) == 1 else "columns"
-    raise InputError(f"{path}: {word} {columns.span()}: {why}: {_look_like(columns, unit)}")
+    raise InputError(f"{path_text(path)}: "
+                     f"{word} {columns.span()}: {why}: {_look_like(columns, unit)}")
 
 
 # -- statistics ---------------------------------------------------------------------------------

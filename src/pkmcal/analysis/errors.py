@@ -472,7 +472,8 @@ def zero_crossings(x, values, period: float | None = None, roundoff: float = FOR
 def check_poses(machine, P, R, labels=None, label: str = "pose") -> None:
     """Raise :class:`InputError` naming the poses (``labels``, default 1-based numbers) where a
     leg has no length or ``J_p`` is singular (scaled singular values, relative tolerance
-    ``SINGULAR_RTOL``)."""
+    ``SINGULAR_RTOL``), outside home's working mode, or that the machine cannot take
+    (:meth:`~pkmcal.machines.Machine.reachability`: its physical and joint limits)."""
     with np.errstate(invalid="ignore", divide="ignore"):
         Jp, _, _ = machine.jacobians(P, R)
     _, _, L = machine.leg_vectors(P, R)
@@ -496,6 +497,15 @@ def check_poses(machine, P, R, labels=None, label: str = "pose") -> None:
         raise InputError(f"{idx.size} pose(s) outside the machine's working mode (farther than "
                          f"{machine.MAX_REACH:g}x its size from home, or beyond a singularity, "
                          f"e.g. the platform mirrored through the base): {label}(s) {shown}")
+    reach = machine.reachability(P, R)        # physical and joint limits (machine file)
+    if not reach.ok.all():
+        idx = reach.unreachable
+        names = (idx + 1) if labels is None else np.asarray(labels)[idx]
+        shown = ", ".join(map(str, names[:10])) + (" ..." if idx.size > 10 else "")
+        k = int(idx[0])
+        pose = machine.pose_text(np.reshape(P, (-1, 3))[k], np.reshape(R, (-1, 3, 3))[k])
+        raise InputError(f"{idx.size} pose(s) the machine cannot take: {label}(s) {shown}; "
+                         f"{label} {names[0]} at {pose}: {reach.reasons[k]}")
 
 
 def trajectory_errors(machine, trajectory: Trajectory, mass: float = 4.8,

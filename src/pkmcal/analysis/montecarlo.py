@@ -51,6 +51,7 @@ from ..errors import ConvergenceError, InputError
 from ..estimation.distributions import t_ppf
 from ..instruments.base import Instrument
 from ..machines.base import Machine
+from ..paths import path_text
 from ..plausibility import check_option_scale
 
 #: the variables a Monte Carlo can sweep: quantity, display unit, factor of that unit to SI
@@ -157,7 +158,7 @@ class MonteCarloSettings:
         """JSON-ready description (SI units and words)."""
         dev = self.deviations
         return {
-            "machine": str(getattr(self.machine, "source", None) or self.machine.name),
+            "machine": path_text(getattr(self.machine, "source", None) or self.machine.name),
             "kind": self.machine.kind, "scenario": self.scenario,
             "poses": self.poses if self.poses is not None else _default_poses(self),
             "noise_m": self.noise if self.noise is not None else "default",

@@ -36,6 +36,7 @@ from ..instruments.tracker import (  # noqa: F401
     as_tracker_data,
     tracker_noise_arg,
 )
+from ..paths import file_identity, path_text, same_file
 
 __all__ = ["KINDS", "WHITENED_METHODS", "Calibration",
            "CalibrationNotConverged", "CalibrateOptions", "JointPart", "MeasurementKind",
@@ -206,14 +207,22 @@ def provenance() -> dict:
     import shlex
     import sys
 
-    return {"command": "pkmcal " + shlex.join(sys.argv[1:]), **versions(),
+    def word(arg: str) -> str:
+        # a name that is not UTF-8 as bash's $'...' (path_text's \xNN): UTF-8 text that
+        # still runs
+        text = path_text(arg)
+        if text == arg:
+            return shlex.quote(arg)
+        return "$'" + text.replace("'", "\\'") + "'"
+
+    return {"command": "pkmcal " + " ".join(word(a) for a in sys.argv[1:]), **versions(),
             "platform": platform.platform()}
 
 
 def _source_of(machine) -> str:
     """The machine's file (``default`` for the embedded one), else its name."""
-    return str(getattr(machine, "source", None) or getattr(machine, "name", None)
-               or "the machine")
+    return path_text(getattr(machine, "source", None) or getattr(machine, "name", None)
+                     or "the machine")
 
 
 # --------------------------------------------------------------------------------------------
@@ -435,26 +444,29 @@ def measurement_kind(path, header: list[str], machine) -> str:
     need = "; ".join(f"{k}: {v}" for k, v in supported.items()) or "none yet"
     matches = [k for k in _kinds() if k.detect(header) and not k.readings_only]
     if len(matches) > 1:
-        raise InputError(f"{path}: columns of {len(matches)} kinds of measurement in one file ("
+        raise InputError(f"{path_text(path)}: "
+                         f"columns of {len(matches)} kinds of measurement in one file ("
                          + "; ".join(f"{k.name}: {k.columns}" for k in matches)
                          + "): give each instrument's rows in a file of its own (several files "
                          "are fitted together: pkmcal calibrate MACHINE A.csv B.csv)")
     found = next((k for k in _kinds() if k.detect(header)), None)
     if found is None:
-        raise InputError(f"{path}: cannot tell the measurement type from the columns "
+        raise InputError(f"{path_text(path)}: cannot tell the measurement type from the columns "
                          f"({', '.join(header)}); a {machine.kind} is calibrated from {need}")
     if found.name not in supported:
         hints = [KINDS[k].missing for k in supported if KINDS[k].missing]
         if found.readings_only and found.instrument == machine.default_instrument:
             # the machine's own instrument lacks something in the machine file
-            raise InputError(f"{_source_of(machine)}: {found.why_not(machine)}; {path} has "
+            raise InputError(f"{_source_of(machine)}: {found.why_not(machine)}; {path_text(path)} "
+                             "has "
                              f"joint readings alone ({found.name} data)")
         if found.readings_only and hints:
             columns, words = hints[0]
-            raise InputError(f"{path}: missing columns {columns}: a {machine.kind} is "
+            raise InputError(f"{path_text(path)}: missing columns {columns}: a {machine.kind} is "
                              f"calibrated from {words} ({need}); columns found: "
                              f"{', '.join(header)}")
-        raise InputError(f"{path}: {found.name} measurements cannot calibrate a {machine.kind}: "
+        raise InputError(f"{path_text(path)}: "
+                         f"{found.name} measurements cannot calibrate a {machine.kind}: "
                          f"{found.why_not(machine)}; a {machine.kind} is calibrated from "
                          f"{need}")
     return found.name
@@ -574,18 +586,20 @@ class Calibration:
 
         output = Path(output)
         if output.suffix.lower() == ".json":
-            raise InputError(f"{output}: the calibrated machine is a YAML file; choose a name "
+            raise InputError(f"{path_text(output)}: "
+                             "the calibrated machine is a YAML file; choose a name "
                              "ending in .yaml (the JSON report is written beside it)")
         report_dir = None if report_dir is None else Path(report_dir)
         report_path = output.with_suffix(".json")
         beside = not is_stream(output)      # no JSON report beside /dev/null or a pipe
-        self.report["calibrated_file"] = str(output)
+        self.report["calibrated_file"] = path_text(output)
         json_text = self.json_text()
         # the machine file names its report and pins it by digest: a report of another run
         # (or a half-replaced pair) is refused by compensate and report
         metadata = {k: v for k, v in self.metadata.items() if k != "report"}
         if beside:
-            metadata.update(report=report_path.name, report_sha256=text_digest(json_text))
+            metadata.update(report=path_text(report_path.name),
+                            report_sha256=text_digest(json_text))
         yaml_text = machine_to_text(self.calibrated, self.units, calibration=metadata)
         try:                                    # the calibrated file must load back
             parse_machine(yaml_text, str(output))
@@ -596,7 +610,7 @@ class Calibration:
             data = self.report.get("data_file") or "the data"
             raise InputError(f"{data}: the calibrated geometry is not a working machine "
                              f"({what}); the data do not determine it, or do not belong to "
-                             f"this machine file (see identifiability); {output} not "
+                             f"this machine file (see identifiability); {path_text(output)} not "
                              "written") from None
         html_text = None
         if report_dir is not None:
@@ -780,12 +794,13 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         kind = next((k for k in _kinds() if k.data_class == type(data).__name__
                      and getattr(data, "kind", k.instrument) in _names_of(k)), None)
         if kind is None:
-            raise InputError(f"{source}: {type(data).__name__} is no calibration data (known: "
+            raise InputError(f"{path_text(source)}: "
+                             f"{type(data).__name__} is no calibration data (known: "
                              f"{', '.join(k.data_class for k in _kinds())})")
         supported = supported_kinds(machine)
         if kind.name not in supported:
             need = "; ".join(f"{k}: {v}" for k, v in supported.items()) or "none yet"
-            raise InputError(f"{source}: {kind.name} measurements cannot calibrate a "
+            raise InputError(f"{path_text(source)}: {kind.name} measurements cannot calibrate a "
                              f"{machine.kind}: {kind.why_not(machine)}; a {machine.kind} is "
                              f"calibrated from {need}")
     options = CalibrateOptions(method, noise, pose_noise, estimate_lc, two_step, robust,
@@ -849,7 +864,8 @@ def _data_kinds(data, machine) -> list:
                          and getattr(item, "kind", k.instrument) in _names_of(k)), None)
             if kind is None:
                 source = getattr(item, "source", None) or "the data"
-                raise InputError(f"{source}: {type(item).__name__} is no calibration data")
+                raise InputError(f"{path_text(source)}: "
+                                 f"{type(item).__name__} is no calibration data")
             out.append(kind)
     return out
 
@@ -876,7 +892,7 @@ def _only_for_poses(options: CalibrateOptions, source, kind: str) -> None:
                           ("--extensions", options.extensions is not None)):
         if given:
             raise InputError(f"{option}: applies to full-pose data (a Stewart with x, y, z "
-                             f"and orientation columns); {source} has {kind} data")
+                             f"and orientation columns); {path_text(source)} has {kind} data")
 
 
 def _parameter_table(result, nominal_of: dict, units):
@@ -919,7 +935,7 @@ def _split_rows(data, split, source):
     try:
         train, held = holdout_split(len(data), *split)
     except ValueError as exc:
-        raise InputError(f"--holdout: {source}: {exc}") from None
+        raise InputError(f"--holdout: {path_text(source)}: {exc}") from None
     return data.subset(train), data.subset(held)
 
 
@@ -948,7 +964,7 @@ def _solve(source, estimator, *args, held=None, **kwargs):
         return estimator(*args, **kwargs)
     except (InputError, ValueError, np.linalg.LinAlgError) as exc:
         message = str(exc) if isinstance(exc, InputError) else \
-            f"{source}: calibration failed: {exc}"
+            f"{path_text(source)}: calibration failed: {exc}"
         if held is not None:
             message = (f"--holdout: holding out {len(held)} row(s) leaves {len(args[1])} "
                        f"to calibrate on: {message}")
@@ -961,7 +977,7 @@ def _require_converged(result, source, advice: str = "") -> None:
     if result.success and np.all(np.isfinite(result.x)):
         return
     raise CalibrationNotConverged(
-        f"{source}: calibration did not converge: {result.message} (after {result.nit} "
+        f"{path_text(source)}: calibration did not converge: {result.message} (after {result.nit} "
         "iterations)" + (f"; {advice}" if advice else "") + "; check the columns (order, "
         "units) and the machine file; no file written", result)
 
@@ -1027,7 +1043,8 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list,
                     if status == "estimated" and ratio >= MAX_NOISE_FACTOR]
             high = ", ".join(high) or f"none {MAX_NOISE_FACTOR:g}x the assumed"
             warnings.append(
-                f"{source}: residual test {verdict.sentence()}; the noise levels estimated "
+                f"{path_text(source)}: "
+                f"residual test {verdict.sentence()}; the noise levels estimated "
                 f"from the residuals ({high}) weigh the fit and its standard deviations. If "
                 "the instruments are not that noisy, the model misses something: see the "
                 "report's residual checks (per "
@@ -1042,12 +1059,12 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list,
                 "the data leave too few equations to estimate the noise, so whether the "
                 "instrument or the model is worse than assumed cannot be told")
         else:
-            warnings.append(f"{source}: residual test {test.message(gross)}")
+            warnings.append(f"{path_text(source)}: residual test {test.message(gross)}")
     if nominal is not None:
         changes = parameter_changes(nominal, calibrated)
         out["parameter_changes"] = {"suspicious": changes.suspicious}
         if changes.suspicious:
-            warnings.append(f"{source}: {changes.message()}")
+            warnings.append(f"{path_text(source)}: {changes.message()}")
     return out
 
 
@@ -1156,7 +1173,8 @@ def _noise_report(result, report: dict, source, warnings: list, robust: bool = T
     if flagged:
         shown = ", ".join(flagged[:10]) + (f" and {len(flagged) - 10} more"
                                             if len(flagged) > 10 else "")
-        warnings.append(f"{source}: {shown}: residuals the noise does not explain (chi-square "
+        warnings.append(f"{path_text(source)}: "
+                        f"{shown}: residuals the noise does not explain (chi-square "
                         f"test of each row, p < {test.threshold:.2g}); check "
                         f"{'them' if len(flagged) > 1 else 'it'} (a beam break, a mis-read "
                         "marker, a wrong row) or leave them out with --robust")
@@ -1164,7 +1182,8 @@ def _noise_report(result, report: dict, source, warnings: list, robust: bool = T
         shown = ", ".join(left[:10]) + (f" and {len(left) - 10} more" if len(left) > 10 else "")
         why = ("--robust" if robust else "the start could not fit them, and the outlier "
                "test agrees")
-        warnings.append(f"{source}: {len(left)} row(s) left out as outliers ({why}): {shown}")
+        warnings.append(f"{path_text(source)}: "
+                        f"{len(left)} row(s) left out as outliers ({why}): {shown}")
 
 
 def _report_head(machine, source, kind: str, method: str, units=None) -> dict:
@@ -1172,7 +1191,7 @@ def _report_head(machine, source, kind: str, method: str, units=None) -> dict:
     from ..report.provenance import run_date
 
     head = {"pkmcal_report": 1, "command": "calibrate", "date": run_date(),
-            "machine_file": _source_of(machine), "data_file": str(source),
+            "machine_file": _source_of(machine), "data_file": path_text(source),
             "calibrated_file": None, "measurement": kind, "method": method}
     return head if units is None else {**head, "units": units}
 
@@ -1188,7 +1207,7 @@ def _check_constraint_link(options: CalibrateOptions, source) -> None:
     _only_for_poses(options, source, "constraint-link")
     if options.two_step:
         raise InputError(f"--two-step: applies to laser-tracker data (mx, my, mz columns); "
-                         f"{source} has constraint-link data")
+                         f"{path_text(source)} has constraint-link data")
     if options.robust and options.method not in (None, "ml"):
         raise InputError(f"--robust: applies to the ml method (its residuals are the noise's); "
                          f"--method {options.method} takes some readings as exact")
@@ -1284,7 +1303,7 @@ def _calibrate_constraint_link(machine, data, source, options: CalibrateOptions,
     metadata = {
         "method": method,
         "date": report["date"],
-        "data": str(source),
+        "data": path_text(source),
         "machine": _source_of(machine),
         "measurements": len(data),
         "rms_residual_um": report["residuals"]["rms_um"],
@@ -1295,10 +1314,12 @@ def _calibrate_constraint_link(machine, data, source, options: CalibrateOptions,
     }
     calibration = _finish(kind, machine, calibrated, result, report, metadata, params, units)
     if "warnings" in result.extras:         # ml: the start strategy says what it left out
-        calibration.warnings += [f"{source}: {text}" for text in result.extras["warnings"]]
+        calibration.warnings += [f"{path_text(source)}: "
+                                 f"{text}" for text in result.extras["warnings"]]
     elif dropped:
         calibration.warnings.append(
-            f"{source}: {len(dropped)} row(s) left out (no pose from the five active readings "
+            f"{path_text(source)}: "
+            f"{len(dropped)} row(s) left out (no pose from the five active readings "
             f"and the link with the start geometry): {rows_text(dropped)}")
     return calibration
 
@@ -1389,14 +1410,16 @@ def _check_spread(data, noise_model) -> None:
     would be fixed only by the noise. Also fewer than 4 points (seed 001 eq. 12-14)."""
     K = len(data)
     if K < 4:
-        raise InputError(f"{data.source}: {K} point(s): the tracker registration needs at "
+        raise InputError(f"{path_text(data.source)}: "
+                         f"{K} point(s): the tracker registration needs at "
                          "least 4 points that are not on one line (seed 001 uses a 3x3x3 grid)")
     m = data.m - data.m.mean(0)
     sv = np.linalg.svd(m, compute_uv=False)
     off_line = sv[1] / math.sqrt(K)                       # RMS distance from the best line
     sigma = float(np.sqrt(np.max(np.trace(noise_model.covariance(data.m), axis1=1, axis2=2))))
     if off_line <= max(20 * sigma, 1e-6 * sv[0]):
-        raise InputError(f"{data.source}: the {K} tracker points lie on one line or nearly (RMS "
+        raise InputError(f"{path_text(data.source)}: "
+                         f"the {K} tracker points lie on one line or nearly (RMS "
                          f"distance from the best line {off_line * 1e6:.3g} um, tracker noise "
                          f"{sigma * 1e6:.3g} um): the "
                          "rotation of the tracker about that line cannot be found; measure "
@@ -1414,7 +1437,7 @@ def _check_tracker(options: CalibrateOptions, source) -> None:
     for option, given in (("--method", options.method is not None),
                           ("--estimate-lc", options.estimate_lc is not None)):
         if given:
-            raise InputError(f"{option}: applies to constraint-link data; {source} has "
+            raise InputError(f"{option}: applies to constraint-link data; {path_text(source)} has "
                              "tracker points (see --two-step, --robust)")
     if options.two_step and options.robust:
         raise InputError("--robust: applies to the joint method (its residuals are the "
@@ -1438,7 +1461,7 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
     _check_spread(data, noise_model)
     fk = machine.fk(data.q)
     if not fk.converged.all():
-        raise InputError(f"{source}: row(s) {rows_text(data.rows[~fk.converged])}: no "
+        raise InputError(f"{path_text(source)}: row(s) {rows_text(data.rows[~fk.converged])}: no "
                          f"platform pose of {_source_of(machine)} reproduces these readings "
                          "(outside the workspace, or a wrong unit or zero)")
     result = _solve(source, calibrate_tracker, machine, data, noise_model, held=held,
@@ -1562,7 +1585,7 @@ def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) 
     metadata = {
         "method": f"tracker-{method}",
         "date": report["date"],
-        "data": str(source),
+        "data": path_text(source),
         "machine": _source_of(machine),
         "measurements": len(data),
         "outlier_rows": outlier_rows,
@@ -1601,7 +1624,7 @@ def _check_full_pose(options: CalibrateOptions, source) -> None:
     for option, given in (("--estimate-lc", options.estimate_lc is not None),
                           ("--two-step", options.two_step)):
         if given:
-            raise InputError(f"{option}: does not apply to full-pose data ({source}); "
+            raise InputError(f"{option}: does not apply to full-pose data ({path_text(source)}); "
                              "see --method ml|ik, --fix-frames, --noise, --pose-noise, --robust")
     if options.robust and options.method == "ik":
         raise InputError("--robust: applies to the ml method (its residuals are the noise's); "
@@ -1750,7 +1773,7 @@ def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
     metadata = {
         "method": f"full-pose-{method}",
         "date": report["date"],
-        "data": str(source),
+        "data": path_text(source),
         "machine": _source_of(machine),
         "measurements": len(data),
         "leg_length_rms": {"before": before_rep["leg_length_rms"],
@@ -1774,7 +1797,7 @@ def _check_distances(options: CalibrateOptions, source) -> None:
                           ("--estimate-lc", options.estimate_lc is not None),
                           ("--two-step", options.two_step)):
         if given:
-            raise InputError(f"{option}: does not apply to ballbar data ({source}); see "
+            raise InputError(f"{option}: does not apply to ballbar data ({path_text(source)}); see "
                              "--noise (the ballbar's standard deviation, default 1um), "
                              "--robust")
 
@@ -1875,7 +1898,7 @@ def _calibrate_distances(machine, data, source, options: CalibrateOptions,
     metadata = {
         "method": "ballbar",
         "date": report["date"],
-        "data": str(source),
+        "data": path_text(source),
         "machine": _source_of(machine),
         "measurements": len(data),
         "rms_residual_um": rms_after,
@@ -2069,12 +2092,9 @@ def _match_file(name: str, sources) -> int | None:
     for i, s in enumerate(sources):
         if str(s) == name or Path(str(s)) == Path(name):
             return i
-    for i, s in enumerate(sources):        # the same file spelled another way (absolute path)
-        try:
-            if Path(str(s)).resolve() == Path(name).resolve():
-                return i
-        except (OSError, RuntimeError):    # RuntimeError: a symbolic link loop (3.11)
-            continue
+    for i, s in enumerate(sources):        # the same file by another name (links, spelling)
+        if isinstance(s, (str, Path)) and same_file(s, name):
+            return i
     labels = file_labels(sources)
     if name in labels:
         return labels.index(name)
@@ -2168,7 +2188,8 @@ def _joint_distances(machine, data, source, noise) -> JointPart:
     counts = np.bincount(dist.group, minlength=dist.n_groups)
     few = np.flatnonzero(counts < 6)
     if few.size:
-        raise InputError(f"{source}: setup {few[0] + 1} has {counts[few[0]]} row(s); each "
+        raise InputError(f"{path_text(source)}: "
+                         f"setup {few[0] + 1} has {counts[few[0]]} row(s); each "
                          "mounting needs at least 6 lengths (its pivot and ball are unknown)")
     dist.source = str(source)
     return JointPart(dist, DistancesModel(dist.n_groups), noise_model,
@@ -2208,16 +2229,18 @@ def _joint_part(machine, data, source, kind: MeasurementKind, noise) -> JointPar
     from ..instruments import InstrumentProblem
 
     if kind.joint_refusal:
-        raise InputError(f"{source}: {kind.name} data cannot be combined with other files in "
+        raise InputError(f"{path_text(source)}: "
+                         f"{kind.name} data cannot be combined with other files in "
                          f"one fit ({kind.joint_refusal}); the kinds that combine: "
-                         f"{_combining()}; calibrate from {source} on its own")
+                         f"{_combining()}; calibrate from {path_text(source)} on its own")
     if kind.joint is not None:
         return kind.joint(machine, data, source, noise)
     kind.check_options(CalibrateOptions(noise=noise), source)
     alone = kind.calibrate(machine, data, source, CalibrateOptions(noise=noise), None)
     problem = alone.result.extras.get("problem")
     if not isinstance(problem, InstrumentProblem) or getattr(problem, "local_dof", 0):
-        raise InputError(f"{source}: {kind.name} data cannot be combined with other files in "
+        raise InputError(f"{path_text(source)}: "
+                         f"{kind.name} data cannot be combined with other files in "
                          f"one fit (no instrument model of the shared layer); the kinds that "
                          f"combine: {', '.join(sorted(k.name for k in _kinds() if k.joint))}")
     text = alone.report.get("noise")
@@ -2307,19 +2330,20 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
             kind = next((k for k in _kinds() if k.data_class == type(item).__name__
                          and getattr(item, "kind", k.instrument) in _names_of(k)), None)
             if kind is None:
-                raise InputError(f"{source}: {type(item).__name__} is no calibration data")
+                raise InputError(f"{path_text(source)}: "
+                                 f"{type(item).__name__} is no calibration data")
             kinds.append(kind)
         sources.append(source)
-    def _same(a):
-        # a path names the same file through links and relative spellings
-        try:
-            return Path(a).resolve() if isinstance(a, (str, Path)) else str(a)
-        except OSError:
-            return str(a)
-
-    if len({_same(s) for s in sources}) != len(sources):
-        raise InputError("the same data file is given twice: "
-                         + ", ".join(str(s) for s in sources))
+    seen: dict = {}
+    for s in sources:       # one file by two names (hard or symbolic links, ./x and x)
+        key = file_identity(s) if isinstance(s, (str, Path)) else ("data", str(s))
+        if key in seen:
+            first = seen[key]
+            how = ("given twice" if str(first) == str(s) else
+                   f"given twice: {path_text(first)} and {path_text(s)} are the same file")
+            raise InputError(f"{path_text(s)}: the same data file is {how}; give each "
+                             "file once")
+        seen[key] = s
     labels = file_labels(sources)
     parts, held, hold = [], [], []
     for i, (item, source, kind) in enumerate(zip(data, sources, kinds, strict=True)):
@@ -2392,7 +2416,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         rms_after, r_after = _part_rms(problem.parts[i], sub, part.data)
         rms_before, _ = _part_rms(bproblem, before.state, part.data)
         model = problem.parts[i].model
-        entry = {"file": str(source), "label": label, "measurement": part.kind,
+        entry = {"file": path_text(source), "label": label, "measurement": part.kind,
                  "measurements": len(part.data), "noise": part.noise_text,
                  "residuals": {"of": ("3-D distance of the points" if model.size == 3 else
                                       "measured - predicted"),
@@ -2409,7 +2433,8 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
             sections.append(words)
         if held[i] is not None:
             entry["validation"] = _validation(
-                split, held[i], f"{part.kind} of the held-out rows of {source}, measured - "
+                split, held[i], f"{part.kind} of the held-out rows of {path_text(source)}, "
+                                "measured - "
                 "predicted with the identified instrument; before: the machine file's model "
                 "with the instrument fitted alone", "um",
                 _part_rms(bproblem, before.state, held[i])[0],
@@ -2426,7 +2451,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     r = np.asarray(result.residuals, float)
     report = {
         **_report_head(machine, names, "joint", "joint", units),
-        "data_files": [str(s) for s in sources],
+        "data_files": [path_text(s) for s in sources],
         "measurements": int(sum(len(p.data) for p in parts)),
         "files": files,
         "parameter_names": "each file's instrument unknowns are named FILE:name (e.g. "
@@ -2456,7 +2481,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     metadata = {
         "method": "joint",
         "date": report["date"],
-        "data": [str(s) for s in sources],
+        "data": [path_text(s) for s in sources],
         "machine": _source_of(machine),
         "measurements": report["measurements"],
         "rms_residual_um": {f["label"]: f["residuals"]["rms_um"] for f in files},
@@ -2496,7 +2521,8 @@ def _check_instrument(options: CalibrateOptions, source, inst) -> None:
                           ("--two-step", options.two_step),
                           ("--bed-tilt", options.bed_tilt is not None)):
         if given:
-            raise InputError(f"{option}: does not apply to {inst.plural} ({source}); see "
+            raise InputError(f"{option}: does not apply to {inst.plural} ({path_text(source)}); "
+                             "see "
                              "--noise, --robust")
 
 
@@ -2558,7 +2584,7 @@ def _calibrate_instrument(machine, data, source, options: CalibrateOptions, spli
                                                  np.asarray(result.singular_values, float)),
         "parameters": _public(params),
     }
-    metadata = {"method": inst.name, "date": report["date"], "data": str(source),
+    metadata = {"method": inst.name, "date": report["date"], "data": path_text(source),
                 "machine": _source_of(machine), "measurements": len(data),
                 "rms_residual_um": rms_after, "identifiable": int(result.rank),
                 "free_parameters": n_free, **_identifiability_metadata(unidentifiable)}
@@ -2624,7 +2650,8 @@ def _check_heights(data, machine) -> None:
              ("in mm", h * 1e3, "the unit of probe_z is wrong (the numbers are mm)"))
     for words, other, fix in fixes:
         if abs(float(np.median(z - other))) < 0.1 * offset:
-            raise InputError(f"{data.source}: the probe heights sit {offset * 1e3:.4g} mm "
+            raise InputError(f"{path_text(data.source)}: "
+                             f"the probe heights sit {offset * 1e3:.4g} mm "
                              f"from where the machine file puts the nozzle, and {words} "
                              f"within {abs(float(np.median(z - other))) * 1e3:.3g} mm of it: "
                              f"{fix} (or, if the machine file's position_endstop values are "
@@ -2692,7 +2719,8 @@ def _check_probe(options: CalibrateOptions, source) -> None:
                           ("--estimate-lc", options.estimate_lc is not None),
                           ("--two-step", options.two_step)):
         if given:
-            raise InputError(f"{option}: does not apply to probe heights ({source}); see "
+            raise InputError(f"{option}: does not apply to probe heights ({path_text(source)}); "
+                             "see "
                              "--noise (the probe's repeatability along z, default 10um), "
                              "--robust")
 
@@ -2794,7 +2822,7 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
     metadata = {
         "method": "probe",
         "date": report["date"],
-        "data": str(source),
+        "data": path_text(source),
         "machine": _source_of(machine),
         "measurements": len(data),
         "rms_residual_um": rms_after,

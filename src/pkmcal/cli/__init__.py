@@ -30,6 +30,7 @@ from ..errors import (
     restore_signals,
 )
 from ..limits import MAX_MEASUREMENTS, MAX_RUNS, MAX_SAMPLES
+from ..paths import path_text
 from ._names import formats, machine_types
 
 app = typer.Typer(
@@ -987,7 +988,8 @@ def _fail(message: str, code: int = 2) -> None:
 
 def _refuse_empty(args: list[str]) -> None:
     """No option or argument of pkmcal takes an empty text: ``--noise ''`` (an unset shell
-    variable) would otherwise read as the option's default."""
+    variable) would otherwise read as the option's default. The message names the option or
+    the argument (``MACHINE``) the empty text stands for."""
     for i, a in enumerate(args):
         if a == "--":
             return
@@ -995,12 +997,55 @@ def _refuse_empty(args: list[str]) -> None:
         if a.startswith("--") and a.endswith("=") and len(a) > 3:
             name = a[:-1]
         elif a.strip() == "":
-            prev = args[i - 1] if i else ""
-            name = (prev if prev.startswith("-") and prev != "--"
-                    else f"argument {i + 1}" + (f" (after {prev})" if prev else ""))
+            name = _empty_name(args, i)
         if name is not None:
             raise InputError(f"{name}: an empty value (an unset shell variable?); give a value "
-                             "or leave the option out")
+                             "or leave the option out" if name.startswith("-") else
+                             f"{name}: an empty value (an unset shell variable?)")
+
+
+def _empty_name(args: list[str], i: int) -> str:
+    """What the empty ``args[i]`` stands for: the option it is the value of (``--noise``), or
+    the positional argument by its name and place (``MACHINE (argument 1 of pkmcal
+    calibrate)``); the bare position when the command is not known."""
+    prev = args[i - 1] if i else ""
+    fallback = (prev if prev.startswith("-") and prev != "--"
+                else f"argument {i + 1}" + (f" (after {prev})" if prev else ""))
+    command = next((k for k, a in enumerate(args) if not a.startswith("-")), None)
+    if command == i:
+        return "COMMAND (the first argument: calibrate, simulate, ...; see pkmcal --help)"
+    try:
+        import typer.main
+
+        group = typer.main.get_command(_command_app(args))
+        cmd = group.commands[args[command]]
+    except Exception:       # noqa: BLE001 - an unknown command: the position alone
+        return fallback
+    options = {o: p for p in cmd.params for o in getattr(p, "opts", ())
+               if p.param_type_name == "option"}
+    positional = [p for p in cmd.params if p.param_type_name == "argument"]
+    k, skip = 0, False
+    for a in args[command + 1:i]:
+        if skip:
+            skip = False
+            continue
+        option = options.get(a.split("=", 1)[0]) if a.startswith("-") else None
+        if option is not None:
+            skip = "=" not in a and not getattr(option, "is_flag", False) \
+                and not getattr(option, "count", False)
+        elif not a.startswith("-") or a == "-":
+            k += 1
+    if skip:
+        return prev
+    if not positional:
+        return fallback
+    param = positional[min(k, len(positional) - 1)]
+    meta = str(param.metavar or param.name.upper()).strip("[].")
+    import re
+
+    what = re.split(r" \(|`|;|\. |\.$", str(getattr(param, "help", "") or ""))[0].strip()
+    what = what[:1].lower() + what[1:] + ", " if what else ""
+    return f"{meta} ({what}argument {k + 1} of pkmcal {args[command]})"
 
 
 def _hoist_quiet(args: list[str]) -> list[str]:
@@ -1133,10 +1178,10 @@ def _fail_exception(exc: Exception) -> None:
     if isinstance(exc, ConvergenceError):
         _fail(str(exc))
     if isinstance(exc, FileNotFoundError):
-        _fail(f"{exc.filename}: file not found" if exc.filename else str(exc))
+        _fail(f"{path_text(exc.filename)}: file not found" if exc.filename else str(exc))
     if isinstance(exc, OSError):
         if exc.filename:
-            _fail(f"{exc.filename}: {exc.strerror or exc}")
+            _fail(f"{path_text(exc.filename)}: {exc.strerror or exc}")
         _fail(str(exc))
     if os.environ.get("PKMCAL_DEBUG"):
         raise exc

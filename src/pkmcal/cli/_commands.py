@@ -38,6 +38,7 @@ from ..io.atomic import is_stream
 from ..io.machine_file import DEFAULT_UNITS
 from ..limits import MAX_MEASUREMENTS
 from ..machines.deviations import deviations as _deviations
+from ..paths import path_text
 from ..plausibility import check_option_scale
 from ..units import (
     factor,
@@ -93,8 +94,8 @@ def check_outputs(outputs: list[Path], inputs: list[Path], directories=()) -> No
 def _wrote(output: Path, beside: Path) -> str:
     """``wrote OUT and OUT.json``; a device or pipe gets no file beside it."""
     if is_stream(output):
-        return f"wrote {output} (not a regular file: no {beside.suffix} file beside it)"
-    return f"wrote {output} and {beside}"
+        return f"wrote {path_text(output)} (not a regular file: no {beside.suffix} file beside it)"
+    return f"wrote {path_text(output)} and {path_text(beside)}"
 
 
 def commit_outputs() -> list[Path]:
@@ -157,7 +158,7 @@ def run_demo(outdir: Path) -> None:
     if files:
         out.print("files:")
         for f in files:
-            out.print(f"  {f}", markup=False)
+            out.print(f"  {path_text(f)}", markup=False)
 
 
 def run_bench(json_output: bool) -> int:
@@ -312,7 +313,7 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
         atomic_write_text(truth, truth_text)
     out = console()
     table = _table("", "", title="pkmcal simulate", show_header=False)
-    table.add_row("machine", f"{machine.source} ({machine.kind})")
+    table.add_row("machine", f"{path_text(machine.source)} ({machine.kind})")
     table.add_row("scenario", f"{scenario}, {truth_info['poses']}")
     table.add_row("deviations", deviations + (f" (seed {seed})" if deviations == "random"
                                               else ""))
@@ -321,7 +322,8 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
         table.add_row(name, value)
     out.print(table)
     commit_outputs()
-    out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
+    out.print(f"wrote {path_text(output)}" + (f" and {path_text(truth)}" if truth else ""),
+              markup=False)
 
 
 def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, deviations: str,
@@ -349,8 +351,12 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
     bad = np.flatnonzero(~np.all(np.isfinite(machine.ik(targets)), axis=-1))
     if bad.size:
         raise InputError(f"--grid {'x'.join(map(str, shape))}: {bad.size} grid point(s) "
-                         f"outside the workspace of {machine.source} (e.g. "
+                         f"outside the workspace of {path_text(machine.source)} (e.g. "
                          f"{_mm(targets[bad[0]])} mm); use a smaller grid or another home")
+    refuse_unreachable(machine, machine.reachability(targets), f"--grid "
+                       f"{'x'.join(map(str, shape))}: {{n}} grid point(s) (rows of the data "
+                       f"file) cannot be reached by {machine.source}",
+                       np.arange(2, n_points + 2), (targets, None))
     refuse_outside_limits(machine, machine.ik(targets), np.arange(2, n_points + 2),
                           f"--grid {'x'.join(map(str, shape))}: {{n}} grid point(s) (rows of "
                           "the data file)")
@@ -373,7 +379,7 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
     R, t = pose
     out = console()
     table = _table("", "", title="pkmcal simulate", show_header=False)
-    table.add_row("machine", f"{machine.source} ({machine.kind})")
+    table.add_row("machine", f"{path_text(machine.source)} ({machine.kind})")
     dx, dy, dz = (v * 1e3 for v in TRACKER_GRID_SPACING)
     table.add_row("scenario", f"tracker, {'x'.join(map(str, shape))} grid (dx = {dx:g}, dy = "
                   f"{dy:g}, dz = {dz:g} mm) centred at home {_mm(centre)} mm: {n_points} points")
@@ -388,7 +394,8 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
         table.add_row("outliers", f"rows {_rows_text(rows, limit=50)} moved by 1 mm")
     out.print(table)
     commit_outputs()
-    out.print(f"wrote {output}" + (f" and {truth}" if truth else ""), markup=False)
+    out.print(f"wrote {path_text(output)}" + (f" and {path_text(truth)}" if truth else ""),
+              markup=False)
 
 
 def _mm(v) -> str:
@@ -420,7 +427,8 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
         pose_noise = pose_noise[0] if pose_noise else None
     data_path = paths[0] if len(paths) == 1 else paths
     if output.suffix.lower() == ".json":
-        raise InputError(f"{output}: the calibrated machine is a YAML file; choose a name "
+        raise InputError(f"{path_text(output)}: "
+                         "the calibrated machine is a YAML file; choose a name "
                          "ending in .yaml (the JSON report is written beside it)")
     report_path = output.with_suffix(".json")
     machine = load_machine_arg(machine_spec)
@@ -483,7 +491,8 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
     what each file adds."""
     out = console()
     ident, conv = report["identifiability"], report["convergence"]
-    table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
+    table = _table("", "", title=f"pkmcal calibrate: {path_text(machine.source)} with "
+                                 f"{path_text(data_path)}",
                    show_header=False)
     table.add_row("measurement", f"{len(report['files'])} files fitted together, "
                   f"{report['measurements']} rows: one geometry, each file's own instrument "
@@ -606,7 +615,8 @@ def _print_instrument_calibration(inst, report, params, data_path, output, repor
     (:meth:`~pkmcal.instruments.base.Instrument.calibration_summary`), the parameter changes,
     its notes."""
     out = console()
-    table = _table("", "", title=f"pkmcal calibrate: {machine.source} with {data_path}",
+    table = _table("", "", title=f"pkmcal calibrate: {path_text(machine.source)} with "
+                                 f"{path_text(data_path)}",
                    show_header=False)
     notes = []
     rows = list(inst.calibration_summary(report))
@@ -655,11 +665,11 @@ def run_fk(machine_spec: str, joints: Path, output: Path, frame: str = "base",
         write_positions(output, result.P, units["length"])
         commit_outputs()
         console().print(f"{len(q)} position(s) of the platform point, base frame, written to "
-                        f"{output} ({units['length']})", markup=False)
+                        f"{path_text(output)} ({units['length']})", markup=False)
         return
     write_poses(output, result.P, result.R, units["length"], units["angle"])
     commit_outputs()
-    console().print(f"{len(q)} pose(s) written to {output} ({units['length']}, "
+    console().print(f"{len(q)} pose(s) written to {path_text(output)} ({units['length']}, "
                     f"{units['angle']})", markup=False)
 
 
@@ -696,7 +706,7 @@ def _fk_instrument(machine_spec: str, joints: Path, output: Path,
         columns[column] = (group + 1).tolist()
     write_table(output, list(columns), [list(v) for v in columns.values()])
     commit_outputs()
-    console().print(f"{len(q)} {inst.prediction_words} written to {output} ({unit})",
+    console().print(f"{len(q)} {inst.prediction_words} written to {path_text(output)} ({unit})",
                     markup=False)
 
 
@@ -716,6 +726,29 @@ def joint_columns(machine, q, units) -> dict:
     return {f"q{j + 1}_{unit}": (q[:, j] / f).tolist() for j in range(q.shape[1])}
 
 
+def refuse_unreachable(machine, reach, what: str, rows=None, shown=None,
+                       sampled: str = "") -> None:
+    """Refuse poses the machine cannot take (:meth:`~pkmcal.machines.Machine.reachability`):
+    one line, ``what`` first (``{n}``: the count of such poses; e.g. ``"t.csv: {n}
+    target(s) cannot be reached by the calibrated machine"``), then the rows (or, for
+    ``sampled`` poses of a box, how many of them), the first such pose as the user gave it
+    (``shown``: ``(P, R)``, R may be None) and why, in the machine file's units. Poses outside
+    the file's ``joint_limits`` alone are left to :func:`refuse_outside_limits`."""
+    bad = np.flatnonzero(~reach.ok & ~reach.limits_only)
+    if not bad.size:
+        return
+    P, R = shown
+    k = int(bad[0])
+    pose = machine.pose_text(P[k], None if R is None else R[k])
+    if rows is not None:
+        rows = np.asarray(rows)
+        where = (f", row(s) {_rows_text(rows[bad])}: row {rows[k]} at {pose}: "
+                 f"{reach.reasons[k]}")
+    else:
+        where = f" ({bad.size} of {sampled}), e.g. at {pose}: {reach.reasons[k]}"
+    raise InputError(what.format(n=bad.size) + where)
+
+
 def refuse_outside_limits(machine, q, rows, what: str) -> None:
     """Refuse joint values ``q`` (K, n) outside the machine file's ``joint_limits``, naming
     the rows and joints; ``what`` starts the message (``{n}``: the count of such rows)."""
@@ -723,7 +756,7 @@ def refuse_outside_limits(machine, q, rows, what: str) -> None:
     if outside.any():
         source = getattr(machine, "source", None) or "the machine file"
         raise InputError(f"{what.format(n=int(outside.sum()))} need joint values outside the "
-                         f"joint limits of {source} ({machine.joint_limits_text()}): "
+                         f"joint limits of {path_text(source)} ({machine.joint_limits_text()}): "
                          f"{machine.limit_violation_text(q[outside], np.asarray(rows)[outside])}")
 
 
@@ -754,12 +787,15 @@ def run_ik(machine_spec: str, poses: Path, output: Path) -> None:
             raise InputError(f"{poses}: {int(off.sum())} position(s) outside the working "
                              f"assembly mode (the platform must hang below the base), row(s) "
                              f"{_rows_text(rows[off])}")
+    refuse_unreachable(machine, machine.reachability(P, R), f"{poses}: {{n}} pose(s) cannot "
+                       "be reached by the machine", rows, (P, R))
     refuse_outside_limits(machine, q, rows, f"{poses}: {{n}} pose(s)")
     columns = joint_columns(machine, q, _units(machine))
     write_table(output, list(columns), list(columns.values()))
     unit = next(iter(columns)).split("_", 1)[1]
     commit_outputs()
-    console().print(f"{len(q)} {machine.joint_vector_word} vector(s) written to {output} "
+    console().print(f"{len(q)} {machine.joint_vector_word} vector(s) written to "
+                    f"{path_text(output)} "
                     f"({unit})", markup=False)
 
 
@@ -782,7 +818,8 @@ def _errors_machine(spec: str):
         return machine
     machine = load_machine_arg(spec)
     if machine.n_joints != 6 or machine.leg_joints(np.zeros(6)) is None:
-        raise InputError(f"{spec}: pkmcal errors needs a six-leg machine (machine: stewart; "
+        raise InputError(f"{path_text(spec)}: "
+                         "pkmcal errors needs a six-leg machine (machine: stewart; "
                          f"or 'cubic' for the embedded seed 003 device), not "
                          f"{getattr(machine, 'kind', 'this machine')}")
     return machine
@@ -803,15 +840,16 @@ def _read_trajectory_file(path: Path):
     header, rows = read_table(path)
     t_cols = [i for i, n in enumerate(header) if n == "t" or n.startswith("t_")]
     if not t_cols:
-        raise InputError(f"{path}: missing column t_s (time of each pose); columns found: "
+        raise InputError(f"{path_text(path)}: "
+                         "missing column t_s (time of each pose); columns found: "
                          f"{', '.join(header)}")
     if len(t_cols) > 1:
-        raise InputError(f"{path}: more than one time column: "
+        raise InputError(f"{path_text(path)}: more than one time column: "
                          f"{', '.join(header[i] for i in t_cols)}; keep one")
     name = header[t_cols[0]]
     unit = name[2:]
     if unit not in TIME:
-        raise InputError(f"{path}: column {name!r}: "
+        raise InputError(f"{path_text(path)}: column {name!r}: "
                          + ("no unit suffix" if not unit else f"unknown time unit {unit!r}")
                          + f" (write t_s; accepted: {', '.join('t_' + u for u in TIME)})")
     t = np.array([parse_number(path, line, name, f[t_cols[0]]) for line, f in rows]) * TIME[unit]
@@ -821,12 +859,14 @@ def _read_trajectory_file(path: Path):
         P, lines = read_positions(path)
         R = np.broadcast_to(np.eye(3), (len(P), 3, 3)).copy()
     if len(t) < 3:
-        raise InputError(f"{path}: {len(t)} pose(s); a trajectory needs at least 3 to give "
+        raise InputError(f"{path_text(path)}: "
+                         f"{len(t)} pose(s); a trajectory needs at least 3 to give "
                          "accelerations")
     h = np.diff(t)
     if not np.all(h > 0):
         k = int(np.flatnonzero(~(h > 0))[0])
-        raise InputError(f"{path}: row {lines[k + 1]}, column {name}: times must increase "
+        raise InputError(f"{path_text(path)}: "
+                         f"row {lines[k + 1]}, column {name}: times must increase "
                          f"strictly ({t[k + 1] / TIME[unit]:g} after {t[k] / TIME[unit]:g})")
     return t, P, R, lines
 
@@ -862,7 +902,7 @@ def run_errors(machine_spec: str, output: Path, trajectory: str | None,
     backlash = _nonnegative(screw_error, "length", "--screw-error")
     tol_n = _nonnegative(force_tol, "force", "--force-tol")
     if plot is not None and plot.exists() and not plot.is_dir():
-        raise InputError(f"--plot {plot}: exists and is not a directory")
+        raise InputError(f"--plot {path_text(plot)}: exists and is not a directory")
     machine = _errors_machine(machine_spec)
     for option, value, text in (("--clearance", c_base, clearance),
                                 ("--platform-clearance", c_platform, platform_clearance),
@@ -893,14 +933,14 @@ def run_errors(machine_spec: str, output: Path, trajectory: str | None,
     else:
         t, P, R, lines = _read_trajectory_file(trajectory_file)
         path = err.trajectory_from_poses(t, P, R)
-        where = f"{trajectory_file}: {len(t)} poses over {t[-1] - t[0]:.6g} s"
+        where = f"{path_text(trajectory_file)}: {len(t)} poses over {t[-1] - t[0]:.6g} s"
     try:
         if trajectory == "file":
             err.check_poses(machine, path.P, path.R, lines, "row")
         else:
             err.check_poses(machine, path.P, path.R, np.arange(len(path)), "sample")
     except InputError as exc:
-        raise InputError(f"{trajectory_file}: {exc}" if trajectory == "file" else
+        raise InputError(f"{path_text(trajectory_file)}: {exc}" if trajectory == "file" else
                          f"the circle has {exc}; change --radius or --height") from None
 
     result = err.trajectory_errors(machine, path, mass_kg, f_cut, c_base, c_platform, backlash,
@@ -974,7 +1014,7 @@ def _print_errors(machine, where, result, trajectory, mass_kg, f_cut, c_base, c_
     else:
         x, period, unit = path.t, None, "s"
     out = console()
-    table = _table("", "", title=f"pkmcal errors: {machine.source}", show_header=False)
+    table = _table("", "", title=f"pkmcal errors: {path_text(machine.source)}", show_header=False)
     table.add_row("trajectory", where)
     inertia = mass_kg * np.max(np.linalg.norm(path.acceleration, axis=1))
     table.add_row("loads", f"weight {mass_kg * STANDARD_GRAVITY:.5g} N ({mass_kg:.6g} kg), "

@@ -9,10 +9,10 @@ import numpy as np
 
 from ..calibration.run import file_units as _units
 from ..calibration.run import json_safe as _finite_or_none
-from ..calibration.run import rows_text as _rows_text
 from ..calibration.run import text_digest
 from ..errors import InputError
 from ..io.atomic import read_input_text
+from ..paths import path_text, recorded_path
 from ..units import format_um, format_urad
 from ._commands import (
     _machine_inputs,
@@ -23,6 +23,7 @@ from ._commands import (
     load_machine_arg,
     read_poses_of,
     refuse_outside_limits,
+    refuse_unreachable,
 )
 from ._console import console, warning
 
@@ -39,17 +40,20 @@ def calibration_report_path(machine, machine_spec: str, report: Path | None) -> 
         if name is None:
             return None
         if not isinstance(name, str) or not name.strip() or Path(name).name != name:
-            raise InputError(f"{machine_spec}: calibration.report: expected the file name of "
+            raise InputError(f"{path_text(machine_spec)}: "
+                             "calibration.report: expected the file name of "
                              f"the JSON report beside it, got {name!r}")
-        path = Path(machine_spec).parent / name
+        path = recorded_path(Path(machine_spec).parent, name)      # recorded by path_text
         if not path.exists():
             return None             # the YAML travelled without its report: warned later
         if not path.is_file():
-            raise InputError(f"{path}: the calibration report {machine_spec} names is not a "
+            raise InputError(f"{path_text(path)}: "
+                             f"the calibration report {path_text(machine_spec)} names is not a "
                              "file; give the report with --report")
     if pinned is not None and text_digest(read_input_text(path, "calibration report")) \
             != str(pinned):
-        raise InputError(f"{path}: is not the report of {machine_spec} (its SHA-256 differs "
+        raise InputError(f"{path_text(path)}: "
+                         f"is not the report of {path_text(machine_spec)} (its SHA-256 differs "
                          f"from calibration.report_sha256 there: written by another run); "
                          "calibrate again, or give the right report with --report")
     return path
@@ -63,11 +67,11 @@ def read_covariance(path: Path, machine, with_frames: bool = False):
 
     cov = load_report(path).get("covariance")
     if cov is None:
-        raise InputError(f"{path}: no covariance section (written by pkmcal calibrate); "
+        raise InputError(f"{path_text(path)}: no covariance section (written by pkmcal calibrate); "
                          "calibrate again with this version or leave out --report")
     names = list(machine.parameters.names)
     if list(cov["parameters"]) != names:
-        raise InputError(f"{path}: the covariance is of other parameters than those of "
+        raise InputError(f"{path_text(path)}: the covariance is of other parameters than those of "
                          f"{getattr(machine, 'source', 'the machine')} (another machine?)")
     C = np.asarray(cov["matrix"], float)          # shapes and finiteness: load_report
     N = None
@@ -77,7 +81,7 @@ def read_covariance(path: Path, machine, with_frames: bool = False):
         return C, N
     full = cov.get("with_frames")
     if full is None:
-        raise InputError(f"{path}: no covariance of the measurement frames (covariance."
+        raise InputError(f"{path_text(path)}: no covariance of the measurement frames (covariance."
                          "with_frames); calibrate again with this version")
     all_names = [str(v) for v in full["parameters"]]
     C_all = np.asarray(full["matrix"], float)
@@ -139,7 +143,8 @@ def read_instrument_targets(path: Path, machine, frame):
     n = len(frame.targets)
     if group is not None and machine.tracker_target() is None and group.max() >= n:
         k = int(np.argmax(group >= n))
-        raise InputError(f"{path}: row {rows[k]}, column target: target {group[k] + 1}, but "
+        raise InputError(f"{path_text(path)}: "
+                         f"row {rows[k]}, column target: target {group[k] + 1}, but "
                          f"the machine file's tracker section has {n} target(s) (numbered "
                          f"1..{n})")
     return P, R, rows, group
@@ -182,18 +187,14 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
         P, R, rows, group = read_instrument_targets(targets, machine, frame)
         frame = frame.with_group(group)
     if len(P) == 0:
-        raise InputError(f"{targets}: no target rows")
+        raise InputError(f"{path_text(targets)}: no target rows")
     try:
         comp = compensate(machine, P, R, C, nominal, N, frame=frame, names=names)
     except ValueError as exc:
-        raise InputError(f"{report_path}: {exc}") from None
-    if not comp.reachable.all():
-        raise InputError(f"{targets}: {int((~comp.reachable).sum())} target(s) cannot be reached "
-                         f"by the calibrated machine (no real inverse kinematics, farther than "
-                         f"{machine.MAX_REACH:g}x its size from home, or beyond a singularity), "
-                         f"row(s) "
-                         f"{_rows_text(rows[~comp.reachable])}")
-    refuse_outside_limits(machine, comp.q, rows, f"{targets}: {{n}} target(s)")
+        raise InputError(f"{path_text(report_path)}: {exc}") from None
+    refuse_unreachable(machine, comp.reach, f"{path_text(targets)}: {{n}} target(s) cannot be "
+                       "reached by the calibrated machine", rows, (P, R))
+    refuse_outside_limits(machine, comp.q, rows, f"{path_text(targets)}: {{n}} target(s)")
     units = _units(machine)
     columns = joint_columns(machine, comp.q, units)
     if comp.position_std is not None:
@@ -225,12 +226,12 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
     summary = {
         "pkmcal_report": 1,
         "command": "compensate",
-        "machine_file": str(getattr(machine, "source", machine_spec)),
-        "targets_file": str(targets),
-        "commands_file": str(output),
+        "machine_file": path_text(getattr(machine, "source", machine_spec)),
+        "targets_file": path_text(targets),
+        "commands_file": path_text(output),
         "targets": int(len(P)),
         "targets_frame": "base" if frame is None else frame.description,
-        "covariance_from": None if report_path is None else str(report_path),
+        "covariance_from": None if report_path is None else path_text(report_path),
         "nominal_file": nominal_spec,
         "predicted_position_um": stats(comp.position_std, 1e6),
         "predicted_orientation_urad": stats(comp.orientation_std, 1e6),
@@ -239,7 +240,8 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
     }
     if report_path is None:
         named = (getattr(machine, "calibration_info", None) or {}).get("report")
-        where = (f"{Path(machine_spec).parent / named} (named by {machine_spec}) is missing"
+        where = (f"{path_text(recorded_path(Path(machine_spec).parent, str(named)))} (named by "
+                 f"{path_text(machine_spec)}) is missing"
                  if named else "no calibration report (JSON with a covariance) beside the "
                                "machine file")
         warning(f"{where}: the predicted residual error is not given; pass --report FILE.json")
@@ -248,10 +250,11 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
         return 0
     table = _table("", "", title=f"pkmcal compensate: {summary['machine_file']}",
                    show_header=False)
-    table.add_row("targets", f"{len(P)} from {targets} ("
+    table.add_row("targets", f"{len(P)} from {path_text(targets)} ("
                   + (machine.working_frame_words if frame is None
                      else frame.description) + ")")
-    table.add_row("commands", f"{output} ({', '.join(list(columns)[:machine.n_joints])})")
+    table.add_row("commands", f"{path_text(output)} "
+                  f"({', '.join(list(columns)[:machine.n_joints])})")
     pp, po = summary["predicted_position_um"], summary["predicted_orientation_urad"]
     if pp:
         text = f"position {format_um(pp['rms'], 3)} RMS, {format_um(pp['max'], 3)} max"
@@ -259,7 +262,7 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
             text += (f"; orientation {format_urad(po['rms'], 3)} RMS, "
                      f"{format_urad(po['max'], 3)} max")
         table.add_row("predicted residual", f"{text} (1 sigma, from the calibration's "
-                      f"covariance in {report_path}; " + (
+                      f"covariance in {path_text(report_path)}; " + (
                           "frames the data cannot fix aligned)" if frame is None else
                           "in the instrument's frame, its pose uncertainty included)"))
     up, uo = summary["uncompensated_position_um"], summary["uncompensated_orientation_urad"]

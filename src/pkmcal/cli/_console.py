@@ -6,6 +6,7 @@ import functools
 import sys
 
 from ..errors import stop_if_signalled
+from ..paths import path_text, undecodable_escaped
 
 _QUIET = False
 
@@ -21,34 +22,67 @@ def quiet() -> bool:
     return _QUIET
 
 
+class _Escaping:
+    """A text stream whose writes have file names' undecodable bytes written ``\\xNN``
+    (:func:`pkmcal.paths.undecodable_escaped`): a name that is not UTF-8 in a table or a
+    "wrote ..." line cannot end a run in UnicodeEncodeError."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        return self._stream.write(undecodable_escaped(text))
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+@functools.cache
+def _console_class():
+    from rich.console import Console
+
+    class EscapingConsole(Console):
+        """rich's Console writing through :class:`_Escaping` (its stream is looked up at
+        each write, as rich does: sys.stdout may be redirected)."""
+
+        @property
+        def file(self):
+            return _Escaping(Console.file.fget(self))
+
+        @file.setter
+        def file(self, new_file) -> None:
+            Console.file.fset(self, new_file)
+
+    return EscapingConsole
+
+
 @functools.cache
 def console():
     """Console on stdout; 120 columns when not a terminal (pipes, tests); silent with
     ``--quiet``."""
-    from rich.console import Console
-
-    return Console(highlight=False, width=None if sys.stdout.isatty() else 120, quiet=_QUIET)
+    return _console_class()(highlight=False, width=None if sys.stdout.isatty() else 120,
+                            quiet=_QUIET)
 
 
 @functools.cache
 def err_console():
-    from rich.console import Console
-
-    return Console(stderr=True, highlight=False, soft_wrap=True)
+    return _console_class()(stderr=True, highlight=False, soft_wrap=True)
 
 
 def error(message: str) -> None:
-    """One red line ``error: ...`` on stderr (the message is not read as markup)."""
+    """One red line ``error: ...`` on stderr (the message is not read as markup; file names
+    in it rendered by :func:`pkmcal.paths.path_text`: bytes that are not UTF-8 and control
+    characters as ``\\xNN``)."""
     from rich.text import Text
 
-    err_console().print(Text.assemble(("error: ", "bold red"), (message, "red")))
+    err_console().print(Text.assemble(("error: ", "bold red"), (path_text(message), "red")))
 
 
 def warning(message: str) -> None:
-    """One yellow line ``warning: ...`` on stderr."""
+    """One yellow line ``warning: ...`` on stderr (rendered as :func:`error` renders)."""
     from rich.text import Text
 
-    err_console().print(Text.assemble(("warning: ", "bold yellow"), message))
+    err_console().print(Text.assemble(("warning: ", "bold yellow"), path_text(message)))
 
 
 class progress_tasks:

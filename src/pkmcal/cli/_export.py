@@ -9,6 +9,7 @@ from pathlib import Path
 from ..calibration.run import json_safe as _finite_or_none
 from ..errors import InputError
 from ..io.atomic import atomic_write_bytes, atomic_write_text, is_stream, read_input_text
+from ..paths import path_text, recorded_path
 from ..units import format_quantity
 from ._commands import (
     _machine_inputs,
@@ -27,7 +28,9 @@ def _um(value) -> str:
 
 def export_record(result, calibrated: str, output: Path, nominal: str | None) -> dict:
     """The JSON record beside the written file: the result and where it came from."""
-    record = {"calibrated": calibrated, "nominal": nominal, "file": str(output)}
+    record = {"calibrated": path_text(calibrated),
+              "nominal": None if nominal is None else path_text(nominal),
+              "file": path_text(output)}
     record.update(result.as_dict())
     return _finite_or_none(record)
 
@@ -61,12 +64,13 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
         try:                        # the backup is the previous file byte for byte (a BOM)
             previous = output.read_bytes()
         except OSError as exc:
-            raise InputError(f"{output}: cannot be read ({exc.strerror or exc})") from None
+            raise InputError(f"{path_text(output)}: "
+                             f"cannot be read ({exc.strerror or exc})") from None
     check_outputs([output] + ([record_path] if record_path is not None else [])
                   + ([backup] if backup is not None else []), inputs)
     why = fmt.applies(machine)
     if why is not None:
-        raise InputError(f"--to {fmt.name}: {machine_spec}: {why}")
+        raise InputError(f"--to {fmt.name}: {path_text(machine_spec)}: {why}")
     before = None
     if nominal is not None:
         before = load_machine_arg(nominal)
@@ -74,7 +78,8 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
         if why is not None:
             raise InputError(f"--nominal {nominal}: {why}")
         if before.kind != machine.kind:
-            raise InputError(f"--nominal {nominal}: a {before.kind} machine, but {machine_spec} "
+            raise InputError(f"--nominal {nominal}: a {before.kind} machine, but "
+                             f"{path_text(machine_spec)} "
                              f"is a {machine.kind} machine")
     own = getattr(machine, "print_workspace", None)
     ws = (own(rng=seed) if workspace is None and callable(own)
@@ -109,15 +114,18 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
                          f"; nozzle height RMS {_um(result.before_height_rms)}, max "
                          f"{_um(result.before_height_max)}"))
     if backup is not None:
-        table.add_row("updated", f"{output} as the controller saves its values (previous "
-                                 f"file kept as {backup.name})")
+        table.add_row("updated", f"{path_text(output)} as the controller saves its values "
+                                 "(previous "
+                                 f"file kept as {path_text(backup.name)})")
     out.print(table)
     values = _table("value", "written", title="Values written (the controller's units)")
     for name, text in fmt.values_text(result.params):
         values.add_row(name, text)
     out.print(values)
-    out.print(f"wrote {output}" + (f" and {record_path}" if record_path else "")
-              + (f" (previous {output.name} kept as {backup.name})" if backup else ""),
+    out.print(f"wrote {path_text(output)}"
+              + (f" and {path_text(record_path)}" if record_path else "")
+              + (f" (previous {path_text(output.name)} kept as {path_text(backup.name)})"
+                 if backup else ""),
               markup=False)
     return 0
 
@@ -128,12 +136,13 @@ def _pinned_report(machine, machine_spec: str) -> Path | None:
     if not isinstance(name, str) or not name.strip() or Path(name).name != name \
             or machine_spec == "default":
         return None
-    return Path(machine_spec).parent / name
+    return recorded_path(Path(machine_spec).parent, name)         # recorded by path_text
 
 
 def run_import(path: Path, source_format: str, output: Path, like: str | None = None) -> int:
     """``pkmcal import``: a controller file's values as a pkmcal machine file."""
     from ..export import controller_format
+    from ..export.base import carry_like
     from ..io.machine_file import save_machine
 
     fmt = controller_format(source_format)
@@ -144,27 +153,53 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
     if model is not None and fmt.machine_kind and model.kind != fmt.machine_kind:
         raise InputError(f"--like {like}: a {model.kind} machine; {fmt.name} files describe a "
                          f"{fmt.machine_words} (machine: {fmt.machine_kind})")
-    machine = fmt.to_machine(params, model)
-    problems = machine.geometry_problems(home_given=model is not None)
-    if problems:
-        raise InputError(f"{path}: the imported values do not make a working machine: "
-                         f"{problems[0][1]}")
-    from ..io.machine_file import machine_to_text, parse_machine
-
+    machine = carry_like(fmt.to_machine(params, model), model)
+    _check_imported(fmt, params, machine, path, like)
     units = getattr(machine, "file_units", None)
-    try:                   # the values must make a plausible machine file: name the input
-        parse_machine(machine_to_text(machine, units), str(output))
-    except InputError as exc:
-        import re
-
-        what = re.sub(r" \(line \d+\)$", "", str(exc).split(": ", 1)[-1])
-        raise InputError(f"{path}: the imported values do not make a plausible machine file: "
-                         f"{what}") from None
     save_machine(machine, output, units)
     commit_outputs()
     out = console()
     for note in getattr(params, "notes", None) or []:       # letters passed over, and why
         out.print(f"note: {note}", markup=False)
-    out.print(f"{len(params.values)} {fmt.name} values of {path} written to {output} "
+    out.print(f"{len(params.values)} {fmt.name} values of {path_text(path)} written to "
+              f"{path_text(output)} "
               f"as a {machine.kind} machine file", markup=False)
     return 0
+
+
+#: machine-file keys an import takes from ``--like`` (:func:`~pkmcal.export.base.carry_like`)
+_LIKE_KEYS = ("name", "units", "joint_limits", "smr_offset", "tracker")
+
+
+def _check_imported(fmt, params, machine, path: Path, like: str | None) -> None:
+    """Validate an imported machine as its machine file is validated (schema, magnitudes,
+    geometry, joint limits) and name a problem in the user's terms: the controller file's
+    keys and lines that make the machine-file key concerned (the format's source map,
+    :meth:`~pkmcal.export.base.ControllerFormat.imported_key`), or ``--like``'s key."""
+    from ..io.machine_file import (
+        MachineFileError,
+        machine_to_text,
+        parse_machine,
+    )
+    from ..io.machine_file import key_path_text as _key_path
+
+    units = getattr(machine, "file_units", None)
+    try:
+        parse_machine(machine_to_text(machine, units), str(path))
+        return
+    except MachineFileError as exc:
+        key, what = exc.key, exc.what
+        if exc.stage == "geometry":
+            # the home an import makes is its default home unless --like gave one: say so
+            problems = machine.geometry_problems(home_given=like is not None)
+            if problems:
+                key, what = problems[0]
+    place = None
+    if like is not None and key and (key[0] in _LIKE_KEYS or key[0] == "home"):
+        place = f"--like {like}: {_key_path(key)}"          # what --like gave
+    if place is None:
+        place = fmt.imported_key(params, key)
+    if place is None:
+        raise InputError(f"{path_text(path)}: the imported values do not make a working machine "
+                         f"({_key_path(key)} of its machine file): {what}") from None
+    raise InputError(f"{place}: {what} (the imported machine's {_key_path(key)})") from None

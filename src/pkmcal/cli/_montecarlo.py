@@ -19,6 +19,7 @@ import numpy as np
 from ..calibration.run import json_safe as _finite_or_none
 from ..calibration.run import versions
 from ..errors import InputError
+from ..paths import path_text
 from ..report.provenance import run_date
 from ..units import format_number, format_quantity, parse_quantity
 from ._commands import _table, check_outputs, commit_outputs, load_machine_arg
@@ -185,7 +186,7 @@ def _write_outputs(result, outdir: Path, machine_spec: str) -> list[Path]:
         "pkmcal_report": 1,
         "command": "montecarlo",
         "date": run_date(),
-        "machine_file": str(machine_spec),
+        "machine_file": path_text(machine_spec),
         "settings": result.settings.describe(),
         "variable": result.variable,
         "unit": unit or None,

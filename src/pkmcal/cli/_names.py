@@ -14,6 +14,8 @@ import ast
 from functools import cache
 from pathlib import Path
 
+from ..paths import path_text
+
 #: ``--to`` / ``--from``: the names of :data:`pkmcal.export.FORMATS` (one controller's
 #: formats together)
 FORMAT_NAMES: tuple[str, ...] = (
@@ -42,7 +44,7 @@ def machine_modules() -> tuple[str, ...]:
             targets = [node.target] if isinstance(node, ast.AnnAssign) else node.targets
             if any(isinstance(t, ast.Name) and t.id == "MACHINE_MODULES" for t in targets):
                 return tuple(ast.literal_eval(node.value))
-    raise LookupError(f"{path}: no MACHINE_MODULES")
+    raise LookupError(f"{path_text(path)}: no MACHINE_MODULES")
 
 
 def words(names, last: str = "or") -> str:

@@ -17,6 +17,7 @@ from ..calibration.run import rows_text as _rows_text
 from ..errors import InputError
 from ..instruments.registry import INSTRUMENTS, instrument
 from ..io import read_table
+from ..paths import path_text
 from ..planning import WORKSPACE_POSES, measured_problem, noise_model  # noqa: F401
 from ..plausibility import check_option_scale
 from ..units import LENGTH, format_quantity, format_um, format_urad, parse_quantity
@@ -27,6 +28,7 @@ from ._commands import (
     joint_columns,
     load_machine_arg,
     read_poses_of,
+    refuse_unreachable,
 )
 from ._console import console, progress_tasks
 
@@ -117,11 +119,12 @@ def _points_workspace(path: Path, machine, seed: int):
     from ..kinematics import matrix_from_euler
 
     if not path.exists():
-        raise InputError(f"--workspace {path}: neither a box X0,X1,Y0,Y1,Z0,Z1 (six lengths "
+        raise InputError(f"--workspace {path_text(path)}: neither a box X0,X1,Y0,Y1,Z0,Z1 (six "
+                         "lengths "
                          "with units) nor an existing points file")
     with column_map(None):           # --columns renames the data file's columns, not these
         header, _ = read_table(path)
-        words = f"{{n}} poses of {path} (--workspace)"
+        words = f"{{n}} poses of {path_text(path)} (--workspace)"
         if has_orientation(header) and machine.rotates:
             P, R, rows = read_poses_of(path, machine)
         else:
@@ -131,26 +134,28 @@ def _points_workspace(path: Path, machine, seed: int):
             if not machine.rotates:
                 R = np.broadcast_to(np.eye(3), R.shape)
             else:
-                words = (f"{{n}} points of {path} (--workspace), orientations within "
+                words = (f"{{n}} points of {path_text(path)} (--workspace), orientations within "
                          "+/-10 deg")
     return Workspace(P, np.asarray(R), words.format(n=len(P)),
                      (P.min(axis=0), P.max(axis=0))), rows
 
 
 def _check_workspace(machine, ws, text: str, rows) -> None:
-    """Refuse workspace poses the machine cannot take (unreachable, another working mode,
-    joints outside its limits), naming the rows of a points file."""
-    with np.errstate(all="ignore"):
-        q = machine.ik(ws.P, ws.R)
-        ok = np.all(np.isfinite(q), axis=-1) & machine.working_mode(ws.P, ws.R)
-    if not ok.all():
-        k = np.flatnonzero(~ok)
-        where = (f"row(s) {_rows_text(np.asarray(rows)[k])}" if rows is not None else
-                 f"{k.size} of its {len(ws.P)} sampled poses, e.g. at ("
-                 + ", ".join(f"{v * 1e3:.6g}" for v in ws.P[k[0]]) + ") mm")
-        raise InputError(f"--workspace {text}: {where}: out of the machine's reach (no real "
-                         "inverse kinematics, or beyond a singularity from home); give a "
-                         "workspace the machine reaches")
+    """Refuse workspace poses the machine cannot take (:meth:`~pkmcal.machines.Machine.
+    reachability`: unreachable, another working mode, past the machine's physical limits such
+    as a printer's endstops and bed, joints outside its limits), naming the rows of a points
+    file or, for a box, the first such pose, and why."""
+    reach = machine.reachability(ws.P, ws.R)
+    q = reach.q
+    k = np.flatnonzero(~reach.ok & ~reach.limits_only)
+    if k.size:
+        R = ws.R[k[0]] if machine.rotates else None
+        pose = f"{machine.pose_text(ws.P[k[0]], R)}: {reach.reasons[int(k[0])]}"
+        where = (f"row(s) {_rows_text(np.asarray(rows)[k])}: out of the machine's reach: row "
+                 f"{np.asarray(rows)[k[0]]} at {pose}" if rows is not None else
+                 f"{k.size} of its {len(ws.P)} sampled poses: out of the machine's reach, "
+                 f"e.g. at {pose}")
+        raise InputError(f"--workspace {text}: {where}; give a workspace the machine reaches")
     if rows is None:
         rows = np.arange(1, len(q) + 1)
         what = f"--workspace {text}: {{n}} of its sampled poses"
@@ -213,14 +218,15 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
     if measured:
         kind = measurement_kind(data_path, read_table(data_path)[0], machine)
         if scenario is not None and scenario_for(machine, scenario) != kind:
-            raise InputError(f"--scenario {scenario}: {data_path} holds {kind} measurements "
+            raise InputError(f"--scenario {scenario}: {path_text(data_path)} holds {kind} "
+                             "measurements "
                              "(from its columns); leave --scenario out or give a plan with "
                              "--planned")
         for option, value in (("--setups", setups), ("--radius", radius),
                               ("--targets", targets)):
             if value is not None:
                 raise InputError(f"{option}: applies to planned measurements; the "
-                                 f"measurements of {data_path} have their own")
+                                 f"measurements of {path_text(data_path)} have their own")
     else:
         kind = scenario_for(machine, scenario)
         machine = planning_machine(machine, kind, setups, radius, targets)
@@ -238,8 +244,8 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
     report = {
         "pkmcal_report": 1,
         "command": "identifiability",
-        "machine_file": str(getattr(machine, "source", machine_spec)),
-        "data_file": None if data_path is None else str(data_path),
+        "machine_file": path_text(getattr(machine, "source", machine_spec)),
+        "data_file": None if data_path is None else path_text(data_path),
         **result.as_dict(),
     }
     if map_path is not None:
@@ -322,7 +328,7 @@ def joint_bounds(machine, joint_range: str | None):
     words = []
     if limits is not None:
         lo, hi = np.maximum(lo, limits[0]), np.minimum(hi, limits[1])
-        words.append(f"the joint limits of {source} ({machine.joint_limits_text()})")
+        words.append(f"the joint limits of {path_text(source)} ({machine.joint_limits_text()})")
     if joint_range is not None:
         a, b = parse_joint_range(joint_range, machine)
         lo, hi = np.maximum(lo, a), np.minimum(hi, b)
@@ -332,7 +338,7 @@ def joint_bounds(machine, joint_range: str | None):
         if empty.size:
             raise InputError(f"--joint-range {joint_range}: no value of "
                              f"{', '.join(f'q{j + 1}' for j in empty)} is both within it and "
-                             f"within the joint limits of {source} "
+                             f"within the joint limits of {path_text(source)} "
                              f"({machine.joint_limits_text()})")
     return (lo, hi), " and ".join(words)
 
@@ -369,6 +375,9 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
         given = rows = groups = None
         if candidates_path is not None:
             *given, rows = read_poses_of(candidates_path, machine)
+            refuse_unreachable(machine, machine.reachability(*given), f"{candidates_path}: "
+                               "{n} candidate pose(s) cannot be reached by the machine", rows,
+                               given)
             groups = plan_groups(candidates_path, kind, rows)
         elif candidates < n:
             raise InputError(f"-n/--poses {n}: more than the {candidates} candidate poses "
@@ -380,7 +389,7 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                           targets=targets, progress=step, poses=given, rows=rows,
                           groups=groups, source=candidates_path and str(candidates_path))
     report = {"pkmcal_report": 1, "command": "select-poses",
-              "machine_file": str(getattr(machine, "source", machine_spec)),
+              "machine_file": path_text(getattr(machine, "source", machine_spec)),
               **sel.as_dict(), "output": str(output)}
     units = _units(machine)
     extra = {"candidate": sel.candidate.tolist()}
@@ -455,5 +464,5 @@ def _print_selection(sel, machine_file: str, output: Path, map_path: Path | None
         crit += (f"; the selected set is {' and '.join(ratios)} "
                  f"({ratio_words.format(p=rank)})")
     table.add_row("criterion", crit)
-    table.add_row("written", str(output) + (f", {map_path}" if map_path else ""))
+    table.add_row("written", path_text(output) + (f", {path_text(map_path)}" if map_path else ""))
     out.print(table)

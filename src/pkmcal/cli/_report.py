@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 from ..errors import InputError
+from ..paths import path_text
 from ._commands import check_outputs, commit_outputs, load_machine_arg
 from ._compensate import calibration_report_path
 from ._console import console
@@ -19,7 +20,8 @@ def run_report(result: Path, output: Path) -> None:
     from ..report.schema import load_report
 
     if output.suffix.lower() == ".json":
-        raise InputError(f"{output}: the report is an HTML file (its JSON twin is written "
+        raise InputError(f"{path_text(output)}: "
+                         "the report is an HTML file (its JSON twin is written "
                          "beside it); choose a name ending in .html")
     twin = None if is_stream(output) else output.with_suffix(".json")
     source = result
@@ -27,7 +29,7 @@ def run_report(result: Path, output: Path) -> None:
         machine = load_machine_arg(str(result))
         found = calibration_report_path(machine, str(result), None)
         if found is None:
-            raise InputError(f"{result}: names no calibration report beside it (is it a "
+            raise InputError(f"{path_text(result)}: names no calibration report beside it (is it a "
                              "calibrated file?); give the JSON report")
         source = found
     check_outputs([output] + ([twin] if twin else []), [result, source])
@@ -37,6 +39,6 @@ def run_report(result: Path, output: Path) -> None:
         atomic_write_text(twin, json.dumps(doc, indent=2) + "\n")
     atomic_write_text(output, page)
     commit_outputs()
-    console().print(f"wrote {output} ({len(page) // 1024} kB, self-contained)"
-                    + (f" and {twin}" if twin else ""),
+    console().print(f"wrote {path_text(output)} ({len(page) // 1024} kB, self-contained)"
+                    + (f" and {path_text(twin)}" if twin else ""),
                     markup=False)

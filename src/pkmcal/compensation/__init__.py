@@ -33,7 +33,9 @@ class Compensation:
     q : ndarray, shape (K, n_joints)
         Commands, internal units (NaN where a target is unreachable).
     reachable : ndarray of bool, shape (K,)
-        Targets the calibrated model reaches.
+        Targets the calibrated model reaches: real inverse kinematics in home's working mode,
+        within the machine's physical limits and joint limits
+        (:meth:`~pkmcal.machines.Machine.reachability`).
     position_std : ndarray, shape (K,), optional
         Predicted 1-sigma residual position error, m, from the calibration's covariance; None
         without one.
@@ -45,6 +47,8 @@ class Compensation:
         ``nominal``.
     uncompensated_orientation : ndarray, shape (K,), optional
         The same for the orientation, rad; None without ``nominal`` or for 3-dof platforms.
+    reach : Reachability, optional
+        Why each target that is not ``reachable`` cannot be reached.
     """
 
     q: np.ndarray
@@ -53,6 +57,7 @@ class Compensation:
     orientation_std: np.ndarray | None = None
     uncompensated_position: np.ndarray | None = None
     uncompensated_orientation: np.ndarray | None = None
+    reach: object = None
 
 
 def compensate(calibrated: Machine, P, R=None, covariance=None,
@@ -122,8 +127,9 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
         P = calibrated.targets_in_base(P)
     R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else R
     q = calibrated.ik(P, R)
-    ok = calibrated.working_mode(P, R)      # real IK, near home, in home's working mode
-    out = Compensation(q, ok)
+    # real IK, near home, in home's working mode, within the physical and joint limits
+    reach = calibrated.reachability(P, R)
+    out = Compensation(q, reach.ok, reach=reach)
     d = 6 if calibrated.rotates else 3
     needs_fit = null is not None and np.size(null) and (nominal is not None or frame is None)
     S = pose_sensitivity(calibrated, P, R) if covariance is not None or needs_fit else None

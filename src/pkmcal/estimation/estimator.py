@@ -30,6 +30,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from ..parameters import ParameterSet
+from ..paths import path_text
 
 # MAX_STD: the machine calibrations' default max_std, re-exported for them (one rank rule)
 from .rank import MAX_STD, RTOL, rank_rule  # noqa: F401
@@ -269,7 +270,8 @@ def require_redundancy(source, what: str, equations: int, n_id: int, advice: str
     from ..errors import InputError
 
     how = "fewer than" if equations < n_id else "as many as"
-    raise InputError(f"{source}: {what} give {equations} independent equation(s), {how} the "
+    raise InputError(f"{path_text(source)}: "
+                     f"{what} give {equations} independent equation(s), {how} the "
                      f"{n_id} identifiable parameters, with nothing left to check the fit; "
                      f"{advice}")
 

@@ -25,6 +25,119 @@ from ..errors import InputError
 from ..machines.base import Machine
 
 
+@dataclass(frozen=True)
+class Origin:
+    """Where a controller file holds a value: the file, the format's own word for it and the
+    line.
+
+    Attributes
+    ----------
+    file : str
+        The file (an ``[include]`` of a Klipper config names its own file).
+    key : str
+        The format's letter or key: ``M665 L``, ``[printer] delta_radius``,
+        ``setp lineardeltakins.R``.
+    line : int or None
+        1-based line number; None for a value the file does not state (a default).
+    note : str
+        Said after the line (``SAVE_CONFIG block``), or the default's origin.
+    """
+
+    file: str
+    key: str
+    line: int | None = None
+    note: str = ""
+
+    def text(self) -> str:
+        """``M665 L (line 12)`` (the file is said once for several, see :func:`where`).
+
+        Returns
+        -------
+        str
+            The key and its line.
+        """
+        if self.line is None:
+            return f"{self.key} ({self.note or 'not in the file: its default'})"
+        return f"{self.key} (line {self.line}" + (f", {self.note})" if self.note else ")")
+
+
+    def text_in_file(self) -> str:
+        """``printer.cfg: [printer] delta_radius (line 3)``.
+
+        Returns
+        -------
+        str
+            The file, key and line.
+        """
+        return f"{self.file}: {self.text()}"
+
+
+def where(origins) -> str:
+    """Origins for a message: ``config.g: M665 H (line 3), M666 X (line 4)``.
+
+    Parameters
+    ----------
+    origins : iterable of Origin
+        The values' origins (repeats dropped).
+
+    Returns
+    -------
+    str
+        Grouped by file, in order.
+    """
+    by_file: dict = {}
+    for o in origins:
+        texts = by_file.setdefault(o.file, [])
+        if o.text() not in texts:
+            texts.append(o.text())
+    return "; ".join(f"{f}: {', '.join(t)}" for f, t in by_file.items())
+
+
+def origin_of(params, *names) -> str | None:
+    """Where the file holds the values of ``names`` (:func:`where`); None when it holds none.
+
+    Parameters
+    ----------
+    params : ControllerParameters
+        The values read.
+    *names : str
+        Names of ``params.names`` or ``params.extras``.
+
+    Returns
+    -------
+    str or None
+        The origins in words.
+    """
+    found = [params.origins[n] for n in names if n in getattr(params, "origins", {})]
+    stated = [o for o in found if o.line is not None] or found
+    return where(stated) if stated else None
+
+
+def refuse_implausible(params, name: str, shown: str, why: str, source: str) -> None:
+    """Raise the refusal of a value that cannot be meant, naming the user's file, key, line.
+
+    Parameters
+    ----------
+    params : ControllerParameters
+        The values read (their :attr:`~ControllerParameters.origins`).
+    name : str
+        The value's name.
+    shown : str
+        The value as the file has it (``2000 mm``).
+    why : str
+        The bound in words.
+    source : str
+        The file's name (when the value has no origin).
+
+    Raises
+    ------
+    InputError
+        Always.
+    """
+    raise InputError(f"{origin_of(params, name) or f'{source}: {name}'}: {shown} cannot be "
+                     f"meant ({why})")
+
+
 @dataclass
 class ControllerParameters:
     """A controller's parameter values, SI internally (m, rad, ratios).
@@ -51,6 +164,9 @@ class ControllerParameters:
     #: what the file holds beside the kinematics that a machine file keeps (a printer's
     #: ``print_radius`` and probing radius, m)
     extras: dict = field(default_factory=dict)
+    #: where each value was read (a name of ``names`` or ``extras`` -> :class:`Origin`): the
+    #: source map through which ``pkmcal import`` names the user's file, key and line
+    origins: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.values = np.asarray(self.values, float).reshape(-1)
@@ -71,7 +187,8 @@ class ControllerParameters:
             The copy.
         """
         return ControllerParameters(list(self.names), np.asarray(values, float),
-                                    list(self.kinds), self.fixed.copy(), dict(self.extras))
+                                    list(self.kinds), self.fixed.copy(), dict(self.extras),
+                                    dict(self.origins))
 
     def as_dict(self) -> dict:
         """Name -> value (SI).
@@ -264,6 +381,48 @@ class ControllerFormat(ABC):
         InputError
             Naming the file, line and key of what cannot be read.
         """
+
+    def machine_keys(self, params: ControllerParameters) -> dict:
+        """The source map of an import: which values of the controller's file make each key
+        of the machine file :meth:`to_machine` writes.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values read.
+
+        Returns
+        -------
+        dict
+            Machine-file key path (a tuple, a prefix of the keys a problem names:
+            ``("position_endstop", 0)``) -> names of ``params`` (or of its ``extras``); the
+            default: none (a problem is then named by the machine file's key).
+        """
+        return {}
+
+    def imported_key(self, params: ControllerParameters, key: tuple) -> str | None:
+        """The user's file, keys and lines behind a machine-file key path of an import
+        (:meth:`machine_keys`, :func:`where`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values read.
+        key : tuple
+            A key path of the machine file (``("arm_length",)``, ``("legs", 2, "dtheta")``).
+
+        Returns
+        -------
+        str or None
+            ``config.g: M665 L (line 12)``; None when no value of the file makes it.
+        """
+        keys = self.machine_keys(params)
+        key = tuple(key)
+        for k in range(len(key), 0, -1):
+            if key[:k] in keys:
+                return origin_of(params, *keys[key[:k]])
+        names = [n for path, ns in keys.items() if path[:len(key)] == key for n in ns]
+        return origin_of(params, *dict.fromkeys(names)) if names and key else None
 
     @abstractmethod
     def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
@@ -549,6 +708,46 @@ def export_workspace(machine: Machine, workspace=None, n: int = 500, rng=0):
     P = np.asarray(workspace, float).reshape(-1, 3)
     R = np.broadcast_to(np.asarray(machine.home[1], float), (len(P), 3, 3))
     return Workspace(P, R, f"{len(P)} given positions", (P.min(axis=0), P.max(axis=0)))
+
+
+def carry_like(machine: Machine, like: Machine | None) -> Machine:
+    """What ``pkmcal import --like`` takes from the machine file it names, onto an imported
+    machine: its name, home, file units, joint limits and effector offsets (a Delta's
+    ``smr_offset``, a platform's tracker targets) -- every field a controller's file does
+    not hold. The formats' :meth:`~ControllerFormat.to_machine` take what their kinematics
+    need of it (the home, a platform radius); this carries the rest, the same for every
+    format.
+
+    Parameters
+    ----------
+    machine : Machine
+        The imported machine.
+    like : Machine or None
+        The ``--like`` machine (of the same type); None: nothing is carried.
+
+    Returns
+    -------
+    Machine
+        ``machine``, changed in place.
+    """
+    if like is None:
+        return machine
+    if getattr(like, "name", ""):
+        machine.name = like.name
+    units = getattr(like, "file_units", None)
+    if units:
+        machine.file_units = dict(units)
+    limits = getattr(like, "joint_limits", None)
+    if limits is not None and getattr(like, "n_joints", None) == machine.n_joints:
+        machine.joint_limits = (np.array(limits[0], float), np.array(limits[1], float))
+    if "smr_offset" in vars(like) or "smr_offset" in vars(machine):
+        machine.smr_offset = float(getattr(like, "smr_offset", 0.0) or 0.0)
+    targets = getattr(like, "tracker_targets", None)
+    if targets is not None and machine.tracker_target() is None:
+        # the targets' places on the platform, with the tracker section that holds them
+        machine.tracker_targets = np.array(targets, float)
+        machine.base_from_tracker = like.base_from_tracker
+    return machine
 
 
 def finite_number(word: str, source: str, line: int, key: str) -> float:

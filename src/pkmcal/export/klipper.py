@@ -49,7 +49,13 @@ import numpy as np
 from ..errors import InputError
 from ..machines.base import Machine
 from ..machines.linear_delta import LinearDelta, linear_delta
-from .base import ControllerFormat, ControllerParameters, finite_number, register_format
+from .base import (
+    ControllerFormat,
+    ControllerParameters,
+    Origin,
+    finite_number,
+    register_format,
+)
 
 #: the largest length a printer's config can mean, mm (10 m)
 SANE_LENGTH = 1e4
@@ -126,6 +132,156 @@ def read_bed(text: str, source: str) -> np.ndarray:
                 bed[k] = finite_number(m.group(k + 1), source, n, f"pkmcal bed {key}")
             bed[0] *= 1e-3
     return bed
+
+
+def entry_origin(entry, section: str, key: str) -> Origin:
+    """The :class:`~pkmcal.export.base.Origin` of a Klipper option
+    (:class:`~pkmcal.io.klipper_config.Entry`): its file, ``[section] key`` and line.
+
+    Parameters
+    ----------
+    entry : Entry
+        The option as read.
+    section, key : str
+        Its section and name.
+
+    Returns
+    -------
+    Origin
+        ``printer.cfg: [printer] delta_radius (line 3)`` in words.
+    """
+    return Origin(entry.file, f"[{section}] {key}", entry.line,
+                  "SAVE_CONFIG block" if entry.autosave else "")
+
+
+def bed_origins(text: str, source: str) -> dict:
+    """Where the ``pkmcal bed:`` comment stands (the source map of the bed entries).
+
+    Parameters
+    ----------
+    text : str
+        The file's text.
+    source : str
+        Its name.
+
+    Returns
+    -------
+    dict
+        ``bed.z``, ``bed.tilt_x``, ``bed.tilt_y`` -> :class:`~pkmcal.export.base.Origin`
+        (the last comment, as :func:`read_bed` reads it); empty without one.
+    """
+    out: dict = {}
+    for n, line in enumerate(text.splitlines(), 1):
+        if BED_COMMENT.search(line):
+            for name, key in zip(BED, ("height", "tilt_x", "tilt_y"), strict=True):
+                out[name] = Origin(source, f"pkmcal bed: {key}", n)
+    return out
+
+
+def linear_delta_keys(radius, arms, angles, endstops, bed=BED) -> dict:
+    """The source map of a linear-Delta import (:meth:`ControllerFormat.machine_keys`).
+
+    Parameters
+    ----------
+    radius : sequence of str
+        The values that make ``delta_radius``.
+    arms, angles, endstops : sequence of 3 sequences of str
+        Per tower, the values that make its ``arm_length``, ``tower_angles`` entry and
+        ``position_endstop``.
+    bed : sequence of 3 str, optional
+        The values that make the ``bed`` section's ``height``, ``tilt_x``, ``tilt_y``.
+
+    Returns
+    -------
+    dict
+        Machine-file key path -> value names; the default home (the nozzle at the centre
+        below the endstops) is made by the endstops, arms and radius.
+    """
+    keys: dict = {("delta_radius",): list(radius),
+                  ("arm_length",): [n for tower in arms for n in tower],
+                  ("print_radius",): ["print_radius"], ("probe_radius",): ["probe_radius"],
+                  ("bed",): list(bed)}
+    for i in range(3):
+        keys[("arm_length", i)] = list(arms[i])
+        keys[("tower_angles", i)] = list(angles[i])
+        keys[("position_endstop", i)] = list(endstops[i])
+    for k, name in zip(("height", "tilt_x", "tilt_y"), bed, strict=True):
+        keys[("bed", k)] = [name]
+    keys[("home",)] = ([n for tower in endstops for n in tower] + list(radius)
+                       + keys[("arm_length",)])
+    return keys
+
+
+def check_printer_values(params, source: str, size_names, dimensions=(), corrections=(),
+                         turns=(), slopes=(), radius: float = 0.0, spreads=()) -> None:
+    """Refuse values of a printer's controller file that cannot be meant, naming the file's
+    key and line (:func:`~pkmcal.export.base.refuse_implausible`), before anything is
+    computed with them; the bounds are relative to the printer's size, as a machine file's.
+
+    The size is the median of ``size_names``' magnitudes (a radius, an arm, a height: one
+    absurd value does not set it). A dimension is at most
+    :data:`~pkmcal.limits.MAX_LENGTH_RATIO` times the size; a correction of one (a rod trim,
+    an endstop adjustment) at most ``OPTION_SCALE["error"]`` (10 %) of it; a tower's angle
+    trim may move the tower sideways (``radius x trim``) and a bed tilt raise the bed at the
+    towers' radius (``radius x slope``) by no more than that either.
+
+    Parameters
+    ----------
+    params : ControllerParameters
+        The values read (SI) with their origins.
+    source : str
+        The file's name.
+    size_names : sequence of str
+        Values whose magnitudes' median is the printer's size.
+    dimensions, corrections, turns, slopes : sequence of (name, shown)
+        Values by kind; ``shown`` formats the value as the file writes it.
+    radius : float, optional
+        The towers' radius, m (the lever of the angle trims and tilts).
+    spreads : sequence of (names, what, shown)
+        Per-tower values of one quantity (Klipper's three arm lengths): one may differ from
+        their median by no more than a correction.
+
+    Raises
+    ------
+    InputError
+        For the first value beyond its bound.
+    """
+    from ..limits import MAX_LENGTH, MAX_LENGTH_RATIO
+    from ..plausibility import OPTION_SCALE
+    from .base import refuse_implausible
+
+    v = params.as_dict()
+    with np.errstate(all="ignore"):
+        size = float(np.median([abs(v[n]) for n in size_names]))
+    origins = getattr(params, "origins", {})
+    named = [origins[n].key if n in origins else n for n in size_names]
+    size_text = f"{size * 1e3:.6g} mm, the median of {', '.join(dict.fromkeys(named))}"
+    top = min(MAX_LENGTH, MAX_LENGTH_RATIO * size)
+    for name, shown in dimensions:
+        if not abs(v[name]) <= top:
+            refuse_implausible(params, name, shown(v[name]), f"more than {MAX_LENGTH_RATIO:g} "
+                               f"times the printer's size ({size_text})", source)
+    error = OPTION_SCALE["error"] * size
+    scale = f"{OPTION_SCALE['error']:.0%} of the printer's size ({size_text})"
+    for name, shown in corrections:
+        if not abs(v[name]) <= error:
+            refuse_implausible(params, name, shown(v[name]), f"a correction of more than "
+                               f"{scale}", source)
+    for names, what, shown in spreads:
+        middle = float(np.median([v[n] for n in names]))
+        for name in names:
+            if not abs(v[name] - middle) <= error:
+                refuse_implausible(params, name, shown(v[name]), f"{what} {shown(middle)} of "
+                                   f"the other towers by more than {scale}", source)
+    lever = abs(radius) if abs(radius) > 0 else size
+    for name, shown in turns:
+        if not abs(v[name]) * lever <= error:
+            refuse_implausible(params, name, shown(v[name]), "it would move the tower "
+                               f"sideways by more than {scale}", source)
+    for name, shown in slopes:
+        if not abs(v[name]) * lever <= error:
+            refuse_implausible(params, name, shown(v[name]), "the bed would rise at the "
+                               f"towers' radius by more than {scale}", source)
 
 
 def bed_values(bed) -> list[tuple[str, str]]:
@@ -536,7 +692,8 @@ class KlipperDelta(ControllerFormat):
         radius = get("printer", "delta_radius")
         if not radius > 0:
             e = cfg.entry("printer", "delta_radius")
-            raise InputError(f"{e.where('printer', 'delta_radius')}: {e.value} must be > 0")
+            raise InputError(f"{entry_origin(e, 'printer', 'delta_radius').text_in_file()}: "
+                             f"{e.value.strip()} must be > 0 (the delta radius)")
         sane("printer", "delta_radius", radius, 1.0, SANE_LENGTH, "a delta radius")
         arm_a = get("stepper_a", "arm_length")
         pe_a = get("stepper_a", "position_endstop")
@@ -562,11 +719,49 @@ class KlipperDelta(ControllerFormat):
                                  f"delta_radius ({radius:g} mm)")
         params = self.values(radius * 1e-3, arms * 1e-3, np.radians(angles), pe * 1e-3,
                              read_bed(text, source))
+        params.origins.update(bed_origins(text, source))
+        mm = (lambda x: f"{x * 1e3:g} mm")  # noqa: E731
+        params.origins["delta_radius"] = entry_origin(cfg.entry("printer", "delta_radius"),
+                                                      "printer", "delta_radius")
+        for t, default in zip(TOWERS, (210.0, 330.0, 90.0), strict=True):
+            for key, name in (("arm_length", "arm_length"), ("position_endstop",
+                                                             "position_endstop")):
+                sec = f"stepper_{t}" if cfg.entry(f"stepper_{t}", key) else "stepper_a"
+                params.origins[f"{name}_{t}"] = entry_origin(cfg.entry(sec, key), sec, key)
+            e = cfg.entry(f"stepper_{t}", "angle")
+            params.origins[f"angle_{t}"] = (
+                entry_origin(e, f"stepper_{t}", "angle") if e is not None else
+                Origin(source, f"[stepper_{t}] angle", None, f"not set: Klipper's {default:g}"))
         for key, (sec, opt) in (("print_radius", ("printer", "print_radius")),
                                 ("probe_radius", ("delta_calibrate", "radius"))):
             if cfg.entry(sec, opt) is not None:
                 params.extras[key] = cfg.number(sec, opt, above=0.0) * 1e-3
+                params.origins[key] = entry_origin(cfg.entry(sec, opt), sec, opt)
+        check_printer_values(
+            params, source, ["delta_radius", "arm_length_a", "position_endstop_a"],
+            spreads=[([f"{key}_{t}" for t in TOWERS], f"differs from the {words}", mm)
+                     for key, words in (("arm_length", "arm length"),
+                                        ("position_endstop", "endstop height"))])
         return params
+
+    def machine_keys(self, params: ControllerParameters) -> dict:
+        """The source map of an import (see :meth:`ControllerFormat.machine_keys`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Klipper's values.
+
+        Returns
+        -------
+        dict
+            Each machine-file key from the option of the same meaning (``delta_radius``,
+            and per stepper ``arm_length``, ``angle``, ``position_endstop`` with the bed's
+            height).
+        """
+        return linear_delta_keys(["delta_radius"], [[f"arm_length_{t}"] for t in TOWERS],
+                                 [[f"angle_{t}"] for t in TOWERS],
+                                 [[f"position_endstop_{t}", "bed.z"] for t in TOWERS])
 
     def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
         """A linear Delta with Klipper's values (vertical towers, one radius).

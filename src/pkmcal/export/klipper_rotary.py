@@ -70,7 +70,14 @@ import numpy as np
 from ..errors import InputError
 from ..machines.base import Machine
 from ..machines.delta import Delta, delta_parameters
-from .base import ControllerFormat, ControllerParameters, finite_number, register_format
+from .base import (
+    ControllerFormat,
+    ControllerParameters,
+    Origin,
+    finite_number,
+    origin_of,
+    register_format,
+)
 
 #: the letters of Klipper's steppers
 STEPPERS = "abc"
@@ -432,16 +439,66 @@ class KlipperRotaryDelta(ControllerFormat):
         bed_z = notes.get("bed_z_mm", (0.0, 0))[0] * 1e-3
         params = self.values(radius, height, per["upper_arm_length"], per["lower_arm_length"],
                              angles, per["position_endstop"], bed_z)
+        from .klipper import check_printer_values, entry_origin
+
+        for sec, key, name in ([("printer", "shoulder_radius", "shoulder_radius"),
+                                ("printer", "shoulder_height", "shoulder_height")]
+                               + [(f"stepper_{t}", key, f"{key}_{t}") for t in STEPPERS
+                                  for key in ("upper_arm_length", "lower_arm_length",
+                                              "position_endstop", "angle")]):
+            at = sec if cfg.entry(sec, key) is not None or key == "angle" else "stepper_a"
+            e = cfg.entry(at, key)
+            params.origins[name] = (entry_origin(e, at, key) if e is not None else
+                                    Origin(source, f"[{sec}] {key}", None,
+                                           "not set: Klipper's default"))
+        for key, (_, n) in notes.items():
+            params.origins[re.sub(r"_(mm|deg)$", "", key)] = Origin(source, f"#pkmcal {key}", n)
+        mm = (lambda x: f"{x * 1e3:g} mm")  # noqa: E731
+        check_printer_values(params, source, ["shoulder_radius", "upper_arm_length_a",
+                                              "lower_arm_length_a"],
+                             dimensions=[(n, mm) for n in self.NAMES[:8] + self.NAMES[11:14]])
         ends = self.abs_endstops(params)
         for i, t in enumerate(STEPPERS):
             if not np.isfinite(ends[i]):
-                raise InputError(f"{source}: [stepper_{t}] position_endstop: the arm cannot "
-                                 "reach the centre at that height with these arm lengths")
+                raise InputError(f"{origin_of(params, f'position_endstop_{t}')}: the arm "
+                                 "cannot reach the centre at that height with these arm "
+                                 f"lengths ({origin_of(params, f'upper_arm_length_{t}')}, "
+                                 f"{origin_of(params, f'lower_arm_length_{t}')})")
         readings = np.array([np.radians(notes[f"endstop_reading_{t}_deg"][0])
                              if f"endstop_reading_{t}_deg" in notes else ends[i]
                              for i, t in enumerate(STEPPERS)])
         params.values[15:18] = readings
         return params
+
+    def machine_keys(self, params: ControllerParameters) -> dict:
+        """The source map of an import (see :meth:`ControllerFormat.machine_keys`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Klipper's values.
+
+        Returns
+        -------
+        dict
+            ``base_radius`` from ``shoulder_radius``; the arms from the steppers'
+            ``upper_arm_length`` / ``lower_arm_length``; the leg angles from ``angle``; each
+            leg's shoulder height, arm trims and endstop angle from its options; the home
+            from the endstops.
+        """
+        ends = [f"position_endstop_{t}" for t in STEPPERS]
+        keys = {("base_radius",): ["shoulder_radius"],
+                ("upper_arm",): [f"upper_arm_length_{t}" for t in STEPPERS],
+                ("forearm",): [f"lower_arm_length_{t}" for t in STEPPERS],
+                ("home",): ends}
+        for i, t in enumerate(STEPPERS):
+            keys[("leg_angles", i)] = [f"angle_{t}"]
+            keys[("legs", i, "da")] = ["shoulder_height"]
+            keys[("legs", i, "dl1")] = [f"upper_arm_length_{t}"]
+            keys[("legs", i, "dl2")] = [f"lower_arm_length_{t}"]
+            keys[("legs", i, "dtheta")] = [f"position_endstop_{t}", f"endstop_reading_{t}",
+                                           "shoulder_radius", "shoulder_height"]
+        return keys
 
     def update(self, existing: str, params: ControllerParameters, machine: Machine,
                source: str) -> str | None:
@@ -483,7 +540,7 @@ class KlipperRotaryDelta(ControllerFormat):
         params : ControllerParameters
             The values.
         like : Machine, optional
-            Platform radius ``b``, ``smr_offset`` and name come from it (default ``b = 0``:
+            Platform radius ``b``, home, ``smr_offset`` and name come from it (default ``b = 0``:
             Klipper folds the effector's radius into ``shoulder_radius``).
 
         Returns
@@ -492,10 +549,11 @@ class KlipperRotaryDelta(ControllerFormat):
             ``a = shoulder_radius + b``, ``l1``/``l2`` the mean arms with the per-stepper
             differences as ``dl1``/``dl2``, the shoulders at ``shoulder_height`` (``da.z``),
             ``dtheta = abs_endstop - endstop_reading`` (the arm's angle at reading 0), no
-            other errors; home at the centre at the mean endstop height. Its readings are
+            other errors; home at the centre at the mean endstop height (``like``'s home,
+            in Klipper's frame, when given). Its readings are
             the machine's, so :meth:`initial` of it gives the values back.
         """
-        radius, height, upper, lower, angles, endstops, _, readings = self.unpack(params)
+        radius, height, upper, lower, angles, endstops, bed_z, readings = self.unpack(params)
         b = float(getattr(like, "platform_radius", 0.0))
         l1, l2 = float(np.mean(upper)), float(np.mean(lower))
         dth = self.abs_endstops(params) - readings
@@ -505,6 +563,9 @@ class KlipperRotaryDelta(ControllerFormat):
         u[:, 4] = upper - l1
         u[:, 5] = lower - l2
         home = (np.array([0.0, 0.0, float(np.mean(endstops))]), np.eye(3))
+        if like is not None:            # --like's home, in Klipper's frame (z = 0 at bed_z)
+            home = (np.asarray(like.home[0], float) - np.array([0.0, 0.0, bed_z]),
+                    np.asarray(like.home[1], float))
         name = like.name if like is not None and like.name else "imported from Klipper"
         return Delta(radius + b, b, l1, l2, np.asarray(angles, float),
                      delta_parameters(u.reshape(-1)),

@@ -66,7 +66,13 @@ from ..errors import InputError
 from ..machines.base import Machine
 from ..machines.delta import Delta, delta_parameters
 from ..machines.linear_delta import linear_delta
-from .base import ControllerFormat, ControllerParameters, finite_number, register_format
+from .base import (
+    ControllerFormat,
+    ControllerParameters,
+    Origin,
+    finite_number,
+    register_format,
+)
 from .klipper_rotary import leg_offsets, pkmcal_comments
 
 #: rotarydeltakins' hip angles of joints 0, 1, 2, deg
@@ -138,7 +144,7 @@ def rotarydelta_joints(pfr, tl, sl, fr, P) -> np.ndarray:
     return np.column_stack(out)
 
 
-def hal_values(text: str, source: str, prefix: str, pins) -> dict:
+def hal_values(text: str, source: str, prefix: str, pins, lines: dict | None = None) -> dict:
     """The ``setp PREFIX.PIN VALUE`` values of a ``.hal`` file (the last one wins).
 
     Parameters
@@ -151,6 +157,8 @@ def hal_values(text: str, source: str, prefix: str, pins) -> dict:
         The component (``rotarydeltakins``).
     pins : sequence of str
         The pins wanted.
+    lines : dict, optional
+        Filled with pin -> the line of its value.
 
     Returns
     -------
@@ -170,10 +178,40 @@ def hal_values(text: str, source: str, prefix: str, pins) -> dict:
             pin = m.group(1)[len(prefix) + 1:]
             if pin in pins:
                 found[pin] = finite_number(m.group(2), source, n, m.group(1))
+                if lines is not None:
+                    lines[pin] = n
     for pin in pins:
         if pin not in found:
             raise InputError(f"{source}: setp {prefix}.{pin} is missing")
     return found
+
+
+def hal_origins(source: str, prefix: str, at: dict, notes: dict) -> dict:
+    """The source map of a ``.hal`` file's values: each ``setp`` pin and ``# pkmcal`` line.
+
+    Parameters
+    ----------
+    source : str
+        The file's name.
+    prefix : str
+        The component (``lineardeltakins``).
+    at : dict
+        Pin -> line (:func:`hal_values`).
+    notes : dict
+        :func:`~pkmcal.export.klipper_rotary.pkmcal_comments` of the file.
+
+    Returns
+    -------
+    dict
+        Value name -> :class:`~pkmcal.export.base.Origin` (a ``# pkmcal`` key's name without
+        its unit suffix: ``home_offset.0``).
+    """
+    out = {pin: Origin(source, f"setp {prefix}.{pin}", n) for pin, n in at.items()
+           if not pin.startswith("home_offset.")}
+    for key, (_, n) in notes.items():
+        name = re.sub(r"_(mm|deg)$", "", key)
+        out[name] = Origin(source, f"# pkmcal {key}", n)
+    return out
 
 
 def reading_joints(notes: dict, source: str) -> np.ndarray:
@@ -359,13 +397,45 @@ class LinuxCNCRotaryDelta(ControllerFormat):
         Raises
         ------
         InputError
-            Naming the line and pin of a value that is not a number, or a pin missing.
+            Naming the line and pin of a value that is not a number or cannot be meant
+            (:func:`~pkmcal.export.klipper.check_printer_values`), or a pin missing.
         """
-        pins = hal_values(text, source, "rotarydeltakins", self.PINS)
+        at: dict = {}
+        pins = hal_values(text, source, "rotarydeltakins", self.PINS, at)
         notes = pkmcal_comments(text, source)
         zeros = np.radians([notes.get(f"joint_zero.{j}_deg", (0.0, 0))[0] for j in range(3)])
-        return self.values(*(pins[p] * 1e-3 for p in self.PINS), zeros,
-                           reading_joints(notes, source))
+        params = self.values(*(pins[p] * 1e-3 for p in self.PINS), zeros,
+                             reading_joints(notes, source))
+        params.origins.update(hal_origins(source, "rotarydeltakins", at, notes))
+        from .klipper import check_printer_values
+
+        check_printer_values(params, source, ["platformradius", "thighlength", "shinlength"],
+                             dimensions=[(n, lambda x: f"{x * 1e3:g} mm") for n in self.PINS])
+        return params
+
+    def machine_keys(self, params: ControllerParameters) -> dict:
+        """The source map of an import (see :meth:`ControllerFormat.machine_keys`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        dict
+            ``base_radius`` from ``platformradius``, ``platform_radius`` from
+            ``footradius``, ``upper_arm`` from ``thighlength``, ``forearm`` from
+            ``shinlength``, each leg's ``dtheta`` from its joint's zero.
+        """
+        joint = params.values[7:10].astype(int)
+        keys = {("base_radius",): ["platformradius"], ("platform_radius",): ["footradius"],
+                ("upper_arm",): ["thighlength"], ("forearm",): ["shinlength"],
+                ("leg_angles",): [f"reading{i + 1}.joint" for i in range(3)],
+                ("home",): list(self.PINS)}
+        for i in range(3):
+            keys[("legs", i, "dtheta")] = [f"joint_zero.{joint[i]}"]
+        return keys
 
     def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
         """A Delta with rotarydeltakins' values (pkmcal's frame: z up, hips at ``z = 0``).
@@ -375,7 +445,7 @@ class LinuxCNCRotaryDelta(ControllerFormat):
         params : ControllerParameters
             The values.
         like : Machine, optional
-            ``smr_offset`` and name come from it.
+            Home, ``smr_offset`` and name come from it.
 
         Returns
         -------
@@ -390,7 +460,8 @@ class LinuxCNCRotaryDelta(ControllerFormat):
         name = like.name if like is not None and like.name else "imported from LinuxCNC"
         return Delta(v[0], v[3], v[1], v[2], np.radians(np.asarray(ROTARY_HIPS)[joint]),
                      delta_parameters(u.reshape(-1)),
-                     smr_offset=float(getattr(like, "smr_offset", 0.0) or 0.0), name=name)
+                     smr_offset=float(getattr(like, "smr_offset", 0.0) or 0.0),
+                     home=None if like is None else like.home, name=name)
 
 
 class LinuxCNCLinearDelta(ControllerFormat):
@@ -555,7 +626,8 @@ class LinuxCNCLinearDelta(ControllerFormat):
         InputError
             Naming the line and key of a value that is not a number, or a value missing.
         """
-        pins = hal_values(text, source, "lineardeltakins", ("R", "L"))
+        at: dict = {}
+        pins = hal_values(text, source, "lineardeltakins", ("R", "L"), at)
         notes = pkmcal_comments(text, source)
         ini = {}
         for n, line in enumerate(text.splitlines(), 1):
@@ -563,6 +635,7 @@ class LinuxCNCLinearDelta(ControllerFormat):
             if m:
                 ini[int(m.group(1))] = finite_number(m.group(2), source, n,
                                               f"[JOINT_{m.group(1)}] HOME_OFFSET")
+                at[f"home_offset.{m.group(1)}"] = n
         homes = []
         for j in range(3):
             if f"home_offset.{j}_mm" in notes:
@@ -573,9 +646,45 @@ class LinuxCNCLinearDelta(ControllerFormat):
                 raise InputError(f"{source}: [JOINT_{j}] HOME_OFFSET is missing: write it as "
                                  f"'# [JOINT_{j}] HOME_OFFSET = <mm>' (the carriage height at "
                                  "the endstop)")
-        return self.values(pins["R"] * 1e-3, pins["L"] * 1e-3, np.array(homes) * 1e-3,
-                           notes.get("bed_z_mm", (0.0, 0))[0] * 1e-3,
-                           reading_joints(notes, source))
+        params = self.values(pins["R"] * 1e-3, pins["L"] * 1e-3, np.array(homes) * 1e-3,
+                             notes.get("bed_z_mm", (0.0, 0))[0] * 1e-3,
+                             reading_joints(notes, source))
+        params.origins.update(hal_origins(source, "lineardeltakins", at, notes))
+        for j in range(3):
+            if f"home_offset.{j}_mm" not in notes:
+                params.origins[f"home_offset.{j}"] = Origin(
+                    source, f"# [JOINT_{j}] HOME_OFFSET", at[f"home_offset.{j}"])
+        from .klipper import check_printer_values
+
+        mm = (lambda x: f"{x * 1e3:g} mm")  # noqa: E731
+        check_printer_values(params, source, ["R", "L", "home_offset.0"],
+                             dimensions=[(n, mm) for n in self.NAMES[:6]],
+                             spreads=[([f"home_offset.{j}" for j in range(3)],
+                                       "differs from the home offset", mm)])
+        return params
+
+    def machine_keys(self, params: ControllerParameters) -> dict:
+        """The source map of an import (see :meth:`ControllerFormat.machine_keys`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        dict
+            ``delta_radius`` from ``R``, ``arm_length`` from ``L``, the tower angles from
+            the readings' joints, ``position_endstop`` ``i`` from its joint's ``HOME_OFFSET``
+            with ``R``, ``L`` and the bed's height.
+        """
+        from .klipper import linear_delta_keys
+
+        joint = params.values[6:9].astype(int)
+        return linear_delta_keys(
+            ["R"], [["L"]] * 3, [[f"reading{i + 1}.joint"] for i in range(3)],
+            [[f"home_offset.{joint[i]}", "L", "R", "bed_z"] for i in range(3)],
+            bed=("bed_z", "bed_z", "bed_z"))
 
     def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
         """A linear Delta with lineardeltakins' values.

@@ -42,7 +42,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
-from .base import ControllerFormat, ControllerParameters, register_format
+from .base import ControllerFormat, ControllerParameters, Origin, register_format
 
 #: mm: the unit of every length written (LinuxCNC machine units = the INI's LINEAR_UNITS)
 MM = 1e-3
@@ -96,7 +96,8 @@ class GenhexParameters(ControllerParameters):
             The copy.
         """
         return GenhexParameters(list(self.names), np.asarray(values, float), list(self.kinds),
-                                self.fixed.copy(), self.reading_unit)
+                                self.fixed.copy(), dict(self.extras), dict(self.origins),
+                                reading_unit=self.reading_unit)
 
     def legs(self):
         """The values as pkmcal's leg arrays.
@@ -439,7 +440,41 @@ class GenhexkinsFormat(ControllerFormat):
             raise InputError(f"{source}: '# pkmcal: readings {unit}': not a unit name")
         values = np.concatenate([b.reshape(-1) * MM, a.reshape(-1) * MM,
                                  np.column_stack([g_int, off * MM]).reshape(-1)])
-        return GenhexParameters(parameter_names(), values, list(_KINDS), reading_unit=unit)
+        params = GenhexParameters(parameter_names(), values, list(_KINDS), reading_unit=unit)
+        for pin, (_, n) in found.items():
+            name = pin.split(".", 1)[1] if pin.startswith("genhexkins.") else None
+            m = re.match(rf"^(?:{FEEDBACK}|{COMMAND})\.(\d+)\.(gain|offset)$", pin)
+            if m:
+                name = f"strut.{m.group(1)}.{m.group(2)}"
+                if pin.startswith(COMMAND) and name in params.origins:
+                    continue                # the feedback instance states it
+            if name is not None:
+                params.origins[name] = Origin(source, f"setp {pin}", n)
+        return params
+
+    def machine_keys(self, params: ControllerParameters) -> dict:
+        """The source map of an import (see :meth:`ControllerFormat.machine_keys`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        dict
+            Each leg's ``base`` and ``platform`` joint from genhexkins' pins (z with the
+            spindle and tool offsets), its ``l0`` and ``gain`` from the scale instances.
+        """
+        keys: dict = {("home",): [f"platform.{i}.z" for i in range(6)]}
+        for i in range(6):
+            for side in ("base", "platform"):
+                for k, c in enumerate(_AXES):
+                    keys[("legs", i, side, k)] = [f"{side}.{i}.{c}"] + (
+                        ["spindle-offset", "tool-offset"] if c == "z" else [])
+            keys[("legs", i, "l0")] = [f"strut.{i}.offset"]
+            keys[("legs", i, "gain")] = [f"strut.{i}.gain"]
+        return keys
 
     def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
         """A Stewart machine with genhexkins' joints and the scales' ``l0`` / ``gain``.

@@ -75,14 +75,17 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
-from .base import ControllerFormat, ControllerParameters, register_format
+from .base import ControllerFormat, ControllerParameters, Origin, origin_of, register_format, where
 from .klipper import (
     BED,
     BED_KINDS,
+    bed_origins,
     bed_text,
     bed_values,
+    check_printer_values,
     controller_endstops,
     finite_number,
+    linear_delta_keys,
     linear_delta_machine,
     machine_bed,
     read_bed,
@@ -499,12 +502,15 @@ class MarlinDelta(ControllerFormat):
             Naming the file, line and letter of a value that is not a number, a positive
             endstop adjustment (Marlin refuses it), ``I J K`` (early 1.1 tower angle trims, not
             taken), a ``B`` whose meaning the text does not settle, a missing ``H``, ``L`` or
-            ``R``, or a rod not longer than the radius.
+            ``R``, a value that cannot be meant (:func:`~pkmcal.export.klipper.
+            check_printer_values`: a rod trim or adjustment beyond 10 % of the printer's
+            size), a radius not > 0 or a rod not longer than the radius.
         """
         version, why = marlin_m665_letters(text)
         got: dict = {}
         notes: list[str] = []
         extras: dict = {}
+        extras_lines: dict = {}
         for n, code, rest in gcode_lines(text, ("M665", "M666")):
             words = gcode_words(rest, source, n, code)
             if code == "M666":
@@ -524,6 +530,7 @@ class MarlinDelta(ControllerFormat):
             for letter, word in words.items():
                 if letter == "B" and "B" not in letters:       # 1.1.x: where G33 probes
                     extras["probe_radius"] = finite_number(word, source, n, "M665 B") * 1e-3
+                    extras_lines["probe_radius"] = n
                 if letter not in letters:
                     continue
                 value = finite_number(word, source, n, f"M665 {letter}")
@@ -539,16 +546,56 @@ class MarlinDelta(ControllerFormat):
 
         H, L, R = g("M665", "H"), g("M665", "L"), g("M665", "R")
         rods = L + np.array([g("M665", k) for k in "ABC"])
-        if not (R > 0 and np.all(rods > R)):
-            raise InputError(f"{source}: line {got[('M665', 'R')][1]}: M665 R: the radius "
-                             f"({R * 1e3:g} mm) must be > 0 and below every diagonal rod "
-                             f"({', '.join(f'{x * 1e3:g}' for x in rods)} mm)")
         params = self.values(H, L, R, [g("M665", k) for k in "XYZ"],
                              [g("M665", k) for k in "ABC"], [g("M666", k) for k in "XYZ"],
                              read_bed(text, source))
+        params.origins.update(bed_origins(text, source))
+        for (code, letter), (_, n) in got.items():
+            name = (f"delta_endstop_adj_{_ABC['XYZ'.index(letter)]}" if code == "M666"
+                    else M665_LETTERS_2[letter])
+            params.origins[name] = Origin(source, f"{code} {letter}", n)
+        for key, n in extras_lines.items():
+            params.origins[key] = Origin(source, "M665 B", n)
+        mm = (lambda x: f"{x * 1e3:g} mm")  # noqa: E731
+        deg = (lambda x: f"{np.degrees(x):g} deg")  # noqa: E731
+        check_printer_values(
+            params, source, ["delta_height", "delta_diagonal_rod", "delta_radius"],
+            dimensions=[(n, mm) for n in self.NAMES[:3]],
+            corrections=[(n, mm) for n in self.NAMES[6:12]],
+            turns=[(n, deg) for n in self.NAMES[3:6]], radius=R)
+        if not R > 0:
+            raise InputError(f"{origin_of(params, 'delta_radius')}: the radius ({mm(R)}) "
+                             "must be > 0")
+        for i, t in enumerate(_ABC):
+            if not rods[i] > R:
+                raise InputError(
+                    f"{origin_of(params, 'delta_diagonal_rod', f'delta_diagonal_rod_trim_{t}')}"
+                    f": tower {t.upper()}'s diagonal rod ({mm(rods[i])}) must be longer than "
+                    f"the radius ({where([params.origins['delta_radius']])}: {mm(R)})")
         if isinstance(getattr(params, "extras", None), dict):
             params.extras.update(extras)
         return params, notes
+
+    def machine_keys(self, params: ControllerParameters) -> dict:
+        """The source map of an import (see :meth:`ControllerFormat.machine_keys`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Marlin's values.
+
+        Returns
+        -------
+        dict
+            ``delta_radius`` from ``M665 R``; arm ``i`` from ``L`` and its rod trim; tower
+            angle ``i`` from its trim; ``position_endstop`` ``i`` from ``H``, ``M666``'s
+            adjustment and the bed's height.
+        """
+        return linear_delta_keys(
+            ["delta_radius"],
+            [["delta_diagonal_rod", f"delta_diagonal_rod_trim_{t}"] for t in _ABC],
+            [[f"delta_tower_angle_trim_{t}"] for t in _ABC],
+            [["delta_height", f"delta_endstop_adj_{t}", "bed.z"] for t in _ABC])
 
     @staticmethod
     def _m665_letters(words: dict, version, why: str, source: str, n: int,

@@ -55,14 +55,17 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
-from .base import ControllerFormat, ControllerParameters, register_format
+from .base import ControllerFormat, ControllerParameters, Origin, origin_of, register_format, where
 from .klipper import (
     BED,
     BED_KINDS,
+    bed_origins,
     bed_text,
     bed_values,
+    check_printer_values,
     controller_endstops,
     finite_number,
+    linear_delta_keys,
     linear_delta_machine,
     machine_bed,
     read_bed,
@@ -73,6 +76,13 @@ from .klipper import (
 from .marlin import BASE_ANGLES, gcode_lines, gcode_words
 
 _XYZ = "xyz"
+#: the values each letter sets (the source map of an import)
+_LETTER_NAMES = {("M665", "L"): [f"diagonal_{t}" for t in _XYZ], ("M665", "R"): ["radius"],
+                 ("M665", "H"): ["homed_height"], ("M666", "A"): ["x_tilt"],
+                 ("M666", "B"): ["y_tilt"]}
+for _k, _t in zip("XYZ", _XYZ, strict=True):
+    _LETTER_NAMES[("M665", _k)] = [f"angle_correction_{_t}"]
+    _LETTER_NAMES[("M666", _k)] = [f"endstop_adjustment_{_t}"]
 
 
 class RepRapFirmwareDelta(ControllerFormat):
@@ -321,11 +331,15 @@ class RepRapFirmwareDelta(ControllerFormat):
         InputError
             Naming the file, line and letter of a value that is not a number, more than three
             diagonals or ``M666 U V W`` (extra towers are not a linear Delta of pkmcal's), a
-            missing ``L``, ``R`` or ``H``, or a diagonal not longer than the radius.
+            missing ``L``, ``R`` or ``H``, a value that cannot be meant
+            (:func:`~pkmcal.export.klipper.check_printer_values`: an adjustment beyond 10 %
+            of the printer's size, a bed tilt raising the bed that much at the towers'
+            radius, ``M666 A50``), a radius not > 0 or a diagonal not longer than the radius.
         """
         got: dict = {}
         notes: list[str] = []
         extras: dict = {}
+        extras_lines: dict = {}
         for n, code, rest in gcode_lines(text, ("M665", "M666")):
             for letter, word in gcode_words(rest, source, n, code).items():
                 keys = "LRHXYZ" if code == "M665" else "XYZAB"
@@ -335,6 +349,7 @@ class RepRapFirmwareDelta(ControllerFormat):
                                      "linear Delta has three")
                 if code == "M665" and letter == "B":
                     extras["print_radius"] = finite_number(word, source, n, "M665 B") * 1e-3
+                    extras_lines["print_radius"] = n
                     notes.append(f"{source}: line {n}: M665 B: the printable radius (a limit, "
                                  "not kinematics): not a kinematic value")
                     continue
@@ -366,16 +381,53 @@ class RepRapFirmwareDelta(ControllerFormat):
             return got.get((code, k), (0.0, 0))[0]
 
         diag, R = g("M665", "L"), g("M665", "R")
-        if not (R > 0 and np.all(diag > R)):
-            raise InputError(f"{source}: line {got[('M665', 'R')][1]}: M665 R: the radius "
-                             f"({R * 1e3:g} mm) must be > 0 and below every diagonal "
-                             f"({', '.join(f'{x * 1e3:g}' for x in diag)} mm)")
         params = self.values(diag, R, g("M665", "H"), [g("M665", k) for k in "XYZ"],
                              [g("M666", k) for k in "XYZ"], [g("M666", k) for k in "AB"],
                              read_bed(text, source))
+        params.origins.update(bed_origins(text, source))
+        for (code, letter), (_, n) in got.items():
+            for name in _LETTER_NAMES[(code, letter)]:
+                params.origins[name] = Origin(source, f"{code} {letter}", n)
+        for key, n in extras_lines.items():
+            params.origins[key] = Origin(source, "M665 B", n)
+        mm = (lambda x: f"{x * 1e3:g} mm")  # noqa: E731
+        check_printer_values(
+            params, source, ["diagonal_x", "radius", "homed_height"],
+            dimensions=[(n, mm) for n in self.NAMES[:5]],
+            corrections=[(n, mm) for n in self.NAMES[8:11]],
+            turns=[(n, lambda x: f"{np.degrees(x):g} deg") for n in self.NAMES[5:8]],
+            slopes=[(n, lambda x: f"{x * 100:g} %") for n in self.NAMES[11:13]], radius=R)
+        if not R > 0:
+            raise InputError(f"{origin_of(params, 'radius')}: the radius ({mm(R)}) must be > 0")
+        for i, t in enumerate(_XYZ):
+            if not diag[i] > R:
+                raise InputError(f"{origin_of(params, f'diagonal_{t}')}: tower {'ABC'[i]}'s "
+                                 f"diagonal ({mm(diag[i])}) must be longer than the radius "
+                                 f"({where([params.origins['radius']])}: {mm(R)})")
         if isinstance(getattr(params, "extras", None), dict):
             params.extras.update(extras)
         return params, notes
+
+    def machine_keys(self, params: ControllerParameters) -> dict:
+        """The source map of an import (see :meth:`ControllerFormat.machine_keys`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            RepRapFirmware's values.
+
+        Returns
+        -------
+        dict
+            ``delta_radius`` from ``M665 R``; arm ``i`` from ``L``; tower angle ``i`` from
+            its correction; ``position_endstop`` ``i`` from ``H``, ``M666``'s adjustment and
+            the bed's height; the bed's tilts from ``M666 A B``.
+        """
+        return linear_delta_keys(
+            ["radius"], [[f"diagonal_{t}"] for t in _XYZ],
+            [[f"angle_correction_{t}"] for t in _XYZ],
+            [["homed_height", f"endstop_adjustment_{t}", "bed.z"] for t in _XYZ],
+            bed=("bed.z", "x_tilt", "y_tilt"))
 
     def to_machine(self, params: ControllerParameters, like: Machine | None = None) -> Machine:
         """A linear Delta with RepRapFirmware's values (vertical towers, one radius).

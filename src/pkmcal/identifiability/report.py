@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..estimation.rank import MAX_STD, RTOL
+from ..paths import path_text
 from .analysis import IdentifiabilityReport, NullGroup, analyze
 
 #: parameter pairs with a larger absolute correlation are reported
@@ -179,7 +180,8 @@ def identifiability_report(problem, groups: Sequence[NullGroup] | Callable | Non
     source = getattr(getattr(problem, "data", None), "source", "the data")
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jg))
             and (Jl is None or np.all(np.isfinite(Jl)))):
-        raise InputError(f"{source}: the model cannot reproduce some measurements with the "
+        raise InputError(f"{path_text(source)}: "
+                         "the model cannot reproduce some measurements with the "
                          "nominal machine (residuals not finite)")
     params = problem.parameters
     free = params.free

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
+from ..paths import path_text
 from ..units import format_um
 from .experiment import MOUNTING_ERROR
 
@@ -58,7 +59,8 @@ def reachable(machine: Machine, P, R, rows, source) -> np.ndarray:
     q = machine.ik(P, R)
     bad = ~np.all(np.isfinite(q), -1)
     if bad.any():
-        raise InputError(f"{source}: row(s) {_rows(rows[bad])}: pose(s) the machine cannot "
+        raise InputError(f"{path_text(source)}: "
+                         f"row(s) {_rows(rows[bad])}: pose(s) the machine cannot "
                          "reach")
     return q
 
@@ -179,6 +181,22 @@ class Instrument:
         -------
         str or None
             The reason in words.
+        """
+        return None
+
+    def unbounded_cause(self, machine: Machine) -> str | None:
+        """Why this instrument leaves directions that move ``machine``'s platform unidentified
+        whatever the poses measured (so that more or other poses cannot help).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        str or None
+            The reason in words; None when other poses may see those directions.
         """
         return None
 
@@ -782,7 +800,7 @@ def _check_groups(group, n: int, what: str, section: str, rows, source) -> None:
     bad = np.flatnonzero((group < 0) | (group >= n))
     if bad.size:
         k = int(bad[0])
-        where = (f"{source}: " if source else "") + (
+        where = (f"{path_text(source)}: " if source else "") + (
             f"row {int(rows[k])}, column {what}: " if rows is not None else f"{what} ")
         raise InputError(f"{where}{what} {int(group[k]) + 1}, but the machine file's "
                          f"{section} has {n} (numbered 1..{n})")
@@ -793,7 +811,7 @@ def _fk_of(machine: Machine, data, source):
     reproduces."""
     fk = machine.fk(data.q)
     if not fk.converged.all():
-        raise InputError(f"{source}: row(s) {_rows(data.rows[~fk.converged])}: no "
+        raise InputError(f"{path_text(source)}: row(s) {_rows(data.rows[~fk.converged])}: no "
                          f"platform pose of {machine.source} reproduces these readings "
                          "(outside the workspace, or a wrong unit or zero)")
     return fk

@@ -91,6 +91,7 @@ from ..kinematics import matrix_from_euler, matrix_from_rotvec
 from ..machines.base import Machine, newton_pose_solve
 from ..machines.deviations import draw_accepted
 from ..parameters import ParameterSet
+from ..paths import path_text
 from .base import Instrument, StandardPlan, _rows, _sigma_arg, _space_words, has_column, reachable
 from .experiment import MOUNTING_ERROR
 
@@ -831,7 +832,7 @@ def continuation_solve(problem, solve, direct=None, noise_known: bool = True) ->
         P, R = done[3], done[4]
 
     if best is None:
-        raise InputError(f"{data.source}: no pose on the constraint sphere (Lc = "
+        raise InputError(f"{path_text(data.source)}: no pose on the constraint sphere (Lc = "
                          f"{Lc0 * 1e3:.6g} mm) reproduces the readings of "
                          f"{int((~started).sum())} row(s): {_rows_text(data.rows[~started])}")
     if (not noise_known and plain is not None and plain[0].success
@@ -877,7 +878,7 @@ def _finish(best, report, data, started, strategy):
     if report.dropped_rows.size:
         what = _left_out_text(report.dropped_rows, K)
         if report.dropped_rows.size > MAX_LEFT_OUT * K:
-            raise InputError(f"{data.source}: {what}; that is more than "
+            raise InputError(f"{path_text(data.source)}: {what}; that is more than "
                              f"{MAX_LEFT_OUT:.0%} of the rows: check the data and the "
                              "machine file (constraint_link.length, home, chains)")
         # readings that no pose explains even with the calibrated geometry are bad input
@@ -889,7 +890,7 @@ def _finish(best, report, data, started, strategy):
         gross = rms >= START_TOL * problem.machine.characteristic_length()
         if gross.any():
             rows = data.rows[~mask][gross]
-            raise InputError(f"{data.source}: no pose on the constraint sphere (Lc = "
+            raise InputError(f"{path_text(data.source)}: no pose on the constraint sphere (Lc = "
                              f"{data.link_length * 1e3:.6g} mm) reproduces the readings of "
                              f"{rows.size} row(s): {_rows_text(rows)}")
         report.warnings.append(what)
@@ -987,7 +988,8 @@ class SphereState:
 
 def _require_passive(data: ConstraintLinkData) -> None:
     if data.passive is None:
-        raise InputError(f"{data.source}: the inverse-kinematics method needs the 'passive' "
+        raise InputError(f"{path_text(data.source)}: "
+                         "the inverse-kinematics method needs the 'passive' "
                          "column (which actuator was passive at each row)")
 
 
@@ -1016,7 +1018,8 @@ class _ConstraintLinkProblem:
     def __init__(self, machine: Machine, data: ConstraintLinkData, sigma_m=1e-6,
                  estimate_link_length: bool = False):
         if data.q.shape[1] != machine.n_joints:
-            raise InputError(f"{data.source}: {data.q.shape[1]} joint columns, the machine has "
+            raise InputError(f"{path_text(data.source)}: "
+                             f"{data.q.shape[1]} joint columns, the machine has "
                              f"{machine.n_joints} actuators")
         self.machine = machine
         self.data = data
@@ -1316,7 +1319,7 @@ class _ImplicitPoseProblem(_ConstraintLinkProblem):
         if self.dropped_rows.size:
             self.data = data.subset(fk.converged)
         if len(self.data) == 0:
-            raise InputError(f"{data.source}: no row can be solved for a pose with the "
+            raise InputError(f"{path_text(data.source)}: no row can be solved for a pose with the "
                              "start geometry")
 
     #: start values of the global unknowns (None: the machine's, ``parameters.values``)
@@ -1707,7 +1710,8 @@ def _paper_method(cls, ml: ConstraintLinkML, method: str, rtol: float, lm_option
                "far from the machine" if ml_test.alarming else
                "the maximum-likelihood estimate explains them: use --method ml")
         raise ConvergenceError(
-            f"{data.source}: the {method} method converged to a geometry the readings reject: "
+            f"{path_text(data.source)}: "
+            f"the {method} method converged to a geometry the readings reject: "
             f"residuals {test.noise_factor:.3g}x the assumed noise with every reading noisy "
             f"and the poses refitted (chi2/dof = {test.ratio:.3g}, at most {test.upper:.3g} "
             f"expected; the maximum-likelihood start: {ml_test.noise_factor:.3g}x); {why}; "
@@ -1746,7 +1750,8 @@ def _refuse_degenerate(data, result, n_id: int, repeats: str) -> None:
     if extra <= 0:
         return
     why = f" ({repeats})" if repeats else ""
-    raise InputError(f"{data.source}: the {len(data)} poses{why} are degenerate: {extra} "
+    raise InputError(f"{path_text(data.source)}: "
+                     f"the {len(data)} poses{why} are degenerate: {extra} "
                      f"direction(s) beyond the frames' are not identifiable (only "
                      f"{free - null} of {n_id}); measure more poses spread over the sphere with "
                      "varied orientation")
@@ -2059,7 +2064,7 @@ def _on_sphere(P, machine, rows, source):
     norm = np.linalg.norm(P, axis=-1)
     off = ~(np.abs(norm - Lc) <= SPHERE_TOL)
     if off.any():
-        raise InputError(f"{source}: row(s) {_rows(rows[off])}: |P| differs from the "
+        raise InputError(f"{path_text(source)}: row(s) {_rows(rows[off])}: |P| differs from the "
                          f"constraint-link length {Lc * 1e3:.6g} mm by more than "
                          f"{SPHERE_TOL * 1e3:g} mm; a constraint-link plan has its poses on "
                          "that sphere")

@@ -26,6 +26,7 @@ from ..errors import InputError
 from ..estimation.estimator import CalibrationResult
 from ..estimation.rank import RTOL
 from ..machines.base import Machine
+from ..paths import path_text
 from .base import (
     Instrument,
     StandardPlan,
@@ -548,11 +549,12 @@ def calibrate_distances(machine: Machine, data: InstrumentData, noise=None, rtol
     """
     noise = IsotropicNoise(1e-6) if noise is None else noise
     if data.kind != "distances":
-        raise InputError(f"{data.source}: {data.kind} data, not ballbar distances")
+        raise InputError(f"{path_text(data.source)}: {data.kind} data, not ballbar distances")
     counts = np.bincount(data.group, minlength=data.n_groups)
     few = np.flatnonzero(counts < 6)
     if few.size:
-        raise InputError(f"{data.source}: setup {few[0] + 1} has {counts[few[0]]} row(s); each "
+        raise InputError(f"{path_text(data.source)}: "
+                         f"setup {few[0] + 1} has {counts[few[0]]} row(s); each "
                          "mounting needs at least 6 lengths (its pivot and ball are unknown)")
     result = fit_instrument(machine, data, DistancesModel(data.n_groups), noise,
                             fit_machine=fit_machine, rtol=rtol, **options)

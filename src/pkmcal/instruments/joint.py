@@ -34,6 +34,7 @@ from ..estimation.rank import RTOL, numerical_rank
 from ..identifiability import NullGroup, name_null_space, name_weak_directions
 from ..machines.base import Machine
 from ..parameters import ParameterSet
+from ..paths import path_text
 from .problem import (
     InstrumentProblem,
     InstrumentState,
@@ -120,7 +121,8 @@ class JointProblem:
                                  "problem; combine points, distances and other instrument "
                                  "models without per-measurement unknowns")
             if getattr(problem, "local_dof", 0):
-                raise InputError(f"{problem.data.source}: per-measurement unknowns; only "
+                raise InputError(f"{path_text(problem.data.source)}: "
+                                 "per-measurement unknowns; only "
                                  "instrument problems without them combine")
             if problem.machine is not machine or not problem.fit_machine:
                 problem = instrument_problem(machine, problem.data, problem.model, problem.noise)

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..kinematics import matrix_from_rotvec, rotvec_from_matrix, skew
 from ..parameters import ParameterSet
+from ..paths import path_text
 
 XYZ = ("x", "y", "z")
 ROT = ("rx", "ry", "rz")
@@ -385,7 +386,7 @@ class PointsModel(NuisanceModel):
         c = (np.zeros((self.n_targets, 3)) if self.known_target is None
              else np.tile(self.known_target, (self.n_targets, 1)))
         x = P + np.einsum("kij,kj->ki", R, c[group])
-        A, a = register_points(measured, x, f"{source}: tracker registration")
+        A, a = register_points(measured, x, f"{path_text(source)}: tracker registration")
         new = self.__class__.__new__(self.__class__)
         new.__dict__.update(self.__dict__)
         values = np.array(self.parameters.values, float)

@@ -25,6 +25,7 @@ from ..machines.reach import (
     bed_height,
 )
 from ..parameters import ParameterSet
+from ..paths import path_text
 from .base import Instrument, StandardPlan, has_column, reachable
 from .data import InstrumentData
 from .experiment import MOUNTING_ERROR
@@ -246,7 +247,8 @@ class PairDistance(Instrument):
     def planned_data(self, machine, P, R, rows, source, group=None):
 
         if len(P) % 2:
-            raise InputError(f"{source}: {len(P)} poses; two-point distances take them in "
+            raise InputError(f"{path_text(source)}: "
+                             f"{len(P)} poses; two-point distances take them in "
                              "pairs")
         q = reachable(machine, P, R, rows, source)
         d = np.linalg.norm(P[0::2] - P[1::2], axis=-1)

@@ -68,6 +68,7 @@ from ..kinematics import matrix_from_euler, matrix_from_rotvec, rotvec_from_matr
 from ..machines.base import Machine
 from ..machines.deviations import draw_accepted
 from ..parameters import ParameterSet
+from ..paths import path_text
 from .base import Instrument, _space_words, has_column, reachable
 from .experiment import MOUNTING_ERROR
 
@@ -219,7 +220,7 @@ class FullPoseData:
             self.rows = np.arange(1, len(self.q) + 1)
         self.rows = np.asarray(self.rows)
         if not (len(self.q) == len(self.P) == len(self.R) == len(self.rows)):
-            raise InputError(f"{self.source}: readings, positions and orientations have "
+            raise InputError(f"{path_text(self.source)}: readings, positions and orientations have "
                              f"different lengths ({len(self.q)}, {len(self.P)}, {len(self.R)})")
 
     def __len__(self) -> int:
@@ -464,7 +465,8 @@ class FullPoseProblem:
                  fit_machine: bool = True):
         _require_full_space(machine)
         if data.q.shape[1] != machine.n_joints:
-            raise InputError(f"{data.source}: {data.q.shape[1]} reading columns, the machine has "
+            raise InputError(f"{path_text(data.source)}: "
+                             f"{data.q.shape[1]} reading columns, the machine has "
                              f"{machine.n_joints} legs")
         if not noise.reading_m > 0:
             raise InputError("the reading noise must be > 0: it weighs the residuals")
@@ -903,7 +905,8 @@ def estimate_frames(machine: Machine, data: FullPoseData, max_passes: int = 100,
     if not fk.converged.all():
         rows = data.rows[~fk.converged]
         shown = ", ".join(map(str, rows[:10].tolist())) + (" ..." if len(rows) > 10 else "")
-        raise InputError(f"{data.source}: no platform pose of the model reproduces the readings "
+        raise InputError(f"{path_text(data.source)}: "
+                         "no platform pose of the model reproduces the readings "
                          f"of {len(rows)} row(s): {shown} (outside the workspace, or a wrong "
                          "reading unit, gain or l0)")
     P, R = fk.P, fk.R
@@ -911,14 +914,15 @@ def estimate_frames(machine: Machine, data: FullPoseData, max_passes: int = 100,
     K = len(P)
     sv = np.linalg.svd(data.P - data.P.mean(0), compute_uv=False)
     if K < 4 or sv[1] <= 1e-6 * max(sv[0], 1e-300):
-        raise InputError(f"{data.source}: the {K} measured positions coincide or lie on one "
+        raise InputError(f"{path_text(data.source)}: "
+                         f"the {K} measured positions coincide or lie on one "
                          "line (degenerate poses): the measurement frame cannot be found; "
                          "measure poses spread over the workspace: positions along all three "
                          "axes and rotations about all three axes")
     scale = machine.characteristic_length()
     for _ in range(max_passes):
         y = P + np.einsum("kij,j->ki", R, c)
-        A, a = register_points(y, data.P, f"{data.source}: start of mocap_from_base")
+        A, a = register_points(y, data.P, f"{path_text(data.source)}: start of mocap_from_base")
         M = np.einsum("kji,lj,klm->im", R, A, data.R)      # sum_k R_k^T A^T Rm_k
         U, _, Vt = np.linalg.svd(M)
         B = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
@@ -1008,7 +1012,8 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
     if any(fixed) and frames is None:
         raise InputError("fixed measurement frames need values: pass frames=")
     if len(data) < 4:
-        raise InputError(f"{data.source}: {len(data)} pose(s); full-pose calibration needs "
+        raise InputError(f"{path_text(data.source)}: "
+                         f"{len(data)} pose(s); full-pose calibration needs "
                          "many poses spread over the workspace (at least 4 for the frames, "
                          "more than 8 for the legs)")
     start = estimate_frames(machine, data) if frames is None else frames
@@ -1088,7 +1093,8 @@ def _check_identifiable(problem: FullPoseProblem, n_id: int, rtol: float,
     state = problem.initial_state()
     r, Jg, Jl = problem.evaluate(state)
     if not np.all(np.isfinite(r)):
-        raise InputError(f"{problem.data.source}: the residuals are not finite at the start "
+        raise InputError(f"{path_text(problem.data.source)}: "
+                         "the residuals are not finite at the start "
                          "(check the readings and poses)")
     free = problem.parameters.free
     Jr, _, _ = reduce_local(r, Jg[..., free] * problem.scales[free], Jl)
@@ -1116,7 +1122,8 @@ def _check_identifiable(problem: FullPoseProblem, n_id: int, rtol: float,
     words = [d.name for d in named if d.name not in gauge] or ["(several combinations)"]
     shown = "; ".join(words[:3]) + (f"; and {len(words) - 3} more" if len(words) > 3 else "")
     raise InputError(
-        f"{problem.data.source}: the {len(problem.data)} poses determine only {rank} of the "
+        f"{path_text(problem.data.source)}: "
+        f"the {len(problem.data)} poses determine only {rank} of the "
         f"{n_id} identifiable parameter directions ({why}degenerate poses); undetermined: "
         f"{shown}. Measure poses spread over the workspace: positions along all three axes "
         "and rotations about all three axes")
@@ -1588,7 +1595,8 @@ class Pose(Instrument):
         4 poses)."""
 
         if len(data) < 4:
-            raise InputError(f"{source}: {len(data)} pose(s); the measurement frames need at "
+            raise InputError(f"{path_text(source)}: "
+                             f"{len(data)} pose(s); the measurement frames need at "
                              "least 4")
         frames = getattr(machine, "measurement_frames", None)
         if frames is None:

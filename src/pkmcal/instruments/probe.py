@@ -48,6 +48,7 @@ from ..machines.reach import (
     bed_height,
     probe_radius,
 )
+from ..paths import path_text
 from .base import (
     Instrument,
     StandardPlan,
@@ -279,6 +280,26 @@ def probe_trigger(true_machine: Machine, nominal_machine: Machine, P, R, bed, he
                      "steps: the true machine's heights do not follow the commanded ones")
 
 
+def _refuse_points_outside_limits(machine: Machine, P, R, words: str) -> None:
+    """Refuse planned probe points whose nominal joint values break the machine file's
+    ``joint_limits`` (a probe_radius the file sets may reach beyond them), naming the limits
+    and the points, numbered 1.. in the plan's order."""
+    if getattr(machine, "joint_limits", None) is None:
+        return
+    with np.errstate(all="ignore"):
+        q = np.asarray(machine.ik(P, R), float)
+    outside = ~machine.within_limits(q) & np.all(np.isfinite(q), axis=-1)
+    if outside.any():
+        where = getattr(machine, "source", None) or "the machine file"
+        raise InputError(
+            f"{where}: joint_limits ({machine.joint_limits_text()}) exclude "
+            f"{int(outside.sum())} of the {len(P)} probe points ({words}): probe point "
+            + machine.limit_violation_text(q[outside], np.flatnonzero(outside) + 1, limit=3)
+            .replace("row ", "") + "; widen joint_limits"
+            + (" or lower probe_radius" if getattr(machine, "probe_radius", None) is not None
+               and not callable(machine.probe_radius) else ""))
+
+
 class Probe(Instrument):
     """Bed-probe heights: the nozzle's height above a flat bed of unknown height and tilt."""
 
@@ -304,6 +325,17 @@ class Probe(Instrument):
                     f"not move along (it moves along {_space_words(machine)}): measure points "
                     "(tracker) instead")
         return None
+
+    def unbounded_cause(self, machine):
+        if getattr(machine, "frame_is_bed", False):
+            return None
+        from ..machines.registry import bed_frame_kinds
+
+        printers = " or ".join(f"machine: {k}" for k in bed_frame_kinds()) or "a printer"
+        return (f"a {machine.kind} has no bed (its frame is not a probed bed, as that of "
+                f"{printers} is; a bed section does not make it one): probe heights see the "
+                "tool's height above a bed plane they estimate, whose height and tilt take "
+                "up moves of the whole platform, whatever the points probed")
 
     def default_noise(self):
         from .models import IsotropicNoise
@@ -429,6 +461,7 @@ class Probe(Instrument):
             else:
                 P, R, _ = self.candidates(machine, n, rng)
                 words = f"{n} random points on the bed's disk"
+            _refuse_points_outside_limits(machine, P, R, words)
         bed = np.array([bed_height(machine) + rng.uniform(-bed_error, bed_error),
                         *rng.uniform(-tilt_error, tilt_error, 2)])
         model = noise_model(noise, self.default_noise())
@@ -662,7 +695,8 @@ def poorly_determined_warnings(poor: list[PoorParameter], source, instrument: st
     named = "; ".join(p.text(units["length"], units["angle"]) for p in poor[:shown])
     more = (f"; and {len(poor) - shown} more (the report's poorly_determined lists them)"
             if len(poor) > shown else "")
-    return [f"{source}: {len(poor)} parameter(s) poorly determined by these {instrument} "
+    return [f"{path_text(source)}: "
+            f"{len(poor)} parameter(s) poorly determined by these {instrument} "
             f"measurements (standard deviation beyond {limit} at the machine's scale): "
             f"{named}{more}; to fix them, measure {nxt}"]
 
@@ -708,9 +742,10 @@ def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: fl
 
     noise = IsotropicNoise(PROBE_SIGMA) if noise is None else noise
     if data.kind != "probe":
-        raise InputError(f"{data.source}: {data.kind} data, not probe heights")
+        raise InputError(f"{path_text(data.source)}: {data.kind} data, not probe heights")
     if len(data) < 3:
-        raise InputError(f"{data.source}: {len(data)} probe height(s); at least 3 points not "
+        raise InputError(f"{path_text(data.source)}: "
+                         f"{len(data)} probe height(s); at least 3 points not "
                          "on one line are needed")
     if isinstance(bed, str):
         bed = bed_choice(machine, data, noise, bed, rtol=rtol)

@@ -28,6 +28,7 @@ from ..errors import InputError
 from ..estimation.rank import RTOL, numerical_rank
 from ..identifiability import NullGroup, name_null_space, name_weak_directions
 from ..machines.base import Machine
+from ..paths import path_text
 from .data import InstrumentData
 from .models import NuisanceModel, NuisanceState
 
@@ -87,7 +88,8 @@ class InstrumentProblem:
                  fit_machine: bool = True):
         m = self.readings_per_row
         if data.q.shape[1] != m * machine.n_joints:
-            raise InputError(f"{data.source}: {data.q.shape[1]} joint columns, the machine has "
+            raise InputError(f"{path_text(data.source)}: "
+                             f"{data.q.shape[1]} joint columns, the machine has "
                              f"{machine.n_joints} joints"
                              + (f" ({m} sets of them a row)" if m > 1 else ""))
         self.machine, self.data, self.model, self.noise = machine, data, model, noise
@@ -105,7 +107,8 @@ class InstrumentProblem:
         if not ok.all():
             rows = data.rows[~ok]
             shown = ", ".join(map(str, rows[:10].tolist())) + (" ..." if len(rows) > 10 else "")
-            raise InputError(f"{data.source}: no platform pose of the machine reproduces the "
+            raise InputError(f"{path_text(data.source)}: "
+                             "no platform pose of the machine reproduces the "
                              f"readings of {len(rows)} row(s): {shown} (outside the workspace, "
                              "or a wrong joint unit)")
         self._P0, self._R0 = fk.P, fk.R
@@ -542,7 +545,8 @@ def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel,
         # covariance meaningless (copies of one row add no information)
         rows_text = (f"{len(data)} rows but {distinct} distinct" if distinct < len(data)
                      else f"{len(data)} rows")
-        raise InputError(f"{data.source}: {rows_text}: {distinct * model.size} equation(s) "
+        raise InputError(f"{path_text(data.source)}: "
+                         f"{rows_text}: {distinct * model.size} equation(s) "
                          f"for the {result.rank} direction(s) they would have to fix, with "
                          "nothing left to check them; measure more"
                          + (" distinct" if distinct < len(data) else "") + " poses")

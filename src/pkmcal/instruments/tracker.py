@@ -53,6 +53,7 @@ from ..identifiability import name_null_space, name_weak_directions
 from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine
 from ..machines.delta import TRACKER_GRID_SPACING  # noqa: F401  (seed 001's grid)
+from ..paths import path_text
 from ..units import format_um
 from .base import Instrument, StandardPlan, _check_groups, _fk_of, has_column, reachable
 from .data import InstrumentData
@@ -508,7 +509,8 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
     fk = machine.fk(data.q)
     if not fk.converged.all():
         rows = data.rows[~fk.converged].tolist()
-        raise InputError(f"{data.source}: rows {rows[:10]}: no platform position reproduces "
+        raise InputError(f"{path_text(data.source)}: "
+                         f"rows {rows[:10]}: no platform position reproduces "
                          "these actuator readings")
     idata = as_points(data)
     start_model = PointsModel(idata.n_groups, machine.tracker_target()).start(

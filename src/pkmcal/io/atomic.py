@@ -49,6 +49,7 @@ import threading
 from pathlib import Path
 
 from ..errors import InputError, stop_if_signalled
+from ..paths import file_identity, path_text
 
 _TAG = "pkmcal"
 _STALE = re.compile(r"^\..+\.pkmcal-(\d+)-[^.]+\.(tmp|bak)$")
@@ -393,12 +394,10 @@ def _existing_ancestor(directory: Path) -> Path:
     return d
 
 
-def _file_id(path) -> tuple[int, int] | None:
-    try:
-        st = os.stat(path)
-    except OSError:
-        return None
-    return (st.st_dev, st.st_ino) if stat.S_ISREG(st.st_mode) else None
+def _file_id(path) -> tuple | None:
+    # the one identity of pkmcal.paths (device + inode), for regular files only
+    ident = file_identity(path)
+    return ident if ident[0] == "inode" and os.path.isfile(path) else None
 
 
 def _describe(exc: OSError) -> str:
@@ -950,12 +949,13 @@ def read_input_text(path, kind: str, max_bytes: int | None = None, register: boo
     if str(path) in _STREAM_TEXT:
         return _STREAM_TEXT[str(path)]
     limit = MAX_INPUT_BYTES if max_bytes is None else max_bytes
+    shown = path_text(path)     # the name as messages show it (bytes not UTF-8 as \xNN)
     try:
         with open(path, "rb") as f:
             st = os.fstat(f.fileno())
             regular = stat.S_ISREG(st.st_mode)
             if regular and st.st_size > limit:
-                raise InputError(f"{path}: the {kind} is {st.st_size} bytes; a {kind} is at "
+                raise InputError(f"{shown}: the {kind} is {st.st_size} bytes; a {kind} is at "
                                  f"most {limit} bytes (is this the right file?)")
             chunks, total = [], 0
             while True:
@@ -963,22 +963,22 @@ def read_input_text(path, kind: str, max_bytes: int | None = None, register: boo
                 if not chunk:
                     break
                 if b"\0" in chunk:
-                    raise InputError(f"{path}: not a text file (UTF-8): it contains NUL bytes "
+                    raise InputError(f"{shown}: not a text file (UTF-8): it contains NUL bytes "
                                      "(binary data, or UTF-16: save it as UTF-8)")
                 chunks.append(chunk)
                 total += len(chunk)
                 if total > limit:
-                    raise InputError(f"{path}: the {kind} is more than {limit} bytes; a {kind} "
+                    raise InputError(f"{shown}: the {kind} is more than {limit} bytes; a {kind} "
                                      f"is at most {limit} bytes (is this the right file?)")
         text = b"".join(chunks).decode("utf-8-sig")
     except FileNotFoundError:
-        raise InputError(f"{path}: {kind} not found") from None
+        raise InputError(f"{shown}: {kind} not found") from None
     except IsADirectoryError:
-        raise InputError(f"{path}: is a directory, expected a {kind}") from None
+        raise InputError(f"{shown}: is a directory, expected a {kind}") from None
     except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not a text file (UTF-8): {exc.reason}") from None
+        raise InputError(f"{shown}: not a text file (UTF-8): {exc.reason}") from None
     except OSError as exc:
-        raise InputError(f"{path}: cannot read the {kind}: {_describe(exc)}") from None
+        raise InputError(f"{shown}: cannot read the {kind}: {_describe(exc)}") from None
     if not regular:
         _STREAM_TEXT[str(path)] = text
     return text

@@ -40,6 +40,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..kinematics import euler_from_matrix, matrix_from_euler, matrix_from_quaternion
+from ..paths import path_text
 from ..plausibility import Columns, check_full_pose_scale, check_reading_levels, check_tracker_scale
 from ..units import COLUMN_SUFFIXES, LENGTH, QUANTITIES
 from .atomic import atomic_write_text, read_input_text
@@ -180,12 +181,14 @@ def _renamed(path, line: int, header: list[str]) -> list[str]:
     if missing:
         shown = ", ".join(header)
         shown = shown if len(shown) <= 300 else shown[:297] + "..."
-        raise InputError(f"{path}: row {line}: --columns names column(s) this file does not "
+        raise InputError(f"{path_text(path)}: "
+                         f"row {line}: --columns names column(s) this file does not "
                          f"have: {', '.join(missing)} (columns found: {shown})")
     renamed_from = set(mapping.values())
     for left, right in mapping.items():
         if left in header and left not in renamed_from:
-            raise InputError(f"{path}: row {line}: --columns {left}={right}: the file already "
+            raise InputError(f"{path_text(path)}: "
+                             f"row {line}: --columns {left}={right}: the file already "
                              f"has a column {left}")
     back = {right: left for left, right in mapping.items()}
     return [back.get(name, name) for name in header]
@@ -223,9 +226,11 @@ def read_table(path) -> tuple[list[str], list[Row]]:
     header: list[str] | None = None
     header_line = 0
     rows: list[Row] = []
+    last = 0
     try:
         for fields in reader:
-            line = reader.line_num
+            line, start, last = reader.line_num, last + 1, reader.line_num
+            _refuse_open_quote(path, text, fields, start, line, header)
             if not fields or all(not f.strip() for f in fields) or fields[0].lstrip(
                     ).startswith("#"):
                 continue
@@ -236,25 +241,66 @@ def read_table(path) -> tuple[list[str], list[Row]]:
                 header = _renamed(path, line, header)
                 continue
             if len(fields) != len(header):
-                raise InputError(f"{path}: row {line}: {len(fields)} field(s), the header (row "
+                raise InputError(f"{path_text(path)}: "
+                                 f"row {line}: {len(fields)} field(s), the header (row "
                                  f"{header_line}) has {len(header)} columns")
             rows.append((line, fields))
     except csv.Error as exc:
-        raise InputError(f"{path}: row {reader.line_num}: CSV syntax error: {exc}") from None
+        raise InputError(f"{path_text(path)}: "
+                         f"row {reader.line_num}: CSV syntax error: {exc}") from None
     if header is None:
-        raise InputError(f"{path}: empty file (expected a header line such as "
+        raise InputError(f"{path_text(path)}: empty file (expected a header line such as "
                          "q1_mm,q2_mm,q3_mm,q4_mm,q5_mm,q6_mm)")
     empty = [i + 1 for i, name in enumerate(header) if not name]
     if empty:
-        raise InputError(f"{path}: row {header_line}: column {empty[0]} has no name")
+        raise InputError(f"{path_text(path)}: row {header_line}: column {empty[0]} has no name")
     seen: set[str] = set()
     for name in header:
         if name in seen:
-            raise InputError(f"{path}: row {header_line}: column {name!r} appears twice")
+            raise InputError(f"{path_text(path)}: row {header_line}: column {name!r} appears twice")
         seen.add(name)
     if not rows:
-        raise InputError(f"{path}: no data rows after the header")
+        raise InputError(f"{path_text(path)}: no data rows after the header")
     return header, rows
+
+
+def _refuse_open_quote(path, text: str, fields: list[str], start: int, end: int,
+                       header: list[str] | None) -> None:
+    """Refuse a record that a quote left open, naming the row the quote opened on.
+
+    The csv module reads a quoted field on over line breaks to its closing quote or to the end
+    of the file, and counts the record's rows to where it ended: a record of rows
+    ``start..end`` with a line break in a field, or one ending the file without a final line
+    break, whose quote is never closed, is refused at row ``start``, column of the field."""
+    broken = [i for i, f in enumerate(fields) if "\n" in f or "\r" in f]
+    if not broken and (text.endswith(("\n", "\r")) or end != start):
+        return
+    lines = _LINE_BREAK.split(text)
+    segment = "".join(lines[start - 1:end])
+    if not broken and (end != len(lines) or not _open_at_end(segment)):
+        return
+    i = broken[0] if broken else len(fields) - 1
+    column = f", column {header[i]}" if header is not None and 0 <= i < len(header) else ""
+    runs = ("to the end of the file" if end == start or _open_at_end(segment)
+            else f"on to row {end}, where a quote closes it")
+    raise InputError(f"{path}: row {start}{column}: a quote (\") opens a field that this row "
+                     f"does not close (the field runs {runs}); remove the quote or close it on "
+                     "this row")
+
+
+#: where the csv module ends a line (its ``line_num``)
+_LINE_BREAK = re.compile(r"(?<=\r\n)|(?<=\n)|(?<=\r)(?!\n)")
+
+
+def _open_at_end(segment: str) -> bool:
+    """Whether ``segment`` ends inside a quoted field (a closing quote would complete it)."""
+    def parses(t):
+        try:
+            list(csv.reader(io.StringIO(t, newline=""), strict=True))
+        except csv.Error:
+            return False
+        return True
+    return not parses(segment) and parses(segment + '"')
 
 
 def _check_separator(path, line: int, header: list[str]) -> None:
@@ -263,7 +309,8 @@ def _check_separator(path, line: int, header: list[str]) -> None:
         if any(sep in name for name in header):
             shown = ",".join(header)
             shown = shown if len(shown) <= 40 else shown[:37] + "..."
-            raise InputError(f"{path}: row {line}: the header {shown!r} looks {word}-separated; "
+            raise InputError(f"{path_text(path)}: "
+                             f"row {line}: the header {shown!r} looks {word}-separated; "
                              "pkmcal reads comma-separated values with '.' decimals (export "
                              "the table as CSV with ',' between fields and '.' as the decimal "
                              "mark)")
@@ -282,31 +329,35 @@ def find_column(path, header: list[str], base: str, quantity: str | None,
         if base in header:
             return header.index(base), 1.0
         if required:
-            raise InputError(f"{path}: missing column {base}; columns found: {', '.join(header)}")
+            raise InputError(f"{path_text(path)}: "
+                             f"missing column {base}; columns found: {', '.join(header)}")
         return None
     accepted = _suffixes(quantity)
     example = f"{base}_{accepted[0] if quantity != 'length' else 'mm'}"
     candidates = [i for i, n in enumerate(header) if n == base or n.startswith(base + "_")]
     if not candidates:
         if required:
-            raise InputError(f"{path}: missing column {base}_<unit> (e.g. {example}); columns "
+            raise InputError(f"{path_text(path)}: "
+                             f"missing column {base}_<unit> (e.g. {example}); columns "
                              f"found: {', '.join(header)}")
         return None
     if len(candidates) > 1:
         names = ", ".join(header[i] for i in candidates)
-        raise InputError(f"{path}: more than one column for {base}: {names}; keep one")
+        raise InputError(f"{path_text(path)}: more than one column for {base}: {names}; keep one")
     i = candidates[0]
     name = header[i]
     if name == base:
-        raise InputError(f"{path}: column {name!r} has no unit suffix: write {example} "
+        raise InputError(f"{path_text(path)}: column {name!r} has no unit suffix: write {example} "
                          f"(accepted units: {', '.join(accepted)})")
     unit = name[len(base) + 1:]
     if unit not in COLUMN_SUFFIXES:
-        raise InputError(f"{path}: column {name!r}: unknown unit suffix {unit!r} (accepted "
+        raise InputError(f"{path_text(path)}: "
+                         f"column {name!r}: unknown unit suffix {unit!r} (accepted "
                          f"for {quantity}: {', '.join(accepted)})")
     if COLUMN_SUFFIXES[unit] != quantity:
         other = COLUMN_SUFFIXES[unit]
-        raise InputError(f"{path}: column {name!r}: {unit!r} is {_a(other)} {other} unit, "
+        raise InputError(f"{path_text(path)}: "
+                         f"column {name!r}: {unit!r} is {_a(other)} {other} unit, "
                          f"{base} is {_a(quantity)} {quantity} (accepted: "
                          f"{', '.join(accepted)})")
     return i, QUANTITIES[quantity][unit]
@@ -314,7 +365,7 @@ def find_column(path, header: list[str], base: str, quantity: str | None,
 
 def parse_number(path, line: int, column: str, text: str) -> float:
     """A finite float from one CSV field, or :class:`InputError` naming file, row, column."""
-    where = f"{path}: row {line}, column {column}"
+    where = f"{path_text(path)}: row {line}, column {column}"
     if not text:
         raise InputError(f"{where}: empty value")
     try:
@@ -349,7 +400,8 @@ def _column_values(path, header, rows: list[Row], index: int, factor: float) -> 
         k = int(np.argmax(np.abs(values)))
         if not abs(values[k]) <= limit[0]:
             line, fields = rows[k]
-            raise InputError(f"{path}: row {line}, column {name}: {fields[index]} is out of "
+            raise InputError(f"{path_text(path)}: "
+                             f"row {line}, column {name}: {fields[index]} is out of "
                              f"range ({limit[1]})")
     return values
 
@@ -471,7 +523,8 @@ def read_passive(path, extra: dict, rows, n_joints: int) -> np.ndarray | None:
     for k, (line, text) in enumerate(zip(rows, values, strict=True)):
         v = parse_number(path, int(line), "passive", text)
         if v != int(v) or not 1 <= v <= n_joints:
-            raise InputError(f"{path}: row {line}, column passive: must be an actuator number "
+            raise InputError(f"{path_text(path)}: "
+                             f"row {line}, column passive: must be an actuator number "
                              f"1..{n_joints}, got {text!r}")
         out[k] = int(v) - 1
     return out
@@ -504,7 +557,8 @@ def read_constraint_link(path, machine) -> ConstraintLinkData:
     """
     if getattr(machine, "constraint_link_length", None) is None:
         source = getattr(machine, "source", "the machine")
-        raise InputError(f"{source}: constraint_link: the machine has no constraint-link "
+        raise InputError(f"{path_text(source)}: "
+                         "constraint_link: the machine has no constraint-link "
                          "length; add `constraint_link: {length: ...}` (in the file's length "
                          "unit) to the machine file")
     q, rows, extra, _ = machine_readings(path, machine)
@@ -552,7 +606,8 @@ def machine_readings(path, machine):
               if re.match(r"^q(\d+)(_|$)", name) and int(re.match(r"^q(\d+)", name).group(1))
               > machine.n_joints]
     if beyond:
-        raise InputError(f"{path}: column {beyond[0]}: the machine has {machine.n_joints} "
+        raise InputError(f"{path_text(path)}: "
+                         f"column {beyond[0]}: the machine has {machine.n_joints} "
                          f"joints (q1..q{machine.n_joints}); are these readings of another "
                          "machine?")
     if getattr(machine, "reading_unit", None) is not None:
@@ -599,13 +654,15 @@ def read_groups(path, extra: dict, rows, column: str, gaps: bool = False) -> np.
     for k, (line, text) in enumerate(zip(rows, values, strict=True)):
         v = parse_number(path, int(line), column, text)
         if v != int(v) or not 1 <= v <= 10_000:
-            raise InputError(f"{path}: row {line}, column {column}: must be a whole number "
+            raise InputError(f"{path_text(path)}: "
+                             f"row {line}, column {column}: must be a whole number "
                              f"1, 2, ... (which {column} the row belongs to), got {text!r}")
         out[k] = int(v) - 1
     missing = [] if gaps or not len(out) else \
         sorted(set(range(int(out.max()) + 1)) - set(out.tolist()))
     if missing:
-        raise InputError(f"{path}: column {column}: {column} {missing[0] + 1} has no row; "
+        raise InputError(f"{path_text(path)}: "
+                         f"column {column}: {column} {missing[0] + 1} has no row; "
                          f"number the {column}s 1..K without gaps (largest: {out.max() + 1})")
     return out
 
@@ -654,7 +711,7 @@ def _refuse_beyond(path, column: str, rows, values, limit: float, what: str,
     ``what`` on this machine (a wrong unit suffix, most often)."""
     bad = np.flatnonzero(values > limit)
     if bad.size:
-        raise InputError(f"{path}: row {rows[bad[0]]}, column {column}: "
+        raise InputError(f"{path_text(path)}: row {rows[bad[0]]}, column {column}: "
                          f"{values[bad[0]] * 1e3:.6g} mm is not plausible as {what}: more "
                          f"than {limit_words} ({limit * 1e3:.6g} mm); check the unit suffix")
 
@@ -691,7 +748,7 @@ def read_distances(path, machine):
     d = _column_values(path, header, table, i, f)
     bad = np.flatnonzero(~(d > 0))
     if bad.size:
-        raise InputError(f"{path}: row {rows[bad[0]]}, column {header[i]}: a measured "
+        raise InputError(f"{path_text(path)}: row {rows[bad[0]]}, column {header[i]}: a measured "
                          f"distance must be > 0, got {table[bad[0]][1][i]!r}")
     _refuse_beyond(path, header[i], rows, d, 10 * machine.characteristic_length(),
                    "a ballbar length", "10 x the machine's size")
@@ -735,7 +792,8 @@ def read_probe(path, machine):
     _refuse_beyond(path, header[i], rows, np.abs(h), machine.characteristic_length(),
                    "a probe height above the bed", "the machine's size")
     if len(h) < 3:
-        raise InputError(f"{path}: {len(h)} probe height(s); the bed plane (height and tilt) "
+        raise InputError(f"{path_text(path)}: "
+                         f"{len(h)} probe height(s); the bed plane (height and tilt) "
                          "needs at least 3 points not on one line")
     return InstrumentData("probe", q, h[:, None], None, rows, source=str(path))
 
@@ -813,7 +871,8 @@ def adopt_reading_unit(machine, unit: str, path) -> None:
     if getattr(machine, "joint_limits", None) is not None and (unit in LENGTH) != (
             machine.reading_unit in LENGTH):
         source = getattr(machine, "source", None) or "the machine file"
-        raise InputError(f"{path}: columns {_span_of(unit, machine.n_joints)} read in {unit}, but "
+        raise InputError(f"{path_text(path)}: "
+                         f"columns {_span_of(unit, machine.n_joints)} read in {unit}, but "
                          f"the joint_limits of {source} are leg lengths in "
                          f"{machine.reading_unit} (it declares no readings unit); add readings: "
                          f"{{unit: {unit}}} and give joint_limits in {unit}")
@@ -836,9 +895,9 @@ def _declared_text(machine) -> str:
     adopted = getattr(machine, "reading_unit_from", None)
     if adopted is not None:
         return (f"the legs of {source} read in {unit} (the unit of {adopted}, which set it: "
-                f"{source} declares no readings unit)")
+                f"{path_text(source)} declares no readings unit)")
     what = " (leg lengths)" if unit in LENGTH else ""
-    return f"{source} declares readings: {{unit: {unit}}}{what}"
+    return f"{path_text(source)} declares readings: {{unit: {unit}}}{what}"
 
 
 def _reading_columns(path, header: list[str], machine) -> list[tuple[int, float]]:
@@ -859,19 +918,21 @@ def _reading_columns(path, header: list[str], machine) -> list[tuple[int, float]
         if len(words) > 1 or (words and len(present) > len([x for x in present
                                                                if x in words])):
             shown = ", ".join(f"q{j + 1}_{x}" for j, x in enumerate(suffixes) if x is not None)
-            raise InputError(f"{path}: columns {shown}: the leg readings must share one unit "
+            raise InputError(f"{path_text(path)}: "
+                             f"columns {shown}: the leg readings must share one unit "
                              f"(the machine file declares none, so the column suffix is the "
                              f"reading unit); rename the columns")
         if common is not None and common not in LENGTH:
             if not re.match(r"^[A-Za-z][A-Za-z0-9]*$", common):
-                raise InputError(f"{path}: columns {_span_of(common, n)}: {common!r} is not a "
+                raise InputError(f"{path_text(path)}: "
+                                 f"columns {_span_of(common, n)}: {common!r} is not a "
                                  "reading unit (one word of letters and digits, e.g. q1_rev)")
             adopt_reading_unit(machine, common, path)
             unit = common
     if common is not None and (common in LENGTH) != (unit in LENGTH) or (
             common is not None and common not in LENGTH and common != unit):
         lengths = " (or another length unit: mm, m, um)" if unit in LENGTH else ""
-        raise InputError(f"{path}: columns {_span_of(common, n)} are in {common} but "
+        raise InputError(f"{path_text(path)}: columns {_span_of(common, n)} are in {common} but "
                          f"{_declared_text(machine)}; rename the columns to "
                          f"{_span_of(unit, n)}{lengths} or change readings.unit")
     if unit in LENGTH:
@@ -885,7 +946,8 @@ def _reading_columns(path, header: list[str], machine) -> list[tuple[int, float]
             continue
         others = [h for h in header if h == f"q{j + 1}" or h.startswith(f"q{j + 1}_")]
         found = f" (found {', '.join(others)})" if others else ""
-        raise InputError(f"{path}: missing column {name}{found}: the legs of {source} read in "
+        raise InputError(f"{path_text(path)}: "
+                         f"missing column {name}{found}: the legs of {source} read in "
                          f"{unit} (machine file key readings: {{unit: {unit}}}); columns found: "
                          f"{', '.join(header)}")
     return out
@@ -1008,7 +1070,8 @@ def read_positions(path, orientation_tol: float = 1e-9):
         angle = np.arccos(np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1, 1))
         bad = np.flatnonzero(angle > orientation_tol)
         if bad.size:
-            raise InputError(f"{path}: row {lines[bad[0]]}: the orientation columns describe a "
+            raise InputError(f"{path_text(path)}: "
+                             f"row {lines[bad[0]]}: the orientation columns describe a "
                              f"rotation of {np.degrees(angle[bad[0]]):.6g} deg, but this "
                              "platform does not rotate (translation only): give x, y, z only "
                              "or zero angles")
@@ -1066,25 +1129,28 @@ def _read_poses(path):
     quat = [find_column(path, header, c, None, required=False) for c in ("qx", "qy", "qz", "qw")]
     has_euler, has_quat = any(e is not None for e in euler), any(c is not None for c in quat)
     if has_euler and has_quat:
-        raise InputError(f"{path}: both Euler-angle (psi, theta, phi) and quaternion (qx, qy, "
+        raise InputError(f"{path_text(path)}: "
+                         "both Euler-angle (psi, theta, phi) and quaternion (qx, qy, "
                          "qz, qw) columns: keep one orientation")
     if has_quat:
         missing = [n for n, c in zip(("qx", "qy", "qz", "qw"), quat, strict=True) if c is None]
         if missing:
-            raise InputError(f"{path}: missing column(s) {', '.join(missing)} of the quaternion "
+            raise InputError(f"{path_text(path)}: "
+                             f"missing column(s) {', '.join(missing)} of the quaternion "
                              "qx, qy, qz, qw")
         Q = np.column_stack([_column_values(path, header, rows, *c) for c in quat])
         with np.errstate(over="ignore"):            # 1e300: an infinite norm, refused below
             norm = np.linalg.norm(Q, axis=1)
         bad = np.flatnonzero(norm < 1e-9)
         if bad.size:
-            raise InputError(f"{path}: row {lines[bad[0]]}, columns qx, qy, qz, qw: the "
+            raise InputError(f"{path_text(path)}: row {lines[bad[0]]}, columns qx, qy, qz, qw: the "
                              "quaternion is zero")
         bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOL)
         if bad.size:
             k = bad[0]
             more = f" (and {bad.size - 1} more row(s))" if bad.size > 1 else ""
-            raise InputError(f"{path}: row {lines[k]}, columns qx, qy, qz, qw: the quaternion "
+            raise InputError(f"{path_text(path)}: "
+                             f"row {lines[k]}, columns qx, qy, qz, qw: the quaternion "
                              f"has norm {norm[k]:.6g}, not 1{more}: a rotation is a unit "
                              f"quaternion (accepted within {QUATERNION_NORM_TOL:g}); check "
                              "the columns and their order (qx, qy, qz, then the scalar qw)")
@@ -1097,7 +1163,8 @@ def _read_poses(path):
         R = matrix_from_euler(angles)
         e_units = _one_unit([header[i] for i, _ in euler], ["psi", "theta", "phi"], "angle")
     else:
-        raise InputError(f"{path}: missing orientation columns: psi_deg, theta_deg, phi_deg "
+        raise InputError(f"{path_text(path)}: "
+                         "missing orientation columns: psi_deg, theta_deg, phi_deg "
                          f"(or _rad) or qx, qy, qz, qw; columns found: {', '.join(header)}")
     return P, R, lines, p_units, angles, e_units
 
@@ -1486,7 +1553,8 @@ def read_declared(instrument, path, machine):
         v = _column_values(path, header, table, i, f)
         bad = np.flatnonzero(~(v > 0)) if instrument.positive_values else []
         if len(bad):
-            raise InputError(f"{path}: row {rows[bad[0]]}, column {header[i]}: a {name} must "
+            raise InputError(f"{path_text(path)}: "
+                             f"row {rows[bad[0]]}, column {header[i]}: a {name} must "
                              "be > 0")
         values.append(v)
     return instrument.from_columns(readings, np.column_stack(values), rows, str(path))

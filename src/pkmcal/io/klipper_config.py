@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..paths import file_identity
 
 #: the distance of one (micro)step a stepper can have, mm (a nanometre to a millimetre)
 STEP_RANGE = (1e-6, 1.0)
@@ -136,7 +137,7 @@ class KlipperConfig:
         return cfg
 
     def _parse(self, text: str, path: Path, visited: set, top: bool = False) -> None:
-        key = str(path.resolve()) if path.exists() else str(path)
+        key = file_identity(path)       # the same file by any name (links, ./x)
         if key in visited:
             raise InputError(f"{path}: included again from itself (recursive [include])")
         visited.add(key)

@@ -76,6 +76,7 @@ a few ulp, and writes atomically (:func:`~pkmcal.io.atomic.atomic_write_text`).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime as _dt
 import functools
@@ -113,6 +114,7 @@ from ..machines.file_format import (
 )
 from ..machines.file_format import show as _show
 from ..machines.registry import machine_formats as registered_machine_formats
+from ..paths import path_text
 from .atomic import atomic_write_text, read_input_text
 
 FORMAT_VERSION = 1
@@ -252,25 +254,28 @@ def _parse_yaml(text: str, source: str):
         loader = _Loader(text)
     except yaml.YAMLError as exc:       # e.g. a control character: the reader refuses it
         reason = " ".join(str(exc).split())
-        raise InputError(f"{source}: not a YAML text file: {reason}") from None
+        raise InputError(f"{path_text(source)}: not a YAML text file: {reason}") from None
     try:
         node = loader.get_single_node()
         if node is None:
-            raise InputError(f"{source}: the file is empty (expected a machine description "
+            raise InputError(f"{path_text(source)}: "
+                             "the file is empty (expected a machine description "
                              "starting with 'pkmcal: 1')")
         data = loader.construct_document(node)
     except _Refused as exc:
         line = exc.problem_mark.line + 1
-        raise InputError(f"{source}: {exc.context}: {exc.problem} (line {line})") from None
+        raise InputError(f"{path_text(source)}: "
+                         f"{exc.context}: {exc.problem} (line {line})") from None
     except RecursionError:       # not reached within MAX_YAML_DEPTH; never a traceback
-        raise InputError(f"{source}: nested too deeply to be a machine file") from None
+        raise InputError(f"{path_text(source)}: nested too deeply to be a machine file") from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
         what = exc.problem or exc.context or "invalid YAML"
-        raise InputError(f"{source}: {where}YAML syntax error: {what}") from None
+        raise InputError(f"{path_text(source)}: {where}YAML syntax error: {what}") from None
     except yaml.YAMLError as exc:
-        raise InputError(f"{source}: YAML syntax error: {' '.join(str(exc).split())}") from None
+        raise InputError(f"{path_text(source)}: "
+                         f"YAML syntax error: {' '.join(str(exc).split())}") from None
     finally:
         loader.dispose()
     return data, _line_map(node)
@@ -511,13 +516,52 @@ def _check_magnitudes(data: dict, doc, fmt: MachineFormat, source: str, lines: d
                           f"{lu})" if relative else f"{MAX_LENGTH / 1000:g} km"))
         if problem is not None:
             line = _line_of(lines, path)
-            raise InputError(f"{source}: {_key_path(path)}: {problem}"
-                             + (f" (line {line})" if line else ""))
+            raise MachineFileError(f"{path_text(source)}: {_key_path(path)}: {problem}"
+                                   + (f" (line {line})" if line else ""), path, problem,
+                                   "magnitude")
 
 
 # --------------------------------------------------------------------------------------------
 # Validation errors in words
 # --------------------------------------------------------------------------------------------
+
+
+class MachineFileError(InputError):
+    """A machine file's value that is wrong, with the key path and the problem kept apart
+    (the message is ``FILE: key.path: what (line N)``): a reader of another format that
+    writes a machine file (``pkmcal import``) names its own file's key instead.
+
+    Attributes
+    ----------
+    key : tuple
+        The key path (``("position_endstop", 0)``).
+    what : str
+        The problem in words, without the file, key and line.
+    stage : str
+        ``"schema"``, ``"magnitude"``, ``"geometry"`` or ``"joint_limits"``.
+    """
+
+    def __init__(self, message: str, key: tuple = (), what: str = "", stage: str = ""):
+        super().__init__(message)
+        self.key = tuple(key)
+        self.what = what or message
+        self.stage = stage
+
+
+def key_path_text(loc) -> str:
+    """A key path as messages write it: ``legs[2].dtheta`` (list indices 0-based).
+
+    Parameters
+    ----------
+    loc : sequence of str or int
+        The key path.
+
+    Returns
+    -------
+    str
+        The path in words (``(top level)`` for an empty one).
+    """
+    return _key_path(loc)
 
 
 def _key_path(loc) -> str:
@@ -574,6 +618,15 @@ _LIST_SECTIONS = {
 }
 
 
+def _not_a_number(value) -> str:
+    """``not a number: 'abc'``; a number written as text (in quotes) says so."""
+    if isinstance(value, str):
+        with contextlib.suppress(ValueError):
+            float(value)
+            return f"not a number: the text {_show(value)} (write it without quotes)"
+    return f"not a number: {_show(value)}"
+
+
 def _describe(err: dict, fmt: MachineFormat) -> str:
     schema, counts = fmt.schema, fmt.counts
     kind, loc, value = err["type"], err["loc"], err.get("input")
@@ -588,7 +641,7 @@ def _describe(err: dict, fmt: MachineFormat) -> str:
         allowed = f" (allowed here: {', '.join(model.model_fields)})" if model else ""
         return "unknown key" + allowed
     if kind in ("float_type", "float_parsing", "int_type"):
-        return f"not a number: {_show(value)}"
+        return _not_a_number(value)
     if kind == "finite_number":
         return f"must be a finite number, got {_show(value)}"
     if kind == "greater_than":
@@ -642,7 +695,7 @@ def _validation_message(exc: ValidationError, source: str, lines: dict,
         where = f" (line {line})" if line else ""
         parts.append(f"{_key_path(loc)}: {_describe(err, fmt)}{where}")
     more = f"; and {len(errors) - 3} more problem(s)" if len(errors) > 3 else ""
-    return f"{source}: " + "; ".join(parts) + more
+    return f"{path_text(source)}: " + "; ".join(parts) + more
 
 
 # --------------------------------------------------------------------------------------------
@@ -669,31 +722,44 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     ------
     InputError
         For invalid YAML, a missing or unsupported ``pkmcal`` version, an unknown machine
-        type, or a schema error (``FILE: key.path: what is wrong (line N)``).
+        type, or a schema error (``FILE: key.path: what is wrong (line N)``); a problem of
+        a value (schema, magnitude, geometry, joint limits) is a :class:`MachineFileError`
+        that keeps the key path and the problem apart.
     """
     data, lines = _parse_yaml(text, source)
     if not isinstance(data, dict):
-        raise InputError(f"{source}: expected a mapping of keys (pkmcal: 1, machine: ..., "
+        raise InputError(f"{path_text(source)}: "
+                         "expected a mapping of keys (pkmcal: 1, machine: ..., "
                          f"units: ...), got {type(data).__name__}")
     if "pkmcal" not in data:
-        raise InputError(f"{source}: pkmcal: missing key ({_HINTS['pkmcal']})")
+        raise InputError(f"{path_text(source)}: pkmcal: missing key ({_HINTS['pkmcal']})")
     version = data["pkmcal"]
-    if type(version) is not int or version != FORMAT_VERSION:
-        raise InputError(f"{source}: pkmcal: unsupported file format version {_show(version)} "
-                         f"(line {lines.get(('pkmcal',), '?')}); this pkmcal reads version "
-                         f"{FORMAT_VERSION}")
+    line = lines.get(("pkmcal",), "?")
+    if type(version) is not int:
+        # the version as text ("1" in quotes), 1.0 or true: not the number the format has
+        quoted = isinstance(version, str) and version.strip() == str(FORMAT_VERSION)
+        got = (f"the text {_show(version)}" if isinstance(version, str) else _show(version))
+        raise InputError(f"{source}: pkmcal: the file format version must be the number "
+                         f"{FORMAT_VERSION}, not {got} (line {line}); write pkmcal: "
+                         f"{FORMAT_VERSION}" + (" without quotes" if quoted else ""))
+    if version != FORMAT_VERSION:
+        raise InputError(f"{source}: pkmcal: unsupported file format version {version} "
+                         f"(line {line}); this pkmcal reads version {FORMAT_VERSION}")
     known = ", ".join(MACHINE_FORMATS)
     if "machine" not in data:
-        raise InputError(f"{source}: machine: missing key (the machine type, one of: {known})")
+        raise InputError(f"{path_text(source)}: "
+                         f"machine: missing key (the machine type, one of: {known})")
     kind = data["machine"]
     if not isinstance(kind, str) or kind not in MACHINE_FORMATS:
-        raise InputError(f"{source}: machine: unknown machine type {_show(kind)} (line "
+        raise InputError(f"{path_text(source)}: machine: unknown machine type {_show(kind)} (line "
                          f"{lines.get(('machine',), '?')}); known types: {known}")
     fmt = MACHINE_FORMATS[kind]
     try:
         doc = fmt.schema.model_validate(data)
     except ValidationError as exc:
-        raise InputError(_validation_message(exc, source, lines, fmt)) from None
+        first = exc.errors()[0]
+        raise MachineFileError(_validation_message(exc, source, lines, fmt), first["loc"],
+                               _describe(first, fmt), "schema") from None
     _check_magnitudes(data, doc, fmt, source, lines)
     with np.errstate(all="ignore"):         # no numpy warning ever reaches the user
         machine = fmt.build(doc, source)
@@ -702,8 +768,8 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     if problems:
         key, what = problems[0]
         line = _line_of(lines, key)
-        raise InputError(f"{source}: {_key_path(key)}: {what}"
-                         + (f" (line {line})" if line else ""))
+        raise MachineFileError(f"{path_text(source)}: {_key_path(key)}: {what}"
+                               + (f" (line {line})" if line else ""), key, what, "geometry")
     machine.joint_limits = _joint_limits(data.get("joint_limits"), machine, source, lines)
     machine.source = source
     machine.calibration_info = doc.calibration
@@ -727,8 +793,9 @@ def _joint_limits(value, machine: Machine, source: str, lines: dict):
 
     def fail(path: tuple, what: str):
         line = _line_of(lines, path)
-        raise InputError(f"{source}: {_key_path(path)}: {what}"
-                         + (f" (line {line})" if line else ""))
+        raise MachineFileError(f"{path_text(source)}: {_key_path(path)}: {what}"
+                               + (f" (line {line})" if line else ""), path, what,
+                               "joint_limits")
 
     if not isinstance(value, dict):
         fail(("joint_limits",), f"expected a mapping, got {_show(value)}; write {form}")
@@ -747,7 +814,7 @@ def _joint_limits(value, machine: Machine, source: str, lines: dict):
         for i, x in enumerate(items):
             path = ("joint_limits", key) + ((i,) if isinstance(v, list) else ())
             if isinstance(x, bool) or not isinstance(x, (int, float)):
-                fail(path, f"not a number: {_show(x)}")
+                fail(path, _not_a_number(x))
             if not np.isfinite(x):
                 fail(path, f"must be a finite number, got {_show(x)}")
         sides.append(np.broadcast_to(np.asarray(items, float), (n,)) * factor)

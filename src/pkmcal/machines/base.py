@@ -144,6 +144,73 @@ class ModelExtension:
     apply: Callable
 
 
+@dataclass
+class PhysicalLimit:
+    """A limit of a machine's own hardware that poses must keep (a carriage cannot rise above
+    its endstop, a nozzle cannot go below the bed); stated by each machine type in its own
+    module (:meth:`Machine.physical_limits`).
+
+    Attributes
+    ----------
+    excess : ndarray, shape (K,)
+        How far past the limit each pose is, internal units (m or rad); 0 or below where the
+        pose keeps it, NaN where it cannot be told (no real inverse kinematics).
+    words : str
+        The violation in words, with ``{amount}`` for the excess in the user's units, e.g.
+        ``"the carriage of tower 1 would be {amount} above its endstop"``.
+    quantity : str, optional
+        ``"length"`` or ``"angle"``: the unit ``{amount}`` is shown in.
+    joint : int or None, optional
+        The 0-based joint the limit bounds (its value is shown beside the words), or None.
+    """
+
+    excess: np.ndarray
+    words: str
+    quantity: str = "length"
+    joint: int | None = None
+
+
+@dataclass
+class Reachability:
+    """Which poses a machine can take, and why each other one cannot
+    (:meth:`Machine.reachability`).
+
+    Attributes
+    ----------
+    ok : ndarray of bool, shape (K,)
+        True where the pose is reachable: real inverse kinematics, in home's working mode,
+        within the machine's physical limits and its ``joint_limits``.
+    q : ndarray, shape (K, n_joints)
+        Joint values, internal units; NaN where there is no real inverse kinematics.
+    reasons : dict
+        0-based pose index -> why that pose cannot be reached (the joint and by how much past
+        its limit, in the machine file's units), for every pose that is not ``ok``.
+    limits_only : ndarray of bool, shape (K,)
+        Poses the machine could take but for the machine file's ``joint_limits`` (the joint
+        values are real, in the working mode, within the physical limits).
+    """
+
+    ok: np.ndarray
+    q: np.ndarray
+    reasons: dict
+    limits_only: np.ndarray
+
+    @property
+    def unreachable(self) -> np.ndarray:
+        """0-based indices of the poses that cannot be reached, ascending.
+
+        Returns
+        -------
+        ndarray of int
+            The indices.
+        """
+        return np.flatnonzero(~self.ok)
+
+
+#: a pose past a physical limit by at most this (m; rad for angles) still keeps it (rounding)
+PHYSICAL_LIMIT_TOLERANCE = 1e-9
+
+
 class Machine(ABC):
     """A parallel kinematic machine with geometric error parameters.
 
@@ -666,6 +733,188 @@ class Machine(ABC):
             parts.append(f"row {int(rows[k])}: " + ", ".join(joints))
         more = f"; and {which.size - limit} more row(s)" if which.size > limit else ""
         return "; ".join(parts) + more
+
+    # -- reachability ---------------------------------------------------------------------
+    def physical_limits(self, P, R, q, u=None) -> list[PhysicalLimit]:
+        """The limits of the machine's own hardware at poses, beyond real inverse kinematics
+        and the file's ``joint_limits`` (a linear Delta's endstops and bed); none by default.
+
+        Each machine type states its own in its module; :meth:`reachability` applies them.
+
+        Parameters
+        ----------
+        P : ndarray, shape (K, 3)
+            Platform positions, m (base frame).
+        R : ndarray, shape (K, 3, 3)
+            Platform orientations.
+        q : ndarray, shape (K, n_joints)
+            Joint values at the poses (internal units; NaN where unreachable).
+        u : array_like, shape (n_params,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        list of PhysicalLimit
+            One per limit, with each pose's excess.
+        """
+        return []
+
+    def within_physical_limits(self, P, R, q=None, u=None) -> np.ndarray:
+        """Where poses keep the machine's physical limits (:meth:`physical_limits`).
+
+        Parameters
+        ----------
+        P : array_like, shape (K, 3)
+            Platform positions, m (base frame).
+        R : array_like, shape (K, 3, 3)
+            Platform orientations.
+        q : array_like, shape (K, n_joints), optional
+            Joint values at the poses when already computed.
+        u : array_like, shape (n_params,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        ndarray of bool, shape (K,)
+            False where a pose is past a limit (NaN excesses, unreachable poses, count as
+            within: :meth:`ik` tells those).
+        """
+        P = np.asarray(P, float).reshape(-1, 3)
+        ok = np.ones(len(P), bool)
+        with np.errstate(all="ignore"):
+            limits = self.physical_limits(P, R, self.ik(P, R, u) if q is None else q, u)
+        for limit in limits:
+            ok &= ~(np.asarray(limit.excess, float) > PHYSICAL_LIMIT_TOLERANCE)
+        return ok
+
+    def _amount_text(self, x: float, quantity: str) -> str:
+        """A length or angle for a message, in the machine file's unit when known."""
+        from ..units import ANGLE, LENGTH
+
+        units = getattr(self, "file_units", None) or {"length": "m", "angle": "rad"}
+        unit = units.get(quantity, "m" if quantity == "length" else "rad")
+        f = (LENGTH if quantity == "length" else ANGLE).get(unit, 1.0)
+        return f"{float(x) / f:.6g} {unit}"
+
+    def pose_text(self, P, R=None) -> str:
+        """A pose for a message, in the machine file's units: ``"(0, 0, 400) mm"``, with the
+        Euler angles for a platform that rotates (``"..., psi 0 theta 5 phi 0 deg"``).
+
+        Parameters
+        ----------
+        P : array_like, shape (3,)
+            Position, m.
+        R : array_like, shape (3, 3), optional
+            Orientation (shown for a platform that rotates).
+
+        Returns
+        -------
+        str
+            The pose in words.
+        """
+        from ..kinematics import euler_from_matrix
+        from ..units import ANGLE, LENGTH
+
+        units = getattr(self, "file_units", None) or {"length": "m", "angle": "rad"}
+        fl = LENGTH.get(units.get("length", "m"), 1.0)
+        text = ("(" + ", ".join(f"{float(v) / fl + 0.0:.6g}" for v in np.asarray(P, float)[:3])
+                + f") {units.get('length', 'm')}")
+        if R is not None and self.rotates:
+            fa = ANGLE.get(units.get("angle", "rad"), 1.0)
+            angles = euler_from_matrix(np.asarray(R, float)) / fa
+            text += ", " + " ".join(f"{n} {a + 0.0:.6g}" for n, a in zip(
+                ("psi", "theta", "phi"), angles, strict=True)) + f" {units.get('angle', 'rad')}"
+        return text
+
+    def reachability(self, P, R=None, u=None) -> Reachability:
+        """Which poses the machine can take, and why not: the one test every command that
+        takes targets or a workspace applies.
+
+        A pose is reachable when its inverse kinematics is real, it is in home's working mode
+        (:meth:`working_mode`), it keeps the machine's own physical limits
+        (:meth:`physical_limits`: a linear Delta's carriages below their endstops and its
+        nozzle above the bed) and its joint values lie within the machine file's
+        ``joint_limits``. For each other pose the first failed test is given in words: the
+        chain or joint, and by how much it is past its limit, in the file's units.
+
+        Parameters
+        ----------
+        P : array_like, shape (K, 3) or (3,)
+            Platform positions, m (base frame).
+        R : array_like, shape (K, 3, 3) or (3, 3), optional
+            Platform orientations; default the identity.
+        u : array_like, shape (n_params,), optional
+            Parameter vector (internal units); default: :attr:`u`.
+
+        Returns
+        -------
+        Reachability
+            Per pose: reachable or not, the joint values and the reasons.
+        """
+        P = np.asarray(P, float).reshape(-1, 3)
+        K = len(P)
+        R = np.broadcast_to(np.eye(3), (K, 3, 3)) if R is None else \
+            np.broadcast_to(np.asarray(R, float), (K, 3, 3))
+        with np.errstate(all="ignore"):
+            q = np.asarray(self.ik(P, R, u), float).reshape(K, self.n_joints)
+            real = np.all(np.isfinite(q), axis=-1)
+            mode = self.working_mode(P, R, u) & real
+            limits = self.physical_limits(P, R, q, u)
+            past = [np.asarray(lim.excess, float) > PHYSICAL_LIMIT_TOLERANCE
+                    for lim in limits]
+            outside = self.limit_violations(q)
+        physical = mode.copy()
+        for p in past:
+            physical &= ~p
+        ok = physical & ~np.any(outside, axis=-1)
+        reasons = {}
+        result = Reachability(ok, q, reasons, physical & ~ok)
+        if ok.all():
+            return result
+        unit, f = self.joint_unit()
+        P0 = np.asarray(self.home[0], float)
+        far = self.MAX_REACH * self.characteristic_length()
+        for k in np.flatnonzero(~ok):
+            k = int(k)
+            if not real[k]:
+                chains = np.flatnonzero(~np.isfinite(q[k])) + 1
+                reasons[k] = (f"no real inverse kinematics ({self.chain_word}(s) "
+                              f"{', '.join(map(str, chains))} cannot span the distance)")
+                continue
+            hit = [i for i, p in enumerate(past) if p[k]]
+            if hit:
+                parts = []
+                for i in hit:
+                    lim = limits[i]
+                    text = lim.words.format(amount=self._amount_text(lim.excess[k],
+                                                                     lim.quantity))
+                    if lim.joint is not None:
+                        text += f" (q{lim.joint + 1} = {q[k, lim.joint] / f:.6g} {unit})"
+                    parts.append(text)
+                reasons[k] = "; ".join(parts)
+                continue
+            if outside[k].any():
+                lo, hi = (np.asarray(v, float) / f for v in self.joint_limits)
+                parts = []
+                for j in np.flatnonzero(outside[k]):
+                    v = q[k, j] / f
+                    side = (f"{lo[j] - v:.6g} {unit} below its min {lo[j]:.6g} {unit}"
+                            if v < lo[j] else f"{v - hi[j]:.6g} {unit} above its max "
+                            f"{hi[j]:.6g} {unit}")
+                    parts.append(f"q{j + 1} = {v:.6g} {unit}, {side}")
+                reasons[k] = ("outside the joint limits of "
+                              f"{getattr(self, 'source', None) or 'the machine file'}: "
+                              + ", ".join(parts))
+                continue
+            d = float(np.linalg.norm(P[k] - P0))
+            if not d <= far:
+                reasons[k] = (f"{self._amount_text(d, 'length')} from home, farther than "
+                              f"{self.MAX_REACH:g}x the machine's size "
+                              f"({self._amount_text(far, 'length')})")
+            else:
+                reasons[k] = ("beyond a singularity from home (another working or assembly "
+                              "mode, e.g. mirrored through the base)")
+        return result
 
     #: a commanded pose farther than this many characteristic lengths from home is not meant
     MAX_REACH = 10.0

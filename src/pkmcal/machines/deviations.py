@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..paths import path_text
+
 #: half-width of random deviations of ratio parameters (gains), relative to their value
 RATIO_DEVIATION = 1e-3
 
@@ -96,7 +98,7 @@ def draw_accepted(draw, n: int, rng, failure: str, rounds: int = 50, machine=Non
         with np.errstate(all="ignore"):
             home = np.asarray(machine.ik(*machine.home), float).reshape(-1) / f
         raise InputError(
-            f"{source}: " + ("no pose" if have == 0 else f"only {have} of {n} poses")
+            f"{path_text(source)}: " + ("no pose" if have == 0 else f"only {have} of {n} poses")
             + f" within the joint limits ({machine.joint_limits_text()}) could be drawn: "
             f"{outside} drawn pose(s) the machine reaches need joint values outside them; "
             f"widen joint_limits or check them against the joint values at home ("

@@ -441,8 +441,8 @@ class LinearDelta(Machine):
         Half the points lie on the bed (the plane of :attr:`probe_bed`, z = 0 without one)
         within the print radius (:attr:`print_radius`; else the probing radius, else the
         reachable disk of the probe instrument), half in the cylinder above it up to
-        :attr:`PRINT_HEIGHT` (at most the radius); points the machine cannot reach are
-        dropped.
+        :attr:`PRINT_HEIGHT` (at most the radius); points the machine cannot reach (no
+        real inverse kinematics, past its endstops, :meth:`physical_limits`) are dropped.
 
         Parameters
         ----------
@@ -473,7 +473,8 @@ class LinearDelta(Machine):
         P = np.column_stack([x, y, z + bed[0] + bed[1] * x + bed[2] * y])
         R = np.broadcast_to(np.eye(3), (n, 3, 3))
         with np.errstate(all="ignore"):
-            ok = np.all(np.isfinite(self.ik(P, R)), axis=-1)
+            q = self.ik(P, R)
+            ok = np.all(np.isfinite(q), axis=-1) & self.within_physical_limits(P, R, q)
         surface = np.arange(n) < m
         P, surface = P[ok], surface[ok]
         if not surface.any():
@@ -580,6 +581,11 @@ class LinearDelta(Machine):
             return [(("home",), "the position cannot be reached by tower(s) "
                      f"{', '.join(str(i + 1) for i in bad)} (the arm cannot span the distance "
                      "from the tower to the effector); check home and the dimensions")]
+        reach = self.reachability(*self.home)
+        if not reach.ok[0] and home_given:
+            return [(("home",), f"the nozzle at {self.pose_text(self.home[0])} cannot be "
+                     f"reached: {reach.reasons[0]} (home must lie between the bed and the "
+                     "endstops, which are the top of the carriages' travel)")]
         if singular:
             return [(("home",) if home_given else ("tower_angles",),
                      "the three arms do not hold the effector "
@@ -587,6 +593,62 @@ class LinearDelta(Machine):
                      + ": the joint Jacobian is singular there (e.g. the towers on one line); "
                      "check the tower angles" + (" and home" if home_given else ""))]
         return []
+
+    # -- physical limits ------------------------------------------------------------------
+    def bed_z(self, P) -> np.ndarray:
+        """Height of the bed below nozzle positions, base frame: the calibrated file's bed
+        plane (:attr:`probe_bed`) or :attr:`bed_height`.
+
+        Parameters
+        ----------
+        P : array_like, shape (K, 3)
+            Nozzle positions, m.
+
+        Returns
+        -------
+        ndarray, shape (K,)
+            The bed's z under each position, m.
+        """
+        P = np.asarray(P, float).reshape(-1, 3)
+        bed = getattr(self, "probe_bed", None)
+        if bed is None:
+            return np.full(len(P), float(self.bed_height))
+        h, tx, ty = (float(v) for v in bed)
+        return h + tx * P[:, 0] + ty * P[:, 1]
+
+    def physical_limits(self, P, R, q, u=None) -> list:
+        """A printer's own limits: each carriage at or below its endstop (``q_i >= 0``: the
+        joint reads the travel down from the endstop, the endstop is the top of the tower)
+        and the nozzle at or above the bed (below it the carriages would drive the nozzle
+        into the bed; the arms' geometry ends there for printing).
+
+        Parameters
+        ----------
+        P : ndarray, shape (K, 3)
+            Nozzle positions, m (base frame).
+        R : ndarray, shape (K, 3, 3)
+            Ignored (translation-only effector).
+        q : ndarray, shape (K, 3)
+            Carriage travels down from the endstops at ``P``, m.
+        u : array_like, shape (20,), optional
+            Unused: the endstops are where ``q = 0`` whatever the parameters.
+
+        Returns
+        -------
+        list of PhysicalLimit
+            Three endstop limits (excess ``-q_i``) and the bed (excess: the bed's height
+            minus the nozzle's).
+        """
+        from .base import PhysicalLimit
+
+        P = np.asarray(P, float).reshape(-1, 3)
+        q = np.asarray(q, float).reshape(-1, 3)
+        limits = [PhysicalLimit(-q[:, i], f"tower {i + 1}'s carriage {{amount}} above "
+                                "its endstop", joint=i)
+                  for i in range(3)]
+        limits.append(PhysicalLimit(self.bed_z(P) - P[:, 2],
+                                    "the nozzle {amount} below the bed"))
+        return limits
 
     # -- kinematics -----------------------------------------------------------------------
     def ik_jacobians(self, P, R=None, u=None, want_du: bool = True):

@@ -3,6 +3,7 @@ point reaches within its limits, well conditioned (probe plans, a printer's prin
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,7 +88,8 @@ def bed_centre(machine: Machine) -> np.ndarray:
 
 
 def _probe_ok(machine: Machine, P, R) -> np.ndarray:
-    """Probe points the machine reaches, within its limits, well conditioned, working mode."""
+    """Probe points the machine reaches, within its physical and joint limits, well
+    conditioned, in the working mode."""
     with np.errstate(all="ignore"):
         q, J, _ = machine.ik_jacobians(P, R, want_du=False)
         space = list(machine.pose_space)
@@ -97,6 +99,7 @@ def _probe_ok(machine: Machine, P, R) -> np.ndarray:
         sv = np.linalg.svd(np.where(ok[:, None, None], J, 1.0), compute_uv=False)
         ok &= sv[..., -1] > PROBE_CONDITIONING * sv[..., 0]
         ok &= machine.working_mode(P, R)
+        ok &= machine.within_physical_limits(P, R, q)
         if getattr(machine, "joint_limits", None) is not None and ok.any():
             ok[ok] = machine.within_limits(q[ok])
     return ok
@@ -108,6 +111,29 @@ def _bed_points(machine: Machine, xy):
     xy = np.atleast_2d(np.asarray(xy, float))
     P = np.column_stack([xy, np.full(len(xy), bed_height(machine))])
     return P, np.broadcast_to(machine.home[1], (len(P), 3, 3)).copy()
+
+
+def _centre_unprobed(machine: Machine, centre) -> str:
+    """Why the bed's centre cannot be probed, for a message: the joint limits when the
+    centre is reached, well conditioned, but needs joint values outside them (the cause to
+    fix is then ``joint_limits``, not the bed or home); else out of reach or badly
+    conditioned."""
+    where = str(getattr(machine, "source", "") or "the machine")
+    point = (f"the bed's centre ({centre[0] * 1e3:.6g}, {centre[1] * 1e3:.6g}, "
+             f"{bed_height(machine) * 1e3:.6g}) mm")
+    P, R = _bed_points(machine, centre[None, :])
+    if getattr(machine, "joint_limits", None) is not None:
+        with np.errstate(all="ignore"):
+            q = np.asarray(machine.ik(P, R), float).reshape(1, -1)
+        free = copy.copy(machine)
+        free.joint_limits = None
+        if _probe_ok(free, P, R).all() and not machine.within_limits(q).all():
+            broken = machine.limit_violation_text(q).removeprefix("row 1: ")
+            return (f"{where}: joint_limits ({machine.joint_limits_text()}) exclude "
+                    f"{point}, where every probe pattern is centred: it needs {broken}; "
+                    "widen joint_limits")
+    return (f"{where}: {point} cannot be probed (out of reach or badly conditioned); set "
+            "the bed or home")
 
 
 def probe_radius(machine: Machine) -> float:
@@ -144,10 +170,7 @@ def probe_radius(machine: Machine) -> float:
     t = np.linspace(0.0, 2 * np.pi, 72, endpoint=False)
     ring = np.column_stack([np.cos(t), np.sin(t)])
     if not _probe_ok(machine, *_bed_points(machine, centre[None, :])).all():
-        where = str(getattr(machine, "source", "") or "the machine")
-        raise InputError(f"{where}: the bed's centre ({centre[0] * 1e3:.6g}, "
-                         f"{centre[1] * 1e3:.6g}, {bed_height(machine) * 1e3:.6g}) mm cannot be "
-                         "probed (out of reach or badly conditioned); set the bed or home")
+        raise InputError(_centre_unprobed(machine, centre))
     r = 0.0
     for k in range(1, 41):
         radius = k * L / 40
@@ -336,7 +359,8 @@ def sample_workspace_poses(machine: Machine, n: int, rng=None, half_range: float
     characteristic lengths) around home; for platforms that rotate, Euler angles uniform in
     ``+/- max_angle`` on the home orientation. Kept: reachable poses of the working mode
     (:meth:`~pkmcal.machines.Machine.working_mode`) within the joint limits whose joint
-    Jacobian's inverse condition number (rotations scaled) is above ``min_conditioning``.
+    Jacobian's inverse condition number (rotations scaled) is above ``min_conditioning``,
+    within the machine's physical limits (:meth:`~pkmcal.machines.Machine.physical_limits`).
 
     Parameters
     ----------
@@ -391,6 +415,7 @@ def sample_workspace_poses(machine: Machine, n: int, rng=None, half_range: float
             sv = np.linalg.svd(np.where(ok[:, None, None], J, 1.0), compute_uv=False)
             ok &= sv[..., -1] > min_conditioning * sv[..., 0]
             ok &= machine.working_mode(P, R)
+            ok &= machine.within_physical_limits(P, R, q)
         return P, R, ok
 
     where = str(getattr(machine, "source", "") or "").replace("{", "{{").replace("}", "}}")

@@ -37,3 +37,25 @@ def machine_formats() -> dict[str, MachineFormat]:
         fmt = importlib.import_module(f"{__package__}.{name}").FILE_FORMAT
         out[fmt.kind] = fmt
     return out
+
+
+def bed_frame_kinds() -> tuple[str, ...]:
+    """The machine types whose frame is their bed (a printer's: ``frame_is_bed``), for
+    messages that send a user measuring a bed to them.
+
+    Returns
+    -------
+    tuple of str
+        Machine types in the order of :data:`MACHINE_MODULES`, e.g. ``("linear_delta",)``.
+    """
+    from .base import Machine
+
+    kinds = []
+    for name in MACHINE_MODULES:
+        module = importlib.import_module(f"{__package__}.{name}")
+        for value in vars(module).values():
+            if isinstance(value, type) and issubclass(value, Machine) \
+                    and value.__module__ == module.__name__ and value.frame_is_bed \
+                    and getattr(value, "kind", None) and value.kind not in kinds:
+                kinds.append(value.kind)
+    return tuple(kinds)

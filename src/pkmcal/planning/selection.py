@@ -24,6 +24,7 @@ from ..instruments.scenarios import (
     scenario_for,
     standard_plan,
 )
+from ..paths import path_text
 from .assessment import WORKSPACE_POSES, prediction_summary, write_prediction_map
 from .design import (
     Design,
@@ -434,7 +435,7 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
         if not given:
             rows = np.flatnonzero(inside) + 1
     if len(P) < n:
-        raise InputError(f"{src}: {len(P)} candidate pose(s)"
+        raise InputError(f"{path_text(src)}: {len(P)} candidate pose(s)"
                          + (f" within {bounds_words} ({dropped} outside)" if dropped else "")
                          + f"; cannot choose {n}")
     K = len(P)
@@ -464,7 +465,7 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
         if numerical_rank(sv) < design.rank:
             # the standard plan sees directions the given poses cannot: not comparable
             std = replace(std, P=None, R=None, reason="it identifies directions the "
-                          f"poses of {source} cannot")
+                          f"poses of {path_text(source)} cannot")
             k = 0
             problem = planned_problem(machine, kind, P, R, noise, rows, src, group=G)
             G_all = G
@@ -472,6 +473,17 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
     step(1, "select-poses: pose-error operator over the workspace")
     op = pose_error_operator(machine, design, ws.P, ws.R, problem.n_machine)
     if op.unbounded:
+        cause = instrument(kind).unbounded_cause(machine)
+        if cause is not None:
+            from ..instruments.registry import INSTRUMENTS
+
+            other = [name for name, inst in INSTRUMENTS.items() if inst.applies(machine)
+                     is None and inst.unbounded_cause(machine) is None]
+            where = getattr(machine, "source", None) or "the machine"
+            raise InputError(f"--scenario {kind} on {where}: {cause}; they leave "
+                             f"{op.unbounded} direction(s) that move the platform "
+                             "unidentified; choose a scenario that measures the platform: "
+                             + ", ".join(other))
         raise InputError(f"{src}: even all {len(P_all)} candidates leave {op.unbounded} "
                          "direction(s) that move the platform unidentified; widen the "
                          "candidate set")
@@ -509,7 +521,7 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
         idx, value, ms, returned_standard = std_idx, std_value, std_ms, True
     elif worse:
         note = (f"worse than the standard plan, which is not among the poses of "
-                f"{source}")
+                f"{path_text(source)}")
     elif as_start and sel.start is not None:
         note = "the best plan came from the exchanges started at the standard plan"
     M = design.information(idx)

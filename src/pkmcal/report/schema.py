@@ -15,6 +15,7 @@ recursion).
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -29,6 +30,7 @@ from pydantic import (
 )
 
 from ..errors import InputError
+from ..paths import path_text
 
 __all__ = ["MAX_DEPTH", "MAX_REPORT_BYTES", "CalibrationReport", "load_report",
            "validate_report"]
@@ -53,6 +55,9 @@ class Convergence(_Section):
 
     success: bool
     message: str = ""
+    status: Int | None = None
+    iterations: Int | None = Field(default=None, ge=0)
+    evaluations: Int | None = Field(default=None, ge=0)
 
 
 class Unidentifiable(_Section):
@@ -87,7 +92,9 @@ class Parameter(_Section):
     unit: str = ""
     nominal: OptNum = None
     identified: OptNum = None
+    change: OptNum = None
     std: OptNum = Field(default=None, ge=0)
+    fixed: bool | None = None
 
 
 class RatioStats(_Section):
@@ -165,7 +172,10 @@ class Residuals(_Section):
     """``residuals``: the numbers shown are checked; other keys are shown as written."""
 
     rms_um: OptNum = Field(default=None, ge=0)
+    max_abs_um: OptNum = Field(default=None, ge=0)
     before_rms_um: OptNum = Field(default=None, ge=0)
+    before_max_abs_um: OptNum = Field(default=None, ge=0)
+    noise_scale: OptNum = Field(default=None, ge=0)
     count: Int | None = Field(default=None, ge=0)
     dof: Int | None = None
     residual_variance: OptNum = Field(default=None, ge=0)
@@ -194,6 +204,7 @@ class NoiseModel(_Section):
     estimated: bool
     groups: list[NoiseGroup]
     min_redundancy: Num = Field(ge=0)
+    iterations: Int | None = Field(default=None, ge=0)
 
 
 class OutlierRow(_Section):
@@ -252,6 +263,7 @@ class ModelAdequacy(_Section):
 
     noise_ratio: OptNum = Field(default=None, ge=0)
     far_above_noise: bool
+    far_above: OptNum = Field(default=None, ge=0)
     groups: list[AdequacyGroup]
     columns: list[AdequacyColumn]
     trends: list[Trend]
@@ -293,6 +305,57 @@ class ModelExtensions(_Section):
         if self.trials and self.folds is None:
             raise ValueError("folds: missing (the trials' cross-validation states its folds)")
         return self
+
+
+class BedPlaneState(_Section):
+    """A bed plane: ``height`` (the section's unit) and the slopes ``tilt_x``, ``tilt_y``."""
+
+    height: Num
+    tilt_x: Num = 0.0
+    tilt_y: Num = 0.0
+
+
+class Bed(BedPlaneState):
+    """``bed`` (probe heights): the fitted bed plane and the one before."""
+
+    before: BedPlaneState | None = None
+
+
+class PoorParameter(_Section):
+    """One parameter of ``poorly_determined``."""
+
+    name: str
+    std: Num = Field(ge=0)
+    correlated_with: str | None = None
+    correlation: OptNum = Field(default=None, ge=-1, le=1)
+
+
+class PoorlyDetermined(_Section):
+    """``poorly_determined``: parameters these data determine only loosely."""
+
+    threshold_mm: OptNum = Field(default=None, ge=0)
+    parameters: list[PoorParameter] = Field(default_factory=list)
+
+
+class ResidualTestSection(_Section):
+    """``acceptance.residuals``: the chi-square test of the residuals, or why there is none
+    (:meth:`pkmcal.estimation.acceptance.ResidualVerdict.from_dict` reads it)."""
+
+    tested: bool | None = None
+    verdict: str | None = None
+    chi2: OptNum = Field(default=None, ge=0)
+    dof: Int | None = None
+    chi2_per_dof: OptNum = Field(default=None, ge=0)
+    upper_999: OptNum = Field(default=None, ge=0)
+    noise_ratio: OptNum = Field(default=None, ge=0)
+    passed: bool | None = None
+    alarming: bool | None = None
+
+
+class Acceptance(_Section):
+    """``acceptance``: the verdicts of the calibration."""
+
+    residuals: ResidualTestSection | None = None
 
 
 #: a report's ``measurement`` beside the instruments' names: a fit of several data files
@@ -344,6 +407,9 @@ class CalibrationReport(_Section):
     outliers: Outliers | None = None
     model_adequacy: ModelAdequacy | None = None
     model_extensions: ModelExtensions | None = None
+    bed: Bed | None = None
+    poorly_determined: PoorlyDetermined | None = None
+    acceptance: Acceptance | None = None
 
     @field_validator("measurement")
     @classmethod
@@ -396,6 +462,125 @@ def _key_path(loc) -> str:
     return out or "(top level)"
 
 
+#: what a pydantic type error expected, in the words of a JSON file
+_EXPECTED = {"float_type": "a number", "int_type": "a whole number", "int_from_float":
+             "a whole number", "bool_type": "true or false", "string_type": "text",
+             "list_type": "a list", "dict_type": "an object", "model_type": "an object",
+             "model_attributes_type": "an object", "finite_number": "a finite number"}
+
+
+def _json_value(value) -> str:
+    """A value as JSON writes it (``"abc"``, ``true``, ``null``); a list or an object by
+    what it is."""
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, dict):
+        return "an object"
+    try:
+        text = json.dumps(value)
+    except (TypeError, ValueError):
+        text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _error_words(err: dict) -> str:
+    """One pydantic error in the words of the JSON file: what was expected, what is there."""
+    kind = err.get("type", "")
+    value = err.get("input")
+    if kind == "missing":
+        return "missing (the section needs this key)"
+    if kind in _EXPECTED:
+        return f"expected {_EXPECTED[kind]}, got {_json_value(value)}"
+    if kind == "literal_error":
+        expected = str((err.get("ctx") or {}).get("expected", ""))
+        if isinstance(value, str) and expected == value:
+            # pkmcal_report: "1" -- the version as text
+            return f"must be the number {expected}, not the text {_json_value(value)}"
+        return f"expected {expected}, got {_json_value(value)}"
+    msg = str(err.get("msg", "invalid")).removeprefix("Value error, ")
+    msg = msg.replace("Input should be", "must be", 1)
+    if kind.startswith(("greater", "less")) or isinstance(value, (str, bool)) or value is None:
+        msg += f", got {_json_value(value)}"
+    return msg
+
+
+#: a JSON string, or a constant JSON does not allow (outside strings)
+_CONSTANT = re.compile(r'"(?:[^"\\]|\\.)*"|-?Infinity|NaN')
+
+
+def _constant_place(text: str) -> str:
+    """``"line 12, column 5: "`` of the first NaN or Infinity outside strings (empty when
+    there is none)."""
+    for match in _CONSTANT.finditer(text):
+        if not match.group().startswith('"'):
+            line = text.count("\n", 0, match.start()) + 1
+            column = match.start() - (text.rfind("\n", 0, match.start()) + 1) + 1
+            return f"line {line}, column {column}: "
+    return ""
+
+
+#: keys whose values pkmcal writes as numbers (or lists of numbers, or null) wherever they
+#: stand in a report: the sections shown as written (registration, frames, files, ...) are
+#: held to them too, so that text where a number belongs is named by its key path
+NUMBER_KEYS = frozenset((
+    "after_rms", "alpha", "assumed", "ball", "before_rms", "calibration_rms", "capacity",
+    "change", "chi2", "chi2_per_dof", "chi_square", "condition_number", "correlation",
+    "count", "cv_gain", "cv_loss", "cv_loss_baseline", "cv_se", "dimension", "dof",
+    "evaluations", "explained", "far_above", "fk_failed", "folds", "free_parameters",
+    "height", "held_out", "held_out_over_calibration", "holdout", "identifiable",
+    "identifiable_alone", "identified", "in_file", "iterations", "joint_identifiable",
+    "leg_length_max", "leg_length_rms", "leg_length_rms_per_leg", "matrix", "max", "mean",
+    "measurements", "min", "min_redundancy", "noise_ratio", "noise_scale", "nominal",
+    "normalised_residuals", "null_space", "p", "p_adjusted", "pairs", "pivot", "places",
+    "position_max", "position_rms", "ratio", "redundancy", "residual_variance", "rms",
+    "rotation", "rows", "seed", "setup", "sigma", "significant_trends", "singular_values",
+    "smr_offset", "standardised_residuals", "std", "tests", "threshold_p", "tilt_x",
+    "tilt_y", "translation", "translation_change", "upper_999", "used", "value"))
+#: so are keys ending in a unit
+NUMBER_SUFFIX = re.compile(r"_(um|mm|m|in|deg|rad|urad|percent)$")
+
+
+def _number_leaves(value) -> bool:
+    """A number, null, or a (nested) list of them."""
+    if value is None or (isinstance(value, (int, float)) and not isinstance(value, bool)):
+        return True
+    return isinstance(value, list) and all(_number_leaves(v) for v in value)
+
+
+def _first_non_number(value, loc: tuple):
+    """``(loc, value)`` of the first leaf of ``value`` that is not a number or null."""
+    if isinstance(value, list):
+        for i, v in enumerate(value):
+            found = _first_non_number(v, (*loc, i))
+            if found is not None:
+                return found
+        return None
+    return None if _number_leaves(value) else (loc, value)
+
+
+def _text_in_numbers(doc, loc: tuple = ()):
+    """``(loc, value)`` of the first value under a number key (:data:`NUMBER_KEYS`,
+    :data:`NUMBER_SUFFIX`, a combination ``"a - b"`` of ``identifiable_combinations``) that is
+    not a number, anywhere in the report; None."""
+    if isinstance(doc, dict):
+        for key, value in doc.items():
+            here = (*loc, key)
+            if isinstance(key, str) and (key in NUMBER_KEYS or NUMBER_SUFFIX.search(key)
+                                         or (loc[-1:] == ("identifiable_combinations",)
+                                             and " - " in key)) \
+                    and not _number_leaves(value):
+                return _first_non_number(value, here)
+            found = _text_in_numbers(value, here)
+            if found is not None:
+                return found
+    elif isinstance(doc, list):
+        for i, value in enumerate(doc):
+            found = _text_in_numbers(value, (*loc, i))
+            if found is not None:
+                return found
+    return None
+
+
 def _refuse_constant(name: str):
     raise ValueError(f"{name} is not a number JSON allows")
 
@@ -421,23 +606,24 @@ def validate_report(doc: Any, source: str | Path = "report") -> dict:
         Naming the file and the first wrong key.
     """
     if not isinstance(doc, dict):
-        raise InputError(f"{source}: not a calibration report (a JSON object was expected, "
+        raise InputError(f"{path_text(source)}: "
+                         "not a calibration report (a JSON object was expected, "
                          f"got {type(doc).__name__})")
     if doc.get("command") != "calibrate":
-        raise InputError(f"{source}: not a calibration report of pkmcal calibrate (no "
+        raise InputError(f"{path_text(source)}: not a calibration report of pkmcal calibrate (no "
                          "\"command\": \"calibrate\")")
     try:
         CalibrationReport.model_validate(doc)
     except ValidationError as exc:
         err = exc.errors()[0]
-        msg = str(err.get("msg", "invalid")).removeprefix("Value error, ")
-        if err.get("type") == "missing":
-            msg = "missing (the section needs this key)"
-        value = err.get("input")
-        shown = "" if isinstance(value, (dict, list)) else f": {value!r}"[:80]
         loc = err.get("loc", ())
         where = f"{_key_path(loc)}: " if loc else ""
-        raise InputError(f"{source}: {where}{msg}{shown}") from None
+        raise InputError(f"{source}: {where}{_error_words(err)}") from None
+    found = _text_in_numbers(doc)
+    if found is not None:
+        loc, value = found
+        raise InputError(f"{source}: {_key_path(loc)}: expected a number, got "
+                         f"{_json_value(value)}")
     return doc
 
 
@@ -469,17 +655,17 @@ def load_report(path: str | Path, what: str = "calibration report") -> dict:
     except OSError:
         size = 0
     if size > MAX_REPORT_BYTES:
-        raise InputError(f"{path}: {size} bytes is too large for a {what} (at most "
+        raise InputError(f"{path_text(path)}: {size} bytes is too large for a {what} (at most "
                          f"{MAX_REPORT_BYTES // 2**20} MiB)")
     text = read_input_text(path, what)
     if _depth(text) > MAX_DEPTH:
-        raise InputError(f"{path}: not a {what}: JSON nested more than {MAX_DEPTH} deep")
+        raise InputError(f"{path_text(path)}: not a {what}: JSON nested more than {MAX_DEPTH} deep")
     try:
         doc = json.loads(text, parse_constant=_refuse_constant)
     except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not JSON (line {exc.lineno}, column {exc.colno}): "
+        raise InputError(f"{path_text(path)}: not JSON (line {exc.lineno}, column {exc.colno}): "
                          f"{exc.msg}") from None
     except ValueError as exc:  # NaN / Infinity literals
-        raise InputError(f"{path}: not a {what}: {exc}") from None
+        raise InputError(f"{path}: {_constant_place(text)}not a {what}: {exc}") from None
     return validate_report(doc, path)
 
