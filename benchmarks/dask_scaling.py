@@ -3,9 +3,9 @@
 ``pkmcal bench`` (h) times 1000 Hexa Slide calibrations on local worker processes; this
 script runs the same runs (same settings, seed and values) through a Dask scheduler with as
 many single-threaded worker processes as the machine has cores (``LocalCluster``, started
-before the clock), then through the local processes, then the first ``--baseline`` runs in
-this process, alternately in one run: the figures are the two speed-ups over one process,
-and the rows must be identical whichever path ran them.
+before the clock), after the local processes and the first ``--baseline`` runs in this
+process (Dask's client leaves threads behind), in one run: the figures are the two
+speed-ups over one process, and the rows must be identical whichever path ran them.
 
 Usage (from the repository root; needs ``pip install 'pkmcal[distributed]'``)::
 
@@ -23,6 +23,9 @@ import sys
 # one BLAS thread per process, before numpy is imported (threads cost ~10x on small SVDs)
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
+# the workers' statistical profiler samples the computing thread every 10 ms: ~7 % of these
+# Python-heavy runs (start your own workers with the same variable)
+os.environ.setdefault("DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED", "False")
 
 from pkmcal.analysis.montecarlo import MonteCarloSettings, montecarlo
 from pkmcal.machines import default_hexaslide
@@ -43,12 +46,13 @@ def main(argv=None) -> int:
 
     settings = MonteCarloSettings(default_hexaslide(), "constraint-link", poses=150,
                                   noise=2e-6, deviations="paper-table1")
+    # local processes and one process first: Dask's client leaves threads in this process
+    local = montecarlo(settings, "noise", [2e-6], args.runs, seed=8, workers=args.workers)
+    one = montecarlo(settings, "noise", [2e-6], args.baseline, seed=8, workers=1)
     with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
                       dashboard_address=None) as cluster:
         dask = montecarlo(settings, "noise", [2e-6], args.runs, seed=8,
                           scheduler=cluster.scheduler_address)
-    local = montecarlo(settings, "noise", [2e-6], args.runs, seed=8, workers=args.workers)
-    one = montecarlo(settings, "noise", [2e-6], args.baseline, seed=8, workers=1)
     single = one.seconds / args.baseline * args.runs
     out = {"runs": args.runs, "workers": args.workers, "dask_seconds": dask.seconds,
            "local_seconds": local.seconds, "single_seconds": single,
