@@ -114,3 +114,29 @@ def test_a_geometry_the_readings_reject_is_refused_with_exit_1(bench, tmp_path):
     assert report["start"] == PAPER_METHOD_START
     residuals = report["acceptance"]["residuals"]
     assert residuals["noise_ratio"] < MAX_NOISE_FACTOR and residuals["verdict"] == "passed"
+
+
+def test_rows_the_method_itself_cannot_solve_are_reported_left_out(monkeypatch):
+    """A row whose forward kinematics fail even from the ml estimate's poses is left out by
+    the fk problem: it is named among the dropped rows and in a warning, beside those the ml
+    start left out (before, the start's list replaced the method's)."""
+    from pkmcal.instruments import constraint_link as cl
+    from pkmcal.machines import default_hexaslide, paper_table1_deviations
+
+    nominal = default_hexaslide()
+    true = nominal.with_parameters(nominal.u + paper_table1_deviations(nominal.parameters))
+    true.constraint_link_length = nominal.constraint_link_length
+    data = simulate_constraint_link(true, 80, 0.0, rng=2)
+    keep = cl._ImplicitPoseProblem._keep_solved_rows
+
+    def failing_row_3(self, fk):
+        fk.converged = fk.converged.copy()
+        fk.converged[3] = False
+        return keep(self, fk)
+
+    monkeypatch.setattr(cl._ImplicitPoseProblem, "_keep_solved_rows", failing_row_3)
+    res = calibrate_constraint_link(nominal, data, method="fk")
+    assert res.success
+    assert int(data.rows[3]) in set(np.asarray(res.extras["dropped_rows"]).tolist())
+    assert any("fk method finds no pose" in w and str(int(data.rows[3])) in w
+               for w in res.extras["warnings"])

@@ -1700,6 +1700,12 @@ def _paper_method(cls, ml: ConstraintLinkML, method: str, rtol: float, lm_option
     else:
         problem = cls(machine, ml_problem.data, ml.sigma, estimate_link_length=estimate)
         result = levenberg_marquardt(problem, rtol=rtol, state=state, **lm_options)
+    unsolved = np.asarray(getattr(problem, "dropped_rows", np.zeros(0, int)), int)
+    if unsolved.size:       # rows the method's own pose solve fails on, even from ml's poses
+        start.dropped_rows = np.union1d(start.dropped_rows, unsolved).astype(int)
+        start.warnings.append(f"{unsolved.size} row(s) left out: the {method} method finds no "
+                              "pose for them with the maximum-likelihood estimate's geometry: "
+                              f"rows {_rows_text(unsolved)}")
     if not result.success:
         return result, problem, start
     test, ml_test = _paper_method_test(problem, result), residual_test(ml_result)
