@@ -10,6 +10,7 @@ temporary, backup or journal behind.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -451,3 +452,140 @@ def test_every_promise_names_tests_that_exist():
         for path, name in names:
             source = (root / path).read_text()
             assert re.search(rf"^def {name}\(", source, re.M), f"{path}::{name} is not defined"
+
+
+# -- review findings (issue 28): each test fails on the code before its fix -----------------
+
+#: a killed two-file commit in the library's own set (before the second rename)
+TWO_FILES = """
+import sys
+from pkmcal.io.atomic import OutputSet
+with OutputSet(["a.txt", "b.txt"]) as o:
+    o.stage("a.txt", (sys.argv[1] + "-a").encode())
+    o.stage("b.txt", (sys.argv[1] + "-b").encode())
+"""
+
+
+def _two_files(d: Path, tag: str, kill_at=None):
+    env = dict(ENV) if kill_at is None else dict(ENV, PKMCAL_TEST_KILL_AT=str(kill_at))
+    return subprocess.run([sys.executable, "-c", TWO_FILES, tag], cwd=d, env=env,
+                          capture_output=True, text=True, timeout=HANG)
+
+
+def _pair(d: Path) -> tuple[str, str]:
+    return (d / "a.txt").read_text(), (d / "b.txt").read_text()
+
+
+def test_a_journal_this_run_cannot_read_keeps_its_files(tmp_path):
+    """A journal the next run cannot read (another user's, a newer format, damaged) is not
+    acted on, and the temporaries and backups of its run are kept: before, they were removed
+    as stale and the owner's next run 'completed' a mixed set, the old file gone."""
+    from pkmcal.io.atomic import remove_stale_temporaries
+
+    assert _two_files(tmp_path, "old").returncode == 0
+    assert _two_files(tmp_path, "new", kill_at=4).returncode == -signal.SIGKILL
+    journal, = tmp_path.glob(".commit.pkmcal-*.journal")
+    text = journal.read_bytes()
+    journal.write_bytes(b"not a journal this run can read")
+    kept = set(_leftovers(tmp_path))
+    remove_stale_temporaries(tmp_path)
+    assert set(_leftovers(tmp_path)) == kept          # nothing of that run removed
+    journal.write_bytes(text)                          # readable again: rolled back whole
+    remove_stale_temporaries(tmp_path)
+    assert _pair(tmp_path) == ("old-a", "old-b") and _leftovers(tmp_path) == []
+
+
+def test_a_planted_journal_cannot_delete_or_replace_other_files(tmp_path):
+    """A journal names only its run's own hidden files: one naming other files (planted in a
+    shared directory, or damaged) is ignored, and what it names is untouched."""
+    from pkmcal.io.atomic import remove_stale_temporaries
+
+    shared, victim = tmp_path / "shared", tmp_path / "victim"
+    shared.mkdir()
+    victim.mkdir()
+    (victim / "thesis.txt").write_text("years of work")
+    (victim / "notes.txt").write_text("more work")
+    (shared / ".commit.pkmcal-999999-abcdef.journal").write_text(json.dumps({
+        "format": "pkmcal-commit-journal-1", "pid": 999999, "locks": [], "created": [],
+        "copies": ["../victim/notes.txt"],
+        "files": [{"tmp": "nope", "dest": "../victim/notes.txt",
+                   "backup": "../victim/thesis.txt", "id": [0, 0]}]}))
+    remove_stale_temporaries(shared)
+    assert (victim / "thesis.txt").read_text() == "years of work"
+    assert (victim / "notes.txt").read_text() == "more work"
+
+
+def test_a_rollback_that_fails_in_the_run_is_finished_by_the_next(tmp_path, monkeypatch):
+    """A rename fails mid-commit and so does the run's own rollback: the journal stays with
+    the temporaries it needs (before, the run's discard removed them and the next run took the
+    commit for complete, keeping a mixed set), and the next run restores the old set."""
+    import errno
+
+    import pkmcal.io.atomic as atomic
+    from pkmcal.errors import InputError
+    from pkmcal.io.atomic import remove_stale_temporaries
+
+    monkeypatch.chdir(tmp_path)
+    with OutputSet(["a.txt", "b.txt"]) as o:
+        o.stage("a.txt", b"old-a")
+        o.stage("b.txt", b"old-b")
+    real, calls = os.replace, {"n": 0}
+
+    def failing(src, dst):
+        calls["n"] += 1
+        if not str(dst).endswith(".journal") and not str(src).endswith(".journal.tmp"):
+            calls["renames"] = calls.get("renames", 0) + 1
+            if calls["renames"] in (2, 3):      # the second rename, then the restore
+                raise OSError(errno.EIO, "Input/output error")
+        return real(src, dst)
+
+    o = OutputSet(["a.txt", "b.txt"])
+    o.stage("a.txt", b"new-a")
+    o.stage("b.txt", b"new-b")
+    monkeypatch.setattr(atomic.os, "replace", failing)
+    with pytest.raises(InputError, match="cannot write"):
+        o.commit()
+    monkeypatch.setattr(atomic.os, "replace", real)
+    assert any(n.endswith(".tmp") for n in _leftovers(tmp_path))
+    remove_stale_temporaries(tmp_path)
+    assert _pair(tmp_path) == ("old-a", "old-b") and _leftovers(tmp_path) == []
+
+
+def test_two_runs_creating_the_same_directory_both_commit(tmp_path, monkeypatch):
+    """Run B planned to create new/ before it got the lock; run A created it meanwhile: B
+    commits after A instead of failing with 'File exists'."""
+    import pkmcal.io.atomic as atomic
+
+    monkeypatch.chdir(tmp_path)
+    a = OutputSet(directories=["new"])
+    a.stage("new/x.txt", b"A-x")
+    a.stage("new/y.txt", b"A-y")
+    b = OutputSet(directories=["new"])
+    b.stage("new/x.txt", b"B-x")
+    b.stage("new/y.txt", b"B-y")
+    real = atomic._lock
+
+    def a_commits_first(dirs):
+        monkeypatch.setattr(atomic, "_lock", real)
+        a.commit()
+        return real(dirs)
+
+    monkeypatch.setattr(atomic, "_lock", a_commits_first)
+    b.commit()
+    assert (tmp_path / "new/x.txt").read_text() == "B-x"
+    assert (tmp_path / "new/y.txt").read_text() == "B-y"
+    assert _leftovers(tmp_path / "new") == []
+
+
+def test_dev_stdout_redirected_to_a_file_is_appended_to(tmp_path):
+    """-o /dev/stdout with stdout appended to a log (>>) adds to it: it was opened with
+    O_TRUNC and the log's earlier lines were gone."""
+    log = tmp_path / "log.txt"
+    log.write_text("an earlier line\n")
+    with open(log, "a") as fh:
+        proc = subprocess.run([str(PKMCAL), "-q", "simulate", "default", "--poses", "60",
+                               "-o", "/dev/stdout"], cwd=tmp_path, stdout=fh,
+                              stderr=subprocess.PIPE, text=True, env=ENV, timeout=HANG)
+    assert proc.returncode == 0, proc.stderr
+    text = log.read_text()
+    assert text.startswith("an earlier line\n") and len(text.splitlines()) > 60

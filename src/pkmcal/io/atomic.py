@@ -206,7 +206,34 @@ def _read_journal(path: Path) -> dict | None:
         return None
     if not isinstance(doc, dict) or doc.get("format") != "pkmcal-commit-journal-1":
         return None
-    return doc
+    return doc if _journal_is_sound(path, doc) else None
+
+
+def _journal_is_sound(path: Path, doc: dict) -> bool:
+    """Whether a journal may be acted on: this user's (a journal another user could plant
+    names files to replace or delete), and naming only pkmcal's own hidden files of the run
+    that wrote it (its pid) as temporaries, backups and copies."""
+    m = _JOURNAL.match(path.name)
+    try:
+        if m is None or os.stat(path).st_uid != os.geteuid():
+            return False
+        pid = m.group(1)
+        for entry in doc["files"]:
+            for key in ("tmp", "backup"):
+                if entry[key] is None and key == "backup":
+                    continue
+                stale = _STALE.match(os.path.basename(entry[key]))
+                if stale is None or stale.group(1) != pid:
+                    return False
+            if not isinstance(entry["dest"], str) or not isinstance(entry["id"], list):
+                return False
+        for copy in doc["copies"]:
+            j = _JOURNAL.match(os.path.basename(copy))
+            if j is None or j.group(1) != pid:
+                return False
+        return isinstance(doc["locks"], list) and isinstance(doc["created"], list)
+    except (KeyError, TypeError, OSError):
+        return False
 
 
 def _settle(base: Path, doc: dict) -> None:
@@ -319,6 +346,17 @@ def recover_commits(directory) -> int:
     return done
 
 
+def _journal_pids(directory) -> set[str]:
+    """The runs (pids) with a commit journal still in ``directory``, readable or not: their
+    temporaries and backups are kept (a journal this run cannot read or may not act on -
+    another user's, a newer format - may still need them)."""
+    try:
+        return {m.group(1) for e in os.scandir(directory)
+                if (m := _JOURNAL.match(e.name)) is not None}
+    except OSError:
+        return set()
+
+
 def _journal_references(directory) -> set[str]:
     """Names in ``directory`` that a commit journal there still needs."""
     names = set()
@@ -359,14 +397,14 @@ def remove_stale_temporaries(directory) -> list[Path]:
         entries = list(os.scandir(directory))
     except OSError:
         return removed
-    needed = None
+    needed = journaled = None
     for entry in entries:
         m = _STALE.match(entry.name)
         if m is None or _pid_alive(int(m.group(1))):
             continue
         if needed is None:
-            needed = _journal_references(directory)
-        if entry.name in needed:
+            needed, journaled = _journal_references(directory), _journal_pids(directory)
+        if entry.name in needed or m.group(1) in journaled:
             continue
         with contextlib.suppress(OSError):
             os.unlink(entry.path)
@@ -623,7 +661,9 @@ class OutputSet:
             for user, _, tmp, data in items:
                 if tmp is None:
                     try:
-                        with open(user, "wb") as fh:
+                        # appended, never truncated: /dev/stdout redirected to a file with
+                        # >> (or holding what was printed before) keeps what it holds
+                        with open(user, "ab") as fh:
                             fh.write(data)
                     except OSError as exc:
                         raise InputError(f"{user}: cannot write: {_describe(exc)}") from None
@@ -723,7 +763,8 @@ class OutputSet:
                     _write_journal(Path(d) / name, _journal_bytes(_journal(plan, Path(d))))
             for d in created:
                 _step("mkdir")
-                os.mkdir(d)
+                with contextlib.suppress(FileExistsError):  # another run made it meanwhile
+                    os.mkdir(d)
                 if d in journal_dirs:
                     _write_journal(Path(d) / name, _journal_bytes(_journal(plan, Path(d))))
             for user, dest, tmp in files:
@@ -742,9 +783,13 @@ class OutputSet:
                     os.unlink(backup)
         except BaseException as exc:
             if doc is not None:
-                with contextlib.suppress(OSError):   # else the next run finishes it
+                try:
                     _settle(home, doc)
                     _forget_journal(home, doc)
+                except OSError:
+                    # the journal stays for the next run, which needs the temporaries to
+                    # roll the set back: discard() must not remove them
+                    self._staged.clear()
             else:
                 for backup in backups:
                     with contextlib.suppress(OSError):
