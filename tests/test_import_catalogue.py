@@ -322,8 +322,9 @@ def test_quirks_read_as_the_firmware_reads_them(tmp_path, fmt, name, text, expec
            "delta_radius": float(np.mean(values["radius"]))}
     pe = np.asarray(values["position_endstop"], float)
     got["position_endstop"] = float(pe[0])
+    scale = max(abs(v) for v in expected.values())
     for key, want in expected.items():
-        assert abs(got[key] - want) < 1e-9, (key, got[key], want)
+        assert abs(got[key] - want) <= 1e-12 * scale, (key, got[key], want)
 
 
 # -- --like carries every field it documents ------------------------------------------------------
@@ -406,17 +407,19 @@ def test_like_carries_every_documented_field(tmp_path, fmt):
     assert m.name == "the like file's name"
     assert m.file_units == like.file_units, written
     assert m.joint_limits is not None, written
-    np.testing.assert_allclose(m.joint_limits[0], limits[0], atol=1e-12)
-    np.testing.assert_allclose(m.joint_limits[1], limits[1], atol=1e-12)
+    # to rounding, relative to the machine's size (m)
+    tol = dict(rtol=1e-12, atol=1e-12 * like.characteristic_length())
+    np.testing.assert_allclose(m.joint_limits[0], limits[0], **tol)
+    np.testing.assert_allclose(m.joint_limits[1], limits[1], **tol)
     if home is not None:             # the like's home in the controller's frame
-        np.testing.assert_allclose(m.home[0], home, atol=1e-12)
+        np.testing.assert_allclose(m.home[0], home, **tol)
     else:
-        np.testing.assert_allclose(m.home[0], like.home[0], atol=1e-12)
+        np.testing.assert_allclose(m.home[0], like.home[0], **tol)
     if like.kind == "delta":                  # the effector offset of a Delta robot
         assert m.smr_offset == pytest.approx(0.03), written
     if like.kind == "stewart":                # the targets' places on the platform
         np.testing.assert_allclose(m.tracker_targets, [[0.01, 0.02, 0.03], [-0.01, 0.005, 0]],
-                                   atol=1e-15)
+                                   **tol)
 
 
 def test_like_keeps_compensate_checking_limits(tmp_path):
