@@ -986,19 +986,29 @@ class SphereState:
     R: np.ndarray
 
 
-def _require_passive(data: ConstraintLinkData) -> None:
-    if data.passive is None:
-        raise InputError(f"{path_text(data.source)}: "
-                         "the inverse-kinematics method needs the 'passive' "
-                         "column (which actuator was passive at each row)")
-
-
 class _ConstraintLinkProblem:
     """What the three methods share: parameters = machine's + ``link.length``."""
 
     local_dof = 0
     #: whether ``link.length`` is estimated when the caller does not say
     estimates_link_length = False
+    #: the residuals are no more precise than this share of the machine's characteristic
+    #: length (a few ulps of the joint values through the kinematics; an inner solve's
+    #: tolerance where the residuals come from one)
+    rounding = 4e-15
+
+    def _whitening(self) -> tuple[int, np.ndarray]:
+        """The number of residuals and the standard deviations that whiten them."""
+        return len(self.data), self.sigma
+
+    @property
+    def cost_floor(self):
+        """Cost of residuals at their precision (:attr:`rounding`, whitened): noise-free data
+        fitted exactly can do no better, and the estimator stops there (a fit started at
+        such an optimum finds no step that lowers its cost: converged, not stuck)."""
+        n, sigma = self._whitening()
+        precision = self.rounding * self.machine.characteristic_length()
+        return 0.5 * n * float(np.max(precision / sigma)) ** 2
 
     @staticmethod
     def check_data(data: ConstraintLinkData) -> None:
@@ -1122,17 +1132,9 @@ class ConstraintLinkML(_ConstraintLinkProblem):
     """
 
     local_dof = 5
-    #: the readings' residuals are no more precise than this share of the machine's
-    #: characteristic length (a few ulps of the joint values, through the kinematics)
-    rounding = 4e-15
 
-    @property
-    def cost_floor(self):
-        """Cost of residuals at the rounding of the readings (whitened): noise-free data
-        fitted exactly can do no better, and the estimator stops there (a fit started at
-        such an optimum finds no step that lowers its cost: converged, not stuck)."""
-        precision = self.rounding * self.machine.characteristic_length()
-        return 0.5 * self.data.q.size * float(np.max(precision / self.reading_sigma())) ** 2
+    def _whitening(self) -> tuple[int, np.ndarray]:
+        return self.data.q.size, self.reading_sigma()
 
     def initial_state(self):
         # all six readings + the constraint in the least-squares sense: robust to a far start
@@ -1282,7 +1284,9 @@ class ConstraintLinkIK(ConstraintLinkML):
         InputError
             Naming the data and the column.
         """
-        _require_passive(data)
+        if data.passive is None:
+            raise InputError(f"{path_text(data.source)}: the inverse-kinematics method needs "
+                             "the 'passive' column (which actuator was passive at each row)")
 
     def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=False):
         self.check_data(data)
@@ -1301,14 +1305,7 @@ class _ImplicitPoseProblem(_ConstraintLinkProblem):
     #: forward kinematics inside each evaluation converge to this (times the machine's
     #: characteristic length); residuals are no more precise than that
     fk_tol = 1e-13
-
-    @property
-    def cost_floor(self):
-        """Cost at the precision of the inner forward kinematics (``fk_tol``); the estimator stops
-        below it.
-        """
-        precision = self.fk_tol * self.machine.characteristic_length()
-        return 0.5 * len(self.data) * float(np.max(precision / self.sigma)) ** 2
+    rounding = fk_tol
 
     def _keep_solved_rows(self, fk):
         """Keep the rows whose poses the start geometry can solve (seed 000's methods need
@@ -1395,8 +1392,10 @@ class ConstraintLinkIKExplicit(_ImplicitPoseProblem):
         can be solved.
     """
 
+    check_data = staticmethod(ConstraintLinkIK.check_data)
+
     def __init__(self, machine, data, sigma_m=1e-6, estimate_link_length=False, start=None):
-        _require_passive(data)
+        self.check_data(data)
         super().__init__(machine, data, sigma_m, estimate_link_length)
         # the five active readings + the constraint may have no solution with the start
         # geometry (seed 000's method needs a start close enough): such rows are left out
