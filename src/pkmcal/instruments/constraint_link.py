@@ -1733,8 +1733,7 @@ def _paper_method_test(problem, result) -> ResidualTest:
     readings)."""
     u = np.asarray(result.x, float)
     held = ConstraintLinkML(problem.machine, problem.data, problem.sigma)
-    held.parameters = ParameterSet(held.parameters.names, held.parameters.kinds, u,
-                                   np.ones(len(u), bool))
+    held.parameters = held.parameters.with_values(u).with_fixed(list(held.parameters.names))
     P, R = result.state.P.copy(), result.state.R.copy()
     P *= (u[-1] / np.linalg.norm(P, axis=-1))[:, None]          # onto the sphere
     poses = levenberg_marquardt(held, state=SphereState(u.copy(), P, R))
