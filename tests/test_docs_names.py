@@ -17,7 +17,7 @@ PAGES = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
 FOLDERS = ("src", "tests", "benchmarks", "examples", "docs")
 _SPAN = re.compile(r"`([^`\n]+)`")
 _FENCE = re.compile(r"^```[a-z]*\n(.*?)^```", re.S | re.M)
-_PATH = re.compile(r"(?:^|[\s(=])((?:%s)/[\w./-]+)" % "|".join(FOLDERS))
+_PATH = re.compile(r"(?:^|[\s(=])((?:" + "|".join(FOLDERS) + r")/[\w./-]+)")
 _MODULE = re.compile(r"\bpkmcal(?:\.[A-Za-z_]\w*)+")
 #: ``pkmcal WORD ...`` up to the end of the shell command (a word with a colon is prose)
 _COMMAND = re.compile(r"(?:^|[\s;|&(`$])pkmcal ([a-z][a-z-]*(?![\w:-])[^\n;|&]*)")
