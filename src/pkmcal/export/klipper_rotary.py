@@ -393,7 +393,8 @@ class KlipperRotaryDelta(ControllerFormat):
         -------
         str or None
             The reason (None: the shoulders and the endstops are above the bed, every target
-            at or above it, and the centre on the bed reachable by every arm).
+            at or above it, and the centre on the bed and 1 mm below it, where Klipper's
+            ``home()`` declares the effector before its homing move, reachable by every arm).
         """
         radius, height, upper, lower, angles, endstops, bed_z, _ = self.unpack(params)
         z = np.asarray(P, float).reshape(-1, 3)[:, 2] - bed_z
@@ -408,6 +409,10 @@ class KlipperRotaryDelta(ControllerFormat):
                                                   np.zeros((1, 3))))):
             return ("no arm reaches the centre on the bed (Klipper declares the effector at "
                     "(0, 0, 0) when it starts: out of reach, the first G28 fails)")
+        if not np.all(np.isfinite(stepper_angles(radius, height, angles, upper, lower,
+                                                  np.array([[0.0, 0.0, -1e-3]])))):
+            return ("no arm reaches the centre 1 mm below it (Klipper's G28 declares the "
+                    "effector there before its homing move: out of reach, G28 fails)")
         if not endstops.min() >= 0:
             return (f"the effector at the centre with the arms at their endstops would be "
                     f"{endstops.min() * 1e3:.6g} mm above it (Klipper's position_endstop, its "
