@@ -36,6 +36,16 @@ corrects it). The bed is carried in the values as three fixed entries (``bed.z``
 ``bed.tilt_x``, ``bed.tilt_y``) and written as a ``# pkmcal bed:`` comment, which
 :meth:`KlipperDelta.parse` reads back.
 
+Stepper order
+-------------
+Klipper's forward kinematics (``mathutil.trilateration``: the home position at ``G28``, the
+positions read back from the steppers) takes the effector below the carriages only when
+``stepper_a -> b -> c`` run counter-clockwise. A printer whose towers run clockwise is written
+relabelled (:func:`stepper_order`: ``stepper_a`` its tower 1, ``stepper_b`` tower 3,
+``stepper_c`` tower 2), the export's note and the file's comments naming each stepper's tower;
+the fixed values ``stepper_a.tower``... keep the map, so that the readings come back in the
+machine's order. An import takes the towers in Klipper's order.
+
 This module also holds the helpers the Marlin and RepRapFirmware formats share
 (:func:`vertical_tower_travel`, :func:`controller_endstops`, :func:`linear_delta_machine`).
 """
