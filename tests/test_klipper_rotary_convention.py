@@ -116,3 +116,15 @@ def test_export_says_where_klippers_frame_is(tmp_path):
     assert frame and f"z = {bed * 1e3:.6f} mm of the machine file" in frame[0]
     assert "note: Klipper's z = 0 (the bed) is at z" in " ".join(proc.stdout.split())
     assert "Klipper's (x, y, z) is the machine file's (x, y, z + " in frame[0]
+
+
+def test_export_refuses_a_bed_klipper_cannot_home_on(tmp_path):
+    """A workspace with no place for Klipper's bed: exit 2, the reason, no file written."""
+    (tmp_path / "ws.csv").write_text("x_mm,y_mm,z_mm\n400,0,-400\n400,200,-400\n")
+    proc = run("export", EXAMPLE, "--to", "klipper-rotary-delta", "--workspace", "ws.csv",
+               "-o", "k.cfg", cwd=tmp_path)
+    assert proc.returncode == 2
+    err = " ".join(proc.stderr.split())
+    assert "Klipper's z = 0 (the bed) must be below every workspace target and reachable " \
+           "at the centre" in err and "no arm reaches the centre on the bed" in err, err
+    assert not list(tmp_path.glob("k.cfg*"))
