@@ -375,9 +375,7 @@ class ControllerFormat(ABC):
         stated = {n for n, o in back.origins.items() if o.line is not None}
         values = np.array([v if n in stated or n not in mine else mine[n]
                            for n, v in zip(back.names, back.values, strict=True)])
-        return text, ControllerParameters(list(back.names), values, list(back.kinds),
-                                          back.fixed.copy(), dict(back.extras),
-                                          dict(back.origins))
+        return text, back.with_values(values)
 
     @abstractmethod
     def initial(self, machine: Machine) -> ControllerParameters:
