@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import klipper_reference as kr
 from clitools import run
 from klippy_harness import Klippy, hardware, requires_klippy
 from pkmcal.errors import InputError
@@ -36,6 +37,8 @@ pytestmark = [requires_klippy,
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
+#: printers' own configs (tests/data/klipper, see its README)
+DATA = ROOT / "tests" / "data" / "klipper"
 ROTARY = controller_format("klipper-rotary-delta")
 LINEAR = controller_format("klipper")
 #: 1e-6 mm, the agreement asked of pkmcal's model of Klipper against Klipper's code
@@ -393,3 +396,34 @@ def test_linear_clockwise_towers_are_relabelled(tmp_path):
     # imported back: the towers in Klipper's (relabelled) order, the same machine for Klipper
     back = LINEAR.to_machine(LINEAR.parse(res.text, "printer.cfg"))
     assert np.allclose(np.degrees(back.firmware_values()["angle"]), [330.2, 90.3, 209.7])
+
+
+# -- the earlier reference and pkmcal's reader against Klipper's code -------------------------
+@pytest.mark.parametrize("name", sorted(p.name for p in DATA.glob("*.cfg")))
+def test_reference_and_import_agree_with_klippy(tmp_path, name):
+    """Each printer's config of tests/data/klipper as Klipper reads it (SAVE_CONFIG block,
+    duplicates): pkmcal's import reads the values Klipper uses, and the independent
+    restatement tests/klipper_reference.py computes Klipper's stable positions and positions
+    from them exactly."""
+    text = (DATA / name).read_text()
+    config = write_main(tmp_path, "delta", text)
+    k = Klippy(config)
+    d = LINEAR.parse(text, name).as_dict()
+    assert d["delta_radius"] * 1e3 == pytest.approx(k.value("printer", "delta_radius"),
+                                                    rel=1e-15)
+    for t in "abc":
+        kin = k.kin
+        i = "abc".index(t)
+        assert d[f"arm_length_{t}"] * 1e3 == pytest.approx(kin.arm_lengths[i], rel=1e-15)
+        assert np.degrees(d[f"angle_{t}"]) == pytest.approx(kin.angles[i], rel=1e-15)
+        assert d[f"position_endstop_{t}"] * 1e3 == pytest.approx(
+            kin.rails[i].get_homing_info().position_endstop, rel=1e-15)
+    cal = k.kin.get_calibration()
+    ref = kr.delta_from_config(kr.read_klipper_config(str(config)))
+    points = [[0.0, 0.0, 0.5], [30.0, -40.0, 1.0], [-50.0, 20.0, 3.0]]
+    stable = np.array([cal.calc_stable_position(p) for p in points])
+    assert np.allclose([ref.calc_stable_position(p) for p in points], stable, rtol=1e-14,
+                       atol=0)
+    assert np.allclose([ref.get_position_from_stable(s) for s in stable],
+                       [cal.get_position_from_stable(list(s)) for s in stable], rtol=0,
+                       atol=1e-12)
