@@ -116,6 +116,13 @@ def test_export_says_where_klippers_frame_is(tmp_path):
     assert frame and f"z = {bed * 1e3:.6f} mm of the machine file" in frame[0]
     assert "note: Klipper's z = 0 (the bed) is at z" in " ".join(proc.stdout.split())
     assert "Klipper's (x, y, z) is the machine file's (x, y, z + " in frame[0]
+    # the values table names Klipper's keys with their sections (not eaten as markup)
+    assert "[printer] shoulder_radius" in proc.stdout
+    assert "[stepper_c] position_endstop" in proc.stdout
+    proc = run("export", ROOT / "examples" / "linear_delta.yaml", "--to", "klipper", "-o",
+               "p.cfg", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "[printer] delta_radius" in proc.stdout
 
 
 def test_export_refuses_a_bed_klipper_cannot_home_on(tmp_path):

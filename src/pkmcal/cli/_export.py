@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from rich.markup import escape
+
 from ..calibration.run import json_safe as _finite_or_none
 from ..errors import InputError
 from ..io.atomic import atomic_write_bytes, atomic_write_text, is_stream, read_input_text
@@ -122,7 +124,8 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
         out.print(f"note: {note}", markup=False)
     values = _table("value", "written", title="Values written (the controller's units)")
     for name, text in fmt.values_text(result.params):
-        values.add_row(name, text)
+        # a Klipper key's [section] is text, not markup
+        values.add_row(escape(name), escape(text))
     out.print(values)
     out.print(f"wrote {path_text(output)}"
               + (f" and {path_text(record_path)}" if record_path else "")

@@ -613,6 +613,33 @@ class KlipperRotaryDelta(ControllerFormat):
                       f"lower_arm_length: {mm(lower[i])}", f"angle: {deg(angles[i])}"]
         return "\n".join(lines) + "\n"
 
+    def values_text(self, params: ControllerParameters) -> list[tuple[str, str]]:
+        """The values as the written file has them, for a printed table.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        list of tuple
+            ``(name, value in words)``: the file's keys (mm, deg), then where Klipper's
+            frame and steppers are on the machine (pkmcal's, not in the file's values).
+        """
+        radius, height, upper, lower, angles, endstops, bed_z, order = self.unpack(params)
+        out = [("[printer] shoulder_radius", f"{radius * 1e3:.6f} mm"),
+               ("[printer] shoulder_height", f"{height * 1e3:.6f} mm")]
+        for i, t in enumerate(STEPPERS):
+            out += [(f"[stepper_{t}] position_endstop", f"{endstops[i] * 1e3:.6f} mm"),
+                    (f"[stepper_{t}] upper_arm_length", f"{upper[i] * 1e3:.6f} mm"),
+                    (f"[stepper_{t}] lower_arm_length", f"{lower[i] * 1e3:.6f} mm"),
+                    (f"[stepper_{t}] angle", f"{np.degrees(angles[i]):.9f} deg")]
+        out.append(("Klipper's z = 0 in the machine file (pkmcal)", f"{bed_z * 1e3:.6f} mm"))
+        out += [(f"stepper_{t} is (pkmcal)", f"leg {order[k] + 1}")
+                for k, t in enumerate(STEPPERS)]
+        return out
+
     def parse(self, text: str, source: str) -> ControllerParameters:
         """Klipper's rotary_delta values of a ``printer.cfg``, as Klipper resolves them
         (:class:`~pkmcal.io.klipper_config.KlipperConfig`: ``[include]`` files, the sections
