@@ -142,6 +142,15 @@ def check_in_klipper(fmt, res, machine, P, config: Path) -> Klippy:
     # Klipper's forward kinematics inverts its inverse (the steppers a -> b -> c as it needs)
     back = k.position(k.stepper_positions(Pk))
     assert np.abs(back - Pk).max() < AGREE * 1e3
+    # and, from the readings pkmcal's model of Klipper commands (each stepper's move from its
+    # endstop added to where Klipper declared it at G28), Klipper places the effector at the
+    # target: pkmcal's Klipper and Klipper's own agree both ways
+    d = res.params.as_dict()
+    word = "leg" if fmt is ROTARY else "tower"
+    order = [int(round(d.get(f"stepper_{t}.{word}", j + 1))) - 1 for j, t in enumerate("abc")]
+    mine = fmt.ik(res.params, P)[:, order]
+    steps = k.homed[None] + (mine if fmt is ROTARY else -mine * 1e3)
+    assert np.abs(k.position(steps) - Pk).max() < AGREE * 1e3
     return k
 
 
