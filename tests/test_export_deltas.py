@@ -110,13 +110,18 @@ def arm_angle(radial, height, upper, lower):
 
 
 def klipper_readings(text, P):
-    """Klipper rotary_delta: the machine's readings for targets P (m, calibrated frame)."""
-    cfg, notes = read_cfg(text), pkmcal_lines(text)
+    """Klipper rotary_delta: the machine's readings for targets P (m, machine file's frame):
+    each arm's turn from its endstop. Where Klipper's frame and steppers are on the machine
+    is what the export tells the user (its comment lines, read here as a user reads them)."""
+    cfg = read_cfg(text)
+    bed = float(re.search(r"Klipper's z = 0 \(the bed\) is at z = (\S+) mm", text).group(1))
+    legs = {m.group(1): int(m.group(2)) - 1
+            for m in re.finditer(r"^# stepper_([abc]) is leg (\d)", text, re.M)}
     pr = cfg["printer"]
     assert pr["kinematics"] == "rotary_delta"
     R, H = pr["shoulder_radius"], pr["shoulder_height"]
-    Pk = np.asarray(P) * 1e3 - [0.0, 0.0, notes["bed_z_mm"]]   # Klipper's mm, bed at z = 0
-    q = []
+    Pk = np.asarray(P) * 1e3 - [0.0, 0.0, bed]               # Klipper's mm, bed at z = 0
+    q = np.empty((len(Pk), 3))
     for t in "abc":
         s = cfg[f"stepper_{t}"]
         ang = np.radians(s["angle"])
@@ -129,8 +134,8 @@ def klipper_readings(text, P):
             return arm_angle(X @ er - R, X[..., 2] - H, s["upper_arm_length"], lower)
 
         abs_endstop = angle(np.array([0.0, 0.0, s["position_endstop"]]))
-        q.append(angle(Pk) - abs_endstop + np.radians(notes[f"endstop_reading_{t}_deg"]))
-    return np.column_stack(q)
+        q[:, legs[t]] = angle(Pk) - abs_endstop
+    return q
 
 
 def rotarydelta_forward(j, pfr, tl, sl, fr):
@@ -242,19 +247,18 @@ def test_klipper_rotary_calibrated_example(delta_cal):
     nominal = load_machine(EXAMPLES / "delta_default.yaml")
     fmt, res, ws = _check_export("klipper-rotary-delta", delta_cal, nominal)
     assert res.remaining_rms < 0.2 * res.before_rms
-    # export -> parse -> export
+    # export -> parse -> export: the values Klipper reads, the frame and legs pkmcal's own
     back = fmt.parse(res.text, "printer.cfg")
-    assert np.allclose(back.values, res.params.values, rtol=0, atol=1e-11)
-    assert fmt.text(back, delta_cal) == res.text
+    assert np.allclose(back.values[:14], res.params.values[:14], rtol=0, atol=1e-11)
+    assert back.values[14] == 0.0 and list(back.values[15:]) == [1, 2, 3]
     # import -> machine -> values: Klipper's written values come back (the machine is in
     # Klipper's frame, bed at z = 0)
-    imported = fmt.to_machine(back, delta_cal)
+    imported = fmt.to_machine(back)
     again = fmt.initial(imported)
     assert again.values[14] == 0.0
     assert np.allclose(again.values[:14], back.values[:14], rtol=0, atol=1e-12)
-    assert np.allclose(again.values[15:], back.values[15:], rtol=0, atol=1e-12)
-    shift = np.array([0.0, 0.0, back.values[14]])
-    q = fmt.ik(back, ws.P)
+    shift = np.array([0.0, 0.0, res.params.values[14]])
+    q = fmt.ik(res.params, ws.P)
     assert np.allclose(imported.fk(q).P, ws.P - shift, atol=1e-10)
 
 
@@ -276,9 +280,10 @@ def test_klipper_rotary_exact_machine():
     assert mx < 1e-9
 
 
-def test_klipper_rotary_foreign_config_reads_as_klipper_angles():
+def test_klipper_rotary_foreign_config_reads_readings_from_the_endstops():
     """A printer's own config (no pkmcal lines): Klipper's defaults for b/c and angles, the
-    machine's readings are Klipper's stepper angles, the bed at z = 0."""
+    machine's readings counted from the endstops (reading 0: the arm at its endstop,
+    ``dtheta`` = Klipper's abs_endstop), the bed at z = 0."""
     text = ("[printer]\nkinematics: rotary_delta\nshoulder_radius: 33.9\nshoulder_height: 412.9"
             "\n\n[stepper_a]\nposition_endstop: 252\nupper_arm_length: 170.0\n"
             "lower_arm_length: 320.0\n\n[stepper_b]\n\n[stepper_c]\n")
@@ -292,9 +297,10 @@ def test_klipper_rotary_foreign_config_reads_as_klipper_angles():
     m = fmt.to_machine(p)
     P = np.array([[0.01, -0.02, 0.1], [0.0, 0.0, 0.2], [-0.03, 0.01, 0.05]])
     assert np.allclose(m.fk(fmt.ik(p, P)).P, P, atol=1e-12)
-    # the readings are Klipper's own stepper angles
-    assert np.allclose(fmt.ik(p, P), m.ik(P) + m.legs()[1], atol=1e-12)
-    assert np.allclose(m.legs()[1], 0.0, atol=1e-12)
+    # reading 0 is the arm at its endstop: the effector at the centre at position_endstop
+    assert np.allclose(m.fk(np.zeros((1, 3))).P, [[0.0, 0.0, 0.252]], rtol=0, atol=1e-12)
+    assert np.allclose(m.legs()[1], fmt.abs_endstops(p), rtol=0, atol=1e-15)
+    assert np.allclose(fmt.ik(p, P), m.ik(P), atol=1e-12)
 
 
 @pytest.mark.parametrize("line, key", [("shoulder_radius: 3x", "shoulder_radius"),

@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from rich.markup import escape
+
 from ..calibration.run import json_safe as _finite_or_none
 from ..errors import InputError
 from ..io.atomic import atomic_write_bytes, atomic_write_text, is_stream, read_input_text
@@ -84,13 +86,13 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
     own = getattr(machine, "print_workspace", None)
     ws = (own(rng=seed) if workspace is None and callable(own)
           else workspace_arg(workspace, machine, seed))
+    # onto an existing file the values are saved as the controller saves them, and the
+    # remaining error is that of the values as saved (rounded)
     result = export(fmt, machine, ws.P, ws.R, nominal=before, workspace=ws.description,
-                    surface=ws.surface)
-    text = result.text
+                    surface=ws.surface, existing=existing, source=str(output))
     if existing is not None and backup is not None:
-        text = fmt.update(existing, result.params, machine, str(output)) or result.text
         atomic_write_bytes(backup, previous)
-    atomic_write_text(output, text)
+    atomic_write_text(output, result.text)
     if record_path is not None:
         atomic_write_text(record_path, json.dumps(export_record(result, machine_spec, output,
                                                                 nominal), indent=2) + "\n")
@@ -118,9 +120,12 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
                                  "(previous "
                                  f"file kept as {path_text(backup.name)})")
     out.print(table)
+    for note in result.notes:           # the controller's frame, a relabelling of joints
+        out.print(f"note: {note}", markup=False)
     values = _table("value", "written", title="Values written (the controller's units)")
     for name, text in fmt.values_text(result.params):
-        values.add_row(name, text)
+        # a Klipper key's [section] is text, not markup
+        values.add_row(escape(name), escape(text))
     out.print(values)
     out.print(f"wrote {path_text(output)}"
               + (f" and {path_text(record_path)}" if record_path else "")
