@@ -707,7 +707,12 @@ def export_command(
     to: Annotated[str, typer.Option(
         "--to", metavar="FORMAT", show_default=False,
         help=f"The controller's parameter format: {formats()}.")],
-    output: OutFile,
+    output: Annotated[str, typer.Option(
+        "-o", "--output", metavar="FILE|DIR/", show_default=False,
+        help="Output file (written atomically); for the linuxcnc-* formats a directory (a "
+             "name ending in '/' or an existing directory) gets a whole LinuxCNC "
+             "configuration that starts: machine.ini, machine.hal, kinematics.hal, "
+             "drives.hal, tool.tbl, README.md.")],
     nominal: Annotated[str | None, typer.Option(
         help="The machine file the controller's current values come from (e.g. the nominal "
              "one): also report the error they leave on the calibrated machine.",
@@ -728,6 +733,8 @@ def export_command(
     HAL scale instance per joint between strut length and the drive's reading.
 
     Example: `pkmcal export calibrated.yaml --to linuxcnc-genhexkins -o hexapod.hal`
+
+    Example: `pkmcal export calibrated.yaml --to linuxcnc-genhexkins -o hexapod/`
 
     Example: `pkmcal export cal.yaml --to klipper --nominal printer.yaml -o printer.cfg`
     """

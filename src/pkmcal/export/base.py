@@ -337,6 +337,27 @@ class ControllerFormat(ABC):
             The file's text.
         """
 
+    def written(self, params: ControllerParameters, machine: Machine) -> ControllerParameters:
+        """The values as the written file holds them (rounded to its digits): those the
+        controller runs, so the error :func:`export` states includes the rounding.
+
+        The default: ``params`` as they are (a format whose file rounds overrides it, e.g.
+        by reading its own text back).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The fitted values.
+        machine : Machine
+            The machine they are for.
+
+        Returns
+        -------
+        ControllerParameters
+            The values as written.
+        """
+        return params
+
     def update(self, existing: str, params: ControllerParameters, machine: Machine,
                source: str) -> str | None:
         """The controller's existing file with these values saved, as the controller itself
@@ -652,7 +673,7 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
     why = fmt.applies(machine)
     if why is not None:
         raise InputError(f"--to {fmt.name}: {why}")
-    params = fit_controller(fmt, machine, P, R, surface=surface)
+    params = fmt.written(fit_controller(fmt, machine, P, R, surface=surface), machine)
     E = position_errors(fmt, params, machine, P, R)
     e = np.linalg.norm(E, axis=-1)
     on = None if surface is None else np.asarray(surface, bool)
