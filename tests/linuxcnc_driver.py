@@ -76,6 +76,18 @@ def main(request_path, result_path):
             reader[0].ready()
         return {p: hal.get_value(p) for p in request["pins"]}
 
+    def settled(joints=None):
+        """The commanded joints have stopped and the feedback equals them (to the rounding of
+        a HAL scale pair on the way: 1e-12 of the value)."""
+        cmd_now = list(stat.joint_position[:n])
+        fb = list(stat.joint_actual_position[:n])
+        same = all(abs(a - b) <= 1e-12 * max(1.0, abs(b)) for a, b in zip(fb, cmd_now))
+        still = settled.last == cmd_now
+        settled.last = cmd_now
+        return same and still and all(j["inpos"] for j in stat.joint[:n])
+
+    settled.last = None
+
     def record():
         return {"joints": list(stat.joint_actual_position[:n]),
                 "commanded": list(stat.joint_position[:n]),
@@ -108,8 +120,7 @@ def main(request_path, result_path):
             cmd.mdi(f"G90 G53 G0 {words}")
             cmd.wait_complete(TIMEOUT)
             wait(lambda: stat.interp_state == linuxcnc.INTERP_IDLE and stat.inpos
-                 and list(stat.joint_actual_position[:n]) == list(stat.joint_position[:n]),
-                 f"G0 {words}")
+                 and settled(), f"G0 {words}")
             out["poses"].append(record())
         if request.get("jogs"):
             cmd.mode(linuxcnc.MODE_MANUAL)
@@ -123,9 +134,7 @@ def main(request_path, result_path):
                         increment)
                 wait(lambda: abs(stat.joint_actual_position[joint] - start - increment)
                      < 1e-4 * max(1.0, abs(increment)), f"jog of joint {joint}")
-                wait(lambda: stat.joint[joint]["inpos"]
-                     and list(stat.joint_actual_position[:n]) == list(stat.joint_position[:n]),
-                     f"jog of joint {joint} stopping")
+                wait(settled, f"jog of joint {joint} stopping")
                 time.sleep(0.05)          # the world position of the stopped joints
                 poll()
                 out["jogs"].append(record())

@@ -175,7 +175,8 @@ class LinuxCNCKinematics:
         Returns
         -------
         lines : list of str
-            ``net`` lines of ``machine.hal`` (none: the joint's motor pins are the drive's).
+            ``net`` lines at the top of ``drives.hal``, after the kinematics' components are
+            loaded (none: the joint's motor pins are the drive's).
         command, feedback : str
             HAL pins.
         """
@@ -331,15 +332,17 @@ def configuration(fmt, result: ExportResult, machine, workspace) -> dict[str, st
            "net estop-loop iocontrol.0.user-enable-out => iocontrol.0.emc-enable-in",
            "net tool-prep-loop iocontrol.0.tool-prepare => iocontrol.0.tool-prepared",
            "net tool-change-loop iocontrol.0.tool-change => iocontrol.0.tool-changed"]
-    drives = ["# ==== YOUR DRIVES GO HERE ====",
+    fixed = [line for j in range(n) for line in fmt.joint_nets(j)[0]]
+    drives = (["# Each joint to its drive's path through the kinematics' HAL components (keep):"]
+              + fixed + [""] if fixed else [])
+    drives += ["# ==== YOUR DRIVES GO HERE ====",
               "# Simulated drives: each joint's command is looped back to its feedback (a drive",
               "# that follows exactly). Replace each 'net' line by your drive's pins, e.g.",
               "#   net jN-cmd <command pin> => hm2_.../stepgen.N.position-cmd",
               "#   net jN-fb hm2_.../stepgen.N.position-fb => <feedback pin>",
               f"# Joint N's motor position: {fmt.motor_words}"]
     for j in range(n):
-        fixed, cmd, fb = fmt.joint_nets(j)
-        hal += fixed
+        _, cmd, fb = fmt.joint_nets(j)
         drives.append(f"net j{j}-drive {cmd} => {fb}")
 
     files = {
