@@ -33,8 +33,7 @@ def main(request_path, result_path):
              f"raise SystemExit(0 if s.task_state == linuxcnc.STATE_ESTOP and s.joints == {n} "
              "else 3)")
     def up():
-        p = subprocess.run([sys.executable, "-c", probe], stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE, text=True)
+        p = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
         return p.returncode == 0 and "not available" not in p.stdout + p.stderr
 
     while not up():
@@ -81,7 +80,7 @@ def main(request_path, result_path):
         a HAL scale pair on the way: 1e-12 of the value)."""
         cmd_now = list(stat.joint_position[:n])
         fb = list(stat.joint_actual_position[:n])
-        same = all(abs(a - b) <= 1e-12 * max(1.0, abs(b)) for a, b in zip(fb, cmd_now))
+        same = all(abs(a - b) <= 1e-12 * max(1.0, abs(b)) for a, b in zip(fb, cmd_now, strict=True))
         still = settled.last == cmd_now
         settled.last = cmd_now
         return same and still and all(j["inpos"] for j in stat.joint[:n])
@@ -104,7 +103,8 @@ def main(request_path, result_path):
                 break
             except (linuxcnc.error, RuntimeError):
                 if time.monotonic() - t0 > TIMEOUT:
-                    raise RuntimeError("LinuxCNC did not come up (estop reset, machine on)")
+                    raise RuntimeError("LinuxCNC did not come up (estop reset, machine "
+                                       "on)") from None
                 time.sleep(0.1)
         cmd.mode(linuxcnc.MODE_MANUAL)
         cmd.wait_complete()
@@ -116,7 +116,7 @@ def main(request_path, result_path):
         cmd.mode(linuxcnc.MODE_MDI)
         cmd.wait_complete()
         for pose in request["poses"]:
-            words = " ".join(f"{c}{v:.12f}" for c, v in zip(request["axes"], pose))
+            words = " ".join(f"{c}{v:.12f}" for c, v in zip(request["axes"], pose, strict=True))
             cmd.mdi(f"G90 G53 G0 {words}")
             cmd.wait_complete(TIMEOUT)
             wait(lambda: stat.interp_state == linuxcnc.INTERP_IDLE and stat.inpos
@@ -132,8 +132,11 @@ def main(request_path, result_path):
                 start = stat.joint_actual_position[joint]
                 cmd.jog(linuxcnc.JOG_INCREMENT, True, joint, request.get("jog_speed", 10.0),
                         increment)
-                wait(lambda: abs(stat.joint_actual_position[joint] - start - increment)
-                     < 1e-4 * max(1.0, abs(increment)), f"jog of joint {joint}")
+                def arrived(joint=joint, start=start, increment=increment):
+                    return (abs(stat.joint_actual_position[joint] - start - increment)
+                            < 1e-4 * max(1.0, abs(increment)))
+
+                wait(arrived, f"jog of joint {joint}")
                 wait(settled, f"jog of joint {joint} stopping")
                 time.sleep(0.05)          # the world position of the stopped joints
                 poll()

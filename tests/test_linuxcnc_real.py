@@ -97,7 +97,6 @@ def _run_export(tmp: Path, cal: Path, name: str, n_poses: int = 5):
 
 
 def _check_poses(fmt, machine, params, P, R, request, result):
-    n = machine.n_joints
     J = np.array([r["joints"] for r in result["poses"]])
     assert np.allclose(J, np.array([r["commanded"] for r in result["poses"]]), rtol=1e-12,
                        atol=0)

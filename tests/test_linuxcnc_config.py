@@ -1,0 +1,151 @@
+"""``pkmcal export --to linuxcnc-... -o DIR/``: a LinuxCNC configuration directory (issue 34
+item 3), its files and refusals, without LinuxCNC (tests/test_linuxcnc_real.py starts it).
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clitools import assert_input_error, run
+from pkmcal.export import controller_format
+from pkmcal.export.linuxcnc_config import CONFIG_FILES
+from pkmcal.io.machine_file import load_machine
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+@pytest.fixture(scope="module")
+def hexapod(tmp_path_factory):
+    """examples/cubic_6upu.yaml with joint limits, simulated (pose scenario) and calibrated."""
+    d = tmp_path_factory.mktemp("hexapod")
+    text = (EXAMPLES / "cubic_6upu.yaml").read_text()
+    (d / "cubic.yaml").write_text(text + "joint_limits: {min: 300.0, max: 520.0}\n")
+    proc = run("simulate", "cubic.yaml", "--scenario", "pose", "--poses", "60", "-o",
+               "poses.csv", cwd=d)
+    assert proc.returncode == 0, proc.stderr
+    proc = run("calibrate", "cubic.yaml", "poses.csv", "-o", "cal.yaml", cwd=d)
+    assert proc.returncode == 0, proc.stderr
+    return d
+
+
+def sections(text: str) -> dict:
+    """INI sections -> list of (key, value) (keys may repeat: HALFILE)."""
+    out, name = {}, None
+    for line in text.splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        m = re.match(r"^\[(.+)\]$", line)
+        if m:
+            name = m.group(1)
+            assert name not in out, f"section [{name}] twice"
+            out[name] = []
+        else:
+            k, v = (w.strip() for w in line.split("=", 1))
+            out[name].append((k, v))
+    return out
+
+
+def test_configuration_directory_files_and_values(hexapod, tmp_path):
+    for name in ("cubic.yaml", "cal.yaml", "cal.json"):
+        shutil.copy(hexapod / name, tmp_path / name)
+    proc = run("export", "cal.yaml", "--to", "linuxcnc-genhexkins", "-o", "hexapod/",
+               cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    config = tmp_path / "hexapod"
+    assert sorted(p.name for p in config.iterdir()) == sorted([*CONFIG_FILES, "export.json"])
+    # the kinematics are the file of -o FILE.hal, byte for byte
+    proc = run("export", "cal.yaml", "--to", "linuxcnc-genhexkins", "-o", "single.hal",
+               cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert (config / "kinematics.hal").read_text() == (tmp_path / "single.hal").read_text()
+    ini = sections((config / "machine.ini").read_text())
+    for s in ("EMC", "DISPLAY", "TASK", "RS274NGC", "EMCMOT", "EMCIO", "HAL", "KINS", "TRAJ"):
+        assert s in ini, s
+    assert dict(ini["EMC"])["VERSION"] == "1.1"
+    assert dict(ini["KINS"]) == {"KINEMATICS": "genhexkins", "JOINTS": "6"}
+    assert [v for k, v in ini["HAL"] if k == "HALFILE"] == ["machine.hal", "kinematics.hal",
+                                                           "drives.hal"]
+    traj = dict(ini["TRAJ"])
+    assert traj["COORDINATES"] == "X Y Z A B C" and traj["LINEAR_UNITS"] == "mm"
+    assert traj["ANGULAR_UNITS"] == "degree"
+    cal = load_machine(tmp_path / "cal.yaml")
+    home = [float(v) for v in traj["HOME"].split()]
+    assert np.allclose(home[:3], cal.home[0] * 1e3, atol=1e-6)
+    fmt = controller_format("linuxcnc-genhexkins")
+    params = fmt.parse((config / "kinematics.hal").read_text(), "kinematics.hal")
+    # joint limits: the machine file's (readings 300..520 mm), as strut lengths
+    _, _, l0, g = params.legs()
+    for j in range(6):
+        joint = dict(ini[f"JOINT_{j}"])
+        assert joint["TYPE"] == "LINEAR"
+        lo, hi = sorted([(l0[j] + g[j] * 0.300) * 1e3, (l0[j] + g[j] * 0.520) * 1e3])
+        assert float(joint["MIN_LIMIT"]) == pytest.approx(lo, abs=1e-6)
+        assert float(joint["MAX_LIMIT"]) == pytest.approx(hi, abs=1e-6)
+        assert float(joint["HOME_OFFSET"]) == 0.0
+        # HOME: the strut at the home pose, inside the limits
+        L = fmt.controller_joints(params, fmt.ik(params, cal.home[0][None], cal.home[1][None]))
+        assert float(joint["HOME"]) == pytest.approx(L[0, j], abs=1e-9)
+        assert lo <= float(joint["HOME"]) <= hi
+    for c in "XYZABC":
+        axis = dict(ini[f"AXIS_{c}"])
+        assert float(axis["MIN_LIMIT"]) < float(axis["MAX_LIMIT"])
+    drives = (config / "drives.hal").read_text()
+    assert "YOUR DRIVES GO HERE" in drives
+    assert all(f"net j{j}-drive strut-reading.{j}.out => strut-length.{j}.in" in drives
+               for j in range(6))
+    # the joints' path to the drives comes after the scale pair is loaded (kinematics.hal)
+    assert "strut-reading" not in (config / "machine.hal").read_text()
+    assert "README" not in drives and "linuxcnc machine.ini" in (config / "README.md").read_text()
+    # the directory's kinematics import back as the same machine values
+    proc = run("import", "hexapod/kinematics.hal", "--from", "linuxcnc-genhexkins", "--like",
+               "cal.yaml", "-o", "back.yaml", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    back = load_machine(tmp_path / "back.yaml")
+    assert np.allclose(back.legs()[0], cal.legs()[0], rtol=0, atol=1e-10)
+
+
+def test_existing_directory_is_a_configuration_directory(hexapod, tmp_path):
+    shutil.copy(hexapod / "cal.yaml", tmp_path / "cal.yaml")
+    shutil.copy(hexapod / "cal.json", tmp_path / "cal.json")
+    (tmp_path / "cfg").mkdir()
+    proc = run("export", "cal.yaml", "--to", "linuxcnc-genhexkins", "-o", "cfg", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "cfg" / "machine.ini").is_file()
+
+
+def test_configuration_directory_refusals(tmp_path, cli):
+    """A directory for a format that writes one file, and a machine the kinematics cannot
+    hold: exit 2, one message, nothing written."""
+    shutil.copy(EXAMPLES / "linear_delta.yaml", tmp_path / "printer.yaml")
+    shutil.copy(EXAMPLES / "delta_default.yaml", tmp_path / "delta.yaml")
+    cli_run = cli
+    out = cli_run("export", "printer.yaml", "--to", "klipper", "-o", "cfg/")
+    assert_input_error(out, "-o cfg/", "klipper writes one file")
+    out = cli_run("export", "delta.yaml", "--to", "linuxcnc-rotarydelta", "-o", "cfg/")
+    assert_input_error(out, "-90, 30 and 150")
+    assert not (tmp_path / "cfg").exists()
+
+
+@pytest.mark.parametrize("name,machine", [("linuxcnc-lineardelta", "linear_delta.yaml")])
+def test_delta_configuration_joints(tmp_path, name, machine):
+    """A linear Delta's joints: HOME_OFFSET the carriage heights at the endstops (the
+    calibration's joint zero, as in the .hal's pkmcal lines), HOME at the home pose."""
+    shutil.copy(EXAMPLES / machine, tmp_path / "m.yaml")
+    proc = run("export", "m.yaml", "--to", name, "-o", "cfg/", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    ini = sections((tmp_path / "cfg" / "machine.ini").read_text())
+    fmt = controller_format(name)
+    params = fmt.parse((tmp_path / "cfg" / "kinematics.hal").read_text(), "k.hal")
+    m = load_machine(tmp_path / "m.yaml")
+    for j in range(3):
+        joint = dict(ini[f"JOINT_{j}"])
+        assert float(joint["HOME_OFFSET"]) == pytest.approx(fmt.home_offsets(params)[j],
+                                                           abs=1e-9)
+    pe, _, r, L, _, _ = m.towers()
+    assert fmt.home_offsets(params) == pytest.approx((pe + np.sqrt(L**2 - r**2)) * 1e3)
