@@ -30,13 +30,14 @@ run the same code)
     (Some versions carry ``J0off`` .. ``J2off`` pins; the mainline has ``R`` and ``L`` only, so
     they are not used.)
 
-The joints' zero (an INI note, decided here)
+The joints' zero (the INI's ``HOME_OFFSET``)
 --------------------------------------------
 A joint's position after homing is the INI's ``[JOINT_n] HOME_OFFSET`` (the joint position
 of the home switch); it, not a HAL pin of the kinematics, is where LinuxCNC holds a joint's
-zero. The file writes it as comment lines (``# [JOINT_0] HOME_OFFSET = ...``) with a ``#
-pkmcal`` line that :meth:`parse` reads back; no HAL ``offset`` component is wired (that would
-re-route the user's ``motor-pos-cmd`` nets).
+zero. A configuration directory (``-o DIR/``, :mod:`~pkmcal.export.linuxcnc_config`) writes
+it into its INI; the ``.hal`` file alone has it as comment lines (``# [JOINT_0] HOME_OFFSET =
+...``) with a ``# pkmcal`` line that :meth:`parse` reads back; no HAL ``offset`` component is
+wired (that would re-route the user's ``motor-pos-cmd`` nets).
 
 - Linear Delta: pkmcal's reading is the carriage's travel down from its endstop, so the
   joint is ``HOME_OFFSET_j - q``: ``HOME_OFFSET_j`` is the carriage height at the endstop
