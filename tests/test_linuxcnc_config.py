@@ -149,3 +149,77 @@ def test_delta_configuration_joints(tmp_path, name, machine):
                                                            abs=1e-9)
     pe, _, r, L, _, _ = m.towers()
     assert fmt.home_offsets(params) == pytest.approx((pe + np.sqrt(L**2 - r**2)) * 1e3)
+
+
+def _delta120(tmp: Path) -> Path:
+    """The default Delta with its legs at LinuxCNC's hips (in another order) and actuator
+    offsets."""
+    text = (EXAMPLES / "delta_default.yaml").read_text().replace(
+        "leg_angles: [90.0, 180.0, -90.0]", "leg_angles: [150.0, 30.0, -90.0]")
+    text = text.replace("dtheta: 0.0", "dtheta: 0.2", 1)
+    (tmp / "d120.yaml").write_text(text)
+    return tmp / "d120.yaml"
+
+
+@pytest.mark.parametrize("name", ["linuxcnc-rotarydelta", "linuxcnc-lineardelta",
+                                  "linuxcnc-genhexkins"])
+def test_configuration_import_then_export_is_the_identity(tmp_path, name):
+    """Issue 34: import of what export wrote, exported again, is the same configuration:
+    every file LinuxCNC reads, byte for byte (the INI's HOME_OFFSET, HOME and name read
+    back from the INI, not from comments)."""
+    machine = {"linuxcnc-rotarydelta": _delta120(tmp_path),
+               "linuxcnc-lineardelta": EXAMPLES / "linear_delta.yaml",
+               "linuxcnc-genhexkins": EXAMPLES / "cubic_6upu.yaml"}[name]
+    proc = run("export", machine, "--to", name, "-o", "a/", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    proc = run("import", "a", "--from", name, "-o", "imported.yaml", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    proc = run("export", "imported.yaml", "--to", name, "-o", "b/", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    for f in ("machine.ini", "machine.hal", "kinematics.hal", "drives.hal"):
+        assert (tmp_path / "a" / f).read_text() == (tmp_path / "b" / f).read_text(), f
+
+
+def test_configuration_import_takes_the_joint_zero_from_the_ini(tmp_path):
+    """The INI is what LinuxCNC runs: a HOME_OFFSET changed there is the joint's zero of the
+    import (the kinematics.hal's pkmcal lines are not the convention's only home); a
+    lineardeltakins file without any HOME_OFFSET notes imports from its configuration."""
+    proc = run("export", _delta120(tmp_path), "--to", "linuxcnc-rotarydelta", "-o", "rd/",
+               cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    ini = tmp_path / "rd" / "machine.ini"
+    text = ini.read_text()
+    old = re.search(r"\[JOINT_2\][^\[]*?HOME_OFFSET = (\S+)", text)
+    ini.write_text(text[:old.start(1)] + "1.5" + text[old.end(1):])
+    proc = run("import", "rd/machine.ini", "--from", "linuxcnc-rotarydelta", "-o", "m.yaml",
+               cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    m = load_machine(tmp_path / "m.yaml")
+    leg = int(np.argmin(np.abs(np.degrees(m.leg_angles) - 150.0)))     # joint 2's hip
+    assert np.degrees(m.legs()[1][leg]) == pytest.approx(-1.5, abs=1e-12)
+
+    proc = run("export", EXAMPLES / "linear_delta.yaml", "--to", "linuxcnc-lineardelta", "-o",
+               "ld/", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    hal = tmp_path / "ld" / "kinematics.hal"
+    hal.write_text("".join(line for line in hal.read_text().splitlines(keepends=True)
+                           if not line.startswith("#")))
+    proc = run("import", "ld", "--from", "linuxcnc-lineardelta", "-o", "p.yaml", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    p = load_machine(tmp_path / "p.yaml")
+    ref = load_machine(EXAMPLES / "linear_delta.yaml")
+    assert p.towers()[0] == pytest.approx(ref.towers()[0], abs=1e-12)
+
+
+def test_configuration_import_errors_name_the_ini_line(tmp_path, cli):
+    proc = run("export", EXAMPLES / "linear_delta.yaml", "--to", "linuxcnc-lineardelta", "-o",
+               "ld/", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    out = cli("import", "ld", "--from", "linuxcnc-rotarydelta", "-o", "m.yaml")
+    assert_input_error(out, "machine.ini: line", "[KINS] KINEMATICS = lineardeltakins",
+                       "rotarydeltakins")
+    ini = tmp_path / "ld" / "machine.ini"
+    ini.write_text(re.sub(r"(\[JOINT_1\][^\[]*?HOME_OFFSET = )\S+", r"\g<1>x", ini.read_text()))
+    out = cli("import", "ld/machine.ini", "--from", "linuxcnc-lineardelta", "-o", "m.yaml")
+    assert_input_error(out, "machine.ini: line", "[JOINT_1] HOME_OFFSET", "'x'")
+    assert not (tmp_path / "m.yaml").exists()

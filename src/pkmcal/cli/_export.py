@@ -220,13 +220,16 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
 
     fmt = controller_format(source_format)
     check_outputs([output], [path] + (_machine_inputs(like) if like else []))
-    text = read_input_text(path, f"{fmt.name} file")
-    params = fmt.parse(text, str(path))
+    params, home, name = _read_controller_file(fmt, path)
     model = load_machine_arg(like) if like is not None else None
     if model is not None and fmt.machine_kind and model.kind != fmt.machine_kind:
         raise InputError(f"--like {like}: a {model.kind} machine; {fmt.name} files describe a "
                          f"{fmt.machine_words} (machine: {fmt.machine_kind})")
     machine = carry_like(fmt.to_machine(params, model), model)
+    if model is None and home is not None:      # a LinuxCNC configuration's own
+        machine.home = home
+    if model is None and name:
+        machine.name = name
     _check_imported(fmt, params, machine, path, like)
     units = getattr(machine, "file_units", None)
     save_machine(machine, output, units)
@@ -238,6 +241,33 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
               f"{path_text(output)} "
               f"as a {machine.kind} machine file", markup=False)
     return 0
+
+
+def _read_controller_file(fmt, path: Path):
+    """The values of a controller file, and a home pose and name where it holds them; for a
+    LinuxCNC format also of a configuration: its INI (``.ini``, or the one INI of a
+    directory) with the HAL files it names, ``[TRAJ] HOME`` and ``[EMC] MACHINE``."""
+    from ..export.linuxcnc_config import (
+        LinuxCNCKinematics,
+        configuration_home,
+        parse_configuration,
+    )
+
+    configuration = isinstance(fmt, LinuxCNCKinematics) and (path.is_dir()
+                                                             or path.suffix == ".ini")
+    if not configuration:
+        return fmt.parse(read_input_text(path, f"{fmt.name} file"), str(path)), None, None
+    if path.is_dir():
+        inis = sorted(path.glob("*.ini"))
+        if len(inis) != 1:
+            raise InputError(f"{path_text(path)}: a LinuxCNC configuration directory with "
+                             f"{len(inis)} INI files; name the one LinuxCNC starts with")
+        path = inis[0]
+    text = read_input_text(path, "LinuxCNC INI file")
+    params = parse_configuration(
+        fmt, text, path_text(path),
+        lambda name: read_input_text(path.parent / name, "LinuxCNC HAL file"))
+    return (params, *configuration_home(fmt, params, text, path_text(path)))
 
 
 #: machine-file keys an import takes from ``--like`` (:func:`~pkmcal.export.base.carry_like`)

@@ -34,10 +34,12 @@ the usual screen.
 from __future__ import annotations
 
 from abc import abstractmethod
+from pathlib import Path
 
 import numpy as np
 
-from .base import ControllerParameters, ExportResult
+from ..errors import InputError
+from .base import ControllerParameters, ExportResult, Origin, finite_number
 
 #: the files of a configuration directory (name -> what it is)
 CONFIG_FILES = {
@@ -73,6 +75,8 @@ class LinuxCNCKinematics:
     joint_type: str = "LINEAR"
     #: what the motor position of joint N is, for the README
     motor_words: str = ""
+    #: the kinematics' joints (a configuration may have more, e.g. rotary axes)
+    kins_joints: int = 3
 
     @abstractmethod
     def controller_joints(self, params: ControllerParameters, q) -> np.ndarray:
@@ -162,6 +166,47 @@ class LinuxCNCKinematics:
         ndarray, shape (n,)
             LinuxCNC's units.
         """
+
+    @abstractmethod
+    def with_home_offsets(self, params: ControllerParameters, offsets: dict
+                          ) -> ControllerParameters:
+        """The values with the INI's ``HOME_OFFSET`` as the joints' zero (an import of a
+        configuration: the INI is what LinuxCNC runs).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values of the kinematics' HAL file.
+        offsets : dict
+            Joint -> ``(HOME_OFFSET, Origin)`` (LinuxCNC's units).
+
+        Returns
+        -------
+        ControllerParameters
+            The values.
+        """
+
+    def parse_with_home_offsets(self, text: str, source: str, offsets: dict
+                                ) -> ControllerParameters:
+        """The values of the kinematics' HAL file with the INI's ``HOME_OFFSET``
+        (:meth:`with_home_offsets` of :meth:`parse`; a format whose file alone must state
+        them overrides it).
+
+        Parameters
+        ----------
+        text : str
+            The HAL file's text.
+        source : str
+            Its name.
+        offsets : dict
+            Joint -> ``(HOME_OFFSET, Origin)``.
+
+        Returns
+        -------
+        ControllerParameters
+            The values.
+        """
+        return self.with_home_offsets(self.parse(text, source), offsets)
 
     def joint_nets(self, j: int) -> tuple[list[str], str, str]:
         """How joint ``j`` reaches its drive: fixed HAL lines, the pin that carries the
@@ -406,3 +451,143 @@ drive's position feedback to the feedback pin. Joint N's motor position: {fmt.mo
 - Move slowly to the home pose and a few poses of the workspace; compare with
   `pkmcal ik` of the calibrated machine file.
 """
+
+
+def ini_sections(text: str) -> dict:
+    """An INI text's entries: section -> list of ``(key, value, line)`` (keys may repeat,
+    as ``HALFILE`` does; ``#`` and ``;`` lines are comments).
+
+    Parameters
+    ----------
+    text : str
+        The INI file's text.
+
+    Returns
+    -------
+    dict
+        The entries per section, in order.
+    """
+    out: dict = {}
+    section = None
+    for n, raw in enumerate(text.splitlines(), 1):
+        line = raw.strip()
+        if not line or line.startswith(("#", ";")):
+            continue
+        if line.startswith("[") and line.endswith("]"):
+            section = out.setdefault(line[1:-1].strip(), [])
+        elif "=" in line and section is not None:
+            key, value = (w.strip() for w in line.split("=", 1))
+            section.append((key, value, n))
+    return out
+
+
+def parse_configuration(fmt, ini_text: str, source: str, read) -> ControllerParameters:
+    """The values of a LinuxCNC configuration: its INI's ``[KINS] KINEMATICS``, the HAL file
+    of its ``[HAL] HALFILE`` list that sets the kinematics' values, and the joints' ``[JOINT_n]
+    HOME_OFFSET`` (LinuxCNC's default 0 where missing) as their zero.
+
+    Parameters
+    ----------
+    fmt : ControllerFormat and LinuxCNCKinematics
+        The format.
+    ini_text : str
+        The INI file's text.
+    source : str
+        Its name, for messages.
+    read : callable
+        ``read(name) -> text`` of a ``HALFILE`` entry (relative to the INI's directory).
+
+    Returns
+    -------
+    ControllerParameters
+        The values, their origins in the INI and the HAL file.
+
+    Raises
+    ------
+    InputError
+        Naming the INI's line, or the HAL file's, of what does not fit the format.
+    """
+    ini = ini_sections(ini_text)
+    kins = [(v, n) for k, v, n in ini.get("KINS", []) if k == "KINEMATICS"]
+    if not kins:
+        raise InputError(f"{source}: [KINS] KINEMATICS is missing (LinuxCNC's kinematics "
+                         "module)")
+    words = kins[0][0].split()
+    if not words or words[0] != fmt.kins_module:
+        raise InputError(f"{source}: line {kins[0][1]}: [KINS] KINEMATICS = {kins[0][0]}: "
+                         f"--from {fmt.name} reads {fmt.kins_module}")
+    found = []
+    for name, _, _ in ((v, k, n) for k, v, n in ini.get("HAL", []) if k == "HALFILE"):
+        if name.startswith("LIB:") or not name.endswith(".hal"):
+            continue                       # LinuxCNC's own library files, Tcl files
+        text = read(name)
+        if any(line.split()[:2] and line.split()[0] == "setp"
+               and line.split()[1].startswith(fmt.kins_module + ".")
+               for line in text.splitlines() if line.strip()):
+            found.append((name, text))
+    if len(found) != 1:
+        what = ("none of its [HAL] HALFILE files sets" if not found else
+                f"{len(found)} of its HALFILE files ({', '.join(n for n, _ in found)}) set")
+        raise InputError(f"{source}: {what} {fmt.kins_module}'s values (setp "
+                         f"{fmt.kins_module}.<pin>); one file must hold them")
+    joints = [(v, n) for k, v, n in ini.get("KINS", []) if k == "JOINTS"]
+    if not joints:
+        raise InputError(f"{source}: [KINS] JOINTS is missing")
+    n_joints = finite_number(joints[0][0], source, joints[0][1], "[KINS] JOINTS")
+    if n_joints < fmt.kins_joints:
+        raise InputError(f"{source}: line {joints[0][1]}: [KINS] JOINTS = {joints[0][0]}: "
+                         f"{fmt.kins_module} has {fmt.kins_joints} joints")
+    offsets = {}
+    for j in range(fmt.kins_joints):
+        entries = [(v, n) for k, v, n in ini.get(f"JOINT_{j}", []) if k == "HOME_OFFSET"]
+        if entries:
+            v, n = entries[0]
+            offsets[j] = (finite_number(v, source, n, f"[JOINT_{j}] HOME_OFFSET"),
+                          Origin(source, f"[JOINT_{j}] HOME_OFFSET", n))
+        else:
+            offsets[j] = (0.0, Origin(source, f"[JOINT_{j}] HOME_OFFSET", None,
+                                      "not in the file: LinuxCNC's default 0"))
+    hal_source = str(Path(source).parent / found[0][0])
+    return fmt.parse_with_home_offsets(found[0][1], hal_source, offsets)
+
+
+def configuration_home(fmt, params: ControllerParameters, ini_text: str, source: str):
+    """The home pose and name a configuration's INI holds (``[TRAJ] HOME`` in LinuxCNC's
+    world, ``[EMC] MACHINE``), for an import without ``--like``.
+
+    Parameters
+    ----------
+    fmt : ControllerFormat and LinuxCNCKinematics
+        The format.
+    params : ControllerParameters
+        The configuration's values (:func:`parse_configuration`).
+    ini_text : str
+        The INI file's text.
+    source : str
+        Its name, for messages.
+
+    Returns
+    -------
+    home : tuple of ndarray or None
+        ``(P, R)`` in the calibrated frame (m); None without ``[TRAJ] HOME``.
+    name : str or None
+        ``[EMC] MACHINE``.
+
+    Raises
+    ------
+    InputError
+        When ``[TRAJ] HOME`` is not one number per coordinate (naming its line).
+    """
+    ini = ini_sections(ini_text)
+    name = next((v for k, v, _ in ini.get("EMC", []) if k == "MACHINE"), None)
+    entry = next(((v, n) for k, v, n in ini.get("TRAJ", []) if k == "HOME"), None)
+    if entry is None:
+        return None, name
+    words = entry[0].split()
+    m = len(fmt.coordinates.split())
+    if len(words) < m:
+        raise InputError(f"{source}: line {entry[1]}: [TRAJ] HOME = {entry[0]}: expected "
+                         f"{m} numbers ({fmt.coordinates})")
+    X = np.array([[finite_number(w, source, entry[1], "[TRAJ] HOME") for w in words[:m]]])
+    P, R = fmt.calibrated_pose(params, X)
+    return (P[0], R[0]), name

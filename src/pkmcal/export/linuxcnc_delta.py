@@ -360,6 +360,33 @@ class _LinuxCNCDelta(ControllerFormat, LinuxCNCKinematics):
         """
         return params.values[self._ZEROS] * self._scale()
 
+    def with_home_offsets(self, params: ControllerParameters, offsets: dict
+                          ) -> ControllerParameters:
+        """The values with the INI's ``HOME_OFFSET`` as the joints' zeros.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The HAL file's values.
+        offsets : dict
+            Joint -> ``(HOME_OFFSET, Origin)``, deg or mm.
+
+        Returns
+        -------
+        ControllerParameters
+            The values, the zeros' origins the INI's lines.
+        """
+        v = params.values.copy()
+        zeros = v[self._ZEROS]
+        for j, (value, _) in offsets.items():
+            zeros[j] = value / self._scale()
+        v[self._ZEROS] = zeros
+        out = params.with_values(v)
+        names = params.names[self._ZEROS]
+        for j, (_, origin) in offsets.items():
+            out.origins[names[j]] = origin
+        return out
+
     def written(self, params: ControllerParameters, machine: Machine) -> ControllerParameters:
         """The values as the ``.hal`` file holds them: its text read back (lengths to 1e-9
         mm, angles to 1e-12 deg).
@@ -758,7 +785,29 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
         lines += [f"# pkmcal reading{i + 1}.joint = {int(v[6 + i])}" for i in range(3)]
         return "\n".join(lines) + "\n"
 
-    def parse(self, text: str, source: str) -> ControllerParameters:
+    def parse_with_home_offsets(self, text: str, source: str, offsets: dict
+                                ) -> ControllerParameters:
+        """The values of the kinematics' HAL file with the INI's ``HOME_OFFSET`` (the
+        file then needs no ``HOME_OFFSET`` notes).
+
+        Parameters
+        ----------
+        text : str
+            The HAL file's text.
+        source : str
+            Its name.
+        offsets : dict
+            Joint -> ``(HOME_OFFSET mm, Origin)``.
+
+        Returns
+        -------
+        ControllerParameters
+            The values.
+        """
+        return self.parse(text, source, offsets)
+
+    def parse(self, text: str, source: str, offsets: dict | None = None
+              ) -> ControllerParameters:
         """The values of a ``.hal`` file.
 
         Parameters
@@ -767,6 +816,9 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
             The file's text.
         source : str
             Its name, for messages.
+        offsets : dict, optional
+            Joint -> ``(HOME_OFFSET mm, Origin)`` of a configuration's INI: they are the
+            carriage heights at the endstops (the file's notes are not read then).
 
         Returns
         -------
@@ -793,7 +845,9 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
                 at[f"home_offset.{m.group(1)}"] = n
         homes = []
         for j in range(3):
-            if f"home_offset.{j}_mm" in notes:
+            if offsets is not None:
+                homes.append(offsets[j][0])
+            elif f"home_offset.{j}_mm" in notes:
                 homes.append(notes[f"home_offset.{j}_mm"][0])
             elif j in ini:
                 homes.append(ini[j])
@@ -806,7 +860,9 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
                              reading_joints(notes, source))
         params.origins.update(hal_origins(source, "lineardeltakins", at, notes))
         for j in range(3):
-            if f"home_offset.{j}_mm" not in notes:
+            if offsets is not None:
+                params.origins[f"home_offset.{j}"] = offsets[j][1]
+            elif f"home_offset.{j}_mm" not in notes:
                 params.origins[f"home_offset.{j}"] = Origin(
                     source, f"# [JOINT_{j}] HOME_OFFSET", at[f"home_offset.{j}"])
         from .klipper import check_printer_values

@@ -177,6 +177,7 @@ class GenhexkinsFormat(ControllerFormat, LinuxCNCKinematics):
     """LinuxCNC ``genhexkins`` with one ``scale`` pair per joint (see the module docstring)."""
 
     kins_module = "genhexkins"
+    kins_joints = 6
     coordinates = "X Y Z A B C"
     joint_type = "LINEAR"
     motor_words = (f"the strut length (mm); the drive's command is {COMMAND}.N.out and its "
@@ -274,6 +275,33 @@ class GenhexkinsFormat(ControllerFormat, LinuxCNCKinematics):
             Zeros.
         """
         return np.zeros(6)
+
+    def with_home_offsets(self, params: ControllerParameters, offsets: dict
+                          ) -> ControllerParameters:
+        """The values with the INI's ``HOME_OFFSET``: a joint is its feedback scale's strut
+        length plus it, so it is added to the scale's offset (``l0``).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The HAL file's values.
+        offsets : dict
+            Joint -> ``(HOME_OFFSET mm, Origin)``.
+
+        Returns
+        -------
+        ControllerParameters
+            The values.
+        """
+        params = _as_genhex(params)
+        v = params.values.copy()
+        for j, (value, _) in offsets.items():
+            v[37 + 2 * j] += value * MM
+        out = params.with_values(v)
+        for j, (value, origin) in offsets.items():
+            if value:
+                out.origins[f"strut.{j}.offset"] = origin
+        return out
 
     def joint_nets(self, j: int) -> tuple[list[str], str, str]:
         """Joint ``j`` through its scale pair: the command to ``strut-reading.j``, the
