@@ -747,7 +747,9 @@ def export_command(
 def import_command(
     path: Annotated[Path, typer.Argument(
         metavar="FILE", show_default=False,
-        help="The controller's parameter file (e.g. a .hal, printer.cfg or G-code lines).")],
+        help="The controller's parameter file (e.g. a .hal, printer.cfg or G-code lines); "
+             "for the linuxcnc-* formats also a configuration: its INI file or directory "
+             "(the joints' zeros from [JOINT_n] HOME_OFFSET).")],
     source_format: Annotated[str, typer.Option(
         "--from", metavar="FORMAT", show_default=False,
         help=f"The file's format: {formats()}.")],
@@ -760,6 +762,8 @@ def import_command(
     calibration from what the machine runs today.
 
     Example: `pkmcal import hexapod.hal --from linuxcnc-genhexkins -o machine.yaml`
+
+    Example: `pkmcal import hexapod/ --from linuxcnc-genhexkins -o machine.yaml`
 
     Example: `pkmcal import printer.cfg --from klipper --like examples/linear_delta.yaml -o
     printer.yaml`
