@@ -180,3 +180,20 @@ def test_stated_error_includes_the_rounding_of_the_written_values(rotary):
         assert np.array_equal(params.values, res.params.values)
         e = np.linalg.norm(position_errors(fmt, params, m, ws.P), axis=1)
         assert res.remaining_max == e.max()
+
+
+def test_pkmcal_rotarydeltakins_is_linuxcncs():
+    """Issue 34: pkmcal's restatement of rotarydeltakins' inverse kinematics gives the joints
+    LinuxCNC's code gives (it followed the 2013 code: joints 1 and 2 swapped, z mirrored),
+    for several geometries and targets below the hips."""
+    from pkmcal.export.linuxcnc_delta import rotarydelta_joints
+
+    rng = np.random.default_rng(34)
+    for geometry in ([200.0, 300.0, 800.0, 50.0], [10.0, 10.0, 14.0, 6.0],
+                     [150.0, 120.0, 400.0, 30.0]):
+        pfr, tl, sl, fr = geometry
+        depth = np.sqrt(sl**2 - (pfr - fr) ** 2)
+        X = np.column_stack([rng.uniform(-0.1, 0.1, (20, 2)) * sl,
+                             -depth * rng.uniform(0.9, 1.1, 20)])
+        J = np.array(debian_kins("rotarydeltakins", geometry, inverse=X)["inverse"])
+        assert np.abs(rotarydelta_joints(*geometry, X) - J).max() < 1e-9

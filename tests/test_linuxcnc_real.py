@@ -131,12 +131,15 @@ def _check_jogs(fmt, machine, params, result):
     assert j1[0] - j0[0] == pytest.approx(1.0, abs=1e-4)
 
 
-def test_genhexkins_configuration_runs_in_linuxcnc(tmp_path):
-    """The calibrated hexapod of the docs (examples/cubic_6upu.yaml, full poses), its
-    configuration started as written: strut lengths, the drives' readings through the scale
-    pair and the forward map agree with pkmcal."""
-    shutil.copy(EXAMPLES / "cubic_6upu.yaml", tmp_path / "cubic.yaml")
-    cal = _calibrate(tmp_path, tmp_path / "cubic.yaml", "pose", "--poses", "60")
+@pytest.mark.parametrize("example", ["cubic_6upu.yaml", "jugglebot.yaml"])
+def test_genhexkins_configuration_runs_in_linuxcnc(tmp_path, example):
+    """The calibrated hexapod of the docs (examples/cubic_6upu.yaml, full poses; readings in
+    mm) and the Jugglebot as designed (readings in motor revolutions: scale gains of 75.7
+    mm/rev), their configurations started as written: strut lengths, the drives' readings
+    through the scale pairs and the forward map agree with pkmcal."""
+    shutil.copy(EXAMPLES / example, tmp_path / "machine.yaml")
+    cal = (_calibrate(tmp_path, tmp_path / "machine.yaml", "pose", "--poses", "60")
+           if example == "cubic_6upu.yaml" else tmp_path / "machine.yaml")
     fmt, machine, params, P, R, request, result = _run_export(tmp_path, cal,
                                                               "linuxcnc-genhexkins")
     q, pins, motor, reached = _check_poses(fmt, machine, params, P, R, request, result)
