@@ -223,3 +223,24 @@ def test_configuration_import_errors_name_the_ini_line(tmp_path, cli):
     out = cli("import", "ld/machine.ini", "--from", "linuxcnc-lineardelta", "-o", "m.yaml")
     assert_input_error(out, "machine.ini: line", "[JOINT_1] HOME_OFFSET", "'x'")
     assert not (tmp_path / "m.yaml").exists()
+
+
+def test_configuration_refuses_a_home_the_controller_cannot_command():
+    """[TRAJ] HOME and the joints' HOME come from the machine file's home pose: one that
+    rotarydeltakins cannot reach is refused by name, not written as nan."""
+    from pkmcal.errors import InputError
+    from pkmcal.export import export, export_workspace
+    from pkmcal.export.linuxcnc_config import configuration
+
+    text = (EXAMPLES / "delta_default.yaml").read_text().replace(
+        "leg_angles: [90.0, 180.0, -90.0]", "leg_angles: [-90.0, 30.0, 150.0]")
+    from pkmcal.io.machine_file import parse_machine
+
+    m = parse_machine(text, "d.yaml")
+    fmt = controller_format("linuxcnc-rotarydelta")
+    ws = export_workspace(m)
+    res = export(fmt, m, ws.P)
+    assert "HOME = 0 0 -750" in configuration(fmt, res, m, ws)["machine.ini"]
+    m.home = (np.array([0.0, 0.0, -5.0]), np.eye(3))          # 5 m below the hips
+    with pytest.raises(InputError, match="home pose cannot be commanded"):
+        configuration(fmt, res, m, ws)

@@ -261,12 +261,21 @@ def configuration(fmt, result: ExportResult, machine, workspace) -> dict[str, st
     -------
     dict
         File name -> text (:data:`CONFIG_FILES`).
+
+    Raises
+    ------
+    InputError
+        When the controller cannot command the machine's home pose.
     """
     params = result.params
     n = machine.n_joints
     home_P, home_R = (np.asarray(v, float) for v in machine.home)
     home_q = fmt.ik(params, home_P[None], home_R[None])
     home_J = fmt.controller_joints(params, home_q)[0]
+    if not np.all(np.isfinite(home_J)):
+        raise InputError(f"--to {fmt.name}: the machine file's home pose cannot be commanded "
+                         f"with {fmt.kins_module}'s values ([TRAJ] HOME and [JOINT_n] HOME "
+                         "need it); give a home inside the workspace")
     offsets = fmt.home_offsets(params)
     X = fmt.controller_world(params, workspace.P, workspace.R)
     X_home = fmt.controller_world(params, home_P[None], home_R[None])[0]
