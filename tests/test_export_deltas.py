@@ -5,7 +5,8 @@ Each controller's inverse kinematics is written here again from its source, NOT 
 ``pkmcal.export``'s code or pkmcal's machine models: Klipper ``klippy/chelper/
 kin_rotary_delta.c`` / ``klippy/kinematics/rotary_delta.py`` (the elbow in the arm's vertical
 plane, ``abs_endstop = IK(0, 0, position_endstop)``), LinuxCNC ``rotarydeltakins-common.h``
-(hips at -90, 150, 30 deg, knee down positive, its FK's z the foot's depth below the hips) and
+as LinuxCNC 2.9 runs it (hips of joints 0, 1, 2 at -90, 30, 150 deg, knee down positive, z up
+with the foot below the hips: issue 34) and
 ``lineardeltakins-common.h`` (towers at 90, 210, 330 deg, joint = carriage height). The
 written file is read here with its own small parser; the machine that moves is the calibrated
 model (``machine.fk``). Its error must equal what ``export`` reports.
@@ -139,8 +140,9 @@ def klipper_readings(text, P):
 
 
 def rotarydelta_forward(j, pfr, tl, sl, fr):
-    """rotarydeltakins-common.h kinematics_forward, line by line (joints deg)."""
-    j0, j1, j2 = np.radians([j[0], j[2], j[1]])
+    """rotarydeltakins-common.h kinematics_forward (LinuxCNC 2.9), line by line (joints
+    deg)."""
+    j0, j1, j2 = np.radians([j[0], j[1], j[2]])
     y1 = -(pfr - fr + tl * np.cos(j0))
     z1 = -tl * np.sin(j0)
     y2 = (pfr - fr + tl * np.cos(j1)) * 0.5
@@ -158,21 +160,21 @@ def rotarydelta_forward(j, pfr, tl, sl, fr):
     a = a1**2 + a2**2 + denom**2
     b = 2 * (a1 * b1 + a2 * (b2 - y1 * denom) - z1 * denom**2)
     c = (b2 - y1 * denom) ** 2 + b1**2 + denom**2 * (z1**2 - sl**2)
-    z = (b + np.sqrt(b * b - 4 * a * c)) / (2 * a)
-    return np.array([(-a1 * z + b1) / denom, (-a2 * z + b2) / denom, z])
+    z = (-b - np.sqrt(b * b - 4 * a * c)) / (2 * a)
+    return np.array([(a1 * z + b1) / denom, (a2 * z + b2) / denom, z])
 
 
 def rotarydelta_joints(P_L, pfr, tl, sl, fr):
     """Hip angles (deg, knee down positive) for LinuxCNC world targets: knee i at
-    ``(pfr + tl cos j) e_i - tl sin j e_z``, the foot's ankle ``fr e_i`` off the point, the
-    point below the hips by LinuxCNC's z (its FK returns the depth)."""
+    ``(pfr + tl cos j) e_i - tl sin j e_z``, the foot's ankle ``fr e_i`` off the point, z up
+    (the foot below the hips at negative z)."""
     out = []
-    for hip in (-90.0, 150.0, 30.0):
+    for hip in (-90.0, 30.0, 150.0):
         e = np.array([np.cos(np.radians(hip)), np.sin(np.radians(hip)), 0.0])
         t = np.array([-e[1], e[0], 0.0])
         side = P_L @ t
         lower = np.sqrt(sl**2 - side**2)
-        up = arm_angle(P_L @ e + fr - pfr, -P_L[..., 2], tl, lower)
+        up = arm_angle(P_L @ e + fr - pfr, P_L[..., 2], tl, lower)
         out.append(-np.degrees(up))
     return np.column_stack(out)
 
@@ -180,8 +182,7 @@ def rotarydelta_joints(P_L, pfr, tl, sl, fr):
 def linuxcnc_rotary_readings(text, P):
     pins, notes = read_setp(text, "rotarydeltakins"), pkmcal_lines(text)
     geo = [pins[k] for k in ("platformradius", "thighlength", "shinlength", "footradius")]
-    P_L = np.asarray(P) * 1e3 * [1.0, 1.0, -1.0]
-    J = rotarydelta_joints(P_L, *geo)
+    J = rotarydelta_joints(np.asarray(P) * 1e3, *geo)
     q = []
     for i in range(3):
         j = int(notes[f"reading{i + 1}.joint"])
@@ -237,7 +238,7 @@ def test_rotarydelta_test_ik_inverts_linuxcnc_forward():
     geo = (200.0, 300.0, 800.0, 50.0)
     rng = np.random.default_rng(3)
     for _ in range(20):
-        P_L = np.array([*rng.uniform(-100, 100, 2), rng.uniform(650, 800)])
+        P_L = np.array([*rng.uniform(-100, 100, 2), rng.uniform(-800, -650)])
         J = rotarydelta_joints(P_L[None], *geo)[0]
         assert np.allclose(rotarydelta_forward(J, *geo), P_L, atol=1e-9)
 
@@ -322,7 +323,7 @@ def test_klipper_rotary_parse_errors_name_line_and_key(line, key):
 def test_linuxcnc_rotarydelta_refuses_the_90_degree_delta(delta_cal):
     fmt = controller_format("linuxcnc-rotarydelta")
     why = fmt.applies(delta_cal)
-    assert "-90, 150 and 30" in why and "90, 180, -90" in why
+    assert "-90, 30 and 150" in why and "90, 180, -90" in why
     with pytest.raises(InputError, match="linuxcnc-rotarydelta"):
         ws = export_workspace(delta_cal)
         export(fmt, delta_cal, ws.P)
@@ -364,7 +365,7 @@ def test_linuxcnc_rotarydelta_parse_errors():
     # a foreign file: reading i is joint i, the readings LinuxCNC's joints (sign changed)
     p = fmt.parse(text.replace("x3", "300"), "rd.hal")
     m = fmt.to_machine(p)
-    assert np.degrees(m.leg_angles) == pytest.approx([-90, 150, 30])
+    assert np.degrees(m.leg_angles) == pytest.approx([-90, 30, 150])
     P = np.array([[0.01, 0.02, -0.7]])
     assert np.allclose(fmt.ik(p, P), m.ik(P), atol=1e-12)
 

@@ -707,7 +707,12 @@ def export_command(
     to: Annotated[str, typer.Option(
         "--to", metavar="FORMAT", show_default=False,
         help=f"The controller's parameter format: {formats()}.")],
-    output: OutFile,
+    output: Annotated[str, typer.Option(
+        "-o", "--output", metavar="FILE|DIR/", show_default=False,
+        help="Output file (written atomically); for the linuxcnc-* formats a directory (a "
+             "name ending in '/' or an existing directory) gets a whole LinuxCNC "
+             "configuration that starts: machine.ini, machine.hal, kinematics.hal, "
+             "drives.hal, tool.tbl, README.md.")],
     nominal: Annotated[str | None, typer.Option(
         help="The machine file the controller's current values come from (e.g. the nominal "
              "one): also report the error they leave on the calibrated machine.",
@@ -729,6 +734,8 @@ def export_command(
 
     Example: `pkmcal export calibrated.yaml --to linuxcnc-genhexkins -o hexapod.hal`
 
+    Example: `pkmcal export calibrated.yaml --to linuxcnc-genhexkins -o hexapod/`
+
     Example: `pkmcal export cal.yaml --to klipper --nominal printer.yaml -o printer.cfg`
     """
     from ._export import run_export
@@ -740,7 +747,9 @@ def export_command(
 def import_command(
     path: Annotated[Path, typer.Argument(
         metavar="FILE", show_default=False,
-        help="The controller's parameter file (e.g. a .hal, printer.cfg or G-code lines).")],
+        help="The controller's parameter file (e.g. a .hal, printer.cfg or G-code lines); "
+             "for the linuxcnc-* formats also a configuration: its INI file or directory "
+             "(the joints' zeros from [JOINT_n] HOME_OFFSET).")],
     source_format: Annotated[str, typer.Option(
         "--from", metavar="FORMAT", show_default=False,
         help=f"The file's format: {formats()}.")],
@@ -753,6 +762,8 @@ def import_command(
     calibration from what the machine runs today.
 
     Example: `pkmcal import hexapod.hal --from linuxcnc-genhexkins -o machine.yaml`
+
+    Example: `pkmcal import hexapod/ --from linuxcnc-genhexkins -o machine.yaml`
 
     Example: `pkmcal import printer.cfg --from klipper --like examples/linear_delta.yaml -o
     printer.yaml`
