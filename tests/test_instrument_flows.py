@@ -87,3 +87,18 @@ def test_the_audit_of_options_read_sees_an_undeclared_one(tmp_path):
     module.write_text("def flow(machine, options: XOptions):\n"
                       "    return options.noise, options.bed_tilt\n")
     assert _options_read(module, "XOptions") == {"flow": {"noise", "bed_tilt"}}
+
+
+def test_every_declared_option_is_an_option_of_the_command():
+    """The flags the instruments declare are ``pkmcal calibrate``'s (which still lists them
+    itself; building the command's options from the registry is the next step)."""
+    import typer
+
+    from pkmcal.cli import app
+
+    command = typer.main.get_command(app).commands["calibrate"]
+    flags = {opt for param in command.params for opt in param.opts + param.secondary_opts}
+    for inst in FLOWS:
+        for spec in option_specs(inst.Options):
+            for flag in spec["flag"].split("/"):
+                assert flag in flags, (inst.name, flag)
