@@ -459,3 +459,82 @@ def _start_genhexkins(config: Path, fmt, params, machine, P, R):
     promised = P[pick] + position_errors(fmt, params, machine, P[pick], R[pick])
     assert np.abs(fk.P - promised).max() < AGREE_M
     shutil.rmtree(config, ignore_errors=True)
+
+
+# -- defects these machines found -------------------------------------------------------------
+#: a rotary Delta's Klipper config with its endstops low (80 mm above the bed at the centre)
+LOW_ENDSTOPS = """
+[printer]
+kinematics: rotary_delta
+shoulder_radius: 154.234949321
+shoulder_height: 707.424470513
+
+[stepper_a]
+position_endstop: 85.507710326
+upper_arm_length: 263.169271542
+lower_arm_length: 749.368495312
+angle: 62.855246994730
+
+[stepper_b]
+position_endstop: 80.802551865
+upper_arm_length: 261.724472415
+lower_arm_length: 750.072333067
+angle: 182.510665599946
+
+[stepper_c]
+position_endstop: 87.088638021
+upper_arm_length: 263.022846152
+lower_arm_length: 748.893076108
+angle: 304.085096685003
+"""
+
+
+def test_klipper_rotary_import_with_low_endstops_exports_the_same_values(tmp_path):
+    """Defect (found by seed 3415): a Klipper rotary config whose lowest endstop is less than
+    100 mm above the bed, imported and exported, came back with shoulder_height 726.59 for
+    707.42 mm: the import put home 50 mm below the lowest endstop, the default 0.1 m cube
+    around it reached below Klipper's bed, and the export moved the bed to the cube's lowest
+    point. Now the same values come back (and Klipper runs them the same)."""
+    fmt = controller_format("klipper-rotary-delta")
+    (tmp_path / "printer.cfg").write_text(LOW_ENDSTOPS)
+    proc = run("import", "printer.cfg", "--from", fmt.name, "-o", "m.yaml", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    proc = run("export", "m.yaml", "--to", fmt.name, "-o", "back.cfg", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    before = fmt.parse(LOW_ENDSTOPS, "printer.cfg").as_dict()
+    after = fmt.parse((tmp_path / "back.cfg").read_text(), "back.cfg").as_dict()
+    for key in ("shoulder_radius", "shoulder_height", "angle_a", "position_endstop_b",
+                "upper_arm_length_c", "lower_arm_length_a"):
+        assert after[key] == pytest.approx(before[key], rel=0, abs=1e-12), key
+    record = json.loads((tmp_path / "back.cfg.json").read_text())
+    assert record["values"]["bed_z"] == 0.0
+    from klippy_harness import KLIPPY_MISSING
+
+    if KLIPPY_MISSING is None:
+        from klippy_harness import Klippy, hardware
+
+        (tmp_path / "a.cfg").write_text(hardware("rotary_delta") + LOW_ENDSTOPS)
+        (tmp_path / "b.cfg").write_text(hardware("rotary_delta")
+                                        + (tmp_path / "back.cfg").read_text())
+        ka, kb = Klippy(tmp_path / "a.cfg"), Klippy(tmp_path / "b.cfg")
+        assert np.abs(ka.home() - kb.home()).max() < 1e-9
+        Pk = np.array([[0.0, 0.0, 10.0], [40.0, -30.0, 60.0], [-80.0, 20.0, 5.0]])
+        assert np.abs(ka.readings(Pk) - kb.readings(Pk)).max() < 1e-12
+
+
+def test_hexapod_file_in_inch_without_readings_reads_back(tmp_path):
+    """Defect (found by seed 3443): a six-leg platform's file with ``units: {length: inch}``
+    and no ``readings:`` was written back (``simulate --truth``, ``calibrate``, any save) with
+    ``readings: {unit: inch}``, which the reader refuses ('inch' is a length unit the data
+    files do not use): pkmcal could not read its own file."""
+    text = (EXAMPLES / "cubic_6upu.yaml").read_text().replace("length: mm", "length: inch")
+    text = text.replace("readings: {unit: mm}\n", "")
+    (tmp_path / "m.yaml").write_text(text)
+    m = load_machine(tmp_path / "m.yaml")
+    save_machine(m, tmp_path / "back.yaml", units=m.file_units)
+    back = load_machine(tmp_path / "back.yaml")
+    assert np.array_equal(back.u, m.u)
+    proc = run("simulate", "m.yaml", "--scenario", "pose", "--poses", "20", "--truth",
+               "true.yaml", "-o", "d.csv", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert load_machine(tmp_path / "true.yaml").reading_unit == m.reading_unit
