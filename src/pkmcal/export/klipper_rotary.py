@@ -70,8 +70,8 @@ refuse and says so.
 Import writes the machine in Klipper's frame (the bed at ``z = 0``, home at the centre 50 mm
 below the lowest endstop height, but at least 50 mm above the bed: the default 0.1 m workspace
 cube around home stays above Klipper's bed, so that an export of the imported file keeps the
-bed where it is and writes the same values). With ``--like`` it is moved into the like-file's frame by
-a rule on values: its shoulders at the like-file's shoulder height (the mean of its legs'
+bed where it is and writes the same values). With ``--like`` it is moved into the like-file's
+frame by a rule on values: its shoulders at the like-file's shoulder height (the mean of its legs'
 ``da_z - db_z``), its home the like-file's.
 
 Stepper order
@@ -815,7 +815,8 @@ class KlipperRotaryDelta(ControllerFormat):
             (``da.z``), ``dtheta = abs_endstop`` (reading 0 at the endstop), no other errors;
             the legs in the machine's order (``stepper_a.leg``...); home at the centre
             :data:`HOME_BELOW_ENDSTOPS` below the lowest endstop and at least
-            :data:`HOME_ABOVE_BED` above the bed (``like``'s home when given). :meth:`initial` of it gives the values back (in its frame).
+            :data:`HOME_ABOVE_BED` above the bed (``like``'s home when given).
+            :meth:`initial` of it gives the values back (in its frame).
         """
         radius, height, upper, lower, angles, endstops, bed_z, order = self.unpack(params)
         if like is not None:          # the like-file's frame: its shoulder height
