@@ -6,9 +6,10 @@ example's (the example's radii, arm lengths and heights scaled by random factors
 angles turned by random offsets, counter-clockwise and clockwise orders for Klipper, the
 machine file in mm or in inch), then random deviations of every parameter
 (:func:`pkmcal.machines.deviations.random_deviations`, what ``pkmcal simulate`` gives a true
-machine); the first case of each Klipper format is instead a real calibrated file (``pkmcal
-simulate`` + ``pkmcal calibrate``, with its covariance). ``pkmcal export`` (in process) writes
-the controller's file, which runs in the controller's own code:
+machine); one case of each format (:data:`CALIBRATED`) is instead a real calibrated file
+(``pkmcal simulate`` + ``pkmcal calibrate``, its covariance in the report beside it).
+``pkmcal export`` (in process) writes the controller's file, which runs in the controller's own
+code:
 
 - Klipper (:mod:`klippy_harness`): Klipper's ``configfile`` reads it (main file, ``[include]``
   or the SAVE_CONFIG block of an existing config), its kinematics home (homing's two
@@ -61,8 +62,8 @@ SEEDS = {"klipper": [3401, 3402, 3403, 3404, 3405],
          "linuxcnc-lineardelta": [3421, 3422, 3423, 3424],
          "linuxcnc-rotarydelta": [3431, 3432, 3433, 3434],
          "linuxcnc-genhexkins": [3441, 3442, 3443, 3444]}
-#: the seeds whose machine is a real calibrated file (simulate + calibrate)
-CALIBRATED = {3401, 3411}
+#: the seeds whose machine is a real calibrated file (simulate + calibrate), one per format
+CALIBRATED = {3401, 3411, 3421, 3431, 3442}
 
 
 # -- unseen machines --------------------------------------------------------------------------
@@ -171,7 +172,9 @@ MACHINES = {"klipper": linear_delta_text, "linuxcnc-lineardelta": linear_delta_t
             "klipper-rotary-delta": rotary_delta_text,
             "linuxcnc-rotarydelta": rotary_delta_text,
             "linuxcnc-genhexkins": hexapod_text}
-SCENARIO = {"klipper": "probe", "klipper-rotary-delta": "tracker"}
+SCENARIO = {"klipper": "probe", "linuxcnc-lineardelta": "probe",
+            "klipper-rotary-delta": "tracker", "linuxcnc-rotarydelta": "tracker",
+            "linuxcnc-genhexkins": "pose"}
 
 
 def unseen(tmp: Path, fmt: str, seed: int) -> tuple[Path, Path, str]:
