@@ -68,8 +68,10 @@ refuses moves above ``min(position_endstop)`` and outside its radius limit
 refuse and says so.
 
 Import writes the machine in Klipper's frame (the bed at ``z = 0``, home at the centre 50 mm
-below the lowest endstop height). With ``--like`` it is moved into the like-file's frame by
-a rule on values: its shoulders at the like-file's shoulder height (the mean of its legs'
+below the lowest endstop height, but at least 50 mm above the bed: the default 0.1 m workspace
+cube around home stays above Klipper's bed, so that an export of the imported file keeps the
+bed where it is and writes the same values). With ``--like`` it is moved into the like-file's
+frame by a rule on values: its shoulders at the like-file's shoulder height (the mean of its legs'
 ``da_z - db_z``), its home the like-file's.
 
 Stepper order
@@ -238,6 +240,10 @@ def leg_offsets(machine: Delta) -> np.ndarray:
 #: the height of the default workspace below the lowest endstop of an imported machine: its
 #: home (the centre of the 0.1 m workspace cube) is this far below it, m
 HOME_BELOW_ENDSTOPS = 0.05
+#: ... but at least this far above the bed (half the default workspace cube's side): a cube
+#: reaching below Klipper's bed would make the export move the bed, and an import followed by
+#: an export would not give Klipper its values back, m
+HOME_ABOVE_BED = 0.05
 
 
 class KlipperRotaryDelta(ControllerFormat):
@@ -808,8 +814,9 @@ class KlipperRotaryDelta(ControllerFormat):
             differences as ``dl1``/``dl2``, the shoulders at ``shoulder_height + bed_z``
             (``da.z``), ``dtheta = abs_endstop`` (reading 0 at the endstop), no other errors;
             the legs in the machine's order (``stepper_a.leg``...); home at the centre
-            :data:`HOME_BELOW_ENDSTOPS` below the lowest endstop (``like``'s home when
-            given). :meth:`initial` of it gives the values back (in its frame).
+            :data:`HOME_BELOW_ENDSTOPS` below the lowest endstop and at least
+            :data:`HOME_ABOVE_BED` above the bed (``like``'s home when given).
+            :meth:`initial` of it gives the values back (in its frame).
         """
         radius, height, upper, lower, angles, endstops, bed_z, order = self.unpack(params)
         if like is not None:          # the like-file's frame: its shoulder height
@@ -823,8 +830,8 @@ class KlipperRotaryDelta(ControllerFormat):
         u[order, 5] = lower - l2
         leg_angles = np.empty(3)
         leg_angles[order] = angles
-        home = (np.array([0.0, 0.0, float(np.min(endstops)) - HOME_BELOW_ENDSTOPS + bed_z]),
-                np.eye(3))
+        height_home = max(float(np.min(endstops)) - HOME_BELOW_ENDSTOPS, HOME_ABOVE_BED)
+        home = (np.array([0.0, 0.0, height_home + bed_z]), np.eye(3))
         if like is not None:
             home = (np.asarray(like.home[0], float), np.asarray(like.home[1], float))
         name = like.name if like is not None and like.name else "imported from Klipper"
