@@ -262,3 +262,29 @@ def test_the_matrix_covers_every_registry_member():
     assert {c[1] for c in cases} == set(INSTRUMENTS)
     assert {c[2].split(":", 1)[1] for c in cases if c[2].startswith("imported:")} \
         == set(FORMATS)
+
+
+def test_a_printers_bed_height_is_carried_by_its_endstops(tmp_path):
+    """Issue 37: a true printer written with ``bed: {height: 0.5}`` was refused by
+    ``simulate`` ("the bed's centre (0, 0, 0) mm cannot be probed"): a printer's frame is its
+    bed, so the height is read as what it means - the endstops 0.5 mm nearer the bed - and
+    never written."""
+    from pkmcal.io import load_machine
+
+    printer = next(make() for make in DEFAULTS.values() if make().frame_is_bed)
+    save_machine(printer, tmp_path / "printer.yaml")
+    text = (tmp_path / "printer.yaml").read_text()
+    assert "bed:" not in text
+    (tmp_path / "raised.yaml").write_text(text + "bed: {height: 0.5, tilt_x: 0.001, "
+                                                 "tilt_y: 0.0}\n")
+    raised = load_machine(tmp_path / "raised.yaml")
+    assert raised.probe_bed == (0.0, 0.001, 0.0)
+    P, R = printer.home
+    q0, q1 = printer.ik(P[None], R[None]), raised.ik(P[None] - [0, 0, 5e-4], R[None])
+    assert abs(q1 - q0).max() <= 1e-12 * abs(q0).max()       # the same printer, 0.5 mm lower
+    _ok(run("simulate", "raised.yaml", "--deviations", "none", "-o", "s.csv", cwd=tmp_path),
+        "simulate of a raised bed")
+    _ok(run("simulate", "raised.yaml", "--truth", "again.yaml", "-o", "s.csv",
+            cwd=tmp_path), "simulate --truth")
+    again = (tmp_path / "again.yaml").read_text()
+    assert "height: 0.0," in again
