@@ -55,7 +55,15 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
-from .base import ControllerFormat, ControllerParameters, Origin, origin_of, register_format, where
+from .base import (
+    ControllerFormat,
+    ControllerParameters,
+    Origin,
+    origin_of,
+    refuse_foreign_text,
+    register_format,
+    where,
+)
 from .klipper import (
     BED,
     BED_KINDS,
@@ -73,7 +81,7 @@ from .klipper import (
     vertical_tower_travel,
     wrap_degrees,
 )
-from .marlin import BASE_ANGLES, gcode_lines, gcode_words
+from .marlin import BASE_ANGLES, gcode_line_kind, gcode_lines, gcode_words
 
 _XYZ = "xyz"
 #: the values each letter sets (the source map of an import)
@@ -336,6 +344,8 @@ class RepRapFirmwareDelta(ControllerFormat):
             of the printer's size, a bed tilt raising the bed that much at the towers'
             radius, ``M666 A50``), a radius not > 0 or a diagonal not longer than the radius.
         """
+        refuse_foreign_text(text, source, gcode_line_kind, "RepRapFirmware G-code",
+                            "M665 / M666 lines, as config.g holds them")
         got: dict = {}
         notes: list[str] = []
         extras: dict = {}
