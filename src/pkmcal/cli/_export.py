@@ -41,7 +41,7 @@ def run_export(machine_spec: str, to: str, output: Path, nominal: str | None = N
     from ..export import ControllerFormat, controller_format, export
     from ._planning import workspace_arg
 
-    fmt = controller_format(to)
+    fmt = controller_format(to, "--to")
     # no record beside /dev/null or a pipe (as calibrate writes no report beside them)
     record_path = None if is_stream(output) else output.with_name(output.name + ".json")
     inputs = _machine_inputs(machine_spec) + (_machine_inputs(nominal) if nominal else [])
@@ -145,7 +145,7 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
     from ..export.base import carry_like
     from ..io.machine_file import save_machine
 
-    fmt = controller_format(source_format)
+    fmt = controller_format(source_format, "--from")
     check_outputs([output], [path] + (_machine_inputs(like) if like else []))
     text = read_input_text(path, f"{fmt.name} file")
     params = fmt.parse(text, str(path))

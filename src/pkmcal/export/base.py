@@ -822,13 +822,15 @@ def register_format(fmt: ControllerFormat) -> ControllerFormat:
     return fmt
 
 
-def controller_format(name: str) -> ControllerFormat:
+def controller_format(name: str, option: str | None = None) -> ControllerFormat:
     """The format of a name.
 
     Parameters
     ----------
     name : str
         A key of :data:`FORMATS`.
+    option : str, optional
+        The command-line option that gave it (``--to``, ``--from``), named in the message.
 
     Returns
     -------
@@ -842,8 +844,8 @@ def controller_format(name: str) -> ControllerFormat:
     """
     load_formats()
     if name not in FORMATS:
-        raise InputError(f"unknown controller format {name!r}; use one of "
-                         f"{', '.join(sorted(FORMATS))}")
+        raise InputError(f"{option + ': ' if option else ''}unknown controller format "
+                         f"{name!r}; use one of {', '.join(sorted(FORMATS))}")
     return FORMATS[name]
 
 

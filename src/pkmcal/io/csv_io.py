@@ -688,6 +688,19 @@ def machine_readings(path, machine):
     return q, rows, extra, _one_unit(names, [f"q{j + 1}" for j in range(len(names))], quantity)
 
 
+def _groups(path, extra: dict, rows, column: str, machine) -> np.ndarray | None:
+    """:func:`read_groups`, a missing column refused where the machine file holds several
+    groups of the instrument numbering its rows by ``column``
+    (:meth:`~pkmcal.instruments.base.Instrument.check_group_column`)."""
+    from ..instruments.registry import INSTRUMENTS
+
+    group = read_groups(path, extra, rows, column)
+    for inst in INSTRUMENTS.values():
+        if inst.group_column == column:
+            inst.check_group_column(machine, group is not None, path)
+    return group
+
+
 def read_groups(path, extra: dict, rows, column: str, gaps: bool = False) -> np.ndarray | None:
     """0-based group of each row from an integer column numbered 1..K (``target``, ``setup``).
 
@@ -770,7 +783,7 @@ def read_points(path, machine):
     m_units = _one_unit([header[i] for i, _ in m_cols], ["mx", "my", "mz"], "length")
     if q_units is not None and m_units is not None:
         check_tracker_scale(path, q, q_units, m, m_units, machine)
-    return InstrumentData("points", q, m, read_groups(path, extra, rows, "target"), rows,
+    return InstrumentData("points", q, m, _groups(path, extra, rows, "target", machine), rows,
                           source=str(path))
 
 
@@ -821,8 +834,8 @@ def read_distances(path, machine):
                          f"distance must be > 0, got {table[bad[0]][1][i]!r}")
     _refuse_beyond(path, header[i], rows, d, 10 * machine.characteristic_length(),
                    "a ballbar length", "10 x the machine's size")
-    return InstrumentData("distances", q, d[:, None], read_groups(path, extra, rows, "setup"),
-                          rows, source=str(path))
+    return InstrumentData("distances", q, d[:, None],
+                          _groups(path, extra, rows, "setup", machine), rows, source=str(path))
 
 
 def read_probe(path, machine):
