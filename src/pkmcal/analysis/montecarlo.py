@@ -563,20 +563,45 @@ def _watch_parent(parent_pid: int, interval_s: float = 0.2) -> None:
     threading.Thread(target=watch, name="pkmcal-parent-watch", daemon=True).start()
 
 
-def _local_processes(settings, variable, seed, tasks, workers, progress):
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+def _next_chunk(remaining, n_workers: int) -> list:
+    """The next runs to hand out: about a quarter of each worker's share of what remains, at
+    most :data:`MAX_CHUNK` (guided scheduling: large chunks while much remains, single runs at
+    the end, so that no worker waits long for another's last chunk)."""
+    size = max(1, min(MAX_CHUNK, math.ceil(len(remaining) / (4 * max(n_workers, 1)))))
+    return [remaining.popleft() for _ in range(min(size, len(remaining)))]
 
+
+def _local_processes(settings, variable, seed, tasks, workers, progress):
+    """Runs on ``workers`` processes: this one and ``workers - 1`` of a pool
+    (:func:`_worker_context`). This process computes from the start, while the pool starts
+    and between hand-outs (it would otherwise wait idle: ``workers`` processes compute, as
+    many as asked); the pool is kept two chunks deep per process."""
+    from collections import deque
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    remaining = deque(tasks)
     context = _worker_context()
     with single_threaded_environment():
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=context,
+        pool = ProcessPoolExecutor(max_workers=workers - 1, mp_context=context,
                                    initializer=_watch_parent, initargs=(os.getpid(),))
+        in_flight: set = set()
         try:
-            futures = [pool.submit(run_chunk, settings, variable, seed, chunk)
-                       for chunk in _chunks(tasks, workers)]
-            for future in as_completed(futures):
-                rows = future.result()
-                progress(len(rows))
-                yield from rows
+            while remaining or in_flight:
+                while remaining and len(in_flight) < 2 * (workers - 1):
+                    in_flight.add(pool.submit(run_chunk, settings, variable, seed,
+                                              _next_chunk(remaining, workers)))
+                done = {future for future in in_flight if future.done()}
+                for future in done:
+                    rows = future.result()
+                    progress(len(rows))
+                    yield from rows
+                in_flight -= done
+                if remaining:
+                    rows = run_chunk(settings, variable, seed, _next_chunk(remaining, workers))
+                    progress(len(rows))
+                    yield from rows
+                elif in_flight and not done:
+                    wait(in_flight, return_when=FIRST_COMPLETED)
         except BaseException:
             # an error or Ctrl-C: stop the workers now instead of waiting for their chunks
             # (the executor has no public call for this)
