@@ -468,8 +468,9 @@ def _alive(pid: int) -> bool:
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc (Linux)")
 def test_montecarlo_workers_end_when_the_parent_is_killed(tmp_path):
+    # --workers 3: the command computes too, beside a pool of two worker processes
     proc = subprocess.Popen([str(PKMCAL), "montecarlo", "default", "--vary",
-                             "noise=1,2,3,4um", "--runs", "40", "--workers", "2", "-o", "mc"],
+                             "noise=1,2,3,4um", "--runs", "40", "--workers", "3", "-o", "mc"],
                             cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     workers = []
     deadline = time.monotonic() + 60

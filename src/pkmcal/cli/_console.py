@@ -109,17 +109,21 @@ class progress_tasks:
             TimeRemainingColumn,
         )
 
+        # redrawn as the work advances, not by a thread of its own: a process running no
+        # other thread can fork its workers (pkmcal montecarlo, issue 37)
         self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                             TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
-                            console=stream, transient=True)
+                            console=stream, transient=True, auto_refresh=False)
         self.bar.start()
 
         def new(description: str, total: int):
             task = self.bar.add_task(description, total=total)
+            self.bar.refresh()
 
             def advance(n=1, description=None):
                 stop_if_signalled()
                 self.bar.update(task, advance=n, description=description)
+                self.bar.refresh()
 
             return advance
 

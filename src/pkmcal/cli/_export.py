@@ -59,7 +59,7 @@ def run_export(machine_spec: str, to: str, output, nominal: str | None = None,
     LinuxCNC format and ``-o DIR/``, a configuration directory with its record)."""
     from ..export import ControllerFormat, controller_format, export
 
-    fmt = controller_format(to)
+    fmt = controller_format(to, "--to")
     output, directory = _output_target(fmt, output)
     if directory:
         return _export_configuration(fmt, machine_spec, output, nominal, workspace, seed)
@@ -221,7 +221,7 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
     from ..export.base import carry_like
     from ..io.machine_file import save_machine
 
-    fmt = controller_format(source_format)
+    fmt = controller_format(source_format, "--from")
     check_outputs([output], [path] + (_machine_inputs(like) if like else []))
     params, home, name = _read_controller_file(fmt, path)
     model = load_machine_arg(like) if like is not None else None

@@ -20,7 +20,7 @@ from ..calibration.run import json_safe as _finite_or_none
 from ..calibration.run import versions
 from ..errors import InputError
 from ..paths import path_text
-from ..report.provenance import run_date
+from ..report.provenance import pinned_date, run_date
 from ..units import format_number, format_quantity, parse_quantity
 from ._commands import _table, check_outputs, commit_outputs, load_machine_arg
 from ._console import console, progress_tasks, warning
@@ -198,10 +198,14 @@ def _write_outputs(result, outdir: Path, machine_spec: str) -> list[Path]:
                    "the same runs whatever the workers or scheduler",
         "executor": result.executor,
         "workers": result.workers,
-        "timing": {"wall_seconds": wall,
-                   "runs_per_second": len(result.rows) / wall if wall > 0 else None,
-                   "run_seconds_mean": float(np.mean(seconds)),
-                   "run_seconds_max": float(np.max(seconds))},
+        # durations vary from run to run: left out of a reproducible build's file (issue 37)
+        "timing": ({"wall_seconds": None, "runs_per_second": None, "run_seconds_mean": None,
+                    "run_seconds_max": None, "left_out": "SOURCE_DATE_EPOCH is set"}
+                   if pinned_date() else
+                   {"wall_seconds": wall,
+                    "runs_per_second": len(result.rows) / wall if wall > 0 else None,
+                    "run_seconds_mean": float(np.mean(seconds)),
+                    "run_seconds_max": float(np.max(seconds))}),
         "metrics": {name: {"unit": u or None, "description": words}
                     for name, (u, _, words) in result.metrics.items()},
         "statuses": {

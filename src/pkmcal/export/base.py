@@ -934,13 +934,15 @@ def register_format(fmt: ControllerFormat) -> ControllerFormat:
     return fmt
 
 
-def controller_format(name: str) -> ControllerFormat:
+def controller_format(name: str, option: str | None = None) -> ControllerFormat:
     """The format of a name.
 
     Parameters
     ----------
     name : str
         A key of :data:`FORMATS`.
+    option : str, optional
+        The command-line option that gave it (``--to``, ``--from``), named in the message.
 
     Returns
     -------
@@ -954,6 +956,93 @@ def controller_format(name: str) -> ControllerFormat:
     """
     load_formats()
     if name not in FORMATS:
-        raise InputError(f"unknown controller format {name!r}; use one of "
-                         f"{', '.join(sorted(FORMATS))}")
+        raise InputError(f"{option + ': ' if option else ''}unknown controller format "
+                         f"{name!r}; use one of {', '.join(sorted(FORMATS))}")
     return FORMATS[name]
+
+
+#: a controller file whose first this many non-blank lines hold nothing of its format is none
+FOREIGN_SCAN_LINES = 1000
+
+
+def refuse_foreign_text(text: str, source: str, recognised, what: str, expected: str) -> int:
+    """Refuse a text that is not the controller's format at once: none of its first
+    :data:`FOREIGN_SCAN_LINES` lines that say something (``recognised(line)`` not None) is a
+    line of the format (``recognised(line)`` True). A file of something else (words, a CSV
+    table, another controller's file) is answered after those lines, whatever its size; the
+    readers would otherwise pass over every line looking for their values (issue 37).
+
+    Parameters
+    ----------
+    text : str
+        The file's text.
+    source : str
+        Its name, for messages.
+    recognised : callable
+        ``recognised(raw line) -> True`` (a line of the format), ``False`` (a line that is
+        not) or ``None`` (blank, a comment: not counted).
+    what : str
+        The format in words ("Marlin G-code").
+    expected : str
+        What its lines look like, for the message ("M665 / M666 lines").
+
+    Returns
+    -------
+    int
+        The number of lines looked at.
+
+    Raises
+    ------
+    InputError
+        Naming the file and its first line that is not of the format.
+    """
+    import io
+
+    seen, first, looked = 0, None, 0
+    for n, raw in enumerate(io.StringIO(text), 1):
+        looked = n
+        verdict = recognised(raw)
+        if verdict is None:
+            continue
+        if verdict:
+            return looked
+        if first is None:
+            first = (n, raw.strip())
+        seen += 1
+        if seen >= FOREIGN_SCAN_LINES:
+            break
+    if first is None:
+        return looked
+    shown = first[1] if len(first[1]) <= 60 else first[1][:57] + "..."
+    raise InputError(f"{source}: line {first[0]}: {shown!r} is not {what}, and neither are the "
+                     f"{seen - 1} line(s) after it that say something: not a {what} file "
+                     f"(expected {expected})")
+
+
+#: halcmd's commands (LinuxCNC's ``halcmd`` manual): the first word of a HAL file's lines
+HAL_COMMANDS = frozenset((
+    "loadrt", "loadusr", "unloadrt", "unloadusr", "unload", "waitusr", "setp", "sets", "getp",
+    "gets", "ptype", "stype", "net", "newsig", "delsig", "linkps", "linksp", "linkpp",
+    "unlinkp", "addf", "delf", "start", "stop", "show", "list", "source", "alias", "unalias",
+    "lock", "unlock", "save", "status", "echo", "unecho", "print", "newcomp", "newpin",
+    "newinst", "ready"))
+
+
+def hal_line_kind(raw: str) -> bool | None:
+    """Whether a line is HAL: a halcmd command True, a blank line or a ``#`` comment None,
+    anything else False (for :func:`refuse_foreign_text`).
+
+    Parameters
+    ----------
+    raw : str
+        The line.
+
+    Returns
+    -------
+    bool or None
+        As above.
+    """
+    words = raw.split("#", 1)[0].split()
+    if not words:
+        return None
+    return words[0].lower() in HAL_COMMANDS

@@ -74,6 +74,8 @@ from .base import (
     ControllerParameters,
     Origin,
     finite_number,
+    hal_line_kind,
+    refuse_foreign_text,
     register_format,
 )
 from .klipper_rotary import leg_offsets, pkmcal_comments
@@ -175,6 +177,7 @@ def hal_values(text: str, source: str, prefix: str, pins, lines: dict | None = N
     InputError
         Naming the line and pin of a value that is not a number, or a pin missing.
     """
+    refuse_foreign_text(text, source, hal_line_kind, "HAL", f"setp {prefix}.PIN VALUE lines")
     found = {}
     for n, raw in enumerate(text.splitlines(), 1):
         line = raw.split("#")[0]

@@ -42,7 +42,14 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
-from .base import ControllerFormat, ControllerParameters, Origin, register_format
+from .base import (
+    ControllerFormat,
+    ControllerParameters,
+    Origin,
+    hal_line_kind,
+    refuse_foreign_text,
+    register_format,
+)
 from .linuxcnc_config import LinuxCNCKinematics
 
 #: mm: the unit of every length written (LinuxCNC machine units = the INI's LINEAR_UNITS)
@@ -533,6 +540,8 @@ class GenhexkinsFormat(ControllerFormat, LinuxCNCKinematics):
         """
         from ..units import LENGTH
 
+        refuse_foreign_text(text, source, hal_line_kind, "HAL",
+                            "setp genhexkins.PIN VALUE lines")
         found: dict[str, tuple[float, int]] = {}
         unit = "mm"
         for n, raw in enumerate(text.splitlines(), 1):

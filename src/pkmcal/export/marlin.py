@@ -75,7 +75,15 @@ import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
-from .base import ControllerFormat, ControllerParameters, Origin, origin_of, register_format, where
+from .base import (
+    ControllerFormat,
+    ControllerParameters,
+    Origin,
+    origin_of,
+    refuse_foreign_text,
+    register_format,
+    where,
+)
 from .klipper import (
     BED,
     BED_KINDS,
@@ -191,6 +199,31 @@ def host_line(raw: str) -> tuple[str, bool]:
     while previous != line:
         previous, line = line, re.sub(r"^(?:echo:|ok\b)\s*", "", line, flags=re.I)
     return line.strip(), False
+
+
+_COMMAND = re.compile(r"^(?:N\d+\s*)?[GMT]\d", re.I)
+
+
+def gcode_line_kind(raw: str) -> bool | None:
+    """Whether a line is G-code: a command (``G``, ``M``, ``T`` and a number, after a host
+    log's prefixes, :func:`host_line`) True, a blank line or a comment None, anything else
+    False (for :func:`~pkmcal.export.base.refuse_foreign_text`).
+
+    Parameters
+    ----------
+    raw : str
+        The line.
+
+    Returns
+    -------
+    bool or None
+        As above.
+    """
+    line, _ = host_line(raw)
+    line = re.sub(r"\([^)]*\)", " ", line.split(";", 1)[0]).strip()
+    if not line:
+        return None
+    return bool(_COMMAND.match(line))
 
 
 def gcode_lines(text: str, codes: tuple, sent: bool = False):
@@ -506,6 +539,8 @@ class MarlinDelta(ControllerFormat):
             check_printer_values`: a rod trim or adjustment beyond 10 % of the printer's
             size), a radius not > 0 or a rod not longer than the radius.
         """
+        refuse_foreign_text(text, source, gcode_line_kind, "Marlin G-code",
+                            "M665 / M666 lines, as M503 prints them")
         version, why = marlin_m665_letters(text)
         got: dict = {}
         notes: list[str] = []

@@ -50,12 +50,22 @@ tilts. Not modelled: more than three towers (``M669``), ``M556`` axis skew, ``G9
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
 from ..machines.base import Machine
-from .base import ControllerFormat, ControllerParameters, Origin, origin_of, register_format, where
+from ..paths import path_text
+from .base import (
+    ControllerFormat,
+    ControllerParameters,
+    Origin,
+    origin_of,
+    refuse_foreign_text,
+    register_format,
+    where,
+)
 from .klipper import (
     BED,
     BED_KINDS,
@@ -73,7 +83,7 @@ from .klipper import (
     vertical_tower_travel,
     wrap_degrees,
 )
-from .marlin import BASE_ANGLES, gcode_lines, gcode_words
+from .marlin import BASE_ANGLES, gcode_line_kind, gcode_lines, gcode_words
 
 _XYZ = "xyz"
 #: the values each letter sets (the source map of an import)
@@ -83,6 +93,26 @@ _LETTER_NAMES = {("M665", "L"): [f"diagonal_{t}" for t in _XYZ], ("M665", "R"): 
 for _k, _t in zip("XYZ", _XYZ, strict=True):
     _LETTER_NAMES[("M665", _k)] = [f"angle_correction_{_t}"]
     _LETTER_NAMES[("M666", _k)] = [f"endstop_adjustment_{_t}"]
+
+
+def _override(source: str, line: int) -> tuple[Path, str]:
+    """``config-override.g`` beside ``source`` (a ``config.g`` whose ``line`` runs ``M501``):
+    its path and text, as RepRapFirmware loads it (``sys/config-override.g``).
+
+    Raises
+    ------
+    InputError
+        Naming the M501 line and the file missing beside it.
+    """
+    from ..io.atomic import read_input_text
+
+    path = Path(source).parent / "config-override.g"
+    if not path.is_file():
+        raise InputError(f"{source}: line {line}: M501 loads config-override.g, which is not "
+                         f"beside it ({path_text(path)}): the values the printer runs are "
+                         "there - copy config-override.g from the printer's sys folder beside "
+                         f"{Path(source).name}, or remove the M501 line if it has none")
+    return path, read_input_text(path, "RepRapFirmware file")
 
 
 class RepRapFirmwareDelta(ControllerFormat):
@@ -336,11 +366,14 @@ class RepRapFirmwareDelta(ControllerFormat):
             of the printer's size, a bed tilt raising the bed that much at the towers'
             radius, ``M666 A50``), a radius not > 0 or a diagonal not longer than the radius.
         """
+        refuse_foreign_text(text, source, gcode_line_kind, "RepRapFirmware G-code",
+                            "M665 / M666 lines, as config.g holds them")
         got: dict = {}
         notes: list[str] = []
         extras: dict = {}
         extras_lines: dict = {}
-        for n, code, rest in gcode_lines(text, ("M665", "M666")):
+
+        def take(n, code, rest, source):
             for letter, word in gcode_words(rest, source, n, code).items():
                 keys = "LRHXYZ" if code == "M665" else "XYZAB"
                 if code == "M666" and letter in "UVW":
@@ -349,7 +382,7 @@ class RepRapFirmwareDelta(ControllerFormat):
                                      "linear Delta has three")
                 if code == "M665" and letter == "B":
                     extras["print_radius"] = finite_number(word, source, n, "M665 B") * 1e-3
-                    extras_lines["print_radius"] = n
+                    extras_lines["print_radius"] = (n, source)
                     notes.append(f"{source}: line {n}: M665 B: the printable radius (a limit, "
                                  "not kinematics): not a kinematic value")
                     continue
@@ -363,7 +396,7 @@ class RepRapFirmwareDelta(ControllerFormat):
                         raise InputError(f"{source}: line {n}: M665 L: {len(parts)} diagonals; "
                                          "give one for all towers or one per tower (3)")
                     d = [finite_number(p, source, n, "M665 L") * 1e-3 for p in parts]
-                    got[(code, letter)] = (np.array(d + [d[0]] * (3 - len(d))), n)
+                    got[(code, letter)] = (np.array(d + [d[0]] * (3 - len(d))), n, source)
                     continue
                 value = finite_number(word, source, n, f"{code} {letter}")
                 if code == "M665" and letter in "XYZ":
@@ -372,24 +405,36 @@ class RepRapFirmwareDelta(ControllerFormat):
                     value *= 0.01
                 else:
                     value *= 1e-3
-                got[(code, letter)] = (value, n)
+                got[(code, letter)] = (value, n, source)
+
+        # the firmware runs config.g line by line; M501 runs config-override.g (M500's saved
+        # values, beside config.g in sys/) where it stands: later lines override earlier
+        for n, code, rest in gcode_lines(text, ("M665", "M666", "M501")):
+            if code != "M501":
+                take(n, code, rest, source)
+                continue
+            override, override_text = _override(source, n)
+            notes.append(f"{source}: line {n}: M501: read {path_text(override)} there, as "
+                         "the firmware does (its values replace those set before)")
+            for m, code2, rest2 in gcode_lines(override_text, ("M665", "M666")):
+                take(m, code2, rest2, path_text(override))
         for k in "LRH":
             if ("M665", k) not in got:
                 raise InputError(f"{source}: M665 {k}: missing (no M665 line sets it)")
 
         def g(code, k):
-            return got.get((code, k), (0.0, 0))[0]
+            return got.get((code, k), (0.0, 0, source))[0]
 
         diag, R = g("M665", "L"), g("M665", "R")
         params = self.values(diag, R, g("M665", "H"), [g("M665", k) for k in "XYZ"],
                              [g("M666", k) for k in "XYZ"], [g("M666", k) for k in "AB"],
                              read_bed(text, source))
         params.origins.update(bed_origins(text, source))
-        for (code, letter), (_, n) in got.items():
+        for (code, letter), (_, n, src) in got.items():
             for name in _LETTER_NAMES[(code, letter)]:
-                params.origins[name] = Origin(source, f"{code} {letter}", n)
-        for key, n in extras_lines.items():
-            params.origins[key] = Origin(source, "M665 B", n)
+                params.origins[name] = Origin(src, f"{code} {letter}", n)
+        for key, (n, src) in extras_lines.items():
+            params.origins[key] = Origin(src, "M665 B", n)
         mm = (lambda x: f"{x * 1e3:g} mm")  # noqa: E731
         check_printer_values(
             params, source, ["diagonal_x", "radius", "homed_height"],

@@ -631,6 +631,53 @@ class Instrument:
     #: the plan options the instrument takes (:meth:`planned_machine`)
     plan_options: tuple = ()
 
+    def groups_carried(self, machine: Machine) -> int:
+        """How many groups (targets, setups) the machine file's section of this instrument
+        holds (0: none, or the instrument has no groups).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        int
+            The count.
+        """
+        return 0
+
+    def check_group_column(self, machine: Machine, given: bool, source=None) -> None:
+        """Refuse a data file without the :attr:`group_column` (``setup``, ``target``) for a
+        machine whose file holds several groups of this instrument: its rows would be taken
+        as one group, the mountings silently merged (issue 37). The one rule of every
+        command that reads such a file (``calibrate``, ``fk --frame instrument``,
+        ``compensate --frame instrument``).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine of the command.
+        given : bool
+            The file has the column.
+        source : str or os.PathLike, optional
+            The data file, for the message.
+
+        Raises
+        ------
+        InputError
+            Naming the file, the column and the machine file's count.
+        """
+        n = self.groups_carried(machine)
+        if given or self.group_column is None or n <= 1:
+            return
+        column = self.group_column
+        where = f"{path_text(source)}: " if source else ""
+        raise InputError(f"{where}no {column} column, but the machine file's {self.section} "
+                         f"has {n} {column}s: add the column {column} (1..{n}) saying which "
+                         f"{column} each row was measured with (without it every row would be "
+                         f"taken as {column} 1)")
+
     def noise_arg(self, text, machine: Machine | None = None):
         """The noise model of ``--noise`` (None: :meth:`default_noise`; a model as it is).
 

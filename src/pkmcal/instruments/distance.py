@@ -384,6 +384,9 @@ class Distance(Instrument):
     def carried_by(self, machine):
         return bool(getattr(machine, "ballbar_setups", None))
 
+    def groups_carried(self, machine):
+        return len(getattr(machine, "ballbar_setups", None) or ())
+
     def predict(self, machine, P, R, ok, group, rows=None, source=None):
         from .models import NuisanceState
 

@@ -205,7 +205,10 @@ def predict_instrument(machine: Machine, q, instrument: str | None = None, group
         When the machine carries no instrument, several and none is named, not the one named,
         or a target / setup number beyond those in the machine file.
     """
+    from .registry import instrument as entry
+
     name = choose_instrument(machine, instrument)
+    entry(name).check_group_column(machine, group is not None, source)
     q = np.atleast_2d(np.asarray(q, float))
     K = len(q)
     group = np.zeros(K, int) if group is None else np.asarray(group, int).reshape(K)
@@ -213,7 +216,6 @@ def predict_instrument(machine: Machine, q, instrument: str | None = None, group
     ok = np.asarray(fk.converged, bool)
     P = np.where(ok[:, None], np.asarray(fk.P, float), 0.0)
     R = np.where(ok[:, None, None], np.asarray(fk.R, float), np.eye(3))
-    from .registry import instrument as entry
 
     values, Rm, group = entry(name).predict(machine, P, R, ok, group, rows, source)
     values = np.where(ok[:, None], values, np.nan)

@@ -652,7 +652,9 @@ def poorly_determined(result, n_machine: int, length: float,
         for j in range(len(params.names)):
             if j == i or not free[j] or std[j] <= 0 or std[i] <= 0:
                 continue
-            c = cov[i, j] / (std[i] * std[j])
+            # a correlation is in [-1, 1]; rounding takes it past (-1.0000000000000002),
+            # which the report's reader rightly refuses (issue 37)
+            c = float(np.clip(cov[i, j] / (std[i] * std[j]), -1.0, 1.0))
             if abs(c) > abs(best):
                 partner, best = params.names[j], float(c)
         out.append(PoorParameter(params.names[i], s, kind, partner, best, combined))

@@ -1002,6 +1002,10 @@ class Tracker(Instrument):
     def carried_by(self, machine):
         return getattr(machine, "base_from_tracker", None) is not None
 
+    def groups_carried(self, machine):
+        targets = getattr(machine, "tracker_targets", None)
+        return 0 if targets is None else len(targets)
+
     def predict(self, machine, P, R, ok, group, rows=None, source=None):
         targets, shared = tracker_targets(machine)
         if shared:

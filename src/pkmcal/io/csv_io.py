@@ -227,10 +227,13 @@ def read_table(path) -> tuple[list[str], list[Row]]:
     header_line = 0
     rows: list[Row] = []
     last = 0
+    numeric: list[int] = []
+    useful = True
+    lines = _Lines(text)
     try:
         for fields in reader:
             line, start, last = reader.line_num, last + 1, reader.line_num
-            _refuse_open_quote(path, text, fields, start, line, header)
+            _refuse_open_quote(path, text, fields, start, line, header, lines)
             if not fields or all(not f.strip() for f in fields) or fields[0].lstrip(
                     ).startswith("#"):
                 continue
@@ -239,33 +242,93 @@ def read_table(path) -> tuple[list[str], list[Row]]:
                 header, header_line = fields, line
                 _check_separator(path, line, header)
                 header = _renamed(path, line, header)
+                _check_names(path, line, header)
+                numeric = [i for i, name in enumerate(header) if _is_numeric(name)]
+                useful = _reads_any(header)
                 continue
             if len(fields) != len(header):
                 raise InputError(f"{path_text(path)}: "
                                  f"row {line}: {len(fields)} field(s), the header (row "
                                  f"{header_line}) has {len(header)} columns")
+            # refused at the first row that holds text where a number belongs, whatever
+            # follows (a large file of words is answered at once, issue 37)
+            for i in numeric:
+                if fields[i] and not _FLOAT.match(fields[i]):
+                    parse_number(path, line, header[i], fields[i])
             rows.append((line, fields))
+            if not useful:
+                break           # no column to read: the reader names the one it misses
     except csv.Error as exc:
         raise InputError(f"{path_text(path)}: "
                          f"row {reader.line_num}: CSV syntax error: {exc}") from None
     if header is None:
         raise InputError(f"{path_text(path)}: empty file (expected a header line such as "
                          "q1_mm,q2_mm,q3_mm,q4_mm,q5_mm,q6_mm)")
-    empty = [i + 1 for i, name in enumerate(header) if not name]
-    if empty:
-        raise InputError(f"{path_text(path)}: row {header_line}: column {empty[0]} has no name")
-    seen: set[str] = set()
-    for name in header:
-        if name in seen:
-            raise InputError(f"{path_text(path)}: row {header_line}: column {name!r} appears twice")
-        seen.add(name)
     if not rows:
         raise InputError(f"{path_text(path)}: no data rows after the header")
     return header, rows
 
 
+#: a field ``float`` reads (Python's syntax, no ``_``): the rest is refused as a row is read
+_FLOAT = re.compile(r"^[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|inf(?:inity)?|nan)$",
+                    re.IGNORECASE)
+#: columns pkmcal reads as numbers: readings (``q1_mm``, a pair's ``q1b_mm``), the bases of
+#: :data:`_COLUMN_BASES` with a unit, and the unit-less quaternion and passive actuator
+_NUMERIC = re.compile(r"^(?:q[1-9][0-9]?b?_[A-Za-z][A-Za-z0-9]*|(?:x|y|z|mx|my|mz|psi|theta|phi"
+                      r"|d|distance|probe_z|t)_[A-Za-z]+|qx|qy|qz|qw|passive)$")
+
+
+def _is_numeric(name: str) -> bool:
+    return bool(_NUMERIC.match(name))
+
+
+def _check_names(path, line: int, header: list[str]) -> None:
+    """Refuse an unnamed or a duplicate column as soon as the header is read."""
+    empty = [i + 1 for i, name in enumerate(header) if not name]
+    if empty:
+        raise InputError(f"{path_text(path)}: row {line}: column {empty[0]} has no name")
+    seen: set[str] = set()
+    for name in header:
+        if name in seen:
+            raise InputError(f"{path_text(path)}: row {line}: column {name!r} appears twice")
+        seen.add(name)
+
+
+def _reads_any(header: list[str]) -> bool:
+    """Whether pkmcal reads any of the header's columns (a file of words has none: its first
+    row is enough for the caller to name the column it misses)."""
+    return any(_column_name_problem(name) is None or _is_numeric(name) for name in header)
+
+
+class _Lines:
+    """The text's lines as the csv module counts them (a line ends at ``\r\n``, ``\n`` or
+    ``\r``): their number counted once, in C, and the list split only where a quote makes
+    the rows needed (splitting a large text per row took hours, issue 37)."""
+
+    def __init__(self, text: str):
+        self.text = text
+        self._lines: list[str] | None = None
+        self._count: int | None = None
+
+    def count(self) -> int:
+        if self._count is None:
+            t = self.text
+            crlf = t.count("\r\n")
+            self._count = t.count("\n") + t.count("\r") - crlf + 1
+        return self._count
+
+    def last(self) -> str:
+        t = self.text
+        return t[max(t.rfind("\n"), t.rfind("\r")) + 1:]
+
+    def get(self) -> list[str]:
+        if self._lines is None:
+            self._lines = _LINE_BREAK.split(self.text)
+        return self._lines
+
+
 def _refuse_open_quote(path, text: str, fields: list[str], start: int, end: int,
-                       header: list[str] | None) -> None:
+                       header: list[str] | None, lines: _Lines | None = None) -> None:
     """Refuse a record that a quote left open, naming the row the quote opened on.
 
     The csv module reads a quoted field on over line breaks to its closing quote or to the end
@@ -275,10 +338,16 @@ def _refuse_open_quote(path, text: str, fields: list[str], start: int, end: int,
     broken = [i for i, f in enumerate(fields) if "\n" in f or "\r" in f]
     if not broken and (text.endswith(("\n", "\r")) or end != start):
         return
-    lines = _LINE_BREAK.split(text)
-    segment = "".join(lines[start - 1:end])
-    if not broken and (end != len(lines) or not _open_at_end(segment)):
-        return
+    lines = lines or _Lines(text)
+    if not broken:
+        # one row, the file without a final line break: only its last row can be open
+        if end != lines.count():
+            return
+        segment = lines.last()
+        if not _open_at_end(segment):
+            return
+    else:
+        segment = "".join(lines.get()[start - 1:end])
     i = broken[0] if broken else len(fields) - 1
     column = f", column {header[i]}" if header is not None and 0 <= i < len(header) else ""
     runs = ("to the end of the file" if end == start or _open_at_end(segment)
@@ -619,6 +688,19 @@ def machine_readings(path, machine):
     return q, rows, extra, _one_unit(names, [f"q{j + 1}" for j in range(len(names))], quantity)
 
 
+def _groups(path, extra: dict, rows, column: str, machine) -> np.ndarray | None:
+    """:func:`read_groups`, a missing column refused where the machine file holds several
+    groups of the instrument numbering its rows by ``column``
+    (:meth:`~pkmcal.instruments.base.Instrument.check_group_column`)."""
+    from ..instruments.registry import INSTRUMENTS
+
+    group = read_groups(path, extra, rows, column)
+    for inst in INSTRUMENTS.values():
+        if inst.group_column == column:
+            inst.check_group_column(machine, group is not None, path)
+    return group
+
+
 def read_groups(path, extra: dict, rows, column: str, gaps: bool = False) -> np.ndarray | None:
     """0-based group of each row from an integer column numbered 1..K (``target``, ``setup``).
 
@@ -701,7 +783,7 @@ def read_points(path, machine):
     m_units = _one_unit([header[i] for i, _ in m_cols], ["mx", "my", "mz"], "length")
     if q_units is not None and m_units is not None:
         check_tracker_scale(path, q, q_units, m, m_units, machine)
-    return InstrumentData("points", q, m, read_groups(path, extra, rows, "target"), rows,
+    return InstrumentData("points", q, m, _groups(path, extra, rows, "target", machine), rows,
                           source=str(path))
 
 
@@ -752,8 +834,8 @@ def read_distances(path, machine):
                          f"distance must be > 0, got {table[bad[0]][1][i]!r}")
     _refuse_beyond(path, header[i], rows, d, 10 * machine.characteristic_length(),
                    "a ballbar length", "10 x the machine's size")
-    return InstrumentData("distances", q, d[:, None], read_groups(path, extra, rows, "setup"),
-                          rows, source=str(path))
+    return InstrumentData("distances", q, d[:, None],
+                          _groups(path, extra, rows, "setup", machine), rows, source=str(path))
 
 
 def read_probe(path, machine):

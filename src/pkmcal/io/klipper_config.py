@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import glob
 import math
+import os
 import re
 import time
 from dataclasses import dataclass, field
@@ -474,9 +475,12 @@ def save_config_text(text: str, values: dict, source: str,
 def backup_name(path) -> Path:
     """Where ``SAVE_CONFIG`` keeps the previous file: ``printer-YYYYMMDD_HHMMSS.cfg`` (any
     other suffix likewise: ``config-override-YYYYMMDD_HHMMSS.g``; ``_1``, ``_2`` ... after the
-    time where a backup of that second exists)."""
+    time where a backup of that second exists). The time is Klipper's (local), or
+    ``SOURCE_DATE_EPOCH`` (UTC) when set: every time stamp pkmcal writes honours it."""
     path = Path(path)
-    stamp = time.strftime("-%Y%m%d_%H%M%S")
+    epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
+    stamp = time.strftime("-%Y%m%d_%H%M%S",
+                          time.gmtime(int(epoch)) if epoch.isdigit() else time.localtime())
     for k in range(1000):           # never onto an earlier backup of the same second
         tail = stamp + (f"_{k}" if k else "")
         name = (path.stem + tail + path.suffix) if path.suffix else path.name + tail

@@ -337,6 +337,42 @@ def _build_instruments(machine: Machine, doc, fl: float) -> None:
              np.asarray(frames.platform_from_marker.translation, float) * fl))
 
 
+def bed_frame(machine: Machine) -> Machine:
+    """``machine`` expressed in its bed's frame when its frame is its bed (a printer, SPEC 8):
+    a ``bed`` at a height ``h`` above z = 0 (a simulated true printer's, an older file's) is
+    the same printer with its base frame ``h`` lower - the endstops carry the height, the bed
+    is at z = 0 with its tilt kept - and so it is read and written: a printer's file never
+    says its bed is anywhere but z = 0 (issue 37). Every base-frame value of the file moves
+    with it (``home``, the tracker's and the ballbar's places); no reading changes.
+
+    Parameters
+    ----------
+    machine : Machine
+        A machine with its instrument sections (``probe_bed`` and the others) set.
+
+    Returns
+    -------
+    Machine
+        ``machine`` itself when its frame is not its bed or its bed is at z = 0, else a copy
+        with ``probe_bed = (0, tilt_x, tilt_y)``.
+    """
+    bed = getattr(machine, "probe_bed", None)
+    if not machine.frame_is_bed or bed is None or float(bed[0]) == 0.0:
+        return machine
+    t = np.array([0.0, 0.0, -float(bed[0])])
+    out = machine.with_parameters(machine.transform_base(machine.u, np.eye(3), t=t))
+    out.probe_bed = (0.0, float(bed[1]), float(bed[2]))
+    if machine._home is not None:
+        out.home = (machine._home[0] + t, machine._home[1])
+    pose = getattr(machine, "base_from_tracker", None)
+    if pose is not None:
+        out.base_from_tracker = (pose[0], np.asarray(pose[1], float) + t)
+    setups = getattr(machine, "ballbar_setups", None)
+    if setups is not None:
+        out.ballbar_setups = [(np.asarray(p, float) + t, b) for p, b in setups]
+    return out
+
+
 def _dump_instruments(machine: Machine, fl: float) -> dict:
     """The ``tracker``, ``ballbar`` and ``measurement_frames`` sections of ``machine`` (those
     it has), in the file's length unit; the inverse of :func:`_build_instruments`."""
@@ -422,9 +458,10 @@ def _with_common_sections(fmt: MachineFormat) -> MachineFormat:
     def build(doc, source: str) -> Machine:
         machine = fmt.build(doc, source)
         _build_instruments(machine, doc, factors(doc.units.model_dump())[0])
-        return machine
+        return bed_frame(machine)
 
     def dump(machine: Machine, units: dict) -> dict:
+        machine = bed_frame(machine)
         out = dict(fmt.dump(machine, units))
         out.update(_dump_instruments(machine, factors(units)[0]))
         return out

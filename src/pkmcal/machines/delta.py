@@ -743,4 +743,4 @@ FILE_FORMAT = MachineFormat(
         ("legs", "*", "dtheta"): "angle", ("legs", "*", "dl1"): "length",
         ("legs", "*", "dl2"): "length", ("legs", "*", "db", "*"): "length",
     },
-    size=_size, kind=Delta.kind)
+    size=_size, kind=Delta.kind, default=default_delta)

@@ -80,6 +80,9 @@ class MachineFormat:
     kind : str, optional
         The machine type (``machine:`` in files) of the format a machine module exports
         (:mod:`pkmcal.machines.registry`).
+    default : callable, optional
+        ``default() -> Machine``: the module's default machine of this type (a design that
+        every command runs on: tests walk every registered type with it).
     """
 
     schema: type[BaseModel]
@@ -94,6 +97,8 @@ class MachineFormat:
     #: ``size(document) -> (metres, what it is)``: the machine's own size for plausibility
     size: Callable[[Any], tuple[float, str]] | None = None
     kind: str = ""
+    #: ``default() -> Machine``: the module's default machine of this type
+    default: Callable[[], Machine] | None = None
 
 
 def show(value) -> str:

@@ -512,4 +512,4 @@ FILE_FORMAT = MachineFormat(
     kinds={("chains", "*", "a0", "*"): "length", ("chains", "*", "b", "*"): "length",
            ("chains", "*", "l"): "dimension", ("chains", "*", "alpha"): "angle",
            ("chains", "*", "beta"): "angle", ("constraint_link", "length"): "dimension"},
-    size=_size, kind=HexaSlide.kind)
+    size=_size, kind=HexaSlide.kind, default=default_hexaslide)

@@ -1166,4 +1166,4 @@ FILE_FORMAT = MachineFormat(
         ("chains", "*", "b", "*"): "length", ("chains", "*", "l"): "dimension",
         ("chains", "*", "alpha"): "angle", ("chains", "*", "beta"): "angle",
     },
-    size=_size, kind=LinearDelta.kind)
+    size=_size, kind=LinearDelta.kind, default=default_linear_delta)

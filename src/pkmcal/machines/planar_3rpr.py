@@ -596,4 +596,4 @@ FILE_FORMAT = MachineFormat(
     kinds={("legs", "*", "base", "*"): "length", ("legs", "*", "platform", "*"): "length",
            ("legs", "*", "l0"): "length", ("home", 0): "length", ("home", 1): "length",
            ("home", 2): "angle"},
-    size=_size, kind=Planar3RPR.kind)
+    size=_size, kind=Planar3RPR.kind, default=default_planar_3rpr)

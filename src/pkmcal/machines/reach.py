@@ -106,10 +106,12 @@ def _probe_ok(machine: Machine, P, R) -> np.ndarray:
 
 
 def _bed_points(machine: Machine, xy):
-    """Poses with the nozzle tip at ``xy`` on the nominal bed, the platform at home
-    orientation (the tip is the platform origin)."""
+    """Poses with the nozzle tip at ``xy`` on the bed, the platform at home orientation (the
+    tip is the platform origin): the nominal bed's height, or on a machine whose frame is its
+    bed the plane its file states (:meth:`~pkmcal.machines.Machine.targets_in_base`: a
+    tilted bed's points lie on it, not under it)."""
     xy = np.atleast_2d(np.asarray(xy, float))
-    P = np.column_stack([xy, np.full(len(xy), bed_height(machine))])
+    P = machine.targets_in_base(np.column_stack([xy, np.full(len(xy), bed_height(machine))]))
     return P, np.broadcast_to(machine.home[1], (len(P), 3, 3)).copy()
 
 

@@ -821,4 +821,4 @@ FILE_FORMAT = MachineFormat(
     kinds={("legs", "*", "base", "*"): "length", ("legs", "*", "platform", "*"): "length",
            ("legs", "*", "l0"): "length", ("legs", "*", "gain"): "gain",
            ("constraint_link", "length"): "dimension"},
-    size=_size, kind=Stewart.kind)
+    size=_size, kind=Stewart.kind, default=cubic_6upu)

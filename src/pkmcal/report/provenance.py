@@ -12,7 +12,7 @@ import os
 
 from ..errors import InputError
 
-__all__ = ["run_date"]
+__all__ = ["pinned_date", "run_date"]
 
 
 def run_date() -> str:
@@ -42,3 +42,16 @@ def run_date() -> str:
                              "since 1970-01-01 UTC (e.g. SOURCE_DATE_EPOCH=$(date +%s))"
                              ) from None
     return when.isoformat(timespec="seconds")
+
+
+def pinned_date() -> bool:
+    """Whether this run's date is pinned (``SOURCE_DATE_EPOCH`` set): a reproducible build,
+    whose outputs then hold nothing that varies from run to run - no time stamp, and no
+    measured duration (a Monte Carlo's timing is left out of its files, printed only).
+
+    Returns
+    -------
+    bool
+        ``SOURCE_DATE_EPOCH`` is set (its value is checked by :func:`run_date`).
+    """
+    return os.environ.get("SOURCE_DATE_EPOCH") is not None

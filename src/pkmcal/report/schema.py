@@ -658,7 +658,9 @@ def load_report(path: str | Path, what: str = "calibration report") -> dict:
         raise InputError(f"{path_text(path)}: {size} bytes is too large for a {what} (at most "
                          f"{MAX_REPORT_BYTES // 2**20} MiB)")
     text = read_input_text(path, what)
-    if _depth(text) > MAX_DEPTH:
+    # only a text that opens an array or object can nest (the depth scan is a Python loop:
+    # seconds over a large file of something else, which json refuses at its first character)
+    if text.lstrip()[:1] in ("{", "[") and _depth(text) > MAX_DEPTH:
         raise InputError(f"{path_text(path)}: not a {what}: JSON nested more than {MAX_DEPTH} deep")
     try:
         doc = json.loads(text, parse_constant=_refuse_constant)
