@@ -1067,7 +1067,7 @@ def bed_mesh_data(cfg: KlipperConfig, scale: float = 1.0, previous: DeltaValues 
     Returns
     -------
     data : list of InstrumentData
-        ``kind="probe"``, source ``"<path> [bed_mesh NAME]"``, ``free_height = True``,
+        ``kind="probe"``, source ``"<path> mesh NAME"``, ``free_height = True``,
         ``mesh`` (the :class:`BedMesh`), ``values_in_force`` (:class:`DeltaValues`); rows are
         the config lines of the mesh's rows.
     notes : list of str
@@ -1122,7 +1122,7 @@ def bed_mesh_data(cfg: KlipperConfig, scale: float = 1.0, previous: DeltaValues 
             continue
         rows = np.array([mesh.rows_line[i] for i in index[:, 0]])
         d = InstrumentData("probe", q[~bad], np.full((int((~bad).sum()), 1), offsets[2] * 1e-3),
-                           None, rows[~bad], f"{cfg.path} [bed_mesh {mesh.name}]")
+                           None, rows[~bad], f"{cfg.path} mesh {mesh.name}")
         d.free_height = True
         d.mesh = mesh
         d.values_in_force = used
@@ -1132,3 +1132,144 @@ def bed_mesh_data(cfg: KlipperConfig, scale: float = 1.0, previous: DeltaValues 
         notes.append(f"{label}: used, {int((~bad).sum())} probed points (its own height "
                      f"offset: the mesh's reference); {how}")
     return data, notes
+
+
+_STAMP = re.compile(r"-(\d{8}_\d{6})(?:_\d+)?(?:\.[^.]*)?$")
+
+
+def _dc_key(cfg: KlipperConfig) -> tuple:
+    """What a config's ``[delta_calibrate]`` saved, as text (the same points in two files are
+    one session)."""
+    opts = cfg.options("delta_calibrate")
+    return tuple(sorted((k, re.sub(r"\s+", "", e.value)) for k, e in opts.items()
+                        if re.fullmatch(r"(manual_)?height\d+(_pos)?|distance\d+(_pos[12])?", k)))
+
+
+def _mesh_key(mesh: BedMesh) -> tuple:
+    return (mesh.name, mesh.z.tobytes(), tuple(mesh.x), tuple(mesh.y))
+
+
+@dataclass
+class Sessions:
+    """Several Klipper configs (``printer.cfg`` and its backups) as calibration sessions.
+
+    Attributes
+    ----------
+    data : list
+        The data objects (``session``: the session's name, None for the reference session,
+        the newest, whose values the export updates).
+    notes : list of str
+        What was read, counted once, used or left out, and why.
+    summary : dict
+        ``sessions`` (count), ``files``, ``duplicates`` ({file: file it repeats}), ``meshes``
+        ({mesh: used / left out and why}), ``reference``.
+    """
+
+    data: list
+    notes: list
+    summary: dict
+
+
+def klipper_sessions(paths, machine) -> Sessions:
+    """Klipper configs as sessions (SPEC 9): the same saved DELTA_CALIBRATE points counted
+    once; each session's DC points and the meshes probed with its values; each session but
+    the newest with its own endstop offsets (the joint fit's reading offsets).
+
+    Files are ordered by the date in Klipper's backup names (``printer-YYYYMMDD_HHMMSS.cfg``,
+    the file just before the ``SAVE_CONFIG`` at that time); others come after them in the
+    order given (the current ``printer.cfg`` is the newest). A mesh is tested against the
+    values of its own file and of the file before it (:func:`bed_mesh_data`).
+
+    Parameters
+    ----------
+    paths : sequence of path
+        The configs.
+    machine : Machine
+        The machine (its joints and size).
+
+    Returns
+    -------
+    Sessions
+        The data, notes and summary.
+
+    Raises
+    ------
+    InputError
+        Naming the file: one without saved points or meshes, or a value Klipper would refuse.
+    """
+    paths = [Path(p) for p in paths]
+    order = sorted(range(len(paths)), key=lambda i: (
+        (0, _STAMP.search(paths[i].name).group(1), i) if _STAMP.search(paths[i].name)
+        else (1, "", i)))
+    read = []
+    for i in order:
+        cfg = KlipperConfig.read(paths[i])
+        dc = delta_calibrate_data(cfg, machine.n_joints, machine.characteristic_length())
+        read.append((paths[i], cfg, dc))
+    groups: dict = {}
+    duplicates: dict = {}
+    for path, cfg, dc in read:
+        key = _dc_key(cfg) if dc else ("file", str(path))
+        if key in groups:
+            duplicates[str(path)] = str(groups[key][0][0])
+        groups.setdefault(key, []).append((path, cfg, dc))
+    newest = read[-1][0]
+    data, notes, meshes = [], [], {}
+    seen_mesh: dict = {}
+    history: list = []
+    names = {}
+    for key, members in groups.items():
+        first = members[0][0]
+        names[key] = first.name if first.name not in names.values() else str(first)
+    reference = next(k for k, m in groups.items() if any(p == newest for p, _, _ in m))
+    for path, cfg, dc in read:
+        key = _dc_key(cfg) if dc else ("file", str(path))
+        session = None if key == reference else names[key]
+        try:
+            values = delta_values(cfg)
+        except InputError:
+            values = None
+        if str(path) not in duplicates:
+            for d in dc:
+                d.session = session
+                data.append(d)
+        previous = None if values is None else next(
+            (v for v in reversed(history) if not v.same(values)), None)
+        found, mesh_notes = bed_mesh_data(cfg, machine.characteristic_length(), previous)
+        for d, note in zip(found, [n for n in mesh_notes if ": used," in n], strict=False):
+            k = _mesh_key(d.mesh)
+            if k in seen_mesh:
+                continue
+            seen_mesh[k] = str(path)
+            d.session = session
+            data.append(d)
+            meshes[f"{path.name} [bed_mesh {d.mesh.name}]"] = note.split(": used, ", 1)[1]
+        for note in mesh_notes:
+            if ": left out:" in note:
+                meshes[note.split(": left out:")[0]] = "left out:" + note.split(": left out:")[1]
+                notes.append(note)
+        if values is not None:
+            history.append(values)
+    if not data:
+        raise InputError(f"{', '.join(map(str, paths))}: no saved calibration data: no "
+                         "[delta_calibrate] points and no [bed_mesh NAME] profile")
+    n = len(groups)
+    for dup, of in duplicates.items():
+        notes.append(f"{dup}: the same DELTA_CALIBRATE points as {of}: one session, counted "
+                     "once")
+    summary = {"sessions": n, "files": [str(p) for p, _, _ in read],
+               "reference": str(newest),
+               "duplicates": duplicates, "meshes": meshes}
+    if n > 1:
+        notes.append(f"{len(paths)} Klipper configs: {n} sessions (the newest, "
+                     f"{newest.name}, the reference; each other with its own endstop offsets, "
+                     f"{machine.n_joints} unknowns each)"
+                     + (f"; {len(duplicates)} file(s) repeat an earlier file's points"
+                        if duplicates else ""))
+    else:
+        notes += [f"{k}: {v}" for k, v in meshes.items() if not v.startswith("left out")]
+    for d in data:
+        d.notes = []
+    data[0].notes = notes
+    data[0].sessions = summary
+    return Sessions(data, notes, summary)
