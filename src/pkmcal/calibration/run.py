@@ -2243,6 +2243,7 @@ def _joint_distances(machine, data, source, noise) -> JointPart:
 
 
 def _joint_probe(machine, data, source, noise) -> JointPart:
+    from ..instruments import ProbeModel
     from ..instruments.probe import bed_choice
     from ..io import read_probe
 
@@ -2252,10 +2253,17 @@ def _joint_probe(machine, data, source, noise) -> JointPart:
     probe.source = str(source)
     _check_heights(probe, machine)
 
+    free_height = bool(getattr(probe, "free_height", False))
+
     def with_others(equations, unknowns, choice="auto", data=probe, others=()):
         bed = bed_choice(machine, data, noise_model, choice, equations, unknowns,
                          others=others)
-        return bed.model(), bed.words
+        if not free_height:
+            return bed.model(), bed.words
+        # a saved bed mesh keeps no absolute level (its reference): its own height offset
+        return (ProbeModel(fixed=tuple(f for f in bed.fixed if f != "bed.z")),
+                bed.words + "; its own height offset (a mesh's values are relative to its "
+                "reference)")
 
     model, frame = with_others(0, 0, "estimate" if machine.frame_is_bed else "auto")
     return JointPart(probe, model, noise_model,
@@ -2301,6 +2309,24 @@ def _part_rms(problem, state, data) -> tuple[float | None, np.ndarray]:
     norm = np.linalg.norm(r, axis=1)
     ok = np.isfinite(norm)
     return (_um(math.sqrt(float(np.mean(norm[ok] ** 2)))) if ok.any() else None), r
+
+
+def session_report(summary, problem, state, result, fl: float, unit: str) -> dict:
+    """The report's ``sessions``: how many, which files repeated another's points, which meshes
+    were used or left out and why, and each session's own reading offsets (the drift of its
+    endstops against the reference session) with their standard deviations."""
+    out = dict(summary or {})
+    offsets = {}
+    nj = problem.machine.n_joints
+    for k, name in enumerate(problem.session_names):
+        cols = problem.dq_offset + k * nj + np.arange(nj)
+        offsets[name] = {"offsets": [float(v) / fl for v in np.ravel(state.dq[k])],
+                         "std": [float(result.std[c]) / fl for c in cols], "unit": unit}
+    out["offsets"] = offsets
+    out["offsets_are"] = ("each session's reading offsets against the reference session "
+                          "(the newest): where its endstops triggered, the same on every "
+                          "joint where the probe's z_offset moved")
+    return out
 
 
 def _check_joint_options(options: CalibrateOptions) -> None:
@@ -2414,10 +2440,13 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                 (options.bed_tilt if options is not None and options.bed_tilt else "auto"),
                 part.data, [(p.data, p.model, p.noise) for p in others])
     names = ", ".join(map(str, sources))
+    sessions = [getattr(p.data, "session", None) for p in parts]
+    sessions = sessions if any(s is not None for s in sessions) else None
     try:
         result = fit_joint(machine, [(p.data, p.model, p.noise) for p in parts], labels,
                            estimate_noise=hold,
-                           robust=bool(options is not None and options.robust))
+                           robust=bool(options is not None and options.robust),
+                           sessions=sessions)
         if all(p.tied for p in parts) and result.dof > 0 \
                 and np.isfinite(result.residual_variance):
             # every file weighed as its source weighs them (Klipper's DELTA_CALIBRATE): the
@@ -2431,7 +2460,8 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                                 "residuals)")
             result = fit_joint(machine, [(p.data, p.model, p.noise) for p in parts], labels,
                                estimate_noise=hold,
-                               robust=bool(options is not None and options.robust))
+                               robust=bool(options is not None and options.robust),
+                               sessions=sessions)
     except (InputError, ValueError, np.linalg.LinAlgError) as exc:
         message = str(exc) if isinstance(exc, InputError) else \
             f"{names}: joint calibration failed: {exc}"
@@ -2450,6 +2480,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     for label, start in zip(labels, result.extras["start_models"], strict=True):
         nominal_of.update({f"{label}:{n}": v for n, v in zip(
             start.parameters.names, start.parameters.values, strict=True)})
+    nominal_of.update({n: 0.0 for n in problem.parameters.names if n.startswith("session ")})
     params = _parameter_table(result, nominal_of, units)
 
     # what the files' instruments set on the calibrated machine file (the first file of each
@@ -2519,6 +2550,11 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                           "summary": contributions.lines()},
         "parameters": _public(params),
     }
+    summary = next((getattr(p.data, "sessions", None) for p in parts
+                    if getattr(p.data, "sessions", None)), None)
+    if summary is not None or problem.session_names:
+        report["sessions"] = session_report(summary, problem, state, result, fl,
+                                            units["length"])
     if any(h is not None for h in held):
         report["validation"] = {
             "summary": "; ".join(f"{f['file']}: {f['validation']['summary']}" for f in files
@@ -2705,6 +2741,15 @@ def _check_heights(data, machine) -> None:
                              "config the data were saved with)")
 
 
+def _head(item) -> str:
+    """A data file's first 4 kB (empty when it cannot be read)."""
+    try:
+        with open(item, encoding="utf-8", errors="replace") as f:
+            return f.read(4096)
+    except OSError:
+        return ""
+
+
 def expand_firmware_data(data, machine):
     """Data files that are a firmware's saved state (a Klipper ``printer.cfg`` with
     ``[delta_calibrate]`` data) or a pasted probe report (Marlin ``Bed X: Y: Z:`` lines,
@@ -2731,6 +2776,22 @@ def expand_firmware_data(data, machine):
 
     items = list(data) if isinstance(data, (list, tuple)) else [data]
     out, changed = [], False
+    configs = [item for item in items if isinstance(item, (str, Path)) and Path(item).is_file()
+               and is_klipper_config(item, _head(item))]
+    if len(configs) > 1:
+        # several of a printer's configs (printer.cfg, its backups): sessions, the same saved
+        # points counted once, each session its own endstop offsets
+        from ..io.klipper_config import klipper_sessions
+
+        found = klipper_sessions(configs, machine).data
+        for obj in found:
+            obj.origin = next((c for c in configs if str(obj.source).startswith(str(c))),
+                              configs[0])
+        first = items.index(configs[0])
+        items = [item for item in items if item not in configs]
+        out = [item for item in items[:first]] + found
+        items = items[first:]
+        changed = True
     for item in items:
         if isinstance(item, (str, Path)) and Path(item).is_file():
             try:
