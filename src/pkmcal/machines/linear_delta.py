@@ -426,25 +426,16 @@ class LinearDelta(Machine):
                         "arm_trim": "length", "tower_tilt": "angle", "endstop": "length"}
 
     def model_candidates(self, fixes_lengths: bool) -> list[ModelCandidate]:
-        """Klipper's own set (its DELTA_CALIBRATE: basic from heights, extended with
-        distances; the bed square to the towers as Klipper takes it), Klipper's nine with the
-        bed's tilt, Klipper's nine with a square bed, and the per-tower model (every tower
-        quantity) with the build tolerances holding what the data do not see. Klipper's
-        nine from heights alone have the arms held by their tolerance (``arm_trim``,
-        ``arm_length``), as the per-tower model has its tilts and trims.
+        """Klipper's own set (its DELTA_CALIBRATE: basic from heights, the nine with
+        distances), with the bed square to the towers as Klipper takes it and with the bed's
+        tilt, and the per-tower model (every tower quantity) with the build tolerances
+        holding what the data do not see (its arms from heights alone among them).
         """
         own = "klipper" if fixes_lengths else "klipper-basic"
         out = [ModelCandidate(own, "square", f"Klipper's own set ({own}), the bed square to "
-                              "the towers as the firmware takes it")]
-        if fixes_lengths:
-            out.append(ModelCandidate("klipper", "estimate",
-                                      "Klipper's nine parameters and the bed's tilt"))
-        else:
-            out += [ModelCandidate("klipper", "square", "Klipper's nine parameters (the arms "
-                                   "held by their build tolerance where the data do not "
-                                   "fix them), the bed square"),
-                    ModelCandidate("klipper", "estimate", "Klipper's nine parameters and the "
-                                   "bed's tilt")]
+                              "the towers as the firmware takes it"),
+               ModelCandidate(own, "estimate", f"Klipper's own set ({own}) and the bed's "
+                              "tilt")]
         out.append(ModelCandidate("full", "auto", "the per-tower model (endstop, angle, "
                                   "radius and arm, both tilts of each tower) with the build "
                                   "tolerances as a prior, the bed's tilt where the data tell "
