@@ -200,7 +200,26 @@ def pkmcal_values(paths: list, out_dir: Path | None = None) -> tuple[DeltaValues
     ws = cal.calibrated.print_workspace(rng=0)
     result = export(fmt, cal.calibrated, ws.P, ws.R, surface=ws.surface)
     new = fmt.update(text, result.params, cal.calibrated, str(last)) or result.text
-    return delta_values(KlipperConfig.read(str(last), new)), cal
+    if MESH_HANDOVER:
+        new = fmt.with_bed_mesh(new, result.params, cal.calibrated) or new
+    return delta_values(KlipperConfig.read(str(last), new)), cal, exported_mesh(last, new)
+
+
+#: the export's mesh profile (``[bed_mesh pkmcal]``) loaded where the export hands one over
+#: (``--no-mesh``: the values alone)
+MESH_HANDOVER = True
+
+
+def exported_mesh(path: Path, text: str):
+    """``f(xy)`` of the export's ``[bed_mesh pkmcal]`` profile as Klipper applies it, or
+    None when the export handed none over."""
+    from pkmcal.export.bed_mesh import PROFILE
+    from pkmcal.io.klipper_config import bed_meshes
+
+    for mesh in bed_meshes(KlipperConfig.read(str(path), text)):
+        if mesh.name == PROFILE:
+            return mesh_function(mesh)[0]
+    return None
 
 
 def pair_table(sessions: dict, max_days: float | None, limit: int | None = None,
@@ -219,13 +238,14 @@ def pair_table(sessions: dict, max_days: float | None, limit: int | None = None,
                 key = str(a.path)
                 if key not in fits:
                     t0 = time.perf_counter()
-                    fits[key] = pkmcal_values([a.path])[0]
+                    values, _, mesh = pkmcal_values([a.path])
+                    fits[key] = (values, mesh)
                     fits[key + ":t"] = time.perf_counter() - t0
                 if key not in meshes:
                     meshes[key] = mesh_function(a.meshes[0]) if a.meshes else (None, "none")
                 mf, words = meshes[key]
                 k = rms(residuals(a.values, b))
-                p = rms(residuals(fits[key], b))
+                p = rms(residuals(fits[key][0], b, fits[key][1]))
                 km = rms(residuals(a.values, b, mf)) if mf is not None else None
                 rows.append({"printer": printer, "A": str(a.path.relative_to(SHARED)),
                              "B": str(b.path.relative_to(SHARED)), "days": round(days, 2),
@@ -274,10 +294,10 @@ def pooled(log=print) -> dict:
     if len(sessions) < 6:
         return {}
     fit, test = sessions[:4], sessions[4:6]
-    values, _ = pkmcal_values([s.path for s in fit])
+    values, _, mesh = pkmcal_values([s.path for s in fit])
     after = fit[-1].values
     k = rms([r for s in test for r in residuals(after, s)])
-    p = rms([r for s in test for r in residuals(values, s)])
+    p = rms([r for s in test for r in residuals(values, s, mesh)])
     out = {"fit": [str(s.path.relative_to(SHARED)) for s in fit],
            "test": [str(s.path.relative_to(SHARED)) for s in test],
            "klipper_mm": k, "pkmcal_mm": p, "ratio": p / k}
@@ -291,7 +311,11 @@ def main(argv=None) -> int:
     ap.add_argument("--pairs", type=int, default=None, help="stop after this many pairs")
     ap.add_argument("--no-write", action="store_true", help="do not write the results file")
     ap.add_argument("--no-pooled", action="store_true", help="skip the points-only test")
+    ap.add_argument("--no-mesh", action="store_true",
+                    help="evaluate the exported values without the exported mesh profile")
     args = ap.parse_args(argv)
+    global MESH_HANDOVER
+    MESH_HANDOVER = not args.no_mesh
     if not SHARED.is_dir():
         print(f"skipped: {SHARED} not found (the real printers' files stay outside the "
               "project)")

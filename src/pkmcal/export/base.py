@@ -360,6 +360,13 @@ class ControllerFormat(ABC):
         """
         return None
 
+    def with_bed_mesh(self, text: str, params: ControllerParameters,
+                      machine: Machine) -> str | None:
+        """The controller's file with a bed mesh that carries what ``params`` leave of the
+        nozzle's height at the bed (:mod:`pkmcal.export.bed_mesh`), where the controller
+        applies one from its file and the mesh is worth it; None: no mesh (the default)."""
+        return None
+
     @abstractmethod
     def parse(self, text: str, source: str) -> ControllerParameters:
         """The values of a controller file (import).
