@@ -134,3 +134,24 @@ def test_marlin_and_reprapfirmware_texts():
     h = reprapfirmware_heightmap(c).splitlines()
     assert h[1].startswith("axis0,axis1") and len(h) == 3 + len(c.y)
     assert len(h[3].split(",")) == len(c.x)
+
+
+def test_export_never_refuses_because_the_model_holds_more_than_the_firmware():
+    """Regression (issue 35: "150 of 491 workspace poses cannot be commanded with the
+    controller's values", a refusal): a tower 10 mm further out with a 10 mm longer arm
+    reaches poses at the print disk's edge that Klipper's one radius cannot command; they
+    are left out of the fit and the errors, counted and placed, and the export goes on."""
+    m = linear_delta(0.14, 0.27)
+    u = m.u.copy()
+    p = m.parameters
+    u[p.index("tower1.radius_trim")] = 0.01
+    u[p.index("tower1.arm_trim")] = 0.01
+    m = m.with_parameters(u)
+    m.print_radius = 0.13
+    ws = m.print_workspace(rng=0)
+    r = export(KLIPPER, m, ws.P, ws.R, surface=ws.surface)
+    left = len(ws.P) - r.points
+    assert 0 < left < 0.1 * len(ws.P)
+    assert r.left_out.startswith(f"{left} of {len(ws.P)} workspace poses cannot be commanded")
+    assert "mm from the axis" in r.left_out and r.as_dict()["left_out"] == r.left_out
+    assert np.isfinite(r.remaining_rms) and np.isfinite(r.height_rms)
