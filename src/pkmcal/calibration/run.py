@@ -1191,10 +1191,30 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
     add_to_report(result, report, verdict)  # model_adequacy: residuals against readings, pose
     report["acceptance"] = _acceptance(result, machine, calibrated, source,
                                        report.get("method"), warnings, verdict)
+    _tolerance_report(result, calibrated, report, source, units, warnings)
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,
                        units=units)
+
+
+def _tolerance_report(result, calibrated, report: dict, source, units, warnings: list) -> None:
+    """With build tolerances (SPEC 9): the report's ``tolerances`` section (what the data
+    measured, what the prior held), the warning for values the data pull beyond three
+    tolerances, and the machine's actions for what its firmware cannot hold."""
+    from ..units import ANGLE, LENGTH
+    from .tolerances import pulled_warnings, tolerance_section
+
+    units = units or {"length": "mm", "angle": "deg"}
+    factors = (LENGTH[units["length"]], ANGLE[units["angle"]])
+    section = tolerance_section(result, units, factors)
+    if section is None:
+        return
+    actions = calibrated.build_error_words(result.prior_summary())
+    section["actions"] = actions
+    report["tolerances"] = section
+    warnings.extend(pulled_warnings(result, path_text(source), units, factors))
+    warnings.extend(actions)
 
 
 def _noise_report(result, report: dict, source, warnings: list, robust: bool = True) -> None:
