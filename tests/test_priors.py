@@ -184,7 +184,7 @@ def _leaning_printer_fit(tilt_deg, seed=0, n_points=91, sigma=5e-6):
 
 def test_a_leaning_tower_the_data_measure_is_an_action_in_the_printers_terms():
     c = _leaning_printer_fit(0.8)
-    rows = {r["name"]: r for r in c.report["tolerances"]["rows"]}
+    rows = {r["name"]: r for r in c.report["tolerances"]["entries"]}
     tilt = rows["tower2.tilt_radial"]
     assert tilt["label"] == "measured"
     actions = c.report["tolerances"]["actions"]

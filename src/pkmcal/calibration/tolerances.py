@@ -52,7 +52,7 @@ def tolerance_section(result, units: dict, factors: tuple[float, float]) -> dict
                   "its tolerance (prior std) and its std after the fit; 'measured' where the "
                   "data carry at least half of the information, 'prior-held' where the "
                   "tolerance does, 'unidentifiable' where no measurement changes it",
-            "rows": out,
+            "entries": out,
             "measured": sum(r.label == "measured" for r in rows),
             "prior_held": sum(r.label == "prior-held" for r in rows),
             "pulled": [r.name for r in rows if r.sigmas > PULLED]}
