@@ -155,3 +155,20 @@ def test_export_never_refuses_because_the_model_holds_more_than_the_firmware():
     assert r.left_out.startswith(f"{left} of {len(ws.P)} workspace poses cannot be commanded")
     assert "mm from the axis" in r.left_out and r.as_dict()["left_out"] == r.left_out
     assert np.isfinite(r.remaining_rms) and np.isfinite(r.height_rms)
+
+
+def test_the_klipper_mesh_holds_the_bed_at_the_probes_trigger_height():
+    """Klipper's own meshes hold the bed as seen with the nozzle z_offset above it (a
+    detachable probe: 18 mm on FLSUN's V400); pkmcal's profile is computed there too: with a
+    leaning tower the error the values leave changes with height."""
+    m = leaning()
+    params = fitted(m)
+    text = USER.replace("[bed_mesh]\n", "[probe]\nz_offset: 18.3\n[bed_mesh]\n")
+    assert KLIPPER.bed_mesh_height(text) == pytest.approx(0.0183)
+    assert KLIPPER.bed_mesh_height(USER) == 0.0
+    written = KLIPPER.with_bed_mesh(text, params, m)
+    mesh = {x.name: x for x in bed_meshes(KlipperConfig.read("printer.cfg", written))}[PROFILE]
+    up = bed_correction(KLIPPER, params, m, 0.1, height=0.0183)
+    flat = bed_correction(KLIPPER, params, m, 0.1)
+    np.testing.assert_allclose(mesh.z, up.z * 1e3, rtol=0, atol=6e-7)
+    assert np.abs(up.z - flat.z).max() > 1e-5          # the lean shows over 18 mm

@@ -48,7 +48,8 @@ def _bed_hand_over(fmt, result, machine, ws, text: str) -> dict:
     if getattr(ws, "surface", None) is None or not np.any(ws.surface):
         return out
     radius = print_radius_of(machine)
-    correction = bed_correction(fmt, result.params, machine, radius)
+    height = fmt.bed_mesh_height(text)
+    correction = bed_correction(fmt, result.params, machine, radius, height=height)
     meshed = fmt.with_bed_mesh(text, result.params, machine)
     out["layers"] = layer_errors(fmt, result.params, machine, radius,
                                  correction if meshed is not None else None)
@@ -56,7 +57,9 @@ def _bed_hand_over(fmt, result, machine, ws, text: str) -> dict:
         out["text"] = meshed
         out["mesh"] = (f"[bed_mesh {PROFILE}] written to the SAVE_CONFIG block (RMS "
                        f"{correction.rms * 1e6:.3g} um over the print disk: what the values "
-                       "cannot hold at the bed); load it with BED_MESH_PROFILE LOAD="
+                       "cannot hold at the bed, seen as your own meshes see it, with the "
+                       f"nozzle {height * 1e3:.4g} mm up at the probe's trigger); load it "
+                       "with BED_MESH_PROFILE LOAD="
                        f"{PROFILE} (e.g. in your PRINT_START after homing); your own "
                        "profiles are unchanged")
     elif correction is not None and correction.worth_it:

@@ -360,6 +360,11 @@ class ControllerFormat(ABC):
         """
         return None
 
+    def bed_mesh_height(self, text: str) -> float:
+        """The nozzle's height above the bed (m) at which the controller's meshes hold the
+        bed (its probe's trigger height); 0 by default."""
+        return 0.0
+
     def with_bed_mesh(self, text: str, params: ControllerParameters,
                       machine: Machine) -> str | None:
         """The controller's file with a bed mesh that carries what ``params`` leave of the

@@ -107,7 +107,7 @@ def _height_errors(fmt, params, machine: Machine, xy, height: float) -> np.ndarr
 
 
 def bed_correction(fmt, params, machine: Machine, radius: float,
-                   count: int = MESH_COUNT) -> BedCorrection | None:
+                   count: int = MESH_COUNT, height: float = 0.0) -> BedCorrection | None:
     """The mesh that carries the height error ``params`` leave at the bed over the print
     disk (see the module docstring).
 
@@ -123,6 +123,11 @@ def bed_correction(fmt, params, machine: Machine, radius: float,
         The print disk's radius, m.
     count : int, optional
         Nodes per side.
+    height : float, optional
+        The nozzle's height above the bed at which the mesh describes the bed, m: 0, or the
+        probe's trigger height where the firmware's own meshes are probed there (a Klipper
+        mesh holds the bed as seen with the nozzle ``z_offset`` above it; a leaning tower
+        makes the error the values leave change with height).
 
     Returns
     -------
@@ -137,7 +142,7 @@ def bed_correction(fmt, params, machine: Machine, radius: float,
     # node inside and the first outside needs the surface there, not a copy)
     with np.errstate(all="ignore"):
         z = -_height_errors(fmt, params, machine, np.column_stack([X.ravel(), Y.ravel()]),
-                            0.0).reshape(X.shape)
+                            float(height)).reshape(X.shape)
     ok = np.isfinite(z)
     if not (ok & inside).any():
         return None
