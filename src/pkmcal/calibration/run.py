@@ -797,7 +797,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
                                   split=split, options=options)
             calibration.inputs = _inputs_of(given, calibration.inputs)
             calibration.warnings[:0] = notes
-            return _with_parameter_set(calibration, chosen, note)
+            return _with_bed_surface(_with_parameter_set(calibration, chosen, note), data)
         data = data[0]
     if isinstance(noise, dict):     # named as the joint fit names it: the path or its source
         noise = _noise_of(noise, [data if isinstance(data, (str, Path))
@@ -830,7 +830,36 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         inputs.append(Path(machine_file))
     calibration.inputs = _inputs_of(given, inputs)
     calibration.warnings[:0] = notes
-    return _with_parameter_set(calibration, chosen, note)
+    return _with_bed_surface(_with_parameter_set(calibration, chosen, note), [data])
+
+
+def _with_bed_surface(calibration: Calibration, data) -> Calibration:
+    """A printer's bed shape beside its plane, from its probed meshes
+    (:mod:`pkmcal.calibration.bed_surface`): on the calibrated machine (its file's ``bed:
+    surface``) and in the report, where larger than the probe's repeatability."""
+    from .bed_surface import fit_bed_surface
+
+    calibrated = calibration.calibrated
+    if not getattr(calibrated, "frame_is_bed", False):
+        return calibration
+    items = [d for d in (data if isinstance(data, (list, tuple)) else [data])
+             if not isinstance(d, (str, Path))]
+    fitted = fit_bed_surface(calibrated, items)
+    if fitted is None:
+        return calibration
+    radius, values, rms, points = fitted
+    calibrated.bed_surface = (radius, values)
+    calibration.report["bed_surface"] = {
+        "of": "the bed's own shape beside its plane: the meshes' residuals under the "
+              "calibrated model (each mesh's mean removed), smoothed on a square grid; "
+              "export hands it over in the firmware's bed mesh",
+        "radius_mm": radius * 1e3, "rms_um": rms * 1e6, "points": points,
+        "values_mm": (values * 1e3).tolist()}
+    calibration.warnings.append(
+        f"the bed's own shape: {rms * 1e6:.3g} um RMS over {points} probed points beyond what "
+        "the kinematics explain (a bed that is not flat, a frame that bends); kept in the "
+        "calibrated file (bed: surface) and handed over by export in the firmware's bed mesh")
+    return calibration
 
 
 def _calibrate_auto(machine, given, candidates, bed_tilt, options) -> Calibration:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..io.klipper_config import EXPORTED_PROFILE
-from ..machines.base import Machine
+from ..machines.base import Machine, bed_height_at
 
 #: a correction smaller than this (RMS over the print disk, m) is not handed over: the probe's
 #: repeatability (:data:`~pkmcal.instruments.probe.PROBE_SIGMA`)
@@ -92,18 +92,25 @@ def print_radius_of(machine: Machine) -> float:
     return float(getattr(machine, "print_radius", None) or probe_radius(machine))
 
 
-def _bed_z(machine: Machine, xy) -> np.ndarray:
+def _plane_z(machine: Machine, xy) -> np.ndarray:
+    """The bed's plane (``probe_bed``; 0 without one): the frame the firmware commands in."""
     bed = getattr(machine, "probe_bed", None)
     b = np.zeros(3) if bed is None else np.asarray(bed, float)
     return b[0] + b[1] * xy[:, 0] + b[2] * xy[:, 1]
 
 
 def _height_errors(fmt, params, machine: Machine, xy, height: float) -> np.ndarray:
-    """The nozzle's height error (m) at targets ``height`` above the machine's bed."""
+    """The nozzle's height error (m) above the machine's bed when the firmware commands
+    ``height`` above it: what its values leave of the kinematics, minus the bed's own shape
+    beside the plane (:func:`~pkmcal.machines.base.bed_height_at`: a bed higher there is
+    touched that much earlier)."""
     from .base import position_errors
 
-    P = np.column_stack([xy, _bed_z(machine, xy) + height])
-    return position_errors(fmt, params, machine, P)[:, 2]
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    plane = _plane_z(machine, xy)
+    P = np.column_stack([xy, plane + height])
+    shape = bed_height_at(machine, xy) - plane
+    return position_errors(fmt, params, machine, P)[:, 2] - shape
 
 
 def bed_correction(fmt, params, machine: Machine, radius: float,

@@ -120,6 +120,40 @@ class ParameterSubset:
     kinds: tuple[str, ...] | None = None
 
 
+def bed_height_at(machine, xy) -> np.ndarray:
+    """The height (m) of a printer's bed at (x, y): its plane (``probe_bed``: height and
+    slopes; 0 without one) plus its own shape (``bed_surface``: ``(radius, values)``, a
+    square grid over ``[-radius, radius]``, interpolated bilinearly, clamped to the grid).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (its ``probe_bed``, ``bed_surface``).
+    xy : array_like, shape (K, 2)
+        Positions, m.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        Heights, m.
+    """
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    bed = getattr(machine, "probe_bed", None)
+    b = np.zeros(3) if bed is None else np.asarray(bed, float)
+    z = b[0] + b[1] * xy[:, 0] + b[2] * xy[:, 1]
+    surface = getattr(machine, "bed_surface", None)
+    if surface is None:
+        return z
+    radius, values = float(surface[0]), np.asarray(surface[1], float)
+    n = len(values)
+    f = np.clip((xy + radius) / (2 * radius) * (n - 1), 0.0, n - 1.0)
+    i0 = np.clip(np.floor(f).astype(int), 0, n - 2)
+    t = f - i0
+    ix, iy, tx, ty = i0[:, 0], i0[:, 1], t[:, 0], t[:, 1]
+    return z + ((1 - ty) * ((1 - tx) * values[iy, ix] + tx * values[iy, ix + 1])
+                + ty * ((1 - tx) * values[iy + 1, ix] + tx * values[iy + 1, ix + 1]))
+
+
 @dataclass(frozen=True)
 class ModelCandidate:
     """A model ``--parameters auto`` may choose (:meth:`Machine.model_candidates`).
