@@ -305,7 +305,9 @@ def calibrate(
     parameters: Annotated[str | None, typer.Option(
         "--parameters", metavar="NAME",
         help="Fit the machine's named parameter set NAME (e.g. a firmware's: klipper, marlin, "
-             "rrf, full on a linear Delta): its fixed flags replace the machine file's.",
+             "rrf, full on a linear Delta): its fixed flags replace the machine file's. "
+             "auto (a linear Delta's default): the candidate models are fitted and the one "
+             "with the smallest leave-one-out prediction error is kept, named in the report.",
         show_default=False)] = None,
     fix_frames: Annotated[bool, typer.Option(
         "--fix-frames", help="pose data: hold the measurement frames (mocap_from_base, "
