@@ -568,15 +568,15 @@ def _session_rows(table, sessions) -> None:
     points, the meshes used or left out and why, each session's own endstop offsets."""
     if not sessions:
         return
-    from rich.markup import escape        # Klipper's names: [bed_mesh default]
+    from rich.markup import escape  # Klipper's names: [bed_mesh default]
 
     if "sessions" in sessions:
         table.add_row("sessions", f"{sessions['sessions']} from {len(sessions['files'])} "
                       f"file(s); reference (its values are the export's): "
                       f"{path_text(Path(sessions['reference']).name)}")
     for dup, of in sessions.get("duplicates", {}).items():
-        table.add_row("", f"{path_text(Path(dup).name)}: the same DELTA_CALIBRATE points as "
-                      f"{path_text(Path(of).name)}: counted once")
+        what = sessions.get("repeated", {}).get(dup) or [f"its points are {Path(of).name}'s"]
+        table.add_row("", f"{path_text(Path(dup).name)}: {' and '.join(what)}: counted once")
     for i, (mesh, how) in enumerate(sessions.get("meshes", {}).items()):
         table.add_row("bed meshes" if i == 0 else "", escape(f"{path_text(mesh)}: {how}"))
     for i, (name, v) in enumerate(sessions.get("offsets", {}).items()):

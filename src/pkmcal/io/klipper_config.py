@@ -1137,12 +1137,21 @@ def bed_mesh_data(cfg: KlipperConfig, scale: float = 1.0, previous: DeltaValues 
 _STAMP = re.compile(r"-(\d{8}_\d{6})(?:_\d+)?(?:\.[^.]*)?$")
 
 
-def _dc_key(cfg: KlipperConfig) -> tuple:
-    """What a config's ``[delta_calibrate]`` saved, as text (the same points in two files are
-    one session)."""
-    opts = cfg.options("delta_calibrate")
-    return tuple(sorted((k, re.sub(r"\s+", "", e.value)) for k, e in opts.items()
-                        if re.fullmatch(r"(manual_)?height\d+(_pos)?|distance\d+(_pos[12])?", k)))
+def _data_key(d) -> tuple:
+    """What one saved data set holds (the same points in two files are one session)."""
+    return (d.kind, np.round(np.asarray(d.q, float), 12).tobytes(),
+            np.round(np.asarray(d.values, float), 12).tobytes())
+
+
+def _session_key(path, dc) -> tuple:
+    """A file's session: its DELTA_CALIBRATE heights (DELTA_ANALYZE reuses them with new
+    distances: one session), else its distances, else the file itself."""
+    heights = [d for d in dc if d.kind == "probe"]
+    if heights:
+        return _data_key(heights[0])
+    if dc:
+        return _data_key(dc[0])
+    return ("file", str(path))
 
 
 def _mesh_key(mesh: BedMesh) -> tuple:
@@ -1161,7 +1170,8 @@ class Sessions:
     notes : list of str
         What was read, counted once, used or left out, and why.
     summary : dict
-        ``sessions`` (count), ``files``, ``duplicates`` ({file: file it repeats}), ``meshes``
+        ``sessions`` (count), ``files``, ``duplicates`` ({file: the file whose saved points
+        it repeats}), ``repeated`` ({file: what it repeats, in words}), ``meshes``
         ({mesh: used / left out and why}), ``reference``.
     """
 
@@ -1207,40 +1217,44 @@ def klipper_sessions(paths, machine) -> Sessions:
         dc = delta_calibrate_data(cfg, machine.n_joints, machine.characteristic_length())
         read.append((paths[i], cfg, dc))
     groups: dict = {}
-    duplicates: dict = {}
     for path, cfg, dc in read:
-        key = _dc_key(cfg) if dc else ("file", str(path))
-        if key in groups:
-            duplicates[str(path)] = str(groups[key][0][0])
-        groups.setdefault(key, []).append((path, cfg, dc))
+        groups.setdefault(_session_key(path, dc), []).append(path)
     newest = read[-1][0]
     data, notes, meshes = [], [], {}
-    seen_mesh: dict = {}
+    seen: dict = {}
+    duplicates: dict = {}
+    repeated: dict = {}
     history: list = []
     names = {}
     for key, members in groups.items():
-        first = members[0][0]
-        names[key] = first.name if first.name not in names.values() else str(first)
-    reference = next(k for k, m in groups.items() if any(p == newest for p, _, _ in m))
+        names[key] = members[0].name if members[0].name not in names.values() \
+            else str(members[0])
+    reference = next(k for k, m in groups.items() if newest in m)
     for path, cfg, dc in read:
-        key = _dc_key(cfg) if dc else ("file", str(path))
+        key = _session_key(path, dc)
         session = None if key == reference else names[key]
         try:
             values = delta_values(cfg)
         except InputError:
             values = None
-        if str(path) not in duplicates:
-            for d in dc:
-                d.session = session
-                data.append(d)
+        for d in dc:
+            k = _data_key(d)
+            if k in seen:
+                duplicates.setdefault(str(path), seen[k])
+                repeated.setdefault(str(path), []).append(
+                    f"its {d.source.rsplit(' ', 1)[-1]} are {Path(seen[k]).name}'s")
+                continue
+            seen[k] = str(path)
+            d.session = session
+            data.append(d)
         previous = None if values is None else next(
             (v for v in reversed(history) if not v.same(values)), None)
         found, mesh_notes = bed_mesh_data(cfg, machine.characteristic_length(), previous)
         for d, note in zip(found, [n for n in mesh_notes if ": used," in n], strict=False):
             k = _mesh_key(d.mesh)
-            if k in seen_mesh:
+            if k in seen:
                 continue
-            seen_mesh[k] = str(path)
+            seen[k] = str(path)
             d.session = session
             data.append(d)
             meshes[f"{path.name} [bed_mesh {d.mesh.name}]"] = note.split(": used, ", 1)[1]
@@ -1255,11 +1269,11 @@ def klipper_sessions(paths, machine) -> Sessions:
                          "[delta_calibrate] points and no [bed_mesh NAME] profile")
     n = len(groups)
     for dup, of in duplicates.items():
-        notes.append(f"{dup}: the same DELTA_CALIBRATE points as {of}: one session, counted "
-                     "once")
+        notes.append(f"{dup}: {' and '.join(repeated[dup])} (the same saved points: counted "
+                     "once)")
     summary = {"sessions": n, "files": [str(p) for p, _, _ in read],
                "reference": str(newest),
-               "duplicates": duplicates, "meshes": meshes}
+               "duplicates": duplicates, "repeated": repeated, "meshes": meshes}
     if n > 1:
         notes.append(f"{len(paths)} Klipper configs: {n} sessions (the newest, "
                      f"{newest.name}, the reference; each other with its own endstop offsets, "
