@@ -735,6 +735,18 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
              for n in getattr(item, "notes", None) or []]
     chosen, note = None, ""
     items = list(data) if isinstance(data, (list, tuple)) else [data]
+    if parameters == "auto" or parameters is None:
+        lengths = any(k.fixes_lengths for k in _data_kinds(data, machine))
+        candidates = machine.model_candidates(lengths) if hasattr(machine, "model_candidates") \
+            else []
+        if candidates:
+            return _calibrate_auto(machine, given, candidates, bed_tilt,
+                                   dict(method=method, noise=noise, pose_noise=pose_noise,
+                                        estimate_lc=estimate_lc, two_step=two_step,
+                                        robust=robust, fix_frames=fix_frames,
+                                        holdout=holdout, seed=seed, extensions=extensions))
+        if parameters == "auto":
+            parameters = None
     suggested = {getattr(d, "parameter_set", None) for d in items}
     if parameters is None and len(suggested) == 1 and None not in suggested \
             and next(iter(suggested)) in getattr(machine, "PARAMETER_SETS", {}):
@@ -745,7 +757,8 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     if parameters is not None:
         subset = getattr(machine, "PARAMETER_SETS", {}).get(parameters)
         fallback = getattr(subset, "without_lengths", None)
-        if fallback and not any(k.fixes_lengths for k in _data_kinds(data, machine)):
+        if fallback and not any(k.fixes_lengths for k in _data_kinds(data, machine)) \
+                and not _prior_holds(machine, parameters, fallback):
             note = ((note + "; ") if note else "") + (
                 f"{parameters} with heights alone is {fallback}: no measurement fixes a "
                 "length (as the firmware does without distances)")
@@ -814,6 +827,41 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     calibration.inputs = _inputs_of(given, inputs)
     calibration.warnings[:0] = notes
     return _with_parameter_set(calibration, chosen, note)
+
+
+def _calibrate_auto(machine, given, candidates, bed_tilt, options) -> Calibration:
+    """``--parameters auto``: every candidate fitted, the one that predicts best kept
+    (:mod:`pkmcal.calibration.model_choice`); the report says which and why."""
+    from .model_choice import choice_words, choose_model
+
+    def fit(name, bed):
+        return calibrate(machine, given, parameters=name,
+                         bed_tilt=bed_tilt if bed_tilt is not None else bed, **options)
+
+    calibration, scores, chosen = choose_model(fit, machine, candidates)
+    words = choice_words(scores, chosen)
+    calibration.report["model_choice"] = {
+        "chosen": chosen, "criterion": "leave-one-out prediction error of the measurements "
+        "(PRESS), whitened by the assumed noise; a larger model kept only when it lowers it "
+        "by 2 %", "words": words, "candidates": [sc.as_dict() for sc in scores]}
+    calibration.warnings.append(words)
+    chosen_set = calibration.report.get("parameter_set")
+    if chosen_set is not None:
+        chosen_set["note"] = ("fitted in its own set, the firmware's: " if chosen == 0
+                              else "") + words
+    return calibration
+
+
+def _prior_holds(machine, name: str, fallback: str) -> bool:
+    """Whether the machine's prior holds every parameter set ``name`` frees beyond
+    ``fallback`` (then the larger set is fitted: what the data do not fix stays at its
+    tolerance, no need to fix it)."""
+    prior = machine.parameters.prior
+    if prior is None:
+        return False
+    big, small = machine.parameter_set(name), machine.parameter_set(fallback)
+    extra = np.flatnonzero(big.free & small.fixed)
+    return bool(extra.size) and all(np.any(prior.matrix[:, j] != 0) for j in extra)
 
 
 def _noise_through_expansion(noise, given, data):
@@ -1973,8 +2021,6 @@ def apply_parameter_set(machine, name: str):
         When the machine has no named sets (naming the machine types that have them) or
         none of this name (listing its sets).
     """
-    from ..parameters import ParameterSet
-
     method = getattr(machine, "parameter_set", None)
     kind = getattr(machine, "kind", "") or "machine"
     if not callable(method):
@@ -2006,7 +2052,7 @@ def apply_parameter_set(machine, name: str):
         lookup = dict(zip(chosen.names, np.asarray(chosen.fixed, bool), strict=True))
         fixed = np.array([lookup.get(n, True) for n in mp.names], bool)
     new = machine.with_parameters(mp.values)
-    new.parameters = ParameterSet(mp.names, mp.kinds, mp.values, fixed)
+    new.parameters = mp.with_fixed_mask(fixed)
     return new
 
 

@@ -121,6 +121,25 @@ class ParameterSubset:
 
 
 @dataclass(frozen=True)
+class ModelCandidate:
+    """A model ``--parameters auto`` may choose (:meth:`Machine.model_candidates`).
+
+    Attributes
+    ----------
+    parameters : str
+        A named parameter set (:attr:`Machine.PARAMETER_SETS`, or ``full``).
+    bed_tilt : str or None
+        ``--bed-tilt`` of the candidate (a printer's bed; None: the default).
+    words : str
+        The model in words, for the report.
+    """
+
+    parameters: str
+    bed_tilt: str | None
+    words: str
+
+
+@dataclass(frozen=True)
 class ModelExtension:
     """A named extension of a machine's model: parameters the plain model holds at zero (or
     lacks) that a calibration may add when held-out data show the machine has them.
@@ -331,6 +350,109 @@ class Machine(ABC):
         new.parameters = self.parameters.with_values(values)
         return new
 
+    def model_candidates(self, fixes_lengths: bool) -> list[ModelCandidate]:
+        """The models ``--parameters auto`` chooses from, the firmware's own first (always
+        a candidate; the others only where the data leave enough equations to judge them).
+        A machine without candidates (the default) is fitted with its parameters as they
+        are.
+
+        Parameters
+        ----------
+        fixes_lengths : bool
+            Whether some measurement fixes a length (distances, points): a firmware fits
+            more then.
+
+        Returns
+        -------
+        list of ModelCandidate
+            Empty here.
+        """
+        return []
+
+    # -- build tolerances (SPEC 9: priors) -------------------------------------------------
+    def default_tolerances(self) -> dict[str, float]:
+        """Build tolerances per quantity: the machine file's ``tolerances:`` keys and their
+        default prior standard deviations (internal units: m, rad). A machine without any
+        (the default) is fitted by maximum likelihood alone.
+
+        Returns
+        -------
+        dict
+            ``{key: std}``; empty here.
+        """
+        return {}
+
+    def tolerance_kinds(self) -> dict[str, str]:
+        """The kind (``length`` / ``angle``) of each :meth:`default_tolerances` key (the
+        machine file's units apply)."""
+        return {}
+
+    def tolerance_rows(self, tolerances: dict[str, float]) -> list:
+        """The prior's rows for given tolerances (:meth:`~pkmcal.parameters.Prior.about`).
+
+        Parameters
+        ----------
+        tolerances : dict
+            ``{key: std}`` (internal units) of the quantities that carry a prior.
+
+        Returns
+        -------
+        list of (label, {parameter: coefficient}, std, key)
+            Empty here.
+        """
+        return []
+
+    def with_tolerances(self, tolerances: dict | str | None = "default") -> Machine:
+        """A copy whose parameters carry the build tolerances as a prior about their present
+        values (SPEC 9).
+
+        Parameters
+        ----------
+        tolerances : dict or "default" or None, optional
+            ``"default"``: :meth:`default_tolerances`; a dict overrides those per key (a value
+            None: that quantity has no prior); None or ``"none"``: no prior at all.
+
+        Returns
+        -------
+        Machine
+            The copy (this machine unchanged); :attr:`tolerances` records the overrides.
+
+        Raises
+        ------
+        InputError
+            For a key the machine does not know or a standard deviation that is not > 0;
+            the message names ``tolerances.KEY``.
+        """
+        from ..errors import InputError
+        from ..parameters import Prior
+
+        new = self.__class__.__new__(self.__class__)
+        new.__dict__.update(self.__dict__)
+        if tolerances is None or tolerances == "none":
+            new.parameters = self.parameters.with_prior(None)
+            new.tolerances = "none"
+            return new
+        table = dict(self.default_tolerances())
+        overrides = {} if tolerances == "default" else dict(tolerances)
+        for key, value in overrides.items():
+            if key not in table:
+                known = ", ".join(table) or "none"
+                raise InputError(f"tolerances.{key}: no such quantity for a "
+                                 f"{self.kind or 'machine'} (known: {known})")
+            if value is not None and not (np.isfinite(value) and value > 0):
+                raise InputError(f"tolerances.{key}: a tolerance is a standard deviation > 0 "
+                                 f"(or null: no prior), got {value!r}")
+            table[key] = value
+        table = {k: v for k, v in table.items() if v is not None}
+        new.parameters = self.parameters.with_prior(
+            Prior.about(self.parameters, self.tolerance_rows(table)))
+        new.tolerances = overrides
+        return new
+
+    #: the tolerances the machine's prior was built with: None (none asked for), ``"none"``,
+    #: or the machine file's overrides of :meth:`default_tolerances` (a dict, maybe empty)
+    tolerances = None
+
     @property
     def home(self) -> tuple[np.ndarray, np.ndarray]:
         """A pose of the working assembly mode ``(P, R)``: the file's, or one found.
@@ -425,14 +547,14 @@ class Machine(ABC):
         p = self.parameters
         sets = dict(self.PARAMETER_SETS)
         if name == "full" and "full" not in sets:
-            return ParameterSet(p.names, p.kinds, p.values, np.zeros(len(p), bool))
+            return p.with_fixed_mask(np.zeros(len(p), bool))
         if name not in sets:
             known = ", ".join(sorted(set(sets) | {"full"}))
             raise InputError(f"unknown parameter set {name!r} for a {self.kind or 'machine'}; "
                              f"known: {known}")
         fixed = np.ones(len(p), bool)
         fixed[p.indices(list(sets[name].free))] = False
-        return ParameterSet(p.names, p.kinds, p.values, fixed)
+        return p.with_fixed_mask(fixed)
 
     def with_parameter_set(self, name: str) -> Machine:
         """A copy of this machine whose parameters carry the fixed flags of a named subset.
