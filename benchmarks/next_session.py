@@ -9,6 +9,9 @@ chronological pair (A, B):
   the bed meshes the reader takes, each mesh with its own height offset), ``pkmcal export
   calibrated.yaml --to klipper -o A/printer.cfg`` (the updated file read back as Klipper
   reads it);
+- the same with ``--parameters klipper`` (A's points and meshes in Klipper's own set: the
+  data half alone) and from A's DELTA_CALIBRATE points alone (the path before bed meshes
+  were read: 1.00x Klipper by construction);
 - **Klipper**: A's saved values (what the firmware user had after session A);
 - **Klipper + mesh**: A's values with A's own bed mesh loaded (the mesh interpolated at the
   nozzle's x/y as Klipper applies it: with klippy installed its own ``ZMesh``, upsampling
@@ -184,7 +187,8 @@ def rms(parts) -> float:
     return float(np.sqrt(np.mean(r * r)))
 
 
-def pkmcal_values(paths: list, data=None) -> tuple[DeltaValues, object]:
+def pkmcal_values(paths: list, data=None, parameters: str | None = None
+                  ) -> tuple[DeltaValues, object]:
     """import -> calibrate (defaults) -> export --to klipper onto the last file, in process;
     the exported file read back. Returns the values and the calibration. ``data``: the data
     objects to calibrate from instead of the files (the points-only baselines)."""
@@ -199,7 +203,7 @@ def pkmcal_values(paths: list, data=None) -> tuple[DeltaValues, object]:
         data = [str(p) for p in paths] if len(paths) > 1 else str(paths[0])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        cal = calibrate(machine, data)
+        cal = calibrate(machine, data, parameters=parameters)
     ws = cal.calibrated.print_workspace(rng=0)
     result = export(fmt, cal.calibrated, ws.P, ws.R, surface=ws.surface)
     new = fmt.update(text, result.params, cal.calibrated, str(last)) or result.text
@@ -225,6 +229,7 @@ def pair_table(sessions: dict, max_days: float | None, limit: int | None = None,
                     fits[key] = pkmcal_values([a.path])[0]
                     fits[key + ":t"] = time.perf_counter() - t0
                     fits[key + ":points"] = pkmcal_values([a.path], points_only(a.path))[0]
+                    fits[key + ":klipper"] = pkmcal_values([a.path], parameters="klipper")[0]
                 if key not in meshes:
                     meshes[key] = mesh_function(a.meshes[0]) if a.meshes else (None, "none")
                 mf, words = meshes[key]
@@ -232,11 +237,13 @@ def pair_table(sessions: dict, max_days: float | None, limit: int | None = None,
                 p = rms(residuals(fits[key], b))
                 km = rms(residuals(a.values, b, mf)) if mf is not None else None
                 p0 = rms(residuals(fits[key + ":points"], b))
+                pk = rms(residuals(fits[key + ":klipper"], b))
                 rows.append({"printer": printer, "A": str(a.path.relative_to(SHARED)),
                              "B": str(b.path.relative_to(SHARED)), "days": round(days, 2),
                              "rows_B": int(sum(len(s.travel) for s in b.sets)),
                              "klipper_mm": k, "klipper_mesh_mm": km, "pkmcal_mm": p,
                              "pkmcal_points_only_mm": p0, "ratio_points_only": p0 / k,
+                             "pkmcal_klipper_set_mm": pk, "ratio_klipper_set": pk / k,
                              "ratio": p / k, "ratio_mesh": (p / km) if km else None,
                              "mesh_words": words, "fit_s": round(fits[key + ":t"], 2)})
                 log(_row_text(rows[-1]))
@@ -248,8 +255,8 @@ def _row_text(r: dict) -> str:
     rm = f"{r['ratio_mesh']:.2f}" if r["ratio_mesh"] is not None else "  - "
     return (f"{r['printer']:22s} {Path(r['A']).name[:26]:26s} -> {Path(r['B']).name[:26]:26s} "
             f"{r['days']:6.1f} d {r['rows_B']:4d}  K {r['klipper_mm']:.4f}  K+mesh {km}  "
-            f"pkmcal {r['pkmcal_mm']:.4f}  {r['ratio']:.2f}x / {rm}x  (points only "
-            f"{r['ratio_points_only']:.2f}x)")
+            f"pkmcal {r['pkmcal_mm']:.4f}  {r['ratio']:.2f}x / {rm}x  (klipper set "
+            f"{r['ratio_klipper_set']:.2f}x, points only {r['ratio_points_only']:.2f}x)")
 
 
 def summary(rows: list) -> dict:
@@ -260,9 +267,12 @@ def summary(rows: list) -> dict:
     km = np.array([x["klipper_mesh_mm"] / x["klipper_mm"] for x in rows
                    if x["klipper_mesh_mm"] is not None])
     r0 = np.array([x["ratio_points_only"] for x in rows])
+    rk = np.array([x["ratio_klipper_set"] for x in rows])
     return {"pairs": len(rows), "ratio_median": float(np.median(r)), "ratio_worst": float(r.max()),
             "ratio_points_only_median": float(np.median(r0)),
             "ratio_points_only_worst": float(r0.max()),
+            "ratio_klipper_set_median": float(np.median(rk)),
+            "ratio_klipper_set_worst": float(rk.max()),
             "ratio_mesh_median": float(np.median(m)) if len(m) else None,
             "ratio_mesh_worst": float(m.max()) if len(m) else None,
             "klipper_mesh_over_klipper_median": float(np.median(km)) if len(km) else None,

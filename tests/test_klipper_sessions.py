@@ -41,9 +41,11 @@ def dc_points(n: int = 7, radius: float = 100.0) -> np.ndarray:
     return np.vstack([[0.0, 0.0], np.column_stack([np.cos(a) * d, np.sin(a) * d])])[:n]
 
 
-def probe_mesh(truth, force, shift, nodes_x, nodes_y, radius, ref=0.0123):
+def probe_mesh(truth, force, shift, nodes_x, nodes_y, radius, ref=0.0123, noise=0.0,
+               rng=None):
     """Klipper's mesh values (rows by y, copies at round rows' ends) and the travels at each
-    probed node's trigger (what the steppers counted)."""
+    probed node's trigger (what the steppers counted); ``noise``: the trigger's standard
+    deviation, mm."""
     z = np.full((len(nodes_y), len(nodes_x)), np.nan)
     travels = {}
     for iy, y in enumerate(nodes_y):
@@ -51,10 +53,11 @@ def probe_mesh(truth, force, shift, nodes_x, nodes_y, radius, ref=0.0123):
             if math.hypot(x, y) > radius:
                 continue
             cmd = np.array([x - PROBE_XY[0], y - PROBE_XY[1], Z_OFFSET])
+            trigger = Z_OFFSET + (noise * rng.standard_normal() if noise else 0.0)
             for _ in range(60):
                 t = force.travel(cmd)[0]
                 true = truth.position(t + shift)[0]        # the carriages' true travel
-                miss = true[2] - Z_OFFSET
+                miss = true[2] - trigger
                 cmd[2] -= miss
                 if abs(miss) < 1e-12:
                     break
@@ -70,14 +73,17 @@ def probe_mesh(truth, force, shift, nodes_x, nodes_y, radius, ref=0.0123):
 def config_text(force: DeltaValues, truth: DeltaValues, shift=(0.0, 0.0, 0.0), mesh=True,
                 mesh_truth: DeltaValues | None = None, count: int = 7,
                 extent: float = 120.0, radius: float = 120.0,
-                ref: float = 0.0123, saved: DeltaValues | None = None) -> tuple[str, dict]:
+                ref: float = 0.0123, saved: DeltaValues | None = None, noise: float = 0.0,
+                seed: int = 0) -> tuple[str, dict]:
     """A printer.cfg as SAVE_CONFIG writes it: the values ``force``, the DELTA_CALIBRATE
     points of the printer ``truth`` probed in a session whose endstops trigger ``shift`` (mm)
     from where the readings count, and a round mesh probed with ``force`` in force on
     ``mesh_truth`` (default ``truth``); the block holds ``saved`` (default ``force``: a mesh
-    probed after the restart that put them in force)."""
+    probed after the restart that put them in force). ``noise``: the probe trigger's
+    standard deviation, mm (seeded by ``seed``)."""
     shift = np.asarray(shift, float)
     block = force if saved is None else saved
+    rng = np.random.default_rng(seed)
     lines = ["[printer]", "kinematics: delta", ""]
     for s in "abc":
         lines += [f"[stepper_{s}]", "rotation_distance: 40", "microsteps: 16", ""]
@@ -93,14 +99,15 @@ def config_text(force: DeltaValues, truth: DeltaValues, shift=(0.0, 0.0, 0.0), m
                   f"#*# position_endstop = {block.endstops[i]:.6f}", "#*#"]
     lines += ["#*# [probe]", f"#*# z_offset = {Z_OFFSET:.3f}", "#*#", "#*# [delta_calibrate]"]
     for k, (x, y) in enumerate(dc_points()):
-        true_travel = truth.travel([x, y, Z_OFFSET])[0]
+        true_travel = truth.travel([x, y, Z_OFFSET + noise * rng.standard_normal()])[0]
         steps = (true_travel - shift) / STEP
         lines += [f"#*# height{k} = {Z_OFFSET}",
                   f"#*# height{k}_pos = " + ",".join(f"{v:.3f}" for v in steps)]
     travels = {}
     if mesh:
         nodes = np.linspace(-extent, extent, count)
-        z, travels = probe_mesh(mesh_truth or truth, force, shift, nodes, nodes, radius, ref)
+        z, travels = probe_mesh(mesh_truth or truth, force, shift, nodes, nodes, radius, ref,
+                                noise, rng)
         lines += ["#*#", "#*# [bed_mesh default]", "#*# version = 1", "#*# points ="]
         lines += ["#*# \t  " + ", ".join(f"{v:.6f}" for v in row) for row in z]
         lines += [f"#*# x_count = {count}", f"#*# y_count = {count}",

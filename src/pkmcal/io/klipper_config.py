@@ -1146,10 +1146,7 @@ def _data_key(d) -> tuple:
 def _session_key(path, dc) -> tuple:
     """A file's session: its DELTA_CALIBRATE heights (DELTA_ANALYZE reuses them with new
     distances: one session), else its distances, else the file itself."""
-    heights = [d for d in dc if d.kind == "probe"]
-    if heights:
-        return _data_key(heights[0])
-    if dc:
+    if dc:              # delta_calibrate_data gives the heights first, when saved
         return _data_key(dc[0])
     return ("file", str(path))
 
