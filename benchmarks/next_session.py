@@ -318,17 +318,21 @@ def pooled(log=print) -> dict:
     fitted = klipper_sessions(fit_paths, machine)
     data = [d for d in fitted.data if getattr(d, "mesh", None) is None]
     values, cal = pkmcal_values(fit_paths, data)
+    in_set, _ = pkmcal_values(fit_paths, data, parameters="klipper")
     after = delta_values(KlipperConfig.read(fit_paths[-1]))
     test = [read_session(files[n], meshes=False) for n in test_names]
     k = rms([r for s in test for r in residuals(after, s)])
     p = rms([r for s in test for r in residuals(values, s)])
+    pk = rms([r for s in test for r in residuals(in_set, s)])
     out = {"sessions": order, "fit": fit_names, "fit_files": [p_.name for p_ in fit_paths],
            "test": test_names, "klipper_mm": k, "pkmcal_mm": p, "ratio": p / k,
+           "pkmcal_klipper_set_mm": pk, "ratio_klipper_set": pk / k,
+           "model": cal.report.get("parameter_set", {}).get("name"),
            "sessions_in_fit": cal.report.get("sessions", {}).get("sessions")}
     log(f"points only, {len(order)} sessions ({', '.join(order)}): sessions 1-{len(fit_names)} "
         f"calibrate ({len(fit_paths)} files), {', '.join(test_names)} predicted: Klipper's "
-        f"values after session {len(fit_names)} {k:.4f} mm, pkmcal {p:.4f} mm, ratio "
-        f"{p / k:.2f}")
+        f"values after session {len(fit_names)} {k:.4f} mm, pkmcal {p:.4f} mm ({out['model']}),"
+        f" ratio {p / k:.2f}; in Klipper's set {pk:.4f} mm, {pk / k:.2f}")
     return out
 
 

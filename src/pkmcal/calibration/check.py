@@ -242,7 +242,7 @@ def check(machine, data, *, noise=None) -> CheckResult:
                          + "; RMS with them taken out: " + ", ".join(
                              f"{k} {v:.4g} um" for k, v in after.items() if v is not None))
         report["sessions"] = {"drift": drift,
-                              "words": "each session's reading offsets fitted on top of the "
-                                       "free offsets (the same on every joint where the probe's "
-                                       "z_offset moved); the machine's parameters held"}
+                              "words": "each session's reading offsets (its endstops' drift) "
+                                       "fitted on top of the free offsets; the machine's "
+                                       "parameters held"}
     return CheckResult(report, lines)

@@ -111,7 +111,7 @@ class JointProblem:
         reference session (default: every part in it). Each other session has its own
         reading offsets, one per joint, shared by its parts (a printer's endstops trigger
         anew at each session's homing): unknowns ``session NAME:dq1`` .. after every part's
-        nuisance; a common offset of every joint also takes up a changed probe offset.
+        nuisance, each with a prior of :data:`SESSION_SIGMA`.
 
     Raises
     ------

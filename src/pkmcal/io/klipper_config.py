@@ -683,10 +683,20 @@ def read_klipper_data(path, machine) -> list:
                          "height0_pos, manual_height0 or distance0 (run DELTA_CALIBRATE and "
                          "SAVE_CONFIG on the printer first)"
                          + (f"; {cfg.ignored_block}" if cfg.ignored_block else ""))
+    meshes = {}
+    for note in notes:
+        head, _, how = note.partition(": used, ")
+        if not how:
+            head, _, how = note.partition(": left out:")
+            how = "left out:" + how
+        meshes[head.replace(f"{cfg.path}: ", f"{Path(cfg.path).name} ", 1)] = how
     if cfg.ignored_block:
         notes.append(f"{path}: {cfg.ignored_block}")
     if notes:
         data[0].notes = list(getattr(data[0], "notes", [])) + notes
+    if meshes:
+        data[0].sessions = {"sessions": 1, "files": [str(path)], "reference": str(path),
+                            "duplicates": {}, "repeated": {}, "meshes": meshes}
     return data
 
 
@@ -1197,7 +1207,8 @@ def klipper_sessions(paths, machine) -> Sessions:
     Returns
     -------
     Sessions
-        The data, notes and summary.
+        The data, notes and summary (the heights of every session but the reference have
+        their own height offset, ``free_height``: that session's probe ``z_offset``).
 
     Raises
     ------
@@ -1243,6 +1254,9 @@ def klipper_sessions(paths, machine) -> Sessions:
                 continue
             seen[k] = str(path)
             d.session = session
+            # its own probe z_offset: the heights of a session other than the reference are
+            # as high as that session's z_offset said (a re-measured z_offset moves them all)
+            d.free_height = session is not None
             data.append(d)
         previous = None if values is None else next(
             (v for v in reversed(history) if not v.same(values)), None)
