@@ -187,11 +187,11 @@ def rms(parts) -> float:
     return float(np.sqrt(np.mean(r * r)))
 
 
-def pkmcal_values(paths: list, data=None, parameters: str | None = None
-                  ) -> tuple[DeltaValues, object]:
+def pkmcal_values(paths: list, data=None, parameters: str | None = None):
     """import -> calibrate (defaults) -> export --to klipper onto the last file, in process;
-    the exported file read back. Returns the values and the calibration. ``data``: the data
-    objects to calibrate from instead of the files (the points-only baselines)."""
+    the exported file read back. Returns the values, the calibration and the exported mesh
+    profile's ``f(xy)`` (None without one). ``data``: the data objects to calibrate from
+    instead of the files (the points-only baselines)."""
     from pkmcal.calibration.run import calibrate
     from pkmcal.export import controller_format, export
 
@@ -207,7 +207,26 @@ def pkmcal_values(paths: list, data=None, parameters: str | None = None
     ws = cal.calibrated.print_workspace(rng=0)
     result = export(fmt, cal.calibrated, ws.P, ws.R, surface=ws.surface)
     new = fmt.update(text, result.params, cal.calibrated, str(last)) or result.text
-    return delta_values(KlipperConfig.read(str(last), new)), cal
+    if MESH_HANDOVER:
+        new = fmt.with_bed_mesh(new, result.params, cal.calibrated) or new
+    return delta_values(KlipperConfig.read(str(last), new)), cal, exported_mesh(last, new)
+
+
+#: the export's mesh profile (``[bed_mesh pkmcal]``) loaded where the export hands one over
+#: (``--no-mesh``: the values alone)
+MESH_HANDOVER = True
+
+
+def exported_mesh(path: Path, text: str):
+    """``f(xy)`` of the export's ``[bed_mesh pkmcal]`` profile as Klipper applies it, or
+    None when the export handed none over."""
+    from pkmcal.export.bed_mesh import PROFILE
+    from pkmcal.io.klipper_config import bed_meshes
+
+    for mesh in bed_meshes(KlipperConfig.read(str(path), text)):
+        if mesh.name == PROFILE:
+            return mesh_function(mesh)[0]
+    return None
 
 
 def pair_table(sessions: dict, max_days: float | None, limit: int | None = None,
@@ -226,7 +245,8 @@ def pair_table(sessions: dict, max_days: float | None, limit: int | None = None,
                 key = str(a.path)
                 if key not in fits:
                     t0 = time.perf_counter()
-                    fits[key] = pkmcal_values([a.path])[0]
+                    values, _, mesh = pkmcal_values([a.path])
+                    fits[key] = (values, mesh)
                     fits[key + ":t"] = time.perf_counter() - t0
                     fits[key + ":points"] = pkmcal_values([a.path], points_only(a.path))[0]
                     fits[key + ":klipper"] = pkmcal_values([a.path], parameters="klipper")[0]
@@ -234,7 +254,7 @@ def pair_table(sessions: dict, max_days: float | None, limit: int | None = None,
                     meshes[key] = mesh_function(a.meshes[0]) if a.meshes else (None, "none")
                 mf, words = meshes[key]
                 k = rms(residuals(a.values, b))
-                p = rms(residuals(fits[key], b))
+                p = rms(residuals(fits[key][0], b, fits[key][1]))
                 km = rms(residuals(a.values, b, mf)) if mf is not None else None
                 p0 = rms(residuals(fits[key + ":points"], b))
                 pk = rms(residuals(fits[key + ":klipper"], b))
@@ -317,12 +337,12 @@ def pooled(log=print) -> dict:
     fit_paths = paths[:paths.index(files[test_names[0]])]
     fitted = klipper_sessions(fit_paths, machine)
     data = [d for d in fitted.data if getattr(d, "mesh", None) is None]
-    values, cal = pkmcal_values(fit_paths, data)
-    in_set, _ = pkmcal_values(fit_paths, data, parameters="klipper")
+    values, cal, mesh = pkmcal_values(fit_paths, data)
+    in_set = pkmcal_values(fit_paths, data, parameters="klipper")[0]
     after = delta_values(KlipperConfig.read(fit_paths[-1]))
     test = [read_session(files[n], meshes=False) for n in test_names]
     k = rms([r for s in test for r in residuals(after, s)])
-    p = rms([r for s in test for r in residuals(values, s)])
+    p = rms([r for s in test for r in residuals(values, s, mesh)])
     pk = rms([r for s in test for r in residuals(in_set, s)])
     out = {"sessions": order, "fit": fit_names, "fit_files": [p_.name for p_ in fit_paths],
            "test": test_names, "klipper_mm": k, "pkmcal_mm": p, "ratio": p / k,
@@ -341,7 +361,11 @@ def main(argv=None) -> int:
     ap.add_argument("--pairs", type=int, default=None, help="stop after this many pairs")
     ap.add_argument("--no-write", action="store_true", help="do not write the results file")
     ap.add_argument("--no-pooled", action="store_true", help="skip the points-only test")
+    ap.add_argument("--no-mesh", action="store_true",
+                    help="evaluate the exported values without the exported mesh profile")
     args = ap.parse_args(argv)
+    global MESH_HANDOVER
+    MESH_HANDOVER = not args.no_mesh
     if not SHARED.is_dir():
         print(f"skipped: {SHARED} not found (the real printers' files stay outside the "
               "project)")

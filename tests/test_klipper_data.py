@@ -584,13 +584,36 @@ def test_rotary_delta_config_is_updated_as_save_config_does():
 
 @needs_shared
 def test_without_parameters_the_saved_data_are_fitted_in_klippers_set():
-    """A newcomer who gives no --parameters gets Klipper's own set for Klipper's saved data
-    (7 heights cannot fit every tower quantity), named in the report."""
-    path = DATA / "sr-danorder.cfg"
+    """A newcomer who gives no --parameters gets Klipper's own set for Klipper's saved
+    points (7 heights and 12 DELTA_ANALYZE distances cannot judge a larger model:
+    --parameters auto keeps the firmware's), named in the report."""
+    path = DATA / "q5-razorcopter.cfg"
     machine = KLIPPER.to_machine(KLIPPER.parse(path.read_text(), str(path)))
     default = calibrate(machine, path)
-    basic = calibrate(machine, path, parameters="klipper-basic")
-    assert default.report["parameter_set"]["name"] == "klipper-basic"
+    own = calibrate(machine, path, parameters="klipper")
+    assert default.report["parameter_set"]["name"] == "klipper"
     assert "its own set" in default.report["parameter_set"]["note"]
-    np.testing.assert_allclose(default.calibrated.u, basic.calibrated.u, rtol=0,
-                               atol=1e-9 * np.abs(basic.calibrated.u).max())
+    assert default.report["model_choice"]["chosen"] == 0
+    np.testing.assert_allclose(default.calibrated.u, own.calibrated.u, rtol=0,
+                               atol=1e-9 * np.abs(own.calibrated.u).max())
+
+
+@needs_shared
+def test_auto_judges_the_models_where_a_mesh_gives_enough_equations():
+    """With a bed mesh beside the points (sr-danorder: 7 points and a 9x9 mesh) every
+    candidate is fitted and judged by its leave-one-out error; the chosen one has the
+    smallest (a larger one by at least 2 %), and the report names it and why."""
+    from pkmcal.calibration.model_choice import MIN_GAIN
+
+    path = DATA / "sr-danorder.cfg"
+    machine = KLIPPER.to_machine(KLIPPER.parse(path.read_text(), str(path)))
+    c = calibrate(machine, path)
+    choice = c.report["model_choice"]
+    scores = [s["loo_rms_over_noise"] for s in choice["candidates"]]
+    assert all(s is not None for s in scores)
+    best = scores[choice["chosen"]]
+    assert all(best ** 2 <= s ** 2 for s in scores[:choice["chosen"]])
+    assert all(best ** 2 < (s ** 2) / (1 - MIN_GAIN) for s in scores)
+    assert "leave-one-out" in choice["words"] and choice["words"] in c.warnings
+    assert c.report["parameter_set"]["name"] == choice["candidates"][choice["chosen"]][
+        "parameters"]

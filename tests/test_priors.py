@@ -157,3 +157,46 @@ def test_linear_delta_default_tolerances_and_overrides(tmp_path):
     text.write_text(base + "tolerances: {arm_trim: -1}\n")
     with pytest.raises(InputError, match="tolerances"):
         load_machine(text)
+
+
+def _leaning_printer_fit(tilt_deg, seed=0, n_points=91, sigma=5e-6):
+    """A printer with default tolerances whose tower 2 leans ``tilt_deg`` toward the centre
+    (radially), probed at ``n_points`` with ``sigma`` trigger noise, calibrated in the
+    per-tower model."""
+    from pkmcal.calibration import calibrate
+    from pkmcal.instruments import InstrumentData
+    from pkmcal.instruments.simulate import probe_trigger
+    from pkmcal.machines.linear_delta import linear_delta
+    from pkmcal.planning import standard_plan
+
+    nominal = linear_delta(0.14, 0.27, position_endstop=(0.3, 0.3, 0.3), tolerances="default")
+    p = nominal.parameters
+    u = nominal.u.copy()
+    u[p.index("tower2.tilt_radial")] = -np.deg2rad(tilt_deg)
+    true = nominal.with_parameters(u)
+    plan = standard_plan(nominal, "probe", n_points)
+    rng = np.random.default_rng(seed)
+    q, _ = probe_trigger(true, nominal, plan.P, plan.R, np.zeros(3),
+                         sigma * rng.standard_normal(len(plan.P)))
+    data = InstrumentData("probe", q, np.zeros((len(q), 1)), source="probe.csv")
+    return calibrate(nominal, data, parameters="full", noise=f"{sigma * 1e6}um")
+
+
+def test_a_leaning_tower_the_data_measure_is_an_action_in_the_printers_terms():
+    c = _leaning_printer_fit(0.8)
+    rows = {r["name"]: r for r in c.report["tolerances"]["entries"]}
+    tilt = rows["tower2.tilt_radial"]
+    assert tilt["label"] == "measured"
+    actions = c.report["tolerances"]["actions"]
+    lean = [a for a in actions if a.startswith("tower B (tower2) leans")]
+    assert lean and "toward the centre" in lean[0] and "mm over 300 mm of travel" in lean[0]
+    assert lean[0] in c.warnings
+    # beyond three tolerances (0.2 deg): the data pull it there, and it is named
+    assert "tower2.tilt_radial" in c.report["tolerances"]["pulled"]
+    assert any("pull" in w and "tower2.tilt_radial" in w for w in c.warnings)
+
+
+def test_a_vertical_printer_reports_no_action_and_nothing_pulled():
+    c = _leaning_printer_fit(0.0)
+    assert c.report["tolerances"]["actions"] == []
+    assert c.report["tolerances"]["pulled"] == []

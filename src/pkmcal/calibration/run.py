@@ -728,6 +728,11 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     if extensions is not None and extensions not in ("auto", "none"):
         raise InputError(f"--extensions {extensions}: auto (adopted by cross-validation) or "
                          "none (the plain model)")
+    if getattr(machine, "tolerances", "none") is None and hasattr(machine, "with_tolerances"):
+        # a machine that never said (made in code, imported from a firmware's file) is fitted
+        # with its default build tolerances, as its machine file would give it (SPEC 9);
+        # ``tolerances: none`` / ``with_tolerances(None)`` fits without
+        machine = machine.with_tolerances("default")
     given = data
     data = expand_firmware_data(data, machine)
     noise = _noise_through_expansion(noise, given, data)
@@ -757,8 +762,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     if parameters is not None:
         subset = getattr(machine, "PARAMETER_SETS", {}).get(parameters)
         fallback = getattr(subset, "without_lengths", None)
-        if fallback and not any(k.fixes_lengths for k in _data_kinds(data, machine)) \
-                and not _prior_holds(machine, parameters, fallback):
+        if fallback and not any(k.fixes_lengths for k in _data_kinds(data, machine)):
             note = ((note + "; ") if note else "") + (
                 f"{parameters} with heights alone is {fallback}: no measurement fixes a "
                 "length (as the firmware does without distances)")
@@ -850,18 +854,6 @@ def _calibrate_auto(machine, given, candidates, bed_tilt, options) -> Calibratio
         chosen_set["note"] = ("fitted in its own set, the firmware's: " if chosen == 0
                               else "") + words
     return calibration
-
-
-def _prior_holds(machine, name: str, fallback: str) -> bool:
-    """Whether the machine's prior holds every parameter set ``name`` frees beyond
-    ``fallback`` (then the larger set is fitted: what the data do not fix stays at its
-    tolerance, no need to fix it)."""
-    prior = machine.parameters.prior
-    if prior is None:
-        return False
-    big, small = machine.parameter_set(name), machine.parameter_set(fallback)
-    extra = np.flatnonzero(big.free & small.fixed)
-    return bool(extra.size) and all(np.any(prior.matrix[:, j] != 0) for j in extra)
 
 
 def _noise_through_expansion(noise, given, data):
@@ -1199,10 +1191,30 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
     add_to_report(result, report, verdict)  # model_adequacy: residuals against readings, pose
     report["acceptance"] = _acceptance(result, machine, calibrated, source,
                                        report.get("method"), warnings, verdict)
+    _tolerance_report(result, calibrated, report, source, units, warnings)
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,
                        units=units)
+
+
+def _tolerance_report(result, calibrated, report: dict, source, units, warnings: list) -> None:
+    """With build tolerances (SPEC 9): the report's ``tolerances`` section (what the data
+    measured, what the prior held), the warning for values the data pull beyond three
+    tolerances, and the machine's actions for what its firmware cannot hold."""
+    from ..units import ANGLE, LENGTH
+    from .tolerances import pulled_warnings, tolerance_section
+
+    units = units or {"length": "mm", "angle": "deg"}
+    factors = (LENGTH[units["length"]], ANGLE[units["angle"]])
+    section = tolerance_section(result, units, factors)
+    if section is None:
+        return
+    actions = calibrated.build_error_words(result.prior_summary())
+    section["actions"] = actions
+    report["tolerances"] = section
+    warnings.extend(pulled_warnings(result, path_text(source), units, factors))
+    warnings.extend(actions)
 
 
 def _noise_report(result, report: dict, source, warnings: list, robust: bool = True) -> None:

@@ -250,7 +250,7 @@ class CalibrationResult:
             value = float(a @ self.x)
             scaled = a[free] * np.asarray(self.scales, float)[free]
             along_null = float(np.linalg.norm(scaled @ N)) if N.size else 0.0
-            if along_null > 0.5 * float(np.linalg.norm(scaled)):
+            if along_null > 0.9 * float(np.linalg.norm(scaled)):
                 # a gauge: no measurement changes it, it stays where the start put it
                 out.append(PriorRow(prior.names[j], prior.key[j], value, float(prior.mean[j]),
                                     float(prior.std[j]), float("nan"), 0.0,

@@ -853,6 +853,10 @@ def commented_delta_values(cfg: KlipperConfig, text: str | None = None) -> Delta
     return None if old.same(now) else old
 
 
+#: the profile ``pkmcal export`` writes (:data:`pkmcal.export.bed_mesh.PROFILE`): never data
+EXPORTED_PROFILE = "pkmcal"
+
+
 @dataclass
 class BedMesh:
     """A ``[bed_mesh NAME]`` profile as Klipper saved it (``bed_mesh.py`` ``save_profile``).
@@ -1099,6 +1103,10 @@ def bed_mesh_data(cfg: KlipperConfig, scale: float = 1.0, previous: DeltaValues 
     data, notes = [], []
     for mesh in meshes:
         label = f"{cfg.path}: [bed_mesh {mesh.name}] ({mesh.size})"
+        if mesh.name == EXPORTED_PROFILE:
+            notes.append(f"{label}: left out: pkmcal export's correction for what the "
+                         "firmware's values cannot hold, not a probed mesh")
+            continue
         agree = mesh_agreement(cfg, mesh, now)
         before = mesh_agreement(cfg, mesh, old) if old is not None else None
         used = now

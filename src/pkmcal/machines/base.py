@@ -449,6 +449,23 @@ class Machine(ABC):
         new.tolerances = overrides
         return new
 
+    def build_error_words(self, rows) -> list[str]:
+        """What the data determine that a firmware cannot hold, as actions in the machine's
+        own terms (a leaning tower, unequal arms), from a fit's prior rows
+        (:meth:`~pkmcal.estimation.estimator.CalibrationResult.prior_summary`); none here.
+
+        Parameters
+        ----------
+        rows : list of PriorRow
+            The fit's rows.
+
+        Returns
+        -------
+        list of str
+            One sentence per action.
+        """
+        return []
+
     #: the tolerances the machine's prior was built with: None (none asked for), ``"none"``,
     #: or the machine file's overrides of :meth:`default_tolerances` (a dict, maybe empty)
     tolerances = None

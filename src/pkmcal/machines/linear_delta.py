@@ -426,25 +426,16 @@ class LinearDelta(Machine):
                         "arm_trim": "length", "tower_tilt": "angle", "endstop": "length"}
 
     def model_candidates(self, fixes_lengths: bool) -> list[ModelCandidate]:
-        """Klipper's own set (its DELTA_CALIBRATE: basic from heights, extended with
-        distances; the bed square to the towers as Klipper takes it), Klipper's nine with the
-        bed's tilt, Klipper's nine with a square bed, and the per-tower model (every tower
-        quantity) with the build tolerances holding what the data do not see. Klipper's
-        nine from heights alone have the arms held by their tolerance (``arm_trim``,
-        ``arm_length``), as the per-tower model has its tilts and trims.
+        """Klipper's own set (its DELTA_CALIBRATE: basic from heights, the nine with
+        distances), with the bed square to the towers as Klipper takes it and with the bed's
+        tilt, and the per-tower model (every tower quantity) with the build tolerances
+        holding what the data do not see (its arms from heights alone among them).
         """
         own = "klipper" if fixes_lengths else "klipper-basic"
         out = [ModelCandidate(own, "square", f"Klipper's own set ({own}), the bed square to "
-                              "the towers as the firmware takes it")]
-        if fixes_lengths:
-            out.append(ModelCandidate("klipper", "estimate",
-                                      "Klipper's nine parameters and the bed's tilt"))
-        else:
-            out += [ModelCandidate("klipper", "square", "Klipper's nine parameters (the arms "
-                                   "held by their build tolerance where the data do not "
-                                   "fix them), the bed square"),
-                    ModelCandidate("klipper", "estimate", "Klipper's nine parameters and the "
-                                   "bed's tilt")]
+                              "the towers as the firmware takes it"),
+               ModelCandidate(own, "estimate", f"Klipper's own set ({own}) and the bed's "
+                              "tilt")]
         out.append(ModelCandidate("full", "auto", "the per-tower model (endstop, angle, "
                                   "radius and arm, both tilts of each tower) with the build "
                                   "tolerances as a prior, the bed's tilt where the data tell "
@@ -464,6 +455,50 @@ class LinearDelta(Machine):
 
     def tolerance_kinds(self) -> dict[str, str]:
         return dict(self._TOLERANCE_KINDS)
+
+    #: a build error is named as an action when the data measured it (``measured``) and it
+    #: is this many of its standard deviations from the nominal
+    ACTION_SIGMAS = 2.0
+
+    def build_error_words(self, rows) -> list[str]:
+        """A leaning tower (both tilts) and a tower whose carriage line sits off the common
+        radius: no firmware holds them (Klipper, Marlin and RepRapFirmware take vertical
+        towers and one radius); named where the data measured them, with their uncertainty,
+        in millimetres over the tower's travel.
+        """
+        by = {r.name: r for r in rows}
+        letters = "ABC"
+        pe = self.towers()[0]
+        out = []
+        for i in range(3):
+            tower = f"tower {letters[i]} (tower{i + 1})"
+            rail = float(pe[i])
+            for field, toward in (("tilt_radial", ("away from the centre",
+                                                   "toward the centre")),
+                                  ("tilt_tangential", ("counter-clockwise (seen from above)",
+                                                       "clockwise (seen from above)"))):
+                r = by.get(f"tower{i + 1}.{field}")
+                if r is None or r.label != "measured" or not np.isfinite(r.posterior_std):
+                    continue
+                change = r.value - r.mean
+                if abs(change) < self.ACTION_SIGMAS * r.posterior_std:
+                    continue
+                words = toward[0] if change > 0 else toward[1]
+                out.append(f"{tower} leans {np.degrees(abs(change)):.2g} +- "
+                           f"{np.degrees(r.posterior_std):.1g} deg {words}: "
+                           f"{abs(np.tan(change)) * rail * 1e3:.2g} mm over "
+                           f"{rail * 1e3:.0f} mm of travel; no firmware holds it: plumb the "
+                           "tower (shim its foot or top)")
+            r = by.get(f"tower{i + 1}.radius_trim (against the mean of the three)")
+            if r is not None and r.label == "measured" and np.isfinite(r.posterior_std) \
+                    and abs(r.value - r.mean) >= self.ACTION_SIGMAS * r.posterior_std:
+                change = r.value - r.mean
+                out.append(f"{tower}'s carriage line sits {abs(change) * 1e3:.2g} +- "
+                           f"{r.posterior_std * 1e3:.1g} mm "
+                           f"{'further out' if change > 0 else 'further in'} than the mean of "
+                           "the three; the firmware has one radius: check the tower's "
+                           "rail and carriage mounting")
+        return out
 
     def tolerance_rows(self, tolerances: dict[str, float]) -> list:
         """The prior's rows of a linear Delta (:meth:`Machine.tolerance_rows`).
