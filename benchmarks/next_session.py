@@ -9,6 +9,9 @@ chronological pair (A, B):
   the bed meshes the reader takes, each mesh with its own height offset), ``pkmcal export
   calibrated.yaml --to klipper -o A/printer.cfg`` (the updated file read back as Klipper
   reads it);
+- the same with ``--parameters klipper`` (A's points and meshes in Klipper's own set: the
+  data half alone) and from A's DELTA_CALIBRATE points alone (the path before bed meshes
+  were read: 1.00x Klipper by construction);
 - **Klipper**: A's saved values (what the firmware user had after session A);
 - **Klipper + mesh**: A's values with A's own bed mesh loaded (the mesh interpolated at the
   nozzle's x/y as Klipper applies it: with klippy installed its own ``ZMesh``, upsampling
@@ -184,9 +187,11 @@ def rms(parts) -> float:
     return float(np.sqrt(np.mean(r * r)))
 
 
-def pkmcal_values(paths: list, out_dir: Path | None = None) -> tuple[DeltaValues, object]:
+def pkmcal_values(paths: list, data=None, parameters: str | None = None):
     """import -> calibrate (defaults) -> export --to klipper onto the last file, in process;
-    the exported file read back. Returns the values and the calibration."""
+    the exported file read back. Returns the values, the calibration and the exported mesh
+    profile's ``f(xy)`` (None without one). ``data``: the data objects to calibrate from
+    instead of the files (the points-only baselines)."""
     from pkmcal.calibration.run import calibrate
     from pkmcal.export import controller_format, export
 
@@ -194,9 +199,11 @@ def pkmcal_values(paths: list, out_dir: Path | None = None) -> tuple[DeltaValues
     last = Path(paths[-1])
     text = last.read_text()
     machine = fmt.to_machine(fmt.parse(text, str(last)))
+    if data is None:
+        data = [str(p) for p in paths] if len(paths) > 1 else str(paths[0])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        cal = calibrate(machine, [str(p) for p in paths] if len(paths) > 1 else str(paths[0]))
+        cal = calibrate(machine, data, parameters=parameters)
     ws = cal.calibrated.print_workspace(rng=0)
     result = export(fmt, cal.calibrated, ws.P, ws.R, surface=ws.surface)
     new = fmt.update(text, result.params, cal.calibrated, str(last)) or result.text
@@ -241,16 +248,22 @@ def pair_table(sessions: dict, max_days: float | None, limit: int | None = None,
                     values, _, mesh = pkmcal_values([a.path])
                     fits[key] = (values, mesh)
                     fits[key + ":t"] = time.perf_counter() - t0
+                    fits[key + ":points"] = pkmcal_values([a.path], points_only(a.path))[0]
+                    fits[key + ":klipper"] = pkmcal_values([a.path], parameters="klipper")[0]
                 if key not in meshes:
                     meshes[key] = mesh_function(a.meshes[0]) if a.meshes else (None, "none")
                 mf, words = meshes[key]
                 k = rms(residuals(a.values, b))
                 p = rms(residuals(fits[key][0], b, fits[key][1]))
                 km = rms(residuals(a.values, b, mf)) if mf is not None else None
+                p0 = rms(residuals(fits[key + ":points"], b))
+                pk = rms(residuals(fits[key + ":klipper"], b))
                 rows.append({"printer": printer, "A": str(a.path.relative_to(SHARED)),
                              "B": str(b.path.relative_to(SHARED)), "days": round(days, 2),
                              "rows_B": int(sum(len(s.travel) for s in b.sets)),
                              "klipper_mm": k, "klipper_mesh_mm": km, "pkmcal_mm": p,
+                             "pkmcal_points_only_mm": p0, "ratio_points_only": p0 / k,
+                             "pkmcal_klipper_set_mm": pk, "ratio_klipper_set": pk / k,
                              "ratio": p / k, "ratio_mesh": (p / km) if km else None,
                              "mesh_words": words, "fit_s": round(fits[key + ":t"], 2)})
                 log(_row_text(rows[-1]))
@@ -262,7 +275,8 @@ def _row_text(r: dict) -> str:
     rm = f"{r['ratio_mesh']:.2f}" if r["ratio_mesh"] is not None else "  - "
     return (f"{r['printer']:22s} {Path(r['A']).name[:26]:26s} -> {Path(r['B']).name[:26]:26s} "
             f"{r['days']:6.1f} d {r['rows_B']:4d}  K {r['klipper_mm']:.4f}  K+mesh {km}  "
-            f"pkmcal {r['pkmcal_mm']:.4f}  {r['ratio']:.2f}x / {rm}x")
+            f"pkmcal {r['pkmcal_mm']:.4f}  {r['ratio']:.2f}x / {rm}x  (klipper set "
+            f"{r['ratio_klipper_set']:.2f}x, points only {r['ratio_points_only']:.2f}x)")
 
 
 def summary(rows: list) -> dict:
@@ -272,37 +286,73 @@ def summary(rows: list) -> dict:
     m = np.array([x["ratio_mesh"] for x in rows if x["ratio_mesh"] is not None])
     km = np.array([x["klipper_mesh_mm"] / x["klipper_mm"] for x in rows
                    if x["klipper_mesh_mm"] is not None])
+    r0 = np.array([x["ratio_points_only"] for x in rows])
+    rk = np.array([x["ratio_klipper_set"] for x in rows])
     return {"pairs": len(rows), "ratio_median": float(np.median(r)), "ratio_worst": float(r.max()),
+            "ratio_points_only_median": float(np.median(r0)),
+            "ratio_points_only_worst": float(r0.max()),
+            "ratio_klipper_set_median": float(np.median(rk)),
+            "ratio_klipper_set_worst": float(rk.max()),
             "ratio_mesh_median": float(np.median(m)) if len(m) else None,
             "ratio_mesh_worst": float(m.max()) if len(m) else None,
             "klipper_mesh_over_klipper_median": float(np.median(km)) if len(km) else None,
             "klipper_mesh_over_klipper_worst": float(km.max()) if len(km) else None}
 
 
+def points_only(path) -> list:
+    """A config's DELTA_CALIBRATE data alone (heights, DELTA_ANALYZE distances), as
+    ``calibrate`` reads them: Klipper's own data set (the baseline before the meshes)."""
+    from pkmcal.export import controller_format
+    from pkmcal.io.klipper_config import delta_calibrate_data
+
+    fmt = controller_format("klipper")
+    machine = fmt.to_machine(fmt.parse(Path(path).read_text(), str(path)))
+    return delta_calibrate_data(KlipperConfig.read(path), 3, machine.characteristic_length())
+
+
 def pooled(log=print) -> dict:
-    """Points only: sessions 1-4 calibrate, 5-6 are predicted (one free offset per session)."""
+    """Points only: the earlier DELTA_CALIBRATE sessions calibrate, the last two are
+    predicted (one free offset per session). Sessions as ``calibrate`` counts them (the same
+    saved heights in several backups are one session; DELTA_ANALYZE distances join the
+    session of the heights they reuse)."""
+    from pkmcal.export import controller_format
+    from pkmcal.io.klipper_config import klipper_sessions
+
     paths = [SHARED / p for p in POOLED]
-    # the same saved points in several files are one session
-    sessions, seen = [], {}
-    for p in paths:
-        s = read_session(p, meshes=False)
-        key = tuple(np.round(s.sets[0].travel.ravel(), 6)) if s.sets else None
-        if key in seen:
+    fmt = controller_format("klipper")
+    machine = fmt.to_machine(fmt.parse(paths[-1].read_text(), str(paths[-1])))
+    every = klipper_sessions(paths, machine)
+    order, files = [], {}
+    for d in every.data:
+        if d.kind != "probe" or getattr(d, "mesh", None) is not None:
             continue
-        seen[key] = p
-        sessions.append(s)
-    if len(sessions) < 6:
+        name = d.session or "reference"
+        if name not in files:
+            order.append(name)
+            files[name] = Path(d.source.rsplit(" ", 1)[0])
+    if len(order) < 4:
         return {}
-    fit, test = sessions[:4], sessions[4:6]
-    values, _, mesh = pkmcal_values([s.path for s in fit])
-    after = fit[-1].values
+    fit_names, test_names = order[:-2], order[-2:]
+    # the files before the first predicted session's (the fitted sessions and their repeats)
+    fit_paths = paths[:paths.index(files[test_names[0]])]
+    fitted = klipper_sessions(fit_paths, machine)
+    data = [d for d in fitted.data if getattr(d, "mesh", None) is None]
+    values, cal, mesh = pkmcal_values(fit_paths, data)
+    in_set = pkmcal_values(fit_paths, data, parameters="klipper")[0]
+    after = delta_values(KlipperConfig.read(fit_paths[-1]))
+    test = [read_session(files[n], meshes=False) for n in test_names]
     k = rms([r for s in test for r in residuals(after, s)])
     p = rms([r for s in test for r in residuals(values, s, mesh)])
-    out = {"fit": [str(s.path.relative_to(SHARED)) for s in fit],
-           "test": [str(s.path.relative_to(SHARED)) for s in test],
-           "klipper_mm": k, "pkmcal_mm": p, "ratio": p / k}
-    log(f"points only, sessions 1-4 -> 5-6: Klipper's values after 4 {k:.4f} mm, pkmcal "
-        f"{p:.4f} mm, ratio {p / k:.2f}")
+    pk = rms([r for s in test for r in residuals(in_set, s)])
+    out = {"sessions": order, "fit": fit_names, "fit_files": [p_.name for p_ in fit_paths],
+           "test": test_names, "klipper_mm": k, "pkmcal_mm": p, "ratio": p / k,
+           "pkmcal_klipper_set_mm": pk, "ratio_klipper_set": pk / k,
+           "model": cal.report.get("parameter_set", {}).get("name"),
+           "sessions_in_fit": cal.report.get("sessions", {}).get("sessions")}
+    log(f"points only, {len(order)} sessions ({', '.join(order)}): sessions 1-{len(fit_names)} "
+        f"calibrate ({len(fit_paths)} files), {', '.join(test_names)} predicted: Klipper's "
+        f"values after session {len(fit_names)} {k:.4f} mm, pkmcal {p:.4f} mm ({out['model']}),"
+        f" ratio {p / k:.2f}; in Klipper's set {pk:.4f} mm, {pk / k:.2f}")
     return out
 
 

@@ -2365,8 +2365,8 @@ def session_report(summary, problem, state, result, fl: float, unit: str) -> dic
                          "std": [float(result.std[c]) / fl for c in cols], "unit": unit}
     out["offsets"] = offsets
     out["offsets_are"] = ("each session's reading offsets against the reference session "
-                          "(the newest): where its endstops triggered, the same on every "
-                          "joint where the probe's z_offset moved")
+                          "(the newest): where its endstops triggered; a session's heights "
+                          "also have their own height offset, its probe z_offset")
     return out
 
 

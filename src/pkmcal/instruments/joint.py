@@ -33,7 +33,7 @@ from ..errors import InputError
 from ..estimation.rank import RTOL, numerical_rank
 from ..identifiability import NullGroup, name_null_space, name_weak_directions
 from ..machines.base import Machine
-from ..parameters import ParameterSet
+from ..parameters import ParameterSet, Prior
 from ..paths import path_text
 from .problem import (
     InstrumentProblem,
@@ -45,6 +45,10 @@ from .problem import (
 #: a machine parameter whose unit vector has a null-space component above this (scaled) is
 #: not determined by the data
 ESTIMABLE_TOL = 1e-6
+#: a session's reading offsets' prior standard deviation, m: "A typical endstop switch has an
+#: accuracy of around 100 microns" (Klipper's docs/Endstop_Phase.md); the data pull them
+#: further where they see it
+SESSION_SIGMA = 100e-6
 
 
 def file_labels(sources) -> list[str]:
@@ -78,11 +82,12 @@ class JointState:
         Machine parameters.
     parts : list of InstrumentState
         Each file's state (its ``u`` is ``u``; nuisance values and the poses last solved).
+    dq : ndarray, shape (n_sessions, n_joints), optional
+        Each session's reading offsets beyond the reference session's (None: no sessions).
     """
 
     u: np.ndarray
     parts: list = field(default_factory=list)
-    #: each session's reading offsets beyond the reference session's, (n_sessions, n_joints)
     dq: np.ndarray | None = None
 
 
@@ -106,7 +111,7 @@ class JointProblem:
         reference session (default: every part in it). Each other session has its own
         reading offsets, one per joint, shared by its parts (a printer's endstops trigger
         anew at each session's homing): unknowns ``session NAME:dq1`` .. after every part's
-        nuisance; a common offset of every joint also takes up a changed probe offset.
+        nuisance, each with a prior of :data:`SESSION_SIGMA`.
 
     Raises
     ------
@@ -164,9 +169,13 @@ class JointProblem:
         self.dq_offset = len(params)
         nj = machine.n_joints
         if self.session_names:
-            dq = ParameterSet([f"session {name}:dq{j + 1}" for name in self.session_names
-                               for j in range(nj)], ["length"] * (nj * len(self.session_names)),
-                              np.zeros(nj * len(self.session_names)))
+            names = [f"session {name}:dq{j + 1}" for name in self.session_names
+                     for j in range(nj)]
+            dq = ParameterSet(names, ["length"] * len(names), np.zeros(len(names)))
+            # an endstop triggers within its repeatability of where it did: a prior, or the
+            # offsets take up what the heights barely see (the arms) session by session
+            dq = dq.with_prior(Prior.about(dq, [(n, {n: 1.0}, SESSION_SIGMA, "session offset")
+                                                for n in names]))
             nuisance.append(dq)
             params = params.concat(dq)
             for problem, s in zip(built, self.session_of, strict=True):

@@ -47,6 +47,10 @@ class InstrumentState:
         Platform poses of the rows (warm start of the forward kinematics).
     converged : ndarray of bool, optional
         Rows whose forward kinematics converged at the last evaluation.
+    dq : ndarray, shape (n_joints,), optional
+        Offsets added to every reading of the rows (a session's own endstop triggers, shared
+        by the files of one session: :class:`~pkmcal.instruments.joint.JointProblem`); None:
+        none.
     """
 
     u: np.ndarray
@@ -54,8 +58,6 @@ class InstrumentState:
     P: np.ndarray
     R: np.ndarray
     converged: np.ndarray = field(default=None)  # type: ignore[assignment]
-    #: offsets added to every reading of the rows (a session's own endstop triggers, shared
-    #: by the files of one session: :class:`~pkmcal.instruments.joint.JointProblem`); None: 0
     dq: np.ndarray | None = None
 
 

@@ -683,10 +683,20 @@ def read_klipper_data(path, machine) -> list:
                          "height0_pos, manual_height0 or distance0 (run DELTA_CALIBRATE and "
                          "SAVE_CONFIG on the printer first)"
                          + (f"; {cfg.ignored_block}" if cfg.ignored_block else ""))
+    meshes = {}
+    for note in notes:
+        head, _, how = note.partition(": used, ")
+        if not how:
+            head, _, how = note.partition(": left out:")
+            how = "left out:" + how
+        meshes[head.replace(f"{cfg.path}: ", f"{Path(cfg.path).name} ", 1)] = how
     if cfg.ignored_block:
         notes.append(f"{path}: {cfg.ignored_block}")
     if notes:
         data[0].notes = list(getattr(data[0], "notes", [])) + notes
+    if meshes:
+        data[0].sessions = {"sessions": 1, "files": [str(path)], "reference": str(path),
+                            "duplicates": {}, "repeated": {}, "meshes": meshes}
     return data
 
 
@@ -1145,12 +1155,18 @@ def bed_mesh_data(cfg: KlipperConfig, scale: float = 1.0, previous: DeltaValues 
 _STAMP = re.compile(r"-(\d{8}_\d{6})(?:_\d+)?(?:\.[^.]*)?$")
 
 
-def _dc_key(cfg: KlipperConfig) -> tuple:
-    """What a config's ``[delta_calibrate]`` saved, as text (the same points in two files are
-    one session)."""
-    opts = cfg.options("delta_calibrate")
-    return tuple(sorted((k, re.sub(r"\s+", "", e.value)) for k, e in opts.items()
-                        if re.fullmatch(r"(manual_)?height\d+(_pos)?|distance\d+(_pos[12])?", k)))
+def _data_key(d) -> tuple:
+    """What one saved data set holds (the same points in two files are one session)."""
+    return (d.kind, np.round(np.asarray(d.q, float), 12).tobytes(),
+            np.round(np.asarray(d.values, float), 12).tobytes())
+
+
+def _session_key(path, dc) -> tuple:
+    """A file's session: its DELTA_CALIBRATE heights (DELTA_ANALYZE reuses them with new
+    distances: one session), else its distances, else the file itself."""
+    if dc:              # delta_calibrate_data gives the heights first, when saved
+        return _data_key(dc[0])
+    return ("file", str(path))
 
 
 def _mesh_key(mesh: BedMesh) -> tuple:
@@ -1169,7 +1185,8 @@ class Sessions:
     notes : list of str
         What was read, counted once, used or left out, and why.
     summary : dict
-        ``sessions`` (count), ``files``, ``duplicates`` ({file: file it repeats}), ``meshes``
+        ``sessions`` (count), ``files``, ``duplicates`` ({file: the file whose saved points
+        it repeats}), ``repeated`` ({file: what it repeats, in words}), ``meshes``
         ({mesh: used / left out and why}), ``reference``.
     """
 
@@ -1198,7 +1215,8 @@ def klipper_sessions(paths, machine) -> Sessions:
     Returns
     -------
     Sessions
-        The data, notes and summary.
+        The data, notes and summary (the heights of every session but the reference have
+        their own height offset, ``free_height``: that session's probe ``z_offset``).
 
     Raises
     ------
@@ -1215,40 +1233,47 @@ def klipper_sessions(paths, machine) -> Sessions:
         dc = delta_calibrate_data(cfg, machine.n_joints, machine.characteristic_length())
         read.append((paths[i], cfg, dc))
     groups: dict = {}
-    duplicates: dict = {}
     for path, cfg, dc in read:
-        key = _dc_key(cfg) if dc else ("file", str(path))
-        if key in groups:
-            duplicates[str(path)] = str(groups[key][0][0])
-        groups.setdefault(key, []).append((path, cfg, dc))
+        groups.setdefault(_session_key(path, dc), []).append(path)
     newest = read[-1][0]
     data, notes, meshes = [], [], {}
-    seen_mesh: dict = {}
+    seen: dict = {}
+    duplicates: dict = {}
+    repeated: dict = {}
     history: list = []
     names = {}
     for key, members in groups.items():
-        first = members[0][0]
-        names[key] = first.name if first.name not in names.values() else str(first)
-    reference = next(k for k, m in groups.items() if any(p == newest for p, _, _ in m))
+        names[key] = members[0].name if members[0].name not in names.values() \
+            else str(members[0])
+    reference = next(k for k, m in groups.items() if newest in m)
     for path, cfg, dc in read:
-        key = _dc_key(cfg) if dc else ("file", str(path))
+        key = _session_key(path, dc)
         session = None if key == reference else names[key]
         try:
             values = delta_values(cfg)
         except InputError:
             values = None
-        if str(path) not in duplicates:
-            for d in dc:
-                d.session = session
-                data.append(d)
+        for d in dc:
+            k = _data_key(d)
+            if k in seen:
+                duplicates.setdefault(str(path), seen[k])
+                repeated.setdefault(str(path), []).append(
+                    f"its {d.source.rsplit(' ', 1)[-1]} are {Path(seen[k]).name}'s")
+                continue
+            seen[k] = str(path)
+            d.session = session
+            # its own probe z_offset: the heights of a session other than the reference are
+            # as high as that session's z_offset said (a re-measured z_offset moves them all)
+            d.free_height = session is not None
+            data.append(d)
         previous = None if values is None else next(
             (v for v in reversed(history) if not v.same(values)), None)
         found, mesh_notes = bed_mesh_data(cfg, machine.characteristic_length(), previous)
         for d, note in zip(found, [n for n in mesh_notes if ": used," in n], strict=False):
             k = _mesh_key(d.mesh)
-            if k in seen_mesh:
+            if k in seen:
                 continue
-            seen_mesh[k] = str(path)
+            seen[k] = str(path)
             d.session = session
             data.append(d)
             meshes[f"{path.name} [bed_mesh {d.mesh.name}]"] = note.split(": used, ", 1)[1]
@@ -1263,11 +1288,11 @@ def klipper_sessions(paths, machine) -> Sessions:
                          "[delta_calibrate] points and no [bed_mesh NAME] profile")
     n = len(groups)
     for dup, of in duplicates.items():
-        notes.append(f"{dup}: the same DELTA_CALIBRATE points as {of}: one session, counted "
-                     "once")
+        notes.append(f"{dup}: {' and '.join(repeated[dup])} (the same saved points: counted "
+                     "once)")
     summary = {"sessions": n, "files": [str(p) for p, _, _ in read],
                "reference": str(newest),
-               "duplicates": duplicates, "meshes": meshes}
+               "duplicates": duplicates, "repeated": repeated, "meshes": meshes}
     if n > 1:
         notes.append(f"{len(paths)} Klipper configs: {n} sessions (the newest, "
                      f"{newest.name}, the reference; each other with its own endstop offsets, "
