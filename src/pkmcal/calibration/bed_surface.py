@@ -25,6 +25,9 @@ COUNT = 11
 SMOOTH = 0.03
 #: a data set is a mesh (has a shape to fit) from this many probed points
 MIN_POINTS = 25
+#: a surface is kept when its sum of squares at the probed points is this many times what the
+#: smoother would fit to noise alone (``df sigma^2``)
+SIGNIFICANCE = 3.0
 #: a surface whose largest value at the probed points is below this (m) is not kept: three
 #: times the probe's repeatability (``pkmcal.instruments.probe.PROBE_SIGMA``, 10 um); the
 #: smoothing leaves pure noise well below it
@@ -104,6 +107,12 @@ def fit_bed_surface(calibrated, datasets, count: int = COUNT):
     v = np.linalg.lstsq(A, np.concatenate([s, np.zeros(count * count)]), rcond=None)[0]
     fitted = B @ v
     rms = float(np.sqrt(np.mean(fitted**2)))
-    if np.max(np.abs(fitted)) <= MIN_PEAK:
+    # significance: fitted to pure noise of variance sigma^2 the surface's sum of squares
+    # is about sigma^2 tr(H^2) <= sigma^2 tr(H) (H the smoother's hat matrix); the residual
+    # scatter estimates sigma
+    H = B @ np.linalg.solve(A.T @ A, B.T)
+    df = float(np.trace(H))
+    sigma2 = float(np.sum((s - fitted) ** 2)) / max(len(s) - df, 1.0)
+    if np.max(np.abs(fitted)) <= MIN_PEAK or np.sum(fitted**2) <= SIGNIFICANCE * df * sigma2:
         return None
     return radius, v.reshape(count, count), rms, len(s)
