@@ -59,6 +59,19 @@ def _laplacian(n: int) -> np.ndarray:
     return L
 
 
+def _bed_heights(data) -> bool:
+    """Whether a data set's values are nozzle heights above the bed (its instrument says so:
+    :attr:`~pkmcal.instruments.base.Instrument.measures_bed_height`)."""
+    from ..errors import InputError
+    from ..instruments.registry import instrument
+
+    kind = getattr(data, "kind", None)
+    try:
+        return bool(kind) and instrument(kind).measures_bed_height
+    except InputError:                  # an instrument pkmcal does not know: not bed heights
+        return False
+
+
 def fit_bed_surface(calibrated, datasets, count: int = COUNT):
     """The bed's shape from the probe data sets of a calibration (see the module docstring).
 
@@ -67,8 +80,8 @@ def fit_bed_surface(calibrated, datasets, count: int = COUNT):
     calibrated : Machine
         The calibrated machine (its ``probe_bed`` plane).
     datasets : iterable
-        The calibration's data; the probe heights with at least :data:`MIN_POINTS` rows are
-        used (``kind == "probe"``: readings ``q``, nozzle heights ``values``).
+        The calibration's data; those of an instrument that measures bed heights with at
+        least :data:`MIN_POINTS` rows are used (readings ``q``, nozzle heights ``values``).
     count : int, optional
         Nodes per side.
 
@@ -82,7 +95,7 @@ def fit_bed_surface(calibrated, datasets, count: int = COUNT):
 
     xy_all, s_all = [], []
     for d in datasets:
-        if getattr(d, "kind", None) != "probe" or len(getattr(d, "q", ())) < MIN_POINTS:
+        if not _bed_heights(d) or len(getattr(d, "q", ())) < MIN_POINTS:
             continue
         with np.errstate(all="ignore"):
             fk = calibrated.fk(np.asarray(d.q, float))

@@ -43,11 +43,11 @@ def tolerance_section(result, units: dict, factors: tuple[float, float]) -> dict
     for row in rows:
         f, u = unit(row)
         out.append({"name": row.name, "key": row.key, "unit": u,
-                    "change": (row.value - row.mean) / f, "tolerance": row.prior_std / f,
+                    "change": (row.value - row.mean) / f, "prior_std": row.prior_std / f,
                     "posterior_std": row.posterior_std / f if np.isfinite(row.posterior_std)
                     else None,
                     "data_share": row.data_share, "label": row.label,
-                    "tolerances_off": row.sigmas})
+                    "sigmas_off": row.sigmas})
     return {"of": "build tolerances as a prior (SPEC 9): each row's change from its nominal, "
                   "its tolerance (prior std) and its std after the fit; 'measured' where the "
                   "data carry at least half of the information, 'prior-held' where the "
