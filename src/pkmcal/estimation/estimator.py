@@ -20,6 +20,16 @@ constraint-link point) make the reduced Jacobian rank deficient. The step is tak
 identifiable subspace only (minimum-norm step in scaled coordinates), so the estimate stays, to
 first order, the member of its equivalence class closest to the starting geometry; the null
 space is returned so it can be reported in words (:mod:`pkmcal.identifiability`).
+
+Priors (SPEC 9). When the parameters carry a :class:`~pkmcal.parameters.Prior` (build
+tolerances: rows ``A u ~ N(mean, std^2)``), its whitened rows ``(A u - mean) / std`` are
+appended to the reduced residuals and the fit is maximum a posteriori. The rows act only in the
+data's row space (their part along the data's numerical null space is removed): a direction
+no measurement changes stays a gauge, where the start put it. The rank, the null space and the
+degrees of freedom count what the data alone fix; the covariance is the posterior's (the data
+rows scaled by the residual variance unless ``absolute_sigma``, the prior's as stated), and
+:meth:`CalibrationResult.prior_summary` says per row what the data measured and what the
+prior held.
 """
 
 from __future__ import annotations
