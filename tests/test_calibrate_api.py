@@ -159,8 +159,12 @@ def test_not_converged_is_an_exception(data, monkeypatch):
 
 
 def test_kinds_are_a_registry():
-    """Every kind names its data columns, its machines and its handler."""
-    assert set(KINDS) == {"constraint-link", "tracker", "pose", "distance", "probe",
-                          "pair-distances"}
+    """Every instrument of the registry is a kind; every kind names its data columns, its
+    machines and its handler."""
+    from pkmcal.instruments.registry import INSTRUMENTS
+
+    assert set(KINDS) == set(INSTRUMENTS)
+    assert {"constraint-link", "tracker", "pose", "distance", "probe",
+            "pair-distances"} <= set(KINDS)
     for kind in KINDS.values():
         assert kind.columns and callable(kind.calibrate) and callable(kind.check_options)

@@ -156,7 +156,7 @@ def test_robust_flags_the_simulated_outlier_rows(tmp_path):
 
 
 def test_grid_neighbour_pairs_recover_the_grid():
-    from pkmcal.calibration.run import grid_neighbour_pairs
+    from pkmcal.instruments.tracker import grid_neighbour_pairs
 
     for shape in ((3, 3, 3), (4, 4, 3), (2, 1, 5)):
         P = grid_points([0.1, 0.2, -0.7], (0.15, 0.1, 0.04), shape)

@@ -5,7 +5,8 @@ Each controller's inverse kinematics is written here again from its source, NOT 
 ``pkmcal.export``'s code or pkmcal's machine models: Klipper ``klippy/chelper/
 kin_rotary_delta.c`` / ``klippy/kinematics/rotary_delta.py`` (the elbow in the arm's vertical
 plane, ``abs_endstop = IK(0, 0, position_endstop)``), LinuxCNC ``rotarydeltakins-common.h``
-(hips at -90, 150, 30 deg, knee down positive, its FK's z the foot's depth below the hips) and
+as LinuxCNC 2.9 runs it (hips of joints 0, 1, 2 at -90, 30, 150 deg, knee down positive, z up
+with the foot below the hips: issue 34) and
 ``lineardeltakins-common.h`` (towers at 90, 210, 330 deg, joint = carriage height). The
 written file is read here with its own small parser; the machine that moves is the calibrated
 model (``machine.fk``). Its error must equal what ``export`` reports.
@@ -110,13 +111,18 @@ def arm_angle(radial, height, upper, lower):
 
 
 def klipper_readings(text, P):
-    """Klipper rotary_delta: the machine's readings for targets P (m, calibrated frame)."""
-    cfg, notes = read_cfg(text), pkmcal_lines(text)
+    """Klipper rotary_delta: the machine's readings for targets P (m, machine file's frame):
+    each arm's turn from its endstop. Where Klipper's frame and steppers are on the machine
+    is what the export tells the user (its comment lines, read here as a user reads them)."""
+    cfg = read_cfg(text)
+    bed = float(re.search(r"Klipper's z = 0 \(the bed\) is at z = (\S+) mm", text).group(1))
+    legs = {m.group(1): int(m.group(2)) - 1
+            for m in re.finditer(r"^# stepper_([abc]) is leg (\d)", text, re.M)}
     pr = cfg["printer"]
     assert pr["kinematics"] == "rotary_delta"
     R, H = pr["shoulder_radius"], pr["shoulder_height"]
-    Pk = np.asarray(P) * 1e3 - [0.0, 0.0, notes["bed_z_mm"]]   # Klipper's mm, bed at z = 0
-    q = []
+    Pk = np.asarray(P) * 1e3 - [0.0, 0.0, bed]               # Klipper's mm, bed at z = 0
+    q = np.empty((len(Pk), 3))
     for t in "abc":
         s = cfg[f"stepper_{t}"]
         ang = np.radians(s["angle"])
@@ -129,13 +135,14 @@ def klipper_readings(text, P):
             return arm_angle(X @ er - R, X[..., 2] - H, s["upper_arm_length"], lower)
 
         abs_endstop = angle(np.array([0.0, 0.0, s["position_endstop"]]))
-        q.append(angle(Pk) - abs_endstop + np.radians(notes[f"endstop_reading_{t}_deg"]))
-    return np.column_stack(q)
+        q[:, legs[t]] = angle(Pk) - abs_endstop
+    return q
 
 
 def rotarydelta_forward(j, pfr, tl, sl, fr):
-    """rotarydeltakins-common.h kinematics_forward, line by line (joints deg)."""
-    j0, j1, j2 = np.radians([j[0], j[2], j[1]])
+    """rotarydeltakins-common.h kinematics_forward (LinuxCNC 2.9), line by line (joints
+    deg)."""
+    j0, j1, j2 = np.radians([j[0], j[1], j[2]])
     y1 = -(pfr - fr + tl * np.cos(j0))
     z1 = -tl * np.sin(j0)
     y2 = (pfr - fr + tl * np.cos(j1)) * 0.5
@@ -153,21 +160,21 @@ def rotarydelta_forward(j, pfr, tl, sl, fr):
     a = a1**2 + a2**2 + denom**2
     b = 2 * (a1 * b1 + a2 * (b2 - y1 * denom) - z1 * denom**2)
     c = (b2 - y1 * denom) ** 2 + b1**2 + denom**2 * (z1**2 - sl**2)
-    z = (b + np.sqrt(b * b - 4 * a * c)) / (2 * a)
-    return np.array([(-a1 * z + b1) / denom, (-a2 * z + b2) / denom, z])
+    z = (-b - np.sqrt(b * b - 4 * a * c)) / (2 * a)
+    return np.array([(a1 * z + b1) / denom, (a2 * z + b2) / denom, z])
 
 
 def rotarydelta_joints(P_L, pfr, tl, sl, fr):
     """Hip angles (deg, knee down positive) for LinuxCNC world targets: knee i at
-    ``(pfr + tl cos j) e_i - tl sin j e_z``, the foot's ankle ``fr e_i`` off the point, the
-    point below the hips by LinuxCNC's z (its FK returns the depth)."""
+    ``(pfr + tl cos j) e_i - tl sin j e_z``, the foot's ankle ``fr e_i`` off the point, z up
+    (the foot below the hips at negative z)."""
     out = []
-    for hip in (-90.0, 150.0, 30.0):
+    for hip in (-90.0, 30.0, 150.0):
         e = np.array([np.cos(np.radians(hip)), np.sin(np.radians(hip)), 0.0])
         t = np.array([-e[1], e[0], 0.0])
         side = P_L @ t
         lower = np.sqrt(sl**2 - side**2)
-        up = arm_angle(P_L @ e + fr - pfr, -P_L[..., 2], tl, lower)
+        up = arm_angle(P_L @ e + fr - pfr, P_L[..., 2], tl, lower)
         out.append(-np.degrees(up))
     return np.column_stack(out)
 
@@ -175,8 +182,7 @@ def rotarydelta_joints(P_L, pfr, tl, sl, fr):
 def linuxcnc_rotary_readings(text, P):
     pins, notes = read_setp(text, "rotarydeltakins"), pkmcal_lines(text)
     geo = [pins[k] for k in ("platformradius", "thighlength", "shinlength", "footradius")]
-    P_L = np.asarray(P) * 1e3 * [1.0, 1.0, -1.0]
-    J = rotarydelta_joints(P_L, *geo)
+    J = rotarydelta_joints(np.asarray(P) * 1e3, *geo)
     q = []
     for i in range(3):
         j = int(notes[f"reading{i + 1}.joint"])
@@ -232,7 +238,7 @@ def test_rotarydelta_test_ik_inverts_linuxcnc_forward():
     geo = (200.0, 300.0, 800.0, 50.0)
     rng = np.random.default_rng(3)
     for _ in range(20):
-        P_L = np.array([*rng.uniform(-100, 100, 2), rng.uniform(650, 800)])
+        P_L = np.array([*rng.uniform(-100, 100, 2), rng.uniform(-800, -650)])
         J = rotarydelta_joints(P_L[None], *geo)[0]
         assert np.allclose(rotarydelta_forward(J, *geo), P_L, atol=1e-9)
 
@@ -242,19 +248,18 @@ def test_klipper_rotary_calibrated_example(delta_cal):
     nominal = load_machine(EXAMPLES / "delta_default.yaml")
     fmt, res, ws = _check_export("klipper-rotary-delta", delta_cal, nominal)
     assert res.remaining_rms < 0.2 * res.before_rms
-    # export -> parse -> export
+    # export -> parse -> export: the values Klipper reads, the frame and legs pkmcal's own
     back = fmt.parse(res.text, "printer.cfg")
-    assert np.allclose(back.values, res.params.values, rtol=0, atol=1e-11)
-    assert fmt.text(back, delta_cal) == res.text
+    assert np.allclose(back.values[:14], res.params.values[:14], rtol=0, atol=1e-11)
+    assert back.values[14] == 0.0 and list(back.values[15:]) == [1, 2, 3]
     # import -> machine -> values: Klipper's written values come back (the machine is in
     # Klipper's frame, bed at z = 0)
-    imported = fmt.to_machine(back, delta_cal)
+    imported = fmt.to_machine(back)
     again = fmt.initial(imported)
     assert again.values[14] == 0.0
     assert np.allclose(again.values[:14], back.values[:14], rtol=0, atol=1e-12)
-    assert np.allclose(again.values[15:], back.values[15:], rtol=0, atol=1e-12)
-    shift = np.array([0.0, 0.0, back.values[14]])
-    q = fmt.ik(back, ws.P)
+    shift = np.array([0.0, 0.0, res.params.values[14]])
+    q = fmt.ik(res.params, ws.P)
     assert np.allclose(imported.fk(q).P, ws.P - shift, atol=1e-10)
 
 
@@ -276,9 +281,10 @@ def test_klipper_rotary_exact_machine():
     assert mx < 1e-9
 
 
-def test_klipper_rotary_foreign_config_reads_as_klipper_angles():
+def test_klipper_rotary_foreign_config_reads_readings_from_the_endstops():
     """A printer's own config (no pkmcal lines): Klipper's defaults for b/c and angles, the
-    machine's readings are Klipper's stepper angles, the bed at z = 0."""
+    machine's readings counted from the endstops (reading 0: the arm at its endstop,
+    ``dtheta`` = Klipper's abs_endstop), the bed at z = 0."""
     text = ("[printer]\nkinematics: rotary_delta\nshoulder_radius: 33.9\nshoulder_height: 412.9"
             "\n\n[stepper_a]\nposition_endstop: 252\nupper_arm_length: 170.0\n"
             "lower_arm_length: 320.0\n\n[stepper_b]\n\n[stepper_c]\n")
@@ -292,9 +298,10 @@ def test_klipper_rotary_foreign_config_reads_as_klipper_angles():
     m = fmt.to_machine(p)
     P = np.array([[0.01, -0.02, 0.1], [0.0, 0.0, 0.2], [-0.03, 0.01, 0.05]])
     assert np.allclose(m.fk(fmt.ik(p, P)).P, P, atol=1e-12)
-    # the readings are Klipper's own stepper angles
-    assert np.allclose(fmt.ik(p, P), m.ik(P) + m.legs()[1], atol=1e-12)
-    assert np.allclose(m.legs()[1], 0.0, atol=1e-12)
+    # reading 0 is the arm at its endstop: the effector at the centre at position_endstop
+    assert np.allclose(m.fk(np.zeros((1, 3))).P, [[0.0, 0.0, 0.252]], rtol=0, atol=1e-12)
+    assert np.allclose(m.legs()[1], fmt.abs_endstops(p), rtol=0, atol=1e-15)
+    assert np.allclose(fmt.ik(p, P), m.ik(P), atol=1e-12)
 
 
 @pytest.mark.parametrize("line, key", [("shoulder_radius: 3x", "shoulder_radius"),
@@ -316,7 +323,7 @@ def test_klipper_rotary_parse_errors_name_line_and_key(line, key):
 def test_linuxcnc_rotarydelta_refuses_the_90_degree_delta(delta_cal):
     fmt = controller_format("linuxcnc-rotarydelta")
     why = fmt.applies(delta_cal)
-    assert "-90, 150 and 30" in why and "90, 180, -90" in why
+    assert "-90, 30 and 150" in why and "90, 180, -90" in why
     with pytest.raises(InputError, match="linuxcnc-rotarydelta"):
         ws = export_workspace(delta_cal)
         export(fmt, delta_cal, ws.P)
@@ -358,7 +365,7 @@ def test_linuxcnc_rotarydelta_parse_errors():
     # a foreign file: reading i is joint i, the readings LinuxCNC's joints (sign changed)
     p = fmt.parse(text.replace("x3", "300"), "rd.hal")
     m = fmt.to_machine(p)
-    assert np.degrees(m.leg_angles) == pytest.approx([-90, 150, 30])
+    assert np.degrees(m.leg_angles) == pytest.approx([-90, 30, 150])
     P = np.array([[0.01, 0.02, -0.7]])
     assert np.allclose(fmt.ik(p, P), m.ik(P), atol=1e-12)
 

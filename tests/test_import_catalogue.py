@@ -376,9 +376,8 @@ LIKE = {
     "linuxcnc-lineardelta": ("delta.hal", LINEAR_HAL, LIKE_LINEAR, (0, 0, 0.09),
                              (-0.005, 0.25)),
     "linuxcnc-rotarydelta": ("rotary.hal", ROTARY_HAL, LIKE_DELTA, (0, 0, -0.7), (-1.0, 1.4)),
-    # the round trip of an export: Klipper's z = 0 (the bed) at bed_z of the like's frame
-    "klipper-rotary-delta": ("printer.cfg", "# pkmcal bed_z_mm = -1100\n" + KLIPPER_ROTARY,
-                             LIKE_DELTA, (0, 0, 0.4), (-1.0, 1.4)),
+    # --like moves the import into the like's frame (its shoulder height): its home as is
+    "klipper-rotary-delta": ("printer.cfg", KLIPPER_ROTARY, LIKE_DELTA, None, (-1.0, 1.4)),
     "linuxcnc-genhexkins": ("hexapod.hal", GENHEX, None, None, (0.1, 0.6)),
 }
 

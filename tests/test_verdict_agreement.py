@@ -3,14 +3,15 @@ the noise model is decided once (:func:`pkmcal.estimation.acceptance.residual_ve
 the console, the HTML report, the JSON report, the model-adequacy section and the warnings all
 say what it says.
 
-Twenty calibrations through ``pkmcal calibrate`` (in this process): every instrument of the
-registry (constraint link, tracker points, full pose, ballbar distances, probe heights, and
-two files fitted together), passing fits (simulated with the noise the calibration is told)
-and failing ones (simulated with 5-10x the noise it is told, outlier rows, the paper's methods
-that take readings as exact). For each, the verdict the JSON states is the one the
-console's ``residual test`` row, the HTML's verdict paragraph, the model-adequacy section and
-the warnings state; every "N times the assumed noise" anywhere in the outputs is the one noise
-ratio, ``sqrt(chi2 / dof)``; a failed test is never called consistent or in agreement.
+Twenty-one calibrations through ``pkmcal calibrate`` (in this process): every instrument of the
+registry (constraint link, tracker points, full pose, ballbar distances, probe heights, a dial
+indicator, and two files fitted together), passing fits (simulated with the noise the
+calibration is told) and failing ones (simulated with 5-10x the noise it is told, outlier rows,
+the paper's methods that take readings as exact). For each, the verdict the JSON states is the
+one the console's ``residual test`` row, the HTML's verdict paragraph, the model-adequacy
+section and the warnings state; every "N times the assumed noise" anywhere in the outputs is
+the one noise ratio, ``sqrt(chi2 / dof)``; a failed test is never called consistent or in
+agreement.
 
 The HTML is built by ``--report`` as a user gets it, its plots replaced by a placeholder (the
 verdict is text; rendering the PNGs would take most of the time).
@@ -64,6 +65,7 @@ DATA = {
     # warning)
     "heights_7": (PRINTER, ["--scenario", "probe", "--poses", "7", "--noise", "100um",
                             "--seed", "2"]),
+    "dial": (DELTA, ["--scenario", "dial"]),
 }
 HELD_POSE_NOISE = ["--noise", "2um", "--pose-noise", "20um,50urad", "--extensions", "none"]
 #: name -> (machine, data sets, calibrate options, the verdicts expected)
@@ -99,6 +101,7 @@ CASES = {
     "probe, Klipper's 7 heights": (PRINTER, ["heights_7"], ["--parameters", "klipper"],
                                    {FAILED_ALARMING}),
     "points and ballbar together": (DELTA, ["points", "delta_ballbar"], [], {PASSED}),
+    "dial": (DELTA, ["dial"], [], {PASSED}),
 }
 
 
@@ -216,7 +219,7 @@ def test_console_html_json_and_warnings_state_one_verdict(runs, case):
 def test_the_runs_cover_every_instrument_and_every_verdict(runs):
     from pkmcal.instruments.registry import INSTRUMENTS
 
-    assert len(runs) == 20
+    assert len(runs) == 21
     measured = {r["report"]["measurement"] for r in runs.values()}
     # the pair distances are fitted with other files only (a joint fit): "joint" stands for it
     assert set(INSTRUMENTS) - {"pair-distances"} | {"joint"} <= measured, measured

@@ -7,9 +7,14 @@ calibrated file's ``calibration:`` section. It prints nothing: what the command 
 warnings is in :attr:`Calibration.warnings`. :meth:`Calibration.write` writes the calibrated
 machine file, its report and optionally the HTML report, all together or none.
 
-Measurement kinds are entries of :data:`KINDS` (:func:`register_kind`): how to recognise the
-data, which options apply, what the data need (for messages) and the handler that calibrates.
-Adding a kind is adding an entry; neither the estimator nor the command line changes.
+Measurement kinds are entries of :data:`KINDS`, one per instrument of the registry
+(:mod:`pkmcal.instruments.registry`): an instrument with a calibration flow of its own
+(:meth:`~pkmcal.instruments.base.Instrument.calibrate`, given only the options its
+``Options`` declare) is dispatched by :func:`flow_kind`, one bringing only a model by the generic
+path (:func:`instrument_kind`), and handlers registered here (:func:`register_kind`) take
+precedence. Every flow ends the same way (:func:`_finish`: covariance, residual verdict,
+acceptance, provenance). Adding an instrument is adding its module; neither this module, the
+estimator nor the command line changes.
 
 Options may be given as the user's strings (``"2um"``, ``"leica"``, ``"20um,50urad"``,
 ``"20%"``), parsed with the messages of the command line, or as SI numbers and noise models.
@@ -27,24 +32,45 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConvergenceError, InputError
+from ..errors import InputError
 from ..estimation.acceptance import WHITENED_METHODS
-from ..instruments.constraint_link import link_noise_arg  # noqa: F401
-from ..instruments.pose import full_pose_noise_arg, pose_noise_option  # noqa: F401
-from ..instruments.tracker import (  # noqa: F401
+from ..instruments.flow import (
+    CalibrationNotConverged,
+    FlowContext,
+    fit_with_baseline,
+    json_safe,
+    report_head,
+    rows_text,
+)
+from ..instruments.flow import convergence_json as _convergence_json
+from ..instruments.flow import identifiability_json as _identifiability_json
+from ..instruments.flow import identifiability_metadata as _identifiability_metadata
+from ..instruments.flow import load_data as _load
+from ..instruments.flow import only_for_poses as _only_for_poses
+from ..instruments.flow import parameter_table as _parameter_table
+from ..instruments.flow import public_parameters as _public
+from ..instruments.flow import require_converged as _require_converged
+from ..instruments.flow import scalar_rms as _scalar_rms
+from ..instruments.flow import source_of as _source_of
+from ..instruments.flow import split_rows as _split_rows
+from ..instruments.flow import um as _um
+from ..instruments.flow import validation_section as _validation
+from ..instruments.tracker import (  # the tracker's part of a fit of several files
     _tracker_noise_text,
     as_tracker_data,
     tracker_noise_arg,
+)
+from ..instruments.tracker import (
+    check_spread as _check_spread,
 )
 from ..paths import file_identity, path_text, same_file
 
 __all__ = ["KINDS", "WHITENED_METHODS", "Calibration",
            "CalibrationNotConverged", "CalibrateOptions", "JointPart", "MeasurementKind",
-           "apply_parameter_set", "calibrate", "calibrate_joint", "distance_ratio_pairs",
-           "file_units", "full_pose_noise_arg", "grid_neighbour_pairs", "holdout_arg",
-           "json_safe", "link_noise_arg", "report_json", "measurement_kind", "noise_per_file_arg",
-           "parameter_set_names", "provenance", "register_kind", "rows_text",
-           "supported_kinds", "text_digest", "tracker_noise_arg", "versions"]
+           "apply_parameter_set", "calibrate", "calibrate_joint", "file_units", "flow_kind",
+           "holdout_arg", "json_safe", "report_json", "measurement_kind", "noise_per_file_arg",
+           "parameter_set_names", "provenance", "register_joint_part", "register_kind",
+           "rows_text", "supported_kinds", "text_digest", "versions"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -81,56 +107,6 @@ def report_json(value, indent: str = "") -> str:
         return ("[\n" + ",\n".join(inner + report_json(v, inner) for v in value) + "\n"
                 + indent + "]")
     return json.dumps(value, allow_nan=False)
-
-
-def json_safe(value):
-    """A value made JSON-safe: NaN and infinities become None, numpy values Python ones.
-
-    Parameters
-    ----------
-    value : object
-        A number, array, list, tuple or dict (nested), or anything else (returned as is).
-
-    Returns
-    -------
-    object
-        The same structure with lists for arrays and tuples, Python numbers for numpy
-        scalars and None for non-finite floats.
-    """
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind in "biu" or (value.dtype.kind == "f" and np.isfinite(value).all()):
-            return value.tolist()           # Python numbers already, every one finite
-        return json_safe(value.tolist())
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    return value
-
-
-def rows_text(rows, limit: int = 10) -> str:
-    """Row numbers for a message: the first ``limit``, then ``...``.
-
-    Parameters
-    ----------
-    rows : iterable of int
-        Row numbers.
-    limit : int, optional
-        How many to show.
-
-    Returns
-    -------
-    str
-        E.g. ``"3, 7, 12"``.
-    """
-    rows = [int(r) for r in rows]
-    return ", ".join(map(str, rows[:limit])) + (" ..." if len(rows) > limit else "")
 
 
 def file_units(machine) -> dict:
@@ -217,12 +193,6 @@ def provenance() -> dict:
 
     return {"command": "pkmcal " + " ".join(word(a) for a in sys.argv[1:]), **versions(),
             "platform": platform.platform()}
-
-
-def _source_of(machine) -> str:
-    """The machine's file (``default`` for the embedded one), else its name."""
-    return path_text(getattr(machine, "source", None) or getattr(machine, "name", None)
-                     or "the machine")
 
 
 # --------------------------------------------------------------------------------------------
@@ -392,12 +362,16 @@ def register_kind(kind: MeasurementKind) -> MeasurementKind:
 
 
 def _kinds() -> list[MeasurementKind]:
-    """Every instrument's calibration (its registered handlers, else the generic path), in
-    the order data files are recognised."""
+    """Every instrument's calibration (its registered handlers, else its own flow, else the
+    generic path), in the order data files are recognised."""
     from ..instruments.registry import INSTRUMENTS
 
     for name, inst in INSTRUMENTS.items():
-        if name not in KINDS and inst.fit_model is not None:
+        if name in KINDS:
+            continue
+        if inst.Options is not None:
+            KINDS[name] = flow_kind(inst)
+        elif inst.fit_model is not None:
             KINDS[name] = instrument_kind(inst)
     return sorted(KINDS.values(), key=lambda k: k.priority)
 
@@ -482,22 +456,6 @@ def _names_of(kind: MeasurementKind) -> tuple:
 # --------------------------------------------------------------------------------------------
 # the result
 # --------------------------------------------------------------------------------------------
-
-
-class CalibrationNotConverged(ConvergenceError):
-    """The estimator did not converge; nothing to write.
-
-    Parameters
-    ----------
-    message : str
-        Why, naming the data, and what to try.
-    result : CalibrationResult, optional
-        The estimator's last state (also the attribute ``result``).
-    """
-
-    def __init__(self, message: str, result=None):
-        super().__init__(message)
-        self.result = result
 
 
 @dataclass
@@ -950,133 +908,6 @@ def _inputs_of(given, inputs: list) -> list:
     return out
 
 
-def _load(data, reader, machine):
-    """Data read from ``data`` (a path) with ``reader``, or ``data`` itself."""
-    return reader(Path(data), machine) if isinstance(data, (str, Path)) else data
-
-
-def _only_for_poses(options: CalibrateOptions, source, kind: str) -> None:
-    for option, given in (("--pose-noise", options.pose_noise is not None),
-                          ("--fix-frames", options.fix_frames),
-                          ("--extensions", options.extensions is not None)):
-        if given:
-            raise InputError(f"{option}: applies to full-pose data (a Stewart with x, y, z "
-                             f"and orientation columns); {path_text(source)} has {kind} data")
-
-
-def _parameter_table(result, nominal_of: dict, units):
-    """Rows of the report's parameter list, in the machine file's units; ``nominal_of`` maps
-    parameter names to their start (nominal) values."""
-    from ..units import ANGLE, LENGTH
-
-    fl, fa = LENGTH[units["length"]], ANGLE[units["angle"]]
-    rows = []
-    params = result.parameters
-    for i, (name, kind) in enumerate(zip(params.names, params.kinds, strict=True)):
-        f = fl if kind == "length" else fa if kind == "angle" else 1e-3 if kind == "slope" \
-            else 1.0
-        unit = units["length"] if kind == "length" else units["angle"] if kind == "angle" \
-            else "mm/m" if kind == "slope" else "1"
-        nominal = nominal_of.get(name, float("nan"))
-        fixed = bool(params.fixed[i])
-        rows.append({
-            "name": name, "kind": kind, "unit": unit,
-            "nominal": nominal / f, "identified": result.x[i] / f,
-            "change": (result.x[i] - nominal) / f,
-            "std": None if fixed else result.std[i] / f,
-            "fixed": fixed,
-            "scaled_change": abs(result.x[i] - nominal) / result.scales[i],
-        })
-    return rows
-
-
-def _um(value_m: float) -> float | None:
-    """Metres -> micrometres for a report; None when not finite."""
-    return json_safe(float(value_m) * 1e6)
-
-
-def _split_rows(data, split, source):
-    """``(calibration data, held-out data or None)`` for ``holdout``/``seed``."""
-    if split is None:
-        return data, None
-    from .validation import holdout_split
-
-    try:
-        train, held = holdout_split(len(data), *split)
-    except ValueError as exc:
-        raise InputError(f"--holdout: {path_text(source)}: {exc}") from None
-    return data.subset(train), data.subset(held)
-
-
-def _validation(split, held, of: str, unit: str, before, after, calibration, **extra) -> dict:
-    """The report's held-out validation section: RMS residuals of the held-out rows with the
-    machine file's and the calibrated model, next to the calibration rows' own RMS."""
-    ratio = after / calibration if after is not None and calibration else None
-    summary = (f"{len(held)} held-out rows: RMS {_fmt(before)} -> {_fmt(after)} {unit} "
-               f"(calibration rows {_fmt(calibration)} {unit}"
-               + (f"; held-out / calibration = {ratio:.3g}" if ratio is not None else "") + ")")
-    return {"summary": summary, "held_out": len(held), "rows": [int(r) for r in held.rows],
-            "holdout": split[0], "seed": split[1], "of": of, "unit": unit,
-            "before_rms": before, "after_rms": after, "calibration_rms": calibration,
-            "held_out_over_calibration": ratio, **extra}
-
-
-def _fmt(value) -> str:
-    return "n/a" if value is None else f"{value:.4g}"
-
-
-def _solve(source, estimator, *args, held=None, **kwargs):
-    """Run a calibration; numerical failures caused by the data become an InputError naming
-    the data. With ``held`` (the rows held out) a failure names the option too: the rows left
-    may be too few."""
-    try:
-        return estimator(*args, **kwargs)
-    except (InputError, ValueError, np.linalg.LinAlgError) as exc:
-        message = str(exc) if isinstance(exc, InputError) else \
-            f"{path_text(source)}: calibration failed: {exc}"
-        if held is not None:
-            message = (f"--holdout: holding out {len(held)} row(s) leaves {len(args[1])} "
-                       f"to calibrate on: {message}")
-        raise InputError(message) from None
-
-
-def _require_converged(result, source, advice: str = "") -> None:
-    """Raise :class:`CalibrationNotConverged` (saying why and what to try, naming the data)
-    unless the calibration converged."""
-    if result.success and np.all(np.isfinite(result.x)):
-        return
-    raise CalibrationNotConverged(
-        f"{path_text(source)}: calibration did not converge: {result.message} (after {result.nit} "
-        "iterations)" + (f"; {advice}" if advice else "") + "; check the columns (order, "
-        "units) and the machine file; no file written", result)
-
-
-def _identifiability_json(n_free, rank, unidentifiable, s) -> dict:
-    """The identifiability section of a calibration report: the directions the data cannot
-    fix, and apart from them the weakly identifiable ones (counted in ``identifiable``, left
-    at their start values; each with its standard deviation)."""
-    return {
-        "free_parameters": n_free,
-        "identifiable": rank,
-        "unidentifiable": [d.as_dict() for d in unidentifiable if d.std is None],
-        "weakly_identifiable": [d.as_dict() for d in unidentifiable if d.std is not None],
-        "condition_number": float(s[0] / s[rank - 1]) if rank else None,
-        "singular_values": s.tolist(),
-    }
-
-
-def _convergence_json(result) -> dict:
-    return {"success": bool(result.success), "status": int(result.status),
-            "message": result.message, "iterations": int(result.nit),
-            "evaluations": int(result.nfev)}
-
-
-def _identifiability_metadata(unidentifiable) -> dict:
-    return {"unidentifiable": [f"{d.dimension} x {d.name}" for d in unidentifiable
-                               if d.std is None],
-            "weakly_identifiable": [d.name for d in unidentifiable if d.std is not None]}
-
-
 def _acceptance(result, nominal, calibrated, source, method, warnings: list,
                 verdict=None) -> dict:
     """The believability checks of a converged calibration (the residual verdict of
@@ -1279,616 +1110,11 @@ def _report_head(machine, source, kind: str, method: str, units=None) -> dict:
     """The first keys of every report (``units`` last, when given)."""
     from ..report.provenance import run_date
 
-    head = {"pkmcal_report": 1, "command": "calibrate", "date": run_date(),
-            "machine_file": _source_of(machine), "data_file": path_text(source),
-            "calibrated_file": None, "measurement": kind, "method": method}
-    return head if units is None else {**head, "units": units}
+    return report_head(run_date(), machine, source, kind, method, units)
 
 
-def _public(params) -> list[dict]:
-    return [{k: v for k, v in p.items() if k != "scaled_change"} for p in params]
 
-
-# -- constraint link ---------------------------------------------------------------------------
-
-
-def _check_constraint_link(options: CalibrateOptions, source) -> None:
-    _only_for_poses(options, source, "constraint-link")
-    if options.two_step:
-        raise InputError(f"--two-step: applies to laser-tracker data (mx, my, mz columns); "
-                         f"{path_text(source)} has constraint-link data")
-    if options.robust and options.method not in (None, "ml"):
-        raise InputError(f"--robust: applies to the ml method (its residuals are the noise's); "
-                         f"--method {options.method} takes some readings as exact")
-
-
-def _calibrate_constraint_link(machine, data, source, options: CalibrateOptions,
-                               split) -> Calibration:
-    from ..io import read_constraint_link
-    from ..units import LENGTH
-
-    method = options.method or "ml"
-    estimate_lc = options.estimate_lc
-    sigma = link_noise_arg(options.noise, machine)
-    kind = "constraint-link"
-    data, held = _split_rows(_load(data, read_constraint_link, machine), split, source)
-
-    from ..instruments.constraint_link import calibrate_constraint_link
-    from .validation import constraint_link_reading_rms
-
-    result = _solve(source, calibrate_constraint_link, machine, data, held=held,
-                    method=method, sigma_m=sigma, estimate_link_length=estimate_lc,
-                    estimate_noise=options.noise is None, robust=options.robust)
-    _require_converged(result, source)
-    from ..instruments.constraint_link import PROBLEMS
-
-    kw = {} if estimate_lc is None else {"estimate_link_length": estimate_lc}
-    result.extras["rebuild_problem"] = lambda: PROBLEMS[method](machine, data, sigma, **kw)
-
-    units = file_units(machine)
-    fl = LENGTH[units["length"]]
-    calibrated = result.extras["machine"]
-    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
-    # FK start of the calibrated file: the input machine's home (a central pose of the working
-    # assembly mode) rather than the first measured pose, which may sit at the workspace edge
-    home_P, home_R = machine.home
-    if np.all(np.isfinite(calibrated.ik(home_P, home_R))):
-        calibrated.home = (home_P, home_R)
-    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
-    nominal_of["link.length"] = data.link_length
-    params = _parameter_table(result, nominal_of, units)
-    r = np.asarray(result.residuals, float)
-    if "used" in result.extras:             # the rows in the fit (not those left out)
-        r = r[np.asarray(result.extras["used"], bool).reshape(len(r), -1).all(axis=-1)]
-    r_m = r * sigma
-    rank = int(result.rank)
-    n_free = int(np.sum(result.parameters.free))
-    s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
-    dropped = [int(v) for v in np.asarray(result.extras.get("dropped_rows", []))]
-    lc_index = result.parameters.names.index("link.length") \
-        if "link.length" in result.parameters.names else None
-    lc_estimated = lc_index is not None and not bool(result.parameters.fixed[lc_index])
-    lc = float(result.extras.get("link_length", data.link_length))
-    residual_what = {"ml": "all joint readings", "ik": "passive joint readings",
-                     "fk": "computed link length |P| - Lc"}[method]
-    report = {
-        **_report_head(machine, source, kind, method, units),
-        "measurements": len(data),
-        "dropped_rows": dropped,
-        "noise_sigma_um": sigma * 1e6,
-        "link_length": {"value": lc / fl, "assumed": data.link_length / fl,
-                        "unit": units["length"], "estimated": lc_estimated,
-                        "std": params[lc_index]["std"] if lc_estimated else None},
-        "convergence": _convergence_json(result),
-        "residuals": {
-            "of": residual_what,
-            "count": int(r.size),
-            "rms_um": float(np.sqrt(np.mean(r_m**2)) * 1e6) if r.size else None,
-            "max_abs_um": float(np.max(np.abs(r_m)) * 1e6) if r.size else None,
-            "rms_per_column_um": (np.sqrt(np.mean(r_m**2, axis=0)) * 1e6).tolist()
-            if r.ndim == 2 and r.shape[1] > 1 else None,
-            "before_rms_um": _um(constraint_link_reading_rms(machine, data, sigma)),
-            "before": "machine file's geometry, all readings, poses fitted (maximum "
-                      "likelihood)",
-            "residual_variance": float(result.residual_variance),
-            "estimated_noise_um": float(np.sqrt(result.residual_variance) * sigma * 1e6)
-            if np.isfinite(result.residual_variance) else None,
-            "dof": int(result.dof),
-        },
-        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
-        "parameters": _public(params),
-    }
-    if "start_from" in result.extras:       # the paper's methods: where they started
-        report["start"] = result.extras["start_from"]
-    if held is not None:
-        report["validation"] = _validation(
-            split, held, "joint readings of the held-out rows (poses fitted, geometry and Lc "
-            "held); before: the machine file's geometry", "um",
-            _um(constraint_link_reading_rms(machine, held, sigma)),
-            _um(constraint_link_reading_rms(calibrated, dataclasses.replace(held, link_length=lc),
-                                            sigma)),
-            report["residuals"]["rms_um"])
-    metadata = {
-        "method": method,
-        "date": report["date"],
-        "data": path_text(source),
-        "machine": _source_of(machine),
-        "measurements": len(data),
-        "rms_residual_um": report["residuals"]["rms_um"],
-        "identifiable": rank,
-        "free_parameters": n_free,
-        **_identifiability_metadata(unidentifiable),
-        "link_length_estimated": lc_estimated,
-    }
-    calibration = _finish(kind, machine, calibrated, result, report, metadata, params, units)
-    if "warnings" in result.extras:         # ml: the start strategy says what it left out
-        calibration.warnings += [f"{path_text(source)}: "
-                                 f"{text}" for text in result.extras["warnings"]]
-    elif dropped:
-        calibration.warnings.append(
-            f"{path_text(source)}: "
-            f"{len(dropped)} row(s) left out (no pose from the five active readings "
-            f"and the link with the start geometry): {rows_text(dropped)}")
-    return calibration
-
-
-# -- laser tracker -----------------------------------------------------------------------------
-
-
-def grid_neighbour_pairs(P, abs_tol: float = 1e-4, rel_tol: float = 0.01) -> np.ndarray:
-    """Index pairs of neighbouring points of an axis-aligned grid.
-
-    ``j`` is the neighbour of ``i`` along an axis when ``P_j - P_i`` points along the positive
-    axis (off-axis part within ``abs_tol + rel_tol * distance``) and no closer point lies that
-    way; missing grid points are allowed. Seed 001 Fig. 6 compares such pairs.
-
-    Parameters
-    ----------
-    P : array_like, shape (K, 3)
-        Positions, m.
-    abs_tol : float, optional
-        Absolute off-axis tolerance, m.
-    rel_tol : float, optional
-        Off-axis tolerance relative to the distance.
-
-    Returns
-    -------
-    ndarray of int, shape (n, 2)
-        The pairs ``(i, j)``.
-    """
-    P = np.asarray(P, float)
-    K = len(P)
-    pairs = []
-    for start in range(0, K, 512):                       # K x K temporaries in blocks
-        D = P[None, :, :] - P[start:start + 512, None, :]   # (B, K, 3) P_j - P_i
-        for axis in range(3):
-            along = D[..., axis]
-            off = np.linalg.norm(np.delete(D, axis, axis=-1), axis=-1)
-            dist = np.where((along > abs_tol) & (off <= abs_tol + rel_tol * along), along,
-                            np.inf)
-            j = np.argmin(dist, axis=1)
-            i = np.flatnonzero(np.isfinite(dist[np.arange(len(D)), j]))
-            pairs.append(np.stack([i + start, j[i]], -1))
-    return np.concatenate(pairs) if pairs else np.zeros((0, 2), int)
-
-
-def distance_ratio_pairs(machine, q) -> tuple[np.ndarray, str]:
-    """Pairs of measurements for the distance ratio (seed 001 Fig. 6).
-
-    Neighbours of the grid the readings were commanded to (``machine``'s forward kinematics
-    of them, i.e. the commanded points when ``machine`` is the controller's model); nearest
-    neighbours when the points form no grid.
-
-    Parameters
-    ----------
-    machine : Machine
-        The controller's model.
-    q : array_like, shape (K, n)
-        Joint readings.
-
-    Returns
-    -------
-    tuple
-        ``(pairs (n, 2) of row indices, how they were found)``.
-    """
-    P = machine.fk(q).P
-    ok = np.all(np.isfinite(P), axis=-1)
-    pairs = grid_neighbour_pairs(np.where(ok[:, None], P, 1e9))
-    pairs = pairs[ok[pairs].all(axis=1)] if len(pairs) else pairs
-    if len(pairs) >= max(1, len(P) // 4):      # a grid: most points have a neighbour
-        return pairs, "neighbours on the commanded grid"
-    D = np.linalg.norm(P[:, None] - P[None], axis=-1)
-    np.fill_diagonal(D, np.inf)
-    j = np.argmin(np.where(np.isfinite(D), D, np.inf), axis=1)
-    pairs = np.unique(np.sort(np.stack([np.arange(len(P)), j], -1), axis=1), axis=0)
-    return pairs[ok[pairs].all(axis=1)], "nearest neighbours (the points form no grid)"
-
-
-def _ratio_stats(r) -> dict:
-    r = np.asarray(r, float)
-    r = r[np.isfinite(r)]
-    if not r.size:
-        return {"mean": None, "std": None, "min": None, "max": None}
-    return {"mean": float(r.mean()), "std": float(r.std()), "min": float(r.min()),
-            "max": float(r.max())}
-
-
-def _check_spread(data, noise_model) -> None:
-    """Refuse (nearly) collinear tracker points: the registration's rotation about their line
-    would be fixed only by the noise. Also fewer than 4 points (seed 001 eq. 12-14)."""
-    K = len(data)
-    if K < 4:
-        raise InputError(f"{path_text(data.source)}: "
-                         f"{K} point(s): the tracker registration needs at "
-                         "least 4 points that are not on one line (seed 001 uses a 3x3x3 grid)")
-    m = data.m - data.m.mean(0)
-    sv = np.linalg.svd(m, compute_uv=False)
-    off_line = sv[1] / math.sqrt(K)                       # RMS distance from the best line
-    sigma = float(np.sqrt(np.max(np.trace(noise_model.covariance(data.m), axis1=1, axis2=2))))
-    if off_line <= max(20 * sigma, 1e-6 * sv[0]):
-        raise InputError(f"{path_text(data.source)}: "
-                         f"the {K} tracker points lie on one line or nearly (RMS "
-                         f"distance from the best line {off_line * 1e6:.3g} um, tracker noise "
-                         f"{sigma * 1e6:.3g} um): the "
-                         "rotation of the tracker about that line cannot be found; measure "
-                         "points spread in 2-3 directions (e.g. a 3x3x3 grid)")
-
-
-def _rotvec(R):
-    from ..kinematics import rotvec_from_matrix
-
-    return rotvec_from_matrix(R)
-
-
-def _check_tracker(options: CalibrateOptions, source) -> None:
-    _only_for_poses(options, source, "tracker")
-    for option, given in (("--method", options.method is not None),
-                          ("--estimate-lc", options.estimate_lc is not None)):
-        if given:
-            raise InputError(f"{option}: applies to constraint-link data; {path_text(source)} has "
-                             "tracker points (see --two-step, --robust)")
-    if options.two_step and options.robust:
-        raise InputError("--robust: applies to the joint method (its residuals are the "
-                         "noise's); --two-step holds a registration of the nominal model, whose "
-                         "residuals exceed the noise by design")
-
-
-def _calibrate_tracker(machine, data, source, options: CalibrateOptions, split) -> Calibration:
-    from ..instruments.tracker import calibrate_tracker, distance_ratios, predict_tracker_points
-    from ..io import read_tracker
-    from ..units import LENGTH
-
-    two_step, robust = options.two_step, options.robust
-    if options.noise is None or isinstance(options.noise, str):
-        noise_model, noise_text = tracker_noise_arg(options.noise, allow_none=False,
-                                                    machine=machine)
-    else:
-        noise_model, noise_text = options.noise, _tracker_noise_text(options.noise)
-    data, held = _split_rows(as_tracker_data(_load(data, read_tracker, machine)), split,
-                             source)
-    _check_spread(data, noise_model)
-    fk = machine.fk(data.q)
-    if not fk.converged.all():
-        raise InputError(f"{path_text(source)}: row(s) {rows_text(data.rows[~fk.converged])}: no "
-                         f"platform pose of {_source_of(machine)} reproduces these readings "
-                         "(outside the workspace, or a wrong unit or zero)")
-    result = _solve(source, calibrate_tracker, machine, data, noise_model, held=held,
-                    joint=not two_step, robust=robust, estimate_noise=options.noise is None)
-    _require_converged(result, source,
-                       "spread the points in all three directions, e.g. a 3x3x3 grid")
-
-    units = file_units(machine)
-    fl = LENGTH[units["length"]]
-    method = "two-step" if two_step else "joint"
-    calibrated = result.extras["machine"]
-    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
-    # FK start of the calibrated file: the input machine's home, else the measured position
-    # closest to the middle of the data that the calibrated model reaches
-    fk_cal = calibrated.fk(data.q)
-    order = np.argsort(np.linalg.norm(fk_cal.P - np.nanmean(fk_cal.P, axis=0), axis=1))
-    for P_home, R_home in [machine.home, *zip(fk_cal.P[order], fk_cal.R[order], strict=True)]:
-        if np.all(np.isfinite(calibrated.ik(P_home, R_home))):
-            calibrated.home = (np.asarray(P_home, float), np.asarray(R_home, float))
-            break
-    R, t = result.extras["registration"]
-    R0, t0 = result.extras["start_registration"]
-    given = machine.tracker_target() is not None
-    targets, targets0 = result.extras["targets"], result.extras["start_targets"]
-    calibrated.tracker_targets = None if given else np.array(targets, float)
-    kept = np.asarray(result.extras["kept"], bool)
-    outlier_rows = [int(v) for v in result.extras["outlier_rows"]]
-
-    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
-    nominal_of.update(zip(("tracker.rx", "tracker.ry", "tracker.rz"), (0.0, 0.0, 0.0),
-                          strict=True))
-    nominal_of.update(zip(("tracker.x", "tracker.y", "tracker.z"), t0, strict=True))
-    params = _parameter_table(result, nominal_of, units)
-
-    # residuals in the tracker frame (m); before = nominal model + closed-form registration
-    r = data.m - predict_tracker_points(calibrated, data.q, (R, t), targets, data.target)
-    r0 = data.m - predict_tracker_points(machine, data.q, (R0, t0), targets0, data.target)
-    norm, norm0 = np.linalg.norm(r, axis=1), np.linalg.norm(r0, axis=1)
-    rms = lambda v: float(np.sqrt(np.mean(v**2)) * 1e6) if v.size else None  # noqa: E731
-    # distance ratio (seed 001 Fig. 6) over pairs of kept rows
-    pairs, pairs_from = distance_ratio_pairs(machine, data.q)
-    pairs = pairs[kept[pairs].all(axis=1)] if len(pairs) else pairs
-    d_meas = np.linalg.norm(data.m[pairs[:, 0]] - data.m[pairs[:, 1]], axis=-1) \
-        if len(pairs) else np.zeros(0)
-    pairs = pairs[d_meas > 1e-9] if len(pairs) else pairs
-    ratio_before = distance_ratios(machine, data.q, data.m, pairs, targets0, data.target) \
-        if len(pairs) else []
-    ratio_after = distance_ratios(calibrated, data.q, data.m, pairs, targets, data.target) \
-        if len(pairs) else []
-    before, after = _ratio_stats(ratio_before), _ratio_stats(ratio_after)
-
-    rank = int(result.rank)
-    n_free = int(np.sum(result.parameters.free))
-    s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
-    combinations = calibrated.identifiable_combinations()
-    if combinations is not None:
-        combinations = {k: (v if k == "description" else (np.asarray(v) / fl).tolist())
-                        for k, v in combinations.items()}
-        combinations["description"] += " (file length unit)"
-    rot_change = float(np.degrees(np.linalg.norm(_rotvec(R @ R0.T))))
-    report = {
-        **_report_head(machine, source, "tracker", method),
-        "robust": robust,
-        "units": units,
-        "measurements": len(data),
-        "used": int(kept.sum()),
-        "outlier_rows": outlier_rows,
-        "noise": noise_text,
-        **({"smr_offset": float(-machine.tracker_target()[2]) / fl} if given else {}),
-        "targets": {"given_by_machine_file": given, "unit": units["length"],
-                    "places": (np.asarray(targets, float) / fl).tolist(),
-                    "what": "target places on the platform (platform frame)"},
-        "registration": {
-            "estimated": not two_step,
-            "rotation": R.tolist(), "translation": (np.asarray(t) / fl).tolist(),
-            "unit": units["length"],
-            "start": {"rotation": R0.tolist(), "translation": (np.asarray(t0) / fl).tolist(),
-                      "method": "closed form (SVD) with the nominal model"},
-            "rotation_change_deg": rot_change,
-            "translation_change": float(np.linalg.norm(t - t0) / fl),
-        },
-        "convergence": _convergence_json(result),
-        "residuals": {
-            "of": "tracker points, measured - predicted (3-D distance, tracker frame)",
-            "count": int(kept.sum()),
-            "rms_um": rms(norm[kept]),
-            "max_um": float(norm[kept].max() * 1e6) if kept.any() else None,
-            "rms_per_axis_um": (np.sqrt(np.mean(r[kept] ** 2, axis=0)) * 1e6).tolist(),
-            "before_rms_um": rms(norm0[kept]),
-            "before": "machine file's model, closed-form registration" if given else
-                      "machine file's model, tracker frame and targets fitted alone",
-            "residual_variance": float(result.residual_variance),
-            "noise_scale": float(np.sqrt(result.residual_variance))
-            if np.isfinite(result.residual_variance) else None,
-            "dof": int(result.dof),
-            "outliers": [{"row": int(row), "residual_um": float(v * 1e6)} for row, v in
-                         zip(data.rows[~kept], norm[~kept], strict=True)],
-        },
-        "distance_ratio": {
-            "unit": "%", "pairs": int(len(pairs)), "pairs_from": pairs_from,
-            "before": before, "after": after,
-        },
-        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
-        **({"identifiable_combinations": combinations} if combinations else {}),
-        "parameters": _public(params),
-    }
-    if held is not None:
-        d_after = np.linalg.norm(held.m - predict_tracker_points(
-            calibrated, held.q, (R, t), targets, held.target), axis=1)
-        d_before = np.linalg.norm(held.m - predict_tracker_points(
-            machine, held.q, (R0, t0), targets0, held.target), axis=1)
-        ok = np.isfinite(d_after) & np.isfinite(d_before)
-        report["validation"] = _validation(
-            split, held, "tracker points of the held-out rows, measured - predicted (3-D "
-            "distance) with the identified tracker pose; before: the machine file's model and "
-            "the closed-form registration of the calibration rows", "um",
-            rms(d_before[ok]), rms(d_after[ok]), report["residuals"]["rms_um"],
-            max_after=float(d_after[ok].max() * 1e6) if ok.any() else None,
-            not_reached=[int(r) for r in held.rows[~ok]])
-    metadata = {
-        "method": f"tracker-{method}",
-        "date": report["date"],
-        "data": path_text(source),
-        "machine": _source_of(machine),
-        "measurements": len(data),
-        "outlier_rows": outlier_rows,
-        "rms_residual_um": report["residuals"]["rms_um"],
-        "identifiable": rank,
-        "free_parameters": n_free,
-        **_identifiability_metadata(unidentifiable),
-        "distance_ratio_std_percent": {"before": before["std"], "after": after["std"]},
-    }
-    return _finish("tracker", machine, calibrated, result, report, metadata, params, units)
-
-
-# -- full pose ---------------------------------------------------------------------------------
-
-
-def _frame_report(frame, fl: float, unit: str) -> dict:
-    from ..kinematics import rotation_angle
-
-    R, t = frame
-    return {"rotation": np.asarray(R, float).tolist(),
-            "translation": (np.asarray(t, float) / fl).tolist(), "unit": unit,
-            "rotation_angle_deg": float(np.degrees(rotation_angle(np.asarray(R, float))))}
-
-
-def _errors_report(errors, fl: float) -> dict:
-    s = errors.summary()
-    return {"leg_length_rms": s["leg_length_rms"] / fl, "leg_length_max": s["leg_length_max"] / fl,
-            "leg_length_rms_per_leg": [v / fl for v in s["leg_length_rms_per_leg"]],
-            "position_rms": s["position_rms"] / fl, "position_max": s["position_max"] / fl,
-            "orientation_rms_deg": float(np.degrees(s["orientation_rms"])),
-            "orientation_max_deg": float(np.degrees(s["orientation_max"])),
-            "fk_failed": s["fk_failed"]}
-
-
-def _check_full_pose(options: CalibrateOptions, source) -> None:
-    for option, given in (("--estimate-lc", options.estimate_lc is not None),
-                          ("--two-step", options.two_step)):
-        if given:
-            raise InputError(f"{option}: does not apply to full-pose data ({path_text(source)}); "
-                             "see --method ml|ik, --fix-frames, --noise, --pose-noise, --robust")
-    if options.robust and options.method == "ik":
-        raise InputError("--robust: applies to the ml method (its residuals are the noise's); "
-                         "--method ik takes the measured poses as exact")
-    if options.method not in (None, "ml", "ik"):
-        raise InputError(f"--method {options.method}: full-pose data are calibrated by ml "
-                         "(maximum likelihood, default) or ik (inverse-kinematic residuals)")
-
-
-def _calibrate_full_pose(machine, data, source, options: CalibrateOptions,
-                         split) -> Calibration:
-    from ..instruments.pose import (
-        FullPoseNoise,
-        MeasurementFrames,
-        calibrate_full_pose,
-        full_pose_errors,
-    )
-    from ..io import read_full_pose
-    from ..machines.stewart import reading_factor
-    from ..units import LENGTH
-
-    method, fix_frames = options.method or "ml", options.fix_frames
-    noise_model, hold = pose_noise_option(options.noise, options.pose_noise, machine)
-    data, held = _split_rows(_load(data, read_full_pose, machine), split, source)
-    file_frames = getattr(machine, "measurement_frames", None)
-    if fix_frames:
-        frames = file_frames if file_frames is not None else MeasurementFrames.identity()
-        frames_from = ("the machine file's measurement_frames" if file_frames is not None
-                       else "identity (the machine file has no measurement_frames)")
-    else:
-        frames = file_frames
-        frames_from = ("start: the machine file's measurement_frames" if file_frames is not None
-                       else "start: closed form from the design model")
-    result = _solve(source, calibrate_full_pose, machine, data, held=held, method=method,
-                    noise=noise_model, frames=frames, fix_frames=fix_frames,
-                    estimate_noise=hold, robust=options.robust)
-    # the machine's model extensions (a leg's reading curvature ...), adopted only when they
-    # predict rows held out of the fit better (k-fold cross-validation on these data)
-    model, choice = machine, None
-    if options.extensions != "none" and machine.model_extensions():
-        from .extensions import choose_full_pose_extensions
-
-        _require_converged(result, source)
-        levels = result.extras.get("noise")
-        cv_noise = noise_model if levels is None else FullPoseNoise(
-            **{f"{k}_{'rad' if k == 'orientation' else 'm'}": v
-               for k, v in zip(levels.keys, levels.sigma, strict=True)})
-        choice = choose_full_pose_extensions(machine, data, method, cv_noise, frames=frames,
-                                             fix_frames=fix_frames)
-        if choice.adopted:
-            model = choice.machine
-            result = _solve(source, calibrate_full_pose, model, data, held=held,
-                            method=method, noise=noise_model, frames=frames,
-                            fix_frames=fix_frames, estimate_noise=hold, robust=options.robust)
-        result.extras["extensions"] = choice
-    # the machine file's legs with the frames fitted alone: "before calibration"
-    before = _solve(source, calibrate_full_pose, machine, data, held=held, method=method,
-                    noise=noise_model, frames=frames if fix_frames
-                    else result.extras["start_frames"], fix_frames=fix_frames,
-                    fit_machine=False)
-    _require_converged(result, source)
-
-    units = file_units(machine)
-    fl = LENGTH[units["length"]]
-    calibrated = result.extras["machine"]
-    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
-    calibrated.home = machine.home
-    frames_id = result.extras["frames"]
-    err_after = full_pose_errors(calibrated, frames_id, data)
-    err_before = full_pose_errors(machine, before.extras["frames"], data)
-
-    reading_unit = getattr(machine, "reading_unit", None) or machine.joint_unit()[0]
-    gain_factor = fl / reading_factor(reading_unit)         # internal gain -> file gain
-    nominal_of = dict(zip(model.parameters.names, model.u, strict=True))
-    start = result.extras["start_frames"]
-    for name, (R, t) in (("mocap_from_base", start.mocap_from_base),
-                         ("platform_from_marker", start.platform_from_marker)):
-        nominal_of.update({f"{name}.r{c}": 0.0 for c in "xyz"})
-        nominal_of.update({f"{name}.{c}": v for c, v in zip("xyz", t, strict=True)})
-    params = _parameter_table(result, nominal_of, units)
-    for p in params:
-        if p["name"].endswith(".gain"):
-            for key in ("nominal", "identified", "change", "std"):
-                if p[key] is not None:
-                    p[key] = p[key] / gain_factor
-            p["unit"] = f"{units['length']}/{reading_unit}"
-        elif p["name"].endswith(".curvature"):           # internal -> file length / reading^2
-            for key in ("nominal", "identified", "change", "std"):
-                if p[key] is not None:
-                    p[key] = p[key] * reading_factor(reading_unit) ** 2 / fl
-            p["unit"] = f"{units['length']}/{reading_unit}^2"
-    rank = int(result.rank)
-    n_free = int(np.sum(result.parameters.free))
-    s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
-    # the ik estimate takes the poses as exact, but their noise is in the residuals: its
-    # residual test is against the whole noise (readings + poses through the IK); the residuals
-    # section states the verdict's numbers (_finish)
-    variance = float(result.residual_variance)
-    after, before_rep = _errors_report(err_after, fl), _errors_report(err_before, fl)
-    extensions = (choice.as_dict({"leg_length": (fl, units["length"]), "position": (
-        fl, units["length"]), "orientation": (math.pi / 180, "deg")}) if choice is not None
-        else {"tried": [], "adopted": [], "skipped": "--extensions none" if
-              options.extensions == "none" else "the machine offers none"})
-    report = {
-        **_report_head(machine, source, "pose", method, units),
-        "reading_unit": reading_unit,
-        "measurements": len(data),
-        "noise": {"reading_um": noise_model.reading_m * 1e6,
-                  "position_um": noise_model.position_m * 1e6,
-                  "orientation_urad": noise_model.orientation_rad * 1e6},
-        "frames": {
-            "fixed": bool(fix_frames), "from": frames_from,
-            "mocap_from_base": _frame_report(frames_id.mocap_from_base, fl, units["length"]),
-            "platform_from_marker": _frame_report(frames_id.platform_from_marker, fl,
-                                                  units["length"]),
-        },
-        "convergence": _convergence_json(result),
-        "residuals": {
-            "unit": units["length"],
-            "leg_length": "l0 + gain q minus the leg length at the measured pose (through the "
-                          "frames)",
-            "pose": "measured marker pose minus the one forward kinematics of the readings "
-                    "predict (through the frames)",
-            "before": "the machine file's legs, frames fitted alone",
-            "before_calibration": before_rep,
-            "after_calibration": after,
-            "residual_variance": variance,
-            "noise_scale": math.sqrt(variance) if math.isfinite(variance) else None,
-            "dof": int(result.dof),
-        },
-        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
-        "parameters": _public(params),
-        "model_extensions": extensions,
-    }
-    if held is not None:
-        h_after = _errors_report(full_pose_errors(calibrated, frames_id, held), fl)
-        h_before = _errors_report(full_pose_errors(machine, before.extras["frames"], held), fl)
-        report["validation"] = _validation(
-            split, held, "pose error of the held-out rows: forward kinematics of the readings "
-            "(through the identified frames) vs the measured pose; before: the machine file's "
-            "legs, frames fitted alone on the calibration rows", units["length"],
-            *json_safe([h_before["position_rms"], h_after["position_rms"],
-                        after["position_rms"]]), before_calibration=h_before,
-            after_calibration=h_after)
-    metadata = {
-        "method": f"full-pose-{method}",
-        "date": report["date"],
-        "data": path_text(source),
-        "machine": _source_of(machine),
-        "measurements": len(data),
-        "leg_length_rms": {"before": before_rep["leg_length_rms"],
-                           "after": after["leg_length_rms"], "unit": units["length"]},
-        "frames_fixed": bool(fix_frames),
-        "model_extensions": list(choice.adopted) if choice is not None else [],
-        "identifiable": rank,
-        "free_parameters": n_free,
-        **_identifiability_metadata(unidentifiable),
-    }
-    # the nominal of the fitted model (with an adopted extension at its neutral values)
-    return _finish("pose", model, calibrated, result, report, metadata, params, units)
-
-
-# -- ballbar distances ------------------------------------------------------------------------
-
-
-def _check_distances(options: CalibrateOptions, source) -> None:
-    _only_for_poses(options, source, "distance")
-    for option, given in (("--method", options.method is not None),
-                          ("--estimate-lc", options.estimate_lc is not None),
-                          ("--two-step", options.two_step)):
-        if given:
-            raise InputError(f"{option}: does not apply to ballbar data ({path_text(source)}); see "
-                             "--noise (the ballbar's standard deviation, default 1um), "
-                             "--robust")
+# -- the ballbar's noise in a fit of several files --------------------------------------------
 
 
 def _distance_noise(noise, machine):
@@ -1899,108 +1125,16 @@ def _distance_noise(noise, machine):
     return instrument("distance").noise_arg(noise, machine)
 
 
-def _scalar_rms(problem, state, data) -> tuple[float | None, np.ndarray]:
-    """RMS (um) and residuals (m) of a one-value instrument (ballbar lengths, probe heights)
-    under a problem's state (NaN where the forward kinematics fail)."""
-    predicted = problem.predict(state, data.q, data.group)[:, 0]
-    r = data.values[:, 0] - predicted
-    ok = np.isfinite(r)
-    return (_um(math.sqrt(float(np.mean(r[ok] ** 2)))) if ok.any() else None), r
-
-
 def _fit_with_baseline(machine, data, source, split, reader, fit, noise, advice: str,
                        options: CalibrateOptions):
-    """What the instrument-layer kinds share: read and split the data, fit the instrument
-    with the machine and alone on the machine file's model (the "before" baseline), check
-    convergence, name the calibrated machine and build the parameter table (start values of
-    the instrument's unknowns as their nominal)."""
-    data, held = _split_rows(_load(data, reader, machine), split, source)
-    # the noise level from the residuals unless the user gave it; rows it cannot explain
-    # named (left out with --robust)
-    result = _solve(source, fit, machine, data, noise, held=held,
-                    estimate_noise=options.noise is None, robust=options.robust)
-    before = _solve(source, fit, machine, data, noise, held=held, fit_machine=False)
-    _require_converged(result, source, advice)
-    units = file_units(machine)
-    calibrated = result.extras["machine"]
-    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
-    calibrated.home = machine.home
-    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
-    start = result.extras["start_model"].parameters
-    nominal_of.update(zip(start.names, start.values, strict=True))
-    params = _parameter_table(result, nominal_of, units)
-    return data, held, result, before, calibrated, params, units
+    """:func:`~pkmcal.instruments.flow.fit_with_baseline` for the flows that still live here
+    (read with ``reader``; the noise estimated unless given; ``--robust``)."""
+    context = FlowContext(source=source, split=split, units=file_units(machine), date=str,
+                          read=reader)
+    return fit_with_baseline(machine, data, context, fit, noise, advice,
+                             estimate_noise=options.noise is None, robust=options.robust)
 
 
-def _calibrate_distances(machine, data, source, options: CalibrateOptions,
-                         split) -> Calibration:
-    from ..instruments.distance import calibrate_distances
-    from ..io import read_distances
-    from ..units import LENGTH
-
-    noise = _distance_noise(options.noise, machine)
-    data, held, result, before, calibrated, params, units = _fit_with_baseline(
-        machine, data, source, split, read_distances, calibrate_distances, noise,
-        "measure each mounting over a spread of poses (a sphere around the pivot, with "
-        "rotations on a platform that rotates)", options)
-    fl = LENGTH[units["length"]]
-    problem, before_problem = result.extras["problem"], before.extras["problem"]
-    rms_after, r_after = _scalar_rms(problem, result.state, data)
-    rms_before, _ = _scalar_rms(before_problem, before.state, data)
-    rank = int(result.rank)
-    n_free = int(np.sum(result.parameters.free))
-    s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
-    setups = result.extras["setups"]
-    ok = np.isfinite(r_after)
-    report = {
-        **_report_head(machine, source, "distance", "joint"),
-        "units": units,
-        "measurements": len(data),
-        "noise": f"ballbar {noise.sigma * 1e6:.4g} um (std)",
-        "setups": [{"setup": g + 1, "rows": int(np.sum(data.group == g)),
-                    "pivot": (p / fl).tolist(), "ball": (b / fl).tolist(),
-                    "unit": units["length"]} for g, (p, b) in enumerate(setups)],
-        "convergence": _convergence_json(result),
-        "residuals": {
-            "of": "ballbar lengths, measured - predicted (forward kinematics of the readings)",
-            "count": int(ok.sum()),
-            "rms_um": rms_after,
-            "max_abs_um": _um(float(np.max(np.abs(r_after[ok])))) if ok.any() else None,
-            "before_rms_um": rms_before,
-            "before": "machine file's model, mountings (pivots and balls) fitted alone",
-            "residual_variance": float(result.residual_variance),
-            "noise_scale": float(np.sqrt(result.residual_variance))
-            if np.isfinite(result.residual_variance) else None,
-            "dof": int(result.dof),
-        },
-        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
-        "parameters": _public(params),
-    }
-    if held is not None:
-        report["validation"] = _validation(
-            split, held, "ballbar lengths of the held-out rows, measured - predicted with the "
-            "identified mountings; before: the machine file's model with the mountings fitted "
-            "alone on the calibration rows", "um",
-            _scalar_rms(before_problem, before.state, held)[0],
-            _scalar_rms(problem, result.state, held)[0], rms_after)
-    metadata = {
-        "method": "ballbar",
-        "date": report["date"],
-        "data": path_text(source),
-        "machine": _source_of(machine),
-        "measurements": len(data),
-        "rms_residual_um": rms_after,
-        "identifiable": rank,
-        "free_parameters": n_free,
-        **_identifiability_metadata(unidentifiable),
-    }
-    return _finish("distance", machine, calibrated, result, report, metadata, params, units)
-
-
-# --------------------------------------------------------------------------------------------
-# named parameter sets (--parameters)
-# --------------------------------------------------------------------------------------------
 
 
 def _machines_with_sets() -> list[str]:
@@ -2623,15 +1757,81 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
 
 
 # --------------------------------------------------------------------------------------------
-# the kinds of today
+# instruments whose calibration flow lives in their module (Instrument.calibrate)
 # --------------------------------------------------------------------------------------------
 
-register_kind(MeasurementKind("tracker", _calibrate_tracker, _check_tracker, _joint_tracker))
-register_kind(MeasurementKind("pose", _calibrate_full_pose, _check_full_pose))
-register_kind(MeasurementKind("distance", _calibrate_distances, _check_distances,
-                              _joint_distances))
-register_kind(MeasurementKind("constraint-link", _calibrate_constraint_link,
-                              _check_constraint_link))
+#: the joint-fit part of an instrument whose own flow lives in its module, by the
+#: instrument's name (:func:`register_joint_part`); these parts still live here with the joint
+#: flow (issue 38: they move into the instruments with it)
+JOINT_PARTS: dict[str, Callable] = {}
+
+
+def register_joint_part(name: str, joint: Callable) -> Callable:
+    """Make ``joint(machine, data, source, noise) -> JointPart`` the part an instrument of
+    its own flow brings to a fit of several files.
+
+    Parameters
+    ----------
+    name : str
+        The instrument's registry name.
+    joint : callable
+        The part.
+
+    Returns
+    -------
+    callable
+        ``joint``.
+    """
+    JOINT_PARTS[name] = joint
+    return joint
+
+
+register_joint_part("tracker", _joint_tracker)
+register_joint_part("distance", _joint_distances)
+
+
+def _io_reader(name: str):
+    """``read(path, machine)``: the :mod:`pkmcal.io` function of that name."""
+    from .. import io
+
+    return getattr(io, name)
+
+
+def _calibrate_flow(machine, data, source, options: CalibrateOptions, split,
+                    inst) -> Calibration:
+    """Calibration from an instrument with a flow of its own
+    (:meth:`~pkmcal.instruments.base.Instrument.calibrate`): the flow fits and reports, given
+    only the options it declares; every calibration's end (:func:`_finish`) follows."""
+    from ..report.provenance import run_date
+    from . import extensions
+
+    context = FlowContext(source=source, split=split, units=file_units(machine),
+                          date=run_date, read=_io_reader(inst.calibration_reader or inst.reader),
+                          model_choice=extensions)
+    out = inst.calibrate(machine, data, context, inst.options_of(options))
+    calibration = _finish(out.kind, out.machine, out.calibrated, out.result, out.report,
+                          out.metadata, out.params, out.units)
+    calibration.warnings += out.warnings
+    return calibration
+
+
+def flow_kind(inst) -> MeasurementKind:
+    """The calibration of an instrument with a flow of its own: its
+    :meth:`~pkmcal.instruments.base.Instrument.calibrate`, its option check and its joint part
+    (:data:`JOINT_PARTS`, else the generic one).
+
+    Parameters
+    ----------
+    inst : Instrument
+        A registry entry with :attr:`~pkmcal.instruments.base.Instrument.Options`.
+
+    Returns
+    -------
+    MeasurementKind
+        Its calibration, option check and joint part.
+    """
+    return MeasurementKind(inst.name, partial(_calibrate_flow, inst=inst), inst.check_options,
+                           JOINT_PARTS.get(inst.name))
 
 
 # -- any instrument of the shared layer: a model without unknowns of the machine's frame ----

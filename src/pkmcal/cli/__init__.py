@@ -100,7 +100,7 @@ def _reset_column_map() -> None:
 
 
 ColumnsOpt = Annotated[str | None, typer.Option(
-    "--columns", metavar="PKMCAL=FILE,...", callback=_column_map, show_default=False,
+    "--columns", metavar="MAP", callback=_column_map, show_default=False,
     help="Rename the data file's columns to pkmcal's names before reading, for files from "
          "other tools: comma-separated pairs PKMCAL=FILE, left pkmcal's name with its unit, "
          "right the file's column, e.g. q1_rev=leg_length_1 (and so on per leg), "
@@ -112,6 +112,15 @@ WorkspaceOpt = Annotated[str | None, typer.Option(
          "orientations within +/-10 deg): a box X0,X1,Y0,Y1,Z0,Z1 with units (e.g. "
          "'-50mm, 50mm, -50mm, 50mm, 250mm, 350mm'; orientations as by default), or a CSV of "
          "points `x_<len>, y_<len>, z_<len>` [+ `psi/theta/phi_<ang>` or qx..qw].")]
+
+
+def _either(yes: bool, no: bool, yes_name: str, no_name: str) -> bool | None:
+    """A switch given as two flags (two rows of the help, which reads at 80 columns where a
+    ``--x/--no-x`` pair widens every row): True, False, or None when neither is given."""
+    if yes and no:
+        raise typer.BadParameter(f"{yes_name} and {no_name} together: give one",
+                                 param_hint=f"'{no_name}'")
+    return True if yes else False if no else None
 
 
 def _version(value: bool) -> None:
@@ -284,6 +293,7 @@ def calibrate(
              "readings and measured poses noisy (default); ik inverse-kinematic residuals "
              "(Zhuang, Yan & Masory 1998), measured poses exact.", show_default=False)] = None,
     noise: Annotated[list[str] | None, typer.Option(
+        metavar="NOISE",
         help="Measurement noise, held as given. Without it the noise levels are estimated "
              "from the residuals (the defaults below are the start and are kept where the data "
              "cannot check them; the report's noise_model section). constraint-link: encoder "
@@ -294,9 +304,9 @@ def calibrate(
              "per file (e.g. --noise bar.csv=2um --noise pts.csv=leica); files not named have "
              "their levels estimated.", show_default=False)] = None,
     pose_noise: Annotated[list[str] | None, typer.Option(
-        "--pose-noise", help="pose data: noise of the measured poses, POSITION,ORIENTATION "
-                             "with units, held as given (default: estimated from the "
-                             "residuals, starting from 20um,50urad).",
+        "--pose-noise", metavar="POS,ORI",
+        help="pose data: noise of the measured poses, POSITION,ORIENTATION with units, held "
+             "as given (default: estimated from the residuals, starting from 20um,50urad).",
         show_default=False)] = None,
     report: Annotated[Path | None, typer.Option(
         "--report", metavar="DIR", file_okay=False,
@@ -314,10 +324,12 @@ def calibrate(
                              "platform_from_marker) at the machine file's measurement_frames "
                              "(identity without that section) instead of estimating them.")]
     = False,
-    estimate_lc: Annotated[bool | None, typer.Option(
-        "--estimate-lc/--no-estimate-lc",
-        help="Estimate the constraint-link length too (default: only with --method fk).",
-        show_default=False)] = None,
+    estimate_lc: Annotated[bool, typer.Option(
+        "--estimate-lc", help="Estimate the constraint-link length too (default: only with "
+                              "--method fk).")] = False,
+    no_estimate_lc: Annotated[bool, typer.Option(
+        "--no-estimate-lc", help="Hold the constraint-link length at the machine file's, "
+                                 "with --method fk too.")] = False,
     two_step: Annotated[bool, typer.Option(
         "--two-step", help="tracker data: the paper's method, registration first (closed form "
                            "with the nominal model) and then the errors with the registration "
@@ -332,7 +344,8 @@ def calibrate(
              "calibrate on the rest and report the held-out residuals before and after "
              "calibration (the report's validation section).", show_default=False)] = None,
     seed: Annotated[int, typer.Option(
-        min=0, help="Seed of the random choice of held-out rows (--holdout).")] = 0,
+        min=0, metavar="N", help="Seed of the random choice of held-out rows (--holdout); "
+                                 "a whole number, 0 or more.")] = 0,
     json_output: Annotated[bool, typer.Option(
         "--json", help="Print the JSON report on stdout instead of the summary.")] = False,
     columns: ColumnsOpt = None,
@@ -343,8 +356,9 @@ def calibrate(
              "held out of the fit better (5-fold cross-validation, in the report); none fits "
              "the plain model. Other data take no extensions and refuse it.")] = None,
     bed_tilt: Annotated[str | None, typer.Option(
-        "--bed-tilt", metavar="auto|estimate|square", show_default=False,
-        help="Probe heights on a printer (its frame is its bed, z = 0): auto (default) "
+        "--bed-tilt", metavar="MODE", show_default=False,
+        help="Probe heights on a printer (its frame is its bed, z = 0); MODE auto, estimate "
+             "or square: auto (default) "
              "estimates the bed's tilt against the towers where the data tell it from the "
              "parameter set and takes the bed square to the towers otherwise, as the firmware "
              "does; estimate / square force either.")] = None,
@@ -388,7 +402,10 @@ def calibrate(
     from ._commands import run_calibrate
 
     raise typer.Exit(run_calibrate(machine, data, output, method.value if method else None,
-                                   noise, estimate_lc, json_output, two_step, robust,
+                                   noise,
+                                   _either(estimate_lc, no_estimate_lc, "--estimate-lc",
+                                           "--no-estimate-lc"),
+                                   json_output, two_step, robust,
                                    pose_noise=pose_noise, fix_frames=fix_frames,
                                    report_dir=report, holdout=holdout, seed=seed,
                                    parameters=parameters, extensions=extensions,
@@ -740,7 +757,12 @@ def export_command(
     to: Annotated[str, typer.Option(
         "--to", metavar="FORMAT", show_default=False,
         help=f"The controller's parameter format: {formats()}.")],
-    output: OutFile,
+    output: Annotated[str, typer.Option(
+        "-o", "--output", metavar="FILE|DIR/", show_default=False,
+        help="Output file (written atomically); for the linuxcnc-* formats a directory (a "
+             "name ending in '/' or an existing directory) gets a whole LinuxCNC "
+             "configuration that starts: machine.ini, machine.hal, kinematics.hal, "
+             "drives.hal, tool.tbl, README.md.")],
     nominal: Annotated[str | None, typer.Option(
         help="The machine file the controller's current values come from (e.g. the nominal "
              "one): also report the error they leave on the calibrated machine.",
@@ -762,6 +784,8 @@ def export_command(
 
     Example: `pkmcal export calibrated.yaml --to linuxcnc-genhexkins -o hexapod.hal`
 
+    Example: `pkmcal export calibrated.yaml --to linuxcnc-genhexkins -o hexapod/`
+
     Example: `pkmcal export cal.yaml --to klipper --nominal printer.yaml -o printer.cfg`
     """
     from ._export import run_export
@@ -773,7 +797,9 @@ def export_command(
 def import_command(
     path: Annotated[Path, typer.Argument(
         metavar="FILE", show_default=False,
-        help="The controller's parameter file (e.g. a .hal, printer.cfg or G-code lines).")],
+        help="The controller's parameter file (e.g. a .hal, printer.cfg or G-code lines); "
+             "for the linuxcnc-* formats also a configuration: its INI file or directory "
+             "(the joints' zeros from [JOINT_n] HOME_OFFSET).")],
     source_format: Annotated[str, typer.Option(
         "--from", metavar="FORMAT", show_default=False,
         help=f"The file's format: {formats()}.")],
@@ -786,6 +812,8 @@ def import_command(
     calibration from what the machine runs today.
 
     Example: `pkmcal import hexapod.hal --from linuxcnc-genhexkins -o machine.yaml`
+
+    Example: `pkmcal import hexapod/ --from linuxcnc-genhexkins -o machine.yaml`
 
     Example: `pkmcal import printer.cfg --from klipper --like examples/linear_delta.yaml -o
     printer.yaml`

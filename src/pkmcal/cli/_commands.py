@@ -16,8 +16,8 @@ import numpy as np
 from ..calibration.run import file_units as _units
 from ..calibration.run import json_safe as _finite_or_none
 from ..calibration.run import rows_text as _rows_text
-from ..calibration.run import tracker_noise_arg
 from ..errors import InputError
+from ..instruments.tracker import tracker_noise_arg
 from ..io import (
     atomic_write_text,
     joint_quantity,

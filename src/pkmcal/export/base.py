@@ -167,6 +167,9 @@ class ControllerParameters:
     #: where each value was read (a name of ``names`` or ``extras`` -> :class:`Origin`): the
     #: source map through which ``pkmcal import`` names the user's file, key and line
     origins: dict = field(default_factory=dict)
+    #: what a reader of the file passed over or decided, in words (``pkmcal import`` prints
+    #: each as a note)
+    notes: list = field(default_factory=list)
 
     def __post_init__(self):
         self.values = np.asarray(self.values, float).reshape(-1)
@@ -188,7 +191,7 @@ class ControllerParameters:
         """
         return ControllerParameters(list(self.names), np.asarray(values, float),
                                     list(self.kinds), self.fixed.copy(), dict(self.extras),
-                                    dict(self.origins))
+                                    dict(self.origins), list(self.notes))
 
     def as_dict(self) -> dict:
         """Name -> value (SI).
@@ -281,6 +284,98 @@ class ControllerFormat(ABC):
             The reason in words; None (the default): any layout.
         """
         return None
+
+    def placed(self, params: ControllerParameters, machine: Machine,
+               P) -> ControllerParameters:
+        """The start values with the controller's frame placed for the workspace.
+
+        A controller whose coordinates have an origin of their own (Klipper's bed at
+        ``z = 0``, below every target and reachable at the centre) chooses it here, among the
+        fixed values; the default keeps the values as :meth:`initial` gives them.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values of :meth:`initial`.
+        machine : Machine
+            The machine.
+        P : ndarray, shape (K, 3)
+            The workspace's positions, m (the machine file's frame).
+
+        Returns
+        -------
+        ControllerParameters
+            The values to fit from.
+
+        Raises
+        ------
+        InputError
+            When no place of the controller's origin lets it run the workspace, naming why.
+        """
+        return params
+
+    def export_notes(self, params: ControllerParameters, machine: Machine,
+                     P=None) -> list[str]:
+        """What the user must know to use the written file, in words (the controller's frame
+        against the machine file's, a relabelling of the joints); printed by ``pkmcal
+        export`` and kept in its JSON record.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values written.
+        machine : Machine
+            The machine they are for.
+        P : ndarray, shape (K, 3), optional
+            The workspace's positions, m.
+
+        Returns
+        -------
+        list of str
+            The notes; none by default.
+        """
+        return []
+
+    def written(self, params: ControllerParameters, machine: Machine,
+                existing: str | None = None,
+                source: str = "") -> tuple[str, ControllerParameters]:
+        """The file's text and the values as the controller reads them back from it.
+
+        The text is :meth:`text`, or, onto an ``existing`` file, :meth:`update` of it (as the
+        controller saves its values, e.g. Klipper's ``SAVE_CONFIG`` with ``%.6f``); the
+        values are :meth:`parse` of that text: the fitted values rounded as written (in the
+        form the file holds them: a firmware that writes its endstop adjustments relative to
+        the highest has them so). A value the file does not state (no line in the parse's
+        :attr:`~ControllerParameters.origins`: pkmcal's frame and joint order, which the
+        controller does not read) is kept as it is.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The fitted values.
+        machine : Machine
+            The machine they are for.
+        existing : str, optional
+            The controller's current file, updated in place of a new one.
+        source : str, optional
+            That file's name (its includes are read beside it).
+
+        Returns
+        -------
+        text : str
+            The file as written.
+        written : ControllerParameters
+            The values as the file holds them, the fixed ones ``params``'.
+        """
+        text = None if existing is None else self.update(existing, params, machine, source)
+        if text is None:
+            text = self.text(params, machine)
+        back = self.parse(text, source or f"{self.name} export")
+        mine = params.as_dict()
+        stated = {n for n, o in back.origins.items() if o.line is not None}
+        values = np.array([v if n in stated or n not in mine else mine[n]
+                           for n, v in zip(back.names, back.values, strict=True)])
+        return text, back.with_values(values)
 
     @abstractmethod
     def initial(self, machine: Machine) -> ControllerParameters:
@@ -480,6 +575,8 @@ class ExportResult:
         (RMS, max), m; None without such points.
     before_height_rms, before_height_max : float or None
         The same for ``nominal``'s values.
+    notes : list of str
+        What the user must know to use the file (:meth:`ControllerFormat.export_notes`).
     """
 
     format: str
@@ -495,6 +592,7 @@ class ExportResult:
     height_max: float | None = None
     before_height_rms: float | None = None
     before_height_max: float | None = None
+    notes: list = field(default_factory=list)
     #: the workspace poses the controller cannot command, left out (empty: none), in words
     left_out: str = ""
 
@@ -517,6 +615,7 @@ class ExportResult:
                 "height_rms_um": um(self.height_rms), "height_max_um": um(self.height_max),
                 "before_height_rms_um": um(self.before_height_rms),
                 "before_height_max_um": um(self.before_height_max),
+                "notes": list(self.notes),
                 **({"left_out": self.left_out} if self.left_out else {})}
 
 
@@ -580,7 +679,8 @@ def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
     R : ndarray, shape (K, 3, 3), optional
         Workspace orientations.
     start : ControllerParameters, optional
-        Start values; default ``fmt.initial(machine)``.
+        Start values; default ``fmt.initial(machine)`` placed for the workspace
+        (:meth:`ControllerFormat.placed`).
     surface : array_like of bool, shape (K,), optional
         Workspace poses on a printer's bed: the fit is first of all the nozzle's height above
         the bed there (what a printer's probe heights fix, and its first layer), the position
@@ -600,7 +700,7 @@ def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
     """
     from scipy.optimize import least_squares
 
-    params = fmt.initial(machine) if start is None else start
+    params = fmt.placed(fmt.initial(machine), machine, P) if start is None else start
     free = ~params.fixed
     L = machine.characteristic_length()
     scale = np.array([L if k == "length" else 1.0 for k in params.kinds])[free]
@@ -641,8 +741,13 @@ def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
 
 
 def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine | None = None,
-           workspace: str = "", surface=None) -> ExportResult:
+           workspace: str = "", surface=None, existing: str | None = None,
+           source: str = "") -> ExportResult:
     """The controller file for a calibrated machine: fitted values and the error they leave.
+
+    The error is that of the values as the file holds them (:meth:`ControllerFormat.written`:
+    rounded as written, or as the controller's own save rounds them onto ``existing``), so
+    that it is what the controller then does.
 
     Parameters
     ----------
@@ -661,11 +766,16 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
         The workspace in words.
     surface : array_like of bool, shape (K,), optional
         Poses on a printer's bed: their z error is reported as the nozzle's height error.
+    existing : str, optional
+        The controller's current file: the values are saved into it
+        (:meth:`ControllerFormat.update`) and the result's text is the updated file.
+    source : str, optional
+        The file's name (for messages; its includes are read beside it).
 
     Returns
     -------
     ExportResult
-        The result.
+        The result: the values as written, their errors, the file's text.
 
     Raises
     ------
@@ -676,7 +786,8 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
     if why is not None:
         raise InputError(f"--to {fmt.name}: {why}")
     P, R, surface, left_out = commandable(fmt, machine, P, R, surface)
-    params = fit_controller(fmt, machine, P, R, surface=surface)
+    text, params = fmt.written(fit_controller(fmt, machine, P, R, surface=surface), machine,
+                               existing, source)
     E = position_errors(fmt, params, machine, P, R)
     e = np.linalg.norm(E, axis=-1)
     on = None if surface is None else np.asarray(surface, bool)
@@ -691,13 +802,14 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
 
     before, before_h = (None, None), (None, None)
     if nominal is not None:
-        E0 = position_errors(fmt, fmt.initial(nominal), machine, P, R)
+        E0 = position_errors(fmt, fmt.placed(fmt.initial(nominal), nominal, P), machine, P, R)
         e0 = np.linalg.norm(E0, axis=-1)
         before = (float(np.sqrt(np.nanmean(e0**2))), float(np.nanmax(e0)))
         before_h = heights(E0)
-    return ExportResult(fmt.name, params, fmt.text(params, machine),
+    return ExportResult(fmt.name, params, text,
                         float(np.sqrt(np.nanmean(e**2))), float(np.nanmax(e)), *before,
-                        workspace, len(P), *heights(E), *before_h, left_out=left_out)
+                        workspace, len(P), *heights(E), *before_h,
+                        fmt.export_notes(params, machine, P), left_out=left_out)
 
 
 def commandable(fmt: ControllerFormat, machine: Machine, P, R=None, surface=None):
@@ -744,6 +856,7 @@ def commandable(fmt: ControllerFormat, machine: Machine, P, R=None, surface=None
              f"{out[:, 2].max() * 1e3:.4g} mm")
     return (P[keep], None if R is None else np.asarray(R, float)[keep],
             None if surface is None else np.asarray(surface, bool)[keep], words)
+
 
 
 def export_workspace(machine: Machine, workspace=None, n: int = 500, rng=0):

@@ -36,6 +36,16 @@ corrects it). The bed is carried in the values as three fixed entries (``bed.z``
 ``bed.tilt_x``, ``bed.tilt_y``) and written as a ``# pkmcal bed:`` comment, which
 :meth:`KlipperDelta.parse` reads back.
 
+Stepper order
+-------------
+Klipper's forward kinematics (``mathutil.trilateration``: the home position at ``G28``, the
+positions read back from the steppers) takes the effector below the carriages only when
+``stepper_a -> b -> c`` run counter-clockwise. A printer whose towers run clockwise is written
+relabelled (:func:`stepper_order`: ``stepper_a`` its tower 1, ``stepper_b`` tower 3,
+``stepper_c`` tower 2), the export's note and the file's comments naming each stepper's tower;
+the fixed values ``stepper_a.tower``... keep the map, so that the readings come back in the
+machine's order. An import takes the towers in Klipper's order.
+
 This module also holds the helpers the Marlin and RepRapFirmware formats share
 (:func:`vertical_tower_travel`, :func:`controller_endstops`, :func:`linear_delta_machine`).
 """
@@ -388,6 +398,87 @@ def controller_endstops(machine: LinearDelta, radius: float, height: float = 0.0
     return l, theta, E
 
 
+def stepper_order(angles) -> np.ndarray:
+    """Which of the machine's towers (legs) are Klipper's ``stepper_a, b, c``.
+
+    Klipper's delta forward kinematics (``mathutil.trilateration``, which sets the home
+    position at ``G28`` and reads positions back from the steppers) takes the root below the
+    towers' carriages (the arms' elbows) only when ``a -> b -> c`` runs counter-clockwise
+    seen from above; on a clockwise order it returns the mirror image above them. So a
+    clockwise machine is relabelled: ``stepper_a`` is its first tower, ``stepper_b`` its
+    third, ``stepper_c`` its second.
+
+    Parameters
+    ----------
+    angles : array_like, shape (3,)
+        The towers' (legs') angles about +Z, rad, in the machine's order.
+
+    Returns
+    -------
+    ndarray of int, shape (3,)
+        The machine's tower index (0-based) of ``stepper_a``, ``stepper_b``, ``stepper_c``.
+    """
+    a = np.asarray(angles, float)
+    x, y = np.cos(a), np.sin(a)
+    turn = (x[1] - x[0]) * (y[2] - y[0]) - (y[1] - y[0]) * (x[2] - x[0])
+    return np.array([0, 1, 2]) if turn > 0 else np.array([0, 2, 1])
+
+
+def order_problem(angles, word: str) -> str | None:
+    """Why towers (legs) at these angles cannot be ordered for Klipper (None: they can).
+
+    Parameters
+    ----------
+    angles : array_like, shape (3,)
+        The angles, rad.
+    word : str
+        ``tower`` or ``leg``.
+
+    Returns
+    -------
+    str or None
+        The reason: three points on one line have no turning sense.
+    """
+    a = np.asarray(angles, float)
+    x, y = np.cos(a), np.sin(a)
+    turn = (x[1] - x[0]) * (y[2] - y[0]) - (y[1] - y[0]) * (x[2] - x[0])
+    if abs(turn) < 1e-9:
+        return (f"the {word}s at {', '.join(f'{np.degrees(v):g}' for v in a)} deg do not turn "
+                "about the centre (two at one angle); Klipper's kinematics need three "
+                f"{word}s around it")
+    return None
+
+
+def relabel_note(order, angles, word: str) -> str | None:
+    """The note of a relabelled stepper order (:func:`stepper_order`), None when none.
+
+    Parameters
+    ----------
+    order : array_like of int, shape (3,)
+        The machine's tower index of ``stepper_a, b, c``.
+    angles : array_like, shape (3,)
+        The towers' angles in the machine's order, rad.
+    word : str
+        ``tower`` or ``leg`` (the machine file's word).
+
+    Returns
+    -------
+    str or None
+        Which tower each stepper is, and why.
+    """
+    order = np.asarray(order, int)
+    if np.array_equal(order, [0, 1, 2]):
+        return None
+    deg = np.degrees(np.asarray(angles, float))
+    mine = ", ".join(f"{word} {i + 1} at {deg[i]:g} deg" for i in range(3))
+    which = ", ".join(f"stepper_{t} is {word} {order[k] + 1} ({deg[order[k]]:g} deg)"
+                      for k, t in enumerate(TOWERS))
+    return (f"the machine's {word}s run clockwise ({mine}); Klipper's forward kinematics "
+            "(mathutil.trilateration: the home position at G28) needs stepper_a -> "
+            "stepper_b -> stepper_c counter-clockwise, so the file relabels them: "
+            f"{which}. Wire each {word}'s motor and endstop to its stepper's section")
+
+
 def wrap_degrees(angle):
     """An angle in degrees brought into (-180, 180].
 
@@ -464,11 +555,14 @@ class KlipperDelta(ControllerFormat):
 
     NAMES = (["delta_radius"] + [f"arm_length_{t}" for t in TOWERS]
              + [f"angle_{t}" for t in TOWERS] + [f"position_endstop_{t}" for t in TOWERS]
-             + list(BED))
-    KINDS = ["length"] * 4 + ["angle"] * 3 + ["length"] * 3 + list(BED_KINDS)
+             + list(BED) + [f"stepper_{t}.tower" for t in TOWERS])
+    KINDS = (["length"] * 4 + ["angle"] * 3 + ["length"] * 3 + list(BED_KINDS)
+             + ["number"] * 3)
 
-    def values(self, radius, arms, angles, endstops, bed) -> ControllerParameters:
-        """Klipper's values from their parts (SI), the bed fixed.
+    def values(self, radius, arms, angles, endstops, bed,
+               towers=(1, 2, 3)) -> ControllerParameters:
+        """Klipper's values from their parts (SI, in stepper order), the bed and the
+        steppers' towers fixed.
 
         Parameters
         ----------
@@ -482,13 +576,15 @@ class KlipperDelta(ControllerFormat):
             ``position_endstop`` a, b, c, m.
         bed : array_like, shape (3,)
             The bed (``bed.z`` m, ``bed.tilt_x``, ``bed.tilt_y``).
+        towers : array_like of int, shape (3,), optional
+            The machine's tower (1-based) of ``stepper_a, b, c`` (:func:`stepper_order`).
 
         Returns
         -------
         ControllerParameters
             The values.
         """
-        v = np.concatenate([[radius], arms, angles, endstops, bed]).astype(float)
+        v = np.concatenate([[radius], arms, angles, endstops, bed, towers]).astype(float)
         return ControllerParameters(list(self.NAMES), v, list(self.KINDS),
                                     np.arange(len(v)) >= 10)
 
@@ -509,7 +605,60 @@ class KlipperDelta(ControllerFormat):
         bed = machine_bed(machine)
         R = float(np.mean(machine.firmware_values()["radius"]))
         arms, angles, E = controller_endstops(machine, R, bed[0])
-        return self.values(R, arms, angles, E, bed)
+        order = stepper_order(angles)      # counter-clockwise, as Klipper's FK needs
+        return self.values(R, arms[order], angles[order], E[order], bed, order + 1)
+
+    def layout_problem(self, machine: Machine) -> str | None:
+        """Towers with no turning sense (two at one angle) cannot be ordered for Klipper.
+
+        Parameters
+        ----------
+        machine : Machine
+            A linear Delta.
+
+        Returns
+        -------
+        str or None
+            The reason.
+        """
+        return order_problem(machine.firmware_values()["angle"], "tower")
+
+    def export_notes(self, params: ControllerParameters, machine: Machine,
+                     P=None) -> list[str]:
+        """The towers' relabelling when they run clockwise (:func:`relabel_note`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values written.
+        machine : Machine
+            The machine.
+        P : ndarray, optional
+            The workspace (unused).
+
+        Returns
+        -------
+        list of str
+            The notes.
+        """
+        note = relabel_note(self.order(params), machine.firmware_values()["angle"], "tower")
+        return [] if note is None else [note]
+
+    @staticmethod
+    def order(params: ControllerParameters) -> np.ndarray:
+        """The machine's tower index (0-based) of ``stepper_a, b, c``.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Klipper's values.
+
+        Returns
+        -------
+        ndarray of int, shape (3,)
+            The indices.
+        """
+        return np.rint(params.values[13:16]).astype(int) - 1
 
     def ik(self, params: ControllerParameters, P, R=None) -> np.ndarray:
         """Klipper's carriage travels down from the endstops for nozzle targets.
@@ -526,17 +675,21 @@ class KlipperDelta(ControllerFormat):
         Returns
         -------
         ndarray, shape (K, 3)
-            Travels, m; NaN where an arm cannot reach.
+            Travels per tower (the machine's order), m; NaN where an arm cannot reach.
         """
         v = params.values
         radius, arms, angles, pe, bed = v[0], v[1:4], v[4:7], v[7:10], v[10:13]
+        order = self.order(params)
         Pc = np.array(P, float).reshape(-1, 3)
         # Klipper's z is the height above the bed: the bed's plane (height and tilt) of the
         # calibrated frame is its z = 0; what Klipper's values cannot fold in of the tilt is
         # in the remaining error
         Pc[:, 2] -= bed[0] + bed[1] * Pc[:, 0] + bed[2] * Pc[:, 1]
         tops = pe + np.sqrt(arms**2 - radius**2)
-        return vertical_tower_travel(tower_positions(radius, angles), arms, tops, Pc)
+        travel = vertical_tower_travel(tower_positions(radius, angles), arms, tops, Pc)
+        q = np.empty_like(travel)
+        q[:, order] = travel
+        return q
 
     def text(self, params: ControllerParameters, machine: Machine) -> str:
         """The ``printer.cfg`` fragment (mm, deg).
@@ -566,8 +719,12 @@ class KlipperDelta(ControllerFormat):
                      f"{bed[2]:.6g}) is folded into these values as far as they can hold it, "
                      "the rest counted in the remaining error (bed_mesh corrects it)"
                      if np.any(bed[1:] != 0) else ""),
-                 bed_text(bed, "#"),
-                 "[printer]", "kinematics: delta", f"delta_radius: {v[0] * 1e3:.6f}"]
+                 bed_text(bed, "#")]
+        order = self.order(params)
+        if not np.array_equal(order, [0, 1, 2]):
+            lines += [f"# stepper_{t} is tower {order[k] + 1} of the machine file (relabelled "
+                      "counter-clockwise for Klipper)" for k, t in enumerate(TOWERS)]
+        lines += ["[printer]", "kinematics: delta", f"delta_radius: {v[0] * 1e3:.6f}"]
         for i, t in enumerate(TOWERS):
             lines += ["", f"[stepper_{t}]", f"arm_length: {v[1 + i] * 1e3:.6f}",
                       f"angle: {np.degrees(v[4 + i]):.9f}",
@@ -805,9 +962,11 @@ class KlipperDelta(ControllerFormat):
             ``probe_bed`` (the endstops raised by the bed's height).
         """
         v = params.values
+        back = np.argsort(self.order(params))          # the machine's tower order
         # Klipper's z is the height above the bed: its values are the printer in the bed's
         # frame, square (a tilt named in the pkmcal comment is folded in already)
-        return linear_delta_machine(v[0], v[1:4], v[4:7], v[7:10], [v[10], 0.0, 0.0], like,
+        return linear_delta_machine(v[0], v[1:4][back], v[4:7][back], v[7:10][back],
+                                    [v[10], 0.0, 0.0], like,
                                     "linear Delta (imported from Klipper)", params.extras)
 
 

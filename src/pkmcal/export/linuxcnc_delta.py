@@ -2,22 +2,24 @@
 
 Read in LinuxCNC's source (``LinuxCNC/linuxcnc``, ``src/emc/kinematics/``):
 
-``rotarydeltakins`` (``rotarydeltakins.c``, ``rotarydeltakins-common.h``)
+``rotarydeltakins`` (``rotarydeltakins.c``, ``rotarydeltakins-common.h``, as in LinuxCNC 2.9
+and its master; Debian's ``linuxcnc-uspace`` 2.9 and its Python module ``rotarydeltakins``
+run the same code)
     HAL pins ``rotarydeltakins.platformradius`` (origin to a hip joint), ``.thighlength``
     (hip to knee), ``.shinlength`` (the parallelogram, knee to foot), ``.footradius`` (the
     controlled point to an ankle joint), in machine units. Joints 0, 1, 2 are hip angles in
     DEGREES, 0 with the thigh straight out, positive knee DOWN (``kinematics_forward``: knee
-    at ``z = -thighlength sin(j)``). Joint 0 swings in the YZ plane with its hip at ``(0,
-    -platformradius)`` (-90 deg); ``kinematics_inverse`` gets joint 1 by turning the target
-    by +120 deg (hip at 150 deg) and joint 2 by -120 deg (hip at 30 deg). ``inverse_j0`` takes
-    the knee with the larger distance from the axis (knee out). Only ``platformradius -
-    footradius`` enters: ``footradius`` is held at the platform radius ``b`` (fixed).
-    The world's z: ``kinematics_forward`` returns ``z = (b + sqrt(d)) / (2 a)``, the sign
-    changed from the lower root of the Zsombor-Murray / mzavatsky solution it is based on
-    (``-(b + sqrt(d)) / (2 a)``), and ``inverse_j0`` inverts exactly that: LinuxCNC's ``z``
-    grows from the hips TOWARDS the foot (the header's "Z coordinates are always negative"
-    does not hold for the code). pkmcal's target ``(x, y, z)`` (z up, the platform hanging
-    below the base) is LinuxCNC's ``(x, y, -z)``.
+    at ``z = -thighlength sin(j)``). The hips: joint 0 at -90 deg (its thigh swings in the YZ
+    plane on the -Y side), joint 1 at +30 deg and joint 2 at 150 deg (the forward map's knee
+    of joint 1 has ``x = +sqrt(3) y``, of joint 2 ``x = -sqrt(3) y``; ``kinematics_inverse``
+    turns the target by -120 deg for joint 1 and by +120 deg for joint 2). ``inverse_j0``
+    takes the knee with the larger distance from the axis (knee out), its height ``b knee_y -
+    a``. The world's z is up, the origin in the plane of the hips, the foot below it at
+    negative z (``kinematics_forward`` takes the lower root ``(-b - sqrt(d)) / (2 a)``): the
+    calibrated frame's ``(x, y, z)`` as it is, no sign change. (The 2013 version had the hips
+    at -90, 150, 30 deg and z growing towards the foot; that is not the code LinuxCNC runs
+    today.) Only ``platformradius - footradius`` enters: ``footradius`` is held at the
+    platform radius ``b`` (fixed).
 
 ``lineardeltakins`` (``lineardeltakins.c``, ``lineardeltakins-common.h``)
     HAL pins ``lineardeltakins.R`` (effective horizontal distance bridged by the rods:
@@ -28,13 +30,14 @@ Read in LinuxCNC's source (``LinuxCNC/linuxcnc``, ``src/emc/kinematics/``):
     (Some versions carry ``J0off`` .. ``J2off`` pins; the mainline has ``R`` and ``L`` only, so
     they are not used.)
 
-The joints' zero (an INI note, decided here)
+The joints' zero (the INI's ``HOME_OFFSET``)
 --------------------------------------------
 A joint's position after homing is the INI's ``[JOINT_n] HOME_OFFSET`` (the joint position
 of the home switch); it, not a HAL pin of the kinematics, is where LinuxCNC holds a joint's
-zero. The file writes it as comment lines (``# [JOINT_0] HOME_OFFSET = ...``) with a ``#
-pkmcal`` line that :meth:`parse` reads back; no HAL ``offset`` component is wired (that would
-re-route the user's ``motor-pos-cmd`` nets).
+zero. A configuration directory (``-o DIR/``, :mod:`~pkmcal.export.linuxcnc_config`) writes
+it into its INI; the ``.hal`` file alone has it as comment lines (``# [JOINT_0] HOME_OFFSET =
+...``) with a ``# pkmcal`` line that :meth:`parse` reads back; no HAL ``offset`` component is
+wired (that would re-route the user's ``motor-pos-cmd`` nets).
 
 - Linear Delta: pkmcal's reading is the carriage's travel down from its endstop, so the
   joint is ``HOME_OFFSET_j - q``: ``HOME_OFFSET_j`` is the carriage height at the endstop
@@ -74,9 +77,10 @@ from .base import (
     register_format,
 )
 from .klipper_rotary import leg_offsets, pkmcal_comments
+from .linuxcnc_config import LinuxCNCKinematics
 
 #: rotarydeltakins' hip angles of joints 0, 1, 2, deg
-ROTARY_HIPS = (-90.0, 150.0, 30.0)
+ROTARY_HIPS = (-90.0, 30.0, 150.0)
 #: lineardeltakins' tower angles of joints 0, 1, 2, deg
 LINEAR_TOWERS = (90.0, 210.0, 330.0)
 #: how far a machine's leg may stand from LinuxCNC's, deg
@@ -110,19 +114,20 @@ def joint_of_legs(leg_angles, hips) -> np.ndarray:
 
 
 def rotarydelta_joints(pfr, tl, sl, fr, P) -> np.ndarray:
-    """rotarydeltakins' ``kinematics_inverse`` (``inverse_j0`` and the +/-120 deg turns).
+    """rotarydeltakins' ``kinematics_inverse`` (``inverse_j0`` and the -/+120 deg turns).
 
     Parameters
     ----------
     pfr, tl, sl, fr : float
         platformradius, thighlength, shinlength, footradius (one length unit).
     P : array_like, shape (K, 3)
-        Targets in LinuxCNC's world (same unit).
+        Targets in LinuxCNC's world (same unit; z up, the hips at z = 0).
 
     Returns
     -------
     ndarray, shape (K, 3)
-        Joints 0, 1, 2, deg; NaN where unreachable.
+        Joints 0, 1, 2 (hips at -90, 30, 150 deg), deg, knee down positive; NaN where
+        unreachable.
     """
     P = np.asarray(P, float).reshape(-1, 3)
     x, y, z = P[:, 0], P[:, 1], P[:, 2]
@@ -133,11 +138,11 @@ def rotarydelta_joints(pfr, tl, sl, fr, P) -> np.ndarray:
             b = (fr - pfr - y) / z
             d = tl * tl * (b * b + 1) - (a - b * pfr) ** 2
             knee_y = (pfr + a * b + np.sqrt(d)) / (b * b + 1)
-            knee_z = a - b * knee_y
+            knee_z = b * knee_y - a
             return np.degrees(np.arctan2(knee_z, knee_y - pfr))
 
     out = [inverse_j0(x, y, z)]
-    for t in (2 * np.pi / 3, -2 * np.pi / 3):
+    for t in (-2 * np.pi / 3, 2 * np.pi / 3):         # joint 1 (hip at 30), joint 2 (150)
         xr = x * np.cos(t) - y * np.sin(t)
         yr = x * np.sin(t) + y * np.cos(t)
         out.append(inverse_j0(xr, yr, z))
@@ -242,10 +247,157 @@ def reading_joints(notes: dict, source: str) -> np.ndarray:
     return joints
 
 
-class LinuxCNCRotaryDelta(ControllerFormat):
+class _LinuxCNCDelta(ControllerFormat, LinuxCNCKinematics):
+    """What the two LinuxCNC Delta formats share: the values as written are read back; each
+    reading of the machine is one LinuxCNC joint (``readingN.joint``), its world is the
+    calibrated frame in mm (a linear Delta's shifted to its bed)."""
+
+    #: where the readings' joints and the joints' zeros stand in the values
+    _JOINTS = slice(0, 0)
+    _ZEROS = slice(0, 0)
+
+    def _scale(self) -> float:
+        """LinuxCNC's joint unit per internal unit."""
+        return float(np.degrees(1.0)) if self.joint_type == "ANGULAR" else 1e3
+
+    def _bed(self, params: ControllerParameters) -> float:
+        return 0.0
+
+    def controller_joints(self, params: ControllerParameters, q) -> np.ndarray:
+        """LinuxCNC's joints of the machine's readings: ``zero_j - q_i`` on reading i's
+        joint j (deg or mm).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        q : array_like, shape (K, 3)
+            Readings, internal units.
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            Joints 0, 1, 2.
+        """
+        q = np.asarray(q, float).reshape(-1, 3)
+        v = params.values
+        joint = v[self._JOINTS].astype(int)
+        J = np.empty_like(q)
+        J[:, joint] = v[self._ZEROS][joint][None] - q
+        return J * self._scale()
+
+    def machine_readings(self, params: ControllerParameters, J) -> np.ndarray:
+        """The machine's readings of LinuxCNC's joints (see :meth:`controller_joints`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        J : array_like, shape (K, 3)
+            Joints 0, 1, 2 (deg or mm).
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            Readings, internal units.
+        """
+        J = np.asarray(J, float).reshape(-1, 3) / self._scale()
+        v = params.values
+        joint = v[self._JOINTS].astype(int)
+        return v[self._ZEROS][joint][None] - J[:, joint]
+
+    def controller_world(self, params: ControllerParameters, P, R=None) -> np.ndarray:
+        """LinuxCNC's X, Y, Z (mm) of calibrated positions.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        P : array_like, shape (K, 3)
+            Positions, m.
+        R : array_like, optional
+            Ignored.
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            mm.
+        """
+        return (np.asarray(P, float).reshape(-1, 3) - [0.0, 0.0, self._bed(params)]) * 1e3
+
+    def calibrated_pose(self, params: ControllerParameters, X):
+        """Calibrated positions of LinuxCNC's X, Y, Z (see :meth:`controller_world`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        X : array_like, shape (K, 3)
+            mm.
+
+        Returns
+        -------
+        P : ndarray, shape (K, 3)
+            m.
+        R : ndarray, shape (K, 3, 3)
+            Identities.
+        """
+        P = np.asarray(X, float).reshape(-1, 3) * 1e-3 + [0.0, 0.0, self._bed(params)]
+        return P, np.broadcast_to(np.eye(3), (len(P), 3, 3)).copy()
+
+    def home_offsets(self, params: ControllerParameters) -> np.ndarray:
+        """``HOME_OFFSET``: each joint's zero (the joint at reading 0).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            deg or mm.
+        """
+        return params.values[self._ZEROS] * self._scale()
+
+    def with_home_offsets(self, params: ControllerParameters, offsets: dict
+                          ) -> ControllerParameters:
+        """The values with the INI's ``HOME_OFFSET`` as the joints' zeros.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The HAL file's values.
+        offsets : dict
+            Joint -> ``(HOME_OFFSET, Origin)``, deg or mm.
+
+        Returns
+        -------
+        ControllerParameters
+            The values, the zeros' origins the INI's lines.
+        """
+        v = params.values.copy()
+        zeros = v[self._ZEROS]
+        for j, (value, _) in offsets.items():
+            zeros[j] = value / self._scale()
+        v[self._ZEROS] = zeros
+        out = params.with_values(v)
+        names = params.names[self._ZEROS]
+        for j, (_, origin) in offsets.items():
+            out.origins[names[j]] = origin
+        return out
+
+
+class LinuxCNCRotaryDelta(_LinuxCNCDelta):
     """LinuxCNC ``rotarydeltakins`` (see the module docstring)."""
 
     name = "linuxcnc-rotarydelta"
+    kins_module = "rotarydeltakins"
+    joint_type = "ANGULAR"
+    motor_words = ("minus the machine's reading of the arm on that joint (pkmcal's arm angle, "
+                   "up positive), deg: the hip angle from the joint's zero, knee down positive.")
+    _JOINTS = slice(7, 10)
+    _ZEROS = slice(4, 7)
     machine_kind = "delta"
     machine_words = "rotary Delta robot"
     words = ("LinuxCNC rotarydeltakins (src/emc/kinematics/rotarydeltakins-common.h): HAL "
@@ -294,8 +446,9 @@ class LinuxCNCRotaryDelta(ControllerFormat):
         """
         if np.any(joint_of_legs(machine.leg_angles, ROTARY_HIPS) < 0):
             legs = ", ".join(f"{v:g}" for v in np.degrees(machine.leg_angles))
-            return ("rotarydeltakins has its hips at -90, 150 and 30 deg (120 deg apart, joint "
-                    f"0 in the YZ plane); the machine's legs stand at {legs} deg")
+            return ("rotarydeltakins has its hips at -90, 30 and 150 deg (joints 0, 1, 2; "
+                    f"120 deg apart, joint 0 in the YZ plane); the machine's legs stand at "
+                    f"{legs} deg")
         return None
 
     def initial(self, machine: Machine) -> ControllerParameters:
@@ -340,7 +493,6 @@ class LinuxCNCRotaryDelta(ControllerFormat):
             unreachable.
         """
         v = params.values
-        P = np.asarray(P, float).reshape(-1, 3) * np.array([1.0, 1.0, -1.0])
         J = np.radians(rotarydelta_joints(v[0], v[1], v[2], v[3], P))
         joint = v[7:10].astype(int)
         return v[4:7][joint][None] - J[:, joint]
@@ -363,8 +515,9 @@ class LinuxCNCRotaryDelta(ControllerFormat):
         v = params.values
         lines = [f"# pkmcal export for {machine.name or 'a rotary Delta'}: LinuxCNC "
                  "rotarydeltakins", "# (src/emc/kinematics/rotarydeltakins-common.h). Lengths "
-                 "mm (LINEAR_UNITS = mm), joints deg,", "# knee down positive; LinuxCNC's z is "
-                 "the calibrated frame's -z (it grows towards the foot)."]
+                 "mm (LINEAR_UNITS = mm), joints deg,", "# knee down positive; hips of joints 0, "
+                 "1, 2 at -90, 30, 150 deg; LinuxCNC's world is the", "# calibrated frame "
+                 "(z up, the hips at z = 0, the foot below them)."]
         lines += [f"setp rotarydeltakins.{pin} {v[k] * 1e3:.9f}"
                   for k, pin in enumerate(self.PINS)]
         lines += ["# Joint zero: the joint position at the machine's reading 0. With the "
@@ -464,10 +617,16 @@ class LinuxCNCRotaryDelta(ControllerFormat):
                      home=None if like is None else like.home, name=name)
 
 
-class LinuxCNCLinearDelta(ControllerFormat):
+class LinuxCNCLinearDelta(_LinuxCNCDelta):
     """LinuxCNC ``lineardeltakins`` (see the module docstring)."""
 
     name = "linuxcnc-lineardelta"
+    kins_module = "lineardeltakins"
+    joint_type = "LINEAR"
+    motor_words = ("minus the machine's reading of the carriage on that joint (its travel down "
+                   "from the endstop), mm: the carriage height from the endstop, up positive.")
+    _JOINTS = slice(6, 9)
+    _ZEROS = slice(2, 5)
     machine_kind = "linear_delta"
     machine_words = "linear Delta printer"
     words = ("LinuxCNC lineardeltakins (src/emc/kinematics/lineardeltakins-common.h): HAL "
@@ -499,6 +658,9 @@ class LinuxCNCLinearDelta(ControllerFormat):
         """
         v = np.concatenate([[R, L], homes, [bed_z], joints]).astype(float)
         return ControllerParameters(list(self.NAMES), v, list(self.KINDS), np.arange(9) >= 5)
+
+    def _bed(self, params: ControllerParameters) -> float:
+        return float(params.values[5])
 
     def layout_problem(self, machine: Machine) -> str | None:
         """Why lineardeltakins' fixed towers cannot hold a printer (None: towers where its are).
@@ -603,7 +765,29 @@ class LinuxCNCLinearDelta(ControllerFormat):
         lines += [f"# pkmcal reading{i + 1}.joint = {int(v[6 + i])}" for i in range(3)]
         return "\n".join(lines) + "\n"
 
-    def parse(self, text: str, source: str) -> ControllerParameters:
+    def parse_with_home_offsets(self, text: str, source: str, offsets: dict
+                                ) -> ControllerParameters:
+        """The values of the kinematics' HAL file with the INI's ``HOME_OFFSET`` (the
+        file then needs no ``HOME_OFFSET`` notes).
+
+        Parameters
+        ----------
+        text : str
+            The HAL file's text.
+        source : str
+            Its name.
+        offsets : dict
+            Joint -> ``(HOME_OFFSET mm, Origin)``.
+
+        Returns
+        -------
+        ControllerParameters
+            The values.
+        """
+        return self.parse(text, source, offsets)
+
+    def parse(self, text: str, source: str, offsets: dict | None = None
+              ) -> ControllerParameters:
         """The values of a ``.hal`` file.
 
         Parameters
@@ -612,6 +796,9 @@ class LinuxCNCLinearDelta(ControllerFormat):
             The file's text.
         source : str
             Its name, for messages.
+        offsets : dict, optional
+            Joint -> ``(HOME_OFFSET mm, Origin)`` of a configuration's INI: they are the
+            carriage heights at the endstops (the file's notes are not read then).
 
         Returns
         -------
@@ -638,7 +825,9 @@ class LinuxCNCLinearDelta(ControllerFormat):
                 at[f"home_offset.{m.group(1)}"] = n
         homes = []
         for j in range(3):
-            if f"home_offset.{j}_mm" in notes:
+            if offsets is not None:
+                homes.append(offsets[j][0])
+            elif f"home_offset.{j}_mm" in notes:
                 homes.append(notes[f"home_offset.{j}_mm"][0])
             elif j in ini:
                 homes.append(ini[j])
@@ -651,7 +840,9 @@ class LinuxCNCLinearDelta(ControllerFormat):
                              reading_joints(notes, source))
         params.origins.update(hal_origins(source, "lineardeltakins", at, notes))
         for j in range(3):
-            if f"home_offset.{j}_mm" not in notes:
+            if offsets is not None:
+                params.origins[f"home_offset.{j}"] = offsets[j][1]
+            elif f"home_offset.{j}_mm" not in notes:
                 params.origins[f"home_offset.{j}"] = Origin(
                     source, f"# [JOINT_{j}] HOME_OFFSET", at[f"home_offset.{j}"])
         from .klipper import check_printer_values

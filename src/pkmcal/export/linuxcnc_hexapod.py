@@ -43,6 +43,7 @@ import numpy as np
 from ..errors import InputError
 from ..machines.base import Machine
 from .base import ControllerFormat, ControllerParameters, Origin, register_format
+from .linuxcnc_config import LinuxCNCKinematics
 
 #: mm: the unit of every length written (LinuxCNC machine units = the INI's LINEAR_UNITS)
 MM = 1e-3
@@ -151,8 +152,176 @@ def linuxcnc_abc(R) -> np.ndarray:
     return np.degrees(np.stack([a, b, c], -1))
 
 
-class GenhexkinsFormat(ControllerFormat):
+def linuxcnc_rotation(abc) -> np.ndarray:
+    """Orientations of LinuxCNC's A, B, C (deg): ``R = Rz(C) Ry(B) Rx(A)`` (the inverse of
+    :func:`linuxcnc_abc`).
+
+    Parameters
+    ----------
+    abc : array_like, shape (..., 3)
+        A, B, C in degrees.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Rotation matrices.
+    """
+    a, b, c = np.moveaxis(np.radians(np.asarray(abc, float)), -1, 0)
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    return np.stack([np.stack([cc * cb, cc * sb * sa - sc * ca, cc * sb * ca + sc * sa], -1),
+                     np.stack([sc * cb, sc * sb * sa + cc * ca, sc * sb * ca - cc * sa], -1),
+                     np.stack([-sb, cb * sa, cb * ca], -1)], -2)
+
+
+class GenhexkinsFormat(ControllerFormat, LinuxCNCKinematics):
     """LinuxCNC ``genhexkins`` with one ``scale`` pair per joint (see the module docstring)."""
+
+    kins_module = "genhexkins"
+    kins_joints = 6
+    coordinates = "X Y Z A B C"
+    joint_type = "LINEAR"
+    motor_words = (f"the strut length (mm); the drive's command is {COMMAND}.N.out and its "
+                   f"feedback goes to {FEEDBACK}.N.in, in the drive's reading unit (the scale "
+                   "pair of kinematics.hal converts).")
+
+    def controller_joints(self, params: ControllerParameters, q) -> np.ndarray:
+        """Strut lengths (mm) of the machine's readings: ``l0 + gain q``.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        q : array_like, shape (K, 6)
+            Readings, internal units.
+
+        Returns
+        -------
+        ndarray, shape (K, 6)
+            mm.
+        """
+        _, _, l0, g = _as_genhex(params).legs()
+        return (l0 + g * np.asarray(q, float).reshape(-1, 6)) / MM
+
+    def machine_readings(self, params: ControllerParameters, J) -> np.ndarray:
+        """Readings of strut lengths (mm): the inverse of :meth:`controller_joints`.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        J : array_like, shape (K, 6)
+            Strut lengths, mm.
+
+        Returns
+        -------
+        ndarray, shape (K, 6)
+            Readings, internal units.
+        """
+        _, _, l0, g = _as_genhex(params).legs()
+        return (np.asarray(J, float).reshape(-1, 6) * MM - l0) / g
+
+    def controller_world(self, params: ControllerParameters, P, R=None) -> np.ndarray:
+        """X, Y, Z (mm) and A, B, C (deg, :func:`linuxcnc_abc`) of calibrated poses.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        P : array_like, shape (K, 3)
+            Positions, m.
+        R : array_like, shape (K, 3, 3), optional
+            Orientations; default the identity.
+
+        Returns
+        -------
+        ndarray, shape (K, 6)
+            World coordinates.
+        """
+        P = np.asarray(P, float).reshape(-1, 3)
+        R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else np.asarray(R, float)
+        return np.column_stack([P / MM, linuxcnc_abc(R)])
+
+    def calibrated_pose(self, params: ControllerParameters, X):
+        """Poses of LinuxCNC's X, Y, Z, A, B, C (see :meth:`controller_world`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+        X : array_like, shape (K, 6)
+            World coordinates.
+
+        Returns
+        -------
+        P : ndarray, shape (K, 3)
+            m.
+        R : ndarray, shape (K, 3, 3)
+            Orientations.
+        """
+        X = np.asarray(X, float).reshape(-1, 6)
+        return X[:, :3] * MM, linuxcnc_rotation(X[:, 3:])
+
+    def home_offsets(self, params: ControllerParameters) -> np.ndarray:
+        """0: the scale pair makes the motor position the strut length.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        ndarray, shape (6,)
+            Zeros.
+        """
+        return np.zeros(6)
+
+    def with_home_offsets(self, params: ControllerParameters, offsets: dict
+                          ) -> ControllerParameters:
+        """The values with the INI's ``HOME_OFFSET``: a joint is its feedback scale's strut
+        length plus it, so it is added to the scale's offset (``l0``).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The HAL file's values.
+        offsets : dict
+            Joint -> ``(HOME_OFFSET mm, Origin)``.
+
+        Returns
+        -------
+        ControllerParameters
+            The values.
+        """
+        params = _as_genhex(params)
+        v = params.values.copy()
+        for j, (value, _) in offsets.items():
+            v[37 + 2 * j] += value * MM
+        out = params.with_values(v)
+        for j, (value, origin) in offsets.items():
+            if value:
+                out.origins[f"strut.{j}.offset"] = origin
+        return out
+
+    def joint_nets(self, j: int) -> tuple[list[str], str, str]:
+        """Joint ``j`` through its scale pair: the command to ``strut-reading.j``, the
+        feedback from ``strut-length.j``; the drive between them.
+
+        Parameters
+        ----------
+        j : int
+            The joint.
+
+        Returns
+        -------
+        lines : list of str
+            The two fixed nets.
+        command, feedback : str
+            The drive's pins.
+        """
+        return ([f"net j{j}-strut-cmd joint.{j}.motor-pos-cmd => {COMMAND}.{j}.in",
+                 f"net j{j}-strut-fb {FEEDBACK}.{j}.out => joint.{j}.motor-pos-fb"],
+                f"{COMMAND}.{j}.out", f"{FEEDBACK}.{j}.in")
 
     name = "linuxcnc-genhexkins"
     words = ("LinuxCNC genhexkins (hexapods): setp lines of the base and platform joints "

@@ -3,6 +3,7 @@ for any machine (the base class), its standard plan and the reach of planned pos
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -718,6 +719,72 @@ class Instrument:
     #: the name of the :mod:`pkmcal.io` function reading its CSV files
     #: (:func:`pkmcal.io.read_measurements`); instruments sit below io and name it
     reader: str = ""
+
+    # -- its own calibration flow (``pkmcal calibrate`` from one file) -----------------------
+
+    #: the options of its calibration flow: a frozen dataclass of
+    #: :func:`~pkmcal.instruments.flow.option` fields (typed, with default, flag and help),
+    #: the only options :meth:`calibrate` receives; None: no flow of its own (the calibration
+    #: layer's generic path or handlers of its own)
+    Options: type | None = None
+    #: the :mod:`pkmcal.io` function reading its files for :meth:`calibrate` (empty:
+    #: :attr:`reader`)
+    calibration_reader: str = ""
+
+    def options_of(self, given):
+        """Its :attr:`Options` from the calibration layer's options (the fields it declares,
+        each read from ``given``'s attribute of the same name).
+
+        Parameters
+        ----------
+        given : object
+            :class:`~pkmcal.calibration.run.CalibrateOptions` (or anything with those
+            attributes).
+
+        Returns
+        -------
+        object
+            An :attr:`Options` instance.
+        """
+        return self.Options(**{f.name: getattr(given, f.name)
+                               for f in dataclasses.fields(self.Options)})
+
+    def check_options(self, options, source) -> None:
+        """Raise :class:`InputError`, naming the option, for options of ``pkmcal calibrate``
+        given that this instrument's flow does not take (or not together).
+
+        Parameters
+        ----------
+        options : CalibrateOptions
+            Every option of ``pkmcal calibrate`` (:class:`~pkmcal.calibration.run.
+            CalibrateOptions`).
+        source : str or os.PathLike
+            The data file, named in messages.
+        """
+        return None
+
+    def calibrate(self, machine: Machine, data, context, options):
+        """Calibrate ``machine`` from this instrument's data (``pkmcal calibrate`` from one
+        file): read, split, fit, and the report's sections; the calibration layer finishes it
+        (:func:`~pkmcal.calibration.run.calibrate`).
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        data : path or data object
+            The data (a path is read with ``context.read``).
+        context : FlowContext
+            What the calibration layer gives (:class:`~pkmcal.instruments.flow.FlowContext`).
+        options : Options
+            Its own options (:attr:`Options`), nothing else.
+
+        Returns
+        -------
+        FlowResult
+            The fit, its report and metadata (:class:`~pkmcal.instruments.flow.FlowResult`).
+        """
+        raise NotImplementedError(f"{self.name}: no calibration flow of its own")
 
     def measured_problem(self, machine: Machine, data, noise=None, source: str = ""):
         """The calibration problem ``pkmcal calibrate`` solves for measured ``data``, unsolved,

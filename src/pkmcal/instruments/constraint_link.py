@@ -62,7 +62,7 @@ sphere, plus which actuator was passive (optional).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -94,6 +94,25 @@ from ..parameters import ParameterSet
 from ..paths import path_text
 from .base import Instrument, StandardPlan, _rows, _sigma_arg, _space_words, has_column, reachable
 from .experiment import MOUNTING_ERROR
+from .flow import (
+    FlowContext,
+    FlowResult,
+    convergence_json,
+    identifiability_json,
+    identifiability_metadata,
+    load_data,
+    only_for_poses,
+    parameter_table,
+    public_parameters,
+    require_converged,
+    rows_text,
+    solve,
+    source_of,
+    split_rows,
+    um,
+    validation_section,
+)
+from .flow import option as _option
 
 
 @dataclass
@@ -1859,6 +1878,25 @@ def link_noise_arg(text: str | float | None, machine=None) -> float:
     return sigma
 
 
+@dataclass(frozen=True, slots=True)
+class ConstraintLinkOptions:
+    """The options of the constraint link's calibration flow (:meth:`ConstraintLink.calibrate`)."""
+
+    method: str | None = _option(
+        None, "--method", "ml maximum likelihood, every reading noisy (default); ik the "
+        "paper's inverse-kinematics method (needs the passive column); fk the paper's "
+        "forward-kinematics method (estimates Lc).")
+    noise: object = _option(
+        None, "--noise", "Encoder noise, standard deviation (default 1um); held as given, else "
+        "estimated from the residuals.")
+    estimate_lc: bool | None = _option(
+        None, "--estimate-lc/--no-estimate-lc", "Estimate the constraint-link length too "
+        "(default: only with --method fk).")
+    robust: bool = _option(
+        False, "--robust", "Leave out the rows the noise cannot explain (a chi-square test of "
+        "each row) and fit again (ml).")
+
+
 class ConstraintLink(Instrument):
     """Seed 000: joint readings with the constraint link mounted, one joint passive."""
 
@@ -2046,6 +2084,18 @@ class ConstraintLink(Instrument):
 
     #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
     reader = "read_constraint_link"
+    Options = ConstraintLinkOptions
+
+    def check_options(self, options, source) -> None:
+        """The full-pose options and ``--two-step`` refused, ``--robust`` with ml (see
+        :meth:`~pkmcal.instruments.base.Instrument.check_options`)."""
+        _check_options(options, source)
+
+    def calibrate(self, machine: Machine, data, context, options):
+        """The geometry (and the link length with ``estimate_lc``) by ``method``, the joint
+        readings' residuals before and after (see
+        :meth:`~pkmcal.instruments.base.Instrument.calibrate`)."""
+        return _calibration_flow(machine, data, context, options)
 
 
 #: constraint-link plans: largest allowed deviation of |P| from Lc (m); poses within it are
@@ -2077,3 +2127,158 @@ def _on_sphere(P, machine, rows, source):
 
 #: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
 INSTRUMENT = ConstraintLink()
+
+
+def constraint_link_reading_rms(machine, data, sigma_m: float, max_iter: int = 20) -> float:
+    """RMS joint-reading residual (m) of ``machine``'s geometry on constraint-link ``data``.
+
+    The poses on the link's sphere are fitted by maximum likelihood with the geometry and the
+    link length (``data.link_length``) held: the residual a calibration would start from, or,
+    for held-out data, the residual the calibrated geometry leaves on readings it never saw.
+
+    Parameters
+    ----------
+    machine : HexaSlide
+        The geometry to test (its current parameters are held).
+    data : ConstraintLinkData
+        Readings taken with the link mounted.
+    sigma_m : float
+        Encoder noise (m); it only scales the iterations, not the result.
+    max_iter : int
+        Gauss-Newton iterations for the poses.
+
+    Returns
+    -------
+    float
+        RMS over all readings (m); NaN when the poses cannot be fitted.
+    """
+    try:
+        problem = ConstraintLinkML(machine.with_parameters(machine.u), data, sigma_m)
+        problem.parameters = problem.parameters.with_fixed(list(problem.parameters.names))
+        res = levenberg_marquardt(problem, max_iter=max_iter)
+    except (InputError, ValueError, np.linalg.LinAlgError):
+        return float("nan")
+    r = np.asarray(res.residuals, float) * sigma_m
+    return float(np.sqrt(np.mean(r**2))) if r.size and np.all(np.isfinite(r)) else float("nan")
+
+
+# -- calibration flow (pkmcal calibrate) ------------------------------------------------------
+
+
+def _check_options(options, source) -> None:
+    """Options of ``pkmcal calibrate`` the constraint link's flow does not take, refused
+    naming them."""
+    only_for_poses(options, source, "constraint-link")
+    if options.two_step:
+        raise InputError(f"--two-step: applies to laser-tracker data (mx, my, mz columns); "
+                         f"{path_text(source)} has constraint-link data")
+    if options.robust and options.method not in (None, "ml"):
+        raise InputError(f"--robust: applies to the ml method (its residuals are the noise's); "
+                         f"--method {options.method} takes some readings as exact")
+
+
+def _calibration_flow(machine, data, context: FlowContext,
+                      options: ConstraintLinkOptions) -> FlowResult:
+    """``pkmcal calibrate`` from constraint-link readings (:meth:`ConstraintLink.calibrate`)."""
+    from ..units import LENGTH
+
+    source, split = context.source, context.split
+    method = options.method or "ml"
+    estimate_lc = options.estimate_lc
+    sigma = link_noise_arg(options.noise, machine)
+    kind = "constraint-link"
+    data, held = split_rows(load_data(data, context.read, machine), split, source)
+
+    result = solve(source, calibrate_constraint_link, machine, data, held=held,
+                    method=method, sigma_m=sigma, estimate_link_length=estimate_lc,
+                    estimate_noise=options.noise is None, robust=options.robust)
+    require_converged(result, source)
+    kw = {} if estimate_lc is None else {"estimate_link_length": estimate_lc}
+    result.extras["rebuild_problem"] = lambda: PROBLEMS[method](machine, data, sigma, **kw)
+
+    units = context.units
+    fl = LENGTH[units["length"]]
+    calibrated = result.extras["machine"]
+    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
+    # FK start of the calibrated file: the input machine's home (a central pose of the working
+    # assembly mode) rather than the first measured pose, which may sit at the workspace edge
+    home_P, home_R = machine.home
+    if np.all(np.isfinite(calibrated.ik(home_P, home_R))):
+        calibrated.home = (home_P, home_R)
+    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
+    nominal_of["link.length"] = data.link_length
+    params = parameter_table(result, nominal_of, units)
+    r = np.asarray(result.residuals, float)
+    if "used" in result.extras:             # the rows in the fit (not those left out)
+        r = r[np.asarray(result.extras["used"], bool).reshape(len(r), -1).all(axis=-1)]
+    r_m = r * sigma
+    rank = int(result.rank)
+    n_free = int(np.sum(result.parameters.free))
+    s = np.asarray(result.singular_values, float)
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    dropped = [int(v) for v in np.asarray(result.extras.get("dropped_rows", []))]
+    lc_index = result.parameters.names.index("link.length") \
+        if "link.length" in result.parameters.names else None
+    lc_estimated = lc_index is not None and not bool(result.parameters.fixed[lc_index])
+    lc = float(result.extras.get("link_length", data.link_length))
+    residual_what = {"ml": "all joint readings", "ik": "passive joint readings",
+                     "fk": "computed link length |P| - Lc"}[method]
+    report = {
+        **context.head(machine, kind, method, units),
+        "measurements": len(data),
+        "dropped_rows": dropped,
+        "noise_sigma_um": sigma * 1e6,
+        "link_length": {"value": lc / fl, "assumed": data.link_length / fl,
+                        "unit": units["length"], "estimated": lc_estimated,
+                        "std": params[lc_index]["std"] if lc_estimated else None},
+        "convergence": convergence_json(result),
+        "residuals": {
+            "of": residual_what,
+            "count": int(r.size),
+            "rms_um": float(np.sqrt(np.mean(r_m**2)) * 1e6) if r.size else None,
+            "max_abs_um": float(np.max(np.abs(r_m)) * 1e6) if r.size else None,
+            "rms_per_column_um": (np.sqrt(np.mean(r_m**2, axis=0)) * 1e6).tolist()
+            if r.ndim == 2 and r.shape[1] > 1 else None,
+            "before_rms_um": um(constraint_link_reading_rms(machine, data, sigma)),
+            "before": "machine file's geometry, all readings, poses fitted (maximum "
+                      "likelihood)",
+            "residual_variance": float(result.residual_variance),
+            "estimated_noise_um": float(np.sqrt(result.residual_variance) * sigma * 1e6)
+            if np.isfinite(result.residual_variance) else None,
+            "dof": int(result.dof),
+        },
+        "identifiability": identifiability_json(n_free, rank, unidentifiable, s),
+        "parameters": public_parameters(params),
+    }
+    if "start_from" in result.extras:       # the paper's methods: where they started
+        report["start"] = result.extras["start_from"]
+    if held is not None:
+        report["validation"] = validation_section(
+            split, held, "joint readings of the held-out rows (poses fitted, geometry and Lc "
+            "held); before: the machine file's geometry", "um",
+            um(constraint_link_reading_rms(machine, held, sigma)),
+            um(constraint_link_reading_rms(calibrated, replace(held, link_length=lc),
+                                            sigma)),
+            report["residuals"]["rms_um"])
+    metadata = {
+        "method": method,
+        "date": report["date"],
+        "data": path_text(source),
+        "machine": source_of(machine),
+        "measurements": len(data),
+        "rms_residual_um": report["residuals"]["rms_um"],
+        "identifiable": rank,
+        "free_parameters": n_free,
+        **identifiability_metadata(unidentifiable),
+        "link_length_estimated": lc_estimated,
+    }
+    calibration = FlowResult(kind, machine, calibrated, result, report, metadata, params, units)
+    if "warnings" in result.extras:         # ml: the start strategy says what it left out
+        calibration.warnings += [f"{path_text(source)}: "
+                                 f"{text}" for text in result.extras["warnings"]]
+    elif dropped:
+        calibration.warnings.append(
+            f"{path_text(source)}: "
+            f"{len(dropped)} row(s) left out (no pose from the five active readings "
+            f"and the link with the start geometry): {rows_text(dropped)}")
+    return calibration

@@ -19,6 +19,7 @@ enter only through their difference, per mounting.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -40,6 +41,21 @@ from .base import (
 )
 from .data import InstrumentData
 from .experiment import MOUNTING_ERROR, circle_poses
+from .flow import (
+    FlowContext,
+    FlowResult,
+    convergence_json,
+    fit_with_baseline,
+    identifiability_json,
+    identifiability_metadata,
+    only_for_poses,
+    option,
+    public_parameters,
+    scalar_rms,
+    source_of,
+    um,
+    validation_section,
+)
 from .models import DistancesModel, IsotropicNoise
 from .problem import InstrumentProblem, fit_instrument
 
@@ -207,6 +223,18 @@ def circle_plan(machine: Machine, n: int, setups=None):
                          + ", ".join(f"{v * 1e3:.6g}" for v in P[bad[0]]) + ") mm); use a "
                          "shorter ballbar or fewer setups")
     return P, R, group
+
+
+@dataclass(frozen=True, slots=True)
+class DistanceOptions:
+    """The options of the ballbar's calibration flow (:meth:`Distance.calibrate`)."""
+
+    noise: object = option(
+        None, "--noise", "The ballbar's standard deviation (default 1um); held as given, else "
+        "estimated from the residuals.")
+    robust: bool = option(
+        False, "--robust", "Leave out the rows the noise cannot explain (a chi-square test of "
+        "each row) and fit again.")
 
 
 class Distance(Instrument):
@@ -484,6 +512,18 @@ class Distance(Instrument):
 
     #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
     reader = "read_distances"
+    Options = DistanceOptions
+
+    def check_options(self, options, source) -> None:
+        """``--method``, ``--estimate-lc``, ``--two-step`` and the full-pose options refused
+        (see :meth:`~pkmcal.instruments.base.Instrument.check_options`)."""
+        _check_options(options, source)
+
+    def calibrate(self, machine: Machine, data, context, options):
+        """The geometry and every mounting's pivot and ball, the lengths' residuals before
+        (mountings fitted alone) and after (see
+        :meth:`~pkmcal.instruments.base.Instrument.calibrate`)."""
+        return _calibration_flow(machine, data, context, options)
 
     def measured_problem(self, machine, data, noise=None, source=""):
         """The pivot and ball of each setup fitted to the data with the machine held."""
@@ -569,3 +609,90 @@ def calibrate_distances(machine: Machine, data: InstrumentData, noise=None, rtol
 
 #: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
 INSTRUMENT = Distance()
+
+
+# -- calibration flow (pkmcal calibrate) ------------------------------------------------------
+
+
+def _check_options(options, source) -> None:
+    """Options of ``pkmcal calibrate`` the ballbar's flow does not take, refused naming them."""
+    only_for_poses(options, source, "distance")
+    for flag, given in (("--method", options.method is not None),
+                          ("--estimate-lc", options.estimate_lc is not None),
+                          ("--two-step", options.two_step)):
+        if given:
+            raise InputError(f"{flag}: does not apply to ballbar data ({path_text(source)}); see "
+                             "--noise (the ballbar's standard deviation, default 1um), "
+                             "--robust")
+
+
+def _calibration_flow(machine, data, context: FlowContext,
+                      options: DistanceOptions) -> FlowResult:
+    """``pkmcal calibrate`` from ballbar lengths (:meth:`Distance.calibrate`)."""
+    from ..units import LENGTH
+
+    source, split = context.source, context.split
+    noise = INSTRUMENT.noise_arg(options.noise, machine)
+    data, held, result, before, calibrated, params, units = fit_with_baseline(
+        machine, data, context, calibrate_distances, noise,
+        "measure each mounting over a spread of poses (a sphere around the pivot, with "
+        "rotations on a platform that rotates)", estimate_noise=options.noise is None,
+        robust=options.robust)
+    fl = LENGTH[units["length"]]
+    problem, before_problem = result.extras["problem"], before.extras["problem"]
+    rms_after, r_after = scalar_rms(problem, result.state, data)
+    rms_before, _ = scalar_rms(before_problem, before.state, data)
+    rank = int(result.rank)
+    n_free = int(np.sum(result.parameters.free))
+    s = np.asarray(result.singular_values, float)
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    setups = result.extras["setups"]
+    ok = np.isfinite(r_after)
+    report = {
+        **context.head(machine, "distance", "joint"),
+        "units": units,
+        "measurements": len(data),
+        "noise": f"ballbar {noise.sigma * 1e6:.4g} um (std)",
+        "setups": [{"setup": g + 1, "rows": int(np.sum(data.group == g)),
+                    "pivot": (p / fl).tolist(), "ball": (b / fl).tolist(),
+                    "unit": units["length"]} for g, (p, b) in enumerate(setups)],
+        "convergence": convergence_json(result),
+        "residuals": {
+            "of": "ballbar lengths, measured - predicted (forward kinematics of the readings)",
+            "count": int(ok.sum()),
+            "rms_um": rms_after,
+            "max_abs_um": um(float(np.max(np.abs(r_after[ok])))) if ok.any() else None,
+            "before_rms_um": rms_before,
+            "before": "machine file's model, mountings (pivots and balls) fitted alone",
+            "residual_variance": float(result.residual_variance),
+            "noise_scale": float(np.sqrt(result.residual_variance))
+            if np.isfinite(result.residual_variance) else None,
+            "dof": int(result.dof),
+        },
+        "identifiability": identifiability_json(n_free, rank, unidentifiable, s),
+        "parameters": public_parameters(params),
+    }
+    if held is not None:
+        report["validation"] = validation_section(
+            split, held, "ballbar lengths of the held-out rows, measured - predicted with the "
+            "identified mountings; before: the machine file's model with the mountings fitted "
+            "alone on the calibration rows", "um",
+            scalar_rms(before_problem, before.state, held)[0],
+            scalar_rms(problem, result.state, held)[0], rms_after)
+    metadata = {
+        "method": "ballbar",
+        "date": report["date"],
+        "data": path_text(source),
+        "machine": source_of(machine),
+        "measurements": len(data),
+        "rms_residual_um": rms_after,
+        "identifiable": rank,
+        "free_parameters": n_free,
+        **identifiability_metadata(unidentifiable),
+    }
+    return FlowResult("distance", machine, calibrated, result, report, metadata, params, units)
+
+
+# --------------------------------------------------------------------------------------------
+# named parameter sets (--parameters)
+# --------------------------------------------------------------------------------------------

@@ -71,6 +71,23 @@ from ..parameters import ParameterSet
 from ..paths import path_text
 from .base import Instrument, _space_words, has_column, reachable
 from .experiment import MOUNTING_ERROR
+from .flow import (
+    FlowContext,
+    FlowResult,
+    convergence_json,
+    identifiability_json,
+    identifiability_metadata,
+    json_safe,
+    load_data,
+    parameter_table,
+    public_parameters,
+    require_converged,
+    solve,
+    source_of,
+    split_rows,
+    validation_section,
+)
+from .flow import option as _option
 
 Frame = tuple[np.ndarray, np.ndarray]
 
@@ -1364,6 +1381,33 @@ def full_pose_noise_arg(noise: str | None, pose_noise: str | None, strict: bool,
     return FullPoseNoise(reading, position, orientation)
 
 
+@dataclass(frozen=True, slots=True)
+class PoseOptions:
+    """The options of the full-pose calibration flow (:meth:`Pose.calibrate`)."""
+
+    method: str | None = _option(
+        None, "--method", "ml maximum likelihood, readings and measured poses noisy "
+        "(default); ik inverse-kinematic residuals (Zhuang, Yan & Masory 1998), measured poses "
+        "exact.")
+    noise: object = _option(
+        None, "--noise", "Noise of the leg readings, as a leg length (default 2um), or a "
+        "FullPoseNoise; held as given, else estimated from the residuals.")
+    pose_noise: str | None = _option(
+        None, "--pose-noise", "Noise of the measured poses, POSITION,ORIENTATION with units, "
+        "held as given (default: estimated from the residuals, starting from 20um,50urad).")
+    fix_frames: bool = _option(
+        False, "--fix-frames", "Hold the measurement frames (mocap_from_base, "
+        "platform_from_marker) at the machine file's measurement_frames (identity without "
+        "that section) instead of estimating them.")
+    extensions: str | None = _option(
+        None, "--extensions", "auto (default) tries the machine's model extensions and adopts "
+        "one only when it predicts rows held out of the fit better (5-fold cross-validation); "
+        "none fits the plain model.")
+    robust: bool = _option(
+        False, "--robust", "Leave out the rows the noise cannot explain (a chi-square test of "
+        "each row) and fit again (ml).")
+
+
 class Pose(Instrument):
     """Full poses of a marker on the platform (motion capture), SPEC 2.4."""
 
@@ -1589,6 +1633,18 @@ class Pose(Instrument):
 
     #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
     reader = "read_full_pose"
+    Options = PoseOptions
+
+    def check_options(self, options, source) -> None:
+        """``--estimate-lc`` and ``--two-step`` refused, ``--method`` ml or ik, ``--robust``
+        with ml (see :meth:`~pkmcal.instruments.base.Instrument.check_options`)."""
+        _check_options(options, source)
+
+    def calibrate(self, machine: Machine, data, context, options):
+        """Legs and both measurement frames (or the frames held), the machine's model
+        extensions adopted by cross-validation, errors before and after (see
+        :meth:`~pkmcal.instruments.base.Instrument.calibrate`)."""
+        return _calibration_flow(machine, data, context, options)
 
     def measured_problem(self, machine, data, noise=None, source=""):
         """The measurement frames of the machine file, else estimated from the data (at least
@@ -1662,3 +1718,189 @@ def pose_noise_option(noise, pose_noise, machine):
     hold = ((["reading"] if noise is not None else [])
             + (["position", "orientation"] if pose_noise is not None else []))
     return model, hold
+
+
+# -- calibration flow (pkmcal calibrate) ------------------------------------------------------
+
+
+def _frame_report(frame, fl: float, unit: str) -> dict:
+    """A measurement frame in the report (rotation, translation in the file's unit, angle)."""
+    from ..kinematics import rotation_angle
+
+    R, t = frame
+    return {"rotation": np.asarray(R, float).tolist(),
+            "translation": (np.asarray(t, float) / fl).tolist(), "unit": unit,
+            "rotation_angle_deg": float(np.degrees(rotation_angle(np.asarray(R, float))))}
+
+
+def _errors_report(errors, fl: float) -> dict:
+    """Full-pose errors in the report (the file's length unit, degrees)."""
+    s = errors.summary()
+    return {"leg_length_rms": s["leg_length_rms"] / fl, "leg_length_max": s["leg_length_max"] / fl,
+            "leg_length_rms_per_leg": [v / fl for v in s["leg_length_rms_per_leg"]],
+            "position_rms": s["position_rms"] / fl, "position_max": s["position_max"] / fl,
+            "orientation_rms_deg": float(np.degrees(s["orientation_rms"])),
+            "orientation_max_deg": float(np.degrees(s["orientation_max"])),
+            "fk_failed": s["fk_failed"]}
+
+
+def _check_options(options, source) -> None:
+    """Options of ``pkmcal calibrate`` the full-pose flow does not take, refused naming them."""
+    for flag, given in (("--estimate-lc", options.estimate_lc is not None),
+                          ("--two-step", options.two_step)):
+        if given:
+            raise InputError(f"{flag}: does not apply to full-pose data ({path_text(source)}); "
+                             "see --method ml|ik, --fix-frames, --noise, --pose-noise, --robust")
+    if options.robust and options.method == "ik":
+        raise InputError("--robust: applies to the ml method (its residuals are the noise's); "
+                         "--method ik takes the measured poses as exact")
+    if options.method not in (None, "ml", "ik"):
+        raise InputError(f"--method {options.method}: full-pose data are calibrated by ml "
+                         "(maximum likelihood, default) or ik (inverse-kinematic residuals)")
+
+
+def _calibration_flow(machine, data, context: FlowContext,
+                      options: PoseOptions) -> FlowResult:
+    """``pkmcal calibrate`` from full poses (:meth:`Pose.calibrate`)."""
+    from ..machines.stewart import reading_factor
+    from ..units import LENGTH
+
+    source, split = context.source, context.split
+    method, fix_frames = options.method or "ml", options.fix_frames
+    noise_model, hold = pose_noise_option(options.noise, options.pose_noise, machine)
+    data, held = split_rows(load_data(data, context.read, machine), split, source)
+    file_frames = getattr(machine, "measurement_frames", None)
+    if fix_frames:
+        frames = file_frames if file_frames is not None else MeasurementFrames.identity()
+        frames_from = ("the machine file's measurement_frames" if file_frames is not None
+                       else "identity (the machine file has no measurement_frames)")
+    else:
+        frames = file_frames
+        frames_from = ("start: the machine file's measurement_frames" if file_frames is not None
+                       else "start: closed form from the design model")
+    result = solve(source, calibrate_full_pose, machine, data, held=held, method=method,
+                    noise=noise_model, frames=frames, fix_frames=fix_frames,
+                    estimate_noise=hold, robust=options.robust)
+    # the machine's model extensions (a leg's reading curvature ...), adopted only when they
+    # predict rows held out of the fit better (k-fold cross-validation on these data)
+    model, choice = machine, None
+    if options.extensions != "none" and machine.model_extensions():
+        require_converged(result, source)
+        levels = result.extras.get("noise")
+        cv_noise = noise_model if levels is None else FullPoseNoise(
+            **{f"{k}_{'rad' if k == 'orientation' else 'm'}": v
+               for k, v in zip(levels.keys, levels.sigma, strict=True)})
+        choose = context.model_choice.choose_full_pose_extensions
+        choice = choose(machine, data, method, cv_noise, frames=frames, fix_frames=fix_frames)
+        if choice.adopted:
+            model = choice.machine
+            result = solve(source, calibrate_full_pose, model, data, held=held,
+                            method=method, noise=noise_model, frames=frames,
+                            fix_frames=fix_frames, estimate_noise=hold, robust=options.robust)
+        result.extras["extensions"] = choice
+    # the machine file's legs with the frames fitted alone: "before calibration"
+    before = solve(source, calibrate_full_pose, machine, data, held=held, method=method,
+                    noise=noise_model, frames=frames if fix_frames
+                    else result.extras["start_frames"], fix_frames=fix_frames,
+                    fit_machine=False)
+    require_converged(result, source)
+
+    units = context.units
+    fl = LENGTH[units["length"]]
+    calibrated = result.extras["machine"]
+    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
+    calibrated.home = machine.home
+    frames_id = result.extras["frames"]
+    err_after = full_pose_errors(calibrated, frames_id, data)
+    err_before = full_pose_errors(machine, before.extras["frames"], data)
+
+    reading_unit = getattr(machine, "reading_unit", None) or machine.joint_unit()[0]
+    gain_factor = fl / reading_factor(reading_unit)         # internal gain -> file gain
+    nominal_of = dict(zip(model.parameters.names, model.u, strict=True))
+    start = result.extras["start_frames"]
+    for name, (R, t) in (("mocap_from_base", start.mocap_from_base),
+                         ("platform_from_marker", start.platform_from_marker)):
+        nominal_of.update({f"{name}.r{c}": 0.0 for c in "xyz"})
+        nominal_of.update({f"{name}.{c}": v for c, v in zip("xyz", t, strict=True)})
+    params = parameter_table(result, nominal_of, units)
+    for p in params:
+        if p["name"].endswith(".gain"):
+            for key in ("nominal", "identified", "change", "std"):
+                if p[key] is not None:
+                    p[key] = p[key] / gain_factor
+            p["unit"] = f"{units['length']}/{reading_unit}"
+        elif p["name"].endswith(".curvature"):           # internal -> file length / reading^2
+            for key in ("nominal", "identified", "change", "std"):
+                if p[key] is not None:
+                    p[key] = p[key] * reading_factor(reading_unit) ** 2 / fl
+            p["unit"] = f"{units['length']}/{reading_unit}^2"
+    rank = int(result.rank)
+    n_free = int(np.sum(result.parameters.free))
+    s = np.asarray(result.singular_values, float)
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    # the ik estimate takes the poses as exact, but their noise is in the residuals: its
+    # residual test is against the whole noise (readings + poses through the IK); the residuals
+    # section states the verdict's numbers (the calibration layer's finish)
+    variance = float(result.residual_variance)
+    after, before_rep = _errors_report(err_after, fl), _errors_report(err_before, fl)
+    extensions = (choice.as_dict({"leg_length": (fl, units["length"]), "position": (
+        fl, units["length"]), "orientation": (math.pi / 180, "deg")}) if choice is not None
+        else {"tried": [], "adopted": [], "skipped": "--extensions none" if
+              options.extensions == "none" else "the machine offers none"})
+    report = {
+        **context.head(machine, "pose", method, units),
+        "reading_unit": reading_unit,
+        "measurements": len(data),
+        "noise": {"reading_um": noise_model.reading_m * 1e6,
+                  "position_um": noise_model.position_m * 1e6,
+                  "orientation_urad": noise_model.orientation_rad * 1e6},
+        "frames": {
+            "fixed": bool(fix_frames), "from": frames_from,
+            "mocap_from_base": _frame_report(frames_id.mocap_from_base, fl, units["length"]),
+            "platform_from_marker": _frame_report(frames_id.platform_from_marker, fl,
+                                                  units["length"]),
+        },
+        "convergence": convergence_json(result),
+        "residuals": {
+            "unit": units["length"],
+            "leg_length": "l0 + gain q minus the leg length at the measured pose (through the "
+                          "frames)",
+            "pose": "measured marker pose minus the one forward kinematics of the readings "
+                    "predict (through the frames)",
+            "before": "the machine file's legs, frames fitted alone",
+            "before_calibration": before_rep,
+            "after_calibration": after,
+            "residual_variance": variance,
+            "noise_scale": math.sqrt(variance) if math.isfinite(variance) else None,
+            "dof": int(result.dof),
+        },
+        "identifiability": identifiability_json(n_free, rank, unidentifiable, s),
+        "parameters": public_parameters(params),
+        "model_extensions": extensions,
+    }
+    if held is not None:
+        h_after = _errors_report(full_pose_errors(calibrated, frames_id, held), fl)
+        h_before = _errors_report(full_pose_errors(machine, before.extras["frames"], held), fl)
+        report["validation"] = validation_section(
+            split, held, "pose error of the held-out rows: forward kinematics of the readings "
+            "(through the identified frames) vs the measured pose; before: the machine file's "
+            "legs, frames fitted alone on the calibration rows", units["length"],
+            *json_safe([h_before["position_rms"], h_after["position_rms"],
+                        after["position_rms"]]), before_calibration=h_before,
+            after_calibration=h_after)
+    metadata = {
+        "method": f"full-pose-{method}",
+        "date": report["date"],
+        "data": path_text(source),
+        "machine": source_of(machine),
+        "measurements": len(data),
+        "leg_length_rms": {"before": before_rep["leg_length_rms"],
+                           "after": after["leg_length_rms"], "unit": units["length"]},
+        "frames_fixed": bool(fix_frames),
+        "model_extensions": list(choice.adopted) if choice is not None else [],
+        "identifiable": rank,
+        "free_parameters": n_free,
+        **identifiability_metadata(unidentifiable),
+    }
+    # the nominal of the fitted model (with an adopted extension at its neutral values)
+    return FlowResult("pose", model, calibrated, result, report, metadata, params, units)

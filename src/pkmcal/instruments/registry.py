@@ -40,6 +40,7 @@ INSTRUMENT_MODULES: tuple[str, ...] = (
     "distance",
     "probe",
     "pairs",
+    "dial",
 )
 
 #: the instruments by canonical name

@@ -58,6 +58,24 @@ from ..units import format_um
 from .base import Instrument, StandardPlan, _check_groups, _fk_of, has_column, reachable
 from .data import InstrumentData
 from .experiment import MOUNTING_ERROR
+from .flow import (
+    FlowContext,
+    FlowResult,
+    convergence_json,
+    identifiability_json,
+    identifiability_metadata,
+    load_data,
+    only_for_poses,
+    option,
+    parameter_table,
+    public_parameters,
+    require_converged,
+    rows_text,
+    solve,
+    source_of,
+    split_rows,
+    validation_section,
+)
 from .models import NuisanceState, PointsModel
 from .problem import InstrumentProblem, InstrumentState
 
@@ -817,6 +835,23 @@ def _point_errors(measured, exact) -> dict:
             "position_max": float(np.max(e[ok])) if ok.any() else math.nan}
 
 
+@dataclass(frozen=True, slots=True)
+class TrackerOptions:
+    """The options of the tracker's calibration flow (:meth:`Tracker.calibrate`)."""
+
+    noise: object = option(
+        None, "--noise", "Tracker noise: leica (default) or a length for isotropic noise (e.g. "
+        "10um), or a TrackerNoise; held as given, else the levels are estimated from the "
+        "residuals.")
+    two_step: bool = option(
+        False, "--two-step", "The paper's method, registration first (closed form with the "
+        "nominal model) and then the errors with the registration fixed. Default: errors and "
+        "registration together.")
+    robust: bool = option(
+        False, "--robust", "Leave out the rows the noise cannot explain (a chi-square test of "
+        "each row) and fit again.")
+
+
 class Tracker(Instrument):
     """Points of a target on the platform in the instrument's frame (seed 001's tracker)."""
 
@@ -1137,6 +1172,20 @@ class Tracker(Instrument):
 
     #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
     reader = "read_points"
+    #: its flow reads :class:`TrackerData` (the registration's start needs the points alone)
+    calibration_reader = "read_tracker"
+    Options = TrackerOptions
+
+    def check_options(self, options, source) -> None:
+        """``--method`` and ``--estimate-lc`` (constraint link), the full-pose options, and
+        ``--robust`` with ``--two-step`` refused (see
+        :meth:`~pkmcal.instruments.base.Instrument.check_options`)."""
+        _check_options(options, source)
+
+    def calibrate(self, machine: Machine, data, context, options):
+        """Registration and errors together (or ``two_step``), the distance ratio (seed 001
+        Fig. 6) before and after (see :meth:`~pkmcal.instruments.base.Instrument.calibrate`)."""
+        return _calibration_flow(machine, data, context, options)
 
     def measured_problem(self, machine, data, noise=None, source=""):
         """The tracker's pose and the target places started from the data: registered on the
@@ -1188,3 +1237,279 @@ def as_tracker_data(data):
         return data
     return TrackerData(data.q, data.values, data.rows, data.source, data.true_P,
                        target=data.group if data.n_groups > 1 else None)
+
+
+# -- calibration flow (pkmcal calibrate) ------------------------------------------------------
+
+
+def grid_neighbour_pairs(P, abs_tol: float = 1e-4, rel_tol: float = 0.01) -> np.ndarray:
+    """Index pairs of neighbouring points of an axis-aligned grid.
+
+    ``j`` is the neighbour of ``i`` along an axis when ``P_j - P_i`` points along the positive
+    axis (off-axis part within ``abs_tol + rel_tol * distance``) and no closer point lies that
+    way; missing grid points are allowed. Seed 001 Fig. 6 compares such pairs.
+
+    Parameters
+    ----------
+    P : array_like, shape (K, 3)
+        Positions, m.
+    abs_tol : float, optional
+        Absolute off-axis tolerance, m.
+    rel_tol : float, optional
+        Off-axis tolerance relative to the distance.
+
+    Returns
+    -------
+    ndarray of int, shape (n, 2)
+        The pairs ``(i, j)``.
+    """
+    P = np.asarray(P, float)
+    K = len(P)
+    pairs = []
+    for start in range(0, K, 512):                       # K x K temporaries in blocks
+        D = P[None, :, :] - P[start:start + 512, None, :]   # (B, K, 3) P_j - P_i
+        for axis in range(3):
+            along = D[..., axis]
+            off = np.linalg.norm(np.delete(D, axis, axis=-1), axis=-1)
+            dist = np.where((along > abs_tol) & (off <= abs_tol + rel_tol * along), along,
+                            np.inf)
+            j = np.argmin(dist, axis=1)
+            i = np.flatnonzero(np.isfinite(dist[np.arange(len(D)), j]))
+            pairs.append(np.stack([i + start, j[i]], -1))
+    return np.concatenate(pairs) if pairs else np.zeros((0, 2), int)
+
+
+def distance_ratio_pairs(machine, q) -> tuple[np.ndarray, str]:
+    """Pairs of measurements for the distance ratio (seed 001 Fig. 6).
+
+    Neighbours of the grid the readings were commanded to (``machine``'s forward kinematics
+    of them, i.e. the commanded points when ``machine`` is the controller's model); nearest
+    neighbours when the points form no grid.
+
+    Parameters
+    ----------
+    machine : Machine
+        The controller's model.
+    q : array_like, shape (K, n)
+        Joint readings.
+
+    Returns
+    -------
+    tuple
+        ``(pairs (n, 2) of row indices, how they were found)``.
+    """
+    P = machine.fk(q).P
+    ok = np.all(np.isfinite(P), axis=-1)
+    pairs = grid_neighbour_pairs(np.where(ok[:, None], P, 1e9))
+    pairs = pairs[ok[pairs].all(axis=1)] if len(pairs) else pairs
+    if len(pairs) >= max(1, len(P) // 4):      # a grid: most points have a neighbour
+        return pairs, "neighbours on the commanded grid"
+    D = np.linalg.norm(P[:, None] - P[None], axis=-1)
+    np.fill_diagonal(D, np.inf)
+    j = np.argmin(np.where(np.isfinite(D), D, np.inf), axis=1)
+    pairs = np.unique(np.sort(np.stack([np.arange(len(P)), j], -1), axis=1), axis=0)
+    return pairs[ok[pairs].all(axis=1)], "nearest neighbours (the points form no grid)"
+
+
+def _ratio_stats(r) -> dict:
+    r = np.asarray(r, float)
+    r = r[np.isfinite(r)]
+    if not r.size:
+        return {"mean": None, "std": None, "min": None, "max": None}
+    return {"mean": float(r.mean()), "std": float(r.std()), "min": float(r.min()),
+            "max": float(r.max())}
+
+
+def check_spread(data, noise_model) -> None:
+    """Refuse (nearly) collinear tracker points: the registration's rotation about their line
+    would be fixed only by the noise. Also fewer than 4 points (seed 001 eq. 12-14)."""
+    K = len(data)
+    if K < 4:
+        raise InputError(f"{path_text(data.source)}: "
+                         f"{K} point(s): the tracker registration needs at "
+                         "least 4 points that are not on one line (seed 001 uses a 3x3x3 grid)")
+    m = data.m - data.m.mean(0)
+    sv = np.linalg.svd(m, compute_uv=False)
+    off_line = sv[1] / math.sqrt(K)                       # RMS distance from the best line
+    sigma = float(np.sqrt(np.max(np.trace(noise_model.covariance(data.m), axis1=1, axis2=2))))
+    if off_line <= max(20 * sigma, 1e-6 * sv[0]):
+        raise InputError(f"{path_text(data.source)}: "
+                         f"the {K} tracker points lie on one line or nearly (RMS "
+                         f"distance from the best line {off_line * 1e6:.3g} um, tracker noise "
+                         f"{sigma * 1e6:.3g} um): the "
+                         "rotation of the tracker about that line cannot be found; measure "
+                         "points spread in 2-3 directions (e.g. a 3x3x3 grid)")
+
+
+def _rotvec(R):
+    from ..kinematics import rotvec_from_matrix
+
+    return rotvec_from_matrix(R)
+
+
+def _check_options(options, source) -> None:
+    """Options of ``pkmcal calibrate`` the tracker's flow does not take, refused naming them."""
+    only_for_poses(options, source, "tracker")
+    for flag, given in (("--method", options.method is not None),
+                          ("--estimate-lc", options.estimate_lc is not None)):
+        if given:
+            raise InputError(f"{flag}: applies to constraint-link data; {path_text(source)} has "
+                             "tracker points (see --two-step, --robust)")
+    if options.two_step and options.robust:
+        raise InputError("--robust: applies to the joint method (its residuals are the "
+                         "noise's); --two-step holds a registration of the nominal model, whose "
+                         "residuals exceed the noise by design")
+
+
+def _calibration_flow(machine, data, context: FlowContext,
+                      options: TrackerOptions) -> FlowResult:
+    """``pkmcal calibrate`` from tracker points (:meth:`Tracker.calibrate`)."""
+    from ..units import LENGTH
+
+    source, split = context.source, context.split
+    two_step, robust = options.two_step, options.robust
+    if options.noise is None or isinstance(options.noise, str):
+        noise_model, noise_text = tracker_noise_arg(options.noise, allow_none=False,
+                                                    machine=machine)
+    else:
+        noise_model, noise_text = options.noise, _tracker_noise_text(options.noise)
+    data, held = split_rows(as_tracker_data(load_data(data, context.read, machine)), split,
+                            source)
+    check_spread(data, noise_model)
+    fk = machine.fk(data.q)
+    if not fk.converged.all():
+        raise InputError(f"{path_text(source)}: row(s) {rows_text(data.rows[~fk.converged])}: no "
+                         f"platform pose of {source_of(machine)} reproduces these readings "
+                         "(outside the workspace, or a wrong unit or zero)")
+    result = solve(source, calibrate_tracker, machine, data, noise_model, held=held,
+                    joint=not two_step, robust=robust, estimate_noise=options.noise is None)
+    require_converged(result, source,
+                       "spread the points in all three directions, e.g. a 3x3x3 grid")
+
+    units = context.units
+    fl = LENGTH[units["length"]]
+    method = "two-step" if two_step else "joint"
+    calibrated = result.extras["machine"]
+    calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
+    # FK start of the calibrated file: the input machine's home, else the measured position
+    # closest to the middle of the data that the calibrated model reaches
+    fk_cal = calibrated.fk(data.q)
+    order = np.argsort(np.linalg.norm(fk_cal.P - np.nanmean(fk_cal.P, axis=0), axis=1))
+    for P_home, R_home in [machine.home, *zip(fk_cal.P[order], fk_cal.R[order], strict=True)]:
+        if np.all(np.isfinite(calibrated.ik(P_home, R_home))):
+            calibrated.home = (np.asarray(P_home, float), np.asarray(R_home, float))
+            break
+    R, t = result.extras["registration"]
+    R0, t0 = result.extras["start_registration"]
+    given = machine.tracker_target() is not None
+    targets, targets0 = result.extras["targets"], result.extras["start_targets"]
+    calibrated.tracker_targets = None if given else np.array(targets, float)
+    kept = np.asarray(result.extras["kept"], bool)
+    outlier_rows = [int(v) for v in result.extras["outlier_rows"]]
+
+    nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
+    nominal_of.update(zip(("tracker.rx", "tracker.ry", "tracker.rz"), (0.0, 0.0, 0.0),
+                          strict=True))
+    nominal_of.update(zip(("tracker.x", "tracker.y", "tracker.z"), t0, strict=True))
+    params = parameter_table(result, nominal_of, units)
+
+    # residuals in the tracker frame (m); before = nominal model + closed-form registration
+    r = data.m - predict_tracker_points(calibrated, data.q, (R, t), targets, data.target)
+    r0 = data.m - predict_tracker_points(machine, data.q, (R0, t0), targets0, data.target)
+    norm, norm0 = np.linalg.norm(r, axis=1), np.linalg.norm(r0, axis=1)
+    rms = lambda v: float(np.sqrt(np.mean(v**2)) * 1e6) if v.size else None  # noqa: E731
+    # distance ratio (seed 001 Fig. 6) over pairs of kept rows
+    pairs, pairs_from = distance_ratio_pairs(machine, data.q)
+    pairs = pairs[kept[pairs].all(axis=1)] if len(pairs) else pairs
+    d_meas = np.linalg.norm(data.m[pairs[:, 0]] - data.m[pairs[:, 1]], axis=-1) \
+        if len(pairs) else np.zeros(0)
+    pairs = pairs[d_meas > 1e-9] if len(pairs) else pairs
+    ratio_before = distance_ratios(machine, data.q, data.m, pairs, targets0, data.target) \
+        if len(pairs) else []
+    ratio_after = distance_ratios(calibrated, data.q, data.m, pairs, targets, data.target) \
+        if len(pairs) else []
+    before, after = _ratio_stats(ratio_before), _ratio_stats(ratio_after)
+
+    rank = int(result.rank)
+    n_free = int(np.sum(result.parameters.free))
+    s = np.asarray(result.singular_values, float)
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    combinations = calibrated.identifiable_combinations()
+    if combinations is not None:
+        combinations = {k: (v if k == "description" else (np.asarray(v) / fl).tolist())
+                        for k, v in combinations.items()}
+        combinations["description"] += " (file length unit)"
+    rot_change = float(np.degrees(np.linalg.norm(_rotvec(R @ R0.T))))
+    report = {
+        **context.head(machine, "tracker", method),
+        "robust": robust,
+        "units": units,
+        "measurements": len(data),
+        "used": int(kept.sum()),
+        "outlier_rows": outlier_rows,
+        "noise": noise_text,
+        **({"smr_offset": float(-machine.tracker_target()[2]) / fl} if given else {}),
+        "targets": {"given_by_machine_file": given, "unit": units["length"],
+                    "places": (np.asarray(targets, float) / fl).tolist(),
+                    "what": "target places on the platform (platform frame)"},
+        "registration": {
+            "estimated": not two_step,
+            "rotation": R.tolist(), "translation": (np.asarray(t) / fl).tolist(),
+            "unit": units["length"],
+            "start": {"rotation": R0.tolist(), "translation": (np.asarray(t0) / fl).tolist(),
+                      "method": "closed form (SVD) with the nominal model"},
+            "rotation_change_deg": rot_change,
+            "translation_change": float(np.linalg.norm(t - t0) / fl),
+        },
+        "convergence": convergence_json(result),
+        "residuals": {
+            "of": "tracker points, measured - predicted (3-D distance, tracker frame)",
+            "count": int(kept.sum()),
+            "rms_um": rms(norm[kept]),
+            "max_um": float(norm[kept].max() * 1e6) if kept.any() else None,
+            "rms_per_axis_um": (np.sqrt(np.mean(r[kept] ** 2, axis=0)) * 1e6).tolist(),
+            "before_rms_um": rms(norm0[kept]),
+            "before": "machine file's model, closed-form registration" if given else
+                      "machine file's model, tracker frame and targets fitted alone",
+            "residual_variance": float(result.residual_variance),
+            "noise_scale": float(np.sqrt(result.residual_variance))
+            if np.isfinite(result.residual_variance) else None,
+            "dof": int(result.dof),
+            "outliers": [{"row": int(row), "residual_um": float(v * 1e6)} for row, v in
+                         zip(data.rows[~kept], norm[~kept], strict=True)],
+        },
+        "distance_ratio": {
+            "unit": "%", "pairs": int(len(pairs)), "pairs_from": pairs_from,
+            "before": before, "after": after,
+        },
+        "identifiability": identifiability_json(n_free, rank, unidentifiable, s),
+        **({"identifiable_combinations": combinations} if combinations else {}),
+        "parameters": public_parameters(params),
+    }
+    if held is not None:
+        d_after = np.linalg.norm(held.m - predict_tracker_points(
+            calibrated, held.q, (R, t), targets, held.target), axis=1)
+        d_before = np.linalg.norm(held.m - predict_tracker_points(
+            machine, held.q, (R0, t0), targets0, held.target), axis=1)
+        ok = np.isfinite(d_after) & np.isfinite(d_before)
+        report["validation"] = validation_section(
+            split, held, "tracker points of the held-out rows, measured - predicted (3-D "
+            "distance) with the identified tracker pose; before: the machine file's model and "
+            "the closed-form registration of the calibration rows", "um",
+            rms(d_before[ok]), rms(d_after[ok]), report["residuals"]["rms_um"],
+            max_after=float(d_after[ok].max() * 1e6) if ok.any() else None,
+            not_reached=[int(r) for r in held.rows[~ok]])
+    metadata = {
+        "method": f"tracker-{method}",
+        "date": report["date"],
+        "data": path_text(source),
+        "machine": source_of(machine),
+        "measurements": len(data),
+        "outlier_rows": outlier_rows,
+        "rms_residual_um": report["residuals"]["rms_um"],
+        "identifiable": rank,
+        "free_parameters": n_free,
+        **identifiability_metadata(unidentifiable),
+        "distance_ratio_std_percent": {"before": before["std"], "after": after["std"]},
+    }
+    return FlowResult("tracker", machine, calibrated, result, report, metadata, params, units)

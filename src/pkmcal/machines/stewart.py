@@ -753,9 +753,18 @@ class StewartFile(MachineFileHead):
     home: Pose6 | None = None
 
 
+def _reading_length_unit(unit: str) -> str:
+    """A file's length unit as the legs' reading unit: the data files' name of the same unit
+    (``inch`` -> ``in``), which :class:`Readings` reads back when the file is written."""
+    if unit in READING_LENGTH_UNITS:
+        return unit
+    return next((u for u in READING_LENGTH_UNITS if LENGTH[u] == LENGTH.get(unit)), unit)
+
+
 def _build(doc: StewartFile, source: str) -> Stewart:
     fl, fa = factors(doc.units.model_dump())
-    unit = doc.readings.unit if doc.readings is not None else doc.units.length
+    unit = (doc.readings.unit if doc.readings is not None
+            else _reading_length_unit(doc.units.length))
     gain_factor = fl / reading_factor(unit)          # file gain -> internal gain
     legs = doc.legs
     params = stewart_parameters(
