@@ -129,3 +129,45 @@ def fit_bed_surface(calibrated, datasets, count: int = COUNT):
     if np.max(np.abs(fitted)) <= MIN_PEAK or np.sum(fitted**2) <= SIGNIFICANCE * df * sigma2:
         return None
     return radius, v.reshape(count, count), rms, len(s)
+
+
+def with_bed_surface(calibration, data):
+    """A printer's bed shape beside its plane, from its probed meshes (:func:`fit_bed_surface`):
+    on the calibrated machine (its file's ``bed: surface``) and in the report, where it is
+    significant.
+
+    Parameters
+    ----------
+    calibration : Calibration
+        A calibration (its ``calibrated`` machine, ``report`` and ``warnings`` are completed).
+    data : list
+        The data it was fitted to (paths are skipped: read inside the fit).
+
+    Returns
+    -------
+    Calibration
+        The same object.
+    """
+    from pathlib import Path
+
+    calibrated = calibration.calibrated
+    if not getattr(calibrated, "frame_is_bed", False):
+        return calibration
+    items = [d for d in (data if isinstance(data, (list, tuple)) else [data])
+             if not isinstance(d, (str, Path))]
+    fitted = fit_bed_surface(calibrated, items)
+    if fitted is None:
+        return calibration
+    radius, values, rms, points = fitted
+    calibrated.bed_surface = (radius, values)
+    calibration.report["bed_surface"] = {
+        "of": "the bed's own shape beside its plane: the meshes' residuals under the "
+              "calibrated model (each mesh's mean removed), smoothed on a square grid; "
+              "export hands it over in the firmware's bed mesh",
+        "radius_mm": radius * 1e3, "rms_um": rms * 1e6, "count": points,
+        "values_mm": (values * 1e3).tolist()}
+    calibration.warnings.append(
+        f"the bed's own shape: {rms * 1e6:.3g} um RMS over {points} probed points beyond what "
+        "the kinematics explain (a bed that is not flat, a frame that bends); kept in the "
+        "calibrated file (bed: surface) and handed over by export in the firmware's bed mesh")
+    return calibration

@@ -165,3 +165,48 @@ def choice_words(scores, chosen: int) -> str:
            "the only candidate the data can judge (the others need "
            f"{MIN_REDUNDANCY} equations beyond what they fit)")
     return f"model chosen (--parameters auto): {c.words}; {why}"
+
+
+def calibrate_auto(calibrate, machine, given, candidates, bed_tilt, options: dict):
+    """``--parameters auto``: every candidate fitted with ``calibrate``, the one that predicts
+    best kept (:func:`choose_model`); its report's ``model_choice`` and ``parameter_set``
+    say which and why.
+
+    Parameters
+    ----------
+    calibrate : callable
+        :func:`pkmcal.calibration.calibrate` (``parameters`` and ``bed_tilt`` given per
+        candidate).
+    machine : Machine
+        The machine.
+    given : object
+        The data as the user gave them.
+    candidates : list of ModelCandidate
+        The machine's candidates.
+    bed_tilt : str or None
+        ``--bed-tilt`` when the user gave it (it overrides the candidates').
+    options : dict
+        The other keywords of the call.
+
+    Returns
+    -------
+    Calibration
+        The chosen candidate's calibration.
+    """
+    def fit(name, bed):
+        return calibrate(machine, given, parameters=name,
+                         bed_tilt=bed_tilt if bed_tilt is not None else bed, **options)
+
+    calibration, scores, chosen = choose_model(fit, machine, candidates)
+    words = choice_words(scores, chosen)
+    calibration.report["model_choice"] = {
+        "chosen": chosen, "criterion": "leave-one-out prediction error of the measurements "
+        f"(PRESS), whitened by the assumed noise; a larger model kept only when it lowers it "
+        f"by {MIN_GAIN:.0%}", "words": words,
+        "candidates": [sc.as_dict() for sc in scores]}
+    calibration.warnings.append(words)
+    chosen_set = calibration.report.get("parameter_set")
+    if chosen_set is not None:
+        chosen_set["note"] = ("fitted in its own set, the firmware's: " if chosen == 0
+                              else "") + words
+    return calibration

@@ -64,6 +64,9 @@ from ..instruments.tracker import (
     check_spread as _check_spread,
 )
 from ..paths import file_identity, path_text, same_file
+from .bed_surface import with_bed_surface
+from .model_choice import calibrate_auto
+from .tolerances import tolerance_report
 
 __all__ = ["KINDS", "WHITENED_METHODS", "Calibration",
            "CalibrationNotConverged", "CalibrateOptions", "JointPart", "MeasurementKind",
@@ -703,11 +706,11 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         candidates = machine.model_candidates(lengths) if hasattr(machine, "model_candidates") \
             else []
         if candidates:
-            return _calibrate_auto(machine, given, candidates, bed_tilt,
-                                   dict(method=method, noise=noise, pose_noise=pose_noise,
-                                        estimate_lc=estimate_lc, two_step=two_step,
-                                        robust=robust, fix_frames=fix_frames,
-                                        holdout=holdout, seed=seed, extensions=extensions))
+            return calibrate_auto(calibrate, machine, given, candidates, bed_tilt,
+                                  dict(method=method, noise=noise, pose_noise=pose_noise,
+                                       estimate_lc=estimate_lc, two_step=two_step,
+                                       robust=robust, fix_frames=fix_frames,
+                                       holdout=holdout, seed=seed, extensions=extensions))
         if parameters == "auto":
             parameters = None
     suggested = {getattr(d, "parameter_set", None) for d in items}
@@ -755,7 +758,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
                                   split=split, options=options)
             calibration.inputs = _inputs_of(given, calibration.inputs)
             calibration.warnings[:0] = notes
-            return _with_bed_surface(_with_parameter_set(calibration, chosen, note), data)
+            return with_bed_surface(_with_parameter_set(calibration, chosen, note), data)
         data = data[0]
     if isinstance(noise, dict):     # named as the joint fit names it: the path or its source
         noise = _noise_of(noise, [data if isinstance(data, (str, Path))
@@ -788,59 +791,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         inputs.append(Path(machine_file))
     calibration.inputs = _inputs_of(given, inputs)
     calibration.warnings[:0] = notes
-    return _with_bed_surface(_with_parameter_set(calibration, chosen, note), [data])
-
-
-def _with_bed_surface(calibration: Calibration, data) -> Calibration:
-    """A printer's bed shape beside its plane, from its probed meshes
-    (:mod:`pkmcal.calibration.bed_surface`): on the calibrated machine (its file's ``bed:
-    surface``) and in the report, where larger than the probe's repeatability."""
-    from .bed_surface import fit_bed_surface
-
-    calibrated = calibration.calibrated
-    if not getattr(calibrated, "frame_is_bed", False):
-        return calibration
-    items = [d for d in (data if isinstance(data, (list, tuple)) else [data])
-             if not isinstance(d, (str, Path))]
-    fitted = fit_bed_surface(calibrated, items)
-    if fitted is None:
-        return calibration
-    radius, values, rms, points = fitted
-    calibrated.bed_surface = (radius, values)
-    calibration.report["bed_surface"] = {
-        "of": "the bed's own shape beside its plane: the meshes' residuals under the "
-              "calibrated model (each mesh's mean removed), smoothed on a square grid; "
-              "export hands it over in the firmware's bed mesh",
-        "radius_mm": radius * 1e3, "rms_um": rms * 1e6, "points": points,
-        "values_mm": (values * 1e3).tolist()}
-    calibration.warnings.append(
-        f"the bed's own shape: {rms * 1e6:.3g} um RMS over {points} probed points beyond what "
-        "the kinematics explain (a bed that is not flat, a frame that bends); kept in the "
-        "calibrated file (bed: surface) and handed over by export in the firmware's bed mesh")
-    return calibration
-
-
-def _calibrate_auto(machine, given, candidates, bed_tilt, options) -> Calibration:
-    """``--parameters auto``: every candidate fitted, the one that predicts best kept
-    (:mod:`pkmcal.calibration.model_choice`); the report says which and why."""
-    from .model_choice import choice_words, choose_model
-
-    def fit(name, bed):
-        return calibrate(machine, given, parameters=name,
-                         bed_tilt=bed_tilt if bed_tilt is not None else bed, **options)
-
-    calibration, scores, chosen = choose_model(fit, machine, candidates)
-    words = choice_words(scores, chosen)
-    calibration.report["model_choice"] = {
-        "chosen": chosen, "criterion": "leave-one-out prediction error of the measurements "
-        "(PRESS), whitened by the assumed noise; a larger model kept only when it lowers it "
-        "by 2 %", "words": words, "candidates": [sc.as_dict() for sc in scores]}
-    calibration.warnings.append(words)
-    chosen_set = calibration.report.get("parameter_set")
-    if chosen_set is not None:
-        chosen_set["note"] = ("fitted in its own set, the firmware's: " if chosen == 0
-                              else "") + words
-    return calibration
+    return with_bed_surface(_with_parameter_set(calibration, chosen, note), [data])
 
 
 def _noise_through_expansion(noise, given, data):
@@ -1051,30 +1002,11 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
     add_to_report(result, report, verdict)  # model_adequacy: residuals against readings, pose
     report["acceptance"] = _acceptance(result, machine, calibrated, source,
                                        report.get("method"), warnings, verdict)
-    _tolerance_report(result, calibrated, report, source, units, warnings)
+    tolerance_report(result, calibrated, report, path_text(source), units, warnings)
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,
                        units=units)
-
-
-def _tolerance_report(result, calibrated, report: dict, source, units, warnings: list) -> None:
-    """With build tolerances (SPEC 9): the report's ``tolerances`` section (what the data
-    measured, what the prior held), the warning for values the data pull beyond three
-    tolerances, and the machine's actions for what its firmware cannot hold."""
-    from ..units import ANGLE, LENGTH
-    from .tolerances import pulled_warnings, tolerance_section
-
-    units = units or {"length": "mm", "angle": "deg"}
-    factors = (LENGTH[units["length"]], ANGLE[units["angle"]])
-    section = tolerance_section(result, units, factors)
-    if section is None:
-        return
-    actions = calibrated.build_error_words(result.prior_summary())
-    section["actions"] = actions
-    report["tolerances"] = section
-    warnings.extend(pulled_warnings(result, path_text(source), units, factors))
-    warnings.extend(actions)
 
 
 def _noise_report(result, report: dict, source, warnings: list, robust: bool = True) -> None:

@@ -73,3 +73,23 @@ def pulled_warnings(result, source, units: dict, factors: tuple[float, float]) -
             f"build tolerance: {'; '.join(words)}; a real build error that large, or a "
             "symptom of something the model lacks (check the data, or widen the tolerance "
             "in the machine file)"]
+
+
+def tolerance_report(result, calibrated, report: dict, source: str, units,
+                     warnings: list) -> None:
+    """With build tolerances (SPEC 9): the report's ``tolerances`` section (what the data
+    measured, what the prior held), the warning for values the data pull beyond
+    :data:`PULLED` tolerances, and the machine's actions for what its firmware cannot hold
+    (:meth:`~pkmcal.machines.Machine.build_error_words`); nothing without a prior."""
+    from ..units import ANGLE, LENGTH
+
+    units = units or {"length": "mm", "angle": "deg"}
+    factors = (LENGTH[units["length"]], ANGLE[units["angle"]])
+    section = tolerance_section(result, units, factors)
+    if section is None:
+        return
+    actions = calibrated.build_error_words(result.prior_summary())
+    section["actions"] = actions
+    report["tolerances"] = section
+    warnings.extend(pulled_warnings(result, source, units, factors))
+    warnings.extend(actions)
