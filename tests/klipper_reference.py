@@ -22,7 +22,7 @@ What it covers:
   Klipper's kinematics on the saved stable positions.
 
 Run ``python tests/klipper_reference.py [files...]`` for the RMS table over
-``tests/data/klipper/*.cfg``.
+``../shared/data/printers/klipper_saved/*.cfg`` (beside the repository).
 """
 
 from __future__ import annotations
@@ -652,7 +652,8 @@ def _row(ds: KlipperDataSet):
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
-    here = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "klipper")
+    here = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), os.pardir,
+                        "shared", "data", "printers", "klipper_saved")
     paths = argv or sorted(glob.glob(os.path.join(here, "*.cfg")))
     print(
         f"{'data set':28s} {'nh':>3s} {'nm':>3s} {'nd':>3s} | {'saved h':>8s} {'saved d':>8s}"

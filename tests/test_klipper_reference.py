@@ -10,7 +10,9 @@ import pytest
 
 import klipper_reference as kr
 
-DATA = os.path.join(os.path.dirname(__file__), "data", "klipper")
+#: the published printers' saved data, outside the project (``../shared`` beside the repository)
+DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), os.pardir,
+                    "shared", "data", "printers", "klipper_saved")
 
 
 def _calib():
@@ -142,6 +144,8 @@ def test_a_tampered_autosave_block_is_ignored():
     assert cfg.get("printer", "foo") == "1"
 
 
+@pytest.mark.skipif(not os.path.isdir(DATA), reason=f"{DATA} not found: the real printers' "
+                    "files stay outside the project (../shared)")
 def test_the_port_reproduces_a_saved_klipper_calibration():
     ds = kr.load_data_set(os.path.join(DATA, "v400-fzechert-run2.cfg"))
     result = kr.delta_calibrate(ds.calibration, ds.data)

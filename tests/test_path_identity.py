@@ -30,7 +30,29 @@ from pkmcal.paths import file_identity, path_from_text, path_text, same_file
 X = os.fsdecode(b"\xff")
 #: how messages, the console and records show it
 SHOWN = "\\xff"
-KLIPPER = Path(__file__).parent / "data" / "klipper" / "kossel-hpb0412.cfg"
+#: a Klipper config of a linear delta (its geometry is all ``import`` reads)
+KLIPPER = """[printer]
+kinematics: delta
+delta_radius: 132.5
+
+[stepper_a]
+microsteps: 16
+rotation_distance: 40
+arm_length: 268.0
+position_endstop: 296.4
+angle: 210.3
+
+[stepper_b]
+microsteps: 16
+rotation_distance: 40
+position_endstop: 296.9
+angle: 330.2
+
+[stepper_c]
+microsteps: 16
+rotation_distance: 40
+position_endstop: 296.4
+"""
 EXAMPLES = Path(__file__).parents[1] / "examples"
 
 
@@ -40,7 +62,7 @@ def workdir(tmp_path_factory):
     trajectory; a linear Delta, its probe data and calibration; a Klipper config."""
     d = tmp_path_factory.mktemp("paths")
     shutil.copy(EXAMPLES / "linear_delta.yaml", d / "m.yaml")
-    shutil.copy(KLIPPER, d / "in.cfg")
+    (d / "in.cfg").write_text(KLIPPER)
     for args in (["simulate", "default", "--poses", "60", "-o", "data.csv"],
                  ["calibrate", "default", "data.csv", "-o", "cal.yaml"],
                  ["fk", "cal.yaml", "data.csv", "-o", "poses.csv"],

@@ -64,6 +64,9 @@ from ..instruments.tracker import (
     check_spread as _check_spread,
 )
 from ..paths import file_identity, path_text, same_file
+from .bed_surface import with_bed_surface
+from .model_choice import calibrate_auto
+from .tolerances import tolerance_report
 
 __all__ = ["KINDS", "WHITENED_METHODS", "Calibration",
            "CalibrationNotConverged", "CalibrateOptions", "JointPart", "MeasurementKind",
@@ -686,6 +689,11 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     if extensions is not None and extensions not in ("auto", "none"):
         raise InputError(f"--extensions {extensions}: auto (adopted by cross-validation) or "
                          "none (the plain model)")
+    if getattr(machine, "tolerances", "none") is None and hasattr(machine, "with_tolerances"):
+        # a machine that never said (made in code, imported from a firmware's file) is fitted
+        # with its default build tolerances, as its machine file would give it (SPEC 9);
+        # ``tolerances: none`` / ``with_tolerances(None)`` fits without
+        machine = machine.with_tolerances("default")
     given = data
     data = expand_firmware_data(data, machine)
     noise = _noise_through_expansion(noise, given, data)
@@ -693,6 +701,18 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
              for n in getattr(item, "notes", None) or []]
     chosen, note = None, ""
     items = list(data) if isinstance(data, (list, tuple)) else [data]
+    if parameters == "auto" or parameters is None:
+        lengths = any(k.fixes_lengths for k in _data_kinds(data, machine))
+        candidates = machine.model_candidates(lengths) if hasattr(machine, "model_candidates") \
+            else []
+        if candidates:
+            return calibrate_auto(calibrate, machine, given, candidates, bed_tilt,
+                                  dict(method=method, noise=noise, pose_noise=pose_noise,
+                                       estimate_lc=estimate_lc, two_step=two_step,
+                                       robust=robust, fix_frames=fix_frames,
+                                       holdout=holdout, seed=seed, extensions=extensions))
+        if parameters == "auto":
+            parameters = None
     suggested = {getattr(d, "parameter_set", None) for d in items}
     if parameters is None and len(suggested) == 1 and None not in suggested \
             and next(iter(suggested)) in getattr(machine, "PARAMETER_SETS", {}):
@@ -738,7 +758,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
                                   split=split, options=options)
             calibration.inputs = _inputs_of(given, calibration.inputs)
             calibration.warnings[:0] = notes
-            return _with_parameter_set(calibration, chosen, note)
+            return with_bed_surface(_with_parameter_set(calibration, chosen, note), data)
         data = data[0]
     if isinstance(noise, dict):     # named as the joint fit names it: the path or its source
         noise = _noise_of(noise, [data if isinstance(data, (str, Path))
@@ -771,7 +791,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         inputs.append(Path(machine_file))
     calibration.inputs = _inputs_of(given, inputs)
     calibration.warnings[:0] = notes
-    return _with_parameter_set(calibration, chosen, note)
+    return with_bed_surface(_with_parameter_set(calibration, chosen, note), [data])
 
 
 def _noise_through_expansion(noise, given, data):
@@ -982,6 +1002,7 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
     add_to_report(result, report, verdict)  # model_adequacy: residuals against readings, pose
     report["acceptance"] = _acceptance(result, machine, calibrated, source,
                                        report.get("method"), warnings, verdict)
+    tolerance_report(result, calibrated, report, path_text(source), units, warnings)
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,
@@ -1107,8 +1128,6 @@ def apply_parameter_set(machine, name: str):
         When the machine has no named sets (naming the machine types that have them) or
         none of this name (listing its sets).
     """
-    from ..parameters import ParameterSet
-
     method = getattr(machine, "parameter_set", None)
     kind = getattr(machine, "kind", "") or "machine"
     if not callable(method):
@@ -1140,7 +1159,7 @@ def apply_parameter_set(machine, name: str):
         lookup = dict(zip(chosen.names, np.asarray(chosen.fixed, bool), strict=True))
         fixed = np.array([lookup.get(n, True) for n in mp.names], bool)
     new = machine.with_parameters(mp.values)
-    new.parameters = ParameterSet(mp.names, mp.kinds, mp.values, fixed)
+    new.parameters = mp.with_fixed_mask(fixed)
     return new
 
 
@@ -1331,6 +1350,7 @@ def _joint_distances(machine, data, source, noise) -> JointPart:
 
 
 def _joint_probe(machine, data, source, noise) -> JointPart:
+    from ..instruments import ProbeModel
     from ..instruments.probe import bed_choice
     from ..io import read_probe
 
@@ -1340,10 +1360,17 @@ def _joint_probe(machine, data, source, noise) -> JointPart:
     probe.source = str(source)
     _check_heights(probe, machine)
 
+    free_height = bool(getattr(probe, "free_height", False))
+
     def with_others(equations, unknowns, choice="auto", data=probe, others=()):
         bed = bed_choice(machine, data, noise_model, choice, equations, unknowns,
                          others=others)
-        return bed.model(), bed.words
+        if not free_height:
+            return bed.model(), bed.words
+        # a saved bed mesh keeps no absolute level (its reference): its own height offset
+        return (ProbeModel(fixed=tuple(f for f in bed.fixed if f != "bed.z")),
+                bed.words + "; its own height offset (a mesh's values are relative to its "
+                "reference)")
 
     model, frame = with_others(0, 0, "estimate" if machine.frame_is_bed else "auto")
     return JointPart(probe, model, noise_model,
@@ -1389,6 +1416,24 @@ def _part_rms(problem, state, data) -> tuple[float | None, np.ndarray]:
     norm = np.linalg.norm(r, axis=1)
     ok = np.isfinite(norm)
     return (_um(math.sqrt(float(np.mean(norm[ok] ** 2)))) if ok.any() else None), r
+
+
+def session_report(summary, problem, state, result, fl: float, unit: str) -> dict:
+    """The report's ``sessions``: how many, which files repeated another's points, which meshes
+    were used or left out and why, and each session's own reading offsets (the drift of its
+    endstops against the reference session) with their standard deviations."""
+    out = dict(summary or {})
+    offsets = {}
+    nj = problem.machine.n_joints
+    for k, name in enumerate(problem.session_names):
+        cols = problem.dq_offset + k * nj + np.arange(nj)
+        offsets[name] = {"offsets": [float(v) / fl for v in np.ravel(state.dq[k])],
+                         "std": [float(result.std[c]) / fl for c in cols], "unit": unit}
+    out["offsets"] = offsets
+    out["offsets_are"] = ("each session's reading offsets against the reference session "
+                          "(the newest): where its endstops triggered; a session's heights "
+                          "also have their own height offset, its probe z_offset")
+    return out
 
 
 def _check_joint_options(options: CalibrateOptions) -> None:
@@ -1502,10 +1547,13 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                 (options.bed_tilt if options is not None and options.bed_tilt else "auto"),
                 part.data, [(p.data, p.model, p.noise) for p in others])
     names = ", ".join(map(str, sources))
+    sessions = [getattr(p.data, "session", None) for p in parts]
+    sessions = sessions if any(s is not None for s in sessions) else None
     try:
         result = fit_joint(machine, [(p.data, p.model, p.noise) for p in parts], labels,
                            estimate_noise=hold,
-                           robust=bool(options is not None and options.robust))
+                           robust=bool(options is not None and options.robust),
+                           sessions=sessions)
         if all(p.tied for p in parts) and result.dof > 0 \
                 and np.isfinite(result.residual_variance):
             # every file weighed as its source weighs them (Klipper's DELTA_CALIBRATE): the
@@ -1519,7 +1567,8 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                                 "residuals)")
             result = fit_joint(machine, [(p.data, p.model, p.noise) for p in parts], labels,
                                estimate_noise=hold,
-                               robust=bool(options is not None and options.robust))
+                               robust=bool(options is not None and options.robust),
+                               sessions=sessions)
     except (InputError, ValueError, np.linalg.LinAlgError) as exc:
         message = str(exc) if isinstance(exc, InputError) else \
             f"{names}: joint calibration failed: {exc}"
@@ -1538,6 +1587,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     for label, start in zip(labels, result.extras["start_models"], strict=True):
         nominal_of.update({f"{label}:{n}": v for n, v in zip(
             start.parameters.names, start.parameters.values, strict=True)})
+    nominal_of.update({n: 0.0 for n in problem.parameters.names if n.startswith("session ")})
     params = _parameter_table(result, nominal_of, units)
 
     # what the files' instruments set on the calibrated machine file (the first file of each
@@ -1607,6 +1657,11 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                           "summary": contributions.lines()},
         "parameters": _public(params),
     }
+    summary = next((getattr(p.data, "sessions", None) for p in parts
+                    if getattr(p.data, "sessions", None)), None)
+    if summary is not None or problem.session_names:
+        report["sessions"] = session_report(summary, problem, state, result, fl,
+                                            units["length"])
     if any(h is not None for h in held):
         report["validation"] = {
             "summary": "; ".join(f"{f['file']}: {f['validation']['summary']}" for f in files
@@ -1859,6 +1914,15 @@ def _check_heights(data, machine) -> None:
                              "config the data were saved with)")
 
 
+def _head(item) -> str:
+    """A data file's first 4 kB (empty when it cannot be read)."""
+    try:
+        with open(item, encoding="utf-8", errors="replace") as f:
+            return f.read(4096)
+    except OSError:
+        return ""
+
+
 def expand_firmware_data(data, machine):
     """Data files that are a firmware's saved state (a Klipper ``printer.cfg`` with
     ``[delta_calibrate]`` data) or a pasted probe report (Marlin ``Bed X: Y: Z:`` lines,
@@ -1885,6 +1949,22 @@ def expand_firmware_data(data, machine):
 
     items = list(data) if isinstance(data, (list, tuple)) else [data]
     out, changed = [], False
+    configs = [item for item in items if isinstance(item, (str, Path)) and Path(item).is_file()
+               and is_klipper_config(item, _head(item))]
+    if len(configs) > 1:
+        # several of a printer's configs (printer.cfg, its backups): sessions, the same saved
+        # points counted once, each session its own endstop offsets
+        from ..io.klipper_config import klipper_sessions
+
+        found = klipper_sessions(configs, machine).data
+        for obj in found:
+            obj.origin = next((c for c in configs if str(obj.source).startswith(str(c))),
+                              configs[0])
+        first = items.index(configs[0])
+        items = [item for item in items if item not in configs]
+        out = [item for item in items[:first]] + found
+        items = items[first:]
+        changed = True
     for item in items:
         if isinstance(item, (str, Path)) and Path(item).is_file():
             try:

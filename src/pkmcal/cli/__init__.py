@@ -315,7 +315,9 @@ def calibrate(
     parameters: Annotated[str | None, typer.Option(
         "--parameters", metavar="NAME",
         help="Fit the machine's named parameter set NAME (e.g. a firmware's: klipper, marlin, "
-             "rrf, full on a linear Delta): its fixed flags replace the machine file's.",
+             "rrf, full on a linear Delta): its fixed flags replace the machine file's. "
+             "auto (a linear Delta's default): the candidate models are fitted and the one "
+             "with the smallest leave-one-out prediction error is kept, named in the report.",
         show_default=False)] = None,
     fix_frames: Annotated[bool, typer.Option(
         "--fix-frames", help="pose data: hold the measurement frames (mocap_from_base, "
@@ -408,6 +410,37 @@ def calibrate(
                                    report_dir=report, holdout=holdout, seed=seed,
                                    parameters=parameters, extensions=extensions,
                                    bed_tilt=bed_tilt))
+
+
+@app.command()
+def check(
+    machine: MachineArg,
+    data: Annotated[list[Path], typer.Argument(
+        metavar="DATA...", show_default=False,
+        help="Data the machine was not fitted to: measurement files (CSV) of any instrument, "
+             "a Klipper printer.cfg and its backups (their saved points and bed meshes), a "
+             "pasted probe report.")],
+    noise: Annotated[list[str] | None, typer.Option(
+        help="The data's noise, FILE=VALUE per file (e.g. --noise probe.csv=20um); default "
+             "each instrument's. The verdict is against it.", show_default=False)] = None,
+    output: Annotated[Path | None, typer.Option(
+        "-o", "--output", parser=_file_name, metavar="FILE", show_default=False,
+        help="Also write the check's report (JSON).")] = None,
+) -> None:
+    """Score a calibrated or imported machine on data it was not fitted to.
+
+    The machine's parameters are held; each file keeps its instrument's unknowns and one free
+    offset (a probe's trigger height, a mesh's reference), as the next-session test scores a
+    session. Prints per file the residuals (RMS, largest), their size against the data's
+    noise and the verdict; for a printer's saved configs (sessions) also each session's
+    endstop drift since the calibration. Exit 0 whatever the verdict; 2 on bad input.
+
+    Example: `pkmcal check calibrated.yaml printer.cfg` (and `pkmcal check printer.yaml
+    printer.cfg` for the values in force, to compare)
+    """
+    from ._commands import run_check
+
+    raise typer.Exit(run_check(machine, data, noise, output))
 
 
 @app.command()

@@ -469,6 +469,43 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
     return 0
 
 
+def run_check(machine_spec: str, data_paths, noise, output: Path | None) -> int:
+    """``pkmcal check``: the machine scored on other data (:func:`pkmcal.calibration.check`)."""
+    from ..calibration.check import check
+    from ..calibration.run import json_safe, noise_per_file_arg, report_json
+
+    paths = list(data_paths)
+    noise = noise_per_file_arg(noise, paths) if noise else None
+    if isinstance(noise, str):
+        raise InputError("--noise: give FILE=VALUE per file (e.g. --noise probe.csv=20um)")
+    machine = load_machine_arg(machine_spec)
+    if output is not None:
+        check_outputs([output], paths + _machine_inputs(machine_spec))
+    result = check(machine, paths, noise=noise)
+    if output is not None:
+        text = report_json(json_safe(result.report))
+        atomic_write_text(output, text if text.endswith("\n") else text + "\n")
+        commit_outputs()
+    out = console()
+    table = _table("", "", title=f"pkmcal check: {path_text(machine_spec)} on "
+                                 f"{', '.join(path_text(p) for p in paths)}", show_header=False)
+    for f in result.report["files"]:
+        table.add_row(f["label"], f"{f['measurement']}, {f['rows']} rows: RMS "
+                      f"{format_um(f['rms_um'])}, max {format_um(f['max_um'])} (row "
+                      f"{f['max_row']}); {f['noise_ratio']:.3g}x the noise ({f['noise']}): "
+                      + ("explained" if f["explained"] else
+                         f"not explained (at most {f['noise_ratio_limit']:.3g}x)"))
+    table.add_row("verdict", result.report["verdict"]["text"])
+    table.add_row("free", result.report["offsets_are"])
+    for line in result.lines:
+        if line.startswith("session "):
+            table.add_row("drift", line)
+    out.print(table)
+    if output is not None:
+        out.print(f"wrote {path_text(output)}", markup=False)
+    return 0
+
+
 def _noise_rows(table, report) -> None:
     """The noise levels the fit used (estimated from the residuals, or assumed / given) and
     the rows the outlier test names."""
@@ -509,6 +546,7 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
                       "file's model, this file's instrument fitted alone)")
         if "validation" in f:
             table.add_row("", f"held-out: {f['validation']['summary']}")
+    _session_rows(table, report.get("sessions"))
     _identifiable_rows(table, ident)
     for i, line in enumerate(report["contributions"]["summary"]):
         table.add_row("each file adds" if i == 0 else "", line)
@@ -523,6 +561,28 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
     _print_changes([p for p in params if ":" not in p["name"]])
     commit_outputs()
     out.print(_wrote(output, report_path), markup=False)
+
+
+def _session_rows(table, sessions) -> None:
+    """A printer's saved configs as sessions: how many, the files that repeated another's
+    points, the meshes used or left out and why, each session's own endstop offsets."""
+    if not sessions:
+        return
+    from rich.markup import escape  # Klipper's names: [bed_mesh default]
+
+    if "sessions" in sessions:
+        table.add_row("sessions", f"{sessions['sessions']} from {len(sessions['files'])} "
+                      f"file(s); reference (its values are the export's): "
+                      f"{path_text(Path(sessions['reference']).name)}")
+    for dup, of in sessions.get("duplicates", {}).items():
+        what = sessions.get("repeated", {}).get(dup) or [f"its points are {Path(of).name}'s"]
+        table.add_row("", f"{path_text(Path(dup).name)}: {' and '.join(what)}: counted once")
+    for i, (mesh, how) in enumerate(sessions.get("meshes", {}).items()):
+        table.add_row("bed meshes" if i == 0 else "", escape(f"{path_text(mesh)}: {how}"))
+    for i, (name, v) in enumerate(sessions.get("offsets", {}).items()):
+        table.add_row("session offsets" if i == 0 else "", f"{path_text(name)}: " + ", ".join(
+            f"q{j + 1} {o:+.4f} +- {s:.4f} {v['unit']}"
+            for j, (o, s) in enumerate(zip(v["offsets"], v["std"], strict=True))))
 
 
 def _print_changes(params, limit: int = 10) -> None:

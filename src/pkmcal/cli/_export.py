@@ -7,6 +7,7 @@ import json
 import os
 from pathlib import Path
 
+import numpy as np
 from rich.markup import escape
 
 from ..calibration.run import json_safe as _finite_or_none
@@ -36,6 +37,37 @@ def export_record(result, calibrated: str, output: Path, nominal: str | None) ->
               "file": path_text(output)}
     record.update(result.as_dict())
     return _finite_or_none(record)
+
+
+def _bed_hand_over(fmt, result, machine, ws, text: str) -> dict:
+    """A printer's export: the nozzle's height error at the bed and 50 and 100 mm above it,
+    and the bed mesh that carries what the values cannot hold at the bed where the
+    controller applies one from its file (:mod:`pkmcal.export.bed_mesh`). ``text``: the
+    file with the mesh (None: none handed over); ``mesh``: what to tell the user."""
+    from ..export.bed_mesh import PROFILE, bed_correction, layer_errors, print_radius_of
+
+    out: dict = {"text": None}
+    if getattr(ws, "surface", None) is None or not np.any(ws.surface):
+        return out
+    radius = print_radius_of(machine)
+    height = fmt.bed_mesh_height(text)
+    correction = bed_correction(fmt, result.params, machine, radius, height=height)
+    meshed = fmt.with_bed_mesh(text, result.params, machine)
+    out["layers"] = layer_errors(fmt, result.params, machine, radius,
+                                 correction if meshed is not None else None)
+    if meshed is not None:
+        out["text"] = meshed
+        out["mesh"] = (f"[bed_mesh {PROFILE}] written to the SAVE_CONFIG block (RMS "
+                       f"{correction.rms * 1e6:.3g} um over the print disk: what the values "
+                       "cannot hold at the bed, seen as your own meshes see it, with the "
+                       f"nozzle {height * 1e3:.4g} mm up at the probe's trigger); load it "
+                       f"with BED_MESH_PROFILE LOAD={PROFILE} (e.g. in your PRINT_START after "
+                       "homing); your own profiles are unchanged")
+    elif correction is not None and correction.worth_it:
+        out["mesh"] = (f"the values leave {correction.rms * 1e6:.3g} um RMS at the bed that "
+                       f"a bed mesh could carry; {fmt.name} takes none from this file (a "
+                       "Klipper printer.cfg needs a [bed_mesh] section)")
+    return out
 
 
 def _output_target(fmt, output) -> tuple[Path, bool]:
@@ -93,14 +125,16 @@ def run_export(machine_spec: str, to: str, output, nominal: str | None = None,
     ws = _workspace(machine, workspace, seed)
     result = export(fmt, machine, ws.P, ws.R, nominal=before, workspace=ws.description,
                     surface=ws.surface, existing=existing, source=str(output))
+    hand_over = _bed_hand_over(fmt, result, machine, ws, result.text)
     if existing is not None and backup is not None:
         atomic_write_bytes(backup, previous)
-    atomic_write_text(output, result.text)
+    atomic_write_text(output, hand_over["text"] or result.text)
     if record_path is not None:
-        atomic_write_text(record_path, json.dumps(export_record(result, machine_spec, output,
-                                                                nominal), indent=2) + "\n")
+        record = export_record(result, machine_spec, output, nominal)
+        record.update({k: v for k, v in hand_over.items() if k != "text"})
+        atomic_write_text(record_path, json.dumps(_finite_or_none(record), indent=2) + "\n")
     commit_outputs()
-    _print_result(fmt, result, ws, before, nominal, backup, output)
+    _print_result(fmt, result, ws, before, nominal, backup, output, hand_over)
     out = console()
     out.print(f"wrote {path_text(output)}"
               + (f" and {path_text(record_path)}" if record_path else "")
@@ -172,7 +206,8 @@ def _export_configuration(fmt, machine_spec: str, directory: Path, nominal: str 
     return 0
 
 
-def _print_result(fmt, result, ws, before, nominal, backup, output: Path) -> None:
+def _print_result(fmt, result, ws, before, nominal, backup, output: Path,
+                  hand_over: dict | None = None) -> None:
     """The export's table: format, workspace, errors, values written."""
     out = console()
     table = _table("", "", show_header=False)
@@ -192,6 +227,17 @@ def _print_result(fmt, result, ws, before, nominal, backup, output: Path) -> Non
                       + ("" if result.before_height_rms is None else
                          f"; nozzle height RMS {_um(result.before_height_rms)}, max "
                          f"{_um(result.before_height_max)}"))
+    if result.left_out:
+        table.add_row("left out", result.left_out)
+    for row in (hand_over or {}).get("layers", []):
+        mesh = ("" if row.get("mesh_rms_um") is None else
+                f"; with the mesh RMS {row['mesh_rms_um']:.3g} um, max "
+                f"{row['mesh_max_um']:.3g} um")
+        table.add_row(f"height error {row['height_mm']:g} mm up",
+                      f"RMS {row['rms_um']:.3g} um, max {row['max_um']:.3g} um over the print "
+                      f"disk{mesh}")
+    if (hand_over or {}).get("mesh"):
+        table.add_row("bed mesh", escape(hand_over["mesh"]))
     if backup is not None:
         table.add_row("updated", f"{path_text(output)} as the controller saves its values "
                                  "(previous "

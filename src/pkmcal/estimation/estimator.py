@@ -20,6 +20,16 @@ constraint-link point) make the reduced Jacobian rank deficient. The step is tak
 identifiable subspace only (minimum-norm step in scaled coordinates), so the estimate stays, to
 first order, the member of its equivalence class closest to the starting geometry; the null
 space is returned so it can be reported in words (:mod:`pkmcal.identifiability`).
+
+Priors (SPEC 9). When the parameters carry a :class:`~pkmcal.parameters.Prior` (build
+tolerances: rows ``A u ~ N(mean, std^2)``), its whitened rows ``(A u - mean) / std`` are
+appended to the reduced residuals and the fit is maximum a posteriori. The rows act only in the
+data's row space (their part along the data's numerical null space is removed): a direction
+no measurement changes stays a gauge, where the start put it. The rank, the null space and the
+degrees of freedom count what the data alone fix; the covariance is the posterior's (the data
+rows scaled by the residual variance unless ``absolute_sigma``, the prior's as stated), and
+:meth:`CalibrationResult.prior_summary` says per row what the data measured and what the
+prior held.
 """
 
 from __future__ import annotations
@@ -202,6 +212,8 @@ class CalibrationResult:
     state: Any = None
     extras: dict = field(default_factory=dict)
     max_std: float | None = None
+    fitted: int | None = None
+    prior_cost: float = 0.0
 
     @property
     def weak(self) -> int:
@@ -210,8 +222,61 @@ class CalibrationResult:
 
     @property
     def adjusted(self) -> int:
-        """Number of directions fitted: ``rank - weak``."""
+        """Number of directions fitted: ``rank - weak``; with a prior, those the posterior
+        fixes (``fitted``: the prior may hold directions the data leave free)."""
+        if self.fitted is not None:
+            return int(self.fitted)
         return int(self.rank) - self.weak
+
+    def prior_summary(self, share: float = 0.5) -> list[PriorRow]:
+        """What the data measured and what the prior held, per row of the parameters' prior
+        (SPEC 9); empty without a prior.
+
+        A row's information is ``1 / std_prior^2`` from the prior and ``1 / std_post^2 -
+        1 / std_prior^2`` from the data, so the data's share is ``1 - std_post^2 /
+        std_prior^2``; a row is ``measured`` when that share is at least ``share``, else
+        ``prior-held``.
+
+        Parameters
+        ----------
+        share : float, optional
+            The data's share of the information from which a row counts as measured.
+
+        Returns
+        -------
+        list of PriorRow
+            One per prior row that involves a free parameter.
+        """
+        prior = self.parameters.prior
+        if prior is None:
+            return []
+        free = np.asarray(self.parameters.free, bool)
+        N = np.asarray(self.null_space, float)[free]
+        out = []
+        for j in range(len(prior)):
+            a = prior.matrix[j]
+            if not np.any(a[free] != 0):
+                continue
+            value = float(a @ self.x)
+            scaled = a[free] * np.asarray(self.scales, float)[free]
+            along_null = float(np.linalg.norm(scaled @ N)) if N.size else 0.0
+            if along_null > 0.9 * float(np.linalg.norm(scaled)):
+                # a gauge: no measurement changes it, it stays where the start put it
+                out.append(PriorRow(prior.names[j], prior.key[j], value, float(prior.mean[j]),
+                                    float(prior.std[j]), float("nan"), 0.0,
+                                    "unidentifiable", self._kind_of(a)))
+                continue
+            post = float(np.sqrt(max(a @ self.covariance @ a, 0.0)))
+            data_share = float(np.clip(1.0 - (post / prior.std[j]) ** 2, 0.0, 1.0))
+            out.append(PriorRow(prior.names[j], prior.key[j], value, float(prior.mean[j]),
+                                float(prior.std[j]), post, data_share,
+                                "measured" if data_share >= share else "prior-held",
+                                self._kind_of(a)))
+        return out
+
+    def _kind_of(self, a) -> str:
+        kinds = {self.parameters.kinds[i] for i in np.flatnonzero(a)}
+        return kinds.pop() if len(kinds) == 1 else "length"
 
     def rank_words(self) -> str:
         """The identifiable and weak counts in words (:meth:`~pkmcal.estimation.rank.
@@ -240,6 +305,45 @@ class CalibrationResult:
         return state
 
 
+
+
+@dataclass(frozen=True)
+class PriorRow:
+    """One row of a fit's prior (:meth:`CalibrationResult.prior_summary`).
+
+    Attributes
+    ----------
+    name : str
+        The row: a parameter or a combination in words.
+    key : str
+        The machine file's key that sets its tolerance (``tolerances.arm_trim``).
+    value, mean : float
+        The fitted value of the row and its nominal, internal units.
+    prior_std, posterior_std : float
+        Its tolerance and its standard deviation after the fit.
+    data_share : float
+        The data's share of the information about it (0: the prior alone, 1: the data).
+    label : str
+        ``"measured"``, ``"prior-held"``, or ``"unidentifiable"`` (a gauge: no measurement
+        changes it; it stays at the start, the prior does not act on it).
+    kind : str
+        ``length`` or ``angle`` (its unit).
+    """
+
+    name: str
+    key: str
+    value: float
+    mean: float
+    prior_std: float
+    posterior_std: float
+    data_share: float
+    label: str
+    kind: str
+
+    @property
+    def sigmas(self) -> float:
+        """How many prior standard deviations the fitted value lies from the nominal."""
+        return abs(self.value - self.mean) / self.prior_std
 
 
 def require_redundancy(source, what: str, equations: int, n_id: int, advice: str) -> None:
@@ -414,20 +518,36 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
     free = params.free
     scales = np.asarray(problem.scales, float)
     cost_floor = float(getattr(problem, "cost_floor", 0.0))
+    prior = params.prior
+    if prior is not None and not np.any(prior.matrix[:, free] != 0):
+        prior = None                    # no row involves a free parameter
+
+    def prior_part(state):
+        """The prior's whitened residuals and scaled Jacobian rows at ``state`` (empty
+        without a prior)."""
+        if prior is None:
+            return np.zeros(0), np.zeros((0, int(free.sum())))
+        ep, Ap, _ = prior.whitened(problem.global_values(state), free, scales)
+        return ep, Ap
+
     state = problem.initial_state() if state is None else state
     r, Jg, Jl = problem.evaluate(state)
     nfev = 1
     if not np.all(np.isfinite(r)):
         raise ValueError("residuals are not finite at the start point")
-    cost = 0.5 * float(np.sum(r * r))
+    ep, Ap = prior_part(state)
+    cost = 0.5 * float(np.sum(r * r) + np.sum(ep * ep))
     lam = 0.0
     status, message = 0, "maximum number of iterations reached"
     nit = 0
-    current = None      # (QR factors, U, s, Vt) of r, Jg, Jl as they are now
+    current = None      # (QR factors, U, s, Vt, data rows) of r, Jg, Jl as they are now
     for nit in range(1, max_iter + 1):  # noqa: B007
         Jr, er, back, qr = _reduce(r, Jg[..., free] * scales[free], Jl)
+        data_rows = Jr
+        if prior is not None:           # maximum a posteriori: the prior's rows appended
+            Jr, er = np.vstack([Jr, _off_null(Ap, data_rows, rtol)]), np.concatenate([er, ep])
         U, s, Vt = np.linalg.svd(Jr, full_matrices=False)
-        current = (qr, U, s, Vt)
+        current = (qr, U, s, Vt, data_rows)
         rank = rank_rule(s, rtol, max_std).adjusted
         Ur, sr, Vr = U[:, :rank], s[:rank], Vt[:rank].T
         g = Ur.T @ er
@@ -447,8 +567,9 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
             new_state = problem.retract(state, du, back(ds))  # back works in scaled columns
             new_r, new_Jg, new_Jl = problem.evaluate(new_state)
             nfev += 1
-            new_cost = 0.5 * float(np.sum(new_r * new_r)) if np.all(np.isfinite(new_r)) \
-                else np.inf
+            new_ep, new_Ap = prior_part(new_state)
+            new_cost = 0.5 * float(np.sum(new_r * new_r) + np.sum(new_ep * new_ep)) \
+                if np.all(np.isfinite(new_r)) else np.inf
             if new_cost <= cost:
                 accepted = True
                 break
@@ -467,6 +588,7 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
         decrease = (cost - new_cost) / max(cost, 1e-300)
         lam_used = lam
         state, r, Jg, Jl, cost = new_state, new_r, new_Jg, new_Jl, new_cost
+        ep, Ap = new_ep, new_Ap
         current = None
         lam = lam / 10.0 if lam > 1e-12 * s1**2 else 0.0
         if (decrease < ftol and cost > 0 and lam_used == 0.0) or decrease <= 0.0:
@@ -477,38 +599,66 @@ def levenberg_marquardt(problem: BlockProblem, rtol: float = RTOL, xtol: float =
     # converged fit, or one that cannot go on), else those of the state it ended at
     if current is None:
         Jr, _, _, qr = _reduce(r, Jg[..., free] * scales[free], Jl)
+        data_rows = Jr
+        if prior is not None:
+            Jr = np.vstack([Jr, _off_null(Ap, data_rows, rtol)])
         U, s, Vt = np.linalg.svd(Jr, full_matrices=False)
-        current = (qr, U, s, Vt)
-    qr, U, s, Vt = current
+        current = (qr, U, s, Vt, data_rows)
+    qr, U, s, Vt, data_rows = current
     decision = rank_rule(s, rtol, max_std)
     numerical, rank = decision.identifiable, decision.adjusted   # rank: adjusted directions
     n_free = int(free.sum())
-    null_free = (Vt[numerical:].T if Vt.shape[0] >= n_free
-                 else _complete_null(Vt[:numerical], n_free))
+    d = Jl.shape[-1] if Jl is not None else 0
+    data_cost = 0.5 * float(np.sum(r * r))
+    if prior is None:
+        s_data, Vt_data, data_decision = s, Vt, decision
+    else:
+        # identifiability counts what the data alone fix (SPEC 9); the fit and its
+        # covariance are the posterior's
+        _, s_data, Vt_data = np.linalg.svd(data_rows, full_matrices=False)
+        data_decision = rank_rule(s_data, rtol, max_std)
+    numerical_data = data_decision.identifiable
+    null_free = (Vt_data[numerical_data:].T if Vt_data.shape[0] >= n_free
+                 else _complete_null(Vt_data[:numerical_data], n_free))
     null_space = np.zeros((len(params), null_free.shape[1]))
     null_space[free] = null_free
     weak_space = np.zeros((len(params), numerical - rank))
     weak_space[free] = Vt[rank:numerical].T
-    cov_free_scaled = (Vt[:rank].T / s[:rank] ** 2) @ Vt[:rank]
-    d = Jl.shape[-1] if Jl is not None else 0
-    dof = int(r.size - rank - d * r.shape[0])
-    variance = 2.0 * cost / dof if dof > 0 else float("nan")
+    dof = int(r.size - data_decision.adjusted - d * r.shape[0])
+    variance = 2.0 * data_cost / dof if dof > 0 else float("nan")
     factor = 1.0 if absolute_sigma else variance
+    if prior is None or factor == 1.0 or not np.isfinite(factor) or factor <= 0:
+        cov_free_scaled = (Vt[:rank].T / s[:rank] ** 2) @ Vt[:rank]
+        scale_data = factor if prior is None else 1.0
+    else:
+        # the data's rows take the residual variance, the prior's stay as stated
+        _, sv, Vtv = np.linalg.svd(np.vstack([data_rows / np.sqrt(factor),
+                                              _off_null(Ap, data_rows, rtol)]),
+                                   full_matrices=False)
+        cov_free_scaled = (Vtv[:rank].T / sv[:rank] ** 2) @ Vtv[:rank]
+        scale_data = 1.0
     cov = np.zeros((len(params), len(params)))
     sf = scales[free]
-    cov[np.ix_(free, free)] = cov_free_scaled * np.outer(sf, sf) * factor
+    cov[np.ix_(free, free)] = cov_free_scaled * np.outer(sf, sf) * scale_data
     x = problem.global_values(state)
     result = CalibrationResult(
-        x=x, parameters=params.with_values(x), cost=cost, residuals=r,
+        x=x, parameters=params.with_values(x), cost=data_cost, residuals=r,
         success=status in (1, 2), status=status, message=message, nit=nit, nfev=nfev,
-        rank=numerical, singular_values=s, null_space=null_space, scales=scales,
+        rank=numerical_data if prior is not None else numerical, singular_values=s_data,
+        null_space=null_space, scales=scales,
         weak_space=weak_space, weak_std=1.0 / s[rank:numerical], covariance=cov,
         std=np.sqrt(np.clip(np.diag(cov), 0, None)), residual_variance=variance, dof=dof,
         state=state, max_std=max_std,
+        fitted=rank if prior is not None else None,
+        prior_cost=0.5 * float(np.sum(ep * ep)),
     )
-    result._linear = Linearisation(problem, state, r.shape, qr, U, s,
+    # the hat matrix of the data under the posterior: the data rows of the augmented
+    # factors (U's first rows), with the augmented singular values
+    M = data_rows.shape[0]
+    result._linear = Linearisation(problem, state, r.shape, qr, U[:M], s,
                                    settings_of(rtol, absolute_sigma, xtol, ftol, max_iter,
-                                               max_std))
+                                               max_std),
+                                   fitted=rank if prior is not None else None)
     return result
 
 
@@ -527,6 +677,9 @@ class Linearisation:
     U: np.ndarray
     s: np.ndarray
     settings: tuple = ()
+    #: with a prior: the number of fitted directions of ``U`` (those of the posterior,
+    #: maybe more than the data's rank); None: the result's ``adjusted``
+    fitted: int | None = None
 
 
 def linearisation_of(result, problem) -> Linearisation | None:
@@ -550,6 +703,35 @@ def linearisation_of(result, problem) -> Linearisation | None:
     if lin is None or lin.problem is not problem or lin.state is not result.state:
         return None
     return lin
+
+
+def _off_null(prior_rows: np.ndarray, data_rows: np.ndarray, rtol: float) -> np.ndarray:
+    """The prior's rows (scaled free columns) without their part along the data's numerical
+    null space: a prior holds what the data see weakly, never a gauge (a direction no
+    measurement changes stays where the start put it, as without a prior, SPEC appendix A).
+
+    Parameters
+    ----------
+    prior_rows : ndarray, shape (p, n)
+        Whitened prior rows.
+    data_rows : ndarray, shape (M, n)
+        The data's scaled reduced Jacobian.
+    rtol : float
+        The rank tolerance.
+
+    Returns
+    -------
+    ndarray, shape (p, n)
+        The rows projected onto the data's row space.
+    """
+    from .rank import numerical_rank
+
+    _, s, Vt = np.linalg.svd(data_rows, full_matrices=False)
+    k = numerical_rank(s, rtol)
+    N = _complete_null(Vt[:k], data_rows.shape[1]).T
+    if not len(N):
+        return prior_rows
+    return prior_rows - (prior_rows @ N.T) @ N
 
 
 def _complete_null(row_basis: np.ndarray, n: int) -> np.ndarray:

@@ -299,6 +299,8 @@ def _linearised(problem, result):
     lin = linearisation_of(result, problem)
     if lin is not None:
         (K, m), qr, U, s = lin.shape, lin.qr, lin.U, lin.s
+        if lin.fitted is not None:      # with a prior: the posterior's fitted directions
+            rank = int(lin.fitted)
     else:
         _, Jg, Jl = problem.evaluate(result.state)
         free = np.asarray(result.parameters.free, bool)
@@ -307,14 +309,14 @@ def _linearised(problem, result):
         K, m, _ = Jg.shape
         if Jl is None or np.asarray(Jl).shape[-1] == 0:
             qr = None
-            U, s, _ = np.linalg.svd(Jg.reshape(K * m, -1), full_matrices=False)
+            U, s = _data_factors(Jg.reshape(K * m, -1), result)
         else:
             Jl = np.asarray(Jl, float)
             d = Jl.shape[-1]
             Q, Rl = np.linalg.qr(Jl, mode="complete")
             qr = (Q[..., :d], Q[..., d:], Rl[..., :d, :])
             Jr = np.einsum("kmi,kmn->kin", qr[1], Jg)
-            U, s, _ = np.linalg.svd(Jr.reshape(K * (m - d), -1), full_matrices=False)
+            U, s = _data_factors(Jr.reshape(K * (m - d), -1), result)
     with np.errstate(divide="ignore"):
         if qr is None:
             return None, U[:, :rank].reshape(K, m, rank), float(np.sum(np.log(s[:rank] ** 2)))
@@ -324,6 +326,20 @@ def _linearised(problem, result):
         logdet = float(np.sum(np.log(s[:rank] ** 2))
                        + np.sum(np.log(np.diagonal(R1, axis1=-2, axis2=-1) ** 2)))
     return Q1, np.einsum("kmi,kir->kmr", Q2, Ur), logdet
+
+
+def _data_factors(rows, result):
+    """``U`` (the data rows' part) and ``s`` of the scaled reduced Jacobian ``rows``, with
+    the prior's rows of ``result``'s parameters appended when they have a prior (the
+    posterior's hat matrix, as the estimator keeps it)."""
+    prior = result.parameters.prior
+    M = rows.shape[0]
+    if prior is not None:
+        free = np.asarray(result.parameters.free, bool)
+        _, Ap, _ = prior.whitened(result.x, free, np.asarray(result.scales, float))
+        rows = np.vstack([rows, Ap])
+    U, s, _ = np.linalg.svd(rows, full_matrices=False)
+    return U[:M], s
 
 
 def _reml(weighted: Weighted, result, logdet: float) -> float:
@@ -1054,7 +1070,7 @@ def _same_fit(weighted: Weighted, state, rtol, options, absolute_sigma, fitted):
         covariance=fitted.covariance.copy(), std=fitted.std.copy(), extras={})
     # its factors are those of the reweighted problem (each factor 1: the same Jacobian)
     again._linear = Linearisation(weighted, state, lin.shape, lin.qr, lin.U, lin.s,
-                                  lin.settings)
+                                  lin.settings, lin.fitted)
     return again
 
 

@@ -455,6 +455,18 @@ class ControllerFormat(ABC):
         """
         return None
 
+    def bed_mesh_height(self, text: str) -> float:
+        """The nozzle's height above the bed (m) at which the controller's meshes hold the
+        bed (its probe's trigger height); 0 by default."""
+        return 0.0
+
+    def with_bed_mesh(self, text: str, params: ControllerParameters,
+                      machine: Machine) -> str | None:
+        """The controller's file with a bed mesh that carries what ``params`` leave of the
+        nozzle's height at the bed (:mod:`pkmcal.export.bed_mesh`), where the controller
+        applies one from its file and the mesh is worth it; None: no mesh (the default)."""
+        return None
+
     @abstractmethod
     def parse(self, text: str, source: str) -> ControllerParameters:
         """The values of a controller file (import).
@@ -581,6 +593,8 @@ class ExportResult:
     before_height_rms: float | None = None
     before_height_max: float | None = None
     notes: list = field(default_factory=list)
+    #: the workspace poses the controller cannot command, left out (empty: none), in words
+    left_out: str = ""
 
     def as_dict(self) -> dict:
         """The result for a report (lengths in um).
@@ -601,7 +615,8 @@ class ExportResult:
                 "height_rms_um": um(self.height_rms), "height_max_um": um(self.height_max),
                 "before_height_rms_um": um(self.before_height_rms),
                 "before_height_max_um": um(self.before_height_max),
-                "notes": list(self.notes)}
+                "notes": list(self.notes),
+                **({"left_out": self.left_out} if self.left_out else {})}
 
 
 def position_errors(fmt: ControllerFormat, params: ControllerParameters, machine: Machine,
@@ -703,11 +718,19 @@ def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
         return np.nan_to_num(e.ravel(), nan=1.0)      # a target lost weighs a lot
 
     e0 = position_errors(fmt, params, machine, P, R)
-    if not np.all(np.isfinite(e0)):
-        bad = int(np.sum(~np.all(np.isfinite(e0), axis=-1)))
-        raise InputError(f"{fmt.name}: {bad} of {len(P)} workspace poses cannot be commanded "
+    if not np.any(np.all(np.isfinite(e0), axis=-1)):
+        raise InputError(f"{fmt.name}: none of the {len(P)} workspace poses can be commanded "
                          "with the controller's values read off the machine; give a smaller "
                          "workspace (--workspace)")
+    if not np.all(np.isfinite(e0)):
+        # the model holds more than the controller: poses its values cannot command are left
+        # out of the fit (export() says how many and where), never a refusal
+        keep = np.all(np.isfinite(e0), axis=-1)
+        P = np.asarray(P, float)[keep]
+        R = None if R is None else np.asarray(R, float)[keep]
+        on = None if on is None else on[keep]
+        if on is not None and not on.any():
+            on = None
     if not free.any() or fmt.exact:
         return params
     fit = least_squares(residual, params.values[free] / scale, method="trf", xtol=1e-15,
@@ -762,6 +785,7 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
     why = fmt.applies(machine)
     if why is not None:
         raise InputError(f"--to {fmt.name}: {why}")
+    P, R, surface, left_out = commandable(fmt, machine, P, R, surface)
     text, params = fmt.written(fit_controller(fmt, machine, P, R, surface=surface), machine,
                                existing, source)
     E = position_errors(fmt, params, machine, P, R)
@@ -785,7 +809,54 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
     return ExportResult(fmt.name, params, text,
                         float(np.sqrt(np.nanmean(e**2))), float(np.nanmax(e)), *before,
                         workspace, len(P), *heights(E), *before_h,
-                        fmt.export_notes(params, machine, P))
+                        fmt.export_notes(params, machine, P), left_out=left_out)
+
+
+def commandable(fmt: ControllerFormat, machine: Machine, P, R=None, surface=None):
+    """The workspace poses the controller can command with the values read off the machine
+    (the model may hold more than the controller: a leaning tower moves the reachable
+    volume), and the others in words.
+
+    Parameters
+    ----------
+    fmt : ControllerFormat
+        The controller.
+    machine : Machine
+        The calibrated machine.
+    P, R, surface
+        As :func:`export`.
+
+    Returns
+    -------
+    P, R, surface
+        The commandable poses.
+    left_out : str
+        Empty, or ``"150 of 491 workspace poses ... left out"`` with where they are.
+
+    Raises
+    ------
+    InputError
+        When none can be commanded.
+    """
+    P = np.asarray(P, float)
+    e0 = position_errors(fmt, fmt.initial(machine), machine, P, R)
+    keep = np.all(np.isfinite(e0), axis=-1)
+    if keep.all():
+        return P, R, surface, ""
+    if not keep.any():
+        raise InputError(f"{fmt.name}: none of the {len(P)} workspace poses can be commanded "
+                         "with the controller's values read off the machine; give a smaller "
+                         "workspace (--workspace)")
+    out = P[~keep]
+    rho = np.hypot(out[:, 0], out[:, 1])
+    words = (f"{int((~keep).sum())} of {len(P)} workspace poses cannot be commanded with the "
+             f"controller's values (the model holds more than the controller): left out of "
+             f"the fit and of the errors; they lie {rho.min() * 1e3:.4g}-{rho.max() * 1e3:.4g}"
+             f" mm from the axis, at heights {out[:, 2].min() * 1e3:.4g}-"
+             f"{out[:, 2].max() * 1e3:.4g} mm")
+    return (P[keep], None if R is None else np.asarray(R, float)[keep],
+            None if surface is None else np.asarray(surface, bool)[keep], words)
+
 
 
 def export_workspace(machine: Machine, workspace=None, n: int = 500, rng=0):

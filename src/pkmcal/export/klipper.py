@@ -795,6 +795,31 @@ class KlipperDelta(ControllerFormat):
                     (f"[stepper_{t}] position_endstop", f"{v[7 + i] * 1e3:.6f} mm")]
         return out + bed_values(v[10:13])
 
+    def bed_mesh_height(self, text: str) -> float:
+        """The probe's ``z_offset`` (m, 0 when none or below the nozzle): Klipper's own
+        meshes hold the bed as seen with the nozzle that far above it, and so does pkmcal's."""
+        from ..io.klipper_config import KlipperConfig, probe_offsets
+
+        try:
+            return max(probe_offsets(KlipperConfig.read("printer.cfg", text))[2] * 1e-3, 0.0)
+        except InputError:
+            return 0.0
+
+    def with_bed_mesh(self, text: str, params: ControllerParameters,
+                      machine: Machine) -> str | None:
+        """``printer.cfg`` with ``[bed_mesh pkmcal]`` in its SAVE_CONFIG block (never the
+        user's own profiles), when the file has a ``[bed_mesh]`` section (Klipper loads
+        profiles only then) and the correction is worth it (:mod:`.bed_mesh`)."""
+        from .bed_mesh import bed_correction, print_radius_of, with_klipper_profile
+
+        if not re.search(r"(?m)^\[bed_mesh\]", text):
+            return None
+        correction = bed_correction(self, params, machine, print_radius_of(machine),
+                                    height=self.bed_mesh_height(text))
+        if correction is None or not correction.worth_it:
+            return None
+        return with_klipper_profile(text, correction)
+
     def parse(self, text: str, source: str) -> ControllerParameters:
         """Klipper's values from a ``printer.cfg`` (or a fragment), as Klipper resolves them.
 

@@ -109,6 +109,9 @@ class Instrument:
     #: its measurements can fix a length of the machine (heights along z alone cannot fix a
     #: printer's arms: a parameter set's ``without_lengths`` applies)
     fixes_lengths: bool = True
+    #: its values are the nozzle's heights above a printer's bed (a bed probe): many of them
+    #: (a mesh) show the bed's own shape (:mod:`pkmcal.calibration.bed_surface`)
+    measures_bed_height: bool = False
     #: class name of its data objects (data given in memory)
     data_class: str = "InstrumentData"
     #: why its files cannot be fitted together with other files in one fit (empty: they can)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -76,6 +76,10 @@ class InstrumentData:
         def pick(a):
             return None if a is None else a[mask]
 
-        return InstrumentData(self.kind, self.q[mask], self.values[mask], self.group[mask],
-                              self.rows[mask], self.source, pick(self.true_P),
-                              pick(self.true_R), self.weights)
+        new = InstrumentData(self.kind, self.q[mask], self.values[mask], self.group[mask],
+                             self.rows[mask], self.source, pick(self.true_P),
+                             pick(self.true_R), self.weights)
+        # what a reader attached (notes, a session's name, a mesh's free height ...) stays
+        named = {f.name for f in fields(InstrumentData)}
+        new.__dict__.update({k: v for k, v in self.__dict__.items() if k not in named})
+        return new

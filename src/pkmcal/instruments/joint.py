@@ -33,7 +33,7 @@ from ..errors import InputError
 from ..estimation.rank import RTOL, numerical_rank
 from ..identifiability import NullGroup, name_null_space, name_weak_directions
 from ..machines.base import Machine
-from ..parameters import ParameterSet
+from ..parameters import ParameterSet, Prior
 from ..paths import path_text
 from .problem import (
     InstrumentProblem,
@@ -45,6 +45,10 @@ from .problem import (
 #: a machine parameter whose unit vector has a null-space component above this (scaled) is
 #: not determined by the data
 ESTIMABLE_TOL = 1e-6
+#: a session's reading offsets' prior standard deviation, m: "A typical endstop switch has an
+#: accuracy of around 100 microns" (Klipper's docs/Endstop_Phase.md); the data pull them
+#: further where they see it
+SESSION_SIGMA = 100e-6
 
 
 def file_labels(sources) -> list[str]:
@@ -78,10 +82,13 @@ class JointState:
         Machine parameters.
     parts : list of InstrumentState
         Each file's state (its ``u`` is ``u``; nuisance values and the poses last solved).
+    dq : ndarray, shape (n_sessions, n_joints), optional
+        Each session's reading offsets beyond the reference session's (None: no sessions).
     """
 
     u: np.ndarray
     parts: list = field(default_factory=list)
+    dq: np.ndarray | None = None
 
 
 class JointProblem:
@@ -99,6 +106,12 @@ class JointProblem:
     labels : sequence of str, optional
         One label per part, put in front of its nuisance names (``label:name``); default
         :func:`file_labels` of the data's sources.
+    sessions : sequence, optional
+        One entry per part: the name of the session it was measured in, None for the
+        reference session (default: every part in it). Each other session has its own
+        reading offsets, one per joint, shared by its parts (a printer's endstops trigger
+        anew at each session's homing): unknowns ``session NAME:dq1`` .. after every part's
+        nuisance, each with a prior of :data:`SESSION_SIGMA`.
 
     Raises
     ------
@@ -109,7 +122,7 @@ class JointProblem:
 
     local_dof = 0
 
-    def __init__(self, machine: Machine, parts, labels=None):
+    def __init__(self, machine: Machine, parts, labels=None, sessions=None):
         built = []
         for part in parts:
             if isinstance(part, InstrumentProblem):
@@ -146,6 +159,28 @@ class JointProblem:
             nuisance.append(prefixed)
             params = params.concat(prefixed)
         self.parameters = params
+        # a session's own reading offsets, shared by its parts
+        sessions = [None] * len(built) if sessions is None else list(sessions)
+        if len(sessions) != len(built):
+            raise InputError("joint fit: one session (or None) per file is needed")
+        self.session_names = [s for s in dict.fromkeys(sessions) if s is not None]
+        self.session_of = [None if s is None else self.session_names.index(s)
+                           for s in sessions]
+        self.dq_offset = len(params)
+        nj = machine.n_joints
+        if self.session_names:
+            names = [f"session {name}:dq{j + 1}" for name in self.session_names
+                     for j in range(nj)]
+            dq = ParameterSet(names, ["length"] * len(names), np.zeros(len(names)))
+            # an endstop triggers within its repeatability of where it did: a prior, or the
+            # offsets take up what the heights barely see (the arms) session by session
+            dq = dq.with_prior(Prior.about(dq, [(n, {n: 1.0}, SESSION_SIGMA, "session offset")
+                                                for n in names]))
+            nuisance.append(dq)
+            params = params.concat(dq)
+            for problem, s in zip(built, self.session_of, strict=True):
+                problem.reading_offsets = s is not None
+        self.parameters = params
         extra = nuisance[0]
         for ps in nuisance[1:]:
             extra = extra.concat(ps)
@@ -169,8 +204,12 @@ class JointProblem:
             Indices into :attr:`parameters`.
         """
         n = len(self.parts[i].model.parameters)
-        return np.concatenate([np.arange(self.n_machine),
-                               self.offsets[i] + np.arange(n)])
+        cols = [np.arange(self.n_machine), self.offsets[i] + np.arange(n)]
+        s = self.session_of[i] if self.session_names else None
+        if s is not None:
+            nj = self.machine.n_joints
+            cols.append(self.dq_offset + s * nj + np.arange(nj))
+        return np.concatenate(cols)
 
     # -- state ----------------------------------------------------------------------------
     def initial_state(self) -> JointState:
@@ -181,7 +220,8 @@ class JointProblem:
         JointState
             The state.
         """
-        return JointState(self.machine.u.copy(), [p.initial_state() for p in self.parts])
+        return JointState(self.machine.u.copy(), [p.initial_state() for p in self.parts],
+                          np.zeros((len(self.session_names), self.machine.n_joints)))
 
     def part_state(self, state: JointState, i: int) -> InstrumentState:
         """Part ``i``'s state (the joint machine parameters and its nuisance).
@@ -200,6 +240,8 @@ class JointProblem:
         """
         sub = state.parts[i]
         sub.u = state.u
+        s = self.session_of[i] if self.session_names else None
+        sub.dq = None if s is None or state.dq is None else state.dq[s]
         return sub
 
     def global_values(self, state) -> np.ndarray:
@@ -215,7 +257,8 @@ class JointProblem:
         ndarray, shape (n,)
             Values, internal units.
         """
-        return np.concatenate([state.u] + [s.nuisance.values for s in state.parts])
+        dq = [] if state.dq is None else [np.ravel(state.dq)]
+        return np.concatenate([state.u] + [s.nuisance.values for s in state.parts] + dq)
 
     def retract(self, state, du, dl):
         """The state after a global step.
@@ -241,7 +284,11 @@ class JointProblem:
             step = du[self.offsets[i]:self.offsets[i] + len(problem.model.parameters)]
             parts.append(InstrumentState(u, problem.model.retract(sub.nuisance, step),
                                          sub.P, sub.R))
-        return JointState(u, parts)
+        dq = state.dq
+        if self.session_names:
+            nj = self.machine.n_joints
+            dq = state.dq + du[self.dq_offset:self.dq_offset + dq.size].reshape(-1, nj)
+        return JointState(u, parts, dq)
 
     def evaluate(self, state, jacobian=True):
         """Whitened residuals of every part, one component per row (see the module docstring).
@@ -333,6 +380,9 @@ class JointProblem:
                             or head.startswith(k)), None)
                 what = model_words[key] if key is not None else head
                 out.setdefault(f"{label}:{head}", f"{what} of {label}")
+        for name in self.session_names:
+            out[f"session {name}"] = (f"the reading offsets of session {name} (its endstops' "
+                                      "triggers)")
         return out
 
     def null_space(self, state, rtol: float = RTOL) -> np.ndarray:
@@ -593,7 +643,7 @@ class JointContributions:
 
 
 def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, estimate_noise=True,
-              robust: bool = False, **options):
+              robust: bool = False, sessions=None, **options):
     """Fit one geometry to several instruments' data: starts, each instrument alone, then all.
 
     Each part's nuisance unknowns start from its model's closed form on the start geometry
@@ -621,6 +671,9 @@ def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, estimate
         hold (``"label:key"``).
     robust : bool, optional
         Leave out the rows the outlier test names.
+    sessions : sequence, optional
+        Per file the session it was measured in (None: the reference session); each other
+        session has its own reading offsets (:class:`JointProblem`).
     **options
         Passed to :func:`~pkmcal.estimation.estimator.levenberg_marquardt` (``max_std``
         defaults to :data:`~pkmcal.estimation.rank.MAX_STD`).
@@ -683,7 +736,7 @@ def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, estimate
                 if i != lead:
                     started[i] = started_on(geometry, data, model, noise)[0]
     problem = JointProblem(machine, [(d, m, nz) for (d, _, nz), m
-                                     in zip(parts, started, strict=True)], labels)
+                                     in zip(parts, started, strict=True)], labels, sessions)
     state = problem.initial_state()
     state.u = np.array(u0, float)
     for sub in state.parts:

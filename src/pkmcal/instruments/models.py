@@ -131,6 +131,28 @@ class NuisanceModel(ABC):
         new.rotation_starts = [np.array(R, float) for R in state.rotations]
         return new
 
+    #: the unknown that takes up a constant offset of every measurement of a data set (a
+    #: probe's trigger height, a mesh's reference); None: the instrument has none to free
+    offset_parameter: str | None = None
+
+    def with_free_offset(self) -> NuisanceModel:
+        """A copy whose :attr:`offset_parameter` is free (one free offset per data set, as
+        another session's data are scored: :func:`pkmcal.calibration.check.check`); itself
+        when it has none.
+
+        Returns
+        -------
+        NuisanceModel
+            The model.
+        """
+        if self.offset_parameter is None \
+                or self.offset_parameter not in self.parameters.names:
+            return self
+        new = self.__class__.__new__(self.__class__)
+        new.__dict__.update(self.__dict__)
+        new.parameters = self.parameters.with_fixed([self.offset_parameter], False)
+        return new
+
     def rotation(self, state: NuisanceState, prefix: str) -> np.ndarray:
         """Current rotation of the triple ``prefix.rx/ry/rz``.
 
@@ -614,6 +636,7 @@ class ProbeModel(NuisanceModel):
     quantity = "probe heights"
     size = 1
     words = {"bed": "the bed plane (height and tilt)"}
+    offset_parameter = "bed.z"
 
     def __init__(self, tip=None, fixed=()):
         self.tip = np.zeros(3) if tip is None else np.asarray(tip, float).reshape(3)

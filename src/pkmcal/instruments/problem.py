@@ -47,6 +47,10 @@ class InstrumentState:
         Platform poses of the rows (warm start of the forward kinematics).
     converged : ndarray of bool, optional
         Rows whose forward kinematics converged at the last evaluation.
+    dq : ndarray, shape (n_joints,), optional
+        Offsets added to every reading of the rows (a session's own endstop triggers, shared
+        by the files of one session: :class:`~pkmcal.instruments.joint.JointProblem`); None:
+        none.
     """
 
     u: np.ndarray
@@ -54,6 +58,7 @@ class InstrumentState:
     P: np.ndarray
     R: np.ndarray
     converged: np.ndarray = field(default=None)  # type: ignore[assignment]
+    dq: np.ndarray | None = None
 
 
 class InstrumentProblem:
@@ -83,6 +88,10 @@ class InstrumentProblem:
     #: sets of joint readings per row, side by side in ``data.q`` (two-point distances: 2);
     #: the poses of the rows' first sets come first, then the second sets' ...
     readings_per_row = 1
+    #: :meth:`evaluate` appends the derivatives with respect to the state's reading offsets
+    #: (``dq``, one per joint) after the nuisance's (set by a joint problem for the files of a
+    #: session with its own offsets)
+    reading_offsets = False
 
     def __init__(self, machine: Machine, data: InstrumentData, model: NuisanceModel, noise,
                  fit_machine: bool = True):
@@ -209,8 +218,14 @@ class InstrumentProblem:
             # the rows, starts from this problem's own)
             same = np.shape(state.P) == self._P0.shape
             start = (state.P, state.R) if same else (self._P0, self._R0)
-            return self.machine.fk(self._stacked(self.data.q), state.u, start=start)
-        return self.machine.fk(self._stacked(q), state.u)
+            return self.machine.fk(self._shifted(self.data.q, state), state.u, start=start)
+        return self.machine.fk(self._shifted(q, state), state.u)
+
+    def _shifted(self, q, state) -> np.ndarray:
+        """The stacked readings plus the state's reading offsets (when it has any)."""
+        q = self._stacked(q)
+        dq = getattr(state, "dq", None)
+        return q if dq is None else q + np.asarray(dq, float)[None]
 
     def evaluate(self, state, jacobian=True):
         """Whitened residuals and their Jacobian (see :class:`BlockProblem`).
@@ -248,6 +263,10 @@ class InstrumentProblem:
         d = self._through_fk(state.u, P, R, de_dx)
         de_du = d.reshape(self.readings_per_row, len(ok), *d.shape[1:]).sum(axis=0)
         J = np.concatenate([de_du, de_dv], -1)
+        if self.reading_offsets:
+            d = self._through_readings(state.u, P, R, de_dx)
+            J = np.concatenate([J, d.reshape(self.readings_per_row, len(ok),
+                                             *d.shape[1:]).sum(axis=0)], -1)
         return r, np.einsum("kij,kjn->kin", self.W, J), None
 
     def noise_groups(self):
@@ -281,6 +300,15 @@ class InstrumentProblem:
         with np.errstate(all="ignore"):
             dx_du = -np.linalg.solve(np.asarray(Jx)[..., cols], Ju)      # (K, d, n_machine)
         return np.einsum("kid,kdn->kin", de_dx[..., cols], dx_du)
+
+    def _through_readings(self, u, P, R, de_dx):
+        """``de/d(dq) = de/dx dx/dq`` with ``dx/dq = (dq/dx)^-1``: a reading offset ``dq`` puts
+        the joints at ``q + dq`` (forward kinematics of the shifted readings)."""
+        _, Jx, _ = self.machine.ik_jacobians(P, R, u, want_du=False)
+        cols = list(self.machine.pose_space)
+        with np.errstate(all="ignore"):
+            dx_dq = np.linalg.inv(np.asarray(Jx)[..., cols])          # (K, d, n_joints)
+        return np.einsum("kid,kdn->kin", de_dx[..., cols], dx_dq)
 
     # -- predictions ----------------------------------------------------------------------
     def predict(self, state, q, group=None):

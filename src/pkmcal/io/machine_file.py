@@ -324,6 +324,9 @@ def _build_instruments(machine: Machine, doc, fl: float) -> None:
         (np.asarray(s.pivot, float) * fl, np.asarray(s.ball, float) * fl) for s in ballbar]
     bed = getattr(doc, "bed", None)
     machine.probe_bed = None if bed is None else (bed.height * fl, bed.tilt_x, bed.tilt_y)
+    surface = None if bed is None else bed.surface
+    machine.bed_surface = None if surface is None else (
+        surface.radius * fl, np.asarray(surface.values, float) * fl)
     frames = getattr(doc, "measurement_frames", None)
     if frames is None:
         machine.measurement_frames = None
@@ -395,9 +398,16 @@ def _dump_instruments(machine: Machine, fl: float) -> dict:
     if setups is not None:
         out["ballbar"] = [{"pivot": vector(p, fl), "ball": vector(b, fl)} for p, b in setups]
     bed = getattr(machine, "probe_bed", None)
+    surface = getattr(machine, "bed_surface", None)
+    if bed is None and surface is not None:
+        bed = (0.0, 0.0, 0.0)
     if bed is not None:
         out["bed"] = {"height": float(bed[0]) / fl, "tilt_x": float(bed[1]),
                       "tilt_y": float(bed[2])}
+        if surface is not None:
+            out["bed"]["surface"] = {"radius": float(surface[0]) / fl,
+                                     "values": [[float(v) / fl for v in row]
+                                                for row in np.asarray(surface[1], float)]}
     frames = getattr(machine, "measurement_frames", None)
     if frames is not None and len(machine.pose_space) == 6:
         out["measurement_frames"] = {

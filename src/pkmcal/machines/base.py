@@ -120,6 +120,59 @@ class ParameterSubset:
     kinds: tuple[str, ...] | None = None
 
 
+def bed_height_at(machine, xy) -> np.ndarray:
+    """The height (m) of a printer's bed at (x, y): its plane (``probe_bed``: height and
+    slopes; 0 without one) plus its own shape (``bed_surface``: ``(radius, values)``, a
+    square grid over ``[-radius, radius]``, interpolated bilinearly, clamped to the grid).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (its ``probe_bed``, ``bed_surface``).
+    xy : array_like, shape (K, 2)
+        Positions, m.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        Heights, m.
+    """
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    bed = getattr(machine, "probe_bed", None)
+    b = np.zeros(3) if bed is None else np.asarray(bed, float)
+    z = b[0] + b[1] * xy[:, 0] + b[2] * xy[:, 1]
+    surface = getattr(machine, "bed_surface", None)
+    if surface is None:
+        return z
+    radius, values = float(surface[0]), np.asarray(surface[1], float)
+    n = len(values)
+    f = np.clip((xy + radius) / (2 * radius) * (n - 1), 0.0, n - 1.0)
+    i0 = np.clip(np.floor(f).astype(int), 0, n - 2)
+    t = f - i0
+    ix, iy, tx, ty = i0[:, 0], i0[:, 1], t[:, 0], t[:, 1]
+    return z + ((1 - ty) * ((1 - tx) * values[iy, ix] + tx * values[iy, ix + 1])
+                + ty * ((1 - tx) * values[iy + 1, ix] + tx * values[iy + 1, ix + 1]))
+
+
+@dataclass(frozen=True)
+class ModelCandidate:
+    """A model ``--parameters auto`` may choose (:meth:`Machine.model_candidates`).
+
+    Attributes
+    ----------
+    parameters : str
+        A named parameter set (:attr:`Machine.PARAMETER_SETS`, or ``full``).
+    bed_tilt : str or None
+        ``--bed-tilt`` of the candidate (a printer's bed; None: the default).
+    words : str
+        The model in words, for the report.
+    """
+
+    parameters: str
+    bed_tilt: str | None
+    words: str
+
+
 @dataclass(frozen=True)
 class ModelExtension:
     """A named extension of a machine's model: parameters the plain model holds at zero (or
@@ -331,6 +384,126 @@ class Machine(ABC):
         new.parameters = self.parameters.with_values(values)
         return new
 
+    def model_candidates(self, fixes_lengths: bool) -> list[ModelCandidate]:
+        """The models ``--parameters auto`` chooses from, the firmware's own first (always
+        a candidate; the others only where the data leave enough equations to judge them).
+        A machine without candidates (the default) is fitted with its parameters as they
+        are.
+
+        Parameters
+        ----------
+        fixes_lengths : bool
+            Whether some measurement fixes a length (distances, points): a firmware fits
+            more then.
+
+        Returns
+        -------
+        list of ModelCandidate
+            Empty here.
+        """
+        return []
+
+    # -- build tolerances (SPEC 9: priors) -------------------------------------------------
+    def default_tolerances(self) -> dict[str, float]:
+        """Build tolerances per quantity: the machine file's ``tolerances:`` keys and their
+        default prior standard deviations (internal units: m, rad). A machine without any
+        (the default) is fitted by maximum likelihood alone.
+
+        Returns
+        -------
+        dict
+            ``{key: std}``; empty here.
+        """
+        return {}
+
+    def tolerance_kinds(self) -> dict[str, str]:
+        """The kind (``length`` / ``angle``) of each :meth:`default_tolerances` key (the
+        machine file's units apply)."""
+        return {}
+
+    def tolerance_rows(self, tolerances: dict[str, float]) -> list:
+        """The prior's rows for given tolerances (:meth:`~pkmcal.parameters.Prior.about`).
+
+        Parameters
+        ----------
+        tolerances : dict
+            ``{key: std}`` (internal units) of the quantities that carry a prior.
+
+        Returns
+        -------
+        list of (label, {parameter: coefficient}, std, key)
+            Empty here.
+        """
+        return []
+
+    def with_tolerances(self, tolerances: dict | str | None = "default") -> Machine:
+        """A copy whose parameters carry the build tolerances as a prior about their present
+        values (SPEC 9).
+
+        Parameters
+        ----------
+        tolerances : dict or "default" or None, optional
+            ``"default"``: :meth:`default_tolerances`; a dict overrides those per key (a value
+            None: that quantity has no prior); None or ``"none"``: no prior at all.
+
+        Returns
+        -------
+        Machine
+            The copy (this machine unchanged); :attr:`tolerances` records the overrides.
+
+        Raises
+        ------
+        InputError
+            For a key the machine does not know or a standard deviation that is not > 0;
+            the message names ``tolerances.KEY``.
+        """
+        from ..errors import InputError
+        from ..parameters import Prior
+
+        new = self.__class__.__new__(self.__class__)
+        new.__dict__.update(self.__dict__)
+        if tolerances is None or tolerances == "none":
+            new.parameters = self.parameters.with_prior(None)
+            new.tolerances = "none"
+            return new
+        table = dict(self.default_tolerances())
+        overrides = {} if tolerances == "default" else dict(tolerances)
+        for key, value in overrides.items():
+            if key not in table:
+                known = ", ".join(table) or "none"
+                raise InputError(f"tolerances.{key}: no such quantity for a "
+                                 f"{self.kind or 'machine'} (known: {known})")
+            if value is not None and not (np.isfinite(value) and value > 0):
+                raise InputError(f"tolerances.{key}: a tolerance is a standard deviation > 0 "
+                                 f"(or null: no prior), got {value!r}")
+            table[key] = value
+        table = {k: v for k, v in table.items() if v is not None}
+        new.parameters = self.parameters.with_prior(
+            Prior.about(self.parameters, self.tolerance_rows(table)))
+        new.tolerances = overrides
+        return new
+
+    def build_error_words(self, rows) -> list[str]:
+        """What the data determine that a firmware cannot hold, as actions in the machine's
+        own terms (a leaning tower, unequal arms), from a fit's prior rows
+        (:meth:`~pkmcal.estimation.estimator.CalibrationResult.prior_summary`); none here.
+
+        Parameters
+        ----------
+        rows : list of PriorRow
+            The fit's rows.
+
+        Returns
+        -------
+        list of str
+            One sentence per action.
+        """
+        return []
+
+    #: the tolerances the machine's prior was built with: None (none asked for), ``"none"``,
+    #: or the machine file's overrides of :meth:`default_tolerances` (a dict, maybe empty)
+    tolerances = None
+
     @property
     def home(self) -> tuple[np.ndarray, np.ndarray]:
         """A pose of the working assembly mode ``(P, R)``: the file's, or one found.
@@ -425,14 +598,14 @@ class Machine(ABC):
         p = self.parameters
         sets = dict(self.PARAMETER_SETS)
         if name == "full" and "full" not in sets:
-            return ParameterSet(p.names, p.kinds, p.values, np.zeros(len(p), bool))
+            return p.with_fixed_mask(np.zeros(len(p), bool))
         if name not in sets:
             known = ", ".join(sorted(set(sets) | {"full"}))
             raise InputError(f"unknown parameter set {name!r} for a {self.kind or 'machine'}; "
                              f"known: {known}")
         fixed = np.ones(len(p), bool)
         fixed[p.indices(list(sets[name].free))] = False
-        return ParameterSet(p.names, p.kinds, p.values, fixed)
+        return p.with_fixed_mask(fixed)
 
     def with_parameter_set(self, name: str) -> Machine:
         """A copy of this machine whose parameters carry the fixed flags of a named subset.

@@ -197,14 +197,34 @@ class BallbarSetup(StrictModel):
 Ballbar = Annotated[list[BallbarSetup], Field(min_length=1)]
 
 
+class BedSurface(StrictModel):
+    """The bed's own shape beside its plane (what probed meshes show and no kinematics
+    holds): heights on a square grid of ``len(values)`` nodes per side over ``[-radius,
+    radius]`` in x and y, rows by ascending y (the file's length unit)."""
+
+    radius: Positive
+    values: Annotated[list[Annotated[list[Number], Field(min_length=2)]], Field(min_length=2)]
+
+    @field_validator("values")
+    @classmethod
+    def _square(cls, value):
+        if any(len(row) != len(value) for row in value):
+            raise PydanticCustomError(
+                "bed_surface", "expected a square grid: {n} rows of {n} values",
+                {"n": len(value)})
+        return value
+
+
 class BedPlane(StrictModel):
     """The bed a probe measured: the plane ``z = height + tilt_x x + tilt_y y`` of the base
-    frame (``height`` in the file's length unit; ``tilt_x``, ``tilt_y`` slopes dz/dx, dz/dy)."""
+    frame (``height`` in the file's length unit; ``tilt_x``, ``tilt_y`` slopes dz/dx, dz/dy),
+    and optionally its own shape beside the plane (``surface``)."""
 
     height: Number
     #: slopes beyond 1 (45 deg) are no bed a probe measured
     tilt_x: Annotated[float, Strict(), Field(allow_inf_nan=False, ge=-1.0, le=1.0)] = 0.0
     tilt_y: Annotated[float, Strict(), Field(allow_inf_nan=False, ge=-1.0, le=1.0)] = 0.0
+    surface: BedSurface | None = None
 
 
 class MeasurementFramesSection(StrictModel):

@@ -130,7 +130,14 @@ from ..errors import InputError
 from ..kinematics import matrix_from_rotvec
 from ..parameters import ParameterSet
 from ..units import LENGTH
-from .base import FKResult, FrameMotion, Machine, ParameterSubset, closed_form_positions_fk
+from .base import (
+    FKResult,
+    FrameMotion,
+    Machine,
+    ModelCandidate,
+    ParameterSubset,
+    closed_form_positions_fk,
+)
 from .file_format import (
     Ballbar,
     BedPlane,
@@ -401,6 +408,131 @@ class LinearDelta(Machine):
         u[self._idx] = np.column_stack([c[:, 2] - h, theta, r - u[self._iR], l - u[self._iL],
                                         tr, tt])
         return u
+
+    # -- build tolerances (SPEC 9) ----------------------------------------------------------
+    #: default build tolerances (prior standard deviations, m and rad) per machine-file key
+    #: of ``tolerances:``; see :meth:`tolerance_rows` for what each holds
+    DEFAULT_TOLERANCES = {
+        "delta_radius": 5e-3,          # the mean tower radius about the file's delta_radius
+        "arm_length": 5e-3,            # the mean arm about the file's arm_length
+        "tower_angle": float(np.deg2rad(1.0)),   # each tower's angle about its nominal
+        "radius_trim": 0.5e-3,         # each tower's radius against the mean of the three
+        "arm_trim": 0.3e-3,            # each arm against the mean of the three (matched rods)
+        "tower_tilt": float(np.deg2rad(0.2)),    # each tilt (radial, tangential) about 0
+        "endstop": None,               # effectively free: an endstop is adjusted, not built
+    }
+    _TOLERANCE_KINDS = {"delta_radius": "length", "arm_length": "length",
+                        "tower_angle": "angle", "radius_trim": "length",
+                        "arm_trim": "length", "tower_tilt": "angle", "endstop": "length"}
+
+    def model_candidates(self, fixes_lengths: bool) -> list[ModelCandidate]:
+        """Klipper's own set (its DELTA_CALIBRATE: basic from heights, the nine with
+        distances), with the bed square to the towers as Klipper takes it and with the bed's
+        tilt, and the per-tower model (every tower quantity) with the build tolerances
+        holding what the data do not see (its arms from heights alone among them).
+        """
+        own = "klipper" if fixes_lengths else "klipper-basic"
+        out = [ModelCandidate(own, "square", f"Klipper's own set ({own}), the bed square to "
+                              "the towers as the firmware takes it"),
+               ModelCandidate(own, "estimate", f"Klipper's own set ({own}) and the bed's "
+                              "tilt")]
+        out.append(ModelCandidate("full", "auto", "the per-tower model (endstop, angle, "
+                                  "radius and arm, both tilts of each tower) with the build "
+                                  "tolerances as a prior, the bed's tilt where the data tell "
+                                  "it"))
+        return out
+
+    def default_tolerances(self) -> dict[str, float]:
+        """:data:`DEFAULT_TOLERANCES` (the machine file's ``tolerances:`` keys; ``endstop``
+        has none by default: the data fix the endstops, a printer's owner adjusts them).
+
+        Returns
+        -------
+        dict
+            ``{key: std}``, m and rad (None: no prior).
+        """
+        return dict(self.DEFAULT_TOLERANCES)
+
+    def tolerance_kinds(self) -> dict[str, str]:
+        return dict(self._TOLERANCE_KINDS)
+
+    #: a build error is named as an action when the data measured it (``measured``) and it
+    #: is this many of its standard deviations from the nominal
+    ACTION_SIGMAS = 2.0
+
+    def build_error_words(self, rows) -> list[str]:
+        """A leaning tower (both tilts) and a tower whose carriage line sits off the common
+        radius: no firmware holds them (Klipper, Marlin and RepRapFirmware take vertical
+        towers and one radius); named where the data measured them, with their uncertainty,
+        in millimetres over the tower's travel.
+        """
+        by = {r.name: r for r in rows}
+        letters = "ABC"
+        pe = self.towers()[0]
+        out = []
+        for i in range(3):
+            tower = f"tower {letters[i]} (tower{i + 1})"
+            rail = float(pe[i])
+            for field, toward in (("tilt_radial", ("away from the centre",
+                                                   "toward the centre")),
+                                  ("tilt_tangential", ("counter-clockwise (seen from above)",
+                                                       "clockwise (seen from above)"))):
+                r = by.get(f"tower{i + 1}.{field}")
+                if r is None or r.label != "measured" or not np.isfinite(r.posterior_std):
+                    continue
+                change = r.value - r.mean
+                if abs(change) < self.ACTION_SIGMAS * r.posterior_std:
+                    continue
+                words = toward[0] if change > 0 else toward[1]
+                out.append(f"{tower} leans {np.degrees(abs(change)):.2g} +- "
+                           f"{np.degrees(r.posterior_std):.1g} deg {words}: "
+                           f"{abs(np.tan(change)) * rail * 1e3:.2g} mm over "
+                           f"{rail * 1e3:.0f} mm of travel; no firmware holds it: plumb the "
+                           "tower (shim its foot or top)")
+            r = by.get(f"tower{i + 1}.radius_trim (against the mean of the three)")
+            if r is not None and r.label == "measured" and np.isfinite(r.posterior_std) \
+                    and abs(r.value - r.mean) >= self.ACTION_SIGMAS * r.posterior_std:
+                change = r.value - r.mean
+                out.append(f"{tower}'s carriage line sits {abs(change) * 1e3:.2g} +- "
+                           f"{r.posterior_std * 1e3:.1g} mm "
+                           f"{'further out' if change > 0 else 'further in'} than the mean of "
+                           "the three; the firmware has one radius: check the tower's "
+                           "rail and carriage mounting")
+        return out
+
+    def tolerance_rows(self, tolerances: dict[str, float]) -> list:
+        """The prior's rows of a linear Delta (:meth:`Machine.tolerance_rows`).
+
+        ``delta_radius`` and ``arm_length`` hold the MEAN tower radius / arm (common value
+        plus the mean trim: only the sums enter, so the prior does not depend on which of the
+        two a parameter set frees); ``radius_trim`` and ``arm_trim`` hold each tower's radius
+        / arm against the mean of the three (three rows of rank 2: a tower differs from the
+        others, whatever the common value); ``tower_angle`` each tower's angle about its
+        nominal; ``tower_tilt`` each tilt about 0 (vertical towers); ``endstop`` each
+        ``position_endstop`` about its nominal.
+        """
+        rows = []
+        third = 1.0 / 3.0
+        for common, trim in (("delta_radius", "radius_trim"), ("arm_length", "arm_trim")):
+            if common in tolerances:
+                coefficients = {common: 1.0}
+                coefficients.update({f"tower{i + 1}.{trim}": third for i in range(3)})
+                rows.append((f"{common} (mean of the towers)", coefficients,
+                             tolerances[common], f"tolerances.{common}"))
+            if trim in tolerances:
+                for i in range(3):
+                    coefficients = {f"tower{j + 1}.{trim}": (1.0 if j == i else 0.0) - third
+                                    for j in range(3)}
+                    rows.append((f"tower{i + 1}.{trim} (against the mean of the three)",
+                                 coefficients, tolerances[trim], f"tolerances.{trim}"))
+        for key, fields in (("tower_angle", ("angle",)), ("endstop", ("endstop",)),
+                            ("tower_tilt", ("tilt_radial", "tilt_tangential"))):
+            if key in tolerances:
+                for i in range(3):
+                    for f in fields:
+                        rows.append((f"tower{i + 1}.{f}", {f"tower{i + 1}.{f}": 1.0},
+                                     tolerances[key], f"tolerances.{key}"))
+        return rows
 
     def characteristic_length(self) -> float:
         return float(np.mean(self.towers()[3]))
@@ -938,7 +1070,7 @@ class LinearDelta(Machine):
 
 def linear_delta(delta_radius: float, arm_length, tower_angles=DEFAULT_TOWER_ANGLES,
                  position_endstop=(0.3, 0.3, 0.3), chains=None, home=None,
-                 name: str = "") -> LinearDelta:
+                 name: str = "", tolerances=None) -> LinearDelta:
     """A linear Delta from its design values (a machine file's top level), SI units.
 
     Parameters
@@ -958,6 +1090,10 @@ def linear_delta(delta_radius: float, arm_length, tower_angles=DEFAULT_TOWER_ANG
         ``(P, R)`` start pose.
     name : str, optional
         Free-text name.
+    tolerances : dict or "default" or None, optional
+        Build tolerances as a prior about the design values (:meth:`Machine.with_tolerances`;
+        a machine file's ``tolerances:`` section, ``"default"`` when it has none); None
+        (default here): no prior, a fit is maximum likelihood.
 
     Returns
     -------
@@ -998,6 +1134,12 @@ def linear_delta(delta_radius: float, arm_length, tower_angles=DEFAULT_TOWER_ANG
             tilt_radial=u[machine._idx[:, 4]], tilt_tangential=u[machine._idx[:, 5]]).values
         machine.parameters = machine.parameters.with_values(u)
         machine.from_chains = True
+    if tolerances is not None:
+        # about the design values of the top level (the towers vertical, the trims 0: what
+        # the machine was built to be), whatever the chains hold
+        design = machine.with_parameters(params.values).with_tolerances(tolerances)
+        machine.parameters = machine.parameters.with_prior(design.parameters.prior)
+        machine.tolerances = design.tolerances
     return machine
 
 
@@ -1038,6 +1180,10 @@ class LinearDeltaFile(MachineFileHead):
     #: [delta_calibrate] radius): the export's and the probe plan's disk
     print_radius: Positive | None = None
     probe_radius: Positive | None = None
+    #: build tolerances (prior standard deviations in the file's units) overriding
+    #: :data:`LinearDelta.DEFAULT_TOLERANCES` per key (null: that quantity has no prior), or
+    #: ``none``: no prior at all
+    tolerances: dict[str, Positive | None] | Literal["none"] | None = None
     home: list[Number] | None = None
 
     @field_validator("arm_length")
@@ -1090,9 +1236,16 @@ def _build(doc: LinearDeltaFile, source: str) -> LinearDelta:
     home = None
     if doc.home is not None:
         home = (np.asarray(doc.home[:3], float) * fl, np.eye(3))
+    tolerances = doc.tolerances
+    if isinstance(tolerances, dict):
+        kinds = LinearDelta._TOLERANCE_KINDS
+        tolerances = {k: (None if v is None else
+                          float(v) * (fa if kinds.get(k) == "angle" else fl))
+                      for k, v in tolerances.items()}
     machine = linear_delta(doc.delta_radius * fl, arms, np.asarray(doc.tower_angles, float) * fa,
                            np.asarray(doc.position_endstop, float) * fl, chains=chains,
-                           home=home, name=doc.name or "")
+                           home=home, name=doc.name or "",
+                           tolerances="default" if tolerances is None else tolerances)
     for key in ("print_radius", "probe_radius"):
         value = getattr(doc, key)
         if value is not None:
@@ -1120,6 +1273,14 @@ def _dump(machine: LinearDelta, units: dict) -> dict[str, Any]:
         value = getattr(machine, key, None)
         if value is not None and not callable(value):
             out[key] = float(value) / fl
+    tolerances = getattr(machine, "tolerances", None)
+    if tolerances == "none":
+        out["tolerances"] = "none"
+    elif tolerances:
+        kinds = LinearDelta._TOLERANCE_KINDS
+        out["tolerances"] = {k: (None if v is None else
+                                 float(v) / (fa if kinds.get(k) == "angle" else fl))
+                             for k, v in tolerances.items()}
     design = linear_delta(radius, arms, theta, pe)
     if (getattr(machine, "from_chains", False) or np.any(machine.b != 0)
             or not np.array_equal(machine.u, design.u)):
@@ -1157,6 +1318,10 @@ FILE_FORMAT = MachineFormat(
                         "e.g. print_radius: 120.0",
         "probe_radius": "the radius of the probing pattern (Klipper's [delta_calibrate] "
                         "radius), e.g. probe_radius: 100.0",
+        "tolerances": "build tolerances (prior standard deviations) per quantity, e.g. "
+                      "tolerances: {arm_trim: 0.2, tower_tilt: 0.1} (keys delta_radius, "
+                      "arm_length, tower_angle, radius_trim, arm_trim, tower_tilt, endstop; "
+                      "null: no prior), or tolerances: none",
     },
     kinds={
         ("delta_radius",): "dimension", ("arm_length",): "dimension",

@@ -376,6 +376,13 @@ def measurements() -> tuple[str, ...]:
     return (*INSTRUMENTS, JOINT)
 
 
+class ParameterSetSection(_Section):
+    """``parameter_set``: the named set fitted (``--parameters``, or the one ``auto`` chose)."""
+
+    name: str
+    fixed: Int = Field(ge=0)
+
+
 class CalibrationReport(_Section):
     """The sections of a calibration report that ``pkmcal report`` and ``compensate`` use;
     every report ``pkmcal calibrate`` writes has the required ones."""
@@ -408,6 +415,7 @@ class CalibrationReport(_Section):
     model_adequacy: ModelAdequacy | None = None
     model_extensions: ModelExtensions | None = None
     bed: Bed | None = None
+    parameter_set: ParameterSetSection | None = None
     poorly_determined: PoorlyDetermined | None = None
     acceptance: Acceptance | None = None
 
@@ -524,16 +532,20 @@ def _constant_place(text: str) -> str:
 #: held to them too, so that text where a number belongs is named by its key path
 NUMBER_KEYS = frozenset((
     "after_rms", "alpha", "assumed", "ball", "before_rms", "calibration_rms", "capacity",
-    "change", "chi2", "chi2_per_dof", "chi_square", "condition_number", "correlation",
-    "count", "cv_gain", "cv_loss", "cv_loss_baseline", "cv_se", "dimension", "dof",
+    "change", "chi2", "chi2_per_dof", "chi_square", "chosen", "condition_number", "correlation",
+    "count", "cv_gain", "cv_loss", "cv_loss_baseline", "cv_se", "data_share", "dimension",
+    "dof",
     "evaluations", "explained", "far_above", "fk_failed", "folds", "free_parameters",
     "height", "held_out", "held_out_over_calibration", "holdout", "identifiable",
     "identifiable_alone", "identified", "in_file", "iterations", "joint_identifiable",
-    "leg_length_max", "leg_length_rms", "leg_length_rms_per_leg", "matrix", "max", "mean",
-    "measurements", "min", "min_redundancy", "noise_ratio", "noise_scale", "nominal",
+    "leg_length_max", "leg_length_rms", "leg_length_rms_per_leg", "loo_rms_over_noise",
+    "matrix", "max", "mean", "measured", "measurements", "min", "min_redundancy",
+    "noise_ratio", "noise_scale", "nominal",
     "normalised_residuals", "null_space", "p", "p_adjusted", "pairs", "pivot", "places",
-    "position_max", "position_rms", "ratio", "redundancy", "residual_variance", "rms",
-    "rotation", "rows", "seed", "setup", "sigma", "significant_trends", "singular_values",
+    "position_max", "position_rms", "posterior_std", "prior_held", "prior_std", "ratio",
+    "redundancy", "residual_variance", "rms",
+    "rotation", "rows", "seed", "setup", "sigma", "sigmas_off", "significant_trends",
+    "singular_values",
     "smr_offset", "standardised_residuals", "std", "tests", "threshold_p", "tilt_x",
     "tilt_y", "translation", "translation_change", "upper_999", "used", "value"))
 #: so are keys ending in a unit
