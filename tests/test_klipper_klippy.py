@@ -37,8 +37,9 @@ pytestmark = [requires_klippy,
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
-#: printers' own configs (tests/data/klipper, see its README)
-DATA = ROOT / "tests" / "data" / "klipper"
+#: published printers' own configs, kept outside the project (../shared beside the repository;
+#: the test below has no cases without it)
+DATA = ROOT.parent / "shared" / "data" / "printers" / "klipper_saved"
 ROTARY = controller_format("klipper-rotary-delta")
 LINEAR = controller_format("klipper")
 #: 1e-6 mm, the agreement asked of pkmcal's model of Klipper against Klipper's code
@@ -410,7 +411,7 @@ def test_linear_clockwise_towers_are_relabelled(tmp_path):
 # -- the earlier reference and pkmcal's reader against Klipper's code -------------------------
 @pytest.mark.parametrize("name", sorted(p.name for p in DATA.glob("*.cfg")))
 def test_reference_and_import_agree_with_klippy(tmp_path, name):
-    """Each printer's config of tests/data/klipper as Klipper reads it (SAVE_CONFIG block,
+    """Each published printer's config (../shared/data/printers/klipper_saved) as Klipper reads it (SAVE_CONFIG block,
     duplicates): pkmcal's import reads the values Klipper uses, and the independent
     restatement tests/klipper_reference.py computes Klipper's stable positions and positions
     from them exactly."""
