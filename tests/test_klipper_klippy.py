@@ -411,10 +411,10 @@ def test_linear_clockwise_towers_are_relabelled(tmp_path):
 # -- the earlier reference and pkmcal's reader against Klipper's code -------------------------
 @pytest.mark.parametrize("name", sorted(p.name for p in DATA.glob("*.cfg")))
 def test_reference_and_import_agree_with_klippy(tmp_path, name):
-    """Each published printer's config (../shared/data/printers/klipper_saved) as Klipper reads it (SAVE_CONFIG block,
-    duplicates): pkmcal's import reads the values Klipper uses, and the independent
-    restatement tests/klipper_reference.py computes Klipper's stable positions and positions
-    from them exactly."""
+    """Each published printer's config (../shared/data/printers/klipper_saved) as Klipper
+    reads it (SAVE_CONFIG block, duplicates): pkmcal's import reads the values Klipper uses,
+    and the independent restatement tests/klipper_reference.py computes Klipper's stable
+    positions and positions from them exactly."""
     text = (DATA / name).read_text()
     config = write_main(tmp_path, "delta", text)
     k = Klippy(config)
