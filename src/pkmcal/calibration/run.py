@@ -26,7 +26,7 @@ import dataclasses
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 
@@ -702,9 +702,14 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
     chosen, note = None, ""
     items = list(data) if isinstance(data, (list, tuple)) else [data]
     if parameters == "auto" or parameters is None:
-        lengths = any(k.fixes_lengths for k in _data_kinds(data, machine))
+        kinds = _data_kinds(data, machine)
+        lengths = any(k.fixes_lengths for k in kinds)
         candidates = machine.model_candidates(lengths) if hasattr(machine, "model_candidates") \
             else []
+        if not any(k.measures_bed_height for k in kinds):
+            # a bed's tilt is a candidate's only where the data are heights above the bed
+            candidates = list({c.parameters: replace(c, bed_tilt=None)
+                               for c in candidates}.values())
         if candidates:
             return calibrate_auto(calibrate, machine, given, candidates, bed_tilt,
                                   dict(method=method, noise=noise, pose_noise=pose_noise,

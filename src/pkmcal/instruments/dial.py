@@ -50,6 +50,14 @@ def _across(d) -> tuple[np.ndarray, np.ndarray]:
     return u, np.cross(d, u)
 
 
+def planned_axis(machine) -> int:
+    """The axis a planned dial reads along: z where the platform moves along it (a dial on the
+    table, plunger up), else the last base axis it moves along (a planar machine's y): a
+    dial along an axis the platform does not move along reads one value."""
+    moves = [i for i in machine.pose_space if i < 3]
+    return 2 if 2 in moves else moves[-1]
+
+
 class DialModel(NuisanceModel):
     """``r = d . (P + R p) + z``: a dial indicator (see the module docstring).
 
@@ -234,10 +242,10 @@ class Dial(Instrument):
         return IsotropicNoise(sigma)
 
     def planned_data(self, machine, P, R, rows, source, group=None):
-        """A dial along ``+z`` touching the platform origin, zero 0: the readings are the
-        planned heights."""
+        """A dial along :func:`planned_axis` (``+z``, or a planar machine's ``+y``) touching
+        the platform origin, zero 0: the readings are the planned coordinates along it."""
         q = reachable(machine, P, R, rows, source)
-        return dial_data(q, np.asarray(P, float)[:, 2], rows, source)
+        return dial_data(q, np.asarray(P, float)[:, planned_axis(machine)], rows, source)
 
     def problem(self, machine, data, noise=None, **start):
         return InstrumentProblem(machine, data, DialModel(with_point=machine.rotates),
@@ -245,7 +253,8 @@ class Dial(Instrument):
 
     def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
                  mounting_error=MOUNTING_ERROR):
-        """A dial along ``+z`` tilted by up to :data:`DIAL_TILT`, zeroed near home (within
+        """A dial along :func:`planned_axis` (``+z``, or a planar machine's ``+y``) tilted by
+        up to :data:`DIAL_TILT`, zeroed near home (within
         ``mounting_error``), touching a point within ``mounting_error`` of the platform origin
         (a platform that rotates); ``n`` random poses around home or ``poses``; ``noise`` an
         ``IsotropicNoise`` (default :data:`DIAL_SIGMA`; False: exact).
@@ -261,7 +270,7 @@ class Dial(Instrument):
         else:
             P, R, _ = self.candidates(machine, n, rng)
             words = f"{n} random poses around home"
-        model = DialModel(with_point=machine.rotates)
+        model = DialModel(np.eye(3)[planned_axis(machine)], with_point=machine.rotates)
         state = model.initial()
         state.values[:2] = rng.uniform(-DIAL_TILT, DIAL_TILT, 2)
         if model.with_point:
