@@ -30,7 +30,13 @@ import math
 
 import numpy as np
 
-from ..estimation.acceptance import NOT_TESTED, PASSED, VERDICT_WORDS, report_verdict
+from ..estimation.acceptance import (
+    FAILED_SMALL,
+    NOT_TESTED,
+    PASSED,
+    VERDICT_WORDS,
+    report_verdict,
+)
 from ..machines.reach import default_workspace
 from .accuracy import pose_errors
 from .prediction import align_out, pose_sensitivity
@@ -40,7 +46,7 @@ __all__ = ["calibration_outcome", "headline"]
 #: points of the workspace the accuracy is predicted at
 POINTS = 400
 #: grid of the bed map (points along x and y)
-BED_GRID = 41
+BED_GRID = 61
 #: a calibrated value within this many standard deviations of the machine file's counts as
 #: unchanged
 UNCHANGED_SIGMA = 1.0
@@ -233,22 +239,46 @@ def _firmware_changes(nominal, calibrated, report) -> list[dict]:
     out = []
     for key, kind in (("position_endstop", "length"), ("arm_length", "length"),
                       ("angle", "angle"), ("radius", "length")):
+        if key == "radius" and np.ptp(before[key]) == 0 and np.ptp(after[key]) == 0:
+            # one radius for every tower: the firmware's one value
+            a, b = float(before[key][0]), float(after[key][0])
+            out.append({"name": "delta_radius", "unit": units.get("length", ""),
+                        "before": a / fl, "after": b / fl, "change": (b - a) / fl})
+            continue
         for i, tower in enumerate(names):
             a, b = float(before[key][i]), float(after[key][i])
             f = fl if kind == "length" else fa
             out.append({"name": f"{tower} {key}", "unit": units.get(kind, ""),
-                        "before": a / f, "after": b / f, "change_um" if kind == "length"
-                        else "change": (b - a) * 1e6 if kind == "length" else (b - a) / fa})
+                        "before": a / f, "after": b / f, "change": (b - a) / f})
     return out
 
 
 def _changes(calibration, limit: int = 5) -> list[dict]:
-    """The largest changes (scaled), as the machine file names its values."""
-    top = sorted((p for p in calibration.params if not p["fixed"] and ":" not in p["name"]),
+    """The largest changes (scaled) of the machine's parameters that the data determine one
+    by one, as the machine file names its values; where none is (a gauge moves them all), the
+    largest with the null space's pivots held (:func:`~pkmcal.report.html.gauge_fixed`)."""
+    from ..report.html import gauge_fixed, gauge_parameters
+
+    report = calibration.report
+    gauge = gauge_parameters(report)
+    own = set(calibration.machine.parameters.names)
+    params = [p for p in calibration.params if not p["fixed"] and p["name"] in own]
+    top = sorted((p for p in params if p["name"] not in gauge),
                  key=lambda p: -p["scaled_change"])[:limit]
-    return [{"name": p["name"], "unit": p["unit"], "before": p["nominal"],
-             "after": p["identified"], "change": p["change"], "std": p["std"]}
-            for p in top]
+    out = [{"name": p["name"], "unit": p["unit"], "before": p["nominal"],
+            "after": p["identified"], "change": p["change"], "std": p["std"]} for p in top]
+    fixed = gauge_fixed(report) if not out else None
+    if fixed:
+        held, rows = fixed
+        by_name = {p["name"]: p for p in params}
+        scale = {p["name"]: p["scaled_change"] / abs(p["change"]) if p["change"] else 0.0
+                 for p in params}
+        rows = sorted((r for r in rows if r["name"] in by_name),
+                      key=lambda r: -abs(r["change"]) * scale.get(r["name"], 0.0))[:limit]
+        out = [{"name": r["name"], "unit": r["unit"], "before": by_name[r["name"]]["nominal"],
+                "after": by_name[r["name"]]["nominal"] + r["change"], "change": r["change"],
+                "std": r["std"], "held": held} for r in rows]
+    return out
 
 
 def _same_as_running(calibration) -> dict:
@@ -266,15 +296,22 @@ def _next_steps(calibration, output: str | None, verdict, poor: bool) -> list[di
     out = output or "calibrated.yaml"
     machine = calibration.calibrated
     steps = []
-    if verdict.status not in (PASSED, NOT_TESTED):
+    levels = [g for g in (calibration.report.get("noise_model") or {}).get("groups") or []
+              if g.get("status") == "estimated"]
+    if verdict.status == FAILED_SMALL and len(levels) == 1:
+        g = levels[0]
+        steps.append({"command": f"pkmcal calibrate ... --noise {g['sigma']:.3g}{g['unit']}",
+                      "why": "the residuals are a little larger than the assumed noise: if "
+                             "the instrument is that noisy, say so (the estimate from these "
+                             "data)"})
+    elif verdict.status not in (PASSED, NOT_TESTED):
         steps.append({"command": "pkmcal calibrate ... --parameters full",
-                      "why": "the residual test failed: fit every per-tower / per-chain "
-                             "quantity (a leaning tower, a bent rail) or check the noise, "
-                             "columns and units"}
+                      "why": "the residual test failed: fit every per-tower quantity (a "
+                             "leaning tower), or check the noise, the columns and units"}
                      if getattr(machine, "PARAMETER_SETS", None) else
-                     {"command": "pkmcal calibrate ... --robust",
+                     {"command": "pkmcal identifiability MACHINE DATA",
                       "why": "the residual test failed: check --noise, the columns and units "
-                             "and the machine file; --robust leaves outlier rows out"})
+                             "and the machine file (see the warning) before using the result"})
     formats = _export_formats(machine)
     if formats:
         to = formats[0] if len(formats) == 1 else "FORMAT"
@@ -361,6 +398,10 @@ def calibration_outcome(calibration, output: str | None = None, n: int = POINTS,
         head = "Calibration passed: the residuals agree with the assumed noise"
     elif verdict.status == NOT_TESTED:
         head = f"Calibration not tested: {verdict.why}"
+    elif verdict.status == FAILED_SMALL:
+        head = (f"Calibration failed the residual test by a little: the residuals are "
+                f"{verdict.noise_ratio:.3g} times the assumed noise (the noise is a little "
+                "larger than assumed, or the model lacks a small effect)")
     else:
         head = (f"Calibration {words}: the residuals are {verdict.noise_ratio:.3g} times "
                 "the assumed noise; do not use the result before checking why")

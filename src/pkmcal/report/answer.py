@@ -41,7 +41,7 @@ def _change_text(c: Mapping) -> str:
     """``name -> value (change +x +- std unit)``: the change and its std in one unit."""
     unit = c.get("unit", "")
     std = c.get("std")
-    text = (f"{c['name']} {number(c['before'], 9)} -> {number(c['after'], 9)} {unit} "
+    text = (f"{c['name']} {c['before']:.6f} -> {c['after']:.6f} {unit} "
             f"(change {number(c['change'], sign=True)}")
     return text + (f" +- {number(std)} {unit})" if std is not None else ")")
 
@@ -92,11 +92,14 @@ def answer_rows(outcome: Mapping) -> list[tuple[str, str]]:
                      "equal what the machine runs (largest change "
                      f"{number(same['largest_change_over_std'])} standard deviations)"))
     elif changes:
-        rows.append(("what changed", "; ".join(_change_text(c) for c in changes[:3])))
+        held = changes[0].get("held")
+        rows.append(("what changed", "; ".join(_change_text(c) for c in changes[:3])
+                     + (f" (with {', '.join(held)} held at the machine file's values: the "
+                        "data fix the others only relative to them)" if held else "")))
     firmware = outcome.get("firmware") or []
-    moved = [c for c in firmware if abs(c.get("change_um", c.get("change", 0.0)) or 0.0) > 0]
-    if firmware and moved:
-        shown = sorted(firmware, key=lambda c: -abs(c.get("change_um", 0.0) or 0.0))[:3]
+    if firmware and not same.get("same"):
+        shown = sorted(firmware, key=lambda c: -abs(c["change"]) * (1.0 if c["unit"] != "deg"
+                                                                     else 10.0))[:3]
         rows.append(("firmware values", "; ".join(
             f"{c['name']} {c['before']:.6f} -> {c['after']:.6f} {c['unit']}" for c in shown)))
     for i, step in enumerate(outcome.get("next") or []):
