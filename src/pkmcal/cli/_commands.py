@@ -558,6 +558,16 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
     out.print(_wrote(output, report_path), markup=False)
 
 
+def _positional(value: float, digits: int = 3, sign: bool = False) -> str:
+    """``digits`` significant digits, never an exponent (a change of 2.78e-05 deg reads
+    -0.0000278 beside values in degrees)."""
+    value = float(value)
+    if value != 0 and math.isfinite(value) and abs(value) < 1e-4:
+        decimals = digits - 1 - math.floor(math.log10(abs(value)))
+        return format(value, f"{'+' if sign else ''}.{decimals}f")
+    return format_number(value, digits, sign=sign)
+
+
 def _print_changes(params, limit: int = 10) -> None:
     """The largest parameter changes (scaled): lengths and angles, their changes and standard
     deviations in the machine file's unit (three significant digits)."""
@@ -576,10 +586,10 @@ def _print_changes(params, limit: int = 10) -> None:
         else:                                       # a gain: relative change
             unit = "ppm" if p["nominal"] else p["unit"]    # from 0 (a curvature): its unit
             f = 1e6 / abs(p["nominal"]) if p["nominal"] else 1.0
-        std = format_number(p["std"] * f, 3) if p["std"] is not None else "fixed"
+        std = _positional(p["std"] * f, 3) if p["std"] is not None else "fixed"
         changes.add_row(p["name"], f"{p['nominal']:.6f} {p['unit']}",
                         f"{p['identified']:.6f} {p['unit']}",
-                        format_number(p["change"] * f, 3, sign=True), std, unit)
+                        _positional(p["change"] * f, 3, sign=True), std, unit)
     out.print(changes)
 
 

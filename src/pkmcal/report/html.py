@@ -922,7 +922,7 @@ def _noise_section(report) -> str:
     return "".join(out)
 
 
-_VERDICT_CLASS = {"passed": "passed", "not-tested": "untested"}
+_VERDICT_CLASS = {"passed": "passed", "not-tested": "untested", "failed-small": "untested"}
 
 
 def _answer_section(report) -> str:
@@ -968,8 +968,8 @@ def _answer_section(report) -> str:
             continue
         label, x, y = row
         body.append(f"<tr><th>{_e(label)}</th>"
-                    f"<td class=num>{_e(length_text(x, unit, f))}</td>"
-                    f"<td class=num>{_e(length_text(y, unit, f))}</td></tr>")
+                    f"<td class=num>{_e(number(None if x is None else x * f))}</td>"
+                    f"<td class=num>{_e(number(None if y is None else y * f))}</td></tr>")
     if body:
         note = ("before: where the machine file's values put the tool against where the "
                 "calibrated model says it goes"
@@ -982,7 +982,7 @@ def _answer_section(report) -> str:
                      + (f"<caption style='text-align:left'><b>Accuracy</b>: {_e(what)}"
                         "</caption>" if what else "")
                      + "<tr><th>accuracy</th><th>with the machine file's "
-                     "values (before)</th><th>calibrated (after)</th></tr>"
+                     f"values (before) [{unit}]</th><th>calibrated (after) [{unit}]</th></tr>"
                      + "".join(body) + f"</table><p class=small>{_e(note)}.</p>")
     elif acc.get("why"):
         parts.append(f"<p>{_e(acc['why'])}</p>")
@@ -1061,7 +1061,7 @@ def build_html(report: Mapping, title: str | None = None) -> str:
     title = title or f"pkmcal calibration report: {report.get('calibrated_file') or ''}"
     parts = [f"<h1>{_e(title)}</h1>", _answer_section(report)]
     conv = report.get("convergence", {}) or {}
-    details = ["<h2 id=details>Details</h2>"
+    details = ["<div id=details></div><h2>Details</h2>"
                + _kv_table(list(_details_rows(report, conv)))]
     ident = report.get("identifiability") or {}
     if ident:
