@@ -24,7 +24,6 @@ import pytest
 from clitools import PKMCAL, run
 from pkmcal.estimation.acceptance import FAILED_ALARMING, NOT_TESTED, PASSED, report_verdict
 from pkmcal.io import load_machine
-from pkmcal.report.html import _assumed_scale, _split_name, gauge_fixed
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -199,6 +198,8 @@ def test_other_machines_show_the_error_over_the_workspace(reports, kind):
 def test_identifiable_combinations_for_any_machine(reports):
     """48 of the Hexa Slide's 54 bars read "not identifiable alone" with no table of what is;
     now the parameters with the null space's pivots held, each with its std."""
+    from pkmcal.report.html import gauge_fixed
+
     report, page = _load(reports["hexaslide"])
     held, rows = gauge_fixed(report)
     assert len(held) == 6 and len(rows) >= 40
@@ -228,6 +229,8 @@ def test_identifiable_combinations_for_any_machine(reports):
 
 
 def test_chart_panels_keep_a_file_name_whole():
+    from pkmcal.report.html import _split_name
+
     assert _split_name("bar.csv:setup1.pivot.x") == ("bar.csv:setup1", "pivot.x")
     assert _split_name("chain3.a0.x") == ("chain3", "a0.x")
     assert _split_name("delta_radius") == ("delta_radius", "delta_radius")
@@ -282,6 +285,8 @@ def test_firmware_values_per_stepper_with_the_configs_digits(reports):
 def test_the_histogram_is_over_the_assumed_noise(reports):
     """Residuals scaled by a noise level estimated from them look normal beside "failed": the
     Hexa Slide's data have 2 um of noise, calibrate assumes 1 um and estimates the level."""
+    from pkmcal.report.html import _assumed_scale
+
     report, page = _load(reports["hexaslide"])
     verdict = report_verdict(report)
     assert verdict.status != PASSED and report["noise_model"]["estimated"]
