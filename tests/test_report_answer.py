@@ -141,7 +141,7 @@ def test_accuracy_before_and_after_then_the_next_step(reports, kind):
 
 def test_held_out_rows_are_the_accuracy_where_there_are_some(reports):
     report, page = _load(reports["hexaslide"])
-    held = report["outcome"]["held_out"]
+    held = report["outcome"]["held_out_rows"]
     assert held["rows"] == report["validation"]["held_out"]
     assert held["after_rms"] == report["validation"]["after_rms"]
     answer = page[:page.index("id=details")]
@@ -350,6 +350,8 @@ def test_console_honours_columns_and_says_warnings_once_after_the_summary(report
     # the verdict's failure is warned once, on stderr, and the summary comes first
     assert proc.stderr.count("warning:") == len(re.findall(r"^warning:", proc.stderr, re.M))
     assert proc.stderr.count("residual test failed") == 1
+    assert (proc.stdout + proc.stderr).count("chi2/dof") == 1      # the test's numbers once
+    assert "see the warning below" in proc.stdout
     merged = subprocess.run(command, cwd=d, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, timeout=300)
     assert merged.stdout.lstrip().startswith("pkmcal calibrate:"), merged.stdout[:300]
@@ -373,3 +375,19 @@ def test_uncertainty_in_the_values_unit(reports):
         cells = [c.strip() for c in line.split("│")]
         if len(cells) == 6:
             assert cells[1].endswith(cells[5]), line
+
+
+def test_a_broken_outcome_is_refused_with_its_key(reports, tmp_path):
+    """``pkmcal report`` reads the outcome section it shows first: a wrong one is one message
+    naming the key (exit 2), never a traceback or a half-written page."""
+    report, _ = _load(reports["printer-probe"])
+    report["outcome"]["map"]["before_um"] = report["outcome"]["map"]["before_um"][:5]
+    (tmp_path / "bad.json").write_text(json.dumps(report))
+    proc = run("report", "bad.json", "-o", "page.html", cwd=tmp_path)
+    assert proc.returncode == 2 and "outcome.map" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr and not (tmp_path / "page.html").exists()
+    del report["outcome"]["verdict"]["headline"]
+    report["outcome"]["map"] = None
+    (tmp_path / "bad.json").write_text(json.dumps(report))
+    proc = run("report", "bad.json", "-o", "page.html", cwd=tmp_path)
+    assert proc.returncode == 2 and "outcome.verdict.headline" in proc.stderr, proc.stderr

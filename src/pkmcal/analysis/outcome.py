@@ -368,7 +368,7 @@ def calibration_outcome(calibration, output: str | None = None, n: int = POINTS,
     Returns
     -------
     dict
-        JSON-ready: ``verdict``, ``accuracy``, ``held_out``, ``same_as_running``, ``changes``,
+        JSON-ready: ``verdict``, ``accuracy``, ``held_out_rows``, ``same_as_running``, ``changes``,
         ``firmware``, ``next``, ``map``.
     """
     report = calibration.report
@@ -418,7 +418,7 @@ def calibration_outcome(calibration, output: str | None = None, n: int = POINTS,
         out["firmware"] = firmware
     held = _held_out(report)
     if held:
-        out["held_out"] = held
+        out["held_out_rows"] = held
     if pmap is not None:
         out["map"] = pmap
     return out

@@ -78,7 +78,7 @@ def answer_rows(outcome: Mapping) -> list[tuple[str, str]]:
         rows.append(("accuracy (predicted)", text))
     elif acc.get("why"):
         rows.append(("accuracy", acc["why"]))
-    held = outcome.get("held_out")
+    held = outcome.get("held_out_rows")
     if held:
         for h in held.get("files") or [held]:
             unit, f = accuracy_unit(h.get("before_rms"), h.get("after_rms"))

@@ -942,7 +942,7 @@ def _answer_section(report) -> str:
         return "".join(parts) + "</section>"
     acc = outcome.get("accuracy") or {}
     b, a = acc.get("before") or {}, acc.get("after") or {}
-    held = outcome.get("held_out") or {}
+    held = outcome.get("held_out_rows") or {}
     held_rows = held.get("files") or ([held] if held else [])
     unit, f = accuracy_unit(b.get("rms"), b.get("max"), a.get("rms"), a.get("max"),
                             *[h.get("before_rms") for h in held_rows],
