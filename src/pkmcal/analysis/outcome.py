@@ -97,10 +97,20 @@ def _on_bed(machine, xy) -> np.ndarray:
 
 
 def _probe_data(problem) -> list:
-    """The probe-height data of a calibration's problem (one file or the parts of a joint
-    fit)."""
+    """The data of a calibration's problem (one file or the parts of a joint fit) whose
+    instrument measures heights above the bed (:attr:`~pkmcal.instruments.base.Instrument.
+    bed_heights`)."""
+    from ..errors import InputError
+    from ..instruments.registry import instrument
+
+    def heights(data) -> bool:
+        try:
+            return bool(instrument(data.kind).bed_heights)
+        except (AttributeError, InputError, KeyError):
+            return False
+
     parts = getattr(problem, "parts", None) or [problem]
-    return [p.data for p in parts if getattr(getattr(p, "data", None), "kind", "") == "probe"]
+    return [p.data for p in parts if getattr(p, "data", None) is not None and heights(p.data)]
 
 
 def _probe_points(nominal, calibrated, problem) -> dict | None:

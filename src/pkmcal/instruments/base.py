@@ -108,6 +108,9 @@ class Instrument:
     #: its measurements can fix a length of the machine (heights along z alone cannot fix a
     #: printer's arms: a parameter set's ``without_lengths`` applies)
     fixes_lengths: bool = True
+    #: its values are the tool's heights above the bed at points on it (a printer's probe):
+    #: the report maps them, with their residuals, over the bed
+    bed_heights: bool = False
     #: class name of its data objects (data given in memory)
     data_class: str = "InstrumentData"
     #: why its files cannot be fitted together with other files in one fit (empty: they can)

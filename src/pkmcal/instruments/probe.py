@@ -314,6 +314,7 @@ class Probe(Instrument):
                "nozzle's height above the bed there, 0 for a nozzle-contact probe)")
     priority = 25
     fixes_lengths = False
+    bed_heights = True
 
     def detect(self, header):
         return has_column(header, "probe_z")

@@ -2,12 +2,13 @@
 HTML report shows at its top, from the report's ``outcome`` section
 (:func:`pkmcal.analysis.outcome.calibration_outcome`).
 
-One unit per quantity (the accuracy's before and after in the unit its larger value reads in),
-three significant digits; full precision stays in the JSON and the calibrated file.
+One unit per quantity (lengths of accuracy and residuals in um), three significant digits;
+full precision stays in the JSON and the calibrated file.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 from ..units import format_number
@@ -19,17 +20,22 @@ DIGITS = 3
 
 
 def number(value, digits: int = DIGITS, sign: bool = False) -> str:
-    """A number for people: ``digits`` significant digits, positional; ``n/a`` for None."""
+    """A number for people: ``digits`` significant digits, positional (never an exponent:
+    0.0000431, 20200); ``n/a`` for None."""
     if value is None:
         return "n/a"
-    return format_number(float(value), digits, sign=sign)
+    value = float(value)
+    if value != 0 and math.isfinite(value) and abs(value) < 1e-4:
+        decimals = digits - 1 - math.floor(math.log10(abs(value)))
+        return format(value, f"{'+' if sign else ''}.{decimals}f")
+    return format_number(value, digits, sign=sign)
 
 
 def accuracy_unit(*values_um) -> tuple[str, float]:
-    """``(unit, factor from um)`` that the largest of ``values_um`` reads in: um below 1 mm,
-    else mm (one unit for every figure of that quantity)."""
-    finite = [abs(float(v)) for v in values_um if v is not None]
-    return ("mm", 1e-3) if finite and max(finite) >= 1000 else ("um", 1.0)
+    """``(unit, factor from um)`` of the accuracy figures: um, the unit of every residual on
+    the page (one unit per quantity: a held-out RMS in the answer and under Held-out
+    validation reads the same)."""
+    return "um", 1.0
 
 
 def length_text(value_um, unit: str, f: float, sign: bool = False) -> str:

@@ -215,10 +215,20 @@ def _kv_table(rows) -> str:
 
 
 def plot_axes(fig) -> list[dict]:
-    """What each visible panel of a figure shows on its axes: ``{"x": label, "y": label,
-    "x_numeric": bool, "y_numeric": bool}``, a colour bar ``{"colour": label}`` (numeric
-    axes name a unit in brackets; categorical ones, e.g. parameter names, name what they
-    list)."""
+    """What each visible panel of a figure shows on its axes.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure.
+
+    Returns
+    -------
+    list of dict
+        Per panel ``{"x": label, "y": label, "x_numeric": bool, "y_numeric": bool}``, per
+        colour bar ``{"colour": label}`` (numeric axes name a unit in brackets; categorical
+        ones, e.g. parameter names, name what they list).
+    """
     from matplotlib.ticker import LogFormatter, ScalarFormatter
 
     def numeric(axis) -> bool:

@@ -130,9 +130,7 @@ def workspace_maps(pmap: Mapping):
     plt = _plt()
     x, y = _arr(pmap["x_mm"]), _arr(pmap["y_mm"])
     before, after = _arr(pmap["before_um"]), _arr(pmap["after_um"])
-    unit, f = ("mm", 1e-3) if np.nanmax(np.abs(np.r_[before, after, 0.0])) >= 1000 \
-        else ("um", 1.0)
-    before, after = before * f, after * f
+    unit = "um"                         # the unit of every residual and accuracy figure
     top = max(float(np.nanmax(np.r_[before, after, 1e-9])), 1e-9)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
     sc = None
