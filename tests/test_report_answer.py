@@ -193,6 +193,14 @@ def test_other_machines_show_the_error_over_the_workspace(reports, kind):
     report, page = _load(reports[kind])
     assert report["outcome"]["map"]["kind"] == "workspace"
     assert "<h2>Error over the workspace</h2>" in page and "colour=position error [" in page
+    # and at each measured point, before and after
+    measured = report["outcome"]["map"]["measured"]
+    rows = report.get("used", report["measurements"])
+    assert len(measured["before_um"]) == len(measured["after_um"]) == rows
+    before = np.asarray([np.nan if v is None else v for v in measured["before_um"]])
+    after = np.asarray([np.nan if v is None else v for v in measured["after_um"]])
+    assert np.nanmedian(before) > 10 * np.nanmedian(after) > 0
+    assert "measured point (row of the data, in order) [count]" in page
 
 
 def test_identifiable_combinations_for_any_machine(reports):

@@ -190,6 +190,43 @@ def _bed_accuracy(nominal, calibrated, C, problem, workspace) -> tuple[dict, dic
     return accuracy, pmap
 
 
+def _measured_readings(problem) -> np.ndarray | None:
+    """The joint readings of the measured rows (one file or every part of a joint fit)."""
+    parts = getattr(problem, "parts", None) or [problem]
+    qs = [np.asarray(p.data.q, float) for p in parts
+          if getattr(getattr(p, "data", None), "q", None) is not None]
+    qs = [q for q in qs if q.ndim == 2]
+    if not qs or len({q.shape[1] for q in qs}) != 1:
+        return None
+    return np.concatenate(qs)
+
+
+def _measured_points(nominal, calibrated, C, N, problem) -> dict | None:
+    """Per measured row: where the calibrated model puts the tool for its readings, how far
+    the machine file's model is from it there (frames aligned as over the workspace), and the
+    calibrated model's 1-sigma there (um)."""
+    q = _measured_readings(problem) if problem is not None else None
+    if q is None:
+        return None
+    with np.errstate(all="ignore"):
+        fk = calibrated.fk(q)
+        ok = fk.converged & np.all(np.isfinite(fk.P), -1)
+        if ok.sum() < 3:
+            return None
+        P, R = fk.P[ok], fk.R[ok]
+        dp, _, good, _ = pose_errors(calibrated, nominal, P, R,
+                                     align=N is not None and N.size > 0)
+    sigma = np.full(len(P), np.nan)
+    if C is not None:
+        sigma = np.sqrt(np.sum(_sigma(pose_sensitivity(calibrated, P, R), C, N)[:, :3] ** 2,
+                               axis=1))
+
+    def um(v):
+        return [None if not np.isfinite(x) else float(x) * 1e6 for x in v]
+
+    return {"before_um": um(np.where(good, dp, np.nan)), "after_um": um(sigma)}
+
+
 def _workspace_accuracy(nominal, calibrated, C, N, workspace) -> tuple[dict, dict]:
     """Position error over the workspace: the machine file's model against the calibrated
     one (frames aligned where the data fix none), and the calibrated model's 1-sigma."""
@@ -314,6 +351,11 @@ def _next_steps(calibration, output: str | None, verdict, poor: bool) -> list[di
                       "why": "the residuals are a little larger than the assumed noise: if "
                              "the instrument is that noisy, say so (the estimate from these "
                              "data)"})
+    elif verdict.status == FAILED_SMALL:
+        steps.append({"command": "pkmcal calibrate ... --noise LEVEL",
+                      "why": "the residuals are a little larger than the assumed noise: if "
+                             "the instruments are that noisy, give their levels (the "
+                             "report's Noise levels has the estimates)"})
     elif verdict.status not in (PASSED, NOT_TESTED):
         steps.append({"command": "pkmcal calibrate ... --parameters full",
                       "why": "the residual test failed: fit every per-tower quantity (a "
@@ -398,6 +440,9 @@ def calibration_outcome(calibration, output: str | None = None, n: int = POINTS,
         else:
             accuracy, pmap = _workspace_accuracy(nominal, calibrated, C, N,
                                                  default_workspace(calibrated, n=n, rng=rng))
+            measured = _measured_points(nominal, calibrated, C, N, problem)
+            if measured:
+                pmap["measured"] = measured
     except Exception as exc:        # noqa: BLE001 - the answer's figures are best effort
         accuracy, pmap = {"quantity": "position error", "unit": "um", "basis": "none",
                           "why": f"not predicted: {exc}"}, None

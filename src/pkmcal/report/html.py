@@ -617,7 +617,8 @@ def gauge_fixed(report) -> tuple[list[str], list[dict]] | None:
     names, Q = basis
     C = cov[1]
     params = {p["name"]: p for p in report.get("parameters") or []}
-    if not all(n in params for n in names):
+    if not all(n in params and _is_number(params[n].get("nominal"))
+               and _is_number(params[n].get("identified")) for n in names):
         return None
     k = Q.shape[1]
     # pivots on the null space with lengths per characteristic length (angles as they are)
@@ -1016,7 +1017,7 @@ def _answer_section(report) -> str:
                      + fw + "</table>")
     pmap = outcome.get("map")
     if isinstance(pmap, Mapping):
-        from .maps import bed_maps, workspace_maps
+        from .maps import bed_maps, measured_points, workspace_maps
 
         if pmap.get("kind") == "bed":
             parts.append("<h2>The bed</h2><p class=small>Seen from above, as bed-mesh views "
@@ -1029,6 +1030,12 @@ def _answer_section(report) -> str:
                          "the position error of the machine file's model and the "
                          "calibrated model's uncertainty (1 sigma), one colour scale.</p>"
                          + _png(workspace_maps(pmap)))
+            fig = measured_points(pmap)
+            if fig is not None:
+                parts.append("<p class=small>At each measured point: how far the machine "
+                             "file's model puts the tool from where the calibrated model "
+                             "does for that row's readings, and the calibrated model's "
+                             "uncertainty there.</p>" + _png(fig))
     return "".join(parts) + "</section>"
 
 

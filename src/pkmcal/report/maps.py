@@ -18,7 +18,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-__all__ = ["bed_maps", "workspace_maps"]
+__all__ = ["bed_maps", "measured_points", "workspace_maps"]
 
 
 def _plt():
@@ -145,4 +145,37 @@ def workspace_maps(pmap: Mapping):
         ax.set_ylabel("y [mm]")
         ax.set_aspect("equal", adjustable="datalim")
     fig.colorbar(sc, ax=list(axes), shrink=0.9, label=f"position error [{unit}]")
+    return fig
+
+
+def measured_points(pmap: Mapping):
+    """The error at each measured point, before and after: how far the machine file's model
+    puts the tool from where the calibrated model does for the row's readings, and the
+    calibrated model's 1-sigma there.
+
+    Parameters
+    ----------
+    pmap : mapping
+        ``outcome.map`` with ``measured`` (``before_um``, ``after_um``, one per row).
+
+    Returns
+    -------
+    matplotlib.figure.Figure or None
+        One panel, rows in file order; None without ``measured``.
+    """
+    measured = pmap.get("measured")
+    if not isinstance(measured, Mapping):
+        return None
+    plt = _plt()
+    before, after = _arr(measured["before_um"]), _arr(measured["after_um"])
+    k = np.arange(1, before.size + 1)
+    fig, ax = plt.subplots(figsize=(11, 3.2), layout="constrained")
+    ax.semilogy(k, np.where(before > 0, before, np.nan), "o", ms=3.5,
+                label=f"machine file's model ({_range_text(before, 'um', sign=False)})")
+    ax.semilogy(k, np.where(after > 0, after, np.nan), "s", ms=3.5,
+                label=f"calibrated, 1 sigma ({_range_text(after, 'um', sign=False)})")
+    ax.set_xlabel("measured point (row of the data, in order) [count]")
+    ax.set_ylabel("position error [um]")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
     return fig
