@@ -358,8 +358,6 @@ def test_console_honours_columns_and_says_warnings_once_after_the_summary(report
     # the verdict's failure is warned once, on stderr, and the summary comes first
     assert proc.stderr.count("warning:") == len(re.findall(r"^warning:", proc.stderr, re.M))
     assert proc.stderr.count("residual test failed") == 1
-    assert (proc.stdout + proc.stderr).count("chi2/dof") == 1      # the test's numbers once
-    assert "see the warning below" in proc.stdout
     merged = subprocess.run(command, cwd=d, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, timeout=300)
     assert merged.stdout.lstrip().startswith("pkmcal calibrate:"), merged.stdout[:300]

@@ -452,7 +452,7 @@ def calibration_outcome(calibration, output: str | None = None, n: int = POINTS,
     if verdict.status == PASSED:
         head = "Calibration passed: the residuals agree with the assumed noise"
     elif verdict.status == NOT_TESTED:
-        head = f"Calibration not tested: {verdict.why}"
+        head = f"Residuals not tested against the noise: {verdict.why}"
     elif verdict.status == FAILED_SMALL:
         head = (f"Calibration failed the residual test by a little: the residuals are "
                 f"{verdict.noise_ratio:.3g} times the assumed noise (the noise is a little "

@@ -459,7 +459,6 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
         print(json_text, end="")
         return 0
     shown = data_path if len(paths) == 1 else ", ".join(map(str, paths))
-    _WARNED[0] = any(": residual test " in w for w in calibration.warnings)
     report_named = report_dir / "report.html" if report_dir is not None else report_path
     _print_answer(calibration.report, shown, machine)
     if calibration.kind == "joint":         # several files: no one instrument's summary
@@ -614,25 +613,13 @@ def _identifiable_rows(table, ident, grouped: bool = False) -> None:
         table.add_row("weakly identifiable", f"{d['name']}: {d['description']}")
 
 
-#: set by run_calibrate: a warning states the residual test's failure (the summary's row
-#: then points to it instead of saying it a second time)
-_WARNED: list[bool] = [False]
-
-
 def _verdict_row(table, report) -> None:
     """The residual verdict the report states (``acceptance.residuals``, the one verdict of
-    :func:`~pkmcal.estimation.acceptance.residual_verdict`), in its sentence (said once: a
-    failure a warning states is pointed to)."""
-    from ..estimation.acceptance import PASSED, VERDICT_WORDS, report_verdict
+    :func:`~pkmcal.estimation.acceptance.residual_verdict`), in its sentence."""
+    from ..estimation.acceptance import report_verdict
 
     section = (report.get("acceptance") or {}).get("residuals")
-    verdict = report_verdict(report)
-    if _WARNED[0] and verdict.tested and verdict.status != PASSED:
-        table.add_row("residual test", f"{VERDICT_WORDS[verdict.status]} ("
-                      f"{verdict.noise_ratio:.3g} times the assumed noise): see the warning "
-                      "below")
-        return
-    text = verdict.sentence()
+    text = report_verdict(report).sentence()
     if section and section.get("note"):
         text += f"; {section['note']}"
     table.add_row("residual test", text)
