@@ -18,6 +18,7 @@ import pytest
 from clitools import run
 from pkmcal.estimation.acceptance import FAILED_SMALL, PASSED, report_verdict
 from pkmcal.report.html import build_html, gauge_parameters
+from pkmcal.units import format_number
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 #: (machine, scenario, calibrate options): simulated with the noise calibrate assumes
@@ -131,7 +132,8 @@ def test_standardised_residuals_of_a_correct_fit(reports, kind):
     verdict = report_verdict(report)
     assert verdict.status == PASSED, verdict.sentence()
     assert _verdict_paragraph(page).startswith(f"Residual test {verdict.sentence()}")
-    assert f"{verdict.test.ratio:.4g}" in page and "leverage-corrected" in page
+    # three significant digits in tables (issue 36)
+    assert format_number(verdict.test.ratio, 3) in page and "leverage-corrected" in page
 
 
 def test_a_wrong_noise_is_named(reports, tmp_path):
@@ -173,7 +175,9 @@ def test_delta_null_space_parameters_are_not_significant(reports):
     assert {"tracker.x", "tracker.y", "tracker.z"} <= gauge      # the tracker translation
     assert not gauge & {"leg1.dtheta", "leg1.dl1", "tracker.rx"}  # identifiable alone
     for name in da_db | {"tracker.x"}:
-        (row,) = _rows_of(page, name)
+        # the parameters table's row (the identifiable combinations list them too, with
+        # the null space's pivots held: issue 36)
+        (row,) = [r for r in _rows_of(page, name) if len(r) == 8]
         assert all("bad" not in cls for _, cls, _ in row), name
         assert [text for _, _, text in row][5:7] == ["-", "-"]      # std, change/std
     # a large identifiable change is still flagged
@@ -181,7 +185,7 @@ def test_delta_null_space_parameters_are_not_significant(reports):
                and p["std"] and abs(p["change"] / p["std"]) > 3]
     assert flagged
     for name in flagged:
-        (row,) = _rows_of(page, name)
+        (row,) = [r for r in _rows_of(page, name) if len(r) == 8]
         assert "bad" in row[6][1]
     # the combinations are shown with their change and standard deviation
     assert "<h2>Identifiable combinations" in page
@@ -190,7 +194,9 @@ def test_delta_null_space_parameters_are_not_significant(reports):
             (row,) = _rows_of(page, f"leg{leg}.db.{axis} - leg{leg}.da.{axis}")
             value, std = row[2][2], row[3][2]
             expected = report["identifiable_combinations"][f"leg{leg}.db - leg{leg}.da"]
-            assert float(value) == pytest.approx(expected["xyz".index(axis)], rel=1e-5)
+            # three significant digits (issue 36)
+            assert float(value) == pytest.approx(expected["xyz".index(axis)], rel=5e-3,
+                                                 abs=5e-4 * max(map(abs, expected)))
             assert float(std) > 0
 
 

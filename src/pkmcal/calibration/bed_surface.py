@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..instruments.registry import measures_bed_height
+
 #: nodes per side of the surface's grid
 COUNT = 11
 #: weight of the Laplacian (per node) against the data (per point)
@@ -59,19 +61,6 @@ def _laplacian(n: int) -> np.ndarray:
     return L
 
 
-def _bed_heights(data) -> bool:
-    """Whether a data set's values are nozzle heights above the bed (its instrument says so:
-    :attr:`~pkmcal.instruments.base.Instrument.measures_bed_height`)."""
-    from ..errors import InputError
-    from ..instruments.registry import instrument
-
-    kind = getattr(data, "kind", None)
-    try:
-        return bool(kind) and instrument(kind).measures_bed_height
-    except InputError:                  # an instrument pkmcal does not know: not bed heights
-        return False
-
-
 def fit_bed_surface(calibrated, datasets, count: int = COUNT):
     """The bed's shape from the probe data sets of a calibration (see the module docstring).
 
@@ -95,7 +84,7 @@ def fit_bed_surface(calibrated, datasets, count: int = COUNT):
 
     xy_all, s_all = [], []
     for d in datasets:
-        if not _bed_heights(d) or len(getattr(d, "q", ())) < MIN_POINTS:
+        if not measures_bed_height(d) or len(getattr(d, "q", ())) < MIN_POINTS:
             continue
         with np.errstate(all="ignore"):
             fk = calibrated.fk(np.asarray(d.q, float))

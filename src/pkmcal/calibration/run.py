@@ -1014,6 +1014,35 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
                        units=units)
 
 
+def _poorly_determined(result, machine, report: dict, source, units) -> list[str]:
+    """The rule a probe calibration warns by on weakly determined parameters
+    (:func:`~pkmcal.instruments.probe.poorly_determined`: a standard deviation beyond the
+    threshold at the machine's scale), for files fitted together: the report's
+    ``poorly_determined`` section and its warning."""
+    from ..instruments.probe import POOR_STD, poorly_determined, poorly_determined_warnings
+    from ..units import LENGTH
+
+    try:
+        poor = poorly_determined(result, len(machine.parameters),
+                                 machine.characteristic_length())
+    except (AttributeError, IndexError, ValueError, TypeError):
+        return []                   # a result without a covariance of its parameters
+    fl = LENGTH[units["length"]]
+    measure = "more or other measurements where they tell most (pkmcal select-poses), or " \
+              "another instrument (distances or points)"
+    report["poorly_determined"] = {
+        "threshold_mm": POOR_STD * 1e3,
+        "rule": "a determined parameter whose standard deviation (an angle's or ratio's times "
+                "the characteristic length) exceeds the threshold",
+        "measure_next": measure,
+        "parameters": [{"name": p.name, "std": p.std / (fl if p.kind == "length" else 1.0),
+                        "kind": p.kind, "correlated_with": p.partner,
+                        "correlation": p.correlation} for p in poor]}
+    kinds = {f.get("measurement") for f in report.get("files") or []}
+    return poorly_determined_warnings(poor, source, " and ".join(sorted(kinds)) or
+                                      report.get("measurement", "these"), units)
+
+
 def _noise_report(result, report: dict, source, warnings: list, robust: bool = True) -> None:
     """The noise levels (assumed, estimated) and the outlier rows of a calibration: the
     report's ``noise_model`` and ``outliers`` sections and their warnings (rows left out
@@ -1574,6 +1603,10 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                                estimate_noise=hold,
                                robust=bool(options is not None and options.robust),
                                sessions=sessions)
+            # the residuals set the noise's level: their test against it cannot fail
+            result.extras["untested"] = (
+                "the noise level was set from these residuals (the data's source gives only "
+                "relative weights), so they cannot be tested against it")
     except (InputError, ValueError, np.linalg.LinAlgError) as exc:
         message = str(exc) if isinstance(exc, InputError) else \
             f"{names}: joint calibration failed: {exc}"
@@ -1684,6 +1717,15 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         **_identifiability_metadata(unidentifiable),
     }
     calibration = _finish("joint", machine, calibrated, result, report, metadata, params, units)
+    # the rule a probe calibration warns by, for the files fitted together too
+    calibration.warnings.extend(_poorly_determined(result, machine, report, names, units))
+    levels = report.get("noise_model")
+    if result.extras.get("untested") and isinstance(levels, dict):
+        # the levels held in the last fit are the data's weights scaled by the residuals
+        for g in levels["groups"]:
+            if g["status"] == "held":
+                g["status"] = "estimated"
+        levels["estimated"] = True
     inputs = [Path(s) for s, item in zip(sources, data, strict=True)
               if isinstance(item, (str, Path))]
     machine_file = getattr(machine, "source", None)

@@ -41,12 +41,10 @@ from ..machines.deviations import deviations as _deviations
 from ..paths import path_text
 from ..plausibility import check_option_scale
 from ..units import (
-    factor,
     format_number,
     format_quantity,
     format_um,
     parse_quantity,
-    readable_unit,
 )
 from ._console import console, error, warning
 
@@ -448,24 +446,34 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
     except ConvergenceError as exc:     # the fit ran and did not succeed: exit 1, nothing written
         error(str(exc))
         return 1
+    from ..analysis.outcome import calibration_outcome
+
+    # the answer (verdict, accuracy before and after, what changed, what next): the report's
+    # first section, and the summary's first rows
+    calibration.report["outcome"] = calibration_outcome(calibration, path_text(output))
     # staged first: a calibrated geometry that cannot be written is the one message (exit 2)
     json_text = calibration.write(output, report_dir)
+    if json_output:
+        for text in calibration.warnings:
+            warning(text)
+        print(json_text, end="")
+        return 0
+    shown = data_path if len(paths) == 1 else ", ".join(map(str, paths))
+    report_named = report_dir / "report.html" if report_dir is not None else report_path
+    _print_answer(calibration.report, shown, machine)
+    if calibration.kind == "joint":         # several files: no one instrument's summary
+        _print_joint_calibration(calibration.report, calibration.params, shown, output,
+                                 report_path, machine, report_named)
+    else:
+        from ..instruments.base import Instrument
+        from ..instruments.registry import INSTRUMENTS
+
+        inst = INSTRUMENTS.get(calibration.kind) or Instrument()
+        _print_instrument_calibration(inst, calibration.report, calibration.params, shown,
+                                      output, report_path, machine)
+    # each warning once, after the summary (the summary's verdict row points to it)
     for text in calibration.warnings:
         warning(text)
-    if json_output:
-        print(json_text, end="")
-    else:
-        shown = data_path if len(paths) == 1 else ", ".join(map(str, paths))
-        if calibration.kind == "joint":         # several files: no one instrument's summary
-            _print_joint_calibration(calibration.report, calibration.params, shown, output,
-                                     report_path, machine)
-        else:
-            from ..instruments.base import Instrument
-            from ..instruments.registry import INSTRUMENTS
-
-            inst = INSTRUMENTS.get(calibration.kind) or Instrument()
-            _print_instrument_calibration(inst, calibration.report, calibration.params, shown,
-                                          output, report_path, machine)
     return 0
 
 
@@ -506,6 +514,21 @@ def run_check(machine_spec: str, data_paths, noise, output: Path | None) -> int:
     return 0
 
 
+def _print_answer(report, data_path, machine) -> None:
+    """The answer first: verdict, accuracy before and after, what changed, the next
+    commands (:func:`pkmcal.report.answer.answer_rows`)."""
+    from ..report.answer import answer_rows
+
+    outcome = report.get("outcome")
+    if not outcome:
+        return
+    table = _table("", "", title=f"pkmcal calibrate: {path_text(machine.source)} with "
+                                 f"{path_text(data_path)}", show_header=False)
+    for label, text in answer_rows(outcome):
+        table.add_row(label, text)
+    console().print(table)
+
+
 def _noise_rows(table, report) -> None:
     """The noise levels the fit used (estimated from the residuals, or assumed / given) and
     the rows the outlier test names."""
@@ -523,14 +546,19 @@ def _noise_rows(table, report) -> None:
                       + (f" and {len(rows) - 10} more" if len(rows) > 10 else ""))
 
 
-def _print_joint_calibration(report, params, data_path, output, report_path, machine):
+#: lines of a long list (what each file adds) the console shows; the report has the rest
+SHOWN_LINES = 4
+
+
+def _print_joint_calibration(report, params, data_path, output, report_path, machine,
+                             report_named=None):
     """Summary of a fit of several files: per file before/after, the joint identifiability,
-    what each file adds."""
+    what each file adds (its first lines; the report names the rest)."""
     out = console()
     ident, conv = report["identifiability"], report["convergence"]
-    table = _table("", "", title=f"pkmcal calibrate: {path_text(machine.source)} with "
-                                 f"{path_text(data_path)}",
-                   show_header=False)
+    table = _table("", "", title="details" if report.get("outcome") else
+                   f"pkmcal calibrate: {path_text(machine.source)} with "
+                   f"{path_text(data_path)}", show_header=False)
     table.add_row("measurement", f"{len(report['files'])} files fitted together, "
                   f"{report['measurements']} rows: one geometry, each file's own instrument "
                   "unknowns (named FILE:name)")
@@ -548,8 +576,13 @@ def _print_joint_calibration(report, params, data_path, output, report_path, mac
             table.add_row("", f"held-out: {f['validation']['summary']}")
     _session_rows(table, report.get("sessions"))
     _identifiable_rows(table, ident)
-    for i, line in enumerate(report["contributions"]["summary"]):
+    lines = report["contributions"]["summary"]
+    for i, line in enumerate(lines[:SHOWN_LINES]):
         table.add_row("each file adds" if i == 0 else "", line)
+    if len(lines) > SHOWN_LINES:
+        table.add_row("", f"and {len(lines) - SHOWN_LINES} more lines (each parameter's "
+                      "standard deviation from each file alone and jointly): see "
+                      f"{path_text(report_named or report_path)}")
     _verdict_row(table, report)
     for section in report.get("instrument_sections", []):
         table.add_row("calibrated file", section)
@@ -585,9 +618,19 @@ def _session_rows(table, sessions) -> None:
             for j, (o, s) in enumerate(zip(v["offsets"], v["std"], strict=True))))
 
 
+def _positional(value: float, digits: int = 3, sign: bool = False) -> str:
+    """``digits`` significant digits, never an exponent (a change of 2.78e-05 deg reads
+    -0.0000278 beside values in degrees)."""
+    value = float(value)
+    if value != 0 and math.isfinite(value) and abs(value) < 1e-4:
+        decimals = digits - 1 - math.floor(math.log10(abs(value)))
+        return format(value, f"{'+' if sign else ''}.{decimals}f")
+    return format_number(value, digits, sign=sign)
+
+
 def _print_changes(params, limit: int = 10) -> None:
-    """The largest parameter changes (scaled): lengths and angles in the unit the change reads
-    naturally in (um below 1 mm, then mm; urad, mrad, deg), the std in the same unit."""
+    """The largest parameter changes (scaled): lengths and angles, their changes and standard
+    deviations in the machine file's unit (three significant digits)."""
     out = console()
     top = sorted((p for p in params if not p["fixed"]), key=lambda p: -p["scaled_change"])[:limit]
     changes = _table("parameter", "nominal", "identified", "change", "std", "",
@@ -595,18 +638,18 @@ def _print_changes(params, limit: int = 10) -> None:
                                                                  3: "right", 4: "right"})
     for p in top:
         if p["kind"] in ("length", "angle"):
-            si = factor(p["unit"], p["kind"])           # the file's unit -> m or rad
-            unit = readable_unit(p["change"] * si, p["kind"])
-            f = si / factor(unit, p["kind"])
+            # the value's own unit (the machine file's) for the change and its std: one unit
+            # per quantity, as the nominal and identified columns
+            unit, f = p["unit"], 1.0
         elif p["kind"] == "slope":                  # a plane's slope, mm/m: absolute change
             unit, f = "um/m", 1e3
         else:                                       # a gain: relative change
             unit = "ppm" if p["nominal"] else p["unit"]    # from 0 (a curvature): its unit
             f = 1e6 / abs(p["nominal"]) if p["nominal"] else 1.0
-        std = format_number(p["std"] * f, 3) if p["std"] is not None else "fixed"
+        std = _positional(p["std"] * f, 3) if p["std"] is not None else "fixed"
         changes.add_row(p["name"], f"{p['nominal']:.6f} {p['unit']}",
                         f"{p['identified']:.6f} {p['unit']}",
-                        format_number(p["change"] * f, 4, sign=True), std, unit)
+                        _positional(p["change"] * f, 3, sign=True), std, unit)
     out.print(changes)
 
 
@@ -675,9 +718,9 @@ def _print_instrument_calibration(inst, report, params, data_path, output, repor
     (:meth:`~pkmcal.instruments.base.Instrument.calibration_summary`), the parameter changes,
     its notes."""
     out = console()
-    table = _table("", "", title=f"pkmcal calibrate: {path_text(machine.source)} with "
-                                 f"{path_text(data_path)}",
-                   show_header=False)
+    table = _table("", "", title="details" if report.get("outcome") else
+                   f"pkmcal calibrate: {path_text(machine.source)} with "
+                   f"{path_text(data_path)}", show_header=False)
     notes = []
     rows = list(inst.calibration_summary(report))
     if "residual test" not in rows:

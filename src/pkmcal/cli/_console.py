@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import os
 import sys
 
 from ..errors import stop_if_signalled
@@ -56,17 +57,27 @@ def _console_class():
     return EscapingConsole
 
 
+def _columns() -> int | None:
+    """``COLUMNS`` when it is set to a width (the user's terminal width for a pipe)."""
+    text = os.environ.get("COLUMNS", "").strip()
+    return int(text) if text.isdigit() and int(text) > 0 else None
+
+
 @functools.cache
 def console():
-    """Console on stdout; 120 columns when not a terminal (pipes, tests); silent with
-    ``--quiet``."""
-    return _console_class()(highlight=False, width=None if sys.stdout.isatty() else 120,
-                            quiet=_QUIET)
+    """Console on stdout: the terminal's width; piped, ``COLUMNS`` when set, else 120 columns
+    (pipes, tests); silent with ``--quiet``."""
+    width = None if sys.stdout.isatty() else (_columns() or 120)
+    return _console_class()(highlight=False, width=width, quiet=_QUIET)
 
 
 @functools.cache
 def err_console():
-    return _console_class()(stderr=True, highlight=False, soft_wrap=True)
+    """Console on stderr: messages wrapped to the terminal's width, or to ``COLUMNS`` when
+    piped; piped without ``COLUMNS``, one line per message (for programs and logs)."""
+    width = None if sys.stderr.isatty() else _columns()
+    return _console_class()(stderr=True, highlight=False, width=width,
+                            soft_wrap=width is None and not sys.stderr.isatty())
 
 
 def error(message: str) -> None:

@@ -422,7 +422,9 @@ def residual_verdict(result, method: str | None = None, alpha: float = ALPHA
     """Whether a calibration's residuals agree with the noise model: the one function that
     decides it.
 
-    Tested: the test a method states in the whitened model's terms
+    Not tested when ``result.extras["untested"]`` says why (the noise level was set from the
+    same residuals: a test that cannot fail). Tested: the test a method states in the
+    whitened model's terms
     (``result.extras["residual_test"]``, e.g. residuals whitened by their whole covariance),
     else the chi-square of the residuals when they are whitened by the whole noise model
     (:data:`WHITENED_METHODS`, or noise groups fitted: ``result.extras["noise"]``). Not tested:
@@ -444,6 +446,9 @@ def residual_verdict(result, method: str | None = None, alpha: float = ALPHA
         The verdict, its test and its sentence.
     """
     extras = getattr(result, "extras", None) or {}
+    if extras.get("untested"):
+        # the noise level was set from these very residuals: a test that cannot fail
+        return ResidualVerdict(NOT_TESTED, None, str(extras["untested"]))
     test = extras.get("residual_test")
     if test is None:
         method = method or extras.get("method") or ""

@@ -110,7 +110,8 @@ class Instrument:
     #: printer's arms: a parameter set's ``without_lengths`` applies)
     fixes_lengths: bool = True
     #: its values are the nozzle's heights above a printer's bed (a bed probe): many of them
-    #: (a mesh) show the bed's own shape (:mod:`pkmcal.calibration.bed_surface`)
+    #: (a mesh) show the bed's own shape (:mod:`pkmcal.calibration.bed_surface`); the report
+    #: maps them, with their residuals, over the bed
     measures_bed_height: bool = False
     #: class name of its data objects (data given in memory)
     data_class: str = "InstrumentData"

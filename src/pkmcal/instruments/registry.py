@@ -74,3 +74,25 @@ def instrument(name: str) -> Instrument:
     known = ", ".join(f"{i.name}" + (f" ({'/'.join(i.aliases)})" if i.aliases else "")
                       for i in INSTRUMENTS.values())
     raise InputError(f"unknown scenario {name!r}; use one of {known}")
+
+
+def measures_bed_height(data) -> bool:
+    """Whether a data set's values are heights above a printer's bed: its instrument says so
+    (:attr:`~pkmcal.instruments.base.Instrument.measures_bed_height`); False for data of no
+    instrument pkmcal knows.
+
+    Parameters
+    ----------
+    data : object
+        A data set (its ``kind`` names the instrument).
+
+    Returns
+    -------
+    bool
+        True for bed heights.
+    """
+    kind = getattr(data, "kind", None)
+    try:
+        return bool(kind) and instrument(kind).measures_bed_height
+    except InputError:
+        return False

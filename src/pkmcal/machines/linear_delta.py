@@ -566,6 +566,9 @@ class LinearDelta(Machine):
     probe_radius = None
     #: height of the print volume an export is judged over, m (capped by the print radius)
     PRINT_HEIGHT = 0.1
+    #: where a firmware's configuration keeps each tower's values (Klipper's sections; the
+    #: reports name the towers' firmware values by them)
+    TOWER_SECTIONS = ("stepper_a", "stepper_b", "stepper_c")
 
     def print_workspace(self, n: int = 500, rng=0):
         """Where a printer prints: the print disk on the bed and the volume above it.

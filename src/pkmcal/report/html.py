@@ -24,6 +24,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from ..units import format_um
+from .answer import DIGITS, accuracy_unit, answer_rows, length_text, number
 
 STYLE = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;
@@ -43,6 +44,12 @@ code{background:#f4f4f4;padding:0 .2em}
 .side{display:flex;flex-wrap:wrap;gap:1.5em;align-items:flex-start}
 .side>div{flex:1 1 300px}
 .verdict{padding:.4em .7em;border-left:4px solid #446;background:#f6f6fb}
+.answer{font-size:1.15em;padding:.5em .8em;margin:.6em 0;border-left:6px solid #888;
+background:#f6f6f6}
+.answer.passed{border-color:#070;background:#eef8ee}
+.answer.failed{border-color:#b00;background:#fbeeee}
+.answer.untested{border-color:#b80;background:#fbf6e8}
+pre.next{background:#f4f4f4;padding:.5em .8em;margin:.3em 0;white-space:pre-wrap}
 """
 
 #: share of a parameter's unit vector in the null space above which the parameter is not
@@ -92,8 +99,15 @@ def _num(v) -> str:
     if isinstance(v, int):
         return str(v)
     if isinstance(v, float):
-        return f"{v:.6g}" if np.isfinite(v) else "-"
+        return number(v, DIGITS) if np.isfinite(v) else "-"
     return str(v)
+
+
+def _config(v) -> str:
+    """A value as a machine file or a firmware's configuration holds it: 6 decimals."""
+    if not _is_number(v) or not np.isfinite(v):
+        return "-"
+    return f"{float(v):.6f}"
 
 
 def _is_number(v) -> bool:
@@ -200,14 +214,61 @@ def _kv_table(rows) -> str:
     return f"<table><tr><th>quantity</th><th>value</th><th>unit</th></tr>{body}</table>"
 
 
+def plot_axes(fig) -> list[dict]:
+    """What each visible panel of a figure shows on its axes.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure.
+
+    Returns
+    -------
+    list of dict
+        Per panel ``{"x": label, "y": label, "x_numeric": bool, "y_numeric": bool}``, per
+        colour bar ``{"colour": label}`` (numeric axes name a unit in brackets; categorical
+        ones, e.g. parameter names, name what they list).
+    """
+    from matplotlib.ticker import LogFormatter, ScalarFormatter
+
+    def numeric(axis) -> bool:
+        # numbers on the axis (a unit is due) unless its ticks were given names
+        return isinstance(axis.get_major_formatter(), (ScalarFormatter, LogFormatter))
+
+    out = []
+    for ax in fig.axes:
+        if not ax.get_visible():
+            continue
+        colorbar = getattr(ax, "_colorbar", None)
+        if colorbar is not None:
+            label = ax.get_ylabel() or ax.get_xlabel()
+            out.append({"colour": " ".join(label.split())})
+            continue
+        out.append({"x": " ".join(ax.get_xlabel().split()),
+                    "y": " ".join(ax.get_ylabel().split()),
+                    "x_numeric": numeric(ax.xaxis), "y_numeric": numeric(ax.yaxis)})
+    return out
+
+
 def _png(fig) -> str:
+    """The figure as an embedded PNG; its ``alt`` text and ``data-axes`` say what its axes
+    show (:func:`plot_axes`)."""
     import matplotlib.pyplot as plt
 
+    axes = plot_axes(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
     plt.close(fig)
     data = base64.b64encode(buf.getvalue()).decode("ascii")
-    return f'<img alt="plot" src="data:image/png;base64,{data}">'
+    alt = "; ".join(f"colour: {a['colour']}" if "colour" in a else f"x: {a['x']}, y: {a['y']}"
+                    for a in axes)
+    # one panel per " | ", its axes as "x=...; y=..." ("x#=" a categorical axis)
+    coded = " | ".join(
+        f"colour={a['colour']}" if "colour" in a else
+        f"x{'' if a['x_numeric'] else '#'}={a['x']}; y{'' if a['y_numeric'] else '#'}={a['y']}"
+        for a in axes)
+    return (f'<img alt="plot ({_e(alt)})" data-axes="{_e(coded)}" '
+            f'src="data:image/png;base64,{data}">')
 
 
 def _plt():
@@ -239,17 +300,35 @@ def _standardised(report) -> tuple[np.ndarray, str] | None:
     return r, "residual / assumed std (no degrees-of-freedom correction available)"
 
 
-def _residual_plot(r, how: str) -> str:
+def _assumed_scale(report) -> tuple[float, str]:
+    """``(factor, words)`` that turns residuals over the noise levels the fit used into
+    residuals over the assumed noise: with one noise level estimated from these residuals,
+    its ratio to the assumed (a histogram over the estimate is N(0, 1) by construction and
+    would hide a failed test); 1 otherwise."""
+    levels = report.get("noise_model")
+    if not (isinstance(levels, Mapping) and levels.get("estimated")):
+        return 1.0, "over the assumed noise"
+    groups = [g for g in levels.get("groups") or [] if isinstance(g, Mapping)]
+    if len(groups) == 1 and _is_number(groups[0].get("ratio")) and groups[0]["ratio"] > 0:
+        return float(groups[0]["ratio"]), "over the assumed noise"
+    return 1.0, ("over the noise levels estimated from these residuals (N(0, 1) by "
+                 "construction: the residual test compares them with the assumed noise)")
+
+
+def _residual_plot(r, how: str, scale: float = 1.0, over: str = "") -> str:
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6.2, 3.6))
+    r = np.asarray(r, float) * scale
     ax.hist(r, bins=min(60, max(10, r.size // 15)), density=True, alpha=0.7,
             label=f"{r.size} standardised residuals")
     lim = max(4.0, float(np.max(np.abs(r))) if r.size else 4.0)
     x = np.linspace(-lim, lim, 200)
     ax.plot(x, np.exp(-x**2 / 2) / np.sqrt(2 * np.pi), "k-", lw=1.2, label="N(0, 1)")
-    ax.set_xlabel("standardised residual [1] (leverage-corrected)" if how.startswith("lev")
-                  else "standardised residual [1] (dof-corrected)", fontsize=10)
-    ax.set_ylabel("density [1/unit]", fontsize=10)
+    ax.set_xlabel(("standardised residual [1] (leverage-corrected)" if how.startswith("lev")
+                   else "standardised residual [1] (dof-corrected)")
+                  + ("" if over == "over the assumed noise" or not over
+                     else "\nover the estimated noise levels"), fontsize=10)
+    ax.set_ylabel("density [1/residual std]", fontsize=10)
     ax.set_title("leverage-corrected: r / (sigma sqrt(1 - h_ii))" if how.startswith("lev")
                  else "global dof correction: r / (sigma sqrt(dof/N))", fontsize=10)
     ax.legend(fontsize=9)
@@ -289,15 +368,15 @@ def verdict_html(report) -> str:
                  f"{format_um(report['noise_sigma_um'], 3)}).")
     return (f"<table><tr><th>quantity</th><th>value</th><th>unit</th></tr>"
             f"<tr><th>chi-square (sum of squared residual / assumed noise std)</th>"
-            f"<td class=num>{t.chi2:.5g}</td><td class=unit>1</td></tr>"
+            f"<td class=num>{number(t.chi2)}</td><td class=unit>1</td></tr>"
             f"<tr><th>degrees of freedom</th><td class=num>{t.dof}</td>"
             f"<td class=unit>count</td></tr>"
-            f"<tr><th>chi2 / dof</th><td class=num>{t.ratio:.4g}</td>"
+            f"<tr><th>chi2 / dof</th><td class=num>{number(t.ratio)}</td>"
             f"<td class=unit>1</td></tr>"
-            f"<tr><th>largest chi2 / dof expected (99.9 %)</th><td class=num>{t.upper:.4g}"
+            f"<tr><th>largest chi2 / dof expected (99.9 %)</th><td class=num>{number(t.upper)}"
             f"</td><td class=unit>1</td></tr>"
             f"<tr><th>noise ratio: residuals over the assumed noise, sqrt(chi2 / dof)</th>"
-            f"<td class=num>{t.noise_ratio:.4g}</td><td class=unit>1</td></tr></table>"
+            f"<td class=num>{number(t.noise_ratio)}</td><td class=unit>1</td></tr></table>"
             f"<p class=verdict>Residual test <span class={ok}>{_e(words)}</span>: "
             f"{_e(rest)}{_e(note)}.{_e(sigma)}</p>")
 
@@ -417,8 +496,18 @@ def _combinations(report) -> list[dict]:
     return out
 
 
+def _split_name(name: str) -> tuple[str, str]:
+    """``(panel, label)`` of a parameter: the chain, leg or frame, and the rest; a file's
+    instrument unknowns (``bar.csv:setup1.pivot.x``) keep their file name whole."""
+    head, _, rest = name.rpartition(":")
+    if "." not in rest:
+        return (head or rest), rest
+    group, label = rest.split(".", 1)
+    return (f"{head}:{group}" if head else group), label
+
+
 def _group(name: str) -> str:
-    return name.split(".", 1)[0]
+    return _split_name(name)[0]
 
 
 def _change_plot(params, gauge: set[str]) -> str:
@@ -459,8 +548,8 @@ def _change_plot(params, gauge: set[str]) -> str:
         ax.axvline(SIGNIFICANT, color="k", lw=0.6, ls=":")
         ax.axvline(-SIGNIFICANT, color="k", lw=0.6, ls=":")
         ax.axvline(0, color="k", lw=0.6)
-        ax.set_yticks(y, [p["name"].split(".", 1)[-1] if "." in p["name"] else p["name"]
-                          for p in ps], fontsize=9)
+        ax.set_yticks(y, [_split_name(p["name"])[1] for p in ps], fontsize=9)
+        ax.set_ylabel("parameter", fontsize=9)
         ax.set_ylim(-0.7, per - 0.3)
         ax.set_title(g, fontsize=10)
         ax.tick_params(axis="x", labelsize=8)
@@ -486,21 +575,108 @@ def _parameters_table(params, gauge: set[str]) -> str:
                     else f'<td{cls}>{_e(_num(std))}</td><td class="num{flag}">{_e(_num(z))}</td>')
         rows.append(
             f"<tr><td>{_e(p['name'])}</td><td>{_e(p.get('unit', ''))}</td>"
-            f"<td{cls}>{_e(_num(p.get('nominal')))}</td>"
-            f"<td{cls}>{_e(_num(p.get('identified')))}</td>"
+            f"<td{cls}>{_e(_config(p.get('nominal')))}</td>"
+            f"<td{cls}>{_e(_config(p.get('identified')))}</td>"
             f"<td{cls}>{_e(_num(ch))}</td>{std_cell}"
             f"<td class=small>{_e(note)}</td></tr>")
     return f"<table>{head}{''.join(rows)}</table>"
 
 
+def _si_of(p: Mapping) -> float:
+    """A parameter's file unit -> SI."""
+    from ..units import ANGLE, LENGTH
+
+    unit = p.get("unit", "")
+    return {"length": LENGTH, "angle": ANGLE}.get(p.get("kind", ""), {}).get(unit, 1.0)
+
+
+def gauge_fixed(report) -> tuple[list[str], list[dict]] | None:
+    """Identifiable combinations wherever single parameters are not, for any machine: the
+    unidentifiable directions (k of them) only choose a frame or a common offset, so holding k
+    parameters at the machine file's values (the pivots of the null space: the parameters
+    those directions move most independently) determines every other one. Returns the held
+    parameters and, per other parameter the null space moves, its change from the machine
+    file with those held and its standard deviation (``T C T^T`` with ``T`` the projection
+    that restores the held values); None when there is no null space or covariance.
+
+    Parameters
+    ----------
+    report : mapping
+        A calibration report (``covariance`` with ``null_space``, ``parameters``).
+
+    Returns
+    -------
+    tuple or None
+        ``(held names, rows)``; a row: ``name``, ``unit``, ``change``, ``std`` (file units).
+    """
+    from scipy.linalg import qr
+
+    basis, cov = _null_basis(report), _covariance(report)
+    if basis is None or cov is None or basis[1].size == 0 or basis[0] != cov[0]:
+        return None
+    names, Q = basis
+    C = cov[1]
+    params = {p["name"]: p for p in report.get("parameters") or []}
+    if not all(n in params and _is_number(params[n].get("nominal"))
+               and _is_number(params[n].get("identified")) for n in names):
+        return None
+    k = Q.shape[1]
+    # pivots on the null space with lengths per characteristic length (angles as they are)
+    L = max([abs(float(params[n]["nominal"]) * _si_of(params[n])) for n in names
+             if params[n].get("kind") == "length"] + [1.0])
+    w = np.array([1.0 / L if params[n].get("kind") == "length" else 1.0 for n in names])
+    _, _, piv = qr((Q * w[:, None]).T, pivoting=True)
+    held = list(piv[:k])
+    QF = Q[held]
+    if np.linalg.cond(QF) > 1e10:
+        return None
+    si = np.array([_si_of(params[n]) for n in names])
+    nominal = np.array([float(params[n]["nominal"]) for n in names]) * si
+    identified = np.array([float(params[n]["identified"]) for n in names]) * si
+    a = np.linalg.solve(QF, nominal[held] - identified[held])
+    fixed = identified + Q @ a
+    E = np.zeros((k, len(names)))
+    E[np.arange(k), held] = 1.0
+    T = np.eye(len(names)) - Q @ np.linalg.solve(QF, E)
+    std = np.sqrt(np.clip(np.diag(T @ C @ T.T), 0.0, None))
+    moved = np.linalg.norm(Q, axis=1) > GAUGE_SHARE
+    rows = [{"name": n, "unit": params[n].get("unit", ""),
+             "change": float((fixed[i] - nominal[i]) / si[i]), "std": float(std[i] / si[i])}
+            for i, n in enumerate(names) if moved[i] and i not in held
+            and params[n].get("std") is not None]
+    return [names[i] for i in held], rows
+
+
+def _gauge_fixed_table(report) -> str:
+    fixed = gauge_fixed(report)
+    if fixed is None or not fixed[1]:
+        return ""
+    held, rows = fixed
+    body = []
+    for r in rows:
+        z = r["change"] / r["std"] if r["std"] > 0 else None
+        flag = " bad" if (z is not None and abs(z) > SIGNIFICANT) else ""
+        body.append(f"<tr><td>{_e(r['name'])}</td><td>{_e(r['unit'])}</td>"
+                    f"<td class=num>{_e(_num(r['change']))}</td>"
+                    f"<td class=num>{_e(_num(r['std']))}</td>"
+                    f'<td class="num{flag}">{_e(_num(z))}</td></tr>')
+    return ("<p>The data fix these parameters only together: holding "
+            f"<b>{_e(', '.join(held))}</b> at the machine file's values (they choose the "
+            "frame or offset the data cannot see) determines each of the others, with the "
+            "change and standard deviation below.</p>"
+            "<table><tr><th>parameter (with those held)</th><th>unit</th><th>change</th>"
+            "<th>std</th><th>change / std [1]</th></tr>" + "".join(body) + "</table>")
+
+
 def _combinations_section(report) -> str:
     combos = _combinations(report)
+    generic = _gauge_fixed_table(report)
     if not combos:
-        return ""
+        return ("<h2>Identifiable combinations</h2>" + generic) if generic else ""
     desc = (report.get("identifiable_combinations") or {}).get("description", "")
     rows = []
     for c in combos:
-        z = c["value"] / c["std"] if (c["std"] and not c["gauge"]) else None
+        z = c["value"] / c["std"] if c["std"] else None
         flag = " bad" if (z is not None and abs(z) > SIGNIFICANT) else ""
         note = ("up to the common offset named above (moved by an unidentifiable direction)"
                 if c["gauge"] else "")
@@ -515,7 +691,8 @@ def _combinations_section(report) -> str:
             "below (from the covariance). The change is from the machine file's values "
             "(zero).</p>"
             "<table><tr><th>combination</th><th>unit</th><th>change</th><th>std</th>"
-            "<th>change / std [1]</th><th>note</th></tr>" + "".join(rows) + "</table>")
+            "<th>change / std [1]</th><th>note</th></tr>" + "".join(rows) + "</table>"
+            + generic)
 
 
 def _before_after(res: Mapping) -> str:
@@ -552,6 +729,7 @@ def _ratio_plot(ratio) -> str:
     ax.axhline(100, color="k", lw=0.6)
     ax.set_xticks(range(len(labels)))
     ax.set_xticklabels(labels)
+    ax.set_xlabel("model (before / after calibration)")
     ax.set_ylabel("distance ratio [%] (mean, range)")
     ax.legend(fontsize=9)
     return _png(fig)
@@ -590,16 +768,30 @@ def _instrument_sections(report) -> str:
                      f"{rows}</table>")
     poor = report.get("poorly_determined")
     if isinstance(poor, Mapping) and poor.get("parameters"):
-        unit = (report.get("units") or {}).get("length", "")
+        from ..units import ANGLE
+
+        units = report.get("units") or {}
+        angle = units.get("angle", "deg")
+
+        def std_unit(q):
+            # lengths in the file's unit; angles stored in rad, shown in the file's unit
+            if q.get("kind") == "angle" and _is_number(q.get("std")):
+                return _num(q["std"] / ANGLE.get(angle, 1.0)), angle
+            if q.get("kind") == "length":
+                return _num(q.get("std")), units.get("length", "")
+            return _num(q.get("std")), "1"
+
         rows = "".join(
-            f"<tr><td>{_e(q.get('name'))}</td><td>{_num(q.get('std'))}</td>"
-            f"<td>{_e(q.get('correlated_with') or '')}</td><td>{_num(q.get('correlation'))}"
-            "</td></tr>" for q in poor["parameters"] if isinstance(q, Mapping))
+            f"<tr><td>{_e(q.get('name'))}</td><td class=num>{_e(std_unit(q)[0])}</td>"
+            f"<td>{_e(std_unit(q)[1])}</td>"
+            f"<td>{_e(q.get('correlated_with') or '')}</td><td class=num>"
+            f"{_num(q.get('correlation'))}</td></tr>"
+            for q in poor["parameters"] if isinstance(q, Mapping))
         parts.append("<h2>Poorly determined</h2><p>Determined by these data only to the "
-                     f"standard deviations below (lengths in {_e(unit)}, angles in the file's "
-                     f"unit); to fix them, measure {_e(poor.get('measure_next', ''))}.</p>"
-                     "<table><tr><th>parameter</th><th>std</th><th>most correlated with</th>"
-                     f"<th>correlation</th></tr>{rows}</table>")
+                     "standard deviations below; to fix them, measure "
+                     f"{_e(poor.get('measure_next', ''))}.</p>"
+                     "<table><tr><th>parameter</th><th>std</th><th>unit</th><th>most "
+                     f"correlated with</th><th>correlation [1]</th></tr>{rows}</table>")
     return "".join(parts)
 
 
@@ -625,6 +817,68 @@ def _summary_rows(report, conv):
         if k != "success":
             label, u = _label_unit(k)
             yield f"convergence: {label}", _value_text(k, v), u, _is_number(v)
+
+
+#: lengths of the model-adequacy groups shown in um (one unit for residuals on the page)
+_TO_UM = {"m": 1e6, "mm": 1e3, "um": 1.0}
+
+
+def _adequacy_section(adequacy: Mapping) -> str:
+    """The model-adequacy checks: a table per residual group (RMS, assumed and used noise in
+    one unit), the trend tests' findings in words (the verdict itself is stated once, under
+    Residuals)."""
+    from ..estimation.acceptance import VERDICT_WORDS
+
+    parts = ["<h2>Model adequacy</h2>"]
+    groups = [g for g in adequacy.get("groups") or [] if isinstance(g, Mapping)]
+
+    def size(g, key):
+        f = _TO_UM.get(g.get("unit", ""))
+        v = g.get(key)
+        if not _is_number(v):
+            return "-"
+        return _num(float(v) * f) if f else _num(v)
+
+    def unit(g):
+        return "um" if g.get("unit", "") in _TO_UM else g.get("unit", "")
+
+    if groups:
+        rows = "".join(
+            f"<tr><td>{_e(g.get('name'))}</td><td class=num>{_e(size(g, 'rms'))}</td>"
+            f"<td class=num>{_e(size(g, 'assumed'))}</td><td class=num>{_e(size(g, 'used'))}"
+            f"</td><td>{_e(unit(g))}</td><td class=num>{_e(g.get('count', '-'))}</td></tr>"
+            for g in groups)
+        parts.append("<table><tr><th>residual group</th><th>RMS residual</th><th>assumed "
+                     "noise</th><th>noise used in the fit</th><th>unit</th><th>residuals "
+                     "[count]</th></tr>" + rows + "</table>")
+    columns = [c for c in adequacy.get("columns") or [] if isinstance(c, Mapping)]
+    if columns and len(groups) <= 1:
+        rows = "".join(f"<tr><td>{_e(c.get('name'))}</td><td class=num>{_e(size(c, 'rms'))}"
+                       f"</td><td>{_e(unit(c))}</td></tr>" for c in columns)
+        parts.append("<table><tr><th>residual column</th><th>RMS residual</th><th>unit</th>"
+                     "</tr>" + rows + "</table>")
+    kv = []
+    if _is_number(adequacy.get("noise_ratio")):
+        kv.append(("noise ratio (residuals over the assumed noise)",
+                   _num(adequacy["noise_ratio"]), "x assumed noise std", True))
+    verdict = adequacy.get("residual_verdict")
+    if verdict in VERDICT_WORDS:
+        kv.append(("residual test", VERDICT_WORDS[verdict], "", False))
+    for key, label, what in (("significant_trends", "significant trends", "trends"),
+                             ("tests", "trend tests", "tests"), ("alpha", "significance level",
+                                                                 "probability")):
+        if _is_number(adequacy.get(key)):
+            kv.append((label, _num(adequacy[key]), what, True))
+    for key in ("method", "findings"):
+        if isinstance(adequacy.get(key), str):
+            kv.append((key, adequacy[key], "", False))
+    if kv:
+        parts.append(_kv_table(kv))
+    trends = [t for t in adequacy.get("trends") or [] if isinstance(t, Mapping)]
+    if trends:
+        parts.append("<p>Trends:</p><ul>" + "".join(
+            f"<li>{_e(_value_text('trend', [t]))}</li>" for t in trends) + "</ul>")
+    return "".join(parts)
 
 
 def _noise_section(report) -> str:
@@ -661,7 +915,7 @@ def _noise_section(report) -> str:
                    "</tr>" + rows + "</table>")
     adequacy = report.get("model_adequacy")
     if isinstance(adequacy, Mapping):
-        out.append("<h2>Model adequacy</h2>" + _kv_table(list(_rows(adequacy))))
+        out.append(_adequacy_section(adequacy))
     extensions = report.get("model_extensions")
     if isinstance(extensions, Mapping) and isinstance(extensions.get("trials"), list):
         # what was tried, judged on held-out rows: the loss with and without, and the verdict
@@ -677,6 +931,133 @@ def _noise_section(report) -> str:
                    "<th>with it [whitened SS per row]</th><th>gain [whitened SS per row]</th>"
                    "<th>adopted</th><th>why</th></tr>" + rows + "</table>")
     return "".join(out)
+
+
+_VERDICT_CLASS = {"passed": "passed", "not-tested": "untested", "failed-small": "untested"}
+
+
+def _answer_section(report) -> str:
+    """The answer first (issue 36): the residual test's verdict (never "converged" above a
+    failed test), the accuracy before and after, what changed, the next commands, and the
+    pictures (the bed maps of a printer, the workspace's error of other machines)."""
+    from ..estimation.acceptance import VERDICT_WORDS, report_verdict
+
+    verdict = report_verdict(report)
+    outcome = report.get("outcome") if isinstance(report.get("outcome"), Mapping) else None
+    cls = _VERDICT_CLASS.get(verdict.status, "failed")
+    head = (outcome["verdict"]["headline"] if outcome else
+            f"Calibration {VERDICT_WORDS[verdict.status]}: {verdict.sentence().split(': ', 1)[-1]}")
+    parts = ["<section id=answer>",
+             f"<p class='answer {cls}' id=verdict>{_e(head)}.</p>"]
+    if outcome is None:
+        return "".join(parts) + "</section>"
+    acc = outcome.get("accuracy") or {}
+    b, a = acc.get("before") or {}, acc.get("after") or {}
+    held = outcome.get("held_out_rows") or {}
+    held_rows = held.get("files") or ([held] if held else [])
+    unit, f = accuracy_unit(b.get("rms"), b.get("max"), a.get("rms"), a.get("max"),
+                            *[h.get("before_rms") for h in held_rows],
+                            *[h.get("after_rms") for h in held_rows])
+    rows = []
+    what = ""
+    if b.get("rms") is not None or a.get("rms") is not None:
+        what = f"{acc.get('quantity')} over {acc.get('where')}, predicted"
+        rows.append(("RMS", b.get("rms"), a.get("rms")))
+        rows.append(("largest", b.get("max"), a.get("max")))
+        if b.get("lowest") is not None:
+            rows.append(("range with the values in force (lowest .. highest)",
+                         None, None, f"{length_text(b['lowest'], unit, f, True)} .. "
+                                     f"{length_text(b['highest'], unit, f, True)}"))
+    for h in held_rows:
+        rows.append((f"held-out rows ({h.get('rows')}, not in the fit): RMS residual of the "
+                     "measurements", h.get("before_rms"), h.get("after_rms")))
+    body = []
+    for row in rows:
+        if len(row) == 4:
+            body.append(f"<tr><th>{_e(row[0])}</th><td class=num colspan=2>{_e(row[3])}</td>"
+                        "</tr>")
+            continue
+        label, x, y = row
+        body.append(f"<tr><th>{_e(label)}</th>"
+                    f"<td class=num>{_e(number(None if x is None else x * f))}</td>"
+                    f"<td class=num>{_e(number(None if y is None else y * f))}</td></tr>")
+    if body:
+        note = ("before: where the machine file's values put the tool against where the "
+                "calibrated model says it goes"
+                + (f" (known to +- {length_text(b['std'], unit, f)}, the calibrated model's "
+                   "uncertainty)" if b.get("std") is not None else "")
+                + "; after: the calibrated values' own uncertainty (1 sigma, from the "
+                "parameters' covariance)" + (f"; {acc['aligned']}" if acc.get("aligned")
+                                             else ""))
+        parts.append("<table id=accuracy>"
+                     + (f"<caption style='text-align:left'><b>Accuracy</b>: {_e(what)}"
+                        "</caption>" if what else "")
+                     + "<tr><th>accuracy</th><th>with the machine file's "
+                     f"values (before) [{unit}]</th><th>calibrated (after) [{unit}]</th></tr>"
+                     + "".join(body) + f"</table><p class=small>{_e(note)}.</p>")
+    elif acc.get("why"):
+        parts.append(f"<p>{_e(acc['why'])}</p>")
+    for label, text in answer_rows(outcome):
+        if label == "what changed":
+            parts.append(f"<p><b>What changed:</b> {_e(text)}.</p>")
+    steps = outcome.get("next") or []
+    if steps:
+        parts.append("<p><b>Next:</b></p><pre class=next>" + "\n".join(
+            f"{_e(st['command'])}\n    # {_e(st['why'])}" for st in steps) + "</pre>")
+    firmware = outcome.get("firmware") or []
+    if firmware:
+        fw = "".join(
+            f"<tr><td>{_e(c['name'])}</td><td class=num>{_e(_config(c['before']))}</td>"
+            f"<td class=num>{_e(_config(c['after']))}</td><td>{_e(c['unit'])}</td>"
+            f"<td class=num>{_e(number(c['change'], sign=True))}</td></tr>"
+            for c in firmware)
+        parts.append("<p><b>Firmware values</b> (as the configuration holds them, per "
+                     "stepper):</p><table><tr><th>value</th><th>in force</th><th>new</th>"
+                     "<th>unit</th><th>change</th></tr>"
+                     + fw + "</table>")
+    pmap = outcome.get("map")
+    if isinstance(pmap, Mapping):
+        from .maps import bed_maps, measured_points, workspace_maps
+
+        if pmap.get("kind") == "bed":
+            parts.append("<h2>The bed</h2><p class=small>Seen from above, as bed-mesh views "
+                         "show it: the nozzle's height error over the print disk predicted "
+                         "with the values in force and the uncertainty with the new values, "
+                         "on one colour scale; the probe points coloured by their residuals "
+                         "(measured - predicted height).</p>" + _png(bed_maps(pmap)))
+        else:
+            parts.append("<h2>Error over the workspace</h2><p class=small>Seen from above: "
+                         "the position error of the machine file's model and the "
+                         "calibrated model's uncertainty (1 sigma), one colour scale.</p>"
+                         + _png(workspace_maps(pmap)))
+            fig = measured_points(pmap)
+            if fig is not None:
+                parts.append("<p class=small>At each measured point: how far the machine "
+                             "file's model puts the tool from where the calibrated model "
+                             "does for that row's readings, and the calibrated model's "
+                             "uncertainty there.</p>" + _png(fig))
+    return "".join(parts) + "</section>"
+
+
+def _details_rows(report, conv):
+    """The internals: files, method, convergence in words."""
+    files = [f for f in report.get("files") or [] if isinstance(f, Mapping)]
+    for row in _summary_rows(report, {}):
+        if files and row[0] == "measurement":
+            row = ("measurement", ", ".join(f"{f.get('measurement')} ({f.get('label')})"
+                                            for f in files), "", False)
+        elif files and row[0] == "method":
+            row = ("method", "one fit of every file: one geometry, each file's own "
+                             "instrument unknowns", "", False)
+        yield row
+    if conv:
+        words = f"{conv.get('message', '')}".strip() or ("converged" if conv.get("success")
+                                                          else "not converged")
+        yield "convergence", words, "", False
+        if conv.get("iterations") is not None:
+            yield "iterations", str(conv["iterations"]), "iterations", True
+        if conv.get("evaluations") is not None:
+            yield "model evaluations", str(conv["evaluations"]), "evaluations", True
 
 
 def build_html(report: Mapping, title: str | None = None) -> str:
@@ -695,13 +1076,10 @@ def build_html(report: Mapping, title: str | None = None) -> str:
         A self-contained HTML document (inline styles, plots as embedded PNG).
     """
     title = title or f"pkmcal calibration report: {report.get('calibrated_file') or ''}"
-    parts = [f"<h1>{_e(title)}</h1>"]
+    parts = [f"<h1>{_e(title)}</h1>", _answer_section(report)]
     conv = report.get("convergence", {}) or {}
-    ok = bool(conv.get("success"))
-    parts.append(
-        f"<p>Status: <span class={'ok' if ok else 'bad'}>"
-        f"{'converged' if ok else 'not converged'}</span> - {_e(conv.get('message', ''))}</p>")
-    parts.append("<h2>Summary</h2>" + _kv_table(list(_summary_rows(report, conv))))
+    details = ["<div id=details></div><h2>Details</h2>"
+               + _kv_table(list(_details_rows(report, conv)))]
     ident = report.get("identifiability") or {}
     if ident:
         rank, n = ident.get("identifiable"), ident.get("free_parameters")
@@ -710,7 +1088,7 @@ def build_html(report: Mapping, title: str | None = None) -> str:
                         for d in ident.get("unidentifiable", []))
         weak = "".join(f"<li><b>{_e(d.get('name'))}</b>: {_e(d.get('description', ''))}</li>"
                        for d in ident.get("weakly_identifiable", []) or [])
-        parts.append(f"<h2>Identifiability</h2><p>{_e(rank)} of {_e(n)} free parameter "
+        details.append(f"<h2>Identifiability</h2><p>{_e(rank)} of {_e(n)} free parameter "
                      f"directions identified; condition number "
                      f"{_e(_num(ident.get('condition_number')))} (scaled Jacobian).</p>"
                      + (f"<p>Not identifiable from these data:</p><ul>{items}</ul>"
@@ -718,7 +1096,7 @@ def build_html(report: Mapping, title: str | None = None) -> str:
                      + (f"<p>Weakly identifiable (counted above, left at the machine file's "
                         f"values):</p><ul>{weak}</ul>" if weak else ""))
         if ident.get("singular_values"):
-            parts.append(_singular_plot(ident["singular_values"], int(rank or 0)))
+            details.append(_singular_plot(ident["singular_values"], int(rank or 0)))
     res = report.get("residuals") or {}
     if res:
         unit = res.get("unit", "") if isinstance(res.get("unit", ""), str) else ""
@@ -728,27 +1106,25 @@ def build_html(report: Mapping, title: str | None = None) -> str:
         st = _standardised(report)
         text = verdict_html(report)
         if st is not None and st[0].size:
-            levels = report.get("noise_model")
-            noise = ("the noise levels used (estimated from these residuals: see Noise "
-                     "levels)" if isinstance(levels, Mapping) and levels.get("estimated")
-                     else "the assumed noise")
+            scale, over = _assumed_scale(report)
             parts.append(
-                "<div class=side><div>" + _residual_plot(*st) + "</div><div>"
+                "<div class=side><div>" + _residual_plot(*st, scale, over) + "</div><div>"
                 "<p><b>Standardised residuals</b> ("
-                + _e(st[1]) + f"), each over {_e(noise)}: N(0, 1) for a correct fit with "
+                + _e(st[1]) + f"), each {_e(over)}: N(0, 1) for a correct fit with "
                 "that noise. The fit absorbs part of every residual (the poses and the "
                 "identified parameters): raw residual / assumed std would look too narrow for "
                 "a correct fit.</p>" + text + "</div></div>")
         else:
             parts.append(text)
         parts.append(_before_after(res))
-    parts.append(_noise_section(report))
+    details.append(_noise_section(report))
     ratio = report.get("distance_ratio")
     if isinstance(ratio, Mapping) and isinstance(ratio.get("before"), Mapping):
         parts.append("<h2>Distance ratios (seed 001 Fig. 6)</h2>"
                      f"<p>{_e(ratio.get('pairs'))} pairs ({_e(ratio.get('pairs_from', ''))});"
                      " FK distance / tracker distance x 100 %, independent of frames.</p>"
-                     + _kv_table([(f"{k}: {s}", _num(v), "%", True)
+                     + _kv_table([(f"{k}: {s}", f"{v:.3f}" if _is_number(v) else "-",
+                                   "%", True)
                                   for k in ("before", "after", "after_two_step")
                                   if isinstance(ratio.get(k), Mapping)
                                   for s, v in ratio[k].items()])
@@ -759,7 +1135,7 @@ def build_html(report: Mapping, title: str | None = None) -> str:
     parts.append(_instrument_sections(report))
     for key in ("link_length", "registration", "frames", "bed"):
         if isinstance(report.get(key), Mapping):
-            parts.append(f"<h2>{_e(key.replace('_', ' '))}</h2>"
+            details.append(f"<h2>{_e(key.replace('_', ' '))}</h2>"
                          + _kv_table(list(_rows(report[key]))))
     params = report.get("parameters") or []
     gauge = gauge_parameters(report)
@@ -782,8 +1158,8 @@ def build_html(report: Mapping, title: str | None = None) -> str:
             + "</p>" + _change_plot(params, gauge) + _parameters_table(params, gauge))
     prov = report.get("provenance") or {}
     if prov:
-        parts.append("<h2>Provenance</h2>" + _kv_table(
+        details.append("<h2>Provenance</h2>" + _kv_table(
             [(k, _value_text(k, v), "", False) for k, v in prov.items()]))
-    body = "\n".join(p for p in parts if p)
+    body = "\n".join(p for p in parts + details if p)
     return (f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>{_e(title)}"
             f"</title><style>{STYLE}</style></head><body>{body}</body></html>\n")

@@ -358,6 +358,112 @@ class Acceptance(_Section):
     residuals: ResidualTestSection | None = None
 
 
+class OutcomeVerdict(_Section):
+    """``outcome.verdict``: the residual test's verdict in one sentence."""
+
+    status: str
+    words: str
+    headline: str
+
+
+class OutcomeFigures(_Section):
+    """Accuracy figures (um): RMS and largest; ``lowest`` .. ``highest`` a signed range."""
+
+    rms: OptNum = Field(default=None, ge=0)
+    max: OptNum = Field(default=None, ge=0)
+    std: OptNum = Field(default=None, ge=0)
+    lowest: OptNum = None
+    highest: OptNum = None
+
+
+class OutcomeAccuracy(_Section):
+    """``outcome.accuracy``: the machine's accuracy before and after."""
+
+    quantity: str
+    unit: Literal["um"]
+    basis: str
+    where: str = ""
+    before: OutcomeFigures | None = None
+    after: OutcomeFigures | None = None
+
+
+class OutcomeChange(_Section):
+    """A change of ``outcome.changes`` or ``outcome.firmware`` (the file's units)."""
+
+    name: str
+    unit: str
+    before: Num
+    after: Num
+    change: Num
+    std: OptNum = Field(default=None, ge=0)
+
+
+class OutcomeStep(_Section):
+    """A next command and why."""
+
+    command: str
+    why: str
+
+
+class OutcomeMap(_Section):
+    """``outcome.map``: a printer's bed (``grid_mm`` square, ``before_um``,
+    ``after_std_um`` row by row) or the workspace's points (``x_mm``, ``y_mm``, ``before_um``,
+    ``after_um``)."""
+
+    kind: Literal["bed", "workspace"]
+    unit: Literal["um"]
+    grid_mm: list[Num] | None = None
+    radius_mm: OptNum = Field(default=None, gt=0)
+    before_um: list[Num | None]
+    after_std_um: list[Num | None] | None = None
+    after_um: list[Num | None] | None = None
+    x_mm: list[Num] | None = None
+    y_mm: list[Num] | None = None
+    points: dict[str, list[Num | None]] | None = None
+    measured: dict[str, list[Num | None]] | None = None
+
+    @model_validator(mode="after")
+    def _shapes(self):
+        if self.kind == "bed":
+            if self.grid_mm is None or self.after_std_um is None or self.radius_mm is None:
+                raise ValueError("a bed map has grid_mm, radius_mm, before_um and after_std_um")
+            n = len(self.grid_mm) ** 2
+            if len(self.before_um) != n or len(self.after_std_um) != n:
+                raise ValueError(f"before_um and after_std_um: {n} values (grid_mm squared)")
+            if self.points is not None:
+                sizes = {len(self.points.get(k, ())) for k in ("x_mm", "y_mm", "before_um",
+                                                               "after_um")}
+                if len(sizes) != 1:
+                    raise ValueError("points: x_mm, y_mm, before_um, after_um of one length")
+        else:
+            if self.x_mm is None or self.y_mm is None or self.after_um is None:
+                raise ValueError("a workspace map has x_mm, y_mm, before_um and after_um")
+            if not len(self.x_mm) == len(self.y_mm) == len(self.before_um) == \
+                    len(self.after_um):
+                raise ValueError("x_mm, y_mm, before_um and after_um: one length")
+        return self
+
+
+class SameAsRunning(_Section):
+    """``outcome.same_as_running``: every change within its standard deviation."""
+
+    same: bool
+    largest_change_over_std: OptNum = Field(default=None, ge=0)
+
+
+class Outcome(_Section):
+    """``outcome``: the answer the report gives first (issue 36)."""
+
+    verdict: OutcomeVerdict
+    accuracy: OutcomeAccuracy
+    same_as_running: SameAsRunning | None = None
+    changes: list[OutcomeChange] = Field(default_factory=list)
+    firmware: list[OutcomeChange] | None = None
+    next: list[OutcomeStep] = Field(default_factory=list)
+    held_out_rows: dict[str, Any] | None = None
+    map: OutcomeMap | None = None
+
+
 #: a report's ``measurement`` beside the instruments' names: a fit of several data files
 JOINT = "joint"
 
@@ -418,6 +524,7 @@ class CalibrationReport(_Section):
     parameter_set: ParameterSetSection | None = None
     poorly_determined: PoorlyDetermined | None = None
     acceptance: Acceptance | None = None
+    outcome: Outcome | None = None
 
     @field_validator("measurement")
     @classmethod
