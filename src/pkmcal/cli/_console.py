@@ -81,12 +81,15 @@ def err_console():
 
 
 def error(message: str) -> None:
-    """One red line ``error: ...`` on stderr (the message is not read as markup; file names
-    in it rendered by :func:`pkmcal.paths.path_text`: bytes that are not UTF-8 and control
-    characters as ``\\xNN``)."""
+    """One red line ``error: ...`` on stderr, never broken by the console (the one-message
+    contract: a program reading stderr gets one line; a terminal folds it as it shows it);
+    the message is not read as markup; file names in it rendered by
+    :func:`pkmcal.paths.path_text`: bytes that are not UTF-8 and control characters as
+    ``\\xNN``."""
     from rich.text import Text
 
-    err_console().print(Text.assemble(("error: ", "bold red"), (path_text(message), "red")))
+    err_console().print(Text.assemble(("error: ", "bold red"), (path_text(message), "red")),
+                        soft_wrap=True)
 
 
 def warning(message: str) -> None:

@@ -163,7 +163,7 @@ def measured_points(pmap: Mapping):
     matplotlib.figure.Figure or None
         One panel, rows in file order; None without ``measured``.
     """
-    measured = pmap.get("measured")
+    measured = pmap.get("at_measured_points")
     if not isinstance(measured, Mapping):
         return None
     plt = _plt()
