@@ -7,6 +7,10 @@ import os
 # one BLAS thread (before numpy loads): many small SVDs, which threads slow down on 2 cores
 for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+# the commands run as from a plain pipe: pytest-xdist's workers set COLUMNS=80 and LINES=24,
+# which the console honours (warnings wrapped to COLUMNS); a test that wants a width sets it
+for _var in ("COLUMNS", "LINES"):
+    os.environ.pop(_var, None)
 
 import pytest  # noqa: E402
 
