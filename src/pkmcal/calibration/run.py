@@ -1008,39 +1008,47 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
     report["acceptance"] = _acceptance(result, machine, calibrated, source,
                                        report.get("method"), warnings, verdict)
     tolerance_report(result, calibrated, report, path_text(source), units, warnings)
+    # weakly determined parameters: one rule on every machine and instrument
+    warnings.extend(_weakly_determined(result, calibrated, report, source, units))
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,
                        units=units)
 
 
-def _poorly_determined(result, machine, report: dict, source, units) -> list[str]:
-    """The rule a probe calibration warns by on weakly determined parameters
-    (:func:`~pkmcal.instruments.probe.poorly_determined`: a standard deviation beyond the
-    threshold at the machine's scale), for files fitted together: the report's
-    ``poorly_determined`` section and its warning."""
-    from ..instruments.probe import POOR_STD, poorly_determined, poorly_determined_warnings
-    from ..units import LENGTH
+def _weakly_determined(result, calibrated, report: dict, source, units) -> list[str]:
+    """The one rule every calibration warns by on weakly determined parameters
+    (:func:`~pkmcal.identifiability.determination.poorly_determined`: a standard deviation
+    beyond 1/2500 of the machine's size at its scale), whatever the machine, the instruments
+    and the number of files: the report's ``poorly_determined`` section and its one warning
+    (what to measure next from the instruments that measured)."""
+    from ..identifiability.determination import (
+        MEASURE_NEXT,
+        poorly_determined,
+        poorly_determined_section,
+        poorly_determined_warning,
+    )
+    from ..instruments.registry import INSTRUMENTS
 
+    length = calibrated.characteristic_length()
     try:
-        poor = poorly_determined(result, len(machine.parameters),
-                                 machine.characteristic_length())
+        poor = poorly_determined(result, len(calibrated.parameters), length)
     except (AttributeError, IndexError, ValueError, TypeError):
         return []                   # a result without a covariance of its parameters
-    fl = LENGTH[units["length"]]
-    measure = "more or other measurements where they tell most (pkmcal select-poses), or " \
-              "another instrument (distances or points)"
-    report["poorly_determined"] = {
-        "threshold_mm": POOR_STD * 1e3,
-        "rule": "a determined parameter whose standard deviation (an angle's or ratio's times "
-                "the characteristic length) exceeds the threshold",
-        "measure_next": measure,
-        "parameters": [{"name": p.name, "std": p.std / (fl if p.kind == "length" else 1.0),
-                        "kind": p.kind, "correlated_with": p.partner,
-                        "correlation": p.correlation} for p in poor]}
-    kinds = {f.get("measurement") for f in report.get("files") or []}
-    return poorly_determined_warnings(poor, source, " and ".join(sorted(kinds)) or
-                                      report.get("measurement", "these"), units)
+    kinds = sorted({f.get("measurement") for f in report.get("files") or []} - {None}) \
+        or [report.get("measurement", "these")]
+    advice = [getattr(INSTRUMENTS.get(k), "measure_next", "") for k in kinds]
+    measure = "; or ".join(dict.fromkeys(a for a in advice if a)) or MEASURE_NEXT
+    report["poorly_determined"] = poorly_determined_section(poor, length, units, measure)
+    return poorly_determined_warning(poor, path_text(source), " and ".join(kinds), length,
+                                     measure, units)
+
+
+def _poorly_determined(result, machine, report: dict, source, units) -> list[str]:
+    """Nothing: every calibration's end (:func:`_finish`) states the poorly determined
+    parameters now (:func:`_weakly_determined`); a flow that still asks gets no second
+    warning."""
+    return []
 
 
 def _noise_report(result, report: dict, source, warnings: list, robust: bool = True) -> None:
@@ -2060,13 +2068,7 @@ def _probe_noise(noise, machine):
 
 
 def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) -> Calibration:
-    from ..instruments.probe import (
-        MEASURE_NEXT,
-        POOR_STD,
-        bed_choice,
-        calibrate_probe,
-        poorly_determined_warnings,
-    )
+    from ..instruments.probe import bed_choice, calibrate_probe
     from ..io import read_probe
     from ..units import LENGTH
 
@@ -2092,7 +2094,6 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
     unidentifiable = list(result.extras.get("unidentifiable", []))
-    poor = result.extras.get("poorly_determined", [])
     bed, bed_before = result.extras["bed"], before.extras["bed"]
     ok = np.isfinite(r_after)
 
@@ -2128,15 +2129,6 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
             "dof": int(result.dof),
         },
         "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
-        "poorly_determined": {
-            "threshold_mm": POOR_STD * 1e3,
-            "rule": "a determined parameter whose standard deviation (an angle's or ratio's "
-                    "times the characteristic length) exceeds the threshold",
-            "measure_next": MEASURE_NEXT["probe"],
-            "parameters": [{"name": p.name, "std": p.std / (fl if p.kind == "length" else 1.0),
-                            "kind": p.kind, "correlated_with": p.partner,
-                            "correlation": p.correlation} for p in poor],
-        },
         "parameters": _public(params),
     }
     if held is not None:
@@ -2157,10 +2149,7 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
         "free_parameters": n_free,
         **_identifiability_metadata(unidentifiable),
     }
-    calibration = _finish("probe", machine, calibrated, result, report, metadata, params,
-                          units)
-    calibration.warnings.extend(poorly_determined_warnings(poor, source, "probe", units))
-    return calibration
+    return _finish("probe", machine, calibrated, result, report, metadata, params, units)
 
 
 register_kind(MeasurementKind("probe", _calibrate_probe, _check_probe, _joint_probe))
