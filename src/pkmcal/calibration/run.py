@@ -899,8 +899,7 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list,
                     if status == "estimated" and ratio >= MAX_NOISE_FACTOR]
             high = ", ".join(high) or f"none {MAX_NOISE_FACTOR:g}x the assumed"
             warnings.append(
-                f"{path_text(source)}: "
-                f"residual test {verdict.sentence()}; the noise levels estimated "
+                f"{path_text(source)}: {_failed_words(verdict)}: the noise levels estimated "
                 f"from the residuals ({high}) weigh the fit and its standard deviations. If "
                 "the instruments are not that noisy, the model misses something: see the "
                 "report's residual checks (per "
@@ -915,13 +914,21 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list,
                 "the data leave too few equations to estimate the noise, so whether the "
                 "instrument or the model is worse than assumed cannot be told")
         else:
-            warnings.append(f"{path_text(source)}: residual test {test.message(gross)}")
+            warnings.append(f"{path_text(source)}: {_failed_words(verdict)}: usual causes: "
+                            f"{test.causes(gross)}")
     if nominal is not None:
         changes = parameter_changes(nominal, calibrated)
         out["parameter_changes"] = {"suspicious": changes.suspicious}
         if changes.suspicious:
             warnings.append(f"{path_text(source)}: {changes.message()}")
     return out
+
+
+def _failed_words(verdict) -> str:
+    """The failed residual test as a warning opens: its ratio and a pointer to the verdict,
+    which the summary's ``residual test`` row and the report state in full (said once)."""
+    return (f"residual test failed, {verdict.noise_ratio:.3g}x the assumed noise (the "
+            "verdict states it)")
 
 
 def _state_verdict(report: dict, verdict, sigma_um=None) -> None:
