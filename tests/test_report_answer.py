@@ -204,7 +204,7 @@ def test_other_machines_show_the_error_over_the_workspace(reports, kind):
     assert report["outcome"]["map"]["kind"] == "workspace"
     assert "<h2>Error over the workspace</h2>" in page and "colour=position error [" in page
     # and at each measured point, before and after
-    measured = report["outcome"]["map"]["measured"]
+    measured = report["outcome"]["map"]["measured_points"]
     rows = report.get("used", report["measurements"])
     assert len(measured["before_um"]) == len(measured["after_um"]) == rows
     before = np.asarray([np.nan if v is None else v for v in measured["before_um"]])

@@ -420,7 +420,7 @@ class OutcomeMap(_Section):
     x_mm: list[Num] | None = None
     y_mm: list[Num] | None = None
     points: dict[str, list[Num | None]] | None = None
-    measured: dict[str, list[Num | None]] | None = None
+    measured_points: dict[str, list[Num | None]] | None = None
 
     @model_validator(mode="after")
     def _shapes(self):
