@@ -129,3 +129,11 @@ def test_no_warning_below_the_limit(cases):
     assert poorly_determined(res, n, length, limit=largest * 1.001) == []
     assert [p.name for p in poorly_determined(res, n, length, limit=largest * 0.999)] \
         == [poor[0].name]
+
+
+def test_the_html_report_states_the_rule(cases):
+    from pkmcal.report.html import _instrument_sections
+
+    cal = next(iter(cases.values()))
+    page = _instrument_sections(cal.report)      # the section, without the plots
+    assert "Poorly determined" in page and "1/2500 of the machine" in page
