@@ -81,7 +81,7 @@ def test_the_cases_cover_every_machine_type_and_instrument(cases):
 def test_one_rule_fires_on_every_machine_and_instrument(cases):
     for (kind, name), cal in cases.items():
         where = f"{kind} measured by {name}"
-        machine = cal.calibrated
+        machine = cal.machine               # the nominal: the file's size
         length = machine.characteristic_length()
         limit = poor_limit(length)
         section = cal.report["poorly_determined"]
@@ -122,7 +122,7 @@ def test_no_warning_below_the_limit(cases):
     """The rule is a threshold on the displacement at the machine's scale: a limit just above
     the largest names nothing, one just below names the largest alone."""
     (kind, name), cal = next(iter(cases.items()))
-    res, machine = cal.result, cal.calibrated
+    res, machine = cal.result, cal.machine
     n, length = len(machine.parameters), machine.characteristic_length()
     poor = poorly_determined(res, n, length)
     largest = poor[0].size(length)

@@ -1016,19 +1016,20 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
                                        report.get("method"), warnings, verdict)
     tolerance_report(result, calibrated, report, path_text(source), units, warnings)
     # weakly determined parameters: one rule on every machine and instrument
-    warnings.extend(_weakly_determined(result, calibrated, report, source, units))
+    warnings.extend(_weakly_determined(result, machine, report, source, units))
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,
                        units=units)
 
 
-def _weakly_determined(result, calibrated, report: dict, source, units) -> list[str]:
+def _weakly_determined(result, machine, report: dict, source, units) -> list[str]:
     """The one rule every calibration warns by on weakly determined parameters
     (:func:`~pkmcal.identifiability.determination.poorly_determined`: a standard deviation
     beyond 1/2500 of the machine's size at its scale), whatever the machine, the instruments
     and the number of files: the report's ``poorly_determined`` section and its one warning
-    (what to measure next from the instruments that measured)."""
+    (what to measure next from the instruments that measured). The size is the nominal
+    machine's (the file's), as the probe's own list has it."""
     from ..identifiability.determination import (
         MEASURE_NEXT,
         poorly_determined,
@@ -1037,9 +1038,9 @@ def _weakly_determined(result, calibrated, report: dict, source, units) -> list[
     )
     from ..instruments.registry import INSTRUMENTS
 
-    length = calibrated.characteristic_length()
+    length = machine.characteristic_length()
     try:
-        poor = poorly_determined(result, len(calibrated.parameters), length)
+        poor = poorly_determined(result, len(machine.parameters), length)
     except (AttributeError, IndexError, ValueError, TypeError):
         return []                   # a result without a covariance of its parameters
     kinds = sorted({f.get("measurement") for f in report.get("files") or []} - {None}) \
