@@ -20,6 +20,14 @@ method (maximum likelihood). A run is
   beyond 5 % of the size / 5 deg);
 - ``silent``: neither - the failure this benchmark exists to catch.
 
+Each run also counts its poorly determined parameters (``poorly_determined``: the one rule
+``pkmcal calibrate`` warns by on every machine, :mod:`pkmcal.identifiability.determination`).
+That warning does not flag a run: it says how precisely the design fixes each parameter alone
+(a rail direction known to 0.02 deg while its combination with the rail start is known far
+better), not that the result is wrong; the run's status judges the result against its own
+predicted error, which the full covariance gives. The summary reports how many runs it warns
+in (``warned_poor``).
+
 Usage (from the repository root)::
 
     .venv/bin/python benchmarks/global_start.py                 # 200 runs, 120 poses
@@ -42,6 +50,7 @@ from pkmcal.analysis.prediction import pose_error_operator, predict_pose_accurac
 from pkmcal.calibration import calibrate_constraint_link
 from pkmcal.errors import InputError
 from pkmcal.estimation.acceptance import parameter_changes, residual_test
+from pkmcal.identifiability.determination import poorly_determined
 from pkmcal.instruments.constraint_link import SphereState, simulate_constraint_link
 from pkmcal.machines import paper_table1_deviations
 from pkmcal.machines.hexaslide import HexaSlide, hexaslide_parameters
@@ -193,7 +202,9 @@ def one_run(seed: int, poses: int = 120) -> dict:
     out.update(noise_factor=test.noise_factor, passed=test.passed,
                strategy=getattr(start, "strategy", "direct"),
                fallback=bool(getattr(start, "fallback", False)),
-               dropped=len(res.extras.get("dropped_rows", [])))
+               dropped=len(res.extras.get("dropped_rows", [])),
+               poorly_determined=len(poorly_determined(res, len(nominal.parameters),
+                                                       nominal.characteristic_length())))
     Pw, Rw = machine_workspace(true, 200, 0)
     reach = np.all(np.isfinite(true.ik(Pw, Rw)), -1)
     Pw, Rw = Pw[reach], Rw[reach]
@@ -232,7 +243,8 @@ def summary(rows: list[dict]) -> dict:
     -------
     dict
         ``runs``, ``ok``, ``flagged``, ``silent``, ``fallback`` (runs where the plain fit was
-        not enough), ``dropped_runs`` (runs with rows left out), ``worst_ok_ratio``,
+        not enough), ``dropped_runs`` (runs with rows left out), ``warned_poor`` (runs with
+        poorly determined parameters, not a flag), ``worst_ok_ratio``,
         ``median_ratio``, ``seconds`` (total calibration time) and ``max_seconds``.
     """
     ratios = [r["ratio"] for r in rows if r["status"] == "ok"]
@@ -243,6 +255,7 @@ def summary(rows: list[dict]) -> dict:
         "silent": sum(r["status"] == "silent" for r in rows),
         "fallback": sum(bool(r.get("fallback")) for r in rows),
         "dropped_runs": sum(r.get("dropped", 0) > 0 for r in rows),
+        "warned_poor": sum(r.get("poorly_determined", 0) > 0 for r in rows),
         "worst_ok_ratio": max(ratios) if ratios else None,
         "median_ratio": float(np.median(ratios)) if ratios else None,
         "seconds": float(sum(r["seconds"] for r in rows)),

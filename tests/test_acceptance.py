@@ -148,7 +148,10 @@ def test_calibrate_warns_about_swapped_columns_and_not_about_the_papers_methods(
                    "-q", cwd=tmp_path)
         assert proc.returncode == 0, proc.stderr
         assert "swapped or mis-numbered columns" in proc.stderr, proc.stderr
-    for method in ("ml", "ik"):                            # the right columns: no warning
+    for method in ("ml", "ik"):           # the right columns: no warning of the acceptance
         proc = run("calibrate", cubic, "p.csv", "--method", method, "-o", f"ok_{method}.yaml",
                    "-q", cwd=tmp_path)
-        assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+        # (the poorly determined parameters are warned of by the rule of every calibration:
+        # 60 poses fix this machine's leg lengths to about 0.5 mm, beyond 1/2500 of its size)
+        warned = [w for w in proc.stderr.splitlines() if "poorly determined" not in w]
+        assert proc.returncode == 0 and warned == [], proc.stderr

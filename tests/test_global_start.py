@@ -202,7 +202,13 @@ def test_monte_carlo_over_random_geometries(bench, runs, least_ok, least_fallbac
     196 ok (worst ratio 2.32), 4 flagged; the plain fit failed the residual test in 35 runs,
     the fallback ran in 36. Every row is clean: no ok run leaves one out (2 ok runs left out 4
     clean rows before the left-out rows also started from their neighbours' poses); one row
-    is tolerated (another BLAS may round a borderline pose search the other way)."""
+    is tolerated (another BLAS may round a borderline pose search the other way).
+
+    The poorly determined parameters ``pkmcal calibrate`` warns of (one rule on every machine:
+    a standard deviation beyond 1/2500 of the machine's size) do not flag a run: they say how
+    precisely the design fixes each parameter alone, not that the result is wrong, which the
+    run's status judges against its predicted error. Measured over the first 60: 33 runs warn
+    of them, 58 ok as before; warned runs are among the ok ones."""
     rows = [bench.one_run(seed, 120) for seed in range(runs)]
     s = bench.summary(rows)
     silent = [r for r in rows if r["status"] == "silent"]
@@ -211,3 +217,5 @@ def test_monte_carlo_over_random_geometries(bench, runs, least_ok, least_fallbac
     assert s["fallback"] >= least_fallback     # the fallback is exercised, and works
     assert s["worst_ok_ratio"] <= 3
     assert sum(r["dropped"] for r in rows if r["status"] == "ok") <= 1
+    assert s["warned_poor"] == sum(r.get("poorly_determined", 0) > 0 for r in rows)
+    assert any(r["status"] == "ok" and r["poorly_determined"] for r in rows)

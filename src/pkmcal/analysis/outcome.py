@@ -435,7 +435,7 @@ def calibration_outcome(calibration, output: str | None = None, n: int = POINTS,
                                                  default_workspace(calibrated, n=n, rng=rng))
             measured = _measured_points(nominal, calibrated, C, N, problem)
             if measured:
-                pmap["at_measured_points"] = measured
+                pmap["measured_points"] = measured
     except Exception as exc:        # noqa: BLE001 - the answer's figures are best effort
         accuracy, pmap = {"quantity": "position error", "unit": "um", "basis": "none",
                           "why": f"not predicted: {exc}"}, None

@@ -16,6 +16,7 @@ from ..estimation.estimator import (
     reduce_local,
 )
 from ..estimation.registration import register_points
+from ..identifiability.determination import poorly_determined
 from ..instruments.constraint_link import (
     METHODS,
     ConstraintLinkFK,
@@ -40,7 +41,7 @@ from ..instruments.pose import (
     full_pose_errors,
     gauge_free_error,
 )
-from ..instruments.probe import calibrate_probe, poorly_determined
+from ..instruments.probe import calibrate_probe
 from ..instruments.tracker import (
     TrackerProblem,
     calibrate_tracker,

@@ -207,6 +207,7 @@ def calibrate_auto(calibrate, machine, given, candidates, bed_tilt, options: dic
     calibration.warnings.append(words)
     chosen_set = calibration.report.get("parameter_set")
     if chosen_set is not None:
-        chosen_set["note"] = ("fitted in its own set, the firmware's: " if chosen == 0
-                              else "") + words
+        # the choice's words are its warning (said once): the set names where they are
+        chosen_set["note"] = ("fitted in its own set, the firmware's; " if chosen == 0
+                              else "") + "chosen by --parameters auto (the report's model_choice)"
     return calibration

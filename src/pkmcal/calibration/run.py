@@ -899,8 +899,7 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list,
                     if status == "estimated" and ratio >= MAX_NOISE_FACTOR]
             high = ", ".join(high) or f"none {MAX_NOISE_FACTOR:g}x the assumed"
             warnings.append(
-                f"{path_text(source)}: "
-                f"residual test {verdict.sentence()}; the noise levels estimated "
+                f"{path_text(source)}: {_failed_words(verdict)}: the noise levels estimated "
                 f"from the residuals ({high}) weigh the fit and its standard deviations. If "
                 "the instruments are not that noisy, the model misses something: see the "
                 "report's residual checks (per "
@@ -915,13 +914,21 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list,
                 "the data leave too few equations to estimate the noise, so whether the "
                 "instrument or the model is worse than assumed cannot be told")
         else:
-            warnings.append(f"{path_text(source)}: residual test {test.message(gross)}")
+            warnings.append(f"{path_text(source)}: {_failed_words(verdict)}: usual causes: "
+                            f"{test.causes(gross)}")
     if nominal is not None:
         changes = parameter_changes(nominal, calibrated)
         out["parameter_changes"] = {"suspicious": changes.suspicious}
         if changes.suspicious:
             warnings.append(f"{path_text(source)}: {changes.message()}")
     return out
+
+
+def _failed_words(verdict) -> str:
+    """The failed residual test as a warning opens: its ratio and a pointer to the verdict,
+    which the summary's ``residual test`` row and the report state in full (said once)."""
+    return (f"residual test failed, {verdict.noise_ratio:.3g}x the assumed noise (the "
+            "verdict states it)")
 
 
 def _state_verdict(report: dict, verdict, sigma_um=None) -> None:
@@ -1008,39 +1015,41 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
     report["acceptance"] = _acceptance(result, machine, calibrated, source,
                                        report.get("method"), warnings, verdict)
     tolerance_report(result, calibrated, report, path_text(source), units, warnings)
+    # weakly determined parameters: one rule on every machine and instrument
+    warnings.extend(_weakly_determined(result, machine, report, source, units))
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,
                        units=units)
 
 
-def _poorly_determined(result, machine, report: dict, source, units) -> list[str]:
-    """The rule a probe calibration warns by on weakly determined parameters
-    (:func:`~pkmcal.instruments.probe.poorly_determined`: a standard deviation beyond the
-    threshold at the machine's scale), for files fitted together: the report's
-    ``poorly_determined`` section and its warning."""
-    from ..instruments.probe import POOR_STD, poorly_determined, poorly_determined_warnings
-    from ..units import LENGTH
+def _weakly_determined(result, machine, report: dict, source, units) -> list[str]:
+    """The one rule every calibration warns by on weakly determined parameters
+    (:func:`~pkmcal.identifiability.determination.poorly_determined`: a standard deviation
+    beyond 1/2500 of the machine's size at its scale), whatever the machine, the instruments
+    and the number of files: the report's ``poorly_determined`` section and its one warning
+    (what to measure next from the instruments that measured). The size is the nominal
+    machine's (the file's), as the probe's own list has it."""
+    from ..identifiability.determination import (
+        MEASURE_NEXT,
+        poorly_determined,
+        poorly_determined_section,
+        poorly_determined_warning,
+    )
+    from ..instruments.registry import INSTRUMENTS
 
+    length = machine.characteristic_length()
     try:
-        poor = poorly_determined(result, len(machine.parameters),
-                                 machine.characteristic_length())
+        poor = poorly_determined(result, len(machine.parameters), length)
     except (AttributeError, IndexError, ValueError, TypeError):
         return []                   # a result without a covariance of its parameters
-    fl = LENGTH[units["length"]]
-    measure = "more or other measurements where they tell most (pkmcal select-poses), or " \
-              "another instrument (distances or points)"
-    report["poorly_determined"] = {
-        "threshold_mm": POOR_STD * 1e3,
-        "rule": "a determined parameter whose standard deviation (an angle's or ratio's times "
-                "the characteristic length) exceeds the threshold",
-        "measure_next": measure,
-        "parameters": [{"name": p.name, "std": p.std / (fl if p.kind == "length" else 1.0),
-                        "kind": p.kind, "correlated_with": p.partner,
-                        "correlation": p.correlation} for p in poor]}
-    kinds = {f.get("measurement") for f in report.get("files") or []}
-    return poorly_determined_warnings(poor, source, " and ".join(sorted(kinds)) or
-                                      report.get("measurement", "these"), units)
+    kinds = sorted({f.get("measurement") for f in report.get("files") or []} - {None}) \
+        or [report.get("measurement", "these")]
+    advice = [getattr(INSTRUMENTS.get(k), "measure_next", "") for k in kinds]
+    measure = "; or ".join(dict.fromkeys(a for a in advice if a)) or MEASURE_NEXT
+    report["poorly_determined"] = poorly_determined_section(poor, length, units, measure)
+    return poorly_determined_warning(poor, path_text(source), " and ".join(kinds), length,
+                                     measure, units)
 
 
 def _noise_report(result, report: dict, source, warnings: list, robust: bool = True) -> None:
@@ -1717,8 +1726,6 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         **_identifiability_metadata(unidentifiable),
     }
     calibration = _finish("joint", machine, calibrated, result, report, metadata, params, units)
-    # the rule a probe calibration warns by, for the files fitted together too
-    calibration.warnings.extend(_poorly_determined(result, machine, report, names, units))
     levels = report.get("noise_model")
     if result.extras.get("untested") and isinstance(levels, dict):
         # the levels held in the last fit are the data's weights scaled by the residuals
@@ -2060,13 +2067,7 @@ def _probe_noise(noise, machine):
 
 
 def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) -> Calibration:
-    from ..instruments.probe import (
-        MEASURE_NEXT,
-        POOR_STD,
-        bed_choice,
-        calibrate_probe,
-        poorly_determined_warnings,
-    )
+    from ..instruments.probe import bed_choice, calibrate_probe
     from ..io import read_probe
     from ..units import LENGTH
 
@@ -2092,7 +2093,6 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
     unidentifiable = list(result.extras.get("unidentifiable", []))
-    poor = result.extras.get("poorly_determined", [])
     bed, bed_before = result.extras["bed"], before.extras["bed"]
     ok = np.isfinite(r_after)
 
@@ -2128,15 +2128,6 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
             "dof": int(result.dof),
         },
         "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
-        "poorly_determined": {
-            "threshold_mm": POOR_STD * 1e3,
-            "rule": "a determined parameter whose standard deviation (an angle's or ratio's "
-                    "times the characteristic length) exceeds the threshold",
-            "measure_next": MEASURE_NEXT["probe"],
-            "parameters": [{"name": p.name, "std": p.std / (fl if p.kind == "length" else 1.0),
-                            "kind": p.kind, "correlated_with": p.partner,
-                            "correlation": p.correlation} for p in poor],
-        },
         "parameters": _public(params),
     }
     if held is not None:
@@ -2157,10 +2148,7 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
         "free_parameters": n_free,
         **_identifiability_metadata(unidentifiable),
     }
-    calibration = _finish("probe", machine, calibrated, result, report, metadata, params,
-                          units)
-    calibration.warnings.extend(poorly_determined_warnings(poor, source, "probe", units))
-    return calibration
+    return _finish("probe", machine, calibrated, result, report, metadata, params, units)
 
 
 register_kind(MeasurementKind("probe", _calibrate_probe, _check_probe, _joint_probe))

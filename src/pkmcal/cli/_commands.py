@@ -454,7 +454,7 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
     # staged first: a calibrated geometry that cannot be written is the one message (exit 2)
     json_text = calibration.write(output, report_dir)
     if json_output:
-        for text in calibration.warnings:
+        for text in dict.fromkeys(calibration.warnings):      # each once
             warning(text)
         print(json_text, end="")
         return 0
@@ -472,7 +472,7 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
         _print_instrument_calibration(inst, calibration.report, calibration.params, shown,
                                       output, report_path, machine)
     # each warning once, after the summary (the summary's verdict row points to it)
-    for text in calibration.warnings:
+    for text in dict.fromkeys(calibration.warnings):
         warning(text)
     return 0
 
@@ -541,9 +541,10 @@ def _noise_rows(table, report) -> None:
             table.add_row(title if i == 0 else "", line)
     outliers = report.get("outliers")
     if outliers and outliers["flagged"]:
-        rows = [f["row"] + (" (left out)" if f["left_out"] else "") for f in outliers["flagged"]]
-        table.add_row("outlier rows", ", ".join(rows[:10])
-                      + (f" and {len(rows) - 10} more" if len(rows) > 10 else ""))
+        # how many; the warnings name them (said once)
+        left = sum(bool(f["left_out"]) for f in outliers["flagged"])
+        table.add_row("outlier rows", f"{len(outliers['flagged'])}"
+                      + (f", {left} left out" if left else "") + " (the warnings name them)")
 
 
 #: lines of a long list (what each file adds) the console shows; the report has the rest

@@ -187,12 +187,16 @@ class ResidualTest:
         """
         if self.passed:
             return ""
-        causes = ("the noise is larger than assumed (give --noise), outlier rows, or an effect "
-                  "the model lacks" if gross is False else
-                  "the noise is larger than assumed (give --noise), outlier rows, swapped or "
-                  "mis-numbered columns or a wrong unit, or the fit stopped in a wrong geometry "
-                  "(a machine file far from the machine)")
-        return f"{residual_verdict_of(self).sentence()}. Usual causes: {causes}"
+        return f"{residual_verdict_of(self).sentence()}. Usual causes: {self.causes(gross)}"
+
+    @staticmethod
+    def causes(gross: bool | None = None) -> str:
+        """The usual causes of a failed test, in words (``gross`` as :meth:`message`)."""
+        return ("the noise is larger than assumed (give --noise), outlier rows, or an effect "
+                "the model lacks" if gross is False else
+                "the noise is larger than assumed (give --noise), outlier rows, swapped or "
+                "mis-numbered columns or a wrong unit, or the fit stopped in a wrong geometry "
+                "(a machine file far from the machine)")
 
 
 def chi2_bound(dof: int, alpha: float = 1e-3) -> float:

@@ -124,6 +124,9 @@ class Instrument:
     residual_words: str = "measured - predicted"
     #: what to measure when its calibration does not converge
     advice: str = "measure more, in other directions"
+    #: what to measure when its data leave parameters poorly determined
+    #: (:mod:`pkmcal.identifiability.determination`); empty: its ``MEASURE_NEXT``
+    measure_next: str = ""
     #: ``fit_model(machine, data) -> NuisanceModel``: the model :func:`pkmcal.calibrate`
     #: fits by the calibration layer's generic path; None: the calibration layer registers
     #: handlers of its own for this instrument

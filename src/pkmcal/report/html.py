@@ -787,9 +787,13 @@ def _instrument_sections(report) -> str:
             f"<td>{_e(q.get('correlated_with') or '')}</td><td class=num>"
             f"{_num(q.get('correlation'))}</td></tr>"
             for q in poor["parameters"] if isinstance(q, Mapping))
+        rule = (f" Poorly determined, by the rule of every calibration: {_e(poor['rule'])}"
+                + (f", {_num(poor['threshold_mm'])} mm on this machine"
+                   if _is_number(poor.get("threshold_mm")) else "") + "."
+                if isinstance(poor.get("rule"), str) else "")
         parts.append("<h2>Poorly determined</h2><p>Determined by these data only to the "
                      "standard deviations below; to fix them, measure "
-                     f"{_e(poor.get('measure_next', ''))}.</p>"
+                     f"{_e(poor.get('measure_next', ''))}.{rule}</p>"
                      "<table><tr><th>parameter</th><th>std</th><th>unit</th><th>most "
                      f"correlated with</th><th>correlation [1]</th></tr>{rows}</table>")
     return "".join(parts)

@@ -156,14 +156,14 @@ def measured_points(pmap: Mapping):
     Parameters
     ----------
     pmap : mapping
-        ``outcome.map`` with ``measured`` (``before_um``, ``after_um``, one per row).
+        ``outcome.map`` with ``measured_points`` (``before_um``, ``after_um``, one per row).
 
     Returns
     -------
     matplotlib.figure.Figure or None
-        One panel, rows in file order; None without ``measured``.
+        One panel, rows in file order; None without ``measured_points``.
     """
-    measured = pmap.get("at_measured_points")
+    measured = pmap.get("measured_points")
     if not isinstance(measured, Mapping):
         return None
     plt = _plt()

@@ -334,6 +334,8 @@ class PoorlyDetermined(_Section):
     """``poorly_determined``: parameters these data determine only loosely."""
 
     threshold_mm: OptNum = Field(default=None, ge=0)
+    fraction: OptNum = Field(default=None, gt=0)
+    characteristic_length_mm: OptNum = Field(default=None, gt=0)
     parameters: list[PoorParameter] = Field(default_factory=list)
 
 
@@ -420,7 +422,7 @@ class OutcomeMap(_Section):
     x_mm: list[Num] | None = None
     y_mm: list[Num] | None = None
     points: dict[str, list[Num | None]] | None = None
-    at_measured_points: dict[str, list[Num | None]] | None = None
+    measured_points: dict[str, list[Num | None]] | None = None
 
     @model_validator(mode="after")
     def _shapes(self):
@@ -642,7 +644,8 @@ NUMBER_KEYS = frozenset((
     "change", "chi2", "chi2_per_dof", "chi_square", "chosen", "condition_number", "correlation",
     "count", "cv_gain", "cv_loss", "cv_loss_baseline", "cv_se", "data_share", "dimension",
     "dof",
-    "evaluations", "explained", "far_above", "fk_failed", "folds", "free_parameters",
+    "evaluations", "explained", "far_above", "fk_failed", "folds", "fraction",
+    "free_parameters",
     "height", "held_out", "held_out_over_calibration", "holdout", "identifiable",
     "identifiable_alone", "identified", "in_file", "iterations", "joint_identifiable",
     "leg_length_max", "leg_length_rms", "leg_length_rms_per_leg", "loo_rms_over_noise",
