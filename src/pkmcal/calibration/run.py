@@ -1572,11 +1572,12 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         part = _joint_part(machine, item, source, kind, given)
         weights = getattr(part.data, "weights", None)
         if given is None and weights is not None:    # the data's own source's weights
-            part.noise_text += f" ({weights[1]})"
             if pooled:
-                part.noise_text += (": one of several sessions, its level estimated from "
-                                    "its own residuals")
+                part.noise_text += (" (its source's weight as the level assumed; one of "
+                                    "several sessions: its level estimated from its own "
+                                    "residuals)")
             else:
+                part.noise_text += f" ({weights[1]})"
                 hold.append(f"{labels[i]}:*")
                 part.tied = True
         part.data, h = _split_rows(part.data, split, source)
