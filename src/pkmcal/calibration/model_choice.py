@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import ConvergenceError, InputError
 
 #: equations beyond the fitted directions a candidate after the first must leave
 MIN_REDUNDANCY = 10
@@ -327,7 +327,8 @@ def _choose_by_sessions(fit, candidates, sessions):
         model = (fits[i].report.get("parameter_set") or {}).get("name")
         try:
             folds[i] = loso_folds(fit_on, c, items, names, levels, model)
-        except (InputError, ValueError, np.linalg.LinAlgError) as exc:
+        except (InputError, ValueError, ConvergenceError, np.linalg.LinAlgError) as exc:
+            # a session the others' fit cannot predict (or no fit without it): not judged
             if i == 0:
                 return None
             score.note = f"not judged: {exc}"
