@@ -331,3 +331,37 @@ def test_check_command(tmp_path):
                                                      "printer.cfg mesh default"}
     (tmp_path / "empty.csv").write_text("q1_mm,q2_mm,q3_mm,probe_z_mm\n")
     assert_input_error(run("check", "printer.yaml", "empty.csv", cwd=tmp_path), "empty.csv")
+
+
+def test_auto_judges_three_sessions_by_leaving_each_out(tmp_path):
+    """Three points-only sessions (each its own endstop trigger, 10 um probe noise):
+    --parameters auto scores each candidate by predicting each session from the others' fit
+    (as ``pkmcal check`` scores a session), keeps the best, and the chosen machine predicts a
+    fourth session it never saw to the probe's noise."""
+    from pkmcal.calibration.check import check
+    from pkmcal.calibration.model_choice import MIN_GAIN
+    from pkmcal.calibration.run import calibrate
+
+    shifts = [(0.02, -0.03, 0.01), (-0.01, 0.02, 0.0), (0.0, 0.0, 0.0), (0.01, 0.01, -0.02)]
+    files = []
+    for k, shift in enumerate(shifts):
+        text, _ = config_text(IN_FORCE, TRUTH, shift, mesh=False, noise=0.01, seed=k)
+        path = tmp_path / (f"printer-2025010{k + 1}_100000.cfg" if k < 2 else
+                           "printer.cfg" if k == 2 else "next.cfg")
+        path.write_text(text)
+        files.append(path)
+    machine = machine_of(files[2].read_text(), files[2])
+    c = calibrate(machine, [str(f) for f in files[:3]])
+    choice = c.report["model_choice"]
+    assert "leave one session out" in choice["criterion"], choice["criterion"]
+    assert "each session from the others' fit" in choice["words"]
+    scores = [s["loo_rms_over_noise"] for s in choice["candidates"]]
+    judged = [s for s in scores if s is not None]
+    best = min(judged) ** 2         # a larger model only where it is 2 % better
+    assert len(judged) >= 2 and scores[choice["chosen"]] ** 2 * (1 - MIN_GAIN) <= best
+    assert c.report["parameter_set"]["name"] == choice["candidates"][choice["chosen"]][
+        "parameters"]
+    # a session none of the fits saw: predicted to the probe's noise (RMS within 3x 10 um)
+    result = check(c.calibrated, str(files[3]))
+    (heights,) = [f for f in result.report["files"] if "heights" in f["label"]]
+    assert heights["rms_um"] < 30.0, heights

@@ -49,3 +49,12 @@ def test_one_pair(bench, capsys):
     assert row["ratio_klipper_set"] <= 1.0                    # the meshes help
     assert row["klipper_mesh_mm"] < row["klipper_mm"]         # so does A's own mesh
     assert np.isfinite(row["pkmcal_mm"])
+
+
+def test_points_only_sessions_pooled(bench):
+    """Issue 35's Done-when: points-only sessions pooled (Aieie78's backups, sessions 1-3)
+    predict the later sessions' points at most 0.3x as far off as Klipper's values after
+    session 3 (through the export, the defaults)."""
+    out = bench.pooled(log=lambda _: None)
+    assert out["sessions_in_fit"] == 3
+    assert out["ratio"] <= 0.3, out

@@ -1567,6 +1567,12 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                              "file once")
         seen[key] = s
     labels = file_labels(sources)
+    # several sessions (a printer's configs): a source's relative weights hold within one of
+    # its runs (Klipper weighs one DELTA_CALIBRATE's heights against its distances), not
+    # across runs nobody weighed together; there each file's level is its own variance
+    # component, estimated from its residuals where its redundancy allows (a file whose
+    # data do not fit the others' machine is down-weighted and named in the noise report)
+    pooled = len({getattr(d, "session", None) for d in data}) > 1
     parts, held, hold = [], [], []
     for i, (item, source, kind) in enumerate(zip(data, sources, kinds, strict=True)):
         given = _noise_of(noise, sources, i)
@@ -1575,9 +1581,14 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         part = _joint_part(machine, item, source, kind, given)
         weights = getattr(part.data, "weights", None)
         if given is None and weights is not None:    # the data's own source's weights
-            hold.append(f"{labels[i]}:*")
-            part.noise_text += f" ({weights[1]})"
-            part.tied = True
+            if pooled:
+                part.noise_text += (" (its source's weight as the level assumed; one of "
+                                    "several sessions: its level estimated from its own "
+                                    "residuals)")
+            else:
+                part.noise_text += f" ({weights[1]})"
+                hold.append(f"{labels[i]}:*")
+                part.tied = True
         part.data, h = _split_rows(part.data, split, source)
         parts.append(part)
         held.append(h)
