@@ -66,6 +66,7 @@ from ..instruments.tracker import (
 from ..paths import file_identity, path_text, same_file
 from .bed_surface import with_bed_surface
 from .model_choice import calibrate_auto
+from .parameter_sets import apply_parameter_set, parameter_set_names
 from .tolerances import tolerance_report
 
 __all__ = ["KINDS", "WHITENED_METHODS", "Calibration",
@@ -1108,102 +1109,6 @@ def _fit_with_baseline(machine, data, source, split, reader, fit, noise, advice:
                           read=reader)
     return fit_with_baseline(machine, data, context, fit, noise, advice,
                              estimate_noise=options.noise is None, robust=options.robust)
-
-
-
-
-def _machines_with_sets() -> list[str]:
-    """Machine types whose class has named parameter sets (``parameter_set``)."""
-    from ..machines.base import Machine
-
-    found, todo = set(), list(Machine.__subclasses__())
-    while todo:
-        cls = todo.pop()
-        todo.extend(cls.__subclasses__())
-        if getattr(cls, "kind", "") and (getattr(cls, "PARAMETER_SETS", None)
-                                         or "parameter_set" in vars(cls)):
-            found.add(cls.kind)
-    return sorted(found)
-
-
-def parameter_set_names(machine) -> list[str] | None:
-    """The names of a machine's parameter sets, when it lists them (None: it does not).
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine (``parameter_sets``: a list, a mapping or a method giving one).
-
-    Returns
-    -------
-    list of str or None
-        The names.
-    """
-    sets = getattr(machine, "parameter_sets", None)
-    if callable(sets):
-        sets = sets()
-    if sets is None:
-        own = getattr(machine, "PARAMETER_SETS", None)
-        if own is None:
-            return None
-        return sorted(set(map(str, own)) | {"full"})
-    return [str(k) for k in (sets.keys() if isinstance(sets, dict) else sets)]
-
-
-def apply_parameter_set(machine, name: str):
-    """A copy of ``machine`` whose fixed flags are those of its parameter set ``name``.
-
-    Parameters
-    ----------
-    machine : Machine
-        A machine with ``parameter_set(name) -> ParameterSet`` (e.g. a firmware's set).
-    name : str
-        The set's name (``--parameters``).
-
-    Returns
-    -------
-    Machine
-        The copy (values unchanged; parameters the set does not name are fixed).
-
-    Raises
-    ------
-    InputError
-        When the machine has no named sets (naming the machine types that have them) or
-        none of this name (listing its sets).
-    """
-    method = getattr(machine, "parameter_set", None)
-    kind = getattr(machine, "kind", "") or "machine"
-    if not callable(method):
-        having = _machines_with_sets()
-        raise InputError(f"--parameters {name}: a {kind} has no named parameter sets ("
-                         + (f"machines with them: {', '.join(having)}" if having else
-                            "no machine type of this version has them") + ")")
-    names = parameter_set_names(machine)
-    if names == ["full"] and name != "full":
-        having = _machines_with_sets()
-        raise InputError(f"--parameters {name}: a {kind} has no named parameter sets besides "
-                         "full (every parameter free) ("
-                         + (f"machines with them: {', '.join(having)}" if having else
-                            "no machine type of this version has them") + ")")
-    listing = f"; its sets: {', '.join(names)}" if names else ""
-    if names is not None and name not in names:
-        raise InputError(f"--parameters {name}: no parameter set of that name for this "
-                         f"{kind}{listing}")
-    try:
-        chosen = method(name)
-    except (KeyError, ValueError, InputError) as exc:
-        text = str(exc).strip("'\"")
-        raise InputError(f"--parameters {name}: no parameter set of that name for this "
-                         f"{kind}{listing or (': ' + text if text else '')}") from None
-    mp = machine.parameters
-    if tuple(chosen.names) == tuple(mp.names):
-        fixed = np.asarray(chosen.fixed, bool)
-    else:
-        lookup = dict(zip(chosen.names, np.asarray(chosen.fixed, bool), strict=True))
-        fixed = np.array([lookup.get(n, True) for n in mp.names], bool)
-    new = machine.with_parameters(mp.values)
-    new.parameters = mp.with_fixed_mask(fixed)
-    return new
 
 
 def _with_parameter_set(calibration: Calibration, name: str | None,

@@ -185,7 +185,7 @@ def _with_set(machine, parameters: str | None):
     """The machine with the fixed flags of its parameter set ``--parameters`` (if given)."""
     if parameters is None:
         return machine
-    from ..calibration.run import apply_parameter_set
+    from ..calibration.parameter_sets import apply_parameter_set
 
     return apply_parameter_set(machine, parameters)
 
