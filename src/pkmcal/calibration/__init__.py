@@ -49,6 +49,10 @@ from ..instruments.tracker import (
     predict_tracker_points,
     prediction_covariance,
 )
+
+# --parameters auto's chooser registers itself with the calibration flow (it reads data
+# through the flow, which therefore does not import it)
+from . import model_choice  # noqa: F401
 from .run import (
     KINDS,
     Calibration,

@@ -46,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConvergenceError, InputError
+from .run import expand_firmware_data, register_model_chooser
 
 #: equations beyond the fitted directions a candidate after the first must leave
 MIN_REDUNDANCY = 10
@@ -133,7 +134,6 @@ def session_data(machine, given) -> tuple:
         ``(items, sessions)``: the data objects and per object its session's name (None: the
         reference session).
     """
-    from .run import expand_firmware_data
 
     try:
         data = expand_firmware_data(given, machine)
@@ -429,3 +429,6 @@ def calibrate_auto(calibrate, machine, given, candidates, bed_tilt, options: dic
         chosen_set["note"] = ("fitted in its own set, the firmware's; " if chosen == 0
                               else "") + "chosen by --parameters auto (the report's model_choice)"
     return calibration
+
+
+register_model_chooser(calibrate_auto)

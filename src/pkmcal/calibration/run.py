@@ -65,7 +65,6 @@ from ..instruments.tracker import (
 )
 from ..paths import file_identity, path_text, same_file
 from .bed_surface import with_bed_surface
-from .model_choice import calibrate_auto
 from .parameter_sets import apply_parameter_set, parameter_set_names
 from .tolerances import tolerance_report
 
@@ -608,6 +607,43 @@ class Calibration:
 # --------------------------------------------------------------------------------------------
 
 
+#: ``--parameters auto``'s chooser: :func:`pkmcal.calibration.model_choice.calibrate_auto`,
+#: registered by its module (it scores candidates with :func:`pkmcal.calibration.check`, which
+#: reads data through this module: this module does not import it)
+_MODEL_CHOOSER: list[Callable] = []
+
+
+def register_model_chooser(choose: Callable) -> Callable:
+    """Register ``--parameters auto``'s chooser (see :data:`_MODEL_CHOOSER`).
+
+    Parameters
+    ----------
+    choose : callable
+        ``choose(calibrate, machine, data, candidates, bed_tilt, options) -> Calibration``.
+
+    Returns
+    -------
+    callable
+        ``choose``.
+    """
+    _MODEL_CHOOSER[:] = [choose]
+    return choose
+
+
+def model_chooser() -> Callable:
+    """The registered chooser of ``--parameters auto`` (importing :mod:`pkmcal.calibration`
+    registers it).
+
+    Returns
+    -------
+    callable
+        The chooser.
+    """
+    if not _MODEL_CHOOSER:
+        raise RuntimeError("no model chooser registered: import pkmcal.calibration")
+    return _MODEL_CHOOSER[0]
+
+
 def calibrate(machine, data, *, method: str | None = None, noise=None,
               pose_noise: str | None = None, estimate_lc: bool | None = None,
               two_step: bool = False, robust: bool = False, fix_frames: bool = False,
@@ -712,7 +748,7 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
             candidates = list({c.parameters: replace(c, bed_tilt=None)
                                for c in candidates}.values())
         if candidates:
-            return calibrate_auto(calibrate, machine, given, candidates, bed_tilt,
+            return model_chooser()(calibrate, machine, given, candidates, bed_tilt,
                                   dict(method=method, noise=noise, pose_noise=pose_noise,
                                        estimate_lc=estimate_lc, two_step=two_step,
                                        robust=robust, fix_frames=fix_frames,

@@ -191,7 +191,19 @@ class ResidualTest:
 
     @staticmethod
     def causes(gross: bool | None = None) -> str:
-        """The usual causes of a failed test, in words (``gross`` as :meth:`message`)."""
+        """The usual causes of a failed test, in words.
+
+        Parameters
+        ----------
+        gross : bool or None, optional
+            As :meth:`message`: False for a test failed by a little (no wrong geometry among
+            the causes); True or None lists them all.
+
+        Returns
+        -------
+        str
+            The causes.
+        """
         return ("the noise is larger than assumed (give --noise), outlier rows, or an effect "
                 "the model lacks" if gross is False else
                 "the noise is larger than assumed (give --noise), outlier rows, swapped or "

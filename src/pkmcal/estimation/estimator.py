@@ -188,6 +188,12 @@ class CalibrationResult:
         calibrated machine; ``"registration"``); empty from :func:`levenberg_marquardt`.
     max_std : float or None, optional
         The weak-direction threshold used (None: numerical rank only).
+    fitted : int or None, optional
+        With a prior: the directions the fit adjusted, the data's and the prior's (``rank``
+        counts the data's alone); None without a prior.
+    prior_cost : float, optional
+        Half the sum of squares of the prior's whitened rows (not in ``cost``, which is the
+        data's); 0 without a prior.
     """
 
     x: np.ndarray

@@ -418,7 +418,13 @@ class Machine(ABC):
 
     def tolerance_kinds(self) -> dict[str, str]:
         """The kind (``length`` / ``angle``) of each :meth:`default_tolerances` key (the
-        machine file's units apply)."""
+        machine file's units apply).
+
+        Returns
+        -------
+        dict
+            Key -> ``"length"`` or ``"angle"`` (empty: the machine has no tolerances).
+        """
         return {}
 
     def tolerance_rows(self, tolerances: dict[str, float]) -> list:

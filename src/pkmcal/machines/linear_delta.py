@@ -430,6 +430,16 @@ class LinearDelta(Machine):
         distances), with the bed square to the towers as Klipper takes it and with the bed's
         tilt, and the per-tower model (every tower quantity) with the build tolerances
         holding what the data do not see (its arms from heights alone among them).
+
+        Parameters
+        ----------
+        fixes_lengths : bool
+            Whether the data fix a length (distances): Klipper's nine, else its basic six.
+
+        Returns
+        -------
+        list of ModelCandidate
+            The candidates, Klipper's own set first.
         """
         own = "klipper" if fixes_lengths else "klipper-basic"
         out = [ModelCandidate(own, "square", f"Klipper's own set ({own}), the bed square to "
@@ -465,6 +475,17 @@ class LinearDelta(Machine):
         radius: no firmware holds them (Klipper, Marlin and RepRapFirmware take vertical
         towers and one radius); named where the data measured them, with their uncertainty,
         in millimetres over the tower's travel.
+
+        Parameters
+        ----------
+        rows : list
+            The prior's summary rows (:func:`~pkmcal.estimation.estimator.prior_summary`:
+            name, value, posterior std, label).
+
+        Returns
+        -------
+        list of str
+            One sentence per tower quantity the data measured.
         """
         by = {r.name: r for r in rows}
         letters = "ABC"
@@ -510,6 +531,16 @@ class LinearDelta(Machine):
         others, whatever the common value); ``tower_angle`` each tower's angle about its
         nominal; ``tower_tilt`` each tilt about 0 (vertical towers); ``endstop`` each
         ``position_endstop`` about its nominal.
+
+        Parameters
+        ----------
+        tolerances : dict
+            Key -> tolerance (one standard deviation, SI; None: that key holds nothing).
+
+        Returns
+        -------
+        list
+            The rows (:meth:`~pkmcal.parameters.Prior.about`).
         """
         rows = []
         third = 1.0 / 3.0
