@@ -511,7 +511,7 @@ class Distance(Instrument):
 
         if text is not None and not isinstance(text, (str, int, float)):
             return text
-        return IsotropicNoise(_sigma_arg(text, machine, "ballbar lengths", 1e-6))
+        return IsotropicNoise(_sigma_arg(text, machine, "the ballbar lengths", 1e-6))
 
     #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
     reader = "read_distances"
