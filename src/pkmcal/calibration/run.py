@@ -41,6 +41,9 @@ from ..instruments.flow import (
     json_safe,
     report_head,
     rows_text,
+    scalar_metadata,
+    scalar_residuals_json,
+    variance_json,
 )
 from ..instruments.flow import convergence_json as _convergence_json
 from ..instruments.flow import identifiability_json as _identifiability_json
@@ -1610,10 +1613,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         "residuals": {
             "of": "every file's whitened residuals (measured - predicted, / assumed noise)",
             "count": int(np.isfinite(r).sum()),
-            "residual_variance": float(result.residual_variance),
-            "noise_scale": float(np.sqrt(result.residual_variance))
-            if np.isfinite(result.residual_variance) else None,
-            "dof": int(result.dof),
+            **variance_json(result),
         },
         "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
         "contributions": {**contributions.as_dict(fl, fa, (units["length"], units["angle"])),
@@ -1784,7 +1784,6 @@ def _calibrate_instrument(machine, data, source, options: CalibrateOptions, spli
     problem = result.extras["problem"]
     rms_after, r_after = _scalar_rms(problem, result.state, data)
     rms_before, _ = _scalar_rms(before.extras["problem"], before.state, data)
-    ok = np.isfinite(r_after)
     n_free = int(np.sum(result.parameters.free))
     unidentifiable = list(result.extras.get("unidentifiable", []))
     report = {
@@ -1793,26 +1792,14 @@ def _calibrate_instrument(machine, data, source, options: CalibrateOptions, spli
         "measurements": len(data),
         "noise": inst.noise_text(noise),
         "convergence": _convergence_json(result),
-        "residuals": {
-            "of": inst.residual_words,
-            "count": int(ok.sum()),
-            "rms_um": rms_after,
-            "max_abs_um": _um(float(np.max(np.abs(r_after[ok])))) if ok.any() else None,
-            "before_rms_um": rms_before,
-            "before": "machine file's model",
-            "residual_variance": float(result.residual_variance),
-            "noise_scale": float(np.sqrt(result.residual_variance))
-            if np.isfinite(result.residual_variance) else None,
-            "dof": int(result.dof),
-        },
+        "residuals": scalar_residuals_json(result, r_after, rms_after, rms_before,
+                                           inst.residual_words, "machine file's model"),
         "identifiability": _identifiability_json(n_free, int(result.rank), unidentifiable,
                                                  np.asarray(result.singular_values, float)),
         "parameters": _public(params),
     }
-    metadata = {"method": inst.name, "date": report["date"], "data": path_text(source),
-                "machine": _source_of(machine), "measurements": len(data),
-                "rms_residual_um": rms_after, "identifiable": int(result.rank),
-                "free_parameters": n_free, **_identifiability_metadata(unidentifiable)}
+    metadata = scalar_metadata(inst.name, report, source, machine, result, rms_after,
+                               len(data), unidentifiable)
     return _finish(inst.name, machine, calibrated, result, report, metadata, params, units)
 
 
@@ -2010,7 +1997,6 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
     s = np.asarray(result.singular_values, float)
     unidentifiable = list(result.extras.get("unidentifiable", []))
     bed, bed_before = result.extras["bed"], before.extras["bed"]
-    ok = np.isfinite(r_after)
 
     def plane(b):
         return {"height": b[0] / fl, "tilt_x": b[1], "tilt_y": b[2], "unit": units["length"],
@@ -2028,21 +2014,11 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
                 == "estimated"},
         "bed_frame": chosen["bed"].words,
         "convergence": _convergence_json(result),
-        "residuals": {
-            "of": "probe heights, measured - predicted (forward kinematics of the readings, "
-                  "height above the fitted bed along z)",
-            "count": int(ok.sum()),
-            "rms_um": rms_after,
-            "max_abs_um": _um(float(np.max(np.abs(r_after[ok])))) if ok.any() else None,
-            "before_rms_um": rms_before,
-            "before_max_abs_um": _um(float(np.nanmax(np.abs(r_before))))
-            if np.isfinite(r_before).any() else None,
-            "before": "machine file's model, bed plane (height and tilt) fitted alone",
-            "residual_variance": float(result.residual_variance),
-            "noise_scale": float(np.sqrt(result.residual_variance))
-            if np.isfinite(result.residual_variance) else None,
-            "dof": int(result.dof),
-        },
+        "residuals": scalar_residuals_json(
+            result, r_after, rms_after, rms_before,
+            "probe heights, measured - predicted (forward kinematics of the readings, height "
+            "above the fitted bed along z)",
+            "machine file's model, bed plane (height and tilt) fitted alone", r_before),
         "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
         "parameters": _public(params),
     }
@@ -2053,17 +2029,8 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
             "the calibration rows", "um",
             _scalar_rms(before_problem, before.state, held)[0],
             _scalar_rms(problem, result.state, held)[0], rms_after)
-    metadata = {
-        "method": "probe",
-        "date": report["date"],
-        "data": path_text(source),
-        "machine": _source_of(machine),
-        "measurements": len(data),
-        "rms_residual_um": rms_after,
-        "identifiable": rank,
-        "free_parameters": n_free,
-        **_identifiability_metadata(unidentifiable),
-    }
+    metadata = scalar_metadata("probe", report, source, machine, result, rms_after, len(data),
+                               unidentifiable)
     return _finish("probe", machine, calibrated, result, report, metadata, params, units)
 
 
