@@ -117,3 +117,15 @@ def console_rows(text: str) -> dict[str, str]:
         body = " ".join(body.split())
         out[label] = f"{out[label]} | {body}" if label in out else body
     return out
+
+
+def calibrated_file(tmp: Path, machine_file, scenario: str, *extra) -> Path:
+    """``pkmcal simulate MACHINE --scenario SCENARIO --seed 1 *extra`` then ``pkmcal calibrate``
+    of its data, in ``tmp`` (asserting both succeed): the calibrated machine file."""
+    data, cal = tmp / "data.csv", tmp / "cal.yaml"
+    proc = run("simulate", machine_file, "--scenario", scenario, "--seed", "1", *extra, "-o",
+               data, cwd=tmp)
+    assert proc.returncode == 0, proc.stderr
+    proc = run("calibrate", machine_file, data, "-o", cal, cwd=tmp)
+    assert proc.returncode == 0, proc.stderr
+    return cal
