@@ -1400,6 +1400,30 @@ def _check_joint_options(options: CalibrateOptions) -> None:
                              "FILE=VALUE, --robust and --holdout")
 
 
+def _source_and_kind(machine, item, i: int):
+    """The name and :class:`MeasurementKind` of data item ``i`` of several: a file's kind by
+    its columns (:func:`measurement_kind`), a data object's by its class and instrument
+    (named ``data{i+1}`` unless it has a source).
+
+    Raises
+    ------
+    InputError
+        When an object is no calibration data (or a file's columns fit no kind).
+    """
+    from ..io import read_table
+
+    if isinstance(item, (str, Path)):
+        source = Path(item)
+        header, _ = read_table(source)
+        return source, KINDS[measurement_kind(source, header, machine)]
+    source = getattr(item, "source", None) or f"data{i + 1}"
+    kind = next((k for k in _kinds() if k.data_class == type(item).__name__
+                 and getattr(item, "kind", k.instrument) in _names_of(k)), None)
+    if kind is None:
+        raise InputError(f"{path_text(source)}: {type(item).__name__} is no calibration data")
+    return source, kind
+
+
 def calibrate_joint(machine, data: list, *, noise=None, split=None,
                     options: CalibrateOptions | None = None) -> Calibration:
     """One geometry from several data files of instrument-layer kinds (``calibrate`` with a
@@ -1442,7 +1466,6 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     """
     from ..instruments import IsotropicNoise
     from ..instruments.joint import file_labels, fit_joint
-    from ..io import read_table
     from ..units import LENGTH
 
     _check_joint_options(options or CalibrateOptions())
@@ -1451,18 +1474,8 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                          "--noise bar.csv=2um)")
     sources, kinds = [], []
     for i, item in enumerate(data):
-        if isinstance(item, (str, Path)):
-            source = Path(item)
-            header, _ = read_table(source)
-            kinds.append(KINDS[measurement_kind(source, header, machine)])
-        else:
-            source = getattr(item, "source", None) or f"data{i + 1}"
-            kind = next((k for k in _kinds() if k.data_class == type(item).__name__
-                         and getattr(item, "kind", k.instrument) in _names_of(k)), None)
-            if kind is None:
-                raise InputError(f"{path_text(source)}: "
-                                 f"{type(item).__name__} is no calibration data")
-            kinds.append(kind)
+        source, kind = _source_and_kind(machine, item, i)
+        kinds.append(kind)
         sources.append(source)
     seen: dict = {}
     for s in sources:       # one file by two names (hard or symbolic links, ./x and x)
