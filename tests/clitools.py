@@ -129,3 +129,15 @@ def calibrated_file(tmp: Path, machine_file, scenario: str, *extra) -> Path:
     proc = run("calibrate", machine_file, data, "-o", cal, cwd=tmp)
     assert proc.returncode == 0, proc.stderr
     return cal
+
+
+def delta_at_linuxcnc_hips(tmp: Path) -> Path:
+    """examples/delta_default.yaml with its legs turned to 150, 30, -90 deg (rotarydeltakins'
+    hips, in another order than its joints), written to ``tmp``: the machine file."""
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    text = (examples / "delta_default.yaml").read_text().replace(
+        "leg_angles: [90.0, 180.0, -90.0]", "leg_angles: [150.0, 30.0, -90.0]")
+    assert "150.0, 30.0" in text
+    path = tmp / "nominal.yaml"
+    path.write_text(text)
+    return path

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clitools import calibrated_file
+from clitools import calibrated_file, delta_at_linuxcnc_hips
 from pkmcal.errors import InputError
 from pkmcal.export import controller_format, export, export_workspace
 from pkmcal.io.machine_file import load_machine
@@ -45,12 +45,8 @@ def delta120(tmp_path_factory):
     """The default Delta with its legs at LinuxCNC's hips (150, 30, -90 deg): nominal and
     calibrated from tracker data."""
     tmp = tmp_path_factory.mktemp("delta120")
-    text = (EXAMPLES / "delta_default.yaml").read_text()
-    text = text.replace("leg_angles: [90.0, 180.0, -90.0]", "leg_angles: [150.0, 30.0, -90.0]")
-    assert "150.0, 30.0" in text
-    (tmp / "delta120.yaml").write_text(text)
-    return load_machine(tmp / "delta120.yaml"), load_machine(
-        calibrated_file(tmp, tmp / "delta120.yaml", "tracker"))
+    nominal = delta_at_linuxcnc_hips(tmp)
+    return load_machine(nominal), load_machine(calibrated_file(tmp, nominal, "tracker"))
 
 
 @pytest.fixture(scope="module")

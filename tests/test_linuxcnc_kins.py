@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clitools import calibrated_file, run
+from clitools import calibrated_file, delta_at_linuxcnc_hips, run
 from linuxcnc_stack import debian_kins, kins_missing
 from pkmcal.export import controller_format, export, export_workspace, position_errors
 from pkmcal.io.machine_file import load_machine
@@ -36,12 +36,8 @@ def rotary(tmp_path_factory):
     """examples/delta_default.yaml with its legs turned to 150, 30, -90 deg (LinuxCNC's hips,
     in another order than its joints), calibrated from tracker data."""
     tmp = tmp_path_factory.mktemp("rotary")
-    text = (EXAMPLES / "delta_default.yaml").read_text().replace(
-        "leg_angles: [90.0, 180.0, -90.0]", "leg_angles: [150.0, 30.0, -90.0]")
-    assert "150.0, 30.0" in text
-    (tmp / "nominal.yaml").write_text(text)
-    return load_machine(tmp / "nominal.yaml"), load_machine(
-        calibrated_file(tmp, tmp / "nominal.yaml", "tracker"))
+    nominal = delta_at_linuxcnc_hips(tmp)
+    return load_machine(nominal), load_machine(calibrated_file(tmp, nominal, "tracker"))
 
 
 @pytest.fixture(scope="module")
