@@ -117,3 +117,27 @@ def console_rows(text: str) -> dict[str, str]:
         body = " ".join(body.split())
         out[label] = f"{out[label]} | {body}" if label in out else body
     return out
+
+
+def calibrated_file(tmp: Path, machine_file, scenario: str, *extra) -> Path:
+    """``pkmcal simulate MACHINE --scenario SCENARIO --seed 1 *extra`` then ``pkmcal calibrate``
+    of its data, in ``tmp`` (asserting both succeed): the calibrated machine file."""
+    data, cal = tmp / "data.csv", tmp / "cal.yaml"
+    proc = run("simulate", machine_file, "--scenario", scenario, "--seed", "1", *extra, "-o",
+               data, cwd=tmp)
+    assert proc.returncode == 0, proc.stderr
+    proc = run("calibrate", machine_file, data, "-o", cal, cwd=tmp)
+    assert proc.returncode == 0, proc.stderr
+    return cal
+
+
+def delta_at_linuxcnc_hips(tmp: Path) -> Path:
+    """examples/delta_default.yaml with its legs turned to 150, 30, -90 deg (rotarydeltakins'
+    hips, in another order than its joints), written to ``tmp``: the machine file."""
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    text = (examples / "delta_default.yaml").read_text().replace(
+        "leg_angles: [90.0, 180.0, -90.0]", "leg_angles: [150.0, 30.0, -90.0]")
+    assert "150.0, 30.0" in text
+    path = tmp / "nominal.yaml"
+    path.write_text(text)
+    return path

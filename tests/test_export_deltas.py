@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clitools import run
+from clitools import calibrated_file, delta_at_linuxcnc_hips
 from pkmcal.errors import InputError
 from pkmcal.export import controller_format, export, export_workspace
 from pkmcal.io.machine_file import load_machine
@@ -31,21 +31,13 @@ EXAMPLES = ROOT / "examples"
 
 
 # -- calibrated machines ----------------------------------------------------------------------
-def _calibrate(tmp: Path, machine_file: Path, scenario: str) -> Path:
-    data, cal = tmp / "data.csv", tmp / "cal.yaml"
-    proc = run("simulate", machine_file, "--scenario", scenario, "--seed", "1", "-o", data,
-               cwd=tmp)
-    assert proc.returncode == 0, proc.stderr
-    proc = run("calibrate", machine_file, data, "-o", cal, cwd=tmp)
-    assert proc.returncode == 0, proc.stderr
-    return cal
 
 
 @pytest.fixture(scope="module")
 def delta_cal(tmp_path_factory):
     """examples/delta_default.yaml (legs at 90, 180, -90 deg) calibrated from tracker data."""
     tmp = tmp_path_factory.mktemp("delta")
-    return load_machine(_calibrate(tmp, EXAMPLES / "delta_default.yaml", "tracker"))
+    return load_machine(calibrated_file(tmp, EXAMPLES / "delta_default.yaml", "tracker"))
 
 
 @pytest.fixture(scope="module")
@@ -53,19 +45,15 @@ def delta120(tmp_path_factory):
     """The default Delta with its legs at LinuxCNC's hips (150, 30, -90 deg): nominal and
     calibrated from tracker data."""
     tmp = tmp_path_factory.mktemp("delta120")
-    text = (EXAMPLES / "delta_default.yaml").read_text()
-    text = text.replace("leg_angles: [90.0, 180.0, -90.0]", "leg_angles: [150.0, 30.0, -90.0]")
-    assert "150.0, 30.0" in text
-    (tmp / "delta120.yaml").write_text(text)
-    return load_machine(tmp / "delta120.yaml"), load_machine(
-        _calibrate(tmp, tmp / "delta120.yaml", "tracker"))
+    nominal = delta_at_linuxcnc_hips(tmp)
+    return load_machine(nominal), load_machine(calibrated_file(tmp, nominal, "tracker"))
 
 
 @pytest.fixture(scope="module")
 def linear_cal(tmp_path_factory):
     """examples/linear_delta.yaml calibrated from its bed probe (tilted towers, a bed)."""
     tmp = tmp_path_factory.mktemp("linear")
-    return load_machine(_calibrate(tmp, EXAMPLES / "linear_delta.yaml", "probe"))
+    return load_machine(calibrated_file(tmp, EXAMPLES / "linear_delta.yaml", "probe"))
 
 
 # -- independent readers of the written files -------------------------------------------------

@@ -363,3 +363,26 @@ def test_firmware_reports_are_read():
     assert m.probe_bed == pytest.approx((0.0, 0.002, -0.001))
     assert m.firmware_values()["position_endstop"] == pytest.approx([0.2801, 0.27995,
                                                                      0.27995])
+
+
+@pytest.mark.parametrize("name, kinematics, other", [
+    ("klipper", "delta", "Delta"),                  # delta: the kinematics' case folded
+    ("klipper-rotary-delta", "rotary_delta", None),
+])
+def test_klipper_update_refuses_a_config_of_other_kinematics(name, kinematics, other):
+    """Both Klipper formats refuse to save into a printer.cfg of other (or no) kinematics,
+    naming the file and the kinematics they write (one check, export.klipper.config_to_update)."""
+    from pkmcal.export import controller_format
+
+    fmt = controller_format(name, "--to")
+    for text in ("[printer]\nkinematics: cartesian\n", "[stepper_a]\nstep_pin: PA0\n"):
+        with pytest.raises(InputError, match=rf"^p\.cfg: exists and is not a Klipper .*"
+                           rf"\(\[printer\] kinematics: {kinematics}\); choose another"):
+            fmt.update(text, None, None, "p.cfg")
+    from pkmcal.export.klipper import config_to_update
+
+    cfg = config_to_update(f"[printer]\nkinematics: {kinematics}\n", "p.cfg", kinematics, "x")
+    assert cfg.entry("printer", "kinematics").value.strip() == kinematics
+    if other is not None:
+        config_to_update(f"[printer]\nkinematics: {other}\n", "p.cfg", kinematics, "x",
+                         fold_case=True)

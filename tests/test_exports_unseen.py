@@ -348,6 +348,16 @@ def read_config(fmt, config: Path):
     return params, _setp(hal, fmt.kins_module), ini
 
 
+def imported_again(tmp_path: Path, fmt):
+    """``pkmcal import config/`` then ``pkmcal export -o again/`` of what it imported: the
+    configuration written again, read back (:func:`read_config`)."""
+    proc = run("import", "config/", "--from", fmt.name, "-o", "imported.yaml", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    proc = run("export", "imported.yaml", "--to", fmt.name, "-o", "again/", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    return read_config(fmt, tmp_path / "again")
+
+
 GEOMETRY = {"rotarydeltakins": ("platformradius", "thighlength", "shinlength", "footradius"),
             "lineardeltakins": ("R", "L")}
 
@@ -389,11 +399,7 @@ def test_unseen_delta_in_linuxcnc_kinematics(tmp_path, name, seed):
     assert np.abs(fk.P - promised).max() < AGREE_M
     report(name, seed, words, record, np.linalg.norm(fk.P - P, axis=1))
     # import DIR/, export: the same pins, HOME_OFFSETs and joints
-    proc = run("import", "config/", "--from", name, "-o", "imported.yaml", cwd=tmp_path)
-    assert proc.returncode == 0, proc.stderr
-    proc = run("export", "imported.yaml", "--to", name, "-o", "again/", cwd=tmp_path)
-    assert proc.returncode == 0, proc.stderr
-    params2, pins2, ini2 = read_config(fmt, tmp_path / "again")
+    params2, pins2, ini2 = imported_again(tmp_path, fmt)
     assert pins2 == pytest.approx(pins, rel=0, abs=1e-9)
     assert np.allclose(fmt.home_offsets(params2), fmt.home_offsets(params), rtol=0, atol=1e-9)
     J2 = np.array(debian_kins(fmt.kins_module, [pins2[g] for g in GEOMETRY[fmt.kins_module]],
@@ -432,11 +438,7 @@ def test_unseen_hexapod_genhexkins(tmp_path, seed):
     promised = P + position_errors(fmt, params, machine, P, R)
     assert np.abs(fk.P - promised).max() < AGREE_M
     report(name, seed, words, record, np.linalg.norm(fk.P - P, axis=1))
-    proc = run("import", "config/", "--from", name, "-o", "imported.yaml", cwd=tmp_path)
-    assert proc.returncode == 0, proc.stderr
-    proc = run("export", "imported.yaml", "--to", name, "-o", "again/", cwd=tmp_path)
-    assert proc.returncode == 0, proc.stderr
-    params2, pins2, _ = read_config(fmt, tmp_path / "again")
+    params2, pins2, _ = imported_again(tmp_path, fmt)
     assert pins2 == pytest.approx(pins, rel=0, abs=1e-9)
     assert np.allclose(params2.values, params.values, rtol=1e-12, atol=1e-12)
     if seed == SEEDS[name][0]:

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 import klipper_reference as kr
-from clitools import run
+from clitools import calibrated_file, run
 from klippy_harness import Klippy, hardware, requires_klippy
 from pkmcal.errors import InputError
 from pkmcal.export import controller_format, export, export_workspace
@@ -60,21 +60,13 @@ lower_arm_length: 320.000
 
 
 # -- machines ---------------------------------------------------------------------------------
-def _calibrate(tmp: Path, machine_file: Path, scenario: str) -> Path:
-    data, cal = tmp / "data.csv", tmp / "cal.yaml"
-    proc = run("simulate", machine_file, "--scenario", scenario, "--seed", "1", "-o", data,
-               cwd=tmp)
-    assert proc.returncode == 0, proc.stderr
-    proc = run("calibrate", machine_file, data, "-o", cal, cwd=tmp)
-    assert proc.returncode == 0, proc.stderr
-    return cal
 
 
 @pytest.fixture(scope="module")
 def delta_cal(tmp_path_factory):
     """examples/delta_default.yaml calibrated from tracker data (as docs/delta.md does)."""
     tmp = tmp_path_factory.mktemp("delta")
-    return load_machine(_calibrate(tmp, EXAMPLES / "delta_default.yaml", "tracker"))
+    return load_machine(calibrated_file(tmp, EXAMPLES / "delta_default.yaml", "tracker"))
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +74,7 @@ def linear_cal(tmp_path_factory):
     """examples/linear_delta.yaml (tilted towers, per-tower trims) calibrated from its bed
     probe, the full model (what Klipper cannot hold is the remaining error)."""
     tmp = tmp_path_factory.mktemp("linear")
-    return load_machine(_calibrate(tmp, EXAMPLES / "linear_delta.yaml", "probe"))
+    return load_machine(calibrated_file(tmp, EXAMPLES / "linear_delta.yaml", "probe"))
 
 
 def exact_rotary(angles_deg=(90.0, 180.0, -90.0), shoulders=0.0) -> Delta:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clitools import run
+from clitools import calibrated_file, delta_at_linuxcnc_hips, run
 from linuxcnc_stack import debian_kins, kins_missing
 from pkmcal.export import controller_format, export, export_workspace, position_errors
 from pkmcal.io.machine_file import load_machine
@@ -29,13 +29,6 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 AGREE_M = 1e-9
 
 
-def _calibrate(tmp: Path, machine_file: Path, scenario: str) -> Path:
-    proc = run("simulate", machine_file, "--scenario", scenario, "--seed", "1", "-o",
-               tmp / "data.csv", cwd=tmp)
-    assert proc.returncode == 0, proc.stderr
-    proc = run("calibrate", machine_file, tmp / "data.csv", "-o", tmp / "cal.yaml", cwd=tmp)
-    assert proc.returncode == 0, proc.stderr
-    return tmp / "cal.yaml"
 
 
 @pytest.fixture(scope="module")
@@ -43,19 +36,15 @@ def rotary(tmp_path_factory):
     """examples/delta_default.yaml with its legs turned to 150, 30, -90 deg (LinuxCNC's hips,
     in another order than its joints), calibrated from tracker data."""
     tmp = tmp_path_factory.mktemp("rotary")
-    text = (EXAMPLES / "delta_default.yaml").read_text().replace(
-        "leg_angles: [90.0, 180.0, -90.0]", "leg_angles: [150.0, 30.0, -90.0]")
-    assert "150.0, 30.0" in text
-    (tmp / "nominal.yaml").write_text(text)
-    return load_machine(tmp / "nominal.yaml"), load_machine(
-        _calibrate(tmp, tmp / "nominal.yaml", "tracker"))
+    nominal = delta_at_linuxcnc_hips(tmp)
+    return load_machine(nominal), load_machine(calibrated_file(tmp, nominal, "tracker"))
 
 
 @pytest.fixture(scope="module")
 def linear(tmp_path_factory):
     """examples/linear_delta.yaml calibrated from its bed probe (towers and bed off)."""
     tmp = tmp_path_factory.mktemp("linear")
-    return load_machine(_calibrate(tmp, EXAMPLES / "linear_delta.yaml", "probe"))
+    return load_machine(calibrated_file(tmp, EXAMPLES / "linear_delta.yaml", "probe"))
 
 
 def setp(text: str, comp: str) -> dict:

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clitools import run
+from clitools import calibrated_file, run
 from linuxcnc_stack import run_linuxcnc, stack_missing
 from pkmcal.export import controller_format, position_errors
 from pkmcal.io.machine_file import load_machine
@@ -35,13 +35,6 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 AGREE_M = 1e-9
 
 
-def _calibrate(tmp: Path, machine_file: Path, scenario: str, *extra) -> Path:
-    proc = run("simulate", machine_file, "--scenario", scenario, "--seed", "1", *extra, "-o",
-               tmp / "data.csv", cwd=tmp)
-    assert proc.returncode == 0, proc.stderr
-    proc = run("calibrate", machine_file, tmp / "data.csv", "-o", tmp / "cal.yaml", cwd=tmp)
-    assert proc.returncode == 0, proc.stderr
-    return tmp / "cal.yaml"
 
 
 def ini_values(text: str, key: str) -> dict:
@@ -138,7 +131,7 @@ def test_genhexkins_configuration_runs_in_linuxcnc(tmp_path, example):
     mm/rev), their configurations started as written: strut lengths, the drives' readings
     through the scale pairs and the forward map agree with pkmcal."""
     shutil.copy(EXAMPLES / example, tmp_path / "machine.yaml")
-    cal = (_calibrate(tmp_path, tmp_path / "machine.yaml", "pose", "--poses", "60")
+    cal = (calibrated_file(tmp_path, tmp_path / "machine.yaml", "pose", "--poses", "60")
            if example == "cubic_6upu.yaml" else tmp_path / "machine.yaml")
     fmt, machine, params, P, R, request, result = _run_export(tmp_path, cal,
                                                               "linuxcnc-genhexkins")
@@ -163,9 +156,9 @@ def test_delta_configuration_runs_in_linuxcnc(tmp_path, name):
         text = (EXAMPLES / "delta_default.yaml").read_text().replace(
             "leg_angles: [90.0, 180.0, -90.0]", "leg_angles: [150.0, 30.0, -90.0]")
         (tmp_path / "nominal.yaml").write_text(text)
-        cal = _calibrate(tmp_path, tmp_path / "nominal.yaml", "tracker")
+        cal = calibrated_file(tmp_path, tmp_path / "nominal.yaml", "tracker")
     else:
-        cal = _calibrate(tmp_path, EXAMPLES / "linear_delta.yaml", "probe")
+        cal = calibrated_file(tmp_path, EXAMPLES / "linear_delta.yaml", "probe")
     fmt, machine, params, P, R, request, result = _run_export(tmp_path, cal, name)
     q, pins, motor, reached = _check_poses(fmt, machine, params, P, R, request, result)
     scale = np.degrees(1.0) if fmt.joint_type == "ANGULAR" else 1e3

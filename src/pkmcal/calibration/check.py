@@ -62,16 +62,7 @@ def _fixed(machine):
 
 def _parts(machine, data, noise):
     """Each data object's joint part (its instrument model with a free offset) and session."""
-    from ..io import read_table
-    from .run import (
-        KINDS,
-        _joint_part,
-        _kinds,
-        _names_of,
-        _noise_of,
-        expand_firmware_data,
-        measurement_kind,
-    )
+    from .run import _joint_part, _noise_of, _source_and_kind, expand_firmware_data
 
     given = list(data) if isinstance(data, (list, tuple)) else [data]
     if not given:
@@ -80,17 +71,7 @@ def _parts(machine, data, noise):
     items = list(expanded) if isinstance(expanded, (list, tuple)) else [expanded]
     parts, sources, sessions = [], [], []
     for i, item in enumerate(items):
-        if isinstance(item, (str, Path)):
-            source = Path(item)
-            header, _ = read_table(source)
-            kind = KINDS[measurement_kind(source, header, machine)]
-        else:
-            source = getattr(item, "source", None) or f"data{i + 1}"
-            kind = next((k for k in _kinds() if k.data_class == type(item).__name__
-                         and getattr(item, "kind", k.instrument) in _names_of(k)), None)
-            if kind is None:
-                raise InputError(f"{path_text(source)}: {type(item).__name__} is no "
-                                 "calibration data")
+        source, kind = _source_and_kind(machine, item, i)
         level = _noise_of(noise, [getattr(item, "origin", source)], 0) if noise else None
         part = _joint_part(machine, item, source, kind, level)
         if part.with_others is not None:

@@ -265,18 +265,12 @@ def choose_model(fit, machine, candidates, sessions=None) -> tuple:
         if judged is not None:
             return judged
     for i, c in enumerate(candidates):
-        score = CandidateScore(c.parameters, c.bed_tilt, c.words)
+        score, calibration = _fitted(fit, c, i)
         scores.append(score)
-        try:
-            calibration = fit(c.parameters, c.bed_tilt)
-        except InputError as exc:
-            if i == 0:
-                raise
-            score.note = f"not fitted: {exc}"
+        if calibration is None:
             fits.append(None)
             continue
         result = calibration.result
-        score.redundancy = int(result.dof)
         if i > 0 and result.dof < MIN_REDUNDANCY:
             score.note = (f"not judged: {result.dof} equation(s) beyond what it fits, fewer "
                           f"than {MIN_REDUNDANCY}")
@@ -289,6 +283,29 @@ def choose_model(fit, machine, candidates, sessions=None) -> tuple:
             fits.append(None if i else calibration)
             continue
         fits.append(calibration)
+    chosen = _best(scores, fits)
+    return fits[chosen], scores, chosen
+
+
+def _fitted(fit, candidate, i: int):
+    """Candidate ``i`` fitted: its :class:`CandidateScore` (the redundancy set) and its
+    calibration, or None with the score's note saying why (the first candidate's
+    InputError raised)."""
+    score = CandidateScore(candidate.parameters, candidate.bed_tilt, candidate.words)
+    try:
+        calibration = fit(candidate.parameters, candidate.bed_tilt)
+    except InputError as exc:
+        if i == 0:
+            raise
+        score.note = f"not fitted: {exc}"
+        return score, None
+    score.redundancy = int(calibration.result.dof)
+    return score, calibration
+
+
+def _best(scores, fits) -> int:
+    """Index of the chosen candidate: the first unless a fitted one's score is lower than
+    the best so far by :data:`MIN_GAIN` (or the best so far has none)."""
     chosen = 0
     for i, score in enumerate(scores):
         if i == 0 or score.press is None or fits[i] is None:
@@ -296,7 +313,7 @@ def choose_model(fit, machine, candidates, sessions=None) -> tuple:
         best = scores[chosen].press
         if best is None or not np.isfinite(best) or score.press < (1.0 - MIN_GAIN) * best:
             chosen = i
-    return fits[chosen], scores, chosen
+    return chosen
 
 
 def _choose_by_sessions(fit, candidates, sessions):
@@ -306,18 +323,9 @@ def _choose_by_sessions(fit, candidates, sessions):
     fit_on, items, names = sessions
     scores, fits = [], []
     for i, c in enumerate(candidates):
-        score = CandidateScore(c.parameters, c.bed_tilt, c.words)
+        score, calibration = _fitted(fit, c, i)
         scores.append(score)
-        try:
-            calibration = fit(c.parameters, c.bed_tilt)
-        except InputError as exc:
-            if i == 0:
-                raise
-            score.note = f"not fitted: {exc}"
-            calibration = None
         fits.append(calibration)
-        if calibration is not None:
-            score.redundancy = int(calibration.result.dof)
     levels = noise_levels(items, fits)
     folds = []
     for i, (c, score) in enumerate(zip(candidates, scores, strict=True)):
@@ -341,13 +349,7 @@ def _choose_by_sessions(fit, candidates, sessions):
         if f is not None:
             score.press = sum(f[n][0] for n in common) / sum(f[n][1] for n in common)
             score.by_sessions = True
-    chosen = 0
-    for i, score in enumerate(scores):
-        if i == 0 or score.press is None or fits[i] is None:
-            continue
-        best = scores[chosen].press
-        if not np.isfinite(best) or score.press < (1.0 - MIN_GAIN) * best:
-            chosen = i
+    chosen = _best(scores, fits)
     left = [n for n in judged[0] if n not in common]
     if left:
         scores[chosen].note = ("sessions left out in turn: " + ", ".join(

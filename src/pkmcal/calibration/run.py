@@ -41,6 +41,9 @@ from ..instruments.flow import (
     json_safe,
     report_head,
     rows_text,
+    scalar_metadata,
+    scalar_residuals_json,
+    variance_json,
 )
 from ..instruments.flow import convergence_json as _convergence_json
 from ..instruments.flow import identifiability_json as _identifiability_json
@@ -1433,6 +1436,30 @@ def _check_joint_options(options: CalibrateOptions) -> None:
                              "FILE=VALUE, --robust and --holdout")
 
 
+def _source_and_kind(machine, item, i: int):
+    """The name and :class:`MeasurementKind` of data item ``i`` of several: a file's kind by
+    its columns (:func:`measurement_kind`), a data object's by its class and instrument
+    (named ``data{i+1}`` unless it has a source).
+
+    Raises
+    ------
+    InputError
+        When an object is no calibration data (or a file's columns fit no kind).
+    """
+    from ..io import read_table
+
+    if isinstance(item, (str, Path)):
+        source = Path(item)
+        header, _ = read_table(source)
+        return source, KINDS[measurement_kind(source, header, machine)]
+    source = getattr(item, "source", None) or f"data{i + 1}"
+    kind = next((k for k in _kinds() if k.data_class == type(item).__name__
+                 and getattr(item, "kind", k.instrument) in _names_of(k)), None)
+    if kind is None:
+        raise InputError(f"{path_text(source)}: {type(item).__name__} is no calibration data")
+    return source, kind
+
+
 def calibrate_joint(machine, data: list, *, noise=None, split=None,
                     options: CalibrateOptions | None = None) -> Calibration:
     """One geometry from several data files of instrument-layer kinds (``calibrate`` with a
@@ -1475,7 +1502,6 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     """
     from ..instruments import IsotropicNoise
     from ..instruments.joint import file_labels, fit_joint
-    from ..io import read_table
     from ..units import LENGTH
 
     _check_joint_options(options or CalibrateOptions())
@@ -1484,18 +1510,8 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                          "--noise bar.csv=2um)")
     sources, kinds = [], []
     for i, item in enumerate(data):
-        if isinstance(item, (str, Path)):
-            source = Path(item)
-            header, _ = read_table(source)
-            kinds.append(KINDS[measurement_kind(source, header, machine)])
-        else:
-            source = getattr(item, "source", None) or f"data{i + 1}"
-            kind = next((k for k in _kinds() if k.data_class == type(item).__name__
-                         and getattr(item, "kind", k.instrument) in _names_of(k)), None)
-            if kind is None:
-                raise InputError(f"{path_text(source)}: "
-                                 f"{type(item).__name__} is no calibration data")
-            kinds.append(kind)
+        source, kind = _source_and_kind(machine, item, i)
+        kinds.append(kind)
         sources.append(source)
     seen: dict = {}
     for s in sources:       # one file by two names (hard or symbolic links, ./x and x)
@@ -1646,10 +1662,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         "residuals": {
             "of": "every file's whitened residuals (measured - predicted, / assumed noise)",
             "count": int(np.isfinite(r).sum()),
-            "residual_variance": float(result.residual_variance),
-            "noise_scale": float(np.sqrt(result.residual_variance))
-            if np.isfinite(result.residual_variance) else None,
-            "dof": int(result.dof),
+            **variance_json(result),
         },
         "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
         "contributions": {**contributions.as_dict(fl, fa, (units["length"], units["angle"])),
@@ -1820,7 +1833,6 @@ def _calibrate_instrument(machine, data, source, options: CalibrateOptions, spli
     problem = result.extras["problem"]
     rms_after, r_after = _scalar_rms(problem, result.state, data)
     rms_before, _ = _scalar_rms(before.extras["problem"], before.state, data)
-    ok = np.isfinite(r_after)
     n_free = int(np.sum(result.parameters.free))
     unidentifiable = list(result.extras.get("unidentifiable", []))
     report = {
@@ -1829,26 +1841,14 @@ def _calibrate_instrument(machine, data, source, options: CalibrateOptions, spli
         "measurements": len(data),
         "noise": inst.noise_text(noise),
         "convergence": _convergence_json(result),
-        "residuals": {
-            "of": inst.residual_words,
-            "count": int(ok.sum()),
-            "rms_um": rms_after,
-            "max_abs_um": _um(float(np.max(np.abs(r_after[ok])))) if ok.any() else None,
-            "before_rms_um": rms_before,
-            "before": "machine file's model",
-            "residual_variance": float(result.residual_variance),
-            "noise_scale": float(np.sqrt(result.residual_variance))
-            if np.isfinite(result.residual_variance) else None,
-            "dof": int(result.dof),
-        },
+        "residuals": scalar_residuals_json(result, r_after, rms_after, rms_before,
+                                           inst.residual_words, "machine file's model"),
         "identifiability": _identifiability_json(n_free, int(result.rank), unidentifiable,
                                                  np.asarray(result.singular_values, float)),
         "parameters": _public(params),
     }
-    metadata = {"method": inst.name, "date": report["date"], "data": path_text(source),
-                "machine": _source_of(machine), "measurements": len(data),
-                "rms_residual_um": rms_after, "identifiable": int(result.rank),
-                "free_parameters": n_free, **_identifiability_metadata(unidentifiable)}
+    metadata = scalar_metadata(inst.name, report, source, machine, result, rms_after,
+                               len(data), unidentifiable)
     return _finish(inst.name, machine, calibrated, result, report, metadata, params, units)
 
 
@@ -2046,7 +2046,6 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
     s = np.asarray(result.singular_values, float)
     unidentifiable = list(result.extras.get("unidentifiable", []))
     bed, bed_before = result.extras["bed"], before.extras["bed"]
-    ok = np.isfinite(r_after)
 
     def plane(b):
         return {"height": b[0] / fl, "tilt_x": b[1], "tilt_y": b[2], "unit": units["length"],
@@ -2064,21 +2063,11 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
                 == "estimated"},
         "bed_frame": chosen["bed"].words,
         "convergence": _convergence_json(result),
-        "residuals": {
-            "of": "probe heights, measured - predicted (forward kinematics of the readings, "
-                  "height above the fitted bed along z)",
-            "count": int(ok.sum()),
-            "rms_um": rms_after,
-            "max_abs_um": _um(float(np.max(np.abs(r_after[ok])))) if ok.any() else None,
-            "before_rms_um": rms_before,
-            "before_max_abs_um": _um(float(np.nanmax(np.abs(r_before))))
-            if np.isfinite(r_before).any() else None,
-            "before": "machine file's model, bed plane (height and tilt) fitted alone",
-            "residual_variance": float(result.residual_variance),
-            "noise_scale": float(np.sqrt(result.residual_variance))
-            if np.isfinite(result.residual_variance) else None,
-            "dof": int(result.dof),
-        },
+        "residuals": scalar_residuals_json(
+            result, r_after, rms_after, rms_before,
+            "probe heights, measured - predicted (forward kinematics of the readings, height "
+            "above the fitted bed along z)",
+            "machine file's model, bed plane (height and tilt) fitted alone", r_before),
         "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
         "parameters": _public(params),
     }
@@ -2089,17 +2078,8 @@ def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) ->
             "the calibration rows", "um",
             _scalar_rms(before_problem, before.state, held)[0],
             _scalar_rms(problem, result.state, held)[0], rms_after)
-    metadata = {
-        "method": "probe",
-        "date": report["date"],
-        "data": path_text(source),
-        "machine": _source_of(machine),
-        "measurements": len(data),
-        "rms_residual_um": rms_after,
-        "identifiable": rank,
-        "free_parameters": n_free,
-        **_identifiability_metadata(unidentifiable),
-    }
+    metadata = scalar_metadata("probe", report, source, machine, result, rms_after, len(data),
+                               unidentifiable)
     return _finish("probe", machine, calibrated, result, report, metadata, params, units)
 
 

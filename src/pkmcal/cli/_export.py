@@ -85,6 +85,21 @@ def _output_target(fmt, output) -> tuple[Path, bool]:
     return path, directory
 
 
+def _machine_and_inputs(machine_spec: str, nominal: str | None, workspace: str | None):
+    """The machine of ``machine_spec`` and the files export reads (never to be overwritten):
+    the machine files, an existing ``--workspace`` file and the calibration's report the
+    calibrated file pins."""
+    inputs = _machine_inputs(machine_spec) + (_machine_inputs(nominal) if nominal else [])
+    if workspace is not None and Path(workspace).exists():
+        inputs.append(Path(workspace))
+    machine = load_machine_arg(machine_spec)
+    # the calibration's report, which the calibrated file pins, is an input too
+    pinned = _pinned_report(machine, machine_spec)
+    if pinned is not None:
+        inputs.append(pinned)
+    return machine, inputs
+
+
 def run_export(machine_spec: str, to: str, output, nominal: str | None = None,
                workspace: str | None = None, seed: int = 0) -> int:
     """``pkmcal export``: fit the controller's values, write FILE and FILE.json (or, for a
@@ -97,14 +112,7 @@ def run_export(machine_spec: str, to: str, output, nominal: str | None = None,
         return _export_configuration(fmt, machine_spec, output, nominal, workspace, seed)
     # no record beside /dev/null or a pipe (as calibrate writes no report beside them)
     record_path = None if is_stream(output) else output.with_name(output.name + ".json")
-    inputs = _machine_inputs(machine_spec) + (_machine_inputs(nominal) if nominal else [])
-    if workspace is not None and Path(workspace).exists():
-        inputs.append(Path(workspace))
-    machine = load_machine_arg(machine_spec)
-    # the calibration's report, which the calibrated file pins, is an input too
-    pinned = _pinned_report(machine, machine_spec)
-    if pinned is not None:
-        inputs.append(pinned)
+    machine, inputs = _machine_and_inputs(machine_spec, nominal, workspace)
     # onto an existing controller file: saved as the controller saves (the previous file kept
     # beside it, dated), where the format knows how; read before anything is written
     existing = backup = None
@@ -181,13 +189,7 @@ def _export_configuration(fmt, machine_spec: str, directory: Path, nominal: str 
 
     record_path = directory / "export.json"
     paths = [directory / name for name in CONFIG_FILES] + [record_path]
-    inputs = _machine_inputs(machine_spec) + (_machine_inputs(nominal) if nominal else [])
-    if workspace is not None and Path(workspace).exists():
-        inputs.append(Path(workspace))
-    machine = load_machine_arg(machine_spec)
-    pinned = _pinned_report(machine, machine_spec)
-    if pinned is not None:
-        inputs.append(pinned)
+    machine, inputs = _machine_and_inputs(machine_spec, nominal, workspace)
     check_outputs(paths, inputs, [directory])
     before = _checked_machines(fmt, machine, machine_spec, nominal)
     ws = _workspace(machine, workspace, seed)

@@ -424,6 +424,46 @@ def stepper_order(angles) -> np.ndarray:
     return np.array([0, 1, 2]) if turn > 0 else np.array([0, 2, 1])
 
 
+def config_to_update(existing: str, source: str, kinematics: str, what: str,
+                     fold_case: bool = False):
+    """An existing ``printer.cfg`` read to save values into (``update`` of the Klipper
+    formats), refused unless its ``[printer] kinematics`` is ``kinematics``.
+
+    Parameters
+    ----------
+    existing : str
+        The file's text.
+    source : str
+        Its name, for messages.
+    kinematics : str
+        The kinematics the format writes (``delta``).
+    what : str
+        The config in words (``delta printer's config``), for the message.
+    fold_case : bool
+        Compare the file's kinematics in lower case.
+
+    Returns
+    -------
+    KlipperConfig
+        The file read (Klipper's precedence and includes).
+
+    Raises
+    ------
+    InputError
+        When the file is of other (or no) kinematics.
+    """
+    from ..io.klipper_config import KlipperConfig
+
+    cfg = KlipperConfig.read(source, existing)
+    kin = cfg.entry("printer", "kinematics")
+    value = None if kin is None else kin.value.strip()
+    if value is None or (value.lower() if fold_case else value) != kinematics:
+        raise InputError(f"{source}: exists and is not a Klipper {what} ([printer] "
+                         f"kinematics: {kinematics}); choose another output name (a new "
+                         "file gets the values as a fragment)")
+    return cfg
+
+
 def order_problem(angles, word: str) -> str | None:
     """Why towers (legs) at these angles cannot be ordered for Klipper (None: they can).
 
@@ -764,14 +804,10 @@ class KlipperDelta(ControllerFormat):
             When the file is not a Klipper delta config, or an ``[include]`` file defines one
             of the values (Klipper refuses to save it then).
         """
-        from ..io.klipper_config import KlipperConfig, save_config_text
+        from ..io.klipper_config import save_config_text
 
-        cfg = KlipperConfig.read(source, existing)
-        kin = cfg.entry("printer", "kinematics")
-        if kin is None or kin.value.strip().lower() != "delta":
-            raise InputError(f"{source}: exists and is not a Klipper delta printer's config "
-                             "([printer] kinematics: delta); choose another output name (a "
-                             "new file gets the values as a fragment)")
+        cfg = config_to_update(existing, source, "delta", "delta printer's config",
+                               fold_case=True)
         return save_config_text(existing, self.saved_values(params), source, cfg)
 
     def values_text(self, params: ControllerParameters) -> list[tuple[str, str]]:

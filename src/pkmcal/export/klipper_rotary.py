@@ -777,14 +777,10 @@ class KlipperRotaryDelta(ControllerFormat):
             When the file is not a Klipper rotary_delta config, or an ``[include]`` file
             defines one of the values.
         """
-        from ..io.klipper_config import KlipperConfig, save_config_text
+        from ..io.klipper_config import save_config_text
+        from .klipper import config_to_update
 
-        cfg = KlipperConfig.read(source, existing)
-        kin = cfg.entry("printer", "kinematics")
-        if kin is None or kin.value.strip() != "rotary_delta":
-            raise InputError(f"{source}: exists and is not a Klipper rotary_delta config "
-                             "([printer] kinematics: rotary_delta); choose another output name "
-                             "(a new file gets the values as a fragment)")
+        cfg = config_to_update(existing, source, "rotary_delta", "rotary_delta config")
         radius, height, upper, lower, angles, endstops, _, _ = self.unpack(params)
         values = {("printer", "shoulder_radius"): f"{radius * 1e3:.6f}",
                   ("printer", "shoulder_height"): f"{height * 1e3:.6f}"}

@@ -884,9 +884,11 @@ def _space_words(machine: Machine) -> str:
     return ", ".join(("x", "y", "z", "rx", "ry", "rz")[i] for i in machine.pose_space)
 
 
-def _sigma_arg(text, machine, what: str, default: float) -> float:
+def _sigma_arg(text, machine, what: str, default: float, allow_zero: bool = False) -> float:
     """A standard deviation of ``--noise`` (text with a unit or an SI number; None: the
-    default), m; checked against the machine's size when given."""
+    default), m; checked against the machine's size when given. ``allow_zero``: 0 is taken
+    (exact data) and returned unchecked; ``what`` names the reading in the message
+    (``the encoder noise``)."""
     from ..plausibility import check_option_scale
     from ..units import parse_quantity
 
@@ -894,12 +896,28 @@ def _sigma_arg(text, machine, what: str, default: float) -> float:
         return default
     sigma = parse_quantity(text, "length", "--noise") if isinstance(text, str) \
         else float(text)
-    if not sigma > 0:
-        raise InputError(f"--noise: must be > 0 (the standard deviation of the {what}), "
+    if not (sigma > 0 or (allow_zero and sigma == 0)):
+        raise InputError(f"--noise: must be > 0 (the standard deviation of {what}), "
                          f"got {text}")
+    if sigma == 0:
+        return 0.0
     if machine is not None:
         check_option_scale(sigma, machine, "--noise", "noise", str(text))
     return sigma
+
+
+def _noise_model_arg(instrument, text, machine, what: str, allow_zero: bool = False):
+    """The isotropic noise model of ``--noise`` for an instrument with one length reading
+    (text with a unit, an SI number or a noise model; None: ``instrument.default_noise()``);
+    ``allow_zero``: 0 gives exact data (False). ``what`` as :func:`_sigma_arg`."""
+    from .models import IsotropicNoise
+
+    if text is None:
+        return instrument.default_noise()
+    if hasattr(text, "whitening"):
+        return text
+    sigma = _sigma_arg(text, machine, what, None, allow_zero)
+    return IsotropicNoise(sigma) if sigma else False
 
 
 def _simulated_sigma(noise, default: str, machine: Machine) -> float:

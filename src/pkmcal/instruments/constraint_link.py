@@ -1863,19 +1863,9 @@ def link_noise_arg(text: str | float | None, machine=None) -> float:
     InputError
         When it is not a positive length or implausible for the machine.
     """
-    from ..plausibility import check_option_scale
-    from ..units import parse_quantity
-
     if text is None or (isinstance(text, str) and not text):
         text = "1um"
-    sigma = float(text) if isinstance(text, (int, float)) else \
-        parse_quantity(text, "length", "--noise")
-    if not sigma > 0:
-        raise InputError(f"--noise: must be > 0 (the standard deviation of the encoder "
-                         f"noise), got {text}")
-    if machine is not None:
-        check_option_scale(sigma, machine, "--noise", "noise", str(text))
-    return sigma
+    return _sigma_arg(text, machine, "the encoder noise", None)
 
 
 @dataclass(frozen=True, slots=True)
@@ -2080,7 +2070,7 @@ class ConstraintLink(Instrument):
 
     def noise_arg(self, text, machine=None):
         """The encoder noise of ``--noise`` (default 1 um), m."""
-        return _sigma_arg(text, machine, "encoder noise", 1e-6)
+        return _sigma_arg(text, machine, "the encoder noise", 1e-6)
 
     #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
     reader = "read_constraint_link"

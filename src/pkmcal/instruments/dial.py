@@ -28,7 +28,7 @@ import numpy as np
 from ..errors import InputError
 from ..kinematics import skew
 from ..parameters import ParameterSet
-from .base import Instrument, _simulated_sigma, reachable
+from .base import Instrument, _noise_model_arg, _simulated_sigma, reachable
 from .data import InstrumentData
 from .experiment import MOUNTING_ERROR, given_poses, mm_text, noise_model, simulate_instrument
 from .models import IsotropicNoise, NuisanceModel
@@ -223,23 +223,7 @@ class Dial(Instrument):
         InputError
             Naming ``--noise``: not a length, not above 0, or beyond the machine's scale.
         """
-        from ..plausibility import check_option_scale
-        from ..units import parse_quantity
-
-        if text is None:
-            return self.default_noise()
-        if hasattr(text, "whitening"):
-            return text
-        sigma = parse_quantity(text, "length", "--noise") if isinstance(text, str) \
-            else float(text)
-        if not (sigma > 0 or (allow_zero and sigma == 0)):
-            raise InputError(f"--noise: must be > 0 (the standard deviation of a dial "
-                             f"reading), got {text}")
-        if sigma == 0:
-            return False
-        if machine is not None:
-            check_option_scale(sigma, machine, "--noise", "noise", str(text))
-        return IsotropicNoise(sigma)
+        return _noise_model_arg(self, text, machine, "a dial reading", allow_zero)
 
     def planned_data(self, machine, P, R, rows, source, group=None):
         """A dial along :func:`planned_axis` (``+z``, or a planar machine's ``+y``) touching

@@ -47,13 +47,12 @@ from .flow import (
     convergence_json,
     fit_with_baseline,
     identifiability_json,
-    identifiability_metadata,
     only_for_poses,
     option,
     public_parameters,
+    scalar_metadata,
+    scalar_residuals_json,
     scalar_rms,
-    source_of,
-    um,
     validation_section,
 )
 from .models import DistancesModel, IsotropicNoise
@@ -511,7 +510,7 @@ class Distance(Instrument):
 
         if text is not None and not isinstance(text, (str, int, float)):
             return text
-        return IsotropicNoise(_sigma_arg(text, machine, "ballbar lengths", 1e-6))
+        return IsotropicNoise(_sigma_arg(text, machine, "the ballbar lengths", 1e-6))
 
     #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
     reader = "read_distances"
@@ -650,7 +649,6 @@ def _calibration_flow(machine, data, context: FlowContext,
     s = np.asarray(result.singular_values, float)
     unidentifiable = list(result.extras.get("unidentifiable", []))
     setups = result.extras["setups"]
-    ok = np.isfinite(r_after)
     report = {
         **context.head(machine, "distance", "joint"),
         "units": units,
@@ -660,18 +658,10 @@ def _calibration_flow(machine, data, context: FlowContext,
                     "pivot": (p / fl).tolist(), "ball": (b / fl).tolist(),
                     "unit": units["length"]} for g, (p, b) in enumerate(setups)],
         "convergence": convergence_json(result),
-        "residuals": {
-            "of": "ballbar lengths, measured - predicted (forward kinematics of the readings)",
-            "count": int(ok.sum()),
-            "rms_um": rms_after,
-            "max_abs_um": um(float(np.max(np.abs(r_after[ok])))) if ok.any() else None,
-            "before_rms_um": rms_before,
-            "before": "machine file's model, mountings (pivots and balls) fitted alone",
-            "residual_variance": float(result.residual_variance),
-            "noise_scale": float(np.sqrt(result.residual_variance))
-            if np.isfinite(result.residual_variance) else None,
-            "dof": int(result.dof),
-        },
+        "residuals": scalar_residuals_json(
+            result, r_after, rms_after, rms_before,
+            "ballbar lengths, measured - predicted (forward kinematics of the readings)",
+            "machine file's model, mountings (pivots and balls) fitted alone"),
         "identifiability": identifiability_json(n_free, rank, unidentifiable, s),
         "parameters": public_parameters(params),
     }
@@ -682,17 +672,8 @@ def _calibration_flow(machine, data, context: FlowContext,
             "alone on the calibration rows", "um",
             scalar_rms(before_problem, before.state, held)[0],
             scalar_rms(problem, result.state, held)[0], rms_after)
-    metadata = {
-        "method": "ballbar",
-        "date": report["date"],
-        "data": path_text(source),
-        "machine": source_of(machine),
-        "measurements": len(data),
-        "rms_residual_um": rms_after,
-        "identifiable": rank,
-        "free_parameters": n_free,
-        **identifiability_metadata(unidentifiable),
-    }
+    metadata = scalar_metadata("ballbar", report, source, machine, result, rms_after, len(data),
+                               unidentifiable)
     return FlowResult("distance", machine, calibrated, result, report, metadata, params, units)
 
 

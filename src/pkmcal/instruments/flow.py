@@ -369,6 +369,39 @@ def scalar_rms(problem, state, data) -> tuple[float | None, np.ndarray]:
     return (um(math.sqrt(float(np.mean(r[ok] ** 2)))) if ok.any() else None), r
 
 
+def variance_json(result) -> dict:
+    """The residual variance, its square root (the noise scale, None when not finite) and the
+    degrees of freedom of an estimator's result, for a report's residuals section."""
+    return {"residual_variance": float(result.residual_variance),
+            "noise_scale": float(np.sqrt(result.residual_variance))
+            if np.isfinite(result.residual_variance) else None,
+            "dof": int(result.dof)}
+
+
+def scalar_residuals_json(result, r_after, rms_after, rms_before, of: str, before: str,
+                          r_before=None) -> dict:
+    """The report's residuals section of a one-value instrument (:func:`scalar_rms`'s RMS and
+    residuals after and before the fit; with ``r_before`` its largest too)."""
+    ok = np.isfinite(r_after)
+    out = {"of": of, "count": int(ok.sum()), "rms_um": rms_after,
+           "max_abs_um": um(float(np.max(np.abs(r_after[ok])))) if ok.any() else None,
+           "before_rms_um": rms_before}
+    if r_before is not None:
+        out["before_max_abs_um"] = um(float(np.nanmax(np.abs(r_before)))) \
+            if np.isfinite(r_before).any() else None
+    return {**out, "before": before, **variance_json(result)}
+
+
+def scalar_metadata(method: str, report: dict, source, machine, result, rms_after,
+                    measurements: int, unidentifiable) -> dict:
+    """The calibrated file's metadata of a one-value instrument's calibration."""
+    return {"method": method, "date": report["date"], "data": path_text(source),
+            "machine": source_of(machine), "measurements": measurements,
+            "rms_residual_um": rms_after, "identifiable": int(result.rank),
+            "free_parameters": int(np.sum(result.parameters.free)),
+            **identifiability_metadata(unidentifiable)}
+
+
 def fit_with_baseline(machine, data, context: FlowContext, fit, noise, advice: str, *,
                       estimate_noise: bool, robust: bool):
     """What the instrument-layer flows share: read and split the data, fit the instrument

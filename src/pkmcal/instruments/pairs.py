@@ -26,7 +26,7 @@ from ..machines.reach import (
 )
 from ..parameters import ParameterSet
 from ..paths import path_text
-from .base import Instrument, StandardPlan, has_column, reachable
+from .base import Instrument, StandardPlan, _noise_model_arg, has_column, reachable
 from .data import InstrumentData
 from .experiment import MOUNTING_ERROR
 from .models import NuisanceModel
@@ -212,23 +212,7 @@ class PairDistance(Instrument):
         InputError
             Naming ``--noise``: not a length, not above 0, or beyond the machine's scale.
         """
-        from ..plausibility import check_option_scale
-        from ..units import parse_quantity
-        from .models import IsotropicNoise
-
-        if text is None:
-            return self.default_noise()
-        if hasattr(text, "whitening"):
-            return text
-        sigma = parse_quantity(text, "length", "--noise") if isinstance(text, str) \
-            else float(text)
-        if not (sigma > 0 or (allow_zero and sigma == 0)):
-            raise InputError(f"--noise: must be > 0 (the standard deviation of a measured "
-                             f"distance), got {text}")
-        if sigma == 0:
-            return False
-        check_option_scale(sigma, machine, "--noise", "noise", str(text))
-        return IsotropicNoise(sigma)
+        return _noise_model_arg(self, text, machine, "a measured distance", allow_zero)
 
     def candidates(self, machine, n, rng):
         raise InputError("pair-distances: poses are chosen in pairs (one distance each); "

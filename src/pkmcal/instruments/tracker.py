@@ -75,6 +75,7 @@ from .flow import (
     source_of,
     split_rows,
     validation_section,
+    variance_json,
 )
 from .models import NuisanceState, PointsModel
 from .problem import InstrumentProblem, InstrumentState
@@ -1475,10 +1476,7 @@ def _calibration_flow(machine, data, context: FlowContext,
             "before_rms_um": rms(norm0[kept]),
             "before": "machine file's model, closed-form registration" if given else
                       "machine file's model, tracker frame and targets fitted alone",
-            "residual_variance": float(result.residual_variance),
-            "noise_scale": float(np.sqrt(result.residual_variance))
-            if np.isfinite(result.residual_variance) else None,
-            "dof": int(result.dof),
+            **variance_json(result),
             "outliers": [{"row": int(row), "residual_um": float(v * 1e6)} for row, v in
                          zip(data.rows[~kept], norm[~kept], strict=True)],
         },
