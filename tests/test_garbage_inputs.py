@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import os
 import types
+from pathlib import Path
 
 import pytest
 
@@ -20,6 +21,7 @@ from clitools import assert_input_error, run
 from pkmcal.export.base import FOREIGN_SCAN_LINES
 from pkmcal.io import csv_io
 
+ROOT = Path(__file__).resolve().parents[1]
 SIZE = 50 * 2**20
 WORDS = ("alpha", "beta", "gamma", "delta", "eps", "zeta", "eta", "theta", "iota", "kappa")
 
@@ -142,3 +144,26 @@ def test_a_50mb_calibration_report_of_words_is_refused_at_its_first_character(bi
     proc = run("compensate", "default", "t.csv", "--report", _link(big, tmp_path, "r.json"),
                "-o", "c.csv", cwd=tmp_path)
     assert_input_error(proc, "r.json", "not JSON (line 1, column 1)")
+
+
+def test_a_50mb_probe_report_of_words_is_read_in_proportion(tmp_path, monkeypatch):
+    """A pasted probe report (calibrate's data) whose one report line is followed by 50 MB of
+    words: every line went through the report's patterns (15 s of CPU); now the reader leaves
+    the text REPORT_GAP lines after the report's last line (counted: the lines it looks at)."""
+    from pkmcal.export import firmware_reports, marlin
+
+    seen = {"n": 0}
+    host_line = marlin.host_line
+
+    def counting(raw):
+        seen["n"] += 1
+        return host_line(raw)
+
+    monkeypatch.setattr(marlin, "host_line", counting)
+    report = _garbage(tmp_path / "report.txt", header="Bed X: 0.000 Y: 0.000 Z: 0.100\n")
+    proc = run("calibrate", str(ROOT / "examples" / "linear_delta.yaml"), report.name,
+               "-o", "x.yaml", cwd=tmp_path)
+    assert_input_error(proc, "report.txt", "1 probe height(s)")
+    # a few passes over the report block (its lines, its commands, the values in force)
+    assert 0 < seen["n"] <= 4 * (firmware_reports.REPORT_GAP + 1)
+    assert not (tmp_path / "x.yaml").exists()

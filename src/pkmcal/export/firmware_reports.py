@@ -191,6 +191,11 @@ def _values(firmware: str, text: str, source: str, first: int, last: int, notes:
     return params
 
 
+#: lines of a pasted log after the probe report's last line (or its G30 / M665 / M666 commands)
+#: that are read before the rest is left: a report is one block of a log
+REPORT_GAP = 1000
+
+
 def read_probe_report(text: str, source: str) -> ProbeReport:
     """The probed heights of a pasted Marlin or RepRapFirmware probe report.
 
@@ -221,7 +226,16 @@ def read_probe_report(text: str, source: str) -> ProbeReport:
 
     raw_lines = text.splitlines()
     marlin, rrf = [], []
+    last = 0                        # the last line of the report or of its commands
     for n, raw in enumerate(raw_lines, 1):
+        if n - last > REPORT_GAP:
+            # a report is a block of a pasted log: what follows a long stretch without one of
+            # its lines is not read (a large file of something else is answered at once)
+            raw_lines = raw_lines[:last]
+            text = "\n".join(raw_lines)
+            break
+        if "G30" in raw or "M66" in raw:
+            last = n
         line, sent = host_line(raw)
         if sent or not line:
             continue
@@ -230,11 +244,13 @@ def read_probe_report(text: str, source: str) -> ProbeReport:
                 raise InputError(f"{source}: line {n}: {why}")
         m = _MARLIN_BED.match(line)
         if m:
+            last = n
             marlin.append((n, *(_number(m.group(k + 1), source, n, f"Bed {a}")
                                 for k, a in enumerate("XYZ"))))
             continue
         m = _RRF_HEIGHTS.match(line)
         if m:
+            last = n
             rrf.append((n, _rrf_heights(n, m.group(1), source)))
     if marlin and rrf:
         first = max(marlin[0][0], rrf[0][0])
