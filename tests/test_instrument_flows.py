@@ -21,7 +21,7 @@ IDS = [inst.name for inst in FLOWS]
 
 
 def test_the_older_instruments_bring_their_flows_and_the_registry_dispatches_them():
-    assert {"tracker", "pose", "distance", "constraint-link"} <= set(IDS)
+    assert {"tracker", "pose", "distance", "constraint-link", "probe"} <= set(IDS)
     for inst in FLOWS:
         kind = KINDS[inst.name]
         assert kind.calibrate.func is _calibrate_flow, inst.name

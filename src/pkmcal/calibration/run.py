@@ -1338,12 +1338,13 @@ def _joint_distances(machine, data, source, noise) -> JointPart:
 
 def _joint_probe(machine, data, source, noise) -> JointPart:
     from ..instruments import ProbeModel
-    from ..instruments.probe import bed_choice
+    from ..instruments.probe import _check_heights, bed_choice
+    from ..instruments.registry import instrument
     from ..io import read_probe
 
     probe = _load(data, read_probe, machine)
     noise_model = (probe.weights[0] if noise is None and probe.weights is not None
-                   else _probe_noise(noise, machine))
+                   else instrument("probe").noise_arg(noise, machine))
     probe.source = str(source)
     _check_heights(probe, machine)
 
@@ -1739,6 +1740,7 @@ def register_joint_part(name: str, joint: Callable) -> Callable:
 
 register_joint_part("tracker", _joint_tracker)
 register_joint_part("distance", _joint_distances)
+register_joint_part("probe", _joint_probe)
 
 
 def _io_reader(name: str):
@@ -1880,46 +1882,6 @@ def instrument_kind(inst) -> MeasurementKind:
                            partial(_joint_instrument, inst=inst))
 
 
-#: a common offset of the probe heights against the machine file's model beyond this (m) is
-#: checked for a flipped sign or a wrong unit (below it the two cannot be told from a
-#: machine file's endstop error)
-HEIGHT_CHECK = 2e-4
-
-
-def _check_heights(data, machine) -> None:
-    """Probe heights with a flipped sign or a wrong unit, refused naming the fix.
-
-    On a machine whose frame is its bed the machine file's model puts the nozzle at a height
-    for each row's readings; the saved heights sit about there (the file's values are the
-    firmware's). When they sit ``HEIGHT_CHECK`` or more away from it and their negatives, or
-    the same numbers in mm / um, sit ten times closer, the sign or the unit is wrong.
-    """
-    if not getattr(machine, "frame_is_bed", False) or not len(data):
-        return
-    fk = machine.fk(data.q)
-    if not fk.converged.all():
-        return
-    z = np.asarray(fk.P, float)[:, 2]
-    h = np.asarray(data.values, float)[:, 0]
-    offset = abs(float(np.median(z - h)))
-    if offset < HEIGHT_CHECK:
-        return
-    fixes = (("the opposite sign", -h, "probe_z is the nozzle's height ABOVE the bed when the "
-              "probe triggers (Klipper's heightN and [probe] z_offset; Marlin's M851 Z is its "
-              "negative): flip the sign"),
-             ("in um", h * 1e-3, "the unit of probe_z is wrong (the numbers are um)"),
-             ("in mm", h * 1e3, "the unit of probe_z is wrong (the numbers are mm)"))
-    for words, other, fix in fixes:
-        if abs(float(np.median(z - other))) < 0.1 * offset:
-            raise InputError(f"{path_text(data.source)}: "
-                             f"the probe heights sit {offset * 1e3:.4g} mm "
-                             f"from where the machine file puts the nozzle, and {words} "
-                             f"within {abs(float(np.median(z - other))) * 1e3:.3g} mm of it: "
-                             f"{fix} (or, if the machine file's position_endstop values are "
-                             "that far from the ones the data were probed with, import the "
-                             "config the data were saved with)")
-
-
 def _head(item) -> str:
     """A data file's first 4 kB (empty when it cannot be read)."""
     try:
@@ -1995,95 +1957,6 @@ def expand_firmware_data(data, machine):
         return data
     return out[0] if len(out) == 1 else out
 
-
-# -- bed-probe heights (issue 14 items 2, 3) --------------------------------------------------
-
-
-def _check_probe(options: CalibrateOptions, source) -> None:
-    _only_for_poses(options, source, "probe")
-    for option, given in (("--method", options.method is not None),
-                          ("--estimate-lc", options.estimate_lc is not None),
-                          ("--two-step", options.two_step)):
-        if given:
-            raise InputError(f"{option}: does not apply to probe heights ({path_text(source)}); "
-                             "see "
-                             "--noise (the probe's repeatability along z, default 10um), "
-                             "--robust")
-
-
-def _probe_noise(noise, machine):
-    """The probe noise of ``--noise`` (:meth:`~pkmcal.instruments.probe.Probe.noise_arg`)."""
-    from ..instruments.registry import instrument
-
-    return instrument("probe").noise_arg(noise, machine)
-
-
-def _calibrate_probe(machine, data, source, options: CalibrateOptions, split) -> Calibration:
-    from ..instruments.probe import bed_choice, calibrate_probe
-    from ..io import read_probe
-    from ..units import LENGTH
-
-    noise = _probe_noise(options.noise, machine)
-    chosen: dict = {}
-
-    def fit(machine_, data_, noise_, **kwargs):
-        # one bed model for the fit and its baseline, chosen on the parameter set's unknowns
-        if "bed" not in chosen:
-            _check_heights(data_, machine)
-            chosen["bed"] = bed_choice(machine, data_, noise_, options.bed_tilt or "auto")
-        return calibrate_probe(machine_, data_, noise_, bed=chosen["bed"], **kwargs)
-
-    data, held, result, before, calibrated, params, units = _fit_with_baseline(
-        machine, data, source, split, read_probe, fit, noise,
-        "probe over the whole bed (the centre and rings out to the edge of the reachable "
-        "radius)", options)
-    fl = LENGTH[units["length"]]
-    problem, before_problem = result.extras["problem"], before.extras["problem"]
-    rms_after, r_after = _scalar_rms(problem, result.state, data)
-    rms_before, r_before = _scalar_rms(before_problem, before.state, data)
-    rank = int(result.rank)
-    n_free = int(np.sum(result.parameters.free))
-    s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
-    bed, bed_before = result.extras["bed"], before.extras["bed"]
-
-    def plane(b):
-        return {"height": b[0] / fl, "tilt_x": b[1], "tilt_y": b[2], "unit": units["length"],
-                "tilt": "slopes dz/dx, dz/dy"}
-
-    report = {
-        **_report_head(machine, source, "probe", "joint"),
-        "units": units,
-        "measurements": len(data),
-        "noise": f"probe trigger {noise.sigma * 1e6:.4g} um along z (std)",
-        "bed": {**plane(bed), "before": plane(bed_before),
-                "model": "z = height + tilt_x x + tilt_y y (base frame); heights measured "
-                         "along z",
-                "frame": chosen["bed"].words, "tilt_estimated": chosen["bed"].tilt
-                == "estimated"},
-        "bed_frame": chosen["bed"].words,
-        "convergence": _convergence_json(result),
-        "residuals": scalar_residuals_json(
-            result, r_after, rms_after, rms_before,
-            "probe heights, measured - predicted (forward kinematics of the readings, height "
-            "above the fitted bed along z)",
-            "machine file's model, bed plane (height and tilt) fitted alone", r_before),
-        "identifiability": _identifiability_json(n_free, rank, unidentifiable, s),
-        "parameters": _public(params),
-    }
-    if held is not None:
-        report["validation"] = _validation(
-            split, held, "probe heights of the held-out rows, measured - predicted with the "
-            "identified bed; before: the machine file's model with the bed fitted alone on "
-            "the calibration rows", "um",
-            _scalar_rms(before_problem, before.state, held)[0],
-            _scalar_rms(problem, result.state, held)[0], rms_after)
-    metadata = scalar_metadata("probe", report, source, machine, result, rms_after, len(data),
-                               unidentifiable)
-    return _finish("probe", machine, calibrated, result, report, metadata, params, units)
-
-
-register_kind(MeasurementKind("probe", _calibrate_probe, _check_probe, _joint_probe))
 
 # every instrument without handlers of its own calibrates by the generic path
 _kinds()

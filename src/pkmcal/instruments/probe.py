@@ -32,6 +32,7 @@ machine's size at its scale, 0.1 mm on a 250 mm printer); the probe says what to
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -59,6 +60,20 @@ from .base import (
 from .bed import BedChoice, bed_choice
 from .data import InstrumentData
 from .experiment import MOUNTING_ERROR
+from .flow import (
+    FlowContext,
+    FlowResult,
+    convergence_json,
+    fit_with_baseline,
+    identifiability_json,
+    only_for_poses,
+    option,
+    public_parameters,
+    scalar_metadata,
+    scalar_residuals_json,
+    scalar_rms,
+    validation_section,
+)
 from .models import IsotropicNoise, ProbeModel
 from .problem import InstrumentProblem, fit_instrument
 
@@ -298,6 +313,21 @@ def _refuse_points_outside_limits(machine: Machine, P, R, words: str) -> None:
                and not callable(machine.probe_radius) else ""))
 
 
+@dataclass(frozen=True, slots=True)
+class ProbeOptions:
+    """The options of the probe's calibration flow (:meth:`Probe.calibrate`)."""
+
+    noise: object = option(
+        None, "--noise", "The probe's repeatability along z (default 10um); held as given, "
+        "else estimated from the residuals.")
+    robust: bool = option(
+        False, "--robust", "Leave out the rows the noise cannot explain (a chi-square test of "
+        "each row) and fit again.")
+    bed_tilt: str | None = option(
+        None, "--bed-tilt", "Probe heights on a printer: auto (the bed's tilt estimated where "
+        "the data tell it from the parameter set), estimate or square.")
+
+
 class Probe(Instrument):
     """Bed-probe heights: the nozzle's height above a flat bed of unknown height and tilt."""
 
@@ -521,6 +551,17 @@ class Probe(Instrument):
 
     #: the io reader of its CSV files (:func:`pkmcal.io.read_measurements`)
     reader = "read_probe"
+    Options = ProbeOptions
+
+    def check_options(self, options, source) -> None:
+        """``--method``, ``--estimate-lc``, ``--two-step`` and the full-pose options refused
+        (see :meth:`~pkmcal.instruments.base.Instrument.check_options`)."""
+        _check_options(options, source)
+
+    def calibrate(self, machine: Machine, data, context, options):
+        """The geometry and the bed plane, the heights' residuals before (the bed fitted
+        alone) and after (see :meth:`~pkmcal.instruments.base.Instrument.calibrate`)."""
+        return _calibration_flow(machine, data, context, options)
 
     def measured_problem(self, machine, data, noise=None, source=""):
         """The bed's height and tilt started from the data on the machine's geometry."""
@@ -603,6 +644,127 @@ def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: fl
         if fit_machine else [])
     return result
 
+
+
+# -- calibration flow (pkmcal calibrate; issue 14 items 2, 3) ---------------------------------
+
+#: a common offset of the probe heights against the machine file's model beyond this (m) is
+#: checked for a flipped sign or a wrong unit (below it the two cannot be told from a
+#: machine file's endstop error)
+HEIGHT_CHECK = 2e-4
+
+
+def _check_heights(data, machine) -> None:
+    """Probe heights with a flipped sign or a wrong unit, refused naming the fix.
+
+    On a machine whose frame is its bed the machine file's model puts the nozzle at a height
+    for each row's readings; the saved heights sit about there (the file's values are the
+    firmware's). When they sit ``HEIGHT_CHECK`` or more away from it and their negatives, or
+    the same numbers in mm / um, sit ten times closer, the sign or the unit is wrong.
+    """
+    if not getattr(machine, "frame_is_bed", False) or not len(data):
+        return
+    fk = machine.fk(data.q)
+    if not fk.converged.all():
+        return
+    z = np.asarray(fk.P, float)[:, 2]
+    h = np.asarray(data.values, float)[:, 0]
+    offset = abs(float(np.median(z - h)))
+    if offset < HEIGHT_CHECK:
+        return
+    fixes = (("the opposite sign", -h, "probe_z is the nozzle's height ABOVE the bed when the "
+              "probe triggers (Klipper's heightN and [probe] z_offset; Marlin's M851 Z is its "
+              "negative): flip the sign"),
+             ("in um", h * 1e-3, "the unit of probe_z is wrong (the numbers are um)"),
+             ("in mm", h * 1e3, "the unit of probe_z is wrong (the numbers are mm)"))
+    for words, other, fix in fixes:
+        if abs(float(np.median(z - other))) < 0.1 * offset:
+            raise InputError(f"{path_text(data.source)}: "
+                             f"the probe heights sit {offset * 1e3:.4g} mm "
+                             f"from where the machine file puts the nozzle, and {words} "
+                             f"within {abs(float(np.median(z - other))) * 1e3:.3g} mm of it: "
+                             f"{fix} (or, if the machine file's position_endstop values are "
+                             "that far from the ones the data were probed with, import the "
+                             "config the data were saved with)")
+
+
+def _check_options(options, source) -> None:
+    """Options of ``pkmcal calibrate`` the probe's flow does not take, refused naming them."""
+    only_for_poses(options, source, "probe")
+    for option_, given in (("--method", options.method is not None),
+                           ("--estimate-lc", options.estimate_lc is not None),
+                           ("--two-step", options.two_step)):
+        if given:
+            raise InputError(f"{option_}: does not apply to probe heights "
+                             f"({path_text(source)}); see "
+                             "--noise (the probe's repeatability along z, default 10um), "
+                             "--robust")
+
+
+def _calibration_flow(machine, data, context: FlowContext,
+                      options: ProbeOptions) -> FlowResult:
+    """``pkmcal calibrate`` from probe heights (:meth:`Probe.calibrate`)."""
+    from ..units import LENGTH
+
+    source, split = context.source, context.split
+    noise = INSTRUMENT.noise_arg(options.noise, machine)
+    chosen: dict = {}
+
+    def fit(machine_, data_, noise_, **kwargs):
+        # one bed model for the fit and its baseline, chosen on the parameter set's unknowns
+        if "bed" not in chosen:
+            _check_heights(data_, machine)
+            chosen["bed"] = bed_choice(machine, data_, noise_, options.bed_tilt or "auto")
+        return calibrate_probe(machine_, data_, noise_, bed=chosen["bed"], **kwargs)
+
+    data, held, result, before, calibrated, params, units = fit_with_baseline(
+        machine, data, context, fit, noise,
+        "probe over the whole bed (the centre and rings out to the edge of the reachable "
+        "radius)", estimate_noise=options.noise is None, robust=options.robust)
+    fl = LENGTH[units["length"]]
+    problem, before_problem = result.extras["problem"], before.extras["problem"]
+    rms_after, r_after = scalar_rms(problem, result.state, data)
+    rms_before, r_before = scalar_rms(before_problem, before.state, data)
+    rank = int(result.rank)
+    n_free = int(np.sum(result.parameters.free))
+    s = np.asarray(result.singular_values, float)
+    unidentifiable = list(result.extras.get("unidentifiable", []))
+    bed, bed_before = result.extras["bed"], before.extras["bed"]
+
+    def plane(b):
+        return {"height": b[0] / fl, "tilt_x": b[1], "tilt_y": b[2], "unit": units["length"],
+                "tilt": "slopes dz/dx, dz/dy"}
+
+    report = {
+        **context.head(machine, "probe", "joint"),
+        "units": units,
+        "measurements": len(data),
+        "noise": f"probe trigger {noise.sigma * 1e6:.4g} um along z (std)",
+        "bed": {**plane(bed), "before": plane(bed_before),
+                "model": "z = height + tilt_x x + tilt_y y (base frame); heights measured "
+                         "along z",
+                "frame": chosen["bed"].words, "tilt_estimated": chosen["bed"].tilt
+                == "estimated"},
+        "bed_frame": chosen["bed"].words,
+        "convergence": convergence_json(result),
+        "residuals": scalar_residuals_json(
+            result, r_after, rms_after, rms_before,
+            "probe heights, measured - predicted (forward kinematics of the readings, height "
+            "above the fitted bed along z)",
+            "machine file's model, bed plane (height and tilt) fitted alone", r_before),
+        "identifiability": identifiability_json(n_free, rank, unidentifiable, s),
+        "parameters": public_parameters(params),
+    }
+    if held is not None:
+        report["validation"] = validation_section(
+            split, held, "probe heights of the held-out rows, measured - predicted with the "
+            "identified bed; before: the machine file's model with the bed fitted alone on "
+            "the calibration rows", "um",
+            scalar_rms(before_problem, before.state, held)[0],
+            scalar_rms(problem, result.state, held)[0], rms_after)
+    metadata = scalar_metadata("probe", report, source, machine, result, rms_after, len(data),
+                               unidentifiable)
+    return FlowResult("probe", machine, calibrated, result, report, metadata, params, units)
 
 
 #: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
