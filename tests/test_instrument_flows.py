@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from pkmcal.calibration.run import KINDS, CalibrateOptions, _calibrate_flow, _kinds
+from pkmcal.calibration.run import KINDS, CalibrateOptions, _calibrate_flow, _joint_flow, _kinds
+from pkmcal.instruments.base import Instrument
 from pkmcal.instruments.flow import option_specs
 from pkmcal.instruments.registry import INSTRUMENTS
 
@@ -27,6 +28,18 @@ def test_the_older_instruments_bring_their_flows_and_the_registry_dispatches_the
         assert kind.calibrate.func is _calibrate_flow, inst.name
         assert kind.calibrate.keywords == {"inst": inst}
         assert kind.check_options == inst.check_options
+
+
+def test_the_instruments_bring_their_parts_of_a_fit_of_several_files():
+    """The joint fit's part of every instrument with a flow of its own that combines is its
+    module's (Instrument.joint_part), dispatched through the registry (run.py names none)."""
+    combining = [inst for inst in FLOWS if not inst.joint_refusal]
+    assert {"tracker", "distance", "probe"} <= {inst.name for inst in combining}
+    for inst in combining:
+        owner = next(c for c in type(inst).__mro__ if "joint_part" in vars(c))
+        assert owner is not Instrument and owner.__module__ == type(inst).__module__, inst.name
+        kind = KINDS[inst.name]
+        assert kind.joint.func is _joint_flow and kind.joint.keywords == {"inst": inst}
 
 
 @pytest.mark.parametrize("inst", FLOWS, ids=IDS)

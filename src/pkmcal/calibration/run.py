@@ -37,6 +37,7 @@ from ..estimation.acceptance import WHITENED_METHODS
 from ..instruments.flow import (
     CalibrationNotConverged,
     FlowContext,
+    JointPart,
     fit_with_baseline,
     json_safe,
     report_head,
@@ -58,14 +59,6 @@ from ..instruments.flow import source_of as _source_of
 from ..instruments.flow import split_rows as _split_rows
 from ..instruments.flow import um as _um
 from ..instruments.flow import validation_section as _validation
-from ..instruments.tracker import (  # the tracker's part of a fit of several files
-    _tracker_noise_text,
-    as_tracker_data,
-    tracker_noise_arg,
-)
-from ..instruments.tracker import (
-    check_spread as _check_spread,
-)
 from ..paths import file_identity, path_text, same_file
 from .bed_surface import with_bed_surface
 from .parameter_sets import apply_parameter_set, parameter_set_names
@@ -75,7 +68,7 @@ __all__ = ["KINDS", "WHITENED_METHODS", "Calibration",
            "CalibrationNotConverged", "CalibrateOptions", "JointPart", "MeasurementKind",
            "apply_parameter_set", "calibrate", "calibrate_joint", "file_units", "flow_kind",
            "holdout_arg", "json_safe", "report_json", "measurement_kind", "noise_per_file_arg",
-           "parameter_set_names", "provenance", "register_joint_part", "register_kind",
+           "parameter_set_names", "provenance", "register_kind",
            "rows_text", "supported_kinds", "text_digest", "versions"]
 
 
@@ -302,8 +295,8 @@ class MeasurementKind:
         apply.
     joint : callable or None
         ``joint(machine, data, source, noise) -> JointPart``: the file's part of a fit of
-        several files (None: from the instrument problem of its own calibration, unless the
-        instrument's ``joint_refusal`` says why it cannot combine).
+        several files (None, or None returned: from the instrument problem of its own
+        calibration, unless the instrument's ``joint_refusal`` says why it cannot combine).
     """
 
     instrument: str
@@ -1129,17 +1122,6 @@ def _report_head(machine, source, kind: str, method: str, units=None) -> dict:
 
 
 
-# -- the ballbar's noise in a fit of several files --------------------------------------------
-
-
-def _distance_noise(noise, machine):
-    """The ballbar noise of ``--noise`` (:meth:`~pkmcal.instruments.distance.Distance.noise_arg`;
-    default 1 um)."""
-    from ..instruments.registry import instrument
-
-    return instrument("distance").noise_arg(noise, machine)
-
-
 def _fit_with_baseline(machine, data, source, split, reader, fit, noise, advice: str,
                        options: CalibrateOptions):
     """:func:`~pkmcal.instruments.flow.fit_with_baseline` for the flows that still live here
@@ -1271,101 +1253,6 @@ def _noise_of(noise, sources, i: int):
     return noise
 
 
-@dataclass
-class JointPart:
-    """One file of a joint fit, ready for :func:`~pkmcal.instruments.joint.fit_joint`.
-
-    Attributes
-    ----------
-    data : InstrumentData
-        Readings and measurements.
-    model : NuisanceModel
-        The instrument's model (start values computed by the fit).
-    noise : object
-        Noise model (``whitening``).
-    noise_text : str
-        The noise in words.
-    kind : str
-        The measurement kind (a key of :data:`KINDS`).
-    """
-
-    data: object
-    model: object
-    noise: object
-    noise_text: str
-    kind: str
-    #: ``with_others(equations, unknowns) -> (model, words)``: the part's model once the
-    #: other files are known (a printer's bed tilt, decided on every file's equations)
-    with_others: Callable | None = None
-    frame: str = ""
-    #: weighed as the data's source weighs them (relative levels held, common level fitted)
-    tied: bool = False
-
-
-def _joint_tracker(machine, data, source, noise) -> JointPart:
-    from ..instruments import PointsModel
-    from ..instruments.tracker import as_points
-    from ..io import read_tracker
-
-    if noise is None or isinstance(noise, str):
-        noise_model, text = tracker_noise_arg(noise, allow_none=False, machine=machine)
-    else:
-        noise_model, text = noise, _tracker_noise_text(noise)
-    raw = as_tracker_data(_load(data, read_tracker, machine))
-    _check_spread(raw, noise_model)
-    points = as_points(raw)
-    points.source = str(source)
-    return JointPart(points, PointsModel(points.n_groups, machine.tracker_target()),
-                     noise_model, text, "tracker")
-
-
-def _joint_distances(machine, data, source, noise) -> JointPart:
-    from ..instruments import DistancesModel
-    from ..io import read_distances
-
-    noise_model = _distance_noise(noise, machine)
-    dist = _load(data, read_distances, machine)
-    counts = np.bincount(dist.group, minlength=dist.n_groups)
-    few = np.flatnonzero(counts < 6)
-    if few.size:
-        raise InputError(f"{path_text(source)}: "
-                         f"setup {few[0] + 1} has {counts[few[0]]} row(s); each "
-                         "mounting needs at least 6 lengths (its pivot and ball are unknown)")
-    dist.source = str(source)
-    return JointPart(dist, DistancesModel(dist.n_groups), noise_model,
-                     f"ballbar {noise_model.sigma * 1e6:.4g} um (std)", "distance")
-
-
-def _joint_probe(machine, data, source, noise) -> JointPart:
-    from ..instruments import ProbeModel
-    from ..instruments.probe import _check_heights, bed_choice
-    from ..instruments.registry import instrument
-    from ..io import read_probe
-
-    probe = _load(data, read_probe, machine)
-    noise_model = (probe.weights[0] if noise is None and probe.weights is not None
-                   else instrument("probe").noise_arg(noise, machine))
-    probe.source = str(source)
-    _check_heights(probe, machine)
-
-    free_height = bool(getattr(probe, "free_height", False))
-
-    def with_others(equations, unknowns, choice="auto", data=probe, others=()):
-        bed = bed_choice(machine, data, noise_model, choice, equations, unknowns,
-                         others=others)
-        if not free_height:
-            return bed.model(), bed.words
-        # a saved bed mesh keeps no absolute level (its reference): its own height offset
-        return (ProbeModel(fixed=tuple(f for f in bed.fixed if f != "bed.z")),
-                bed.words + "; its own height offset (a mesh's values are relative to its "
-                "reference)")
-
-    model, frame = with_others(0, 0, "estimate" if machine.frame_is_bed else "auto")
-    return JointPart(probe, model, noise_model,
-                     f"probe trigger {noise_model.sigma * 1e6:.4g} um along z (std)", "probe",
-                     with_others, frame)
-
-
 def _combining() -> str:
     """The kinds whose files combine in one fit, in words."""
     return ", ".join(sorted(k.name for k in _kinds() if not k.joint_refusal))
@@ -1382,8 +1269,9 @@ def _joint_part(machine, data, source, kind: MeasurementKind, noise) -> JointPar
                          f"{kind.name} data cannot be combined with other files in "
                          f"one fit ({kind.joint_refusal}); the kinds that combine: "
                          f"{_combining()}; calibrate from {path_text(source)} on its own")
-    if kind.joint is not None:
-        return kind.joint(machine, data, source, noise)
+    part = kind.joint(machine, data, source, noise) if kind.joint is not None else None
+    if part is not None:
+        return part
     kind.check_options(CalibrateOptions(noise=noise), source)
     alone = kind.calibrate(machine, data, source, CalibrateOptions(noise=noise), None)
     problem = alone.result.extras.get("problem")
@@ -1712,37 +1600,6 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
 # instruments whose calibration flow lives in their module (Instrument.calibrate)
 # --------------------------------------------------------------------------------------------
 
-#: the joint-fit part of an instrument whose own flow lives in its module, by the
-#: instrument's name (:func:`register_joint_part`); these parts still live here with the joint
-#: flow (issue 38: they move into the instruments with it)
-JOINT_PARTS: dict[str, Callable] = {}
-
-
-def register_joint_part(name: str, joint: Callable) -> Callable:
-    """Make ``joint(machine, data, source, noise) -> JointPart`` the part an instrument of
-    its own flow brings to a fit of several files.
-
-    Parameters
-    ----------
-    name : str
-        The instrument's registry name.
-    joint : callable
-        The part.
-
-    Returns
-    -------
-    callable
-        ``joint``.
-    """
-    JOINT_PARTS[name] = joint
-    return joint
-
-
-register_joint_part("tracker", _joint_tracker)
-register_joint_part("distance", _joint_distances)
-register_joint_part("probe", _joint_probe)
-
-
 def _io_reader(name: str):
     """``read(path, machine)``: the :mod:`pkmcal.io` function of that name."""
     from .. import io
@@ -1768,10 +1625,17 @@ def _calibrate_flow(machine, data, source, options: CalibrateOptions, split,
     return calibration
 
 
+def _joint_flow(machine, data, source, noise, inst) -> JointPart | None:
+    """The file's part of a fit of several files, for an instrument with a flow of its own
+    (:meth:`~pkmcal.instruments.base.Instrument.joint_part`; None: the generic one)."""
+    return inst.joint_part(machine, data, source, noise,
+                           _io_reader(inst.calibration_reader or inst.reader))
+
+
 def flow_kind(inst) -> MeasurementKind:
     """The calibration of an instrument with a flow of its own: its
     :meth:`~pkmcal.instruments.base.Instrument.calibrate`, its option check and its joint part
-    (:data:`JOINT_PARTS`, else the generic one).
+    (:meth:`~pkmcal.instruments.base.Instrument.joint_part`, else the generic one).
 
     Parameters
     ----------
@@ -1784,7 +1648,7 @@ def flow_kind(inst) -> MeasurementKind:
         Its calibration, option check and joint part.
     """
     return MeasurementKind(inst.name, partial(_calibrate_flow, inst=inst), inst.check_options,
-                           JOINT_PARTS.get(inst.name))
+                           partial(_joint_flow, inst=inst))
 
 
 # -- any instrument of the shared layer: a model without unknowns of the machine's frame ----

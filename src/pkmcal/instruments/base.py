@@ -837,6 +837,32 @@ class Instrument:
         """
         raise NotImplementedError(f"{self.name}: no calibration flow of its own")
 
+    def joint_part(self, machine: Machine, data, source, noise, read):
+        """This instrument's part of a fit of several files (``pkmcal calibrate`` with several
+        data files): its data, its model of the instrument's unknowns and its noise.
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        data : path or data object
+            The file's data (a path is read with ``read``).
+        source : str or os.PathLike
+            The file, named in messages and the report.
+        noise : object
+            The file's ``--noise`` (text, SI number or noise model; None: the default).
+        read : callable
+            ``read(path, machine) -> data``: the :mod:`pkmcal.io` reader the instrument names
+            (:attr:`calibration_reader`, else :attr:`reader`).
+
+        Returns
+        -------
+        JointPart or None
+            The part (:class:`~pkmcal.instruments.flow.JointPart`); None (the default): the
+            calibration layer takes the instrument problem of the file's own calibration.
+        """
+        return None
+
     def measured_problem(self, machine: Machine, data, noise=None, source: str = ""):
         """The calibration problem ``pkmcal calibrate`` solves for measured ``data``, unsolved,
         the instrument's unknowns started from the data on the machine's geometry (a fit with

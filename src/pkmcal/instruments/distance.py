@@ -44,9 +44,11 @@ from .experiment import MOUNTING_ERROR, circle_poses
 from .flow import (
     FlowContext,
     FlowResult,
+    JointPart,
     convergence_json,
     fit_with_baseline,
     identifiability_json,
+    load_data,
     only_for_poses,
     option,
     public_parameters,
@@ -526,6 +528,22 @@ class Distance(Instrument):
         (mountings fitted alone) and after (see
         :meth:`~pkmcal.instruments.base.Instrument.calibrate`)."""
         return _calibration_flow(machine, data, context, options)
+
+    def joint_part(self, machine: Machine, data, source, noise, read):
+        """The ballbar file's part of a fit of several files: its lengths, every mounting's
+        pivot and ball unknown (see :meth:`~pkmcal.instruments.base.Instrument.joint_part`)."""
+        noise_model = self.noise_arg(noise, machine)
+        dist = load_data(data, read, machine)
+        counts = np.bincount(dist.group, minlength=dist.n_groups)
+        few = np.flatnonzero(counts < 6)
+        if few.size:
+            raise InputError(f"{path_text(source)}: "
+                             f"setup {few[0] + 1} has {counts[few[0]]} row(s); each "
+                             "mounting needs at least 6 lengths (its pivot and ball are "
+                             "unknown)")
+        dist.source = str(source)
+        return JointPart(dist, DistancesModel(dist.n_groups), noise_model,
+                         f"ballbar {noise_model.sigma * 1e6:.4g} um (std)", "distance")
 
     def measured_problem(self, machine, data, noise=None, source=""):
         """The pivot and ball of each setup fitted to the data with the machine held."""

@@ -23,7 +23,8 @@ import numpy as np
 from ..errors import ConvergenceError, InputError
 from ..paths import path_text
 
-__all__ = ["CalibrationNotConverged", "FlowContext", "FlowResult", "convergence_json",
+__all__ = ["CalibrationNotConverged", "FlowContext", "FlowResult", "JointPart",
+           "convergence_json",
            "fit_with_baseline", "holdout_split", "identifiability_json",
            "identifiability_metadata", "json_safe", "load_data", "only_for_poses", "option",
            "option_specs", "parameter_table", "public_parameters", "report_head",
@@ -102,6 +103,39 @@ class FlowResult:
     params: list
     units: dict
     warnings: list = field(default_factory=list)
+
+
+@dataclass
+class JointPart:
+    """One file of a joint fit, ready for :func:`~pkmcal.instruments.joint.fit_joint` (what an
+    instrument's :meth:`~pkmcal.instruments.base.Instrument.joint_part` brings to a fit of
+    several files).
+
+    Attributes
+    ----------
+    data : InstrumentData
+        Readings and measurements.
+    model : NuisanceModel
+        The instrument's model (start values computed by the fit).
+    noise : object
+        Noise model (``whitening``).
+    noise_text : str
+        The noise in words.
+    kind : str
+        The measurement kind (the instrument's name).
+    """
+
+    data: object
+    model: object
+    noise: object
+    noise_text: str
+    kind: str
+    #: ``with_others(equations, unknowns) -> (model, words)``: the part's model once the
+    #: other files are known (a printer's bed tilt, decided on every file's equations)
+    with_others: Callable | None = None
+    frame: str = ""
+    #: weighed as the data's source weighs them (relative levels held, common level fitted)
+    tied: bool = False
 
 
 def report_head(date: str, machine, source, kind: str, method: str, units=None) -> dict:

@@ -63,9 +63,11 @@ from .experiment import MOUNTING_ERROR
 from .flow import (
     FlowContext,
     FlowResult,
+    JointPart,
     convergence_json,
     fit_with_baseline,
     identifiability_json,
+    load_data,
     only_for_poses,
     option,
     public_parameters,
@@ -562,6 +564,33 @@ class Probe(Instrument):
         """The geometry and the bed plane, the heights' residuals before (the bed fitted
         alone) and after (see :meth:`~pkmcal.instruments.base.Instrument.calibrate`)."""
         return _calibration_flow(machine, data, context, options)
+
+    def joint_part(self, machine: Machine, data, source, noise, read):
+        """The probe file's part of a fit of several files: its heights and the bed's
+        unknowns, decided once the other files are known (see
+        :meth:`~pkmcal.instruments.base.Instrument.joint_part`)."""
+        probe = load_data(data, read, machine)
+        noise_model = (probe.weights[0] if noise is None and probe.weights is not None
+                       else self.noise_arg(noise, machine))
+        probe.source = str(source)
+        _check_heights(probe, machine)
+
+        free_height = bool(getattr(probe, "free_height", False))
+
+        def with_others(equations, unknowns, choice="auto", data=probe, others=()):
+            bed = bed_choice(machine, data, noise_model, choice, equations, unknowns,
+                             others=others)
+            if not free_height:
+                return bed.model(), bed.words
+            # a saved bed mesh keeps no absolute level (its reference): its own height offset
+            return (ProbeModel(fixed=tuple(f for f in bed.fixed if f != "bed.z")),
+                    bed.words + "; its own height offset (a mesh's values are relative to its "
+                    "reference)")
+
+        model, frame = with_others(0, 0, "estimate" if machine.frame_is_bed else "auto")
+        return JointPart(probe, model, noise_model,
+                         f"probe trigger {noise_model.sigma * 1e6:.4g} um along z (std)",
+                         "probe", with_others, frame)
 
     def measured_problem(self, machine, data, noise=None, source=""):
         """The bed's height and tilt started from the data on the machine's geometry."""

@@ -61,6 +61,7 @@ from .experiment import MOUNTING_ERROR
 from .flow import (
     FlowContext,
     FlowResult,
+    JointPart,
     convergence_json,
     identifiability_json,
     identifiability_metadata,
@@ -1191,6 +1192,21 @@ class Tracker(Instrument):
         """Registration and errors together (or ``two_step``), the distance ratio (seed 001
         Fig. 6) before and after (see :meth:`~pkmcal.instruments.base.Instrument.calibrate`)."""
         return _calibration_flow(machine, data, context, options)
+
+    def joint_part(self, machine: Machine, data, source, noise, read):
+        """The tracker file's part of a fit of several files: its points, one target per
+        ``target`` group, the tracker's pose unknown (see
+        :meth:`~pkmcal.instruments.base.Instrument.joint_part`)."""
+        if noise is None or isinstance(noise, str):
+            noise_model, text = tracker_noise_arg(noise, allow_none=False, machine=machine)
+        else:
+            noise_model, text = noise, _tracker_noise_text(noise)
+        raw = as_tracker_data(load_data(data, read, machine))
+        check_spread(raw, noise_model)
+        points = as_points(raw)
+        points.source = str(source)
+        return JointPart(points, PointsModel(points.n_groups, machine.tracker_target()),
+                         noise_model, text, "tracker")
 
     def measured_problem(self, machine, data, noise=None, source=""):
         """The tracker's pose and the target places started from the data: registered on the
