@@ -436,6 +436,7 @@ def _export_onto(tmp_path, text: str):
     return pkmcal("export", "cal.yaml", "--to", "klipper", "-o", "printer.cfg", cwd=tmp_path)
 
 
+@needs_shared
 def test_export_keeps_what_klipper_runs(tmp_path):
     """Multi-line block values (a bed mesh) survive; an option the body defines stays the
     body's (Klipper never read the block's stale value); the backup is the previous file
