@@ -661,7 +661,9 @@ def calibrate(machine, data, *, method: str | None = None, noise=None,
         combine; see :func:`calibrate_joint`); a list of one is that one. A Klipper
         ``printer.cfg`` is read for the measurements its ``[delta_calibrate]`` section saved
         (heights, manual heights, DELTA_ANALYZE distances:
-        :func:`~pkmcal.io.klipper_config.delta_calibrate_data`).
+        :func:`~pkmcal.io.klipper_config.delta_calibrate_data`) and its bed meshes
+        (:func:`~pkmcal.io.klipper_config.bed_mesh_data`); several configs are sessions
+        (:func:`~pkmcal.io.klipper_config.klipper_sessions`).
     method : str, optional
         Constraint link: ``ml`` (default), ``ik`` or ``fk``; full pose: ``ml`` (default) or
         ``ik``; not for tracker data (see ``two_step``).
