@@ -87,7 +87,7 @@ def test_klipper_profile_reads_back_and_keeps_the_users_profiles():
     c = bed_correction(KLIPPER, params, m, 0.1)
     mesh = meshes[PROFILE]
     np.testing.assert_allclose(mesh.z, c.z * 1e3, rtol=0, atol=6e-7)     # %.6f mm
-    np.testing.assert_allclose(mesh.x, c.x * 1e3, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(mesh.x, c.x * 1e3, rtol=0, atol=1e-6)      # min/max %.6f mm
     assert mesh.params["algo"].strip() == "bicubic"
     # written again: replaced, not added; the user's own untouched
     again = with_klipper_profile(text, c)
