@@ -21,7 +21,6 @@ from ..instruments.tracker import tracker_noise_arg
 from ..io import (
     atomic_write_text,
     joint_quantity,
-    load_machine,
     machine_to_text,
     parse_machine,
     read_joints,
@@ -46,63 +45,14 @@ from ..units import (
     format_um,
     parse_quantity,
 )
+from ..workflows.common import (  # noqa: F401  (the commands' shared steps, re-exported)
+    check_outputs,
+    commit_outputs,
+    load_machine_arg,
+)
+from ..workflows.common import machine_inputs as _machine_inputs
+from ..workflows.common import wrote as _wrote
 from ._console import console, error, warning
-
-# --------------------------------------------------------------------------------------------
-# shared helpers
-# --------------------------------------------------------------------------------------------
-
-
-def load_machine_arg(spec: str):
-    """The machine named on the command line: a file, or ``default`` (embedded Hexa Slide)."""
-    if spec == "default":
-        from ..machines import default_hexaslide
-
-        machine = default_hexaslide()
-        machine.file_units = dict(DEFAULT_UNITS)
-        machine.source = "default"
-        machine.calibration_info = None
-        return machine
-    return load_machine(spec)
-
-
-def _machine_inputs(spec: str) -> list[Path]:
-    return [] if spec == "default" else [Path(spec)]
-
-
-def check_outputs(outputs: list[Path], inputs: list[Path], directories=()) -> None:
-    """Check the command's outputs before any work: refuse outputs whose directory is missing
-    or not writable, that are directories, that coincide, or that would overwrite an input
-    file (input files are never modified). With the command's :class:`OutputSet` active
-    (``pkmcal`` runs every command in one) they become its declared outputs, inputs and
-    output directories; files read later are added to the inputs when read."""
-    from ..io.atomic import OutputSet, active_output_set
-
-    OutputSet(outputs, directories, inputs)       # the checks, at once
-    active = active_output_set()
-    if active is not None:
-        for d in directories:
-            active.add_directory(d)
-        for inp in inputs:
-            active.add_input(inp)
-        for out in outputs:
-            active.declare(out)
-
-
-def _wrote(output: Path, beside: Path) -> str:
-    """``wrote OUT and OUT.json``; a device or pipe gets no file beside it."""
-    if is_stream(output):
-        return f"wrote {path_text(output)} (not a regular file: no {beside.suffix} file beside it)"
-    return f"wrote {path_text(output)} and {path_text(beside)}"
-
-
-def commit_outputs() -> list[Path]:
-    """Write the command's staged outputs now, all or none (before saying they are written);
-    returns them."""
-    from ..io.atomic import active_output_set
-
-    active = active_output_set()
-    return active.commit() if active is not None else []
 
 
 def _table(*columns, title=None, justify=None, show_header=True):

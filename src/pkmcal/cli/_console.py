@@ -147,3 +147,35 @@ class progress_tasks:
         if self.bar is not None:
             self.bar.stop()
         return False
+
+
+def print_summary(summary) -> int:
+    """Print a :class:`~pkmcal.report.summary.Summary` (its lines and tables on stdout, raw
+    text as it is, then each warning once on stderr); returns its exit code."""
+    import sys as _sys
+
+    from rich.table import Table
+    from rich.text import Text
+
+    from ..report.summary import RawText, SummaryTable
+
+    out = console()
+    for block in summary.blocks:
+        if isinstance(block, SummaryTable):
+            table = Table(title=block.title, title_justify="left", show_edge=False,
+                          pad_edge=False, show_header=block.header)
+            for i, col in enumerate(block.columns):
+                table.add_column(col, justify=block.justify.get(i, "left"))
+            for row in block.rows:
+                table.add_row(*(Text(c) if isinstance(c, str) else Text(c[0], style=c[1])
+                                for c in row))
+            out.print(table)
+        elif isinstance(block, RawText):
+            if not _QUIET:
+                _sys.stdout.write(block.text)
+                _sys.stdout.flush()
+        else:
+            out.print(block, markup=False)
+    for text in summary.warnings:
+        warning(text)
+    return summary.exit_code

@@ -1,0 +1,86 @@
+"""What every workflow shares: the machine named on the command line, the outputs checked
+before any work and written all or none, the "wrote ..." line, and a silent progress."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import stop_if_signalled
+from ..io import load_machine
+from ..io.atomic import is_stream
+from ..io.machine_file import DEFAULT_UNITS
+from ..paths import path_text
+
+__all__ = ["load_machine_arg", "machine_inputs", "check_outputs", "commit_outputs", "wrote",
+           "no_progress"]
+
+
+def load_machine_arg(spec: str):
+    """The machine a command names: a machine file, or ``default`` (the embedded Hexa Slide).
+
+    Parameters
+    ----------
+    spec : str
+        A path, or ``"default"``.
+
+    Returns
+    -------
+    Machine
+        With ``file_units``, ``source`` and ``calibration_info`` set.
+    """
+    if spec == "default":
+        from ..machines import default_hexaslide
+
+        machine = default_hexaslide()
+        machine.file_units = dict(DEFAULT_UNITS)
+        machine.source = "default"
+        machine.calibration_info = None
+        return machine
+    return load_machine(spec)
+
+
+def machine_inputs(spec: str) -> list[Path]:
+    """The input files a machine argument names (none for ``default``)."""
+    return [] if spec == "default" else [Path(spec)]
+
+
+def check_outputs(outputs: list[Path], inputs: list[Path], directories=()) -> None:
+    """Check a command's outputs before any work: refuse outputs whose directory is missing
+    or not writable, that are directories, that coincide, or that would overwrite an input
+    file (input files are never modified). With an :class:`~pkmcal.io.atomic.OutputSet`
+    active (``pkmcal`` runs every command in one) they become its declared outputs, inputs
+    and output directories; files read later are added to the inputs when read."""
+    from ..io.atomic import OutputSet, active_output_set
+
+    OutputSet(outputs, directories, inputs)       # the checks, at once
+    active = active_output_set()
+    if active is not None:
+        for d in directories:
+            active.add_directory(d)
+        for inp in inputs:
+            active.add_input(inp)
+        for out in outputs:
+            active.declare(out)
+
+
+def commit_outputs() -> list[Path]:
+    """Write the staged outputs now, all or none (before saying they are written); returns
+    them."""
+    from ..io.atomic import active_output_set
+
+    active = active_output_set()
+    return active.commit() if active is not None else []
+
+
+def wrote(output: Path, beside: Path) -> str:
+    """``wrote OUT and OUT.json``; a device or pipe gets no file beside it."""
+    if is_stream(output):
+        return f"wrote {path_text(output)} (not a regular file: no {beside.suffix} file beside it)"
+    return f"wrote {path_text(output)} and {path_text(beside)}"
+
+
+def no_progress(description: str, total: int):
+    """The progress protocol without a display: ``new(description, total) -> advance(n=1,
+    description=None)``; advancing still stops a run that was signalled."""
+    del description, total
+    return lambda n=1, description=None: stop_if_signalled()
