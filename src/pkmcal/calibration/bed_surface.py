@@ -92,7 +92,8 @@ def fit_bed_surface(calibrated, datasets, count: int = COUNT):
         if ok.sum() < MIN_POINTS:
             continue
         P = fk.P[ok]
-        predicted = P[:, 2] - bed_height_at(calibrated, P[:, :2])
+        predicted = P[:, 2] - bed_height_at(getattr(calibrated, "probe_bed", None), P[:, :2],
+                                            getattr(calibrated, "bed_surface", None))
         measured = np.asarray(d.values, float).reshape(len(d.q), -1)[ok, 0]
         s = predicted - measured                 # a bed higher by s: triggers s earlier
         xy_all.append(P[:, :2])

@@ -109,7 +109,8 @@ def _height_errors(fmt, params, machine: Machine, xy, height: float) -> np.ndarr
     xy = np.asarray(xy, float).reshape(-1, 2)
     plane = _plane_z(machine, xy)
     P = np.column_stack([xy, plane + height])
-    shape = bed_height_at(machine, xy) - plane
+    shape = bed_height_at(getattr(machine, "probe_bed", None), xy,
+                          getattr(machine, "bed_surface", None)) - plane
     return position_errors(fmt, params, machine, P)[:, 2] - shape
 
 

@@ -402,6 +402,50 @@ class Instrument:
     section: str | None = None
     #: which calibration writes :attr:`section`, in words
     section_words: str = ""
+    #: the type of its set-up (:mod:`pkmcal.instruments.setups`: a frame, mountings, a bed),
+    #: read from and written to :attr:`section`; None: it has none
+    Setup: type | None = None
+    #: the place of :attr:`section` among a machine file's instrument sections (file order)
+    section_order: int = 0
+
+    def read_setup(self, section, length_factor: float, machine: Machine):
+        """Its set-up from its validated machine-file section (:attr:`section`).
+
+        Parameters
+        ----------
+        section : pydantic model or list
+            The section as the machine file's schema validated it (file units).
+        length_factor : float
+            Metres per length unit of the file.
+        machine : Machine
+            The machine of the file.
+
+        Returns
+        -------
+        object
+            An instance of :attr:`Setup` (internal units).
+        """
+        raise NotImplementedError
+
+    def setup_section(self, setup, length_factor: float, machine: Machine):
+        """The machine-file section of a set-up (the inverse of :meth:`read_setup`), or None
+        when the machine's file holds no such section.
+
+        Parameters
+        ----------
+        setup : object
+            An instance of :attr:`Setup`.
+        length_factor : float
+            Metres per length unit of the file.
+        machine : Machine
+            The machine of the file.
+
+        Returns
+        -------
+        dict or list or None
+            Plain values in the file's units.
+        """
+        raise NotImplementedError
 
     def carried_by(self, machine: Machine) -> bool:
         """True when ``machine`` (a calibrated one) carries this instrument's fitted unknowns

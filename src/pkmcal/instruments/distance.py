@@ -27,6 +27,7 @@ from ..errors import InputError
 from ..estimation.estimator import CalibrationResult
 from ..estimation.rank import RTOL
 from ..machines.base import Machine
+from ..machines.file_format import vector
 from ..paths import path_text
 from .base import (
     Instrument,
@@ -62,6 +63,38 @@ from .problem import InstrumentProblem, fit_instrument
 
 #: the ballbar length of plans and simulations, m (a common measuring-ballbar length)
 BALLBAR_LENGTH = 0.1
+
+
+@dataclass(frozen=True)
+class BallbarSetup:
+    """A ballbar's set-up (the machine file's ``ballbar:`` section): one mounting per value
+    1..K of a data file's ``setup`` column.
+
+    Attributes
+    ----------
+    mountings : tuple of tuple
+        ``((pivot (3,) base frame, ball (3,) platform frame), ...)``, m.
+    """
+
+    mountings: tuple
+
+    def __post_init__(self):
+        object.__setattr__(self, "mountings", tuple(
+            (np.asarray(p, float), np.asarray(b, float)) for p, b in self.mountings))
+
+    def __len__(self) -> int:
+        return len(self.mountings)
+
+    def __iter__(self):
+        return iter(self.mountings)
+
+    def shifted(self, t) -> BallbarSetup:
+        """The set-up seen from a base frame whose points moved by ``t`` (m)."""
+        return BallbarSetup([(p + np.asarray(t, float), b) for p, b in self.mountings])
+
+    def frame_shift(self, machine):
+        """None: a ballbar says nothing about the machine's frame."""
+        return None
 
 
 #: setups of a distance plan: the circle planes of ISO 230-4 tests (normals)
@@ -381,6 +414,16 @@ class Distance(Instrument):
 
     section = "ballbar"
     section_words = "a calibration from distances (d: ballbar) writes the ballbar section"
+    Setup = BallbarSetup
+    section_order = 20
+
+    def read_setup(self, section, length_factor, machine):
+        return BallbarSetup([(np.asarray(m.pivot, float) * length_factor,
+                              np.asarray(m.ball, float) * length_factor) for m in section])
+
+    def setup_section(self, setup, length_factor, machine):
+        return [{"pivot": vector(p, length_factor), "ball": vector(b, length_factor)}
+                for p, b in setup.mountings]
 
     def carried_by(self, machine):
         return bool(getattr(machine, "ballbar_setups", None))

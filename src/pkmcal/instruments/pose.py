@@ -67,6 +67,7 @@ from ..identifiability.analysis import right_singular
 from ..kinematics import matrix_from_euler, matrix_from_rotvec, rotvec_from_matrix, skew
 from ..machines.base import Machine
 from ..machines.deviations import draw_accepted
+from ..machines.file_format import file_rotation, frame_section
 from ..parameters import ParameterSet
 from ..paths import path_text
 from .base import Instrument, _space_words, has_column, reachable
@@ -194,6 +195,17 @@ class MeasurementFrames:
         R = A.T @ Rm @ B.T
         P = (Pm - a) @ A - np.einsum("...ij,j->...i", R, c)
         return P, R
+
+    def shifted(self, t) -> MeasurementFrames:
+        """The frames seen from a base frame whose points moved by ``t`` (m): a base point
+        ``x + t`` is measured where ``x`` was."""
+        A, a = self.mocap_from_base
+        return MeasurementFrames((A, np.asarray(a, float) - A @ np.asarray(t, float)),
+                                 self.platform_from_marker)
+
+    def frame_shift(self, machine):
+        """None: motion capture says nothing about the machine's frame."""
+        return None
 
 
 @dataclass
@@ -1502,6 +1514,20 @@ class Pose(Instrument):
     section = "measurement_frames"
     section_words = ("a calibration from poses (x, y, z, qx..qw: motion capture) writes "
                      "measurement_frames")
+    Setup = MeasurementFrames
+    section_order = 40
+
+    def read_setup(self, section, length_factor, machine):
+        return MeasurementFrames(
+            *((file_rotation(f.rotation), np.asarray(f.translation, float) * length_factor)
+              for f in (section.mocap_from_base, section.platform_from_marker)))
+
+    def setup_section(self, setup, length_factor, machine):
+        if len(machine.pose_space) != 6:
+            return None
+        return {"mocap_from_base": frame_section(setup.mocap_from_base, length_factor),
+                "platform_from_marker": frame_section(setup.platform_from_marker,
+                                                      length_factor)}
 
     def carried_by(self, machine):
         return (getattr(machine, "measurement_frames", None) is not None

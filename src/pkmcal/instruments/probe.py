@@ -40,7 +40,7 @@ from ..errors import InputError
 from ..estimation.estimator import CalibrationResult
 from ..estimation.rank import RTOL
 from ..identifiability.determination import poorly_determined
-from ..machines.base import Machine
+from ..machines.base import Machine, bed_height_at
 from ..machines.reach import (
     _bed_points,
     bed_centre,
@@ -330,6 +330,52 @@ class ProbeOptions:
         "the data tell it from the parameter set), estimate or square.")
 
 
+@dataclass(frozen=True)
+class BedSetup:
+    """A printer's bed as a probe measured it (the machine file's ``bed:`` section): the plane
+    ``z = height + tilt_x x + tilt_y y`` of the base frame and, optionally, its own shape
+    beside the plane.
+
+    Attributes
+    ----------
+    height : float
+        Height of the plane at x = y = 0, m.
+    tilt_x, tilt_y : float
+        Slopes dz/dx, dz/dy.
+    surface : tuple or None
+        ``(radius m, values (n, n) m)``: heights on a square grid over ``[-radius, radius]``
+        in x and y, rows by ascending y (:mod:`pkmcal.calibration.bed_surface`); None: flat.
+    """
+
+    height: float = 0.0
+    tilt_x: float = 0.0
+    tilt_y: float = 0.0
+    surface: tuple | None = None
+
+    @property
+    def plane(self) -> tuple[float, float, float]:
+        """``(height, tilt_x, tilt_y)``."""
+        return (float(self.height), float(self.tilt_x), float(self.tilt_y))
+
+    def height_at(self, xy) -> np.ndarray:
+        """The bed's height (m) at positions ``xy`` (K, 2): :func:`~pkmcal.machines.base.
+        bed_height_at` of its plane and surface."""
+        return bed_height_at(self.plane, xy, self.surface)
+
+    def shifted(self, t) -> BedSetup:
+        """The bed seen from a base frame whose points moved by ``t`` (m)."""
+        tx, ty, tz = (float(v) for v in np.asarray(t, float))
+        h = self.height + tz - self.tilt_x * tx - self.tilt_y * ty
+        return BedSetup(h, self.tilt_x, self.tilt_y, self.surface)
+
+    def frame_shift(self, machine):
+        """The shift that puts the bed at z = 0 on a machine whose frame is its bed (a
+        printer, SPEC 8), else None."""
+        if not getattr(machine, "frame_is_bed", False) or float(self.height) == 0.0:
+            return None
+        return np.array([0.0, 0.0, -float(self.height)])
+
+
 class Probe(Instrument):
     """Bed-probe heights: the nozzle's height above a flat bed of unknown height and tilt."""
 
@@ -445,6 +491,25 @@ class Probe(Instrument):
 
     section = "bed"
     section_words = "a calibration from probe heights (probe_z) writes the bed section"
+    Setup = BedSetup
+    section_order = 30
+
+    def read_setup(self, section, length_factor, machine):
+        surface = section.surface
+        return BedSetup(section.height * length_factor, section.tilt_x, section.tilt_y,
+                        None if surface is None else (
+                            surface.radius * length_factor,
+                            np.asarray(surface.values, float) * length_factor))
+
+    def setup_section(self, setup, length_factor, machine):
+        out = {"height": float(setup.height) / length_factor, "tilt_x": float(setup.tilt_x),
+               "tilt_y": float(setup.tilt_y)}
+        if setup.surface is not None:
+            radius, values = setup.surface
+            out["surface"] = {"radius": float(radius) / length_factor,
+                              "values": [[float(v) / length_factor for v in row]
+                                         for row in np.asarray(values, float)]}
+        return out
 
     def carried_by(self, machine):
         return getattr(machine, "probe_bed", None) is not None

@@ -53,6 +53,7 @@ from ..identifiability import name_null_space, name_weak_directions
 from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine
 from ..machines.delta import TRACKER_GRID_SPACING  # noqa: F401  (seed 001's grid)
+from ..machines.file_format import file_rotation, frame_section, vector
 from ..paths import path_text
 from ..units import format_um
 from .base import Instrument, StandardPlan, _check_groups, _fk_of, has_column, reachable
@@ -263,6 +264,33 @@ class TrackerData:
 TRACKER_POSITION = (2.0, -1.5, -1.4)
 #: its tilt about its own y axis (rad)
 TRACKER_TILT = np.deg2rad(1.0)
+
+
+@dataclass(frozen=True)
+class TrackerSetup:
+    """A tracker's set-up (the machine file's ``tracker:`` section): its frame and the
+    places of its targets on the platform.
+
+    Attributes
+    ----------
+    base_from_tracker : tuple of ndarray
+        ``(R (3, 3), t (3,))``: a tracker point ``m`` is ``R m + t`` in the base frame, m.
+    targets : ndarray, shape (K, 3) or None
+        Places of targets 1..K on the platform (platform frame), m; None: one target at the
+        platform origin, or the machine's own (a Delta's reflector, ``smr_offset``).
+    """
+
+    base_from_tracker: tuple
+    targets: np.ndarray | None = None
+
+    def shifted(self, t) -> TrackerSetup:
+        """The set-up seen from a base frame whose points moved by ``t`` (m)."""
+        R, a = self.base_from_tracker
+        return TrackerSetup((R, np.asarray(a, float) + np.asarray(t, float)), self.targets)
+
+    def frame_shift(self, machine):
+        """None: a tracker says nothing about the machine's frame."""
+        return None
 
 
 def default_tracker_pose() -> tuple[np.ndarray, np.ndarray]:
@@ -1000,6 +1028,28 @@ class Tracker(Instrument):
     section = "tracker"
     section_words = ("a calibration from points (mx, my, mz: laser tracker, CMM) writes the "
                      "tracker section")
+    Setup = TrackerSetup
+    section_order = 10
+
+    def read_setup(self, section, length_factor, machine):
+        targets = getattr(section, "targets", None)
+        return TrackerSetup(
+            (file_rotation(section.rotation),
+             np.asarray(section.translation, float) * length_factor),
+            None if targets is None else np.asarray(targets, float) * length_factor)
+
+    def setup_section(self, setup, length_factor, machine):
+        out = frame_section(setup.base_from_tracker, length_factor)
+        if setup.targets is not None:
+            targets = np.asarray(setup.targets, float).reshape(-1, 3)
+            known = machine.tracker_target()
+            if known is None:
+                out["targets"] = [vector(c, length_factor) for c in targets]
+            elif not np.allclose(targets, known, rtol=0, atol=1e-12):
+                raise InputError(f"cannot save tracker targets for a {machine.kind}: its "
+                                 "target on the platform is fixed by the machine file "
+                                 "(smr_offset)")
+        return out
 
     def carried_by(self, machine):
         return getattr(machine, "base_from_tracker", None) is not None

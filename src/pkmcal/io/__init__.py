@@ -31,9 +31,12 @@ from .csv_io import (
 from .machine_file import (
     MACHINE_FORMATS,
     MachineFormat,
+    bed_frame,
     load_machine,
+    load_machine_file,
     machine_to_text,
     parse_machine,
+    parse_machine_file,
     save_machine,
 )
 
@@ -96,7 +99,7 @@ def write_measurements(instrument, path, data, machine, length_unit: str = "mm")
 __all__ = [
     "read_measurements", "write_measurements", "write_constraint_link", "MACHINE_FORMATS",
     "MachineFormat", "atomic_write_text",
-    "joint_quantity", "load_machine",
+    "joint_quantity", "load_machine", "load_machine_file", "parse_machine_file", "bed_frame",
     "machine_to_text", "parse_machine", "read_constraint_link", "read_full_pose", "read_joints",
     "read_passive", "read_poses", "read_positions", "read_readings", "read_table",
     "read_tracker", "save_machine", "write_full_pose", "write_joints", "write_poses",

@@ -92,6 +92,8 @@ import yaml
 from pydantic import BaseModel, ValidationError, create_model
 
 from ..errors import InputError
+from ..instruments.registry import INSTRUMENTS
+from ..instruments.setups import Setups, attach_legacy, legacy_setups
 from ..kinematics import euler_from_matrix
 from ..limits import (
     MAX_ANGLE,
@@ -110,7 +112,6 @@ from ..machines.file_format import (
     TrackerSection,
     Units,
     factors,
-    vector,
 )
 from ..machines.file_format import show as _show
 from ..machines.registry import machine_formats as registered_machine_formats
@@ -305,140 +306,70 @@ def _fmt(x: float) -> str:
     return s
 
 
-def _build_instruments(machine: Machine, doc, fl: float) -> None:
-    """What an instrument's calibration fitted, from the file onto the machine.
-
-    ``tracker`` -> ``machine.base_from_tracker = (R, t)`` and ``machine.tracker_targets``
-    ((K, 3) platform-frame places, m, or None); ``ballbar`` -> ``machine.ballbar_setups``
-    (list of ``(pivot, ball)``, m, or None); ``measurement_frames`` ->
-    ``machine.measurement_frames`` (None without the key). Keys a machine type's schema does
-    not have are None.
-    """
-    tracker = getattr(doc, "tracker", None)
-    machine.base_from_tracker = None if tracker is None else (
-        _rotation(tracker.rotation), np.asarray(tracker.translation, float) * fl)
-    targets = getattr(tracker, "targets", None)
-    machine.tracker_targets = None if targets is None else np.asarray(targets, float) * fl
-    ballbar = getattr(doc, "ballbar", None)
-    machine.ballbar_setups = None if ballbar is None else [
-        (np.asarray(s.pivot, float) * fl, np.asarray(s.ball, float) * fl) for s in ballbar]
-    bed = getattr(doc, "bed", None)
-    machine.probe_bed = None if bed is None else (bed.height * fl, bed.tilt_x, bed.tilt_y)
-    surface = None if bed is None else bed.surface
-    machine.bed_surface = None if surface is None else (
-        surface.radius * fl, np.asarray(surface.values, float) * fl)
-    frames = getattr(doc, "measurement_frames", None)
-    if frames is None:
-        machine.measurement_frames = None
-    else:
-        from ..instruments.pose import MeasurementFrames
-
-        machine.measurement_frames = MeasurementFrames(
-            (_rotation(frames.mocap_from_base.rotation),
-             np.asarray(frames.mocap_from_base.translation, float) * fl),
-            (_rotation(frames.platform_from_marker.rotation),
-             np.asarray(frames.platform_from_marker.translation, float) * fl))
+def _setup_instruments() -> list:
+    """The instruments with a set-up (:attr:`~pkmcal.instruments.base.Instrument.Setup`), in
+    the order of their sections in a machine file."""
+    return sorted((inst for inst in INSTRUMENTS.values() if inst.Setup is not None),
+                  key=lambda inst: inst.section_order)
 
 
-def bed_frame(machine: Machine) -> Machine:
-    """``machine`` expressed in its bed's frame when its frame is its bed (a printer, SPEC 8):
-    a ``bed`` at a height ``h`` above z = 0 (a simulated true printer's, an older file's) is
-    the same printer with its base frame ``h`` lower - the endstops carry the height, the bed
-    is at z = 0 with its tilt kept - and so it is read and written: a printer's file never
-    says its bed is anywhere but z = 0 (issue 37). Every base-frame value of the file moves
-    with it (``home``, the tracker's and the ballbar's places); no reading changes.
+def _read_setups(machine: Machine, doc, fl: float) -> Setups:
+    """The set-ups of a validated file: each instrument's, read from its section (those the
+    file has; keys a machine type's schema does not have are absent)."""
+    return Setups({inst.name: inst.read_setup(section, fl, machine)
+                   for inst in _setup_instruments()
+                   if (section := getattr(doc, inst.section, None)) is not None})
+
+
+def bed_frame(machine: Machine, setups: Setups) -> tuple[Machine, Setups]:
+    """``machine`` and its set-ups expressed in its bed's frame when its frame is its bed (a
+    printer, SPEC 8): a ``bed`` at a height ``h`` above z = 0 (a simulated true printer's, an
+    older file's) is the same printer with its base frame ``h`` lower - the endstops carry
+    the height, the bed is at z = 0 with its tilt kept - and so it is read and written: a
+    printer's file never says its bed is anywhere but z = 0 (issue 37). Every base-frame value
+    moves with it (``home``, each set-up: :meth:`Setups.shifted
+    <pkmcal.instruments.setups.Setups.shifted>`); no reading changes.
 
     Parameters
     ----------
     machine : Machine
-        A machine with its instrument sections (``probe_bed`` and the others) set.
+        The machine.
+    setups : Setups
+        Its set-ups (the bed's says where the frame is: :meth:`Setups.frame_shift
+        <pkmcal.instruments.setups.Setups.frame_shift>`).
 
     Returns
     -------
-    Machine
-        ``machine`` itself when its frame is not its bed or its bed is at z = 0, else a copy
-        with ``probe_bed = (0, tilt_x, tilt_y)``.
+    tuple
+        ``(machine, setups)`` themselves when there is nothing to move, else moved copies.
     """
-    bed = getattr(machine, "probe_bed", None)
-    if not machine.frame_is_bed or bed is None or float(bed[0]) == 0.0:
-        return machine
-    t = np.array([0.0, 0.0, -float(bed[0])])
+    t = setups.frame_shift(machine)
+    if t is None:
+        return machine, setups
     out = machine.with_parameters(machine.transform_base(machine.u, np.eye(3), t=t))
-    out.probe_bed = (0.0, float(bed[1]), float(bed[2]))
     if machine._home is not None:
         out.home = (machine._home[0] + t, machine._home[1])
-    pose = getattr(machine, "base_from_tracker", None)
-    if pose is not None:
-        out.base_from_tracker = (pose[0], np.asarray(pose[1], float) + t)
-    setups = getattr(machine, "ballbar_setups", None)
-    if setups is not None:
-        out.ballbar_setups = [(np.asarray(p, float) + t, b) for p, b in setups]
-    return out
+    return out, setups.shifted(t)
 
 
-def _dump_instruments(machine: Machine, fl: float) -> dict:
-    """The ``tracker``, ``ballbar`` and ``measurement_frames`` sections of ``machine`` (those
-    it has), in the file's length unit; the inverse of :func:`_build_instruments`."""
+def _setup_sections(machine: Machine, setups: Setups, fl: float) -> dict:
+    """The instrument sections of ``setups`` in the file's length unit, in file order (the
+    inverse of :func:`_read_setups`)."""
     out: dict[str, Any] = {}
-    pose = getattr(machine, "base_from_tracker", None)
-    if pose is not None:
-        section = _frame_text(pose, fl)
-        targets = getattr(machine, "tracker_targets", None)
-        if targets is not None:
-            targets = np.asarray(targets, float).reshape(-1, 3)
-            known = machine.tracker_target()
-            if known is None:
-                section["targets"] = [vector(c, fl) for c in targets]
-            elif not np.allclose(targets, known, rtol=0, atol=1e-12):
-                raise InputError(f"cannot save tracker targets for a {machine.kind}: its "
-                                 "target on the platform is fixed by the machine file "
-                                 "(smr_offset)")
-        out["tracker"] = section
-    setups = getattr(machine, "ballbar_setups", None)
-    if setups is not None:
-        out["ballbar"] = [{"pivot": vector(p, fl), "ball": vector(b, fl)} for p, b in setups]
-    bed = getattr(machine, "probe_bed", None)
-    surface = getattr(machine, "bed_surface", None)
-    if bed is None and surface is not None:
-        bed = (0.0, 0.0, 0.0)
-    if bed is not None:
-        out["bed"] = {"height": float(bed[0]) / fl, "tilt_x": float(bed[1]),
-                      "tilt_y": float(bed[2])}
-        if surface is not None:
-            out["bed"]["surface"] = {"radius": float(surface[0]) / fl,
-                                     "values": [[float(v) / fl for v in row]
-                                                for row in np.asarray(surface[1], float)]}
-    frames = getattr(machine, "measurement_frames", None)
-    if frames is not None and len(machine.pose_space) == 6:
-        out["measurement_frames"] = {
-            "mocap_from_base": _frame_text(frames.mocap_from_base, fl),
-            "platform_from_marker": _frame_text(frames.platform_from_marker, fl)}
+    for inst in _setup_instruments():
+        setup = setups.get(inst.name)
+        if setup is not None:
+            section = inst.setup_section(setup, fl, machine)
+            if section is not None:
+                out[inst.section] = section
     return out
-
-
-def _rotation(value) -> np.ndarray:
-    """A rotation matrix from a file: kept as written when orthonormal to 1e-12, else the
-    nearest rotation (the schema has checked it is within :data:`ROTATION_TOL`)."""
-    R = np.asarray(value, float)
-    if np.max(np.abs(R.T @ R - np.eye(3))) <= 1e-12:
-        return R
-    U, _, Vt = np.linalg.svd(R)
-    return U @ Vt
-
-
-def _frame_text(pose, fl: float) -> dict:
-    R, t = pose
-    return {"rotation": [[float(v) for v in row] for row in np.asarray(R, float)],
-            "translation": [float(v) / fl for v in np.asarray(t, float)]}
 
 
 @functools.cache
 def _instrument_kinds() -> dict:
     """Quantities of the instrument sections (every machine type; a key a type lacks never
     matches): each instrument's ``file_quantities``, looked up when a number is not the
-    machine's own (the instruments are not imported to load a machine file without them)."""
-    from ..instruments.registry import INSTRUMENTS
-
+    machine's own."""
     return {path: kind for inst in INSTRUMENTS.values()
             for path, kind in inst.file_quantities.items()}
 
@@ -457,7 +388,7 @@ def _with_common_sections(fmt: MachineFormat) -> MachineFormat:
     """A machine module's format (:mod:`pkmcal.machines.registry`) with what every machine
     file has: ``machine`` (the format's type), and the fields of :data:`_COMMON_FIELDS` its
     schema does not state (``pkmcal``, ``name``, ``units``, the instrument sections
-    ``tracker``, ``ballbar``, ``bed``: :func:`_build_instruments`, ``joint_limits`` and
+    ``tracker``, ``ballbar``, ``bed``: :func:`_read_setups`, ``joint_limits`` and
     ``calibration``), added after its own. The module states its own keys (and ``home``)."""
     own = fmt.schema.model_fields
     fields = {key: (Literal[fmt.kind], ...) if key == "machine" else field
@@ -465,19 +396,7 @@ def _with_common_sections(fmt: MachineFormat) -> MachineFormat:
     schema = create_model(fmt.schema.__name__, __base__=fmt.schema,
                           __module__=fmt.schema.__module__, **fields)
 
-    def build(doc, source: str) -> Machine:
-        machine = fmt.build(doc, source)
-        _build_instruments(machine, doc, factors(doc.units.model_dump())[0])
-        return bed_frame(machine)
-
-    def dump(machine: Machine, units: dict) -> dict:
-        machine = bed_frame(machine)
-        out = dict(fmt.dump(machine, units))
-        out.update(_dump_instruments(machine, factors(units)[0]))
-        return out
-
-    return dataclasses.replace(fmt, schema=schema, build=build, dump=dump,
-                               kinds=fmt.kinds)
+    return dataclasses.replace(fmt, schema=schema, kinds=fmt.kinds)
 
 
 #: machine type (``machine:`` in files) -> format: every machine module's
@@ -751,7 +670,7 @@ def _validation_message(exc: ValidationError, source: str, lines: dict,
 
 
 def parse_machine(text: str, source: str = "<machine>") -> Machine:
-    """Machine from the text of a machine file.
+    """Machine from the text of a machine file (its set-ups: :func:`parse_machine_file`).
 
     Parameters
     ----------
@@ -764,6 +683,33 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     -------
     Machine
         In internal units (m, rad), with ``file_units``, ``source`` and ``calibration_info``.
+
+    Raises
+    ------
+    InputError
+        As :func:`parse_machine_file`.
+    """
+    return parse_machine_file(text, source)[0]
+
+
+def parse_machine_file(text: str, source: str = "<machine>") -> tuple[Machine, Setups]:
+    """Machine and instrument set-ups from the text of a machine file.
+
+    Parameters
+    ----------
+    text : str
+        YAML text of a machine file (SPEC 6).
+    source : str, optional
+        Names the text in messages.
+
+    Returns
+    -------
+    machine : Machine
+        In internal units (m, rad), with ``file_units``, ``source`` and ``calibration_info``.
+    setups : Setups
+        The instruments' set-ups of its sections (``tracker``, ``ballbar``, ``bed``,
+        ``measurement_frames``: :mod:`pkmcal.instruments.setups`), internal units; a printer
+        and its set-ups in its bed's frame (:func:`bed_frame`).
 
     Raises
     ------
@@ -810,6 +756,8 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     _check_magnitudes(data, doc, fmt, source, lines)
     with np.errstate(all="ignore"):         # no numpy warning ever reaches the user
         machine = fmt.build(doc, source)
+        setups = _read_setups(machine, doc, factors(doc.units.model_dump())[0])
+        machine, setups = bed_frame(machine, setups)
         machine.file_units = _file_units(doc.units.model_dump())
         problems = machine.geometry_problems(home_given=doc.home is not None)
     if problems:
@@ -820,7 +768,8 @@ def parse_machine(text: str, source: str = "<machine>") -> Machine:
     machine.joint_limits = _joint_limits(data.get("joint_limits"), machine, source, lines)
     machine.source = source
     machine.calibration_info = doc.calibration
-    return machine
+    attach_legacy(machine, setups)
+    return machine, setups
 
 
 def _joint_limits(value, machine: Machine, source: str, lines: dict):
@@ -908,9 +857,32 @@ def load_machine(path) -> Machine:
     InputError
         Naming the file, key path and line; also for a missing or non-text file.
     """
+    return load_machine_file(path)[0]
+
+
+def load_machine_file(path) -> tuple[Machine, Setups]:
+    """Load a machine file (SPEC 6): the machine and the instruments' set-ups it carries.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The machine file.
+
+    Returns
+    -------
+    machine : Machine
+        As :func:`load_machine`.
+    setups : Setups
+        The set-ups of its instrument sections (:func:`parse_machine_file`).
+
+    Raises
+    ------
+    InputError
+        Naming the file, key path and line; also for a missing or non-text file.
+    """
     path = Path(path)
     text = read_input_text(path, "machine file", MAX_MACHINE_FILE_BYTES)
-    return parse_machine(text, str(path))
+    return parse_machine_file(text, str(path))
 
 
 def _plain(value):
@@ -959,7 +931,7 @@ def _flow(value) -> str:
 
 
 def machine_to_text(machine: Machine, units: dict | None = None,
-                    calibration: dict | None = None) -> str:
+                    calibration: dict | None = None, setups: Setups | None = None) -> str:
     """Text of the machine file of ``machine`` (see :func:`save_machine`).
 
     Parameters
@@ -971,6 +943,9 @@ def machine_to_text(machine: Machine, units: dict | None = None,
         mm/deg.
     calibration : dict, optional
         Metadata written as the ``calibration:`` section.
+    setups : Setups, optional
+        The instruments' set-ups, written as their sections (:mod:`pkmcal.instruments.
+        setups`).
 
     Returns
     -------
@@ -990,7 +965,10 @@ def machine_to_text(machine: Machine, units: dict | None = None,
             or units["angle"] not in ANGLE_UNITS:
         raise InputError(f"units must be {{length: mm|m|in, angle: deg|rad}}, got {units}")
     fl, fa = factors(units)
-    body = MACHINE_FORMATS[kind].dump(machine, units)
+    setups = legacy_setups(machine) if setups is None else Setups(setups)
+    machine, setups = bed_frame(machine, setups)
+    body = dict(MACHINE_FORMATS[kind].dump(machine, units))
+    body.update(_setup_sections(machine, setups, fl))
     # home: the pose coordinates the platform moves along (x, y, z; the Euler angles of a
     # platform that rotates; x, y, phi of a planar one)
     P, R = machine.home
@@ -1030,7 +1008,7 @@ def machine_to_text(machine: Machine, units: dict | None = None,
 
 
 def save_machine(machine: Machine, path, units: dict | None = None,
-                 calibration: dict | None = None) -> Path:
+                 calibration: dict | None = None, setups: Setups | None = None) -> Path:
     """Write ``machine`` as a machine file (same schema as :func:`load_machine` reads).
 
     The file always carries ``home`` (``machine.home``); floats are written at full precision;
@@ -1047,6 +1025,8 @@ def save_machine(machine: Machine, path, units: dict | None = None,
         mm/deg.
     calibration : dict, optional
         Metadata mapping written as the ``calibration:`` section.
+    setups : Setups, optional
+        The instruments' set-ups (:func:`machine_to_text`).
 
     Returns
     -------
@@ -1059,7 +1039,7 @@ def save_machine(machine: Machine, path, units: dict | None = None,
         As :func:`machine_to_text`, or when the text does not parse back.
     """
     path = Path(path)
-    text = machine_to_text(machine, units, calibration)
+    text = machine_to_text(machine, units, calibration, setups)
     parse_machine(text, str(path))  # never write a file we could not read back
     atomic_write_text(path, text)
     return path

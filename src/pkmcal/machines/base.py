@@ -120,17 +120,19 @@ class ParameterSubset:
     kinds: tuple[str, ...] | None = None
 
 
-def bed_height_at(machine, xy) -> np.ndarray:
-    """The height (m) of a printer's bed at (x, y): its plane (``probe_bed``: height and
-    slopes; 0 without one) plus its own shape (``bed_surface``: ``(radius, values)``, a
-    square grid over ``[-radius, radius]``, interpolated bilinearly, clamped to the grid).
+def bed_height_at(plane, xy, surface=None) -> np.ndarray:
+    """The height (m) of a printer's bed at (x, y): its plane (height and slopes; 0 without
+    one) plus its own shape (``surface``: ``(radius, values)``, a square grid over
+    ``[-radius, radius]``, interpolated bilinearly, clamped to the grid).
 
     Parameters
     ----------
-    machine : Machine
-        The machine (its ``probe_bed``, ``bed_surface``).
+    plane : array_like, shape (3,) or None
+        ``(height m, tilt_x, tilt_y)``; None: z = 0.
     xy : array_like, shape (K, 2)
         Positions, m.
+    surface : tuple, optional
+        ``(radius m, values (n, n) m)``, rows by ascending y.
 
     Returns
     -------
@@ -138,10 +140,8 @@ def bed_height_at(machine, xy) -> np.ndarray:
         Heights, m.
     """
     xy = np.asarray(xy, float).reshape(-1, 2)
-    bed = getattr(machine, "probe_bed", None)
-    b = np.zeros(3) if bed is None else np.asarray(bed, float)
+    b = np.zeros(3) if plane is None else np.asarray(plane, float)
     z = b[0] + b[1] * xy[:, 0] + b[2] * xy[:, 1]
-    surface = getattr(machine, "bed_surface", None)
     if surface is None:
         return z
     radius, values = float(surface[0]), np.asarray(surface[1], float)

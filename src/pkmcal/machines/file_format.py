@@ -126,6 +126,23 @@ def vector(value, fl: float) -> list[float]:
     return [float(v) / fl for v in np.asarray(value, float).reshape(3)]
 
 
+def file_rotation(value) -> np.ndarray:
+    """A rotation matrix from a file: kept as written when orthonormal to 1e-12, else the
+    nearest rotation (the schema has checked it is within :data:`ROTATION_TOL`)."""
+    R = np.asarray(value, float)
+    if np.max(np.abs(R.T @ R - np.eye(3))) <= 1e-12:
+        return R
+    U, _, Vt = np.linalg.svd(R)
+    return U @ Vt
+
+
+def frame_section(pose, fl: float) -> dict:
+    """``{rotation, translation}`` of a frame ``(R, t)`` (t in metres) as file numbers."""
+    R, t = pose
+    return {"rotation": [[float(v) for v in row] for row in np.asarray(R, float)],
+            "translation": [float(v) / fl for v in np.asarray(t, float)]}
+
+
 # --------------------------------------------------------------------------------------------
 # The head of every machine file and the sections several machine types share
 # --------------------------------------------------------------------------------------------

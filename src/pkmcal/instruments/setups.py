@@ -1,0 +1,188 @@
+"""The experiment's set-ups: where each instrument stood when it measured the machine.
+
+A set-up is what an instrument's calibration fits beside the machine and a machine file keeps
+in the instrument's own section: a tracker's frame and targets (``tracker:``), a ballbar's
+mountings (``ballbar:``), a printer's bed (``bed:``), the motion-capture frames
+(``measurement_frames:``). Each instrument declares its set-up's type in its module
+(:attr:`~pkmcal.instruments.base.Instrument.Setup`) and how it is read from and written to its
+section (:meth:`~pkmcal.instruments.base.Instrument.read_setup`,
+:meth:`~pkmcal.instruments.base.Instrument.setup_section`); :class:`Setups` carries them, by
+instrument name, next to the machine (the machine holds none of them).
+
+Every set-up type has ``shifted(t)``: the same set-up seen from a base frame whose points all
+moved by ``t`` (a base point ``p`` is ``p + t`` in the new frame), and ``frame_shift(machine)``:
+the ``t`` that makes the machine's frame the set-up's own (a printer's frame is its bed, SPEC 8),
+None for set-ups that say nothing about the machine's frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+import numpy as np
+
+
+class Setups(Mapping):
+    """The set-ups of an experiment, by instrument name (``"tracker"``, ``"pose"``,
+    ``"distance"``, ``"probe"``); immutable, a :class:`~collections.abc.Mapping`.
+
+    Parameters
+    ----------
+    items : mapping of str to object, optional
+        Instrument name -> its set-up (None values are dropped: no set-up).
+
+    Examples
+    --------
+    >>> s = Setups()
+    >>> len(s), s.get("tracker")
+    (0, None)
+    """
+
+    __slots__ = ("_items",)
+
+    def __init__(self, items: Mapping[str, Any] | None = None):
+        self._items = {k: v for k, v in dict(items or {}).items() if v is not None}
+
+    def __getitem__(self, name: str):
+        return self._items[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._items)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __repr__(self) -> str:
+        return f"Setups({self._items!r})"
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, Mapping) or set(self) != set(other):
+            return False
+        return all(_same(self[k], other[k]) for k in self)
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def with_setup(self, name: str, setup) -> Setups:
+        """A copy with ``name``'s set-up replaced (None: removed).
+
+        Parameters
+        ----------
+        name : str
+            Instrument name.
+        setup : object or None
+            Its set-up.
+
+        Returns
+        -------
+        Setups
+            The new container.
+        """
+        items = dict(self._items)
+        items[name] = setup
+        return Setups(items)
+
+    def merged(self, other: Mapping | None) -> Setups:
+        """A copy with ``other``'s set-ups added (they win where both have one).
+
+        Parameters
+        ----------
+        other : mapping or None
+            Set-ups by instrument name.
+
+        Returns
+        -------
+        Setups
+            The new container.
+        """
+        return Setups({**self._items, **dict(other or {})})
+
+    def shifted(self, t) -> Setups:
+        """Every set-up seen from a base frame whose points moved by ``t`` (m).
+
+        Parameters
+        ----------
+        t : array_like, shape (3,)
+            The shift of base points, m.
+
+        Returns
+        -------
+        Setups
+            The new container.
+        """
+        t = np.asarray(t, float)
+        return Setups({k: v.shifted(t) for k, v in self._items.items()})
+
+    def frame_shift(self, machine):
+        """The shift of base points that makes ``machine``'s frame its set-ups' own (a
+        printer's bed at z = 0), or None.
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        ndarray, shape (3,) or None
+            The first set-up's that states one.
+        """
+        for setup in self._items.values():
+            t = setup.frame_shift(machine)
+            if t is not None:
+                return np.asarray(t, float)
+        return None
+
+
+def _same(a, b) -> bool:
+    """Set-ups equal value for value (arrays compared exactly)."""
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, np.ndarray):
+        return a.shape == b.shape and bool(np.array_equal(a, b))
+    if isinstance(a, (tuple, list)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    if hasattr(a, "__dataclass_fields__"):
+        return all(_same(getattr(a, f), getattr(b, f)) for f in a.__dataclass_fields__)
+    return a == b
+
+
+# -- transitional: the set-ups as the attributes older code reads on a machine ----------------
+# (``base_from_tracker``, ``tracker_targets``, ``ballbar_setups``, ``probe_bed``,
+# ``bed_surface``, ``measurement_frames``); removed once every reader takes a Setups.
+
+_LEGACY = ("base_from_tracker", "tracker_targets", "ballbar_setups", "probe_bed", "bed_surface",
+           "measurement_frames")
+
+
+def attach_legacy(machine, setups: Setups) -> None:
+    """Set the older attributes of ``machine`` from ``setups`` (None where absent)."""
+    tracker, ballbar = setups.get("tracker"), setups.get("distance")
+    bed, frames = setups.get("probe"), setups.get("pose")
+    machine.base_from_tracker = None if tracker is None else tracker.base_from_tracker
+    machine.tracker_targets = None if tracker is None else tracker.targets
+    machine.ballbar_setups = None if ballbar is None else list(ballbar.mountings)
+    machine.probe_bed = None if bed is None else bed.plane
+    machine.bed_surface = None if bed is None else bed.surface
+    machine.measurement_frames = frames
+
+
+def legacy_setups(machine) -> Setups:
+    """The set-ups the older attributes of ``machine`` hold."""
+    from .registry import INSTRUMENTS
+
+    items = {}
+    pose = getattr(machine, "base_from_tracker", None)
+    if pose is not None:
+        targets = getattr(machine, "tracker_targets", None)
+        items["tracker"] = INSTRUMENTS["tracker"].Setup(
+            pose, None if targets is None else np.asarray(targets, float))
+    mountings = getattr(machine, "ballbar_setups", None)
+    if mountings is not None:
+        items["distance"] = INSTRUMENTS["distance"].Setup(mountings)
+    bed, surface = getattr(machine, "probe_bed", None), getattr(machine, "bed_surface", None)
+    if bed is not None or surface is not None:
+        h, tx, ty = (0.0, 0.0, 0.0) if bed is None else (float(v) for v in bed)
+        items["probe"] = INSTRUMENTS["probe"].Setup(h, tx, ty, surface)
+    items["pose"] = getattr(machine, "measurement_frames", None)
+    return Setups(items)

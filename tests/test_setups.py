@@ -1,0 +1,117 @@
+"""The instruments' set-ups travel beside the machine (issue 38 item 2): each instrument
+declares its set-up type and how its machine-file section reads and writes it; the loader
+returns them as a :class:`~pkmcal.instruments.setups.Setups`, and writing them back gives the
+same file, byte for byte."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pkmcal.instruments.registry import INSTRUMENTS
+from pkmcal.instruments.setups import Setups
+from pkmcal.io import load_machine_file, machine_to_text, parse_machine_file
+
+HEXASLIDE = """\
+pkmcal: 1
+machine: hexaslide
+units: {length: mm, angle: deg}
+constraint_link: {length: 300.0}
+chains:
+  - {a0: [451.05, -164.17, -400.0], alpha: 160.0, beta: 70.0, b: [84.85, -84.85, 0.0], l: 450.0}
+  - {a0: [-83.35, 472.69, -400.0], alpha: 280.0, beta: 70.0, b: [31.06, 115.91, 0.0], l: 450.0}
+  - {a0: [-367.7, 308.52, -400.0], alpha: 280.0, beta: 70.0, b: [-115.91, -31.06, 0.0], l: 450.0}
+  - {a0: [-367.7, -308.52, -400.0], alpha: 40.0, beta: 70.0, b: [-115.91, 31.06, 0.0], l: 450.0}
+  - {a0: [-83.35, -472.69, -400.0], alpha: 40.0, beta: 70.0, b: [31.06, -115.91, 0.0], l: 450.0}
+  - {a0: [451.05, 164.17, -400.0], alpha: 160.0, beta: 70.0, b: [84.85, 84.85, 0.0], l: 450.0}
+"""
+
+SECTIONS = """\
+tracker: {rotation: [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], \
+translation: [1200.0, -400.0, -300.0], targets: [[10.0, -5.0, -15.0], [0.0, 12.5, -15.0]]}
+ballbar:
+  - {pivot: [0.0, 0.0, 200.0], ball: [0.0, 0.0, 0.0]}
+  - {pivot: [100.0, 0.0, 250.0], ball: [5.0, 0.0, 0.0]}
+bed: {height: 0.5, tilt_x: -0.0004, tilt_y: 0.0}
+measurement_frames:
+  mocap_from_base: {rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], \
+translation: [10.0, 20.0, 30.0]}
+  platform_from_marker: {rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], \
+translation: [0.0, 0.0, 5.0]}
+"""
+
+LEGACY = ("base_from_tracker", "tracker_targets", "ballbar_setups", "probe_bed", "bed_surface",
+          "measurement_frames")
+
+
+@pytest.fixture
+def machine_and_setups():
+    return parse_machine_file(HEXASLIDE + SECTIONS, "setups.yaml")
+
+
+def test_every_instrument_with_a_section_declares_its_setup_type():
+    with_section = {name for name, inst in INSTRUMENTS.items() if inst.section is not None}
+    with_setup = {name for name, inst in INSTRUMENTS.items() if inst.Setup is not None}
+    assert with_section == with_setup == {"tracker", "pose", "distance", "probe"}
+    orders = [inst.section_order for inst in INSTRUMENTS.values() if inst.Setup is not None]
+    assert len(set(orders)) == len(orders)          # one place each in the file
+
+
+def test_the_loader_returns_the_setups_by_instrument(machine_and_setups):
+    machine, setups = machine_and_setups
+    assert isinstance(setups, Setups)
+    assert set(setups) == {"tracker", "distance", "probe", "pose"}
+    for name, setup in setups.items():
+        assert isinstance(setup, INSTRUMENTS[name].Setup)
+    R, t = setups["tracker"].base_from_tracker
+    np.testing.assert_allclose(t, [1.2, -0.4, -0.3], rtol=1e-15)
+    np.testing.assert_allclose(setups["tracker"].targets[1], [0.0, 0.0125, -0.015], rtol=1e-15)
+    pivot, ball = setups["distance"].mountings[1]
+    np.testing.assert_allclose(pivot, [0.1, 0.0, 0.25], rtol=1e-15)
+    assert setups["probe"].plane == pytest.approx((0.5e-3, -0.0004, 0.0), rel=1e-15)
+    np.testing.assert_allclose(setups["pose"].platform_from_marker[1], [0, 0, 0.005],
+                               rtol=1e-15)
+
+
+def test_setups_round_trip_byte_identical(machine_and_setups, tmp_path):
+    machine, setups = machine_and_setups
+    text = machine_to_text(machine, setups=setups)
+    path = tmp_path / "again.yaml"
+    path.write_text(text)
+    machine2, setups2 = load_machine_file(path)
+    assert setups2 == setups
+    assert machine_to_text(machine2, setups=setups2) == text
+    for key in ("tracker:", "ballbar:", "bed:", "measurement_frames:"):
+        assert text.count("\n" + key) == 1
+    # the sections in the file's order: tracker, ballbar, bed, measurement_frames
+    where = [text.index("\n" + key) for key in ("tracker:", "ballbar:", "bed:",
+                                                  "measurement_frames:")]
+    assert where == sorted(where)
+
+
+def test_a_machine_without_setups_writes_no_instrument_section(machine_and_setups):
+    machine, _ = machine_and_setups
+    text = machine_to_text(machine, setups=Setups())
+    for key in ("tracker", "ballbar", "bed", "measurement_frames"):
+        assert f"\n{key}:" not in text
+
+
+def test_shifted_setups_move_base_points_only(machine_and_setups):
+    _, setups = machine_and_setups
+    t = np.array([0.01, -0.02, 0.03])
+    moved = setups.shifted(t)
+    np.testing.assert_allclose(moved["tracker"].base_from_tracker[1],
+                               setups["tracker"].base_from_tracker[1] + t, rtol=1e-15)
+    np.testing.assert_array_equal(moved["tracker"].targets, setups["tracker"].targets)
+    (p0, b0), (p1, b1) = setups["distance"].mountings[0], moved["distance"].mountings[0]
+    np.testing.assert_allclose(p1, p0 + t, rtol=1e-15)
+    np.testing.assert_array_equal(b1, b0)
+    # a base point x is measured at A x + a; moved, x + t is measured there
+    x = np.array([0.1, 0.2, 0.3])
+    before = setups["pose"].measured(x, np.eye(3))[0]
+    after = moved["pose"].measured(x + t, np.eye(3))[0]
+    np.testing.assert_allclose(after, before, rtol=1e-12)
+    # the bed's plane at a point: its height moves with the frame
+    xy = np.array([[0.05, -0.03]])
+    np.testing.assert_allclose(moved["probe"].height_at(xy + t[:2]),
+                               setups["probe"].height_at(xy) + t[2], rtol=1e-12)
