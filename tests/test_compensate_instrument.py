@@ -37,13 +37,13 @@ def poses(m, n: int, rng, rotate: bool):
     ("hexaslide-modified", False), ("hexaslide-modified", True), ("stewart", False),
     ("stewart", True), ("delta-modified", False)])
 def test_tracker_targets(case, oriented, tmp_path):
-    m = calibrated(case, instruments=("tracker",))
-    save_machine(m, tmp_path / "cal.yaml")
+    m, s = calibrated(case, instruments=("tracker",))
+    save_machine(m, tmp_path / "cal.yaml", setups=s)
     rng = np.random.default_rng(7)
     P, R = poses(m, 9, rng, rotate=oriented)
-    A, a = m.base_from_tracker
+    A, a = s["tracker"].base_from_tracker
     known = m.tracker_target()
-    targets = np.atleast_2d(known if known is not None else m.tracker_targets)
+    targets = np.atleast_2d(known if known is not None else s["tracker"].targets)
     group = np.arange(9) % len(targets)
     Pt = (P + np.einsum("kij,kj->ki", R, targets[group]) - a) @ A
     unit = m.file_units["length"]
@@ -64,10 +64,10 @@ def test_tracker_targets(case, oriented, tmp_path):
 
 
 def test_marker_poses_on_a_hexa_slide(tmp_path):
-    m = calibrated("hexaslide-modified", instruments=("pose", "tracker"))
-    save_machine(m, tmp_path / "cal.yaml")
+    m, s = calibrated("hexaslide-modified", instruments=("pose", "tracker"))
+    save_machine(m, tmp_path / "cal.yaml", setups=s)
     P, R = poses(m, 8, np.random.default_rng(8), rotate=True)
-    Pm, Rm = m.measurement_frames.measured(P, R)
+    Pm, Rm = s["pose"].measured(P, R)
     write_poses(tmp_path / "t.csv", Pm, Rm, "mm", "deg")
     proc = run("compensate", "cal.yaml", "t.csv", "--frame", "instrument", "--instrument",
                "pose", "-o", "c.csv", cwd=tmp_path)
@@ -78,8 +78,8 @@ def test_marker_poses_on_a_hexa_slide(tmp_path):
 
 
 def test_errors(tmp_path):
-    m = calibrated("stewart-modified")
-    save_machine(m, tmp_path / "all.yaml")
+    m, s = calibrated("stewart-modified")
+    save_machine(m, tmp_path / "all.yaml", setups=s)
     P, R = poses(m, 3, np.random.default_rng(1), rotate=False)
     write_positions(tmp_path / "t.csv", P, "m", extra={"target": [1, 2, 5]})
 
@@ -92,12 +92,12 @@ def test_errors(tmp_path):
                             "tracker"), "t.csv", "row 4, column target", "target 5")
     assert_input_error(comp("all.yaml", "t.csv", "--instrument", "tracker"),
                        "--instrument tracker", "only with --frame instrument")
-    ballbar = calibrated("hexaslide", instruments=("distance",))
-    save_machine(ballbar, tmp_path / "ballbar.yaml")
+    ballbar, s = calibrated("hexaslide", instruments=("distance",))
+    save_machine(ballbar, tmp_path / "ballbar.yaml", setups=s)
     assert_input_error(comp("ballbar.yaml", "t.csv", "--frame", "instrument"),
                        "--frame instrument", "ballbar", "base frame")
-    tracker = calibrated("hexaslide", instruments=("tracker",))
-    save_machine(tracker, tmp_path / "tracker.yaml")
+    tracker, s = calibrated("hexaslide", instruments=("tracker",))
+    save_machine(tracker, tmp_path / "tracker.yaml", setups=s)
     assert_input_error(comp("tracker.yaml", "t.csv", "--frame", "instrument", "--instrument",
                             "pose"), "--instrument pose", "it has: tracker")
     assert not (tmp_path / "c.csv").exists()
@@ -108,13 +108,13 @@ def test_covariance_of_the_tracker_and_its_targets():
     estimated targets' places (the calibration's names), per target row."""
     from pkmcal.compensation import compensate, instrument_frames
 
-    m = calibrated("stewart-modified", instruments=("tracker",))
-    frame = instrument_frames(m)["tracker"]
+    m, s = calibrated("stewart-modified", instruments=("tracker",))
+    frame = instrument_frames(m, s)["tracker"]
     assert frame.estimated and frame.names[6:9] == ("target1.x", "target1.y", "target1.z")
     P, R = poses(m, 6, np.random.default_rng(2), rotate=False)
     group = np.arange(6) % 3
-    A, a = m.base_from_tracker
-    Pt = (P + np.einsum("kij,kj->ki", R, m.tracker_targets[group]) - a) @ A
+    A, a = s["tracker"].base_from_tracker
+    Pt = (P + np.einsum("kij,kj->ki", R, s["tracker"].targets[group]) - a) @ A
     names = [*m.parameters.names, *frame.names]
     n = len(names)
     C = np.zeros((n, n))

@@ -19,9 +19,12 @@ from pkmcal.instruments import (
     fitted_instruments,
     predict_instrument,
 )
+from pkmcal.instruments.distance import BallbarSetup
 from pkmcal.instruments.pose import MeasurementFrames, simulate_full_pose
+from pkmcal.instruments.setups import Setups
 from pkmcal.instruments.simulate import sample_workspace_poses, simulate_instrument
-from pkmcal.io import load_machine, read_poses, save_machine
+from pkmcal.instruments.tracker import TrackerSetup
+from pkmcal.io import load_machine, load_machine_file, read_poses, save_machine
 from pkmcal.io.csv_io import write_full_pose, write_instrument
 from pkmcal.kinematics import matrix_from_rotvec
 from pkmcal.machines.deviations import random_deviations
@@ -42,49 +45,50 @@ N = 14
 
 
 def calibrated(case: str, instruments=("tracker", "pose", "distance"), seed: int = 5):
-    """A 'calibrated' machine with known instrument unknowns, and its truth for the models."""
+    """A 'calibrated' machine with known instrument set-ups (the truth for the models):
+    ``(machine, setups)``."""
     path, units, modify = CASES[case]
     m = load_machine(path)
     rng = np.random.default_rng(seed)
     if modify:
         m = m.with_parameters(m.u + random_deviations(m, rng))
-    m.base_from_tracker = m.tracker_targets = m.ballbar_setups = None
-    m.measurement_frames = None
+    setups = {}
     L = m.characteristic_length()
     if "tracker" in instruments:
-        m.base_from_tracker = (matrix_from_rotvec([0.1, -0.2, 2.0]),
-                               np.array([2.0, -1.5, -0.4]) + rng.normal(size=3) * 0.05)
-        if m.kind != "delta":
-            m.tracker_targets = rng.normal(size=(3, 3)) * 0.2 * L
+        pose = (matrix_from_rotvec([0.1, -0.2, 2.0]),
+                np.array([2.0, -1.5, -0.4]) + rng.normal(size=3) * 0.05)
+        targets = rng.normal(size=(3, 3)) * 0.2 * L if m.kind != "delta" else None
+        setups["tracker"] = TrackerSetup(pose, targets)
     if "pose" in instruments and m.pose_dof == 6:
-        m.measurement_frames = MeasurementFrames(
+        setups["pose"] = MeasurementFrames(
             (matrix_from_rotvec(rng.normal(size=3)), rng.normal(size=3)),
             (matrix_from_rotvec(rng.normal(size=3) * 0.3), rng.normal(size=3) * 0.1 * L))
     if "distance" in instruments:
-        m.ballbar_setups = [(m.home[0] + rng.normal(size=3) * 0.3 * L,
-                             rng.normal(size=3) * 0.1 * L) for _ in range(2)]
+        setups["distance"] = BallbarSetup([(m.home[0] + rng.normal(size=3) * 0.3 * L,
+                                            rng.normal(size=3) * 0.1 * L) for _ in range(2)])
     if units is not None:
         m.file_units = units
-    return m
+    return m, Setups(setups)
 
 
-def simulate(m, instrument: str, rng):
+def simulate(m, setups, instrument: str, rng):
     """Simulated measurements (the instrument's own simulation) at random poses."""
     P, R = sample_workspace_poses(m, N, rng)
     if instrument == "pose":
-        return simulate_full_pose(m, (P, R), m.measurement_frames, noise=None)
+        return simulate_full_pose(m, (P, R), setups["pose"], noise=None)
     if instrument == "tracker":
         known = m.tracker_target()
-        targets = np.atleast_2d(known if known is not None else m.tracker_targets)
+        tracker = setups["tracker"]
+        targets = np.atleast_2d(known if known is not None else tracker.targets)
         K = 1 if known is not None else len(targets)
         model = PointsModel(K, known)
-        values = np.concatenate([np.zeros(3), m.base_from_tracker[1]]
+        values = np.concatenate([np.zeros(3), tracker.base_from_tracker[1]]
                                 + ([] if known is not None else [targets.ravel()]))
-        truth = NuisanceState(values, [m.base_from_tracker[0]])
+        truth = NuisanceState(values, [tracker.base_from_tracker[0]])
     else:
-        K = len(m.ballbar_setups)
+        K = len(setups["distance"])
         model = DistancesModel(K)
-        values = np.concatenate([np.concatenate(s) for s in m.ballbar_setups])
+        values = np.concatenate([np.concatenate(s) for s in setups["distance"]])
         truth = NuisanceState(values, [])
     group = np.arange(N) % K
     return simulate_instrument(m, m, model, truth, P, R, group=group)
@@ -96,15 +100,15 @@ def table(path: Path) -> np.ndarray:
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_predictions_match_the_instruments(case, tmp_path):
-    m = calibrated(case)
-    save_machine(m, tmp_path / "cal.yaml")
+    m, s = calibrated(case)
+    save_machine(m, tmp_path / "cal.yaml", setups=s)
     unit = (CASES[case][1] or {"length": "mm"})["length"]
     f = LENGTH[unit]
     rng = np.random.default_rng(11)
     expected = ["tracker", "distance"] if m.pose_dof == 3 else ["tracker", "pose", "distance"]
-    assert fitted_instruments(load_machine(tmp_path / "cal.yaml")) == expected
+    assert fitted_instruments(*load_machine_file(tmp_path / "cal.yaml")) == expected
     for instrument in expected:
-        data = simulate(m, instrument, rng)
+        data = simulate(m, s, instrument, rng)
         joints = tmp_path / f"{instrument}.csv"
         out = tmp_path / f"{instrument}_predicted.csv"
         if instrument == "pose":
@@ -137,9 +141,9 @@ def test_predictions_match_the_instruments(case, tmp_path):
 
 @pytest.mark.parametrize("case", ["hexaslide-modified", "delta"])
 def test_one_instrument_needs_no_option(case, tmp_path):
-    m = calibrated(case, instruments=("distance",))
-    save_machine(m, tmp_path / "cal.yaml")
-    data = simulate(m, "distance", np.random.default_rng(2))
+    m, s = calibrated(case, instruments=("distance",))
+    save_machine(m, tmp_path / "cal.yaml", setups=s)
+    data = simulate(m, s, "distance", np.random.default_rng(2))
     write_instrument(tmp_path / "d.csv", data, m, "um")      # any unit in, the file's out
     proc = run("fk", "cal.yaml", "d.csv", "--frame", "instrument", "-o", "p.csv", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
@@ -152,24 +156,24 @@ def test_one_instrument_needs_no_option(case, tmp_path):
 
 
 def test_library_prediction():
-    m = calibrated("stewart-modified")
-    data = simulate(m, "tracker", np.random.default_rng(4))
-    pred = predict_instrument(m, data.q, "points", data.group)
+    m, s = calibrated("stewart-modified")
+    data = simulate(m, s, "tracker", np.random.default_rng(4))
+    pred = predict_instrument(m, s, data.q, "points", data.group)
     assert pred.instrument == "tracker" and pred.converged.all()
     np.testing.assert_allclose(pred.values, data.values, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(pred.fk.P, data.true_P, atol=1e-9)
     with pytest.raises(InputError, match=r"instrument \(tracker\|pose\|distance\)"):
-        predict_instrument(m, data.q)
+        predict_instrument(m, s, data.q)
     with pytest.raises(InputError, match="target 4, but"):
-        predict_instrument(m, data.q, "tracker", np.full(len(data.q), 3))
+        predict_instrument(m, s, data.q, "tracker", np.full(len(data.q), 3))
     with pytest.raises(InputError, match="unknown instrument"):
-        predict_instrument(m, data.q, "laser")
+        predict_instrument(m, s, data.q, "laser")
 
 
 def test_errors(tmp_path):
-    m = calibrated("hexaslide-modified")
-    save_machine(m, tmp_path / "all.yaml")
-    data = simulate(m, "tracker", np.random.default_rng(3))
+    m, s = calibrated("hexaslide-modified")
+    save_machine(m, tmp_path / "all.yaml", setups=s)
+    data = simulate(m, s, "tracker", np.random.default_rng(3))
     write_instrument(tmp_path / "t.csv", data, m, "mm")
 
     def fk(*args):
@@ -184,8 +188,8 @@ def test_errors(tmp_path):
                        "--frame instrument")
     assert_input_error(fk("all.yaml", "t.csv", "--frame", "instrument", "--instrument",
                           "laser"), "unknown instrument 'laser'", "tracker, pose, distance")
-    only = calibrated("delta", instruments=("tracker",))
-    save_machine(only, tmp_path / "delta.yaml")
+    only, only_setups = calibrated("delta", instruments=("tracker",))
+    save_machine(only, tmp_path / "delta.yaml", setups=only_setups)
     assert_input_error(fk("delta.yaml", "t.csv", "--frame", "instrument", "--instrument",
                           "pose"), "--instrument pose", "no measurement_frames section",
                        "it has: tracker")
@@ -200,7 +204,7 @@ def test_errors(tmp_path):
     assert_input_error(fk("all.yaml", "t4.csv", "--frame", "instrument", "--instrument",
                           "tracker"), "t4.csv", "row 4, column target", "target 4",
                        "tracker.targets has 3")
-    ddata = simulate(m, "distance", np.random.default_rng(3))
+    ddata = simulate(m, s, "distance", np.random.default_rng(3))
     write_instrument(tmp_path / "d.csv", ddata, m, "mm")
     text = (tmp_path / "d.csv").read_text().replace(",2\n", ",7\n", 1)
     (tmp_path / "d7.csv").write_text(text)

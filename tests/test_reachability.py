@@ -79,7 +79,8 @@ def test_linear_delta_states_its_endstops_and_bed():
 def test_a_calibrated_printers_bed_plane_is_its_floor():
     m = load_machine(EXAMPLES / PRINTER)
     m.probe_bed = (0.002, 0.001, 0.0)           # 2 mm up, tilted along x
-    P = m.targets_in_base(np.array([[0.05, 0, 0.0], [0.05, 0, -0.0001], [-0.05, 0, 0.01]]))
+    P = m.targets_in_base(np.array([[0.05, 0, 0.0], [0.05, 0, -0.0001], [-0.05, 0, 0.01]]),
+                          m.probe_bed)
     reach = m.reachability(P)
     assert reach.ok.tolist() == [True, False, True]
     assert reach.reasons[1] == "the nozzle 0.1 mm below the bed"

@@ -49,6 +49,7 @@ from ..workflows.common import (  # noqa: F401  (the commands' shared steps, re-
     check_outputs,
     commit_outputs,
     load_machine_arg,
+    load_setups_arg,
 )
 from ..workflows.common import machine_inputs as _machine_inputs
 from ..workflows.common import wrote as _wrote
@@ -745,14 +746,14 @@ def _fk_instrument(machine_spec: str, joints: Path, output: Path,
     from ..instruments.registry import instrument as entry
     from ..io.csv_io import machine_readings
 
-    machine = load_machine_arg(machine_spec)
-    name = choose_instrument(machine, instrument, option="--instrument")
+    machine, setups = load_machine_arg(machine_spec), load_setups_arg(machine_spec)
+    name = choose_instrument(machine, setups, instrument, option="--instrument")
     inst = entry(name)
     check_outputs([output], [joints] + _machine_inputs(machine_spec))
     q, rows, extra, _ = machine_readings(joints, machine)
     column = inst.group_column
     group = group_numbers(joints, extra, rows, column) if column else None
-    pred = predict_instrument(machine, q, name, group, rows=rows, source=str(joints))
+    pred = predict_instrument(machine, setups, q, name, group, rows=rows, source=str(joints))
     pred.fk.raise_if_failed(what=f"{joints}: forward kinematics", rows=rows)
     unit = _units(machine)["length"]
     columns = inst.prediction_columns(pred, unit)

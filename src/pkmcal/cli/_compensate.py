@@ -21,6 +21,7 @@ from ._commands import (
     group_numbers,
     joint_columns,
     load_machine_arg,
+    load_setups_arg,
     read_poses_of,
     refuse_outside_limits,
     refuse_unreachable,
@@ -96,10 +97,11 @@ def choose_frame(machine, machine_spec: str, instrument: str | None):
     from ..instruments.registry import instrument as entry
 
     where = getattr(machine, "source", machine_spec)
-    frames = instrument_frames(machine)
+    setups = load_setups_arg(machine_spec)
+    frames = instrument_frames(machine, setups)
     if not frames:
         ballbar = (" (its ballbar section gives distances, not a frame to place targets in)"
-                   if getattr(machine, "ballbar_setups", None) else "")
+                   if setups.get("distance") else "")
         raise InputError(f"--frame instrument: {where} has no instrument frame{ballbar}: a "
                          "calibration from points writes the tracker section (targets in the "
                          "tracker's frame), one from poses writes measurement_frames (marker "
@@ -189,7 +191,8 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
     if len(P) == 0:
         raise InputError(f"{path_text(targets)}: no target rows")
     try:
-        comp = compensate(machine, P, R, C, nominal, N, frame=frame, names=names)
+        comp = compensate(machine, P, R, C, nominal, N, frame=frame, names=names,
+                          setups=load_setups_arg(machine_spec))
     except ValueError as exc:
         raise InputError(f"{path_text(report_path)}: {exc}") from None
     refuse_unreachable(machine, comp.reach, f"{path_text(targets)}: {{n}} target(s) cannot be "
@@ -274,7 +277,8 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
                       "calibrated model sees them; frames the data cannot fix aligned)")
     console().print(table)
     unseen = (getattr(machine, "calibration_info", None) or {}).get("unidentifiable") or []
-    if frame is None and unseen and target_frame(machine) is not None:
+    if frame is None and unseen and target_frame(machine,
+                                                 load_setups_arg(machine_spec)) is not None:
         console().print(
             f"note: the calibration data did not fix {'; '.join(map(str, unseen))[:300]}: "
             "base-frame targets land off by that unknown motion (often millimetres). Give the "

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..instruments.setups import Setups
 from ..machines.base import Machine
 
 #: workspace poses (SPEC 5 cube around home) the unseen frames are fitted over
@@ -62,7 +63,7 @@ class Compensation:
 
 def compensate(calibrated: Machine, P, R=None, covariance=None,
                nominal: Machine | None = None, null=None, frame=None,
-               names=None) -> Compensation:
+               names=None, setups: Setups | None = None) -> Compensation:
     """Commands ``q = IK_calibrated(x)`` for targets, with their predicted residual errors.
 
     Targets are in the calibrated base frame, or, with ``frame``, in the measuring instrument's
@@ -99,6 +100,9 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
     names : sequence of str, optional
         With ``frame``: the parameter names of ``covariance``; they must include the machine's
         and the frame's.
+    setups : Setups, optional
+        The calibrated file's set-ups: base-frame targets of a printer are heights above its
+        bed (:meth:`~pkmcal.instruments.setups.Setups.targets_in_base`).
 
     Returns
     -------
@@ -124,7 +128,7 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
 
             P, R = in_pose_space(calibrated, P, R)
     else:       # a printer's targets are heights above its bed (SPEC 8)
-        P = calibrated.targets_in_base(P)
+        P = (Setups() if setups is None else setups).targets_in_base(calibrated, P)
     R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else R
     q = calibrated.ik(P, R)
     # real IK, near home, in home's working mode, within the physical and joint limits

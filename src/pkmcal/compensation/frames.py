@@ -242,15 +242,16 @@ class MocapFrames:
         return frames.measured(P, R)
 
 
-def instrument_frames(machine) -> dict:
-    """The instrument frames a calibrated machine carries, by instrument.
+def instrument_frames(machine, setups) -> dict:
+    """The instrument frames a calibrated machine file carries, by instrument.
 
     Parameters
     ----------
     machine : Machine
-        A calibrated machine: its ``base_from_tracker`` (and ``tracker_targets``, or the
-        machine's own target, :meth:`~pkmcal.machines.Machine.tracker_target`) and its
-        ``measurement_frames``.
+        A calibrated machine (its own target, :meth:`~pkmcal.machines.Machine.tracker_target`,
+        if it has one).
+    setups : Setups
+        Its set-ups: the tracker's (frame and targets) and the motion-capture frames.
 
     Returns
     -------
@@ -260,11 +261,11 @@ def instrument_frames(machine) -> dict:
         calibration: a ballbar has no frame to give targets in).
     """
     out = {}
-    pose = getattr(machine, "base_from_tracker", None)
-    if pose is not None:
-        R, t = pose
+    tracker = setups.get("tracker")
+    if tracker is not None:
+        R, t = tracker.base_from_tracker
         known = machine.tracker_target()
-        targets = getattr(machine, "tracker_targets", None)
+        targets = tracker.targets
         if known is not None:
             targets, estimated = np.asarray(known, float).reshape(1, 3), False
         elif targets is None:
@@ -275,19 +276,21 @@ def instrument_frames(machine) -> dict:
                   if machine.rotates else None)
         out["tracker"] = TrackerFrame(np.asarray(R, float), np.asarray(t, float), targets,
                                       estimated, home_R)
-    frames = getattr(machine, "measurement_frames", None)
+    frames = setups.get("pose")
     if frames is not None and len(machine.pose_space) == 6:
         out["pose"] = MocapFrames(frames)
     return out
 
 
-def target_frame(machine, instrument: str | None = None):
+def target_frame(machine, setups, instrument: str | None = None):
     """The instrument frame a calibrated machine file carries, or None.
 
     Parameters
     ----------
     machine : Machine
-        A calibrated machine (its ``base_from_tracker`` or ``measurement_frames``).
+        A calibrated machine.
+    setups : Setups
+        Its set-ups (the tracker's or the motion-capture frames).
     instrument : {'tracker', 'pose'}, optional
         Which one; default the first it has (tracker, then pose).
 
@@ -297,7 +300,7 @@ def target_frame(machine, instrument: str | None = None):
         None when the file has no (such) instrument frame (e.g. a constraint-link
         calibration).
     """
-    frames = instrument_frames(machine)
+    frames = instrument_frames(machine, setups)
     if instrument is not None:
         return frames.get(instrument)
     return next(iter(frames.values()), None)

@@ -447,14 +447,16 @@ class Instrument:
         """
         raise NotImplementedError
 
-    def carried_by(self, machine: Machine) -> bool:
-        """True when ``machine`` (a calibrated one) carries this instrument's fitted unknowns
-        (its :attr:`section`).
+    def carried_by(self, machine: Machine, setup) -> bool:
+        """True when a (calibrated) machine file carries this instrument's fitted unknowns
+        (its :attr:`section`) for ``machine``.
 
         Parameters
         ----------
         machine : Machine
             The machine.
+        setup : object or None
+            This instrument's set-up (:attr:`Setup`) from the file, None without one.
 
         Returns
         -------
@@ -463,14 +465,16 @@ class Instrument:
         """
         return False
 
-    def predict(self, machine: Machine, P, R, ok, group, rows=None, source=None):
-        """The measurements this instrument, with the unknowns ``machine`` carries, makes at
-        platform poses (:func:`~pkmcal.instruments.predict_instrument`).
+    def predict(self, machine: Machine, setup, P, R, ok, group, rows=None, source=None):
+        """The measurements this instrument, with its fitted unknowns, makes at platform poses
+        (:func:`~pkmcal.instruments.predict_instrument`).
 
         Parameters
         ----------
         machine : Machine
-            The calibrated machine carrying the instrument (:meth:`carried_by`).
+            The calibrated machine.
+        setup : object
+            This instrument's set-up (:attr:`Setup`; :meth:`carried_by`).
         P : ndarray, shape (K, 3)
             Platform positions, m (0 where the forward kinematics failed).
         R : ndarray, shape (K, 3, 3)
@@ -682,14 +686,14 @@ class Instrument:
     #: the plan options the instrument takes (:meth:`planned_machine`)
     plan_options: tuple = ()
 
-    def groups_carried(self, machine: Machine) -> int:
+    def groups_carried(self, setup) -> int:
         """How many groups (targets, setups) the machine file's section of this instrument
         holds (0: none, or the instrument has no groups).
 
         Parameters
         ----------
-        machine : Machine
-            The machine.
+        setup : object or None
+            This instrument's set-up (:attr:`Setup`), None without one.
 
         Returns
         -------
@@ -698,7 +702,7 @@ class Instrument:
         """
         return 0
 
-    def check_group_column(self, machine: Machine, given: bool, source=None) -> None:
+    def check_group_column(self, setup, given: bool, source=None) -> None:
         """Refuse a data file without the :attr:`group_column` (``setup``, ``target``) for a
         machine whose file holds several groups of this instrument: its rows would be taken
         as one group, the mountings silently merged (issue 37). The one rule of every
@@ -707,8 +711,8 @@ class Instrument:
 
         Parameters
         ----------
-        machine : Machine
-            The machine of the command.
+        setup : object or None
+            This instrument's set-up from the command's machine file (:attr:`Setup`).
         given : bool
             The file has the column.
         source : str or os.PathLike, optional
@@ -719,7 +723,7 @@ class Instrument:
         InputError
             Naming the file, the column and the machine file's count.
         """
-        n = self.groups_carried(machine)
+        n = self.groups_carried(setup)
         if given or self.group_column is None or n <= 1:
             return
         column = self.group_column

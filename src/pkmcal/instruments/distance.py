@@ -96,6 +96,10 @@ class BallbarSetup:
         """None: a ballbar says nothing about the machine's frame."""
         return None
 
+    def targets_in_base(self, machine, P):
+        """``P`` itself: targets are not given relative to a ballbar."""
+        return P
+
 
 #: setups of a distance plan: the circle planes of ISO 230-4 tests (normals)
 CIRCLE_NORMALS = ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0))
@@ -425,16 +429,16 @@ class Distance(Instrument):
         return [{"pivot": vector(p, length_factor), "ball": vector(b, length_factor)}
                 for p, b in setup.mountings]
 
-    def carried_by(self, machine):
-        return bool(getattr(machine, "ballbar_setups", None))
+    def carried_by(self, machine, setup):
+        return bool(setup)
 
-    def groups_carried(self, machine):
-        return len(getattr(machine, "ballbar_setups", None) or ())
+    def groups_carried(self, setup):
+        return 0 if setup is None else len(setup)
 
-    def predict(self, machine, P, R, ok, group, rows=None, source=None):
+    def predict(self, machine, setup, P, R, ok, group, rows=None, source=None):
         from .models import NuisanceState
 
-        setups = list(machine.ballbar_setups)
+        setups = list(setup.mountings)
         _check_groups(group, len(setups), "setup", "ballbar", rows, source)
         model = DistancesModel(len(setups))
         values = np.zeros(len(model.parameters))

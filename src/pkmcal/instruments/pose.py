@@ -207,6 +207,11 @@ class MeasurementFrames:
         """None: motion capture says nothing about the machine's frame."""
         return None
 
+    def targets_in_base(self, machine, P):
+        """``P`` itself: base-frame targets are not given relative to the frames (those in
+        the motion-capture frame: :class:`~pkmcal.compensation.frames.MocapFrames`)."""
+        return P
+
 
 @dataclass
 class FullPoseData:
@@ -1529,12 +1534,11 @@ class Pose(Instrument):
                 "platform_from_marker": frame_section(setup.platform_from_marker,
                                                       length_factor)}
 
-    def carried_by(self, machine):
-        return (getattr(machine, "measurement_frames", None) is not None
-                and len(machine.pose_space) == 6)
+    def carried_by(self, machine, setup):
+        return setup is not None and len(machine.pose_space) == 6
 
-    def predict(self, machine, P, R, ok, group, rows=None, source=None):
-        values, Rm = machine.measurement_frames.measured(P, R)
+    def predict(self, machine, setup, P, R, ok, group, rows=None, source=None):
+        values, Rm = setup.measured(P, R)
         return values, np.where(ok[:, None, None], Rm, np.nan), np.zeros(len(P), int)
 
     def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,

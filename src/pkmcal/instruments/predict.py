@@ -1,18 +1,19 @@
 """What a calibrated machine's instrument measures for new joint readings (issue 13 item 3).
 
 A calibration from points, poses or distances fits, beside the machine's parameters, the
-instrument's own unknowns, and the calibrated machine file keeps them:
+instrument's own unknowns, and the calibrated machine file keeps them as the instrument's
+set-up (:mod:`pkmcal.instruments.setups`, the loader's second value):
 
 ==============  ===========================  ===============================================
-instrument      machine attributes           predicted measurement per reading
+instrument      set-up (file section)        predicted measurement per reading
 ==============  ===========================  ===============================================
-``tracker``     ``base_from_tracker``,       ``mx, my, mz``: the target (column ``target``,
-(points)        ``tracker_targets``          1..K) in the tracker frame
-``pose``        ``measurement_frames``       ``x, y, z, qx, qy, qz, qw``: the marker pose in
-(poses)                                      the motion-capture frame
-``distance``    ``ballbar_setups``           ``d``: the ballbar length of the mounting
-(ballbar)                                    (column ``setup``, 1..K)
-``probe``       ``probe_bed``                ``probe_z``: the nozzle's height above the bed
+``tracker``     ``TrackerSetup``             ``mx, my, mz``: the target (column ``target``,
+(points)        (``tracker``)                1..K) in the tracker frame
+``pose``        ``MeasurementFrames``        ``x, y, z, qx, qy, qz, qw``: the marker pose in
+(poses)         (``measurement_frames``)     the motion-capture frame
+``distance``    ``BallbarSetup``             ``d``: the ballbar length of the mounting
+(ballbar)       (``ballbar``)                (column ``setup``, 1..K)
+``probe``       ``BedSetup`` (``bed``)       ``probe_z``: the nozzle's height above the bed
                                              plane (vertical)
 ==============  ===========================  ===============================================
 
@@ -24,6 +25,7 @@ user checks a calibration by comparing new measurements with these predictions.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,35 +69,39 @@ def instrument_name(name: str) -> str:
                      f"{', '.join(inst.name for inst in _sections())}")
 
 
-def fitted_instruments(machine: Machine) -> list[str]:
-    """The instruments whose fitted unknowns ``machine`` carries.
+def fitted_instruments(machine: Machine, setups: Mapping) -> list[str]:
+    """The instruments whose fitted unknowns a (calibrated) machine file carries.
 
     Parameters
     ----------
     machine : Machine
-        A (calibrated) machine: its ``base_from_tracker``, ``measurement_frames``,
-        ``ballbar_setups``.
+        The machine.
+    setups : Setups
+        Its set-ups (:func:`~pkmcal.io.load_machine_file`).
 
     Returns
     -------
     list of str
         Among ``"tracker"``, ``"pose"``, ``"distance"``, in that order.
     """
-    return [inst.name for inst in _sections() if inst.carried_by(machine)]
+    return [inst.name for inst in _sections() if inst.carried_by(machine, setups.get(inst.name))]
 
 
 def _where(machine: Machine) -> str:
     return str(getattr(machine, "source", "") or "the machine")
 
 
-def choose_instrument(machine: Machine, instrument: str | None = None,
+def choose_instrument(machine: Machine, setups: Mapping, instrument: str | None = None,
                       option: str = "instrument") -> str:
-    """The instrument to predict for: the one asked for, or the only one the machine carries.
+    """The instrument to predict for: the one asked for, or the only one the machine file
+    carries.
 
     Parameters
     ----------
     machine : Machine
         A calibrated machine.
+    setups : Setups
+        Its set-ups.
     instrument : str, optional
         An instrument name or alias (:func:`instrument_name`); None: the machine must carry
         exactly one.
@@ -114,7 +120,7 @@ def choose_instrument(machine: Machine, instrument: str | None = None,
         When the machine carries none (saying which calibration writes what), several and
         none is named (listing them), or not the one named.
     """
-    have = fitted_instruments(machine)
+    have = fitted_instruments(machine, setups)
     where = _where(machine)
     if instrument is not None:
         name = instrument_name(instrument)
@@ -167,8 +173,8 @@ class InstrumentPrediction:
     fk: object
 
 
-def predict_instrument(machine: Machine, q, instrument: str | None = None, group=None,
-                       rows=None, source: str | None = None,
+def predict_instrument(machine: Machine, setups: Mapping, q, instrument: str | None = None,
+                       group=None, rows=None, source: str | None = None,
                        start=None) -> InstrumentPrediction:
     """What the calibration's instrument measures for joint readings ``q``.
 
@@ -178,8 +184,9 @@ def predict_instrument(machine: Machine, q, instrument: str | None = None, group
     Parameters
     ----------
     machine : Machine
-        A calibrated machine carrying ``base_from_tracker`` (and ``tracker_targets``),
-        ``measurement_frames`` or ``ballbar_setups``.
+        A calibrated machine.
+    setups : Setups
+        Its set-ups (the tracker's, the motion-capture frames, the ballbar's, the bed).
     q : array_like, shape (K, n_joints)
         Joint readings, internal units.
     instrument : str, optional
@@ -207,8 +214,9 @@ def predict_instrument(machine: Machine, q, instrument: str | None = None, group
     """
     from .registry import instrument as entry
 
-    name = choose_instrument(machine, instrument)
-    entry(name).check_group_column(machine, group is not None, source)
+    name = choose_instrument(machine, setups, instrument)
+    setup = setups[name]
+    entry(name).check_group_column(setup, group is not None, source)
     q = np.atleast_2d(np.asarray(q, float))
     K = len(q)
     group = np.zeros(K, int) if group is None else np.asarray(group, int).reshape(K)
@@ -217,6 +225,6 @@ def predict_instrument(machine: Machine, q, instrument: str | None = None, group
     P = np.where(ok[:, None], np.asarray(fk.P, float), 0.0)
     R = np.where(ok[:, None, None], np.asarray(fk.R, float), np.eye(3))
 
-    values, Rm, group = entry(name).predict(machine, P, R, ok, group, rows, source)
+    values, Rm, group = entry(name).predict(machine, setup, P, R, ok, group, rows, source)
     values = np.where(ok[:, None], values, np.nan)
     return InstrumentPrediction(name, values, Rm, group, ok, fk)

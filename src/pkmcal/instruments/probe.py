@@ -375,6 +375,11 @@ class BedSetup:
             return None
         return np.array([0.0, 0.0, -float(self.height)])
 
+    def targets_in_base(self, machine, P):
+        """Targets given in a printer's frame (z their height above this bed), in the base
+        frame (:meth:`~pkmcal.machines.Machine.targets_in_base`)."""
+        return machine.targets_in_base(P, self.plane)
+
 
 class Probe(Instrument):
     """Bed-probe heights: the nozzle's height above a flat bed of unknown height and tilt."""
@@ -511,14 +516,14 @@ class Probe(Instrument):
                                          for row in np.asarray(values, float)]}
         return out
 
-    def carried_by(self, machine):
-        return getattr(machine, "probe_bed", None) is not None
+    def carried_by(self, machine, setup):
+        return setup is not None
 
-    def predict(self, machine, P, R, ok, group, rows=None, source=None):
+    def predict(self, machine, setup, P, R, ok, group, rows=None, source=None):
         from .models import NuisanceState
 
         group = np.zeros(len(P), int)
-        state = NuisanceState(np.asarray(machine.probe_bed, float), [])
+        state = NuisanceState(np.asarray(setup.plane, float), [])
         return ProbeModel().predict(state, P, R, group), None, group
 
     simulate_options = {"bed_error": BED_ERROR, "tilt_error": TILT_ERROR}

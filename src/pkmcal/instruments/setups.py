@@ -133,6 +133,28 @@ class Setups(Mapping):
                 return np.asarray(t, float)
         return None
 
+    def targets_in_base(self, machine, P) -> np.ndarray:
+        """Targets given in ``machine``'s working frame, in its base frame: the working frame
+        is the base frame unless a set-up says otherwise (a printer's targets are heights
+        above its bed, SPEC 8).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+        P : array_like, shape (K, 3)
+            Positions, m.
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            Positions in the base frame, m.
+        """
+        P = machine.targets_in_base(P)
+        for setup in self._items.values():
+            P = setup.targets_in_base(machine, P)
+        return P
+
 
 def _same(a, b) -> bool:
     """Set-ups equal value for value (arrays compared exactly)."""

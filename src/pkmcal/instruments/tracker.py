@@ -292,6 +292,10 @@ class TrackerSetup:
         """None: a tracker says nothing about the machine's frame."""
         return None
 
+    def targets_in_base(self, machine, P):
+        """``P`` itself: targets are not given relative to a tracker's set-up."""
+        return P
+
 
 def default_tracker_pose() -> tuple[np.ndarray, np.ndarray]:
     """The true ``base_from_tracker = (R, t)`` of simulations without a tracker in the machine file.
@@ -830,15 +834,17 @@ def planned_targets(machine: Machine, n_targets: int = 1) -> np.ndarray:
                             np.sin(t) * c[0] + np.cos(t) * c[1], np.full(n_targets, c[2])])
 
 
-def tracker_targets(machine: Machine) -> tuple[np.ndarray, bool]:
+def tracker_targets(machine: Machine, setup=None) -> tuple[np.ndarray, bool]:
     """Places of the tracker's targets on the platform, and whether they are one for all.
 
     Parameters
     ----------
     machine : Machine
         The machine: its :meth:`~pkmcal.machines.Machine.tracker_target` (a Delta's
-        reflector, the same for every target number), else its ``tracker_targets``, else the
-        platform origin.
+        reflector, the same for every target number), else the set-up's ``targets``, else
+        the platform origin.
+    setup : TrackerSetup, optional
+        The tracker's set-up (None: none).
 
     Returns
     -------
@@ -850,7 +856,7 @@ def tracker_targets(machine: Machine) -> tuple[np.ndarray, bool]:
     known = machine.tracker_target()
     if known is not None:
         return np.asarray(known, float).reshape(1, 3), True
-    targets = getattr(machine, "tracker_targets", None)
+    targets = None if setup is None else setup.targets
     if targets is None:
         return np.zeros((1, 3)), False
     return np.asarray(targets, float).reshape(-1, 3), False
@@ -1051,21 +1057,20 @@ class Tracker(Instrument):
                                  "(smr_offset)")
         return out
 
-    def carried_by(self, machine):
-        return getattr(machine, "base_from_tracker", None) is not None
+    def carried_by(self, machine, setup):
+        return setup is not None
 
-    def groups_carried(self, machine):
-        targets = getattr(machine, "tracker_targets", None)
-        return 0 if targets is None else len(targets)
+    def groups_carried(self, setup):
+        return 0 if setup is None or setup.targets is None else len(setup.targets)
 
-    def predict(self, machine, P, R, ok, group, rows=None, source=None):
-        targets, shared = tracker_targets(machine)
+    def predict(self, machine, setup, P, R, ok, group, rows=None, source=None):
+        targets, shared = tracker_targets(machine, setup)
         if shared:
             group = np.zeros(len(P), int)     # every target number is the file's reflector
-        _check_groups(group, len(targets), "target", "tracker.targets" if getattr(
-            machine, "tracker_targets", None) is not None else "tracker (one target: the "
-            "platform origin, no targets key)", rows, source)
-        A, a = (np.asarray(v, float) for v in machine.base_from_tracker)
+        _check_groups(group, len(targets), "target", "tracker.targets" if setup.targets
+                      is not None else "tracker (one target: the platform origin, no targets "
+                      "key)", rows, source)
+        A, a = (np.asarray(v, float) for v in setup.base_from_tracker)
         model = PointsModel(len(targets), targets[0] if shared else None)
         values = np.concatenate([np.zeros(3), a] + ([] if shared else [targets.ravel()]))
         return model.predict(NuisanceState(values, [A]), P, R, group), None, group

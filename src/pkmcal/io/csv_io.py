@@ -693,11 +693,13 @@ def _groups(path, extra: dict, rows, column: str, machine) -> np.ndarray | None:
     groups of the instrument numbering its rows by ``column``
     (:meth:`~pkmcal.instruments.base.Instrument.check_group_column`)."""
     from ..instruments.registry import INSTRUMENTS
+    from ..instruments.setups import legacy_setups
 
     group = read_groups(path, extra, rows, column)
+    setups = legacy_setups(machine)          # transitional: the loader's set-ups
     for inst in INSTRUMENTS.values():
         if inst.group_column == column:
-            inst.check_group_column(machine, group is not None, path)
+            inst.check_group_column(setups.get(inst.name), group is not None, path)
     return group
 
 

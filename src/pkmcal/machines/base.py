@@ -1098,17 +1098,20 @@ class Machine(ABC):
     #: a commanded pose farther than this many characteristic lengths from home is not meant
     MAX_REACH = 10.0
 
-    def targets_in_base(self, P) -> np.ndarray:
+    def targets_in_base(self, P, bed=None) -> np.ndarray:
         """Target positions given in the machine's working frame, in its base frame.
 
         The working frame is the base frame, except on a machine whose frame is its bed
         (:attr:`frame_is_bed`): there a target's z is its height above the bed (the
-        calibrated file's ``bed`` plane, its ``probe_bed``), as the firmware takes it.
+        calibrated file's ``bed`` plane), as the firmware takes it.
 
         Parameters
         ----------
         P : array_like, shape (K, 3)
             Positions, m.
+        bed : array_like, shape (3,), optional
+            The bed plane ``(height m, tilt_x, tilt_y)`` (a calibrated file's ``bed``, its
+            :class:`~pkmcal.instruments.probe.BedSetup`); None: z = 0.
 
         Returns
         -------
@@ -1116,7 +1119,6 @@ class Machine(ABC):
             Positions in the base frame, m.
         """
         P = np.array(P, float).reshape(-1, 3)
-        bed = getattr(self, "probe_bed", None)
         if self.frame_is_bed and bed is not None:
             h, tx, ty = (float(v) for v in bed)
             P[:, 2] += h + tx * P[:, 0] + ty * P[:, 1]

@@ -111,7 +111,8 @@ def _bed_points(machine: Machine, xy):
     bed the plane its file states (:meth:`~pkmcal.machines.Machine.targets_in_base`: a
     tilted bed's points lie on it, not under it)."""
     xy = np.atleast_2d(np.asarray(xy, float))
-    P = machine.targets_in_base(np.column_stack([xy, np.full(len(xy), bed_height(machine))]))
+    P = machine.targets_in_base(np.column_stack([xy, np.full(len(xy), bed_height(machine))]),
+                                getattr(machine, "probe_bed", None))
     return P, np.broadcast_to(machine.home[1], (len(P), 3, 3)).copy()
 
 

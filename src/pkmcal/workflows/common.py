@@ -6,13 +6,14 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import stop_if_signalled
-from ..io import load_machine
+from ..instruments.setups import Setups
+from ..io import load_machine, load_machine_file
 from ..io.atomic import is_stream
 from ..io.machine_file import DEFAULT_UNITS
 from ..paths import path_text
 
-__all__ = ["load_machine_arg", "machine_inputs", "check_outputs", "commit_outputs", "wrote",
-           "no_progress"]
+__all__ = ["load_machine_arg", "load_setups_arg", "machine_inputs", "check_outputs",
+           "commit_outputs", "wrote", "no_progress"]
 
 
 def load_machine_arg(spec: str):
@@ -37,6 +38,22 @@ def load_machine_arg(spec: str):
         machine.calibration_info = None
         return machine
     return load_machine(spec)
+
+
+def load_setups_arg(spec: str) -> Setups:
+    """The instruments' set-ups of the machine a command names (none for ``default``).
+
+    Parameters
+    ----------
+    spec : str
+        A path, or ``"default"``.
+
+    Returns
+    -------
+    Setups
+        The set-ups of its instrument sections (:func:`~pkmcal.io.load_machine_file`).
+    """
+    return Setups() if spec == "default" else load_machine_file(spec)[1]
 
 
 def machine_inputs(spec: str) -> list[Path]:
