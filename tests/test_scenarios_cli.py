@@ -180,10 +180,11 @@ def test_library_simulation_carries_the_true_instrument():
     data, true, truth = simulate_scenario(machine, "distances", 30, rng=1, setups=2,
                                           length=0.12, circles=True)
     assert data.kind == "distances" and data.n_groups == 2 and len(data) == 30
-    assert len(true.ballbar_setups) == 2 and np.allclose(truth["length"], 0.12)
+    assert len(truth["setup"]) == 2 and np.allclose(truth["length"], 0.12)
+    assert truth["true_setups"]["distance"] is truth["setup"]
     planned = np.array([p for p, _ in truth["planned_setups"]])
-    actual = np.array([p for p, _ in true.ballbar_setups])
+    actual = np.array([p for p, _ in truth["setup"]])
     assert 0 < np.max(np.abs(actual - planned)) <= 1e-3
     data, true, truth = simulate_scenario(machine, "points", 12, rng=1, targets=3)
-    assert data.n_groups == 3 and true.tracker_targets.shape == (3, 3)
-    assert not hasattr(machine, "tracker_targets") or machine.tracker_targets is None
+    assert data.n_groups == 3 and truth["setup"].targets.shape == (3, 3)
+    assert set(truth["true_setups"]) == {"tracker"}

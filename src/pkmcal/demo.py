@@ -250,9 +250,11 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
     """Seed 001 on the default Delta; appends rows, notes and files to ``out`` and returns
     the numbers (for ``summary.json``)."""
     from .calibration import calibrate_tracker, distance_ratios, predict_tracker_points
+    from .instruments.setups import Setups
     from .instruments.tracker import (
         TRACKER_GRID_SPACING,
         TrackerNoise,
+        TrackerSetup,
         default_tracker_pose,
         grid_points,
         neighbour_pairs,
@@ -276,7 +278,6 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
         "3x3x3 grid (150/150/40 mm) at home, tracker noise "
         f"{tracker_noise_arg(None, allow_none=False)[1]}, tracker 2.5 m away; held-out: a "
         f"{'x'.join(map(str, HELD_OUT_GRID[0]))} grid")
-    true.base_from_tracker = pose
     true.name = "simulated true Delta (random errors, seed 1) with the true tracker pose"
     noise = TrackerNoise()
     shape = (3, 3, 3)
@@ -340,12 +341,14 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
     calibrated = joint.extras["machine"]
     calibrated.name = "default Delta, calibrated from delta_tracker_data.csv (joint)"
     out.files.append(write_tracker(outdir / "delta_tracker_data.csv", data.q, data.m))
-    for name, machine, meta in (
-            ("delta_nominal.yaml", nominal, None), ("delta_true.yaml", true, None),
+    for name, machine, meta, setups in (
+            ("delta_nominal.yaml", nominal, None, None),
+            ("delta_true.yaml", true, None, Setups({"tracker": TrackerSetup(pose)})),
             ("delta_calibrated.yaml", calibrated,
              {"method": "tracker-joint", "data": "delta_tracker_data.csv",
-              "identifiable": joint.rank, "free_parameters": free})):
-        out.files.append(save_machine(machine, outdir / name, calibration=meta))
+              "identifiable": joint.rank, "free_parameters": free}, None)):
+        out.files.append(save_machine(machine, outdir / name, calibration=meta,
+                                      setups=setups))
     out.files.append(plots.plot_distance_ratio(
         [(f"calibration grid 3x3x3 ({len(pairs)} pairs)",
           {"before calibration": (ratios["calibration"]["before"], "--"),

@@ -220,16 +220,18 @@ def run_simulate(machine_spec: str, output: Path, scenario: str | None, poses: i
             raise InputError(f"--poses: a tracker on this {kind} (a platform that only "
                              "translates) measures a grid (--grid NXxNYxNZ, seed 001)")
         _simulate_tracker(machine, output, noise, seed, deviations, truth,
-                          parse_grid(grid or "3x3x3"), outliers)
+                          parse_grid(grid or "3x3x3"), outliers, load_setups_arg(machine_spec))
         return
     _simulate_scenario(machine, scenario, output, poses, noise, pose_noise, lc_error, seed,
-                       deviations, truth, targets, setups, radius, circles)
+                       deviations, truth, targets, setups, radius, circles,
+                       load_setups_arg(machine_spec))
 
 
 def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
                        noise: str | None, pose_noise: str | None, lc_error: str, seed: int,
                        deviations: str, truth: Path | None, targets: int | None,
-                       setups: int | None, radius: str | None, circles: bool) -> None:
+                       setups: int | None, radius: str | None, circles: bool,
+                       file_setups=None) -> None:
     """Every scenario but the translating tracker grid, through
     :func:`pkmcal.instruments.simulate.simulate_scenario`: the instrument reads its options
     (:meth:`~pkmcal.instruments.base.Instrument.simulate_arguments`), simulates itself and
@@ -245,7 +247,8 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
     rng = np.random.default_rng(seed)
     try:
         data, true, truth_info = simulate_scenario(machine, scenario, poses, model, rng,
-                                                   deviations=deviations, **options)
+                                                   deviations=deviations, machine_setups=file_setups,
+                                                   **options)
     except InputError as exc:
         raise InputError(f"pkmcal simulate {scenario} (--deviations {deviations}, seed "
                          f"{seed}): {exc}") from None
@@ -254,7 +257,7 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
     units = _units(machine)
     truth_text = None
     if truth is not None:
-        truth_text = machine_to_text(true, units)
+        truth_text = machine_to_text(true, units, setups=truth_info["true_setups"])
         parse_machine(truth_text, str(truth))
     # outputs, at the very end
     write_measurements(inst, output, data, machine, units["length"])
@@ -276,9 +279,12 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
 
 
 def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, deviations: str,
-                      truth: Path | None, shape: tuple[int, int, int], outliers: int) -> None:
+                      truth: Path | None, shape: tuple[int, int, int], outliers: int,
+                      file_setups=None) -> None:
+    from ..instruments.setups import Setups
     from ..instruments.tracker import (
         TRACKER_GRID_SPACING,
+        TrackerSetup,
         default_tracker_pose,
         grid_points,
         simulate_tracker,
@@ -290,11 +296,12 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
         raise InputError(f"--outliers: {outliers} outliers among {n_points} grid points")
     rng = np.random.default_rng(seed)
     true = _true_machine(machine, deviations, rng)
-    pose = getattr(machine, "base_from_tracker", None)
+    tracker = (file_setups or {}).get("tracker")
+    pose = None if tracker is None else tracker.base_from_tracker
     pose_from = "the machine file's tracker section"
     if pose is None:
         pose, pose_from = default_tracker_pose(), "default"
-    true.base_from_tracker = pose
+    true_setups = Setups(file_setups).with_setup("tracker", TrackerSetup(pose))
     centre = machine.home[0]
     targets = grid_points(centre, TRACKER_GRID_SPACING, shape)
     bad = np.flatnonzero(~np.all(np.isfinite(machine.ik(targets)), axis=-1))
@@ -318,7 +325,7 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
     units = _units(machine)
     truth_text = None
     if truth is not None:
-        truth_text = machine_to_text(true, units)
+        truth_text = machine_to_text(true, units, setups=true_setups)
         parse_machine(truth_text, str(truth))
     # outputs, at the very end
     write_tracker(output, data.q, data.m, joint_unit=units["angle"],

@@ -27,6 +27,7 @@ from ._commands import (
     commit_outputs,
     joint_columns,
     load_machine_arg,
+    load_setups_arg,
     read_poses_of,
     refuse_unreachable,
 )
@@ -53,11 +54,12 @@ def plan_groups(path: Path, kind: str, rows):
     return groups
 
 
-def planning_machine(machine, kind: str, setups: int | None, radius: str | None,
-                     targets: int | None):
-    """The machine ``kind``'s plans use (:meth:`~pkmcal.instruments.base.Instrument.
-    planned_machine`: with ``--setups`` / ``--radius`` a ballbar's planned mountings);
-    refuses the options the instrument does not take."""
+def planning_setup(machine, kind: str, setups: int | None, radius: str | None,
+                   targets: int | None, setup=None):
+    """The set-up ``kind``'s plans use: the machine file's (``setup``), or with
+    ``--setups`` / ``--radius`` a ballbar's planned mountings
+    (:meth:`~pkmcal.instruments.base.Instrument.planned_setup`); refuses the options the
+    instrument does not take."""
     inst = instrument(kind)
     for option, value in (("setups", setups), ("radius", radius), ("targets", targets)):
         if value is not None and option not in inst.plan_options:
@@ -70,8 +72,8 @@ def planning_machine(machine, kind: str, setups: int | None, radius: str | None,
             raise InputError(f"--radius: the ballbar length must be > 0, got {radius}")
         check_option_scale(length, machine, "--radius", "size", radius)
     options = {"setups": setups, "length": length, "targets": targets}
-    return inst.planned_machine(machine, **{k: v for k, v in options.items()
-                                            if v is not None})
+    return inst.planned_setup(machine, setup, **{k: v for k, v in options.items()
+                                                 if v is not None})
 
 
 def workspace_arg(text: str | None, machine, seed: int = 0):
@@ -227,9 +229,11 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
             if value is not None:
                 raise InputError(f"{option}: applies to planned measurements; the "
                                  f"measurements of {path_text(data_path)} have their own")
+        setup = load_setups_arg(machine_spec).get(kind)
     else:
         kind = scenario_for(machine, scenario)
-        machine = planning_machine(machine, kind, setups, radius, targets)
+        setup = planning_setup(machine, kind, setups, radius, targets,
+                               load_setups_arg(machine_spec).get(kind))
     model = noise_model(kind, noise, pose_noise, machine)
     plan = rows = groups = None
     if data_path is not None and not measured:
@@ -239,7 +243,7 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
                                     poses=plan, rows=rows, groups=groups,
                                     source=None if plan is None else str(data_path),
                                     n=poses, noise=model, seed=seed, workspace=ws,
-                                    targets=None if measured else targets)
+                                    targets=None if measured else targets, setup=setup)
     rep, section = result.report, result.prediction
     report = {
         "pkmcal_report": 1,
@@ -368,7 +372,8 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
     if random_sets < 0:
         raise InputError(f"--random-sets: must be >= 0, got {random_sets}")
     kind = scenario_for(machine, scenario)
-    machine = planning_machine(machine, kind, setups, radius, targets)
+    setup = planning_setup(machine, kind, setups, radius, targets,
+                           load_setups_arg(machine_spec).get(kind))
     model = noise_model(kind, noise, pose_noise, machine)
     with progress_tasks() as new_task:
         step = new_task("select-poses: candidate poses", 5)
@@ -387,7 +392,8 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
                           criterion=criterion, random_sets=random_sets, seed=seed,
                           workspace=ws, joint_bounds=lo_hi, bounds_words=limits_words,
                           targets=targets, progress=step, poses=given, rows=rows,
-                          groups=groups, source=candidates_path and str(candidates_path))
+                          groups=groups, source=candidates_path and str(candidates_path),
+                          setup=setup)
     report = {"pkmcal_report": 1, "command": "select-poses",
               "machine_file": path_text(getattr(machine, "source", machine_spec)),
               **sel.as_dict(), "output": str(output)}

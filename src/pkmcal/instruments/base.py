@@ -321,7 +321,7 @@ class Instrument:
         """
         raise NotImplementedError(f"{self.name}: no Monte Carlo run")
 
-    def candidates(self, machine: Machine, n: int, rng):
+    def candidates(self, machine: Machine, n: int, rng, setup=None):
         """``n`` feasible candidate poses and their setups.
 
         Parameters
@@ -332,6 +332,9 @@ class Instrument:
             Number of poses.
         rng : numpy.random.Generator
             Random generator.
+        setup : object, optional
+            The instrument's set-up (:attr:`Setup`) of the machine file (a ballbar's
+            mountings, a tracker's frame); None: the instrument's planning default.
 
         Returns
         -------
@@ -347,7 +350,7 @@ class Instrument:
         P, R = sample_workspace_poses(machine, n, rng)
         return P, R, None
 
-    def standard_plan(self, machine: Machine, n: int, seed: int) -> StandardPlan:
+    def standard_plan(self, machine: Machine, n: int, seed: int, setup=None) -> StandardPlan:
         """The standard plan of ``n`` poses (default: the candidate sample of ``seed``).
 
         Parameters
@@ -358,17 +361,20 @@ class Instrument:
             Number of poses.
         seed : int
             Seed of sampled plans.
+        setup : object, optional
+            The instrument's set-up (:attr:`Setup`) of the machine file (a ballbar's
+            mountings, a tracker's frame); None: the instrument's planning default.
 
         Returns
         -------
         StandardPlan
             The plan.
         """
-        P, R, group = self.candidates(machine, n, np.random.default_rng(seed))
+        P, R, group = self.candidates(machine, n, np.random.default_rng(seed), setup)
         return StandardPlan(f"{n} random planned poses around home (seed {seed})", P, R,
                             group=group)
 
-    def planned_data(self, machine: Machine, P, R, rows, source, group=None):
+    def planned_data(self, machine: Machine, P, R, rows, source, group=None, setup=None):
         """Noise-free measurements of the nominal machine at planned poses.
 
         Parameters
@@ -385,6 +391,9 @@ class Instrument:
             Name of the plan.
         group : ndarray of int, shape (K,), optional
             0-based setup of each pose.
+        setup : object, optional
+            The instrument's set-up (:attr:`Setup`) of the machine file (a ballbar's
+            mountings, a tracker's frame); None: the instrument's planning default.
 
         Returns
         -------
@@ -511,7 +520,7 @@ class Instrument:
     simulate_options_words: str = ""
 
     def simulate(self, machine: Machine, true: Machine, n: int, noise, rng, truth: dict, *,
-                 poses=None, mounting_error: float = MOUNTING_ERROR, **options):
+                 setup=None, poses=None, mounting_error: float = MOUNTING_ERROR, **options):
         """A simulated experiment of this instrument (see
         :func:`~pkmcal.instruments.simulate.simulate_scenario`, which checks the options and
         draws the true machine first).
@@ -521,7 +530,7 @@ class Instrument:
         machine : Machine
             The nominal machine (it commands the poses).
         true : Machine
-            The true machine; it is given the true instrument (frames, targets, setups).
+            The true machine.
         n : int
             Number of measurements.
         noise : object
@@ -530,6 +539,9 @@ class Instrument:
             Random generator (poses, mounting errors, noise).
         truth : dict
             ``{"scenario": name}``, completed here.
+        setup : object, optional
+            The instrument's set-up (:attr:`Setup`) of the machine file: the true one's
+            start (a tracker's frame, a ballbar's mountings); None: the simulations' default.
         poses : tuple, optional
             ``(P, R)`` or ``(P, R, group)``: commanded poses instead of the instrument's.
         mounting_error : float, optional
@@ -541,7 +553,9 @@ class Instrument:
         -------
         tuple
             ``(data, true, truth)``: ``truth`` with ``poses`` (the plan in words), the
-            instrument's truth and ``rows``, that truth in words (``(name, text)`` pairs).
+            instrument's truth, ``setup`` (the true set-up, an instance of :attr:`Setup`, for
+            an instrument that has one) and ``rows``, that truth in words (``(name, text)``
+            pairs).
         """
         raise NotImplementedError
 
@@ -658,7 +672,7 @@ class Instrument:
                          + f") {unit} (platform)"))
         return rows + ["held-out", "bed", "noise levels", "residual test", "convergence"]
 
-    def problem(self, machine: Machine, data, noise=None, **start):
+    def problem(self, machine: Machine, data, noise=None, setup=None, **start):
         """The calibration problem ``pkmcal calibrate`` solves by default, unsolved.
 
         Parameters
@@ -669,6 +683,9 @@ class Instrument:
             The instrument's data.
         noise : object, optional
             Noise model; default :meth:`default_noise`.
+        setup : object, optional
+            The instrument's set-up (:attr:`Setup`) of the machine file: start values of its
+            unknowns; None: the planning default.
         **start
             Start values of the instrument's unknowns (``registration``, ``frames``).
 
@@ -683,7 +700,7 @@ class Instrument:
     measurement_words: str = ""
     #: the plan file's column naming each pose's group (``target``, ``setup``); None: one
     group_column: str | None = None
-    #: the plan options the instrument takes (:meth:`planned_machine`)
+    #: the plan options the instrument takes (:meth:`planned_setup`)
     plan_options: tuple = ()
 
     def groups_carried(self, setup) -> int:
@@ -911,7 +928,8 @@ class Instrument:
         """
         return None
 
-    def measured_problem(self, machine: Machine, data, noise=None, source: str = ""):
+    def measured_problem(self, machine: Machine, data, noise=None, source: str = "",
+                         setup=None):
         """The calibration problem ``pkmcal calibrate`` solves for measured ``data``, unsolved,
         the instrument's unknowns started from the data on the machine's geometry (a fit with
         the machine held where they need one).
@@ -926,31 +944,35 @@ class Instrument:
             Noise model; default :meth:`default_noise`.
         source : str, optional
             Name of the data, for messages.
+        setup : object, optional
+            The instrument's set-up of the machine file (:attr:`Setup`): start values.
 
         Returns
         -------
         BlockProblem
             The problem.
         """
-        return self.problem(machine, data, noise)
+        return self.problem(machine, data, noise, setup=setup)
 
-    def planned_machine(self, machine: Machine, **options) -> Machine:
-        """The machine the instrument's plans use, with the plan options of
+    def planned_setup(self, machine: Machine, setup=None, **options):
+        """The set-up the instrument's plans use, with the plan options of
         :attr:`plan_options` (e.g. a ballbar's planned mountings).
 
         Parameters
         ----------
         machine : Machine
             The nominal machine.
+        setup : object, optional
+            The set-up of the machine file (:attr:`Setup`), None without one.
         **options
             The instrument's plan options (None: not given).
 
         Returns
         -------
-        Machine
-            ``machine``, or a copy carrying the planned set-up.
+        object or None
+            ``setup``, or the planned one.
         """
-        return machine
+        return setup
 
 
 def _space_words(machine: Machine) -> str:

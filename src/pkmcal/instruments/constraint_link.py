@@ -1963,17 +1963,17 @@ class ConstraintLink(Instrument):
         return res, run.workspace_accuracy(true, res.extras["machine"],
                                            self.montecarlo_evaluation_poses)
 
-    def candidates(self, machine, n, rng):
+    def candidates(self, machine, n, rng, setup=None):
 
         P, R = sample_sphere_poses(machine, link_length(machine), n, rng)
         return P, R, None
 
-    def standard_plan(self, machine, n, seed):
+    def standard_plan(self, machine, n, seed, setup=None):
         P, R, _ = self.candidates(machine, n, np.random.default_rng(seed))
         return StandardPlan(f"{n} random planned poses on the constraint sphere (seed {seed})",
                             P, R)
 
-    def planned_data(self, machine, P, R, rows, source, group=None):
+    def planned_data(self, machine, P, R, rows, source, group=None, setup=None):
 
         P = _on_sphere(P, machine, rows, source)
         q = reachable(machine, P, R, rows, source)
@@ -1986,7 +1986,7 @@ class ConstraintLink(Instrument):
     simulate_options = {"link_error": 0.0}
     simulate_options_words = "link_error: applies to the constraint-link scenario"
 
-    def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
+    def simulate(self, machine, true, n, noise, rng, truth, *, setup=None, poses=None,
                  mounting_error=MOUNTING_ERROR, link_error=0.0):
         """:func:`simulate_constraint_link` on the sphere of the true link (the file's length
         minus ``link_error``); ``noise`` the encoder std (m, default 1 um; False: exact).
@@ -2061,7 +2061,7 @@ class ConstraintLink(Instrument):
                          "the data, and std is for the identifiable part."))
         return rows
 
-    def problem(self, machine, data, noise=None, **start):
+    def problem(self, machine, data, noise=None, setup=None, **start):
 
         return ConstraintLinkML(machine, data, self.default_noise() if noise is None else noise)
 

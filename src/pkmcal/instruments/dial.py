@@ -225,17 +225,17 @@ class Dial(Instrument):
         """
         return _noise_model_arg(self, text, machine, "a dial reading", allow_zero)
 
-    def planned_data(self, machine, P, R, rows, source, group=None):
+    def planned_data(self, machine, P, R, rows, source, group=None, setup=None):
         """A dial along :func:`planned_axis` (``+z``, or a planar machine's ``+y``) touching
         the platform origin, zero 0: the readings are the planned coordinates along it."""
         q = reachable(machine, P, R, rows, source)
         return dial_data(q, np.asarray(P, float)[:, planned_axis(machine)], rows, source)
 
-    def problem(self, machine, data, noise=None, **start):
+    def problem(self, machine, data, noise=None, setup=None, **start):
         return InstrumentProblem(machine, data, DialModel(with_point=machine.rotates),
                                  self.default_noise() if noise is None else noise)
 
-    def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
+    def simulate(self, machine, true, n, noise, rng, truth, *, setup=None, poses=None,
                  mounting_error=MOUNTING_ERROR):
         """A dial along :func:`planned_axis` (``+z``, or a planar machine's ``+y``) tilted by
         up to :data:`DIAL_TILT`, zeroed near home (within

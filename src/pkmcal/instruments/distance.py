@@ -60,6 +60,7 @@ from .flow import (
 )
 from .models import DistancesModel, IsotropicNoise
 from .problem import InstrumentProblem, fit_instrument
+from .setups import machine_setup
 
 #: the ballbar length of plans and simulations, m (a common measuring-ballbar length)
 BALLBAR_LENGTH = 0.1
@@ -169,18 +170,21 @@ def planned_ballbar_setups(machine: Machine, n_setups: int = 3,
     return [(P0 - length * n, np.zeros(3)) for n in setup_normals(int(n_setups))]
 
 
-def ballbar_setups(machine: Machine, length: float | None = None):
+def ballbar_setups(machine: Machine, setup: BallbarSetup | None = None,
+                   length: float | None = None):
     """Pivots (base frame) and balls (platform frame) of the ballbar setups of plans.
 
-    The machine's own ``ballbar_setups`` (a calibrated machine file, or set by a planning
-    command for ``--radius`` / ``--setups``) when it has them and ``length`` is not given,
-    else the three planned setups of :func:`planned_ballbar_setups` (ballbar ``length``,
-    default :data:`BALLBAR_LENGTH`).
+    The mountings of ``setup`` (a calibrated machine file's, or planned by a planning command
+    for ``--radius`` / ``--setups``: :meth:`Distance.planned_setup`) when it has some and
+    ``length`` is not given, else the three planned setups of :func:`planned_ballbar_setups`
+    (ballbar ``length``, default :data:`BALLBAR_LENGTH`).
 
     Parameters
     ----------
     machine : Machine
         The nominal machine.
+    setup : BallbarSetup, optional
+        The ballbar's set-up (None: none).
     length : float, optional
         Ballbar length, m.
 
@@ -191,7 +195,7 @@ def ballbar_setups(machine: Machine, length: float | None = None):
     balls : ndarray, shape (K, 3)
         One ball per setup, m (platform frame).
     """
-    setups = getattr(machine, "ballbar_setups", None) if length is None else None
+    setups = setup.mountings if setup is not None and length is None else None
     if not setups:
         setups = planned_ballbar_setups(machine, len(CIRCLE_NORMALS),
                                         BALLBAR_LENGTH if length is None else length)
@@ -332,7 +336,8 @@ class Distance(Instrument):
                                          IsotropicNoise(noise) if noise > 0 else False)
         res = fit_instrument(nominal, data, DistancesModel(data.n_groups),
                              IsotropicNoise(run.weight(noise)))
-        P, R, g = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng)
+        P, R, g = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng,
+                                  machine_setup(nominal, self.name))
         q = nominal.ik(P, R)
         model = res.extras["model"]
         fit = res.extras["machine"].fk(q, start=(P, R))
@@ -347,14 +352,14 @@ class Distance(Instrument):
         return res, {"distance_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
                      "distance_max": float(np.max(e[ok])) if ok.any() else math.nan}
 
-    def candidates(self, machine, n, rng):
+    def candidates(self, machine, n, rng, setup=None):
         """Poses on the setups' spheres (:func:`ballbar_setups`: random directions within 60
         deg of the pivot's direction to home; random orientations within 10 deg on platforms
         that rotate)."""
         from ..kinematics import matrix_from_euler
         from ..machines.deviations import draw_accepted
 
-        pivots, balls = ballbar_setups(machine)
+        pivots, balls = ballbar_setups(machine, setup)
         P0, R0 = machine.home
         arm = P0 + balls @ R0.T - pivots                  # pivot -> ball at home, per setup
         radius = np.linalg.norm(arm, axis=-1)
@@ -389,15 +394,15 @@ class Distance(Instrument):
                              "check the geometry and home", machine=machine)
         return P, R, np.concatenate(groups)[:n]
 
-    def standard_plan(self, machine, n, seed):
-        pivots, balls = ballbar_setups(machine)
+    def standard_plan(self, machine, n, seed, setup=None):
+        pivots, balls = ballbar_setups(machine, setup)
         k = len(pivots)
         words = {1: "one mounting", 2: "two mountings", 3: "three mountings"}.get(
             k, f"{k} mountings")
         if n < 3 * k:
             return StandardPlan(f"ballbar on {words}", reason=f"{words} need at least {3 * k} "
                                 f"poses, not {n}")
-        P, R, group = self.candidates(machine, n, np.random.default_rng(seed))
+        P, R, group = self.candidates(machine, n, np.random.default_rng(seed), setup)
         P0, R0 = machine.home
         lengths = np.linalg.norm(P0 + balls @ R0.T - pivots, axis=-1) * 1e3
         length = (f"{lengths[0]:.4g} mm" if np.ptp(lengths) < 1e-6
@@ -407,11 +412,11 @@ class Distance(Instrument):
                             f"spheres around the pivots{turn} (seed {seed})", P, R,
                             group=group)
 
-    def planned_data(self, machine, P, R, rows, source, group=None):
+    def planned_data(self, machine, P, R, rows, source, group=None, setup=None):
 
         q = reachable(machine, P, R, rows, source)
         group = np.zeros(len(P), int) if group is None else np.asarray(group, int)
-        pivots, balls = ballbar_setups(machine)
+        pivots, balls = ballbar_setups(machine, setup)
         pivots, balls = pivots[group % len(pivots)], balls[group % len(pivots)]
         d = np.linalg.norm(P + np.einsum("kij,kj->ki", R, balls) - pivots, axis=-1)
         return InstrumentData("distances", q, d[:, None], group, rows, source, P, R)
@@ -450,9 +455,9 @@ class Distance(Instrument):
     simulate_options = {"setups": None, "length": None, "circles": False}
     simulate_options_words = "setups, length and circles: apply to the distance scenario"
 
-    def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
+    def simulate(self, machine, true, n, noise, rng, truth, *, setup=None, poses=None,
                  mounting_error=MOUNTING_ERROR, setups=None, length=None, circles=False):
-        """``setups`` mountings of a ballbar of ``length`` (the machine's ``ballbar_setups``
+        """``setups`` mountings of a ballbar of ``length`` (the machine file's, ``setup``,
         when neither is given, else :func:`planned_ballbar_setups`, 3 and
         :data:`BALLBAR_LENGTH` by default); ``n`` poses on the spheres around the pivots
         (:meth:`candidates`), ``poses``, or with ``circles`` ISO 230-4 circles
@@ -468,14 +473,11 @@ class Distance(Instrument):
         """
         from .experiment import given_poses, mm_text, noise_model, simulate_instrument
 
-        if setups is None and length is None and getattr(machine, "ballbar_setups", None):
-            plan = [(np.asarray(p, float), np.asarray(b, float))
-                    for p, b in machine.ballbar_setups]
+        if setups is None and length is None and setup:
+            plan = list(setup.mountings)
         else:
             plan = planned_ballbar_setups(machine, 3 if setups is None else int(setups),
                                           BALLBAR_LENGTH if length is None else float(length))
-        nominal = machine.with_parameters(machine.u)
-        nominal.ballbar_setups = plan
         k = len(plan)
         if poses is not None:
             P, R = given_poses(poses)
@@ -483,10 +485,10 @@ class Distance(Instrument):
                      else np.asarray(poses[2], int))
             words = f"{len(P)} given poses"
         elif circles:
-            P, R, group = circle_plan(nominal, n, plan)
+            P, R, group = circle_plan(machine, n, plan)
             words = f"{k} ISO 230-4 circle(s), {n} poses"
         else:
-            P, R, group = self.candidates(nominal, n, rng)
+            P, R, group = self.candidates(machine, n, rng, BallbarSetup(plan))
             words = (f"{n} random poses on the spheres around the {k} pivot(s)"
                      + (" with rotations within +/-10 deg" if machine.rotates else ""))
         true_setups = [(p + rng.uniform(-mounting_error, mounting_error, 3),
@@ -498,7 +500,6 @@ class Distance(Instrument):
             state.values[model._ib[g]] = b
         data = simulate_instrument(true, machine, model, state, P, R, group,
                                    noise_model(noise, IsotropicNoise(1e-6)), rng)
-        true.ballbar_setups = true_setups
         P0, R0 = machine.home
         L = [float(np.linalg.norm(P0 + R0 @ b - p)) for p, b in plan]
         lengths = sorted({round(v * 1e3, 6) for v in L})
@@ -506,7 +507,8 @@ class Distance(Instrument):
                  "pivots and balls off the planned ones by the mounting error")]
         rows += [(f"setup {g + 1}", f"pivot {mm_text(p)} mm, ball {mm_text(b)} mm (platform)")
                  for g, (p, b) in enumerate(true_setups)]
-        truth.update(setups=true_setups, planned_setups=plan, length=L, poses=words, rows=rows)
+        truth.update(setups=true_setups, planned_setups=plan, length=L, poses=words, rows=rows,
+                     setup=BallbarSetup(true_setups))
         return data, true, truth
 
     simulate_flags = {"--setups": "--scenario distance", "--radius": "--scenario distance",
@@ -535,12 +537,12 @@ class Distance(Instrument):
     data_columns = ("d",)
     prediction_words = "predicted ballbar length(s)"
 
-    def problem(self, machine, data, noise=None, **start):
+    def problem(self, machine, data, noise=None, setup=None, **start):
         from .models import DistancesModel
         from .problem import InstrumentProblem
 
         model = DistancesModel(data.n_groups)
-        pivots, balls = ballbar_setups(machine)
+        pivots, balls = ballbar_setups(machine, setup)
         values = np.array(model.parameters.values, float)
         for g in range(data.n_groups):
             values[model._ip[g]] = pivots[g % len(pivots)]
@@ -592,7 +594,7 @@ class Distance(Instrument):
         return JointPart(dist, DistancesModel(dist.n_groups), noise_model,
                          f"ballbar {noise_model.sigma * 1e6:.4g} um (std)", "distance")
 
-    def measured_problem(self, machine, data, noise=None, source=""):
+    def measured_problem(self, machine, data, noise=None, source="", setup=None):
         """The pivot and ball of each setup fitted to the data with the machine held."""
         from ..estimation.estimator import levenberg_marquardt
         from .models import DistancesModel
@@ -603,22 +605,19 @@ class Distance(Instrument):
                                                     str(source))
         alone = InstrumentProblem(machine, data, model, noise).with_machine_fixed()
         state = levenberg_marquardt(alone).state.nuisance
-        start = machine.with_parameters(machine.u)
-        start.ballbar_setups = [(state.values[model._ip[g]].copy(),
-                                 state.values[model._ib[g]].copy())
-                                for g in range(data.n_groups)]
-        return self.problem(start, data, noise)
+        start = BallbarSetup([(state.values[model._ip[g]].copy(),
+                               state.values[model._ib[g]].copy())
+                              for g in range(data.n_groups)])
+        return self.problem(machine, data, noise, setup=start)
 
-    def planned_machine(self, machine, setups=None, length=None, **options):
-        """A copy carrying ``setups`` planned mountings (default 3) of a ballbar of
-        ``length`` (default :data:`BALLBAR_LENGTH`), when either is given."""
+    def planned_setup(self, machine, setup=None, setups=None, length=None, **options):
+        """``setups`` planned mountings (default 3) of a ballbar of ``length`` (default
+        :data:`BALLBAR_LENGTH`) when either is given, else ``setup``."""
         if setups is None and length is None:
-            return machine
-        out = machine.with_parameters(machine.u)
-        out.ballbar_setups = planned_ballbar_setups(
+            return setup
+        return BallbarSetup(planned_ballbar_setups(
             machine, 3 if setups is None else setups, BALLBAR_LENGTH if length is None
-            else length)
-        return out
+            else length))
 
 
 def calibrate_distances(machine: Machine, data: InstrumentData, noise=None, rtol: float = RTOL,

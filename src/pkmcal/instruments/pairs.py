@@ -214,12 +214,12 @@ class PairDistance(Instrument):
         """
         return _noise_model_arg(self, text, machine, "a measured distance", allow_zero)
 
-    def candidates(self, machine, n, rng):
+    def candidates(self, machine, n, rng, setup=None):
         raise InputError("pair-distances: poses are chosen in pairs (one distance each); "
                          "pose selection picks single poses - use the standard plan, "
                          "Klipper's DELTA_ANALYZE object (--scenario pair-distances)")
 
-    def standard_plan(self, machine, n, seed):
+    def standard_plan(self, machine, n, seed, setup=None):
 
         pairs, words = klipper_object_pairs(height=bed_height(machine))
         if n != 2 * len(pairs):
@@ -228,7 +228,7 @@ class PairDistance(Instrument):
         P = pairs.reshape(-1, 3)
         return StandardPlan(words, P, np.broadcast_to(np.eye(3), (len(P), 3, 3)).copy())
 
-    def planned_data(self, machine, P, R, rows, source, group=None):
+    def planned_data(self, machine, P, R, rows, source, group=None, setup=None):
 
         if len(P) % 2:
             raise InputError(f"{path_text(source)}: "
@@ -238,7 +238,7 @@ class PairDistance(Instrument):
         d = np.linalg.norm(P[0::2] - P[1::2], axis=-1)
         return pair_data(q[0::2], q[1::2], d, np.asarray(rows)[0::2], source)
 
-    def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
+    def simulate(self, machine, true, n, noise, rng, truth, *, setup=None, poses=None,
                  mounting_error=MOUNTING_ERROR):
         """Klipper's object printed by the nominal model's commands on the true machine and
         measured: each distance between the true nozzle positions of the commanded pair,
@@ -275,7 +275,7 @@ class PairDistance(Instrument):
 
     data_columns = ("distance",)
 
-    def problem(self, machine, data, noise=None, **start):
+    def problem(self, machine, data, noise=None, setup=None, **start):
 
         return PairProblem(machine, data, PairDistanceModel(),
                            self.default_noise() if noise is None else noise)

@@ -89,6 +89,7 @@ from .flow import (
     validation_section,
 )
 from .flow import option as _option
+from .setups import machine_setup
 
 Frame = tuple[np.ndarray, np.ndarray]
 
@@ -1486,8 +1487,7 @@ class Pose(Instrument):
         s = run.settings
         nominal = s.machine
         true = run.true_machine()
-        frames = measurement_frames(nominal)
-        true.measurement_frames = frames
+        frames = measurement_frames(machine_setup(nominal, self.name))
         default = FullPoseNoise()
         noise = default.reading_m if s.noise is None else s.noise
         data = simulate_full_pose(true, sample_workspace_poses(true, s.poses or
@@ -1510,10 +1510,10 @@ class Pose(Instrument):
                      "orientation_max": stat(np.max, err.orientation),
                      "parameter_rms": float(np.sqrt(np.mean(e**2)))}
 
-    def planned_data(self, machine, P, R, rows, source, group=None):
+    def planned_data(self, machine, P, R, rows, source, group=None, setup=None):
 
         q = reachable(machine, P, R, rows, source)
-        Pm, Rm = measurement_frames(machine).measured(P, R)
+        Pm, Rm = measurement_frames(setup).measured(P, R)
         return FullPoseData(q, Pm, Rm, rows, source, true_P=P, true_R=R)
 
     section = "measurement_frames"
@@ -1541,23 +1541,22 @@ class Pose(Instrument):
         values, Rm = setup.measured(P, R)
         return values, np.where(ok[:, None, None], Rm, np.nan), np.zeros(len(P), int)
 
-    def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
+    def simulate(self, machine, true, n, noise, rng, truth, *, setup=None, poses=None,
                  mounting_error=MOUNTING_ERROR):
         """:func:`simulate_full_pose` at ``n`` random poses (or ``poses``), through the machine
-        file's ``measurement_frames`` (else the default); ``noise`` a ``FullPoseNoise``
-        (False: exact). See
+        file's measurement frames (``setup``, else the default); ``noise`` a
+        ``FullPoseNoise`` (False: exact). See
         :meth:`Instrument.simulate <pkmcal.instruments.base.Instrument.simulate>`.
 
         Returns
         -------
         tuple
-            ``(data, true, truth)``; ``truth`` with ``frames``.
+            ``(data, true, truth)``; ``truth`` with ``frames`` (also its ``setup``).
         """
         from ..machines.reach import sample_workspace_poses
         from .experiment import given_poses, mm_text, noise_model
 
-        frames = measurement_frames(machine)
-        true.measurement_frames = frames
+        frames = measurement_frames(setup)
         model = noise_model(noise, FullPoseNoise())
         if poses is None:
             poses = sample_workspace_poses(true, n, rng)
@@ -1570,7 +1569,7 @@ class Pose(Instrument):
         rows = [("frames", f"measurement origin at {mm_text(frames.mocap_from_base[1])} mm; "
                  f"marker origin at {mm_text(frames.platform_from_marker[1])} mm in the "
                  "platform frame")]
-        truth.update(frames=frames, poses=words, rows=rows)
+        truth.update(frames=frames, poses=words, rows=rows, setup=frames)
         return data, true, truth
 
     simulate_flags = {"--pose-noise": "--scenario pose"}
@@ -1644,10 +1643,10 @@ class Pose(Instrument):
         columns.update({c: Q[:, j] for j, c in enumerate(("qx", "qy", "qz", "qw"))})
         return columns
 
-    def problem(self, machine, data, noise=None, frames=None, **start):
+    def problem(self, machine, data, noise=None, setup=None, frames=None, **start):
 
         return FullPoseML(machine, data, self.default_noise() if noise is None else noise,
-                          measurement_frames(machine) if frames is None else frames)
+                          measurement_frames(setup) if frames is None else frames)
 
     measurement_words = "full pose (maximum likelihood; both measurement frames estimated)"
 
@@ -1676,7 +1675,7 @@ class Pose(Instrument):
         :meth:`~pkmcal.instruments.base.Instrument.calibrate`)."""
         return _calibration_flow(machine, data, context, options)
 
-    def measured_problem(self, machine, data, noise=None, source=""):
+    def measured_problem(self, machine, data, noise=None, source="", setup=None):
         """The measurement frames of the machine file, else estimated from the data (at least
         4 poses)."""
 
@@ -1684,30 +1683,27 @@ class Pose(Instrument):
             raise InputError(f"{path_text(source)}: "
                              f"{len(data)} pose(s); the measurement frames need at "
                              "least 4")
-        frames = getattr(machine, "measurement_frames", None)
+        frames = machine_setup(machine, self.name) if setup is None else setup
         if frames is None:
             frames = estimate_frames(machine, data)
         return self.problem(machine, data, noise, frames=frames)
 
 
-def measurement_frames(machine: Machine):
-    """``measurement_frames`` of the machine file, else the simulations' default.
+def measurement_frames(setup: MeasurementFrames | None = None) -> MeasurementFrames:
+    """The measurement frames of the machine file (its set-up), else the simulations'
+    default.
 
     Parameters
     ----------
-    machine : Machine
-        The machine (its ``measurement_frames``, if any).
+    setup : MeasurementFrames, optional
+        The machine file's (None: none).
 
     Returns
     -------
     MeasurementFrames
         The frames.
     """
-    frames = getattr(machine, "measurement_frames", None)
-    if frames is None:
-
-        frames = default_measurement_frames()
-    return frames
+    return default_measurement_frames() if setup is None else setup
 
 
 #: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)
@@ -1799,7 +1795,7 @@ def _calibration_flow(machine, data, context: FlowContext,
     method, fix_frames = options.method or "ml", options.fix_frames
     noise_model, hold = pose_noise_option(options.noise, options.pose_noise, machine)
     data, held = split_rows(load_data(data, context.read, machine), split, source)
-    file_frames = getattr(machine, "measurement_frames", None)
+    file_frames = machine_setup(machine, "pose")     # transitional: the machine file's
     if fix_frames:
         frames = file_frames if file_frames is not None else MeasurementFrames.identity()
         frames_from = ("the machine file's measurement_frames" if file_frames is not None

@@ -463,7 +463,7 @@ class Probe(Instrument):
         return res, {"height_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
                      "height_max": float(np.max(e[ok])) if ok.any() else math.nan}
 
-    def candidates(self, machine, n, rng):
+    def candidates(self, machine, n, rng, setup=None):
         """Random points uniform on the disk of :func:`probe_radius` on the nominal bed."""
         r = probe_radius(machine)
         centre = bed_centre(machine)
@@ -473,7 +473,7 @@ class Probe(Instrument):
                                                              rho * np.sin(a)]))
         return P, R, None
 
-    def standard_plan(self, machine, n, seed):
+    def standard_plan(self, machine, n, seed, setup=None):
         pattern = probe_pattern(n, probe_radius(machine), bed_centre(machine))
         if pattern is None:
             return StandardPlan("a probe pattern of rings on the bed",
@@ -484,7 +484,7 @@ class Probe(Instrument):
         P, R = _bed_points(machine, xy)
         return StandardPlan(words, P, R)
 
-    def planned_data(self, machine, P, R, rows, source, group=None):
+    def planned_data(self, machine, P, R, rows, source, group=None, setup=None):
         from .models import ProbeModel
 
         q = reachable(machine, P, R, rows, source)
@@ -529,7 +529,7 @@ class Probe(Instrument):
     simulate_options = {"bed_error": BED_ERROR, "tilt_error": TILT_ERROR}
     simulate_options_words = "bed_error and tilt_error: apply to the probe scenario"
 
-    def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
+    def simulate(self, machine, true, n, noise, rng, truth, *, setup=None, poses=None,
                  mounting_error=MOUNTING_ERROR, bed_error=BED_ERROR, tilt_error=TILT_ERROR):
         """The standard probe pattern of ``n`` points when there is one
         (:func:`probe_pattern`: 7 = Klipper's DELTA_CALIBRATE, 19, 37, ...), else ``n``
@@ -547,7 +547,7 @@ class Probe(Instrument):
         -------
         tuple
             ``(data, true, truth)``; ``truth`` with ``bed`` (``(height, tilt_x, tilt_y)`` of
-            the true bed, also the true machine's ``probe_bed``).
+            the true bed) and ``setup`` (the true :class:`BedSetup`).
         """
         from .experiment import given_poses, noise_model
 
@@ -573,11 +573,11 @@ class Probe(Instrument):
         q, fk = probe_trigger(true, machine, P, R, bed, eps[:, 0])
         data = InstrumentData("probe", q, np.zeros((len(P), 1)), None, source="<simulated>",
                               true_P=fk.P, true_R=fk.R)
-        true.probe_bed = tuple(float(v) for v in bed)
-        z, tx, ty = true.probe_bed
+        true_bed = BedSetup(*(float(v) for v in bed))
+        z, tx, ty = true_bed.plane
         rows = [("bed", f"true bed at z = {z * 1e3:.6g} mm, slopes dz/dx = {tx:.3g}, dz/dy = "
                  f"{ty:.3g}; the probe triggers at probe_z = 0 (nozzle contact)")]
-        truth.update(bed=true.probe_bed, poses=words, rows=rows)
+        truth.update(bed=true_bed.plane, poses=words, rows=rows, setup=true_bed)
         return data, true, truth
 
     def simulate_arguments(self, machine, noise, **flags):
@@ -588,7 +588,7 @@ class Probe(Instrument):
     data_columns = ("probe_z",)
     prediction_words = "predicted probe height(s) above the bed"
 
-    def problem(self, machine, data, noise=None, **start):
+    def problem(self, machine, data, noise=None, setup=None, **start):
 
         noise = self.default_noise() if noise is None else noise
         # a printer's frame is its bed: its height held at 0, its tilt where the data tell it
@@ -662,7 +662,7 @@ class Probe(Instrument):
                          f"probe trigger {noise_model.sigma * 1e6:.4g} um along z (std)",
                          "probe", with_others, frame)
 
-    def measured_problem(self, machine, data, noise=None, source=""):
+    def measured_problem(self, machine, data, noise=None, source="", setup=None):
         """The bed's height and tilt started from the data on the machine's geometry."""
 
         noise = self.default_noise() if noise is None else noise

@@ -24,6 +24,7 @@ from .base import StandardPlan
 from .constraint_link import SPHERE_TOL, link_length  # noqa: F401  (re-exported: plan checks)
 from .pose import measurement_frames
 from .registry import INSTRUMENTS, instrument
+from .setups import machine_setup
 from .tracker import tracker_pose
 
 __all__ = ["DEFAULT_PLAN_SIZE", "SCENARIOS", "STANDARD_PLANS", "StandardPlan",
@@ -108,15 +109,22 @@ def describe_noise(scenario: str, noise) -> str:
 
 
 def _standard_plan_entry(name):
-    return lambda machine, n, seed: INSTRUMENTS[name].standard_plan(machine, n, seed)
+    return lambda machine, n, seed, setup=None: INSTRUMENTS[name].standard_plan(machine, n, seed,
+                                                                                setup)
 
 
-#: the standard plan of each scenario: ``(machine, n, seed) -> StandardPlan``
+def _setup(machine: Machine, inst, setup):
+    """The set-up a plan uses: ``setup``, else (transitional) the one the loader put on the
+    machine."""
+    return machine_setup(machine, inst.name) if setup is None else setup
+
+
+#: the standard plan of each scenario: ``(machine, n, seed, setup=None) -> StandardPlan``
 STANDARD_PLANS = {name: _standard_plan_entry(name) for name in INSTRUMENTS}
 
 
 def standard_plan(machine: Machine, scenario: str, n: int | None = None,
-                  seed: int = 0) -> StandardPlan:
+                  seed: int = 0, setup=None) -> StandardPlan:
     """The instrument's standard plan of ``n`` poses: what ``pkmcal identifiability`` analyses
     without data, and what ``pkmcal select-poses`` compares with and starts from.
 
@@ -136,6 +144,9 @@ def standard_plan(machine: Machine, scenario: str, n: int | None = None,
         Number of poses; default :data:`DEFAULT_PLAN_SIZE` of the scenario.
     seed : int, optional
         Seed of sampled plans.
+    setup : object, optional
+        The instrument's set-up (a tracker's frame, a ballbar's mountings:
+        :mod:`pkmcal.instruments.setups`); default the planning one.
 
     Returns
     -------
@@ -155,10 +166,10 @@ def standard_plan(machine: Machine, scenario: str, n: int | None = None,
     own = getattr(machine, "standard_plan", None)
     if callable(own):
         return own(inst.name, n, seed)
-    return inst.standard_plan(machine, n, seed)
+    return inst.standard_plan(machine, n, seed, _setup(machine, inst, setup))
 
 
-def candidate_set(machine: Machine, scenario: str, n: int, rng=None):
+def candidate_set(machine: Machine, scenario: str, n: int, rng=None, setup=None):
     """``n`` feasible candidate poses of a scenario, with their setups.
 
     Parameters
@@ -171,6 +182,9 @@ def candidate_set(machine: Machine, scenario: str, n: int, rng=None):
         Number of poses (>= 1).
     rng : int, numpy.random.Generator or None, optional
         Random generator or seed.
+    setup : object, optional
+        The instrument's set-up (a tracker's frame, a ballbar's mountings:
+        :mod:`pkmcal.instruments.setups`); default the planning one.
 
     Returns
     -------
@@ -188,10 +202,11 @@ def candidate_set(machine: Machine, scenario: str, n: int, rng=None):
     """
     if n < 1:
         raise InputError(f"the number of candidate poses must be >= 1, got {n}")
-    return instrument(scenario).candidates(machine, n, np.random.default_rng(rng))
+    inst = instrument(scenario)
+    return inst.candidates(machine, n, np.random.default_rng(rng), _setup(machine, inst, setup))
 
 
-def candidate_poses(machine: Machine, scenario: str, n: int, rng=None):
+def candidate_poses(machine: Machine, scenario: str, n: int, rng=None, setup=None):
     """``n`` feasible candidate poses of a scenario (:func:`candidate_set` without setups).
 
     constraint-link: the sphere ``|P| = Lc`` (cap of 35 deg around home, rotations within
@@ -209,6 +224,9 @@ def candidate_poses(machine: Machine, scenario: str, n: int, rng=None):
         Number of poses (>= 1).
     rng : int, numpy.random.Generator or None, optional
         Random generator or seed.
+    setup : object, optional
+        The instrument's set-up (a tracker's frame, a ballbar's mountings:
+        :mod:`pkmcal.instruments.setups`); default the planning one.
 
     Returns
     -------
@@ -223,12 +241,12 @@ def candidate_poses(machine: Machine, scenario: str, n: int, rng=None):
         When ``n < 1``, a constraint-link machine has no link length, or not enough feasible
         poses are found.
     """
-    P, R, _ = candidate_set(machine, scenario, n, rng)
+    P, R, _ = candidate_set(machine, scenario, n, rng, setup)
     return P, R
 
 
 def planned_data(machine: Machine, scenario: str, P, R=None, rows=None, source="<plan>",
-                 group=None):
+                 group=None, setup=None):
     """Noise-free measurements of the *nominal* machine at planned poses.
 
     Parameters
@@ -247,6 +265,9 @@ def planned_data(machine: Machine, scenario: str, P, R=None, rows=None, source="
         Name of the plan, for messages.
     group : array_like of int, shape (K,), optional
         0-based target / setup of each pose.
+    setup : object, optional
+        The instrument's set-up (a tracker's frame, a ballbar's mountings:
+        :mod:`pkmcal.instruments.setups`); default the planning one.
 
     Returns
     -------
@@ -262,11 +283,12 @@ def planned_data(machine: Machine, scenario: str, P, R=None, rows=None, source="
     P = np.atleast_2d(np.asarray(P, float))
     R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else np.asarray(R, float)
     rows = np.arange(1, len(P) + 1) if rows is None else np.asarray(rows)
-    return instrument(scenario).planned_data(machine, P, R, rows, source, group)
+    inst = instrument(scenario)
+    return inst.planned_data(machine, P, R, rows, source, group, _setup(machine, inst, setup))
 
 
 def scenario_problem(machine: Machine, scenario: str, data, noise=None, registration=None,
-                     frames=None):
+                     frames=None, setup=None):
     """The calibration problem ``pkmcal calibrate`` solves by default for ``data``, unsolved.
 
     Parameters
@@ -283,6 +305,9 @@ def scenario_problem(machine: Machine, scenario: str, data, noise=None, registra
         Tracker: start ``base_from_tracker``; default :func:`tracker_pose`.
     frames : MeasurementFrames, optional
         Pose: start frames; default :func:`measurement_frames`.
+    setup : object, optional
+        The instrument's set-up (a tracker's frame, a ballbar's mountings:
+        :mod:`pkmcal.instruments.setups`); default the planning one.
 
     Returns
     -------
@@ -296,11 +321,12 @@ def scenario_problem(machine: Machine, scenario: str, data, noise=None, registra
     """
     start = {k: v for k, v in (("registration", registration), ("frames", frames))
              if v is not None}
-    return instrument(scenario).problem(machine, data, noise, **start)
+    inst = instrument(scenario)
+    return inst.problem(machine, data, noise, setup=_setup(machine, inst, setup), **start)
 
 
 def planned_problem(machine: Machine, scenario: str, P, R=None, noise=None, rows=None,
-                    source="<plan>", group=None):
+                    source="<plan>", group=None, setup=None):
     """:func:`scenario_problem` of the noise-free :func:`planned_data` at poses ``(P, R)``.
 
     Parameters
@@ -321,6 +347,9 @@ def planned_problem(machine: Machine, scenario: str, P, R=None, noise=None, rows
         Name of the plan, for messages.
     group : array_like of int, shape (K,), optional
         0-based target / setup of each pose.
+    setup : object, optional
+        The instrument's set-up (a tracker's frame, a ballbar's mountings:
+        :mod:`pkmcal.instruments.setups`); default the planning one.
 
     Returns
     -------
@@ -333,4 +362,5 @@ def planned_problem(machine: Machine, scenario: str, P, R=None, noise=None, rows
         As :func:`planned_data` and :func:`scenario_problem`.
     """
     return scenario_problem(machine, scenario,
-                            planned_data(machine, scenario, P, R, rows, source, group), noise)
+                            planned_data(machine, scenario, P, R, rows, source, group, setup),
+                            noise, setup=setup)

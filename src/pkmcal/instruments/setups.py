@@ -208,3 +208,8 @@ def legacy_setups(machine) -> Setups:
         items["probe"] = INSTRUMENTS["probe"].Setup(h, tx, ty, surface)
     items["pose"] = getattr(machine, "measurement_frames", None)
     return Setups(items)
+
+
+def machine_setup(machine, name: str):
+    """The set-up of instrument ``name`` the older attributes of ``machine`` hold (None)."""
+    return legacy_setups(machine).get(name)

@@ -23,12 +23,13 @@ from .experiment import (  # noqa: F401
     true_machine,
 )
 from .probe import BED_ERROR, TILT_ERROR, probe_trigger  # noqa: F401
+from .setups import Setups, legacy_setups
 from .tracker import planned_targets  # noqa: F401
 
 
 def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noise=None,
                       rng=None, *, deviations="random", mounting_error: float = MOUNTING_ERROR,
-                      poses=None, **options):
+                      poses=None, machine_setups: Setups | None = None, **options):
     """A simulated experiment: the true machine measured by an instrument of the registry.
 
     The true machine is ``machine`` plus ``deviations``; the nominal ``machine`` commands the
@@ -57,6 +58,10 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
     poses : tuple, optional
         ``(P, R)`` or ``(P, R, group)``: commanded poses instead of random ones (tracker,
         distance, pose, probe).
+    machine_setups : Setups, optional
+        The machine file's set-ups (:func:`~pkmcal.io.load_machine_file`): the scenario
+        instrument's is the start of the true one (a tracker's frame, a ballbar's
+        mountings); default (transitional) those the loader put on the machine.
     **options
         The instrument's own options (its ``simulate_options``): ``targets`` (tracker: number
         of targets), ``setups``, ``length``, ``circles`` (distance: ballbar mountings, length
@@ -71,13 +76,16 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
         :class:`~pkmcal.instruments.InstrumentData` (with ``group`` the 0-based target / setup
         and the true poses).
     true_machine : Machine
-        The true machine, carrying its true instrument: ``constraint_link_length``,
-        ``base_from_tracker`` and ``tracker_targets`` (None when the file gives the target),
-        ``measurement_frames``, ``ballbar_setups`` (``[(pivot, ball), ...]``) or
-        ``probe_bed``.
+        The true machine (a constraint link's true length: ``constraint_link_length``).
     truth : dict
         The instrument's truth and plan: ``scenario`` (canonical name), ``poses`` (words),
-        ``rows`` (the truth in words, ``(name, text)`` pairs), and per instrument
+        ``rows`` (the truth in words, ``(name, text)`` pairs), ``setup`` (the true set-up of
+        an instrument that has one: :class:`~pkmcal.instruments.tracker.TrackerSetup`,
+        :class:`~pkmcal.instruments.pose.MeasurementFrames`,
+        :class:`~pkmcal.instruments.distance.BallbarSetup`,
+        :class:`~pkmcal.instruments.probe.BedSetup`), ``true_setups`` (a
+        :class:`~pkmcal.instruments.setups.Setups`: the machine file's set-ups with the true
+        one, what a truth file carries), and per instrument
         ``link_length``; ``base_from_tracker``, ``targets``, ``planned_targets``; ``frames``;
         ``setups``, ``planned_setups``, ``length``; ``bed`` (``(height, tilt_x, tilt_y)``).
 
@@ -111,5 +119,10 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
         raise InputError(f"mounting_error: must be >= 0, got {mounting_error}")
     true = true_machine(machine, deviations, rng)
     own = {k: options.get(k, default) for k, default in inst.simulate_options.items()}
-    return inst.simulate(machine, true, n, noise, rng, {"scenario": name}, poses=poses,
-                         mounting_error=mounting_error, **own)
+    setups = legacy_setups(machine) if machine_setups is None else Setups(machine_setups)
+    data, true, truth = inst.simulate(machine, true, n, noise, rng, {"scenario": name},
+                                      setup=setups.get(name), poses=poses,
+                                      mounting_error=mounting_error, **own)
+    truth["true_setups"] = (setups.with_setup(name, truth["setup"]) if "setup" in truth
+                            else setups)
+    return data, true, truth

@@ -81,6 +81,7 @@ from .flow import (
 )
 from .models import NuisanceState, PointsModel
 from .problem import InstrumentProblem, InstrumentState
+from .setups import machine_setup
 
 
 @dataclass(frozen=True)
@@ -761,24 +762,21 @@ def _tracker_noise_text(model) -> str:
             f"{model.transverse_per_m * 1e6:.4g} um/m across")
 
 
-def tracker_pose(machine: Machine):
-    """``base_from_tracker`` of the machine file, else the simulations' default.
+def tracker_pose(setup: TrackerSetup | None = None):
+    """``base_from_tracker`` of the machine file's tracker set-up, else the simulations'
+    default.
 
     Parameters
     ----------
-    machine : Machine
-        The machine (its ``base_from_tracker``, if any).
+    setup : TrackerSetup, optional
+        The tracker's set-up of the machine file (None: none).
 
     Returns
     -------
     tuple of ndarray
         ``(R (3, 3), t (3,))``.
     """
-    pose = getattr(machine, "base_from_tracker", None)
-    if pose is None:
-
-        pose = default_tracker_pose()
-    return pose
+    return default_tracker_pose() if setup is None else setup.base_from_tracker
 
 
 #: where plans and simulations put an unknown target on the platform (platform frame, in
@@ -957,8 +955,7 @@ class Tracker(Instrument):
         if nominal.tracker_target() is None:
             return self._montecarlo_points_run(run)
         true = run.true_machine()
-        pose = tracker_pose(nominal)
-        true.base_from_tracker = pose
+        pose = tracker_pose(machine_setup(nominal, self.name))
         sim_noise, fit_noise = self._montecarlo_noises(run)
         if s.poses is None and nominal.tracker_grid_spacing() is not None:
             targets = grid_points(nominal.home[0], nominal.tracker_grid_spacing())
@@ -986,7 +983,7 @@ class Tracker(Instrument):
         return res, _point_errors(m, predict_tracker_points(true, q, truth["base_from_tracker"],
                                                             targets=truth["targets"]))
 
-    def candidates(self, machine, n, rng):
+    def candidates(self, machine, n, rng, setup=None):
         if machine.tracker_grid_spacing() is None:
             return super().candidates(machine, n, rng)
         from ..machines.deviations import draw_accepted
@@ -1009,9 +1006,9 @@ class Tracker(Instrument):
                              "and well conditioned: check the geometry and home")
         return P, R, None
 
-    def standard_plan(self, machine, n, seed):
+    def standard_plan(self, machine, n, seed, setup=None):
         if machine.tracker_grid_spacing() is None:
-            return super().standard_plan(machine, n, seed)
+            return super().standard_plan(machine, n, seed, setup)
 
         k = int(round(n ** (1.0 / 3.0)))
         if k < 2 or k**3 != n:
@@ -1023,10 +1020,10 @@ class Tracker(Instrument):
         return StandardPlan(f"the {k}x{k}x{k} grid of seed 001 around home", P,
                             np.broadcast_to(np.eye(3), (n, 3, 3)))
 
-    def planned_data(self, machine, P, R, rows, source, group=None):
+    def planned_data(self, machine, P, R, rows, source, group=None, setup=None):
 
         q = reachable(machine, P, R, rows, source)
-        Rt, t = tracker_pose(machine)
+        Rt, t = tracker_pose(setup)
         x = P + np.einsum("kij,j->ki", R, plan_target(machine))
         return TrackerData(q, (x - t) @ Rt, rows=rows, source=source, true_P=P,
                            target=None if group is None else np.asarray(group, int))
@@ -1078,11 +1075,11 @@ class Tracker(Instrument):
     simulate_options = {"targets": 1}
     simulate_options_words = "targets: apply to the tracker (points) scenario"
 
-    def simulate(self, machine, true, n, noise, rng, truth, *, poses=None,
+    def simulate(self, machine, true, n, noise, rng, truth, *, setup=None, poses=None,
                  mounting_error=MOUNTING_ERROR, targets=1):
         """``n`` random workspace poses (:meth:`candidates`: rotations on platforms that
         rotate), or ``poses``; ``targets`` targets, rows cycling through them; the tracker at
-        the machine file's ``base_from_tracker`` (else the simulations' default); true target
+        the machine file's (``setup``, else the simulations' default); true target
         places = planned (:func:`planned_targets`) + a uniform error of ``mounting_error`` per
         coordinate (the file's target when it gives one). ``noise`` a tracker noise model
         (default ``TrackerNoise()``; False: exact data). See
@@ -1091,8 +1088,8 @@ class Tracker(Instrument):
         Returns
         -------
         tuple
-            ``(data, true, truth)``; ``truth`` with ``base_from_tracker``, ``targets`` and
-            ``planned_targets``.
+            ``(data, true, truth)``; ``truth`` with ``base_from_tracker``, ``targets``,
+            ``planned_targets`` and ``setup`` (the true :class:`TrackerSetup`).
         """
         from .experiment import given_poses, mm_text, noise_model, simulate_instrument
 
@@ -1101,7 +1098,7 @@ class Tracker(Instrument):
         known = machine.tracker_target() is not None
         c = planned if known else planned + rng.uniform(-mounting_error, mounting_error,
                                                         planned.shape)
-        Rt, t = tracker_pose(machine)
+        Rt, t = tracker_pose(setup)
         model = PointsModel(k, machine.tracker_target())
         state = model.initial()
         state.rotations = [np.asarray(Rt, float)]
@@ -1118,16 +1115,16 @@ class Tracker(Instrument):
         group = np.arange(len(P)) % k
         data = simulate_instrument(true, machine, model, state, P, R, group,
                                    noise_model(noise, TrackerNoise()), rng)
-        true.base_from_tracker = (np.asarray(Rt, float), np.asarray(t, float))
-        true.tracker_targets = None if known else c
-        R_true, t_true = true.base_from_tracker
+        true_setup = TrackerSetup((np.asarray(Rt, float), np.asarray(t, float)),
+                                  None if known else c)
+        R_true, t_true = true_setup.base_from_tracker
         angle = np.degrees(np.arccos(np.clip((np.trace(R_true) - 1) / 2, -1, 1)))
         rows = [("tracker pose", f"at {mm_text(t_true)} mm in the base frame, rotated "
                  f"{angle:.4g} deg relative to it")]
         rows += [(f"target {g + 1}", f"{mm_text(cg)} mm on the platform (true)")
                  for g, cg in enumerate(c)]
-        truth.update(base_from_tracker=true.base_from_tracker, targets=c,
-                     planned_targets=planned, poses=words, rows=rows)
+        truth.update(base_from_tracker=true_setup.base_from_tracker, targets=c,
+                     planned_targets=planned, poses=words, rows=rows, setup=true_setup)
         return data, true, truth
 
     simulate_flags = {"--targets": "--scenario points (tracker)"}
@@ -1209,14 +1206,15 @@ class Tracker(Instrument):
         return rows
     prediction_words = "predicted tracker point(s) (target in the tracker frame)"
 
-    def problem(self, machine, data, noise=None, registration=None, targets=None, **start):
+    def problem(self, machine, data, noise=None, setup=None, registration=None, targets=None,
+                **start):
 
         groups = getattr(data, "target", getattr(data, "group", None))
         n_targets = 1 if groups is None or not len(groups) else int(np.max(groups)) + 1
         target = None if machine.tracker_target() is not None else \
             np.tile(plan_target(machine), (n_targets, 1)) if targets is None else targets
         return TrackerProblem(machine, data, self.default_noise() if noise is None else noise,
-                              tracker_pose(machine) if registration is None else registration,
+                              tracker_pose(setup) if registration is None else registration,
                               targets=target)
 
     measurement_words = ("points of a target on the platform (laser tracker; tracker pose and "
@@ -1263,7 +1261,7 @@ class Tracker(Instrument):
         return JointPart(points, PointsModel(points.n_groups, machine.tracker_target()),
                          noise_model, text, "tracker")
 
-    def measured_problem(self, machine, data, noise=None, source=""):
+    def measured_problem(self, machine, data, noise=None, source="", setup=None):
         """The tracker's pose and the target places started from the data: registered on the
         machine file's forward kinematics, then (unknown targets) fitted with the machine
         held."""
@@ -1283,12 +1281,12 @@ class Tracker(Instrument):
             targets = first.state.nuisance.values[6:].copy()
         return self.problem(machine, data, noise, registration=registration, targets=targets)
 
-    def planned_machine(self, machine, targets=None, **options):
-        """The machine (several targets in turn need the target's place unknown)."""
+    def planned_setup(self, machine, setup=None, targets=None, **options):
+        """The file's set-up (several targets in turn need the target's place unknown)."""
         if targets is not None and targets > 1 and machine.tracker_target() is not None:
             raise InputError(f"--targets {targets}: {machine.source} gives the target's place "
                              "on the platform; one target only")
-        return machine
+        return setup
 
 
 #: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)

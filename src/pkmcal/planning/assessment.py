@@ -66,7 +66,7 @@ def noise_model(scenario: str, noise=None, pose_noise: str | None = None, machin
     return instrument(scenario).noise_option(noise, pose_noise, machine)
 
 
-def measured_problem(machine, data_path, scenario: str, noise=None):
+def measured_problem(machine, data_path, scenario: str, noise=None, setup=None):
     """The calibration problem ``pkmcal calibrate`` would solve (default method) for a
     measurement file, unsolved, its instrument's unknowns started from the data on the machine
     file's geometry (a fit with the machine held: the registration and target places, the
@@ -82,6 +82,8 @@ def measured_problem(machine, data_path, scenario: str, noise=None):
         Its measurement kind (:func:`~pkmcal.calibration.run.measurement_kind`).
     noise : object, optional
         The instrument's noise model (:func:`noise_model`); default the instrument's.
+    setup : object, optional
+        The instrument's set-up of the machine file (start values).
 
     Returns
     -------
@@ -99,7 +101,7 @@ def measured_problem(machine, data_path, scenario: str, noise=None):
     from ..io import read_measurements
 
     data = read_measurements(inst, data_path, machine)
-    return inst.measured_problem(machine, data, noise, str(data_path)), data
+    return inst.measured_problem(machine, data, noise, str(data_path), setup=setup), data
 
 
 def prediction_summary(machine, design: Design, n_machine: int, M=None, op=None,
@@ -292,7 +294,7 @@ class IdentifiabilityAnalysis:
 def assess_identifiability(machine, scenario: str | None = None, *, data=None, poses=None,
                            rows=None, groups=None, source: str | None = None,
                            n: int | None = None, noise=None, seed: int = 0, workspace=None,
-                           targets: int | None = None) -> IdentifiabilityAnalysis:
+                           targets: int | None = None, setup=None) -> IdentifiabilityAnalysis:
     """Identifiability and predicted accuracy of measured data or of a plan.
 
     One of: ``data`` (a measurement file: the problem ``pkmcal calibrate`` would solve,
@@ -303,8 +305,7 @@ def assess_identifiability(machine, scenario: str | None = None, *, data=None, p
     Parameters
     ----------
     machine : Machine
-        The nominal machine (for a ballbar plan, carrying its planned set-ups:
-        :meth:`~pkmcal.instruments.base.Instrument.planned_machine`).
+        The nominal machine.
     scenario : str, optional
         The instrument; default, for ``data`` the file's measurement kind
         (:func:`~pkmcal.calibration.run.measurement_kind`), else the machine's.
@@ -328,6 +329,10 @@ def assess_identifiability(machine, scenario: str | None = None, *, data=None, p
         Where the accuracy is predicted; default the SPEC 5 cube around home.
     targets : int, optional
         Planned tracker targets, used in turn.
+    setup : object, optional
+        The instrument's set-up (:mod:`pkmcal.instruments.setups`: the machine file's, or a
+        ballbar's planned mountings, :meth:`~pkmcal.instruments.base.Instrument.
+        planned_setup`); default the planning one.
 
     Returns
     -------
@@ -361,10 +366,10 @@ def assess_identifiability(machine, scenario: str | None = None, *, data=None, p
             words = f"planned poses of {source}"
         elif n is not None or targets:
             n = instrument(kind).plan_size_for(machine) if n is None else n
-            P, R, groups = candidate_set(machine, kind, n, rng=seed)
+            P, R, groups = candidate_set(machine, kind, n, rng=seed, setup=setup)
             rows, words = None, f"{n} random planned poses (seed {seed})"
         else:
-            plan = standard_plan(machine, kind, seed=seed)
+            plan = standard_plan(machine, kind, seed=seed, setup=setup)
             if not plan.available:
                 raise InputError(f"{plan.name}: {plan.reason}")
             P, R, groups = plan.P, plan.R, plan.group
@@ -374,10 +379,10 @@ def assess_identifiability(machine, scenario: str | None = None, *, data=None, p
             words += f", {targets} target(s) in turn"
     try:
         if measured:
-            problem, measurements = measured_problem(machine, data, kind, noise)
+            problem, measurements = measured_problem(machine, data, kind, noise, setup)
         else:
             problem = planned_problem(machine, kind, P, R, noise, rows, source or "<plan>",
-                                      group=groups)
+                                      group=groups, setup=setup)
             measurements = problem.data
         rep = identifiability_report(problem)
         design = design_from_problem(problem)

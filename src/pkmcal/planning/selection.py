@@ -77,8 +77,8 @@ def criterion_ratio(criterion: str, other: float, selected: float, rank: int) ->
 
 
 def reachable_standard_plan(machine, scenario: str, n: int, seed: int = 0,
-                            joint_bounds=None, bounds_words: str = "the joint limits"
-                            ) -> StandardPlan:
+                            joint_bounds=None, bounds_words: str = "the joint limits",
+                            setup=None) -> StandardPlan:
     """The instrument's standard plan of ``n`` poses, unavailable (with the reason) when the
     machine cannot reach it or it needs joint values outside ``joint_bounds``.
 
@@ -96,6 +96,9 @@ def reachable_standard_plan(machine, scenario: str, n: int, seed: int = 0,
         ``(lo, hi)``, (n_joints,) each, internal units.
     bounds_words : str, optional
         The bounds in words, for the reason.
+    setup : object, optional
+        The instrument's set-up (:mod:`pkmcal.instruments.setups`: a ballbar's planned
+        mountings); default the planning one.
 
     Returns
     -------
@@ -103,7 +106,7 @@ def reachable_standard_plan(machine, scenario: str, n: int, seed: int = 0,
         The plan, or the reason there is none.
     """
     try:
-        plan = standard_plan(machine, scenario, n, seed)
+        plan = standard_plan(machine, scenario, n, seed, setup)
     except InputError as exc:
         return StandardPlan(f"standard plan of {n} poses", reason=str(exc))
     if not plan.available:
@@ -337,7 +340,7 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
                 poses=None, rows=None, groups=None, source: str | None = None,
                 criterion: str = "d", random_sets: int = 0, seed: int = 0, workspace=None,
                 joint_bounds=None, bounds_words: str = "", targets: int | None = None,
-                progress=None) -> PoseSelection:
+                progress=None, setup=None) -> PoseSelection:
     """Choose ``n`` poses to measure by a criterion, never worse than the standard plan.
 
     The candidates are ``candidates`` feasible poses of the instrument (``seed``) or the given
@@ -352,8 +355,7 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
     Parameters
     ----------
     machine : Machine
-        The nominal machine (for a ballbar, carrying its planned set-ups:
-        :meth:`~pkmcal.instruments.base.Instrument.planned_machine`).
+        The nominal machine.
     scenario : str or None
         The instrument; None: the machine's default.
     n : int
@@ -388,6 +390,10 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
         Tracker targets used in turn.
     progress : callable, optional
         ``progress(advance, description=None)``, called at each of 5 steps.
+    setup : object, optional
+        The instrument's set-up (a ballbar's planned mountings:
+        :meth:`~pkmcal.instruments.base.Instrument.planned_setup`); default the planning
+        one.
 
     Returns
     -------
@@ -419,7 +425,7 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
         if candidates < n:
             raise InputError(f"-n/--poses {n}: more than the {candidates} candidate poses "
                              "(--candidates); choose fewer or more candidates")
-        P, R, G = candidate_set(machine, kind, candidates, rng=seed)
+        P, R, G = candidate_set(machine, kind, candidates, rng=seed, setup=setup)
         rows, src = None, "<candidates>"
     if targets:
         G = np.arange(len(P)) % targets
@@ -442,7 +448,7 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
     # the instrument's standard plan of n poses: evaluated by the same criterion, and
     # (without given poses) further candidates and a start of the exchanges
     std = reachable_standard_plan(machine, kind, n, seed, lo_hi,
-                                  bounds_words or "the joint limits")
+                                  bounds_words or "the joint limits", setup)
     k = len(std)
     P_all = np.concatenate([P, std.P]) if k else P
     R_all = np.concatenate([R, std.R]) if k else R
@@ -456,7 +462,8 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
         first = len(rows) if given else candidates
         rows_all = np.concatenate([np.asarray(rows), first + 1 + np.arange(k)])
     step(1, "select-poses: information of each candidate")
-    problem = planned_problem(machine, kind, P_all, R_all, noise, rows_all, src, group=G_all)
+    problem = planned_problem(machine, kind, P_all, R_all, noise, rows_all, src, group=G_all,
+                              setup=setup)
     design = design_from_problem(problem)
     selectable = K + (0 if given else k)
     pool = replace(design, F=design.F[:selectable])
@@ -467,7 +474,8 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
             std = replace(std, P=None, R=None, reason="it identifies directions the "
                           f"poses of {path_text(source)} cannot")
             k = 0
-            problem = planned_problem(machine, kind, P, R, noise, rows, src, group=G)
+            problem = planned_problem(machine, kind, P, R, noise, rows, src, group=G,
+                                      setup=setup)
             G_all = G
             design = pool = design_from_problem(problem)
     step(1, "select-poses: pose-error operator over the workspace")
