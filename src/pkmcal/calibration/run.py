@@ -59,6 +59,7 @@ from ..instruments.flow import source_of as _source_of
 from ..instruments.flow import split_rows as _split_rows
 from ..instruments.flow import um as _um
 from ..instruments.flow import validation_section as _validation
+from ..instruments.setups import legacy_setups
 from ..paths import file_identity, path_text, same_file
 from .bed_surface import with_bed_surface
 from .parameter_sets import apply_parameter_set, parameter_set_names
@@ -511,6 +512,12 @@ class Calibration:
         """
         return report_json(json_safe(self.report)) + "\n"
 
+    @property
+    def setups(self):
+        """The calibrated file's instrument set-ups (:mod:`pkmcal.instruments.setups`): the
+        machine file's, with the fitted one (transitional: read off the calibrated machine)."""
+        return legacy_setups(self.calibrated)
+
     def write(self, output, report_dir=None) -> str:
         """Write the calibrated machine file, its JSON report beside it (same name, .json) and
         with ``report_dir`` the HTML report and its JSON twin: all together or none.
@@ -557,7 +564,8 @@ class Calibration:
         if beside:
             metadata.update(report=path_text(report_path.name),
                             report_sha256=text_digest(json_text))
-        yaml_text = machine_to_text(self.calibrated, self.units, calibration=metadata)
+        yaml_text = machine_to_text(self.calibrated, self.units, calibration=metadata,
+                                    setups=self.setups)
         try:                                    # the calibrated file must load back
             parse_machine(yaml_text, str(output))
         except InputError as exc:
