@@ -52,6 +52,7 @@ import numpy as np
 from ..errors import ConvergenceError, InputError
 from ..estimation.distributions import t_ppf
 from ..instruments.base import Instrument
+from ..instruments.setups import Setups
 from ..machines.base import Machine
 from ..paths import path_text
 from ..plausibility import check_option_scale
@@ -125,6 +126,9 @@ class MonteCarloSettings:
     tolerance : half-width (m) of random length deviations (angles and gains in proportion);
         implies random deviations. None = the default size.
     estimate_lc : constraint link: estimate Lc too (seed 000 Fig. 6, second curve).
+    setups : the machine file's instrument set-ups (:class:`~pkmcal.instruments.setups.
+        Setups`: the simulated instrument's is the true one's start); None = (transitional)
+        those the loader put on the machine.
     """
 
     machine: Machine
@@ -135,6 +139,7 @@ class MonteCarloSettings:
     deviations: str | np.ndarray | None = None
     tolerance: float | None = None
     estimate_lc: bool = False
+    setups: Setups | None = None
 
     def resolved(self) -> MonteCarloSettings:
         """These settings with the defaults filled in and checked (:class:`InputError`)."""
@@ -295,7 +300,7 @@ class MonteCarloRun:
 
         s = self.settings
         return simulate_scenario(s.machine, s.scenario, n, noise, self.rng,
-                                 deviations=self.deviations())
+                                 deviations=self.deviations(), machine_setups=s.setups)
 
     def workspace_accuracy(self, true: Machine, calibrated: Machine, n: int) -> dict:
         """Pose accuracy of ``calibrated`` against ``true`` at ``n`` poses of the SPEC 5

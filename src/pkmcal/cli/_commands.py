@@ -247,8 +247,8 @@ def _simulate_scenario(machine, scenario: str, output: Path, poses: int | None,
     rng = np.random.default_rng(seed)
     try:
         data, true, truth_info = simulate_scenario(machine, scenario, poses, model, rng,
-                                                   deviations=deviations, machine_setups=file_setups,
-                                                   **options)
+                                                   deviations=deviations,
+                                                   machine_setups=file_setups, **options)
     except InputError as exc:
         raise InputError(f"pkmcal simulate {scenario} (--deviations {deviations}, seed "
                          f"{seed}): {exc}") from None

@@ -22,7 +22,7 @@ from ..errors import InputError
 from ..paths import path_text
 from ..report.provenance import pinned_date, run_date
 from ..units import format_number, format_quantity, parse_quantity
-from ._commands import _table, check_outputs, commit_outputs, load_machine_arg
+from ._commands import _table, check_outputs, commit_outputs, load_machine_arg, load_setups_arg
 from ._console import console, progress_tasks, warning
 
 #: files written into the output directory
@@ -112,7 +112,7 @@ def run_montecarlo(machine_spec: str, vary: str, output: Path, runs: int = 20,
         machine, resolved, poses=poses, noise=noise_value,
         lc_error=_length_option(lc_error, "--lc-error") or 0.0,
         deviations=deviations, tolerance=_length_option(tolerance, "--tolerance"),
-        estimate_lc=estimate_lc)
+        estimate_lc=estimate_lc, setups=load_setups_arg(machine_spec))
     if lc_error is not None and "lc-error" not in \
             settings.resolved().instrument().montecarlo_variables:     # checks the settings
         raise InputError(f"--lc-error: applies to {scenarios_varying('lc-error')}, not "

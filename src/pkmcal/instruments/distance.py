@@ -60,7 +60,7 @@ from .flow import (
 )
 from .models import DistancesModel, IsotropicNoise
 from .problem import InstrumentProblem, fit_instrument
-from .setups import machine_setup
+from .setups import run_setup
 
 #: the ballbar length of plans and simulations, m (a common measuring-ballbar length)
 BALLBAR_LENGTH = 0.1
@@ -337,7 +337,7 @@ class Distance(Instrument):
         res = fit_instrument(nominal, data, DistancesModel(data.n_groups),
                              IsotropicNoise(run.weight(noise)))
         P, R, g = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng,
-                                  machine_setup(nominal, self.name))
+                                  run_setup(run, self.name))
         q = nominal.ik(P, R)
         model = res.extras["model"]
         fit = res.extras["machine"].fk(q, start=(P, R))

@@ -89,7 +89,7 @@ from .flow import (
     validation_section,
 )
 from .flow import option as _option
-from .setups import machine_setup
+from .setups import machine_setup, run_setup
 
 Frame = tuple[np.ndarray, np.ndarray]
 
@@ -1487,7 +1487,7 @@ class Pose(Instrument):
         s = run.settings
         nominal = s.machine
         true = run.true_machine()
-        frames = measurement_frames(machine_setup(nominal, self.name))
+        frames = measurement_frames(run_setup(run, self.name))
         default = FullPoseNoise()
         noise = default.reading_m if s.noise is None else s.noise
         data = simulate_full_pose(true, sample_workspace_poses(true, s.poses or

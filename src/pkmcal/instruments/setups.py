@@ -213,3 +213,10 @@ def legacy_setups(machine) -> Setups:
 def machine_setup(machine, name: str):
     """The set-up of instrument ``name`` the older attributes of ``machine`` hold (None)."""
     return legacy_setups(machine).get(name)
+
+
+def run_setup(run, name: str):
+    """The set-up of instrument ``name`` of a Monte Carlo run (its settings' ``setups``; None
+    given: the older attributes of its machine)."""
+    s = run.settings
+    return machine_setup(s.machine, name) if s.setups is None else s.setups.get(name)

@@ -81,7 +81,7 @@ from .flow import (
 )
 from .models import NuisanceState, PointsModel
 from .problem import InstrumentProblem, InstrumentState
-from .setups import machine_setup
+from .setups import run_setup
 
 
 @dataclass(frozen=True)
@@ -955,7 +955,7 @@ class Tracker(Instrument):
         if nominal.tracker_target() is None:
             return self._montecarlo_points_run(run)
         true = run.true_machine()
-        pose = tracker_pose(machine_setup(nominal, self.name))
+        pose = tracker_pose(run_setup(run, self.name))
         sim_noise, fit_noise = self._montecarlo_noises(run)
         if s.poses is None and nominal.tracker_grid_spacing() is not None:
             targets = grid_points(nominal.home[0], nominal.tracker_grid_spacing())
