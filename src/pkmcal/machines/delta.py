@@ -151,8 +151,6 @@ class Delta(Machine):
         self.l1, self.l2 = float(upper_arm), float(forearm)
         self.leg_angles = leg_angles
         self.smr_offset = float(smr_offset)
-        #: ``(R, t)`` with a tracker point ``m`` at ``R m + t`` in the base frame, or None
-        self.base_from_tracker = None
         c, s = np.cos(leg_angles), np.sin(leg_angles)
         z, o = np.zeros(3), np.ones(3)
         #: leg frames: Rphi_i (3, 3, 3), a base vector v becomes Rphi_i @ v in leg i's frame
