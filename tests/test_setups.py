@@ -115,3 +115,46 @@ def test_shifted_setups_move_base_points_only(machine_and_setups):
     xy = np.array([[0.05, -0.03]])
     np.testing.assert_allclose(moved["probe"].height_at(xy + t[:2]),
                                setups["probe"].height_at(xy) + t[2], rtol=1e-12)
+
+
+def test_moved_consumers_read_the_setups_not_the_machine(machine_and_setups):
+    """fk --frame instrument, compensate's instrument frames, plans and simulations take the
+    set-ups given to them: with the older machine attributes removed, they still use the
+    file's tracker frame and ballbar mountings (a reader of the attributes would fall back to
+    the defaults and fail these comparisons)."""
+    from pkmcal.compensation import instrument_frames
+    from pkmcal.instruments import predict_instrument
+    from pkmcal.instruments.scenarios import planned_data, standard_plan
+    from pkmcal.instruments.simulate import simulate_scenario
+
+    machine, setups = machine_and_setups
+    for name in LEGACY:
+        if hasattr(machine, name):
+            delattr(machine, name)
+    P0, R0 = machine.home
+    q = machine.ik(P0 + np.array([[0.0, 0.0, 0.0], [0.01, -0.005, 0.002]]),
+                   np.broadcast_to(R0, (2, 3, 3)))
+    pred = predict_instrument(machine, setups, q, "tracker", np.array([0, 1]))
+    R, t = setups["tracker"].base_from_tracker
+    fk = machine.fk(q)
+    c = setups["tracker"].targets[[0, 1]]
+    expected = (fk.P + np.einsum("kij,kj->ki", fk.R, c) - t) @ R
+    np.testing.assert_allclose(pred.values, expected, rtol=1e-12, atol=1e-15)
+    frame = instrument_frames(machine, setups)["tracker"]
+    np.testing.assert_array_equal(frame.targets, setups["tracker"].targets)
+    # a plan on the file's two mountings (the default plans three)
+    plan = standard_plan(machine, "distance", 30, setup=setups["distance"])
+    assert set(plan.group.tolist()) == {0, 1}
+    data = planned_data(machine, "distance", plan.P, plan.R, group=plan.group,
+                        setup=setups["distance"])
+    pivots = np.array([p for p, _ in setups["distance"]])[plan.group]
+    balls = np.array([b for _, b in setups["distance"]])[plan.group]
+    d = np.linalg.norm(plan.P + np.einsum("kij,kj->ki", plan.R, balls) - pivots, axis=-1)
+    np.testing.assert_allclose(data.values[:, 0], d, rtol=1e-12)
+    # a simulation's true tracker stands where the file's does; the truth file's set-ups
+    # keep the file's others
+    _, _, truth = simulate_scenario(machine, "tracker", 8, rng=2, machine_setups=setups,
+                                    targets=2)
+    np.testing.assert_array_equal(truth["setup"].base_from_tracker[1], t)
+    assert set(truth["true_setups"]) == set(setups)
+    assert truth["true_setups"]["distance"] is setups["distance"]

@@ -35,15 +35,25 @@ file's length unit; all optional::
       platform_from_marker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [0, 0, 0]}
     bed: {height: 0.5, tilt_x: -0.0004, tilt_y: 0.0}   # probe heights: the bed plane
 
-kept on the machine as ``machine.base_from_tracker = (R, t)``, ``machine.tracker_targets``
-((K, 3) platform-frame places, m; None without ``targets``: the platform origin, or the
-Delta's reflector), ``machine.ballbar_setups`` (list of ``(pivot, ball)``, m),
-``machine.probe_bed`` (``(height m, tilt_x, tilt_y)``) and ``machine.measurement_frames``;
-each is None without its key (``measurement_frames``: :class:`~pkmcal.instruments.pose.
-MeasurementFrames`, a mocap point is ``mocap_from_base`` of a base point, a platform point
+read as the instruments' set-ups (:mod:`pkmcal.instruments.setups`), returned beside the
+machine by :func:`load_machine_file` / :func:`parse_machine_file` and written by
+:func:`machine_to_text` / :func:`save_machine` (``setups=``): each instrument with a section
+declares its set-up type, its section's place in the file and how the section reads and
+writes it (:attr:`~pkmcal.instruments.base.Instrument.Setup`,
+:meth:`~pkmcal.instruments.base.Instrument.read_setup`,
+:meth:`~pkmcal.instruments.base.Instrument.setup_section`); this module names none of them.
+They are :class:`~pkmcal.instruments.tracker.TrackerSetup` (``base_from_tracker = (R, t)``,
+``targets`` (K, 3) platform-frame places, m, None without ``targets``: the platform origin,
+or the Delta's reflector), :class:`~pkmcal.instruments.distance.BallbarSetup` (``mountings``,
+``(pivot, ball)`` pairs, m), :class:`~pkmcal.instruments.probe.BedSetup` (``height`` m,
+``tilt_x``, ``tilt_y``, ``surface``) and :class:`~pkmcal.instruments.pose.MeasurementFrames`
+(a mocap point is ``mocap_from_base`` of a base point, a platform point
 ``platform_from_marker`` of a marker point). ``pkmcal fk --frame instrument`` predicts the
 instrument's measurements from them, ``pkmcal compensate --frame instrument`` takes targets
-in the instrument's frame.
+in the instrument's frame. Transitional: the loader also sets the older machine attributes
+(``base_from_tracker``, ``tracker_targets``, ``ballbar_setups``, ``probe_bed``,
+``bed_surface``, ``measurement_frames``) for the code that still reads them, and the writer
+reads them when it is given no ``setups``.
 
 Every machine file may state the joints' travel (issue 12 item 7)::
 
