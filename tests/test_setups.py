@@ -158,3 +158,33 @@ def test_moved_consumers_read_the_setups_not_the_machine(machine_and_setups):
     np.testing.assert_array_equal(truth["setup"].base_from_tracker[1], t)
     assert set(truth["true_setups"]) == set(setups)
     assert truth["true_setups"]["distance"] is setups["distance"]
+
+
+def test_io_names_no_instrument():
+    """The machine-file module reads the instrument sections through the registry: no
+    instrument's section, set-up type or key is named in its code (docstrings aside)."""
+    import ast
+    import inspect
+
+    import pkmcal.io.machine_file as mf
+
+    tree = ast.parse(inspect.getsource(mf))
+    words = {"tracker", "ballbar", "bed", "measurement_frames", "targets", "distance",
+             "probe", "pose", "TrackerSection", "Ballbar", "BedPlane", "TrackerSetup",
+             "BallbarSetup", "BedSetup", "MeasurementFrames", "base_from_tracker",
+             "ballbar_setups", "probe_bed", "bed_surface", "tracker_targets"}
+    docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                  if isinstance(node, (ast.Module, ast.FunctionDef, ast.ClassDef))
+                  and node.body and isinstance(node.body[0], ast.Expr)}
+    named = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) \
+                and id(node) not in docstrings and node.value in words:
+            named.add(node.value)
+        elif isinstance(node, ast.Name) and node.id in words - {"pose"}:   # a home pose
+            named.add(node.id)
+        elif isinstance(node, ast.Attribute) and node.attr in words:
+            named.add(node.attr)
+        elif isinstance(node, ast.alias) and node.name in words:
+            named.add(node.name)
+    assert named == set()

@@ -416,6 +416,12 @@ class Instrument:
     Setup: type | None = None
     #: the place of :attr:`section` among a machine file's instrument sections (file order)
     section_order: int = 0
+    #: the schema of :attr:`section` for a machine whose own schema does not state it (a
+    #: :mod:`pkmcal.machines.file_format` model or annotation); None: only machines whose
+    #: schema states it have the section
+    section_schema = None
+    #: list keys of its section and what they hold, in words (machine-file messages)
+    section_lists: dict = {}
 
     def read_setup(self, section, length_factor: float, machine: Machine):
         """Its set-up from its validated machine-file section (:attr:`section`).

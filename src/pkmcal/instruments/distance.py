@@ -27,7 +27,7 @@ from ..errors import InputError
 from ..estimation.estimator import CalibrationResult
 from ..estimation.rank import RTOL
 from ..machines.base import Machine
-from ..machines.file_format import vector
+from ..machines.file_format import Ballbar, vector
 from ..paths import path_text
 from .base import (
     Instrument,
@@ -425,6 +425,9 @@ class Distance(Instrument):
     section_words = "a calibration from distances (d: ballbar) writes the ballbar section"
     Setup = BallbarSetup
     section_order = 20
+    section_schema = Ballbar
+    section_lists = {"ballbar": "a list of mountings {pivot: [x, y, z], ball: [x, y, z]} (one "
+                                "per setup)"}
 
     def read_setup(self, section, length_factor, machine):
         return BallbarSetup([(np.asarray(m.pivot, float) * length_factor,

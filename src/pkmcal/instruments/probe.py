@@ -41,6 +41,7 @@ from ..estimation.estimator import CalibrationResult
 from ..estimation.rank import RTOL
 from ..identifiability.determination import poorly_determined
 from ..machines.base import Machine, bed_height_at
+from ..machines.file_format import BedPlane
 from ..machines.reach import (
     _bed_points,
     bed_centre,
@@ -498,6 +499,7 @@ class Probe(Instrument):
     section_words = "a calibration from probe heights (probe_z) writes the bed section"
     Setup = BedSetup
     section_order = 30
+    section_schema = BedPlane
 
     def read_setup(self, section, length_factor, machine):
         surface = section.surface

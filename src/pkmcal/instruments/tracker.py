@@ -53,7 +53,7 @@ from ..identifiability import name_null_space, name_weak_directions
 from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine
 from ..machines.delta import TRACKER_GRID_SPACING  # noqa: F401  (seed 001's grid)
-from ..machines.file_format import file_rotation, frame_section, vector
+from ..machines.file_format import TrackerSection, file_rotation, frame_section, vector
 from ..paths import path_text
 from ..units import format_um
 from .base import Instrument, StandardPlan, _check_groups, _fk_of, has_column, reachable
@@ -1033,6 +1033,9 @@ class Tracker(Instrument):
                      "tracker section")
     Setup = TrackerSetup
     section_order = 10
+    section_schema = TrackerSection
+    section_lists = {"targets": "a list of target places [[x, y, z], ...] on the platform "
+                                "(one per target)"}
 
     def read_setup(self, section, length_factor, machine):
         targets = getattr(section, "targets", None)

@@ -115,14 +115,7 @@ from ..limits import (
     MIN_GAIN,
 )
 from ..machines.base import Machine
-from ..machines.file_format import (
-    Ballbar,
-    BedPlane,
-    MachineFormat,
-    TrackerSection,
-    Units,
-    factors,
-)
+from ..machines.file_format import MachineFormat, Units, factors
 from ..machines.file_format import show as _show
 from ..machines.registry import machine_formats as registered_machine_formats
 from ..paths import path_text
@@ -385,13 +378,15 @@ def _instrument_kinds() -> dict:
 
 #: what every machine file may have, in file order, where a machine's schema does not state
 #: it itself (``machine`` is always the format's own type): the head, the instrument sections
-#: (``tracker`` with its ``targets``), then ``joint_limits`` (checked by :func:`_joint_limits`,
-#: per-joint messages) and ``calibration``
+#: every machine may have (each instrument's :attr:`~pkmcal.instruments.base.Instrument.
+#: section_schema`, in the order of their sections), then ``joint_limits`` (checked by
+#: :func:`_joint_limits`, per-joint messages) and ``calibration``
 _COMMON_FIELDS: dict[str, tuple | None] = dict(
     pkmcal=(Literal[1], ...), machine=None,                 # machine: the format's own type
-    name=(str | None, None), units=(Units, ...), tracker=(TrackerSection | None, None),
-    ballbar=(Ballbar | None, None), bed=(BedPlane | None, None), joint_limits=(Any, None),
-    calibration=(dict[str, Any] | None, None))
+    name=(str | None, None), units=(Units, ...),
+    **{inst.section: (inst.section_schema | None, None) for inst in _setup_instruments()
+       if inst.section_schema is not None},
+    joint_limits=(Any, None), calibration=(dict[str, Any] | None, None))
 
 
 def _with_common_sections(fmt: MachineFormat) -> MachineFormat:
@@ -587,11 +582,10 @@ _HINTS = {
 }
 
 
-#: list keys of the instrument sections and what they hold, for messages
-_LIST_SECTIONS = {
-    "ballbar": "a list of mountings {pivot: [x, y, z], ball: [x, y, z]} (one per setup)",
-    "targets": "a list of target places [[x, y, z], ...] on the platform (one per target)",
-}
+#: list keys of the instrument sections and what they hold, for messages (each instrument's
+#: :attr:`~pkmcal.instruments.base.Instrument.section_lists`)
+_LIST_SECTIONS = {key: words for inst in INSTRUMENTS.values()
+                  for key, words in inst.section_lists.items()}
 
 
 def _not_a_number(value) -> str:
