@@ -356,12 +356,14 @@ def test_compensate_puts_a_printer_on_its_bed(tmp_path):
     """compensate works in the printer's frame: a target at z = 0 is on the probed bed, also
     where the calibration estimated the bed's tilt against the towers."""
     from pkmcal.compensation import compensate
+    from pkmcal.instruments.probe import BedSetup
+    from pkmcal.instruments.setups import Setups
     from pkmcal.machines import linear_delta
 
     m = linear_delta(0.14, 0.25, np.deg2rad([210.0, 330.0, 90.0]), (0.3, 0.3, 0.3))
-    m.probe_bed = (0.0, 2e-3, -1e-3)
+    bed = Setups({"probe": BedSetup(0.0, 2e-3, -1e-3)})      # the calibrated file's bed
     targets = np.array([[0.0, 0.0, 0.0], [0.05, -0.03, 0.0], [-0.04, 0.06, 0.01]])
-    comp = compensate(m, targets)
+    comp = compensate(m, targets, setups=bed)
     nozzle = m.fk(comp.q).P
     above = nozzle[:, 2] - (2e-3 * nozzle[:, 0] - 1e-3 * nozzle[:, 1])
     np.testing.assert_allclose(above, targets[:, 2], rtol=0,

@@ -512,12 +512,6 @@ class Calibration:
         """
         return report_json(json_safe(self.report)) + "\n"
 
-    @property
-    def setups(self):
-        """The calibrated file's instrument set-ups (:mod:`pkmcal.instruments.setups`): the
-        machine file's, with the fitted one (transitional: read off the calibrated machine)."""
-        return legacy_setups(self.calibrated)
-
     def write(self, output, report_dir=None) -> str:
         """Write the calibrated machine file, its JSON report beside it (same name, .json) and
         with ``report_dir`` the HTML report and its JSON twin: all together or none.
@@ -565,7 +559,7 @@ class Calibration:
             metadata.update(report=path_text(report_path.name),
                             report_sha256=text_digest(json_text))
         yaml_text = machine_to_text(self.calibrated, self.units, calibration=metadata,
-                                    setups=self.setups)
+                                    setups=legacy_setups(self.calibrated))  # transitional
         try:                                    # the calibrated file must load back
             parse_machine(yaml_text, str(output))
         except InputError as exc:

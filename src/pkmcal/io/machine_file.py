@@ -970,11 +970,12 @@ def machine_to_text(machine: Machine, units: dict | None = None,
         raise InputError(f"units must be {{length: mm|m|in, angle: deg|rad}}, got {units}")
     fl, fa = factors(units)
     setups = legacy_setups(machine) if setups is None else Setups(setups)
-    machine, setups = bed_frame(machine, setups)
-    body = dict(MACHINE_FORMATS[kind].dump(machine, units))
-    body.update(_setup_sections(machine, setups, fl))
+    framed, setups = bed_frame(machine, setups)
+    body = dict(MACHINE_FORMATS[kind].dump(framed, units))
+    body.update(_setup_sections(framed, setups, fl))
     # home: the pose coordinates the platform moves along (x, y, z; the Euler angles of a
-    # platform that rotates; x, y, phi of a planar one)
+    # platform that rotates; x, y, phi of a planar one); as given, not moved with the bed's
+    # frame (as this writer has always written it)
     P, R = machine.home
     pose = [float(v) / fl for v in np.asarray(P, float)]
     pose += [float(v) / fa for v in euler_from_matrix(np.asarray(R, float))] \
