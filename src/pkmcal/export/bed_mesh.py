@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..io.klipper_config import EXPORTED_PROFILE
+from ..io.klipper_data import EXPORTED_PROFILE
 from ..machines.base import Machine, bed_height_at
 
 #: a correction smaller than this (RMS over the print disk, m) is not handed over: the probe's
