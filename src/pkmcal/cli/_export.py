@@ -266,7 +266,7 @@ def _pinned_report(machine, machine_spec: str) -> Path | None:
 def run_import(path: Path, source_format: str, output: Path, like: str | None = None) -> int:
     """``pkmcal import``: a controller file's values as a pkmcal machine file."""
     from ..export import controller_format
-    from ..export.base import carry_like
+    from ..export.fitting import carry_like
     from ..io.machine_file import save_machine
 
     fmt = controller_format(source_format, "--from")
@@ -321,7 +321,7 @@ def _read_controller_file(fmt, path: Path):
     return (params, *configuration_home(fmt, params, text, path_text(path)))
 
 
-#: machine-file keys an import takes from ``--like`` (:func:`~pkmcal.export.base.carry_like`)
+#: machine-file keys an import takes from ``--like`` (:func:`~pkmcal.export.fitting.carry_like`)
 _LIKE_KEYS = ("name", "units", "joint_limits", "smr_offset", "tracker")
 
 

@@ -104,7 +104,7 @@ def _height_errors(fmt, params, machine: Machine, xy, height: float) -> np.ndarr
     ``height`` above it: what its values leave of the kinematics, minus the bed's own shape
     beside the plane (:func:`~pkmcal.machines.base.bed_height_at`: a bed higher there is
     touched that much earlier)."""
-    from .base import position_errors
+    from .fitting import position_errors
 
     xy = np.asarray(xy, float).reshape(-1, 2)
     plane = _plane_z(machine, xy)

@@ -39,7 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from .base import ControllerParameters, ExportResult, Origin, finite_number
+from .base import ControllerParameters, Origin, finite_number
+from .fitting import ExportResult
 
 #: the files of a configuration directory (name -> what it is)
 CONFIG_FILES = {
