@@ -3,6 +3,7 @@ before any work and written all or none, the "wrote ..." line, and a silent prog
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 from ..errors import stop_if_signalled
@@ -12,7 +13,7 @@ from ..io.machine_file import DEFAULT_UNITS
 from ..paths import path_text
 
 __all__ = ["load_machine_arg", "machine_inputs", "check_outputs", "commit_outputs", "wrote",
-           "no_progress"]
+           "no_progress", "in_output_set"]
 
 
 def load_machine_arg(spec: str):
@@ -70,6 +71,24 @@ def commit_outputs() -> list[Path]:
 
     active = active_output_set()
     return active.commit() if active is not None else []
+
+
+def in_output_set(workflow):
+    """Decorate a workflow to run inside the command's :class:`~pkmcal.io.atomic.OutputSet`:
+    the active one (``pkmcal`` runs every command in one), or for a call from Python a set of
+    its own, committed when the workflow returns and discarded when it raises, so that its
+    outputs are written all or none (and an output directory created) either way."""
+
+    @functools.wraps(workflow)
+    def run(*args, **kwargs):
+        from ..io.atomic import OutputSet, active_output_set
+
+        if active_output_set() is not None:
+            return workflow(*args, **kwargs)
+        with OutputSet():
+            return workflow(*args, **kwargs)
+
+    return run
 
 
 def wrote(output: Path, beside: Path) -> str:

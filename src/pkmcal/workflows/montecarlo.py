@@ -25,7 +25,7 @@ from ..paths import path_text
 from ..report.provenance import pinned_date, run_date
 from ..report.summary import Summary
 from ..units import format_number, format_quantity, parse_quantity
-from .common import check_outputs, commit_outputs, load_machine_arg, no_progress
+from .common import check_outputs, commit_outputs, in_output_set, load_machine_arg, no_progress
 
 __all__ = ["montecarlo", "parse_vary", "OUTPUT_FILES"]
 
@@ -76,6 +76,7 @@ def _length_option(text: str | None, what: str, allow: tuple[str, ...] = ()):
     return value
 
 
+@in_output_set
 def montecarlo(machine_spec: str, vary: str, output: Path, *, runs: int = 20,
                scenario: str | None = None, poses: int | None = None,
                noise: str | None = None, lc_error: str | None = None,

@@ -30,7 +30,7 @@ from ..planning import WORKSPACE_POSES, noise_model
 from ..plausibility import check_option_scale
 from ..report.summary import Summary
 from ..units import LENGTH, format_quantity, format_um, format_urad, parse_quantity
-from .common import check_outputs, commit_outputs, load_machine_arg, no_progress
+from .common import check_outputs, commit_outputs, in_output_set, load_machine_arg, no_progress
 from .poses import joint_columns, read_poses_of, refuse_outside_limits, refuse_unreachable
 
 __all__ = ["identifiability", "select_poses", "workspace_arg", "planning_machine",
@@ -195,6 +195,7 @@ def _with_set(machine, parameters: str | None):
     return apply_parameter_set(machine, parameters)
 
 
+@in_output_set
 def identifiability(machine_spec: str, data_path: Path | None = None, *,
                     json_output: bool = False, planned: bool = False, poses: int | None = None,
                     seed: int = 0, noise: str | None = None, pose_noise: str | None = None,
@@ -389,6 +390,7 @@ def joint_bounds(machine, joint_range: str | None):
     return (lo, hi), " and ".join(words)
 
 
+@in_output_set
 def select_poses(machine_spec: str, output: Path, n: int, *, candidates: int = 2000,
                  candidates_path: Path | None = None, criterion: str = "d",
                  random_sets: int = 100, noise: str | None = None,
