@@ -151,7 +151,7 @@ class progress_tasks:
 
 def print_summary(summary) -> int:
     """Print a :class:`~pkmcal.report.summary.Summary` (its lines and tables on stdout, raw
-    text as it is, then each warning once and its errors on stderr); returns its exit code."""
+    text as it is, then each warning once on stderr); returns its exit code."""
     import sys as _sys
 
     from rich.table import Table
@@ -178,6 +178,6 @@ def print_summary(summary) -> int:
             out.print(block, markup=False)
     for text in summary.warnings:
         warning(text)
-    for text in summary.errors:
+    for text in summary.errors:     # why a run that wrote its outputs failed (exit 1)
         error(text)
     return summary.exit_code
