@@ -49,10 +49,9 @@ def counts_everywhere(machine_path, data_path, noise=None, pose_noise=None, cli=
         calibrate_full_pose,
         calibrate_tracker,
     )
-    from pkmcal.cli._planning import measured_problem, noise_model
     from pkmcal.identifiability import identifiability_report
     from pkmcal.io import load_machine, read_constraint_link, read_full_pose, read_tracker
-    from pkmcal.planning import design_from_problem
+    from pkmcal.planning import design_from_problem, measured_problem, noise_model
 
     machine = load_machine(machine_path)
     kind = {"hexaslide": "constraint-link", "delta": "tracker", "stewart": "pose"}[machine.kind]

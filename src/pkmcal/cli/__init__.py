@@ -534,13 +534,14 @@ def identifiability(
 
     Example: `pkmcal identifiability examples/cubic_6upu.yaml --scenario distance --setups 4`
     """
-    from ._planning import run_identifiability
+    from ..workflows.planning import identifiability as run
+    from ._console import print_summary
 
-    raise typer.Exit(run_identifiability(machine, data, json_output, planned, poses, seed,
-                                         noise, pose_noise, map_path, workspace=workspace,
-                                         scenario=scenario,
-                                         setups=setups, radius=radius, targets=targets,
-                                         parameters=parameters))
+    raise typer.Exit(print_summary(run(
+        machine, data, json_output=json_output, planned=planned, poses=poses, seed=seed,
+        noise=noise, pose_noise=pose_noise, map_path=map_path, workspace=workspace,
+        scenario=scenario, setups=setups, radius=radius, targets=targets,
+        parameters=parameters)))
 
 
 class Criterion(enum.StrEnum):
@@ -630,19 +631,17 @@ def select_poses(
     Example: `pkmcal select-poses default --scenario distance --radius 150mm -n 40 -o
     ballbar-plan.csv`
     """
-    from ._planning import run_select_poses
+    from ..workflows.planning import select_poses as run
+    from ._console import print_summary, progress_tasks
 
-    if n < 1:
-        from ..errors import InputError
-
-        raise InputError(f"-n/--poses: give the number of poses to choose (>= 1), got {n}")
-    raise typer.Exit(run_select_poses(machine, output, n, candidates, candidates_file,
-                                      criterion.value, random_sets, noise, pose_noise, seed,
-                                      map_path, json_output, joint_range,
-                                      workspace=workspace,
-                                      scenario=scenario,
-                                      setups=setups, radius=radius, targets=targets,
-                                      parameters=parameters))
+    with progress_tasks() as new:
+        summary = run(machine, output, n, candidates=candidates,
+                      candidates_path=candidates_file, criterion=criterion.value,
+                      random_sets=random_sets, noise=noise, pose_noise=pose_noise, seed=seed,
+                      map_path=map_path, json_output=json_output, joint_range=joint_range,
+                      workspace=workspace, scenario=scenario, setups=setups, radius=radius,
+                      targets=targets, parameters=parameters, progress=new)
+    raise typer.Exit(print_summary(summary))
 
 
 @app.command()
@@ -1013,13 +1012,16 @@ def montecarlo(
     Example: `pkmcal montecarlo examples/delta_default.yaml --vary poses=10,27,60 --runs 50
     --scheduler tcp://127.0.0.1:8786 -o delta-poses`
     """
-    from ._montecarlo import run_montecarlo
+    from ..workflows.montecarlo import montecarlo as run
+    from ._console import print_summary, progress_tasks
 
-    raise typer.Exit(run_montecarlo(
-        machine, vary, output, runs=runs, scenario=scenario,
-        poses=poses, noise=noise, lc_error=lc_error, tolerance=tolerance,
-        deviations=deviations.value if deviations else None, estimate_lc=estimate_lc,
-        seed=seed, workers=workers, scheduler=scheduler, quiet=quiet))
+    with progress_tasks(quiet) as new:
+        summary = run(machine, vary, output, runs=runs, scenario=scenario, poses=poses,
+                      noise=noise, lc_error=lc_error, tolerance=tolerance,
+                      deviations=deviations.value if deviations else None,
+                      estimate_lc=estimate_lc, seed=seed, workers=workers,
+                      scheduler=scheduler, progress=new)
+    raise typer.Exit(print_summary(summary))
 
 
 @app.command()

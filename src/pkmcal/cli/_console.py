@@ -178,4 +178,6 @@ def print_summary(summary) -> int:
             out.print(block, markup=False)
     for text in summary.warnings:
         warning(text)
+    for text in summary.errors:     # why a run that wrote its outputs failed (exit 1)
+        error(text)
     return summary.exit_code
