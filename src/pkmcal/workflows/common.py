@@ -5,6 +5,7 @@ select-poses)."""
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -12,13 +13,13 @@ import numpy as np
 from ..errors import InputError, stop_if_signalled
 from ..instruments.flow import rows_text
 from ..io import load_machine, read_groups, read_poses, read_positions
-from ..io.atomic import is_stream
+from ..io.atomic import OutputSet, active_output_set, is_stream
 from ..io.machine_file import DEFAULT_UNITS
 from ..paths import path_text
 
-__all__ = ["load_machine_arg", "machine_inputs", "check_outputs", "commit_outputs", "wrote",
-           "no_progress", "group_numbers", "read_poses_of", "joint_columns",
-           "refuse_unreachable", "refuse_outside_limits"]
+__all__ = ["load_machine_arg", "machine_inputs", "check_outputs", "commit_outputs",
+           "in_output_set", "wrote", "no_progress", "group_numbers", "read_poses_of",
+           "joint_columns", "refuse_unreachable", "refuse_outside_limits"]
 
 
 def load_machine_arg(spec: str):
@@ -67,6 +68,20 @@ def check_outputs(outputs: list[Path], inputs: list[Path], directories=()) -> No
             active.add_input(inp)
         for out in outputs:
             active.declare(out)
+
+
+def in_output_set(workflow):
+    """Decorate a workflow: run it in an output set of its own when none is active (a Python
+    caller's), so its outputs are checked, staged and written all or none as under ``pkmcal``
+    (which runs every command in one), and an output directory is created at the commit."""
+    @functools.wraps(workflow)
+    def run(*args, **kwargs):
+        if active_output_set() is not None:
+            return workflow(*args, **kwargs)
+        with OutputSet():
+            return workflow(*args, **kwargs)
+
+    return run
 
 
 def commit_outputs() -> list[Path]:

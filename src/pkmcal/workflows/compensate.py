@@ -31,6 +31,7 @@ from .common import (
     check_outputs,
     commit_outputs,
     group_numbers,
+    in_output_set,
     joint_columns,
     load_machine_arg,
     machine_inputs,
@@ -239,6 +240,7 @@ def _stats(v, scale):
             "max": float(f.max()) if f.size else None}
 
 
+@in_output_set
 def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path | None = None,
                    nominal_spec: str | None = None, json_output: bool = False,
                    frame_name: str = "base", instrument: str | None = None) -> Summary:

@@ -32,7 +32,13 @@ from ..io.machine_file import (
 from ..paths import path_text, recorded_path
 from ..report.summary import Summary
 from ..units import format_quantity
-from .common import check_outputs, commit_outputs, load_machine_arg, machine_inputs
+from .common import (
+    check_outputs,
+    commit_outputs,
+    in_output_set,
+    load_machine_arg,
+    machine_inputs,
+)
 
 __all__ = ["run_export", "run_import", "export_record"]
 
@@ -68,6 +74,7 @@ def export_record(result, calibrated: str, output: Path, nominal: str | None) ->
     return json_safe(record)
 
 
+@in_output_set
 def run_export(machine_spec: str, to: str, output, nominal: str | None = None,
                workspace: str | None = None, seed: int = 0) -> Summary:
     """``pkmcal export``: fit the controller's values to a calibrated machine and write them
@@ -316,6 +323,7 @@ def _result_summary(fmt, result, ws, before, nominal, backup, output: Path,
     return summary
 
 
+@in_output_set
 def run_import(path: Path, source_format: str, output: Path, like: str | None = None) -> Summary:
     """``pkmcal import``: a controller file's values (or a configuration's, for a format
     that reads one: :meth:`~pkmcal.export.base.ControllerFormat.read_controller_file`) as a
