@@ -47,14 +47,16 @@ from ..workflows.common import (  # noqa: F401  (the commands' shared steps, re-
     check_outputs,
     commit_outputs,
     group_numbers,
-    joint_columns,
     load_machine_arg,
+)
+from ..workflows.common import machine_inputs as _machine_inputs
+from ..workflows.common import wrote as _wrote
+from ..workflows.poses import (  # noqa: F401  (re-exported for cli._planning)
+    joint_columns,
     read_poses_of,
     refuse_outside_limits,
     refuse_unreachable,
 )
-from ..workflows.common import machine_inputs as _machine_inputs
-from ..workflows.common import wrote as _wrote
 from ._console import console, error, warning
 
 

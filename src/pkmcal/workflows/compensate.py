@@ -32,13 +32,10 @@ from .common import (
     commit_outputs,
     group_numbers,
     in_output_set,
-    joint_columns,
     load_machine_arg,
     machine_inputs,
-    read_poses_of,
-    refuse_outside_limits,
-    refuse_unreachable,
 )
+from .poses import joint_columns, read_poses_of, refuse_outside_limits, refuse_unreachable
 
 __all__ = ["run_compensate", "calibration_report_path", "read_covariance", "choose_frame",
            "read_instrument_targets"]
