@@ -749,10 +749,12 @@ def compensate(
     Example: `pkmcal compensate delta_cal.yaml path.csv --nominal examples/delta_default.yaml
     -o arms.csv`
     """
-    from ._compensate import run_compensate
+    from ..workflows.compensate import run_compensate
+    from ._console import print_summary
 
-    raise typer.Exit(run_compensate(machine, targets, output, report, nominal, json_output,
-                                    TargetFrame(frame).value, instrument))
+    raise typer.Exit(print_summary(run_compensate(machine, targets, output, report, nominal,
+                                                  json_output, TargetFrame(frame).value,
+                                                  instrument)))
 
 
 @app.command("export")
@@ -794,9 +796,10 @@ def export_command(
 
     Example: `pkmcal export cal.yaml --to klipper --nominal printer.yaml -o printer.cfg`
     """
-    from ._export import run_export
+    from ..workflows.export import run_export
+    from ._console import print_summary
 
-    raise typer.Exit(run_export(machine, to, output, nominal, workspace, seed))
+    raise typer.Exit(print_summary(run_export(machine, to, output, nominal, workspace, seed)))
 
 
 @app.command("import")
@@ -824,9 +827,10 @@ def import_command(
     Example: `pkmcal import printer.cfg --from klipper --like examples/linear_delta.yaml -o
     printer.yaml`
     """
-    from ._export import run_import
+    from ..workflows.export import run_import
+    from ._console import print_summary
 
-    raise typer.Exit(run_import(path, source_format, output, like))
+    raise typer.Exit(print_summary(run_import(path, source_format, output, like)))
 
 
 @app.command("report")

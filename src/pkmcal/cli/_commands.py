@@ -24,8 +24,6 @@ from ..io import (
     machine_to_text,
     parse_machine,
     read_joints,
-    read_poses,
-    read_positions,
     read_readings,
     read_table,
     write_poses,
@@ -48,10 +46,17 @@ from ..units import (
 from ..workflows.common import (  # noqa: F401  (the commands' shared steps, re-exported)
     check_outputs,
     commit_outputs,
+    group_numbers,
     load_machine_arg,
 )
 from ..workflows.common import machine_inputs as _machine_inputs
 from ..workflows.common import wrote as _wrote
+from ..workflows.poses import (  # noqa: F401  (re-exported for cli._planning)
+    joint_columns,
+    read_poses_of,
+    refuse_outside_limits,
+    refuse_unreachable,
+)
 from ._console import console, error, warning
 
 
@@ -727,15 +732,6 @@ def run_fk(machine_spec: str, joints: Path, output: Path, frame: str = "base",
                     f"{units['angle']})", markup=False)
 
 
-def group_numbers(path: Path, extra: dict, rows, column: str):
-    """0-based groups of an optional integer column (``target``, ``setup``: 1, 2, ...) of a
-    file whose rows are predicted or commanded, not fitted: any of the numbers may be absent;
-    None without the column (:func:`~pkmcal.io.read_groups` with gaps)."""
-    from ..io import read_groups
-
-    return read_groups(path, extra, rows, column, gaps=True)
-
-
 def _fk_instrument(machine_spec: str, joints: Path, output: Path,
                    instrument: str | None) -> None:
     """``pkmcal fk --frame instrument``: what the calibration's instrument measures for the
@@ -762,56 +758,6 @@ def _fk_instrument(machine_spec: str, joints: Path, output: Path,
     commit_outputs()
     console().print(f"{len(q)} {inst.prediction_words} written to {path_text(output)} ({unit})",
                     markup=False)
-
-
-def read_poses_of(path: Path, machine):
-    """Poses ``(P, R, rows)`` of a file for ``machine``: x, y, z and an orientation (other
-    columns ignored); x, y, z only (R = I) for a translation-only platform."""
-    if not machine.rotates:
-        P, rows = read_positions(path)
-        return P, np.broadcast_to(np.eye(3), (len(P), 3, 3)), rows
-    return read_poses(path)
-
-
-def joint_columns(machine, q, units) -> dict:
-    """``q1_<unit> ...`` columns of joint values (K, n) in the file's units: the machine
-    file's length or angle unit, a Stewart's reading unit."""
-    unit, f = machine.joint_unit(units)
-    return {f"q{j + 1}_{unit}": (q[:, j] / f).tolist() for j in range(q.shape[1])}
-
-
-def refuse_unreachable(machine, reach, what: str, rows=None, shown=None,
-                       sampled: str = "") -> None:
-    """Refuse poses the machine cannot take (:meth:`~pkmcal.machines.Machine.reachability`):
-    one line, ``what`` first (``{n}``: the count of such poses; e.g. ``"t.csv: {n}
-    target(s) cannot be reached by the calibrated machine"``), then the rows (or, for
-    ``sampled`` poses of a box, how many of them), the first such pose as the user gave it
-    (``shown``: ``(P, R)``, R may be None) and why, in the machine file's units. Poses outside
-    the file's ``joint_limits`` alone are left to :func:`refuse_outside_limits`."""
-    bad = np.flatnonzero(~reach.ok & ~reach.limits_only)
-    if not bad.size:
-        return
-    P, R = shown
-    k = int(bad[0])
-    pose = machine.pose_text(P[k], None if R is None else R[k])
-    if rows is not None:
-        rows = np.asarray(rows)
-        where = (f", row(s) {_rows_text(rows[bad])}: row {rows[k]} at {pose}: "
-                 f"{reach.reasons[k]}")
-    else:
-        where = f" ({bad.size} of {sampled}), e.g. at {pose}: {reach.reasons[k]}"
-    raise InputError(what.format(n=bad.size) + where)
-
-
-def refuse_outside_limits(machine, q, rows, what: str) -> None:
-    """Refuse joint values ``q`` (K, n) outside the machine file's ``joint_limits``, naming
-    the rows and joints; ``what`` starts the message (``{n}``: the count of such rows)."""
-    outside = ~machine.within_limits(q) & np.all(np.isfinite(q), axis=-1)
-    if outside.any():
-        source = getattr(machine, "source", None) or "the machine file"
-        raise InputError(f"{what.format(n=int(outside.sum()))} need joint values outside the "
-                         f"joint limits of {path_text(source)} ({machine.joint_limits_text()}): "
-                         f"{machine.limit_violation_text(q[outside], np.asarray(rows)[outside])}")
 
 
 def run_ik(machine_spec: str, poses: Path, output: Path) -> None:

@@ -14,11 +14,15 @@ The best values for a calibrated machine, fitted over a workspace, and the error
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
 
 import numpy as np
 
 from ..errors import InputError
+from ..io.atomic import read_input_text
 from ..machines.base import Machine
 
 
@@ -463,6 +467,70 @@ class ControllerFormat(ABC):
         nozzle's height at the bed (:mod:`pkmcal.export.bed_mesh`), where the controller
         applies one from its file and the mesh is worth it; None: no mesh (the default)."""
         return None
+
+    #: the files of a whole controller configuration the format writes into a directory
+    #: (``pkmcal export -o DIR/``), name -> what it is; empty: the format writes one file
+    configuration_files: Mapping[str, str] = MappingProxyType({})
+    #: the configuration's file that holds the values (what ``-o FILE`` writes alone)
+    configuration_values_file: str = ""
+    #: what a written configuration is, in words ("the LinuxCNC configuration")
+    configuration_words: str = ""
+
+    def configuration(self, result, machine: Machine,
+                      workspace) -> dict[str, str]:
+        """The files of a controller configuration that starts, for an export: one text per
+        name of :attr:`configuration_files`.
+
+        Parameters
+        ----------
+        result : ExportResult
+            The export (its values as written, its file's text).
+        machine : Machine
+            The calibrated machine.
+        workspace : Workspace
+            The export's workspace.
+
+        Returns
+        -------
+        dict
+            File name -> text.
+
+        Raises
+        ------
+        NotImplementedError
+            For a format that writes one file (no :attr:`configuration_files`).
+        """
+        raise NotImplementedError(f"{self.name} writes one file, not a configuration")
+
+    def configuration_start(self, directory: Path) -> str:
+        """The command that starts a configuration written in ``directory``, in words."""
+        raise NotImplementedError(f"{self.name} writes one file, not a configuration")
+
+    def read_controller_file(self, path: Path):
+        """The values of the controller's file at ``path`` (import), and the home pose and
+        machine name it holds where it does; the default reads the one file with
+        :meth:`parse` (a format that also reads a whole configuration overrides it).
+
+        Parameters
+        ----------
+        path : Path
+            The file (registered as an input of the active output set).
+
+        Returns
+        -------
+        params : ControllerParameters
+            The values.
+        home : tuple of ndarray or None
+            ``(P, R)`` of the home pose, m (None: the file holds none).
+        name : str or None
+            The machine's name.
+
+        Raises
+        ------
+        InputError
+            Naming the file, line and key of what cannot be read.
+        """
+        return self.parse(read_input_text(path, f"{self.name} file"), str(path)), None, None
 
     @abstractmethod
     def parse(self, text: str, source: str) -> ControllerParameters:
