@@ -9,11 +9,10 @@ import numpy as np
 
 from ..calibration.run import file_units as _units
 from ..calibration.run import json_safe as _finite_or_none
-from ..calibration.run import text_digest
 from ..errors import InputError
-from ..io.atomic import read_input_text
 from ..paths import path_text, recorded_path
 from ..units import format_um, format_urad
+from ..workflows.report import calibration_report_path
 from ._commands import (
     _machine_inputs,
     _table,
@@ -26,37 +25,6 @@ from ._commands import (
     refuse_unreachable,
 )
 from ._console import console, warning
-
-
-def calibration_report_path(machine, machine_spec: str, report: Path | None) -> Path | None:
-    """The calibration report: ``--report``, else the one the calibrated file names (checked
-    to be that calibration's: the file pins it by its SHA-256)."""
-    info = getattr(machine, "calibration_info", None) or {}
-    pinned = info.get("report_sha256")
-    if report is not None:
-        path = report
-    else:
-        name = info.get("report")
-        if name is None:
-            return None
-        if not isinstance(name, str) or not name.strip() or Path(name).name != name:
-            raise InputError(f"{path_text(machine_spec)}: "
-                             "calibration.report: expected the file name of "
-                             f"the JSON report beside it, got {name!r}")
-        path = recorded_path(Path(machine_spec).parent, name)      # recorded by path_text
-        if not path.exists():
-            return None             # the YAML travelled without its report: warned later
-        if not path.is_file():
-            raise InputError(f"{path_text(path)}: "
-                             f"the calibration report {path_text(machine_spec)} names is not a "
-                             "file; give the report with --report")
-    if pinned is not None and text_digest(read_input_text(path, "calibration report")) \
-            != str(pinned):
-        raise InputError(f"{path_text(path)}: "
-                         f"is not the report of {path_text(machine_spec)} (its SHA-256 differs "
-                         f"from calibration.report_sha256 there: written by another run); "
-                         "calibrate again, or give the right report with --report")
-    return path
 
 
 def read_covariance(path: Path, machine, with_frames: bool = False):
