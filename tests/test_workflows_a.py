@@ -431,3 +431,13 @@ def test_quiet_still_prints_raw_text(monkeypatch, capsys):
         assert out == '{"a": 1}\n' and "warning: careful" in err
     finally:
         _console.console.cache_clear()
+
+
+def test_table_headings_and_titles_are_plain_text(tmp_path):
+    """A heading's unit in brackets is shown, not read as rich markup: ``pkmcal errors``
+    printed "changes side at" without its "[deg]"."""
+    from clitools import run
+
+    proc = run("errors", "cubic", "--samples", "12", "-o", "e.csv", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "changes side at [deg]" in proc.stdout and "changes sign at [deg]" in proc.stdout

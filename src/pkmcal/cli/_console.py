@@ -163,10 +163,12 @@ def print_summary(summary) -> int:
     out = console()
     for block in summary.blocks:
         if isinstance(block, SummaryTable):
-            table = Table(title=block.title, title_justify="left", show_edge=False,
+            # titles and headings are plain text as the cells are ("changes side at [deg]")
+            title = None if block.title is None else Text(block.title, style="table.title")
+            table = Table(title=title, title_justify="left", show_edge=False,
                           pad_edge=False, show_header=block.header)
             for i, col in enumerate(block.columns):
-                table.add_column(col, justify=block.justify.get(i, "left"))
+                table.add_column(Text(col), justify=block.justify.get(i, "left"))
             for row in block.rows:
                 table.add_row(*(Text(c) if isinstance(c, str) else Text(c[0], style=c[1])
                                 for c in row))
