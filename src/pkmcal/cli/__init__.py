@@ -159,9 +159,12 @@ def demo(
 
     Example: `pkmcal demo -o demo-out`
     """
-    from ._commands import run_demo
+    from ..workflows.demo import demo as run
+    from ._console import print_summary, progress_tasks
 
-    run_demo(output)
+    with progress_tasks() as new:
+        summary = run(output, progress=new)
+    raise typer.Exit(print_summary(summary))
 
 
 @app.command()
@@ -269,12 +272,14 @@ def simulate(
     Example: `pkmcal simulate default --scenario distance --setups 4 --radius 150mm -o
     ballbar.csv`
     """
-    from ._commands import run_simulate
+    from ..workflows.simulate import simulate as run
+    from ._console import print_summary
 
-    run_simulate(machine, output, scenario, poses, noise,
-                 lc_error, seed, deviations.value if deviations else None, truth, grid,
-                 outliers, pose_noise=pose_noise, targets=targets, setups=setups,
-                 radius=radius, circles=circles)
+    raise typer.Exit(print_summary(run(
+        machine, output, scenario, poses, noise, lc_error, seed,
+        deviations.value if deviations else None, truth, grid, outliers,
+        pose_noise=pose_noise, targets=targets, setups=setups, radius=radius,
+        circles=circles)))
 
 
 @app.command()
@@ -445,9 +450,10 @@ def check(
     Example: `pkmcal check calibrated.yaml printer.cfg` (and `pkmcal check printer.yaml
     printer.cfg` for the values in force, to compare)
     """
-    from ._commands import run_check
+    from ..workflows.check import check as run
+    from ._console import print_summary
 
-    raise typer.Exit(run_check(machine, data, noise, output))
+    raise typer.Exit(print_summary(run(machine, data, noise, output)))
 
 
 @app.command()
@@ -675,9 +681,11 @@ def fk(
 
     Example: `pkmcal fk calibrated.yaml new_readings.csv --frame instrument -o predicted.csv`
     """
-    from ._commands import run_fk
+    from ..workflows.kinematics import fk as run
+    from ._console import print_summary
 
-    run_fk(machine, joints, output, TargetFrame(frame).value, instrument)
+    raise typer.Exit(print_summary(run(machine, joints, output, TargetFrame(frame).value,
+                                       instrument)))
 
 
 @app.command()
@@ -697,9 +705,10 @@ def ik(
 
     Example: `pkmcal ik calibrated.yaml poses.csv -o joints.csv`
     """
-    from ._commands import run_ik
+    from ..workflows.kinematics import ik as run
+    from ._console import print_summary
 
-    run_ik(machine, poses, output)
+    raise typer.Exit(print_summary(run(machine, poses, output)))
 
 
 @app.command()
@@ -854,9 +863,10 @@ def report_command(
 
     Example: `pkmcal calibrate default data.csv -o cal.yaml --report out/` (the same, at once)
     """
-    from ._report import run_report
+    from ..workflows.report import report
+    from ._console import print_summary
 
-    run_report(result, output)
+    raise typer.Exit(print_summary(report(result, output)))
 
 
 class Trajectory(enum.StrEnum):
@@ -929,11 +939,13 @@ def errors_command(
 
     Example: `pkmcal errors machine.yaml --trajectory-file path.csv --plot plots -o errors.csv`
     """
-    from ._commands import run_errors
+    from ..workflows.errors import errors
+    from ._console import print_summary
 
-    run_errors(machine, output, trajectory.value if trajectory else None, trajectory_file,
-               radius, height, omega, samples, clearance, platform_clearance, mass,
-               cutting_force, screw_error, force_tol, plot)
+    raise typer.Exit(print_summary(errors(
+        machine, output, trajectory.value if trajectory else None, trajectory_file, radius,
+        height, omega, samples, clearance, platform_clearance, mass, cutting_force,
+        screw_error, force_tol, plot)))
 
 
 @app.command()
@@ -1039,9 +1051,12 @@ def bench(
 
     Example: `pkmcal bench`
     """
-    from ._commands import run_bench
+    from ..workflows.demo import bench as run
+    from ._console import print_summary, progress_tasks
 
-    raise typer.Exit(run_bench(json_output))
+    with progress_tasks() as new:
+        summary = run(json_output, progress=new)
+    raise typer.Exit(print_summary(summary))
 
 
 def _one_line(message: str) -> str:
