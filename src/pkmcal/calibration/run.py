@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..estimation.acceptance import WHITENED_METHODS
-from ..estimation.sections import sections_report
+from ..estimation.sections import add_sections
 from ..instruments.flow import (
     CalibrationNotConverged,
     FlowContext,
@@ -1054,7 +1054,7 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
     # weakly determined parameters: one rule on every machine and instrument
     warnings.extend(_weakly_determined(result, machine, report, source, units))
     # each instrument's typed section: its report keys and their index (rendered generically)
-    report.update(sections_report(getattr(result, "sections", {}), units))
+    add_sections(report, getattr(result, "sections", {}), units)
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,

@@ -24,7 +24,7 @@ from collections.abc import Iterator, MutableMapping
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
 __all__ = ["ResultSection", "Section", "ExtrasView", "DETAILS", "blank_details",
-           "sections_report", "section_rows"]
+           "sections_report", "add_sections", "section_rows"]
 
 
 @runtime_checkable
@@ -105,6 +105,24 @@ def sections_report(sections: dict, units: dict | None = None) -> dict:
     if index:
         out["sections"] = index
     return out
+
+
+def add_sections(report: dict, sections: dict, units: dict | None = None) -> dict:
+    """Add a result's sections to its report: the keys a section gives that the instrument's
+    flow has not written already (a flow may write a richer one, e.g. with the fit "before"
+    beside it) and the index ``sections`` (:func:`sections_report`).
+
+    Returns
+    -------
+    dict
+        ``report``.
+    """
+    for key, value in sections_report(sections, units).items():
+        if key == "sections":
+            report[key] = value
+        else:
+            report.setdefault(key, value)
+    return report
 
 
 def section_rows(report: dict) -> list[tuple[str, str]]:
