@@ -1574,7 +1574,7 @@ class ConstraintLinkSection(Section):
     """
 
     instrument: ClassVar[str] = "constraint_link"
-    title: ClassVar[str] = "constraint link"
+    title: ClassVar[str] = "link length"
 
     link_length: float | None = None
     assumed: float | None = None

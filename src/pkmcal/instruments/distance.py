@@ -590,7 +590,7 @@ class DistanceSection(Section):
     """
 
     instrument: ClassVar[str] = "distance"
-    title: ClassVar[str] = "ballbar mountings"
+    title: ClassVar[str] = "Ballbar mountings"
 
     setups: list
     rows: list

@@ -972,7 +972,7 @@ class PoseSection(Section):
     """
 
     instrument: ClassVar[str] = "pose"
-    title: ClassVar[str] = "measurement frames"
+    title: ClassVar[str] = "frames"
 
     frames: object
     start_frames: object

@@ -501,7 +501,7 @@ class TrackerSection(Section):
     """
 
     instrument: ClassVar[str] = "tracker"
-    title: ClassVar[str] = "laser tracker"
+    title: ClassVar[str] = "registration"
 
     registration: tuple
     start_registration: tuple
