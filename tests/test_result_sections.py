@@ -107,6 +107,17 @@ def test_toy_section_in_report_console_and_html(monkeypatch):
     assert page.count("<tr><td>") >= 3          # one row per toy read
 
 
+def test_toy_section_in_the_calibrated_files_metadata():
+    """The calibrated machine file's ``calibration:`` mapping (YAML) carries every section's
+    summary rows, whatever the instrument; sections without rows add nothing."""
+    metadata = {"method": "toy"}
+    add_sections(_report(), {"toy": ToySection(2e-3, [1e-3])}, {"length": "mm"}, metadata)
+    assert metadata["sections"] == {"toy": ["toy offset: 2 mm over 1 reads"]}
+    quiet = {"method": "toy"}
+    add_sections(_report(), {"toy": Section()}, {"length": "mm"}, quiet)
+    assert "sections" not in quiet
+
+
 def test_flow_keys_are_kept():
     """A key an instrument's flow wrote already (a richer one) is not replaced by the section's;
     the index still names it."""

@@ -1054,7 +1054,7 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
     # weakly determined parameters: one rule on every machine and instrument
     warnings.extend(_weakly_determined(result, machine, report, source, units))
     # each instrument's typed section: its report keys and their index (rendered generically)
-    add_sections(report, getattr(result, "sections", {}), units)
+    add_sections(report, getattr(result, "sections", {}), units, metadata)
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,

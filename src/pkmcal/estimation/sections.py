@@ -107,10 +107,13 @@ def sections_report(sections: dict, units: dict | None = None) -> dict:
     return out
 
 
-def add_sections(report: dict, sections: dict, units: dict | None = None) -> dict:
+def add_sections(report: dict, sections: dict, units: dict | None = None,
+                 metadata: dict | None = None) -> dict:
     """Add a result's sections to its report: the keys a section gives that the instrument's
     flow has not written already (a flow may write a richer one, e.g. with the fit "before"
-    beside it) and the index ``sections`` (:func:`sections_report`).
+    beside it) and the index ``sections`` (:func:`sections_report`); with ``metadata`` (the
+    calibrated machine file's ``calibration:`` mapping) the sections' summary rows there too,
+    as ``sections: {name: ["label: text", ...]}``.
 
     Returns
     -------
@@ -122,6 +125,11 @@ def add_sections(report: dict, sections: dict, units: dict | None = None) -> dic
             report[key] = value
         else:
             report.setdefault(key, value)
+    if metadata is not None:
+        rows = {name: [f"{label}: {text}" for label, text in entry["summary"]]
+                for name, entry in report.get("sections", {}).items() if entry["summary"]}
+        if rows:
+            metadata["sections"] = rows
     return report
 
 

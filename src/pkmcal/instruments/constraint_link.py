@@ -2118,14 +2118,8 @@ class ConstraintLink(Instrument):
     writer = "write_constraint_link"
 
     def calibration_summary(self, report):
-        res, ident, lc = report["residuals"], report["identifiability"], report["link_length"]
+        res, ident = report["residuals"], report["identifiability"]
         noise = res["estimated_noise_um"]
-        if lc["estimated"]:
-            std = f" +/- {lc['std']:.3g} {lc['unit']}" if lc["std"] is not None else ""
-            link = (f"{lc['value']:.9g} {lc['unit']} (estimated{std}; machine file "
-                    f"{lc['assumed']:.9g} {lc['unit']})")
-        else:
-            link = f"{lc['value']:.9g} {lc['unit']} (fixed: machine file)"
         rows = [("measurement", f"{report['measurement']}, {report['measurements']} poses"),
                 ("method", {"ml": "ml (maximum likelihood, all readings noisy)",
                             "ik": "ik (paper 3.4.1, inverse kinematics of the passive chain)",
@@ -2136,7 +2130,8 @@ class ConstraintLink(Instrument):
                 ("RMS residual", f"{res['rms_um']:.4g} um ({res['of']}; assumed noise "
                  f"{report['noise_sigma_um']:.4g} um"
                  + (f", estimated {noise:.3g} um)" if noise is not None else ")")),
-                "held-out", "noise levels", "convergence", ("link length Lc", link)]
+                # the link length: its section's row (ConstraintLinkSection.summary_rows)
+                "held-out", "noise levels", "convergence", "sections"]
         if ident["unidentifiable"]:
             rows.append(("note", "note: the data do not fix the directions listed as not "
                          "identifiable; the changes are the smallest ones (scaled) that fit "
