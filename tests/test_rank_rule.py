@@ -77,7 +77,7 @@ def counts_everywhere(machine_path, data_path, noise=None, pose_noise=None, cli=
         res = calibrate_full_pose(machine, read_full_pose(data_path, machine), noise=model,
                                   estimate_noise=est)
     out["calibrate"] = (res.rank, res.weak)
-    assert len(_weak(res.extras["unidentifiable"])) == res.weak
+    assert len(_weak(res.unidentifiable)) == res.weak
     assert res.adjusted == res.rank - res.weak
     if cli is not None:
         args = [] if noise is None else ["--noise", noise]

@@ -420,7 +420,7 @@ def acceptance(result, settings: MonteCarloSettings,
         if model_error:
             weight = _weight(settings.noise) if settings.noise is not None else NOISE_FLOOR
             limit *= 1.0 + (model_error / weight) ** 2
-        levels = (getattr(result, "extras", None) or {}).get("noise")
+        levels = getattr(result, "noise", None)
         if levels is not None and levels.estimated:
             # the levels were estimated from the residuals (the fit weighs by them, not by the
             # simulated noise): a wrong geometry shows as a level significantly above the

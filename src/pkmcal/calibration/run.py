@@ -34,6 +34,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..estimation.acceptance import WHITENED_METHODS
+from ..estimation.sections import add_sections
 from ..instruments.flow import (
     CalibrationNotConverged,
     FlowContext,
@@ -1052,6 +1053,8 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
     tolerance_report(result, calibrated, report, path_text(source), units, warnings)
     # weakly determined parameters: one rule on every machine and instrument
     warnings.extend(_weakly_determined(result, machine, report, source, units))
+    # each instrument's typed section: its report keys and their index (rendered generically)
+    add_sections(report, getattr(result, "sections", {}), units, metadata)
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,
