@@ -196,22 +196,22 @@ def one_run(seed: int, poses: int = 120) -> dict:
         out.update(status="flagged", reason=f"error: {exc}", seconds=time.perf_counter() - t0)
         return out
     out["seconds"] = time.perf_counter() - t0
-    start = res.extras.get("start")
+    start = res.sections["constraint_link"].start
     test = residual_test(res)
-    changes = parameter_changes(nominal, res.extras["machine"])
+    changes = parameter_changes(nominal, res.machine)
     out.update(noise_factor=test.noise_factor, passed=test.passed,
                strategy=getattr(start, "strategy", "direct"),
                fallback=bool(getattr(start, "fallback", False)),
-               dropped=len(res.extras.get("dropped_rows", [])),
+               dropped=len(res.sections["constraint_link"].dropped_rows),
                poorly_determined=len(poorly_determined(res, len(nominal.parameters),
                                                        nominal.characteristic_length())))
     Pw, Rw = machine_workspace(true, 200, 0)
     reach = np.all(np.isfinite(true.ik(Pw, Rw)), -1)
     Pw, Rw = Pw[reach], Rw[reach]
-    dp, dr, ok, _ = pose_errors(true, res.extras["machine"], Pw, Rw)
+    dp, dr, ok, _ = pose_errors(true, res.machine, Pw, Rw)
     if not ok.all():
         dp, dr = np.where(ok, dp, np.inf), np.where(ok, dr, np.inf)
-    pred_p, pred_r = predicted(true, res.extras["problem"], Pw, Rw)
+    pred_p, pred_r = predicted(true, res.problem, Pw, Rw)
     ratio = max(float(np.sqrt(np.mean(dp**2))) / pred_p, float(np.sqrt(np.mean(dr**2))) / pred_r)
     out.update(ratio=ratio, position_um=float(np.sqrt(np.mean(dp**2)) * 1e6),
                predicted_um=pred_p * 1e6)

@@ -315,7 +315,7 @@ class Case:
 
     def _instrument_error(self, result, bound):
         problem = self._held_problem
-        estimate = result.extras["problem"].predict(result.state, self.q_held, self.group_held)
+        estimate = result.problem.predict(result.state, self.q_held, self.group_held)
         W = problem.W
         delta = np.einsum("kij,kj->ki", W, estimate - self._held_truth).ravel()
         if not hasattr(self, "_held_pinv"):
@@ -343,7 +343,7 @@ class Case:
         difference Jacobian in the estimator's coordinates (legs, then increments on the left
         of the frame rotations and the frame translations)."""
         Pt, Rt = self._pose_predictions(self.true, FRAMES)
-        Pe, Re = self._pose_predictions(result.extras["machine"], result.extras["frames"])
+        Pe, Re = self._pose_predictions(result.machine, result.sections["pose"].frames)
         w = np.array([POSE_NOISE.position_m] * 3 + [POSE_NOISE.orientation_rad] * 3)
 
         def diff(Pa, Ra):
@@ -411,7 +411,7 @@ def run(machine: str, instrument: str, runs: int = 100, seed: int = 0) -> dict:
             "chi2": float(np.mean(chi2) / bound.rank), "k_eff": bound.k_eff,
             "median_s": float(np.median(seconds)),
             "success": bool(all(success) and set(ranks) == {bound.rank}),
-            "unidentifiable": {d.name: d.dimension for d in exact.extras["unidentifiable"]},
+            "unidentifiable": {d.name: d.dimension for d in exact.unidentifiable},
             "errors": errors, "C": bound.C}
 
 

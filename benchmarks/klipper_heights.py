@@ -249,7 +249,7 @@ def heights_fold_in(machine) -> ref.DeltaCalibration:
     from scipy.optimize import least_squares
 
     from pkmcal.export import controller_format
-    from pkmcal.export.base import position_errors
+    from pkmcal.export.fitting import position_errors
 
     fmt = controller_format("klipper")
     ws = machine.print_workspace(rng=0)

@@ -19,7 +19,7 @@ chronological pair (A, B):
 
 Each is evaluated on session B's saved carriage positions: its DELTA_CALIBRATE points
 (stable positions times the step distance) and its meshes' probed points (carriage travels
-recovered with B's values in force, :func:`pkmcal.io.klipper_config.mesh_travels`), through
+recovered with B's values in force, :func:`pkmcal.io.klipper_data.mesh_travels`), through
 Klipper's kinematics (the three spheres' intersection, ``get_position_from_stable``) with the
 values evaluated: the nozzle's height above the bed at each trigger minus the probe's
 ``z_offset``, one free offset per data set (a session's endstops and a mesh's reference),
@@ -63,13 +63,8 @@ try:                                    # Klipper's host code, the reference whe
 except Exception:  # noqa: BLE001 - optional reference
     ZMesh = None
 
-from pkmcal.io.klipper_config import (  # noqa: E402
-    BedMesh,
-    DeltaValues,
-    KlipperConfig,
-    bed_mesh_data,
-    delta_values,
-)
+from pkmcal.io.klipper_config import KlipperConfig  # noqa: E402
+from pkmcal.io.klipper_data import BedMesh, DeltaValues, bed_mesh_data, delta_values  # noqa: E402
 
 #: the fresh sessions (``shared/data/printers/README.md`` and each ``PROVENANCE.md``): file,
 #: the time DELTA_CALIBRATE's values were saved (the session's date)
@@ -221,7 +216,7 @@ def exported_mesh(path: Path, text: str):
     """``f(xy)`` of the export's ``[bed_mesh pkmcal]`` profile as Klipper applies it, or
     None when the export handed none over."""
     from pkmcal.export.bed_mesh import PROFILE
-    from pkmcal.io.klipper_config import bed_meshes
+    from pkmcal.io.klipper_data import bed_meshes
 
     for mesh in bed_meshes(KlipperConfig.read(str(path), text)):
         if mesh.name == PROFILE:
@@ -303,7 +298,7 @@ def points_only(path) -> list:
     """A config's DELTA_CALIBRATE data alone (heights, DELTA_ANALYZE distances), as
     ``calibrate`` reads them: Klipper's own data set (the baseline before the meshes)."""
     from pkmcal.export import controller_format
-    from pkmcal.io.klipper_config import delta_calibrate_data
+    from pkmcal.io.klipper_data import delta_calibrate_data
 
     fmt = controller_format("klipper")
     machine = fmt.to_machine(fmt.parse(Path(path).read_text(), str(path)))
@@ -316,7 +311,7 @@ def pooled(log=print) -> dict:
     saved heights in several backups are one session; DELTA_ANALYZE distances join the
     session of the heights they reuse)."""
     from pkmcal.export import controller_format
-    from pkmcal.io.klipper_config import klipper_sessions
+    from pkmcal.io.klipper_data import klipper_sessions
 
     paths = [SHARED / p for p in POOLED]
     fmt = controller_format("klipper")

@@ -419,7 +419,7 @@ class NoiseCase:
         q = self._held_readings()
         n = len(c.nominal.parameters)
         u = np.array(result.x[:n], float)
-        frames = result.extras["frames"]
+        frames = result.sections["pose"].frames
         (A, _), (B, b) = frames.mocap_from_base, frames.platform_from_marker
         noise = ASSUMED["poses"]
         w = np.array([noise.position_m] * 3 + [noise.orientation_rad] * 3)
@@ -570,10 +570,10 @@ def run(mismatch: Mismatch | str, runs: int = 200, seed: int = 0) -> dict:
             # adjusted = rank less weak directions (the printer's full model has one; a
             # direction whose standard deviation at the noise used exceeds MAX_STD is weak)
             out[key]["other_rank"].append(int(res.rank) - int(res.weak) != bound.rank)
-            test = res.extras.get("outliers")
+            test = res.outliers
             out[key]["flagged"].append(0 if test is None else len(test.flagged))
             if estimate:
-                noise = res.extras["noise"]
+                noise = res.noise
                 for i, k in enumerate(noise.keys):
                     rec = levels.setdefault(k, {"sigma": [], "std": [], "status": [],
                                                 "assumed": float(noise.assumed[i])})

@@ -118,14 +118,14 @@ def one_run(seed: int, method: str, poses: int = 250, noise: float = 0.0) -> dic
         out.update(status="refused", reason=f"not converged: {res.message}")
         return out
     Pw, Rw = _workspace(true)
-    dp, dr, ok, _ = pose_errors(true, res.extras["machine"], Pw, Rw)
+    dp, dr, ok, _ = pose_errors(true, res.machine, Pw, Rw)
     dp, dr = np.where(ok, dp, np.inf), np.where(ok, dr, np.inf)
     if noise == 0.0:
         out["max_position_m"] = float(np.max(dp))
         out["status"] = "ok" if out["max_position_m"] <= TOLERANCE else "wrong"
         return out
     ml = calibrate_constraint_link(nominal, data, sigma_m=noise, estimate_noise=False)
-    pred_p, pred_r = GS.predicted(true, ml.extras["problem"], Pw, Rw)
+    pred_p, pred_r = GS.predicted(true, ml.problem, Pw, Rw)
     out.update(status="ok", ratio_position=float(np.sqrt(np.mean(dp**2))) / pred_p,
                ratio_orientation=float(np.sqrt(np.mean(dr**2))) / pred_r)
     return out

@@ -235,11 +235,11 @@ class ProbeCase:
 
     def held_heights(self, result) -> np.ndarray:
         """Heights the estimate predicts at the held-out readings (truth: 0), m."""
-        return result.extras["problem"].predict(result.state, self.q_held)[:, 0]
+        return result.problem.predict(result.state, self.q_held)[:, 0]
 
     def above_errors(self, result) -> np.ndarray:
         """Heights the estimate predicts 1 mm above the bed minus the true ones, m."""
-        return result.extras["problem"].predict(result.state, self.q_above)[:, 0] - self.h_above
+        return result.problem.predict(result.state, self.q_above)[:, 0] - self.h_above
 
     def scaled_error(self, result) -> float:
         """Largest scaled error in the identifiable directions, through held-out heights."""

@@ -124,7 +124,7 @@ class Case:
 
     def held_heights(self, calibration) -> np.ndarray:
         result = calibration.result
-        return result.extras["problem"].predict(result.state, self.q_held)[:, 0]
+        return result.problem.predict(result.state, self.q_held)[:, 0]
 
 
 def run_case(seed: int, runs: int, others=OTHERS) -> dict:

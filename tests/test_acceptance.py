@@ -88,13 +88,13 @@ def test_one_verdict_per_calibration():
 
 def test_a_method_that_takes_readings_as_exact_is_not_tested_unless_it_states_a_test():
     result = _calibrate(1e-6, 1e-6, 0)
-    result.extras.pop("noise", None)
+    result.noise = None
     v = residual_verdict(result, "ik")
     assert v.status == NOT_TESTED and v.noise_ratio is None
     assert v.sentence().startswith("not tested: ") and "exact" in v.sentence()
     assert ResidualVerdict.from_dict(v.as_dict()).sentence() == v.sentence()
     # a test stated in the whitened model's terms is used as any other
-    result.extras["residual_test"] = chi_square_test(900.0, 100)
+    result.residual_test = chi_square_test(900.0, 100)
     v = residual_verdict(result, "ik")
     assert v.status == FAILED_ALARMING and v.noise_ratio == pytest.approx(3.0, rel=1e-12)
     # an older report's section (no verdict key) gives the same verdict

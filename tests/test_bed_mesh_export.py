@@ -21,7 +21,8 @@ from pkmcal.export.bed_mesh import (
     reprapfirmware_heightmap,
     with_klipper_profile,
 )
-from pkmcal.io.klipper_config import KlipperConfig, bed_meshes
+from pkmcal.io.klipper_config import KlipperConfig
+from pkmcal.io.klipper_data import bed_meshes
 from pkmcal.machines.linear_delta import linear_delta
 
 KLIPPER = controller_format("klipper")
@@ -94,7 +95,7 @@ def test_klipper_profile_reads_back_and_keeps_the_users_profiles():
     assert again.count(f"[bed_mesh {PROFILE}]") == 1
     assert again.count("[bed_mesh default]") == 1
     # never data: the reader leaves pkmcal's profile out, named
-    from pkmcal.io.klipper_config import bed_mesh_data
+    from pkmcal.io.klipper_data import bed_mesh_data
 
     data, notes = bed_mesh_data(KlipperConfig.read("printer.cfg", again))
     assert all(d.mesh.name != PROFILE for d in data)

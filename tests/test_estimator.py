@@ -226,7 +226,7 @@ def aligned_error(nominal, result, true):
 
 
 def assert_gauges_named(result):
-    names = [(d.name, d.dimension) for d in result.extras["unidentifiable"]]
+    names = [(d.name, d.dimension) for d in result.unidentifiable]
     assert names == [(BASE_ROTATION_ABOUT_O.name, 3), (PLATFORM_ROTATION_ABOUT_P.name, 3)]
 
 
@@ -246,10 +246,10 @@ def test_noise_free_recovery_every_method(default_case, method):
     assert res.success, res.message
     assert res.rank == METHOD_RANK[method]
     assert_gauges_named(res)
-    assert len(res.extras["dropped_rows"]) == 0
+    assert len(res.sections["constraint_link"].dropped_rows) == 0
     err, _ = aligned_error(nominal, res, true)
     assert err <= 1e-10
-    assert res.extras["link_length"] == pytest.approx(true.constraint_link_length,
+    assert res.sections["constraint_link"].link_length == pytest.approx(true.constraint_link_length,
                                                       abs=1e-10 * nominal.characteristic_length())
     assert np.max(np.abs(res.residuals)) < 1e-6      # whitened by 1 um: < 1 pm
 
@@ -266,7 +266,7 @@ def test_ml_from_full_table1_on_simulated_data():
     err, _ = aligned_error(nominal, res, true)
     assert err <= 1e-10
     # the calibrated machine inside the result carries the estimate
-    np.testing.assert_array_equal(res.extras["machine"].u, res.x[:54])
+    np.testing.assert_array_equal(res.machine.u, res.x[:54])
 
 
 def test_ml_estimates_link_length_when_asked(default_case):
@@ -274,7 +274,8 @@ def test_ml_estimates_link_length_when_asked(default_case):
     wrong = ConstraintLinkData(data.q, data.link_length + 2e-3, data.passive)
     res = calibrate_constraint_link(nominal, wrong, estimate_link_length=True)
     assert res.success and res.rank == 49
-    assert res.extras["link_length"] == pytest.approx(true.constraint_link_length, abs=1e-12)
+    assert res.sections["constraint_link"].link_length == pytest.approx(
+        true.constraint_link_length, abs=1e-12)
     err, _ = aligned_error(nominal, res, true)
     assert err <= 1e-10
 

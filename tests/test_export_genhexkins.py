@@ -108,7 +108,7 @@ def calibrated(nominal, seed=0):
                               np.random.default_rng(seed + 1))
     res = calibrate_full_pose(nominal, data)
     assert res.success
-    machine = res.extras["machine"]
+    machine = res.machine
     machine.file_units = {"length": "mm", "angle": "deg"}
     return machine
 

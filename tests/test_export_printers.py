@@ -40,7 +40,7 @@ import pytest
 
 from clitools import run
 from pkmcal.errors import InputError
-from pkmcal.export.base import export, position_errors
+from pkmcal.export.fitting import export, position_errors
 from pkmcal.export.klipper import KLIPPER
 from pkmcal.export.marlin import MARLIN
 from pkmcal.export.reprapfirmware import REPRAPFIRMWARE

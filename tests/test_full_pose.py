@@ -61,7 +61,7 @@ class Case:
     def validation(self, result):
         """Largest leg-length residual and pose error of the calibrated model on held-out
         exact data (m, rad)."""
-        err = full_pose_errors(result.extras["machine"], result.extras["frames"],
+        err = full_pose_errors(result.machine, result.sections["pose"].frames,
                                self.held_out)
         assert err.converged.all()
         return (np.abs(err.leg_length).max(), err.position.max(), err.orientation.max())
@@ -170,7 +170,7 @@ def test_noise_free_calibration_recovers_the_truth(case, method):
     res = calibrate_full_pose(case.nominal, data, method=method)
     assert res.success and res.cost < 1e-15
     assert (res.rank, int(res.parameters.free.sum())) == (48, 60)
-    assert {d.name: d.dimension for d in res.extras["unidentifiable"]} == GAUGES
+    assert {d.name: d.dimension for d in res.unidentifiable} == GAUGES
     # exact after gauge alignment (and exactly zero along the null space then)
     e = gauge_free_error(case.nominal, res, case.true.u, case.frames)
     assert np.abs(e).max() < 1e-9
@@ -190,7 +190,7 @@ def test_fixed_frames_make_every_leg_parameter_identifiable(case, method):
     res = calibrate_full_pose(case.nominal, data, method=method, frames=case.frames,
                               fix_frames=True)
     assert (res.rank, int(res.parameters.free.sum())) == (48, 48)
-    assert res.extras["unidentifiable"] == []
+    assert res.unidentifiable == []
     assert np.abs((res.x[:48] - case.true.u) / res.scales[:48]).max() < 1e-9
     assert np.all(res.std[:48] > 0)
     # one frame fixed: its gauge is gone, the other stays
@@ -199,7 +199,7 @@ def test_fixed_frames_make_every_leg_parameter_identifiable(case, method):
         one = calibrate_full_pose(case.nominal, data, method=method, frames=case.frames,
                                   fix_frames=fixed)
         assert (one.rank, int(one.parameters.free.sum())) == (48, 54)
-        assert {d.name: d.dimension for d in one.extras["unidentifiable"]} == {left: 6}
+        assert {d.name: d.dimension for d in one.unidentifiable} == {left: 6}
 
 
 def test_frames_only_fit_keeps_the_legs(case):
@@ -207,7 +207,7 @@ def test_frames_only_fit_keeps_the_legs(case):
     res = calibrate_full_pose(case.true, data, fit_machine=False)
     assert (res.rank, int(res.parameters.free.sum())) == (12, 12)
     np.testing.assert_array_equal(res.x[:48], case.true.u)
-    (A, a), (At, at) = res.extras["frames"].mocap_from_base, case.frames.mocap_from_base
+    (A, a), (At, at) = res.sections["pose"].frames.mocap_from_base, case.frames.mocap_from_base
     np.testing.assert_allclose(A, At, atol=1e-10)
     np.testing.assert_allclose(a, at, atol=1e-10)
 
@@ -272,7 +272,7 @@ def test_ik_method_with_noisy_poses_is_worse_than_ml(case):
         data = case.simulate(noise, rng)
         for method in leg:
             res = calibrate_full_pose(case.nominal, data, method=method, noise=noise)
-            err = full_pose_errors(res.extras["machine"], res.extras["frames"], case.held_out)
+            err = full_pose_errors(res.machine, res.sections["pose"].frames, case.held_out)
             leg[method].append(np.sqrt(np.mean(err.leg_length**2)))
     assert np.mean(leg["ml"]) < np.mean(leg["ik"])
 
@@ -306,7 +306,7 @@ def test_degenerate_poses_are_refused_in_words(case, method):
         # one rank rule (issue 12): rank counts the weakly identifiable directions too;
         # fewer than 48 are adjusted
         assert res.adjusted < 48
-        assert len(res.extras["unidentifiable"]) > 2
+        assert len(res.unidentifiable) > 2
 
 
 def test_options_are_checked(case):

@@ -19,7 +19,7 @@ import pytest
 
 from clitools import assert_input_error, run
 from pkmcal.export.base import FOREIGN_SCAN_LINES
-from pkmcal.io import csv_io
+from pkmcal.io import csv_io, csv_table
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZE = 50 * 2**20
@@ -65,7 +65,7 @@ def records(monkeypatch):
         @property
         def line_num(self):
             return self._reader.line_num
-    monkeypatch.setattr(csv_io, "csv", types.SimpleNamespace(reader=Reader, Error=csv.Error))
+    monkeypatch.setattr(csv_table, "csv", types.SimpleNamespace(reader=Reader, Error=csv.Error))
     return count
 
 

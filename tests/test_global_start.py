@@ -62,15 +62,15 @@ def test_the_plain_start_fails_on_a_reporter_like_machine_and_the_fallback_does_
     plain = levenberg_marquardt(ConstraintLinkML(nominal, data, 2e-6), max_std=MAX_STD)
     assert residual_test(plain).noise_factor > 20                     # the bug
     res = calibrate_constraint_link(nominal, data, sigma_m=2e-6)
-    start = res.extras["start"]
+    start = res.sections["constraint_link"].start
     assert start.strategy == "continuation" and start.fallback
     assert residual_test(res).passed
     assert start.attempts[0]["stage"] == "direct" and not start.attempts[0]["passed"]
     from pkmcal.analysis.accuracy import machine_workspace, pose_errors
 
     Pw, Rw = machine_workspace(true, 200, 0)
-    dp, dr, ok, _ = pose_errors(true, res.extras["machine"], Pw, Rw)
-    pred_p, pred_r = bench.predicted(true, res.extras["problem"], Pw[ok], Rw[ok])
+    dp, dr, ok, _ = pose_errors(true, res.machine, Pw, Rw)
+    pred_p, pred_r = bench.predicted(true, res.problem, Pw[ok], Rw[ok])
     assert np.sqrt(np.mean(dp[ok] ** 2)) < 3 * pred_p
     assert np.sqrt(np.mean(dr[ok] ** 2)) < 3 * pred_r
 
@@ -81,10 +81,11 @@ def test_the_default_machine_takes_the_direct_path():
     true.constraint_link_length = machine.constraint_link_length
     data = simulate_constraint_link(true, 150, 2e-6, rng=0)
     res = calibrate_constraint_link(machine, data, sigma_m=2e-6)
-    start = res.extras["start"]
+    start = res.sections["constraint_link"].start
     assert start.strategy == "direct" and not start.fallback
     assert len(start.attempts) == 1 and start.attempts[0]["passed"]
-    assert res.extras["dropped_rows"].size == 0 and res.extras["warnings"] == []
+    section = res.sections["constraint_link"]
+    assert section.dropped_rows.size == 0 and section.warnings == []
 
 
 def test_rows_left_out_are_named(bench):
@@ -112,16 +113,16 @@ def test_rows_left_out_are_named(bench):
     q = data.q.copy()
     q[17, 2] += 3e-3
     res = calibrate_constraint_link(nominal, dataclasses.replace(data, q=q), sigma_m=2e-6)
-    dropped = [int(v) for v in res.extras["dropped_rows"]]
+    dropped = [int(v) for v in res.sections["constraint_link"].dropped_rows]
     assert dropped == [int(data.rows[17])]
-    (text,) = [w for w in res.extras["warnings"] if "left out" in w]
+    (text,) = [w for w in res.sections["constraint_link"].warnings if "left out" in w]
     assert f"rows {dropped[0]}" in text and "1 of 120 row(s)" in text
     # the problem holds every row; the outlier rounds, started from the rows the start
     # strategy left out, keep exactly this one out of the fit
-    test = res.extras["outliers"]
-    assert len(res.extras["problem"].data) == 120
+    test = res.outliers
+    assert len(res.problem.data) == 120
     assert [int(test.names[i].split()[-1]) for i in test.left_out] == dropped
-    assert res.extras["start"].as_dict()["dropped_rows"] == dropped
+    assert res.sections["constraint_link"].start.as_dict()["dropped_rows"] == dropped
     assert residual_test(res).passed
 
 
@@ -182,8 +183,8 @@ def test_no_clean_row_is_left_out_from_the_true_geometry():
     left out 5 clean rows before the neighbours' starts: their best pose was the wrong one)."""
     true, data = _stewart_link_case(3)
     res = calibrate_constraint_link(true, data, sigma_m=2e-6, estimate_noise=False)
-    assert len(res.extras["dropped_rows"]) == 0
-    assert res.extras["outliers"].kept.all()
+    assert len(res.sections["constraint_link"].dropped_rows) == 0
+    assert res.outliers.kept.all()
     assert residual_test(res).passed
 
 

@@ -92,7 +92,7 @@ def test_points_and_distances_recover_the_truth_noise_free(name):
     nominal, true, parts, truths, rng = _case(name)
     result = fit_joint(nominal, parts)
     assert result.success and result.weak == 0
-    problem = result.extras["problem"]
+    problem = result.problem
     assert isinstance(problem, JointProblem)
     names = problem.parameters.names
     assert "pts.csv:tracker.x" in names and "bar.csv:setup1.pivot.x" in names
@@ -106,7 +106,7 @@ def test_points_and_distances_recover_the_truth_noise_free(name):
         expected = model.predict(truth, fk.P, fk.R, group)
         got = problem.parts[i].predict(problem.part_state(result.state, i), q, group)
         assert np.abs(got - expected).max() <= 1e-9 * L, (i, np.abs(got - expected).max())
-    words = " ".join(d.description for d in result.extras["unidentifiable"])
+    words = " ".join(d.description for d in result.unidentifiable)
     assert "the tracker frame of pts.csv" in words
     assert "the ballbar's pivot on the base of bar.csv" in words
 
@@ -127,7 +127,7 @@ def test_joint_covariance_is_the_inverse_of_the_summed_information():
     nominal, _, parts, _, _ = _case("hexaslide", seed=4, noise=True)
     result = fit_joint(nominal, parts, absolute_sigma=True)
     assert result.success and result.weak == 0
-    problem = result.extras["problem"]
+    problem = result.problem
     n = len(problem.parameters)
     info = np.zeros((n, n))
     for i, part in enumerate(problem.parts):
@@ -141,7 +141,7 @@ def test_joint_covariance_is_the_inverse_of_the_summed_information():
     got = result.covariance[np.ix_(free, free)] / np.outer(S, S)
     assert np.abs(got - expected).max() <= 1e-6 * np.abs(expected).max()
     # and the per-file view: the joint std never exceeds a file's alone
-    c = result.extras["contributions"]
+    c = result.sections["joint"].contributions
     for i in range(2):
         ok = np.isfinite(c.alone_std[i]) & np.isfinite(c.joint_std)
         assert np.all(c.joint_std[ok] <= c.alone_std[i][ok] * (1 + 1e-9))
@@ -154,7 +154,7 @@ def test_a_ballbar_circle_alone_leaves_directions_the_points_fix(tmp_path):
     with the two files."""
     nominal, _, parts, _, _ = _case("delta", circle=True, n_lengths=36, n_points=30)
     result = fit_joint(nominal, parts)
-    c = result.extras["contributions"]
+    c = result.sections["joint"].contributions
     pts_alone, circle_alone = c.alone_identifiable
     assert circle_alone < pts_alone == c.joint_identifiable == 15
     assert len(c.added[0]) == c.joint_identifiable - circle_alone      # pts.csv fixes them

@@ -95,7 +95,7 @@ def figures(design, data, method):
     cal, val = data["calibration"], data["validation"]
     result = calibrate_full_pose(design, cal, method=method, noise=NOISE)
     before = calibrate_full_pose(design, cal, method=method, noise=NOISE, fit_machine=False)
-    model, frames = result.extras["machine"], result.extras["frames"]
+    model, frames = result.machine, result.sections["pose"].frames
 
     def summary(machine, f, d):
         s = full_pose_errors(machine, f, d).summary()
@@ -106,14 +106,14 @@ def figures(design, data, method):
     def reregistered(machine, f):
         fit = calibrate_full_pose(machine, val, method=method, noise=NOISE, frames=f,
                                   fit_machine=False)
-        return summary(machine, fit.extras["frames"], val)
+        return summary(machine, fit.sections["pose"].frames, val)
 
     out = {
-        "calibration": (summary(design, before.extras["frames"], cal),
+        "calibration": (summary(design, before.sections["pose"].frames, cal),
                         summary(model, frames, cal)),
-        "held out, frames carried": (summary(design, before.extras["frames"], val),
+        "held out, frames carried": (summary(design, before.sections["pose"].frames, val),
                                      summary(model, frames, val)),
-        "held out, frames re-registered": (reregistered(design, before.extras["frames"]),
+        "held out, frames re-registered": (reregistered(design, before.sections["pose"].frames),
                                            reregistered(model, frames)),
     }
     print(f"\nJugglebot, method {method} (before = design legs, after = calibrated):")
@@ -129,7 +129,7 @@ def test_calibration_improves_the_held_out_poses(design, data, method):
     result, out = figures(design, data, method)
     assert result.success
     assert (result.rank, int(result.parameters.free.sum())) == (48, 60)
-    assert {d.name: d.dimension for d in result.extras["unidentifiable"]} == {
+    assert {d.name: d.dimension for d in result.unidentifiable} == {
         "rigid motion of the base frame": 6, "rigid motion of the platform frame": 6}
     b, a = out["calibration"]
     assert a["leg"] < 0.6 and a["leg"] < 0.3 * b["leg"]
@@ -148,7 +148,7 @@ def test_identified_gains_match_the_other_legs(design, data):
     """The README's measured gain of leg 1 (13.21 rev/mm x 1e-3) stands out from the other
     five (13.8-14.2); calibration brings it in line (about 71.4 mm/rev, 14.0 rev/m x 1e-3)."""
     result = calibrate_full_pose(design, data["calibration"], method="ik", noise=NOISE)
-    gains = result.extras["machine"].legs()[3] * 1e3                  # mm/rev
+    gains = result.machine.legs()[3] * 1e3                  # mm/rev
     assert abs(design.legs()[3][0] * 1e3 - 75.69) < 0.01
     assert np.all(np.abs(gains - 71.3) < 0.6), gains
 
@@ -211,7 +211,7 @@ def held_out_errors(machine, method, val):
     model's own method (legs fixed), as :func:`figures` does."""
     fit = calibrate_full_pose(machine, val, method=method, noise=NOISE,
                               frames=machine.measurement_frames, fit_machine=False)
-    e = full_pose_errors(machine, fit.extras["frames"], val)
+    e = full_pose_errors(machine, fit.sections["pose"].frames, val)
     assert e.converged.all()
     return np.column_stack([np.mean((e.leg_length * 1e3) ** 2, axis=1),
                             (e.position * 1e3) ** 2, np.degrees(e.orientation) ** 2])

@@ -27,12 +27,8 @@ import klipper_reference as K
 from pkmcal.calibration.run import calibrate
 from pkmcal.errors import InputError
 from pkmcal.export import controller_format, export
-from pkmcal.io.klipper_config import (
-    KlipperConfig,
-    delta_calibrate_data,
-    klipper_weights,
-    save_config_text,
-)
+from pkmcal.io.klipper_config import KlipperConfig, save_config_text
+from pkmcal.io.klipper_data import delta_calibrate_data, klipper_weights
 
 #: the published printers' saved data stay outside the project (``../shared`` beside the
 #: repository: ``shared/data/printers/klipper_saved``, see its README and PROVENANCE files)
@@ -95,7 +91,7 @@ def saved_rms(calibration, path: Path) -> float:
     """RMS (mm) of the saved DELTA_CALIBRATE heights and bed meshes (those pkmcal's reader
     takes, carriage travels recovered with the config's values) under Klipper values, through
     the reference's kinematics; one free offset per data set."""
-    from pkmcal.io.klipper_config import bed_mesh_data
+    from pkmcal.io.klipper_data import bed_mesh_data
 
     cfg = KlipperConfig.read(path)
     ds = K.load_data_set(str(path))

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from pkmcal.errors import InputError
-from pkmcal.io.klipper_config import (
+from pkmcal.io.klipper_config import KlipperConfig
+from pkmcal.io.klipper_data import (
     DeltaValues,
-    KlipperConfig,
     bed_mesh_data,
     bed_meshes,
     delta_values,
@@ -259,7 +259,7 @@ def test_reading_offsets_jacobian_matches_finite_differences(tmp_path):
     """The joint problem's derivatives with respect to a session's reading offsets are
     those of its residuals (central differences)."""
     from pkmcal.instruments import IsotropicNoise, JointProblem, ProbeModel
-    from pkmcal.io.klipper_config import delta_calibrate_data
+    from pkmcal.io.klipper_data import delta_calibrate_data
 
     files = sessions_on_disk(tmp_path)
     machine = machine_of(files[2].read_text(), files[2])

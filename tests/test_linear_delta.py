@@ -213,7 +213,7 @@ def test_tracker_calibration_recovers_the_truth_noise_free():
     targets = _poses(nominal, 60, seed=7)
     data = simulate_tracker(true, nominal, targets, pose, noise=None, rng=1)
     result = calibrate_tracker(nominal, data, TrackerNoise())
-    est = result.extras["machine"]
+    est = result.machine
     Re, te = est.base_from_tracker
     G = R @ Re.T
     aligned = est.with_parameters(est.transform_base(est.u, G, pose[1] - G @ te))

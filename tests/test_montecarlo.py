@@ -17,10 +17,10 @@ from scipy import stats
 from clitools import assert_input_error
 from pkmcal.analysis import montecarlo as mc
 from pkmcal.analysis.montecarlo import MonteCarloSettings, montecarlo, run_once, run_seed
-from pkmcal.cli._commands import load_machine_arg
 from pkmcal.errors import InputError
 from pkmcal.instruments.registry import instrument
 from pkmcal.machines import default_hexaslide
+from pkmcal.workflows.common import load_machine_arg
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 DELTA = str(EXAMPLES / "delta_default.yaml")

@@ -18,11 +18,12 @@ import pkmcal.instruments.constraint_link as constraint_link
 import pkmcal.instruments.pose as pose
 from pkmcal.analysis import montecarlo as mc
 from pkmcal.analysis.montecarlo import MonteCarloSettings, montecarlo
-from pkmcal.cli._commands import load_machine_arg
-from pkmcal.cli._montecarlo import run_montecarlo
+from pkmcal.cli._console import print_summary
 from pkmcal.instruments.registry import instrument
 from pkmcal.io.atomic import OutputSet
 from pkmcal.machines import default_hexaslide
+from pkmcal.workflows.common import load_machine_arg
+from pkmcal.workflows.montecarlo import montecarlo as montecarlo_workflow
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 DELTA = str(EXAMPLES / "delta_default.yaml")
@@ -225,9 +226,9 @@ def fake_run(settings, rng):
 
 def command(*args, **kwargs) -> int:
     """``pkmcal montecarlo`` in this process (so that monkeypatches hold), inside the output
-    set the command line gives every command."""
+    set the command line gives every command: the workflow, printed as the CLI prints it."""
     with OutputSet():
-        return run_montecarlo(*args, workers=1, quiet=True, **kwargs)
+        return print_summary(montecarlo_workflow(*args, workers=1, **kwargs))
 
 
 def test_cli_warns_about_runs_not_ok_and_fails_without_any(monkeypatch, tmp_path, capsys):

@@ -24,7 +24,7 @@ library's default for the instrument):
     strategy: a direction the rank rule leaves unadjusted then carries no start error the
     covariance does not claim);
 (c) gross errors (50, 75 and 100 times the noise: a beam break, a mis-read marker) in 2-3 rows
-    are named by ``extras["outliers"]``, and ``robust=True`` leaves out exactly those rows;
+    are named by ``result.outliers``, and ``robust=True`` leaves out exactly those rows;
     clean data name no row in most runs (binomial bound at the test's family-wise rate).
 
 The measured figures are in the docstrings (the study's sizes; ``make test`` runs (b) at
@@ -93,7 +93,7 @@ def noise_case(name: str):
 
 
 def _levels(result) -> dict:
-    noise = result.extras["noise"]
+    noise = result.noise
     return {k: (float(s), float(sd), st) for k, s, sd, st in
             zip(noise.keys, noise.sigma, noise.std, noise.status, strict=True)}
 
@@ -112,7 +112,7 @@ def test_estimated_levels_recover_the_true_ones(name):
     levels = _levels(result)
     assert set(levels) == set(case.true_levels)
     far = []
-    noise = result.extras["noise"]
+    noise = result.noise
     for key, (sigma, std, status) in levels.items():
         true = case.true_levels[key]
         assert status == "estimated", (key, status)
@@ -128,7 +128,8 @@ def test_encoder_noise_ten_times_the_assumed_is_recovered():
     case = bench.NoiseCase({m.name: m for m in bench.mismatches()}
                            ["stewart-constraint-link:readings10x"])
     result = case.fit(case.simulate(np.random.default_rng(1)))
-    assert len(result.extras["dropped_rows"]) == 0, result.extras["dropped_rows"]
+    dropped = result.sections["constraint_link"].dropped_rows
+    assert len(dropped) == 0, dropped
     sigma, std, status = _levels(result)["reading"]
     assert status == "estimated" and abs(sigma - 20e-6) < 4 * std, (sigma, std)
 
@@ -139,7 +140,7 @@ def test_estimate_noise_false_holds_every_level():
     case = noise_case("poses")
     data = case.simulate(np.random.default_rng(2))
     result = case.fit(data, estimate_noise=False)
-    noise = result.extras["noise"]
+    noise = result.noise
     assert noise.status == ["held"] * 3
     np.testing.assert_array_equal(noise.sigma, noise.assumed)
     p = bench.ASSUMED["poses"]
@@ -198,19 +199,19 @@ def test_one_group_estimated_is_the_old_behaviour(name):
     scaled = (new.x - old.x)[free] / new.std[free]
     assert np.abs(scaled).max() < 1e-3, np.abs(scaled).max()
     np.testing.assert_allclose(new.std[free], old.std[free], rtol=5e-3)
-    sigma = new.extras["noise"].sigma[0]
-    assumed = new.extras["noise"].assumed[0]
+    sigma = new.noise.sigma[0]
+    assumed = new.noise.assumed[0]
     assert abs(sigma**2 / assumed**2 / old.residual_variance - 1) < 5e-3
     # the level's redundancy and std come from the last Helmert step's matrix (one group:
     # the hat matrix does not depend on the level): those of the final fit's own
     from pkmcal.estimation.variance import hat_factors, helmert_matrix
 
-    weighted = new.extras["weighted"]
-    final = dataclasses.replace(new, residuals=new.extras["weighted_residuals"])
+    weighted = new.weighted
+    final = dataclasses.replace(new, residuals=new.weighted_residuals)
     L, G = hat_factors(weighted, final)
-    used = np.broadcast_to(new.extras["used"], weighted.groups.labels.shape)
+    used = np.broadcast_to(new.used, weighted.groups.labels.shape)
     S, red = helmert_matrix(L, G, weighted.groups.labels, used, 1)
-    noise = new.extras["noise"]
+    noise = new.noise
     np.testing.assert_allclose(noise.redundancy, red, rtol=1e-8)
     np.testing.assert_allclose(noise.std, sigma / np.sqrt(2.0 * S[0, 0]), rtol=1e-6)
 
@@ -244,13 +245,13 @@ def monte_carlo(name: str, estimate_noise: bool = True, size: str = "quick") -> 
         result = case.fit(case.simulate(rng), estimate_noise, start="truth")
         assert result.success
         t, r = case.whitened_error(result)
-        noise = result.extras["noise"]
+        noise = result.noise
         estimated = [red for red, st in zip(noise.redundancy, noise.status, strict=True)
                      if st == "estimated"]
         out["t"].append(t)
         out["r"].append(r)
         out["nu"].append(min(estimated) if estimated else np.inf)
-        out["flagged"].append(list(result.extras["outliers"].flagged))
+        out["flagged"].append(list(result.outliers.flagged))
         out["status"].append(list(noise.status))
     return {k: (np.array(v, float) if k in ("t", "r", "nu") else v) for k, v in out.items()}
 
@@ -336,12 +337,12 @@ def named(name: str, result, left_out: bool = False) -> set:
     """Rows the outlier test names (or leaves out); the constraint link: the file rows it
     names, with those its start strategy left out (``dropped_rows``: its problem holds the
     other rows only)."""
-    test = result.extras["outliers"]
+    test = result.outliers
     idx = np.flatnonzero(~test.kept) if left_out else test.flagged
     if name != "constraint-link":
         return set(idx.tolist())
     rows = {int(test.names[i].split()[-1]) for i in idx}
-    return rows | {int(r) for r in result.extras["dropped_rows"]}
+    return rows | {int(r) for r in result.sections["constraint_link"].dropped_rows}
 
 
 @cache
@@ -389,8 +390,8 @@ def test_batched_outlier_test_is_the_row_by_row_one(name):
     from pkmcal.estimation.variance import _outlier_test, hat_factors
 
     for result in gross_fits(name)[:2]:
-        weighted = result.extras["weighted"]
-        restored = dataclasses.replace(result, residuals=result.extras["weighted_residuals"])
+        weighted = result.weighted
+        restored = dataclasses.replace(result, residuals=result.weighted_residuals)
         L, G = hat_factors(weighted, restored)
         test = _outlier_test(weighted, restored, L, G, OUTLIER_ALPHA)
         stat, dof = _row_by_row_statistics(weighted, restored, L, G)
@@ -422,11 +423,11 @@ def test_default_options_name_every_gross_error_and_no_clean_row(name):
     not fit stay out when the rounds name them too (here two of the three), and only those."""
     default, _, hit = gross_fits(name)
     assert named(name, default) == hit
-    kept = default.extras["outliers"].kept
+    kept = default.outliers.kept
     if name == "constraint-link":
-        dropped = {int(r) for r in default.extras["dropped_rows"]}
+        dropped = {int(r) for r in default.sections["constraint_link"].dropped_rows}
         assert dropped <= hit
-        out = {int(default.extras["outliers"].names[i].split()[-1])
+        out = {int(default.outliers.names[i].split()[-1])
                for i in np.flatnonzero(~kept)}
         assert out == dropped
     else:
@@ -441,7 +442,7 @@ def test_constraint_link_rows_the_start_strategy_left_out_are_tested_again():
     the rows in the fit."""
     default, robust, hit = gross_fits("constraint-link")
     for result in (default, robust):
-        start = result.extras["start"]
+        start = result.sections["constraint_link"].start
         assert start.readmitted_rows.size > 0
         assert not set(start.readmitted_rows.tolist()) & hit
         assert set(start.dropped_rows.tolist()) <= hit
@@ -449,8 +450,8 @@ def test_constraint_link_rows_the_start_strategy_left_out_are_tested_again():
         assert len(left) == 1 and all(f"{r}" in left[0] for r in start.dropped_rows.tolist())
         assert start.as_dict()["readmitted_rows"] == start.readmitted_rows.tolist()
     # the problem holds every row; those out carry no weight in the levels
-    assert len(robust.extras["problem"].data) == noise_case("constraint-link").n_poses
-    noise = robust.extras["noise"]
+    assert len(robust.problem.data) == noise_case("constraint-link").n_poses
+    noise = robust.noise
     assert noise.status == ["estimated"]
 
 
@@ -490,10 +491,10 @@ def test_robust_fit_that_leaves_no_row_out_is_the_plain_fit(name, true_noise, mo
     plain = case.fit(data)
     assert searched, "the plain fit was not suspect: the robust rounds did not run"
     robust = case.fit(data, robust=True)
-    assert robust.extras["outliers"].kept.all(), named(name, robust, left_out=True)
-    assert robust.extras["robust"] and not plain.extras["robust"]
+    assert robust.outliers.kept.all(), named(name, robust, left_out=True)
+    assert robust.robust and not plain.robust
     np.testing.assert_array_equal(robust.x, plain.x)
     np.testing.assert_array_equal(robust.covariance, plain.covariance)
-    np.testing.assert_array_equal(robust.extras["noise"].sigma, plain.extras["noise"].sigma)
-    np.testing.assert_array_equal(robust.extras["outliers"].flagged,
-                                  plain.extras["outliers"].flagged)
+    np.testing.assert_array_equal(robust.noise.sigma, plain.noise.sigma)
+    np.testing.assert_array_equal(robust.outliers.flagged,
+                                  plain.outliers.flagged)

@@ -57,11 +57,11 @@ def test_table2_noise_free_recovery(paper_case, make):
     res = calibrate_constraint_link(nominal, data)
     assert res.success, res.message
     assert res.rank == 48
-    assert [d.dimension for d in res.extras["unidentifiable"]] == [3, 3]
+    assert [d.dimension for d in res.unidentifiable] == [3, 3]
     scales = nominal.parameters.scales(nominal.characteristic_length())
     aligned, _ = align_gauge(nominal, res.x[:-1], true.u, CONSTRAINT_LINK_GAUGES, scales)
     assert np.max(np.abs(aligned - true.u) / scales) < 1e-10
-    acc = pose_accuracy(true, res.extras["machine"])
+    acc = pose_accuracy(true, res.machine)
     assert acc.n_failed == 0
     assert acc.position_mean < 1e-9
     assert acc.orientation_mean < 1e-9
@@ -100,7 +100,7 @@ def test_wrong_link_length_is_absorbed_when_estimated(paper_case):
     assert data.link_length == pytest.approx(0.3 + 50e-6)
     res = calibrate_constraint_link(nominal, data, estimate_link_length=True)
     assert res.rank == 49
-    assert res.extras["link_length"] == pytest.approx(0.3, abs=1e-12)
+    assert res.sections["constraint_link"].link_length == pytest.approx(0.3, abs=1e-12)
 
 
 def test_accuracy_alignment_is_needed_and_reported(paper_case):
@@ -108,7 +108,7 @@ def test_accuracy_alignment_is_needed_and_reported(paper_case):
     accuracy is exact while unaligned is not, and the alignment angle is reported."""
     nominal, true = paper_case
     data = simulate_constraint_link(true, 150, rng=2)
-    model = calibrate_constraint_link(nominal, data).extras["machine"]
+    model = calibrate_constraint_link(nominal, data).machine
     P, R = workspace_poses(true.home[0], n=200, rng=1)
     raw = pose_accuracy(true, model, P, R, align=False)
     aligned = pose_accuracy(true, model, P, R, align=True)

@@ -54,11 +54,11 @@ def test_the_paper_methods_land_on_the_truth_on_the_issue_machine(bench, method)
     data = simulate_constraint_link(true, 150, 0.0, rng=rng)
     res = calibrate_constraint_link(nominal, data, method=method)
     assert res.success, res.message
-    assert res.extras["start_from"] == PAPER_METHOD_START
+    assert res.sections["constraint_link"].start_from == PAPER_METHOD_START
     Pw, Rw = bench._workspace(true)
-    dp, _, ok, _ = bench.pose_errors(true, res.extras["machine"], Pw, Rw)
+    dp, _, ok, _ = bench.pose_errors(true, res.machine, Pw, Rw)
     assert ok.all() and dp.max() <= bench.TOLERANCE
-    test = res.extras["residual_test"]
+    test = res.residual_test
     assert test.passed and test.dof == 150 - res.rank
 
 
@@ -137,6 +137,7 @@ def test_rows_the_method_itself_cannot_solve_are_reported_left_out(monkeypatch):
     monkeypatch.setattr(cl._ImplicitPoseProblem, "_keep_solved_rows", failing_row_3)
     res = calibrate_constraint_link(nominal, data, method="fk")
     assert res.success
-    assert int(data.rows[3]) in set(np.asarray(res.extras["dropped_rows"]).tolist())
+    dropped = res.sections["constraint_link"].dropped_rows
+    assert int(data.rows[3]) in set(np.asarray(dropped).tolist())
     assert any("fk method finds no pose" in w and str(int(data.rows[3])) in w
-               for w in res.extras["warnings"])
+               for w in res.sections["constraint_link"].warnings)

@@ -419,7 +419,7 @@ class Case:
 
     def error(self, result) -> np.ndarray:
         """Scaled error in the identifiable directions, through held-out predictions."""
-        estimate = result.extras["problem"].predict(result.state, self.q_held, self.group_held)
+        estimate = result.problem.predict(result.state, self.q_held, self.group_held)
         delta = np.einsum("kij,kj->ki", self.held.W, estimate - self.held_truth).ravel()
         return -self.held_pinv @ delta
 
@@ -433,7 +433,7 @@ def test_frame_motions_are_named_and_the_rest_identifiable():
     c = case()
     assert (c.rank, c.n_free) == (20, 27)
     result = c.fit(c.exact)
-    named = {d.name: d.dimension for d in result.extras["unidentifiable"]}
+    named = {d.name: d.dimension for d in result.unidentifiable}
     assert named == {"rigid motion of the base frame in its plane": 3,
                      "rigid motion of the platform frame in its plane": 3,
                      "instrument unknowns alone": 1}

@@ -179,7 +179,7 @@ def test_prediction_agrees_with_monte_carlo_constraint_link():
                                   machine.constraint_link_length, problem.data.passive)
         res = calibrate_constraint_link(machine, data, sigma_m=sigma)
         assert res.success
-        e_p, e_r, ok, _ = pose_errors(machine, res.extras["machine"], op.P, op.R)
+        e_p, e_r, ok, _ = pose_errors(machine, res.machine, op.P, op.R)
         assert ok.all()
         dp.append(e_p)
         dr.append(e_r)
@@ -209,7 +209,7 @@ def test_prediction_agrees_with_monte_carlo_tracker():
         data.m = data.m + noise.sample(data.m, rng)
         res = calibrate_tracker(machine, data, noise)
         assert res.success
-        dx = res.extras["machine"].fk(qw).P - op.P
+        dx = res.machine.fk(qw).P - op.P
         errs.append(np.linalg.norm(op.align(dx), axis=-1))
     ratio = np.sqrt(np.mean(np.square(errs))) / pred.summary()["position"]["rms"]
     assert ratio == pytest.approx(1.0, abs=0.15)

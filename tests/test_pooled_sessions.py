@@ -19,7 +19,7 @@ needs_shared = pytest.mark.skipif(not SHARED.is_dir(), reason=f"{SHARED} not fou
 
 def pooled_points():
     from pkmcal.export import controller_format
-    from pkmcal.io.klipper_config import klipper_sessions
+    from pkmcal.io.klipper_data import klipper_sessions
 
     fmt = controller_format("klipper")
     machine = fmt.to_machine(fmt.parse(RUNS[-1].read_text(), str(RUNS[-1])))

@@ -156,7 +156,7 @@ def test_joint_noise_free_recovery_and_what_each_file_adds(name):
     assert result.success and result.weak == 0
     err = c.arm_lengths(result.state.u) - c.arm_lengths(c.true.u)
     assert np.abs(err).max() < 1e-9 * c.nominal.characteristic_length(), err
-    contrib = result.extras["contributions"]
+    contrib = result.sections["joint"].contributions
     idx = [contrib.parameters.index(t) for t in bench.ARMS]
     np.testing.assert_allclose(contrib.joint_std[idx], j.arm_crb(), rtol=1e-3)
     np.testing.assert_allclose(contrib.alone_std[0][idx], j.probe.arm_std(

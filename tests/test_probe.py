@@ -261,7 +261,7 @@ class Case:
 
     def held_heights(self, result) -> np.ndarray:
         """Heights the estimate predicts at the held-out readings (truth: 0), m."""
-        return result.extras["problem"].predict(result.state, self.q_held)[:, 0]
+        return result.problem.predict(result.state, self.q_held)[:, 0]
 
 
 @cache
@@ -361,7 +361,7 @@ def test_poorly_determined_parameters_are_warnings():
     machine = default_delta()
     data, _, _ = simulate_scenario(machine, "probe", 91, rng=0)
     cal = calibrate(machine, data)
-    poor = cal.result.extras["poorly_determined"]
+    poor = cal.result.poorly_determined
     assert poor and cal.report["poorly_determined"]["parameters"]
     warned = [w for w in cal.warnings if "poorly determined" in w]
     assert len(warned) == 1 and f"{len(poor)} parameter(s)" in warned[0]   # one line
@@ -451,24 +451,24 @@ def test_linear_delta_noise_free_recovery_and_words(tmp_path):
     data, true, truth = simulate_scenario(machine, "probe", 37, noise=False, rng=3)
     result = calibrate_probe(machine, data)
     assert result.success and result.weak == 0
-    names = {d.name: d.description for d in result.extras["unidentifiable"]}
+    names = {d.name: d.description for d in result.unidentifiable}
     assert "vertical translation" not in names and "tilt of the towers" not in names
     assert "rotation about z" in names and "horizontal translation" in names
-    bed = result.extras["bed_choice"]
+    bed = result.sections["probe"].bed_choice
     assert bed.tilt == "square" and "cannot tell its tilt" in bed.words
     assert np.all(result.state.nuisance.values == 0.0)
     # the named directions are the null space, each once: on this printer's tilted bed the
     # frame motions span it (no vertical scale is left over to name a second time)
-    named = sum(d.dimension for d in result.extras["unidentifiable"] if d.std is None)
+    named = sum(d.dimension for d in result.unidentifiable if d.std is None)
     assert named == result.null_space.shape[1]
     assert "vertical scale about the bed" not in names
     # held-out heights: the estimate predicts the true bed at new probe points
     P, R, _ = instrument("probe").candidates(machine, 30, np.random.default_rng(9))
     q, _ = probe_trigger(true, machine, P, R, truth["bed"], np.zeros(30))
-    heights = result.extras["problem"].predict(result.state, q)[:, 0]
+    heights = result.problem.predict(result.state, q)[:, 0]
     assert np.abs(heights).max() < 1e-9 * machine.characteristic_length()
     start = calibrate_probe(machine, data, fit_machine=False)
-    assert np.abs(start.extras["problem"].predict(start.state, q)).max() > 1e-5
+    assert np.abs(start.problem.predict(start.state, q)).max() > 1e-5
 
 
 def test_linear_delta_klipper_set_warns_of_the_arm_lengths(tmp_path):
@@ -480,7 +480,7 @@ def test_linear_delta_klipper_set_warns_of_the_arm_lengths(tmp_path):
     machine = _linear_delta(tmp_path, "klipper")
     data, _, _ = simulate_scenario(machine, "probe", 37, rng=3)
     result = calibrate_probe(machine, data)
-    poor = {p.name: p for p in result.extras["poorly_determined"]}
+    poor = {p.name: p for p in result.poorly_determined}
     for i in (1, 2, 3):
         p = poor[f"tower{i}.arm_trim"]
         assert 1e-4 < p.std < 1e-2 and abs(p.correlation) > 0.7

@@ -49,10 +49,9 @@ def counts_everywhere(machine_path, data_path, noise=None, pose_noise=None, cli=
         calibrate_full_pose,
         calibrate_tracker,
     )
-    from pkmcal.cli._planning import measured_problem, noise_model
     from pkmcal.identifiability import identifiability_report
     from pkmcal.io import load_machine, read_constraint_link, read_full_pose, read_tracker
-    from pkmcal.planning import design_from_problem
+    from pkmcal.planning import design_from_problem, measured_problem, noise_model
 
     machine = load_machine(machine_path)
     kind = {"hexaslide": "constraint-link", "delta": "tracker", "stewart": "pose"}[machine.kind]
@@ -78,7 +77,7 @@ def counts_everywhere(machine_path, data_path, noise=None, pose_noise=None, cli=
         res = calibrate_full_pose(machine, read_full_pose(data_path, machine), noise=model,
                                   estimate_noise=est)
     out["calibrate"] = (res.rank, res.weak)
-    assert len(_weak(res.extras["unidentifiable"])) == res.weak
+    assert len(_weak(res.unidentifiable)) == res.weak
     assert res.adjusted == res.rank - res.weak
     if cli is not None:
         args = [] if noise is None else ["--noise", noise]

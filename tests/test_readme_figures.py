@@ -113,7 +113,7 @@ def hexaslide():
         data = simulate_constraint_link(true, 150, noise_m=noise, rng=seed, **kwargs)
         res = calibrate_constraint_link(nominal, data, **({"sigma_m": noise} if noise else {}))
         assert res.success, res.message
-        acc = pose_accuracy(true, res.extras["machine"])
+        acc = pose_accuracy(true, res.machine)
         assert acc.n_failed == 0
         return acc, res
 
@@ -121,7 +121,7 @@ def hexaslide():
            "before": pose_accuracy(true, nominal, align=False)}
     out["noise_free"], res = accuracy(0.0, 0)
     out["rank"] = res.rank
-    out["gauges"] = [d.dimension for d in res.extras["unidentifiable"]]
+    out["gauges"] = [d.dimension for d in res.unidentifiable]
     seeds = range(10)
     for key, noise, kwargs in (("2um", 2e-6, {}), ("0.2um", 0.2e-6, {}), ("20um", 20e-6, {}),
                                ("narrow", 2e-6, {"max_tilt": np.deg2rad(25),
@@ -242,8 +242,8 @@ def test_fig6_wrong_link_length():
     fixed = calibrate_constraint_link(nominal, data)
     est = calibrate_constraint_link(nominal, data, estimate_link_length=True)
     assert fixed.success and est.success
-    assert_printed(pose_accuracy(true, fixed.extras["machine"]).position_mean / error, ratio)
-    got = pose_accuracy(true, est.extras["machine"]).position_mean
+    assert_printed(pose_accuracy(true, fixed.machine).position_mean / error, ratio)
+    got = pose_accuracy(true, est.machine).position_mean
     assert float(left) / 3 < got < 3 * float(left), got
 
 
@@ -418,7 +418,7 @@ def test_delta_two_step_bias_without_noise():
         data = simulate_tracker(true, nominal, targets, pose, noise=None)
         two = calibrate_tracker(nominal, data, joint=False)
         assert two.success
-        m = predict_tracker_points(two.extras["machine"], q_held, two.extras["registration"])
+        m = predict_tracker_points(two.machine, q_held, two.sections["tracker"].registration)
         m_true = predict_tracker_points(true, q_held, pose)
         return float(np.sqrt(np.mean(np.sum((m - m_true) ** 2, -1))))
 
@@ -537,7 +537,7 @@ def test_full_pose_identifiability_and_cramer_rao_ratio():
     case = Case()
     exact = calibrate_full_pose(case.nominal, case.simulate(noise=None))
     assert (exact.rank, int(exact.parameters.free.sum())) == (int(rank), int(total))
-    named = {d.name: d.dimension for d in exact.extras["unidentifiable"]}
+    named = {d.name: d.dimension for d in exact.unidentifiable}
     assert named == GAUGES == {"rigid motion of the base frame": int(base),
                                "rigid motion of the platform frame": int(platform)}
     assert int(runs) == RUNS
@@ -578,10 +578,10 @@ def test_jugglebot_real_data(tmp_path):
         assert_printed(value, printed)
     # the measurement frame of the calibration session against the one re-registered on the
     # held-out session (calibrated legs)
-    frames = result.extras["frames"]
-    again = calibrate_full_pose(result.extras["machine"], data["validation"], method="ik",
+    frames = result.sections["pose"].frames
+    again = calibrate_full_pose(result.machine, data["validation"], method="ik",
                                 noise=jb.NOISE, frames=frames, fit_machine=False)
-    (A, a), (B, b) = frames.mocap_from_base, again.extras["frames"].mocap_from_base
+    (A, a), (B, b) = frames.mocap_from_base, again.sections["pose"].frames.mocap_from_base
     assert np.linalg.norm(b - a) * 1e3 == pytest.approx(float(mm), rel=0.1)
     assert np.degrees(np.linalg.norm(rotvec_from_matrix(B @ A.T))) == pytest.approx(
         float(deg), rel=0.1)

@@ -149,7 +149,7 @@ def _mc_constraint_link(runs: int):
                                   machine.constraint_link_length, problem.data.passive)
         res = calibrate_constraint_link(machine, data, sigma_m=sigma)
         assert res.success
-        e_p, e_r, ok, _ = pose_errors(machine, res.extras["machine"], Pw, Rw)
+        e_p, e_r, ok, _ = pose_errors(machine, res.machine, Pw, Rw)
         assert ok.all()
         dp.append(e_p)
         dr.append(e_r)
@@ -184,7 +184,7 @@ def _mc_tracker(runs: int, rng=2):
         data.m = data.m + noise.sample(data.m, rng)
         res = calibrate_tracker(machine, data, noise)
         assert res.success
-        dx = res.extras["machine"].fk(qw).P - Pw
+        dx = res.machine.fk(qw).P - Pw
         errs.append(np.linalg.norm(op.align(dx), axis=-1))
     return np.sqrt(np.mean(np.square(errs))) / pred["position"]["rms"]
 

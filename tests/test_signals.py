@@ -191,7 +191,7 @@ def test_a_signal_swallowed_before_the_commit_writes_nothing(monkeypatch, capsys
     130/143, one line (no "Exception ignored" traceback), the previous files as they were, no
     temporaries. Without a signal the same run writes."""
     import pkmcal.cli as cli
-    import pkmcal.cli._commands as commands
+    import pkmcal.workflows.kinematics as commands
     from pkmcal.errors import stop_if_signalled
 
     before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -261,7 +261,7 @@ def test_an_unraisable_error_without_a_signal_is_shown_only_when_debugging(monke
     """An exception Python drops (here in a ``__del__``) is not a signal: the run goes on and
     writes; its "Exception ignored" traceback is printed only with PKMCAL_DEBUG=1."""
     import pkmcal.cli as cli
-    import pkmcal.cli._commands as commands
+    import pkmcal.workflows.kinematics as commands
 
     monkeypatch.chdir(tmp_path)
     if debug:

@@ -154,7 +154,7 @@ def test_noise_free_calibration_recovers_the_truth(setup, method):
     # gains and l0 do not move with the frame gauges: the truth itself, in internal units
     np.testing.assert_allclose(res.x[GAIN], setup.true.u[GAIN], rtol=1e-9)
     np.testing.assert_allclose(res.x[L0], setup.true.u[L0], rtol=0, atol=1e-10)
-    err = full_pose_errors(res.extras["machine"], res.extras["frames"], setup.data(n=30, seed=5))
+    err = full_pose_errors(res.machine, res.sections["pose"].frames, setup.data(n=30, seed=5))
     assert err.converged.all() and np.abs(err.leg_length).max() < 1e-10
 
 

@@ -93,7 +93,7 @@ def test_the_two_point_distances_are_one_module_and_one_registry_line():
     DELTA_ANALYZE distances are its data; nowhere else in the package's code."""
     mentions = _code_mentions({"pair-distances", "PairDistance", "pair_data", "PairProblem",
                                "PairDistanceModel", "instruments.pairs"})
-    assert set(mentions) <= {"instruments/pairs.py", "io/klipper_config.py"}, mentions
+    assert set(mentions) <= {"instruments/pairs.py", "io/klipper_data.py"}, mentions
     from pkmcal.instruments.registry import INSTRUMENT_MODULES
 
     assert "pairs" in INSTRUMENT_MODULES

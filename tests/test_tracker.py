@@ -58,8 +58,8 @@ class Case:
 
     def validation_errors(self, result):
         """|predicted - true| (200,) in m at the held-out readings."""
-        m = predict_tracker_points(result.extras["machine"], self.q_val,
-                                   result.extras["registration"])
+        m = predict_tracker_points(result.machine, self.q_val,
+                                   result.sections["tracker"].registration)
         return np.linalg.norm(m - self.m_val, axis=-1)
 
 
@@ -86,21 +86,22 @@ def test_rank_21_of_33_and_the_unidentifiable_groups_named(case):
     res = calibrate_tracker(case.nominal, exact, joint=True)
     assert (res.rank, int(res.parameters.free.sum())) == (21, 33)
     assert res.null_space.shape == (33, 12)
-    named = {d.name: d.dimension for d in res.extras["unidentifiable"]}
+    named = {d.name: d.dimension for d in res.unidentifiable}
     assert named == {**dict.fromkeys(LEG_NAMES, 3), "translation of the platform frame": 3}
     two = calibrate_tracker(case.nominal, exact, joint=False)
     assert (two.rank, int(two.parameters.free.sum())) == (18, 27)
-    assert {d.name: d.dimension for d in two.extras["unidentifiable"]} == \
+    assert {d.name: d.dimension for d in two.unidentifiable} == \
         dict.fromkeys(LEG_NAMES, 3)
     # the two-step method keeps the registration of the nominal model
-    for a, b in zip(two.extras["registration"], two.extras["start_registration"], strict=True):
+    section = two.sections["tracker"]
+    for a, b in zip(section.registration, section.start_registration, strict=True):
         np.testing.assert_array_equal(a, b)
 
 
 def test_identified_parameters_equal_truth_in_the_identifiable_subspace(case):
     exact = case.simulate(noise=None)
     res = calibrate_tracker(case.nominal, exact)
-    R0 = res.extras["start_registration"][0]
+    R0 = res.sections["tracker"].start_registration[0]
     R, t = case.pose
     truth = np.concatenate([case.true.u, rotvec_from_matrix(R @ R0.T), t])
     e = (res.x - truth) / res.scales                       # scaled coordinates
@@ -135,11 +136,11 @@ def monte_carlo(case):
         out["two-step"].append(case.validation_errors(two))
         out["success"].append(joint.success and two.success)
         out["variance"].append(joint.residual_variance)
-        e = predict_tracker_points(joint.extras["machine"], case.q_val,
-                                   joint.extras["registration"]) - case.m_val
+        e = predict_tracker_points(joint.machine, case.q_val,
+                                   joint.sections["tracker"].registration) - case.m_val
         out["chi2"].append(np.einsum("ki,kij,kj->k", e, np.linalg.inv(C), e))
         out["spread"].append([np.std(distance_ratios(m, data.q, data.m, pairs))
-                              for m in (case.nominal, joint.extras["machine"])])
+                              for m in (case.nominal, joint.machine)])
     out = {k: np.array(v) for k, v in out.items()}
     out.update(runs=runs, crb_rms=float(np.sqrt(np.mean(np.trace(C, axis1=1, axis2=2)))),
                two_step_noise_free=case.validation_errors(
@@ -206,12 +207,12 @@ def test_distance_ratio_spread_shrinks_after_calibration(monte_carlo):
 def test_problem_prediction_is_the_public_prediction(case):
     data = case.simulate(rng=8)
     res = calibrate_tracker(case.nominal, data)
-    m, fk = res.extras["problem"].predict(res.state)
+    m, fk = res.problem.predict(res.state)
     assert fk.converged.all()
     # two routes (centred about the data's centroid, and not) to points ~2.5 m away: they
     # agree to rounding of that scale, which BLAS/CPU may change by a few ulps (issue 11)
     np.testing.assert_allclose(m, predict_tracker_points(
-        res.extras["machine"], data.q, res.extras["registration"]), rtol=0,
+        res.machine, data.q, res.sections["tracker"].registration), rtol=0,
         atol=1e-12 * np.abs(data.m).max())
     np.testing.assert_allclose(m, data.m, rtol=0, atol=1e-4)       # microns off, not metres
 
@@ -277,8 +278,8 @@ def test_unreachable_readings_are_refused_with_their_rows(case):
 def test_robust_fit_flags_exactly_the_outliers(case, seed):
     data = case.simulate(rng=seed, outliers=2, outlier_size=1e-3)
     robust = calibrate_tracker(case.nominal, data, robust=True)
-    np.testing.assert_array_equal(robust.extras["outlier_rows"], data.rows[data.outliers])
-    np.testing.assert_array_equal(robust.extras["kept"], ~data.outliers)
+    np.testing.assert_array_equal(robust.sections["tracker"].outlier_rows, data.rows[data.outliers])
+    np.testing.assert_array_equal(robust.sections["tracker"].kept, ~data.outliers)
     # as good as a fit that never saw the outliers; the plain fit is ruined by them
     clean = calibrate_tracker(case.nominal, data.subset(~data.outliers))
     # (the noise levels are estimated to a relative 1e-3 in both fits, and the left-out rows
@@ -292,7 +293,7 @@ def test_robust_fit_flags_exactly_the_outliers(case, seed):
 def test_robust_fit_keeps_clean_data(case):
     data = case.simulate(rng=5)
     robust = calibrate_tracker(case.nominal, data, robust=True)
-    assert robust.extras["outlier_rows"].size == 0
+    assert robust.sections["tracker"].outlier_rows.size == 0
     plain = calibrate_tracker(case.nominal, data).x
     np.testing.assert_allclose(robust.x, plain, rtol=0, atol=1e-12 * np.abs(plain).max())
 
@@ -347,7 +348,7 @@ def test_any_120_degree_delta_calibrates_equally_well(name):
     exact = c.simulate(noise=None)
     res = calibrate_tracker(c.nominal, exact)
     assert res.success and res.rank == 21
-    assert {d.name for d in res.extras["unidentifiable"]} == \
+    assert {d.name for d in res.unidentifiable} == \
         {*LEG_NAMES, "translation of the platform frame"}
     assert c.validation_errors(res).max() <= 1e-9
     # with noise: 40 runs within 1.3x of this geometry's own Cramér-Rao prediction
@@ -377,7 +378,7 @@ def test_planar_grid_converges_and_reports_its_weak_directions():
     assert res.rank == 21 and res.weak == 3 and res.adjusted == 18
     assert res.weak_space.shape[1] == 3
     assert np.all(res.weak_std > 0.1)
-    weak = [d for d in res.extras["unidentifiable"] if d.description.startswith("weakly")]
+    weak = [d for d in res.unidentifiable if d.description.startswith("weakly")]
     assert len(weak) == 3
     # the full grid has none
     full = calibrate_tracker(nominal, simulate_tracker(

@@ -42,10 +42,10 @@ def main(path: str | None = None) -> dict:
     targets = grid_points(nominal.home[0], TRACKER_GRID_SPACING, (3, 3, 3))
     data = simulate_tracker(true, nominal, targets, pose, noise, rng=rng)
     result = calibrate_tracker(nominal, data, noise)
-    calibrated = result.extras["machine"]
+    calibrated = result.machine
     print(f"calibration: {result.message}; {result.rank} of {int(result.parameters.free.sum())}"
           " directions identified")
-    for d in result.extras.get("unidentifiable", []):
+    for d in result.unidentifiable:
         print(f"  not identifiable: {d.dimension} x {d.name}")
 
     # held-out points: where the calibrated model says the reflector is vs the tracker
@@ -55,7 +55,7 @@ def main(path: str | None = None) -> dict:
     R, t = pose
     m_true = (smr_true - t) @ R
     before = predict_tracker_points(nominal, q, pose) - m_true
-    after = predict_tracker_points(calibrated, q, result.extras["registration"]) - m_true
+    after = predict_tracker_points(calibrated, q, result.sections["tracker"].registration) - m_true
     rms = lambda e: float(np.sqrt(np.mean(np.sum(e**2, -1))))  # noqa: E731
     print(f"held-out RMS error: {rms(before) * 1e6:.0f} um before, {rms(after) * 1e6:.1f} um "
           "after")

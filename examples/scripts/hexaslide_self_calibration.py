@@ -64,7 +64,7 @@ def main(path: str | None = None, n_poses: int = 150, candidates: int = 1000) ->
 
     # 4. calibrate
     result = calibrate_constraint_link(nominal, data, sigma_m=NOISE)
-    calibrated = result.extras["machine"]
+    calibrated = result.machine
     before = pose_accuracy(true, nominal)
     after = pose_accuracy(true, calibrated)
     print(f"calibration: {result.message}; {result.rank} directions identified")

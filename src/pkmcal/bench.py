@@ -51,6 +51,7 @@ from .instruments.constraint_link import (
 )
 from .instruments.tracker import (
     TrackerNoise,
+    TrackerSection,
     calibrate_tracker,
     distance_ratios,
     grid_points,
@@ -442,13 +443,13 @@ def delta_tracker_monte_carlo(runs: int = 200, rng=6) -> dict:
                                 rng=rng)
         for joint in (True, False):
             res = calibrate_tracker(nominal, data, joint=joint)
-            m = predict_tracker_points(res.extras["machine"], q_val,
-                                       res.extras["registration"])
+            m = predict_tracker_points(res.machine, q_val,
+                                       res.section(TrackerSection).registration)
             sq[joint].append(np.sum((m - m_val) ** 2, -1))
             success.append(res.success)
             if joint:
                 spread.append([np.std(distance_ratios(model, data.q, data.m, pairs))
-                               for model in (nominal, res.extras["machine"])])
+                               for model in (nominal, res.machine)])
     seconds = time.perf_counter() - t0
     joint_rms = float(np.sqrt(np.mean(sq[True])))
     two_rms = float(np.sqrt(np.mean(sq[False])))

@@ -98,8 +98,8 @@ def hexaslide_case(seed: int = HEXASLIDE_SEED) -> dict:
     res = calibrate_constraint_link(nominal, data, sigma_m=HEXASLIDE_NOISE)
     return {"nominal": nominal, "true": true, "scales": scales, "before": before,
             "data0": data0, "res0": res0, "aligned0": aligned0,
-            "acc0": pose_accuracy(true, res0.extras["machine"], **ws),
-            "data": data, "res": res, "acc": pose_accuracy(true, res.extras["machine"], **ws)}
+            "acc0": pose_accuracy(true, res0.machine, **ws),
+            "data": data, "res": res, "acc": pose_accuracy(true, res.machine, **ws)}
 
 
 def hexaslide_settings(seed: int = HEXASLIDE_SEED) -> str:
@@ -170,7 +170,7 @@ def run_demo(outdir: Path, quick: bool = False, rng=HEXASLIDE_SEED,
     ]
     out.notes.append(f"identifiable: {res.rank} of {int(res.parameters.free.sum())} parameter "
                      "directions; not identifiable from constraint-link data:")
-    out.notes += [f"  {d.dimension} x {d.name}" for d in res.extras["unidentifiable"]]
+    out.notes += [f"  {d.dimension} x {d.name}" for d in res.unidentifiable]
     out.notes.append("accuracy is compared after aligning the frames the data cannot fix "
                      "(SPEC 5)")
     out.notes.append(f"Hexa Slide, {noise * um:g} um noise: residual test "
@@ -182,7 +182,7 @@ def run_demo(outdir: Path, quick: bool = False, rng=HEXASLIDE_SEED,
                      or outdir / "constraint_link_data.csv")
     save_machine(nominal, outdir / "nominal.yaml")
     save_machine(true, outdir / "true.yaml")
-    save_machine(res.extras["machine"], outdir / "calibrated.yaml",
+    save_machine(res.machine, outdir / "calibrated.yaml",
                  calibration={"method": "ml", "data": "constraint_link_data.csv",
                               "noise_um": noise * um, "identifiable": res.rank})
     out.files += [outdir / "nominal.yaml", outdir / "true.yaml", outdir / "calibrated.yaml"]
@@ -254,6 +254,7 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
     from .instruments.tracker import (
         TRACKER_GRID_SPACING,
         TrackerNoise,
+        TrackerSection,
         TrackerSetup,
         default_tracker_pose,
         grid_points,
@@ -297,18 +298,18 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
         pred = predict_tracker_points(machine, held.q, registration)
         return float(np.sqrt(np.mean(np.sum((pred - held.m) ** 2, axis=-1))))
 
-    start = joint.extras["start_registration"]
+    start = joint.section(TrackerSection).start_registration
     err = {"before": rms_error(nominal, start),
-           "joint": rms_error(joint.extras["machine"], joint.extras["registration"]),
-           "two_step": rms_error(two.extras["machine"], two.extras["registration"])}
+           "joint": rms_error(joint.machine, joint.section(TrackerSection).registration),
+           "two_step": rms_error(two.machine, two.section(TrackerSection).registration)}
     pairs, h_pairs = neighbour_pairs(shape), neighbour_pairs(h_shape)
     ratios = {
         "calibration": {name: distance_ratios(m, data.q, data.m, pairs) for name, m in
-                        (("before", nominal), ("joint", joint.extras["machine"]),
-                         ("two_step", two.extras["machine"]))},
+                        (("before", nominal), ("joint", joint.machine),
+                         ("two_step", two.machine))},
         "held_out": {name: distance_ratios(m, held.q, held_m, h_pairs) for name, m in
-                     (("before", nominal), ("joint", joint.extras["machine"]),
-                      ("two_step", two.extras["machine"]))},
+                     (("before", nominal), ("joint", joint.machine),
+                      ("two_step", two.machine))},
     }
     spread = {grid: {k: float(np.std(v)) for k, v in r.items()} for grid, r in ratios.items()}
     um = 1e6
@@ -330,7 +331,7 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
     free = int(joint.parameters.free.sum())
     out.notes.append(f"Delta: identifiable {joint.rank} of {free} parameter directions (27 leg "
                      "errors + 6 tracker pose); not identifiable from tracker points:")
-    out.notes += [f"  {d.dimension} x {d.name}" for d in joint.extras["unidentifiable"]]
+    out.notes += [f"  {d.dimension} x {d.name}" for d in joint.unidentifiable]
     out.notes.append(
         f"Delta: {len(data)} points on the 3x3x3 grid (150/150/40 mm) at home, Leica-type "
         f"noise, tracker 2.5 m away; held-out: a {'x'.join(map(str, h_shape))} grid (100/100/40 "
@@ -338,7 +339,7 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
         "registration vs the true reflector), 'before' = nominal model with the closed-form "
         "registration")
 
-    calibrated = joint.extras["machine"]
+    calibrated = joint.machine
     calibrated.name = "default Delta, calibrated from delta_tracker_data.csv (joint)"
     out.files.append(write_tracker(outdir / "delta_tracker_data.csv", data.q, data.m))
     for name, machine, meta, setups in (
@@ -364,7 +365,7 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
         "held_out_rms_position_error_m": err,
         "distance_ratio_std_percent": spread,
         "identifiable": int(joint.rank), "free_parameters": free,
-        "unidentifiable": [d.as_dict() for d in joint.extras["unidentifiable"]],
+        "unidentifiable": [d.as_dict() for d in joint.unidentifiable],
         "true_tracker_pose": {"rotation": pose[0].tolist(), "translation_m": pose[1].tolist()},
     }
 
@@ -460,8 +461,9 @@ def clearance_demo(outdir: Path, out: DemoResult, samples: int = CLEARANCE_CASE[
 def _rms_norm(result, data) -> float:
     """RMS 3-D distance measured - predicted over the points a tracker calibration used."""
     from .calibration import predict_tracker_points
+    from .instruments.tracker import TrackerSection
 
-    keep = result.extras["kept"]
-    pred = predict_tracker_points(result.extras["machine"], data.q[keep],
-                                  result.extras["registration"])
+    section = result.section(TrackerSection)
+    keep = section.kept
+    pred = predict_tracker_points(result.machine, data.q[keep], section.registration)
     return float(np.sqrt(np.mean(np.sum((data.m[keep] - pred) ** 2, axis=-1))))

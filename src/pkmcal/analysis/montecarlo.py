@@ -126,9 +126,9 @@ class MonteCarloSettings:
     tolerance : half-width (m) of random length deviations (angles and gains in proportion);
         implies random deviations. None = the default size.
     estimate_lc : constraint link: estimate Lc too (seed 000 Fig. 6, second curve).
-    setups : the machine file's instrument set-ups (:class:`~pkmcal.instruments.setups.
-        Setups`: the simulated instrument's is the true one's start); None = (transitional)
-        those the loader put on the machine.
+    setups : the machine file's instrument set-ups (a
+        :class:`~pkmcal.instruments.setups.Setups`: the simulated instrument's is the true
+        one's start); None = (transitional) those the loader put on the machine.
     """
 
     machine: Machine
@@ -425,7 +425,7 @@ def acceptance(result, settings: MonteCarloSettings,
         if model_error:
             weight = _weight(settings.noise) if settings.noise is not None else NOISE_FLOOR
             limit *= 1.0 + (model_error / weight) ** 2
-        levels = (getattr(result, "extras", None) or {}).get("noise")
+        levels = getattr(result, "noise", None)
         if levels is not None and levels.estimated:
             # the levels were estimated from the residuals (the fit weighs by them, not by the
             # simulated noise): a wrong geometry shows as a level significantly above the

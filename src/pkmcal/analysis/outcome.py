@@ -423,8 +423,7 @@ def calibration_outcome(calibration, output: str | None = None, n: int = POINTS,
     N = np.asarray((report.get("covariance") or {}).get("null_space") or np.zeros((0, 0)),
                    float)
     N = N if C is not None and N.ndim == 2 and N.shape[0] == C.shape[0] else None
-    problem = (calibration.result.extras or {}).get("problem") \
-        if calibration.result is not None else None
+    problem = getattr(calibration.result, "problem", None)
     # a printer's print disk is the one its configuration names (the machine file's)
     own = getattr(nominal, "print_workspace", None)
     try:

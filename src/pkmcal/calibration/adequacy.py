@@ -173,8 +173,8 @@ def model_adequacy(result, length_factor: float = 1e-6, angle_factor: float = 1e
     Parameters
     ----------
     result : CalibrationResult
-        A calibration (``extras["problem"]``, its residuals whitened by the assumed noise,
-        ``extras["noise"]`` when the levels were estimated).
+        A calibration (``problem``, its residuals whitened by the assumed noise,
+        ``noise`` when the levels were estimated).
     length_factor, angle_factor : float, optional
         SI value of one display unit of lengths and angles.
     units : tuple of str, optional
@@ -199,7 +199,7 @@ def model_adequacy(result, length_factor: float = 1e-6, angle_factor: float = 1e
     """
     from ..estimation.variance import noise_groups_of
 
-    problem = result.extras.get("problem")
+    problem = result.problem
     r = np.asarray(result.residuals, float)
     if problem is None or r.ndim != 2 or r.size == 0:
         return None
@@ -207,7 +207,7 @@ def model_adequacy(result, length_factor: float = 1e-6, angle_factor: float = 1e
     groups = noise_groups_of(problem)
     if groups is not None and np.shape(groups.labels) != (K, m):
         groups = None
-    used = np.asarray(result.extras.get("used", np.ones((K, m), bool)), bool)
+    used = np.asarray(np.ones((K, m), bool) if result.used is None else result.used, bool)
     if used.shape != (K, m):
         used = np.ones((K, m), bool)
     rows = np.all(used & np.isfinite(r), axis=1)
@@ -224,7 +224,7 @@ def model_adequacy(result, length_factor: float = 1e-6, angle_factor: float = 1e
         labels = np.asarray(groups.labels, int)
         sigma = groups.assumed[labels]
         kinds = [groups.kinds[int(labels[0, j])] for j in range(m)]
-        noise = result.extras.get("noise")
+        noise = result.noise
         used_sigma = (noise.sigma if noise is not None and len(noise.sigma) == len(groups.keys)
                       else groups.assumed)
     else:
@@ -289,7 +289,7 @@ def model_adequacy(result, length_factor: float = 1e-6, angle_factor: float = 1e
                   "reading and each pose coordinate; F-tests (line vs constant, parabola vs "
                   "line), Bonferroni over all tests",
     }
-    section["findings"] = _findings(section, result.extras.get("extensions"))
+    section["findings"] = _findings(section, result.extensions)
     section["verdict"] = f"residual test {verdict.sentence()}; {section['findings']}"
     return section
 

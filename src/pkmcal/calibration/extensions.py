@@ -354,7 +354,12 @@ def choose_full_pose_extensions(machine, data, method: str = "ml", noise=None, f
     ExtensionChoice
         The model to calibrate and what was tried.
     """
-    from ..instruments.pose import FullPoseNoise, calibrate_full_pose, full_pose_errors
+    from ..instruments.pose import (
+        FullPoseNoise,
+        PoseSection,
+        calibrate_full_pose,
+        full_pose_errors,
+    )
 
     noise = FullPoseNoise() if noise is None else noise
 
@@ -364,7 +369,7 @@ def choose_full_pose_extensions(machine, data, method: str = "ml", noise=None, f
                                   **options)
         if not (fit.success and np.all(np.isfinite(fit.x))):
             raise InputError(f"the fit on {len(train)} rows did not converge ({fit.message})")
-        fitted, f = fit.extras["machine"], fit.extras["frames"]
+        fitted, f = fit.machine, fit.section(PoseSection).frames
         held = data.subset(test)
         return (held_out_loss(fitted, f, held, method, noise),
                 _errors(full_pose_errors(fitted, f, held)))
@@ -409,7 +414,7 @@ def held_out_loss(machine, frames, data, method: str, noise) -> np.ndarray:
     fit = calibrate_full_pose(machine, data, method=method, noise=noise, frames=frames,
                               fix_frames=True, fit_machine=False, estimate_noise=False,
                               require_identifiable=False)
-    problem = fit.extras["problem"]
+    problem = fit.problem
     r = (problem.noise_whitened(fit.state) if hasattr(problem, "noise_whitened")
          else np.asarray(fit.residuals, float))
     return np.sum(np.asarray(r, float) ** 2, axis=-1)

@@ -97,7 +97,7 @@ def loo_press(result) -> float:
     Parameters
     ----------
     result : CalibrationResult
-        A fit with ``extras["problem"]`` (the problem it solved, unweighted).
+        A fit with ``problem`` (the problem it solved, unweighted).
 
     Returns
     -------
@@ -107,7 +107,7 @@ def loo_press(result) -> float:
     """
     from ..estimation.variance import _leverages, hat_factors
 
-    problem = result.extras["problem"]
+    problem = result.problem
     r = np.asarray(problem.evaluate(result.state, jacobian=False)[0], float)
     L, G = hat_factors(problem, result)
     h = _leverages(L, G)

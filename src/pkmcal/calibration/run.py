@@ -34,6 +34,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..estimation.acceptance import WHITENED_METHODS
+from ..estimation.sections import add_sections
 from ..instruments.flow import (
     CalibrationNotConverged,
     FlowContext,
@@ -1054,6 +1055,8 @@ def _finish(kind: str, machine, calibrated, result, report: dict, metadata: dict
     tolerance_report(result, calibrated, report, path_text(source), units, warnings)
     # weakly determined parameters: one rule on every machine and instrument
     warnings.extend(_weakly_determined(result, machine, report, source, units))
+    # each instrument's typed section: its report keys and their index (rendered generically)
+    add_sections(report, getattr(result, "sections", {}), units, metadata)
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,
@@ -1781,7 +1784,7 @@ def expand_firmware_data(data, machine):
     """
     from ..export.firmware_reports import is_probe_report, probe_report_data, read_probe_report
     from ..io.atomic import read_input_text
-    from ..io.klipper_config import is_klipper_config, read_klipper_data
+    from ..io.klipper_data import is_klipper_config, read_klipper_data
 
     items = list(data) if isinstance(data, (list, tuple)) else [data]
     out, changed = [], False
@@ -1790,7 +1793,7 @@ def expand_firmware_data(data, machine):
     if len(configs) > 1:
         # several of a printer's configs (printer.cfg, its backups): sessions, the same saved
         # points counted once, each session its own endstop offsets
-        from ..io.klipper_config import klipper_sessions
+        from ..io.klipper_data import klipper_sessions
 
         found = klipper_sessions(configs, machine).data
         for obj in found:

@@ -159,9 +159,12 @@ def demo(
 
     Example: `pkmcal demo -o demo-out`
     """
-    from ._commands import run_demo
+    from ..workflows.demo import demo as run
+    from ._console import print_summary, progress_tasks
 
-    run_demo(output)
+    with progress_tasks() as new:
+        summary = run(output, progress=new)
+    raise typer.Exit(print_summary(summary))
 
 
 @app.command()
@@ -269,12 +272,14 @@ def simulate(
     Example: `pkmcal simulate default --scenario distance --setups 4 --radius 150mm -o
     ballbar.csv`
     """
-    from ._commands import run_simulate
+    from ..workflows.simulate import simulate as run
+    from ._console import print_summary
 
-    run_simulate(machine, output, scenario, poses, noise,
-                 lc_error, seed, deviations.value if deviations else None, truth, grid,
-                 outliers, pose_noise=pose_noise, targets=targets, setups=setups,
-                 radius=radius, circles=circles)
+    raise typer.Exit(print_summary(run(
+        machine, output, scenario, poses, noise, lc_error, seed,
+        deviations.value if deviations else None, truth, grid, outliers,
+        pose_noise=pose_noise, targets=targets, setups=setups, radius=radius,
+        circles=circles)))
 
 
 @app.command()
@@ -445,9 +450,10 @@ def check(
     Example: `pkmcal check calibrated.yaml printer.cfg` (and `pkmcal check printer.yaml
     printer.cfg` for the values in force, to compare)
     """
-    from ._commands import run_check
+    from ..workflows.check import check as run
+    from ._console import print_summary
 
-    raise typer.Exit(run_check(machine, data, noise, output))
+    raise typer.Exit(print_summary(run(machine, data, noise, output)))
 
 
 @app.command()
@@ -534,13 +540,14 @@ def identifiability(
 
     Example: `pkmcal identifiability examples/cubic_6upu.yaml --scenario distance --setups 4`
     """
-    from ._planning import run_identifiability
+    from ..workflows.planning import identifiability as run
+    from ._console import print_summary
 
-    raise typer.Exit(run_identifiability(machine, data, json_output, planned, poses, seed,
-                                         noise, pose_noise, map_path, workspace=workspace,
-                                         scenario=scenario,
-                                         setups=setups, radius=radius, targets=targets,
-                                         parameters=parameters))
+    raise typer.Exit(print_summary(run(
+        machine, data, json_output=json_output, planned=planned, poses=poses, seed=seed,
+        noise=noise, pose_noise=pose_noise, map_path=map_path, workspace=workspace,
+        scenario=scenario, setups=setups, radius=radius, targets=targets,
+        parameters=parameters)))
 
 
 class Criterion(enum.StrEnum):
@@ -630,19 +637,17 @@ def select_poses(
     Example: `pkmcal select-poses default --scenario distance --radius 150mm -n 40 -o
     ballbar-plan.csv`
     """
-    from ._planning import run_select_poses
+    from ..workflows.planning import select_poses as run
+    from ._console import print_summary, progress_tasks
 
-    if n < 1:
-        from ..errors import InputError
-
-        raise InputError(f"-n/--poses: give the number of poses to choose (>= 1), got {n}")
-    raise typer.Exit(run_select_poses(machine, output, n, candidates, candidates_file,
-                                      criterion.value, random_sets, noise, pose_noise, seed,
-                                      map_path, json_output, joint_range,
-                                      workspace=workspace,
-                                      scenario=scenario,
-                                      setups=setups, radius=radius, targets=targets,
-                                      parameters=parameters))
+    with progress_tasks() as new:
+        summary = run(machine, output, n, candidates=candidates,
+                      candidates_path=candidates_file, criterion=criterion.value,
+                      random_sets=random_sets, noise=noise, pose_noise=pose_noise, seed=seed,
+                      map_path=map_path, json_output=json_output, joint_range=joint_range,
+                      workspace=workspace, scenario=scenario, setups=setups, radius=radius,
+                      targets=targets, parameters=parameters, progress=new)
+    raise typer.Exit(print_summary(summary))
 
 
 @app.command()
@@ -676,9 +681,11 @@ def fk(
 
     Example: `pkmcal fk calibrated.yaml new_readings.csv --frame instrument -o predicted.csv`
     """
-    from ._commands import run_fk
+    from ..workflows.kinematics import fk as run
+    from ._console import print_summary
 
-    run_fk(machine, joints, output, TargetFrame(frame).value, instrument)
+    raise typer.Exit(print_summary(run(machine, joints, output, TargetFrame(frame).value,
+                                       instrument)))
 
 
 @app.command()
@@ -698,9 +705,10 @@ def ik(
 
     Example: `pkmcal ik calibrated.yaml poses.csv -o joints.csv`
     """
-    from ._commands import run_ik
+    from ..workflows.kinematics import ik as run
+    from ._console import print_summary
 
-    run_ik(machine, poses, output)
+    raise typer.Exit(print_summary(run(machine, poses, output)))
 
 
 @app.command()
@@ -750,10 +758,12 @@ def compensate(
     Example: `pkmcal compensate delta_cal.yaml path.csv --nominal examples/delta_default.yaml
     -o arms.csv`
     """
-    from ._compensate import run_compensate
+    from ..workflows.compensate import run_compensate
+    from ._console import print_summary
 
-    raise typer.Exit(run_compensate(machine, targets, output, report, nominal, json_output,
-                                    TargetFrame(frame).value, instrument))
+    raise typer.Exit(print_summary(run_compensate(machine, targets, output, report, nominal,
+                                                  json_output, TargetFrame(frame).value,
+                                                  instrument)))
 
 
 @app.command("export")
@@ -795,9 +805,10 @@ def export_command(
 
     Example: `pkmcal export cal.yaml --to klipper --nominal printer.yaml -o printer.cfg`
     """
-    from ._export import run_export
+    from ..workflows.export import run_export
+    from ._console import print_summary
 
-    raise typer.Exit(run_export(machine, to, output, nominal, workspace, seed))
+    raise typer.Exit(print_summary(run_export(machine, to, output, nominal, workspace, seed)))
 
 
 @app.command("import")
@@ -825,9 +836,10 @@ def import_command(
     Example: `pkmcal import printer.cfg --from klipper --like examples/linear_delta.yaml -o
     printer.yaml`
     """
-    from ._export import run_import
+    from ..workflows.export import run_import
+    from ._console import print_summary
 
-    raise typer.Exit(run_import(path, source_format, output, like))
+    raise typer.Exit(print_summary(run_import(path, source_format, output, like)))
 
 
 @app.command("report")
@@ -851,9 +863,10 @@ def report_command(
 
     Example: `pkmcal calibrate default data.csv -o cal.yaml --report out/` (the same, at once)
     """
-    from ._report import run_report
+    from ..workflows.report import report
+    from ._console import print_summary
 
-    run_report(result, output)
+    raise typer.Exit(print_summary(report(result, output)))
 
 
 class Trajectory(enum.StrEnum):
@@ -926,11 +939,13 @@ def errors_command(
 
     Example: `pkmcal errors machine.yaml --trajectory-file path.csv --plot plots -o errors.csv`
     """
-    from ._commands import run_errors
+    from ..workflows.errors import errors
+    from ._console import print_summary
 
-    run_errors(machine, output, trajectory.value if trajectory else None, trajectory_file,
-               radius, height, omega, samples, clearance, platform_clearance, mass,
-               cutting_force, screw_error, force_tol, plot)
+    raise typer.Exit(print_summary(errors(
+        machine, output, trajectory.value if trajectory else None, trajectory_file, radius,
+        height, omega, samples, clearance, platform_clearance, mass, cutting_force,
+        screw_error, force_tol, plot)))
 
 
 @app.command()
@@ -1013,13 +1028,16 @@ def montecarlo(
     Example: `pkmcal montecarlo examples/delta_default.yaml --vary poses=10,27,60 --runs 50
     --scheduler tcp://127.0.0.1:8786 -o delta-poses`
     """
-    from ._montecarlo import run_montecarlo
+    from ..workflows.montecarlo import montecarlo as run
+    from ._console import print_summary, progress_tasks
 
-    raise typer.Exit(run_montecarlo(
-        machine, vary, output, runs=runs, scenario=scenario,
-        poses=poses, noise=noise, lc_error=lc_error, tolerance=tolerance,
-        deviations=deviations.value if deviations else None, estimate_lc=estimate_lc,
-        seed=seed, workers=workers, scheduler=scheduler, quiet=quiet))
+    with progress_tasks(quiet) as new:
+        summary = run(machine, vary, output, runs=runs, scenario=scenario, poses=poses,
+                      noise=noise, lc_error=lc_error, tolerance=tolerance,
+                      deviations=deviations.value if deviations else None,
+                      estimate_lc=estimate_lc, seed=seed, workers=workers,
+                      scheduler=scheduler, progress=new)
+    raise typer.Exit(print_summary(summary))
 
 
 @app.command()
@@ -1033,9 +1051,12 @@ def bench(
 
     Example: `pkmcal bench`
     """
-    from ._commands import run_bench
+    from ..workflows.demo import bench as run
+    from ._console import print_summary, progress_tasks
 
-    raise typer.Exit(run_bench(json_output))
+    with progress_tasks() as new:
+        summary = run(json_output, progress=new)
+    raise typer.Exit(print_summary(summary))
 
 
 def _one_line(message: str) -> str:

@@ -151,7 +151,8 @@ class progress_tasks:
 
 def print_summary(summary) -> int:
     """Print a :class:`~pkmcal.report.summary.Summary` (its lines and tables on stdout, raw
-    text as it is, then each warning once on stderr); returns its exit code."""
+    text as it is, then each warning once on stderr); returns its exit code. With ``pkmcal
+    --quiet`` only the raw text (a ``--json`` document) and the warnings are printed."""
     import sys as _sys
 
     from rich.table import Table
@@ -162,20 +163,23 @@ def print_summary(summary) -> int:
     out = console()
     for block in summary.blocks:
         if isinstance(block, SummaryTable):
-            table = Table(title=block.title, title_justify="left", show_edge=False,
+            # titles and headings are plain text as the cells are ("changes side at [deg]")
+            title = None if block.title is None else Text(block.title, style="table.title")
+            table = Table(title=title, title_justify="left", show_edge=False,
                           pad_edge=False, show_header=block.header)
             for i, col in enumerate(block.columns):
-                table.add_column(col, justify=block.justify.get(i, "left"))
+                table.add_column(Text(col), justify=block.justify.get(i, "left"))
             for row in block.rows:
                 table.add_row(*(Text(c) if isinstance(c, str) else Text(c[0], style=c[1])
                                 for c in row))
             out.print(table)
-        elif isinstance(block, RawText):
-            if not _QUIET:
-                _sys.stdout.write(block.text)
-                _sys.stdout.flush()
+        elif isinstance(block, RawText):        # printed with --quiet too (--json output)
+            _sys.stdout.write(block.text)
+            _sys.stdout.flush()
         else:
             out.print(block, markup=False)
     for text in summary.warnings:
         warning(text)
+    for text in summary.errors:     # why a run that wrote its outputs failed (exit 1)
+        error(text)
     return summary.exit_code

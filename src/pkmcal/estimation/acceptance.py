@@ -72,9 +72,9 @@ VERDICT_WORDS = {PASSED: "passed", FAILED_SMALL: "failed, by a little",
 
 #: methods whose residuals are whitened by the whole noise model (every measurement noisy):
 #: their chi-square is the test. Other methods are tested when they state a test in the
-#: whitened model's terms (``result.extras["residual_test"]``) or fit noise groups.
+#: whitened model's terms (``result.residual_test``) or fit noise groups.
 WHITENED_METHODS = ("ml", "joint")
-#: why a method's residuals are not tested against the noise (``result.extras["method"]`` or
+#: why a method's residuals are not tested against the noise (``result.method`` or
 #: the report's method)
 UNTESTED_METHODS = {
     "ik": "the ik method takes the five active readings as exact (its residuals, the passive "
@@ -237,7 +237,7 @@ def chi_square_test(chi2: float, dof: int, alpha: float = ALPHA) -> ResidualTest
     squares.
 
     A method that takes some measurements as exact states its test through this in the
-    whitened model's terms (``result.extras["residual_test"]``), e.g. its residuals whitened
+    whitened model's terms (``result.residual_test``), e.g. its residuals whitened
     by their whole covariance.
 
     Parameters
@@ -281,12 +281,13 @@ def residual_test(result, alpha: float = ALPHA) -> ResidualTest:
     """
     dof = int(getattr(result, "dof", 0) or 0)
     chi2 = 2.0 * float(result.cost)
-    extras = getattr(result, "extras", None) or {}
-    if "weighted_residuals" in extras and extras.get("noise") is not None:
+    if getattr(result, "weighted_residuals", None) is not None \
+            and getattr(result, "noise", None) is not None:
         # levels estimated from the data: the test is against the *assumed* noise (what the
         # instruments are believed to do), over the rows used
         r = np.asarray(result.residuals, float)
-        used = np.asarray(extras.get("used", np.ones(r.shape, bool)), bool)
+        used = getattr(result, "used", None)
+        used = np.asarray(np.ones(r.shape, bool) if used is None else used, bool)
         chi2 = float(np.sum(r[used & np.isfinite(r)] ** 2))
     return chi_square_test(chi2, dof, alpha)
 
@@ -438,12 +439,12 @@ def residual_verdict(result, method: str | None = None, alpha: float = ALPHA
     """Whether a calibration's residuals agree with the noise model: the one function that
     decides it.
 
-    Not tested when ``result.extras["untested"]`` says why (the noise level was set from the
+    Not tested when ``result.untested`` says why (the noise level was set from the
     same residuals: a test that cannot fail). Tested: the test a method states in the
     whitened model's terms
-    (``result.extras["residual_test"]``, e.g. residuals whitened by their whole covariance),
+    (``result.residual_test``, e.g. residuals whitened by their whole covariance),
     else the chi-square of the residuals when they are whitened by the whole noise model
-    (:data:`WHITENED_METHODS`, or noise groups fitted: ``result.extras["noise"]``). Not tested:
+    (:data:`WHITENED_METHODS`, or noise groups fitted: ``result.noise``). Not tested:
     a method that takes some measurements as exact and states no test
     (:data:`UNTESTED_METHODS`), or no redundancy.
 
@@ -452,7 +453,7 @@ def residual_verdict(result, method: str | None = None, alpha: float = ALPHA
     result : CalibrationResult
         The calibration.
     method : str, optional
-        Its method (default ``result.extras["method"]``).
+        Its method (default ``result.method``).
     alpha : float, optional
         Probability of failing a correct calibration with the right noise.
 
@@ -461,14 +462,13 @@ def residual_verdict(result, method: str | None = None, alpha: float = ALPHA
     ResidualVerdict
         The verdict, its test and its sentence.
     """
-    extras = getattr(result, "extras", None) or {}
-    if extras.get("untested"):
+    if getattr(result, "untested", None):
         # the noise level was set from these very residuals: a test that cannot fail
-        return ResidualVerdict(NOT_TESTED, None, str(extras["untested"]))
-    test = extras.get("residual_test")
+        return ResidualVerdict(NOT_TESTED, None, str(result.untested))
+    test = getattr(result, "residual_test", None)
     if test is None:
-        method = method or extras.get("method") or ""
-        if method in WHITENED_METHODS or extras.get("noise") is not None:
+        method = method or getattr(result, "method", None) or ""
+        if method in WHITENED_METHODS or getattr(result, "noise", None) is not None:
             test = residual_test(result, alpha)
         else:
             why = UNTESTED_METHODS.get(method, f"the {method or 'fit'} method's residuals are "

@@ -34,6 +34,7 @@ prior held.
 
 from __future__ import annotations
 
+from collections.abc import Callable, MutableMapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -183,9 +184,6 @@ class CalibrationResult:
         Number of whitened residuals minus adjusted directions and local unknowns.
     state : object, optional
         Final problem state (e.g. the per-measurement poses).
-    extras : dict, optional
-        Results of the calibration method built on the estimator (e.g. ``"machine"``, the
-        calibrated machine; ``"registration"``); empty from :func:`levenberg_marquardt`.
     max_std : float or None, optional
         The weak-direction threshold used (None: numerical rank only).
     fitted : int or None, optional
@@ -194,6 +192,47 @@ class CalibrationResult:
     prior_cost : float, optional
         Half the sum of squares of the prior's whitened rows (not in ``cost``, which is the
         data's); 0 without a prior.
+
+    The calibration built on the estimator fills in what every fit has (None or empty from
+    :func:`levenberg_marquardt`; see :mod:`pkmcal.estimation.sections`):
+
+    machine : Machine or None
+        The calibrated machine.
+    problem : object or None
+        The problem solved (unweighted).
+    method : str or None
+        The calibration method (``"ml"``, ``"tracker-joint"``, ...).
+    unidentifiable : list
+        The unidentifiable and weakly identifiable directions, named
+        (:func:`~pkmcal.identifiability.name_null_space`).
+    model, start_model : object or None
+        The instrument's model at the estimate and at the start.
+    noise : NoiseEstimate or None
+        The noise levels used (estimated or held, :mod:`pkmcal.estimation.variance`).
+    outliers : OutlierTest or None
+        The outlier test of the rows.
+    weighted : object or None
+        The problem reweighted by the noise levels used.
+    weighted_residuals : ndarray or None
+        The residuals over those levels.
+    used : ndarray of bool or None
+        The residuals in the fit (not left out).
+    robust : bool or None
+        Whether the outlier rows were left out.
+    residual_test : ResidualTest or None
+        The chi-square test in the terms of a whitened model, when the method's residuals
+        are not those.
+    untested : str or None
+        Why the residuals are not tested against the noise.
+    extensions : object or None
+        The model extensions tried (:mod:`pkmcal.calibration.extensions`).
+    poorly_determined : list or None
+        Parameters the data determine only loosely.
+    rebuild_problem : callable or None
+        Builds the problem again (methods that do not keep it).
+    sections : dict
+        What each instrument adds, typed: instrument name -> its section
+        (:class:`~pkmcal.estimation.sections.ResultSection`).
     """
 
     x: np.ndarray
@@ -216,10 +255,45 @@ class CalibrationResult:
     residual_variance: float
     dof: int
     state: Any = None
-    extras: dict = field(default_factory=dict)
     max_std: float | None = None
     fitted: int | None = None
     prior_cost: float = 0.0
+    # the generic part a calibration fills in (pkmcal.estimation.sections.DETAILS)
+    machine: Any = None
+    problem: Any = None
+    method: str | None = None
+    unidentifiable: list = field(default_factory=list)
+    model: Any = None
+    start_model: Any = None
+    noise: Any = None
+    outliers: Any = None
+    weighted: Any = None
+    weighted_residuals: np.ndarray | None = None
+    used: np.ndarray | None = None
+    robust: bool | None = None
+    residual_test: Any = None
+    untested: str | None = None
+    extensions: Any = None
+    poorly_determined: list | None = None
+    rebuild_problem: Callable | None = None
+    #: instrument name -> its typed section (pkmcal.estimation.sections.ResultSection)
+    sections: dict = field(default_factory=dict)
+
+    @property
+    def extras(self) -> MutableMapping:
+        """Transitional: the former free-form dictionary as a view of the typed fields and
+        sections (:class:`~pkmcal.estimation.sections.ExtrasView`); read the attributes."""
+        from .sections import ExtrasView
+
+        return ExtrasView(self)
+
+    def section(self, kind: type):
+        """The section of type ``kind`` (None when the result has none)."""
+        return next((s for s in self.sections.values() if isinstance(s, kind)), None)
+
+    def add_section(self, section) -> None:
+        """Attach an instrument's section (under its ``instrument`` name)."""
+        self.sections[section.instrument] = section
 
     @property
     def weak(self) -> int:

@@ -54,6 +54,7 @@ from .estimator import (
     settings_of,
 )
 from .rank import RTOL
+from .sections import blank_details
 
 __all__ = ["MIN_REDUNDANCY", "NoiseEstimate", "NoiseGroups", "OutlierTest",
            "Weighted", "fit", "hat_factors", "noise_groups_of"]
@@ -754,7 +755,7 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         The final fit; ``residuals`` are whitened by the *assumed* levels (as for every
         problem) and ``residual_variance`` is their variance over the rows used
         (``chi2 / dof`` against the assumed noise); ``cost`` and the covariance are those of
-        the fit with the levels used, ``dof`` without the left-out rows. ``extras``:
+        the fit with the levels used, ``dof`` without the left-out rows. Sets
         ``noise`` (:class:`NoiseEstimate` or None), ``outliers`` (:class:`OutlierTest` or
         None), ``robust``, ``weighted`` (the reweighted problem, or the problem
         itself), ``weighted_residuals`` (whitened by the levels used; left-out rows scaled
@@ -767,8 +768,8 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
     if groups is None:
         result = levenberg_marquardt(problem, rtol=rtol, state=state, absolute_sigma=absolute,
                                      **options)
-        result.extras.update(noise=None, outliers=None, weighted=problem,
-                             weighted_residuals=result.residuals)
+        result.noise, result.outliers = None, None
+        result.weighted, result.weighted_residuals = problem, result.residuals
         return result
     G = len(groups.keys)
     held = _hold_mask(groups, noise)
@@ -892,12 +893,11 @@ def fit(problem, noise="auto", robust: bool = False, alpha: float = OUTLIER_ALPH
         std[est] = sigma[est] * np.sqrt(np.clip(np.diag(inv), 0, None) / 2.0)
     status = ["held" if levels.held[c] else "assumed" if levels.guessed[c]
               else "at most" if levels.bounded[c] else "estimated" for c in range(G)]
-    result.extras.update(
-        noise=NoiseEstimate(list(groups.keys), list(groups.names), list(groups.kinds),
-                            groups.assumed.copy(), sigma, std, red, count, status,
-                            levels.iterations, levels.capacity.copy()),
-        outliers=test, weighted=weighted, weighted_residuals=weighted_r, used=used,
-        robust=bool(robust))
+    result.noise = NoiseEstimate(list(groups.keys), list(groups.names), list(groups.kinds),
+                                 groups.assumed.copy(), sigma, std, red, count, status,
+                                 levels.iterations, levels.capacity.copy())
+    result.outliers, result.weighted, result.weighted_residuals = test, weighted, weighted_r
+    result.used, result.robust = used, bool(robust)
     # downstream, residuals are "measured - predicted over the assumed noise" for every problem
     result.residuals = assumed_r
     weighted.evaluations = None     # the problem handed out evaluates afresh
@@ -1067,7 +1067,7 @@ def _same_fit(weighted: Weighted, state, rtol, options, absolute_sigma, fitted):
         return None
     again = dataclasses.replace(
         fitted, x=fitted.x.copy(), residuals=np.array(fitted.residuals, float),
-        covariance=fitted.covariance.copy(), std=fitted.std.copy(), extras={})
+        covariance=fitted.covariance.copy(), std=fitted.std.copy(), **blank_details())
     # its factors are those of the reweighted problem (each factor 1: the same Jacobian)
     again._linear = Linearisation(weighted, state, lin.shape, lin.qr, lin.U, lin.s,
                                   lin.settings, lin.fitted)

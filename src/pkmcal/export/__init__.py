@@ -10,15 +10,11 @@ from .base import (
     FORMATS,
     ControllerFormat,
     ControllerParameters,
-    ExportResult,
     controller_format,
-    export,
-    export_workspace,
-    fit_controller,
     load_formats,
-    position_errors,
     register_format,
 )
+from .fitting import ExportResult, export, export_workspace, fit_controller, position_errors
 
 __all__ = ["FORMATS", "ControllerFormat", "ControllerParameters", "ExportResult",
            "controller_format", "export", "export_workspace", "fit_controller", "load_formats",

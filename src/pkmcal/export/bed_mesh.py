@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..io.klipper_config import EXPORTED_PROFILE
+from ..io.klipper_data import EXPORTED_PROFILE
 from ..machines.base import Machine, bed_height_at
 
 #: a correction smaller than this (RMS over the print disk, m) is not handed over: the probe's
@@ -104,7 +104,7 @@ def _height_errors(fmt, params, machine: Machine, xy, height: float) -> np.ndarr
     ``height`` above it: what its values leave of the kinematics, minus the bed's own shape
     beside the plane (:func:`~pkmcal.machines.base.bed_height_at`: a bed higher there is
     touched that much earlier)."""
-    from .base import position_errors
+    from .fitting import position_errors
 
     xy = np.asarray(xy, float).reshape(-1, 2)
     plane = _plane_z(machine, xy)

@@ -834,7 +834,8 @@ class KlipperDelta(ControllerFormat):
     def bed_mesh_height(self, text: str) -> float:
         """The probe's ``z_offset`` (m, 0 when none or below the nozzle): Klipper's own
         meshes hold the bed as seen with the nozzle that far above it, and so does pkmcal's."""
-        from ..io.klipper_config import KlipperConfig, probe_offsets
+        from ..io.klipper_config import KlipperConfig
+        from ..io.klipper_data import probe_offsets
 
         try:
             return max(probe_offsets(KlipperConfig.read("printer.cfg", text))[2] * 1e-3, 0.0)

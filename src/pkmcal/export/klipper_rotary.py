@@ -36,7 +36,7 @@ up). So ``angle = phi``, ``shoulder_radius = a - b`` (plus the mean of ``da_x - 
 ``upper_arm_length = l1 + dl1``, ``lower_arm_length = l2 + dl2`` and the shoulder height is
 the mean of ``da_z - db_z`` above the bed. Klipper holds one radius and one height, no
 sideways offset of an arm (``da_y - db_y``) and no per-arm radius or height: the fit gives the
-best values (:func:`~pkmcal.export.base.fit_controller`, all 14 values free).
+best values (:func:`~pkmcal.export.fitting.fit_controller`, all 14 values free).
 
 The readings (one convention, both ways)
 ----------------------------------------

@@ -35,11 +35,15 @@ from __future__ import annotations
 
 from abc import abstractmethod
 from pathlib import Path
+from types import MappingProxyType
 
 import numpy as np
 
 from ..errors import InputError
-from .base import ControllerParameters, ExportResult, Origin, finite_number
+from ..io.atomic import read_input_text
+from ..paths import path_text
+from .base import ControllerParameters, Origin, finite_number
+from .fitting import ExportResult
 
 #: the files of a configuration directory (name -> what it is)
 CONFIG_FILES = {
@@ -64,8 +68,14 @@ LIMIT_MARGIN = 0.1
 class LinuxCNCKinematics:
     """What a LinuxCNC format says about its joints and world, for a configuration directory.
 
-    A format mixes this in beside :class:`~pkmcal.export.base.ControllerFormat`.
+    A format mixes this in before :class:`~pkmcal.export.base.ControllerFormat` (``class
+    F(LinuxCNCKinematics, ControllerFormat)``): it writes and reads whole configurations
+    (:meth:`configuration`, :meth:`read_controller_file`).
     """
+
+    configuration_files = MappingProxyType(CONFIG_FILES)
+    configuration_values_file = "kinematics.hal"
+    configuration_words = "the LinuxCNC configuration"
 
     #: the module of ``[KINS] KINEMATICS``
     kins_module: str = ""
@@ -226,6 +236,34 @@ class LinuxCNCKinematics:
             HAL pins.
         """
         return [], f"joint.{j}.motor-pos-cmd", f"joint.{j}.motor-pos-fb"
+
+    def configuration(self, result: ExportResult, machine, workspace) -> dict[str, str]:
+        """The files of a LinuxCNC configuration directory that starts (:func:`configuration`).
+        """
+        return configuration(self, result, machine, workspace)
+
+    def configuration_start(self, directory: Path) -> str:
+        """``linuxcnc DIR/machine.ini``."""
+        return f"linuxcnc {path_text(directory / 'machine.ini')}"
+
+    def read_controller_file(self, path: Path):
+        """The values of the kinematics' HAL file, or of a configuration: its INI (``.ini``,
+        or the one INI of a directory) with the HAL files it names, ``[TRAJ] HOME`` and
+        ``[EMC] MACHINE`` (:func:`parse_configuration`, :func:`configuration_home`); see
+        :meth:`~pkmcal.export.base.ControllerFormat.read_controller_file`."""
+        if not (path.is_dir() or path.suffix == ".ini"):
+            return super().read_controller_file(path)
+        if path.is_dir():
+            inis = sorted(path.glob("*.ini"))
+            if len(inis) != 1:
+                raise InputError(f"{path_text(path)}: a LinuxCNC configuration directory with "
+                                 f"{len(inis)} INI files; name the one LinuxCNC starts with")
+            path = inis[0]
+        text = read_input_text(path, "LinuxCNC INI file")
+        params = parse_configuration(
+            self, text, path_text(path),
+            lambda name: read_input_text(path.parent / name, "LinuxCNC HAL file"))
+        return (params, *configuration_home(self, params, text, path_text(path)))
 
 
 def _f(v: float, digits: int = 9) -> str:

@@ -250,7 +250,7 @@ def reading_joints(notes: dict, source: str) -> np.ndarray:
     return joints
 
 
-class _LinuxCNCDelta(ControllerFormat, LinuxCNCKinematics):
+class _LinuxCNCDelta(LinuxCNCKinematics, ControllerFormat):
     """What the two LinuxCNC Delta formats share: the values as written are read back; each
     reading of the machine is one LinuxCNC joint (``readingN.joint``), its world is the
     calibrated frame in mm (a linear Delta's shifted to its bed)."""

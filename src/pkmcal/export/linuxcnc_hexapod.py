@@ -180,7 +180,7 @@ def linuxcnc_rotation(abc) -> np.ndarray:
                      np.stack([-sb, cb * sa, cb * ca], -1)], -2)
 
 
-class GenhexkinsFormat(ControllerFormat, LinuxCNCKinematics):
+class GenhexkinsFormat(LinuxCNCKinematics, ControllerFormat):
     """LinuxCNC ``genhexkins`` with one ``scale`` pair per joint (see the module docstring)."""
 
     kins_module = "genhexkins"

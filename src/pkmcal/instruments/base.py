@@ -645,7 +645,9 @@ class Instrument:
         in order: ``(name, text)`` pairs; the names of rows every summary may share, which the
         CLI fills in from the report (``"parameter set"``, ``"identifiable"`` or
         ``"identifiable, grouped"`` (one line per description of what is not identifiable),
-        ``"held-out"``, ``"bed"``, ``"noise levels"``, ``"residual test"`` (the residual
+        ``"held-out"``, ``"bed"``, ``"sections"`` (the rows of the result's typed sections,
+        :meth:`~pkmcal.estimation.sections.ResultSection.summary_rows`, from the report's
+        ``sections``), ``"noise levels"``, ``"residual test"`` (the residual
         verdict, added before ``"convergence"`` when the rows do not place it),
         ``"convergence"``); and ``("note", text)`` pairs, printed after the parameter
         changes.
@@ -670,13 +672,9 @@ class Instrument:
                          f"rows ({res.get('of', 'measured - predicted')}){before}"))
         if report.get("noise") is not None:
             rows.append(("noise", f"{report['noise']}"))
-        for setup in report.get("setups", []):
-            unit = setup["unit"]
-            rows.append((f"setup {setup['setup']}", f"{setup['rows']} rows; pivot ("
-                         + ", ".join(f"{v:.6g}" for v in setup["pivot"]) + f") {unit} "
-                         "(base), ball (" + ", ".join(f"{v:.6g}" for v in setup["ball"])
-                         + f") {unit} (platform)"))
-        return rows + ["held-out", "bed", "noise levels", "residual test", "convergence"]
+        # the rows of the instrument's typed section (``report["sections"]``), then the rest
+        return rows + ["sections", "held-out", "bed", "noise levels", "residual test",
+                       "convergence"]
 
     def problem(self, machine: Machine, data, noise=None, setup=None, **start):
         """The calibration problem ``pkmcal calibrate`` solves by default, unsolved.

@@ -46,7 +46,8 @@ wrong geometry whose residuals are many times the noise. Two things go wrong:
 
 Rows whose readings no pose on the sphere explains with the start geometry are not fitted in
 the first pass but retried with the improved geometry; those still unexplained at the end are
-left out and named (``dropped_rows`` and a warning in the result's ``extras``).
+left out and named (``dropped_rows`` and a warning in the result's
+:class:`ConstraintLinkSection`).
 
 The plain fit runs first and is returned when its residuals pass the test, so a calibration
 that starts close (the default machine) costs what it did.
@@ -63,6 +64,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import ClassVar
 
 import numpy as np
 
@@ -80,6 +82,7 @@ from ..estimation.estimator import (
     levenberg_marquardt,
     require_redundancy,
 )
+from ..estimation.sections import Section
 from ..estimation.variance import fit
 from ..identifiability import (
     CONSTRAINT_LINK_GAUGES,
@@ -367,7 +370,8 @@ NEIGHBOURS = 16
 
 @dataclass
 class StartReport:
-    """What the start strategy did (``extras["start"]`` of a calibration result).
+    """What the start strategy did (:attr:`ConstraintLinkSection.start` of a calibration
+    result).
 
     Attributes
     ----------
@@ -1542,6 +1546,78 @@ class ConstraintLinkFK(_ImplicitPoseProblem):
 PROBLEMS = {"ml": ConstraintLinkML, "ik": ConstraintLinkIK, "fk": ConstraintLinkFK}
 
 
+@dataclass
+class ConstraintLinkSection(Section):
+    """What a constraint-link calibration adds to its result
+    (``result.sections["constraint_link"]``): the link length, where the method started, the
+    rows left out and the start strategy's report.
+
+    Attributes
+    ----------
+    link_length, assumed : float or None
+        The link length identified (or held) and the machine file's, m.
+    estimated : bool
+        Whether the link length was estimated.
+    std : float or None
+        Its standard deviation, m (estimated only).
+    dropped_rows : ndarray of int
+        File rows left out (no pose for the start geometry; ``'ml'``: no pose found that
+        explains them with the calibrated geometry).
+    start : StartReport or None
+        ``'ml'``: what the start strategy did.
+    warnings : list of str or None
+        ``'ml'``: sentences for the user (rows left out or retried, and why).
+    start_from : str or None
+        The paper's methods: where they started (:data:`PAPER_METHOD_START`).
+    sweeps : int or None
+        ``per_chain``: the sweeps made.
+    """
+
+    instrument: ClassVar[str] = "constraint_link"
+    title: ClassVar[str] = "link length"
+
+    link_length: float | None = None
+    assumed: float | None = None
+    estimated: bool = False
+    std: float | None = None
+    dropped_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    start: StartReport | None = None
+    warnings: list | None = None
+    start_from: str | None = None
+    sweeps: int | None = None
+
+    @classmethod
+    def of(cls, result) -> ConstraintLinkSection:
+        """The result's section (attached, empty, when it has none yet)."""
+        section = result.section(cls)
+        if section is None:
+            section = cls()
+            result.add_section(section)
+        return section
+
+    def as_report(self, units=None) -> dict:
+        from ..units import LENGTH
+
+        if self.link_length is None:
+            return {}
+        unit = (units or {}).get("length", "mm")
+        fl = LENGTH[unit]
+        return {"link_length": {
+            "value": self.link_length / fl, "assumed": self.assumed / fl, "unit": unit,
+            "estimated": bool(self.estimated),
+            "std": self.std / fl if self.estimated and self.std is not None else None}}
+
+    def summary_rows(self, units=None) -> list:
+        lc = self.as_report(units).get("link_length")
+        if lc is None:
+            return []
+        if lc["estimated"]:
+            std = f" +/- {lc['std']:.3g} {lc['unit']}" if lc["std"] is not None else ""
+            return [("link length Lc", f"{lc['value']:.9g} {lc['unit']} (estimated{std}; "
+                     f"machine file {lc['assumed']:.9g} {lc['unit']})")]
+        return [("link length Lc", f"{lc['value']:.9g} {lc['unit']} (fixed: machine file)")]
+
+
 def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method: str = "ml",
                               sigma_m=1e-6, estimate_link_length: bool | None = None,
                               per_chain: bool = False, max_sweeps: int = 200, rtol: float = 1e-7,
@@ -1580,9 +1656,10 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
     Returns
     -------
     CalibrationResult
-        With ``extras``: ``method``; ``machine``, the calibrated machine (home kept from
-        ``machine`` when reachable, else the nearest measured pose); ``link_length``;
-        ``unidentifiable``, the named null and weak directions; ``dropped_rows``, file rows
+        With ``method``; ``machine``, the calibrated machine (home kept from ``machine``
+        when reachable, else the nearest measured pose); ``unidentifiable``, the named null
+        and weak directions; its :class:`ConstraintLinkSection`: ``link_length``,
+        ``dropped_rows``, file rows
         left out (the paper's methods: no pose for the start geometry; ``'ml'``: no pose found
         that explains them with the calibrated geometry); with ``per_chain`` also ``sweeps``.
         ``'ml'`` also: ``start``, the :class:`StartReport` (plain fit
@@ -1644,7 +1721,7 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
                      left_out=left_out, fitted=result if left_out is None else None,
                      **lm_options)
         if left_out is not None:
-            start.readmit(~result.extras["outliers"].kept, data.rows)
+            start.readmit(~result.outliers.kept, data.rows)
     else:
         result, problem, start = _paper_method(cls, problem, method, rtol,
                                                {"max_std": MAX_STD, **options})
@@ -1660,16 +1737,20 @@ def calibrate_constraint_link(machine: Machine, data: ConstraintLinkData, method
         calibrated.home = (result.state.P[i], result.state.R[i])
     groups = gauge_groups(machine, um, CONSTRAINT_LINK_GAUGES, result.scales,
                           len(problem.parameters))
-    dropped = getattr(problem, "dropped_rows", np.array([], int))
+    section = ConstraintLinkSection.of(result)
+    section.dropped_rows = getattr(problem, "dropped_rows", np.array([], int))
     if start is not None:
-        dropped = start.dropped_rows
-        result.extras.update(start=start, problem=problem, warnings=list(start.warnings))
-    result.extras.update(
-        dropped_rows=dropped,
-        method=method, machine=calibrated, link_length=float(Lc),
-        unidentifiable=name_null_space(result.null_space, problem.parameters, groups)
-        + name_weak_directions(result, problem.parameters),
-    )
+        section.dropped_rows = start.dropped_rows
+        section.start, section.warnings = start, list(start.warnings)
+        result.problem = problem
+    names = list(result.parameters.names)
+    k = names.index("link.length") if "link.length" in names else None
+    section.link_length, section.assumed = float(Lc), float(data.link_length)
+    section.estimated = k is not None and not bool(result.parameters.fixed[k])
+    section.std = float(result.std[k]) if section.estimated else None
+    result.method, result.machine = method, calibrated
+    result.unidentifiable = (name_null_space(result.null_space, problem.parameters, groups)
+                             + name_weak_directions(result, problem.parameters))
     return result
 
 
@@ -1688,7 +1769,7 @@ def _paper_method(cls, ml: ConstraintLinkML, method: str, rtol: float, lm_option
     is then returned (with noise, its estimate, not the ml one).
 
     Its geometry is then tested like an ml fit: every reading noisy, the poses refitted with
-    the geometry held (:func:`_paper_method_test`, ``extras["residual_test"]``). A geometry
+    the geometry held (:func:`_paper_method_test`, ``result.residual_test``). A geometry
     the readings reject (residuals :data:`MAX_NOISE_FACTOR` times the assumed noise beyond the
     chi-square bound) is refused (:class:`~pkmcal.errors.ConvergenceError`): these methods
     estimate no noise level, so no wrong geometry is returned with success.
@@ -1696,7 +1777,7 @@ def _paper_method(cls, ml: ConstraintLinkML, method: str, rtol: float, lm_option
     Returns
     -------
     result : CalibrationResult
-        The method's fit (``extras``: ``residual_test``, ``start_from``).
+        The method's fit (``residual_test``; its section's ``start_from``).
     problem : ConstraintLinkIK or ConstraintLinkFK
         The problem solved (its data: the rows the ml start kept).
     start : StartReport
@@ -1740,7 +1821,8 @@ def _paper_method(cls, ml: ConstraintLinkML, method: str, rtol: float, lm_option
             f"and the poses refitted (chi2/dof = {test.ratio:.3g}, at most {test.upper:.3g} "
             f"expected; the maximum-likelihood start: {ml_test.noise_factor:.3g}x); {why}; "
             "no file written")
-    result.extras.update(residual_test=test, start_from=PAPER_METHOD_START)
+    result.residual_test = test
+    ConstraintLinkSection.of(result).start_from = PAPER_METHOD_START
     return result, problem, start
 
 
@@ -1808,7 +1890,7 @@ def _per_chain_sweeps(problem, max_sweeps, rtol, **options):
     full.parameters = base.with_values(u)
     final = levenberg_marquardt(full, rtol=rtol, max_iter=1)  # statistics at the solution
     final.x, final.parameters = u, base.with_values(u)
-    final.extras["sweeps"] = sweep
+    ConstraintLinkSection.of(final).sweeps = sweep
     final.success = step < options.get("xtol", 1e-12)
     final.message = f"per-chain sweeps: {sweep}"
     return final
@@ -1824,7 +1906,7 @@ def _failed_sweeps(problem, u, sweep, message):
         singular_values=np.zeros(0), null_space=np.zeros((n, 0)), scales=problem.scales,
         weak_space=np.zeros((n, 0)), weak_std=np.zeros(0),
         covariance=np.zeros((n, n)), std=np.zeros(n), residual_variance=float("nan"), dof=0,
-        state=None, extras={"sweeps": sweep})
+        state=None, sections={"constraint_link": ConstraintLinkSection(sweeps=sweep)})
 
 
 def _one_sweep(problem, base, u, P, R, rtol, **options):
@@ -1960,7 +2042,7 @@ class ConstraintLink(Instrument):
                                         rng=run.rng)
         res = calibrate_constraint_link(nominal, data, sigma_m=run.weight(noise),
                                         estimate_link_length=s.estimate_lc)
-        return res, run.workspace_accuracy(true, res.extras["machine"],
+        return res, run.workspace_accuracy(true, res.machine,
                                            self.montecarlo_evaluation_poses)
 
     def candidates(self, machine, n, rng, setup=None):
@@ -2036,14 +2118,8 @@ class ConstraintLink(Instrument):
     writer = "write_constraint_link"
 
     def calibration_summary(self, report):
-        res, ident, lc = report["residuals"], report["identifiability"], report["link_length"]
+        res, ident = report["residuals"], report["identifiability"]
         noise = res["estimated_noise_um"]
-        if lc["estimated"]:
-            std = f" +/- {lc['std']:.3g} {lc['unit']}" if lc["std"] is not None else ""
-            link = (f"{lc['value']:.9g} {lc['unit']} (estimated{std}; machine file "
-                    f"{lc['assumed']:.9g} {lc['unit']})")
-        else:
-            link = f"{lc['value']:.9g} {lc['unit']} (fixed: machine file)"
         rows = [("measurement", f"{report['measurement']}, {report['measurements']} poses"),
                 ("method", {"ml": "ml (maximum likelihood, all readings noisy)",
                             "ik": "ik (paper 3.4.1, inverse kinematics of the passive chain)",
@@ -2054,7 +2130,8 @@ class ConstraintLink(Instrument):
                 ("RMS residual", f"{res['rms_um']:.4g} um ({res['of']}; assumed noise "
                  f"{report['noise_sigma_um']:.4g} um"
                  + (f", estimated {noise:.3g} um)" if noise is not None else ")")),
-                "held-out", "noise levels", "convergence", ("link length Lc", link)]
+                # the link length: its section's row (ConstraintLinkSection.summary_rows)
+                "held-out", "noise levels", "convergence", "sections"]
         if ident["unidentifiable"]:
             rows.append(("note", "note: the data do not fix the directions listed as not "
                          "identifiable; the changes are the smallest ones (scaled) that fit "
@@ -2170,7 +2247,6 @@ def _check_options(options, source) -> None:
 def _calibration_flow(machine, data, context: FlowContext,
                       options: ConstraintLinkOptions) -> FlowResult:
     """``pkmcal calibrate`` from constraint-link readings (:meth:`ConstraintLink.calibrate`)."""
-    from ..units import LENGTH
 
     source, split = context.source, context.split
     method = options.method or "ml"
@@ -2184,11 +2260,10 @@ def _calibration_flow(machine, data, context: FlowContext,
                     estimate_noise=options.noise is None, robust=options.robust)
     require_converged(result, source)
     kw = {} if estimate_lc is None else {"estimate_link_length": estimate_lc}
-    result.extras["rebuild_problem"] = lambda: PROBLEMS[method](machine, data, sigma, **kw)
+    result.rebuild_problem = lambda: PROBLEMS[method](machine, data, sigma, **kw)
 
     units = context.units
-    fl = LENGTH[units["length"]]
-    calibrated = result.extras["machine"]
+    calibrated = result.machine
     calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
     # FK start of the calibrated file: the input machine's home (a central pose of the working
     # assembly mode) rather than the first measured pose, which may sit at the workspace edge
@@ -2199,18 +2274,17 @@ def _calibration_flow(machine, data, context: FlowContext,
     nominal_of["link.length"] = data.link_length
     params = parameter_table(result, nominal_of, units)
     r = np.asarray(result.residuals, float)
-    if "used" in result.extras:             # the rows in the fit (not those left out)
-        r = r[np.asarray(result.extras["used"], bool).reshape(len(r), -1).all(axis=-1)]
+    if result.used is not None:             # the rows in the fit (not those left out)
+        r = r[np.asarray(result.used, bool).reshape(len(r), -1).all(axis=-1)]
     r_m = r * sigma
     rank = int(result.rank)
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
-    dropped = [int(v) for v in np.asarray(result.extras.get("dropped_rows", []))]
-    lc_index = result.parameters.names.index("link.length") \
-        if "link.length" in result.parameters.names else None
-    lc_estimated = lc_index is not None and not bool(result.parameters.fixed[lc_index])
-    lc = float(result.extras.get("link_length", data.link_length))
+    unidentifiable = list(result.unidentifiable)
+    section = ConstraintLinkSection.of(result)
+    dropped = [int(v) for v in np.asarray(section.dropped_rows)]
+    lc_estimated = bool(section.estimated)
+    lc = float(section.link_length if section.link_length is not None else data.link_length)
     residual_what = {"ml": "all joint readings", "ik": "passive joint readings",
                      "fk": "computed link length |P| - Lc"}[method]
     report = {
@@ -2218,9 +2292,7 @@ def _calibration_flow(machine, data, context: FlowContext,
         "measurements": len(data),
         "dropped_rows": dropped,
         "noise_sigma_um": sigma * 1e6,
-        "link_length": {"value": lc / fl, "assumed": data.link_length / fl,
-                        "unit": units["length"], "estimated": lc_estimated,
-                        "std": params[lc_index]["std"] if lc_estimated else None},
+        **section.as_report(units),         # link_length
         "convergence": convergence_json(result),
         "residuals": {
             "of": residual_what,
@@ -2240,8 +2312,8 @@ def _calibration_flow(machine, data, context: FlowContext,
         "identifiability": identifiability_json(n_free, rank, unidentifiable, s),
         "parameters": public_parameters(params),
     }
-    if "start_from" in result.extras:       # the paper's methods: where they started
-        report["start"] = result.extras["start_from"]
+    if section.start_from is not None:      # the paper's methods: where they started
+        report["start"] = section.start_from
     if held is not None:
         report["validation"] = validation_section(
             split, held, "joint readings of the held-out rows (poses fitted, geometry and Lc "
@@ -2263,9 +2335,9 @@ def _calibration_flow(machine, data, context: FlowContext,
         "link_length_estimated": lc_estimated,
     }
     calibration = FlowResult(kind, machine, calibrated, result, report, metadata, params, units)
-    if "warnings" in result.extras:         # ml: the start strategy says what it left out
+    if section.warnings is not None:        # ml: the start strategy says what it left out
         calibration.warnings += [f"{path_text(source)}: "
-                                 f"{text}" for text in result.extras["warnings"]]
+                                 f"{text}" for text in section.warnings]
     elif dropped:
         calibration.warnings.append(
             f"{path_text(source)}: "

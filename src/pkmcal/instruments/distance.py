@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from ..errors import InputError
 from ..estimation.estimator import CalibrationResult
 from ..estimation.rank import RTOL
+from ..estimation.sections import Section
 from ..machines.base import Machine
 from ..machines.file_format import Ballbar, vector
 from ..paths import path_text
@@ -339,8 +341,8 @@ class Distance(Instrument):
         P, R, g = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng,
                                   run_setup(run, self.name))
         q = nominal.ik(P, R)
-        model = res.extras["model"]
-        fit = res.extras["machine"].fk(q, start=(P, R))
+        model = res.model
+        fit = res.machine.fk(q, start=(P, R))
         d_fit = model.predict(model.initial(), fit.P, fit.R, g)[:, 0]
         exact = true.fk(q, start=(P, R))
         pivots = np.array([p for p, _ in truth["setups"]])[g]
@@ -623,6 +625,42 @@ class Distance(Instrument):
             else length))
 
 
+@dataclass
+class DistanceSection(Section):
+    """What a ballbar calibration adds to its result (``result.sections["distance"]``): each
+    mounting's pivot (base frame) and ball (platform frame), m, and its rows.
+
+    Attributes
+    ----------
+    setups : list of (ndarray (3,), ndarray (3,))
+        ``(pivot, ball)`` per mounting, m.
+    rows : list of int
+        The rows of each mounting.
+    """
+
+    instrument: ClassVar[str] = "distance"
+    title: ClassVar[str] = "Ballbar mountings"
+
+    setups: list
+    rows: list
+
+    def as_report(self, units=None) -> dict:
+        from ..units import LENGTH
+
+        unit = (units or {}).get("length", "mm")
+        fl = LENGTH[unit]
+        return {"setups": [{"setup": g + 1, "rows": int(n), "pivot": (np.asarray(p) / fl).tolist(),
+                            "ball": (np.asarray(b) / fl).tolist(), "unit": unit}
+                           for g, ((p, b), n) in enumerate(zip(self.setups, self.rows,
+                                                               strict=True))]}
+
+    def summary_rows(self, units=None) -> list:
+        return [(f"setup {u['setup']}", f"{u['rows']} rows; pivot ("
+                 + ", ".join(f"{v:.6g}" for v in u["pivot"]) + f") {u['unit']} (base), ball ("
+                 + ", ".join(f"{v:.6g}" for v in u["ball"]) + f") {u['unit']} (platform)")
+                for u in self.as_report(units)["setups"]]
+
+
 def calibrate_distances(machine: Machine, data: InstrumentData, noise=None, rtol: float = RTOL,
                         fit_machine: bool = True, **options) -> CalibrationResult:
     """Identify the machine's parameters (and every mounting) from ballbar lengths.
@@ -646,9 +684,9 @@ def calibrate_distances(machine: Machine, data: InstrumentData, noise=None, rtol
     Returns
     -------
     CalibrationResult
-        With ``extras``: ``problem``, ``machine`` (calibrated, with ``ballbar_setups``: a
-        ``(pivot, ball)`` pair per setup, m), ``model``, ``start_model``, ``setups``,
-        ``unidentifiable``.
+        With ``problem``, ``machine`` (calibrated, with ``ballbar_setups``: a ``(pivot,
+        ball)`` pair per setup, m), ``model``, ``start_model``, ``unidentifiable`` and its
+        :class:`DistanceSection` (the mountings).
 
     Raises
     ------
@@ -667,11 +705,12 @@ def calibrate_distances(machine: Machine, data: InstrumentData, noise=None, rtol
                          "mounting needs at least 6 lengths (its pivot and ball are unknown)")
     result = fit_instrument(machine, data, DistancesModel(data.n_groups), noise,
                             fit_machine=fit_machine, rtol=rtol, **options)
-    model, state = result.extras["model"], result.state.nuisance
+    model, state = result.model, result.state.nuisance
     setups = [(np.array(state.values[model._ip[g]]), np.array(state.values[model._ib[g]]))
               for g in range(data.n_groups)]
-    result.extras["machine"].ballbar_setups = setups
-    result.extras["setups"] = setups
+    result.machine.ballbar_setups = setups
+    result.add_section(DistanceSection(setups, np.bincount(data.group,
+                                                           minlength=data.n_groups).tolist()))
     return result
 
 
@@ -698,7 +737,6 @@ def _check_options(options, source) -> None:
 def _calibration_flow(machine, data, context: FlowContext,
                       options: DistanceOptions) -> FlowResult:
     """``pkmcal calibrate`` from ballbar lengths (:meth:`Distance.calibrate`)."""
-    from ..units import LENGTH
 
     source, split = context.source, context.split
     noise = INSTRUMENT.noise_arg(options.noise, machine)
@@ -707,23 +745,19 @@ def _calibration_flow(machine, data, context: FlowContext,
         "measure each mounting over a spread of poses (a sphere around the pivot, with "
         "rotations on a platform that rotates)", estimate_noise=options.noise is None,
         robust=options.robust)
-    fl = LENGTH[units["length"]]
-    problem, before_problem = result.extras["problem"], before.extras["problem"]
+    problem, before_problem = result.problem, before.problem
     rms_after, r_after = scalar_rms(problem, result.state, data)
     rms_before, _ = scalar_rms(before_problem, before.state, data)
     rank = int(result.rank)
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
-    setups = result.extras["setups"]
+    unidentifiable = list(result.unidentifiable)
     report = {
         **context.head(machine, "distance", "joint"),
         "units": units,
         "measurements": len(data),
         "noise": f"ballbar {noise.sigma * 1e6:.4g} um (std)",
-        "setups": [{"setup": g + 1, "rows": int(np.sum(data.group == g)),
-                    "pivot": (p / fl).tolist(), "ball": (b / fl).tolist(),
-                    "unit": units["length"]} for g, (p, b) in enumerate(setups)],
+        **result.section(DistanceSection).as_report(units),      # setups
         "convergence": convergence_json(result),
         "residuals": scalar_residuals_json(
             result, r_after, rms_after, rms_before,

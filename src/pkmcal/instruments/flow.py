@@ -477,11 +477,11 @@ def fit_with_baseline(machine, data, context: FlowContext, fit, noise, advice: s
     before = solve(source, fit, machine, data, noise, held=held, fit_machine=False)
     require_converged(result, source, advice)
     units = context.units
-    calibrated = result.extras["machine"]
+    calibrated = result.machine
     calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
     calibrated.home = machine.home
     nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
-    start = result.extras["start_model"].parameters
+    start = result.start_model.parameters
     nominal_of.update(zip(start.names, start.values, strict=True))
     params = parameter_table(result, nominal_of, units)
     return data, held, result, before, calibrated, params, units

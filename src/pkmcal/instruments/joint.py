@@ -26,11 +26,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
 from ..errors import InputError
 from ..estimation.rank import RTOL, numerical_rank
+from ..estimation.sections import Section
 from ..identifiability import NullGroup, name_null_space, name_weak_directions
 from ..machines.base import Machine
 from ..parameters import ParameterSet, Prior
@@ -642,6 +644,22 @@ class JointContributions:
         return out
 
 
+@dataclass
+class JointSection(Section):
+    """What a fit of several files adds to its result (``result.sections["joint"]``): each
+    file's instrument model at the estimate and at the start, each file's fit with the
+    machine held, and what each file contributes. The report's ``files`` and
+    ``contributions`` are the calibration layer's (it knows the files' kinds)."""
+
+    instrument: ClassVar[str] = "joint"
+    title: ClassVar[str] = "files fitted together"
+
+    models: list
+    start_models: list
+    before: list
+    contributions: object
+
+
 def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, estimate_noise=True,
               robust: bool = False, sessions=None, **options):
     """Fit one geometry to several instruments' data: starts, each instrument alone, then all.
@@ -681,10 +699,11 @@ def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, estimate
     Returns
     -------
     CalibrationResult
-        With ``extras``: ``noise``, ``outliers``; ``problem`` (the :class:`JointProblem`),
-        ``machine`` (calibrated), ``models`` (each file's model at the estimate),
+        With ``noise``, ``outliers``; ``problem`` (the :class:`JointProblem`),
+        ``machine`` (calibrated), ``unidentifiable``; its :class:`JointSection`: ``models``
+        (each file's model at the estimate),
         ``start_models``, ``before`` (each file's fit with the machine held),
-        ``unidentifiable`` (named null and weak directions), ``contributions``
+        ``contributions``
         (:class:`JointContributions`).
 
     Raises
@@ -706,7 +725,7 @@ def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, estimate
         start = model.start(check._P0, check._R0, data.values, data.group, data.source)
         alone = instrument_problem(geometry, data, start, noise, fit_machine=False)
         first = levenberg_marquardt(alone, rtol=rtol, **options)
-        first.extras["problem"] = alone
+        first.problem = alone
         return start.with_start(first.state.nuisance), first
 
     started, before = [], []
@@ -744,11 +763,10 @@ def fit_joint(machine: Machine, parts, labels=None, rtol: float = RTOL, estimate
     result = fit(problem, estimate_noise, robust=robust, rtol=rtol, state=state, **options)
     state = result.state
     groups = problem.null_groups(state, result.scales, result.null_space)
-    result.extras.update(
-        problem=problem, machine=machine.with_parameters(state.u),
+    result.problem, result.machine = problem, machine.with_parameters(state.u)
+    result.unidentifiable = (name_null_space(result.null_space, problem.parameters, groups)
+                             + name_weak_directions(result, problem.parameters))
+    result.add_section(JointSection(
         models=[m.with_start(s.nuisance) for m, s in zip(started, state.parts, strict=True)],
-        start_models=started, before=before,
-        unidentifiable=name_null_space(result.null_space, problem.parameters, groups)
-        + name_weak_directions(result, problem.parameters),
-        contributions=problem.contributions(state, rtol))
+        start_models=started, before=before, contributions=problem.contributions(state, rtol)))
     return result

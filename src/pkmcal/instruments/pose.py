@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import ClassVar
 
 import numpy as np
 
@@ -61,6 +62,7 @@ from ..estimation.acceptance import FAILED_ALARMING, chi_square_test, report_ver
 from ..estimation.estimator import MAX_STD, CalibrationResult, reduce_local, require_redundancy
 from ..estimation.rank import RTOL, rank_rule
 from ..estimation.registration import register_points
+from ..estimation.sections import Section
 from ..estimation.variance import fit
 from ..identifiability import name_null_space, name_weak_directions
 from ..identifiability.analysis import right_singular
@@ -972,6 +974,52 @@ def estimate_frames(machine: Machine, data: FullPoseData, max_passes: int = 100,
     return MeasurementFrames((A, a), (B, c))
 
 
+@dataclass
+class PoseSection(Section):
+    """What a full-pose calibration adds to its result (``result.sections["pose"]``): the
+    measurement frames (identified and at the start) and which were held.
+
+    Attributes
+    ----------
+    frames, start_frames : MeasurementFrames
+        ``mocap_from_base`` and ``platform_from_marker``, identified and at the start.
+    fixed_frames : tuple of bool
+        Whether each frame was held at its given value.
+    origin : str
+        Where the frames (or their start) came from, in words (the report's ``from``).
+    """
+
+    instrument: ClassVar[str] = "pose"
+    title: ClassVar[str] = "frames"
+
+    frames: object
+    start_frames: object
+    fixed_frames: tuple = (False, False)
+    origin: str = ""
+
+    def as_report(self, units=None) -> dict:
+        from ..units import LENGTH
+
+        unit = (units or {}).get("length", "mm")
+        fl = LENGTH[unit]
+        return {"frames": {
+            "fixed": bool(any(self.fixed_frames)), "from": self.origin,
+            "mocap_from_base": _frame_report(self.frames.mocap_from_base, fl, unit),
+            "platform_from_marker": _frame_report(self.frames.platform_from_marker, fl, unit),
+        }}
+
+    def summary_rows(self, units=None) -> list:
+        fr = self.as_report(units)["frames"]
+        unit = (units or {}).get("length", "mm")
+        rows = []
+        for name in ("mocap_from_base", "platform_from_marker"):
+            f = fr[name]
+            rows.append((name, ("fixed: " if fr["fixed"] else "estimated: ")
+                         + f"turned {f['rotation_angle_deg']:.4g} deg, origin at ("
+                         + ", ".join(f"{v:.6g}" for v in f["translation"]) + f") {unit}"))
+        return rows
+
+
 def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml",
                         noise: FullPoseNoise | None = None,
                         frames: MeasurementFrames | None = None, fix_frames=False,
@@ -1009,7 +1057,7 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
         identifiable ones (standard deviation of at least ``max_std`` under the assumed
         noise) only when the measured poses do not vary beyond their noise; otherwise they are
         left at their start values and reported (``weak_space``, ``weak_std``, named in
-        ``extras["unidentifiable"]``).
+        ``unidentifiable``).
     estimate_noise : bool or collection of str, optional
         ``'ml'``: estimate the noise of the readings, positions and orientations from the
         residuals (``noise`` their prior; :func:`~pkmcal.estimation.variance.fit`); False
@@ -1024,9 +1072,10 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
     Returns
     -------
     CalibrationResult
-        With ``extras``: ``method``; ``machine``, the calibrated machine (with
-        ``measurement_frames``, home kept); ``frames``; ``start_frames``; ``fixed_frames``;
-        ``unidentifiable``, the named null and weak directions; ``problem``; ``'ik'``:
+        With ``method``; ``machine``, the calibrated machine (with ``measurement_frames``,
+        home kept); its :class:`PoseSection` (``frames``, ``start_frames``,
+        ``fixed_frames``); ``unidentifiable``, the named null and weak directions;
+        ``problem``; ``'ik'``:
         ``residual_test``, the chi-square of its residuals whitened by their whole covariance
         (:meth:`FullPoseIK.noise_whitened`).
 
@@ -1072,14 +1121,13 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
         # the ik estimate takes the poses as exact, but their noise is in its residuals: its
         # residual test is in the whole noise model's terms (readings + poses through the IK)
         r = problem.noise_whitened(state)
-        result.extras["residual_test"] = chi_square_test(float(np.sum(r[np.isfinite(r)] ** 2)),
+        result.residual_test = chi_square_test(float(np.sum(r[np.isfinite(r)] ** 2)),
                                                          result.dof)
-    result.extras.update(
-        problem=problem, method=method, machine=calibrated, frames=state.frames(),
-        start_frames=start, fixed_frames=fixed,
-        unidentifiable=name_null_space(result.null_space, problem.parameters, groups)
-        + name_weak_directions(result, problem.parameters),
-    )
+    result.problem, result.method, result.machine = problem, method, calibrated
+    result.add_section(PoseSection(frames=state.frames(), start_frames=start,
+                                   fixed_frames=tuple(fixed)))
+    result.unidentifiable = (name_null_space(result.null_space, problem.parameters, groups)
+                             + name_weak_directions(result, problem.parameters))
     return result
 
 
@@ -1320,8 +1368,8 @@ def gauge_free_error(machine: Machine, result: CalibrationResult, u_true,
     machine : Stewart
         Machine of the family (for :func:`align_to`).
     result : CalibrationResult
-        Result of :func:`calibrate_full_pose` (uses ``extras["problem"]`` and
-        ``extras["frames"]``).
+        Result of :func:`calibrate_full_pose` (uses ``problem`` and its
+        :class:`PoseSection`).
     u_true : array_like, shape (48,)
         True leg parameters.
     frames_true : MeasurementFrames
@@ -1332,8 +1380,8 @@ def gauge_free_error(machine: Machine, result: CalibrationResult, u_true,
     ndarray, shape (60,)
         Scaled errors: 48 leg parameters, then 12 frame coordinates.
     """
-    problem = result.extras["problem"]
-    frames = result.extras["frames"]
+    problem = result.problem
+    frames = result.section(PoseSection).frames
     u = result.x[:problem.n_machine]
     if problem.fit_machine and not all(problem.fixed_frames):
         u, frames = align_to(machine, u, frames, u_true)
@@ -1497,7 +1545,7 @@ class Pose(Instrument):
                                   noise=replace(default, reading_m=run.weight(noise)))
         held = simulate_full_pose(true, sample_workspace_poses(
             true, self.montecarlo_evaluation_poses, run.rng), frames, None, run.rng)
-        err = full_pose_errors(res.extras["machine"], res.extras["frames"], held)
+        err = full_pose_errors(res.machine, res.section(PoseSection).frames, held)
         ok = err.converged
         e = gauge_free_error(nominal, res, true.u, frames)
 
@@ -1812,7 +1860,7 @@ def _calibration_flow(machine, data, context: FlowContext,
     model, choice = machine, None
     if options.extensions != "none" and machine.model_extensions():
         require_converged(result, source)
-        levels = result.extras.get("noise")
+        levels = result.noise
         cv_noise = noise_model if levels is None else FullPoseNoise(
             **{f"{k}_{'rad' if k == 'orientation' else 'm'}": v
                for k, v in zip(levels.keys, levels.sigma, strict=True)})
@@ -1823,27 +1871,29 @@ def _calibration_flow(machine, data, context: FlowContext,
             result = solve(source, calibrate_full_pose, model, data, held=held,
                             method=method, noise=noise_model, frames=frames,
                             fix_frames=fix_frames, estimate_noise=hold, robust=options.robust)
-        result.extras["extensions"] = choice
+        result.extensions = choice
     # the machine file's legs with the frames fitted alone: "before calibration"
     before = solve(source, calibrate_full_pose, machine, data, held=held, method=method,
                     noise=noise_model, frames=frames if fix_frames
-                    else result.extras["start_frames"], fix_frames=fix_frames,
+                    else result.section(PoseSection).start_frames, fix_frames=fix_frames,
                     fit_machine=False)
     require_converged(result, source)
 
     units = context.units
     fl = LENGTH[units["length"]]
-    calibrated = result.extras["machine"]
+    calibrated = result.machine
     calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
     calibrated.home = machine.home
-    frames_id = result.extras["frames"]
+    section = result.section(PoseSection)
+    section.origin = frames_from
+    frames_id, frames_before = section.frames, before.section(PoseSection).frames
     err_after = full_pose_errors(calibrated, frames_id, data)
-    err_before = full_pose_errors(machine, before.extras["frames"], data)
+    err_before = full_pose_errors(machine, frames_before, data)
 
     reading_unit = getattr(machine, "reading_unit", None) or machine.joint_unit()[0]
     gain_factor = fl / reading_factor(reading_unit)         # internal gain -> file gain
     nominal_of = dict(zip(model.parameters.names, model.u, strict=True))
-    start = result.extras["start_frames"]
+    start = section.start_frames
     for name, (R, t) in (("mocap_from_base", start.mocap_from_base),
                          ("platform_from_marker", start.platform_from_marker)):
         nominal_of.update({f"{name}.r{c}": 0.0 for c in "xyz"})
@@ -1863,7 +1913,7 @@ def _calibration_flow(machine, data, context: FlowContext,
     rank = int(result.rank)
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
+    unidentifiable = list(result.unidentifiable)
     # the ik estimate takes the poses as exact, but their noise is in the residuals: its
     # residual test is against the whole noise (readings + poses through the IK); the residuals
     # section states the verdict's numbers (the calibration layer's finish)
@@ -1880,12 +1930,7 @@ def _calibration_flow(machine, data, context: FlowContext,
         "noise": {"reading_um": noise_model.reading_m * 1e6,
                   "position_um": noise_model.position_m * 1e6,
                   "orientation_urad": noise_model.orientation_rad * 1e6},
-        "frames": {
-            "fixed": bool(fix_frames), "from": frames_from,
-            "mocap_from_base": _frame_report(frames_id.mocap_from_base, fl, units["length"]),
-            "platform_from_marker": _frame_report(frames_id.platform_from_marker, fl,
-                                                  units["length"]),
-        },
+        **section.as_report(units),         # frames
         "convergence": convergence_json(result),
         "residuals": {
             "unit": units["length"],
@@ -1906,7 +1951,7 @@ def _calibration_flow(machine, data, context: FlowContext,
     }
     if held is not None:
         h_after = _errors_report(full_pose_errors(calibrated, frames_id, held), fl)
-        h_before = _errors_report(full_pose_errors(machine, before.extras["frames"], held), fl)
+        h_before = _errors_report(full_pose_errors(machine, frames_before, held), fl)
         report["validation"] = validation_section(
             split, held, "pose error of the held-out rows: forward kinematics of the readings "
             "(through the identified frames) vs the measured pose; before: the machine file's "

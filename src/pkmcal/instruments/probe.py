@@ -33,12 +33,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from ..errors import InputError
 from ..estimation.estimator import CalibrationResult
 from ..estimation.rank import RTOL
+from ..estimation.sections import Section
 from ..identifiability.determination import poorly_determined
 from ..machines.base import Machine, bed_height_at
 from ..machines.file_format import BedPlane
@@ -359,8 +361,8 @@ class BedSetup:
         return (float(self.height), float(self.tilt_x), float(self.tilt_y))
 
     def height_at(self, xy) -> np.ndarray:
-        """The bed's height (m) at positions ``xy`` (K, 2): :func:`~pkmcal.machines.base.
-        bed_height_at` of its plane and surface."""
+        """The bed's height (m) at positions ``xy`` (K, 2): its plane and surface
+        (:func:`~pkmcal.machines.base.bed_height_at`)."""
         return bed_height_at(self.plane, xy, self.surface)
 
     def shifted(self, t) -> BedSetup:
@@ -458,7 +460,7 @@ class Probe(Instrument):
             h = fk.P[:, 2] - (z0 + tx * fk.P[:, 0] + ty * fk.P[:, 1])
             return np.where(fk.converged, h, np.nan)
 
-        e = np.abs(heights(res.extras["machine"], res.extras["bed"])
+        e = np.abs(heights(res.machine, res.section(ProbeSection).bed)
                    - heights(true, truth["bed"]))
         ok = np.isfinite(e)
         return res, {"height_mean": float(np.mean(e[ok])) if ok.any() else math.nan,
@@ -675,6 +677,47 @@ class Probe(Instrument):
 
 
 
+@dataclass
+class ProbeSection(Section):
+    """What a probe calibration adds to its result (``result.sections["probe"]``): the bed
+    plane (the printer's frame, SPEC 8) and the assumption it was fitted under.
+
+    Attributes
+    ----------
+    bed : tuple of float
+        ``(height, tilt_x, tilt_y)``: ``z = height + tilt_x x + tilt_y y`` (base frame), m.
+    bed_choice : BedChoice
+        Whether the bed's tilt was estimated or held square, in words.
+    """
+
+    instrument: ClassVar[str] = "probe"
+    title: ClassVar[str] = "bed"
+
+    bed: tuple
+    bed_choice: BedChoice
+
+    def plane(self, units=None) -> dict:
+        """The bed plane in the file's length unit (tilts as slopes)."""
+        from ..units import LENGTH
+
+        unit = (units or {}).get("length", "mm")
+        return {"height": self.bed[0] / LENGTH[unit], "tilt_x": self.bed[1],
+                "tilt_y": self.bed[2], "unit": unit, "tilt": "slopes dz/dx, dz/dy"}
+
+    def as_report(self, units=None) -> dict:
+        return {"bed": {**self.plane(units),
+                        "model": "z = height + tilt_x x + tilt_y y (base frame); heights "
+                                 "measured along z",
+                        "frame": self.bed_choice.words,
+                        "tilt_estimated": self.bed_choice.tilt == "estimated"},
+                "bed_frame": self.bed_choice.words}
+
+    def summary_rows(self, units=None) -> list:
+        # the bed's assumption is the summary's shared "bed" row (a joint fit's too); its
+        # plane is in the report's "bed" (and the HTML page's table of it)
+        return []
+
+
 def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: float = RTOL,
                     fit_machine: bool = True, bed: BedChoice | str = "auto",
                     **options) -> CalibrationResult:
@@ -703,9 +746,9 @@ def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: fl
     Returns
     -------
     CalibrationResult
-        With ``extras``: ``problem``, ``machine`` (calibrated, with ``probe_bed``: ``(height,
-        tilt_x, tilt_y)``), ``model``, ``start_model``, ``bed``, ``unidentifiable`` and
-        ``poorly_determined`` (:func:`poorly_determined`).
+        With ``problem``, ``machine`` (calibrated, with ``probe_bed``: ``(height,
+        tilt_x, tilt_y)``), ``model``, ``start_model``, ``unidentifiable``, its
+        :class:`ProbeSection` (the bed) and ``poorly_determined`` (:func:`poorly_determined`).
 
     Raises
     ------
@@ -725,22 +768,22 @@ def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: fl
         bed = bed_choice(machine, data, noise, bed, rtol=rtol)
     result = fit_instrument(machine, data, bed.model(), noise, fit_machine=fit_machine,
                             rtol=rtol, **options)
-    result.extras["bed_choice"] = bed
     # the null directions named with the probe's own words (a vertical scale about the bed)
     from ..identifiability import name_null_space, name_weak_directions
 
     problem = ProbeProblem.__new__(ProbeProblem)
-    problem.__dict__.update(result.extras["problem"].__dict__)
+    problem.__dict__.update(result.problem.__dict__)
     groups = problem.null_groups(result.state, result.scales, result.null_space)
-    result.extras["problem"] = problem
-    result.extras["unidentifiable"] = (
+    result.problem = problem
+    result.unidentifiable = (
         name_null_space(result.null_space, problem.parameters, groups)
         + name_weak_directions(result, problem.parameters))
+    choice = bed
     bed = tuple(float(v) for v in result.state.nuisance.values[:3])
-    result.extras["machine"].probe_bed = bed
-    result.extras["bed"] = bed
+    result.machine.probe_bed = bed
+    result.add_section(ProbeSection(bed, choice))
     n_machine = len(machine.parameters)
-    result.extras["poorly_determined"] = (
+    result.poorly_determined = (
         poorly_determined(result, n_machine, machine.characteristic_length())
         if fit_machine else [])
     return result
@@ -805,7 +848,6 @@ def _check_options(options, source) -> None:
 def _calibration_flow(machine, data, context: FlowContext,
                       options: ProbeOptions) -> FlowResult:
     """``pkmcal calibrate`` from probe heights (:meth:`Probe.calibrate`)."""
-    from ..units import LENGTH
 
     source, split = context.source, context.split
     noise = INSTRUMENT.noise_arg(options.noise, machine)
@@ -822,31 +864,23 @@ def _calibration_flow(machine, data, context: FlowContext,
         machine, data, context, fit, noise,
         "probe over the whole bed (the centre and rings out to the edge of the reachable "
         "radius)", estimate_noise=options.noise is None, robust=options.robust)
-    fl = LENGTH[units["length"]]
-    problem, before_problem = result.extras["problem"], before.extras["problem"]
+    problem, before_problem = result.problem, before.problem
     rms_after, r_after = scalar_rms(problem, result.state, data)
     rms_before, r_before = scalar_rms(before_problem, before.state, data)
     rank = int(result.rank)
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
-    bed, bed_before = result.extras["bed"], before.extras["bed"]
-
-    def plane(b):
-        return {"height": b[0] / fl, "tilt_x": b[1], "tilt_y": b[2], "unit": units["length"],
-                "tilt": "slopes dz/dx, dz/dy"}
+    unidentifiable = list(result.unidentifiable)
+    section = result.section(ProbeSection)
+    bed_report = section.as_report(units)
+    bed_report["bed"]["before"] = before.section(ProbeSection).plane(units)
 
     report = {
         **context.head(machine, "probe", "joint"),
         "units": units,
         "measurements": len(data),
         "noise": f"probe trigger {noise.sigma * 1e6:.4g} um along z (std)",
-        "bed": {**plane(bed), "before": plane(bed_before),
-                "model": "z = height + tilt_x x + tilt_y y (base frame); heights measured "
-                         "along z",
-                "frame": chosen["bed"].words, "tilt_estimated": chosen["bed"].tilt
-                == "estimated"},
-        "bed_frame": chosen["bed"].words,
+        **bed_report,                       # bed (with the one fitted alone), bed_frame
         "convergence": convergence_json(result),
         "residuals": scalar_residuals_json(
             result, r_after, rms_after, rms_before,

@@ -542,7 +542,7 @@ def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel,
     Returns
     -------
     CalibrationResult
-        With ``extras``: ``problem``, ``machine`` (calibrated), ``model`` (at the estimate),
+        With ``problem``, ``machine`` (calibrated), ``model`` (at the estimate),
         ``start_model``, ``unidentifiable`` (named null and weak directions); ``noise``,
         ``outliers`` (:func:`~pkmcal.estimation.variance.fit`).
 
@@ -582,8 +582,8 @@ def fit_instrument(machine: Machine, data: InstrumentData, model: NuisanceModel,
     calibrated = machine.with_parameters(state.u)
     fitted = start.with_start(state.nuisance)
     groups = problem.null_groups(state, result.scales, result.null_space)
-    result.extras.update(
-        problem=problem, machine=calibrated, model=fitted, start_model=start,
-        unidentifiable=name_null_space(result.null_space, problem.parameters, groups)
-        + name_weak_directions(result, problem.parameters))
+    result.problem, result.machine = problem, calibrated
+    result.model, result.start_model = fitted, start
+    result.unidentifiable = (name_null_space(result.null_space, problem.parameters, groups)
+                             + name_weak_directions(result, problem.parameters))
     return result

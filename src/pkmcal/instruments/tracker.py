@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -48,12 +49,14 @@ from ..estimation.estimator import (
     require_redundancy,
 )
 from ..estimation.rank import RTOL
+from ..estimation.sections import Section
 from ..estimation.variance import OUTLIER_ALPHA, fit
 from ..identifiability import name_null_space, name_weak_directions
 from ..kinematics import matrix_from_rotvec
 from ..machines.base import Machine
 from ..machines.delta import TRACKER_GRID_SPACING  # noqa: F401  (seed 001's grid)
-from ..machines.file_format import TrackerSection, file_rotation, frame_section, vector
+from ..machines.file_format import TrackerSection as TrackerFileSection
+from ..machines.file_format import file_rotation, frame_section, vector
 from ..paths import path_text
 from ..units import format_um
 from .base import Instrument, StandardPlan, _check_groups, _fk_of, has_column, reachable
@@ -508,6 +511,78 @@ def registration_of(state) -> tuple[np.ndarray, np.ndarray]:
     return state.nuisance.rotations[0], np.array(v[3:6], float)
 
 
+@dataclass
+class TrackerSection(Section):
+    """What a tracker calibration adds to its result (``result.sections["tracker"]``): the
+    registration (``base_from_tracker``, estimated or held) and the targets' places on the
+    platform, each with its start, and the rows left out.
+
+    Attributes
+    ----------
+    registration, start_registration : tuple of (ndarray (3, 3), ndarray (3,))
+        ``(R, t)`` of ``base_from_tracker``, m: identified and at the start (closed form with
+        the nominal model).
+    targets, start_targets : ndarray, shape (n, 3)
+        The targets' places on the platform (platform frame), m.
+    kept : ndarray of bool
+        The rows used (not left out as outliers).
+    outlier_rows : ndarray of int
+        The file rows left out.
+    estimated : bool
+        Whether the registration was estimated with the legs (joint method).
+    targets_given : bool
+        Whether the machine file gives the target (the reflector below the platform point).
+    """
+
+    instrument: ClassVar[str] = "tracker"
+    title: ClassVar[str] = "registration"
+
+    registration: tuple
+    start_registration: tuple
+    targets: np.ndarray
+    start_targets: np.ndarray
+    kept: np.ndarray
+    outlier_rows: np.ndarray
+    estimated: bool = True
+    targets_given: bool = False
+
+    def as_report(self, units=None) -> dict:
+        from ..units import LENGTH
+
+        unit = (units or {}).get("length", "mm")
+        fl = LENGTH[unit]
+        (R, t), (R0, t0) = self.registration, self.start_registration
+        R, R0 = np.asarray(R, float), np.asarray(R0, float)
+        return {
+            "targets": {"given_by_machine_file": bool(self.targets_given), "unit": unit,
+                        "places": (np.asarray(self.targets, float) / fl).tolist(),
+                        "what": "target places on the platform (platform frame)"},
+            "registration": {
+                "estimated": bool(self.estimated),
+                "rotation": R.tolist(), "translation": (np.asarray(t) / fl).tolist(),
+                "unit": unit,
+                "start": {"rotation": R0.tolist(),
+                          "translation": (np.asarray(t0) / fl).tolist(),
+                          "method": "closed form (SVD) with the nominal model"},
+                "rotation_change_deg": float(np.degrees(np.linalg.norm(_rotvec(R @ R0.T)))),
+                "translation_change": float(np.linalg.norm(np.asarray(t) - t0) / fl),
+            },
+        }
+
+    def summary_rows(self, units=None) -> list:
+        from ..units import LENGTH
+
+        unit = (units or {}).get("length", "mm")
+        fl = LENGTH[unit]
+        rep = self.as_report(units)["registration"]
+        t = ", ".join(f"{v:.6g}" for v in np.asarray(self.registration[1]) / fl)
+        return [("tracker frame", ("estimated" if self.estimated else "held (two-step)")
+                 + f": origin at ({t}) {unit}, turned {rep['rotation_change_deg']:.4g} deg "
+                 f"and moved {rep['translation_change']:.4g} {unit} from the closed-form start"),
+                ("targets", f"{len(self.targets)} place(s) on the platform"
+                 + (" (machine file)" if self.targets_given else " (estimated)"))]
+
+
 def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise | None = None,
                       joint: bool = True, robust: bool = False,
                       outlier_alpha: float = OUTLIER_ALPHA, estimate_noise=True,
@@ -546,11 +621,10 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
     Returns
     -------
     CalibrationResult
-        With ``extras``: ``problem``; ``method`` (``"tracker-joint"`` or
-        ``"tracker-two-step"``); ``machine``, the calibrated machine with
-        ``base_from_tracker``; ``registration``; ``start_registration``; ``outlier_rows``
-        (file rows left out); ``kept`` (mask of the rows used); ``unidentifiable``; ``noise``
-        and ``outliers`` (:func:`~pkmcal.estimation.variance.fit`).
+        With ``problem``; ``method`` (``"tracker-joint"`` or ``"tracker-two-step"``);
+        ``machine``, the calibrated machine with ``base_from_tracker``; ``unidentifiable``;
+        ``noise`` and ``outliers`` (:func:`~pkmcal.estimation.variance.fit`); its
+        :class:`TrackerSection` (registration, targets, rows kept).
 
     Raises
     ------
@@ -585,23 +659,23 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
     # noise by design, they cannot tell its level
     result = fit(problem, estimate_noise if joint else False, robust=robust,
                  alpha=outlier_alpha, rtol=rtol, **{"max_std": MAX_STD, **options})
-    test = result.extras["outliers"]
+    test = result.outliers
     keep = test.kept if test is not None else np.ones(len(data), bool)
     state = result.state
     calibrated = machine.with_parameters(state.u)
     calibrated.base_from_tracker = registration_of(state)
-    result.extras.update(
-        problem=problem,
-        method="tracker-joint" if joint else "tracker-two-step", machine=calibrated,
+    result.problem, result.machine = problem, calibrated
+    result.method = "tracker-joint" if joint else "tracker-two-step"
+    result.add_section(TrackerSection(
         registration=registration_of(state), start_registration=registration,
         targets=problem.model.targets(state.nuisance).copy(),
         start_targets=(problem.model.targets(problem.model.initial()).copy()),
-        outlier_rows=data.rows[~keep], kept=keep,
-        unidentifiable=name_null_space(result.null_space, problem.parameters,
-                                       problem.null_groups(state, result.scales,
-                                                           result.null_space))
-        + name_weak_directions(result, problem.parameters),
-    )
+        kept=keep, outlier_rows=data.rows[~keep], estimated=bool(joint),
+        targets_given=machine.tracker_target() is not None))
+    result.unidentifiable = (
+        name_null_space(result.null_space, problem.parameters,
+                        problem.null_groups(state, result.scales, result.null_space))
+        + name_weak_directions(result, problem.parameters))
     return result
 
 
@@ -619,7 +693,7 @@ def predict_tracker_points(machine: Machine, q, base_from_tracker, targets=None,
         ``(R (3, 3), t (3,))``: a tracker point ``m`` is ``R m + t`` in the base frame.
     targets : array_like, shape (n_targets, 3), optional
         Places of the targets on the platform (m) when the machine gives none (a calibration's
-        ``extras["targets"]``); default the platform origin.
+        :attr:`TrackerSection.targets`); default the platform origin.
     target : array_like of int, shape (K,), optional
         0-based target of each row; default 0.
 
@@ -683,7 +757,7 @@ def prediction_covariance(result: CalibrationResult, q):
     Parameters
     ----------
     result : CalibrationResult
-        Result of :func:`calibrate_tracker` (uses ``extras["problem"]``, ``state`` and
+        Result of :func:`calibrate_tracker` (uses ``problem``, ``state`` and
         ``covariance``).
     q : array_like, shape (K, n_joints) or (n_joints,)
         Actuator readings, rad.
@@ -698,7 +772,7 @@ def prediction_covariance(result: CalibrationResult, q):
     InputError
         When the model cannot reproduce some readings.
     """
-    problem = result.extras["problem"]
+    problem = result.problem
     q = np.atleast_2d(q)
     pseudo = InstrumentData("points", q, np.zeros((len(q), 3)))
     unit = InstrumentProblem(problem.machine, pseudo, problem.model, None)
@@ -965,7 +1039,7 @@ class Tracker(Instrument):
         res = calibrate_tracker(nominal, data, fit_noise)
         held = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng)[0]
         q = nominal.ik(held)
-        m = predict_tracker_points(res.extras["machine"], q, res.extras["registration"])
+        m = predict_tracker_points(res.machine, q, res.section(TrackerSection).registration)
         return res, _point_errors(m, predict_tracker_points(true, q, pose))
 
     def _montecarlo_points_run(self, run):
@@ -978,8 +1052,8 @@ class Tracker(Instrument):
         res = calibrate_tracker(nominal, data, fit_noise)
         P, R, _ = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng)
         q = nominal.ik(P, R)
-        m = predict_tracker_points(res.extras["machine"], q, res.extras["registration"],
-                                   targets=res.extras["targets"])
+        sec = res.section(TrackerSection)
+        m = predict_tracker_points(res.machine, q, sec.registration, targets=sec.targets)
         return res, _point_errors(m, predict_tracker_points(true, q, truth["base_from_tracker"],
                                                             targets=truth["targets"]))
 
@@ -1033,7 +1107,7 @@ class Tracker(Instrument):
                      "tracker section")
     Setup = TrackerSetup
     section_order = 10
-    section_schema = TrackerSection
+    section_schema = TrackerFileSection
     section_lists = {"targets": "a list of target places [[x, y, z], ...] on the platform "
                                 "(one per target)"}
 
@@ -1466,7 +1540,7 @@ def _calibration_flow(machine, data, context: FlowContext,
     units = context.units
     fl = LENGTH[units["length"]]
     method = "two-step" if two_step else "joint"
-    calibrated = result.extras["machine"]
+    calibrated = result.machine
     calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
     # FK start of the calibrated file: the input machine's home, else the measured position
     # closest to the middle of the data that the calibrated model reaches
@@ -1476,13 +1550,14 @@ def _calibration_flow(machine, data, context: FlowContext,
         if np.all(np.isfinite(calibrated.ik(P_home, R_home))):
             calibrated.home = (np.asarray(P_home, float), np.asarray(R_home, float))
             break
-    R, t = result.extras["registration"]
-    R0, t0 = result.extras["start_registration"]
+    section = result.section(TrackerSection)
+    R, t = section.registration
+    R0, t0 = section.start_registration
     given = machine.tracker_target() is not None
-    targets, targets0 = result.extras["targets"], result.extras["start_targets"]
+    targets, targets0 = section.targets, section.start_targets
     calibrated.tracker_targets = None if given else np.array(targets, float)
-    kept = np.asarray(result.extras["kept"], bool)
-    outlier_rows = [int(v) for v in result.extras["outlier_rows"]]
+    kept = np.asarray(section.kept, bool)
+    outlier_rows = [int(v) for v in section.outlier_rows]
 
     nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
     nominal_of.update(zip(("tracker.rx", "tracker.ry", "tracker.rz"), (0.0, 0.0, 0.0),
@@ -1510,13 +1585,12 @@ def _calibration_flow(machine, data, context: FlowContext,
     rank = int(result.rank)
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
+    unidentifiable = list(result.unidentifiable)
     combinations = calibrated.identifiable_combinations()
     if combinations is not None:
         combinations = {k: (v if k == "description" else (np.asarray(v) / fl).tolist())
                         for k, v in combinations.items()}
         combinations["description"] += " (file length unit)"
-    rot_change = float(np.degrees(np.linalg.norm(_rotvec(R @ R0.T))))
     report = {
         **context.head(machine, "tracker", method),
         "robust": robust,
@@ -1526,18 +1600,7 @@ def _calibration_flow(machine, data, context: FlowContext,
         "outlier_rows": outlier_rows,
         "noise": noise_text,
         **({"smr_offset": float(-machine.tracker_target()[2]) / fl} if given else {}),
-        "targets": {"given_by_machine_file": given, "unit": units["length"],
-                    "places": (np.asarray(targets, float) / fl).tolist(),
-                    "what": "target places on the platform (platform frame)"},
-        "registration": {
-            "estimated": not two_step,
-            "rotation": R.tolist(), "translation": (np.asarray(t) / fl).tolist(),
-            "unit": units["length"],
-            "start": {"rotation": R0.tolist(), "translation": (np.asarray(t0) / fl).tolist(),
-                      "method": "closed form (SVD) with the nominal model"},
-            "rotation_change_deg": rot_change,
-            "translation_change": float(np.linalg.norm(t - t0) / fl),
-        },
+        **section.as_report(units),         # targets, registration
         "convergence": convergence_json(result),
         "residuals": {
             "of": "tracker points, measured - predicted (3-D distance, tracker frame)",

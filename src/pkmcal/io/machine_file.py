@@ -378,9 +378,9 @@ def _instrument_kinds() -> dict:
 
 #: what every machine file may have, in file order, where a machine's schema does not state
 #: it itself (``machine`` is always the format's own type): the head, the instrument sections
-#: every machine may have (each instrument's :attr:`~pkmcal.instruments.base.Instrument.
-#: section_schema`, in the order of their sections), then ``joint_limits`` (checked by
-#: :func:`_joint_limits`, per-joint messages) and ``calibration``
+#: every machine may have (each instrument's ``section_schema``, in the order of their
+#: sections), then ``joint_limits`` (checked by :func:`_joint_limits`, per-joint messages)
+#: and ``calibration``
 _COMMON_FIELDS: dict[str, tuple | None] = dict(
     pkmcal=(Literal[1], ...), machine=None,                 # machine: the format's own type
     name=(str | None, None), units=(Units, ...),
@@ -583,7 +583,7 @@ _HINTS = {
 
 
 #: list keys of the instrument sections and what they hold, for messages (each instrument's
-#: :attr:`~pkmcal.instruments.base.Instrument.section_lists`)
+#: ``section_lists``)
 _LIST_SECTIONS = {key: words for inst in INSTRUMENTS.values()
                   for key, words in inst.section_lists.items()}
 
@@ -948,8 +948,8 @@ def machine_to_text(machine: Machine, units: dict | None = None,
     calibration : dict, optional
         Metadata written as the ``calibration:`` section.
     setups : Setups, optional
-        The instruments' set-ups, written as their sections (:mod:`pkmcal.instruments.
-        setups`).
+        The instruments' set-ups, written as their sections
+        (:mod:`pkmcal.instruments.setups`).
 
     Returns
     -------

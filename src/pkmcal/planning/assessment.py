@@ -328,11 +328,12 @@ def assess_identifiability(machine, scenario: str | None = None, *, data=None, p
     workspace : Workspace, optional
         Where the accuracy is predicted; default the SPEC 5 cube around home.
     targets : int, optional
-        Planned tracker targets, used in turn.
+        Planned tracker targets, used in turn (``poses`` with ``groups``: the targets they
+        give).
     setup : object, optional
         The instrument's set-up (:mod:`pkmcal.instruments.setups`: the machine file's, or a
-        ballbar's planned mountings, :meth:`~pkmcal.instruments.base.Instrument.
-        planned_setup`); default the planning one.
+        ballbar's planned mountings,
+        :meth:`~pkmcal.instruments.base.Instrument.planned_setup`); default the planning one.
 
     Returns
     -------
@@ -374,7 +375,7 @@ def assess_identifiability(machine, scenario: str | None = None, *, data=None, p
                 raise InputError(f"{plan.name}: {plan.reason}")
             P, R, groups = plan.P, plan.R, plan.group
             rows, words = None, plan.name
-        if targets:
+        if targets and (poses is None or groups is None):   # a plan's own targets win
             groups = np.arange(len(P)) % targets
             words += f", {targets} target(s) in turn"
     try:

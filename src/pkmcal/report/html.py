@@ -736,8 +736,8 @@ def _ratio_plot(ratio) -> str:
 
 
 def _instrument_sections(report) -> str:
-    """Sections of the newer kinds: the files of a joint fit and what each adds, ballbar
-    mountings, and the parameters the data determine poorly (with what to measure next)."""
+    """Sections of the newer kinds: the files of a joint fit and what each adds, and the
+    parameters the data determine poorly (with what to measure next)."""
     parts = []
     files = report.get("files")
     if isinstance(files, list) and files:
@@ -756,16 +756,6 @@ def _instrument_sections(report) -> str:
         lines = summary if isinstance(summary, list) else [summary]
         parts.append("<h2>What each file adds</h2><ul>"
                      + "".join(f"<li>{_e(line)}</li>" for line in lines) + "</ul>")
-    setups = report.get("setups")
-    if isinstance(setups, list) and setups:
-        rows = "".join(
-            f"<tr><td>{_e(u.get('setup'))}</td><td>{_e(u.get('rows'))}</td>"
-            f"<td>{_e(', '.join(_num(v) for v in u.get('pivot', [])))}</td>"
-            f"<td>{_e(', '.join(_num(v) for v in u.get('ball', [])))}</td>"
-            f"<td>{_e(u.get('unit', ''))}</td></tr>" for u in setups if isinstance(u, Mapping))
-        parts.append("<h2>Ballbar mountings</h2><table><tr><th>setup</th><th>rows</th>"
-                     "<th>pivot (base)</th><th>ball (platform)</th><th>unit</th></tr>"
-                     f"{rows}</table>")
     poor = report.get("poorly_determined")
     if isinstance(poor, Mapping) and poor.get("parameters"):
         from ..units import ANGLE
@@ -797,6 +787,61 @@ def _instrument_sections(report) -> str:
                      "<table><tr><th>parameter</th><th>std</th><th>unit</th><th>most "
                      f"correlated with</th><th>correlation [1]</th></tr>{rows}</table>")
     return "".join(parts)
+
+
+#: reports written before the results had typed sections (no ``sections`` index): their
+#: instrument keys, shown the same way
+_UNINDEXED_KEYS = ("link_length", "registration", "frames", "setups", "bed")
+
+
+def _list_table(items: list) -> str:
+    """A table of a list of flat records (one row each, one column per key)."""
+    records = [r for r in items if isinstance(r, Mapping)]
+    columns = list(dict.fromkeys(k for r in records for k in r))
+    head = "".join(f"<th>{_e(c)}</th>" for c in columns)
+
+    def cell(c, v) -> str:
+        if isinstance(v, list):
+            return ", ".join(_num(x) for x in v)
+        return "" if v is None else _value_text(c, v)
+
+    body = "".join("<tr>" + "".join(f"<td>{_e(cell(c, r.get(c)))}</td>" for c in columns)
+                   + "</tr>" for r in records)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def _result_sections(report) -> list[str]:
+    """Each instrument's typed section of the result (``report["sections"]``: its title,
+    summary rows and report keys), rendered the same way whatever the instrument."""
+    index = report.get("sections")
+    if not isinstance(index, Mapping):
+        index = {k: {"title": k.replace("_", " "), "keys": [k], "summary": []}
+                 for k in _UNINDEXED_KEYS if k in report}
+    out = []
+    for name, entry in index.items():
+        if not isinstance(entry, Mapping):
+            continue
+        rows = [r for r in entry.get("summary") or [] if isinstance(r, list) and len(r) == 2]
+        parts = []
+        if rows:
+            parts.append("<table>" + "".join(f"<tr><th>{_e(label)}</th><td>{_e(text)}</td></tr>"
+                                             for label, text in rows) + "</table>")
+        keys = [k for k in entry.get("keys") or [] if isinstance(k, str) and k in report]
+        for key in keys:
+            value = report[key]
+            head = f"<h3>{_e(key.replace('_', ' '))}</h3>" if len(keys) > 1 else ""
+            if isinstance(value, Mapping):
+                parts.append(head + _kv_table(list(_rows(value))))
+            elif isinstance(value, list) and value and all(isinstance(v, Mapping)
+                                                           for v in value):
+                parts.append(head + _list_table(value))
+            elif value is not None:
+                label, unit = _label_unit(key)
+                parts.append(_kv_table([(label, _value_text(key, value), unit,
+                                         _is_number(value))]))
+        if parts:
+            out.append(f"<h2>{_e(entry.get('title') or name)}</h2>" + "".join(parts))
+    return out
 
 
 def _summary_rows(report, conv):
@@ -1137,10 +1182,7 @@ def build_html(report: Mapping, title: str | None = None) -> str:
     if isinstance(validation, Mapping):
         parts.append("<h2>Held-out validation</h2>" + _kv_table(list(_rows(validation))))
     parts.append(_instrument_sections(report))
-    for key in ("link_length", "registration", "frames", "bed"):
-        if isinstance(report.get(key), Mapping):
-            details.append(f"<h2>{_e(key.replace('_', ' '))}</h2>"
-                         + _kv_table(list(_rows(report[key]))))
+    details += _result_sections(report)
     params = report.get("parameters") or []
     gauge = gauge_parameters(report)
     parts.append(_combinations_section(report))

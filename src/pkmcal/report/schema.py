@@ -50,6 +50,16 @@ class _Section(BaseModel):
     model_config = ConfigDict(extra="allow", strict=True)
 
 
+class SectionIndex(_Section):
+    """One entry of ``sections``: an instrument's typed section of the result (its title, the
+    report keys it wrote, its summary rows), as the console and the HTML page show it."""
+
+    title: str
+    keys: list[str] = Field(default_factory=list)
+    summary: list[Annotated[list[str], Field(min_length=2, max_length=2)]] = Field(
+        default_factory=list)
+
+
 class Convergence(_Section):
     """``convergence``: whether and how the estimator ended."""
 
@@ -527,6 +537,7 @@ class CalibrationReport(_Section):
     poorly_determined: PoorlyDetermined | None = None
     acceptance: Acceptance | None = None
     outcome: Outcome | None = None
+    sections: dict[str, SectionIndex] | None = None
 
     @field_validator("measurement")
     @classmethod

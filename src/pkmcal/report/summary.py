@@ -63,11 +63,13 @@ class RawText:
 class Summary:
     """A command's output for a person, in order: lines (:class:`str`), tables
     (:class:`SummaryTable`) and raw text (:class:`RawText`); warnings are said after them,
-    each once; ``exit_code`` is the command's (0: done; 1: ran and did not succeed)."""
+    each once, then errors (why a run that wrote its outputs did not succeed, with
+    ``exit_code`` 1); ``exit_code`` is the command's (0: done; 1: ran and did not succeed)."""
 
     blocks: list = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     exit_code: int = 0
+    errors: list[str] = field(default_factory=list)
 
     def line(self, text: str) -> None:
         """Append a line of plain text."""
@@ -94,11 +96,18 @@ class Summary:
         if text not in self.warnings:
             self.warnings.append(text)
 
+    def error(self, text: str) -> None:
+        """Why the command did not succeed, said after the warnings; sets ``exit_code`` 1."""
+        self.errors.append(text)
+        self.exit_code = max(self.exit_code, 1)
+
     def extend(self, other: Summary) -> None:
-        """Append another summary's blocks and warnings."""
+        """Append another summary's blocks, warnings and errors."""
         self.blocks += other.blocks
         for text in other.warnings:
             self.warn(text)
+        self.errors += other.errors
+        self.exit_code = max(self.exit_code, other.exit_code)
 
     def text(self) -> str:
         """The blocks as plain text (tables as tab-separated lines), for logs and tests."""
@@ -118,8 +127,10 @@ class Summary:
         return "\n".join(out) + ("\n" if out else "")
 
     def as_dict(self) -> dict:
-        """JSON-ready: the blocks (lines, tables, raw text), the warnings and the exit code."""
+        """JSON-ready: the blocks (lines, tables, raw text), the warnings, the errors and the
+        exit code."""
         blocks = [b.as_dict() if isinstance(b, SummaryTable)
                   else {"raw": b.text} if isinstance(b, RawText) else {"line": b}
                   for b in self.blocks]
-        return {"blocks": blocks, "warnings": list(self.warnings), "exit_code": self.exit_code}
+        return {"blocks": blocks, "warnings": list(self.warnings), "errors": list(self.errors),
+                "exit_code": self.exit_code}

@@ -1,19 +1,21 @@
 """What every workflow shares: the machine named on the command line, the outputs checked
-before any work and written all or none, the "wrote ..." line, and a silent progress."""
+before any work and written all or none, the "wrote ..." line, a silent progress, and the
+groups of a file's rows (fk, compensate)."""
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 from ..errors import stop_if_signalled
 from ..instruments.setups import Setups
-from ..io import load_machine, load_machine_file
-from ..io.atomic import is_stream
+from ..io import load_machine, load_machine_file, read_groups
+from ..io.atomic import OutputSet, active_output_set, is_stream
 from ..io.machine_file import DEFAULT_UNITS
 from ..paths import path_text
 
 __all__ = ["load_machine_arg", "load_setups_arg", "machine_inputs", "check_outputs",
-           "commit_outputs", "wrote", "no_progress"]
+           "commit_outputs", "in_output_set", "wrote", "no_progress", "group_numbers"]
 
 
 def load_machine_arg(spec: str):
@@ -80,6 +82,20 @@ def check_outputs(outputs: list[Path], inputs: list[Path], directories=()) -> No
             active.declare(out)
 
 
+def in_output_set(workflow):
+    """Decorate a workflow: run it in an output set of its own when none is active (a Python
+    caller's), so its outputs are checked, staged and written all or none as under ``pkmcal``
+    (which runs every command in one), and an output directory is created at the commit."""
+    @functools.wraps(workflow)
+    def run(*args, **kwargs):
+        if active_output_set() is not None:
+            return workflow(*args, **kwargs)
+        with OutputSet():
+            return workflow(*args, **kwargs)
+
+    return run
+
+
 def commit_outputs() -> list[Path]:
     """Write the staged outputs now, all or none (before saying they are written); returns
     them."""
@@ -101,3 +117,10 @@ def no_progress(description: str, total: int):
     description=None)``; advancing still stops a run that was signalled."""
     del description, total
     return lambda n=1, description=None: stop_if_signalled()
+
+
+def group_numbers(path: Path, extra: dict, rows, column: str):
+    """0-based groups of an optional integer column (``target``, ``setup``: 1, 2, ...) of a
+    file whose rows are predicted or commanded, not fitted: any of the numbers may be absent;
+    None without the column (:func:`~pkmcal.io.read_groups` with gaps)."""
+    return read_groups(path, extra, rows, column, gaps=True)

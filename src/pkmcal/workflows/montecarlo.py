@@ -1,9 +1,12 @@
-"""``pkmcal montecarlo``: simulated calibrations while one setting varies (issue 5, item 4).
+"""``pkmcal montecarlo`` as a library function: simulated calibrations while one setting
+varies (issue 5, item 4).
 
-Validates everything first (exit 2 on bad input, nothing written), runs the Monte Carlo of
-:mod:`pkmcal.analysis.montecarlo` with a progress bar on stderr, then writes ``runs.csv``,
-``summary.csv``, ``summary.json`` and ``montecarlo.png`` into the output directory, each
-atomically, and prints a summary table.
+Validates everything first (:class:`~pkmcal.errors.InputError`, nothing written), runs the
+Monte Carlo of :mod:`pkmcal.analysis.montecarlo` (in this process, local worker processes or
+a Dask cluster) advancing a progress, then writes ``runs.csv``, ``summary.csv``,
+``summary.json`` and ``montecarlo.png`` into the output directory, all or none, and returns
+the summary table as a :class:`~pkmcal.report.summary.Summary`: a warning per value with runs
+that are not ok, an error and exit code 1 when a value has no ok run.
 """
 
 from __future__ import annotations
@@ -11,19 +14,27 @@ from __future__ import annotations
 import json
 import math
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from ..calibration.run import json_safe as _finite_or_none
 from ..calibration.run import versions
 from ..errors import InputError
+from ..instruments.flow import json_safe
 from ..paths import path_text
 from ..report.provenance import pinned_date, run_date
+from ..report.summary import Summary
 from ..units import format_number, format_quantity, parse_quantity
-from ._commands import _table, check_outputs, commit_outputs, load_machine_arg, load_setups_arg
-from ._console import console, progress_tasks, warning
+from .common import (
+    check_outputs,
+    commit_outputs,
+    in_output_set,
+    load_machine_arg,
+    load_setups_arg,
+    no_progress,
+)
+
+__all__ = ["montecarlo", "parse_vary", "OUTPUT_FILES"]
 
 #: files written into the output directory
 OUTPUT_FILES = ("runs.csv", "summary.csv", "summary.json", "montecarlo.png")
@@ -72,13 +83,61 @@ def _length_option(text: str | None, what: str, allow: tuple[str, ...] = ()):
     return value
 
 
-def run_montecarlo(machine_spec: str, vary: str, output: Path, runs: int = 20,
-                   scenario: str | None = None, poses: int | None = None,
-                   noise: str | None = None, lc_error: str | None = None,
-                   tolerance: str | None = None, deviations: str | None = None,
-                   estimate_lc: bool = False, seed: int = 0, workers: int | None = None,
-                   scheduler: str | None = None, quiet: bool = False) -> int:
-    from ..analysis.montecarlo import MonteCarloSettings, montecarlo, scenarios_varying
+@in_output_set
+def montecarlo(machine_spec: str, vary: str, output: Path, *, runs: int = 20,
+               scenario: str | None = None, poses: int | None = None,
+               noise: str | None = None, lc_error: str | None = None,
+               tolerance: str | None = None, deviations: str | None = None,
+               estimate_lc: bool = False, seed: int = 0, workers: int | None = None,
+               scheduler: str | None = None, progress=no_progress) -> Summary:
+    """``pkmcal montecarlo``: ``runs`` simulated calibrations at each value of the swept
+    setting, their statuses and statistics written to ``output``.
+
+    Parameters
+    ----------
+    machine_spec : str
+        A machine file, or ``"default"``.
+    vary : str
+        ``VARIABLE=V1,V2,...`` (:func:`parse_vary`): noise, lc-error, poses or tolerance.
+    output : Path
+        The output directory (created if missing): :data:`OUTPUT_FILES`.
+    runs : int
+        Simulated calibrations per value.
+    scenario : str, optional
+        The measurement scenario (default the machine type's own).
+    poses : int, optional
+        Measurements per calibration when not swept.
+    noise, lc_error, tolerance : str, optional
+        Lengths with units when not swept; ``noise`` may also be an instrument's word
+        (``leica``).
+    deviations : str, optional
+        ``paper-table1``, ``random`` or ``none``: true machine = machine + deviations.
+    estimate_lc : bool
+        constraint-link: estimate Lc too.
+    seed : int
+        Run r at value i draws from ``SeedSequence(seed, spawn_key=(i, r))``: the same seed
+        gives the same runs whatever ``workers`` or ``scheduler``.
+    workers : int, optional
+        Local worker processes (default all cores; 1 runs in this process).
+    scheduler : str, optional
+        A Dask scheduler's address to run on instead.
+    progress : callable
+        ``progress(description, total) -> advance(n=1, description=None)``, one task
+        "calibrations" of ``len(values) * runs`` steps.
+
+    Returns
+    -------
+    Summary
+        The settings and the per-value statistics tables and the "wrote ..." line; a warning
+        per value with runs not ok; exit code 1 (with an error) when a value has no ok run.
+
+    Raises
+    ------
+    InputError
+        A bad option, named; nothing is written.
+    """
+    from ..analysis.montecarlo import MonteCarloSettings, scenarios_varying
+    from ..analysis.montecarlo import montecarlo as run_montecarlo
 
     check_outputs([output / name for name in OUTPUT_FILES], [], [output])
     if runs < 1:
@@ -118,17 +177,17 @@ def run_montecarlo(machine_spec: str, vary: str, output: Path, runs: int = 20,
         raise InputError(f"--lc-error: applies to {scenarios_varying('lc-error')}, not "
                          f"{resolved} ({machine.kind})")
 
-    total = len(values) * runs
-    with progress_tasks(quiet) as new:
-        advance = new("calibrations", total)
-        result = montecarlo(settings, variable, values, runs=runs, seed=seed, workers=workers,
+    advance = progress("calibrations", len(values) * runs)
+    result = run_montecarlo(settings, variable, values, runs=runs, seed=seed, workers=workers,
                             scheduler=scheduler, progress=advance)
     files = _write_outputs(result, output, machine_spec)
-    _print_summary(result, files)
-    return _report_runs(result)
+    summary = Summary()
+    _summary_tables(summary, result, files)
+    _report_runs(summary, result)
+    return summary
 
 
-def _report_runs(result) -> int:
+def _report_runs(summary: Summary, result) -> None:
     """A warning per value with runs that are not ok (counts per status, an example reason);
     an error and exit code 1 when some value has no ok run (its statistics are empty)."""
     from ..analysis.montecarlo import STATUS_COUNTS, STATUSES
@@ -140,18 +199,14 @@ def _report_runs(result) -> int:
             continue
         counts = ", ".join(f"{p[STATUS_COUNTS[k]]} {k}" for k in STATUSES[1:]
                            if p[STATUS_COUNTS[k]])
-        warning(f"{_value_text(result, p['value'])}: {len(bad)} of {p['runs']} runs not ok "
-                f"({counts}), counted and left out of the statistics; e.g. run {bad[0]['run']}: "
-                f"{bad[0]['failure']}")
+        summary.warn(f"{_value_text(result, p['value'])}: {len(bad)} of {p['runs']} runs not "
+                     f"ok ({counts}), counted and left out of the statistics; e.g. run "
+                     f"{bad[0]['run']}: {bad[0]['failure']}")
         if p["ok"] == 0:
             empty.append(_value_text(result, p["value"]))
     if empty:
-        from ._console import error
-
-        error(f"no run ok (converged and accepted) at {'; '.join(empty)}: no statistics; see "
-              "the status and failure columns of runs.csv")
-        return 1
-    return 0
+        summary.error(f"no run ok (converged and accepted) at {'; '.join(empty)}: no "
+                      "statistics; see the status and failure columns of runs.csv")
 
 
 def _value_text(result, value) -> str:
@@ -165,6 +220,7 @@ def _value_text(result, value) -> str:
 
 
 def _write_outputs(result, outdir: Path, machine_spec: str) -> list[Path]:
+    """The four output files, staged and committed together; returns their paths."""
     from ..analysis.montecarlo import (
         ACCEPTANCE_MIN_RATIO,
         ACCEPTANCE_QUANTILE,
@@ -237,7 +293,7 @@ def _write_outputs(result, outdir: Path, machine_spec: str) -> list[Path]:
         "versions": versions(*(("dask", "distributed")
                                  if result.executor.startswith("dask") else ())),
     }
-    json_text = json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n"
+    json_text = json.dumps(json_safe(report), indent=2, allow_nan=False) + "\n"
     # outputs, at the very end, all together
     paths = [outdir / name for name in OUTPUT_FILES]
     write_table(paths[0], *runs_table(result))
@@ -248,13 +304,13 @@ def _write_outputs(result, outdir: Path, machine_spec: str) -> list[Path]:
     return paths
 
 
-def _print_summary(result, files) -> None:
+def _summary_tables(summary: Summary, result, files) -> None:
+    """The settings, the per-value statistics over the ok runs and the files written."""
     from ..analysis.montecarlo import VARIABLES
 
     _, unit, factor = VARIABLES[result.variable]
     s = result.settings
-    out = console()
-    head = _table("", "", title="pkmcal montecarlo", show_header=False)
+    head = summary.pairs(title="pkmcal montecarlo")
     d = s.describe()
     head.add_row("machine", f"{d['machine']} ({d['kind']}), scenario {d['scenario']}")
     fixed = [f"poses {d['poses']}" if result.variable != "poses" else None,
@@ -272,7 +328,6 @@ def _print_summary(result, files) -> None:
                  + (f", {result.workers} workers" if result.executor == "local processes"
                     else "")
                  + f"; {wall:.3g} s ({len(result.rows) / wall:.3g} runs/s)")
-    out.print(head)
     metrics = [n for n in result.metrics if n.endswith("_mean")]
     col = f"{result.variable}" + (f" ({unit})" if unit else "")
     cols = [col, "ok", "not ok"]
@@ -280,8 +335,8 @@ def _print_summary(result, files) -> None:
         u = result.metrics[name][0]
         words = name.removesuffix("_mean").replace("_", " ") + (f" ({u})" if u else "")
         cols += [f"{words} mean", "median", "5-95 %"]
-    table = _table(*cols, title="error after calibration, over the ok runs",
-                   justify={i: "right" for i in range(len(cols))})
+    table = summary.table(*cols, title="error after calibration, over the ok runs",
+                          justify={i: "right" for i in range(len(cols))})
     short = {"not_converged": "not conv.", "rejected": "rejected", "failed": "failed"}
     for p in result.summary:
         v = int(p["value"]) if result.variable == "poses" else p["value"] / factor
@@ -297,12 +352,10 @@ def _print_summary(result, files) -> None:
                       if math.isfinite(st["q05"]) else "-")
             row += [mean, _number(st["median"], 4), spread]
         table.add_row(*row)
-    out.print(table)
-    out.print("mean +/- half-width of its 95 % confidence interval, median and 5-95 % of the ok "
-              "runs; runs not ok (not converged; rejected: residuals beyond the noise, a wrong "
-              "geometry; failed) are counted, never averaged", markup=False)
-    out.print("wrote " + ", ".join(map(str, files)), markup=False)
-    sys.stdout.flush()
+    summary.line("mean +/- half-width of its 95 % confidence interval, median and 5-95 % of "
+                 "the ok runs; runs not ok (not converged; rejected: residuals beyond the noise, "
+                 "a wrong geometry; failed) are counted, never averaged")
+    summary.line("wrote " + ", ".join(map(str, files)))
 
 
 def _number(v: float, digits: int) -> str:

@@ -1,7 +1,16 @@
-"""``pkmcal identifiability`` and ``pkmcal select-poses``: what measurements will identify and
-how accurate the calibration will be, before and after measuring (SPEC 3). The commands parse
-their options and print; the work is :func:`pkmcal.planning.assess_identifiability` and
-:func:`pkmcal.planning.select_plan`."""
+"""``pkmcal identifiability`` and ``pkmcal select-poses`` as library functions: what
+measurements will identify and how accurate the calibration will be, before and after
+measuring (SPEC 3). They read the user's files and options, check them (an
+:class:`~pkmcal.errors.InputError` naming the file, row or option), compute with
+:func:`pkmcal.planning.assess_identifiability` and :func:`pkmcal.planning.select_plan`, write
+their outputs all or none and return a :class:`~pkmcal.report.summary.Summary`.
+
+Example
+-------
+>>> from pkmcal.workflows.planning import identifiability
+>>> summary = identifiability("default", poses=30)            # doctest: +SKIP
+>>> print(summary.text())                                     # doctest: +SKIP
+"""
 
 from __future__ import annotations
 
@@ -12,26 +21,27 @@ from pathlib import Path
 import numpy as np
 
 from ..calibration.run import file_units as _units
-from ..calibration.run import json_safe as _finite_or_none
-from ..calibration.run import rows_text as _rows_text
 from ..errors import InputError
+from ..instruments.flow import json_safe, rows_text
 from ..instruments.registry import INSTRUMENTS, instrument
 from ..io import read_table
 from ..paths import path_text
-from ..planning import WORKSPACE_POSES, measured_problem, noise_model  # noqa: F401
+from ..planning import WORKSPACE_POSES, noise_model
 from ..plausibility import check_option_scale
+from ..report.summary import Summary
 from ..units import LENGTH, format_quantity, format_um, format_urad, parse_quantity
-from ._commands import (
-    _table,
+from .common import (
     check_outputs,
     commit_outputs,
-    joint_columns,
+    in_output_set,
     load_machine_arg,
     load_setups_arg,
-    read_poses_of,
-    refuse_unreachable,
+    no_progress,
 )
-from ._console import console, progress_tasks
+from .poses import joint_columns, read_poses_of, refuse_outside_limits, refuse_unreachable
+
+__all__ = ["identifiability", "select_poses", "workspace_arg", "planning_setup",
+           "plan_groups", "joint_bounds", "parse_joint_range"]
 
 
 def plan_groups(path: Path, kind: str, rows):
@@ -153,7 +163,7 @@ def _check_workspace(machine, ws, text: str, rows) -> None:
     if k.size:
         R = ws.R[k[0]] if machine.rotates else None
         pose = f"{machine.pose_text(ws.P[k[0]], R)}: {reach.reasons[int(k[0])]}"
-        where = (f"row(s) {_rows_text(np.asarray(rows)[k])}: out of the machine's reach: row "
+        where = (f"row(s) {rows_text(np.asarray(rows)[k])}: out of the machine's reach: row "
                  f"{np.asarray(rows)[k[0]]} at {pose}" if rows is not None else
                  f"{k.size} of its {len(ws.P)} sampled poses: out of the machine's reach, "
                  f"e.g. at {pose}")
@@ -163,12 +173,13 @@ def _check_workspace(machine, ws, text: str, rows) -> None:
         what = f"--workspace {text}: {{n}} of its sampled poses"
     else:
         what = f"--workspace {text}: {{n}} pose(s)"
-    from ._commands import refuse_outside_limits
-
     refuse_outside_limits(machine, q, rows, what)
 
 
 def _prediction_rows(table, section: dict) -> None:
+    """The "predicted accuracy" row of a planning table from a prediction section
+    (:func:`pkmcal.planning.prediction_summary`): RMS and max position (and orientation)
+    error, or why it is unbounded."""
     if section["unbounded_directions"]:
         table.add_row("predicted accuracy", f"unbounded: {section['unbounded_directions']} "
                       "unidentifiable direction(s) move the platform relative to every frame; "
@@ -192,15 +203,59 @@ def _with_set(machine, parameters: str | None):
     return apply_parameter_set(machine, parameters)
 
 
-def run_identifiability(machine_spec: str, data_path: Path | None, json_output: bool,
-                        planned: bool = False, poses: int | None = None, seed: int = 0,
-                        noise: str | None = None, pose_noise: str | None = None,
-                        map_path: Path | None = None, workspace: str | None = None,
-                        scenario: str | None = None, setups: int | None = None,
-                        radius: str | None = None, targets: int | None = None,
-                        parameters: str | None = None) -> int:
-    """``pkmcal identifiability``: every scenario on every machine it applies to, from
-    measurements of any kind, a plan file or the instrument's standard plan."""
+@in_output_set
+def identifiability(machine_spec: str, data_path: Path | None = None, *,
+                    json_output: bool = False, planned: bool = False, poses: int | None = None,
+                    seed: int = 0, noise: str | None = None, pose_noise: str | None = None,
+                    map_path: Path | None = None, workspace: str | None = None,
+                    scenario: str | None = None, setups: int | None = None,
+                    radius: str | None = None, targets: int | None = None,
+                    parameters: str | None = None) -> Summary:
+    """``pkmcal identifiability``: what measurements identify and the accuracy they predict,
+    for every scenario on every machine it applies to, from measurements of any kind
+    (``data_path``), a plan file (``data_path`` with ``planned``) or the instrument's standard
+    or random plan (no ``data_path``).
+
+    Parameters
+    ----------
+    machine_spec : str
+        A machine file, or ``"default"``.
+    data_path : Path, optional
+        Measurements (the kind follows from the columns) or, with ``planned``, planned poses.
+    json_output : bool
+        The summary is the JSON report (raw text) instead of the tables.
+    planned : bool
+        ``data_path`` holds planned poses, not measurements.
+    poses : int, optional
+        Without ``data_path``: the number of random planned poses.
+    seed : int
+        Seed of random planned poses and of the workspace sample.
+    noise, pose_noise : str, optional
+        The noise model of the prediction, as ``calibrate --noise`` / ``--pose-noise``.
+    map_path : Path, optional
+        A PNG map of the predicted position error, written with the rest or not at all.
+    workspace : str, optional
+        ``--workspace``: a box ``X0,X1,Y0,Y1,Z0,Z1`` with units or a points file
+        (:func:`workspace_arg`).
+    scenario : str, optional
+        The instrument of a plan (default the machine type's own).
+    setups, radius, targets : optional
+        Plan options of the instruments that take them (:func:`planning_setup`).
+    parameters : str, optional
+        The machine's named parameter set to analyse.
+
+    Returns
+    -------
+    Summary
+        The identifiability table (identifiable, weak and unidentifiable directions,
+        condition number, observability, minimal set, predicted accuracy) and the correlated
+        pairs; or the JSON report. Exit code 0.
+
+    Raises
+    ------
+    InputError
+        A bad file or option, named; nothing is written.
+    """
     from ..calibration.run import measurement_kind
     from ..planning import assess_identifiability, scenario_for
 
@@ -256,12 +311,12 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
         result.write_map(map_path, bounds=ws.bounds if workspace else None)
         report["map"] = str(map_path)
     commit_outputs()
+    summary = Summary()
     if json_output:
-        print(json.dumps(_finite_or_none(report), indent=2))
-        return 0
-    out = console()
-    table = _table("", "", title=f"pkmcal identifiability: {report['machine_file']} with "
-                   f"{result.source}", show_header=False)
+        summary.raw(json.dumps(json_safe(report), indent=2) + "\n")
+        return summary
+    table = summary.pairs(title=f"pkmcal identifiability: {report['machine_file']} with "
+                          f"{result.source}")
     table.add_row("measurement", f"{instrument(kind).measurement_words}, "
                   f"{result.measurements} {'planned ' if result.planned else ''}measurements")
     table.add_row("identifiable", rep.rank.words())
@@ -280,19 +335,17 @@ def run_identifiability(machine_spec: str, data_path: Path | None, json_output: 
     _prediction_rows(table, section)
     if map_path is not None:
         table.add_row("map", str(map_path))
-    out.print(table)
     if rep.correlated:
-        pairs = _table("parameter", "parameter", "correlation",
-                       title=f"{len(rep.correlated)} pair(s) with |correlation| > 0.9 "
-                       "(identifiable part)", justify={2: "right"})
+        pairs = summary.table("parameter", "parameter", "correlation",
+                              title=f"{len(rep.correlated)} pair(s) with |correlation| > 0.9 "
+                              "(identifiable part)", justify={2: "right"})
         for a, b, c in rep.correlated[:10]:
             pairs.add_row(a, b, f"{c:+.3f}")
         if len(rep.correlated) > 10:
             pairs.add_row("...", f"{len(rep.correlated) - 10} more", "")
-        out.print(pairs)
     else:
-        out.print("no parameter pair correlated beyond 0.9 (identifiable part)", markup=False)
-    return 0
+        summary.line("no parameter pair correlated beyond 0.9 (identifiable part)")
+    return summary
 
 
 def parse_joint_range(text: str, machine) -> tuple[float, float]:
@@ -347,53 +400,93 @@ def joint_bounds(machine, joint_range: str | None):
     return (lo, hi), " and ".join(words)
 
 
-def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
-                     candidates_path: Path | None, criterion: str, random_sets: int,
-                     noise: str | None, pose_noise: str | None, seed: int,
-                     map_path: Path | None, json_output: bool,
-                     joint_range: str | None = None, workspace: str | None = None,
-                     scenario: str | None = None, setups: int | None = None,
-                     radius: str | None = None, targets: int | None = None,
-                     parameters: str | None = None) -> int:
+@in_output_set
+def select_poses(machine_spec: str, output: Path, n: int, *, candidates: int = 2000,
+                 candidates_path: Path | None = None, criterion: str = "d",
+                 random_sets: int = 100, noise: str | None = None,
+                 pose_noise: str | None = None, seed: int = 0, map_path: Path | None = None,
+                 json_output: bool = False, joint_range: str | None = None,
+                 workspace: str | None = None, scenario: str | None = None,
+                 setups: int | None = None, radius: str | None = None,
+                 targets: int | None = None, parameters: str | None = None,
+                 progress=no_progress) -> Summary:
     """``pkmcal select-poses``: choose ``n`` poses by a criterion, never worse than the
-    instrument's standard plan (:func:`pkmcal.planning.select_plan`); write them and report
-    them next to the standard plan and random sets of the same size."""
-    from ..io import write_poses, write_positions
-    from ..planning import CRITERION_WORDS, criterion_ratio, scenario_for, select_plan
+    instrument's standard plan (:func:`pkmcal.planning.select_plan`); write them (the machine
+    file's units, with the joint values that reach them, the candidate row and the
+    instrument's group column) and report them next to the standard plan and random sets of
+    the same size.
 
+    Parameters
+    ----------
+    machine_spec : str
+        A machine file, or ``"default"``.
+    output : Path
+        The plan (CSV) to write; ``identifiability(machine, output, planned=True)`` analyses
+        it again.
+    n : int
+        The number of poses to choose.
+    candidates : int
+        The number of random feasible candidates (without ``candidates_path``).
+    candidates_path : Path, optional
+        Choose among the poses of this file instead (every one must be reachable).
+    criterion : str
+        ``"d"``, ``"a"`` or ``"pose"`` (:data:`pkmcal.planning.CRITERION_WORDS`).
+    random_sets : int
+        Random sets of ``n`` candidates to compare against.
+    noise, pose_noise, seed, map_path, json_output, workspace, scenario, setups, radius, \
+targets, parameters
+        As for :func:`identifiability`.
+    joint_range : str, optional
+        ``MIN,MAX`` joint bounds with units (:func:`joint_bounds`).
+    progress : callable
+        ``progress(description, total) -> advance(n=1, description=None)``
+        (:func:`~pkmcal.workflows.common.no_progress` by default).
+
+    Returns
+    -------
+    Summary
+        The selection table (or the JSON report). Exit code 0.
+
+    Raises
+    ------
+    InputError
+        A bad file or option, named; nothing is written.
+    """
+    from ..io import write_poses, write_positions
+    from ..planning import scenario_for, select_plan
+
+    if n < 1:
+        raise InputError(f"-n/--poses: give the number of poses to choose (>= 1), got {n}")
     machine = _with_set(load_machine_arg(machine_spec), parameters)
     inputs = [p for p in (candidates_path,) if p is not None]
     if workspace is not None and Path(workspace).exists():
         inputs.append(Path(workspace))
     check_outputs([output] + ([map_path] if map_path else []), inputs)
     ws = workspace_arg(workspace, machine, seed)
-    if n < 1:
-        raise InputError(f"-n/--poses: must be >= 1, got {n}")
     if random_sets < 0:
         raise InputError(f"--random-sets: must be >= 0, got {random_sets}")
     kind = scenario_for(machine, scenario)
     setup = planning_setup(machine, kind, setups, radius, targets,
                            load_setups_arg(machine_spec).get(kind))
     model = noise_model(kind, noise, pose_noise, machine)
-    with progress_tasks() as new_task:
-        step = new_task("select-poses: candidate poses", 5)
-        given = rows = groups = None
-        if candidates_path is not None:
-            *given, rows = read_poses_of(candidates_path, machine)
-            refuse_unreachable(machine, machine.reachability(*given), f"{candidates_path}: "
-                               "{n} candidate pose(s) cannot be reached by the machine", rows,
-                               given)
-            groups = plan_groups(candidates_path, kind, rows)
-        elif candidates < n:
-            raise InputError(f"-n/--poses {n}: more than the {candidates} candidate poses "
-                             "(--candidates); choose fewer or more candidates")
-        lo_hi, limits_words = joint_bounds(machine, joint_range)
-        sel = select_plan(machine, kind, n, noise=model, candidates=candidates,
-                          criterion=criterion, random_sets=random_sets, seed=seed,
-                          workspace=ws, joint_bounds=lo_hi, bounds_words=limits_words,
-                          targets=targets, progress=step, poses=given, rows=rows,
-                          groups=groups, source=candidates_path and str(candidates_path),
-                          setup=setup)
+    step = progress("select-poses: candidate poses", 5)
+    given = rows = groups = None
+    if candidates_path is not None:
+        *given, rows = read_poses_of(candidates_path, machine)
+        refuse_unreachable(machine, machine.reachability(*given), f"{candidates_path}: "
+                           "{n} candidate pose(s) cannot be reached by the machine", rows,
+                           given)
+        groups = plan_groups(candidates_path, kind, rows)
+    elif candidates < n:
+        raise InputError(f"-n/--poses {n}: more than the {candidates} candidate poses "
+                         "(--candidates); choose fewer or more candidates")
+    lo_hi, limits_words = joint_bounds(machine, joint_range)
+    sel = select_plan(machine, kind, n, noise=model, candidates=candidates,
+                      criterion=criterion, random_sets=random_sets, seed=seed,
+                      workspace=ws, joint_bounds=lo_hi, bounds_words=limits_words,
+                      targets=targets, progress=step, poses=given, rows=rows,
+                      groups=groups, source=candidates_path and str(candidates_path),
+                      setup=setup)
     report = {"pkmcal_report": 1, "command": "select-poses",
               "machine_file": path_text(getattr(machine, "source", machine_spec)),
               **sel.as_dict(), "output": str(output)}
@@ -411,21 +504,22 @@ def run_select_poses(machine_spec: str, output: Path, n: int, candidates: int,
         sel.write_map(map_path, bounds=ws.bounds if workspace else None)
         report["map"] = str(map_path)
     commit_outputs()
+    summary = Summary()
     if json_output:
-        print(json.dumps(_finite_or_none(report), indent=2))
-        return 0
-    _print_selection(sel, report["machine_file"], output, map_path, CRITERION_WORDS,
-                     criterion_ratio)
-    return 0
+        summary.raw(json.dumps(json_safe(report), indent=2) + "\n")
+    else:
+        _selection_table(summary, sel, report["machine_file"], output, map_path)
+    return summary
 
 
-def _print_selection(sel, machine_file: str, output: Path, map_path: Path | None,
-                     criterion_words: dict, criterion_ratio) -> None:
+def _selection_table(summary: Summary, sel, machine_file: str, output: Path,
+                     map_path: Path | None) -> None:
     """The select-poses table."""
+    from ..planning import CRITERION_WORDS, criterion_ratio
+
     n, k, rms, rank = sel.n, sel.standard_poses, sel.position_rms, sel.design.rank
     std, std_rms, criterion = sel.standard, sel.standard_position_rms, sel.criterion
-    out = console()
-    table = _table("", "", title=f"pkmcal select-poses: {machine_file}", show_header=False)
+    table = summary.pairs(title=f"pkmcal select-poses: {machine_file}")
     table.add_row("measurement", instrument(sel.scenario).measurement_words)
     how = ("the standard plan (the search ended worse)" if sel.returned_standard
            else f"greedy + {sel.exchanges} exchanges" if sel.search_start is None
@@ -453,7 +547,7 @@ def _print_selection(sel, machine_file: str, output: Path, map_path: Path | None
                       f"{format_quantity(median, 'length', 3)} RMS over {sel.random_sets} "
                       f"random sets of {n} candidates: {median / rms:.2f}x the selected set's "
                       f"{format_quantity(rms, 'length', 3)}")
-    words, ratio_words = criterion_words[criterion]
+    words, ratio_words = CRITERION_WORDS[criterion]
     crit = f"{criterion} ({words}): selected {sel.value:.5g}"
     ratios = []
     if k and not np.isfinite(sel.standard_value):
@@ -471,4 +565,3 @@ def _print_selection(sel, machine_file: str, output: Path, map_path: Path | None
                  f"({ratio_words.format(p=rank)})")
     table.add_row("criterion", crit)
     table.add_row("written", path_text(output) + (f", {path_text(map_path)}" if map_path else ""))
-    out.print(table)
