@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 from ..errors import InputError
 from ..paths import path_text
 
-__all__ = ["GENERIC", "check_instrument_options", "declared_options", "flag_of",
-           "instrument_options", "options_for", "refuse_in_joint"]
+__all__ = ["GENERIC", "CommandOption", "check_instrument_options", "command_options",
+           "command_values", "declared_options", "flag_of", "instrument_options", "noise_help",
+           "options_for", "refuse_in_joint"]
 
 #: the options of every calibration (arguments of ``calibrate`` itself), which an
 #: instrument's ``Options`` may declare too to read them
@@ -181,3 +183,121 @@ def refuse_in_joint(options: Mapping, instruments) -> None:
                              "(one maximum-likelihood fit of every file's instrument); see "
                              "--noise FILE=VALUE, --robust and --holdout")
         _check_choices(takers[0], name, value)
+
+
+@dataclass(frozen=True)
+class CommandOption:
+    """An option of ``pkmcal calibrate`` built from the instruments' declarations
+    (:func:`command_options`).
+
+    Attributes
+    ----------
+    name : str
+        The option's name (the instruments' field, the command's parameter).
+    flag : str
+        Its flag (``--two-step``).
+    kind : str
+        ``"switch"`` (a flag, False unless given), ``"either"`` (``flag`` or ``negative``,
+        None unless one is given) or ``"text"`` (a value, given at most once).
+    metavar : str
+        The value's name in the help (text options).
+    help : str
+        Its help: each declaring instrument's, led by the data it applies to.
+    negative : str
+        The ``--no-x`` flag of an ``"either"`` option.
+    negative_help : str
+        Its help.
+    """
+
+    name: str
+    flag: str
+    kind: str
+    metavar: str
+    help: str
+    negative: str = ""
+    negative_help: str = ""
+
+
+def _led(inst, text: str) -> str:
+    lead = text[:1].lower() + text[1:] if text[1:2].islower() or text[1:2] == " " else text
+    return f"{inst.name} data: {lead}"
+
+
+def command_options() -> list[CommandOption]:
+    """The options of ``pkmcal calibrate`` the instruments declare (the generic ones,
+    :data:`GENERIC`, aside), one per name in the registry's order; an option declared by
+    several instruments (``--method``) has each one's help.
+
+    Returns
+    -------
+    list of CommandOption
+        The options.
+    """
+    out = []
+    for name, owners in declared_options().items():
+        if name in GENERIC:
+            continue
+        first = owners[0][1].metadata
+        flags = first["flag"].split("/")
+        helps = dict.fromkeys(_led(inst, f.metadata["help"]) for inst, f in owners)
+        choices = list(dict.fromkeys(c for _, f in owners for c in f.metadata.get("choices")
+                                     or ()))
+        kind = ("either" if len(flags) > 1 else
+                "switch" if str(owners[0][1].type) in ("bool", "<class 'bool'>") else "text")
+        negative = flags[1] if len(flags) > 1 else ""
+        out.append(CommandOption(
+            name, flags[0], kind, first.get("metavar") or "|".join(choices) or "TEXT",
+            " ".join(helps), negative,
+            first.get("negative_help") or (f"The opposite of {flags[0]}." if negative else "")))
+    return out
+
+
+def noise_help() -> str:
+    """What ``--noise`` is for each instrument that declares it, in words: each one's help up
+    to its first semicolon (``tracker: leica (default) or a length ...``)."""
+    parts = [f"{inst.name}: {f.metadata['help'].split(';')[0].rstrip('.')}."
+             for inst, f in declared_options().get("noise", [])]
+    return " ".join(parts)
+
+
+def command_values(values: Mapping) -> dict:
+    """The instruments' options from the command's parameters (:func:`command_options`):
+    a ``--x/--no-x`` pair as True, False or None, a text given once as its value.
+
+    Parameters
+    ----------
+    values : mapping
+        Parameter name -> value, as the command received them (``no_<name>`` for the
+        negative flag of an ``"either"`` option; a list for a text option).
+
+    Returns
+    -------
+    dict
+        Option name -> value of the options given (:func:`~pkmcal.calibration.calibrate`'s
+        ``options``).
+
+    Raises
+    ------
+    InputError
+        For both flags of a pair, or a text option given more than once.
+    """
+    out = {}
+    for opt in command_options():
+        if opt.kind == "either":
+            yes, no = bool(values.get(opt.name)), bool(values.get("no_" + opt.name))
+            if yes and no:
+                raise InputError(f"{opt.flag} and {opt.negative} together: give one")
+            if yes or no:
+                out[opt.name] = yes
+        elif opt.kind == "switch":
+            if values.get(opt.name):
+                out[opt.name] = True
+        else:
+            texts = values.get(opt.name)
+            texts = [texts] if isinstance(texts, str) else list(texts or [])
+            if len(texts) > 1:
+                raise InputError(f"{opt.flag}: given more than once ({', '.join(texts)}); "
+                                 "give it once")
+            if texts:
+                out[opt.name] = texts[0]
+    return out

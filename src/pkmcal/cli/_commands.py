@@ -355,24 +355,16 @@ def _mm(v) -> str:
 # --------------------------------------------------------------------------------------------
 
 
-def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None,
-                  noise, estimate_lc: bool | None, json_output: bool,
-                  two_step: bool = False, robust: bool = False, pose_noise=None,
-                  fix_frames: bool = False, report_dir: Path | None = None,
-                  holdout: str | None = None, seed: int = 0,
-                  parameters: str | None = None, extensions: str | None = None,
-                  bed_tilt: str | None = None) -> int:
+def run_calibrate(machine_spec: str, data_path, output: Path, noise, json_output: bool,
+                  robust: bool = False, report_dir: Path | None = None,
+                  holdout: str | None = None, seed: int = 0, parameters: str | None = None,
+                  options: dict | None = None) -> int:
     from ..calibration.run import calibrate, noise_per_file_arg
     from ..errors import ConvergenceError
 
     paths = list(data_path) if isinstance(data_path, (list, tuple)) else [data_path]
     noise = noise_per_file_arg(noise if isinstance(noise, (list, tuple)) or noise is None
                                else [noise], paths)
-    if isinstance(pose_noise, (list, tuple)):
-        if len(pose_noise) > 1:
-            raise InputError("--pose-noise: given more than once (one POSITION,ORIENTATION "
-                             "pair holds the measured poses' noise)")
-        pose_noise = pose_noise[0] if pose_noise else None
     data_path = paths[0] if len(paths) == 1 else paths
     if output.suffix.lower() == ".json":
         raise InputError(f"{path_text(output)}: "
@@ -388,11 +380,9 @@ def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None
     check_outputs(outputs, paths + _machine_inputs(machine_spec),
                   [report_dir] if report_dir is not None else [])
     try:
-        calibration = calibrate(machine, data_path, method=method, noise=noise,
-                                pose_noise=pose_noise, estimate_lc=estimate_lc,
-                                two_step=two_step, robust=robust, fix_frames=fix_frames,
+        calibration = calibrate(machine, data_path, noise=noise, robust=robust,
                                 holdout=holdout, seed=seed, parameters=parameters,
-                                extensions=extensions, bed_tilt=bed_tilt)
+                                options=options)
     except ConvergenceError as exc:     # the fit ran and did not succeed: exit 1, nothing written
         error(str(exc))
         return 1

@@ -1876,11 +1876,12 @@ class ConstraintLinkOptions:
         "paper's inverse-kinematics method (needs the passive column); fk the paper's "
         "forward-kinematics method (estimates Lc).", choices=("ml", "ik", "fk"))
     noise: object = _option(
-        None, "--noise", "Encoder noise, standard deviation (default 1um); held as given, else "
+        None, "--noise", "encoder noise, standard deviation (default 1um); held as given, else "
         "estimated from the residuals.")
     estimate_lc: bool | None = _option(
         None, "--estimate-lc/--no-estimate-lc", "Estimate the constraint-link length too "
-        "(default: only with --method fk).")
+        "(default: only with --method fk).", negative_help="Hold the constraint-link length "
+        "at the machine file's, with --method fk too.")
     robust: bool = _option(
         False, "--robust", "Leave out the rows the noise cannot explain (a chi-square test of "
         "each row) and fit again (ml).")

@@ -230,7 +230,7 @@ class DistanceOptions:
     """The options of the ballbar's calibration flow (:meth:`Distance.calibrate`)."""
 
     noise: object = option(
-        None, "--noise", "The ballbar's standard deviation (default 1um); held as given, else "
+        None, "--noise", "the ballbar's standard deviation (default 1um); held as given, else "
         "estimated from the residuals.")
     robust: bool = option(
         False, "--robust", "Leave out the rows the noise cannot explain (a chi-square test of "

@@ -477,7 +477,7 @@ def fit_with_baseline(machine, data, context: FlowContext, fit, noise, advice: s
 
 
 def option(default, flag: str, help: str, *, metavar: str | None = None,
-           choices: tuple | None = None, joint: bool = False):
+           choices: tuple | None = None, joint: bool = False, negative_help: str = ""):
     """A field of an instrument's ``Options`` (its calibration flow's options): the default,
     the command-line flag, its help text and how the command line shows and checks it
     (``dataclasses.field`` metadata; ``pkmcal calibrate``'s options are built from them).
@@ -497,6 +497,8 @@ def option(default, flag: str, help: str, *, metavar: str | None = None,
         The values it takes (anything else is refused naming the flag).
     joint : bool, optional
         It applies to this instrument's part of a fit of several data files too.
+    negative_help : str, optional
+        The help of the ``--no-x`` flag of a ``--x/--no-x`` switch.
 
     Returns
     -------
@@ -505,7 +507,8 @@ def option(default, flag: str, help: str, *, metavar: str | None = None,
     """
     return field(default=default, metadata={"flag": flag, "help": help, "metavar": metavar,
                                             "choices": tuple(choices) if choices else None,
-                                            "joint": bool(joint)})
+                                            "joint": bool(joint),
+                                            "negative_help": negative_help})
 
 
 def option_specs(options_class) -> list[dict]:

@@ -1390,8 +1390,8 @@ class PoseOptions:
         "(default); ik inverse-kinematic residuals (Zhuang, Yan & Masory 1998), measured poses "
         "exact.", choices=("ml", "ik"))
     noise: object = _option(
-        None, "--noise", "Noise of the leg readings, as a leg length (default 2um), or a "
-        "FullPoseNoise; held as given, else estimated from the residuals.")
+        None, "--noise", "noise of the leg readings, as a leg length (default 2um); held as "
+        "given (a FullPoseNoise too), else estimated from the residuals.")
     pose_noise: str | None = _option(
         None, "--pose-noise", "Noise of the measured poses, POSITION,ORIENTATION with units, "
         "held as given (default: estimated from the residuals, starting from 20um,50urad).",
@@ -1401,9 +1401,10 @@ class PoseOptions:
         "platform_from_marker) at the machine file's measurement_frames (identity without "
         "that section) instead of estimating them.")
     extensions: str | None = _option(
-        None, "--extensions", "auto (default) tries the machine's model extensions and adopts "
-        "one only when it predicts rows held out of the fit better (5-fold cross-validation); "
-        "none fits the plain model.", metavar="auto|none",
+        None, "--extensions", "auto (default) tries the machine's model extensions (a six-leg "
+        "platform's per-leg reading curvature) and adopts one only when it predicts rows held "
+        "out of the fit better (5-fold cross-validation, in the report); none fits the plain "
+        "model.", metavar="auto|none",
         choices=("auto", "none"))
     robust: bool = _option(
         False, "--robust", "Leave out the rows the noise cannot explain (a chi-square test of "

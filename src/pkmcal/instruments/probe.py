@@ -319,13 +319,13 @@ class ProbeOptions:
     """The options of the probe's calibration flow (:meth:`Probe.calibrate`)."""
 
     noise: object = option(
-        None, "--noise", "The probe's repeatability along z (default 10um); held as given, "
+        None, "--noise", "the trigger's repeatability along z (default 10um); held as given, "
         "else estimated from the residuals.")
     robust: bool = option(
         False, "--robust", "Leave out the rows the noise cannot explain (a chi-square test of "
         "each row) and fit again.")
     bed_tilt: str | None = option(
-        None, "--bed-tilt", "Probe heights on a printer (its frame is its bed, z = 0): auto "
+        None, "--bed-tilt", "On a printer (its frame is its bed, z = 0): auto "
         "(default) estimates the bed's tilt against the towers where the data tell it from "
         "the parameter set and takes the bed square to the towers otherwise, as the firmware "
         "does; estimate / square force either.", metavar="MODE",

@@ -841,9 +841,8 @@ class TrackerOptions:
     """The options of the tracker's calibration flow (:meth:`Tracker.calibrate`)."""
 
     noise: object = option(
-        None, "--noise", "Tracker noise: leica (default) or a length for isotropic noise (e.g. "
-        "10um), or a TrackerNoise; held as given, else the levels are estimated from the "
-        "residuals.")
+        None, "--noise", "leica (default) or a length for isotropic noise (e.g. 10um); held "
+        "as given (a TrackerNoise too), else the levels are estimated from the residuals.")
     two_step: bool = option(
         False, "--two-step", "The paper's method, registration first (closed form with the "
         "nominal model) and then the errors with the registration fixed. Default: errors and "
