@@ -11,10 +11,8 @@ import inspect
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from clitools import assert_input_error, run
 from pkmcal.calibration import calibrate
 from pkmcal.calibration.options import GENERIC, command_options, command_values
 from pkmcal.errors import InputError
@@ -165,59 +163,33 @@ def test_an_option_no_instrument_declares_is_refused():
         calibrate(default_delta(), "never-read.csv", sideways=True)
 
 
-def _dial_files(machine, true, n, rng):
-    """Three dials (tilted x, y and z) touching the platform origin of the true machine."""
-    from pkmcal.instruments.dial import DialModel, dial_data
-    from pkmcal.machines.reach import sample_workspace_poses
-
-    P, R = sample_workspace_poses(machine, n, rng)
-    q = machine.ik(P, R)
-    fk = true.fk(q, start=(P, R))
-    out = []
-    for i, d in enumerate(([1.0, 0.05, -0.02], [0.03, 1.0, 0.04], [-0.02, 0.01, 1.0])):
-        model = DialModel(direction=d, with_point=False)
-        state = model.initial()
-        state.values[2] = 0.01 * (i + 1)
-        r = model.predict(state, fk.P, fk.R, np.zeros(n, int))[:, 0]
-        out.append(dial_data(q, r, source=f"dial{i + 1}"))
-    return out
+def _given(spec):
+    """A value of an option that is not its default."""
+    if spec["default"] is False:
+        return True
+    if spec["default"] is None and "/" in spec["flag"]:
+        return False
+    return next((c for c in spec["choices"] or () if c != spec["default"]), "2um")
 
 
-def test_the_dial_point_option_reaches_the_dial_model():
-    """``--dial-point origin`` (the dial's own option, declared in its module) holds the
-    touched point: three unknowns fewer per mounting on a platform that rotates, and the true
-    machine is recovered where the dial touches the platform origin."""
-    from pkmcal.io import load_machine
+@pytest.mark.parametrize("inst", list(INSTRUMENTS.values()), ids=list(INSTRUMENTS))
+def test_an_option_the_data_instrument_does_not_declare_is_refused_naming_who_takes_it(inst):
+    """One rule for every instrument and option: the flag, the instruments that take it and
+    what the data are; a value out of an option's choices names the values it takes."""
+    from pkmcal.calibration.options import check_instrument_options, declared_options
 
-    machine = load_machine(EXAMPLES / "hexaslide_default.yaml")
-    rng = np.random.default_rng(7)
-    du = 0.3e-3 * rng.uniform(-1, 1, len(machine.parameters)) * ~machine.parameters.fixed
-    data = _dial_files(machine, machine.with_parameters(machine.u + du), 50, rng)
-    noise = {i: "0.01um" for i in range(3)}
-    held = calibrate(machine, data, noise=noise, holdout=0.2, seed=1, touched_point="origin")
-    free = calibrate(machine, data, noise=noise)
-    points = [n for n in held.result.parameters.names if n.endswith("point.x")]
-    assert points == [], points
-    assert len([n for n in free.result.parameters.names if n.endswith("point.x")]) == 3
-    for f in held.report["files"]:
-        v = f["validation"]
-        assert v["after_rms"] < 1e-3 * v["before_rms"], v
-
-
-def test_the_dial_option_through_the_command_line(tmp_path):
-    spec = EXAMPLES / "delta_default.yaml"
-    proc = run("simulate", spec, "--scenario", "dial", "-o", "dial.csv", "--seed", "3",
-               cwd=tmp_path)
-    assert proc.returncode == 0, proc.stderr
-    proc = run("calibrate", spec, "dial.csv", "-o", "cal.yaml", "--dial-point", "origin",
-               "--json", cwd=tmp_path)
-    assert proc.returncode == 0, proc.stderr
-    assert_input_error(run("calibrate", spec, "dial.csv", "-o", "x.yaml", "--dial-point",
-                           "tip", cwd=tmp_path), "--dial-point tip", "auto or origin")
-    assert_input_error(run("calibrate", spec, "dial.csv", "-o", "x.yaml", "--two-step",
-                           cwd=tmp_path), "--two-step: applies to tracker data",
-                       "dial.csv has dial readings")
-    assert_input_error(run("calibrate", spec, "dial.csv", "-o", "x.yaml", "--dial-point",
-                           "origin", "--dial-point", "auto", cwd=tmp_path),
-                       "--dial-point: given more than once")
-    assert not (tmp_path / "x.yaml").exists()
+    own = {f.name for f in dataclasses.fields(inst.Options)} if inst.Options else set()
+    for name, owners in declared_options().items():
+        spec = next(s for s in option_specs(owners[0][0].Options) if s["name"] == name)
+        flag = spec["flag"].split("/")[0]
+        if name in GENERIC:
+            continue
+        if name not in own:
+            with pytest.raises(InputError) as found:
+                check_instrument_options({name: _given(spec)}, "x.csv", inst)
+            text = str(found.value)
+            assert text.startswith(f"{flag}: applies to ") and "x.csv has " in text, text
+            assert all(f"{i.name} data" in text for i, _ in owners), text
+        elif spec["choices"]:
+            with pytest.raises(InputError, match=f"{flag} bogus: {inst.name} data take "):
+                check_instrument_options({name: "bogus"}, "x.csv", inst)

@@ -116,8 +116,13 @@ def _instrument_names_in(path) -> set:
     one of their names (docstrings and comments aside)."""
     import ast
 
+    from pkmcal.instruments.registry import INSTRUMENTS
+
+    # the older instruments' words, and every instrument's name and aliases
     words = ("tracker", "distance", "ballbar", "constraint", "full_pose", "fullpose", "pose",
-             "probe", "bed", "mocap", "klipper", "marlin", "dial", "pair")
+             "probe", "bed", "mocap", "klipper", "marlin",
+             *(w.replace("-", "_") for inst in INSTRUMENTS.values()
+               for w in (inst.name, *inst.aliases)))
     names = {n for n, owner in audit.INSTRUMENT_NAMES.items()
              if owner in ("tracker", "distance", "pose", "constraint-link")}
     tree = ast.parse(path.read_text())
