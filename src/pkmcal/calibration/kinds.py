@@ -296,7 +296,8 @@ def flow_kind(inst) -> MeasurementKind:
     Parameters
     ----------
     inst : Instrument
-        A registry entry with :attr:`~pkmcal.instruments.base.Instrument.Options`.
+        A registry entry with a flow of its own
+        (:attr:`~pkmcal.instruments.base.Instrument.has_flow`).
 
     Returns
     -------
@@ -318,7 +319,8 @@ def instrument_kind(inst) -> MeasurementKind:
     Parameters
     ----------
     inst : Instrument
-        A registry entry with a :meth:`~pkmcal.instruments.base.Instrument.fit_model`.
+        A registry entry with a :meth:`~pkmcal.instruments.base.Instrument.fit_model` (its
+        :meth:`~pkmcal.instruments.base.Instrument.calibration_model` is fitted).
 
     Returns
     -------

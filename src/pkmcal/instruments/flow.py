@@ -69,7 +69,7 @@ class FlowContext:
 @dataclass
 class FlowResult:
     """What an instrument's flow hands back to the calibration layer, which finishes it into a
-    :class:`~pkmcal.calibration.run.Calibration`.
+    :class:`~pkmcal.calibration.result.Calibration`.
 
     Attributes
     ----------
