@@ -129,8 +129,7 @@ def check_instrument_options(options: Mapping, source, inst) -> None:
     given = instrument_options(options)
     for name in given:
         if name not in own:
-            theirs = " or ".join(f"{i.name} data"
-                                 for i, _ in declared_options()[name])
+            theirs = " or ".join(f"{i.name} data" for i, _ in declared_options()[name])
             mine = ", ".join(flag_of(n) for n in sorted(own | set(GENERIC)))
             raise InputError(f"{flag_of(name)}: applies to {theirs}; {path_text(source)} has "
                              f"{_words(inst)} (see {mine})")
