@@ -39,7 +39,7 @@ def expand_firmware_data(data, machine):
     """
     from ..export.firmware_reports import is_probe_report, probe_report_data, read_probe_report
     from ..io.atomic import read_input_text
-    from ..io.klipper_config import is_klipper_config, read_klipper_data
+    from ..io.klipper_data import is_klipper_config, read_klipper_data
 
     items = list(data) if isinstance(data, (list, tuple)) else [data]
     out, changed = [], False
@@ -48,7 +48,7 @@ def expand_firmware_data(data, machine):
     if len(configs) > 1:
         # several of a printer's configs (printer.cfg, its backups): sessions, the same saved
         # points counted once, each session its own endstop offsets
-        from ..io.klipper_config import klipper_sessions
+        from ..io.klipper_data import klipper_sessions
 
         found = klipper_sessions(configs, machine).data
         for obj in found:
