@@ -364,7 +364,7 @@ def test_extensions_option_is_refused_where_the_data_take_none():
     data = simulate_tracker(delta, delta, grid_points(delta.home[0]), pose, TrackerNoise(),
                             rng=3)
     for value in ("auto", "none"):
-        with pytest.raises(InputError, match="--extensions: applies to full-pose data"):
+        with pytest.raises(InputError, match="--extensions: applies to pose data"):
             calibrate(delta, data, extensions=value)
         with pytest.raises(InputError, match="--extensions: does not apply to a fit of several"):
             calibrate(delta, [data, data], extensions=value)

@@ -127,12 +127,14 @@ def test_options_of_another_kind_are_refused_with_the_commands_words(data):
     with pytest.raises(InputError, match="--method: applies to constraint-link data"):
         calibrate(machine_of("tracker"), path, method="ml")
     path, _ = data["constraint-link"]
-    with pytest.raises(InputError, match="--two-step: applies to laser-tracker data"):
+    with pytest.raises(InputError, match="--two-step: applies to tracker data; .* has "
+                                         "constraint-link data"):
         calibrate(machine_of("constraint-link"), path, two_step=True)
     with pytest.raises(InputError, match="--holdout 2x"):
         calibrate(machine_of("constraint-link"), path, holdout="2x")
     path, _ = data["pose"]
-    with pytest.raises(InputError, match="does not apply to full-pose data"):
+    with pytest.raises(InputError, match="--two-step: applies to tracker data; .* has pose "
+                                         "data"):
         calibrate(machine_of("pose"), path, two_step=True)
     # --robust applies to every instrument, but not to a method that takes poses as exact
     with pytest.raises(InputError, match="--robust: applies to the ml method"):

@@ -1,6 +1,7 @@
 """The dial indicator (issue 38's third proof): one module and one registry line, its model's
 derivatives against central differences, its closed-form start, known-parameter recovery from
-three mountings fitted together, and its CSV files through the command line."""
+three mountings fitted together, its CSV files through the command line, and its own option
+(``--dial-point``), which reaches its model and the command line through the registry."""
 
 from __future__ import annotations
 
@@ -146,3 +147,56 @@ def test_the_dial_is_one_module_and_one_registry_line():
 
     assert "dial" in INSTRUMENT_MODULES
     assert instrument("dial-indicator").name == "dial"
+
+
+def _dial_files(machine, true, n, rng):
+    """Three dials (tilted x, y and z) touching the platform origin of the true machine."""
+    P, R = sample_workspace_poses(machine, n, rng)
+    q = machine.ik(P, R)
+    fk = true.fk(q, start=(P, R))
+    out = []
+    for i, d in enumerate(([1.0, 0.05, -0.02], [0.03, 1.0, 0.04], [-0.02, 0.01, 1.0])):
+        model = DialModel(direction=d, with_point=False)
+        state = model.initial()
+        state.values[2] = 0.01 * (i + 1)
+        r = model.predict(state, fk.P, fk.R, np.zeros(n, int))[:, 0]
+        out.append(dial_data(q, r, source=f"dial{i + 1}"))
+    return out
+
+
+def test_the_dial_point_option_reaches_the_dial_model():
+    """``--dial-point origin`` (the dial's own option, declared in its module) holds the
+    touched point: three unknowns fewer per mounting on a platform that rotates, and the true
+    machine is recovered where the dial touches the platform origin."""
+    machine = load_machine(EXAMPLES / "hexaslide_default.yaml")
+    rng = np.random.default_rng(7)
+    du = 0.3e-3 * rng.uniform(-1, 1, len(machine.parameters)) * ~machine.parameters.fixed
+    data = _dial_files(machine, machine.with_parameters(machine.u + du), 50, rng)
+    noise = {i: "0.01um" for i in range(3)}
+    held = calibrate(machine, data, noise=noise, holdout=0.2, seed=1, touched_point="origin")
+    free = calibrate(machine, data, noise=noise)
+    points = [n for n in held.result.parameters.names if n.endswith("point.x")]
+    assert points == [], points
+    assert len([n for n in free.result.parameters.names if n.endswith("point.x")]) == 3
+    for f in held.report["files"]:
+        v = f["validation"]
+        assert v["after_rms"] < 1e-3 * v["before_rms"], v
+
+
+def test_the_dial_option_through_the_command_line(tmp_path):
+    spec = EXAMPLES / "delta_default.yaml"
+    proc = run("simulate", spec, "--scenario", "dial", "-o", "dial.csv", "--seed", "3",
+               cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    proc = run("calibrate", spec, "dial.csv", "-o", "cal.yaml", "--dial-point", "origin",
+               "--json", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert_input_error(run("calibrate", spec, "dial.csv", "-o", "x.yaml", "--dial-point",
+                           "tip", cwd=tmp_path), "--dial-point tip", "auto or origin")
+    assert_input_error(run("calibrate", spec, "dial.csv", "-o", "x.yaml", "--two-step",
+                           cwd=tmp_path), "--two-step: applies to tracker data",
+                       "dial.csv has dial readings")
+    assert_input_error(run("calibrate", spec, "dial.csv", "-o", "x.yaml", "--dial-point",
+                           "origin", "--dial-point", "auto", cwd=tmp_path),
+                       "--dial-point: given more than once")
+    assert not (tmp_path / "x.yaml").exists()

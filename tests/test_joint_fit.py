@@ -311,7 +311,8 @@ def test_file_noise_of_two_files_of_one_name_holds_only_the_one_named():
     """``--noise a.csv=1um`` with ``a.csv`` and ``sub/a.csv``: the file as given is the first,
     the second is ``sub/a.csv`` or its label ``a.csv#2``; one value never holds both (the file
     name alone matched every file of that name)."""
-    from pkmcal.calibration.run import _noise_of, noise_per_file_arg
+    from pkmcal.calibration.noise_args import noise_of as _noise_of
+    from pkmcal.calibration.noise_args import noise_per_file_arg
 
     sources = ["a.csv", "sub/a.csv"]
     given = noise_per_file_arg(["a.csv=1um"], sources)

@@ -316,7 +316,7 @@ def test_bad_input_exits_2_without_output(sim_dir, tmp_path):
         (("calibrate", CUBIC, sim_dir / "poses.csv", "--method", "fk", "-o", "c.yaml"),
          ("--method fk", "ml", "ik")),
         (("calibrate", CUBIC, sim_dir / "poses.csv", "--two-step", "-o", "c.yaml"),
-         ("--two-step: does not apply to full-pose data",)),
+         ("--two-step: applies to tracker data", "poses.csv has pose data")),
         (("calibrate", CUBIC, sim_dir / "poses.csv", "--noise", "0um", "-o", "c.yaml"),
          ("--noise: must be > 0",)),
         (("calibrate", CUBIC, sim_dir / "poses.csv", "--pose-noise", "20um", "-o", "c.yaml"),

@@ -105,8 +105,9 @@ def test_the_two_point_distances_are_one_module_and_one_registry_line():
 RUN_NAMES_LEFT: set = set()
 #: calibration/run.py's line budget: 2,842 lines before the four older flows moved into their
 #: instruments (2,042 after; 1,962 after the probe's; 1,826 after the joint parts); the issue's
-#: target, 600, once the joint flow itself follows
-RUN_LINE_BUDGET = 1830
+#: target, 600, since the joint flow, the kinds, the acceptance and the result have modules of
+#: their own (calibration/joint.py, kinds.py, acceptance.py, result.py, ...)
+RUN_LINE_BUDGET = 600
 
 
 def _instrument_names_in(path) -> set:
@@ -115,8 +116,13 @@ def _instrument_names_in(path) -> set:
     one of their names (docstrings and comments aside)."""
     import ast
 
-    words = ("tracker", "distance", "ballbar", "constraint_link", "constraintlink", "full_pose",
-             "fullpose")
+    from pkmcal.instruments.registry import INSTRUMENTS
+
+    # the older instruments' words, and every instrument's name and aliases
+    words = ("tracker", "distance", "ballbar", "constraint", "full_pose", "fullpose", "pose",
+             "probe", "bed", "mocap", "klipper", "marlin",
+             *(w.replace("-", "_") for inst in INSTRUMENTS.values()
+               for w in (inst.name, *inst.aliases)))
     names = {n for n, owner in audit.INSTRUMENT_NAMES.items()
              if owner in ("tracker", "distance", "pose", "constraint-link")}
     tree = ast.parse(path.read_text())
@@ -130,6 +136,8 @@ def _instrument_names_in(path) -> set:
         if isinstance(node, ast.Constant) and isinstance(node.value, str):
             if id(node) not in docstrings and node.value in names:
                 found.add(node.value)
+            elif id(node) not in docstrings:
+                found |= {w for w in words if w in node.value.lower()}
             continue
         texts = ([node.id] if isinstance(node, ast.Name) else
                  [node.attr] if isinstance(node, ast.Attribute) else

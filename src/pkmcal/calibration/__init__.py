@@ -50,9 +50,9 @@ from ..instruments.tracker import (
     prediction_covariance,
 )
 
-# --parameters auto's chooser registers itself with the calibration flow (it reads data
-# through the flow, which therefore does not import it)
-from . import model_choice  # noqa: F401
+# --parameters auto's chooser and the bed's own shape register themselves with the
+# calibration flow (they read data through the flow, which therefore does not import them)
+from . import bed_surface, model_choice  # noqa: F401
 from .run import (
     KINDS,
     Calibration,

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..instruments.registry import measures_bed_height
+from .run import register_after_step
 
 #: nodes per side of the surface's grid
 COUNT = 11
@@ -161,3 +162,7 @@ def with_bed_surface(calibration, data):
         "the kinematics explain (a bed that is not flat, a frame that bends); kept in the "
         "calibrated file (bed: surface) and handed over by export in the firmware's bed mesh")
     return calibration
+
+
+# every calibration passes it (a printer's bed probed in meshes: their shape)
+register_after_step(with_bed_surface)

@@ -62,7 +62,10 @@ def _fixed(machine):
 
 def _parts(machine, data, noise):
     """Each data object's joint part (its instrument model with a free offset) and session."""
-    from .run import _joint_part, _noise_of, _source_and_kind, expand_firmware_data
+    from .firmware_data import expand_firmware_data
+    from .joint import joint_part
+    from .kinds import source_and_kind
+    from .noise_args import noise_of
 
     given = list(data) if isinstance(data, (list, tuple)) else [data]
     if not given:
@@ -71,9 +74,9 @@ def _parts(machine, data, noise):
     items = list(expanded) if isinstance(expanded, (list, tuple)) else [expanded]
     parts, sources, sessions = [], [], []
     for i, item in enumerate(items):
-        source, kind = _source_and_kind(machine, item, i)
-        level = _noise_of(noise, [getattr(item, "origin", source)], 0) if noise else None
-        part = _joint_part(machine, item, source, kind, level)
+        source, kind = source_and_kind(machine, item, i)
+        level = noise_of(noise, [getattr(item, "origin", source)], 0) if noise else None
+        part = joint_part(machine, item, source, kind, level)
         if part.with_others is not None:
             # the frame as calibrated: a printer's bed as its calibration left it
             part.model, part.frame = part.with_others(0, 0, "square")

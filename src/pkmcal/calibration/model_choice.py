@@ -41,12 +41,13 @@ not left out, for any candidate: every candidate is judged on the same sessions.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..errors import ConvergenceError, InputError
-from .run import expand_firmware_data, register_model_chooser
+from .firmware_data import expand_firmware_data
+from .run import register_model_chooser
 
 #: equations beyond the fitted directions a candidate after the first must leave
 MIN_REDUNDANCY = 10
@@ -377,10 +378,11 @@ def choice_words(scores, chosen: int) -> str:
     return f"model chosen (--parameters auto): {c.words}; {why}"
 
 
-def calibrate_auto(calibrate, machine, given, candidates, bed_tilt, options: dict):
-    """``--parameters auto``: every candidate fitted with ``calibrate``, the one that predicts
-    best kept (:func:`choose_model`); its report's ``model_choice`` and ``parameter_set``
-    say which and why.
+def calibrate_auto(calibrate, machine, given, kinds, arguments: dict):
+    """``--parameters auto``: every candidate model the machine offers for data of these kinds
+    (:meth:`~pkmcal.machines.Machine.model_candidates`) fitted with ``calibrate``, the one
+    that predicts best kept (:func:`choose_model`); its report's ``model_choice`` and
+    ``parameter_set`` say which and why.
 
     Parameters
     ----------
@@ -391,25 +393,38 @@ def calibrate_auto(calibrate, machine, given, candidates, bed_tilt, options: dic
         The machine.
     given : object
         The data as the user gave them.
-    candidates : list of ModelCandidate
-        The machine's candidates.
-    bed_tilt : str or None
-        ``--bed-tilt`` when the user gave it (it overrides the candidates').
-    options : dict
-        The other keywords of the call.
+    kinds : list of MeasurementKind
+        The data's kinds: a candidate's bed tilt applies only to heights above the bed, a
+        candidate of lengths only to data that fix one.
+    arguments : dict
+        The other keywords of the call (``options``: the instruments' options; a
+        ``bed_tilt`` given overrides the candidates').
 
     Returns
     -------
-    Calibration
-        The chosen candidate's calibration.
+    Calibration or None
+        The chosen candidate's calibration; None when the machine offers no candidates.
     """
+    lengths = any(k.fixes_lengths for k in kinds)
+    candidates = machine.model_candidates(lengths) if hasattr(machine, "model_candidates") \
+        else []
+    if not any(k.measures_bed_height for k in kinds):
+        # a bed's tilt is a candidate's only where the data are heights above the bed
+        candidates = list({c.parameters: replace(c, bed_tilt=None)
+                           for c in candidates}.values())
+    if not candidates:
+        return None
+    arguments = dict(arguments)
+    options = dict(arguments.pop("options", None) or {})
+    bed_tilt = options.pop("bed_tilt", None)
+
     def fit(name, bed):
-        return calibrate(machine, given, parameters=name,
-                         bed_tilt=bed_tilt if bed_tilt is not None else bed, **options)
+        return calibrate(machine, given, parameters=name, options={
+            **options, "bed_tilt": bed_tilt if bed_tilt is not None else bed}, **arguments)
 
     def fit_on(name, bed, data):
-        return calibrate(machine, data, parameters=name,
-                         bed_tilt=bed_tilt if bed_tilt is not None else bed, **options)
+        return calibrate(machine, data, parameters=name, options={
+            **options, "bed_tilt": bed_tilt if bed_tilt is not None else bed}, **arguments)
 
     found = session_data(machine, given)
     sessions = None if found is None else (fit_on, *found)

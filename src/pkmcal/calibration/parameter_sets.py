@@ -7,7 +7,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["apply_parameter_set", "parameter_set_names"]
+__all__ = ["apply_parameter_set", "parameter_set_names", "parameter_set_of"]
 
 
 def _machines_with_sets() -> list[str]:
@@ -102,3 +102,69 @@ def apply_parameter_set(machine, name: str):
     new = machine.with_parameters(mp.values)
     new.parameters = mp.with_fixed_mask(fixed)
     return new
+
+
+def parameter_set_of(machine, data, kinds, parameters: str | None, notes: list):
+    """The parameter set a calibration fits: ``parameters`` as given, else the one the data's
+    source suggests (a firmware's saved data are fitted in the set that firmware fits them
+    in); a set of lengths fitted from data that fix none falls back to its ``without_lengths``
+    set; a set fitted from some kinds of data alone leaves the other files out (named in
+    ``notes``).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine.
+    data : object or list
+        The data (objects or paths).
+    kinds : list of MeasurementKind
+        Their kinds, in order.
+    parameters : str or None
+        ``--parameters`` (None: not given).
+    notes : list of str
+        What the calibration notes; a file left out is appended.
+
+    Returns
+    -------
+    tuple
+        ``(machine, data, name, note)``: the machine with the set's fixed flags (as given
+        when no set applies), the data kept, the set's name (None) and the note on the choice.
+
+    Raises
+    ------
+    InputError
+        When no data file holds the kinds the set is fitted from.
+    """
+    items = list(data) if isinstance(data, (list, tuple)) else [data]
+    sets = getattr(machine, "PARAMETER_SETS", {})
+    note = ""
+    suggested = {getattr(d, "parameter_set", None) for d in items}
+    if parameters is None and len(suggested) == 1 and None not in suggested \
+            and next(iter(suggested)) in sets:
+        parameters = next(iter(suggested))
+        note = (f"the firmware's saved data: fitted in its own set (--parameters "
+                f"{parameters}; --parameters full fits every tower quantity)")
+    if parameters is None:
+        return machine, data, None, note
+    fallback = getattr(sets.get(parameters), "without_lengths", None)
+    if fallback and not any(k.fixes_lengths for k in kinds):
+        note = ((note + "; ") if note else "") + (
+            f"{parameters} with heights alone is {fallback}: no measurement fixes a "
+            "length (as the firmware does without distances)")
+        parameters = fallback
+    subset = sets.get(parameters)
+    if getattr(subset, "kinds", None):
+        out = [getattr(d, "source", str(d)) for d, k in zip(items, kinds, strict=True)
+               if k.name not in subset.kinds]
+        if len(out) == len(items):
+            raise InputError(f"--parameters {parameters}: fitted from "
+                             f"{' and '.join(subset.kinds)} data alone "
+                             f"({subset.description.split(':')[0]}); "
+                             f"{', '.join(map(str, out))} hold none")
+        if out:
+            items = [d for d, k in zip(items, kinds, strict=True) if k.name in subset.kinds]
+            notes.append(f"{', '.join(map(str, out))}: left out: --parameters "
+                         f"{parameters} is fitted from {' and '.join(subset.kinds)} data "
+                         f"alone ({subset.description.split(':')[0]})")
+            data = items[0] if len(items) == 1 else items
+    return apply_parameter_set(machine, parameters), data, str(parameters), note

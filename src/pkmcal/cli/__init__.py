@@ -12,6 +12,8 @@ named on one line on stderr; no traceback, no output file written).
 from __future__ import annotations
 
 import enum
+import functools
+import inspect
 import os
 import sys
 from pathlib import Path
@@ -52,12 +54,6 @@ class Deviations(enum.StrEnum):
     paper_table1 = "paper-table1"
     none = "none"
     random = "random"
-
-
-class Method(enum.StrEnum):
-    ml = "ml"
-    ik = "ik"
-    fk = "fk"
 
 
 class TargetFrame(enum.StrEnum):
@@ -112,15 +108,6 @@ WorkspaceOpt = Annotated[str | None, typer.Option(
          "orientations within +/-10 deg): a box X0,X1,Y0,Y1,Z0,Z1 with units (e.g. "
          "'-50mm, 50mm, -50mm, 50mm, 250mm, 350mm'; orientations as by default), or a CSV of "
          "points `x_<len>, y_<len>, z_<len>` [+ `psi/theta/phi_<ang>` or qx..qw].")]
-
-
-def _either(yes: bool, no: bool, yes_name: str, no_name: str) -> bool | None:
-    """A switch given as two flags (two rows of the help, which reads at 80 columns where a
-    ``--x/--no-x`` pair widens every row): True, False, or None when neither is given."""
-    if yes and no:
-        raise typer.BadParameter(f"{yes_name} and {no_name} together: give one",
-                                 param_hint=f"'{no_name}'")
-    return True if yes else False if no else None
 
 
 def _version(value: bool) -> None:
@@ -282,7 +269,60 @@ def simulate(
         circles=circles)))
 
 
+class _WithInstrumentOptions:
+    """A command whose options are its function's and those the instruments declare in their
+    modules (:func:`pkmcal.calibration.options.command_options`): typer reads them from the
+    signature, built when typer first asks (the registry is imported only for this command
+    or the app's help), and the function receives them as keywords."""
+
+    def __init__(self, func):
+        functools.update_wrapper(self, func)
+        self._signature = None
+
+    def __call__(self, *args, **kwargs):
+        return self.__wrapped__(*args, **kwargs)
+
+    @property
+    def __signature__(self) -> inspect.Signature:
+        if self._signature is None:
+            from ..calibration.options import command_options
+
+            own = inspect.signature(self.__wrapped__, eval_str=True)
+            params = [p for p in own.parameters.values() if p.kind is not p.VAR_KEYWORD]
+            for opt in command_options():
+                params += _instrument_parameters(opt)
+            names = [p.name for p in params]
+            assert len(names) == len(set(names)), names
+            self._signature = own.replace(parameters=params)
+        return self._signature
+
+
+def _instrument_parameters(opt) -> list[inspect.Parameter]:
+    """The command's parameters of one instrument option (a ``--x/--no-x`` pair as two flags:
+    a pair widens every row of the help at 80 columns; a text as a list, given at most
+    once)."""
+    def keyword(name, annotation, default):
+        return inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default,
+                                 annotation=annotation)
+
+    if opt.kind == "text":
+        return [keyword(opt.name, Annotated[list[str] | None, typer.Option(
+            opt.flag, metavar=opt.metavar, help=opt.help, show_default=False)], None)]
+    out = [keyword(opt.name, Annotated[bool, typer.Option(opt.flag, help=opt.help)], False)]
+    if opt.kind == "either":
+        out.append(keyword("no_" + opt.name, Annotated[bool, typer.Option(
+            opt.negative, help=opt.negative_help)], False))
+    return out
+
+
+def _noise_help() -> str:
+    from ..calibration.options import noise_help
+
+    return noise_help()
+
+
 @app.command()
+@_WithInstrumentOptions
 def calibrate(
     machine: MachineArg,
     data: Annotated[list[Path], typer.Argument(
@@ -291,27 +331,13 @@ def calibrate(
              "ballbar distances, ...) are fitted together: one geometry, each file with its "
              "own instrument unknowns and noise.")],
     output: OutFile,
-    method: Annotated[Method | None, typer.Option(
-        help="constraint-link data: ml maximum likelihood, every reading noisy (default); ik "
-             "the paper's inverse-kinematics method (needs the passive column); fk the paper's "
-             "forward-kinematics method (estimates Lc). pose data: ml maximum likelihood, "
-             "readings and measured poses noisy (default); ik inverse-kinematic residuals "
-             "(Zhuang, Yan & Masory 1998), measured poses exact.", show_default=False)] = None,
     noise: Annotated[list[str] | None, typer.Option(
         metavar="NOISE",
         help="Measurement noise, held as given. Without it the noise levels are estimated "
              "from the residuals (the defaults below are the start and are kept where the data "
-             "cannot check them; the report's noise_model section). constraint-link: encoder "
-             "noise, standard deviation (default 1um). tracker: leica (default) or a length "
-             "for isotropic noise (e.g. 10um). pose: noise of the leg readings, as a leg "
-             "length (default 2um). distance: the ballbar's standard deviation (default 1um). "
-             "probe: the trigger's (default 10um). With several data files: FILE=VALUE, once "
-             "per file (e.g. --noise bar.csv=2um --noise pts.csv=leica); files not named have "
-             "their levels estimated.", show_default=False)] = None,
-    pose_noise: Annotated[list[str] | None, typer.Option(
-        "--pose-noise", metavar="POS,ORI",
-        help="pose data: noise of the measured poses, POSITION,ORIENTATION with units, held "
-             "as given (default: estimated from the residuals, starting from 20um,50urad).",
+             "cannot check them; the report's noise_model section). With several data files: "
+             "FILE=VALUE, once per file (e.g. --noise bar.csv=2um --noise pts.csv=leica); "
+             "files not named have their levels estimated. " + _noise_help(),
         show_default=False)] = None,
     report: Annotated[Path | None, typer.Option(
         "--report", metavar="DIR", file_okay=False,
@@ -324,21 +350,6 @@ def calibrate(
              "auto (a linear Delta's default): the candidate models are fitted and the one "
              "with the smallest leave-one-out prediction error is kept, named in the report.",
         show_default=False)] = None,
-    fix_frames: Annotated[bool, typer.Option(
-        "--fix-frames", help="pose data: hold the measurement frames (mocap_from_base, "
-                             "platform_from_marker) at the machine file's measurement_frames "
-                             "(identity without that section) instead of estimating them.")]
-    = False,
-    estimate_lc: Annotated[bool, typer.Option(
-        "--estimate-lc", help="Estimate the constraint-link length too (default: only with "
-                              "--method fk).")] = False,
-    no_estimate_lc: Annotated[bool, typer.Option(
-        "--no-estimate-lc", help="Hold the constraint-link length at the machine file's, "
-                                 "with --method fk too.")] = False,
-    two_step: Annotated[bool, typer.Option(
-        "--two-step", help="tracker data: the paper's method, registration first (closed form "
-                           "with the nominal model) and then the errors with the registration "
-                           "fixed. Default: errors and registration together.")] = False,
     robust: Annotated[bool, typer.Option(
         "--robust", help="Leave out the rows the noise cannot explain (a chi-square test "
                          "of each row; named by file row in any case, left out with this "
@@ -354,19 +365,7 @@ def calibrate(
     json_output: Annotated[bool, typer.Option(
         "--json", help="Print the JSON report on stdout instead of the summary.")] = False,
     columns: ColumnsOpt = None,
-    extensions: Annotated[str | None, typer.Option(
-        "--extensions", metavar="auto|none", show_default=False,
-        help="pose data: auto (default) tries the machine's model extensions (a six-leg "
-             "platform's per-leg reading curvature) and adopts one only when it predicts rows "
-             "held out of the fit better (5-fold cross-validation, in the report); none fits "
-             "the plain model. Other data take no extensions and refuse it.")] = None,
-    bed_tilt: Annotated[str | None, typer.Option(
-        "--bed-tilt", metavar="MODE", show_default=False,
-        help="Probe heights on a printer (its frame is its bed, z = 0); MODE auto, estimate "
-             "or square: auto (default) "
-             "estimates the bed's tilt against the towers where the data tell it from the "
-             "parameter set and takes the bed square to the towers otherwise, as the firmware "
-             "does; estimate / square force either.")] = None,
+    **options,
 ) -> None:
     """Identify the geometry from measurements; write the calibrated machine and a report.
 
@@ -411,17 +410,12 @@ def calibrate(
 
     Example: `pkmcal calibrate printer.yaml printer.cfg printer-*.cfg -o cal.yaml`
     """
+    from ..calibration.options import command_values
     from ._commands import run_calibrate
 
-    raise typer.Exit(run_calibrate(machine, data, output, method.value if method else None,
-                                   noise,
-                                   _either(estimate_lc, no_estimate_lc, "--estimate-lc",
-                                           "--no-estimate-lc"),
-                                   json_output, two_step, robust,
-                                   pose_noise=pose_noise, fix_frames=fix_frames,
+    raise typer.Exit(run_calibrate(machine, data, output, noise, json_output, robust=robust,
                                    report_dir=report, holdout=holdout, seed=seed,
-                                   parameters=parameters, extensions=extensions,
-                                   bed_tilt=bed_tilt))
+                                   parameters=parameters, options=command_values(options)))
 
 
 @app.command()

@@ -16,21 +16,17 @@ from ._console import error
 # --------------------------------------------------------------------------------------------
 
 
-def run_calibrate(machine_spec: str, data_path, output: Path, method: str | None,
-                  noise, estimate_lc: bool | None, json_output: bool,
-                  two_step: bool = False, robust: bool = False, pose_noise=None,
-                  fix_frames: bool = False, report_dir: Path | None = None,
-                  holdout: str | None = None, seed: int = 0,
-                  parameters: str | None = None, extensions: str | None = None,
-                  bed_tilt: str | None = None) -> int:
+def run_calibrate(machine_spec: str, data_path, output: Path, noise, json_output: bool,
+                  robust: bool = False, report_dir: Path | None = None,
+                  holdout: str | None = None, seed: int = 0, parameters: str | None = None,
+                  options: dict | None = None) -> int:
     from ..errors import ConvergenceError
     from ..workflows.calibrate import calibrate_files
     from ._console import print_summary
 
     try:
-        summary = calibrate_files(machine_spec, data_path, output, method, noise, estimate_lc,
-                                  json_output, two_step, robust, pose_noise, fix_frames,
-                                  report_dir, holdout, seed, parameters, extensions, bed_tilt)
+        summary = calibrate_files(machine_spec, data_path, output, noise, json_output, robust,
+                                  report_dir, holdout, seed, parameters, options)
     except ConvergenceError as exc:     # the fit ran and did not succeed: exit 1, nothing written
         error(str(exc))
         return 1

@@ -842,46 +842,73 @@ class Instrument:
 
     # -- its own calibration flow (``pkmcal calibrate`` from one file) -----------------------
 
-    #: the options of its calibration flow: a frozen dataclass of
+    #: the options of its calibration: a frozen dataclass of
     #: :func:`~pkmcal.instruments.flow.option` fields (typed, with default, flag and help),
-    #: the only options :meth:`calibrate` receives; None: no flow of its own (the calibration
-    #: layer's generic path or handlers of its own)
+    #: the only options :meth:`calibrate` (or :meth:`calibration_model`) receives;
+    #: ``pkmcal calibrate``'s options are built from them; None: it declares none
     Options: type | None = None
     #: the :mod:`pkmcal.io` function reading its files for :meth:`calibrate` (empty:
     #: :attr:`reader`)
     calibration_reader: str = ""
 
     def options_of(self, given):
-        """Its :attr:`Options` from the calibration layer's options (the fields it declares,
-        each read from ``given``'s attribute of the same name).
+        """Its :attr:`Options` from the options of a calibration: each field it declares read
+        from ``given`` by name, its default where ``given`` has none.
 
         Parameters
         ----------
-        given : object
-            :class:`~pkmcal.calibration.run.CalibrateOptions` (or anything with those
-            attributes).
+        given : mapping
+            Option name -> value (the generic ones, ``noise`` and ``robust``, included).
 
         Returns
         -------
-        object
-            An :attr:`Options` instance.
+        object or None
+            An :attr:`Options` instance (None: it declares no options).
         """
-        return self.Options(**{f.name: getattr(given, f.name)
-                               for f in dataclasses.fields(self.Options)})
+        if self.Options is None:
+            return None
+        return self.Options(**{f.name: given[f.name] for f in dataclasses.fields(self.Options)
+                               if f.name in given})
 
     def check_options(self, options, source) -> None:
-        """Raise :class:`InputError`, naming the option, for options of ``pkmcal calibrate``
-        given that this instrument's flow does not take (or not together).
+        """Raise :class:`InputError`, naming the options, for options it declares that do not
+        go together (an option it does not declare, or a value out of an option's choices,
+        is refused by the calibration layer before).
 
         Parameters
         ----------
-        options : CalibrateOptions
-            Every option of ``pkmcal calibrate`` (:class:`~pkmcal.calibration.run.
-            CalibrateOptions`).
+        options : Options
+            Its own options (:attr:`Options`).
         source : str or os.PathLike
             The data file, named in messages.
         """
         return None
+
+    @property
+    def has_flow(self) -> bool:
+        """It brings a calibration flow of its own (:meth:`calibrate`); else the calibration
+        layer's generic path fits its :meth:`calibration_model`."""
+        return type(self).calibrate is not Instrument.calibrate
+
+    def calibration_model(self, machine: Machine, data, options=None):
+        """The model the calibration layer's generic path fits (:attr:`fit_model`), given its
+        own options (:attr:`Options`; None when it declares none).
+
+        Parameters
+        ----------
+        machine : Machine
+            The nominal machine.
+        data : InstrumentData
+            The data.
+        options : Options, optional
+            Its options.
+
+        Returns
+        -------
+        NuisanceModel
+            The model.
+        """
+        return self.fit_model(machine, data)
 
     def calibrate(self, machine: Machine, data, context, options):
         """Calibrate ``machine`` from this instrument's data (``pkmcal calibrate`` from one
@@ -906,7 +933,7 @@ class Instrument:
         """
         raise NotImplementedError(f"{self.name}: no calibration flow of its own")
 
-    def joint_part(self, machine: Machine, data, source, noise, read):
+    def joint_part(self, machine: Machine, data, source, noise, read, options=None):
         """This instrument's part of a fit of several files (``pkmcal calibrate`` with several
         data files): its data, its model of the instrument's unknowns and its noise.
 
@@ -923,6 +950,8 @@ class Instrument:
         read : callable
             ``read(path, machine) -> data``: the :mod:`pkmcal.io` reader the instrument names
             (:attr:`calibration_reader`, else :attr:`reader`).
+        options : Options, optional
+            Its own options (:attr:`Options`; None when it declares none).
 
         Returns
         -------

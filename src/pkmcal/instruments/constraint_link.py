@@ -104,7 +104,6 @@ from .flow import (
     identifiability_json,
     identifiability_metadata,
     load_data,
-    only_for_poses,
     parameter_table,
     public_parameters,
     require_converged,
@@ -1957,13 +1956,14 @@ class ConstraintLinkOptions:
     method: str | None = _option(
         None, "--method", "ml maximum likelihood, every reading noisy (default); ik the "
         "paper's inverse-kinematics method (needs the passive column); fk the paper's "
-        "forward-kinematics method (estimates Lc).")
+        "forward-kinematics method (estimates Lc).", choices=("ml", "ik", "fk"))
     noise: object = _option(
-        None, "--noise", "Encoder noise, standard deviation (default 1um); held as given, else "
+        None, "--noise", "encoder noise, standard deviation (default 1um); held as given, else "
         "estimated from the residuals.")
     estimate_lc: bool | None = _option(
         None, "--estimate-lc/--no-estimate-lc", "Estimate the constraint-link length too "
-        "(default: only with --method fk).")
+        "(default: only with --method fk).", negative_help="Hold the constraint-link length "
+        "at the machine file's, with --method fk too.")
     robust: bool = _option(
         False, "--robust", "Leave out the rows the noise cannot explain (a chi-square test of "
         "each row) and fit again (ml).")
@@ -2154,7 +2154,7 @@ class ConstraintLink(Instrument):
     Options = ConstraintLinkOptions
 
     def check_options(self, options, source) -> None:
-        """The full-pose options and ``--two-step`` refused, ``--robust`` with ml (see
+        """``--robust`` with ml alone (see
         :meth:`~pkmcal.instruments.base.Instrument.check_options`)."""
         _check_options(options, source)
 
@@ -2232,13 +2232,9 @@ def constraint_link_reading_rms(machine, data, sigma_m: float, max_iter: int = 2
 # -- calibration flow (pkmcal calibrate) ------------------------------------------------------
 
 
-def _check_options(options, source) -> None:
-    """Options of ``pkmcal calibrate`` the constraint link's flow does not take, refused
-    naming them."""
-    only_for_poses(options, source, "constraint-link")
-    if options.two_step:
-        raise InputError(f"--two-step: applies to laser-tracker data (mx, my, mz columns); "
-                         f"{path_text(source)} has constraint-link data")
+def _check_options(options: ConstraintLinkOptions, source) -> None:
+    """The constraint link's options that do not go together, refused naming them (an option
+    it does not declare is refused by the calibration layer)."""
     if options.robust and options.method not in (None, "ml"):
         raise InputError(f"--robust: applies to the ml method (its residuals are the noise's); "
                          f"--method {options.method} takes some readings as exact")

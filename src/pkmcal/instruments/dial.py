@@ -23,6 +23,8 @@ in the positions (``r = g . x + z``), fitted by least squares; ``d0 = g / |g|``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..errors import InputError
@@ -31,6 +33,7 @@ from ..parameters import ParameterSet
 from .base import Instrument, _noise_model_arg, _simulated_sigma, reachable
 from .data import InstrumentData
 from .experiment import MOUNTING_ERROR, given_poses, mm_text, noise_model, simulate_instrument
+from .flow import option
 from .models import IsotropicNoise, NuisanceModel
 from .problem import InstrumentProblem
 
@@ -175,6 +178,24 @@ def dial_data(q, readings, rows=None, source: str = "<data>") -> InstrumentData:
                           None if rows is None else np.asarray(rows, int), source)
 
 
+@dataclass(frozen=True, slots=True)
+class DialOptions:
+    """The options of a dial indicator's calibration (:meth:`Dial.calibration_model`)."""
+
+    touched_point: str = option(
+        "auto", "--dial-point", "auto (default) estimates the point on the "
+        "platform the dial touches, on a platform that rotates; origin holds it at the "
+        "platform origin, the tool point of the machine file (a dial touching the tool tip): "
+        "three unknowns fewer per mounting.", metavar="auto|origin",
+        choices=("auto", "origin"), joint=True)
+
+
+def touched_point_unknown(machine, options: DialOptions | None) -> bool:
+    """Whether the touched point is an unknown: on a platform that rotates, unless
+    ``--dial-point origin`` holds it at the platform origin."""
+    return bool(machine.rotates) and (options is None or options.touched_point != "origin")
+
+
 class Dial(Instrument):
     """A dial indicator reading one platform point along one fixed direction:
     :mod:`pkmcal.instruments.dial`."""
@@ -207,6 +228,14 @@ class Dial(Instrument):
     def fit_model(self, machine, data):
         """Its direction and zero, and the touched point on a platform that rotates."""
         return DialModel(with_point=machine.rotates)
+
+    #: its options (``pkmcal calibrate --dial-point``)
+    Options = DialOptions
+
+    def calibration_model(self, machine, data, options=None):
+        """:meth:`fit_model`, the touched point held at the platform origin with
+        ``--dial-point origin``."""
+        return DialModel(with_point=touched_point_unknown(machine, options))
 
     def default_noise(self):
         return IsotropicNoise(DIAL_SIGMA)

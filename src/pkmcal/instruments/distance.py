@@ -52,7 +52,6 @@ from .flow import (
     fit_with_baseline,
     identifiability_json,
     load_data,
-    only_for_poses,
     option,
     public_parameters,
     scalar_metadata,
@@ -274,7 +273,7 @@ class DistanceOptions:
     """The options of the ballbar's calibration flow (:meth:`Distance.calibrate`)."""
 
     noise: object = option(
-        None, "--noise", "The ballbar's standard deviation (default 1um); held as given, else "
+        None, "--noise", "the ballbar's standard deviation (default 1um); held as given, else "
         "estimated from the residuals.")
     robust: bool = option(
         False, "--robust", "Leave out the rows the noise cannot explain (a chi-square test of "
@@ -572,18 +571,13 @@ class Distance(Instrument):
     reader = "read_distances"
     Options = DistanceOptions
 
-    def check_options(self, options, source) -> None:
-        """``--method``, ``--estimate-lc``, ``--two-step`` and the full-pose options refused
-        (see :meth:`~pkmcal.instruments.base.Instrument.check_options`)."""
-        _check_options(options, source)
-
     def calibrate(self, machine: Machine, data, context, options):
         """The geometry and every mounting's pivot and ball, the lengths' residuals before
         (mountings fitted alone) and after (see
         :meth:`~pkmcal.instruments.base.Instrument.calibrate`)."""
         return _calibration_flow(machine, data, context, options)
 
-    def joint_part(self, machine: Machine, data, source, noise, read):
+    def joint_part(self, machine: Machine, data, source, noise, read, options=None):
         """The ballbar file's part of a fit of several files: its lengths, every mounting's
         pivot and ball unknown (see :meth:`~pkmcal.instruments.base.Instrument.joint_part`)."""
         noise_model = self.noise_arg(noise, machine)
@@ -720,18 +714,6 @@ INSTRUMENT = Distance()
 
 
 # -- calibration flow (pkmcal calibrate) ------------------------------------------------------
-
-
-def _check_options(options, source) -> None:
-    """Options of ``pkmcal calibrate`` the ballbar's flow does not take, refused naming them."""
-    only_for_poses(options, source, "distance")
-    for flag, given in (("--method", options.method is not None),
-                          ("--estimate-lc", options.estimate_lc is not None),
-                          ("--two-step", options.two_step)):
-        if given:
-            raise InputError(f"{flag}: does not apply to ballbar data ({path_text(source)}); see "
-                             "--noise (the ballbar's standard deviation, default 1um), "
-                             "--robust")
 
 
 def _calibration_flow(machine, data, context: FlowContext,

@@ -26,7 +26,7 @@ from ..paths import path_text
 __all__ = ["CalibrationNotConverged", "FlowContext", "FlowResult", "JointPart",
            "convergence_json",
            "fit_with_baseline", "holdout_split", "identifiability_json",
-           "identifiability_metadata", "json_safe", "load_data", "only_for_poses", "option",
+           "identifiability_metadata", "json_safe", "load_data", "option",
            "option_specs", "parameter_table", "public_parameters", "report_head",
            "require_converged", "rows_text", "scalar_rms", "solve", "source_of", "split_rows",
            "um", "validation_section"]
@@ -69,7 +69,7 @@ class FlowContext:
 @dataclass
 class FlowResult:
     """What an instrument's flow hands back to the calibration layer, which finishes it into a
-    :class:`~pkmcal.calibration.run.Calibration`.
+    :class:`~pkmcal.calibration.result.Calibration`.
 
     Attributes
     ----------
@@ -221,17 +221,6 @@ def source_of(machine) -> str:
 def load_data(data, reader, machine):
     """Data read from ``data`` (a path) with ``reader``, or ``data`` itself."""
     return reader(Path(data), machine) if isinstance(data, (str, Path)) else data
-
-
-def only_for_poses(options, source, kind: str) -> None:
-    """Refuse the options of full-pose data (``--pose-noise``, ``--fix-frames``,
-    ``--extensions``) given for ``kind`` data from ``source``."""
-    for option, given in (("--pose-noise", options.pose_noise is not None),
-                          ("--fix-frames", options.fix_frames),
-                          ("--extensions", options.extensions is not None)):
-        if given:
-            raise InputError(f"{option}: applies to full-pose data (a Stewart with x, y, z "
-                             f"and orientation columns); {path_text(source)} has {kind} data")
 
 
 def holdout_split(n: int, holdout: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -487,30 +476,44 @@ def fit_with_baseline(machine, data, context: FlowContext, fit, noise, advice: s
     return data, held, result, before, calibrated, params, units
 
 
-def option(default, flag: str, help: str):
+def option(default, flag: str, help: str, *, metavar: str | None = None,
+           choices: tuple | None = None, joint: bool = False, negative_help: str = ""):
     """A field of an instrument's ``Options`` (its calibration flow's options): the default,
-    the command-line flag and its help text (``dataclasses.field`` metadata ``flag``,
-    ``help``).
+    the command-line flag, its help text and how the command line shows and checks it
+    (``dataclasses.field`` metadata; ``pkmcal calibrate``'s options are built from them).
 
     Parameters
     ----------
     default : object
         The value when not given (immutable).
     flag : str
-        The option of ``pkmcal calibrate`` (``--two-step``).
+        The option of ``pkmcal calibrate`` (``--two-step``; ``--x/--no-x`` for a switch that
+        is None until given either way).
     help : str
         What it does, in one or two sentences.
+    metavar : str, optional
+        The value's name in the help (a text option).
+    choices : tuple of str, optional
+        The values it takes (anything else is refused naming the flag).
+    joint : bool, optional
+        It applies to this instrument's part of a fit of several data files too.
+    negative_help : str, optional
+        The help of the ``--no-x`` flag of a ``--x/--no-x`` switch.
 
     Returns
     -------
     dataclasses.Field
         The field.
     """
-    return field(default=default, metadata={"flag": flag, "help": help})
+    return field(default=default, metadata={"flag": flag, "help": help, "metavar": metavar,
+                                            "choices": tuple(choices) if choices else None,
+                                            "joint": bool(joint),
+                                            "negative_help": negative_help})
 
 
 def option_specs(options_class) -> list[dict]:
-    """The options an ``Options`` class declares: name, flag, type, default and help.
+    """The options an ``Options`` class declares: name, flag, type, default, help, metavar,
+    choices and whether they apply to a fit of several files.
 
     Parameters
     ----------
@@ -523,5 +526,7 @@ def option_specs(options_class) -> list[dict]:
         One per field, in order.
     """
     return [{"name": f.name, "flag": f.metadata.get("flag"), "type": f.type,
-             "default": f.default, "help": f.metadata.get("help")}
+             "default": f.default, "help": f.metadata.get("help"),
+             "metavar": f.metadata.get("metavar"), "choices": f.metadata.get("choices"),
+             "joint": bool(f.metadata.get("joint"))}
             for f in fields(options_class)]

@@ -1454,21 +1454,24 @@ class PoseOptions:
     method: str | None = _option(
         None, "--method", "ml maximum likelihood, readings and measured poses noisy "
         "(default); ik inverse-kinematic residuals (Zhuang, Yan & Masory 1998), measured poses "
-        "exact.")
+        "exact.", choices=("ml", "ik"))
     noise: object = _option(
-        None, "--noise", "Noise of the leg readings, as a leg length (default 2um), or a "
-        "FullPoseNoise; held as given, else estimated from the residuals.")
+        None, "--noise", "noise of the leg readings, as a leg length (default 2um); held as "
+        "given (a FullPoseNoise too), else estimated from the residuals.")
     pose_noise: str | None = _option(
         None, "--pose-noise", "Noise of the measured poses, POSITION,ORIENTATION with units, "
-        "held as given (default: estimated from the residuals, starting from 20um,50urad).")
+        "held as given (default: estimated from the residuals, starting from 20um,50urad).",
+        metavar="POS,ORI")
     fix_frames: bool = _option(
         False, "--fix-frames", "Hold the measurement frames (mocap_from_base, "
         "platform_from_marker) at the machine file's measurement_frames (identity without "
         "that section) instead of estimating them.")
     extensions: str | None = _option(
-        None, "--extensions", "auto (default) tries the machine's model extensions and adopts "
-        "one only when it predicts rows held out of the fit better (5-fold cross-validation); "
-        "none fits the plain model.")
+        None, "--extensions", "auto (default) tries the machine's model extensions (a six-leg "
+        "platform's per-leg reading curvature) and adopts one only when it predicts rows held "
+        "out of the fit better (5-fold cross-validation, in the report); none fits the plain "
+        "model.", metavar="auto|none",
+        choices=("auto", "none"))
     robust: bool = _option(
         False, "--robust", "Leave out the rows the noise cannot explain (a chi-square test of "
         "each row) and fit again (ml).")
@@ -1713,8 +1716,8 @@ class Pose(Instrument):
     Options = PoseOptions
 
     def check_options(self, options, source) -> None:
-        """``--estimate-lc`` and ``--two-step`` refused, ``--method`` ml or ik, ``--robust``
-        with ml (see :meth:`~pkmcal.instruments.base.Instrument.check_options`)."""
+        """``--robust`` with ml alone (see
+        :meth:`~pkmcal.instruments.base.Instrument.check_options`)."""
         _check_options(options, source)
 
     def calibrate(self, machine: Machine, data, context, options):
@@ -1818,19 +1821,12 @@ def _errors_report(errors, fl: float) -> dict:
             "fk_failed": s["fk_failed"]}
 
 
-def _check_options(options, source) -> None:
-    """Options of ``pkmcal calibrate`` the full-pose flow does not take, refused naming them."""
-    for flag, given in (("--estimate-lc", options.estimate_lc is not None),
-                          ("--two-step", options.two_step)):
-        if given:
-            raise InputError(f"{flag}: does not apply to full-pose data ({path_text(source)}); "
-                             "see --method ml|ik, --fix-frames, --noise, --pose-noise, --robust")
+def _check_options(options: PoseOptions, source) -> None:
+    """The full-pose options that do not go together, refused naming them (an option it does
+    not declare, or a value out of its choices, is refused by the calibration layer)."""
     if options.robust and options.method == "ik":
         raise InputError("--robust: applies to the ml method (its residuals are the noise's); "
                          "--method ik takes the measured poses as exact")
-    if options.method not in (None, "ml", "ik"):
-        raise InputError(f"--method {options.method}: full-pose data are calibrated by ml "
-                         "(maximum likelihood, default) or ik (inverse-kinematic residuals)")
 
 
 def _calibration_flow(machine, data, context: FlowContext,

@@ -71,7 +71,6 @@ from .flow import (
     fit_with_baseline,
     identifiability_json,
     load_data,
-    only_for_poses,
     option,
     public_parameters,
     scalar_metadata,
@@ -323,14 +322,17 @@ class ProbeOptions:
     """The options of the probe's calibration flow (:meth:`Probe.calibrate`)."""
 
     noise: object = option(
-        None, "--noise", "The probe's repeatability along z (default 10um); held as given, "
+        None, "--noise", "the trigger's repeatability along z (default 10um); held as given, "
         "else estimated from the residuals.")
     robust: bool = option(
         False, "--robust", "Leave out the rows the noise cannot explain (a chi-square test of "
         "each row) and fit again.")
     bed_tilt: str | None = option(
-        None, "--bed-tilt", "Probe heights on a printer: auto (the bed's tilt estimated where "
-        "the data tell it from the parameter set), estimate or square.")
+        None, "--bed-tilt", "On a printer (its frame is its bed, z = 0): auto "
+        "(default) estimates the bed's tilt against the towers where the data tell it from "
+        "the parameter set and takes the bed square to the towers otherwise, as the firmware "
+        "does; estimate / square force either.", metavar="MODE",
+        choices=("auto", "estimate", "square"), joint=True)
 
 
 @dataclass(frozen=True)
@@ -399,6 +401,9 @@ class Probe(Instrument):
     priority = 25
     fixes_lengths = False
     measures_bed_height = True
+    #: its measurements in words (messages)
+    singular = "probe height"
+    plural = "probe heights"
     measure_next = ("distances (a ballbar, or caliper distances between features of a printed "
                     "object, as Klipper's enhanced DELTA_CALIBRATE) or points (a laser tracker)")
 
@@ -629,17 +634,13 @@ class Probe(Instrument):
     reader = "read_probe"
     Options = ProbeOptions
 
-    def check_options(self, options, source) -> None:
-        """``--method``, ``--estimate-lc``, ``--two-step`` and the full-pose options refused
-        (see :meth:`~pkmcal.instruments.base.Instrument.check_options`)."""
-        _check_options(options, source)
-
     def calibrate(self, machine: Machine, data, context, options):
         """The geometry and the bed plane, the heights' residuals before (the bed fitted
         alone) and after (see :meth:`~pkmcal.instruments.base.Instrument.calibrate`)."""
         return _calibration_flow(machine, data, context, options)
 
-    def joint_part(self, machine: Machine, data, source, noise, read):
+    def joint_part(self, machine: Machine, data, source, noise, read,
+                   options: ProbeOptions | None = None):
         """The probe file's part of a fit of several files: its heights and the bed's
         unknowns, decided once the other files are known (see
         :meth:`~pkmcal.instruments.base.Instrument.joint_part`)."""
@@ -651,8 +652,10 @@ class Probe(Instrument):
 
         free_height = bool(getattr(probe, "free_height", False))
 
-        def with_others(equations, unknowns, choice="auto", data=probe, others=()):
-            bed = bed_choice(machine, data, noise_model, choice, equations, unknowns,
+        given = (options.bed_tilt if options is not None else None) or "auto"
+
+        def with_others(equations, unknowns, choice=None, data=probe, others=()):
+            bed = bed_choice(machine, data, noise_model, choice or given, equations, unknowns,
                              others=others)
             if not free_height:
                 return bed.model(), bed.words
@@ -830,19 +833,6 @@ def _check_heights(data, machine) -> None:
                              f"{fix} (or, if the machine file's position_endstop values are "
                              "that far from the ones the data were probed with, import the "
                              "config the data were saved with)")
-
-
-def _check_options(options, source) -> None:
-    """Options of ``pkmcal calibrate`` the probe's flow does not take, refused naming them."""
-    only_for_poses(options, source, "probe")
-    for option_, given in (("--method", options.method is not None),
-                           ("--estimate-lc", options.estimate_lc is not None),
-                           ("--two-step", options.two_step)):
-        if given:
-            raise InputError(f"{option_}: does not apply to probe heights "
-                             f"({path_text(source)}); see "
-                             "--noise (the probe's repeatability along z, default 10um), "
-                             "--robust")
 
 
 def _calibration_flow(machine, data, context: FlowContext,

@@ -70,7 +70,6 @@ from .flow import (
     identifiability_json,
     identifiability_metadata,
     load_data,
-    only_for_poses,
     option,
     parameter_table,
     public_parameters,
@@ -948,9 +947,8 @@ class TrackerOptions:
     """The options of the tracker's calibration flow (:meth:`Tracker.calibrate`)."""
 
     noise: object = option(
-        None, "--noise", "Tracker noise: leica (default) or a length for isotropic noise (e.g. "
-        "10um), or a TrackerNoise; held as given, else the levels are estimated from the "
-        "residuals.")
+        None, "--noise", "leica (default) or a length for isotropic noise (e.g. 10um); held "
+        "as given (a TrackerNoise too), else the levels are estimated from the residuals.")
     two_step: bool = option(
         False, "--two-step", "The paper's method, registration first (closed form with the "
         "nominal model) and then the errors with the registration fixed. Default: errors and "
@@ -1313,8 +1311,7 @@ class Tracker(Instrument):
     Options = TrackerOptions
 
     def check_options(self, options, source) -> None:
-        """``--method`` and ``--estimate-lc`` (constraint link), the full-pose options, and
-        ``--robust`` with ``--two-step`` refused (see
+        """``--robust`` with ``--two-step`` refused (see
         :meth:`~pkmcal.instruments.base.Instrument.check_options`)."""
         _check_options(options, source)
 
@@ -1323,7 +1320,7 @@ class Tracker(Instrument):
         Fig. 6) before and after (see :meth:`~pkmcal.instruments.base.Instrument.calibrate`)."""
         return _calibration_flow(machine, data, context, options)
 
-    def joint_part(self, machine: Machine, data, source, noise, read):
+    def joint_part(self, machine: Machine, data, source, noise, read, options=None):
         """The tracker file's part of a fit of several files: its points, one target per
         ``target`` group, the tracker's pose unknown (see
         :meth:`~pkmcal.instruments.base.Instrument.joint_part`)."""
@@ -1498,14 +1495,9 @@ def _rotvec(R):
     return rotvec_from_matrix(R)
 
 
-def _check_options(options, source) -> None:
-    """Options of ``pkmcal calibrate`` the tracker's flow does not take, refused naming them."""
-    only_for_poses(options, source, "tracker")
-    for flag, given in (("--method", options.method is not None),
-                          ("--estimate-lc", options.estimate_lc is not None)):
-        if given:
-            raise InputError(f"{flag}: applies to constraint-link data; {path_text(source)} has "
-                             "tracker points (see --two-step, --robust)")
+def _check_options(options: TrackerOptions, source) -> None:
+    """The tracker's options that do not go together, refused naming them (an option it does
+    not declare is refused by the calibration layer)."""
     if options.two_step and options.robust:
         raise InputError("--robust: applies to the joint method (its residuals are the "
                          "noise's); --two-step holds a registration of the nominal model, whose "

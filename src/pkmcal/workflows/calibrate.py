@@ -17,13 +17,10 @@ from .common import check_outputs, load_machine_arg, machine_inputs, wrote
 __all__ = ["calibrate_files"]
 
 
-def calibrate_files(machine_spec: str, data_path, output: Path, method: str | None = None,
-                    noise=None, estimate_lc: bool | None = None, json_output: bool = False,
-                    two_step: bool = False, robust: bool = False, pose_noise=None,
-                    fix_frames: bool = False, report_dir: Path | None = None,
-                    holdout: str | None = None, seed: int = 0,
-                    parameters: str | None = None, extensions: str | None = None,
-                    bed_tilt: str | None = None) -> Summary:
+def calibrate_files(machine_spec: str, data_path, output: Path, noise=None,
+                    json_output: bool = False, robust: bool = False,
+                    report_dir: Path | None = None, holdout: str | None = None, seed: int = 0,
+                    parameters: str | None = None, options: dict | None = None) -> Summary:
     """Calibrate a machine file from data files and write the calibrated machine file, its
     JSON report beside it and, with ``report_dir``, the HTML report (all or none).
 
@@ -35,10 +32,12 @@ def calibrate_files(machine_spec: str, data_path, output: Path, method: str | No
         The data file(s); several are fitted together.
     output : Path
         The calibrated machine file (YAML); the JSON report is written beside it.
-    method, noise, estimate_lc, two_step, robust, pose_noise, fix_frames, holdout, seed, \
-parameters, extensions, bed_tilt
+    noise, robust, holdout, seed, parameters
         As :func:`pkmcal.calibration.calibrate` takes them (``noise``: one text, or one
-        ``FILE=VALUE`` text per file; ``pose_noise``: one text or a list of at most one).
+        ``FILE=VALUE`` text per file).
+    options : dict, optional
+        The instruments' own options by name (``{"bed_tilt": "square"}``), each declared by
+        its instrument (:attr:`~pkmcal.instruments.base.Instrument.Options`).
     json_output : bool, optional
         The summary is the JSON report itself (raw text) and the warnings.
     report_dir : Path, optional
@@ -63,11 +62,6 @@ parameters, extensions, bed_tilt
     paths = list(data_path) if isinstance(data_path, (list, tuple)) else [data_path]
     noise = noise_per_file_arg(noise if isinstance(noise, (list, tuple)) or noise is None
                                else [noise], paths)
-    if isinstance(pose_noise, (list, tuple)):
-        if len(pose_noise) > 1:
-            raise InputError("--pose-noise: given more than once (one POSITION,ORIENTATION "
-                             "pair holds the measured poses' noise)")
-        pose_noise = pose_noise[0] if pose_noise else None
     data_path = paths[0] if len(paths) == 1 else paths
     output = Path(output)
     if output.suffix.lower() == ".json":
@@ -84,11 +78,8 @@ parameters, extensions, bed_tilt
         outputs += [report_dir / "report.html", report_dir / "report.json"]
     check_outputs(outputs, [Path(p) for p in paths] + machine_inputs(machine_spec),
                   [report_dir] if report_dir is not None else [])
-    calibration = calibrate(machine, data_path, method=method, noise=noise,
-                            pose_noise=pose_noise, estimate_lc=estimate_lc,
-                            two_step=two_step, robust=robust, fix_frames=fix_frames,
-                            holdout=holdout, seed=seed, parameters=parameters,
-                            extensions=extensions, bed_tilt=bed_tilt)
+    calibration = calibrate(machine, data_path, noise=noise, robust=robust, holdout=holdout,
+                            seed=seed, parameters=parameters, options=options)
     # the answer (verdict, accuracy before and after, what changed, what next): the report's
     # first section, and the summary's first rows
     calibration.report["outcome"] = calibration_outcome(calibration, path_text(output))
