@@ -92,9 +92,23 @@ def inputs(tmp_path_factory):
     return d
 
 
+#: the previous set of the calibrate scenarios: cal.yaml and cal.json of this run
+PREVIOUS_CAL = ["calibrate", "default", "data.csv", "-o", "cal.yaml"]
+
+
+@pytest.fixture(scope="module")
+def previous_cal(inputs, tmp_path_factory):
+    """The inputs with the previous calibrate set (:data:`PREVIOUS_CAL`), made once: each test
+    that kills a later calibrate there copies it."""
+    d = tmp_path_factory.mktemp("journal-previous")
+    shutil.copytree(inputs, d, dirs_exist_ok=True)
+    _ok(PREVIOUS_CAL, d)
+    return d
+
+
 #: scenario -> (previous run, new run, the set's files, the next command there)
 SCENARIOS = {
-    "calibrate": (["calibrate", "default", "data.csv", "-o", "cal.yaml"],
+    "calibrate": (PREVIOUS_CAL,
                   ["calibrate", "default", "data.csv", "-o", "cal.yaml", "--noise", "3um"],
                   ["cal.yaml", "cal.json"],
                   ["compensate", "cal.yaml", "targets.csv", "-o", "cmd.csv"]),  # reads the set
@@ -122,7 +136,7 @@ def _state(d: Path, files, old: dict, new: dict) -> str:
 
 
 @pytest.mark.parametrize("name", sorted(SCENARIOS))
-def test_kill_9_at_every_step_of_the_commit(inputs, tmp_path, name):
+def test_kill_9_at_every_step_of_the_commit(inputs, previous_cal, tmp_path, name):
     """Every step k of the commit in turn: kill -9 right before it, then the next command in
     that directory; the set is the previous one or the new one, whole, and nothing hidden
     remains. (The steps of a two-file set: backup, journal, rename, rename, forget, cleanup;
@@ -130,9 +144,12 @@ def test_kill_9_at_every_step_of_the_commit(inputs, tmp_path, name):
     test_a_new_output_directory_at_every_step.)"""
     previous, new_args, files, after = SCENARIOS[name]
     base = tmp_path / "base"
-    shutil.copytree(inputs, base)
-    if previous is not None:
-        _ok(previous, base)
+    if previous == PREVIOUS_CAL:        # made once for the file
+        shutil.copytree(previous_cal, base)
+    else:
+        shutil.copytree(inputs, base)
+        if previous is not None:
+            _ok(previous, base)
     old = _digests(base, files)
     ref = tmp_path / "ref"
     shutil.copytree(base, ref)
@@ -215,12 +232,11 @@ def test_a_new_output_directory_at_every_step(tmp_path):
     assert seen == {"old", "new"}
 
 
-def test_a_killed_commit_is_rolled_back_by_a_run_that_only_reads_there(inputs, tmp_path):
+def test_a_killed_commit_is_rolled_back_by_a_run_that_only_reads_there(previous_cal, tmp_path):
     """compensate reads cal.yaml and cal.json: the set it reads is made whole first, even when
     its own output goes elsewhere."""
     d = tmp_path / "d"
-    shutil.copytree(inputs, d)
-    _ok(["calibrate", "default", "data.csv", "-o", "cal.yaml"], d)
+    shutil.copytree(previous_cal, d)                # inputs + PREVIOUS_CAL's set
     old = _digests(d, ["cal.yaml", "cal.json"])
     args = ["calibrate", "default", "data.csv", "-o", "cal.yaml", "--noise", "3um"]
     ref = tmp_path / "ref"
@@ -237,15 +253,14 @@ def test_a_killed_commit_is_rolled_back_by_a_run_that_only_reads_there(inputs, t
     assert _digests(d, ["cal.yaml", "cal.json"]) == old and _leftovers(d) == []
 
 
-def test_backups_a_journal_needs_are_never_removed_as_stale(inputs, tmp_path):
+def test_backups_a_journal_needs_are_never_removed_as_stale(previous_cal, tmp_path):
     """Before issue 28 the next run deleted the hidden .bak of a killed run, the only copy of
     the old file. A .bak that a journal names is kept while the journal cannot be handled, and
     restored by the rollback when it can."""
     from pkmcal.io.atomic import remove_stale_temporaries
 
     d = tmp_path / "d"
-    shutil.copytree(inputs, d)
-    _ok(["calibrate", "default", "data.csv", "-o", "cal.yaml"], d)
+    shutil.copytree(previous_cal, d)                # inputs + PREVIOUS_CAL's set
     old = _digests(d, ["cal.yaml", "cal.json"])
     args = ["calibrate", "default", "data.csv", "-o", "cal.yaml", "--noise", "3um"]
     assert _run(args, d, kill_at=4).returncode == -signal.SIGKILL    # between the renames
@@ -268,12 +283,11 @@ def test_backups_a_journal_needs_are_never_removed_as_stale(inputs, tmp_path):
 
 
 @pytest.mark.parametrize("k,state", [(4, "old"), (6, "new")], ids=["mid-commit", "cleanup"])
-def test_a_killed_run_then_the_same_command_again(inputs, tmp_path, k, state):
+def test_a_killed_run_then_the_same_command_again(previous_cal, tmp_path, k, state):
     """A run killed between its renames (or while removing its backups) and the same command
     again: the second run succeeds, the set is its own, whole, and nothing hidden remains."""
     d = tmp_path / "d"
-    shutil.copytree(inputs, d)
-    _ok(["calibrate", "default", "data.csv", "-o", "cal.yaml"], d)
+    shutil.copytree(previous_cal, d)                # inputs + PREVIOUS_CAL's set
     args = ["calibrate", "default", "data.csv", "-o", "cal.yaml", "--noise", "3um"]
     assert _run(args, d, kill_at=k).returncode == -signal.SIGKILL
     assert _leftovers(d)

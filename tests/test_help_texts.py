@@ -1,5 +1,5 @@
 """Help texts that cannot go stale (issue 26): the machine types and controller formats the
-help names are the registries' (pkmcal.cli._names reads the machine registry's list and
+help names are the registries' (pkmcal.workflows.names reads the machine registry's list and
 holds a light copy of the format names, checked here), and the
 format lists of ``export --help`` / ``import --help`` are readable whole at 80 columns."""
 
@@ -11,7 +11,6 @@ import math
 import pytest
 
 from clitools import run_in_process
-from pkmcal.cli import _names
 from pkmcal.machines import (
     Machine,
     cubic_6upu,
@@ -20,6 +19,7 @@ from pkmcal.machines import (
     default_linear_delta,
 )
 from pkmcal.machines.registry import MACHINE_MODULES, machine_formats
+from pkmcal.workflows import names as _names
 
 #: rich's mark of a word cut at the edge of a column
 CUT = "\u2026"

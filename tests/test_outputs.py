@@ -8,6 +8,7 @@ run as a subprocess from one table (its inputs, its outputs)."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import stat
 import subprocess
@@ -377,22 +378,42 @@ def _set_state(d: Path, outputs) -> str:
     return "new" if all(changed.values()) else f"mixed {changed}"
 
 
+@pytest.fixture(scope="module")
+def complete_run(workdir, tmp_path_factory):
+    """``complete_run(name) -> (directory, seconds)``: the inputs and the outputs of one
+    complete run of the command as a subprocess, and how long that whole process took; made
+    once per command and copied by each signal's test (the previous set it interrupts)."""
+    made = {}
+
+    def get(name):
+        if name not in made:
+            d = tmp_path_factory.mktemp(f"complete-{name}")
+            for f in workdir.iterdir():
+                if f.is_file():
+                    (d / f.name).write_bytes(f.read_bytes())
+            _, _, outputs = COMMANDS[name]
+            t0 = time.perf_counter()
+            first = run_process(*_args(name, outputs), cwd=d)
+            total = time.perf_counter() - t0
+            assert first.returncode == 0, first.stderr
+            made[name] = d, total
+        return made[name]
+
+    return get
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGKILL],
                          ids=["ctrl-c", "sigterm", "kill-9"])
 @pytest.mark.parametrize("name", ["calibrate", "select-poses", "errors", "montecarlo"])
-def test_interrupted_runs_leave_the_previous_set_or_the_whole_new_one(workdir, tmp_path, name,
-                                                                    sig):
-    d = tmp_path
-    for f in workdir.iterdir():
-        if f.is_file():
-            (d / f.name).write_bytes(f.read_bytes())
+def test_interrupted_runs_leave_the_previous_set_or_the_whole_new_one(complete_run, tmp_path,
+                                                                    name, sig):
     args, inputs, outputs = COMMANDS[name]
     # the first (complete) run's time decides where to interrupt: early, middle, near the end
-    # (a whole process, as the interrupted ones: start-up included)
-    t0 = time.perf_counter()
-    first = run_process(*_args(name, outputs), cwd=d)
-    total = time.perf_counter() - t0
-    assert first.returncode == 0, first.stderr
+    # (a whole process, as the interrupted ones: start-up included); its outputs are the
+    # previous set (one complete run per command, shared by the three signals)
+    first, total = complete_run(name)
+    d = tmp_path / "d"
+    shutil.copytree(first, d)
     seen = set()
 
     def interrupt(frac):

@@ -25,6 +25,7 @@ from clitools import PKMCAL, run
 from pkmcal.estimation.acceptance import FAILED_ALARMING, NOT_TESTED, PASSED, report_verdict
 from pkmcal.identifiability.determination import POOR_FRACTION
 from pkmcal.io import load_machine
+from run_once import once
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -97,9 +98,16 @@ def make_reports(base: Path) -> dict:
     return out
 
 
+def shared_reports(tmp_path_factory) -> dict:
+    """:func:`make_reports`' reports, made once per test run (test_report_browser reads the
+    same ones); a test that writes beside them copies the directory first."""
+    base = once(tmp_path_factory, "docs-reports", make_reports)
+    return _Reports({p.name: p for p in sorted(base.iterdir()) if p.is_dir()})
+
+
 @pytest.fixture(scope="module")
 def reports(tmp_path_factory):
-    return make_reports(tmp_path_factory.mktemp("reports"))
+    return shared_reports(tmp_path_factory)
 
 
 def _load(d: Path):
@@ -367,10 +375,11 @@ def test_combination_change_over_std_is_shown(reports):
 
 # -- 5. the console ------------------------------------------------------------------------
 
-def test_console_honours_columns_and_says_warnings_once_after_the_summary(reports):
+def test_console_honours_columns_and_says_warnings_once_after_the_summary(reports, tmp_path):
     """Warnings were lines of 568 characters, printed before the header and again in the
     summary; piped, calibrate ignored COLUMNS (120 wide) where simulate honoured it."""
-    d = reports["printer-probe-ballbar"]
+    d = tmp_path / "d"                  # the shared reports are read, never written into
+    shutil.copytree(reports["printer-probe-ballbar"], d)
     env = {**os.environ, "COLUMNS": "80"}
     command = [str(PKMCAL), "calibrate", str(EXAMPLES / "linear_delta.yaml"), "probe.csv",
                "bar.csv", "--parameters", "klipper", "-o", "again.yaml"]

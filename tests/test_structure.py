@@ -8,6 +8,8 @@ empty, so any new one fails: ask the instrument or the machine instead.
 
 from __future__ import annotations
 
+from functools import cache
+
 import structure_audit as audit
 
 #: switches on instrument/machine names still standing, per module: none
@@ -16,23 +18,28 @@ SWITCH_CEILINGS: dict[str, int] = {}
 #: pose coordinates move; target: none outside machines/base.py)
 POSE_DOF_CEILINGS = {"machines/base.py": 1}
 
-_AUDIT = audit.audit()
+
+@cache
+def _audit() -> dict:
+    """The audit (~2.5 s), made by the first test that reads it: at import it ran while every
+    pytest-xdist worker collected the tests, whichever worker ran them."""
+    return audit.audit()
 
 
 def test_no_import_cycle_between_modules_or_packages():
-    assert _AUDIT["module_cycles"] == [], _AUDIT["module_cycles"]
-    assert _AUDIT["package_cycles"] == [], _AUDIT["package_cycles"]
+    assert _audit()["module_cycles"] == [], _audit()["module_cycles"]
+    assert _audit()["package_cycles"] == [], _audit()["package_cycles"]
 
 
 def test_switches_on_names_only_fall():
-    over = {rel: [ln for ln, _, _ in found] for rel, found in _AUDIT["switches"].items()
+    over = {rel: [ln for ln, _, _ in found] for rel, found in _audit()["switches"].items()
             if len(found) > SWITCH_CEILINGS.get(rel, 0)}
     assert not over, ("new switches on an instrument's or machine's name outside its module "
                       f"(ask the registry or the machine instead): {over}")
 
 
 def test_translation_tests_only_fall():
-    over = {rel: lines for rel, lines in _AUDIT["translation_tests"].items()
+    over = {rel: lines for rel, lines in _audit()["translation_tests"].items()
             if len(lines) > POSE_DOF_CEILINGS.get(rel, 0)}
     assert not over, f"new pose_dof tests (use machine.pose_space / machine.rotates): {over}"
 

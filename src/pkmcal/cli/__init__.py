@@ -1,8 +1,9 @@
 """The ``pkmcal`` command (SPEC 6): one sub-command per task, a thin layer over the library.
 
 Start-up cost matters (``pkmcal calibrate`` must finish in well under a second), so this module
-imports only typer; numpy, PyYAML, pydantic and the library are imported inside the commands
-(:mod:`pkmcal.cli._commands`), and neither scipy nor matplotlib is imported here.
+imports only typer; numpy, PyYAML, pydantic and the library (each command's work is a function
+of :mod:`pkmcal.workflows`) are imported inside the commands, and neither scipy nor
+matplotlib is imported here.
 
 Exit codes: 0 success; 1 the computation ran but did not succeed (e.g. calibration did not
 converge, a benchmark missed its target); 2 bad input (a file, row, column, key or option is
@@ -33,7 +34,7 @@ from ..errors import (
 )
 from ..limits import MAX_MEASUREMENTS, MAX_RUNS, MAX_SAMPLES
 from ..paths import path_text
-from ._names import formats, machine_types
+from ..workflows.names import formats, machine_types
 
 app = typer.Typer(
     name="pkmcal",
@@ -411,11 +412,18 @@ def calibrate(
     Example: `pkmcal calibrate printer.yaml printer.cfg printer-*.cfg -o cal.yaml`
     """
     from ..calibration.options import command_values
-    from ._commands import run_calibrate
+    from ..workflows.calibrate import calibrate_files
+    from ._console import print_summary
 
-    raise typer.Exit(run_calibrate(machine, data, output, noise, json_output, robust=robust,
-                                   report_dir=report, holdout=holdout, seed=seed,
-                                   parameters=parameters, options=command_values(options)))
+    try:
+        summary = calibrate_files(machine, data, output, noise, json_output, robust, report,
+                                  holdout, seed, parameters, command_values(options))
+    except ConvergenceError as exc:     # the fit ran and did not succeed: exit 1, nothing written
+        from ._console import error
+
+        error(str(exc))
+        raise typer.Exit(1) from None
+    raise typer.Exit(print_summary(summary))
 
 
 @app.command()

@@ -135,7 +135,10 @@ class BlockProblem(Protocol):
 class CalibrationResult:
     """Result of a calibration, in the style of :class:`scipy.optimize.OptimizeResult`.
 
-    Items can also be read as ``result["x"]``.
+    Items can also be read as ``result["x"]``. The estimator fills in the fit (``x`` to
+    ``prior_cost``); the calibration built on it fills in what every fit has (``machine`` to
+    ``sections``, None or empty from :func:`levenberg_marquardt`; see
+    :mod:`pkmcal.estimation.sections`).
 
     Attributes
     ----------
@@ -192,10 +195,6 @@ class CalibrationResult:
     prior_cost : float, optional
         Half the sum of squares of the prior's whitened rows (not in ``cost``, which is the
         data's); 0 without a prior.
-
-    The calibration built on the estimator fills in what every fit has (None or empty from
-    :func:`levenberg_marquardt`; see :mod:`pkmcal.estimation.sections`):
-
     machine : Machine or None
         The calibrated machine.
     problem : object or None
@@ -288,11 +287,29 @@ class CalibrationResult:
         return ExtrasView(self)
 
     def section(self, kind: type):
-        """The section of type ``kind`` (None when the result has none)."""
+        """The section of a type.
+
+        Parameters
+        ----------
+        kind : type
+            A section class (e.g. an instrument's ``TrackerSection``).
+
+        Returns
+        -------
+        object or None
+            The result's section of that type; None when it has none.
+        """
         return next((s for s in self.sections.values() if isinstance(s, kind)), None)
 
     def add_section(self, section) -> None:
-        """Attach an instrument's section (under its ``instrument`` name)."""
+        """Attach an instrument's section.
+
+        Parameters
+        ----------
+        section : object
+            A typed section (:mod:`pkmcal.estimation.sections`), kept under its
+            ``instrument`` name.
+        """
         self.sections[section.instrument] = section
 
     @property
