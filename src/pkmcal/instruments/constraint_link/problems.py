@@ -68,36 +68,36 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..errors import ConvergenceError, InputError
-from ..estimation.acceptance import (
+from ...errors import ConvergenceError, InputError
+from ...estimation.acceptance import (
     MAX_NOISE_FACTOR,
     ResidualTest,
     chi2_bound,
     residual_test,
 )
-from ..estimation.distributions import chi2_ppf
-from ..estimation.estimator import (
+from ...estimation.distributions import chi2_ppf
+from ...estimation.estimator import (
     MAX_STD,
     CalibrationResult,
     levenberg_marquardt,
     require_redundancy,
 )
-from ..estimation.sections import Section
-from ..estimation.variance import fit
-from ..identifiability import (
+from ...estimation.sections import Section
+from ...estimation.variance import fit
+from ...identifiability import (
     CONSTRAINT_LINK_GAUGES,
     gauge_groups,
     name_null_space,
     name_weak_directions,
 )
-from ..kinematics import matrix_from_euler, matrix_from_rotvec
-from ..machines.base import Machine, newton_pose_solve
-from ..machines.deviations import draw_accepted
-from ..parameters import ParameterSet
-from ..paths import path_text
-from .base import Instrument, StandardPlan, _rows, _sigma_arg, _space_words, has_column, reachable
-from .experiment import MOUNTING_ERROR
-from .flow import (
+from ...kinematics import matrix_from_euler, matrix_from_rotvec
+from ...machines.base import Machine, newton_pose_solve
+from ...machines.deviations import draw_accepted
+from ...parameters import ParameterSet
+from ...paths import path_text
+from ..base import Instrument, StandardPlan, _rows, _sigma_arg, _space_words, has_column, reachable
+from ..experiment import MOUNTING_ERROR
+from ..flow import (
     FlowContext,
     FlowResult,
     convergence_json,
@@ -114,7 +114,7 @@ from .flow import (
     um,
     validation_section,
 )
-from .flow import option as _option
+from ..flow import option as _option
 
 
 @dataclass
@@ -1227,7 +1227,7 @@ class ConstraintLinkML(_ConstraintLinkProblem):
         NoiseGroups
             See :class:`~pkmcal.estimation.variance.NoiseGroups`.
         """
-        from ..estimation.variance import NoiseGroups
+        from ...estimation.variance import NoiseGroups
 
         K, n = self.data.q.shape
         groups = NoiseGroups.single((K, n), "reading", "encoder readings",
@@ -1595,7 +1595,7 @@ class ConstraintLinkSection(Section):
         return section
 
     def as_report(self, units=None) -> dict:
-        from ..units import LENGTH
+        from ...units import LENGTH
 
         if self.link_length is None:
             return {}
@@ -2099,8 +2099,8 @@ class ConstraintLink(Instrument):
     simulate_flags = {"--lc-error": "--scenario constraint-link"}
 
     def simulate_arguments(self, machine, noise, lc_error="0", **flags):
-        from ..plausibility import check_option_scale
-        from ..units import parse_quantity
+        from ...plausibility import check_option_scale
+        from ...units import parse_quantity
 
         text = "2um" if noise is None else noise
         noise_m = parse_quantity(text, "length", "--noise")
