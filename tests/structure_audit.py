@@ -58,7 +58,8 @@ INSTRUMENT_CLASSES = {
 }
 #: modules owning each instrument (its definition, its data, model and calibration)
 INSTRUMENT_OWNERS = {
-    "constraint-link": ("instruments/constraint_link.py",),
+    "constraint-link": tuple(f"instruments/constraint_link/{m}.py" for m in (
+        "__init__", "data", "start", "problems", "section", "methods")),
     "tracker": ("instruments/tracker.py",),
     "pose": ("instruments/pose.py",),
     "distance": ("instruments/distance.py",),

@@ -10,8 +10,8 @@ import pytest
 
 from clitools import assert_input_error, digest, run
 from pkmcal.errors import InputError
-from pkmcal.instruments import constraint_link as cl
 from pkmcal.instruments.constraint_link import ConstraintLinkData
+from pkmcal.instruments.constraint_link import methods as cl
 
 
 @pytest.fixture(scope="module")

@@ -120,7 +120,7 @@ def test_rows_the_method_itself_cannot_solve_are_reported_left_out(monkeypatch):
     """A row whose forward kinematics fail even from the ml estimate's poses is left out by
     the fk problem: it is named among the dropped rows and in a warning, beside those the ml
     start left out (before, the start's list replaced the method's)."""
-    from pkmcal.instruments import constraint_link as cl
+    from pkmcal.instruments.constraint_link import problems as cl
     from pkmcal.machines import default_hexaslide, paper_table1_deviations
 
     nominal = default_hexaslide()

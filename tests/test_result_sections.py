@@ -15,7 +15,6 @@ import pytest
 from pkmcal.estimation.estimator import CalibrationResult
 from pkmcal.estimation.sections import (
     DETAILS,
-    ExtrasView,
     ResultSection,
     Section,
     add_sections,
@@ -137,22 +136,16 @@ def _result() -> CalibrationResult:
         residual_variance=1.0, dof=1)
 
 
-def test_typed_fields_and_transitional_view():
-    """The generic part is typed; ``extras`` is only a view of it and of the sections (no
-    free-form keys)."""
+def test_typed_fields_and_no_free_form_dictionary():
+    """The generic part is typed and a section's fields are its own: the former free-form
+    ``extras`` dictionary is gone."""
     result = _result()
     assert result.machine is None and result.unidentifiable == [] and result.sections == {}
     result.machine = "calibrated"
     result.add_section(ToySection(1e-3, [1.0]))
-    assert isinstance(result.extras, ExtrasView)
-    assert result.extras["machine"] == "calibrated"
-    assert result.extras["offset_m"] == 1e-3                 # a section's field
-    assert "noise" not in result.extras                       # None: missing
-    assert result.extras.get("noise", "default") == "default"
-    result.extras["untested"] = "why"
-    assert result.untested == "why"
-    with pytest.raises(KeyError):
-        result.extras["anything"] = 1                         # not free-form any more
+    assert result.machine == "calibrated" and result.noise is None
+    assert result.section(ToySection).offset_m == 1e-3        # a section's field
+    assert not hasattr(result, "extras")                      # not free-form any more
     assert result.section(ToySection).reads == [1.0]
     blank = dataclasses.replace(result, **blank_details())
     assert blank.sections == {} and all(getattr(blank, k) in (None, []) for k in DETAILS)

@@ -32,7 +32,7 @@ def _acceptance(result, nominal, calibrated, source, method, warnings: list,
     )
 
     out = {}
-    noise = result.extras.get("noise")
+    noise = result.noise
     verdict = verdict if verdict is not None else residual_verdict(result, method)
     out["residuals"] = verdict.as_dict()
     test = verdict.test
@@ -105,15 +105,15 @@ def _standardised(result):
     """Leverage-corrected standardised residuals for the report (None when the problem
     cannot be evaluated again)."""
     # the problem as fitted: reweighted by the estimated noise levels when they were
-    problem = result.extras.get("weighted") or result.extras.get("problem")
-    if problem is None and callable(result.extras.get("rebuild_problem")):
-        problem = result.extras["rebuild_problem"]()
+    problem = result.weighted or result.problem
+    if problem is None and callable(result.rebuild_problem):
+        problem = result.rebuild_problem()
     if problem is None or result.state is None:
         return None
     from ..report.residuals import standardised_residuals
 
-    if "weighted_residuals" in result.extras:
-        result = dataclasses.replace(result, residuals=result.extras["weighted_residuals"])
+    if result.weighted_residuals is not None:
+        result = dataclasses.replace(result, residuals=result.weighted_residuals)
     try:
         return standardised_residuals(problem, result)
     except (ValueError, np.linalg.LinAlgError):
@@ -151,13 +151,15 @@ def finish(kind: str, machine, calibrated, result, report: dict, metadata: dict,
     # residual / std of every residual, for the report's histogram: the noise levels the fit
     # used (estimated from the residuals, or assumed / given)
     report["normalised_residuals"] = np.asarray(
-        result.extras.get("weighted_residuals", result.residuals), float).ravel().tolist()
+        result.residuals if result.weighted_residuals is None
+        else result.weighted_residuals, float).ravel().tolist()
     standardised = _standardised(result)
     if standardised is not None:
         report["standardised_residuals"] = standardised
     warnings: list[str] = []
     source = report.get("data_file", "the data")
-    _noise_report(result, report, source, warnings, result.extras.get("robust", True))
+    _noise_report(result, report, source, warnings,
+                  True if result.robust is None else result.robust)
     from ..estimation.acceptance import residual_verdict
     from .adequacy import add_to_report
 
@@ -212,7 +214,7 @@ def _noise_report(result, report: dict, source, warnings: list, robust: bool = T
     report's ``noise_model`` and ``outliers`` sections and their warnings (rows left out
     without ``robust``: those a start strategy could not fit, kept out by the outlier
     test)."""
-    noise, test = result.extras.get("noise"), result.extras.get("outliers")
+    noise, test = result.noise, result.outliers
     if noise is not None:
         report["noise_model"] = noise.as_dict()
     if test is None:

@@ -97,11 +97,11 @@ def calibrate_instrument(machine, data, source, options, split, inst) -> Calibra
     data, held, result, before, calibrated, params, units = _fit_with_baseline(
         machine, data, source, split, _reader_of(inst), fit, noise, inst.advice,
         options.get("noise") is None, bool(options.get("robust")))
-    problem = result.extras["problem"]
+    problem = result.problem
     rms_after, r_after = _scalar_rms(problem, result.state, data)
-    rms_before, _ = _scalar_rms(before.extras["problem"], before.state, data)
+    rms_before, _ = _scalar_rms(before.problem, before.state, data)
     n_free = int(np.sum(result.parameters.free))
-    unidentifiable = list(result.extras.get("unidentifiable", []))
+    unidentifiable = list(result.unidentifiable or [])
     report = {
         **_report_head(machine, source, inst.name, "joint"),
         "units": units,

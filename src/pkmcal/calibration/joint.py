@@ -56,7 +56,7 @@ def joint_part(machine, data, source, kind: MeasurementKind, noise,
         return part
     kind.check_options({"noise": noise}, source)
     alone = kind.calibrate(machine, data, source, {"noise": noise}, None)
-    problem = alone.result.extras.get("problem")
+    problem = alone.result.problem
     if not isinstance(problem, InstrumentProblem) or getattr(problem, "local_dof", 0):
         raise InputError(f"{path_text(source)}: "
                          f"{kind.name} data cannot be combined with other files in "
@@ -216,7 +216,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
                                robust=bool(options.get("robust")),
                                sessions=sessions)
             # the residuals set the noise's level: their test against it cannot fail
-            result.extras["untested"] = (
+            result.untested = (
                 "the noise level was set from these residuals (the data's source gives only "
                 "relative weights), so they cannot be tested against it")
     except (InputError, ValueError, np.linalg.LinAlgError) as exc:
@@ -226,15 +226,15 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
             message = f"--holdout: {message}"
         raise InputError(message) from None
     _require_converged(result, names, "check that the files measure the same machine")
-    problem = result.extras["problem"]
+    problem = result.problem
     state = result.state
     units = file_units(machine)
     fl = LENGTH[units["length"]]
-    calibrated = result.extras["machine"]
+    calibrated = result.machine
     calibrated.name = f"{machine.name} (calibrated)" if machine.name else "calibrated machine"
     calibrated.home = machine.home
     nominal_of = dict(zip(machine.parameters.names, machine.u, strict=True))
-    for label, start in zip(labels, result.extras["start_models"], strict=True):
+    for label, start in zip(labels, result.sections["joint"].start_models, strict=True):
         nominal_of.update({f"{label}:{n}": v for n, v in zip(
             start.parameters.names, start.parameters.values, strict=True)})
     nominal_of.update({n: 0.0 for n in problem.parameters.names if n.startswith("session ")})
@@ -245,8 +245,8 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     files, sections, taken = [], [], {}
     for i, (part, label, source) in enumerate(zip(parts, labels, sources, strict=True)):
         sub = problem.part_state(state, i)
-        before = result.extras["before"][i]
-        bproblem = before.extras["problem"]
+        before = result.sections["joint"].before[i]
+        bproblem = before.problem
         rms_after, r_after = _part_rms(problem.parts[i], sub, part.data)
         rms_before, _ = _part_rms(bproblem, before.state, part.data)
         model = problem.parts[i].model
@@ -277,8 +277,8 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     rank = int(result.rank)
     n_free = int(np.sum(result.parameters.free))
     s = np.asarray(result.singular_values, float)
-    unidentifiable = list(result.extras.get("unidentifiable", []))
-    contributions = result.extras["contributions"]
+    unidentifiable = list(result.unidentifiable or [])
+    contributions = result.sections["joint"].contributions
     from ..units import ANGLE
 
     fa = ANGLE[units["angle"]]
@@ -327,7 +327,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     }
     calibration = _finish("joint", machine, calibrated, result, report, metadata, params, units)
     levels = report.get("noise_model")
-    if result.extras.get("untested") and isinstance(levels, dict):
+    if result.untested and isinstance(levels, dict):
         # the levels held in the last fit are the data's weights scaled by the residuals
         for g in levels["groups"]:
             if g["status"] == "held":

@@ -34,7 +34,7 @@ prior held.
 
 from __future__ import annotations
 
-from collections.abc import Callable, MutableMapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -277,14 +277,6 @@ class CalibrationResult:
     rebuild_problem: Callable | None = None
     #: instrument name -> its typed section (pkmcal.estimation.sections.ResultSection)
     sections: dict = field(default_factory=dict)
-
-    @property
-    def extras(self) -> MutableMapping:
-        """Transitional: the former free-form dictionary as a view of the typed fields and
-        sections (:class:`~pkmcal.estimation.sections.ExtrasView`); read the attributes."""
-        from .sections import ExtrasView
-
-        return ExtrasView(self)
 
     def section(self, kind: type):
         """The section of a type.

@@ -12,18 +12,15 @@ console summary and the HTML page render any instrument's section without knowin
 ``as_report(units)`` gives the section's JSON-ready keys (merged into the calibration report,
 :func:`sections_report`) and ``summary_rows(units)`` its ``(label, text)`` rows.
 
-``result.extras`` is a transitional, read-mostly view (:class:`ExtrasView`) that maps the old
-string keys onto these typed fields, kept only so code written against the former free-form
-dictionary keeps working while it is moved; new code reads the typed attributes.
+There is no free-form dictionary: a value a fit needs to keep is a field of the result or of
+its instrument's section.
 """
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Iterator, MutableMapping
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import ClassVar, Protocol, runtime_checkable
 
-__all__ = ["ResultSection", "Section", "ExtrasView", "DETAILS", "blank_details",
+__all__ = ["ResultSection", "Section", "DETAILS", "blank_details",
            "sections_report", "add_sections", "section_rows"]
 
 
@@ -137,57 +134,3 @@ def section_rows(report: dict) -> list[tuple[str, str]]:
     """The summary rows of every section a report indexes (``report["sections"]``), in order."""
     return [(label, text) for entry in (report.get("sections") or {}).values()
             for label, text in entry.get("summary", [])]
-
-
-class ExtrasView(MutableMapping):
-    """Transitional: the former ``result.extras`` dictionary as a view of the typed fields.
-
-    ``view[key]`` reads the generic field ``key`` of the result, else the field ``key`` of the
-    section that has one; a key whose value is None (or that no field has) is missing.
-    Writing sets the field. Kept for code not yet moved to the typed attributes (the
-    calibration layer's flows while they move into the instruments' modules); nothing new
-    should use it.
-    """
-
-    def __init__(self, result):
-        self._result = result
-
-    def _owner(self, key: str):
-        if key in DETAILS:
-            return self._result
-        for section in self._result.sections.values():
-            if dataclasses.is_dataclass(section) and key in {
-                    f.name for f in dataclasses.fields(section)}:
-                return section
-        return None
-
-    def __getitem__(self, key: str) -> Any:
-        owner = self._owner(key)
-        value = None if owner is None else getattr(owner, key)
-        if value is None:
-            raise KeyError(key)
-        return value
-
-    def __setitem__(self, key: str, value) -> None:
-        owner = self._owner(key)
-        if owner is None:
-            raise KeyError(f"{key!r}: no field of the result or its sections "
-                           "(declare it in the instrument's section)")
-        setattr(owner, key, value)
-
-    def __delitem__(self, key: str) -> None:
-        self[key] = None
-
-    def _keys(self) -> list[str]:
-        keys = [k for k in DETAILS if getattr(self._result, k) is not None]
-        for section in self._result.sections.values():
-            if dataclasses.is_dataclass(section):
-                keys += [f.name for f in dataclasses.fields(section)
-                         if getattr(section, f.name) is not None]
-        return keys
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._keys())
-
-    def __len__(self) -> int:
-        return len(self._keys())

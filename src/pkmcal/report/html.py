@@ -257,7 +257,10 @@ def _png(fig) -> str:
 
     axes = plot_axes(fig)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+    # a figure with a layout engine is laid out as it is drawn: cropping it to its tight box
+    # as well would draw it twice
+    fig.savefig(buf, format="png", dpi=100,
+                bbox_inches=None if fig.get_layout_engine() is not None else "tight")
     plt.close(fig)
     data = base64.b64encode(buf.getvalue()).decode("ascii")
     alt = "; ".join(f"colour: {a['colour']}" if "colour" in a else f"x: {a['x']}, y: {a['y']}"
@@ -317,7 +320,7 @@ def _assumed_scale(report) -> tuple[float, str]:
 
 def _residual_plot(r, how: str, scale: float = 1.0, over: str = "") -> str:
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(6.2, 3.6))
+    fig, ax = plt.subplots(figsize=(6.2, 3.6), layout="constrained")
     r = np.asarray(r, float) * scale
     ax.hist(r, bins=min(60, max(10, r.size // 15)), density=True, alpha=0.7,
             label=f"{r.size} standardised residuals")
@@ -384,7 +387,7 @@ def verdict_html(report) -> str:
 def _singular_plot(s, rank) -> str:
     plt = _plt()
     s = np.asarray(s, float)
-    fig, ax = plt.subplots(figsize=(6.2, 3.2))
+    fig, ax = plt.subplots(figsize=(6.2, 3.2), layout="constrained")
     idx = np.arange(1, s.size + 1)
     ax.semilogy(idx[:rank], s[:rank], "o", ms=4, label="identifiable")
     if s.size > rank:
@@ -720,7 +723,7 @@ def _before_after(res: Mapping) -> str:
 
 def _ratio_plot(ratio) -> str:
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(5.5, 3.2))
+    fig, ax = plt.subplots(figsize=(5.5, 3.2), layout="constrained")
     labels = [k for k in ("before", "after", "after_two_step") if isinstance(ratio.get(k), dict)]
     for i, k in enumerate(labels):
         st = ratio[k]

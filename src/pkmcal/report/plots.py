@@ -20,7 +20,9 @@ def _save(fig, path: Path) -> Path:
 
     buf = io.BytesIO()
     try:
-        fig.savefig(buf, format="png", dpi=120, bbox_inches="tight")
+        # laid out by its engine as it is drawn, or cropped to its tight box (a second draw)
+        fig.savefig(buf, format="png", dpi=120,
+                    bbox_inches=None if fig.get_layout_engine() is not None else "tight")
     finally:
         plt.close(fig)
     return atomic_write_bytes(Path(path), buf.getvalue())
@@ -52,7 +54,7 @@ def plot_sweep(points, path, xlabel: str, title: str, extra=None, extra_label: s
     pathlib.Path
         The file written.
     """
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4), layout="constrained")
     for pts, label, style in ((points, "maximum likelihood", "o-"),
                               (extra, extra_label, "s--")):
         if not pts:
@@ -96,7 +98,7 @@ def plot_residuals(residuals_um, path, title: str = "joint residuals after calib
         The file written.
     """
     r = np.atleast_2d(residuals_um)
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = plt.subplots(figsize=(6, 4), layout="constrained")
     for j in range(r.shape[1]):
         ax.hist(r[:, j], bins=30, histtype="step", label=f"q{j + 1}")
     ax.set_xlabel("residual [um]")
@@ -133,7 +135,7 @@ def plot_parameter_errors(names, before, after, std, path, unit_scale, unit_labe
     pathlib.Path
         The file written.
     """
-    fig, ax = plt.subplots(figsize=(12, 4))
+    fig, ax = plt.subplots(figsize=(12, 4), layout="constrained")
     x = np.arange(len(names))
     ax.bar(x - 0.2, np.abs(before) * unit_scale, 0.4, label="nominal - true")
     ax.bar(x + 0.2, np.abs(after) * unit_scale, 0.4, label="calibrated - true")
@@ -167,7 +169,8 @@ def plot_distance_ratio(panels, path, title: str = "distance ratio of neighbouri
     pathlib.Path
         The file written.
     """
-    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4), squeeze=False)
+    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4), squeeze=False,
+                             layout="constrained")
     for ax, (panel_title, curves) in zip(axes[0], panels, strict=True):
         for label, (ratios, style) in curves.items():
             r = np.asarray(ratios, float)
@@ -219,7 +222,7 @@ def plot_link_forces(x, forces, path, xlabel: str = "angle [deg]",
     """
     x = np.asarray(x, float)
     f = np.asarray(forces, float)
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig, ax = plt.subplots(figsize=(8, 4.5), layout="constrained")
     for i in range(f.shape[1]):
         (line,) = ax.plot(x, f[:, i], lw=1.4, label=f"f{i + 1}")
         if undetermined is not None:
@@ -270,7 +273,7 @@ def plot_pose_errors(x, dx, dx_min, dx_max, path, xlabel: str = "angle [deg]",
     """
     x = np.asarray(x, float)
     dx, lo, hi = (np.asarray(v, float) * 1e6 for v in (dx, dx_min, dx_max))
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 7), sharex=True, layout="constrained")
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for ax, cols, names, unit in ((ax1, range(3), ("dx", "dy", "dz"), "um"),
                                   (ax2, range(3, 6), ("drx", "dry", "drz"), "urad")):
