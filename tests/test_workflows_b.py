@@ -99,6 +99,11 @@ def test_a_selected_plan_reads_back_and_identifiability_predicts_what_select_pos
     for key in ("position_rms_um", "position_max_um"):
         assert again["predicted_accuracy"][key] == pytest.approx(
             chosen["predicted_accuracy"][key], rel=1e-6)
+    # the observability indices of the same plan, per measured row in both (O1 was sqrt(rows)
+    # apart: select-poses divided by no row count)
+    for key in ("O1", "O2", "O3", "O4", "O5"):
+        assert again["observability"][key] == pytest.approx(chosen["observability"][key],
+                                                            rel=1e-6), key
 
 
 def test_identifiability_summary_table_says_what_its_json_holds():

@@ -541,7 +541,8 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
     random_crit = random_values(random_pool, n, random_sets, criterion, A,
                                 rng=seed + 1) if random_sets else np.zeros(0)
     step(1)
-    sv = np.linalg.svd(design.F[idx].reshape(-1, design.rank), compute_uv=False)
+    F_plan = design.F[idx].reshape(-1, design.rank)
+    sv = np.linalg.svd(F_plan, compute_uv=False)
     # the selected plan's counts by the rule calibrate applies to its data (same noise)
     plan_rank = rank_rule(sv, parameters=design.rank + design.null.shape[1])
     section = prediction_summary(machine, design, problem.n_machine, M, op=op, workspace=ws)
@@ -566,6 +567,8 @@ def select_plan(machine, scenario: str | None, n: int, *, noise=None, candidates
         standard_candidates=std_rows, standard_start=as_start,
         returned_standard=returned_standard, search_start=sel.start, note=note,
         random_sets=int(random_sets), random_position_rms=baseline,
-        random_criterion=random_crit, rank=plan_rank, observability=observability_indices(sv),
+        random_criterion=random_crit, rank=plan_rank,
+        # per measured row, as identifiability states it of the same plan
+        observability=observability_indices(sv, F_plan.shape[0]),
         prediction=section, seed=seed, design=design, information=M,
         n_machine=problem.n_machine, workspace=ws, machine=machine)
