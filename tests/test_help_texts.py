@@ -103,3 +103,24 @@ def test_no_word_cut_at_80_columns(tmp_path, monkeypatch, command):
     text = _help(tmp_path, monkeypatch, command)
     assert CUT not in text, text
     assert "x_," not in text and "phi_ " not in text   # <len> placeholders not eaten as HTML
+
+
+def test_calibrate_help_has_every_instrument_from_its_module(tmp_path, monkeypatch):
+    """Issue 38: the command declares nothing an instrument owns. Its help lists each
+    registered instrument's paragraph, composed from the instrument's own attributes (its
+    columns with their ``<unit>`` shown, not read as markup) and its ``calibrate_help``;
+    the command's own docstring names none of them."""
+    import inspect
+
+    from pkmcal.cli import calibrate
+    from pkmcal.instruments.registry import INSTRUMENTS
+
+    text = " ".join(_help(tmp_path, monkeypatch, "calibrate").split())
+    for inst in INSTRUMENTS.values():
+        first = " ".join(inst.help_paragraphs().split("\n\n")[0].replace("\\", "").split())
+        assert f"{inst.name} data, " in text, inst.name
+        assert first.split(": files with ")[1][:30] in text, (inst.name, first)
+    own = inspect.cleandoc(calibrate.__wrapped__.__doc__).lower()
+    for inst in INSTRUMENTS.values():
+        for word in (inst.name, *inst.aliases):
+            assert word not in own, word

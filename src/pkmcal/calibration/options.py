@@ -259,6 +259,15 @@ def noise_help() -> str:
     return " ".join(parts)
 
 
+def calibrate_help() -> str:
+    """The instruments' paragraphs of ``pkmcal calibrate --help``
+    (:meth:`~pkmcal.instruments.base.Instrument.help_paragraphs`), in the registry's order,
+    blank-line separated."""
+    from ..instruments.registry import INSTRUMENTS
+
+    return "\n\n".join(inst.help_paragraphs() for inst in INSTRUMENTS.values())
+
+
 def command_values(values: Mapping) -> dict:
     """The instruments' options from the command's parameters (:func:`command_options`):
     a ``--x/--no-x`` pair as True, False or None, a text given once as its value.

@@ -277,8 +277,23 @@ class _WithInstrumentOptions:
     or the app's help), and the function receives them as keywords."""
 
     def __init__(self, func):
+        self._signature = self._doc = None
         functools.update_wrapper(self, func)
-        self._signature = None
+
+    @property
+    def __doc__(self) -> str:
+        """The command's help: its function's, then each instrument's paragraphs
+        (:func:`pkmcal.calibration.options.calibrate_help`), composed when typer first asks."""
+        if self._doc is None:
+            from ..calibration.options import calibrate_help
+
+            extra = calibrate_help()
+            self._doc = inspect.cleandoc(self._base_doc) + (f"\n\n{extra}" if extra else "")
+        return self._doc
+
+    @__doc__.setter
+    def __doc__(self, text) -> None:
+        self._base_doc, self._doc = text or "", None
 
     def __call__(self, *args, **kwargs):
         return self.__wrapped__(*args, **kwargs)
@@ -370,46 +385,20 @@ def calibrate(
 ) -> None:
     """Identify the geometry from measurements; write the calibrated machine and a report.
 
-    The measurement type follows from the columns: q1..q6 [+ passive] with a Hexa Slide file
-    that has constraint_link -> constraint-link self-calibration; q1..q3 + mx, my, mz with a
-    Delta file -> laser-tracker calibration (seed 001; the tracker pose is estimated and
-    written to the calibrated file's `tracker` section). Writes the calibrated machine file
-    (-o) and a JSON report beside it (same name, .json).
+    The measurement type follows from the data file's columns (each instrument's below).
+    Writes the calibrated machine file (-o) and a JSON report beside it (same name, .json).
 
     Example: `pkmcal calibrate default data.csv -o calibrated.yaml`
 
     Example: `pkmcal calibrate default data.csv -o cal.yaml --holdout 0.2 --report rep/`
 
-    Example: `pkmcal calibrate examples/delta_default.yaml tracker.csv --robust -o cal.yaml`
+    Several files of the instruments that combine: one fit of the geometry with every file's
+    own instrument unknowns (named FILE:name) and noise (--noise FILE=VALUE); the summary
+    shows each file's residuals before and after, what the files cannot fix together and what
+    each file adds; --holdout holds out rows of every file.
 
-    q1..q6 + a pose (x, y, z with qx, qy, qz, qw or psi, theta, phi) with a Stewart file ->
-    full-pose calibration: the legs and, unless --fix-frames, the measurement frames
-    (written to the calibrated file's measurement_frames section). The summary compares the
-    machine file's legs (frames fitted alone) with the calibrated ones.
-
-    Example: `pkmcal calibrate examples/cubic_6upu.yaml poses.csv --method ik -o cal.yaml`
-
-    Several files (tracker points, ballbar distances and the other instrument kinds; not
-    full poses or constraint-link data): one fit of the geometry with every file's own
-    instrument unknowns (named FILE:name) and noise (--noise FILE=VALUE); the summary shows
-    each file's residuals before and after, what the files cannot fix together and what each
-    file adds; --holdout holds out rows of every file.
-
-    Example: `pkmcal calibrate machine.yaml points.csv ballbar.csv --noise ballbar.csv=2um
+    Example: `pkmcal calibrate machine.yaml first.csv second.csv --noise second.csv=2um
     -o cal.yaml`
-
-    A Klipper printer.cfg is data too: the heights, manual heights and DELTA_ANALYZE
-    distances its [delta_calibrate] section saved (step counts turned into millimetres with
-    the steppers' rotation_distance, microsteps, full_steps_per_rotation, gear_ratio) and its
-    bed meshes ([bed_mesh NAME], read back into carriage travels with the values in force
-    while probing; each mesh its own height offset; a mesh that disagrees with the points
-    beside it is left out, named). Several configs (printer.cfg and Klipper's backups
-    printer-YYYYMMDD_HHMMSS.cfg) are sessions: the same saved points counted once, each
-    session but the newest with its own endstop offsets.
-
-    Example: `pkmcal calibrate printer.yaml printer.cfg --parameters klipper-basic -o cal.yaml`
-
-    Example: `pkmcal calibrate printer.yaml printer.cfg printer-*.cfg -o cal.yaml`
     """
     from ..calibration.options import command_values
     from ..workflows.calibrate import calibrate_files

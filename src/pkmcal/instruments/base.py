@@ -4,6 +4,7 @@ for any machine (the base class), its standard plan and the reach of planned pos
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
 from dataclasses import dataclass
 
@@ -100,6 +101,9 @@ class Instrument:
     file_quantities: dict = {}
     #: what its data files hold, in words (messages)
     columns: str = ""
+    #: what ``pkmcal calibrate --help`` says of it beyond :meth:`help_paragraphs`' first
+    #: sentence (markdown paragraphs, blank-line separated: what is fitted, an example)
+    calibrate_help: str = ""
     #: data files are recognised in increasing priority (a readings-only fallback last)
     priority: int = 50
     #: its data files hold joint readings alone (no column of its own)
@@ -850,6 +854,25 @@ class Instrument:
     #: the :mod:`pkmcal.io` function reading its files for :meth:`calibrate` (empty:
     #: :attr:`reader`)
     calibration_reader: str = ""
+
+    def help_paragraphs(self) -> str:
+        """Its part of ``pkmcal calibrate --help``: the columns that make a file its data,
+        what it measures and the calibrated file's section it fits (from its attributes),
+        then its own :attr:`calibrate_help`.
+
+        Returns
+        -------
+        str
+            Markdown paragraphs, blank-line separated.
+        """
+        # "<unit>" escaped: the help is markdown, where it would read as an HTML tag
+        columns = self.columns.replace("<", "\\<").replace(">", "\\>")
+        head = f"{self.name} data, {self.words}: files with {columns}"
+        if self.section:
+            head += f"; its set-up is fitted and written to the calibrated file's " \
+                    f"`{self.section}` section"
+        return "\n\n".join(t for t in (head + ".", inspect.cleandoc(self.calibrate_help))
+                            if t.strip())
 
     def options_of(self, given):
         """Its :attr:`Options` from the options of a calibration: each field it declares read

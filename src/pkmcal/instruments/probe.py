@@ -391,6 +391,21 @@ class Probe(Instrument):
 
     name = "probe"
     aliases = ("probe-heights", "bed-probe")
+    calibrate_help = """
+        A Klipper printer.cfg is data too: the heights, manual heights and DELTA_ANALYZE
+        distances its [delta_calibrate] section saved (step counts turned into millimetres
+        with the steppers' rotation_distance, microsteps, full_steps_per_rotation, gear_ratio)
+        and its bed meshes ([bed_mesh NAME], read back into carriage travels with the values
+        in force while probing; each mesh its own height offset; a mesh that disagrees with
+        the points beside it is left out, named). Several configs (printer.cfg and Klipper's
+        backups printer-YYYYMMDD_HHMMSS.cfg) are sessions: the same saved points counted
+        once, each session but the newest with its own endstop offsets.
+
+        Example: `pkmcal calibrate printer.yaml printer.cfg --parameters klipper-basic -o
+        cal.yaml`
+
+        Example: `pkmcal calibrate printer.yaml printer.cfg printer-*.cfg -o cal.yaml`
+        """
     words = ("bed-probe heights: the nozzle's height above the bed at the trigger (bed height "
              "and tilt estimated)")
     plan_size = 37

@@ -155,6 +155,12 @@ class ConstraintLink(Instrument):
     words = "a fixed-length constraint link, one joint passive (no external sensor)"
     plan_size = 150
     columns = "q1_mm..q6_mm (optionally passive) with a constraint_link in the machine file"
+    calibrate_help = """
+        The machine's errors from the loop the link closes; the link length too with
+        --method fk or --estimate-lc.
+
+        Example: `pkmcal calibrate default data.csv --estimate-lc -o calibrated.yaml`
+        """
     priority = 90
     readings_only = True
     data_class = "ConstraintLinkData"
