@@ -57,24 +57,24 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..errors import InputError
-from ..estimation.acceptance import FAILED_ALARMING, chi_square_test, report_verdict
-from ..estimation.estimator import MAX_STD, CalibrationResult, reduce_local, require_redundancy
-from ..estimation.rank import RTOL, rank_rule
-from ..estimation.registration import register_points
-from ..estimation.sections import Section
-from ..estimation.variance import fit
-from ..identifiability import name_null_space, name_weak_directions
-from ..identifiability.analysis import right_singular
-from ..kinematics import matrix_from_euler, matrix_from_rotvec, rotvec_from_matrix, skew
-from ..machines.base import Machine
-from ..machines.deviations import draw_accepted
-from ..machines.file_format import file_rotation, frame_section
-from ..parameters import ParameterSet
-from ..paths import path_text
-from .base import Instrument, _space_words, has_column, reachable
-from .experiment import MOUNTING_ERROR
-from .flow import (
+from ...errors import InputError
+from ...estimation.acceptance import FAILED_ALARMING, chi_square_test, report_verdict
+from ...estimation.estimator import MAX_STD, CalibrationResult, reduce_local, require_redundancy
+from ...estimation.rank import RTOL, rank_rule
+from ...estimation.registration import register_points
+from ...estimation.sections import Section
+from ...estimation.variance import fit
+from ...identifiability import name_null_space, name_weak_directions
+from ...identifiability.analysis import right_singular
+from ...kinematics import matrix_from_euler, matrix_from_rotvec, rotvec_from_matrix, skew
+from ...machines.base import Machine
+from ...machines.deviations import draw_accepted
+from ...machines.file_format import file_rotation, frame_section
+from ...parameters import ParameterSet
+from ...paths import path_text
+from ..base import Instrument, _space_words, has_column, reachable
+from ..experiment import MOUNTING_ERROR
+from ..flow import (
     FlowContext,
     FlowResult,
     convergence_json,
@@ -90,8 +90,8 @@ from .flow import (
     split_rows,
     validation_section,
 )
-from .flow import option as _option
-from .setups import machine_setup, run_setup
+from ..flow import option as _option
+from ..setups import machine_setup, run_setup
 
 Frame = tuple[np.ndarray, np.ndarray]
 
@@ -636,7 +636,7 @@ class FullPoseProblem:
         list of NullGroup
             The groups found.
         """
-        from .problem import frame_motion_groups, problem_null_space
+        from ..problem import frame_motion_groups, problem_null_space
 
         N = problem_null_space(self, state) if null_space is None else null_space
         return frame_motion_groups(self.machine, state.u, self.parameters, self.n_machine,
@@ -828,7 +828,7 @@ class FullPoseML(FullPoseProblem):
         NoiseGroups
             See :class:`~pkmcal.estimation.variance.NoiseGroups`.
         """
-        from ..estimation.variance import NoiseGroups, row_names
+        from ...estimation.variance import NoiseGroups, row_names
 
         K, n = self.data.q.shape
         labels = np.tile(np.r_[np.zeros(n, int), np.ones(3, int), np.full(3, 2)], (K, 1))
@@ -998,7 +998,7 @@ class PoseSection(Section):
     origin: str = ""
 
     def as_report(self, units=None) -> dict:
-        from ..units import LENGTH
+        from ...units import LENGTH
 
         unit = (units or {}).get("length", "mm")
         fl = LENGTH[unit]
@@ -1418,8 +1418,8 @@ def full_pose_noise_arg(noise: str | None, pose_noise: str | None, strict: bool,
     InputError
         When a value is malformed, out of range or implausible for the machine.
     """
-    from ..plausibility import check_option_scale
-    from ..units import parse_quantity
+    from ...plausibility import check_option_scale
+    from ...units import parse_quantity
 
     default = FullPoseNoise()
     reading = default.reading_m if noise is None else parse_quantity(noise, "length", "--noise")
@@ -1533,7 +1533,7 @@ class Pose(Instrument):
         """Maximum likelihood with both measurement frames estimated, the noise of leg
         readings varied (the pose noise at its default); held out: exact poses through the
         identified frames, and the gauge-free parameter error (:func:`gauge_free_error`)."""
-        from ..machines.reach import sample_workspace_poses
+        from ...machines.reach import sample_workspace_poses
 
         s = run.settings
         nominal = s.machine
@@ -1604,8 +1604,8 @@ class Pose(Instrument):
         tuple
             ``(data, true, truth)``; ``truth`` with ``frames`` (also its ``setup``).
         """
-        from ..machines.reach import sample_workspace_poses
-        from .experiment import given_poses, mm_text, noise_model
+        from ...machines.reach import sample_workspace_poses
+        from ..experiment import given_poses, mm_text, noise_model
 
         frames = measurement_frames(setup)
         model = noise_model(noise, FullPoseNoise())
@@ -1685,8 +1685,8 @@ class Pose(Instrument):
 
     def prediction_columns(self, prediction, unit):
         """``x, y, z`` (``unit``) and ``qx, qy, qz, qw`` of the predicted marker poses."""
-        from ..kinematics import quaternion_from_matrix
-        from ..units import LENGTH
+        from ...kinematics import quaternion_from_matrix
+        from ...units import LENGTH
 
         f = LENGTH[unit]
         Q = quaternion_from_matrix(prediction.R)
@@ -1802,7 +1802,7 @@ def pose_noise_option(noise, pose_noise, machine):
 
 def _frame_report(frame, fl: float, unit: str) -> dict:
     """A measurement frame in the report (rotation, translation in the file's unit, angle)."""
-    from ..kinematics import rotation_angle
+    from ...kinematics import rotation_angle
 
     R, t = frame
     return {"rotation": np.asarray(R, float).tolist(),
@@ -1832,8 +1832,8 @@ def _check_options(options: PoseOptions, source) -> None:
 def _calibration_flow(machine, data, context: FlowContext,
                       options: PoseOptions) -> FlowResult:
     """``pkmcal calibrate`` from full poses (:meth:`Pose.calibrate`)."""
-    from ..machines.stewart import reading_factor
-    from ..units import LENGTH
+    from ...machines.stewart import reading_factor
+    from ...units import LENGTH
 
     source, split = context.source, context.split
     method, fix_frames = options.method or "ml", options.fix_frames
