@@ -61,7 +61,8 @@ INSTRUMENT_OWNERS = {
     "constraint-link": tuple(f"instruments/constraint_link/{m}.py" for m in (
         "__init__", "data", "start", "problems", "section", "methods")),
     "tracker": ("instruments/tracker.py",),
-    "pose": ("instruments/pose.py",),
+    "pose": tuple(f"instruments/pose/{m}.py" for m in (
+        "__init__", "data", "problems", "errors", "section")),
     "distance": ("instruments/distance.py",),
     "probe": ("instruments/probe.py", "instruments/bed.py"),
     "pair-distances": ("instruments/pairs.py",),
