@@ -188,6 +188,13 @@ class Pose(Instrument):
     name = "pose"
     aliases = ("poses",)
     words = "the marker pose (motion capture, 6-D tracker)"
+    calibrate_help = """
+        Full-pose calibration fits the legs and, unless --fix-frames, the measurement frames.
+        The summary compares the machine file's legs (frames fitted alone) with the
+        calibrated ones.
+
+        Example: `pkmcal calibrate examples/cubic_6upu.yaml poses.csv --method ik -o cal.yaml`
+        """
     plan_size = 60
     #: the quantities of its machine-file section (unit conversion, magnitude checks)
     file_quantities = {("measurement_frames", "*", "translation", "*"): "length"}
