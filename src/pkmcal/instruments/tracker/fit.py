@@ -40,29 +40,29 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..errors import InputError
-from ..estimation.acceptance import FAILED_ALARMING, report_verdict
-from ..estimation.estimator import (
+from ...errors import InputError
+from ...estimation.acceptance import FAILED_ALARMING, report_verdict
+from ...estimation.estimator import (
     MAX_STD,
     CalibrationResult,
     levenberg_marquardt,
     require_redundancy,
 )
-from ..estimation.rank import RTOL
-from ..estimation.sections import Section
-from ..estimation.variance import OUTLIER_ALPHA, fit
-from ..identifiability import name_null_space, name_weak_directions
-from ..kinematics import matrix_from_rotvec
-from ..machines.base import Machine
-from ..machines.delta import TRACKER_GRID_SPACING  # noqa: F401  (seed 001's grid)
-from ..machines.file_format import TrackerSection as TrackerFileSection
-from ..machines.file_format import file_rotation, frame_section, vector
-from ..paths import path_text
-from ..units import format_um
-from .base import Instrument, StandardPlan, _check_groups, _fk_of, has_column, reachable
-from .data import InstrumentData
-from .experiment import MOUNTING_ERROR
-from .flow import (
+from ...estimation.rank import RTOL
+from ...estimation.sections import Section
+from ...estimation.variance import OUTLIER_ALPHA, fit
+from ...identifiability import name_null_space, name_weak_directions
+from ...kinematics import matrix_from_rotvec
+from ...machines.base import Machine
+from ...machines.delta import TRACKER_GRID_SPACING  # noqa: F401  (seed 001's grid)
+from ...machines.file_format import TrackerSection as TrackerFileSection
+from ...machines.file_format import file_rotation, frame_section, vector
+from ...paths import path_text
+from ...units import format_um
+from ..base import Instrument, StandardPlan, _check_groups, _fk_of, has_column, reachable
+from ..data import InstrumentData
+from ..experiment import MOUNTING_ERROR
+from ..flow import (
     FlowContext,
     FlowResult,
     JointPart,
@@ -81,9 +81,9 @@ from .flow import (
     validation_section,
     variance_json,
 )
-from .models import NuisanceState, PointsModel
-from .problem import InstrumentProblem, InstrumentState
-from .setups import run_setup
+from ..models import NuisanceState, PointsModel
+from ..problem import InstrumentProblem, InstrumentState
+from ..setups import run_setup
 
 
 @dataclass(frozen=True)
@@ -546,7 +546,7 @@ class TrackerSection(Section):
     targets_given: bool = False
 
     def as_report(self, units=None) -> dict:
-        from ..units import LENGTH
+        from ...units import LENGTH
 
         unit = (units or {}).get("length", "mm")
         fl = LENGTH[unit]
@@ -569,7 +569,7 @@ class TrackerSection(Section):
         }
 
     def summary_rows(self, units=None) -> list:
-        from ..units import LENGTH
+        from ...units import LENGTH
 
         unit = (units or {}).get("length", "mm")
         fl = LENGTH[unit]
@@ -803,8 +803,8 @@ def tracker_noise_arg(text: str | None, allow_none: bool, machine=None):
     InputError
         When the text is not a noise model allowed here.
     """
-    from ..plausibility import check_option_scale
-    from ..units import parse_quantity
+    from ...plausibility import check_option_scale
+    from ...units import parse_quantity
 
     if text is None or text.strip().lower() == "leica":
         return TrackerNoise(), "leica (5 um along the beam, 7.5 um + 3 um/m across)"
@@ -1058,7 +1058,7 @@ class Tracker(Instrument):
     def candidates(self, machine, n, rng, setup=None):
         if machine.tracker_grid_spacing() is None:
             return super().candidates(machine, n, rng)
-        from ..machines.deviations import draw_accepted
+        from ...machines.deviations import draw_accepted
 
         half = np.asarray(machine.tracker_grid_spacing(), float)   # the 3x3x3 grid: +/- spacing
         centre = machine.home[0]
@@ -1166,7 +1166,7 @@ class Tracker(Instrument):
             ``(data, true, truth)``; ``truth`` with ``base_from_tracker``, ``targets``,
             ``planned_targets`` and ``setup`` (the true :class:`TrackerSetup`).
         """
-        from .experiment import given_poses, mm_text, noise_model, simulate_instrument
+        from ..experiment import given_poses, mm_text, noise_model, simulate_instrument
 
         k = int(targets)
         planned = planned_targets(machine, k)
@@ -1339,8 +1339,8 @@ class Tracker(Instrument):
         """The tracker's pose and the target places started from the data: registered on the
         machine file's forward kinematics, then (unknown targets) fitted with the machine
         held."""
-        from ..estimation.estimator import levenberg_marquardt
-        from .models import PointsModel
+        from ...estimation.estimator import levenberg_marquardt
+        from ..models import PointsModel
 
         noise = self.default_noise() if noise is None else noise
         fk = _fk_of(machine, data, source)
@@ -1490,7 +1490,7 @@ def check_spread(data, noise_model) -> None:
 
 
 def _rotvec(R):
-    from ..kinematics import rotvec_from_matrix
+    from ...kinematics import rotvec_from_matrix
 
     return rotvec_from_matrix(R)
 
@@ -1507,7 +1507,7 @@ def _check_options(options: TrackerOptions, source) -> None:
 def _calibration_flow(machine, data, context: FlowContext,
                       options: TrackerOptions) -> FlowResult:
     """``pkmcal calibrate`` from tracker points (:meth:`Tracker.calibrate`)."""
-    from ..units import LENGTH
+    from ...units import LENGTH
 
     source, split = context.source, context.split
     two_step, robust = options.two_step, options.robust
