@@ -60,7 +60,8 @@ INSTRUMENT_CLASSES = {
 INSTRUMENT_OWNERS = {
     "constraint-link": tuple(f"instruments/constraint_link/{m}.py" for m in (
         "__init__", "data", "start", "problems", "section", "methods")),
-    "tracker": ("instruments/tracker.py",),
+    "tracker": tuple(f"instruments/tracker/{m}.py" for m in (
+        "__init__", "noise", "setup", "data", "section", "fit", "distances")),
     "pose": tuple(f"instruments/pose/{m}.py" for m in (
         "__init__", "data", "problems", "errors", "section")),
     "distance": ("instruments/distance.py",),

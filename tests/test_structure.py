@@ -54,7 +54,7 @@ def test_audit_sees_a_switch_and_a_cycle(tmp_path):
     found = audit.switches(module, "cli/x.py")
     assert sorted(what for _, what, _ in found) == ["comparison", "isinstance",
                                                     "name-keyed table"]
-    assert audit.switches(module, "instruments/tracker.py")[0][2] == ("distance", "probe")
+    assert audit.switches(module, "instruments/tracker/__init__.py")[0][2] == ("distance", "probe")
     assert audit.cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 
