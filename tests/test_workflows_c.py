@@ -19,12 +19,9 @@ from pkmcal.io.machine_file import save_machine
 from pkmcal.machines.deviations import deviations
 from pkmcal.report.summary import RawText, Summary, SummaryTable
 from pkmcal.units import format_quantity, format_um
-from pkmcal.workflows.compensate import (
-    calibration_report_path,
-    read_covariance,
-    run_compensate,
-)
+from pkmcal.workflows.compensate import read_covariance, run_compensate
 from pkmcal.workflows.export import run_export, run_import
+from pkmcal.workflows.report import calibration_report_path
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

@@ -15,14 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..calibration.run import file_units, text_digest
+from ..calibration.run import file_units
 from ..compensation import compensate, instrument_frames, target_frame
 from ..errors import InputError
 from ..instruments import instrument_name
 from ..instruments.flow import json_safe
 from ..instruments.registry import instrument as instrument_entry
 from ..io import write_poses, write_positions
-from ..io.atomic import read_input_text
 from ..io.csv_io import has_orientation, read_positions, read_table
 from ..paths import path_text, recorded_path
 from ..report.summary import Summary
@@ -37,63 +36,9 @@ from .common import (
     machine_inputs,
 )
 from .poses import joint_columns, read_poses_of, refuse_outside_limits, refuse_unreachable
+from .report import calibration_report_path
 
-__all__ = ["run_compensate", "calibration_report_path", "read_covariance", "choose_frame",
-           "read_instrument_targets"]
-
-
-def calibration_report_path(machine, machine_spec: str, report: Path | None) -> Path | None:
-    """The calibration report of a calibrated machine: ``report`` (``--report``), else the
-    one the calibrated file names beside it, checked to be that calibration's (the file pins
-    it by its SHA-256).
-
-    Parameters
-    ----------
-    machine : Machine
-        The calibrated machine (its ``calibration_info``).
-    machine_spec : str
-        Its file.
-    report : Path or None
-        The report given by the user.
-
-    Returns
-    -------
-    Path or None
-        None: no report given and none named, or the named one is missing (the caller says
-        so).
-
-    Raises
-    ------
-    InputError
-        A named report that is not a file name or not a file, or a report whose SHA-256 is
-        not the one the calibrated file pins.
-    """
-    info = getattr(machine, "calibration_info", None) or {}
-    pinned = info.get("report_sha256")
-    if report is not None:
-        path = report
-    else:
-        name = info.get("report")
-        if name is None:
-            return None
-        if not isinstance(name, str) or not name.strip() or Path(name).name != name:
-            raise InputError(f"{path_text(machine_spec)}: "
-                             "calibration.report: expected the file name of "
-                             f"the JSON report beside it, got {name!r}")
-        path = recorded_path(Path(machine_spec).parent, name)      # recorded by path_text
-        if not path.exists():
-            return None             # the YAML travelled without its report: warned later
-        if not path.is_file():
-            raise InputError(f"{path_text(path)}: "
-                             f"the calibration report {path_text(machine_spec)} names is not a "
-                             "file; give the report with --report")
-    if pinned is not None and text_digest(read_input_text(path, "calibration report")) \
-            != str(pinned):
-        raise InputError(f"{path_text(path)}: "
-                         f"is not the report of {path_text(machine_spec)} (its SHA-256 differs "
-                         f"from calibration.report_sha256 there: written by another run); "
-                         "calibrate again, or give the right report with --report")
-    return path
+__all__ = ["run_compensate", "read_covariance", "choose_frame", "read_instrument_targets"]
 
 
 def read_covariance(path: Path, machine, with_frames: bool = False):
