@@ -45,11 +45,6 @@ class SummaryTable:
             raise ValueError(f"{len(cells)} cells for {len(self.columns)} columns")
         self.rows.append(tuple(cells) + ("",) * (len(self.columns) - len(cells)))
 
-    def as_dict(self) -> dict:
-        """JSON-ready: title, columns and rows of plain text."""
-        return {"title": self.title, "columns": list(self.columns),
-                "rows": [[c if isinstance(c, str) else c[0] for c in r] for r in self.rows]}
-
 
 @dataclass
 class RawText:
@@ -101,14 +96,6 @@ class Summary:
         self.errors.append(text)
         self.exit_code = max(self.exit_code, 1)
 
-    def extend(self, other: Summary) -> None:
-        """Append another summary's blocks, warnings and errors."""
-        self.blocks += other.blocks
-        for text in other.warnings:
-            self.warn(text)
-        self.errors += other.errors
-        self.exit_code = max(self.exit_code, other.exit_code)
-
     def text(self) -> str:
         """The blocks as plain text (tables as tab-separated lines), for logs and tests."""
         out = []
@@ -125,12 +112,3 @@ class Summary:
             else:
                 out.append(block)
         return "\n".join(out) + ("\n" if out else "")
-
-    def as_dict(self) -> dict:
-        """JSON-ready: the blocks (lines, tables, raw text), the warnings, the errors and the
-        exit code."""
-        blocks = [b.as_dict() if isinstance(b, SummaryTable)
-                  else {"raw": b.text} if isinstance(b, RawText) else {"line": b}
-                  for b in self.blocks]
-        return {"blocks": blocks, "warnings": list(self.warnings), "errors": list(self.errors),
-                "exit_code": self.exit_code}
