@@ -24,7 +24,6 @@ from .base import StandardPlan
 from .constraint_link import SPHERE_TOL, link_length  # noqa: F401  (re-exported: plan checks)
 from .pose import measurement_frames
 from .registry import INSTRUMENTS, instrument
-from .setups import machine_setup
 from .tracker import tracker_pose
 
 __all__ = ["DEFAULT_PLAN_SIZE", "SCENARIOS", "STANDARD_PLANS", "StandardPlan",
@@ -114,9 +113,8 @@ def _standard_plan_entry(name):
 
 
 def _setup(machine: Machine, inst, setup):
-    """The set-up a plan uses: ``setup``, else (transitional) the one the loader put on the
-    machine."""
-    return machine_setup(machine, inst.name) if setup is None else setup
+    """The set-up a plan uses: ``setup`` (None: none, the instrument's default)."""
+    return setup
 
 
 #: the standard plan of each scenario: ``(machine, n, seed, setup=None) -> StandardPlan``

@@ -103,7 +103,7 @@ from pydantic import BaseModel, ValidationError, create_model
 
 from ..errors import InputError
 from ..instruments.registry import INSTRUMENTS
-from ..instruments.setups import Setups, attach_legacy, legacy_setups
+from ..instruments.setups import Setups, attach_legacy
 from ..kinematics import euler_from_matrix
 from ..limits import (
     MAX_ANGLE,
@@ -949,7 +949,7 @@ def machine_to_text(machine: Machine, units: dict | None = None,
         Metadata written as the ``calibration:`` section.
     setups : Setups, optional
         The instruments' set-ups, written as their sections
-        (:mod:`pkmcal.instruments.setups`).
+        (:mod:`pkmcal.instruments.setups`); None: none.
 
     Returns
     -------
@@ -969,7 +969,7 @@ def machine_to_text(machine: Machine, units: dict | None = None,
             or units["angle"] not in ANGLE_UNITS:
         raise InputError(f"units must be {{length: mm|m|in, angle: deg|rad}}, got {units}")
     fl, fa = factors(units)
-    setups = legacy_setups(machine) if setups is None else Setups(setups)
+    setups = Setups(setups)
     framed, setups = bed_frame(machine, setups)
     body = dict(MACHINE_FORMATS[kind].dump(framed, units))
     body.update(_setup_sections(framed, setups, fl))
