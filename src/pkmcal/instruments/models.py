@@ -265,8 +265,8 @@ class NuisanceModel(ABC):
         taken : dict
             Shared among the files of the fit: what earlier files already set;
             ``taken["setups"]`` (a dict) the set-ups fitted so far by instrument name (the
-            arguments of its set-up type), ``taken["given"]`` (a :class:`~pkmcal.instruments.setups.Setups`) the
-            experiment's set-ups as given.
+            arguments of its set-up type), ``taken["given"]`` (a
+            :class:`~pkmcal.instruments.setups.Setups`) the experiment's set-ups as given.
 
         Returns
         -------
