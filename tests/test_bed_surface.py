@@ -40,7 +40,7 @@ def fit(shape, seed=0, sigma=5e-6):
 def test_a_bump_on_the_bed_is_kept_as_its_shape_and_handed_over(tmp_path):
     c = fit(bump)
     assert "bed_surface" in c.report
-    bed = c.setups["probe"]
+    bed = c.setups["probe"]                       # the calibrated bed: plane and surface
     centre = np.array([BUMP[:2]])
     far = np.array([[-0.06, 0.05]])
     def height(xy):
@@ -65,9 +65,9 @@ def test_a_bump_on_the_bed_is_kept_as_its_shape_and_handed_over(tmp_path):
     from pkmcal.export.bed_mesh import bed_correction
 
     klipper = controller_format("klipper")
-    ws = again.print_workspace(rng=0)
-    params = export(klipper, again, ws.P, ws.R, surface=ws.surface).params
-    corr = bed_correction(klipper, params, again, 0.1)
+    ws = again.print_workspace(rng=0, bed=setups["probe"].plane)
+    params = export(klipper, again, ws.P, ws.R, surface=ws.surface, setups=setups).params
+    corr = bed_correction(klipper, params, again, 0.1, setups=setups)
     xy = np.array([BUMP[:2], [-0.06, 0.05], [0.0, 0.0], [0.05, 0.05]])
 
     def first_layer(with_mesh):
@@ -88,4 +88,4 @@ def test_a_flat_bed_has_no_surface(seed):
     smoother fits to noise keeps none."""
     c = fit(lambda xy: np.zeros(len(xy)), seed=seed, sigma=20e-6)
     assert "bed_surface" not in c.report
-    assert c.setups["probe"].surface is None
+    assert getattr(c.setups.get("probe"), "surface", None) is None

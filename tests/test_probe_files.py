@@ -26,7 +26,7 @@ def test_bed_round_trip(units):
     # a printer's frame is its bed (issue 37): the height is carried by the endstops, the
     # tilt kept; the printer is the same, its frame 0.42 mm higher
     np.testing.assert_allclose(setups["probe"].plane[1:], bed.plane[1:], rtol=1e-14)
-    assert setups["probe"].height == 0.0
+    assert setups["probe"].plane[0] == 0.0
     P, R = machine.home
     q = machine.ik(P[None], R[None])
     np.testing.assert_allclose(back.ik(P[None] - [0, 0, 4.2e-4], R[None]), q,
@@ -43,8 +43,7 @@ def test_calibrate_writes_the_bed_and_fk_predicts_the_heights(tmp_path):
     proc = run("calibrate", machine, "probe.csv", "--parameters", "full", "-o", "cal.yaml",
                cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
-    cal, setups = load_machine_file(tmp_path / "cal.yaml")
-    assert setups.get("probe") is not None
+    assert load_machine_file(tmp_path / "cal.yaml")[1].get("probe") is not None
     proc = run("fk", "cal.yaml", "probe.csv", "--frame", "instrument", "-o", "z.csv",
                cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
