@@ -141,24 +141,30 @@ def test_instrument_frame_targets_land_where_the_instrument_measures(kind, cli, 
     within the predicted error, while the same targets in the base frame land off by the
     motion the data cannot fix (millimetres)."""
     from pkmcal.calibration import predict_tracker_points
-    from pkmcal.io import load_machine, read_joints, read_readings, write_poses, write_positions
+    from pkmcal.io import (
+        load_machine_file,
+        read_joints,
+        read_readings,
+        write_poses,
+        write_positions,
+    )
     from pkmcal.kinematics import matrix_from_rotvec, rotvec_from_matrix
 
     machine_file, options, _ = CASES[kind]
     assert cli("simulate", machine_file, *options, "--seed", "2", "--truth", "true.yaml",
                "-o", "data.csv").returncode == 0
     assert cli("calibrate", machine_file, "data.csv", "-o", "cal.yaml").returncode == 0
-    true = load_machine(tmp_path / "true.yaml")
+    true, true_setups = load_machine_file(tmp_path / "true.yaml")
     rng = np.random.default_rng(3)
     P = true.home[0] + rng.uniform(-0.03, 0.03, (25, 3))
     R = matrix_from_rotvec(rng.uniform(-0.08, 0.08, (25, 3)))
     if kind == "delta":
-        Rf, t = true.base_from_tracker
+        Rf, t = true_setups["tracker"].base_from_tracker
         Pt = (P - np.array([0, 0, true.smr_offset]) - t) @ Rf
         write_positions(tmp_path / "t.csv", Pt, "mm")
         write_positions(tmp_path / "b.csv", P, "mm")
     else:
-        Pt, Rt = true.measurement_frames.measured(P, R)
+        Pt, Rt = true_setups["pose"].measured(P, R)
         write_poses(tmp_path / "t.csv", Pt, Rt, "mm", "deg")
         write_poses(tmp_path / "b.csv", P, R, "mm", "deg")
     proc = cli("compensate", "cal.yaml", "t.csv", "--frame", "instrument", "--json", "-o",
@@ -172,11 +178,11 @@ def test_instrument_frame_targets_land_where_the_instrument_measures(kind, cli, 
     def landed(path):
         if kind == "delta":
             q = read_joints(path, 3, "angle")[0]
-            return predict_tracker_points(true, q, true.base_from_tracker), None
+            return predict_tracker_points(true, q, true_setups["tracker"].base_from_tracker), None
         q = read_readings(path, true)[0]
         fk = true.fk(q, start=(P, R))
         assert fk.converged.all()
-        return true.measurement_frames.measured(fk.P, fk.R)
+        return true_setups["pose"].measured(fk.P, fk.R)
 
     Pm, Rm = landed(tmp_path / "c.csv")
     rms = float(np.sqrt(np.mean(np.sum((Pm - Pt) ** 2, -1))))
@@ -188,7 +194,7 @@ def test_instrument_frame_targets_land_where_the_instrument_measures(kind, cli, 
         assert 0.3 < ratio < 3.0
     # the same targets in the base frame: right up to the unseen frame motion, which is large
     Pb, _ = landed(tmp_path / "cb.csv")
-    target_b = Pt if kind == "delta" else true.measurement_frames.measured(P, R)[0]
+    target_b = Pt if kind == "delta" else true_setups["pose"].measured(P, R)[0]
     miss = float(np.sqrt(np.mean(np.sum((Pb - target_b) ** 2, -1))))
     assert miss > 20 * rms
 

@@ -13,7 +13,14 @@ import pytest
 from clitools import assert_input_error, digest, run
 from pkmcal.calibration import predict_tracker_points
 from pkmcal.instruments.tracker import grid_points, neighbour_pairs
-from pkmcal.io import load_machine, read_joints, read_positions, read_tracker, write_positions
+from pkmcal.io import (
+    load_machine,
+    load_machine_file,
+    read_joints,
+    read_positions,
+    read_tracker,
+    write_positions,
+)
 from pkmcal.machines import default_delta
 
 DELTA = Path(__file__).resolve().parents[1] / "examples" / "delta_default.yaml"
@@ -41,7 +48,7 @@ def test_simulate_writes_tracker_data_and_truth(delta_dir):
     nominal = default_delta()
     data = read_tracker(delta_dir / "data.csv", nominal)
     assert len(data) == 27 and data.rows[0] == 2
-    true = load_machine(delta_dir / "true.yaml")
+    true, true_setups = load_machine_file(delta_dir / "true.yaml")
     dev = true.u - nominal.u
     kinds = np.array(nominal.parameters.kinds)
     assert 0.3e-3 < np.max(np.abs(dev[kinds == "length"])) <= 1e-3     # about 1 mm
@@ -50,10 +57,10 @@ def test_simulate_writes_tracker_data_and_truth(delta_dir):
     np.testing.assert_allclose(nominal.fk(data.q).P,
                                grid_points([0, 0, -0.75], (0.15, 0.15, 0.04)), atol=1e-12)
     # the tracker saw the true machine's reflector (Leica noise: tens of um)
-    pred = predict_tracker_points(true, data.q, true.base_from_tracker)
+    pred = predict_tracker_points(true, data.q, true_setups["tracker"].base_from_tracker)
     err = np.linalg.norm(pred - data.m, axis=1)
     assert 1e-6 < np.max(err) < 100e-6
-    R, t = true.base_from_tracker
+    R, t = true_setups["tracker"].base_from_tracker
     assert np.linalg.norm(t[:2]) == pytest.approx(2.5)                  # 2.5 m away
 
 
@@ -79,8 +86,8 @@ def test_calibrate_summary_and_report(delta_dir):
 
 
 def test_calibrated_file_loads_back_with_errors_tracker_and_home(delta_dir):
-    cal = load_machine(delta_dir / "cal.yaml")
-    true = load_machine(delta_dir / "true.yaml")
+    cal, cal_setups = load_machine_file(delta_dir / "cal.yaml")
+    true, true_setups = load_machine_file(delta_dir / "true.yaml")
     text = (delta_dir / "cal.yaml").read_text()
     assert "legs:" in text and "tracker: {rotation:" in text and "home: [0.0, 0.0, -750.0]" in text
     assert cal.kind == "delta" and cal.calibration_info["method"] == "tracker-joint"
@@ -96,12 +103,12 @@ def test_calibrated_file_loads_back_with_errors_tracker_and_home(delta_dir):
     np.testing.assert_allclose(report["identifiable_combinations"]["leg2.db - leg2.da"],
                                (cdb - cda)[1] * 1e3, rtol=1e-12)
     # the identified tracker pose: rotation to < 0.01 deg; translation up to the gauge
-    R, _ = cal.base_from_tracker
-    Rt, _ = true.base_from_tracker
+    R, _ = cal_setups["tracker"].base_from_tracker
+    Rt, _ = true_setups["tracker"].base_from_tracker
     assert np.degrees(np.arccos((np.trace(R.T @ Rt) - 1) / 2)) < 0.01
     # the calibrated file reproduces the measured points to the noise
     data = read_tracker(delta_dir / "data.csv", cal)
-    pred = predict_tracker_points(cal, data.q, cal.base_from_tracker)
+    pred = predict_tracker_points(cal, data.q, cal_setups["tracker"].base_from_tracker)
     assert np.sqrt(np.mean(np.sum((pred - data.m) ** 2, axis=1))) < 40e-6
 
 

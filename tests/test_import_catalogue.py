@@ -417,8 +417,15 @@ def test_like_carries_every_documented_field(tmp_path, fmt):
     if like.kind == "delta":                  # the effector offset of a Delta robot
         assert m.smr_offset == pytest.approx(0.03), written
     if like.kind == "stewart":                # the targets' places on the platform
-        np.testing.assert_allclose(m.tracker_targets, [[0.01, 0.02, 0.03], [-0.01, 0.005, 0]],
+        from pkmcal.io import load_machine_file
+
+        tracker = load_machine_file(tmp_path / "m.yaml")[1]["tracker"]
+        np.testing.assert_allclose(tracker.targets, [[0.01, 0.02, 0.03], [-0.01, 0.005, 0]],
                                    **tol)
+        like_tracker = load_machine_file(tmp_path / "like.yaml")[1]["tracker"]
+        for a, b in zip(tracker.base_from_tracker, like_tracker.base_from_tracker,
+                        strict=True):
+            np.testing.assert_allclose(a, b, **tol)
 
 
 def test_like_keeps_compensate_checking_limits(tmp_path):

@@ -12,8 +12,17 @@ import pytest
 
 from clitools import assert_input_error, run
 from pkmcal.errors import InputError
+from pkmcal.instruments.distance import BallbarSetup
 from pkmcal.instruments.pose import MeasurementFrames
-from pkmcal.io import load_machine, parse_machine, save_machine
+from pkmcal.instruments.setups import Setups
+from pkmcal.instruments.tracker import TrackerSetup
+from pkmcal.io import (
+    load_machine,
+    load_machine_file,
+    parse_machine,
+    parse_machine_file,
+    save_machine,
+)
 from pkmcal.io.machine_file import machine_to_text
 from pkmcal.kinematics import matrix_from_rotvec
 
@@ -24,28 +33,31 @@ FILES = {"hexaslide": EXAMPLES / "hexaslide_default.yaml",
 
 
 def fitted(kind: str, seed: int = 1):
-    """An example machine carrying every instrument section its type can have."""
+    """An example machine and every instrument set-up its type can have."""
     m = load_machine(FILES[kind])
     rng = np.random.default_rng(seed)
-    m.base_from_tracker = (matrix_from_rotvec(rng.normal(size=3)),
-                           np.array([2.1, -1.4, 0.3]) + rng.normal(size=3) * 0.1)
+    pose = (matrix_from_rotvec(rng.normal(size=3)),
+            np.array([2.1, -1.4, 0.3]) + rng.normal(size=3) * 0.1)
+    items = {}
     if kind != "delta":
-        m.tracker_targets = rng.normal(size=(3, 3)) * 0.05
-        m.measurement_frames = MeasurementFrames(
+        items["tracker"] = TrackerSetup(pose, rng.normal(size=(3, 3)) * 0.05)
+        items["pose"] = MeasurementFrames(
             (matrix_from_rotvec(rng.normal(size=3)), rng.normal(size=3)),
             (matrix_from_rotvec(rng.normal(size=3) * 0.3), rng.normal(size=3) * 0.05))
-    m.ballbar_setups = [(m.home[0] + rng.normal(size=3) * 0.1, rng.normal(size=3) * 0.03)
-                        for _ in range(2)]
-    return m
+    else:
+        items["tracker"] = TrackerSetup(pose)
+    items["distance"] = BallbarSetup([(m.home[0] + rng.normal(size=3) * 0.1,
+                                       rng.normal(size=3) * 0.03) for _ in range(2)])
+    return m, Setups(items)
 
 
-def sections(m) -> list[np.ndarray]:
+def sections(m, setups) -> list[np.ndarray]:
     """Every number of the instrument sections, SI units."""
-    out = [np.asarray(v, float) for v in m.base_from_tracker]
-    out += [np.asarray(v, float) for s in m.ballbar_setups for v in s]
+    out = [np.asarray(v, float) for v in setups["tracker"].base_from_tracker]
+    out += [np.asarray(v, float) for s in setups["distance"].mountings for v in s]
     if m.kind != "delta":
-        out.append(np.asarray(m.tracker_targets, float))
-        f = m.measurement_frames
+        out.append(np.asarray(setups["tracker"].targets, float))
+        f = setups["pose"]
         out += [np.asarray(v, float) for v in (*f.mocap_from_base, *f.platform_from_marker)]
     return out
 
@@ -54,43 +66,47 @@ def sections(m) -> list[np.ndarray]:
 @pytest.mark.parametrize("units", [None, {"length": "m", "angle": "rad"},
                                    {"length": "in", "angle": "deg"}])
 def test_round_trip(kind, units):
-    m = fitted(kind)
-    text = machine_to_text(m, units)
-    back = parse_machine(text, "m.yaml")
-    for a, b in zip(sections(m), sections(back), strict=True):
+    m, setups = fitted(kind)
+    text = machine_to_text(m, units, setups=setups)
+    back, again = parse_machine_file(text, "m.yaml")
+    for a, b in zip(sections(m, setups), sections(back, again), strict=True):
         if units and units["length"] == "m":
             assert np.array_equal(a, b)             # metres: nothing to convert
         else:
             np.testing.assert_allclose(b, a, rtol=1e-15, atol=1e-17)
-    assert machine_to_text(back, units) == text     # a fixed point after one round
+    assert machine_to_text(back, units, setups=again) == text   # a fixed point after one round
     if kind == "delta":
-        assert back.tracker_targets is None and back.measurement_frames is None
+        assert again["tracker"].targets is None and again.get("pose") is None
         assert "targets" not in text and "measurement_frames" not in text
     else:
-        assert back.tracker_targets.shape == (3, 3)
+        assert again["tracker"].targets.shape == (3, 3)
 
 
 @pytest.mark.parametrize("kind", list(FILES))
 def test_sections_are_optional_and_in_the_file_unit(kind, tmp_path):
-    plain = load_machine(FILES[kind])
-    assert plain.ballbar_setups is None and plain.tracker_targets is None
+    plain, setups = load_machine_file(FILES[kind])
+    assert setups.get("distance") is None
     if kind != "delta":
-        assert plain.base_from_tracker is None and plain.measurement_frames is None
-    assert "ballbar" not in machine_to_text(plain)
+        assert setups.get("tracker") is None and setups.get("pose") is None
+    else:
+        assert getattr(setups.get("tracker"), "targets", None) is None
+    assert "ballbar" not in machine_to_text(plain, setups=setups)
     head = FILES[kind].read_text()
     text = head + ("ballbar:\n  - {pivot: [10, 20, 30], ball: [1, 2, 3]}\n"
                    "  - {pivot: [-10, 0, 5], ball: [0, 0, 0]}\n")
-    m = parse_machine(text, "m.yaml")
-    np.testing.assert_allclose(m.ballbar_setups[0][0], [0.01, 0.02, 0.03], rtol=1e-15)
-    np.testing.assert_allclose(m.ballbar_setups[1][1], [0, 0, 0])
+    m, setups = parse_machine_file(text, "m.yaml")
+    np.testing.assert_allclose(setups["distance"].mountings[0][0], [0.01, 0.02, 0.03],
+                               rtol=1e-15)
+    np.testing.assert_allclose(setups["distance"].mountings[1][1], [0, 0, 0])
     if kind != "delta":
         text = head + ("tracker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "
                        "translation: [1000, 0, 0], targets: [[10, 0, -5]]}\n")
-        m = parse_machine(text, "m.yaml")
-        np.testing.assert_allclose(m.base_from_tracker[1], [1, 0, 0])
-        np.testing.assert_allclose(m.tracker_targets, [[0.01, 0, -0.005]])
-    save_machine(fitted(kind), tmp_path / "f.yaml")
-    assert load_machine(tmp_path / "f.yaml").ballbar_setups is not None
+        m, setups = parse_machine_file(text, "m.yaml")
+        np.testing.assert_allclose(setups["tracker"].base_from_tracker[1], [1, 0, 0])
+        np.testing.assert_allclose(setups["tracker"].targets, [[0.01, 0, -0.005]])
+    m, setups = fitted(kind)
+    save_machine(m, tmp_path / "f.yaml", setups=setups)
+    assert load_machine_file(tmp_path / "f.yaml")[1].get("distance") is not None
 
 
 def refused(text: str) -> str:
@@ -154,12 +170,14 @@ def test_strict_schemas_name_the_key(kind):
 
 
 def test_delta_targets_other_than_its_reflector_are_not_saved():
-    m = fitted("delta")
-    m.tracker_targets = np.array([[0.0, 0.0, -m.smr_offset]])
-    assert "targets" not in machine_to_text(m)          # the reflector itself: harmless
-    m.tracker_targets = np.array([[0.01, 0.0, 0.0]])
+    m, setups = fitted("delta")
+    pose = setups["tracker"].base_from_tracker
+    reflector = setups.with_setup("tracker", TrackerSetup(pose, np.array([[0.0, 0.0,
+                                                                          -m.smr_offset]])))
+    assert "targets" not in machine_to_text(m, setups=reflector)   # the reflector: harmless
+    other = setups.with_setup("tracker", TrackerSetup(pose, np.array([[0.01, 0.0, 0.0]])))
     with pytest.raises(InputError, match="smr_offset"):
-        machine_to_text(m)
+        machine_to_text(m, setups=other)
 
 
 def test_command_line_refuses_a_bad_section(tmp_path):

@@ -9,11 +9,15 @@ import numpy as np
 import pytest
 
 from pkmcal.errors import InputError
+from pkmcal.instruments.setups import Setups
+from pkmcal.instruments.tracker import TrackerSetup
 from pkmcal.io import (
     atomic_write_text,
     load_machine,
+    load_machine_file,
     machine_to_text,
     parse_machine,
+    parse_machine_file,
     read_constraint_link,
     read_joints,
     read_poses,
@@ -314,11 +318,11 @@ def perturbed_delta():
     rng = np.random.default_rng(11)
     m = m.with_parameters(m.u + 1e-3 * rng.standard_normal(len(m.u)))
     m.home = (np.array([0.012, -0.034, -0.7612345678901234]), np.eye(3))
-    m.base_from_tracker = (matrix_from_rotvec([0.1, -0.2, 2.3]), np.array([2.1, -1.3, -1.41]))
-    return m
+    return m, Setups({"tracker": TrackerSetup((matrix_from_rotvec([0.1, -0.2, 2.3]),
+                                               np.array([2.1, -1.3, -1.41])))})
 
 
-def assert_same_delta(a, b, rtol=1e-15):
+def assert_same_delta(a, b, rtol=1e-15, sa=None, sb=None):
     assert a.kind == b.kind == "delta"
     assert a.parameters.names == b.parameters.names
     np.testing.assert_allclose(a.u, b.u, rtol=rtol, atol=1e-18)
@@ -326,7 +330,8 @@ def assert_same_delta(a, b, rtol=1e-15):
         assert getattr(a, attr) == pytest.approx(getattr(b, attr), rel=rtol)
     np.testing.assert_allclose(a.leg_angles, b.leg_angles, rtol=rtol)
     np.testing.assert_allclose(a.home[0], b.home[0], rtol=rtol, atol=1e-17)
-    ta, tb = a.base_from_tracker, b.base_from_tracker
+    ta, tb = ((None if s is None or "tracker" not in s else s["tracker"].base_from_tracker)
+              for s in (sa, sb))
     assert (ta is None) == (tb is None)
     if ta is not None:
         np.testing.assert_allclose(ta[0], tb[0], rtol=0, atol=1e-16)
@@ -336,10 +341,9 @@ def assert_same_delta(a, b, rtol=1e-15):
 def test_delta_example_file_is_the_default_delta():
     from pkmcal.machines import default_delta
 
-    loaded = load_machine(DELTA_EXAMPLE)
+    loaded, setups = load_machine_file(DELTA_EXAMPLE)
     default = default_delta()
-    default.base_from_tracker = None
-    assert_same_delta(loaded, default, rtol=0)
+    assert_same_delta(loaded, default, rtol=0, sa=setups, sb=Setups())
     assert loaded.name == default.name and loaded.file_units == {"length": "mm", "angle": "deg"}
     assert machine_to_text(default_delta(), loaded.file_units) == DELTA_EXAMPLE.read_text()
     np.testing.assert_allclose(loaded.fk(loaded.ik(loaded.home[0])).P[0], [0, 0, -0.75],
@@ -349,23 +353,24 @@ def test_delta_example_file_is_the_default_delta():
 @pytest.mark.parametrize("units", [{"length": "mm", "angle": "deg"},
                                    {"length": "m", "angle": "rad"}])
 def test_delta_save_load_round_trip_is_lossless(tmp_path, units):
-    m = perturbed_delta()
-    loaded = load_machine(save_machine(m, tmp_path / "d.yaml", units=units,
-                                       calibration={"method": "tracker-joint"}))
-    assert_same_delta(loaded, m)
+    m, setups = perturbed_delta()
+    loaded, back = load_machine_file(save_machine(m, tmp_path / "d.yaml", units=units,
+                                                  calibration={"method": "tracker-joint"},
+                                                  setups=setups))
+    assert_same_delta(loaded, m, sa=back, sb=setups)
     assert loaded.calibration_info == {"method": "tracker-joint"}
     text = (tmp_path / "d.yaml").read_text()
     assert "tracker: {rotation: [[" in text and "home: [" in text and "# x, y, z\n" in text
-    again = load_machine(save_machine(loaded, tmp_path / "d2.yaml"))
-    assert_same_delta(again, m)
+    again, twice = load_machine_file(save_machine(loaded, tmp_path / "d2.yaml", setups=back))
+    assert_same_delta(again, m, sa=twice, sb=setups)
     assert sorted(os.listdir(tmp_path)) == ["d.yaml", "d2.yaml"]
 
 
 def test_delta_optional_keys():
     text = "\n".join(line for line in DELTA_EXAMPLE.read_text().splitlines()
                      if not line.startswith(("legs:", "  - ", "smr_offset", "home", "name")))
-    m = parse_machine(text, "d.yaml")
-    assert m.smr_offset == 0.0 and m.base_from_tracker is None and not np.any(m.u)
+    m, setups = parse_machine_file(text, "d.yaml")
+    assert m.smr_offset == 0.0 and "tracker" not in setups and not np.any(m.u)
     assert np.all(np.isfinite(m.ik(m.home[0])))
     # every key of a leg is optional; a six-number home with zero angles is accepted
     m = parse_machine(DELTA_EXAMPLE.read_text().replace(
@@ -373,9 +378,10 @@ def test_delta_optional_keys():
         "home: [0.0, 0.0, -750.0]", "home: [0.0, 0.0, -740.0, 0, 0, 0]"), "d.yaml")
     assert m.u[3] == pytest.approx(np.deg2rad(0.5)) and m.home[0][2] == pytest.approx(-0.74)
     # a rotation with 6 digits is accepted and made orthonormal
-    m = parse_machine(DELTA_EXAMPLE.read_text() + "tracker: {rotation: [[0.866025, -0.5, 0], "
-                      "[0.5, 0.866025, 0], [0, 0, 1]], translation: [2000, 0, 0]}\n", "d.yaml")
-    R, t = m.base_from_tracker
+    m, setups = parse_machine_file(DELTA_EXAMPLE.read_text() + "tracker: {rotation: [[0.866025, "
+                                   "-0.5, 0], [0.5, 0.866025, 0], [0, 0, 1]], translation: "
+                                   "[2000, 0, 0]}\n", "d.yaml")
+    R, t = setups["tracker"].base_from_tracker
     np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-13)
     np.testing.assert_allclose(t, [2.0, 0, 0])
 

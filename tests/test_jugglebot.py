@@ -44,7 +44,7 @@ import pytest
 from clitools import run
 from pkmcal.calibration import calibrate_full_pose, full_pose_errors
 from pkmcal.instruments.pose import FullPoseNoise
-from pkmcal.io import load_machine, read_full_pose
+from pkmcal.io import load_machine, load_machine_file, read_full_pose
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "jugglebot"
 MACHINE = Path(__file__).resolve().parents[1] / "examples" / "jugglebot.yaml"
@@ -170,8 +170,8 @@ def test_command_line_calibration_of_the_real_data(files, tmp_path):
     assert gains[0]["unit"] == "mm/rev" and abs(gains[0]["nominal"] - 75.69) < 0.01
     curvature = [p for p in report["parameters"] if p["name"].endswith(".curvature")]
     assert len(curvature) == 6 and curvature[0]["unit"] == "mm/rev^2"
-    calibrated = load_machine(tmp_path / "jugglebot_calibrated.yaml")
-    assert calibrated.reading_unit == "rev" and calibrated.measurement_frames is not None
+    calibrated, setups = load_machine_file(tmp_path / "jugglebot_calibrated.yaml")
+    assert calibrated.reading_unit == "rev" and setups.get("pose") is not None
     assert np.allclose(calibrated.curvature() * 1e3, [c["identified"] for c in curvature])
     # the calibrated file predicts the held-out session through fk
     proc = run("fk", tmp_path / "jugglebot_calibrated.yaml", files["validation"], "-o",
@@ -200,17 +200,18 @@ def command_line_models(tmp_path_factory):
         proc = run("calibrate", MACHINE, DATA / FILES["calibration"], "--columns", COLUMNS,
                    *options, "-o", f"run{i}.yaml", cwd=d)
         assert proc.returncode == 0, proc.stderr
-        out[name] = (load_machine(d / f"run{i}.yaml"),
+        out[name] = (load_machine_file(d / f"run{i}.yaml"),
                      json.loads((d / f"run{i}.json").read_text()))
     return out
 
 
-def held_out_errors(machine, method, val):
+def held_out_errors(machine_and_setups, method, val):
     """Squared errors per held-out pose (leg lengths averaged over the legs, mm^2; position,
     mm^2; orientation, deg^2), the frames re-registered on the held-out session by the
     model's own method (legs fixed), as :func:`figures` does."""
+    machine, setups = machine_and_setups
     fit = calibrate_full_pose(machine, val, method=method, noise=NOISE,
-                              frames=machine.measurement_frames, fit_machine=False)
+                              frames=setups["pose"], fit_machine=False)
     e = full_pose_errors(machine, fit.sections["pose"].frames, val)
     assert e.converged.all()
     return np.column_stack([np.mean((e.leg_length * 1e3) ** 2, axis=1),

@@ -281,7 +281,7 @@ def test_klipper_points_with_klippers_set_are_fitted_as_klipper_does(tmp_path):
     c = calibrate(machine, points_of(path, machine), parameters="klipper-basic")
     assert c.report["bed"]["tilt_estimated"] is False
     assert "square to the towers" in c.report["bed_frame"]
-    assert c.calibrated.probe_bed == (0.0, 0.0, 0.0)
+    assert c.setups["probe"].plane == (0.0, 0.0, 0.0)
     assert c.report["identifiability"]["identifiable"] == 6
     forced = calibrate(machine, points_of(path, machine), parameters="klipper-basic",
                        bed_tilt="square")

@@ -11,7 +11,7 @@ import pytest
 
 from clitools import run
 from pkmcal.errors import InputError
-from pkmcal.io.machine_file import load_machine, machine_to_text, parse_machine
+from pkmcal.io.machine_file import load_machine, load_machine_file, machine_to_text, parse_machine
 from pkmcal.machines import LinearDelta, default_linear_delta, linear_delta
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "linear_delta.yaml"
@@ -202,7 +202,7 @@ def test_frame_motions_are_null_directions_of_the_kinematics():
 
 def test_tracker_calibration_recovers_the_truth_noise_free():
     from pkmcal.calibration import calibrate_tracker
-    from pkmcal.instruments.tracker import TrackerNoise, simulate_tracker
+    from pkmcal.instruments.tracker import TrackerNoise, TrackerSection, simulate_tracker
 
     nominal = linear_delta(0.118, [0.231, 0.2335, 0.229], np.deg2rad([207.0, 333.0, 91.5]),
                            (0.262, 0.2655, 0.259))
@@ -214,7 +214,7 @@ def test_tracker_calibration_recovers_the_truth_noise_free():
     data = simulate_tracker(true, nominal, targets, pose, noise=None, rng=1)
     result = calibrate_tracker(nominal, data, TrackerNoise())
     est = result.machine
-    Re, te = est.base_from_tracker
+    Re, te = result.section(TrackerSection).registration
     G = R @ Re.T
     aligned = est.with_parameters(est.transform_base(est.u, G, pose[1] - G @ te))
     L = true.characteristic_length()
@@ -234,6 +234,6 @@ def test_cli_simulate_points_and_calibrate(tmp_path):
     assert header.startswith("q1_mm,q2_mm,q3_mm")
     cal = run("calibrate", EXAMPLE, "data.csv", "-o", "cal.yaml", cwd=tmp_path)
     assert cal.returncode == 0, cal.stderr
-    m = load_machine(tmp_path / "cal.yaml")
-    assert m.kind == "linear_delta" and m.base_from_tracker is not None
+    m, setups = load_machine_file(tmp_path / "cal.yaml")
+    assert m.kind == "linear_delta" and setups.get("tracker") is not None
     assert "chains:" in (tmp_path / "cal.yaml").read_text()

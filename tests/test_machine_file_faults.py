@@ -28,7 +28,7 @@ import pytest
 
 from clitools import assert_input_error, run
 from pkmcal.errors import InputError
-from pkmcal.io import load_machine, parse_machine
+from pkmcal.io import load_machine, parse_machine, parse_machine_file
 from pkmcal.limits import MAX_MACHINE_FILE_BYTES
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -289,9 +289,11 @@ def test_absurd_values_are_refused_naming_the_key(kind, make, key):
 
 def test_large_but_sane_values_still_load():
     """A tracker metres away from a small Delta, a long-legged platform: not absurd."""
-    m = loads(DELTA + "tracker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "
-                      "translation: [5000.0, -3000.0, 1500.0]}\n")
-    assert np.allclose(m.base_from_tracker[1], [5.0, -3.0, 1.5])
+    text = DELTA + ("tracker: {rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "
+                    "translation: [5000.0, -3000.0, 1500.0]}\n")
+    assert loads(text).kind == "delta"
+    _, setups = parse_machine_file(text, "m.yaml")
+    assert np.allclose(setups["tracker"].base_from_tracker[1], [5.0, -3.0, 1.5])
     assert loads(_chain(HEXA, 0, "alpha", "520.0")).kind == "hexaslide"   # 520 = 160 deg
 
 

@@ -21,11 +21,13 @@ from scipy import stats
 from pkmcal.errors import InputError
 from pkmcal.estimation.rank import RTOL, numerical_rank
 from pkmcal.instruments import InstrumentData, InstrumentProblem, PointsModel, fit_instrument
+from pkmcal.instruments.setups import Setups
 from pkmcal.instruments.simulate import sample_workspace_poses, simulate_instrument
-from pkmcal.instruments.tracker import TrackerNoise
+from pkmcal.instruments.tracker import TrackerNoise, TrackerSetup
 from pkmcal.io.machine_file import (
     MACHINE_FORMATS,
     load_machine,
+    load_machine_file,
     machine_to_text,
     parse_machine,
     save_machine,
@@ -318,20 +320,22 @@ def test_file_is_read_in_internal_units():
 def test_round_trip(units, tmp_path):
     m = skewed_planar()
     m = m.with_parameters(m.u + random_deviations(m, 5))
-    m.base_from_tracker = (matrix_from_rotvec([0.01, -0.02, 2.0]), np.array([1.2, -0.4, 0.3]))
-    m.tracker_targets = np.array([[0.03, -0.01, -0.05]])
-    path = save_machine(m, tmp_path / "m.yaml", units=units)
-    back = load_machine(path)
+    setups = Setups({"tracker": TrackerSetup(
+        (matrix_from_rotvec([0.01, -0.02, 2.0]), np.array([1.2, -0.4, 0.3])),
+        np.array([[0.03, -0.01, -0.05]]))})
+    path = save_machine(m, tmp_path / "m.yaml", units=units, setups=setups)
+    back, again = load_machine_file(path)
     assert isinstance(back, Planar3RPR)
     np.testing.assert_allclose(back.u, m.u, rtol=1e-14, atol=1e-16)
     assert back.parameters.names == m.parameters.names
     np.testing.assert_allclose(back.home[0], m.home[0], rtol=0, atol=1e-15)
     np.testing.assert_allclose(back.home[1], m.home[1], rtol=0, atol=1e-14)
-    np.testing.assert_allclose(back.base_from_tracker[1], m.base_from_tracker[1], atol=1e-14)
-    np.testing.assert_allclose(back.tracker_targets, m.tracker_targets, atol=1e-15)
+    np.testing.assert_allclose(again["tracker"].base_from_tracker[1],
+                               setups["tracker"].base_from_tracker[1], atol=1e-14)
+    np.testing.assert_allclose(again["tracker"].targets, setups["tracker"].targets, atol=1e-15)
     text = path.read_text()
     assert "home: [" in text and "# x, y, phi" in text
-    assert machine_to_text(back, units=units) == text
+    assert machine_to_text(back, units=units, setups=again) == text
 
 
 @pytest.mark.parametrize("edit, words", [
@@ -521,8 +525,8 @@ def test_commands_end_to_end(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "rigid motion of the base frame in its plane" in out
     assert "rigid motion of the platform frame in its plane" in out
-    calibrated = load_machine(cal)
-    assert isinstance(calibrated, Planar3RPR) and calibrated.base_from_tracker is not None
+    calibrated, setups = load_machine_file(cal)
+    assert isinstance(calibrated, Planar3RPR) and setups.get("tracker") is not None
     assert not np.array_equal(calibrated.u, load_machine(machine).u)
     report = json.loads(cal.with_suffix(".json").read_text())
     assert report["identifiability"]["identifiable"] == 20

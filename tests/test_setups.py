@@ -5,6 +5,8 @@ same file, byte for byte."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -188,3 +190,45 @@ def test_io_names_no_instrument():
         elif isinstance(node, ast.alias) and node.name in words:
             named.add(node.name)
     assert named == set()
+
+
+def test_a_loaded_machine_holds_no_setup(machine_and_setups, tmp_path):
+    """The set-ups travel beside the machine, never on it (issue 38, Build 2): the loader
+    sets none of the older attributes, and a calibrated file loads back the same way."""
+    machine, setups = machine_and_setups
+    assert len(setups) == 4
+    for name in LEGACY:
+        assert not hasattr(machine, name), name
+    path = tmp_path / "m.yaml"
+    path.write_text(machine_to_text(machine, setups=setups))
+    again, _ = load_machine_file(path)
+    for name in LEGACY:
+        assert not hasattr(again, name), name
+
+
+def test_no_module_reads_or_writes_a_setup_on_the_machine():
+    """No module of pkmcal names the older set-up attributes on an object (``x.probe_bed``,
+    ``getattr(x, "bed_surface")``); ``base_from_tracker`` is the tracker set-up's own field
+    and stays."""
+    import ast
+
+    import pkmcal
+
+    root = Path(pkmcal.__file__).parent
+    names = set(LEGACY) - {"base_from_tracker"}
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and node.attr in names:
+                found.append(f"{path.relative_to(root)}:{node.lineno}: .{node.attr}")
+            elif isinstance(node, ast.Call) and isinstance(node.func, ast.Name) \
+                    and node.func.id in ("getattr", "setattr", "hasattr", "delattr") \
+                    and len(node.args) > 1 and isinstance(node.args[1], ast.Constant) \
+                    and node.args[1].value in LEGACY:
+                found.append(f"{path.relative_to(root)}:{node.lineno}: {node.func.id}"
+                             f"({node.args[1].value!r})")
+            elif isinstance(node, ast.Tuple) and any(
+                    isinstance(e, ast.Constant) and e.value == "probe_bed" for e in node.elts):
+                found.append(f"{path.relative_to(root)}:{node.lineno}: 'probe_bed' listed")
+    assert found == [], "\n".join(found)

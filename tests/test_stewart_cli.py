@@ -15,6 +15,7 @@ from pkmcal.errors import InputError
 from pkmcal.instruments.pose import default_measurement_frames, simulate_full_pose
 from pkmcal.io import (
     load_machine,
+    load_machine_file,
     machine_to_text,
     parse_machine,
     read_full_pose,
@@ -43,12 +44,12 @@ def stewart_text(legs=None, extra="", readings="", home="home: [0, 0, 410, 0, 0,
 # -- machine files ---------------------------------------------------------------------------
 
 def test_cubic_example_is_the_seed_003_device():
-    m, ref = load_machine(CUBIC), cubic_6upu()
+    (m, setups), ref = load_machine_file(CUBIC), cubic_6upu()
     # metre-scale values from a file in mm/deg and from the code's formulas (sin/cos)
     np.testing.assert_allclose(m.u, ref.u, rtol=0, atol=1e-13)
     np.testing.assert_allclose(m.home[0], [0, 0, 0.41], atol=1e-13)
     assert m.reading_unit == "mm" and m.joint_quantity == "length"
-    assert m.measurement_frames is None
+    assert setups.get("pose") is None
 
 
 def test_jugglebot_example_is_the_design_geometry_of_the_data_readme():
@@ -73,21 +74,20 @@ def test_save_load_is_lossless_with_readings_and_frames(tmp_path):
     m = load_machine(JUGGLEBOT)
     rng = np.random.default_rng(1)
     m = m.with_parameters(m.u * (1 + 1e-3 * rng.standard_normal(len(m.u))))
-    m.measurement_frames = default_measurement_frames()
+    frames = default_measurement_frames()
     m.home = (np.array([0.001, -0.002, 0.6]), matrix_from_euler([0.01, -0.02, 0.03]))
-    path = save_machine(m, tmp_path / "m.yaml")
-    back = load_machine(path)
+    path = save_machine(m, tmp_path / "m.yaml", setups={"pose": frames})
+    back, setups = load_machine_file(path)
     np.testing.assert_allclose(back.u, m.u, rtol=4e-16, atol=0)
     assert back.reading_unit == "rev"
-    for (R, t), (R2, t2) in ((m.measurement_frames.mocap_from_base,
-                              back.measurement_frames.mocap_from_base),
-                             (m.measurement_frames.platform_from_marker,
-                              back.measurement_frames.platform_from_marker)):
+    for (R, t), (R2, t2) in ((frames.mocap_from_base, setups["pose"].mocap_from_base),
+                             (frames.platform_from_marker,
+                              setups["pose"].platform_from_marker)):
         np.testing.assert_array_equal(R, R2)
         np.testing.assert_allclose(t, t2, rtol=4e-16)
     np.testing.assert_allclose(back.home[0], m.home[0], rtol=4e-16)
     # saving the loaded machine again gives the same text
-    assert machine_to_text(back) == path.read_text()
+    assert machine_to_text(back, setups=setups) == path.read_text()
     text = path.read_text()
     assert "readings: {unit: rev}" in text and "measurement_frames:\n  mocap_from_base: {" in text
 
@@ -199,12 +199,12 @@ def sim_dir(tmp_path_factory):
 def test_simulate_writes_full_pose_data_and_truth(sim_dir):
     header = (sim_dir / "poses.csv").read_text().splitlines()[0]
     assert header == "q1_mm,q2_mm,q3_mm,q4_mm,q5_mm,q6_mm,x_mm,y_mm,z_mm,qx,qy,qz,qw"
-    true = load_machine(sim_dir / "true.yaml")
-    assert true.measurement_frames is not None
+    true, true_setups = load_machine_file(sim_dir / "true.yaml")
+    assert true_setups.get("pose") is not None
     data = read_full_pose(sim_dir / "poses.csv", true)
     assert len(data) == 60
     # the readings and the measured poses agree through the true frames (noise: microns)
-    P, R = true.measurement_frames.platform(data.P, data.R)
+    P, R = true_setups["pose"].platform(data.P, data.R)
     L = np.linalg.norm(P[:, None] + np.einsum("kij,lj->kli", R, true.legs()[1])
                        - true.legs()[0], axis=-1)
     assert np.abs(true.lengths(data.q) - L).max() < 2e-4
@@ -244,13 +244,13 @@ def test_calibrate_summary_report_and_file(sim_dir, method):
     gains = [p for p in report["parameters"] if p["name"].endswith(".gain")]
     assert all(p["unit"] == "mm/mm" for p in gains)
     # the calibrated file loads back, carries the identified frames and explains the data
-    cal = load_machine(sim_dir / f"{method}.yaml")
-    assert cal.measurement_frames is not None
+    cal, cal_setups = load_machine_file(sim_dir / f"{method}.yaml")
+    assert cal_setups.get("pose") is not None
     assert cal.calibration_info["method"] == f"full-pose-{method}"
     from pkmcal.calibration import full_pose_errors
 
     data = read_full_pose(sim_dir / "poses.csv", cal)
-    err = full_pose_errors(cal, cal.measurement_frames, data)
+    err = full_pose_errors(cal, cal_setups["pose"], data)
     assert np.sqrt(np.mean(err.leg_length**2)) * 1e3 == pytest.approx(after["leg_length_rms"])
 
 
@@ -264,10 +264,9 @@ def test_fixed_frames_from_the_machine_file(sim_dir):
     ident = report["identifiability"]
     assert (ident["identifiable"], ident["free_parameters"]) == (48, 48)
     assert ident["unidentifiable"] == []
-    true = load_machine(sim_dir / "true.yaml")
-    fixed = load_machine(sim_dir / "fixed.yaml")
-    for a, b in ((true.measurement_frames.mocap_from_base, fixed.measurement_frames.
-                  mocap_from_base),):
+    true = load_machine_file(sim_dir / "true.yaml")[1]["pose"]
+    fixed = load_machine_file(sim_dir / "fixed.yaml")[1]["pose"]
+    for a, b in ((true.mocap_from_base, fixed.mocap_from_base),):
         np.testing.assert_array_equal(a[0], b[0])
 
 

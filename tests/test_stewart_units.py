@@ -23,7 +23,14 @@ import pytest
 
 from pkmcal.calibration import calibrate_full_pose, full_pose_errors, gauge_free_error
 from pkmcal.instruments.pose import FullPoseNoise, default_measurement_frames, simulate_full_pose
-from pkmcal.io import load_machine, machine_to_text, parse_machine, read_full_pose, read_readings
+from pkmcal.io import (
+    load_machine,
+    load_machine_file,
+    machine_to_text,
+    parse_machine,
+    read_full_pose,
+    read_readings,
+)
 from pkmcal.machines import cubic_6upu
 from pkmcal.machines.deviations import random_deviations
 
@@ -189,13 +196,13 @@ def test_cli_simulate_fk_calibrate_exact_data(cli, tmp_path, name):
               "--pose-noise", "0um,0urad", "--truth", "true.yaml", "-o", "poses.csv")
     assert sim.returncode == 0, sim.stderr
     assert reading_columns(tmp_path / "poses.csv")[0] == case[4]
-    true = load_machine(tmp_path / "true.yaml")
+    true, true_setups = load_machine_file(tmp_path / "true.yaml")
     data = read_full_pose(tmp_path / "poses.csv", true)
 
     fk = cli("fk", "true.yaml", "poses.csv", "-o", "fk.csv")
     assert fk.returncode == 0, fk.stderr
     poses = np.loadtxt(tmp_path / "fk.csv", delimiter=",", skiprows=1)
-    P, _ = true.measurement_frames.platform(data.P, data.R)     # the true platform poses
+    P, _ = true_setups["pose"].platform(data.P, data.R)     # the true platform poses
     f = {"mm": 1e3, "m": 1.0}[case[0]]
     np.testing.assert_allclose(poses[:, :3], P * f, rtol=0, atol=1e-9 * f)
     ik = cli("ik", "true.yaml", "fk.csv", "-o", "q.csv")

@@ -347,7 +347,8 @@ def delta_demo(outdir: Path, out: DemoResult, seed: int = DELTA_SEED) -> dict:
             ("delta_true.yaml", true, None, Setups({"tracker": TrackerSetup(pose)})),
             ("delta_calibrated.yaml", calibrated,
              {"method": "tracker-joint", "data": "delta_tracker_data.csv",
-              "identifiable": joint.rank, "free_parameters": free}, None)):
+              "identifiable": joint.rank, "free_parameters": free},
+             Setups({"tracker": TrackerSetup(joint.section(TrackerSection).registration)}))):
         out.files.append(save_machine(machine, outdir / name, calibration=meta,
                                       setups=setups))
     out.files.append(plots.plot_distance_ratio(

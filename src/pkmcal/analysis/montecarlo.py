@@ -127,8 +127,8 @@ class MonteCarloSettings:
         implies random deviations. None = the default size.
     estimate_lc : constraint link: estimate Lc too (seed 000 Fig. 6, second curve).
     setups : the machine file's instrument set-ups (a
-        :class:`~pkmcal.instruments.setups.Setups`: the simulated instrument's is the true
-        one's start); None = (transitional) those the loader put on the machine.
+        :class:`~pkmcal.instruments.setups.Setups` or mapping: the simulated instrument's is
+        the true one's start, the fit's start where it reads one); None = none.
     """
 
     machine: Machine
@@ -139,7 +139,10 @@ class MonteCarloSettings:
     deviations: str | np.ndarray | None = None
     tolerance: float | None = None
     estimate_lc: bool = False
-    setups: Setups | None = None
+    setups: Setups = field(default_factory=Setups)
+
+    def __post_init__(self):
+        object.__setattr__(self, "setups", Setups(self.setups))
 
     def resolved(self) -> MonteCarloSettings:
         """These settings with the defaults filled in and checked (:class:`InputError`)."""

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..estimation.sections import add_sections
 from ..instruments.flow import FlowContext, fit_with_baseline, report_head
+from ..instruments.setups import Setups
 from ..paths import path_text
 from .provenance import file_units, provenance
 from .result import Calibration
@@ -121,11 +122,12 @@ def _standardised(result):
 
 
 def finish(kind: str, machine, calibrated, result, report: dict, metadata: dict, params,
-            units) -> Calibration:
+           units, setups=None) -> Calibration:
     """The common end of every kind: the covariance of the machine's parameters (SI: m, rad;
     the identifiable part, frames the data cannot fix held at the start values, which
     ``pkmcal compensate`` propagates to the targets), the normalised and standardised
-    residuals, the acceptance checks (their warnings) and the provenance."""
+    residuals, the acceptance checks (their warnings) and the provenance. ``setups``: the
+    calibrated file's set-ups (the given ones with the fitted ones in their place)."""
     names = list(calibrated.parameters.names)
     n = len(names)
     report["covariance"] = {
@@ -177,7 +179,7 @@ def finish(kind: str, machine, calibrated, result, report: dict, metadata: dict,
     report["provenance"] = provenance()
     return Calibration(kind=kind, machine=machine, calibrated=calibrated, result=result,
                        report=report, metadata=metadata, params=params, warnings=warnings,
-                       units=units)
+                       units=units, setups=Setups(setups))
 
 
 def _weakly_determined(result, machine, report: dict, source, units) -> list[str]:
@@ -247,10 +249,11 @@ def calibration_report_head(machine, source, kind: str, method: str, units=None)
 
 
 def fit_with_nominal_baseline(machine, data, source, split, reader, fit, noise, advice: str,
-                              estimate_noise: bool, robust: bool):
+                              estimate_noise: bool, robust: bool, setups=None):
     """:func:`~pkmcal.instruments.flow.fit_with_baseline` for the generic path (read with
-    ``reader``; the noise estimated unless given; ``--robust``)."""
+    ``reader``; the noise estimated unless given; ``--robust``; the experiment's
+    ``setups``)."""
     context = FlowContext(source=source, split=split, units=file_units(machine), date=str,
-                          read=reader)
+                          read=reader, setups=Setups(setups))
     return fit_with_baseline(machine, data, context, fit, noise, advice,
                              estimate_noise=estimate_noise, robust=robust)

@@ -5,7 +5,7 @@ residuals; where they exceed the probe's noise they have a shape (a bed is not f
 printer's frame bends), and that shape comes back in the next session (a Klipper user who
 loads the old mesh gains from it). :func:`fit_bed_surface` fits a smooth grid to them (each
 data set's mean removed: every mesh has its own height offset), kept only where it is well
-above the probe's repeatability; the calibrated machine carries it (``bed_surface``, the
+above the probe's repeatability; the calibration's probe set-up carries it (its ``surface``, the
 calibrated file's ``bed: surface``) and ``export`` hands it over in the firmware's bed mesh with
 what the firmware's kinematics cannot hold (:mod:`pkmcal.export.bed_mesh`).
 
@@ -17,9 +17,11 @@ follow their neighbours smoothly.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from ..instruments.registry import measures_bed_height
+from ..instruments.registry import INSTRUMENTS, measures_bed_height
 from .run import register_after_step
 
 #: nodes per side of the surface's grid
@@ -62,18 +64,21 @@ def _laplacian(n: int) -> np.ndarray:
     return L
 
 
-def fit_bed_surface(calibrated, datasets, count: int = COUNT):
+def fit_bed_surface(calibrated, datasets, count: int = COUNT, bed=None):
     """The bed's shape from the probe data sets of a calibration (see the module docstring).
 
     Parameters
     ----------
     calibrated : Machine
-        The calibrated machine (its ``probe_bed`` plane).
+        The calibrated machine.
     datasets : iterable
         The calibration's data; those of an instrument that measures bed heights with at
         least :data:`MIN_POINTS` rows are used (readings ``q``, nozzle heights ``values``).
     count : int, optional
         Nodes per side.
+    bed : BedSetup, optional
+        The calibrated bed (:class:`~pkmcal.instruments.probe.BedSetup`: its plane and any
+        surface already known); None: flat at z = 0.
 
     Returns
     -------
@@ -93,8 +98,8 @@ def fit_bed_surface(calibrated, datasets, count: int = COUNT):
         if ok.sum() < MIN_POINTS:
             continue
         P = fk.P[ok]
-        predicted = P[:, 2] - bed_height_at(getattr(calibrated, "probe_bed", None), P[:, :2],
-                                            getattr(calibrated, "bed_surface", None))
+        predicted = P[:, 2] - bed_height_at(None if bed is None else bed.plane, P[:, :2],
+                                            None if bed is None else bed.surface)
         measured = np.asarray(d.values, float).reshape(len(d.q), -1)[ok, 0]
         s = predicted - measured                 # a bed higher by s: triggers s earlier
         xy_all.append(P[:, :2])
@@ -124,13 +129,13 @@ def fit_bed_surface(calibrated, datasets, count: int = COUNT):
 
 def with_bed_surface(calibration, data):
     """A printer's bed shape beside its plane, from its probed meshes (:func:`fit_bed_surface`):
-    on the calibrated machine (its file's ``bed: surface``) and in the report, where it is
-    significant.
+    in the calibration's probe set-up (its file's ``bed: surface``) and in the report, where
+    it is significant.
 
     Parameters
     ----------
     calibration : Calibration
-        A calibration (its ``calibrated`` machine, ``report`` and ``warnings`` are completed).
+        A calibration (its ``setups``, ``report`` and ``warnings`` are completed).
     data : list
         The data it was fitted to (paths are skipped: read inside the fit).
 
@@ -146,11 +151,14 @@ def with_bed_surface(calibration, data):
         return calibration
     items = [d for d in (data if isinstance(data, (list, tuple)) else [data])
              if not isinstance(d, (str, Path))]
-    fitted = fit_bed_surface(calibrated, items)
+    bed = calibration.setups.get("probe")
+    fitted = fit_bed_surface(calibrated, items, bed=bed)
     if fitted is None:
         return calibration
     radius, values, rms, points = fitted
-    calibrated.bed_surface = (radius, values)
+    bed = INSTRUMENTS["probe"].Setup() if bed is None else bed
+    calibration.setups = calibration.setups.with_setup(
+        "probe", dataclasses.replace(bed, surface=(radius, values)))
     calibration.report["bed_surface"] = {
         "of": "the bed's own shape beside its plane: the meshes' residuals under the "
               "calibrated model (each mesh's mean removed), smoothed on a square grid; "

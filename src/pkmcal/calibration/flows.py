@@ -19,6 +19,7 @@ from ..instruments.flow import identifiability_json as _identifiability_json
 from ..instruments.flow import load_data as _load
 from ..instruments.flow import public_parameters as _public
 from ..instruments.flow import scalar_rms as _scalar_rms
+from ..instruments.setups import Setups
 from .acceptance import calibration_report_head as _report_head
 from .acceptance import finish as _finish
 from .acceptance import fit_with_nominal_baseline as _fit_with_baseline
@@ -27,35 +28,42 @@ from .provenance import file_units
 from .result import Calibration
 
 
-def _io_reader(name: str):
-    """``read(path, machine)``: the :mod:`pkmcal.io` function of that name."""
+def _io_reader(inst, setups=None):
+    """``read(path, machine)``: the :mod:`pkmcal.io` function the instrument names; one that
+    numbers its rows by a group column (``target``, ``setup``) reads with the experiment's
+    ``setups`` (a file without the column refused where the set-up holds several groups)."""
     from .. import io
 
-    return getattr(io, name)
+    read = getattr(io, inst.calibration_reader or inst.reader)
+    if inst.group_column is None:
+        return read
+    return lambda path, machine: read(path, machine, setups=setups)
 
 
-def calibrate_flow(machine, data, source, options, split, inst) -> Calibration:
+def calibrate_flow(machine, data, source, options, split, inst, setups=None) -> Calibration:
     """Calibration from an instrument with a flow of its own
     (:meth:`~pkmcal.instruments.base.Instrument.calibrate`): the flow fits and reports, given
-    only the options it declares; every calibration's end (:func:`_finish`) follows."""
+    only the options it declares and the experiment's ``setups``; every calibration's end
+    (:func:`_finish`) follows, with the set-ups the flow determined in place of the given."""
     from ..report.provenance import run_date
     from . import extensions
 
+    setups = Setups(setups)
     context = FlowContext(source=source, split=split, units=file_units(machine),
-                          date=run_date, read=_io_reader(inst.calibration_reader or inst.reader),
-                          model_choice=extensions)
+                          date=run_date, read=_io_reader(inst, setups),
+                          model_choice=extensions, setups=setups)
     out = inst.calibrate(machine, data, context, options_for(inst, options))
     calibration = _finish(out.kind, out.machine, out.calibrated, out.result, out.report,
-                          out.metadata, out.params, out.units)
+                          out.metadata, out.params, out.units, setups.merged(out.setups))
     calibration.warnings += out.warnings
     return calibration
 
 
-def joint_flow(machine, data, source, noise, options, inst) -> JointPart | None:
+def joint_flow(machine, data, source, noise, options, inst, setups=None) -> JointPart | None:
     """The file's part of a fit of several files, for an instrument with a flow of its own
-    (:meth:`~pkmcal.instruments.base.Instrument.joint_part`; None: the generic one)."""
-    return inst.joint_part(machine, data, source, noise,
-                           _io_reader(inst.calibration_reader or inst.reader),
+    (:meth:`~pkmcal.instruments.base.Instrument.joint_part`; None: the generic one); its
+    files read with the experiment's ``setups``."""
+    return inst.joint_part(machine, data, source, noise, _io_reader(inst, setups),
                            options_for(inst, {**(options or {}), "noise": noise}))
 
 
@@ -80,10 +88,11 @@ def _instrument_noise(inst, data, noise, machine):
     return inst.noise_arg(noise, machine)
 
 
-def calibrate_instrument(machine, data, source, options, split, inst) -> Calibration:
+def calibrate_instrument(machine, data, source, options, split, inst,
+                         setups=None) -> Calibration:
     """Calibration from an instrument of the shared layer that brings no flow of its own:
     its :meth:`~pkmcal.instruments.base.Instrument.calibration_model` (given its own
-    options), noise and words."""
+    options), noise and words; the experiment's ``setups`` pass to the calibrated file."""
     from ..instruments import fit_instrument
 
     own = options_for(inst, options)
@@ -96,7 +105,7 @@ def calibrate_instrument(machine, data, source, options, split, inst) -> Calibra
 
     data, held, result, before, calibrated, params, units = _fit_with_baseline(
         machine, data, source, split, _reader_of(inst), fit, noise, inst.advice,
-        options.get("noise") is None, bool(options.get("robust")))
+        options.get("noise") is None, bool(options.get("robust")), setups)
     problem = result.problem
     rms_after, r_after = _scalar_rms(problem, result.state, data)
     rms_before, _ = _scalar_rms(before.problem, before.state, data)
@@ -116,10 +125,11 @@ def calibrate_instrument(machine, data, source, options, split, inst) -> Calibra
     }
     metadata = scalar_metadata(inst.name, report, source, machine, result, rms_after,
                                len(data), unidentifiable)
-    return _finish(inst.name, machine, calibrated, result, report, metadata, params, units)
+    return _finish(inst.name, machine, calibrated, result, report, metadata, params, units,
+                   setups)
 
 
-def joint_instrument(machine, data, source, noise, options, inst) -> JointPart:
+def joint_instrument(machine, data, source, noise, options, inst, setups=None) -> JointPart:
     """The file's part of a fit of several files, for an instrument of the generic path."""
     data = _load(data, _reader_of(inst), machine)
     noise_model = _instrument_noise(inst, data, noise, machine)

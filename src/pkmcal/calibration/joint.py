@@ -21,6 +21,7 @@ from ..instruments.flow import source_of as _source_of
 from ..instruments.flow import split_rows as _split_rows
 from ..instruments.flow import um as _um
 from ..instruments.flow import validation_section as _validation
+from ..instruments.setups import Setups
 from ..paths import file_identity, path_text
 from .acceptance import calibration_report_head as _report_head
 from .acceptance import finish as _finish
@@ -39,10 +40,11 @@ def _combining() -> str:
 
 
 def joint_part(machine, data, source, kind: MeasurementKind, noise,
-               options=None) -> JointPart:
+               options=None, setups=None) -> JointPart:
     """The joint fit's view of one file (its kind's ``joint`` preparation, else the kind's
-    own calibration's instrument problem); refused for instruments with a ``joint_refusal``
-    (full poses and the constraint link: a pose per measurement)."""
+    own calibration's instrument problem; the experiment's ``setups`` given to both); refused
+    for instruments with a ``joint_refusal`` (full poses and the constraint link: a pose per
+    measurement)."""
     from ..instruments import InstrumentProblem
 
     if kind.joint_refusal:
@@ -50,12 +52,12 @@ def joint_part(machine, data, source, kind: MeasurementKind, noise,
                          f"{kind.name} data cannot be combined with other files in "
                          f"one fit ({kind.joint_refusal}); the kinds that combine: "
                          f"{_combining()}; calibrate from {path_text(source)} on its own")
-    part = kind.joint(machine, data, source, noise, {**(options or {}), "noise": noise}) \
-        if kind.joint is not None else None
+    part = kind.joint(machine, data, source, noise, {**(options or {}), "noise": noise},
+                      setups=setups) if kind.joint is not None else None
     if part is not None:
         return part
     kind.check_options({"noise": noise}, source)
-    alone = kind.calibrate(machine, data, source, {"noise": noise}, None)
+    alone = kind.calibrate(machine, data, source, {"noise": noise}, None, setups=setups)
     problem = alone.result.problem
     if not isinstance(problem, InstrumentProblem) or getattr(problem, "local_dof", 0):
         raise InputError(f"{path_text(source)}: "
@@ -95,7 +97,7 @@ def session_report(summary, problem, state, result, fl: float, unit: str) -> dic
 
 
 def calibrate_joint(machine, data: list, *, noise=None, split=None,
-                    options=None) -> Calibration:
+                    options=None, setups=None) -> Calibration:
     """One geometry from several data files of instrument-layer kinds (``calibrate`` with a
     list).
 
@@ -122,6 +124,9 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     options : mapping, optional
         The other options (name -> value; ``robust``, and the instruments' own): refused
         unless a file's instrument declares them for its part of a fit of several files.
+    setups : Setups or mapping, optional
+        The experiment's set-ups (None: none); the calibrated file's are these with the fitted
+        ones in their place.
 
     Returns
     -------
@@ -137,6 +142,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
     """
     from ..instruments import IsotropicNoise
     from ..instruments.joint import file_labels, fit_joint
+    from ..instruments.registry import INSTRUMENTS
     from ..units import LENGTH
 
     options = dict(options or {})
@@ -171,7 +177,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         given = noise_of(noise, sources, i)
         if given is not None:       # the user's level for this file is held
             hold.append(f"{labels[i]}:*")
-        part = joint_part(machine, item, source, kind, given, options)
+        part = joint_part(machine, item, source, kind, given, options, setups)
         weights = getattr(part.data, "weights", None)
         if given is None and weights is not None:    # the data's own source's weights
             if pooled:
@@ -242,7 +248,7 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
 
     # what the files' instruments set on the calibrated machine file (the first file of each
     # instrument its frame, every ballbar file its setups), shared among the files
-    files, sections, taken = [], [], {}
+    files, sections, taken = [], [], {"given": Setups(setups), "setups": {}}
     for i, (part, label, source) in enumerate(zip(parts, labels, sources, strict=True)):
         sub = problem.part_state(state, i)
         before = result.sections["joint"].before[i]
@@ -325,7 +331,9 @@ def calibrate_joint(machine, data: list, *, noise=None, split=None,
         "free_parameters": n_free,
         **_identifiability_metadata(unidentifiable),
     }
-    calibration = _finish("joint", machine, calibrated, result, report, metadata, params, units)
+    fitted = {name: INSTRUMENTS[name].Setup(*args) for name, args in taken["setups"].items()}
+    calibration = _finish("joint", machine, calibrated, result, report, metadata, params, units,
+                          Setups(setups).merged(fitted))
     levels = report.get("noise_model")
     if result.untested and isinstance(levels, dict):
         # the levels held in the last fit are the data's weights scaled by the residuals

@@ -44,16 +44,19 @@ class MeasurementKind:
     instrument : str
         The instrument's registry name (also the report's ``measurement``).
     calibrate : callable
-        ``calibrate(machine, data, source, options, split) -> Calibration``; ``data`` is a
-        path or a data object, ``options`` the calibration's options (a mapping: option name
-        -> value, ``noise`` and ``robust`` included), ``split`` None or ``(holdout, seed)``.
+        ``calibrate(machine, data, source, options, split, setups=None) -> Calibration``;
+        ``data`` is a path or a data object, ``options`` the calibration's options (a mapping:
+        option name -> value, ``noise`` and ``robust`` included), ``split`` None or
+        ``(holdout, seed)``, ``setups`` the experiment's set-ups
+        (:class:`~pkmcal.instruments.setups.Setups`; None: none).
     check_options : callable
         ``check_options(options, source)``: raise :class:`InputError` for options that do not
         apply.
     joint : callable or None
-        ``joint(machine, data, source, noise, options) -> JointPart``: the file's part of a fit of
-        several files (None, or None returned: from the instrument problem of its own
-        calibration, unless the instrument's ``joint_refusal`` says why it cannot combine).
+        ``joint(machine, data, source, noise, options, setups=None) -> JointPart``: the file's
+        part of a fit of several files, ``setups`` the experiment's (None, or None returned:
+        from the instrument problem of its own calibration, unless the instrument's
+        ``joint_refusal`` says why it cannot combine).
     """
 
     instrument: str

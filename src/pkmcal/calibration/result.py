@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..instruments.flow import json_safe
-from ..instruments.setups import Setups, legacy_setups
+from ..instruments.setups import Setups
 from ..paths import path_text
 from .provenance import report_json, text_digest
 
@@ -46,6 +46,9 @@ class Calibration:
         The units of the machine file (``length``, ``angle``), used by :meth:`write`.
     inputs : list of pathlib.Path
         The files read (never overwritten by :meth:`write`).
+    setups : Setups
+        The calibrated file's instrument set-ups (:mod:`pkmcal.instruments.setups`): those
+        given to :func:`calibrate` with the ones the fit determined in their place.
     """
 
     kind: str
@@ -58,6 +61,7 @@ class Calibration:
     warnings: list = field(default_factory=list)
     units: dict = field(default_factory=dict)
     inputs: list = field(default_factory=list)
+    setups: Setups = field(default_factory=Setups)
 
     def json_text(self) -> str:
         """The report as JSON text (not finite numbers as null), as :meth:`write` writes it.
@@ -69,12 +73,6 @@ class Calibration:
             (:func:`report_json`).
         """
         return report_json(json_safe(self.report)) + "\n"
-
-    @property
-    def setups(self) -> Setups:
-        """The calibrated file's instrument set-ups (:mod:`pkmcal.instruments.setups`): the
-        machine file's with the fitted one (transitional: read off the calibrated machine)."""
-        return legacy_setups(self.calibrated)
 
     def write(self, output, report_dir=None) -> str:
         """Write the calibrated machine file, its JSON report beside it (same name, .json) and

@@ -30,6 +30,7 @@ import numpy as np
 from ..errors import InputError
 from ..estimation.acceptance import WHITENED_METHODS
 from ..instruments.flow import CalibrationNotConverged, JointPart, json_safe, rows_text
+from ..instruments.setups import Setups
 from .firmware_data import expand_firmware_data
 from .joint import calibrate_joint
 from .kinds import (
@@ -127,7 +128,7 @@ def _after(calibration: Calibration, data: list) -> Calibration:
 def calibrate(machine, data, *, noise=None, robust: bool = False,
               holdout: float | str | None = None, seed: int = 0,
               parameters: str | None = None, options: Mapping | None = None,
-              **more) -> Calibration:
+              setups: Mapping | None = None, **more) -> Calibration:
     """Calibrate ``machine`` from measurements; the measurement kind follows from the data.
 
     Parameters
@@ -163,6 +164,12 @@ def calibrate(machine, data, *, noise=None, robust: bool = False,
         :attr:`~pkmcal.instruments.base.Instrument.Options`: e.g. ``{"method": "ik"}``); an
         option the data's instrument does not declare is refused naming the instruments that
         take it.
+    setups : Setups or mapping, optional
+        The experiment's set-ups by instrument name (:mod:`pkmcal.instruments.setups`: the
+        machine file's, as :func:`~pkmcal.io.load_machine_file` returns them beside the
+        machine); None: none. The instruments read theirs (a start, frames held); the result's
+        :attr:`~Calibration.setups` are these with the fitted ones in their place. The
+        machine given is not changed.
     **more
         More instrument options by name (merged into ``options``).
 
@@ -180,6 +187,7 @@ def calibrate(machine, data, *, noise=None, robust: bool = False,
         When the estimator did not converge.
     """
     options = {**dict(options or {}), **more}
+    setups = Setups(setups)
     instrument_options(options)         # a name no instrument declares is refused first
     split = None
     if holdout is not None:
@@ -197,7 +205,8 @@ def calibrate(machine, data, *, noise=None, robust: bool = False,
     kinds = data_kinds(data, machine)
     if parameters == "auto" or parameters is None:
         chosen = model_chooser()(calibrate, machine, given, kinds, dict(
-            noise=noise, robust=robust, holdout=holdout, seed=seed, options=options))
+            noise=noise, robust=robust, holdout=holdout, seed=seed, options=options,
+            setups=setups))
         if chosen is not None:
             return chosen
         parameters = None
@@ -207,7 +216,8 @@ def calibrate(machine, data, *, noise=None, robust: bool = False,
             raise InputError("no data file given")
         if len(data) > 1:
             calibration = _noting(notes, calibrate_joint, machine, list(data), noise=noise,
-                                  split=split, options={**options, "robust": robust})
+                                  split=split, options={**options, "robust": robust},
+                                  setups=setups)
             calibration.inputs = _inputs_of(given, calibration.inputs)
             calibration.warnings[:0] = notes
             return _after(_with_parameter_set(calibration, chosen, note), data)
@@ -218,7 +228,8 @@ def calibrate(machine, data, *, noise=None, robust: bool = False,
     source, kind = kind_of(machine, data)
     every = {**options, "noise": noise, "robust": robust}
     kind.check_options(every, source)
-    calibration = _noting(notes, kind.calibrate, machine, data, source, every, split)
+    calibration = _noting(notes, kind.calibrate, machine, data, source, every, split,
+                          setups=setups)
     inputs = [Path(source)] if isinstance(data, (str, Path)) else []
     machine_file = getattr(machine, "source", None)
     if machine_file and machine_file != "default" and Path(machine_file).is_file():

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from ..instruments.setups import Setups
 from ..machines.base import Machine
 from .base import ControllerFormat, ControllerParameters
 
@@ -394,9 +395,27 @@ def carry_like(machine: Machine, like: Machine | None) -> Machine:
         machine.joint_limits = (np.array(limits[0], float), np.array(limits[1], float))
     if "smr_offset" in vars(like) or "smr_offset" in vars(machine):
         machine.smr_offset = float(getattr(like, "smr_offset", 0.0) or 0.0)
-    targets = getattr(like, "tracker_targets", None)
-    if targets is not None and machine.tracker_target() is None:
-        # the targets' places on the platform, with the tracker section that holds them
-        machine.tracker_targets = np.array(targets, float)
-        machine.base_from_tracker = like.base_from_tracker
     return machine
+
+
+def carry_like_setups(machine: Machine, setups) -> Setups:
+    """The set-ups an imported machine takes from the ``--like`` machine file's (``setups``):
+    the tracker's, where it holds the targets' places on the platform and the imported
+    machine does not fix them (the places with the tracker section that holds them).
+
+    Parameters
+    ----------
+    machine : Machine
+        The imported machine.
+    setups : Setups or mapping or None
+        The ``--like`` file's set-ups; None: nothing is carried.
+
+    Returns
+    -------
+    Setups
+        What the imported machine file carries.
+    """
+    tracker = (setups or {}).get("tracker")
+    if tracker is None or tracker.targets is None or machine.tracker_target() is not None:
+        return Setups()
+    return Setups({"tracker": tracker})

@@ -945,14 +945,16 @@ class Instrument:
         data : path or data object
             The data (a path is read with ``context.read``).
         context : FlowContext
-            What the calibration layer gives (:class:`~pkmcal.instruments.flow.FlowContext`).
+            What the calibration layer gives (:class:`~pkmcal.instruments.flow.FlowContext`;
+            the experiment's set-ups: ``context.setups``).
         options : Options
             Its own options (:attr:`Options`), nothing else.
 
         Returns
         -------
         FlowResult
-            The fit, its report and metadata (:class:`~pkmcal.instruments.flow.FlowResult`).
+            The fit, its report and metadata, and the set-up it determined
+            (:class:`~pkmcal.instruments.flow.FlowResult`).
         """
         raise NotImplementedError(f"{self.name}: no calibration flow of its own")
 

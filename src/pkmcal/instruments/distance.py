@@ -61,7 +61,6 @@ from .flow import (
 )
 from .models import DistancesModel, IsotropicNoise
 from .problem import InstrumentProblem, fit_instrument
-from .setups import run_setup
 
 #: the ballbar length of plans and simulations, m (a common measuring-ballbar length)
 BALLBAR_LENGTH = 0.1
@@ -338,7 +337,7 @@ class Distance(Instrument):
         res = fit_instrument(nominal, data, DistancesModel(data.n_groups),
                              IsotropicNoise(run.weight(noise)))
         P, R, g = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng,
-                                  run_setup(run, self.name))
+                                  run.settings.setups.get(self.name))
         q = nominal.ik(P, R)
         model = res.model
         fit = res.machine.fk(q, start=(P, R))
@@ -678,9 +677,9 @@ def calibrate_distances(machine: Machine, data: InstrumentData, noise=None, rtol
     Returns
     -------
     CalibrationResult
-        With ``problem``, ``machine`` (calibrated, with ``ballbar_setups``: a ``(pivot,
-        ball)`` pair per setup, m), ``model``, ``start_model``, ``unidentifiable`` and its
-        :class:`DistanceSection` (the mountings).
+        With ``problem``, ``machine`` (calibrated), ``model``, ``start_model``,
+        ``unidentifiable`` and its :class:`DistanceSection` (the mountings: a ``(pivot,
+        ball)`` pair per setup, m).
 
     Raises
     ------
@@ -702,7 +701,6 @@ def calibrate_distances(machine: Machine, data: InstrumentData, noise=None, rtol
     model, state = result.model, result.state.nuisance
     setups = [(np.array(state.values[model._ip[g]]), np.array(state.values[model._ib[g]]))
               for g in range(data.n_groups)]
-    result.machine.ballbar_setups = setups
     result.add_section(DistanceSection(setups, np.bincount(data.group,
                                                            minlength=data.n_groups).tolist()))
     return result
@@ -757,7 +755,8 @@ def _calibration_flow(machine, data, context: FlowContext,
             scalar_rms(problem, result.state, held)[0], rms_after)
     metadata = scalar_metadata("ballbar", report, source, machine, result, rms_after, len(data),
                                unidentifiable)
-    return FlowResult("distance", machine, calibrated, result, report, metadata, params, units)
+    return FlowResult("distance", machine, calibrated, result, report, metadata, params, units,
+                      setups={"distance": BallbarSetup(result.section(DistanceSection).setups)})
 
 
 # --------------------------------------------------------------------------------------------

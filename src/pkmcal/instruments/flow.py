@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import ConvergenceError, InputError
 from ..paths import path_text
+from .setups import Setups
 
 __all__ = ["CalibrationNotConverged", "FlowContext", "FlowResult", "JointPart",
            "convergence_json",
@@ -52,6 +53,10 @@ class FlowContext:
     model_choice : object, optional
         The calibration layer's choice of model extensions by cross-validation
         (:mod:`pkmcal.calibration.extensions`), for flows whose machines offer extensions.
+    setups : Setups, optional
+        The experiment's set-ups as given (the machine file's: a tracker's frame, the
+        motion-capture frames, ...), by instrument name (:mod:`pkmcal.instruments.setups`);
+        a flow reads its own with ``setups.get(name)``.
     """
 
     source: object
@@ -60,6 +65,7 @@ class FlowContext:
     date: Callable
     read: Callable
     model_choice: object = None
+    setups: Setups = field(default_factory=Setups)
 
     def head(self, machine, kind: str, method: str, units=None) -> dict:
         """The first keys of the report (:func:`report_head`)."""
@@ -92,6 +98,10 @@ class FlowResult:
         The machine file's units.
     warnings : list of str
         The flow's own warnings, after those every calibration states.
+    setups : dict
+        The set-ups the fit determined, by instrument name (e.g. ``{"tracker":
+        TrackerSetup(...)}``); the calibration layer merges them into the given ones
+        (:attr:`~pkmcal.calibration.result.Calibration.setups`).
     """
 
     kind: str
@@ -103,6 +113,7 @@ class FlowResult:
     params: list
     units: dict
     warnings: list = field(default_factory=list)
+    setups: dict = field(default_factory=dict)
 
 
 @dataclass

@@ -241,8 +241,10 @@ class NuisanceModel(ABC):
 
     def joint_section(self, nuisance, machine, calibrated, source: str, fl: float,
                       units: dict, frame: str, taken: dict) -> tuple[dict, str | None]:
-        """This file's instrument unknowns in a joint fit's report, and what they set on the
-        calibrated machine file.
+        """This file's instrument unknowns in a joint fit's report, and the set-up they give
+        the calibrated machine file (put in ``taken["setups"]`` under the instrument's name,
+        as the arguments of its set-up type,
+        :attr:`~pkmcal.instruments.base.Instrument.Setup`).
 
         Parameters
         ----------
@@ -251,7 +253,7 @@ class NuisanceModel(ABC):
         machine : Machine
             The nominal machine.
         calibrated : Machine
-            The calibrated machine (its instrument sections are set here).
+            The calibrated machine.
         source : str
             The data file.
         fl : float
@@ -261,7 +263,10 @@ class NuisanceModel(ABC):
         frame : str
             The file's frame in words (a printer's bed).
         taken : dict
-            Shared among the files of the fit: what earlier files already set.
+            Shared among the files of the fit: what earlier files already set;
+            ``taken["setups"]`` (a dict) the set-ups fitted so far by instrument name (the
+            arguments of its set-up type), ``taken["given"]`` (a
+            :class:`~pkmcal.instruments.setups.Setups`) the experiment's set-ups as given.
 
         Returns
         -------
@@ -397,9 +402,8 @@ class PointsModel(NuisanceModel):
         if "tracker" in taken:
             return entry, None
         taken["tracker"] = source
-        calibrated.base_from_tracker = (R, t)
-        calibrated.tracker_targets = (None if machine.tracker_target() is not None
-                                      else np.array(targets, float))
+        taken.setdefault("setups", {})["tracker"] = (
+            (R, t), None if machine.tracker_target() is not None else np.array(targets, float))
         return entry, f"tracker (frame and targets) from {source}"
 
     def start(self, P, R, measured, group, source="<data>"):
@@ -478,7 +482,7 @@ class DistancesModel(NuisanceModel):
                              "unit": units["length"]} for g, (p, b) in enumerate(mine)]}
         words = (f"ballbar setups {len(setups) + 1}..{len(setups) + len(mine)} from {source}")
         setups.extend(mine)
-        calibrated.ballbar_setups = setups
+        taken.setdefault("setups", {})["distance"] = (list(setups),)
         return entry, words
 
     def start(self, P, R, measured, group, source="<data>"):
@@ -684,7 +688,9 @@ class ProbeModel(NuisanceModel):
         if "bed" in taken:
             return entry, None
         taken["bed"] = source
-        calibrated.probe_bed = bed
+        given = (taken.get("given") or {}).get("probe")       # its own shape kept
+        taken.setdefault("setups", {})["probe"] = (*bed, None if given is None
+                                                   else given.surface)
         words = ("height and tilt" if not machine.frame_is_bed else "tilt"
                  if "estimated" in frame else "square to the towers")
         return entry, f"bed ({words}) from {source}"

@@ -764,9 +764,9 @@ def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: fl
     Returns
     -------
     CalibrationResult
-        With ``problem``, ``machine`` (calibrated, with ``probe_bed``: ``(height,
-        tilt_x, tilt_y)``), ``model``, ``start_model``, ``unidentifiable``, its
-        :class:`ProbeSection` (the bed) and ``poorly_determined`` (:func:`poorly_determined`).
+        With ``problem``, ``machine`` (calibrated), ``model``, ``start_model``,
+        ``unidentifiable``, its :class:`ProbeSection` (the bed: ``(height, tilt_x,
+        tilt_y)``) and ``poorly_determined`` (:func:`poorly_determined`).
 
     Raises
     ------
@@ -798,7 +798,6 @@ def calibrate_probe(machine: Machine, data: InstrumentData, noise=None, rtol: fl
         + name_weak_directions(result, problem.parameters))
     choice = bed
     bed = tuple(float(v) for v in result.state.nuisance.values[:3])
-    result.machine.probe_bed = bed
     result.add_section(ProbeSection(bed, choice))
     n_machine = len(machine.parameters)
     result.poorly_determined = (
@@ -904,7 +903,11 @@ def _calibration_flow(machine, data, context: FlowContext,
             scalar_rms(problem, result.state, held)[0], rms_after)
     metadata = scalar_metadata("probe", report, source, machine, result, rms_after, len(data),
                                unidentifiable)
-    return FlowResult("probe", machine, calibrated, result, report, metadata, params, units)
+    # the bed's plane as fitted; its own shape (the machine file's) kept until meshes refit it
+    given = context.setups.get("probe")
+    fitted = BedSetup(*section.bed, surface=None if given is None else given.surface)
+    return FlowResult("probe", machine, calibrated, result, report, metadata, params, units,
+                      setups={"probe": fitted})
 
 
 #: this module's instrument (:data:`~pkmcal.instruments.registry.INSTRUMENT_MODULES`)

@@ -24,7 +24,6 @@ from .base import StandardPlan
 from .constraint_link import SPHERE_TOL, link_length  # noqa: F401  (re-exported: plan checks)
 from .pose import measurement_frames
 from .registry import INSTRUMENTS, instrument
-from .setups import machine_setup
 from .tracker import tracker_pose
 
 __all__ = ["DEFAULT_PLAN_SIZE", "SCENARIOS", "STANDARD_PLANS", "StandardPlan",
@@ -113,12 +112,6 @@ def _standard_plan_entry(name):
                                                                                 setup)
 
 
-def _setup(machine: Machine, inst, setup):
-    """The set-up a plan uses: ``setup``, else (transitional) the one the loader put on the
-    machine."""
-    return machine_setup(machine, inst.name) if setup is None else setup
-
-
 #: the standard plan of each scenario: ``(machine, n, seed, setup=None) -> StandardPlan``
 STANDARD_PLANS = {name: _standard_plan_entry(name) for name in INSTRUMENTS}
 
@@ -166,7 +159,7 @@ def standard_plan(machine: Machine, scenario: str, n: int | None = None,
     own = getattr(machine, "standard_plan", None)
     if callable(own):
         return own(inst.name, n, seed)
-    return inst.standard_plan(machine, n, seed, _setup(machine, inst, setup))
+    return inst.standard_plan(machine, n, seed, setup)
 
 
 def candidate_set(machine: Machine, scenario: str, n: int, rng=None, setup=None):
@@ -203,7 +196,7 @@ def candidate_set(machine: Machine, scenario: str, n: int, rng=None, setup=None)
     if n < 1:
         raise InputError(f"the number of candidate poses must be >= 1, got {n}")
     inst = instrument(scenario)
-    return inst.candidates(machine, n, np.random.default_rng(rng), _setup(machine, inst, setup))
+    return inst.candidates(machine, n, np.random.default_rng(rng), setup)
 
 
 def candidate_poses(machine: Machine, scenario: str, n: int, rng=None, setup=None):
@@ -284,7 +277,7 @@ def planned_data(machine: Machine, scenario: str, P, R=None, rows=None, source="
     R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else np.asarray(R, float)
     rows = np.arange(1, len(P) + 1) if rows is None else np.asarray(rows)
     inst = instrument(scenario)
-    return inst.planned_data(machine, P, R, rows, source, group, _setup(machine, inst, setup))
+    return inst.planned_data(machine, P, R, rows, source, group, setup)
 
 
 def scenario_problem(machine: Machine, scenario: str, data, noise=None, registration=None,
@@ -322,7 +315,7 @@ def scenario_problem(machine: Machine, scenario: str, data, noise=None, registra
     start = {k: v for k, v in (("registration", registration), ("frames", frames))
              if v is not None}
     inst = instrument(scenario)
-    return inst.problem(machine, data, noise, setup=_setup(machine, inst, setup), **start)
+    return inst.problem(machine, data, noise, setup=setup, **start)
 
 
 def planned_problem(machine: Machine, scenario: str, P, R=None, noise=None, rows=None,

@@ -23,7 +23,7 @@ from .experiment import (  # noqa: F401
     true_machine,
 )
 from .probe import BED_ERROR, TILT_ERROR, probe_trigger  # noqa: F401
-from .setups import Setups, legacy_setups
+from .setups import Setups
 from .tracker import planned_targets  # noqa: F401
 
 
@@ -61,7 +61,7 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
     machine_setups : Setups, optional
         The machine file's set-ups (:func:`~pkmcal.io.load_machine_file`): the scenario
         instrument's is the start of the true one (a tracker's frame, a ballbar's
-        mountings); default (transitional) those the loader put on the machine.
+        mountings); default none.
     **options
         The instrument's own options (its ``simulate_options``): ``targets`` (tracker: number
         of targets), ``setups``, ``length``, ``circles`` (distance: ballbar mountings, length
@@ -119,7 +119,7 @@ def simulate_scenario(machine: Machine, scenario: str, n: int | None = None, noi
         raise InputError(f"mounting_error: must be >= 0, got {mounting_error}")
     true = true_machine(machine, deviations, rng)
     own = {k: options.get(k, default) for k, default in inst.simulate_options.items()}
-    setups = legacy_setups(machine) if machine_setups is None else Setups(machine_setups)
+    setups = Setups(machine_setups)
     data, true, truth = inst.simulate(machine, true, n, noise, rng, {"scenario": name},
                                       setup=setups.get(name), poses=poses,
                                       mounting_error=mounting_error, **own)

@@ -41,7 +41,7 @@ from .machine_file import (
 )
 
 
-def read_measurements(instrument, path, machine):
+def read_measurements(instrument, path, machine, setups=None):
     """An instrument's measurements from a CSV file, by the reader it names.
 
     Parameters
@@ -54,6 +54,9 @@ def read_measurements(instrument, path, machine):
         The data file.
     machine : Machine
         The machine (joint units, reading columns).
+    setups : Setups or mapping, optional
+        The experiment's set-ups: an instrument that numbers its rows by a group column
+        refuses a file without it where its set-up holds several groups (None: no check).
 
     Returns
     -------
@@ -67,6 +70,8 @@ def read_measurements(instrument, path, machine):
     """
     if not instrument.reader:
         return read_declared(instrument, path, machine)
+    if instrument.group_column is not None:
+        return globals()[instrument.reader](path, machine, setups=setups)
     return globals()[instrument.reader](path, machine)
 
 

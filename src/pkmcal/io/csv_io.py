@@ -277,15 +277,14 @@ def machine_readings(path, machine):
     return q, rows, extra, _one_unit(names, [f"q{j + 1}" for j in range(len(names))], quantity)
 
 
-def _groups(path, extra: dict, rows, column: str, machine) -> np.ndarray | None:
-    """:func:`read_groups`, a missing column refused where the machine file holds several
-    groups of the instrument numbering its rows by ``column``
+def _groups(path, extra: dict, rows, column: str, setups) -> np.ndarray | None:
+    """:func:`read_groups`, a missing column refused where the machine file's set-ups
+    (``setups``) hold several groups of the instrument numbering its rows by ``column``
     (:meth:`~pkmcal.instruments.base.Instrument.check_group_column`)."""
     from ..instruments.registry import INSTRUMENTS
-    from ..instruments.setups import legacy_setups
 
     group = read_groups(path, extra, rows, column)
-    setups = legacy_setups(machine)          # transitional: the loader's set-ups
+    setups = setups or {}
     for inst in INSTRUMENTS.values():
         if inst.group_column == column:
             inst.check_group_column(setups.get(inst.name), group is not None, path)
@@ -340,7 +339,7 @@ def read_groups(path, extra: dict, rows, column: str, gaps: bool = False) -> np.
     return out
 
 
-def read_points(path, machine):
+def read_points(path, machine, setups=None):
     """Point measurements (laser tracker, CMM) of a target on ``machine``'s platform.
 
     Readings ``q1..q<n>`` (the machine's joint quantity), the point ``mx, my, mz`` (any length
@@ -353,6 +352,9 @@ def read_points(path, machine):
         The data file.
     machine : Machine
         The machine.
+    setups : Setups or mapping, optional
+        The experiment's set-ups (the machine file's): a file without the target column is
+        refused where the tracker's set-up holds several (None: no check).
 
     Returns
     -------
@@ -374,7 +376,7 @@ def read_points(path, machine):
     m_units = _one_unit([header[i] for i, _ in m_cols], ["mx", "my", "mz"], "length")
     if q_units is not None and m_units is not None:
         check_tracker_scale(path, q, q_units, m, m_units, machine)
-    return InstrumentData("points", q, m, _groups(path, extra, rows, "target", machine), rows,
+    return InstrumentData("points", q, m, _groups(path, extra, rows, "target", setups), rows,
                           source=str(path))
 
 
@@ -389,7 +391,7 @@ def _refuse_beyond(path, column: str, rows, values, limit: float, what: str,
                          f"than {limit_words} ({limit * 1e3:.6g} mm); check the unit suffix")
 
 
-def read_distances(path, machine):
+def read_distances(path, machine, setups=None):
     """Ballbar measurements: the distance ``d`` between a pivot on the base and a ball on the
     platform, with the machine's readings.
 
@@ -402,6 +404,9 @@ def read_distances(path, machine):
         The data file.
     machine : Machine
         The machine.
+    setups : Setups or mapping, optional
+        The experiment's set-ups (the machine file's): a file without the setup column is
+        refused where the ballbar's set-up holds several (None: no check).
 
     Returns
     -------
@@ -426,7 +431,7 @@ def read_distances(path, machine):
     _refuse_beyond(path, header[i], rows, d, 10 * machine.characteristic_length(),
                    "a ballbar length", "10 x the machine's size")
     return InstrumentData("distances", q, d[:, None],
-                          _groups(path, extra, rows, "setup", machine), rows, source=str(path))
+                          _groups(path, extra, rows, "setup", setups), rows, source=str(path))
 
 
 def read_probe(path, machine):
@@ -471,7 +476,7 @@ def read_probe(path, machine):
     return InstrumentData("probe", q, h[:, None], None, rows, source=str(path))
 
 
-def read_tracker(path, machine) -> TrackerData:
+def read_tracker(path, machine, setups=None) -> TrackerData:
     """Laser-tracker data (SPEC 2.2) for ``machine``: :func:`read_points` as tracker data.
 
     Readings ``q1..q<n>`` (the machine's joint quantity, e.g. ``q1_deg`` for a Delta),
@@ -484,6 +489,9 @@ def read_tracker(path, machine) -> TrackerData:
         The data file.
     machine : Machine
         The machine (number and quantity of joints).
+    setups : Setups or mapping, optional
+        The experiment's set-ups (the machine file's): a file without the target column is
+        refused where the tracker's set-up holds several (None: no check).
 
     Returns
     -------
@@ -498,7 +506,7 @@ def read_tracker(path, machine) -> TrackerData:
         readings look like another unit than their columns say
         (:func:`~pkmcal.plausibility.check_tracker_scale`).
     """
-    points = read_points(path, machine)
+    points = read_points(path, machine, setups)
     from ..instruments.tracker import TrackerData
 
     return TrackerData(points.q, points.values, points.rows, source=str(path),

@@ -50,10 +50,8 @@ or the Delta's reflector), :class:`~pkmcal.instruments.distance.BallbarSetup` (`
 (a mocap point is ``mocap_from_base`` of a base point, a platform point
 ``platform_from_marker`` of a marker point). ``pkmcal fk --frame instrument`` predicts the
 instrument's measurements from them, ``pkmcal compensate --frame instrument`` takes targets
-in the instrument's frame. Transitional: the loader also sets the older machine attributes
-(``base_from_tracker``, ``tracker_targets``, ``ballbar_setups``, ``probe_bed``,
-``bed_surface``, ``measurement_frames``) for the code that still reads them, and the writer
-reads them when it is given no ``setups``.
+in the instrument's frame. The machine holds none of them: the loader returns them beside it,
+the writer writes those it is given.
 
 Every machine file may state the joints' travel (issue 12 item 7)::
 
@@ -103,7 +101,7 @@ from pydantic import BaseModel, ValidationError, create_model
 
 from ..errors import InputError
 from ..instruments.registry import INSTRUMENTS
-from ..instruments.setups import Setups, attach_legacy, legacy_setups
+from ..instruments.setups import Setups
 from ..kinematics import euler_from_matrix
 from ..limits import (
     MAX_ANGLE,
@@ -772,7 +770,6 @@ def parse_machine_file(text: str, source: str = "<machine>") -> tuple[Machine, S
     machine.joint_limits = _joint_limits(data.get("joint_limits"), machine, source, lines)
     machine.source = source
     machine.calibration_info = doc.calibration
-    attach_legacy(machine, setups)
     return machine, setups
 
 
@@ -949,7 +946,7 @@ def machine_to_text(machine: Machine, units: dict | None = None,
         Metadata written as the ``calibration:`` section.
     setups : Setups, optional
         The instruments' set-ups, written as their sections
-        (:mod:`pkmcal.instruments.setups`).
+        (:mod:`pkmcal.instruments.setups`); None: none.
 
     Returns
     -------
@@ -969,7 +966,7 @@ def machine_to_text(machine: Machine, units: dict | None = None,
             or units["angle"] not in ANGLE_UNITS:
         raise InputError(f"units must be {{length: mm|m|in, angle: deg|rad}}, got {units}")
     fl, fa = factors(units)
-    setups = legacy_setups(machine) if setups is None else Setups(setups)
+    setups = Setups(setups)
     framed, setups = bed_frame(machine, setups)
     body = dict(MACHINE_FORMATS[kind].dump(framed, units))
     body.update(_setup_sections(framed, setups, fl))

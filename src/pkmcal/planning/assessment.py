@@ -100,7 +100,7 @@ def measured_problem(machine, data_path, scenario: str, noise=None, setup=None):
     inst = instrument(scenario)
     from ..io import read_measurements
 
-    data = read_measurements(inst, data_path, machine)
+    data = read_measurements(inst, data_path, machine, {inst.name: setup})
     return inst.measured_problem(machine, data, noise, str(data_path), setup=setup), data
 
 

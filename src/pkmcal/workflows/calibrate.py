@@ -12,7 +12,7 @@ from ..io.atomic import is_stream
 from ..paths import path_text
 from ..report.calibration_summary import calibrate_summary
 from ..report.summary import Summary
-from .common import check_outputs, load_machine_arg, machine_inputs, wrote
+from .common import check_outputs, load_machine_arg, load_setups_arg, machine_inputs, wrote
 
 __all__ = ["calibrate_files"]
 
@@ -79,7 +79,8 @@ def calibrate_files(machine_spec: str, data_path, output: Path, noise=None,
     check_outputs(outputs, [Path(p) for p in paths] + machine_inputs(machine_spec),
                   [report_dir] if report_dir is not None else [])
     calibration = calibrate(machine, data_path, noise=noise, robust=robust, holdout=holdout,
-                            seed=seed, parameters=parameters, options=options)
+                            seed=seed, parameters=parameters, options=options,
+                            setups=load_setups_arg(machine_spec))
     # the answer (verdict, accuracy before and after, what changed, what next): the report's
     # first section, and the summary's first rows
     calibration.report["outcome"] = calibration_outcome(calibration, path_text(output))

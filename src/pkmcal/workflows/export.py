@@ -19,7 +19,7 @@ from ..errors import InputError
 from ..export import ControllerFormat, controller_format, export
 from ..export.base import load_formats
 from ..export.bed_mesh import PROFILE, bed_correction, layer_errors, print_radius_of
-from ..export.fitting import carry_like
+from ..export.fitting import carry_like, carry_like_setups
 from ..instruments.flow import json_safe
 from ..io.atomic import atomic_write_bytes, atomic_write_text, is_stream, read_input_text
 from ..io.klipper_config import backup_name
@@ -38,6 +38,7 @@ from .common import (
     commit_outputs,
     in_output_set,
     load_machine_arg,
+    load_setups_arg,
     machine_inputs,
 )
 
@@ -360,12 +361,13 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
         raise InputError(f"--like {like}: a {model.kind} machine; {fmt.name} files describe a "
                          f"{fmt.machine_words} (machine: {fmt.machine_kind})")
     machine = carry_like(fmt.to_machine(params, model), model)
+    setups = carry_like_setups(machine, load_setups_arg(like) if like is not None else None)
     if model is None and home is not None:      # a configuration's own
         machine.home = home
     if model is None and name:
         machine.name = name
     _check_imported(fmt, params, machine, path, like)
-    save_machine(machine, output, getattr(machine, "file_units", None))
+    save_machine(machine, output, getattr(machine, "file_units", None), setups=setups)
     commit_outputs()
     summary = Summary()
     for note in getattr(params, "notes", None) or []:       # letters passed over, and why

@@ -56,7 +56,6 @@ from ..flow import (
     validation_section,
 )
 from ..flow import option as _option
-from ..setups import machine_setup, run_setup
 from .data import (
     POSE_HALF_RANGE,
     POSE_MAX_ANGLE,
@@ -250,7 +249,7 @@ class Pose(Instrument):
         s = run.settings
         nominal = s.machine
         true = run.true_machine()
-        frames = measurement_frames(run_setup(run, self.name))
+        frames = measurement_frames(run.settings.setups.get(self.name))
         default = FullPoseNoise()
         noise = default.reading_m if s.noise is None else s.noise
         data = simulate_full_pose(true, sample_workspace_poses(true, s.poses or
@@ -446,7 +445,7 @@ class Pose(Instrument):
             raise InputError(f"{path_text(source)}: "
                              f"{len(data)} pose(s); the measurement frames need at "
                              "least 4")
-        frames = machine_setup(machine, self.name) if setup is None else setup
+        frames = setup
         if frames is None:
             frames = estimate_frames(machine, data)
         return self.problem(machine, data, noise, frames=frames)
@@ -541,7 +540,7 @@ def _calibration_flow(machine, data, context: FlowContext,
     method, fix_frames = options.method or "ml", options.fix_frames
     noise_model, hold = pose_noise_option(options.noise, options.pose_noise, machine)
     data, held = split_rows(load_data(data, context.read, machine), split, source)
-    file_frames = machine_setup(machine, "pose")     # transitional: the machine file's
+    file_frames = context.setups.get("pose")        # the machine file's
     if fix_frames:
         frames = file_frames if file_frames is not None else MeasurementFrames.identity()
         frames_from = ("the machine file's measurement_frames" if file_frames is not None
@@ -672,4 +671,5 @@ def _calibration_flow(machine, data, context: FlowContext,
         **identifiability_metadata(unidentifiable),
     }
     # the nominal of the fitted model (with an adopted extension at its neutral values)
-    return FlowResult("pose", model, calibrated, result, report, metadata, params, units)
+    return FlowResult("pose", model, calibrated, result, report, metadata, params, units,
+                      setups={"pose": frames_id})

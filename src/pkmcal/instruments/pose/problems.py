@@ -671,8 +671,8 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
     Returns
     -------
     CalibrationResult
-        With ``method``; ``machine``, the calibrated machine (with ``measurement_frames``,
-        home kept); its :class:`PoseSection` (``frames``, ``start_frames``,
+        With ``method``; ``machine``, the calibrated machine (home kept); its
+        :class:`PoseSection` (``frames``, the fitted measurement frames, ``start_frames``,
         ``fixed_frames``); ``unidentifiable``, the named null and weak directions;
         ``problem``; ``'ik'``:
         ``residual_test``, the chi-square of its residuals whitened by their whole covariance
@@ -713,7 +713,6 @@ def calibrate_full_pose(machine: Machine, data: FullPoseData, method: str = "ml"
                  **{"max_std": MAX_STD, **options})
     state = result.state
     calibrated = machine.with_parameters(state.u)
-    calibrated.measurement_frames = state.frames()
     calibrated.home = machine.home
     groups = problem.null_groups(state, result.scales)
     if hasattr(problem, "noise_whitened") and result.dof > 0:

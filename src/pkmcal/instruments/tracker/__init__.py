@@ -88,7 +88,6 @@ from ..flow import (
     variance_json,
 )
 from ..models import NuisanceState, PointsModel
-from ..setups import run_setup
 from .data import TrackerData, as_points, as_tracker_data, grid_points, simulate_tracker
 from .distances import (
     _ratio_stats,
@@ -231,7 +230,7 @@ class Tracker(Instrument):
         if nominal.tracker_target() is None:
             return self._montecarlo_points_run(run)
         true = run.true_machine()
-        pose = tracker_pose(run_setup(run, self.name))
+        pose = tracker_pose(run.settings.setups.get(self.name))
         sim_noise, fit_noise = self._montecarlo_noises(run)
         if s.poses is None and nominal.tracker_grid_spacing() is not None:
             targets = grid_points(nominal.home[0], nominal.tracker_grid_spacing())
@@ -647,7 +646,8 @@ def _calibration_flow(machine, data, context: FlowContext,
     R0, t0 = section.start_registration
     given = machine.tracker_target() is not None
     targets, targets0 = section.targets, section.start_targets
-    calibrated.tracker_targets = None if given else np.array(targets, float)
+    # the tracker's set-up the fit determined (the targets only where the file gives none)
+    fitted = TrackerSetup((R, t), None if given else np.array(targets, float))
     kept = np.asarray(section.kept, bool)
     outlier_rows = [int(v) for v in section.outlier_rows]
 
@@ -741,4 +741,5 @@ def _calibration_flow(machine, data, context: FlowContext,
         **identifiability_metadata(unidentifiable),
         "distance_ratio_std_percent": {"before": before["std"], "after": after["std"]},
     }
-    return FlowResult("tracker", machine, calibrated, result, report, metadata, params, units)
+    return FlowResult("tracker", machine, calibrated, result, report, metadata, params, units,
+                      setups={"tracker": fitted})

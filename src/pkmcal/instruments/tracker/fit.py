@@ -142,7 +142,7 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
     -------
     CalibrationResult
         With ``problem``; ``method`` (``"tracker-joint"`` or ``"tracker-two-step"``);
-        ``machine``, the calibrated machine with ``base_from_tracker``; ``unidentifiable``;
+        ``machine``, the calibrated machine; ``unidentifiable``;
         ``noise`` and ``outliers`` (:func:`~pkmcal.estimation.variance.fit`); its
         :class:`TrackerSection` (registration, targets, rows kept).
 
@@ -183,7 +183,6 @@ def calibrate_tracker(machine: Machine, data: TrackerData, noise: TrackerNoise |
     keep = test.kept if test is not None else np.ones(len(data), bool)
     state = result.state
     calibrated = machine.with_parameters(state.u)
-    calibrated.base_from_tracker = registration_of(state)
     result.problem, result.machine = problem, calibrated
     result.method = "tracker-joint" if joint else "tracker-two-step"
     result.add_section(TrackerSection(
