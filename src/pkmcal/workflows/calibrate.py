@@ -12,7 +12,7 @@ from ..io.atomic import is_stream
 from ..paths import path_text
 from ..report.calibration_summary import calibrate_summary
 from ..report.summary import Summary
-from .common import check_outputs, load_machine_arg, machine_inputs, wrote
+from .common import check_outputs, load_machine_arg, load_setups_arg, machine_inputs, wrote
 
 __all__ = ["calibrate_files"]
 
@@ -82,7 +82,8 @@ def calibrate_files(machine_spec: str, data_path, output: Path, noise=None,
                             seed=seed, parameters=parameters, options=options)
     # the answer (verdict, accuracy before and after, what changed, what next): the report's
     # first section, and the summary's first rows
-    calibration.report["outcome"] = calibration_outcome(calibration, path_text(output))
+    calibration.report["outcome"] = calibration_outcome(calibration, path_text(output),
+                                                        setups=load_setups_arg(machine_spec))
     # staged first: a calibrated geometry that cannot be written is the one message (exit 2)
     json_text = calibration.write(output, report_dir)
     if json_output:
