@@ -40,23 +40,23 @@ def fit(shape, seed=0, sigma=5e-6):
 def test_a_bump_on_the_bed_is_kept_as_its_shape_and_handed_over(tmp_path):
     c = fit(bump)
     assert "bed_surface" in c.report
-    m = c.calibrated
+    bed = c.setups["probe"]                       # the calibrated bed: plane and surface
     centre = np.array([BUMP[:2]])
     far = np.array([[-0.06, 0.05]])
     def height(xy):
-        return bed_height_at(m.probe_bed, xy, m.bed_surface)
+        return bed_height_at(bed.plane, xy, bed.surface)
 
     shape = height(centre) - height(np.zeros((1, 2)))
     assert shape[0] > 0.5 * BUMP[2]
     assert abs(height(far)[0] - height(np.zeros((1, 2)))[0]) < 0.25 * BUMP[2]
     # the calibrated file carries it
-    from pkmcal.io import load_machine
+    from pkmcal.io import load_machine_file
 
     c.write(tmp_path / "cal.yaml")
-    again = load_machine(tmp_path / "cal.yaml")
-    np.testing.assert_allclose(again.bed_surface[1], m.bed_surface[1], rtol=1e-9,
+    again, setups = load_machine_file(tmp_path / "cal.yaml")
+    np.testing.assert_allclose(setups["probe"].surface[1], bed.surface[1], rtol=1e-9,
                                atol=1e-12)
-    assert again.bed_surface[0] == pytest.approx(m.bed_surface[0], rel=1e-12)
+    assert setups["probe"].surface[0] == pytest.approx(bed.surface[0], rel=1e-12)
     # and with the firmware's values and mesh the nozzle lands on the TRUE bed: commanded to
     # height 0 at (x, y), the firmware adds the mesh's value; the true printer (the nominal,
     # without kinematic errors) puts the nozzle where its carriages say; its height above
@@ -65,9 +65,9 @@ def test_a_bump_on_the_bed_is_kept_as_its_shape_and_handed_over(tmp_path):
     from pkmcal.export.bed_mesh import bed_correction
 
     klipper = controller_format("klipper")
-    ws = again.print_workspace(rng=0)
-    params = export(klipper, again, ws.P, ws.R, surface=ws.surface).params
-    corr = bed_correction(klipper, params, again, 0.1)
+    ws = again.print_workspace(rng=0, bed=setups["probe"].plane)
+    params = export(klipper, again, ws.P, ws.R, surface=ws.surface, setups=setups).params
+    corr = bed_correction(klipper, params, again, 0.1, setups=setups)
     xy = np.array([BUMP[:2], [-0.06, 0.05], [0.0, 0.0], [0.05, 0.05]])
 
     def first_layer(with_mesh):
@@ -88,4 +88,4 @@ def test_a_flat_bed_has_no_surface(seed):
     smoother fits to noise keeps none."""
     c = fit(lambda xy: np.zeros(len(xy)), seed=seed, sigma=20e-6)
     assert "bed_surface" not in c.report
-    assert getattr(c.calibrated, "bed_surface", None) is None
+    assert getattr(c.setups.get("probe"), "surface", None) is None

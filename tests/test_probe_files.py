@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from clitools import run
-from pkmcal.io import load_machine, machine_to_text, parse_machine
+from pkmcal.instruments.probe import BedSetup
+from pkmcal.instruments.setups import Setups
+from pkmcal.io import load_machine, load_machine_file, machine_to_text, parse_machine_file
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -18,12 +20,13 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
                                    {"length": "in", "angle": "rad"}])
 def test_bed_round_trip(units):
     machine = load_machine(EXAMPLES / "linear_delta.yaml")
-    machine.probe_bed = (4.2e-4, -1.3e-3, 2.5e-4)
-    back = parse_machine(machine_to_text(machine, units), "m.yaml")
+    bed = BedSetup(4.2e-4, -1.3e-3, 2.5e-4)
+    back, setups = parse_machine_file(
+        machine_to_text(machine, units, setups=Setups({"probe": bed})), "m.yaml")
     # a printer's frame is its bed (issue 37): the height is carried by the endstops, the
     # tilt kept; the printer is the same, its frame 0.42 mm higher
-    np.testing.assert_allclose(back.probe_bed[1:], machine.probe_bed[1:], rtol=1e-14)
-    assert back.probe_bed[0] == 0.0
+    np.testing.assert_allclose(setups["probe"].plane[1:], bed.plane[1:], rtol=1e-14)
+    assert setups["probe"].plane[0] == 0.0
     P, R = machine.home
     q = machine.ik(P[None], R[None])
     np.testing.assert_allclose(back.ik(P[None] - [0, 0, 4.2e-4], R[None]), q,
@@ -40,8 +43,7 @@ def test_calibrate_writes_the_bed_and_fk_predicts_the_heights(tmp_path):
     proc = run("calibrate", machine, "probe.csv", "--parameters", "full", "-o", "cal.yaml",
                cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
-    cal = load_machine(tmp_path / "cal.yaml")
-    assert cal.probe_bed is not None
+    assert load_machine_file(tmp_path / "cal.yaml")[1].get("probe") is not None
     proc = run("fk", "cal.yaml", "probe.csv", "--frame", "instrument", "-o", "z.csv",
                cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr

@@ -24,7 +24,7 @@ import pytest
 from clitools import PKMCAL, run
 from pkmcal.estimation.acceptance import FAILED_ALARMING, NOT_TESTED, PASSED, report_verdict
 from pkmcal.identifiability.determination import POOR_FRACTION
-from pkmcal.io import load_machine
+from pkmcal.io import load_machine, load_machine_file
 from run_once import once
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -174,7 +174,7 @@ def test_predicted_height_error_is_the_kinematics(reports):
     report, _ = _load(d)
     pmap = report["outcome"]["map"]
     nominal = load_machine(str(EXAMPLES / "linear_delta.yaml"))
-    calibrated = load_machine(str(d / "cal.yaml"))
+    calibrated, setups = load_machine_file(str(d / "cal.yaml"))
     g = np.asarray(pmap["grid_mm"]) * 1e-3
     values = np.asarray([np.nan if v is None else v for v in pmap["before_um"]]).reshape(
         g.size, g.size)
@@ -183,7 +183,7 @@ def test_predicted_height_error_is_the_kinematics(reports):
     P = np.column_stack([g[ix[pick]], g[iy[pick]], np.zeros(pick.size)])
     q = nominal.ik(P, np.broadcast_to(np.eye(3), (pick.size, 3, 3)))
     fk = calibrated.fk(q)
-    bed = np.asarray(calibrated.probe_bed)
+    bed = np.asarray(setups["probe"].plane)
     height = fk.P[:, 2] - (bed[0] + bed[1] * fk.P[:, 0] + bed[2] * fk.P[:, 1])
     np.testing.assert_allclose(values[iy[pick], ix[pick]] * 1e-6, height,
                                atol=1e-6 * np.max(np.abs(height)) + 1e-12)
