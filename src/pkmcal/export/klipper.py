@@ -767,6 +767,8 @@ class KlipperDelta(ControllerFormat):
             Klipper's values.
         machine : Machine
             The machine they are for.
+        setups : Setups, optional
+            Unused (the values hold the bed: none of the experiment's set-ups is read).
 
         Returns
         -------

@@ -342,6 +342,8 @@ class KlipperRotaryDelta(ControllerFormat):
         ----------
         machine : Machine
             A Delta.
+        setups : Setups, optional
+            Unused (no set-up of the experiment enters these values).
 
         Returns
         -------
@@ -593,6 +595,8 @@ class KlipperRotaryDelta(ControllerFormat):
             The values.
         machine : Machine
             The machine they are for.
+        setups : Setups, optional
+            Unused (no set-up of the experiment enters these values).
 
         Returns
         -------

@@ -465,6 +465,8 @@ class LinuxCNCRotaryDelta(_LinuxCNCDelta):
         ----------
         machine : Machine
             A Delta.
+        setups : Setups, optional
+            Unused (no set-up of the experiment enters these values).
 
         Returns
         -------
@@ -513,6 +515,8 @@ class LinuxCNCRotaryDelta(_LinuxCNCDelta):
             The values.
         machine : Machine
             The machine they are for.
+        setups : Setups, optional
+            Unused (no set-up of the experiment enters these values).
 
         Returns
         -------

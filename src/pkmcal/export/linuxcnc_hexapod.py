@@ -369,6 +369,8 @@ class GenhexkinsFormat(LinuxCNCKinematics, ControllerFormat):
         ----------
         machine : Machine
             A :class:`~pkmcal.machines.stewart.Stewart`.
+        setups : Setups, optional
+            Unused (no set-up of the experiment enters these values).
 
         Returns
         -------
@@ -447,6 +449,8 @@ class GenhexkinsFormat(LinuxCNCKinematics, ControllerFormat):
             The values.
         machine : Machine
             The machine (its name).
+        setups : Setups, optional
+            Unused (no set-up of the experiment enters these values).
 
         Returns
         -------

@@ -370,6 +370,9 @@ class MarlinDelta(ControllerFormat):
         ----------
         machine : Machine
             A linear Delta.
+        setups : Setups, optional
+            The experiment's set-ups: the bed (:func:`~pkmcal.export.klipper.setups_bed`) the
+            controller's z = 0 is on.
 
         Returns
         -------
@@ -442,6 +445,8 @@ class MarlinDelta(ControllerFormat):
             Marlin's values.
         machine : Machine
             The machine they are for.
+        setups : Setups, optional
+            Unused (the values hold the bed: none of the experiment's set-ups is read).
 
         Returns
         -------

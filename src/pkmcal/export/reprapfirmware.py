@@ -171,6 +171,9 @@ class RepRapFirmwareDelta(ControllerFormat):
         ----------
         machine : Machine
             A linear Delta.
+        setups : Setups, optional
+            The experiment's set-ups: the bed (:func:`~pkmcal.export.klipper.setups_bed`) the
+            controller's z = 0 is on.
 
         Returns
         -------
@@ -242,6 +245,8 @@ class RepRapFirmwareDelta(ControllerFormat):
             RepRapFirmware's values.
         machine : Machine
             The machine they are for.
+        setups : Setups, optional
+            Unused (the values hold the bed: none of the experiment's set-ups is read).
 
         Returns
         -------
