@@ -80,7 +80,6 @@ from .base import (
     refuse_foreign_text,
     register_format,
 )
-from .klipper import bed_setups, setups_bed
 from .klipper_rotary import leg_offsets, pkmcal_comments
 from .linuxcnc_config import LinuxCNCKinematics
 
@@ -709,6 +708,10 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
             ``R``, ``L`` the towers' means; ``HOME_OFFSET`` each carriage's height at its
             endstop above the bed.
         """
+        # imported here: at the top it would register Klipper before LinuxCNC (the order
+        # the formats are listed in)
+        from .klipper import setups_bed
+
         pe, theta, r, l, _, _ = machine.towers()
         bed_z = float(setups_bed(setups)[0])
         joint = joint_of_legs(theta, LINEAR_TOWERS)
@@ -932,6 +935,8 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
         Setups
             The set-ups.
         """
+        from .klipper import bed_setups
+
         return bed_setups([params.values[5], 0.0, 0.0])
 
 

@@ -80,6 +80,7 @@ from .flow import (
 )
 from .models import IsotropicNoise, ProbeModel
 from .problem import InstrumentProblem, fit_instrument
+from .setups import run_setup
 
 #: the probe's repeatability assumed by default, m (standard deviation of the trigger height).
 #: An assumption, not a datum: the order of the spread that Klipper's PROBE_ACCURACY reports for
@@ -505,7 +506,8 @@ class Probe(Instrument):
         data, true, truth = run.simulate(s.poses or self.montecarlo_poses,
                                          IsotropicNoise(noise) if noise > 0 else False)
         res = calibrate_probe(nominal, data, IsotropicNoise(run.weight(noise)))
-        P, R, _ = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng)
+        P, R, _ = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng,
+                                  run_setup(run, self.name))
         q = nominal.ik(P + np.array([0.0, 0.0, 1e-3]), R)
 
         def heights(machine, bed):
@@ -618,11 +620,11 @@ class Probe(Instrument):
             P, R = given_poses(poses)
             words = f"{len(P)} given points"
         else:
-            plan = self.standard_plan(machine, n, 0)
+            plan = self.standard_plan(machine, n, 0, setup)
             if plan.available:
                 P, R, words = plan.P, plan.R, f"{n} points: {plan.name}"
             else:
-                P, R, _ = self.candidates(machine, n, rng)
+                P, R, _ = self.candidates(machine, n, rng, setup)
                 words = f"{n} random points on the bed's disk"
             _refuse_points_outside_limits(machine, P, R, words)
         bed = np.array([bed_height(machine) + rng.uniform(-bed_error, bed_error),
