@@ -18,11 +18,12 @@ def _head(item) -> str:
 
 
 def expand_firmware_data(data, machine):
-    """Data files that are a firmware's saved state (a Klipper ``printer.cfg`` with
-    ``[delta_calibrate]`` data) or a pasted probe report (Marlin ``Bed X: Y: Z:`` lines,
-    RepRapFirmware's ``bed probe heights`` reply:
-    :func:`~pkmcal.export.firmware_reports.probe_report_data`) replaced by the measurements they
-    hold.
+    """Data files that are a controller's saved files holding measurements replaced by the
+    measurements they hold: each controller format of :mod:`pkmcal.export` says which files
+    are its own and reads them (:meth:`~pkmcal.export.base.ControllerFormat.
+    holds_measurements`, :meth:`~pkmcal.export.base.ControllerFormat.read_measurements`:
+    a Klipper ``printer.cfg`` with ``[delta_calibrate]`` data, several of them as one
+    printer's sessions; a pasted Marlin or RepRapFirmware probe report).
 
     Parameters
     ----------
@@ -34,51 +35,41 @@ def expand_firmware_data(data, machine):
     Returns
     -------
     object or list
-        ``data`` with each firmware file replaced by its data objects (a list when that gives
-        more than one).
+        ``data`` with each such file replaced by its data objects, in its place (files read
+        together in the first one's place; a list when that gives more than one). Each data
+        object's ``origin`` is the file given (``--noise FILE=VALUE`` names it).
     """
-    from ..export.firmware_reports import is_probe_report, probe_report_data, read_probe_report
-    from ..io.atomic import read_input_text
-    from ..io.klipper_data import is_klipper_config, read_klipper_data
+    from ..export.base import load_formats
 
     items = list(data) if isinstance(data, (list, tuple)) else [data]
-    out, changed = [], False
-    configs = [item for item in items if isinstance(item, (str, Path)) and Path(item).is_file()
-               and is_klipper_config(item, _head(item))]
-    if len(configs) > 1:
-        # several of a printer's configs (printer.cfg, its backups): sessions, the same saved
-        # points counted once, each session its own endstop offsets
-        from ..io.klipper_data import klipper_sessions
-
-        found = klipper_sessions(configs, machine).data
-        for obj in found:
-            obj.origin = next((c for c in configs if str(obj.source).startswith(str(c))),
-                              configs[0])
-        first = items.index(configs[0])
-        items = [item for item in items if item not in configs]
-        out = [item for item in items[:first]] + found
-        items = items[first:]
-        changed = True
-    for item in items:
-        if isinstance(item, (str, Path)) and Path(item).is_file():
-            try:
-                with open(item, encoding="utf-8", errors="replace") as f:
-                    head = f.read(4096)
-            except OSError:
-                head = ""
-            found = []
-            if is_klipper_config(item, head):
-                found = read_klipper_data(item, machine)
-            elif not str(item).lower().endswith(".csv") and is_probe_report(head):
-                text = read_input_text(item, "probe report")
-                found = [probe_report_data(read_probe_report(text, str(item)), machine)]
-            if found:
-                for obj in found:
-                    obj.origin = item           # --noise FILE=VALUE names the file given
-                out.extend(found)
-                changed = True
+    files = {i: item for i, item in enumerate(items)
+             if isinstance(item, (str, Path)) and Path(item).is_file()}
+    if all(str(item).lower().endswith(".csv") for item in files.values()):
+        return data         # pkmcal's own CSV files: no controller's file to look for
+    heads = {i: _head(item) for i, item in files.items()}
+    placed, claimed = {}, set()
+    for fmt in load_formats().values():
+        mine = [i for i in files
+                if i not in claimed and fmt.holds_measurements(files[i], heads[i])]
+        if not mine:
+            continue
+        groups = [mine] if fmt.measurements_together and len(mine) > 1 else [[i] for i in mine]
+        for group in groups:
+            paths = [files[i] for i in group]
+            found = fmt.read_measurements(paths, machine)
+            if not found:                   # holds none: read as a CSV file
                 continue
-        out.append(item)
-    if not changed:
+            for obj in found:
+                obj.origin = next((p for p in paths if str(obj.source).startswith(str(p))),
+                                  paths[0])
+            placed[group[0]] = found
+            claimed.update(group)
+    if not claimed:
         return data
+    out = []
+    for i, item in enumerate(items):
+        if i in placed:
+            out.extend(placed[i])
+        elif i not in claimed:
+            out.append(item)
     return out[0] if len(out) == 1 else out

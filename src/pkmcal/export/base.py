@@ -518,6 +518,55 @@ class ControllerFormat(ABC):
         """The command that starts a configuration written in ``directory``, in words."""
         raise NotImplementedError(f"{self.name} writes one file, not a configuration")
 
+    #: several of the format's saved files given together are one printer's sessions, read
+    #: together (:meth:`read_measurements` gets them all); False: each file is read alone
+    measurements_together: bool = False
+
+    def holds_measurements(self, path: Path, head: str) -> bool:
+        """Whether a data file given to ``calibrate`` is one of the controller's saved files
+        holding measurements (a saved configuration with probe points, a pasted probe
+        report) rather than a CSV file; the default: never.
+
+        Parameters
+        ----------
+        path : Path
+            The file.
+        head : str
+            Its first 4 kB.
+
+        Returns
+        -------
+        bool
+            True: :meth:`read_measurements` reads it.
+        """
+        return False
+
+    def read_measurements(self, paths: list, machine: Machine) -> list:
+        """The measurements the controller's saved files hold, as pkmcal data objects (for
+        the formats whose :meth:`holds_measurements` says so).
+
+        Parameters
+        ----------
+        paths : list of Path
+            One file, or with :attr:`measurements_together` all the files of the format
+            given together.
+        machine : Machine
+            The machine file given (the values the controller used where the file holds
+            none).
+
+        Returns
+        -------
+        list
+            Data objects, each with a ``source`` naming its file (and part of it); empty:
+            the file holds none and is read as a CSV file.
+
+        Raises
+        ------
+        InputError
+            Naming the file and line of what cannot be read.
+        """
+        raise NotImplementedError(f"{self.name} files hold no measurements pkmcal reads")
+
     def read_controller_file(self, path: Path):
         """The values of the controller's file at ``path`` (import), and the home pose and
         machine name it holds where it does; the default reads the one file with

@@ -37,7 +37,7 @@ without ``P``: the machine height of the head when the probe triggered, not the 
 the reply does not give); ``M122``'s ``Bed probe heights:`` (without ``mean``: only the first
 five points); and the two firmwares' reports in one text.
 
-Host logs are read as in :func:`pkmcal.export.marlin.host_line` (OctoPrint ``Recv:`` /
+Host logs are read as in :func:`pkmcal.export.gcode_text.host_line` (OctoPrint ``Recv:`` /
 ``Send:``, time stamps, Marlin's ``echo:``). ``M665`` / ``M666`` lines of the same text give
 the firmware values in force (:attr:`ProbeReport.values`), read by the firmware's format in
 :mod:`pkmcal.export`; a value that changes between the first and the last probe line is
@@ -130,7 +130,7 @@ def _number(word: str, source: str, n: int, what: str) -> float:
 
 def _rrf_points(lines, source: str) -> dict:
     """``G30 P<i> X<x> Y<y>`` commands: index -> list of (line, x, y), in text order."""
-    from .marlin import gcode_lines, gcode_words
+    from .gcode_text import gcode_lines, gcode_words
 
     points: dict = {}
     for n, _, rest in gcode_lines("\n".join(lines), ("G30",), sent=True):
@@ -169,7 +169,7 @@ def _values(firmware: str, text: str, source: str, first: int, last: int, notes:
     whole text leaves them; refused where a line between the first and the last probe line
     changes values already complete before it."""
     from .base import controller_format
-    from .marlin import gcode_lines
+    from .gcode_text import gcode_lines
 
     rows = [n for n, _, _ in gcode_lines(text, ("M665", "M666"))]
     if not rows:
@@ -222,7 +222,7 @@ def read_probe_report(text: str, source: str) -> ProbeReport:
         point, a RepRapFirmware height without its ``G30 P<i>`` command, both firmwares'
         reports in one text, or no probe report at all.
     """
-    from .marlin import host_line
+    from .gcode_text import host_line
 
     raw_lines = text.splitlines()
     marlin, rrf = [], []
@@ -294,13 +294,31 @@ def read_probe_report(text: str, source: str) -> ProbeReport:
                        values, source, notes)
 
 
-#: a text holds a probe report (its first lines are searched for one of these)
-_REPORT_HINT = re.compile(r"Bed X:\s*[-+.\d]|bed probe heights:", re.I)
+#: a text holds a firmware's probe report (its first lines are searched for its hint)
+_REPORT_HINTS = {"marlin": re.compile(r"Bed X:\s*[-+.\d]", re.I),
+                 "reprapfirmware": re.compile(r"bed probe heights:", re.I)}
 
 
-def is_probe_report(head: str) -> bool:
-    """Whether a text looks like a Marlin or RepRapFirmware probe report."""
-    return bool(_REPORT_HINT.search(head))
+def is_probe_report(head: str, firmware: str | None = None) -> bool:
+    """Whether a text looks like a probe report of ``firmware`` (``"marlin"``,
+    ``"reprapfirmware"``; None: either)."""
+    hints = _REPORT_HINTS.values() if firmware is None else [_REPORT_HINTS[firmware]]
+    return any(h.search(head) for h in hints)
+
+
+def holds_probe_report(path, head: str, firmware: str) -> bool:
+    """Whether a data file given to ``calibrate`` is a pasted probe report of ``firmware``
+    (never a ``.csv`` file: a CSV file is pkmcal's own data)."""
+    return not str(path).lower().endswith(".csv") and is_probe_report(head, firmware)
+
+
+def probe_report_file_data(paths, machine) -> list:
+    """The probe heights of a pasted probe report file (:func:`read_probe_report`,
+    :func:`probe_report_data`), one data object per file."""
+    from ..io.atomic import read_input_text
+
+    return [probe_report_data(read_probe_report(read_input_text(p, "probe report"), str(p)),
+                              machine) for p in paths]
 
 
 def probe_report_data(report: ProbeReport, machine):

@@ -860,6 +860,26 @@ class KlipperDelta(ControllerFormat):
                     (f"[stepper_{t}] position_endstop", f"{v[7 + i] * 1e3:.6f} mm")]
         return out + bed_values(v[10:13])
 
+    #: a printer.cfg with its backups: one printer's sessions (SPEC 9)
+    measurements_together = True
+
+    def holds_measurements(self, path, head: str) -> bool:
+        """A Klipper config (:func:`~pkmcal.io.klipper_data.is_klipper_config`)."""
+        from ..io.klipper_data import is_klipper_config
+
+        return is_klipper_config(path, head)
+
+    def read_measurements(self, paths: list, machine: Machine) -> list:
+        """A config's saved DELTA_CALIBRATE points and meshes
+        (:func:`~pkmcal.io.klipper_data.read_klipper_data`); several configs as sessions,
+        the same saved points counted once
+        (:func:`~pkmcal.io.klipper_data.klipper_sessions`)."""
+        from ..io.klipper_data import klipper_sessions, read_klipper_data
+
+        if len(paths) > 1:
+            return klipper_sessions(paths, machine).data
+        return read_klipper_data(paths[0], machine)
+
     def bed_mesh_height(self, text: str) -> float:
         """The probe's ``z_offset`` (m, 0 when none or below the nozzle): Klipper's own
         meshes hold the bed as seen with the nozzle that far above it, and so does pkmcal's."""

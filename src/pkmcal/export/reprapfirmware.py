@@ -68,6 +68,7 @@ from .base import (
     register_format,
     where,
 )
+from .gcode_text import gcode_line_kind, gcode_lines, gcode_words
 from .klipper import (
     BED,
     BED_KINDS,
@@ -86,7 +87,7 @@ from .klipper import (
     vertical_tower_travel,
     wrap_degrees,
 )
-from .marlin import BASE_ANGLES, gcode_line_kind, gcode_lines, gcode_words
+from .marlin import BASE_ANGLES
 
 _XYZ = "xyz"
 #: the values each letter sets (the source map of an import)
@@ -347,7 +348,7 @@ class RepRapFirmwareDelta(ControllerFormat):
         Later lines override earlier ones, as the firmware executes them; ``L``, ``R`` and
         ``H`` are required, the corrections, adjustments and tilts default to 0. Lines other
         than ``M665`` / ``M666`` (``M307``, ``G31``, ``G10``, comments) are not read; host log
-        prefixes are handled as in :func:`~pkmcal.export.marlin.host_line`.
+        prefixes are handled as in :func:`~pkmcal.export.gcode_text.host_line`.
 
         Parameters
         ----------
@@ -538,6 +539,19 @@ class RepRapFirmwareDelta(ControllerFormat):
             The set-ups.
         """
         return bed_setups(self.imported_bed(params))
+
+    def holds_measurements(self, path, head: str) -> bool:
+        """A pasted probe report (:mod:`pkmcal.export.firmware_reports`)."""
+        from .firmware_reports import holds_probe_report
+
+        return holds_probe_report(path, head, "reprapfirmware")
+
+    def read_measurements(self, paths: list, machine: Machine) -> list:
+        """The report's probe heights through the firmware's kinematics
+        (:func:`~pkmcal.export.firmware_reports.probe_report_data`)."""
+        from .firmware_reports import probe_report_file_data
+
+        return probe_report_file_data(paths, machine)
 
 
 REPRAPFIRMWARE = register_format(RepRapFirmwareDelta())
