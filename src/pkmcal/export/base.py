@@ -22,6 +22,7 @@ from types import MappingProxyType
 import numpy as np
 
 from ..errors import InputError
+from ..instruments.probe import BedSetup, Probe, bed_plane
 from ..instruments.setups import Setups
 from ..io.atomic import read_input_text
 from ..machines.base import Machine
@@ -691,6 +692,44 @@ class ControllerFormat(ABC):
             The set-ups (:class:`~pkmcal.instruments.setups.Setups`).
         """
         return Setups()
+
+
+def setups_bed(setups) -> np.ndarray:
+    """The bed plane of an experiment's set-ups (a calibrated machine file's ``bed``
+    section, :class:`~pkmcal.instruments.probe.BedSetup`), zeros without one.
+
+    Parameters
+    ----------
+    setups : Setups or None
+        The set-ups.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        ``(height m, tilt_x, tilt_y)``: the bed is ``z = height + tilt_x x + tilt_y y``.
+    """
+    bed = bed_plane(setups)
+    return np.zeros(3) if bed is None else np.asarray(bed, float).reshape(3)
+
+
+def bed_setups(bed) -> Setups:
+    """The set-ups a controller's bed plane makes (a probe's
+    :class:`~pkmcal.instruments.probe.BedSetup`; none for a bed at z = 0, untilted).
+
+    Parameters
+    ----------
+    bed : array_like, shape (3,)
+        ``(height m, tilt_x, tilt_y)``.
+
+    Returns
+    -------
+    Setups
+        The set-ups.
+    """
+    bed = np.asarray(bed, float).reshape(3)
+    if not np.any(bed != 0):
+        return Setups()
+    return Setups({Probe.name: BedSetup(*(float(v) for v in bed))})
 
 
 def finite_number(word: str, source: str, line: int, key: str) -> float:

@@ -58,7 +58,6 @@ import re
 import numpy as np
 
 from ..errors import InputError
-from ..instruments.probe import BedSetup, Probe, bed_plane
 from ..instruments.setups import Setups
 from ..machines.base import Machine
 from ..machines.linear_delta import LinearDelta, linear_delta
@@ -66,8 +65,10 @@ from .base import (
     ControllerFormat,
     ControllerParameters,
     Origin,
+    bed_setups,
     finite_number,
     register_format,
+    setups_bed,
 )
 
 #: the largest length a printer's config can mean, mm (10 m)
@@ -79,44 +80,6 @@ BED_KINDS = ("length", "slope", "slope")
 TOWERS = "abc"
 #: ``# pkmcal bed: height=<mm> tilt_x=<dz/dx> tilt_y=<dz/dy>`` (any comment character)
 BED_COMMENT = re.compile(r"pkmcal bed:\s*height=(\S+)\s+tilt_x=(\S+)\s+tilt_y=(\S+)")
-
-
-def setups_bed(setups) -> np.ndarray:
-    """The bed plane of an experiment's set-ups (a calibrated machine file's ``bed``
-    section, :class:`~pkmcal.instruments.probe.BedSetup`), zeros without one.
-
-    Parameters
-    ----------
-    setups : Setups or None
-        The set-ups.
-
-    Returns
-    -------
-    ndarray, shape (3,)
-        ``(height m, tilt_x, tilt_y)``: the bed is ``z = height + tilt_x x + tilt_y y``.
-    """
-    bed = bed_plane(setups)
-    return np.zeros(3) if bed is None else np.asarray(bed, float).reshape(3)
-
-
-def bed_setups(bed) -> Setups:
-    """The set-ups a controller's bed plane makes (a probe's
-    :class:`~pkmcal.instruments.probe.BedSetup`; none for a bed at z = 0, untilted).
-
-    Parameters
-    ----------
-    bed : array_like, shape (3,)
-        ``(height m, tilt_x, tilt_y)``.
-
-    Returns
-    -------
-    Setups
-        The set-ups.
-    """
-    bed = np.asarray(bed, float).reshape(3)
-    if not np.any(bed != 0):
-        return Setups()
-    return Setups({Probe.name: BedSetup(*(float(v) for v in bed))})
 
 
 def bed_text(bed, comment: str) -> str:

@@ -75,10 +75,12 @@ from .base import (
     ControllerFormat,
     ControllerParameters,
     Origin,
+    bed_setups,
     finite_number,
     hal_line_kind,
     refuse_foreign_text,
     register_format,
+    setups_bed,
 )
 from .klipper_rotary import leg_offsets, pkmcal_comments
 from .linuxcnc_config import LinuxCNCKinematics
@@ -708,10 +710,6 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
             ``R``, ``L`` the towers' means; ``HOME_OFFSET`` each carriage's height at its
             endstop above the bed.
         """
-        # imported here: at the top it would register Klipper before LinuxCNC (the order
-        # the formats are listed in)
-        from .klipper import setups_bed
-
         pe, theta, r, l, _, _ = machine.towers()
         bed_z = float(setups_bed(setups)[0])
         joint = joint_of_legs(theta, LINEAR_TOWERS)
@@ -923,7 +921,7 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
 
     def imported_setups(self, params: ControllerParameters) -> Setups:
         """The bed ``bed_z`` of the values as a set-up (untilted;
-        :func:`~pkmcal.export.klipper.bed_setups`).
+        :func:`~pkmcal.export.base.bed_setups`).
 
         Parameters
         ----------
@@ -935,8 +933,6 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
         Setups
             The set-ups.
         """
-        from .klipper import bed_setups
-
         return bed_setups([params.values[5], 0.0, 0.0])
 
 

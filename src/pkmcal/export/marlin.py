@@ -80,9 +80,11 @@ from .base import (
     ControllerFormat,
     ControllerParameters,
     Origin,
+    bed_setups,
     origin_of,
     refuse_foreign_text,
     register_format,
+    setups_bed,
     where,
 )
 from .gcode_text import gcode_line_kind, gcode_lines, gcode_words, host_line
@@ -90,7 +92,6 @@ from .klipper import (
     BED,
     BED_KINDS,
     bed_origins,
-    bed_setups,
     bed_text,
     bed_values,
     check_printer_values,
@@ -99,7 +100,6 @@ from .klipper import (
     linear_delta_keys,
     linear_delta_machine,
     read_bed,
-    setups_bed,
     tower_positions,
     vertical_tower_travel,
     wrap_degrees,
@@ -220,7 +220,7 @@ class MarlinDelta(ControllerFormat):
         machine : Machine
             A linear Delta.
         setups : Setups, optional
-            The experiment's set-ups: the bed (:func:`~pkmcal.export.klipper.setups_bed`) the
+            The experiment's set-ups: the bed (:func:`~pkmcal.export.base.setups_bed`) the
             controller's z = 0 is on.
 
         Returns

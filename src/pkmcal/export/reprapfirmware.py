@@ -63,9 +63,11 @@ from .base import (
     ControllerFormat,
     ControllerParameters,
     Origin,
+    bed_setups,
     origin_of,
     refuse_foreign_text,
     register_format,
+    setups_bed,
     where,
 )
 from .gcode_text import gcode_line_kind, gcode_lines, gcode_words
@@ -73,7 +75,6 @@ from .klipper import (
     BED,
     BED_KINDS,
     bed_origins,
-    bed_setups,
     bed_text,
     bed_values,
     check_printer_values,
@@ -82,7 +83,6 @@ from .klipper import (
     linear_delta_keys,
     linear_delta_machine,
     read_bed,
-    setups_bed,
     tower_positions,
     vertical_tower_travel,
     wrap_degrees,
@@ -173,7 +173,7 @@ class RepRapFirmwareDelta(ControllerFormat):
         machine : Machine
             A linear Delta.
         setups : Setups, optional
-            The experiment's set-ups: the bed (:func:`~pkmcal.export.klipper.setups_bed`) the
+            The experiment's set-ups: the bed (:func:`~pkmcal.export.base.setups_bed`) the
             controller's z = 0 is on.
 
         Returns
