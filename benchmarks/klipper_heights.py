@@ -212,10 +212,12 @@ def _as_calibration(values) -> ref.DeltaCalibration:
                                 [STEPDIST] * 3)
 
 
-def model_heights(machine, data: ref.CalibrationData) -> np.ndarray:
+def model_heights(machine, data: ref.CalibrationData, setups=None) -> np.ndarray:
     """Predicted minus saved heights of a calibrated pkmcal machine itself (its own model and
-    bed plane, before the export to Klipper's values), mm."""
-    bed = getattr(machine, "probe_bed", None)
+    the bed plane of its set-ups, before the export to Klipper's values), mm."""
+    from pkmcal.instruments.probe import bed_plane
+
+    bed = bed_plane(setups)
     bed = np.zeros(3) if bed is None else np.asarray(bed, float)
     steps = np.array([s for _, s in data.probe_heights])
     P, _ = machine.fk_positions(steps * STEPDIST * 1e-3)
@@ -228,20 +230,23 @@ def pkmcal_values(cfg_path: Path, keep: dict | None = None,
     """import -> calibrate --parameters klipper-basic -> export --to klipper, in process."""
     from pkmcal.calibration.run import calibrate
     from pkmcal.export import controller_format, export
+    from pkmcal.instruments.probe import bed_plane
 
     fmt = controller_format("klipper")
     machine = fmt.to_machine(fmt.parse(cfg_path.read_text(), str(cfg_path)))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         cal = calibrate(machine, str(cfg_path), parameters="klipper-basic", bed_tilt=bed_tilt)
+    setups = cal.setups
     if keep is not None:
-        keep["calibrated"] = cal.calibrated
-    ws = cal.calibrated.print_workspace(rng=0)          # what `pkmcal export` fits over
-    result = export(fmt, cal.calibrated, ws.P, ws.R, surface=ws.surface)
+        keep["calibrated"], keep["setups"] = cal.calibrated, setups
+    # what `pkmcal export` fits over
+    ws = cal.calibrated.print_workspace(rng=0, bed=bed_plane(setups))
+    result = export(fmt, cal.calibrated, ws.P, ws.R, surface=ws.surface, setups=setups)
     return _as_calibration(result.params.values)
 
 
-def heights_fold_in(machine) -> ref.DeltaCalibration:
+def heights_fold_in(machine, setups=None) -> ref.DeltaCalibration:
     """DIAGNOSTIC, not pkmcal's path: Klipper's basic values (radius, angles a and b, the
     endstops; arms and angle c as imported) fitted to the calibrated machine's nozzle HEIGHT
     errors on its print disk (z only, the bed tilt folded in), instead of the export's 3D
@@ -250,11 +255,12 @@ def heights_fold_in(machine) -> ref.DeltaCalibration:
 
     from pkmcal.export import controller_format
     from pkmcal.export.fitting import position_errors
+    from pkmcal.instruments.probe import bed_plane
 
     fmt = controller_format("klipper")
-    ws = machine.print_workspace(rng=0)
+    ws = machine.print_workspace(rng=0, bed=bed_plane(setups))
     P = ws.P[ws.surface]
-    params = fmt.initial(machine)
+    params = fmt.initial(machine, setups)
     free = np.zeros(len(params.values), bool)
     free[[0, 4, 5, 7, 8, 9]] = True
     length = machine.characteristic_length()
@@ -321,12 +327,14 @@ def one_printer(seed: int, points: int, held: int, noise_mm: float, without=(),
         out[f"{who}_true"] = ref.rms(ref.height_residuals(values, held_exact))
     out["before_held"] = ref.rms(ref.height_residuals(cfg, held_exact))
     if diagnose and "calibrated" in keep:   # pkmcal's own model, before the export
-        out["model_in"] = ref.rms(model_heights(keep["calibrated"], calib))
-        out["model_true"] = ref.rms(model_heights(keep["calibrated"], held_exact))
-        zfit = heights_fold_in(keep["calibrated"])
+        out["model_in"] = ref.rms(model_heights(keep["calibrated"], calib, keep["setups"]))
+        out["model_true"] = ref.rms(model_heights(keep["calibrated"], held_exact,
+                                                  keep["setups"]))
+        zfit = heights_fold_in(keep["calibrated"], keep["setups"])
         out["zfit_true"] = ref.rms(ref.height_residuals(zfit, held_exact))
         out["zfit_held"] = ref.rms(ref.height_residuals(zfit, held_noisy))
-        out["model_held"] = ref.rms(model_heights(keep["calibrated"], held_noisy))
+        out["model_held"] = ref.rms(model_heights(keep["calibrated"], held_noisy,
+                                                  keep["setups"]))
     return out
 
 

@@ -189,6 +189,7 @@ def pkmcal_values(paths: list, data=None, parameters: str | None = None):
     instead of the files (the points-only baselines)."""
     from pkmcal.calibration.run import calibrate
     from pkmcal.export import controller_format, export
+    from pkmcal.instruments.probe import bed_plane
 
     fmt = controller_format("klipper")
     last = Path(paths[-1])
@@ -199,11 +200,12 @@ def pkmcal_values(paths: list, data=None, parameters: str | None = None):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         cal = calibrate(machine, data, parameters=parameters)
-    ws = cal.calibrated.print_workspace(rng=0)
-    result = export(fmt, cal.calibrated, ws.P, ws.R, surface=ws.surface)
+    setups = cal.setups
+    ws = cal.calibrated.print_workspace(rng=0, bed=bed_plane(setups))
+    result = export(fmt, cal.calibrated, ws.P, ws.R, surface=ws.surface, setups=setups)
     new = fmt.update(text, result.params, cal.calibrated, str(last)) or result.text
     if MESH_HANDOVER:
-        new = fmt.with_bed_mesh(new, result.params, cal.calibrated) or new
+        new = fmt.with_bed_mesh(new, result.params, cal.calibrated, setups) or new
     return delta_values(KlipperConfig.read(str(last), new)), cal, exported_mesh(last, new)
 
 

@@ -44,7 +44,9 @@ from pkmcal.export.fitting import export, position_errors
 from pkmcal.export.klipper import KLIPPER
 from pkmcal.export.marlin import MARLIN
 from pkmcal.export.reprapfirmware import REPRAPFIRMWARE
-from pkmcal.io.machine_file import load_machine
+from pkmcal.instruments.probe import BedSetup, bed_plane
+from pkmcal.instruments.setups import Setups
+from pkmcal.io.machine_file import load_machine, load_machine_file
 from pkmcal.machines import linear_delta
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "linear_delta.yaml"
@@ -69,7 +71,8 @@ def calibrated(kind: str):
     """examples/linear_delta.yaml simulated (seed 1) and calibrated: ``tracker`` with the
     ``full`` model, ``probe`` with Klipper's set and the bed's tilt estimated (a bed
     section with a tilt: ``--bed-tilt estimate``; 37 heights fix it only as well as the
-    endstops' differences, so ``auto`` takes the bed square)."""
+    endstops' differences, so ``auto`` takes the bed square). The machine and its set-ups
+    (the bed)."""
     import tempfile
 
     tmp = Path(tempfile.mkdtemp(prefix="pkmcal_export_"))
@@ -81,7 +84,7 @@ def calibrated(kind: str):
     p = run("calibrate", EXAMPLE, "data.csv", "--parameters", params, *tilt, "-o", "cal.yaml",
             cwd=tmp)
     assert p.returncode == 0, p.stderr
-    return load_machine(tmp / "cal.yaml")
+    return load_machine_file(tmp / "cal.yaml")
 
 
 def commands(text: str) -> list:
@@ -89,9 +92,9 @@ def commands(text: str) -> list:
     return [x for x in text.splitlines() if x.strip() and x.strip()[0] not in "#;"]
 
 
-def bed_of(machine):
-    bed = getattr(machine, "probe_bed", None)
-    return (0.0, 0.0, 0.0) if bed is None else tuple(float(v) for v in bed)
+def bed_of(setups):
+    bed = bed_plane(setups)
+    return (0.0, 0.0, 0.0) if bed is None else bed
 
 
 # -- independent firmware kinematics, from the written text ------------------------------------
@@ -176,8 +179,8 @@ def rrf_ik(text: str, P, bed) -> np.ndarray:
 INDEPENDENT = {"klipper": klipper_ik, "marlin": marlin_ik, "reprapfirmware": rrf_ik}
 
 
-def errors_of_text(name, text, machine, P) -> np.ndarray:
-    q = INDEPENDENT[name](text, P, bed_of(machine))
+def errors_of_text(name, text, machine, P, setups=None) -> np.ndarray:
+    q = INDEPENDENT[name](text, P, bed_of(setups))
     fk = machine.fk(q)
     assert fk.converged.all()
     return np.linalg.norm(fk.P - P, axis=-1)
@@ -189,23 +192,23 @@ def test_written_text_leaves_the_reported_error(name):
     """Tracker calibration with the full model (tilted towers, radius trims): the written
     values, through the firmware's own kinematics, leave the RMS and max error that export
     reports; the fitted values beat the values read off the machine and the nominal ones."""
-    m = calibrated("tracker")
+    m, setups = calibrated("tracker")
     P = grid()
     fmt = FORMATS[name]
-    r = export(fmt, m, P, nominal=load_machine(EXAMPLE))
-    e = errors_of_text(name, r.text, m, P)
+    r = export(fmt, m, P, nominal=load_machine(EXAMPLE), setups=setups)
+    e = errors_of_text(name, r.text, m, P, setups)
     assert abs(math.sqrt(np.mean(e**2)) - r.remaining_rms) <= 1e-6 * r.remaining_rms + DIGITS
     assert abs(e.max() - r.remaining_max) <= 1e-6 * r.remaining_max + DIGITS
-    direct = np.linalg.norm(position_errors(fmt, fmt.initial(m), m, P), axis=-1)
+    direct = np.linalg.norm(position_errors(fmt, fmt.initial(m, setups), m, P), axis=-1)
     assert r.remaining_rms < math.sqrt(np.mean(direct**2))
     assert r.remaining_rms < 0.2 * r.before_rms
     assert 50e-6 < r.remaining_rms < 200e-6          # the towers' tilt: no firmware holds it
 
 
 def test_reprapfirmware_tilt_does_at_least_as_well():
-    m = calibrated("tracker")
+    m, setups = calibrated("tracker")
     P = grid()
-    rms = {n: export(f, m, P).remaining_rms for n, f in FORMATS.items()}
+    rms = {n: export(f, m, P, setups=setups).remaining_rms for n, f in FORMATS.items()}
     assert abs(rms["klipper"] - rms["marlin"]) < 1e-3 * rms["klipper"]
     assert rms["reprapfirmware"] <= rms["klipper"] * (1 + 1e-6)
 
@@ -217,12 +220,13 @@ def test_probe_calibration_counts_the_bed_tilt(name):
     RepRapFirmware holds the tilt (M666 A B) exactly; Klipper and Marlin cannot, so their
     values take what they can of it and the remaining error counts the rest, as their own
     kinematics on the written text show; never the tilt dropped (an error of 0)."""
-    m = calibrated("probe")
-    assert m.probe_bed is not None and m.probe_bed[0] == 0 and abs(m.probe_bed[1]) > 0
+    m, setups = calibrated("probe")
+    bed = bed_plane(setups)
+    assert bed is not None and bed[0] == 0 and abs(bed[1]) > 0
     P = grid()
-    r = export(FORMATS[name], m, P)
-    e = errors_of_text(name, r.text, m, P)
-    tilt = np.abs(m.probe_bed[1] * P[:, 0] + m.probe_bed[2] * P[:, 1])
+    r = export(FORMATS[name], m, P, setups=setups)
+    e = errors_of_text(name, r.text, m, P, setups)
+    tilt = np.abs(bed[1] * P[:, 0] + bed[2] * P[:, 1])
     if name == "reprapfirmware":
         # exact but for the rounding of the written values, which the stated error includes
         assert r.remaining_max < DIGITS and e.max() < DIGITS
@@ -236,23 +240,23 @@ def test_probe_calibration_counts_the_bed_tilt(name):
 
 def _representable(name):
     """A true machine each format holds: per-tower arms, skewed angles, uneven endstops, a
-    raised bed (tilted for RepRapFirmware)."""
+    raised bed (tilted for RepRapFirmware), and its set-ups (the bed)."""
     m = linear_delta(0.1385, [0.2681, 0.2674, 0.2690], np.deg2rad([210.4, 329.7, 90.3]),
                      (0.2934, 0.2951, 0.2917))
-    m.probe_bed = (4e-4, 2e-3, -1e-3) if name == "reprapfirmware" else (4e-4, 0.0, 0.0)
-    return m
+    bed = (4e-4, 2e-3, -1e-3) if name == "reprapfirmware" else (4e-4, 0.0, 0.0)
+    return m, Setups({"probe": BedSetup(*bed)})
 
 
 @pytest.mark.parametrize("name", FORMATS)
 def test_a_representable_machine_exports_exactly(name):
-    m = _representable(name)
+    m, setups = _representable(name)
     P = grid()
     fmt = FORMATS[name]
-    e0 = np.linalg.norm(position_errors(fmt, fmt.initial(m), m, P), axis=-1)
+    e0 = np.linalg.norm(position_errors(fmt, fmt.initial(m, setups), m, P), axis=-1)
     assert e0.max() < 1e-12                               # initial() reads it exactly
-    r = export(fmt, m, P)
+    r = export(fmt, m, P, setups=setups)
     assert r.remaining_max < 1e-12
-    assert errors_of_text(name, r.text, m, P).max() < 1e-9
+    assert errors_of_text(name, r.text, m, P, setups).max() < 1e-9
 
 
 @pytest.mark.parametrize("name", FORMATS)
@@ -260,26 +264,26 @@ def test_a_representable_machine_exports_exactly(name):
 def test_round_trips(name, kind):
     """export -> parse -> text is the same text; import to a LinearDelta -> initial -> text
     writes the same values; the imported machine moves as the controller commands."""
-    m = calibrated(kind)
+    m, setups = calibrated(kind)
     P = grid()
     fmt = FORMATS[name]
-    r = export(fmt, m, P)
+    r = export(fmt, m, P, setups=setups)
     parsed = fmt.parse(r.text, "out")
-    assert fmt.text(parsed, m) == r.text
+    assert fmt.text(parsed, m, setups) == r.text
     np.testing.assert_allclose(fmt.ik(parsed, P), fmt.ik(r.params, P), rtol=0, atol=DIGITS)
-    imported = fmt.to_machine(parsed, like=m)
+    imported, imported_setups = fmt.to_machine(parsed, like=m), fmt.imported_setups(parsed)
     assert imported.kind == "linear_delta" and imported.geometry_problems() == []
     # the same G-code (RepRapFirmware's import takes A, B as the bed's slopes, so its
     # ``pkmcal bed`` comment names the imported frame)
-    assert commands(fmt.text(fmt.initial(imported), m)) == commands(r.text)
-    values = fmt.initial(imported)
+    assert commands(fmt.text(fmt.initial(imported, imported_setups), m)) == commands(r.text)
+    values = fmt.initial(imported, imported_setups)
     assert np.nanmax(np.abs(position_errors(fmt, values, imported, P))) < 1e-12
-    again = export(fmt, imported, P)
+    again = export(fmt, imported, P, setups=imported_setups)
     assert again.remaining_max < 1e-12
 
 
 def test_degenerate_values_are_fixed_and_normalised():
-    m = calibrated("tracker")
+    m, _ = calibrated("tracker")
     P = grid()
     fixed = {n: [k for k, f in zip(fmt.initial(m).names, fmt.initial(m).fixed, strict=True)
                  if f] for n, fmt in FORMATS.items()}
@@ -359,8 +363,11 @@ def test_firmware_reports_are_read():
            "X0.100 Y-0.200 Z0.000\nM666 X0.100 Y-0.050 Z-0.050 A0.20 B-0.10\n")
     p = REPRAPFIRMWARE.parse(rrf, "config-override.g").as_dict()
     assert p["diagonal_y"] == pytest.approx(0.2501) and p["x_tilt"] == pytest.approx(0.002)
-    m = REPRAPFIRMWARE.to_machine(REPRAPFIRMWARE.parse(rrf, "config-override.g"))
-    assert m.probe_bed == pytest.approx((0.0, 0.002, -0.001))
+    values = REPRAPFIRMWARE.parse(rrf, "config-override.g")
+    m = REPRAPFIRMWARE.to_machine(values)
+    assert bed_plane(REPRAPFIRMWARE.imported_setups(values)) == pytest.approx((0.0, 0.002,
+                                                                                -0.001))
+    assert not hasattr(m, "probe_bed")              # the bed is a set-up beside the machine
     assert m.firmware_values()["position_endstop"] == pytest.approx([0.2801, 0.27995,
                                                                      0.27995])
 

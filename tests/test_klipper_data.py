@@ -27,6 +27,7 @@ import klipper_reference as K
 from pkmcal.calibration.run import calibrate
 from pkmcal.errors import InputError
 from pkmcal.export import controller_format, export
+from pkmcal.instruments.probe import bed_plane
 from pkmcal.io.klipper_config import KlipperConfig, save_config_text
 from pkmcal.io.klipper_data import delta_calibrate_data, klipper_weights
 
@@ -73,9 +74,10 @@ def library_path(path: Path, tmp: Path) -> Path:
     machine = KLIPPER.to_machine(KLIPPER.parse(text, str(cfg)))
     # Klipper's own data set: the DELTA_CALIBRATE points alone (a saved bed mesh is more data,
     # which Klipper's calibration does not see)
-    cal = calibrate(machine, points_of(cfg, machine), parameters=the_set(path)).calibrated
-    ws = cal.print_workspace(rng=0)
-    r = export(KLIPPER, cal, ws.P, ws.R, surface=ws.surface)
+    c = calibrate(machine, points_of(cfg, machine), parameters=the_set(path))
+    cal = c.calibrated
+    ws = cal.print_workspace(rng=0, bed=bed_plane(c.setups))
+    r = export(KLIPPER, cal, ws.P, ws.R, surface=ws.surface, setups=c.setups)
     cfg.write_text(KLIPPER.update(text, r.params, cal, str(cfg)), encoding="utf-8")
     return cfg
 
@@ -548,8 +550,8 @@ def test_basic_set_on_a_config_with_distances_is_klippers_basic_fit(path, tmp_pa
     machine = KLIPPER.to_machine(KLIPPER.parse(cfg.read_text(), str(cfg)))
     c = calibrate(machine, points_of(cfg, machine), parameters="klipper-basic")
     assert any("distances: left out" in w for w in c.warnings)
-    ws = c.calibrated.print_workspace(rng=0)
-    r = export(KLIPPER, c.calibrated, ws.P, ws.R, surface=ws.surface)
+    ws = c.calibrated.print_workspace(rng=0, bed=bed_plane(c.setups))
+    r = export(KLIPPER, c.calibrated, ws.P, ws.R, surface=ws.surface, setups=c.setups)
     cfg.write_text(KLIPPER.update(cfg.read_text(), r.params, c.calibrated, str(cfg)))
     ds = K.load_data_set(str(path))
     basic = K.delta_calibrate(ds.calibration, ds.data, extended=False).calibration

@@ -27,7 +27,8 @@ from clitools import calibrated_file, run
 from klippy_harness import Klippy, hardware, requires_klippy
 from pkmcal.errors import InputError
 from pkmcal.export import controller_format, export, export_workspace
-from pkmcal.io.machine_file import load_machine
+from pkmcal.instruments.probe import bed_plane
+from pkmcal.io.machine_file import load_machine, load_machine_file
 from pkmcal.machines.delta import Delta, delta_parameters
 from pkmcal.machines.linear_delta import linear_delta
 
@@ -72,9 +73,10 @@ def delta_cal(tmp_path_factory):
 @pytest.fixture(scope="module")
 def linear_cal(tmp_path_factory):
     """examples/linear_delta.yaml (tilted towers, per-tower trims) calibrated from its bed
-    probe, the full model (what Klipper cannot hold is the remaining error)."""
+    probe, the full model (what Klipper cannot hold is the remaining error): the machine and
+    its set-ups (the bed)."""
     tmp = tmp_path_factory.mktemp("linear")
-    return load_machine(calibrated_file(tmp, EXAMPLES / "linear_delta.yaml", "probe"))
+    return load_machine_file(calibrated_file(tmp, EXAMPLES / "linear_delta.yaml", "probe"))
 
 
 def exact_rotary(angles_deg=(90.0, 180.0, -90.0), shoulders=0.0) -> Delta:
@@ -92,13 +94,14 @@ def exact_rotary(angles_deg=(90.0, 180.0, -90.0), shoulders=0.0) -> Delta:
 
 
 # -- running an export in Klipper -------------------------------------------------------------
-def klipper_targets(fmt, res, machine, P) -> np.ndarray:
+def klipper_targets(fmt, res, machine, P, setups=None) -> np.ndarray:
     """Targets of the machine file's frame in Klipper's coordinates (mm), as the export
-    states them: the rotary Delta's bed at ``bed_z`` (its note), a printer's bed plane."""
+    states them: the rotary Delta's bed at ``bed_z`` (its note), a printer's bed plane (of
+    the machine file's set-ups)."""
     P = np.asarray(P, float)
     if fmt is ROTARY:
         return (P - [0.0, 0.0, res.params.as_dict()["bed_z"]]) * 1e3
-    bed = getattr(machine, "probe_bed", None)
+    bed = bed_plane(setups)
     bed = np.zeros(3) if bed is None else np.asarray(bed, float)
     return np.column_stack([P[:, :2], P[:, 2] - bed[0] - bed[1] * P[:, 0]
                             - bed[2] * P[:, 1]]) * 1e3
@@ -116,12 +119,12 @@ def machine_readings(fmt, res, klippy, Pk) -> np.ndarray:
     return out
 
 
-def check_in_klipper(fmt, res, machine, P, config: Path) -> Klippy:
+def check_in_klipper(fmt, res, machine, P, config: Path, setups=None) -> Klippy:
     """Klipper reads ``config``, homes, commands ``P``: the machine goes where pkmcal says
     (to 1e-6 mm of pkmcal's model of Klipper) and the error is the stated one."""
     k = Klippy(config)
     k.home()
-    Pk = klipper_targets(fmt, res, machine, P)
+    Pk = klipper_targets(fmt, res, machine, P, setups)
     assert np.all(Pk[:, 2] >= 0), "a target below Klipper's minimum_z_position"
     q = machine_readings(fmt, res, k, Pk)
     assert np.all(np.isfinite(q))
@@ -165,8 +168,8 @@ def write_include(tmp: Path, kinematics: str, fragment: str) -> Path:
 class Written:
     """What ``pkmcal export`` wrote and stated (its JSON record): the values, the errors."""
 
-    def __init__(self, fmt, machine, record: dict, text: str):
-        start = fmt.initial(machine)
+    def __init__(self, fmt, machine, record: dict, text: str, setups=None):
+        start = fmt.initial(machine, setups)
         values = record["values"]
         self.params = start.with_values([values.get(n, v) for n, v in
                                          zip(start.names, start.values, strict=True)])
@@ -177,17 +180,19 @@ class Written:
         self.notes = record.get("notes", [])
 
 
-def export_into(fmt, machine, existing: Path, nominal: Path | None = None) -> Written:
+def export_into(fmt, machine, existing: Path, nominal: Path | None = None,
+                setups=None) -> Written:
     """``pkmcal export CAL -o printer.cfg`` onto an existing config (saved as Klipper's
-    SAVE_CONFIG saves), over the command's default workspace (seed 0)."""
+    SAVE_CONFIG saves), over the command's default workspace (seed 0); ``setups``: the
+    machine file's set-ups (a printer's bed)."""
     from pkmcal.io.machine_file import save_machine
 
-    save_machine(machine, existing.parent / "machine.yaml")
+    save_machine(machine, existing.parent / "machine.yaml", setups=setups)
     proc = run("export", "machine.yaml", "--to", fmt.name, "-o", existing,
                *(["--nominal", nominal] if nominal is not None else []), cwd=existing.parent)
     assert proc.returncode == 0, proc.stderr
     record = json.loads(existing.with_name(existing.name + ".json").read_text())
-    return Written(fmt, machine, record, existing.read_text())
+    return Written(fmt, machine, record, existing.read_text(), setups)
 
 
 # -- the rotary Delta -------------------------------------------------------------------------
@@ -368,17 +373,19 @@ def test_linear_calibrated_printer_in_klipper(tmp_path, linear_cal, mode):
     """The calibrated example printer (tilted towers, trims, a bed): Klipper's code leaves
     the stated error, through every way the file is used."""
     nominal = load_machine(EXAMPLES / "linear_delta.yaml")
-    ws = linear_cal.print_workspace(rng=0)
+    cal, setups = linear_cal
+    ws = cal.print_workspace(rng=0, bed=bed_plane(setups))
     if mode == "save_config":
         start = export(LINEAR, nominal, ws.P, ws.R)
         config = write_main(tmp_path, "delta", start.text)
-        res = export_into(LINEAR, linear_cal, config, EXAMPLES / "linear_delta.yaml")
+        res = export_into(LINEAR, cal, config, EXAMPLES / "linear_delta.yaml", setups)
     else:
-        res = export(LINEAR, linear_cal, ws.P, ws.R, nominal=nominal, surface=ws.surface)
+        res = export(LINEAR, cal, ws.P, ws.R, nominal=nominal, surface=ws.surface,
+                     setups=setups)
         write = write_main if mode == "main" else write_include
         config = write(tmp_path, "delta", res.text)
     assert 0 < res.remaining_rms < res.before_rms
-    check_in_klipper(LINEAR, res, linear_cal, ws.P, config)
+    check_in_klipper(LINEAR, res, cal, ws.P, config, setups)
 
 
 def test_linear_clockwise_towers_are_relabelled(tmp_path):

@@ -244,10 +244,11 @@ def test_each_session_has_its_own_endstop_offsets(tmp_path):
     assert all(s < 0.01 for s in found["std"]), found      # at the assumed 10 um
     # the export gives the printer's own values back
     from pkmcal.export import controller_format, export
+    from pkmcal.instruments.probe import bed_plane
 
     fmt = controller_format("klipper")
-    ws = c.calibrated.print_workspace(rng=0)
-    r = export(fmt, c.calibrated, ws.P, ws.R, surface=ws.surface)
+    ws = c.calibrated.print_workspace(rng=0, bed=bed_plane(c.setups))
+    r = export(fmt, c.calibrated, ws.P, ws.R, surface=ws.surface, setups=c.setups)
     text = fmt.update(files[2].read_text(), r.params, c.calibrated, str(files[2]))
     got = delta_values(KlipperConfig.read(files[2], text))
     assert abs(got.radius - TRUTH.radius) < 5e-3

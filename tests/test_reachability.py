@@ -77,13 +77,17 @@ def test_linear_delta_states_its_endstops_and_bed():
 
 
 def test_a_calibrated_printers_bed_plane_is_its_floor():
+    """The bed of the experiment's set-ups (``bed=``, the machine holds none) is the floor of
+    the reachable poses; without it the nominal bed (z = 0) is."""
     m = load_machine(EXAMPLES / PRINTER)
-    m.probe_bed = (0.002, 0.001, 0.0)           # 2 mm up, tilted along x
+    bed = (0.002, 0.001, 0.0)                   # 2 mm up, tilted along x
     P = m.targets_in_base(np.array([[0.05, 0, 0.0], [0.05, 0, -0.0001], [-0.05, 0, 0.01]]),
-                          m.probe_bed)
-    reach = m.reachability(P)
+                          bed)
+    reach = m.reachability(P, bed=bed)
     assert reach.ok.tolist() == [True, False, True]
     assert reach.reasons[1] == "the nozzle 0.1 mm below the bed"
+    assert m.within_physical_limits(P, None, bed=bed).tolist() == [True, False, True]
+    assert m.reachability(P).ok.tolist() == [True, True, True]       # above z = 0
 
 
 @pytest.mark.parametrize("name", [DELTA, HEXASLIDE, STEWART])

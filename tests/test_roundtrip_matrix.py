@@ -183,9 +183,10 @@ def _ik_then_fk(f, m, inst):
 
 
 def _compensate_then_fk(f, m, inst):
-    from pkmcal.io import load_machine
+    from pkmcal.instruments.probe import bed_plane
+    from pkmcal.io import load_machine_file
 
-    bed = getattr(load_machine(f.d / m), "probe_bed", None)
+    bed = bed_plane(load_machine_file(f.d / m)[1])
     if f.machine.frame_is_bed and bed is not None and any(bed[1:]):
         # known, left open: select-poses writes its plan in the base frame, compensate reads
         # a printer's targets as heights above its bed; on a printer with a tilted bed the
@@ -286,7 +287,7 @@ def test_a_printers_bed_height_is_carried_by_its_endstops(tmp_path):
     ``simulate`` ("the bed's centre (0, 0, 0) mm cannot be probed"): a printer's frame is its
     bed, so the height is read as what it means - the endstops 0.5 mm nearer the bed - and
     never written."""
-    from pkmcal.io import load_machine
+    from pkmcal.io import load_machine_file
 
     printer = next(make() for make in DEFAULTS.values() if make().frame_is_bed)
     save_machine(printer, tmp_path / "printer.yaml")
@@ -294,8 +295,8 @@ def test_a_printers_bed_height_is_carried_by_its_endstops(tmp_path):
     assert "bed:" not in text
     (tmp_path / "raised.yaml").write_text(text + "bed: {height: 0.5, tilt_x: 0.001, "
                                                  "tilt_y: 0.0}\n")
-    raised = load_machine(tmp_path / "raised.yaml")
-    assert raised.probe_bed == (0.0, 0.001, 0.0)
+    raised, setups = load_machine_file(tmp_path / "raised.yaml")
+    assert setups["probe"].plane == (0.0, 0.001, 0.0)
     P, R = printer.home
     q0, q1 = printer.ik(P[None], R[None]), raised.ik(P[None] - [0, 0, 5e-4], R[None])
     assert abs(q1 - q0).max() <= 1e-12 * abs(q0).max()       # the same printer, 0.5 mm lower

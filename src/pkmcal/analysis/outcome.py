@@ -37,6 +37,7 @@ from ..estimation.acceptance import (
     VERDICT_WORDS,
     report_verdict,
 )
+from ..instruments.probe import bed_plane
 from ..machines.reach import default_workspace
 from .accuracy import pose_errors
 from .prediction import align_out, pose_sensitivity
@@ -84,14 +85,15 @@ def _sigma(S, C, N=None) -> np.ndarray:
     return np.sqrt(np.sum(E**2, axis=-1))
 
 
-def _height_above_bed(machine, P) -> np.ndarray:
-    bed = getattr(machine, "probe_bed", None)
+def _height_above_bed(bed, P) -> np.ndarray:
+    """Heights of positions ``P`` above the bed plane ``bed`` (``(height, tilt_x, tilt_y)``;
+    None: z = 0)."""
     b = np.zeros(3) if bed is None else np.asarray(bed, float)
     return P[:, 2] - (b[0] + b[1] * P[:, 0] + b[2] * P[:, 1])
 
 
-def _on_bed(machine, xy) -> np.ndarray:
-    bed = getattr(machine, "probe_bed", None)
+def _on_bed(bed, xy) -> np.ndarray:
+    """Points on the bed plane ``bed`` at ``xy``."""
     b = np.zeros(3) if bed is None else np.asarray(bed, float)
     return np.column_stack([xy, b[0] + b[1] * xy[:, 0] + b[2] * xy[:, 1]])
 
@@ -106,10 +108,10 @@ def _probe_data(problem) -> list:
     return [p.data for p in parts if getattr(p, "data", None) is not None and heights(p.data)]
 
 
-def _probe_points(nominal, calibrated, problem) -> dict | None:
+def _probe_points(nominal, calibrated, problem, bed) -> dict | None:
     """Probe points (x, y, mm) and their height residuals (measured - predicted, um) with the
     values in force (the bed plane fitted alone, as the before figure of the calibration) and
-    with the calibrated values."""
+    with the calibrated values (and the calibrated bed plane ``bed``)."""
     data = _probe_data(problem)
     if not data:
         return None
@@ -119,7 +121,7 @@ def _probe_points(nominal, calibrated, problem) -> dict | None:
         z = np.asarray(d.values, float).reshape(len(q), -1)[:, 0]
         fk = calibrated.fk(q)
         P = np.where(fk.converged[:, None], fk.P, np.nan)
-        after.append(z - _height_above_bed(calibrated, P))
+        after.append(z - _height_above_bed(bed, P))
         fk0 = nominal.fk(q)
         P0 = np.where(fk0.converged[:, None], fk0.P, np.nan)
         ok = np.all(np.isfinite(P0), axis=1)
@@ -138,15 +140,16 @@ def _probe_points(nominal, calibrated, problem) -> dict | None:
             "after_um": cat(after, 1e6)}
 
 
-def _bed_accuracy(nominal, calibrated, C, problem, workspace) -> tuple[dict, dict]:
-    """The printer's accuracy (nozzle height above the bed over the print disk) and its map."""
+def _bed_accuracy(nominal, calibrated, C, problem, workspace, bed) -> tuple[dict, dict]:
+    """The printer's accuracy (nozzle height above the bed over the print disk) and its map;
+    ``bed``: the calibrated bed plane (the calibration's set-ups)."""
     P = workspace.P[workspace.surface] if workspace.surface is not None else workspace.P
     radius = float(np.max(np.hypot(P[:, 0], P[:, 1])))
     g = np.linspace(-radius, radius, BED_GRID)
     X, Y = np.meshgrid(g, g)
     inside = (np.hypot(X, Y) <= radius).ravel()
     xy = np.column_stack([X.ravel(), Y.ravel()])[inside]
-    target = _on_bed(calibrated, xy)
+    target = _on_bed(bed, xy)
     eye = np.broadcast_to(np.eye(3), (len(xy), 3, 3))
     with np.errstate(all="ignore"):
         # the values in force command the nozzle to their z = 0; the calibrated model says
@@ -155,7 +158,7 @@ def _bed_accuracy(nominal, calibrated, C, problem, workspace) -> tuple[dict, dic
         fk = calibrated.fk(np.where(np.all(np.isfinite(q), -1)[:, None], q,
                                     calibrated.ik(*calibrated.home)))
     ok = fk.converged & np.all(np.isfinite(q), -1)
-    before = np.where(ok, _height_above_bed(calibrated, fk.P), np.nan)
+    before = np.where(ok, _height_above_bed(bed, fk.P), np.nan)
     sigma = np.full(len(xy), np.nan)
     if C is not None:
         S = pose_sensitivity(calibrated, target, eye)
@@ -177,7 +180,7 @@ def _bed_accuracy(nominal, calibrated, C, problem, workspace) -> tuple[dict, dic
             "grid_mm": (g * 1e3).tolist(),
             "before_um": [None if not np.isfinite(v) else float(v) for v in grid_before],
             "after_std_um": [None if not np.isfinite(v) else float(v) for v in grid_after]}
-    points = _probe_points(nominal, calibrated, problem) if problem is not None else None
+    points = _probe_points(nominal, calibrated, problem, bed) if problem is not None else None
     if points:
         pmap["points"] = points
     return accuracy, pmap
@@ -396,7 +399,7 @@ def headline(outcome: dict) -> str:
 
 
 def calibration_outcome(calibration, output: str | None = None, n: int = POINTS,
-                        rng=0) -> dict:
+                        rng=0, setups=None) -> dict:
     """The report's ``outcome`` section of a calibration (see the module docstring).
 
     Parameters
@@ -409,6 +412,10 @@ def calibration_outcome(calibration, output: str | None = None, n: int = POINTS,
         Points of the workspace.
     rng : int or numpy.random.Generator, optional
         Seed of the workspace points.
+    setups : Setups, optional
+        The set-ups of the nominal machine file: a printer's print disk lies on its bed
+        (:func:`~pkmcal.instruments.probe.bed_plane`); the calibrated bed is the
+        calibration's (:attr:`~pkmcal.calibration.Calibration.setups`).
 
     Returns
     -------
@@ -428,7 +435,9 @@ def calibration_outcome(calibration, output: str | None = None, n: int = POINTS,
     own = getattr(nominal, "print_workspace", None)
     try:
         if own is not None:
-            accuracy, pmap = _bed_accuracy(nominal, calibrated, C, problem, own(n=n, rng=rng))
+            accuracy, pmap = _bed_accuracy(nominal, calibrated, C, problem,
+                                           own(n=n, rng=rng, bed=bed_plane(setups)),
+                                           bed_plane(calibration.setups))
         else:
             accuracy, pmap = _workspace_accuracy(nominal, calibrated, C, N,
                                                  default_workspace(calibrated, n=n, rng=rng))

@@ -51,7 +51,7 @@ def _fixed(machine):
     mp = machine.parameters
     new = machine.with_parameters(mp.values)
     new.parameters = ParameterSet(mp.names, mp.kinds, mp.values, np.ones(len(mp), bool))
-    for key in ("probe_bed", "name", "source", "home"):
+    for key in ("name", "source", "home"):
         if hasattr(machine, key):
             try:
                 setattr(new, key, getattr(machine, key))
@@ -60,8 +60,11 @@ def _fixed(machine):
     return new
 
 
-def _parts(machine, data, noise):
-    """Each data object's joint part (its instrument model with a free offset) and session."""
+def _parts(machine, data, noise, setups=None):
+    """Each data object's joint part (its instrument model with a free offset) and session;
+    a part whose frame is fitted with the others (a printer's bed) takes it as calibrated,
+    from the set-ups ``setups``."""
+    from ..instruments.probe import bed_plane
     from .firmware_data import expand_firmware_data
     from .joint import joint_part
     from .kinds import source_and_kind
@@ -80,7 +83,7 @@ def _parts(machine, data, noise):
         if part.with_others is not None:
             # the frame as calibrated: a printer's bed as its calibration left it
             part.model, part.frame = part.with_others(0, 0, "square")
-            bed = getattr(machine, "probe_bed", None)
+            bed = bed_plane(setups)
             if bed is not None and len(part.model.parameters) == len(bed):
                 part.model.parameters = part.model.parameters.with_values(
                     np.asarray(bed, float))
@@ -110,7 +113,7 @@ def _fit(machine, parts, labels, sessions):
     return problem, result
 
 
-def check(machine, data, *, noise=None) -> CheckResult:
+def check(machine, data, *, noise=None, setups=None) -> CheckResult:
     """Score a calibrated or imported machine on data it was not fitted to.
 
     Parameters
@@ -124,6 +127,9 @@ def check(machine, data, *, noise=None) -> CheckResult:
     noise : dict, optional
         File -> noise (text or model), as ``calibrate``'s ``--noise FILE=VALUE``; default each
         instrument's (held: the verdict is against it).
+    setups : Setups, optional
+        The machine file's set-ups (:func:`~pkmcal.io.load_machine_file`): a printer's bed as
+        its calibration left it is the frame its probe heights are scored in.
 
     Returns
     -------
@@ -142,7 +148,7 @@ def check(machine, data, *, noise=None) -> CheckResult:
     if isinstance(noise, str) or (noise is not None and not isinstance(noise, dict)):
         raise InputError("--noise: give FILE=VALUE per file (e.g. --noise probe.csv=20um)")
     held = _fixed(machine)
-    parts, sources, sessions = _parts(machine, data, noise)
+    parts, sources, sessions = _parts(machine, data, noise, setups)
     labels = file_labels(sources)
     problem, result = _fit(held, parts, labels, None)
     if not np.all(np.isfinite(result.x)):

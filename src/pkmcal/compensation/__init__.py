@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..instruments.probe import bed_plane
 from ..instruments.setups import Setups
 from ..machines.base import Machine
 
@@ -132,7 +133,7 @@ def compensate(calibrated: Machine, P, R=None, covariance=None,
     R = np.broadcast_to(np.eye(3), (len(P), 3, 3)) if R is None else R
     q = calibrated.ik(P, R)
     # real IK, near home, in home's working mode, within the physical and joint limits
-    reach = calibrated.reachability(P, R)
+    reach = calibrated.reachability(P, R, bed=bed_plane(setups))
     out = Compensation(q, reach.ok, reach=reach)
     d = 6 if calibrated.rotates else 3
     needs_fit = null is not None and np.size(null) and (nominal is not None or frame is None)

@@ -22,6 +22,8 @@ from types import MappingProxyType
 import numpy as np
 
 from ..errors import InputError
+from ..instruments.probe import BedSetup, Probe, bed_plane
+from ..instruments.setups import Setups
 from ..io.atomic import read_input_text
 from ..machines.base import Machine
 
@@ -338,8 +340,8 @@ class ControllerFormat(ABC):
         return []
 
     def written(self, params: ControllerParameters, machine: Machine,
-                existing: str | None = None,
-                source: str = "") -> tuple[str, ControllerParameters]:
+                existing: str | None = None, source: str = "",
+                setups=None) -> tuple[str, ControllerParameters]:
         """The file's text and the values as the controller reads them back from it.
 
         The text is :meth:`text`, or, onto an ``existing`` file, :meth:`update` of it (as the
@@ -360,6 +362,9 @@ class ControllerFormat(ABC):
             The controller's current file, updated in place of a new one.
         source : str, optional
             That file's name (its includes are read beside it).
+        setups : Setups, optional
+            The experiment's set-ups: a printer's bed
+            (:class:`~pkmcal.instruments.probe.BedSetup`; the machine holds none).
 
         Returns
         -------
@@ -370,7 +375,7 @@ class ControllerFormat(ABC):
         """
         text = None if existing is None else self.update(existing, params, machine, source)
         if text is None:
-            text = self.text(params, machine)
+            text = self.text(params, machine, setups)
         back = self.parse(text, source or f"{self.name} export")
         mine = params.as_dict()
         stated = {n for n, o in back.origins.items() if o.line is not None}
@@ -379,13 +384,16 @@ class ControllerFormat(ABC):
         return text, back.with_values(values)
 
     @abstractmethod
-    def initial(self, machine: Machine) -> ControllerParameters:
+    def initial(self, machine: Machine, setups=None) -> ControllerParameters:
         """The controller's values read directly off a machine (its design values).
 
         Parameters
         ----------
         machine : Machine
             The machine (nominal or calibrated).
+        setups : Setups, optional
+            The experiment's set-ups: a printer's bed
+            (:class:`~pkmcal.instruments.probe.BedSetup`; the machine holds none).
 
         Returns
         -------
@@ -417,7 +425,8 @@ class ControllerFormat(ABC):
         """
 
     @abstractmethod
-    def text(self, params: ControllerParameters, machine: Machine) -> str:
+    def text(self, params: ControllerParameters, machine: Machine,
+             setups=None) -> str:
         """The file the controller reads, in its units and conventions.
 
         Parameters
@@ -426,6 +435,9 @@ class ControllerFormat(ABC):
             The values.
         machine : Machine
             The machine they are for (name, joint count).
+        setups : Setups, optional
+            The experiment's set-ups: a printer's bed
+            (:class:`~pkmcal.instruments.probe.BedSetup`; the machine holds none).
 
         Returns
         -------
@@ -462,10 +474,11 @@ class ControllerFormat(ABC):
         return 0.0
 
     def with_bed_mesh(self, text: str, params: ControllerParameters,
-                      machine: Machine) -> str | None:
+                      machine: Machine, setups=None) -> str | None:
         """The controller's file with a bed mesh that carries what ``params`` leave of the
-        nozzle's height at the bed (:mod:`pkmcal.export.bed_mesh`), where the controller
-        applies one from its file and the mesh is worth it; None: no mesh (the default)."""
+        nozzle's height at the bed (:mod:`pkmcal.export.bed_mesh`; the bed of the set-ups
+        ``setups``), where the controller applies one from its file and the mesh is worth it;
+        None: no mesh (the default)."""
         return None
 
     #: the files of a whole controller configuration the format writes into a directory
@@ -662,6 +675,61 @@ class ControllerFormat(ABC):
         Machine
             The machine.
         """
+
+    def imported_setups(self, params: ControllerParameters) -> Setups:
+        """The instruments' set-ups the controller's values state beside the machine of
+        :meth:`to_machine` (a printer's bed: its firmware commands heights above it); none by
+        default.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        Setups
+            The set-ups (:class:`~pkmcal.instruments.setups.Setups`).
+        """
+        return Setups()
+
+
+def setups_bed(setups) -> np.ndarray:
+    """The bed plane of an experiment's set-ups (a calibrated machine file's ``bed``
+    section, :class:`~pkmcal.instruments.probe.BedSetup`), zeros without one.
+
+    Parameters
+    ----------
+    setups : Setups or None
+        The set-ups.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        ``(height m, tilt_x, tilt_y)``: the bed is ``z = height + tilt_x x + tilt_y y``.
+    """
+    bed = bed_plane(setups)
+    return np.zeros(3) if bed is None else np.asarray(bed, float).reshape(3)
+
+
+def bed_setups(bed) -> Setups:
+    """The set-ups a controller's bed plane makes (a probe's
+    :class:`~pkmcal.instruments.probe.BedSetup`; none for a bed at z = 0, untilted).
+
+    Parameters
+    ----------
+    bed : array_like, shape (3,)
+        ``(height m, tilt_x, tilt_y)``.
+
+    Returns
+    -------
+    Setups
+        The set-ups.
+    """
+    bed = np.asarray(bed, float).reshape(3)
+    if not np.any(bed != 0):
+        return Setups()
+    return Setups({Probe.name: BedSetup(*(float(v) for v in bed))})
 
 
 def finite_number(word: str, source: str, line: int, key: str) -> float:

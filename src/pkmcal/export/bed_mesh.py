@@ -23,8 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..instruments.probe import bed_of
 from ..io.klipper_data import EXPORTED_PROFILE
-from ..machines.base import Machine, bed_height_at
+from ..machines.base import Machine
 
 #: a correction smaller than this (RMS over the print disk, m) is not handed over: the probe's
 #: repeatability (:data:`~pkmcal.instruments.probe.PROBE_SIGMA`)
@@ -84,38 +85,42 @@ class BedCorrection:
                 + ty * ((1 - tx) * z[j0 + 1, i0] + tx * z[j0 + 1, i0 + 1]))
 
 
-def print_radius_of(machine: Machine) -> float:
+def print_radius_of(machine: Machine, setups=None) -> float:
     """The print disk's radius, m: the machine's ``print_radius``, else its probing radius
-    (:func:`~pkmcal.machines.reach.probe_radius`)."""
+    (:func:`~pkmcal.machines.reach.probe_radius`, over the bed of the set-ups ``setups``)."""
     from ..machines.reach import probe_radius
 
-    return float(getattr(machine, "print_radius", None) or probe_radius(machine))
+    bed = bed_of(setups)
+    return float(getattr(machine, "print_radius", None)
+                 or probe_radius(machine, None if bed is None else bed.plane))
 
 
-def _plane_z(machine: Machine, xy) -> np.ndarray:
-    """The bed's plane (``probe_bed``; 0 without one): the frame the firmware commands in."""
-    bed = getattr(machine, "probe_bed", None)
-    b = np.zeros(3) if bed is None else np.asarray(bed, float)
+def _plane_z(bed, xy) -> np.ndarray:
+    """The bed's plane (the set-up ``bed``; 0 without one): the frame the firmware commands
+    in."""
+    b = np.zeros(3) if bed is None else np.asarray(bed.plane, float)
     return b[0] + b[1] * xy[:, 0] + b[2] * xy[:, 1]
 
 
-def _height_errors(fmt, params, machine: Machine, xy, height: float) -> np.ndarray:
-    """The nozzle's height error (m) above the machine's bed when the firmware commands
-    ``height`` above it: what its values leave of the kinematics, minus the bed's own shape
-    beside the plane (:func:`~pkmcal.machines.base.bed_height_at`: a bed higher there is
-    touched that much earlier)."""
+def _height_errors(fmt, params, machine: Machine, xy, height: float,
+                   setups=None) -> np.ndarray:
+    """The nozzle's height error (m) above the bed (of the set-ups ``setups``) when the
+    firmware commands ``height`` above it: what its values leave of the kinematics, minus the
+    bed's own shape beside the plane (:func:`~pkmcal.machines.base.bed_height_at`: a bed
+    higher there is touched that much earlier)."""
     from .fitting import position_errors
 
     xy = np.asarray(xy, float).reshape(-1, 2)
-    plane = _plane_z(machine, xy)
+    bed = bed_of(setups)
+    plane = _plane_z(bed, xy)
     P = np.column_stack([xy, plane + height])
-    shape = bed_height_at(getattr(machine, "probe_bed", None), xy,
-                          getattr(machine, "bed_surface", None)) - plane
+    shape = (np.zeros(len(xy)) if bed is None else bed.height_at(xy)) - plane
     return position_errors(fmt, params, machine, P)[:, 2] - shape
 
 
 def bed_correction(fmt, params, machine: Machine, radius: float,
-                   count: int = MESH_COUNT, height: float = 0.0) -> BedCorrection | None:
+                   count: int = MESH_COUNT, height: float = 0.0,
+                   setups=None) -> BedCorrection | None:
     """The mesh that carries the height error ``params`` leave at the bed over the print
     disk (see the module docstring).
 
@@ -126,7 +131,7 @@ def bed_correction(fmt, params, machine: Machine, radius: float,
     params : ControllerParameters
         Its fitted values.
     machine : Machine
-        The calibrated machine (its ``probe_bed`` is the bed).
+        The calibrated machine.
     radius : float
         The print disk's radius, m.
     count : int, optional
@@ -136,6 +141,9 @@ def bed_correction(fmt, params, machine: Machine, radius: float,
         probe's trigger height where the firmware's own meshes are probed there (a Klipper
         mesh holds the bed as seen with the nozzle ``z_offset`` above it; a leaning tower
         makes the error the values leave change with height).
+    setups : Setups, optional
+        The experiment's set-ups: the bed (:class:`~pkmcal.instruments.probe.BedSetup`, its
+        plane and surface); none: a flat bed at z = 0.
 
     Returns
     -------
@@ -150,7 +158,7 @@ def bed_correction(fmt, params, machine: Machine, radius: float,
     # node inside and the first outside needs the surface there, not a copy)
     with np.errstate(all="ignore"):
         z = -_height_errors(fmt, params, machine, np.column_stack([X.ravel(), Y.ravel()]),
-                            float(height)).reshape(X.shape)
+                            float(height), setups).reshape(X.shape)
     ok = np.isfinite(z)
     if not (ok & inside).any():
         return None
@@ -174,7 +182,7 @@ def bed_correction(fmt, params, machine: Machine, radius: float,
 
 def layer_errors(fmt, params, machine: Machine, radius: float,
                  correction: BedCorrection | None = None, layers=LAYERS,
-                 n: int = 200) -> list[dict]:
+                 n: int = 200, setups=None) -> list[dict]:
     """The nozzle's height error over the print disk at the bed and above it.
 
     Parameters
@@ -188,6 +196,8 @@ def layer_errors(fmt, params, machine: Machine, radius: float,
         Heights above the bed, m.
     n : int, optional
         Points per layer (a sunflower pattern on the disk).
+    setups : Setups, optional
+        As :func:`bed_correction`.
 
     Returns
     -------
@@ -201,7 +211,7 @@ def layer_errors(fmt, params, machine: Machine, radius: float,
     xy = np.column_stack([rho * np.cos(phi), rho * np.sin(phi)])
     out = []
     for h in layers:
-        e = _height_errors(fmt, params, machine, xy, float(h))
+        e = _height_errors(fmt, params, machine, xy, float(h), setups)
         ok = np.isfinite(e)
         row = {"height_mm": float(h) * 1e3, "points": int(ok.sum()),
                "rms_um": float(np.sqrt(np.mean(e[ok] ** 2))) * 1e6 if ok.any() else None,

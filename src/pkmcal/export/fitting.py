@@ -130,7 +130,7 @@ POSITION_WEIGHT = 0.1
 
 def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
                    start: ControllerParameters | None = None,
-                   surface=None) -> ControllerParameters:
+                   surface=None, setups=None) -> ControllerParameters:
     """The controller's values that minimise the position error over workspace poses.
 
     Least squares (scipy's trust-region reflective with a finite-difference Jacobian, the
@@ -157,6 +157,9 @@ def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
         error everywhere weighing :data:`POSITION_WEIGHT` beside it. A controller whose
         values cannot hold a tilt of the bed against the towers otherwise takes height errors
         for sideways ones.
+    setups : Setups, optional
+        The experiment's set-ups: a printer's bed (:class:`~pkmcal.instruments.probe.BedSetup`),
+        the frame the controller commands in.
 
     Returns
     -------
@@ -170,7 +173,7 @@ def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
     """
     from scipy.optimize import least_squares
 
-    params = fmt.placed(fmt.initial(machine), machine, P) if start is None else start
+    params = fmt.placed(fmt.initial(machine, setups), machine, P) if start is None else start
     free = ~params.fixed
     L = machine.characteristic_length()
     scale = np.array([L if k == "length" else 1.0 for k in params.kinds])[free]
@@ -212,7 +215,7 @@ def fit_controller(fmt: ControllerFormat, machine: Machine, P, R=None,
 
 def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine | None = None,
            workspace: str = "", surface=None, existing: str | None = None,
-           source: str = "") -> ExportResult:
+           source: str = "", setups=None, nominal_setups=None) -> ExportResult:
     """The controller file for a calibrated machine: fitted values and the error they leave.
 
     The error is that of the values as the file holds them (:meth:`ControllerFormat.written`:
@@ -241,6 +244,11 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
         (:meth:`ControllerFormat.update`) and the result's text is the updated file.
     source : str, optional
         The file's name (for messages; its includes are read beside it).
+    setups : Setups, optional
+        The experiment's set-ups: a printer's bed (:class:`~pkmcal.instruments.probe.BedSetup`),
+        the frame the controller commands in.
+    nominal_setups : Setups, optional
+        The set-ups of ``nominal``'s machine file.
 
     Returns
     -------
@@ -255,9 +263,10 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
     why = fmt.applies(machine)
     if why is not None:
         raise InputError(f"--to {fmt.name}: {why}")
-    P, R, surface, left_out = commandable(fmt, machine, P, R, surface)
-    text, params = fmt.written(fit_controller(fmt, machine, P, R, surface=surface), machine,
-                               existing, source)
+    P, R, surface, left_out = commandable(fmt, machine, P, R, surface, setups)
+    text, params = fmt.written(fit_controller(fmt, machine, P, R, surface=surface,
+                                              setups=setups), machine, existing, source,
+                               setups)
     E = position_errors(fmt, params, machine, P, R)
     e = np.linalg.norm(E, axis=-1)
     on = None if surface is None else np.asarray(surface, bool)
@@ -272,7 +281,8 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
 
     before, before_h = (None, None), (None, None)
     if nominal is not None:
-        E0 = position_errors(fmt, fmt.placed(fmt.initial(nominal), nominal, P), machine, P, R)
+        E0 = position_errors(fmt, fmt.placed(fmt.initial(nominal, nominal_setups), nominal, P),
+                             machine, P, R)
         e0 = np.linalg.norm(E0, axis=-1)
         before = (float(np.sqrt(np.nanmean(e0**2))), float(np.nanmax(e0)))
         before_h = heights(E0)
@@ -282,7 +292,8 @@ def export(fmt: ControllerFormat, machine: Machine, P, R=None, nominal: Machine 
                         fmt.export_notes(params, machine, P), left_out=left_out)
 
 
-def commandable(fmt: ControllerFormat, machine: Machine, P, R=None, surface=None):
+def commandable(fmt: ControllerFormat, machine: Machine, P, R=None, surface=None,
+                setups=None):
     """The workspace poses the controller can command with the values read off the machine
     (the model may hold more than the controller: a leaning tower moves the reachable
     volume), and the others in words.
@@ -293,7 +304,7 @@ def commandable(fmt: ControllerFormat, machine: Machine, P, R=None, surface=None
         The controller.
     machine : Machine
         The calibrated machine.
-    P, R, surface
+    P, R, surface, setups
         As :func:`export`.
 
     Returns
@@ -309,7 +320,7 @@ def commandable(fmt: ControllerFormat, machine: Machine, P, R=None, surface=None
         When none can be commanded.
     """
     P = np.asarray(P, float)
-    e0 = position_errors(fmt, fmt.initial(machine), machine, P, R)
+    e0 = position_errors(fmt, fmt.initial(machine, setups), machine, P, R)
     keep = np.all(np.isfinite(e0), axis=-1)
     if keep.all():
         return P, R, surface, ""

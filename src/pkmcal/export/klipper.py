@@ -26,10 +26,11 @@ the values that leave the least position error.
 The controller's coordinates
 ----------------------------
 Klipper's ``z = 0`` is the bed. A calibrated machine file with a ``bed`` section (a probe
-calibration, ``machine.probe_bed = (height, tilt_x, tilt_y)``: the bed is the plane ``z =
-height + tilt_x x + tilt_y y`` of the calibrated frame; a printer's probe calibration holds
-its height at 0, SPEC 8) puts Klipper's z = 0 on the bed: the controller's target ``(x, y,
-z)`` is the calibrated frame's ``(x, y, z + height + tilt_x x + tilt_y y)``, a height above
+calibration, its set-up :class:`~pkmcal.instruments.probe.BedSetup` ``(height, tilt_x,
+tilt_y)`` beside the machine: the bed is the plane ``z = height + tilt_x x + tilt_y y`` of
+the calibrated frame; a printer's probe calibration holds its height at 0, SPEC 8) puts
+Klipper's z = 0 on the bed: the controller's target ``(x, y, z)`` is the calibrated frame's
+``(x, y, z + height + tilt_x x + tilt_y y)``, a height above
 the bed. Klipper's values cannot hold a tilt of the bed against the towers: the fit folds
 into them what they can hold of it and the remaining error counts the rest (``bed_mesh``
 corrects it). The bed is carried in the values as three fixed entries (``bed.z``,
@@ -57,14 +58,17 @@ import re
 import numpy as np
 
 from ..errors import InputError
+from ..instruments.setups import Setups
 from ..machines.base import Machine
 from ..machines.linear_delta import LinearDelta, linear_delta
 from .base import (
     ControllerFormat,
     ControllerParameters,
     Origin,
+    bed_setups,
     finite_number,
     register_format,
+    setups_bed,
 )
 
 #: the largest length a printer's config can mean, mm (10 m)
@@ -76,23 +80,6 @@ BED_KINDS = ("length", "slope", "slope")
 TOWERS = "abc"
 #: ``# pkmcal bed: height=<mm> tilt_x=<dz/dx> tilt_y=<dz/dy>`` (any comment character)
 BED_COMMENT = re.compile(r"pkmcal bed:\s*height=(\S+)\s+tilt_x=(\S+)\s+tilt_y=(\S+)")
-
-
-def machine_bed(machine: Machine) -> np.ndarray:
-    """The bed plane of a calibrated machine file (its ``bed`` section), zeros without one.
-
-    Parameters
-    ----------
-    machine : Machine
-        The machine.
-
-    Returns
-    -------
-    ndarray, shape (3,)
-        ``(height m, tilt_x, tilt_y)``: the bed is ``z = height + tilt_x x + tilt_y y``.
-    """
-    bed = getattr(machine, "probe_bed", None)
-    return np.zeros(3) if bed is None else np.asarray(bed, float).reshape(3)
 
 
 def bed_text(bed, comment: str) -> str:
@@ -554,7 +541,8 @@ def linear_delta_machine(radius: float, arms, angles, endstops, bed,
         centre when the tower's carriage is at its endstop), m.
     bed : array_like, shape (3,)
         ``(height, tilt_x, tilt_y)`` of the bed in the machine's frame: the endstops are
-        raised by the height; a non-zero bed becomes the machine's ``probe_bed``.
+        raised by the height (the bed itself is a set-up beside the machine,
+        :func:`bed_setups`).
     like : Machine, optional
         Name and home pose come from it.
     name : str, optional
@@ -576,7 +564,6 @@ def linear_delta_machine(radius: float, arms, angles, endstops, bed,
                      np.asarray(endstops, float).reshape(3) + bed[0],
                      home=None if like is None else like.home,
                      name=(like.name if like is not None and like.name else name))
-    m.probe_bed = tuple(float(v) for v in bed) if np.any(bed != 0) else None
     for key, value in (extras or {}).items():
         if key in ("print_radius", "probe_radius"):
             setattr(m, key, float(value))
@@ -628,13 +615,15 @@ class KlipperDelta(ControllerFormat):
         return ControllerParameters(list(self.NAMES), v, list(self.KINDS),
                                     np.arange(len(v)) >= 10)
 
-    def initial(self, machine: Machine) -> ControllerParameters:
+    def initial(self, machine: Machine, setups=None) -> ControllerParameters:
         """Klipper's values read off a linear Delta (exact for vertical towers of one radius).
 
         Parameters
         ----------
         machine : Machine
             A linear Delta.
+        setups : Setups, optional
+            The experiment's set-ups: the bed (:func:`setups_bed`) Klipper's z = 0 is on.
 
         Returns
         -------
@@ -642,7 +631,7 @@ class KlipperDelta(ControllerFormat):
             ``delta_radius`` the mean tower radius; arms and angles per tower;
             ``position_endstop`` keeping each carriage's height at its endstop, above the bed.
         """
-        bed = machine_bed(machine)
+        bed = setups_bed(setups)
         R = float(np.mean(machine.firmware_values()["radius"]))
         arms, angles, E = controller_endstops(machine, R, bed[0])
         order = stepper_order(angles)      # counter-clockwise, as Klipper's FK needs
@@ -731,7 +720,8 @@ class KlipperDelta(ControllerFormat):
         q[:, order] = travel
         return q
 
-    def text(self, params: ControllerParameters, machine: Machine) -> str:
+    def text(self, params: ControllerParameters, machine: Machine,
+             setups=None) -> str:
         """The ``printer.cfg`` fragment (mm, deg).
 
         Parameters
@@ -740,6 +730,8 @@ class KlipperDelta(ControllerFormat):
             Klipper's values.
         machine : Machine
             The machine they are for.
+        setups : Setups, optional
+            Unused (the values hold the bed: none of the experiment's set-ups is read).
 
         Returns
         -------
@@ -863,7 +855,7 @@ class KlipperDelta(ControllerFormat):
             return 0.0
 
     def with_bed_mesh(self, text: str, params: ControllerParameters,
-                      machine: Machine) -> str | None:
+                      machine: Machine, setups=None) -> str | None:
         """``printer.cfg`` with ``[bed_mesh pkmcal]`` in its SAVE_CONFIG block (never the
         user's own profiles), when the file has a ``[bed_mesh]`` section (Klipper loads
         profiles only then) and the correction is worth it (:mod:`.bed_mesh`)."""
@@ -871,8 +863,8 @@ class KlipperDelta(ControllerFormat):
 
         if not re.search(r"(?m)^\[bed_mesh\]", text):
             return None
-        correction = bed_correction(self, params, machine, print_radius_of(machine),
-                                    height=self.bed_mesh_height(text))
+        correction = bed_correction(self, params, machine, print_radius_of(machine, setups),
+                                    height=self.bed_mesh_height(text), setups=setups)
         if correction is None or not correction.worth_it:
             return None
         return with_klipper_profile(text, correction)
@@ -1015,16 +1007,47 @@ class KlipperDelta(ControllerFormat):
         Returns
         -------
         Machine
-            The :class:`~pkmcal.machines.LinearDelta`; a ``pkmcal bed`` comment becomes its
-            ``probe_bed`` (the endstops raised by the bed's height).
+            The :class:`~pkmcal.machines.LinearDelta`, the endstops raised by a ``pkmcal
+            bed`` comment's height (the bed: :meth:`imported_setups`).
         """
         v = params.values
         back = np.argsort(self.order(params))          # the machine's tower order
-        # Klipper's z is the height above the bed: its values are the printer in the bed's
-        # frame, square (a tilt named in the pkmcal comment is folded in already)
         return linear_delta_machine(v[0], v[1:4][back], v[4:7][back], v[7:10][back],
-                                    [v[10], 0.0, 0.0], like,
+                                    self.imported_bed(params), like,
                                     "linear Delta (imported from Klipper)", params.extras)
+
+
+    def imported_bed(self, params: ControllerParameters) -> np.ndarray:
+        """The bed the values hold, ``(height m, tilt_x, tilt_y)``: Klipper's z is the height
+        above the bed, its values the printer in the bed's frame, square (a tilt named in the
+        pkmcal comment is folded in already).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Klipper's values.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            The plane.
+        """
+        return np.array([params.values[10], 0.0, 0.0])
+
+    def imported_setups(self, params: ControllerParameters) -> Setups:
+        """The bed of :meth:`imported_bed` as a set-up (:func:`bed_setups`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Klipper's values.
+
+        Returns
+        -------
+        Setups
+            The set-ups.
+        """
+        return bed_setups(self.imported_bed(params))
 
 
 KLIPPER = register_format(KlipperDelta())

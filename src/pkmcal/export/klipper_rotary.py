@@ -334,7 +334,7 @@ class KlipperRotaryDelta(ControllerFormat):
 
         return order_problem(machine.leg_angles, "leg")
 
-    def initial(self, machine: Machine) -> ControllerParameters:
+    def initial(self, machine: Machine, setups=None) -> ControllerParameters:
         """Klipper's values read off a Delta (exact without per-leg radius, height or
         sideways offset), in the machine file's frame (``bed_z = 0``).
 
@@ -342,6 +342,8 @@ class KlipperRotaryDelta(ControllerFormat):
         ----------
         machine : Machine
             A Delta.
+        setups : Setups, optional
+            Unused (no set-up of the experiment enters these values).
 
         Returns
         -------
@@ -583,7 +585,8 @@ class KlipperRotaryDelta(ControllerFormat):
         q[:, order] = s - self.abs_endstops(params)[None]
         return q
 
-    def text(self, params: ControllerParameters, machine: Machine) -> str:
+    def text(self, params: ControllerParameters, machine: Machine,
+             setups=None) -> str:
         """The ``printer.cfg`` fragment (mm, deg; lengths to 1e-9 mm, angles to 1e-12 deg).
 
         Parameters
@@ -592,6 +595,8 @@ class KlipperRotaryDelta(ControllerFormat):
             The values.
         machine : Machine
             The machine they are for.
+        setups : Setups, optional
+            Unused (no set-up of the experiment enters these values).
 
         Returns
         -------

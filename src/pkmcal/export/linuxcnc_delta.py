@@ -66,6 +66,8 @@ import re
 import numpy as np
 
 from ..errors import InputError
+from ..instruments.probe import bed_plane
+from ..instruments.setups import Setups
 from ..machines.base import Machine
 from ..machines.delta import Delta, delta_parameters
 from ..machines.linear_delta import linear_delta
@@ -73,10 +75,12 @@ from .base import (
     ControllerFormat,
     ControllerParameters,
     Origin,
+    bed_setups,
     finite_number,
     hal_line_kind,
     refuse_foreign_text,
     register_format,
+    setups_bed,
 )
 from .klipper_rotary import leg_offsets, pkmcal_comments
 from .linuxcnc_config import LinuxCNCKinematics
@@ -454,7 +458,7 @@ class LinuxCNCRotaryDelta(_LinuxCNCDelta):
                     f"{legs} deg")
         return None
 
-    def initial(self, machine: Machine) -> ControllerParameters:
+    def initial(self, machine: Machine, setups=None) -> ControllerParameters:
         """The values read off a Delta (exact with LinuxCNC's legs and one radius and arm
         pair, the shoulders at ``z = 0``).
 
@@ -462,6 +466,8 @@ class LinuxCNCRotaryDelta(_LinuxCNCDelta):
         ----------
         machine : Machine
             A Delta.
+        setups : Setups, optional
+            Unused (no set-up of the experiment enters these values).
 
         Returns
         -------
@@ -500,7 +506,8 @@ class LinuxCNCRotaryDelta(_LinuxCNCDelta):
         joint = v[7:10].astype(int)
         return v[4:7][joint][None] - J[:, joint]
 
-    def text(self, params: ControllerParameters, machine: Machine) -> str:
+    def text(self, params: ControllerParameters, machine: Machine,
+             setups=None) -> str:
         """The ``.hal`` file: four ``setp`` lines and the joints' ``HOME_OFFSET`` notes.
 
         Parameters
@@ -509,6 +516,8 @@ class LinuxCNCRotaryDelta(_LinuxCNCDelta):
             The values.
         machine : Machine
             The machine they are for.
+        setups : Setups, optional
+            Unused (no set-up of the experiment enters these values).
 
         Returns
         -------
@@ -684,7 +693,7 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
                     f"the machine's stand at {t} deg")
         return None
 
-    def initial(self, machine: Machine) -> ControllerParameters:
+    def initial(self, machine: Machine, setups=None) -> ControllerParameters:
         """The values read off a linear Delta (exact for vertical towers at LinuxCNC's
         angles with one radius and one arm length).
 
@@ -692,6 +701,8 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
         ----------
         machine : Machine
             A linear Delta.
+        setups : Setups, optional
+            The experiment's set-ups: the bed (its height, ``bed_z``) z = 0 is on.
 
         Returns
         -------
@@ -700,8 +711,7 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
             endstop above the bed.
         """
         pe, theta, r, l, _, _ = machine.towers()
-        bed = getattr(machine, "probe_bed", None)
-        bed_z = 0.0 if bed is None else float(bed[0])
+        bed_z = float(setups_bed(setups)[0])
         joint = joint_of_legs(theta, LINEAR_TOWERS)
         homes = np.zeros(3)
         homes[joint] = pe + np.sqrt(l * l - r * r) - bed_z
@@ -736,7 +746,8 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
         joint = v[6:9].astype(int)
         return v[2:5][joint][None] - J[:, joint]
 
-    def text(self, params: ControllerParameters, machine: Machine) -> str:
+    def text(self, params: ControllerParameters, machine: Machine,
+             setups=None) -> str:
         """The ``.hal`` file: two ``setp`` lines and the joints' ``HOME_OFFSET`` notes.
 
         Parameters
@@ -745,6 +756,8 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
             The values.
         machine : Machine
             The machine they are for.
+        setups : Setups, optional
+            The experiment's set-ups: the bed, whose tilt is said in a comment.
 
         Returns
         -------
@@ -752,7 +765,7 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
             The file (mm).
         """
         v = params.values
-        bed = getattr(machine, "probe_bed", None)
+        bed = bed_plane(setups)
         lines = [f"# pkmcal export for {machine.name or 'a linear Delta'}: LinuxCNC "
                  "lineardeltakins", "# (src/emc/kinematics/lineardeltakins-common.h). Lengths "
                  "mm (LINEAR_UNITS = mm); joints are", "# carriage heights, z = 0 the bed."]
@@ -895,7 +908,7 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
         LinearDelta
             Vertical towers at LinuxCNC's angles (in the order of the readings), ``R``,
             ``L``, ``position_endstop = HOME_OFFSET + bed_z - sqrt(L^2 - R^2)`` in the
-            calibrated frame, the bed (``bed_z``) as its ``probe_bed``.
+            calibrated frame (the bed, ``bed_z``: :meth:`imported_setups`).
         """
         v = params.values
         joint = v[6:9].astype(int)
@@ -904,8 +917,23 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
                          pe, home=None if like is None else like.home,
                          name=(like.name if like is not None and like.name
                                else "imported from LinuxCNC"))
-        m.probe_bed = None if v[5] == 0 else (float(v[5]), 0.0, 0.0)
         return m
+
+    def imported_setups(self, params: ControllerParameters) -> Setups:
+        """The bed ``bed_z`` of the values as a set-up (untilted;
+        :func:`~pkmcal.export.base.bed_setups`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        Setups
+            The set-ups.
+        """
+        return bed_setups([params.values[5], 0.0, 0.0])
 
 
 register_format(LinuxCNCRotaryDelta())

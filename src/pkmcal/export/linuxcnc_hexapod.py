@@ -362,13 +362,15 @@ class GenhexkinsFormat(LinuxCNCKinematics, ControllerFormat):
         return (f"genhexkins drives six struts between base and platform joints (a pkmcal "
                 f"machine: {self.machine_kind}), not a {kind} machine")
 
-    def initial(self, machine: Machine) -> GenhexParameters:
+    def initial(self, machine: Machine, setups=None) -> GenhexParameters:
         """The values of a Stewart machine (exact).
 
         Parameters
         ----------
         machine : Machine
             A :class:`~pkmcal.machines.stewart.Stewart`.
+        setups : Setups, optional
+            Unused (no set-up of the experiment enters these values).
 
         Returns
         -------
@@ -437,7 +439,8 @@ class GenhexkinsFormat(LinuxCNCKinematics, ControllerFormat):
         L = np.linalg.norm(P[:, None, :] + np.einsum("kij,nj->kni", R, a) - b, axis=-1)
         return (L - l0) / g
 
-    def text(self, params: ControllerParameters, machine: Machine) -> str:
+    def text(self, params: ControllerParameters, machine: Machine,
+             setups=None) -> str:
         """The ``.hal`` file: genhexkins' joints and the per-joint scale instances.
 
         Parameters
@@ -446,6 +449,8 @@ class GenhexkinsFormat(LinuxCNCKinematics, ControllerFormat):
             The values.
         machine : Machine
             The machine (its name).
+        setups : Setups, optional
+            Unused (no set-up of the experiment enters these values).
 
         Returns
         -------

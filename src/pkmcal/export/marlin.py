@@ -74,14 +74,17 @@ import re
 import numpy as np
 
 from ..errors import InputError
+from ..instruments.setups import Setups
 from ..machines.base import Machine
 from .base import (
     ControllerFormat,
     ControllerParameters,
     Origin,
+    bed_setups,
     origin_of,
     refuse_foreign_text,
     register_format,
+    setups_bed,
     where,
 )
 from .gcode_text import gcode_line_kind, gcode_lines, gcode_words, host_line
@@ -96,7 +99,6 @@ from .klipper import (
     finite_number,
     linear_delta_keys,
     linear_delta_machine,
-    machine_bed,
     read_bed,
     tower_positions,
     vertical_tower_travel,
@@ -210,13 +212,16 @@ class MarlinDelta(ControllerFormat):
         v = np.concatenate([[H, L, R], trims, rod_trims, adj, bed]).astype(float)
         return ControllerParameters(list(self.NAMES), v, list(self.KINDS), self.FIXED.copy())
 
-    def initial(self, machine: Machine) -> ControllerParameters:
+    def initial(self, machine: Machine, setups=None) -> ControllerParameters:
         """Marlin's values read off a linear Delta (exact for vertical towers of one radius).
 
         Parameters
         ----------
         machine : Machine
             A linear Delta.
+        setups : Setups, optional
+            The experiment's set-ups: the bed (:func:`~pkmcal.export.base.setups_bed`) the
+            controller's z = 0 is on.
 
         Returns
         -------
@@ -225,7 +230,7 @@ class MarlinDelta(ControllerFormat):
             the angle trims against 210, 330, 90 deg, ``H`` and the adjustments normalised
             (largest 0).
         """
-        bed = machine_bed(machine)
+        bed = setups_bed(setups)
         R = float(np.mean(machine.firmware_values()["radius"]))
         arms, angles, E = controller_endstops(machine, R, bed[0])
         L = float(np.mean(arms))
@@ -279,7 +284,8 @@ class MarlinDelta(ControllerFormat):
         top = float(np.max(v[9:12]))
         return v[0] - top, v[9:12] - top
 
-    def text(self, params: ControllerParameters, machine: Machine) -> str:
+    def text(self, params: ControllerParameters, machine: Machine,
+             setups=None) -> str:
         """The G-code lines (mm, deg).
 
         Parameters
@@ -288,6 +294,8 @@ class MarlinDelta(ControllerFormat):
             Marlin's values.
         machine : Machine
             The machine they are for.
+        setups : Setups, optional
+            Unused (the values hold the bed: none of the experiment's set-ups is read).
 
         Returns
         -------
@@ -537,12 +545,41 @@ class MarlinDelta(ControllerFormat):
             90 deg plus the trims, ``position_endstop`` ``H - adj``.
         """
         v = params.values
-        # Marlin's z is the height above the bed: its values are the printer in the bed's
-        # frame, square (a tilt named in the pkmcal comment is folded in already)
-        bed = np.array([v[12], 0.0, 0.0])
         return linear_delta_machine(v[2], v[1] + v[6:9], np.radians(BASE_ANGLES) + v[3:6],
-                                    v[0] - v[9:12], bed, like,
+                                    v[0] - v[9:12], self.imported_bed(params), like,
                                     "linear Delta (imported from Marlin)", params.extras)
+
+    def imported_bed(self, params: ControllerParameters) -> np.ndarray:
+        """The bed the values hold, ``(height m, tilt_x, tilt_y)``: Marlin's z is the height
+        above the bed, its values the printer in the bed's frame, square (a tilt named in the
+        pkmcal comment is folded in already).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Marlin's values.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            The plane.
+        """
+        return np.array([params.values[12], 0.0, 0.0])
+
+    def imported_setups(self, params: ControllerParameters) -> Setups:
+        """The bed of :meth:`imported_bed` as a set-up (:func:`bed_setups`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            Marlin's values.
+
+        Returns
+        -------
+        Setups
+            The set-ups.
+        """
+        return bed_setups(self.imported_bed(params))
 
     def holds_measurements(self, path, head: str) -> bool:
         """A pasted probe report (:mod:`pkmcal.export.firmware_reports`)."""

@@ -37,7 +37,8 @@ z)`` is ``z`` above the bed, the calibrated frame's ``(x, y, z + height + tilt_x
 y)``. RepRapFirmware's ``A`` and ``B`` hold the bed's tilt (what its 9-factor ``G32`` fits):
 :meth:`RepRapFirmwareDelta.initial` starts them at the bed's slopes and the fit frees them, so
 they also take whatever shear of the towers fits best. Import (:meth:`to_machine`) puts ``A``,
-``B`` back as the bed's slopes (``probe_bed``) of a machine with vertical towers.
+``B`` back as the bed's slopes (its set-up, :meth:`imported_setups`) of a machine with
+vertical towers.
 
 Degenerate values, fixed in the fit
 -----------------------------------
@@ -55,15 +56,18 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..instruments.setups import Setups
 from ..machines.base import Machine
 from ..paths import path_text
 from .base import (
     ControllerFormat,
     ControllerParameters,
     Origin,
+    bed_setups,
     origin_of,
     refuse_foreign_text,
     register_format,
+    setups_bed,
     where,
 )
 from .gcode_text import gcode_line_kind, gcode_lines, gcode_words
@@ -78,7 +82,6 @@ from .klipper import (
     finite_number,
     linear_delta_keys,
     linear_delta_machine,
-    machine_bed,
     read_bed,
     tower_positions,
     vertical_tower_travel,
@@ -161,7 +164,7 @@ class RepRapFirmwareDelta(ControllerFormat):
         v = np.concatenate([diagonals, [radius, H], corrections, adj, tilt, bed]).astype(float)
         return ControllerParameters(list(self.NAMES), v, list(self.KINDS), self.FIXED.copy())
 
-    def initial(self, machine: Machine) -> ControllerParameters:
+    def initial(self, machine: Machine, setups=None) -> ControllerParameters:
         """RepRapFirmware's values read off a linear Delta (exact for vertical towers of one
         radius).
 
@@ -169,6 +172,9 @@ class RepRapFirmwareDelta(ControllerFormat):
         ----------
         machine : Machine
             A linear Delta.
+        setups : Setups, optional
+            The experiment's set-ups: the bed (:func:`~pkmcal.export.base.setups_bed`) the
+            controller's z = 0 is on.
 
         Returns
         -------
@@ -176,7 +182,7 @@ class RepRapFirmwareDelta(ControllerFormat):
             Diagonals per tower, the mean radius, the angle corrections against 210, 330,
             90 deg, ``H`` and the adjustments normalised (mean 0), the tilts the bed's slopes.
         """
-        bed = machine_bed(machine)
+        bed = setups_bed(setups)
         R = float(np.mean(machine.firmware_values()["radius"]))
         arms, angles, E = controller_endstops(machine, R, bed[0])
         corr = np.radians(wrap_degrees(np.degrees(angles) - BASE_ANGLES))
@@ -230,7 +236,8 @@ class RepRapFirmwareDelta(ControllerFormat):
         mean = float(np.mean(v[8:11]))
         return v[4] + mean, v[8:11] - mean
 
-    def text(self, params: ControllerParameters, machine: Machine) -> str:
+    def text(self, params: ControllerParameters, machine: Machine,
+             setups=None) -> str:
         """The G-code lines (mm, deg, percent).
 
         Parameters
@@ -239,6 +246,8 @@ class RepRapFirmwareDelta(ControllerFormat):
             RepRapFirmware's values.
         machine : Machine
             The machine they are for.
+        setups : Setups, optional
+            Unused (the values hold the bed: none of the experiment's set-ups is read).
 
         Returns
         -------
@@ -490,15 +499,46 @@ class RepRapFirmwareDelta(ControllerFormat):
         Machine
             The :class:`~pkmcal.machines.LinearDelta` in the towers' frame (raised by a
             ``pkmcal bed`` comment's height): ``position_endstop`` ``H + adj``; the tilts
-            ``A``, ``B`` become the bed's slopes (``probe_bed``), which is what they mean to
-            RepRapFirmware.
+            ``A``, ``B`` are the bed's slopes (:meth:`imported_setups`), which is what they
+            mean to RepRapFirmware.
         """
         v = params.values
-        bed = np.array([v[13], v[11], v[12]])
         return linear_delta_machine(v[3], v[0:3], np.radians(BASE_ANGLES) + v[5:8],
-                                    v[4] + v[8:11], bed, like,
+                                    v[4] + v[8:11], self.imported_bed(params), like,
                                     "linear Delta (imported from RepRapFirmware)",
                                     params.extras)
+
+    def imported_bed(self, params: ControllerParameters) -> np.ndarray:
+        """The bed the values hold, ``(height m, tilt_x, tilt_y)``: a ``pkmcal bed``
+        comment's height, the slopes ``A``, ``B``.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            RepRapFirmware's values.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            The plane.
+        """
+        v = params.values
+        return np.array([v[13], v[11], v[12]])
+
+    def imported_setups(self, params: ControllerParameters) -> Setups:
+        """The bed of :meth:`imported_bed` as a set-up (:func:`bed_setups`).
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            RepRapFirmware's values.
+
+        Returns
+        -------
+        Setups
+            The set-ups.
+        """
+        return bed_setups(self.imported_bed(params))
 
     def holds_measurements(self, path, head: str) -> bool:
         """A pasted probe report (:mod:`pkmcal.export.firmware_reports`)."""

@@ -386,6 +386,40 @@ class BedSetup:
         return machine.targets_in_base(P, self.plane)
 
 
+def bed_of(setups) -> BedSetup | None:
+    """The printer's bed among an experiment's set-ups (the probe's :class:`BedSetup`).
+
+    Parameters
+    ----------
+    setups : Setups or None
+        The set-ups (:class:`~pkmcal.instruments.setups.Setups`).
+
+    Returns
+    -------
+    BedSetup or None
+        None without one.
+    """
+    return None if setups is None else setups.get(Probe.name)
+
+
+def bed_plane(setups) -> tuple[float, float, float] | None:
+    """The plane ``(height m, tilt_x, tilt_y)`` of the bed among an experiment's set-ups
+    (:func:`bed_of`), as the machines' methods take it (``bed=``); None without one.
+
+    Parameters
+    ----------
+    setups : Setups or None
+        The set-ups.
+
+    Returns
+    -------
+    tuple of float or None
+        The plane.
+    """
+    bed = bed_of(setups)
+    return None if bed is None else bed.plane
+
+
 class Probe(Instrument):
     """Bed-probe heights: the nozzle's height above a flat bed of unknown height and tilt."""
 
@@ -471,7 +505,8 @@ class Probe(Instrument):
         data, true, truth = run.simulate(s.poses or self.montecarlo_poses,
                                          IsotropicNoise(noise) if noise > 0 else False)
         res = calibrate_probe(nominal, data, IsotropicNoise(run.weight(noise)))
-        P, R, _ = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng)
+        P, R, _ = self.candidates(nominal, self.montecarlo_evaluation_poses, run.rng,
+                                  s.setups.get(self.name))
         q = nominal.ik(P + np.array([0.0, 0.0, 1e-3]), R)
 
         def heights(machine, bed):
@@ -488,23 +523,25 @@ class Probe(Instrument):
 
     def candidates(self, machine, n, rng, setup=None):
         """Random points uniform on the disk of :func:`probe_radius` on the nominal bed."""
-        r = probe_radius(machine)
+        plane = None if setup is None else setup.plane
+        r = probe_radius(machine, plane)
         centre = bed_centre(machine)
         rho = r * np.sqrt(rng.uniform(0.0, 1.0, n))
         a = rng.uniform(0.0, 2 * np.pi, n)
         P, R = _bed_points(machine, centre + np.column_stack([rho * np.cos(a),
-                                                             rho * np.sin(a)]))
+                                                             rho * np.sin(a)]), plane)
         return P, R, None
 
     def standard_plan(self, machine, n, seed, setup=None):
-        pattern = probe_pattern(n, probe_radius(machine), bed_centre(machine))
+        plane = None if setup is None else setup.plane
+        pattern = probe_pattern(n, probe_radius(machine, plane), bed_centre(machine))
         if pattern is None:
             return StandardPlan("a probe pattern of rings on the bed",
                                 reason=f"the probe patterns have 7 points (Klipper's "
                                        f"DELTA_CALIBRATE) or 1 + 3 m (m + 1) points (centre and "
                                        f"m rings: 19, 37, 61, ...), not {n}")
         xy, words = pattern
-        P, R = _bed_points(machine, xy)
+        P, R = _bed_points(machine, xy, plane)
         return StandardPlan(words, P, R)
 
     def planned_data(self, machine, P, R, rows, source, group=None, setup=None):
@@ -582,11 +619,11 @@ class Probe(Instrument):
             P, R = given_poses(poses)
             words = f"{len(P)} given points"
         else:
-            plan = self.standard_plan(machine, n, 0)
+            plan = self.standard_plan(machine, n, 0, setup)
             if plan.available:
                 P, R, words = plan.P, plan.R, f"{n} points: {plan.name}"
             else:
-                P, R, _ = self.candidates(machine, n, rng)
+                P, R, _ = self.candidates(machine, n, rng, setup)
                 words = f"{n} random points on the bed's disk"
             _refuse_points_outside_limits(machine, P, R, words)
         bed = np.array([bed_height(machine) + rng.uniform(-bed_error, bed_error),

@@ -869,7 +869,7 @@ class Machine(ABC):
         return "; ".join(parts) + more
 
     # -- reachability ---------------------------------------------------------------------
-    def physical_limits(self, P, R, q, u=None) -> list[PhysicalLimit]:
+    def physical_limits(self, P, R, q, u=None, bed=None) -> list[PhysicalLimit]:
         """The limits of the machine's own hardware at poses, beyond real inverse kinematics
         and the file's ``joint_limits`` (a linear Delta's endstops and bed); none by default.
 
@@ -885,6 +885,10 @@ class Machine(ABC):
             Joint values at the poses (internal units; NaN where unreachable).
         u : array_like, shape (n_params,), optional
             Parameter vector (internal units); default: :attr:`u`.
+        bed : array_like, shape (3,), optional
+            The bed plane ``(height m, tilt_x, tilt_y)`` of the experiment's set-ups (a
+            printer's bed: :class:`~pkmcal.instruments.probe.BedSetup`, the machine holds
+            none); None: the machine's own nominal bed, if it has one.
 
         Returns
         -------
@@ -893,7 +897,7 @@ class Machine(ABC):
         """
         return []
 
-    def within_physical_limits(self, P, R, q=None, u=None) -> np.ndarray:
+    def within_physical_limits(self, P, R, q=None, u=None, bed=None) -> np.ndarray:
         """Where poses keep the machine's physical limits (:meth:`physical_limits`).
 
         Parameters
@@ -906,6 +910,10 @@ class Machine(ABC):
             Joint values at the poses when already computed.
         u : array_like, shape (n_params,), optional
             Parameter vector (internal units); default: :attr:`u`.
+        bed : array_like, shape (3,), optional
+            The bed plane ``(height m, tilt_x, tilt_y)`` of the experiment's set-ups (a
+            printer's bed: :class:`~pkmcal.instruments.probe.BedSetup`, the machine holds
+            none); None: the machine's own nominal bed, if it has one.
 
         Returns
         -------
@@ -916,7 +924,8 @@ class Machine(ABC):
         P = np.asarray(P, float).reshape(-1, 3)
         ok = np.ones(len(P), bool)
         with np.errstate(all="ignore"):
-            limits = self.physical_limits(P, R, self.ik(P, R, u) if q is None else q, u)
+            limits = self.physical_limits(P, R, self.ik(P, R, u) if q is None else q, u,
+                                          bed=bed)
         for limit in limits:
             ok &= ~(np.asarray(limit.excess, float) > PHYSICAL_LIMIT_TOLERANCE)
         return ok
@@ -960,7 +969,7 @@ class Machine(ABC):
                 ("psi", "theta", "phi"), angles, strict=True)) + f" {units.get('angle', 'rad')}"
         return text
 
-    def reachability(self, P, R=None, u=None) -> Reachability:
+    def reachability(self, P, R=None, u=None, bed=None) -> Reachability:
         """Which poses the machine can take, and why not: the one test every command that
         takes targets or a workspace applies.
 
@@ -979,6 +988,10 @@ class Machine(ABC):
             Platform orientations; default the identity.
         u : array_like, shape (n_params,), optional
             Parameter vector (internal units); default: :attr:`u`.
+        bed : array_like, shape (3,), optional
+            The bed plane ``(height m, tilt_x, tilt_y)`` of the experiment's set-ups (a
+            printer's bed: :class:`~pkmcal.instruments.probe.BedSetup`, the machine holds
+            none); None: the machine's own nominal bed, if it has one.
 
         Returns
         -------
@@ -993,7 +1006,7 @@ class Machine(ABC):
             q = np.asarray(self.ik(P, R, u), float).reshape(K, self.n_joints)
             real = np.all(np.isfinite(q), axis=-1)
             mode = self.working_mode(P, R, u) & real
-            limits = self.physical_limits(P, R, q, u)
+            limits = self.physical_limits(P, R, q, u, bed=bed)
             past = [np.asarray(lim.excess, float) > PHYSICAL_LIMIT_TOLERANCE
                     for lim in limits]
             outside = self.limit_violations(q)

@@ -601,10 +601,10 @@ class LinearDelta(Machine):
     #: reports name the towers' firmware values by them)
     TOWER_SECTIONS = ("stepper_a", "stepper_b", "stepper_c")
 
-    def print_workspace(self, n: int = 500, rng=0):
+    def print_workspace(self, n: int = 500, rng=0, bed=None):
         """Where a printer prints: the print disk on the bed and the volume above it.
 
-        Half the points lie on the bed (the plane of :attr:`probe_bed`, z = 0 without one)
+        Half the points lie on the bed (the plane ``bed``, z = 0 without one)
         within the print radius (:attr:`print_radius`; else the probing radius, else the
         reachable disk of the probe instrument), half in the cylinder above it up to
         :attr:`PRINT_HEIGHT` (at most the radius); points the machine cannot reach (no
@@ -616,6 +616,9 @@ class LinearDelta(Machine):
             Number of points drawn.
         rng : int or numpy.random.Generator, optional
             Seed.
+        bed : array_like, shape (3,), optional
+            The bed plane ``(height m, tilt_x, tilt_y)`` of the experiment's set-ups
+            (:class:`~pkmcal.instruments.probe.BedSetup`); None: z = 0.
 
         Returns
         -------
@@ -625,7 +628,7 @@ class LinearDelta(Machine):
         from .reach import Workspace, probe_radius
 
         rng = np.random.default_rng(rng)
-        radius = self.print_radius or probe_radius(self)
+        radius = self.print_radius or probe_radius(self, bed)
         words = (f"print radius {radius * 1e3:.6g} mm" if self.print_radius
                  else f"radius {radius * 1e3:.6g} mm")
         height = min(self.PRINT_HEIGHT, radius)
@@ -633,14 +636,14 @@ class LinearDelta(Machine):
         rho = radius * np.sqrt(rng.uniform(0.0, 1.0, n))
         a = rng.uniform(0.0, 2 * np.pi, n)
         z = np.concatenate([np.zeros(m), rng.uniform(0.0, height, n - m)])
-        bed = np.zeros(3) if getattr(self, "probe_bed", None) is None \
-            else np.asarray(self.probe_bed, float)
+        plane = np.zeros(3) if bed is None else np.asarray(bed, float).reshape(3)
         x, y = rho * np.cos(a), rho * np.sin(a)
-        P = np.column_stack([x, y, z + bed[0] + bed[1] * x + bed[2] * y])
+        P = np.column_stack([x, y, z + plane[0] + plane[1] * x + plane[2] * y])
         R = np.broadcast_to(np.eye(3), (n, 3, 3))
         with np.errstate(all="ignore"):
             q = self.ik(P, R)
-            ok = np.all(np.isfinite(q), axis=-1) & self.within_physical_limits(P, R, q)
+            ok = np.all(np.isfinite(q), axis=-1) & self.within_physical_limits(P, R, q,
+                                                                                bed=bed)
         surface = np.arange(n) < m
         P, surface = P[ok], surface[ok]
         if not surface.any():
@@ -761,14 +764,17 @@ class LinearDelta(Machine):
         return []
 
     # -- physical limits ------------------------------------------------------------------
-    def bed_z(self, P) -> np.ndarray:
-        """Height of the bed below nozzle positions, base frame: the calibrated file's bed
-        plane (:attr:`probe_bed`) or :attr:`bed_height`.
+    def bed_z(self, P, bed=None) -> np.ndarray:
+        """Height of the bed below nozzle positions, base frame: the bed plane of the
+        experiment's set-ups (``bed``, a calibrated file's) or :attr:`bed_height`.
 
         Parameters
         ----------
         P : array_like, shape (K, 3)
             Nozzle positions, m.
+        bed : array_like, shape (3,), optional
+            The bed plane ``(height m, tilt_x, tilt_y)``
+            (:class:`~pkmcal.instruments.probe.BedSetup`); None: :attr:`bed_height`.
 
         Returns
         -------
@@ -776,13 +782,12 @@ class LinearDelta(Machine):
             The bed's z under each position, m.
         """
         P = np.asarray(P, float).reshape(-1, 3)
-        bed = getattr(self, "probe_bed", None)
         if bed is None:
             return np.full(len(P), float(self.bed_height))
         h, tx, ty = (float(v) for v in bed)
         return h + tx * P[:, 0] + ty * P[:, 1]
 
-    def physical_limits(self, P, R, q, u=None) -> list:
+    def physical_limits(self, P, R, q, u=None, bed=None) -> list:
         """A printer's own limits: each carriage at or below its endstop (``q_i >= 0``: the
         joint reads the travel down from the endstop, the endstop is the top of the tower)
         and the nozzle at or above the bed (below it the carriages would drive the nozzle
@@ -798,6 +803,8 @@ class LinearDelta(Machine):
             Carriage travels down from the endstops at ``P``, m.
         u : array_like, shape (20,), optional
             Unused: the endstops are where ``q = 0`` whatever the parameters.
+        bed : array_like, shape (3,), optional
+            The bed plane of the experiment's set-ups (:meth:`bed_z`).
 
         Returns
         -------
@@ -812,7 +819,7 @@ class LinearDelta(Machine):
         limits = [PhysicalLimit(-q[:, i], f"tower {i + 1}'s carriage {{amount}} above "
                                 "its endstop", joint=i)
                   for i in range(3)]
-        limits.append(PhysicalLimit(self.bed_z(P) - P[:, 2],
+        limits.append(PhysicalLimit(self.bed_z(P, bed) - P[:, 2],
                                     "the nozzle {amount} below the bed"))
         return limits
 

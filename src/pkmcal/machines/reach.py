@@ -87,9 +87,10 @@ def bed_centre(machine: Machine) -> np.ndarray:
     return np.asarray(machine.home[0][:2] if own is None else own, float)[:2]
 
 
-def _probe_ok(machine: Machine, P, R) -> np.ndarray:
-    """Probe points the machine reaches, within its physical and joint limits, well
-    conditioned, in the working mode."""
+def _probe_ok(machine: Machine, P, R, bed=None) -> np.ndarray:
+    """Probe points the machine reaches, within its physical and joint limits (over the bed
+    plane ``bed``, :meth:`~pkmcal.machines.Machine.physical_limits`), well conditioned, in the
+    working mode."""
     with np.errstate(all="ignore"):
         q, J, _ = machine.ik_jacobians(P, R, want_du=False)
         space = list(machine.pose_space)
@@ -99,24 +100,26 @@ def _probe_ok(machine: Machine, P, R) -> np.ndarray:
         sv = np.linalg.svd(np.where(ok[:, None, None], J, 1.0), compute_uv=False)
         ok &= sv[..., -1] > PROBE_CONDITIONING * sv[..., 0]
         ok &= machine.working_mode(P, R)
-        ok &= machine.within_physical_limits(P, R, q)
+        ok &= machine.within_physical_limits(P, R, q, bed=bed)
         if getattr(machine, "joint_limits", None) is not None and ok.any():
             ok[ok] = machine.within_limits(q[ok])
     return ok
 
 
-def _bed_points(machine: Machine, xy):
+def _bed_points(machine: Machine, xy, bed=None):
     """Poses with the nozzle tip at ``xy`` on the bed, the platform at home orientation (the
     tip is the platform origin): the nominal bed's height, or on a machine whose frame is its
-    bed the plane its file states (:meth:`~pkmcal.machines.Machine.targets_in_base`: a
-    tilted bed's points lie on it, not under it)."""
+    bed the plane ``bed`` (``(height m, tilt_x, tilt_y)``, the experiment's set-up
+    :class:`~pkmcal.instruments.probe.BedSetup`;
+    :meth:`~pkmcal.machines.Machine.targets_in_base`: a tilted bed's points lie on it, not
+    under it)."""
     xy = np.atleast_2d(np.asarray(xy, float))
     P = machine.targets_in_base(np.column_stack([xy, np.full(len(xy), bed_height(machine))]),
-                                getattr(machine, "probe_bed", None))
+                                bed)
     return P, np.broadcast_to(machine.home[1], (len(P), 3, 3)).copy()
 
 
-def _centre_unprobed(machine: Machine, centre) -> str:
+def _centre_unprobed(machine: Machine, centre, bed=None) -> str:
     """Why the bed's centre cannot be probed, for a message: the joint limits when the
     centre is reached, well conditioned, but needs joint values outside them (the cause to
     fix is then ``joint_limits``, not the bed or home); else out of reach or badly
@@ -124,13 +127,13 @@ def _centre_unprobed(machine: Machine, centre) -> str:
     where = str(getattr(machine, "source", "") or "the machine")
     point = (f"the bed's centre ({centre[0] * 1e3:.6g}, {centre[1] * 1e3:.6g}, "
              f"{bed_height(machine) * 1e3:.6g}) mm")
-    P, R = _bed_points(machine, centre[None, :])
+    P, R = _bed_points(machine, centre[None, :], bed)
     if getattr(machine, "joint_limits", None) is not None:
         with np.errstate(all="ignore"):
             q = np.asarray(machine.ik(P, R), float).reshape(1, -1)
         free = copy.copy(machine)
         free.joint_limits = None
-        if _probe_ok(free, P, R).all() and not machine.within_limits(q).all():
+        if _probe_ok(free, P, R, bed).all() and not machine.within_limits(q).all():
             broken = machine.limit_violation_text(q).removeprefix("row 1: ")
             return (f"{where}: joint_limits ({machine.joint_limits_text()}) exclude "
                     f"{point}, where every probe pattern is centred: it needs {broken}; "
@@ -139,7 +142,7 @@ def _centre_unprobed(machine: Machine, centre) -> str:
             "the bed or home")
 
 
-def probe_radius(machine: Machine) -> float:
+def probe_radius(machine: Machine, bed=None) -> float:
     """Radius of probe patterns on the bed, m.
 
     The machine's ``probe_radius`` when it has one (a printer's configured probe radius), else
@@ -152,6 +155,9 @@ def probe_radius(machine: Machine) -> float:
     ----------
     machine : Machine
         The nominal machine.
+    bed : array_like, shape (3,), optional
+        The bed plane ``(height m, tilt_x, tilt_y)`` of the experiment's set-ups (a
+        printer's, :class:`~pkmcal.instruments.probe.BedSetup`); None: the nominal bed.
 
     Returns
     -------
@@ -172,12 +178,13 @@ def probe_radius(machine: Machine) -> float:
     centre = bed_centre(machine)
     t = np.linspace(0.0, 2 * np.pi, 72, endpoint=False)
     ring = np.column_stack([np.cos(t), np.sin(t)])
-    if not _probe_ok(machine, *_bed_points(machine, centre[None, :])).all():
-        raise InputError(_centre_unprobed(machine, centre))
+    if not _probe_ok(machine, *_bed_points(machine, centre[None, :], bed), bed).all():
+        raise InputError(_centre_unprobed(machine, centre, bed))
     r = 0.0
     for k in range(1, 41):
         radius = k * L / 40
-        if not _probe_ok(machine, *_bed_points(machine, centre + radius * ring)).all():
+        if not _probe_ok(machine, *_bed_points(machine, centre + radius * ring, bed),
+                         bed).all():
             break
         r = radius
     return PROBE_MARGIN * (r if r > 0 else L / 80)

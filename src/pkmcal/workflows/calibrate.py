@@ -83,7 +83,8 @@ def calibrate_files(machine_spec: str, data_path, output: Path, noise=None,
                             setups=load_setups_arg(machine_spec))
     # the answer (verdict, accuracy before and after, what changed, what next): the report's
     # first section, and the summary's first rows
-    calibration.report["outcome"] = calibration_outcome(calibration, path_text(output))
+    calibration.report["outcome"] = calibration_outcome(calibration, path_text(output),
+                                                        setups=load_setups_arg(machine_spec))
     # staged first: a calibrated geometry that cannot be written is the one message (exit 2)
     json_text = calibration.write(output, report_dir)
     if json_output:

@@ -10,7 +10,13 @@ from ..io import atomic_write_text
 from ..paths import path_text
 from ..report.summary import Summary
 from ..units import format_um
-from .common import check_outputs, commit_outputs, load_machine_arg, machine_inputs
+from .common import (
+    check_outputs,
+    commit_outputs,
+    load_machine_arg,
+    load_setups_arg,
+    machine_inputs,
+)
 
 __all__ = ["check"]
 
@@ -54,7 +60,7 @@ def check(machine_spec: str, data_paths, noise=None, output: Path | None = None)
     machine = load_machine_arg(machine_spec)
     if output is not None:
         check_outputs([output], paths + machine_inputs(machine_spec))
-    result = score(machine, paths, noise=noise)
+    result = score(machine, paths, noise=noise, setups=load_setups_arg(machine_spec))
     if output is not None:
         text = report_json(json_safe(result.report))
         atomic_write_text(output, text if text.endswith("\n") else text + "\n")

@@ -21,6 +21,7 @@ from ..export.base import load_formats
 from ..export.bed_mesh import PROFILE, bed_correction, layer_errors, print_radius_of
 from ..export.fitting import carry_like, carry_like_setups
 from ..instruments.flow import json_safe
+from ..instruments.probe import bed_plane
 from ..io.atomic import atomic_write_bytes, atomic_write_text, is_stream, read_input_text
 from ..io.klipper_config import backup_name
 from ..io.machine_file import (
@@ -122,7 +123,7 @@ def run_export(machine_spec: str, to: str, output, nominal: str | None = None,
         return _export_configuration(fmt, machine_spec, output, nominal, workspace, seed)
     # no record beside /dev/null or a pipe (as calibrate writes no report beside them)
     record_path = None if is_stream(output) else output.with_name(output.name + ".json")
-    machine, inputs = _machine_and_inputs(machine_spec, nominal, workspace)
+    machine, setups, inputs = _machine_and_inputs(machine_spec, nominal, workspace)
     # onto an existing controller file: saved as the controller saves (the previous file kept
     # beside it, dated), where the format knows how; read before anything is written
     existing = backup = None
@@ -137,11 +138,12 @@ def run_export(machine_spec: str, to: str, output, nominal: str | None = None,
                              f"cannot be read ({exc.strerror or exc})") from None
     check_outputs([output] + ([record_path] if record_path is not None else [])
                   + ([backup] if backup is not None else []), inputs)
-    before = _checked_machines(fmt, machine, machine_spec, nominal)
-    ws = _workspace(machine, workspace, seed)
+    before, before_setups = _checked_machines(fmt, machine, machine_spec, nominal)
+    ws = _workspace(machine, workspace, seed, setups)
     result = export(fmt, machine, ws.P, ws.R, nominal=before, workspace=ws.description,
-                    surface=ws.surface, existing=existing, source=str(output))
-    hand_over = _bed_hand_over(fmt, result, machine, ws, result.text)
+                    surface=ws.surface, existing=existing, source=str(output), setups=setups,
+                    nominal_setups=before_setups)
+    hand_over = _bed_hand_over(fmt, result, machine, ws, result.text, setups)
     if existing is not None and backup is not None:
         atomic_write_bytes(backup, previous)
     atomic_write_text(output, hand_over["text"] or result.text)
@@ -158,20 +160,22 @@ def run_export(machine_spec: str, to: str, output, nominal: str | None = None,
     return summary
 
 
-def _bed_hand_over(fmt, result, machine, ws, text: str) -> dict:
-    """A printer's export: the nozzle's height error at the bed and 50 and 100 mm above it,
-    and the bed mesh that carries what the values cannot hold at the bed where the
-    controller applies one from its file (:mod:`pkmcal.export.bed_mesh`). ``text``: the
-    file with the mesh (None: none handed over); ``mesh``: what to tell the user."""
+def _bed_hand_over(fmt, result, machine, ws, text: str, setups) -> dict:
+    """A printer's export: the nozzle's height error at the bed (of the set-ups ``setups``)
+    and 50 and 100 mm above it, and the bed mesh that carries what the values cannot hold at
+    the bed where the controller applies one from its file (:mod:`pkmcal.export.bed_mesh`).
+    ``text``: the file with the mesh (None: none handed over); ``mesh``: what to tell the
+    user."""
     out: dict = {"text": None}
     if getattr(ws, "surface", None) is None or not np.any(ws.surface):
         return out
-    radius = print_radius_of(machine)
+    radius = print_radius_of(machine, setups)
     height = fmt.bed_mesh_height(text)
-    correction = bed_correction(fmt, result.params, machine, radius, height=height)
-    meshed = fmt.with_bed_mesh(text, result.params, machine)
+    correction = bed_correction(fmt, result.params, machine, radius, height=height,
+                                setups=setups)
+    meshed = fmt.with_bed_mesh(text, result.params, machine, setups)
     out["layers"] = layer_errors(fmt, result.params, machine, radius,
-                                 correction if meshed is not None else None)
+                                 correction if meshed is not None else None, setups=setups)
     if meshed is not None:
         out["text"] = meshed
         out["mesh"] = (f"[bed_mesh {PROFILE}] written to the SAVE_CONFIG block (RMS "
@@ -202,18 +206,18 @@ def _output_target(fmt, output) -> tuple[Path, bool]:
 
 
 def _machine_and_inputs(machine_spec: str, nominal: str | None, workspace: str | None):
-    """The machine of ``machine_spec`` and the files export reads (never to be overwritten):
-    the machine files, an existing ``--workspace`` file and the calibration's report the
-    calibrated file pins."""
+    """The machine of ``machine_spec``, its set-ups (a printer's bed) and the files export
+    reads (never to be overwritten): the machine files, an existing ``--workspace`` file and
+    the calibration's report the calibrated file pins."""
     inputs = machine_inputs(machine_spec) + (machine_inputs(nominal) if nominal else [])
     if workspace is not None and Path(workspace).exists():
         inputs.append(Path(workspace))
-    machine = load_machine_arg(machine_spec)
+    machine, setups = load_machine_arg(machine_spec), load_setups_arg(machine_spec)
     # the calibration's report, which the calibrated file pins, is an input too
     pinned = _pinned_report(machine, machine_spec)
     if pinned is not None:
         inputs.append(pinned)
-    return machine, inputs
+    return machine, setups, inputs
 
 
 def _pinned_report(machine, machine_spec: str) -> Path | None:
@@ -225,31 +229,32 @@ def _pinned_report(machine, machine_spec: str) -> Path | None:
     return recorded_path(Path(machine_spec).parent, name)         # recorded by path_text
 
 
-def _workspace(machine, workspace: str | None, seed: int):
-    """The export's workspace: ``--workspace``, else a printer's own, else the machine's."""
+def _workspace(machine, workspace: str | None, seed: int, setups):
+    """The export's workspace: ``--workspace``, else a printer's own (on the bed of the
+    set-ups ``setups``), else the machine's."""
     from .planning import workspace_arg
 
     own = getattr(machine, "print_workspace", None)
-    return (own(rng=seed) if workspace is None and callable(own)
-            else workspace_arg(workspace, machine, seed))
+    return (own(rng=seed, bed=bed_plane(setups)) if workspace is None and callable(own)
+            else workspace_arg(workspace, machine, seed, bed_plane(setups)))
 
 
 def _checked_machines(fmt, machine, machine_spec: str, nominal: str | None):
     """The calibrated machine checked against the format; ``--nominal``'s machine (or None),
-    checked too."""
+    checked too, and its set-ups (or None)."""
     why = fmt.applies(machine)
     if why is not None:
         raise InputError(f"--to {fmt.name}: {path_text(machine_spec)}: {why}")
-    before = None
+    before = before_setups = None
     if nominal is not None:
-        before = load_machine_arg(nominal)
+        before, before_setups = load_machine_arg(nominal), load_setups_arg(nominal)
         why = fmt.applies(before)
         if why is not None:
             raise InputError(f"--nominal {nominal}: {why}")
         if before.kind != machine.kind:
             raise InputError(f"--nominal {nominal}: a {before.kind} machine, but "
                              f"{path_text(machine_spec)} is a {machine.kind} machine")
-    return before
+    return before, before_setups
 
 
 def _export_configuration(fmt, machine_spec: str, directory: Path, nominal: str | None,
@@ -259,12 +264,12 @@ def _export_configuration(fmt, machine_spec: str, directory: Path, nominal: str 
     one atomic output set."""
     record_path = directory / "export.json"
     paths = [directory / name for name in fmt.configuration_files] + [record_path]
-    machine, inputs = _machine_and_inputs(machine_spec, nominal, workspace)
+    machine, setups, inputs = _machine_and_inputs(machine_spec, nominal, workspace)
     check_outputs(paths, inputs, [directory])
-    before = _checked_machines(fmt, machine, machine_spec, nominal)
-    ws = _workspace(machine, workspace, seed)
+    before, before_setups = _checked_machines(fmt, machine, machine_spec, nominal)
+    ws = _workspace(machine, workspace, seed, setups)
     result = export(fmt, machine, ws.P, ws.R, nominal=before, workspace=ws.description,
-                    surface=ws.surface)
+                    surface=ws.surface, setups=setups, nominal_setups=before_setups)
     files = fmt.configuration(result, machine, ws)
     for name, text in files.items():
         atomic_write_text(directory / name, text)
@@ -361,12 +366,15 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
         raise InputError(f"--like {like}: a {model.kind} machine; {fmt.name} files describe a "
                          f"{fmt.machine_words} (machine: {fmt.machine_kind})")
     machine = carry_like(fmt.to_machine(params, model), model)
+    # what --like carried (a tracker's set-up) and the set-ups the values state (a
+    # printer's bed)
     setups = carry_like_setups(machine, load_setups_arg(like) if like is not None else None)
+    setups = setups.merged(fmt.imported_setups(params))
     if model is None and home is not None:      # a configuration's own
         machine.home = home
     if model is None and name:
         machine.name = name
-    _check_imported(fmt, params, machine, path, like)
+    _check_imported(fmt, params, machine, setups, path, like)
     save_machine(machine, output, getattr(machine, "file_units", None), setups=setups)
     commit_outputs()
     summary = Summary()
@@ -381,14 +389,14 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
 _LIKE_KEYS = ("name", "units", "joint_limits", "smr_offset", "tracker")
 
 
-def _check_imported(fmt, params, machine, path: Path, like: str | None) -> None:
+def _check_imported(fmt, params, machine, setups, path: Path, like: str | None) -> None:
     """Validate an imported machine as its machine file is validated (schema, magnitudes,
     geometry, joint limits) and name a problem in the user's terms: the controller file's
     keys and lines that make the machine-file key concerned (the format's source map,
     :meth:`~pkmcal.export.base.ControllerFormat.imported_key`), or ``--like``'s key."""
     units = getattr(machine, "file_units", None)
     try:
-        parse_machine(machine_to_text(machine, units), str(path))
+        parse_machine(machine_to_text(machine, units, setups=setups), str(path))
         return
     except MachineFileError as exc:
         key, what = exc.key, exc.what

@@ -12,6 +12,7 @@ import numpy as np
 from ..calibration.run import file_units
 from ..errors import InputError
 from ..instruments.flow import rows_text
+from ..instruments.probe import bed_plane
 from ..io import (
     joint_quantity,
     read_joints,
@@ -148,7 +149,7 @@ def ik(machine_spec: str, poses: Path, output: Path) -> Summary:
         A pose the machine cannot take (no real inverse kinematics, outside the working mode
         or the joint limits), named by its rows; nothing is written then.
     """
-    machine = load_machine_arg(machine_spec)
+    machine, setups = load_machine_arg(machine_spec), load_setups_arg(machine_spec)
     check_outputs([output], [poses] + machine_inputs(machine_spec))
     P, R, rows = read_poses_of(poses, machine)
     q = machine.ik(P, R)
@@ -174,7 +175,8 @@ def ik(machine_spec: str, poses: Path, output: Path) -> Summary:
             raise InputError(f"{poses}: {int(off.sum())} position(s) outside the working "
                              f"assembly mode (the platform must hang below the base), row(s) "
                              f"{rows_text(rows[off])}")
-    refuse_unreachable(machine, machine.reachability(P, R), f"{poses}: {{n}} pose(s) cannot "
+    refuse_unreachable(machine, machine.reachability(P, R, bed=bed_plane(setups)),
+                       f"{poses}: {{n}} pose(s) cannot "
                        "be reached by the machine", rows, (P, R))
     refuse_outside_limits(machine, q, rows, f"{poses}: {{n}} pose(s)")
     columns = joint_columns(machine, q, file_units(machine))

@@ -23,6 +23,7 @@ import numpy as np
 from ..calibration.run import file_units as _units
 from ..errors import InputError
 from ..instruments.flow import json_safe, rows_text
+from ..instruments.probe import bed_plane
 from ..instruments.registry import INSTRUMENTS, instrument
 from ..io import read_table
 from ..paths import path_text
@@ -86,11 +87,12 @@ def planning_setup(machine, kind: str, setups: int | None, radius: str | None,
                                                  if v is not None})
 
 
-def workspace_arg(text: str | None, machine, seed: int = 0):
+def workspace_arg(text: str | None, machine, seed: int = 0, bed=None):
     """The workspace of the predicted accuracy: ``--workspace`` (a box
     ``X0,X1,Y0,Y1,Z0,Z1`` with units, or a CSV of points) or, without it, the SPEC 5 cube
     around home. Every pose must be reachable from home's working mode and within the
-    machine file's joint limits."""
+    machine file's joint limits (and above a printer's bed, the plane ``bed`` of its
+    set-ups: :meth:`~pkmcal.machines.Machine.reachability`)."""
     from ..analysis.accuracy import box_workspace, default_workspace
 
     if text is None:
@@ -117,7 +119,7 @@ def workspace_arg(text: str | None, machine, seed: int = 0):
         rows = None
     else:
         ws, rows = _points_workspace(Path(text), machine, seed)
-    _check_workspace(machine, ws, text, rows)
+    _check_workspace(machine, ws, text, rows, bed)
     return ws
 
 
@@ -152,12 +154,12 @@ def _points_workspace(path: Path, machine, seed: int):
                      (P.min(axis=0), P.max(axis=0))), rows
 
 
-def _check_workspace(machine, ws, text: str, rows) -> None:
+def _check_workspace(machine, ws, text: str, rows, bed=None) -> None:
     """Refuse workspace poses the machine cannot take (:meth:`~pkmcal.machines.Machine.
     reachability`: unreachable, another working mode, past the machine's physical limits such
     as a printer's endstops and bed, joints outside its limits), naming the rows of a points
     file or, for a box, the first such pose, and why."""
-    reach = machine.reachability(ws.P, ws.R)
+    reach = machine.reachability(ws.P, ws.R, bed=bed)
     q = reach.q
     k = np.flatnonzero(~reach.ok & ~reach.limits_only)
     if k.size:
@@ -473,7 +475,8 @@ targets, parameters
     given = rows = groups = None
     if candidates_path is not None:
         *given, rows = read_poses_of(candidates_path, machine)
-        refuse_unreachable(machine, machine.reachability(*given), f"{candidates_path}: "
+        refuse_unreachable(machine, machine.reachability(
+            *given, bed=bed_plane(load_setups_arg(machine_spec))), f"{candidates_path}: "
                            "{n} candidate pose(s) cannot be reached by the machine", rows,
                            given)
         groups = plan_groups(candidates_path, kind, rows)

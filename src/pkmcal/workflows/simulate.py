@@ -12,6 +12,7 @@ import numpy as np
 from ..calibration.run import file_units
 from ..errors import InputError
 from ..instruments.flow import rows_text
+from ..instruments.probe import bed_plane
 from ..instruments.tracker import tracker_noise_arg
 from ..io import atomic_write_text, machine_to_text, parse_machine, write_tracker
 from ..limits import MAX_MEASUREMENTS
@@ -278,7 +279,8 @@ def _simulate_tracker(machine, output: Path, noise: str | None, seed: int, devia
         raise InputError(f"--grid {grid_text}: {bad.size} grid point(s) "
                          f"outside the workspace of {path_text(machine.source)} (e.g. "
                          f"{_mm(targets[bad[0]])} mm); use a smaller grid or another home")
-    refuse_unreachable(machine, machine.reachability(targets), f"--grid {grid_text}: {{n}} "
+    refuse_unreachable(machine, machine.reachability(targets, bed=bed_plane(true_setups)),
+                       f"--grid {grid_text}: {{n}} "
                        f"grid point(s) (rows of the data file) cannot be reached by "
                        f"{machine.source}", np.arange(2, n_points + 2), (targets, None))
     refuse_outside_limits(machine, machine.ik(targets), np.arange(2, n_points + 2),
