@@ -150,16 +150,16 @@ def test_a_50mb_probe_report_of_words_is_read_in_proportion(tmp_path, monkeypatc
     """A pasted probe report (calibrate's data) whose one report line is followed by 50 MB of
     words: every line went through the report's patterns (15 s of CPU); now the reader leaves
     the text REPORT_GAP lines after the report's last line (counted: the lines it looks at)."""
-    from pkmcal.export import firmware_reports, marlin
+    from pkmcal.export import firmware_reports, gcode_text
 
     seen = {"n": 0}
-    host_line = marlin.host_line
+    host_line = gcode_text.host_line
 
     def counting(raw):
         seen["n"] += 1
         return host_line(raw)
 
-    monkeypatch.setattr(marlin, "host_line", counting)
+    monkeypatch.setattr(gcode_text, "host_line", counting)
     report = _garbage(tmp_path / "report.txt", header="Bed X: 0.000 Y: 0.000 Z: 0.100\n")
     proc = run("calibrate", str(ROOT / "examples" / "linear_delta.yaml"), report.name,
                "-o", "x.yaml", cwd=tmp_path)
