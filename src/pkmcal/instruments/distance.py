@@ -101,6 +101,10 @@ class BallbarSetup:
         """``P`` itself: targets are not given relative to a ballbar."""
         return P
 
+    def targets_from_base(self, machine, P):
+        """``P`` itself: the inverse of :meth:`targets_in_base`."""
+        return P
+
 
 #: setups of a distance plan: the circle planes of ISO 230-4 tests (normals)
 CIRCLE_NORMALS = ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0))

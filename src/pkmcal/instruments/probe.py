@@ -385,6 +385,11 @@ class BedSetup:
         frame (:meth:`~pkmcal.machines.Machine.targets_in_base`)."""
         return machine.targets_in_base(P, self.plane)
 
+    def targets_from_base(self, machine, P):
+        """Base-frame positions in a printer's frame (z their height above this bed): the
+        inverse of :meth:`targets_in_base`."""
+        return machine.targets_from_base(P, self.plane)
+
 
 def bed_of(setups) -> BedSetup | None:
     """The printer's bed among an experiment's set-ups (the probe's :class:`BedSetup`).

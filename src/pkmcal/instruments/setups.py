@@ -12,7 +12,10 @@ instrument name, next to the machine (the machine holds none of them).
 Every set-up type has ``shifted(t)``: the same set-up seen from a base frame whose points all
 moved by ``t`` (a base point ``p`` is ``p + t`` in the new frame), and ``frame_shift(machine)``:
 the ``t`` that makes the machine's frame the set-up's own (a printer's frame is its bed, SPEC 8),
-None for set-ups that say nothing about the machine's frame.
+None for set-ups that say nothing about the machine's frame; and ``targets_in_base(machine, P)``
+/ ``targets_from_base(machine, P)``: targets given in the machine's working frame (a printer's:
+heights above its bed) in the base frame and back, ``P`` itself for set-ups that do not move
+targets.
 """
 
 from __future__ import annotations
@@ -154,6 +157,45 @@ class Setups(Mapping):
         for setup in self._items.values():
             P = setup.targets_in_base(machine, P)
         return P
+
+    def targets_from_base(self, machine, P) -> np.ndarray:
+        """Positions in ``machine``'s base frame, in its working frame: the inverse of
+        :meth:`targets_in_base` (a printer's positions become heights above its bed, SPEC 8;
+        elsewhere ``P`` itself). What a command writes as a target or a pose of the platform.
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+        P : array_like, shape (K, 3)
+            Positions in the base frame, m.
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            Positions in the working frame, m.
+        """
+        P = machine.targets_from_base(P)
+        for setup in reversed(list(self._items.values())):
+            P = setup.targets_from_base(machine, P)
+        return P
+
+    def working_frame_is_base(self, machine) -> bool:
+        """Whether ``machine``'s working frame is its base frame with these set-ups (False
+        on a printer whose bed is tilted or off z = 0: its targets are heights above it).
+
+        Parameters
+        ----------
+        machine : Machine
+            The machine.
+
+        Returns
+        -------
+        bool
+            True when :meth:`targets_in_base` leaves every position as it is.
+        """
+        P = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        return bool(np.array_equal(self.targets_in_base(machine, P), P))
 
 
 def _same(a, b) -> bool:

@@ -1092,6 +1092,29 @@ class Machine(ABC):
             P[:, 2] += h + tx * P[:, 0] + ty * P[:, 1]
         return P
 
+    def targets_from_base(self, P, bed=None) -> np.ndarray:
+        """Positions in the base frame, in the machine's working frame: the inverse of
+        :meth:`targets_in_base` (on a machine whose frame is its bed, z becomes the height
+        above the bed plane; elsewhere ``P`` itself).
+
+        Parameters
+        ----------
+        P : array_like, shape (K, 3)
+            Positions in the base frame, m.
+        bed : array_like, shape (3,), optional
+            The bed plane ``(height m, tilt_x, tilt_y)``; None: z = 0.
+
+        Returns
+        -------
+        ndarray, shape (K, 3)
+            Positions in the working frame, m.
+        """
+        P = np.array(P, float).reshape(-1, 3)
+        if self.frame_is_bed and bed is not None:
+            h, tx, ty = (float(v) for v in bed)
+            P[:, 2] -= h + tx * P[:, 0] + ty * P[:, 1]
+        return P
+
     def working_mode(self, P, R, u=None) -> np.ndarray:
         """Where poses can be commanded from the working mode of :attr:`home`.
 

@@ -31,7 +31,14 @@ from .common import (
     load_setups_arg,
     machine_inputs,
 )
-from .poses import joint_columns, read_poses_of, refuse_outside_limits, refuse_unreachable
+from .poses import (
+    frame_words,
+    joint_columns,
+    read_targets_of,
+    refuse_outside_limits,
+    refuse_unreachable,
+    working_positions,
+)
 
 __all__ = ["fk", "ik"]
 
@@ -48,7 +55,8 @@ def fk(machine_spec: str, joints: Path, output: Path, frame: str = "base",
         Joint readings (CSV, ``q1_<unit> ...``; a Stewart's reading unit).
     output : Path
         The poses (``x, y, z`` + ``psi, theta, phi`` where the platform rotates; positions
-        only where it translates) in the base frame and the machine file's units; with
+        only where it translates) in the machine's working frame (the base frame; a
+        printer's: z the height above its bed, SPEC 8) and the machine file's units; with
         ``frame="instrument"`` what the instrument would measure.
     frame : {"base", "instrument"}
         ``instrument``: the calibration's instrument's predicted measurements (``mx, my, mz``
@@ -72,7 +80,7 @@ def fk(machine_spec: str, joints: Path, output: Path, frame: str = "base",
     if instrument is not None:
         raise InputError(f"--instrument {instrument}: only with --frame instrument (the "
                          "instrument's predicted measurements); --frame base writes poses")
-    machine = load_machine_arg(machine_spec)
+    machine, setups = load_machine_arg(machine_spec), load_setups_arg(machine_spec)
     check_outputs([output], [joints] + machine_inputs(machine_spec))
     if getattr(machine, "reading_unit", None) is not None:   # readings in their own unit
         q, rows = read_readings(joints, machine)
@@ -81,17 +89,23 @@ def fk(machine_spec: str, joints: Path, output: Path, frame: str = "base",
     result = machine.fk(q)
     result.raise_if_failed(what=f"{joints}: forward kinematics", rows=rows)
     units = file_units(machine)
+    P = working_positions(machine, setups, result.P)     # a printer's: above its bed
     summary = Summary()
     if not machine.rotates:
-        write_positions(output, result.P, units["length"])
+        write_positions(output, P, units["length"])
         commit_outputs()
-        summary.line(f"{len(q)} position(s) of the platform point, base frame, written to "
-                     f"{path_text(output)} ({units['length']})")
+        where = frame_words(machine, setups, "")
+        summary.line(f"{len(q)} position(s) of the platform point, "
+                     + (f"written to {path_text(output)} ({units['length']}, {where})" if where
+                        else f"base frame, written to {path_text(output)} "
+                             f"({units['length']})"))
         return summary
-    write_poses(output, result.P, result.R, units["length"], units["angle"])
+    write_poses(output, P, result.R, units["length"], units["angle"])
     commit_outputs()
+    where = frame_words(machine, setups, "")
+    where = f", {where}" if where else ""
     summary.line(f"{len(q)} pose(s) written to {path_text(output)} ({units['length']}, "
-                 f"{units['angle']})")
+                 f"{units['angle']}{where})")
     return summary
 
 
@@ -133,7 +147,8 @@ def ik(machine_spec: str, poses: Path, output: Path) -> Summary:
         A machine file, or ``"default"``.
     poses : Path
         Poses (CSV): ``x, y, z`` with ``psi, theta, phi`` or ``qx, qy, qz, qw``; positions
-        only for a platform that only translates.
+        only for a platform that only translates; in the machine's working frame (the base
+        frame; a printer's: z the height above its bed).
     output : Path
         Joint values ``q1_<unit> ...`` in the machine file's units (a Stewart's reading
         unit).
@@ -151,7 +166,7 @@ def ik(machine_spec: str, poses: Path, output: Path) -> Summary:
     """
     machine, setups = load_machine_arg(machine_spec), load_setups_arg(machine_spec)
     check_outputs([output], [poses] + machine_inputs(machine_spec))
-    P, R, rows = read_poses_of(poses, machine)
+    P, R, rows, given = read_targets_of(poses, machine, setups)   # a printer's: above its bed
     q = machine.ik(P, R)
     bad = ~np.all(np.isfinite(q), axis=1)
     what = machine.chain_word
@@ -177,7 +192,7 @@ def ik(machine_spec: str, poses: Path, output: Path) -> Summary:
                              f"{rows_text(rows[off])}")
     refuse_unreachable(machine, machine.reachability(P, R, bed=bed_plane(setups)),
                        f"{poses}: {{n}} pose(s) cannot "
-                       "be reached by the machine", rows, (P, R))
+                       "be reached by the machine", rows, (given, R))
     refuse_outside_limits(machine, q, rows, f"{poses}: {{n}} pose(s)")
     columns = joint_columns(machine, q, file_units(machine))
     write_table(output, list(columns), list(columns.values()))

@@ -39,7 +39,14 @@ from .common import (
     load_setups_arg,
     no_progress,
 )
-from .poses import joint_columns, read_poses_of, refuse_outside_limits, refuse_unreachable
+from .poses import (
+    joint_columns,
+    read_poses_of,
+    read_targets_of,
+    refuse_outside_limits,
+    refuse_unreachable,
+    working_positions,
+)
 
 __all__ = ["identifiability", "select_poses", "workspace_arg", "planning_setup",
            "plan_groups", "joint_bounds", "parse_joint_range"]
@@ -294,7 +301,7 @@ def identifiability(machine_spec: str, data_path: Path | None = None, *,
     model = noise_model(kind, noise, pose_noise, machine)
     plan = rows = groups = None
     if data_path is not None and not measured:
-        *plan, rows = read_poses_of(data_path, machine)
+        *plan, rows, _ = read_targets_of(data_path, machine, load_setups_arg(machine_spec))
         groups = plan_groups(data_path, kind, rows)
     result = assess_identifiability(machine, kind, data=data_path if measured else None,
                                     poses=plan, rows=rows, groups=groups,
@@ -473,12 +480,15 @@ targets, parameters
     model = noise_model(kind, noise, pose_noise, machine)
     step = progress("select-poses: candidate poses", 5)
     given = rows = groups = None
+    file_setups = load_setups_arg(machine_spec)
     if candidates_path is not None:
-        *given, rows = read_poses_of(candidates_path, machine)
+        # positions in the working frame (a printer's: above its bed), computed in the base's
+        P, R, rows, shown = read_targets_of(candidates_path, machine, file_setups)
+        given = [P, R]
         refuse_unreachable(machine, machine.reachability(
-            *given, bed=bed_plane(load_setups_arg(machine_spec))), f"{candidates_path}: "
+            *given, bed=bed_plane(file_setups)), f"{candidates_path}: "
                            "{n} candidate pose(s) cannot be reached by the machine", rows,
-                           given)
+                           (shown, R))
         groups = plan_groups(candidates_path, kind, rows)
     elif candidates < n:
         raise InputError(f"-n/--poses {n}: more than the {candidates} candidate poses "
@@ -499,10 +509,11 @@ targets, parameters
     column = instrument(kind).group_column
     if column is not None and sel.group is not None:
         extra[column] = (sel.group + 1).tolist()
+    P = working_positions(machine, file_setups, sel.P)     # a printer's: above its bed
     if machine.rotates:
-        write_poses(output, sel.P, sel.R, units["length"], units["angle"], extra=extra)
+        write_poses(output, P, sel.R, units["length"], units["angle"], extra=extra)
     else:
-        write_positions(output, sel.P, units["length"], extra=extra)
+        write_positions(output, P, units["length"], extra=extra)
     if map_path is not None:
         sel.write_map(map_path, bounds=ws.bounds if workspace else None)
         report["map"] = str(map_path)
@@ -511,13 +522,16 @@ targets, parameters
     if json_output:
         summary.raw(json.dumps(json_safe(report), indent=2) + "\n")
     else:
-        _selection_table(summary, sel, report["machine_file"], output, map_path)
+        _selection_table(summary, sel, report["machine_file"], output, map_path,
+                         None if file_setups.working_frame_is_base(machine)
+                         else machine.working_frame_words)
     return summary
 
 
 def _selection_table(summary: Summary, sel, machine_file: str, output: Path,
-                     map_path: Path | None) -> None:
-    """The select-poses table."""
+                     map_path: Path | None, frame: str | None = None) -> None:
+    """The select-poses table (``frame``: the positions' frame in words, where it is not the
+    base frame)."""
     from ..planning import CRITERION_WORDS, criterion_ratio
 
     n, k, rms, rank = sel.n, sel.standard_poses, sel.position_rms, sel.design.rank
@@ -567,4 +581,5 @@ def _selection_table(summary: Summary, sel, machine_file: str, output: Path,
         crit += (f"; the selected set is {' and '.join(ratios)} "
                  f"({ratio_words.format(p=rank)})")
     table.add_row("criterion", crit)
-    table.add_row("written", path_text(output) + (f", {path_text(map_path)}" if map_path else ""))
+    table.add_row("written", path_text(output) + (f" ({frame})" if frame else "")
+                  + (f", {path_text(map_path)}" if map_path else ""))

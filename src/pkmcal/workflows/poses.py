@@ -1,7 +1,13 @@
 """Poses a user's file gives, checked against the machine: read for any platform, refused
 with the rows and the reason when the machine cannot take them, and joint columns written in
 the machine file's units. Shared by the commands that read or write poses (select-poses,
-identifiability, ik, compensate)."""
+identifiability, ik, fk, compensate).
+
+Every position a command reads or writes as a target or a pose of the platform is in the
+machine's working frame: its base frame, except on a printer, whose frame is its bed (SPEC 8:
+z is the height above the bed of the experiment's set-ups). :func:`read_targets_of` reads a
+file's into the base frame the library computes in, :func:`working_positions` turns them back.
+"""
 
 from __future__ import annotations
 
@@ -14,7 +20,8 @@ from ..instruments.flow import rows_text
 from ..io import read_poses, read_positions
 from ..paths import path_text
 
-__all__ = ["read_poses_of", "joint_columns", "refuse_unreachable", "refuse_outside_limits"]
+__all__ = ["read_poses_of", "read_targets_of", "working_positions", "frame_words",
+           "joint_columns", "refuse_unreachable", "refuse_outside_limits"]
 
 
 def read_poses_of(path: Path, machine):
@@ -41,6 +48,49 @@ def read_poses_of(path: Path, machine):
         P, rows = read_positions(path)
         return P, np.broadcast_to(np.eye(3), (len(P), 3, 3)), rows
     return read_poses(path)
+
+
+def read_targets_of(path: Path, machine, setups):
+    """The poses of a file (:func:`read_poses_of`), given in the machine's working frame,
+    with their positions in its base frame (:meth:`~pkmcal.instruments.setups.Setups.
+    targets_in_base`: a printer's z is the height above its bed).
+
+    Parameters
+    ----------
+    path : Path
+        Poses (CSV).
+    machine : Machine
+        The machine.
+    setups : Setups
+        The experiment's set-ups (a printer's bed).
+
+    Returns
+    -------
+    P : ndarray, shape (K, 3)
+        Positions in the base frame, m.
+    R : ndarray, shape (K, 3, 3)
+        Orientations.
+    rows : ndarray of int
+        The file's line of each pose.
+    given : ndarray, shape (K, 3)
+        The positions as the file gives them (for messages), m.
+    """
+    given, R, rows = read_poses_of(path, machine)
+    return setups.targets_in_base(machine, given), R, rows, given
+
+
+def working_positions(machine, setups, P):
+    """Base-frame positions as a command writes them: in the machine's working frame
+    (:meth:`~pkmcal.instruments.setups.Setups.targets_from_base`; ``P`` itself unless the
+    set-ups move it, e.g. a printer's tilted bed)."""
+    return setups.targets_from_base(machine, P)
+
+
+def frame_words(machine, setups, base: str = "base frame") -> str:
+    """The frame a command's positions are in, in words: ``base`` where the working frame is
+    the base frame, else the machine's :attr:`~pkmcal.machines.Machine.working_frame_words`
+    (a printer with a tilted bed)."""
+    return base if setups.working_frame_is_base(machine) else machine.working_frame_words
 
 
 def joint_columns(machine, q, units) -> dict:

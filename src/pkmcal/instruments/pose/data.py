@@ -149,6 +149,10 @@ class MeasurementFrames:
         the motion-capture frame: :class:`~pkmcal.compensation.frames.MocapFrames`)."""
         return P
 
+    def targets_from_base(self, machine, P):
+        """``P`` itself: the inverse of :meth:`targets_in_base`."""
+        return P
+
 
 @dataclass
 class FullPoseData:

@@ -49,6 +49,10 @@ class TrackerSetup:
         """``P`` itself: targets are not given relative to a tracker's set-up."""
         return P
 
+    def targets_from_base(self, machine, P):
+        """``P`` itself: the inverse of :meth:`targets_in_base`."""
+        return P
+
 
 def default_tracker_pose() -> tuple[np.ndarray, np.ndarray]:
     """The true ``base_from_tracker = (R, t)`` of simulations without a tracker in the machine file.
