@@ -183,15 +183,8 @@ def _ik_then_fk(f, m, inst):
 
 
 def _compensate_then_fk(f, m, inst):
-    from pkmcal.instruments.probe import bed_plane
-    from pkmcal.io import load_machine_file
-
-    bed = bed_plane(load_machine_file(f.d / m)[1])
-    if f.machine.frame_is_bed and bed is not None and any(bed[1:]):
-        # known, left open: select-poses writes its plan in the base frame, compensate reads
-        # a printer's targets as heights above its bed; on a printer with a tilted bed the
-        # plan's bed points land below the bed
-        pytest.xfail("plan in the base frame, compensate's targets above a tilted bed")
+    # a printer's plan and compensate's targets are both in its frame (heights above its
+    # bed, tilted or not: tests/test_printer_frame.py)
     f.need(("comp", m), "compensate", m, f.plan(m), "-o", f"{m}-commands.csv")
     return ["fk", m, f"{m}-commands.csv", "-o", "x.csv"]
 
