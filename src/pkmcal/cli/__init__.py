@@ -456,6 +456,7 @@ def identifiability(
              "planned poses.")] = None,
     planned: Annotated[bool, typer.Option(
         "--planned", help="DATA holds planned poses (x, y, z and psi, theta, phi or qx..qw; "
+                          "a printer's z the height above its bed; "
                           "other columns ignored), not measurements: analyse the measurements "
                           "the machine file's geometry would give there (e.g. the output of "
                           "select-poses).")] = False,
@@ -560,7 +561,8 @@ def select_poses(
              "deg).")] = 2000,
     candidates_file: Annotated[Path | None, typer.Option(
         "--from", help="Choose among the poses of this file instead (x, y, z + orientation; "
-                       "every pose must be reachable).", show_default=False)] = None,
+                       "every pose must be reachable; a printer's in its frame, as the plan "
+                       "written).", show_default=False)] = None,
     joint_range: Annotated[str | None, typer.Option(
         "--joint-range", metavar="MIN,MAX",
         help="Joint limits, e.g. 100mm,600mm (slider travel) or -60deg,90deg (Delta arms): "
@@ -618,7 +620,8 @@ def select_poses(
     it; never worse than the standard plan, e.g. seed 001's 3x3x3 grid for a tracker), and
     the report compares its predicted accuracy after calibration with the standard plan and
     with random sets of the same size. Writes the chosen poses
-    (the file's units) with the joint values that reach them on the nominal machine and the
+    (the file's units; a printer's in its frame, z the height above its bed, its probe points
+    at z = 0) with the joint values that reach them on the nominal machine and the
     candidate row; `pkmcal identifiability MACHINE PLAN.csv --planned` analyses it again.
 
     Example: `pkmcal select-poses default -n 60 -o plan.csv --map plan.png`
@@ -650,7 +653,8 @@ def fk(
              "reading unit, e.g. q1_rev; other columns are ignored).")],
     output: OutFile,
     frame: Annotated[TargetFrame, typer.Option(
-        help="base: platform poses in the base frame. instrument: what the calibration's "
+        help="base: platform poses in the base frame (a printer's: its frame, z the height "
+             "above its bed). instrument: what the calibration's "
              "instrument measures for these readings, from the calibrated file's tracker "
              "(mx, my, mz of the target in the tracker frame; column target 1..K picks the "
              "target), measurement_frames (x, y, z, qx, qy, qz, qw of the marker in the "
@@ -665,7 +669,8 @@ def fk(
     """Forward kinematics: poses from joint readings, in the machine file's units.
 
     Writes x, y, z and psi, theta, phi (R = RY(theta) RX(psi) RZ(phi)) per row; for a Delta
-    (the platform only translates) x, y, z of the platform point in the base frame. With
+    (the platform only translates) x, y, z of the platform point in the base frame (a
+    printer: in its frame, z the height above its bed). With
     --frame instrument: the instrument's predicted measurements in the file's length unit.
 
     Example: `pkmcal fk calibrated.yaml joints.csv -o poses.csv`
@@ -685,7 +690,8 @@ def ik(
     poses: Annotated[Path, typer.Argument(
         metavar="POSES.csv", show_default=False,
         help="Poses `x_<unit>, y_<unit>, z_<unit>` + `psi/theta/phi_<unit>` or qx, qy, qz, qw "
-             "(Delta: x, y, z only).")],
+             "(Delta: x, y, z only), in the base frame (a printer: its frame, z the height "
+             "above its bed).")],
     output: OutFile,
     columns: ColumnsOpt = None,
 ) -> None:
@@ -720,7 +726,8 @@ def compensate(
              "report how far its commands would leave the platform.", show_default=False)]
     = None,
     frame: Annotated[TargetFrame, typer.Option(
-        help="base: targets in the calibrated model's base frame. instrument: targets in the "
+        help="base: targets in the calibrated model's base frame (a printer: its frame, z the "
+             "height above its bed). instrument: targets in the "
              "measuring instrument's frame, converted with the frames the calibration "
              "estimated (tracker: x, y, z of the target in the tracker's frame, optional column "
              "target 1..K, a platform that rotates keeps its home orientation unless the rows "

@@ -421,9 +421,9 @@ def select_poses(machine_spec: str, output: Path, n: int, *, candidates: int = 2
                  progress=no_progress) -> Summary:
     """``pkmcal select-poses``: choose ``n`` poses by a criterion, never worse than the
     instrument's standard plan (:func:`pkmcal.planning.select_plan`); write them (the machine
-    file's units, with the joint values that reach them, the candidate row and the
-    instrument's group column) and report them next to the standard plan and random sets of
-    the same size.
+    file's units and working frame - a printer's: z the height above its bed - with the
+    joint values that reach them, the candidate row and the instrument's group column) and
+    report them next to the standard plan and random sets of the same size.
 
     Parameters
     ----------
