@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pkmcal.errors import InputError
 from pkmcal.instruments.probe import BedSetup
 from pkmcal.instruments.setups import Setups
 from pkmcal.io import load_machine_file, read_positions, write_positions
@@ -137,3 +138,20 @@ def test_a_hexapods_plan_and_kinematics_stay_in_its_base_frame(tmp_path):
     kinematics.fk(spec, tmp_path / "joints.csv", tmp_path / "back.csv")
     back = np.loadtxt(tmp_path / "back.csv", delimiter=",", skiprows=1, usecols=(0, 1, 2))
     assert _close(back * 1e-3, written, 1.0)
+
+
+def test_a_workspace_file_is_in_the_printers_frame(tmp_path):
+    """``--workspace POINTS.csv``: a printer's points are heights above its tilted bed; a
+    point just above the bed where the tilt lowers it is taken, one just below refused, the
+    row and the position as given named."""
+    machine = _printer(tmp_path)
+    m, setups = load_machine_file(machine)
+    points = tmp_path / "ws.csv"
+    P = np.array([[0.0, 0.0, 0.005], [0.09, 0.0, 0.00001], [-0.05, 0.04, 0.002]])
+    write_positions(points, P, "mm")
+    ws = planning.workspace_arg(str(points), m, 0, setups=setups)
+    above = ws.P[:, 2] - (TILT[0] * ws.P[:, 0] + TILT[1] * ws.P[:, 1])
+    assert _close(above, P[:, 2], 0.1)
+    write_positions(points, P * [1, 1, -1], "mm")
+    with pytest.raises(InputError, match=r"row\(s\) 2, 3, 4: .*row 2 at \(0, 0, -5\) mm"):
+        planning.workspace_arg(str(points), m, 0, setups=setups)

@@ -108,7 +108,8 @@ WorkspaceOpt = Annotated[str | None, typer.Option(
     help="Where the predicted accuracy is evaluated (default: the 0.1 m cube around home, "
          "orientations within +/-10 deg): a box X0,X1,Y0,Y1,Z0,Z1 with units (e.g. "
          "'-50mm, 50mm, -50mm, 50mm, 250mm, 350mm'; orientations as by default), or a CSV of "
-         "points `x_<len>, y_<len>, z_<len>` [+ `psi/theta/phi_<ang>` or qx..qw].")]
+         "points `x_<len>, y_<len>, z_<len>` [+ `psi/theta/phi_<ang>` or qx..qw]; a printer's "
+         "z is the height above its bed.")]
 
 
 def _version(value: bool) -> None:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -94,12 +95,15 @@ def planning_setup(machine, kind: str, setups: int | None, radius: str | None,
                                                  if v is not None})
 
 
-def workspace_arg(text: str | None, machine, seed: int = 0, bed=None):
+def workspace_arg(text: str | None, machine, seed: int = 0, bed=None, setups=None):
     """The workspace of the predicted accuracy: ``--workspace`` (a box
     ``X0,X1,Y0,Y1,Z0,Z1`` with units, or a CSV of points) or, without it, the SPEC 5 cube
     around home. Every pose must be reachable from home's working mode and within the
     machine file's joint limits (and above a printer's bed, the plane ``bed`` of its
-    set-ups: :meth:`~pkmcal.machines.Machine.reachability`)."""
+    set-ups: :meth:`~pkmcal.machines.Machine.reachability`). The box and the points are in
+    the machine's working frame with the set-ups ``setups`` (a printer's: z the height above
+    its bed, :meth:`~pkmcal.instruments.setups.Setups.targets_in_base`); the workspace
+    returned is in the base frame."""
     from ..analysis.accuracy import box_workspace, default_workspace
 
     if text is None:
@@ -126,7 +130,11 @@ def workspace_arg(text: str | None, machine, seed: int = 0, bed=None):
         rows = None
     else:
         ws, rows = _points_workspace(Path(text), machine, seed)
-    _check_workspace(machine, ws, text, rows, bed)
+    given = ws.P
+    if setups is not None and not setups.working_frame_is_base(machine):
+        ws = replace(ws, P=setups.targets_in_base(machine, ws.P))     # above a printer's bed
+        bed = bed_plane(setups) if bed is None else bed
+    _check_workspace(machine, ws, text, rows, bed, given)
     return ws
 
 
@@ -161,17 +169,19 @@ def _points_workspace(path: Path, machine, seed: int):
                      (P.min(axis=0), P.max(axis=0))), rows
 
 
-def _check_workspace(machine, ws, text: str, rows, bed=None) -> None:
+def _check_workspace(machine, ws, text: str, rows, bed=None, given=None) -> None:
     """Refuse workspace poses the machine cannot take (:meth:`~pkmcal.machines.Machine.
     reachability`: unreachable, another working mode, past the machine's physical limits such
     as a printer's endstops and bed, joints outside its limits), naming the rows of a points
-    file or, for a box, the first such pose, and why."""
+    file or, for a box, the first such pose (at ``given``, its positions as the user gave
+    them, default ``ws.P``), and why."""
     reach = machine.reachability(ws.P, ws.R, bed=bed)
     q = reach.q
     k = np.flatnonzero(~reach.ok & ~reach.limits_only)
     if k.size:
         R = ws.R[k[0]] if machine.rotates else None
-        pose = f"{machine.pose_text(ws.P[k[0]], R)}: {reach.reasons[int(k[0])]}"
+        shown = ws.P if given is None else given
+        pose = f"{machine.pose_text(shown[k[0]], R)}: {reach.reasons[int(k[0])]}"
         where = (f"row(s) {rows_text(np.asarray(rows)[k])}: out of the machine's reach: row "
                  f"{np.asarray(rows)[k[0]]} at {pose}" if rows is not None else
                  f"{k.size} of its {len(ws.P)} sampled poses: out of the machine's reach, "
@@ -273,7 +283,7 @@ def identifiability(machine_spec: str, data_path: Path | None = None, *,
     if map_path is not None or ws_file:
         check_outputs([map_path] if map_path is not None else [],
                       [p for p in (data_path,) if p is not None] + ws_file)
-    ws = workspace_arg(workspace, machine, seed)
+    ws = workspace_arg(workspace, machine, seed, setups=load_setups_arg(machine_spec))
     if data_path is None and planned:
         raise InputError("--planned: give the plan file (DATA) with the planned poses")
     if data_path is not None and poses is not None:
@@ -471,7 +481,7 @@ targets, parameters
     if workspace is not None and Path(workspace).exists():
         inputs.append(Path(workspace))
     check_outputs([output] + ([map_path] if map_path else []), inputs)
-    ws = workspace_arg(workspace, machine, seed)
+    ws = workspace_arg(workspace, machine, seed, setups=load_setups_arg(machine_spec))
     if random_sets < 0:
         raise InputError(f"--random-sets: must be >= 0, got {random_sets}")
     kind = scenario_for(machine, scenario)
