@@ -676,10 +676,26 @@ class ControllerFormat(ABC):
             The machine.
         """
 
+    def imported_bed(self, params: ControllerParameters) -> np.ndarray | None:
+        """The bed plane the controller's values hold, ``(height m, tilt_x, tilt_y)`` (a
+        printer's: its firmware commands heights above it); None (the default): none.
+
+        Parameters
+        ----------
+        params : ControllerParameters
+            The values.
+
+        Returns
+        -------
+        ndarray, shape (3,) or None
+            The plane.
+        """
+        return None
+
     def imported_setups(self, params: ControllerParameters) -> Setups:
         """The instruments' set-ups the controller's values state beside the machine of
-        :meth:`to_machine` (a printer's bed: its firmware commands heights above it); none by
-        default.
+        :meth:`to_machine`: the bed of :meth:`imported_bed` (:func:`bed_setups`), none
+        without one.
 
         Parameters
         ----------
@@ -691,7 +707,8 @@ class ControllerFormat(ABC):
         Setups
             The set-ups (:class:`~pkmcal.instruments.setups.Setups`).
         """
-        return Setups()
+        bed = self.imported_bed(params)
+        return Setups() if bed is None else bed_setups(bed)
 
 
 def setups_bed(setups) -> np.ndarray:

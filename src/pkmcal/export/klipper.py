@@ -58,14 +58,12 @@ import re
 import numpy as np
 
 from ..errors import InputError
-from ..instruments.setups import Setups
 from ..machines.base import Machine
 from ..machines.linear_delta import LinearDelta, linear_delta
 from .base import (
     ControllerFormat,
     ControllerParameters,
     Origin,
-    bed_setups,
     finite_number,
     register_format,
     setups_bed,
@@ -1016,7 +1014,6 @@ class KlipperDelta(ControllerFormat):
                                     self.imported_bed(params), like,
                                     "linear Delta (imported from Klipper)", params.extras)
 
-
     def imported_bed(self, params: ControllerParameters) -> np.ndarray:
         """The bed the values hold, ``(height m, tilt_x, tilt_y)``: Klipper's z is the height
         above the bed, its values the printer in the bed's frame, square (a tilt named in the
@@ -1033,21 +1030,6 @@ class KlipperDelta(ControllerFormat):
             The plane.
         """
         return np.array([params.values[10], 0.0, 0.0])
-
-    def imported_setups(self, params: ControllerParameters) -> Setups:
-        """The bed of :meth:`imported_bed` as a set-up (:func:`bed_setups`).
-
-        Parameters
-        ----------
-        params : ControllerParameters
-            Klipper's values.
-
-        Returns
-        -------
-        Setups
-            The set-ups.
-        """
-        return bed_setups(self.imported_bed(params))
 
 
 KLIPPER = register_format(KlipperDelta())

@@ -67,7 +67,6 @@ import numpy as np
 
 from ..errors import InputError
 from ..instruments.probe import bed_plane
-from ..instruments.setups import Setups
 from ..machines.base import Machine
 from ..machines.delta import Delta, delta_parameters
 from ..machines.linear_delta import linear_delta
@@ -75,7 +74,6 @@ from .base import (
     ControllerFormat,
     ControllerParameters,
     Origin,
-    bed_setups,
     finite_number,
     hal_line_kind,
     refuse_foreign_text,
@@ -919,9 +917,8 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
                                else "imported from LinuxCNC"))
         return m
 
-    def imported_setups(self, params: ControllerParameters) -> Setups:
-        """The bed ``bed_z`` of the values as a set-up (untilted;
-        :func:`~pkmcal.export.base.bed_setups`).
+    def imported_bed(self, params: ControllerParameters) -> np.ndarray:
+        """The bed ``bed_z`` of the values, untilted.
 
         Parameters
         ----------
@@ -930,10 +927,10 @@ class LinuxCNCLinearDelta(_LinuxCNCDelta):
 
         Returns
         -------
-        Setups
-            The set-ups.
+        ndarray, shape (3,)
+            The plane.
         """
-        return bed_setups([params.values[5], 0.0, 0.0])
+        return np.array([params.values[5], 0.0, 0.0])
 
 
 register_format(LinuxCNCRotaryDelta())

@@ -74,13 +74,11 @@ import re
 import numpy as np
 
 from ..errors import InputError
-from ..instruments.setups import Setups
 from ..machines.base import Machine
 from .base import (
     ControllerFormat,
     ControllerParameters,
     Origin,
-    bed_setups,
     origin_of,
     refuse_foreign_text,
     register_format,
@@ -565,21 +563,6 @@ class MarlinDelta(ControllerFormat):
             The plane.
         """
         return np.array([params.values[12], 0.0, 0.0])
-
-    def imported_setups(self, params: ControllerParameters) -> Setups:
-        """The bed of :meth:`imported_bed` as a set-up (:func:`bed_setups`).
-
-        Parameters
-        ----------
-        params : ControllerParameters
-            Marlin's values.
-
-        Returns
-        -------
-        Setups
-            The set-ups.
-        """
-        return bed_setups(self.imported_bed(params))
 
     def holds_measurements(self, path, head: str) -> bool:
         """A pasted probe report (:mod:`pkmcal.export.firmware_reports`)."""

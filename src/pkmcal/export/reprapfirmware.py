@@ -56,14 +56,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..instruments.setups import Setups
 from ..machines.base import Machine
 from ..paths import path_text
 from .base import (
     ControllerFormat,
     ControllerParameters,
     Origin,
-    bed_setups,
     origin_of,
     refuse_foreign_text,
     register_format,
@@ -524,21 +522,6 @@ class RepRapFirmwareDelta(ControllerFormat):
         """
         v = params.values
         return np.array([v[13], v[11], v[12]])
-
-    def imported_setups(self, params: ControllerParameters) -> Setups:
-        """The bed of :meth:`imported_bed` as a set-up (:func:`bed_setups`).
-
-        Parameters
-        ----------
-        params : ControllerParameters
-            RepRapFirmware's values.
-
-        Returns
-        -------
-        Setups
-            The set-ups.
-        """
-        return bed_setups(self.imported_bed(params))
 
     def holds_measurements(self, path, head: str) -> bool:
         """A pasted probe report (:mod:`pkmcal.export.firmware_reports`)."""
