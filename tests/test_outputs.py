@@ -350,8 +350,7 @@ def test_dev_null_is_written_into_even_from_a_read_only_directory(workdir, name)
         d.chmod(0o555)
         # (root writes anywhere: there the test shows /dev/null is not replaced and nothing
         # is written beside it; the library test below covers the unwritable directory)
-        proc = subprocess.run([str(PKMCAL), *args], cwd=d, capture_output=True, text=True,
-                              timeout=120)
+        proc = run(*args, cwd=d)
         assert proc.returncode == 0, proc.stderr
         assert stat.S_ISCHR(os.stat(os.devnull).st_mode)
         assert not Path("/dev/null.json").exists()
