@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from clitools import PKMCAL, assert_input_error, digest, popen, run, run_process
+from clitools import PKMCAL, assert_input_error, digest, popen, run, run_process, wait_at_most
 from pkmcal.errors import InputError
 from pkmcal.io.atomic import (
     OutputSet,
@@ -362,7 +362,7 @@ def test_dev_null_is_written_into_even_from_a_read_only_directory(workdir, name)
 
 def _run_and_signal(args, cwd, delay, sig):
     proc = popen(*args, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    time.sleep(delay)
+    wait_at_most(proc, delay)
     proc.send_signal(sig)
     out, err = proc.communicate(timeout=120)
     return proc.returncode, err

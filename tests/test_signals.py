@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from clitools import popen, run
+from clitools import popen, run, wait_at_most
 
 #: delays (s) spread from the interpreter's start-up (imports) to the end of a short run
 DELAYS = [0.12, 0.25, 0.4, 0.55, 0.7, 0.85, 1.0, 1.3, 1.8]
@@ -36,7 +36,7 @@ def test_the_exit_status_says_whether_the_outputs_were_written(tmp_path, joints,
         out.write_text("previous\n")
         proc = popen("fk", "default", "j.csv", "-o", "p.csv", cwd=tmp_path,
                      stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-        time.sleep(delay)
+        wait_at_most(proc, delay)
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
         assert proc.returncode >= 0, (delay, proc.returncode, err)   # never a silent death
