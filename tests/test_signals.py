@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -58,12 +59,23 @@ def test_a_stream_that_cannot_be_written_leaves_the_other_outputs_unwritten(tmp_
     assert list(tmp_path.iterdir()) == []
 
 
+def _waits_for_a_fifo_reader(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/wchan").read_text() in ("wait_for_partner", "fifo_open")
+    except OSError:
+        return False
+
+
 @pytest.mark.skipif(sys.platform != "linux", reason="FIFO semantics of Linux")
 def test_ctrl_c_while_waiting_for_a_fifo_reader_writes_nothing(tmp_path, joints):
     (tmp_path / "j.csv").write_text(joints)
     os.mkfifo(tmp_path / "fifo")
     proc = popen("fk", "default", "j.csv", "-o", "fifo", cwd=tmp_path, stderr=subprocess.PIPE)
-    time.sleep(3)
+    # until it waits in open() for a reader (Linux names that wait in /proc/PID/wchan), at
+    # most 3 s (where /proc does not say, the 3 s as before)
+    deadline = time.monotonic() + 3
+    while time.monotonic() < deadline and not _waits_for_a_fifo_reader(proc.pid):
+        time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 130 and err.strip() == "error: interrupted", err
