@@ -85,6 +85,16 @@ def popen(*args, cwd, **kwargs):
                             preexec_fn=_default_sigint, **kwargs)
 
 
+def wait_at_most(proc, seconds: float) -> None:
+    """Sleep ``seconds`` before signalling ``proc``, or less when it ends first: a signal
+    after its end is not sent (:meth:`subprocess.Popen.send_signal`), so the outcome is the
+    one after the whole delay, without the idle rest of it."""
+    try:
+        proc.wait(timeout=seconds)
+    except subprocess.TimeoutExpired:
+        pass
+
+
 def digest(path) -> str:
     """SHA-256 of a file: inputs must be unchanged after every command."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()

@@ -1,15 +1,15 @@
-"""The ``pkmcal`` command, run as a subprocess (SPEC 6): outputs, exit codes, messages."""
+"""The ``pkmcal`` command (SPEC 6): outputs, exit codes, messages (run in this process as the
+console script runs it, :mod:`clitools`)."""
 
 from __future__ import annotations
 
 import json
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from clitools import PKMCAL, assert_input_error, digest
+from clitools import assert_input_error, digest, run
 from pkmcal.io import load_machine, read_joints, read_poses, write_poses
 from pkmcal.kinematics import kabsch, matrix_from_euler
 from pkmcal.machines import default_hexaslide
@@ -24,12 +24,10 @@ COMMANDS = ["demo", "simulate", "calibrate", "fk", "ik", "bench"]
 def run_dir(tmp_path_factory):
     """simulate (default, paper-table1, noise 0, 150 poses) -> calibrate, once per module."""
     d = tmp_path_factory.mktemp("cli")
-    sim = subprocess.run([str(PKMCAL), "simulate", "default", "--poses", "150", "--noise",
-                          "0um", "--deviations", "paper-table1", "--seed", "3", "--truth",
-                          "true.yaml", "-o", "data.csv"], cwd=d, capture_output=True, text=True)
+    sim = run("simulate", "default", "--poses", "150", "--noise", "0um", "--deviations",
+              "paper-table1", "--seed", "3", "--truth", "true.yaml", "-o", "data.csv", cwd=d)
     assert sim.returncode == 0, sim.stderr
-    cal = subprocess.run([str(PKMCAL), "calibrate", "default", "data.csv", "-o", "cal.yaml"],
-                         cwd=d, capture_output=True, text=True)
+    cal = run("calibrate", "default", "data.csv", "-o", "cal.yaml", cwd=d)
     assert cal.returncode == 0, cal.stderr
     d.joinpath("calibrate.out").write_text(cal.stdout)
     return d

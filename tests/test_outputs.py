@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from clitools import PKMCAL, assert_input_error, digest, popen, run, run_process
+from clitools import PKMCAL, assert_input_error, digest, popen, run, run_process, wait_at_most
 from pkmcal.errors import InputError
 from pkmcal.io.atomic import (
     OutputSet,
@@ -350,8 +350,7 @@ def test_dev_null_is_written_into_even_from_a_read_only_directory(workdir, name)
         d.chmod(0o555)
         # (root writes anywhere: there the test shows /dev/null is not replaced and nothing
         # is written beside it; the library test below covers the unwritable directory)
-        proc = subprocess.run([str(PKMCAL), *args], cwd=d, capture_output=True, text=True,
-                              timeout=120)
+        proc = run(*args, cwd=d)
         assert proc.returncode == 0, proc.stderr
         assert stat.S_ISCHR(os.stat(os.devnull).st_mode)
         assert not Path("/dev/null.json").exists()
@@ -363,7 +362,7 @@ def test_dev_null_is_written_into_even_from_a_read_only_directory(workdir, name)
 
 def _run_and_signal(args, cwd, delay, sig):
     proc = popen(*args, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    time.sleep(delay)
+    wait_at_most(proc, delay)
     proc.send_signal(sig)
     out, err = proc.communicate(timeout=120)
     return proc.returncode, err

@@ -77,3 +77,37 @@ def test_report_bad_input(cli, tmp_path):
     assert_input_error(cli("report", machine, "-o", "r.html"), "calibration report")
     assert_input_error(cli("report", other, "-o", "r.json"), ".html")
     assert not (tmp_path / "r.html").exists()
+
+
+@pytest.mark.parametrize("dpi", [100, 120])
+def test_a_laid_out_figure_is_drawn_once_with_the_bytes_of_savefig(dpi):
+    """The report's and the commands' plots (:func:`pkmcal.report.plots.png_bytes`): a figure
+    with a layout engine is laid out once and drawn once (savefig draws it twice: a draw that
+    renders nothing, for the layout, then the drawing), and the PNG is savefig's, byte for
+    byte, at the report's dpi (100, the figure's own) and the commands' (120)."""
+    import io
+
+    import numpy as np
+
+    from pkmcal.report.plots import plt, png_bytes
+
+    def figure():
+        fig, axes = plt.subplots(2, 2, figsize=(6, 4), layout="constrained")
+        for k, ax in enumerate(axes.flat):
+            ax.barh(np.arange(5), np.arange(5) - k, color="C3")
+            ax.set_yticks(np.arange(5), [f"chain{k}.a0.{i}" for i in range(5)], fontsize=9)
+            ax.set_title(f"panel {k}")
+            ax.set_xlabel("change / std [1]")
+        fig.suptitle("identified - nominal in standard deviations")
+        return fig
+
+    fig = figure()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    plt.close(fig)
+    fig = figure()
+    draws = []
+    real = fig.draw
+    fig.draw = lambda renderer: draws.append(renderer) or real(renderer)
+    assert png_bytes(fig, dpi) == buf.getvalue()
+    assert len(draws) == 1

@@ -126,6 +126,52 @@ def test_unreadable_reports_are_refused(tmp_path, text, words):
     assert words in str(err.value) and str(err.value).startswith(str(path))
 
 
+def _depth_by_characters(text: str) -> int:
+    """The depth scan the report reader used before its regular expressions: a state machine
+    over every character (the reference)."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for ch in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == '"':
+                in_string = False
+        elif ch == '"':
+            in_string = True
+        elif ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+            if deepest > MAX_DEPTH:
+                return deepest
+        elif ch in "]}":
+            depth -= 1
+    return deepest
+
+
+def test_the_depth_scan_agrees_with_a_scan_of_every_character(calibrated):
+    """The depth of nesting outside strings (escaped quotes, unterminated strings, a lone
+    backslash at the end, brackets closed before opened, deeper than MAX_DEPTH) is the one a
+    scan of each character finds, on random texts and on a real report."""
+    import numpy as np
+
+    from pkmcal.report.schema import _depth
+
+    _, doc = calibrated
+    texts = [json.dumps(doc), json.dumps(doc, indent=1), "", '"', '"\\', '"[', '["]"[',
+             "]]][[", "[" * (MAX_DEPTH + 5), '"' + "[" * 40]
+    rng = np.random.default_rng(38)
+    alphabet = list('[]{}"\\ a,')
+    for n in rng.integers(0, 400, 3000):
+        # nesting-heavy: brackets 5 times as likely as the rest
+        p = np.array([5, 5, 5, 5, 2, 2, 1, 1, 1], float)
+        texts.append("".join(rng.choice(alphabet, size=n, p=p / p.sum())))
+    for text in texts:
+        assert _depth(text) == _depth_by_characters(text), text
+
+
 @pytest.mark.parametrize("command", ["report", "compensate"])
 def test_the_commands_refuse_a_bad_report_naming_the_key(calibrated, tmp_path, command):
     d, doc = calibrated

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from clitools import PKMCAL, assert_input_error
+from clitools import PKMCAL, assert_input_error, run
 from pkmcal.errors import InputError
 from pkmcal.report.provenance import run_date
 
@@ -53,12 +53,14 @@ def test_without_the_variable_the_date_is_now(monkeypatch):
 
 @pytest.mark.parametrize("value", ["yesterday", "-5", "1.5", "", "99999999999999999999"])
 def test_a_malformed_epoch_is_refused(monkeypatch, tmp_path, value):
+    # the commands in this process (clitools.run): the variable is read at each run's start
+    d = tmp_path
+    monkeypatch.delenv("SOURCE_DATE_EPOCH", raising=False)
+    assert run("simulate", "default", "--scenario", "constraint-link", "--poses", "60",
+               "-o", "d.csv", cwd=d).returncode == 0
     monkeypatch.setenv("SOURCE_DATE_EPOCH", value)
     with pytest.raises(InputError, match="SOURCE_DATE_EPOCH"):
         run_date()
-    d = tmp_path
-    assert _run("simulate", "default", "--scenario", "constraint-link", "--poses", "60",
-                "-o", "d.csv", cwd=d, epoch=None).returncode == 0
-    proc = _run("calibrate", "default", "d.csv", "-o", "cal.yaml", cwd=d, epoch=value)
+    proc = run("calibrate", "default", "d.csv", "-o", "cal.yaml", cwd=d)
     assert_input_error(proc, "SOURCE_DATE_EPOCH")
     assert sorted(p.name for p in d.iterdir()) == ["d.csv"]

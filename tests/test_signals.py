@@ -9,10 +9,11 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
-from clitools import popen, run
+from clitools import popen, run, wait_at_most
 
 #: delays (s) spread from the interpreter's start-up (imports) to the end of a short run
 DELAYS = [0.12, 0.25, 0.4, 0.55, 0.7, 0.85, 1.0, 1.3, 1.8]
@@ -36,7 +37,7 @@ def test_the_exit_status_says_whether_the_outputs_were_written(tmp_path, joints,
         out.write_text("previous\n")
         proc = popen("fk", "default", "j.csv", "-o", "p.csv", cwd=tmp_path,
                      stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-        time.sleep(delay)
+        wait_at_most(proc, delay)
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
         assert proc.returncode >= 0, (delay, proc.returncode, err)   # never a silent death
@@ -58,12 +59,23 @@ def test_a_stream_that_cannot_be_written_leaves_the_other_outputs_unwritten(tmp_
     assert list(tmp_path.iterdir()) == []
 
 
+def _waits_for_a_fifo_reader(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/wchan").read_text() in ("wait_for_partner", "fifo_open")
+    except OSError:
+        return False
+
+
 @pytest.mark.skipif(sys.platform != "linux", reason="FIFO semantics of Linux")
 def test_ctrl_c_while_waiting_for_a_fifo_reader_writes_nothing(tmp_path, joints):
     (tmp_path / "j.csv").write_text(joints)
     os.mkfifo(tmp_path / "fifo")
     proc = popen("fk", "default", "j.csv", "-o", "fifo", cwd=tmp_path, stderr=subprocess.PIPE)
-    time.sleep(3)
+    # until it waits in open() for a reader (Linux names that wait in /proc/PID/wchan), at
+    # most 3 s (where /proc does not say, the 3 s as before)
+    deadline = time.monotonic() + 3
+    while time.monotonic() < deadline and not _waits_for_a_fifo_reader(proc.pid):
+        time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 130 and err.strip() == "error: interrupted", err

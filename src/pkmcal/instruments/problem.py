@@ -418,7 +418,7 @@ def problem_null_space(problem, state, rtol: float = RTOL) -> np.ndarray:
     ok = np.all(np.isfinite(r), axis=-1)
     Jr, _, _ = reduce_local(r[ok], Jg[ok][..., free] * problem.scales[free],
                             None if Jl is None else Jl[ok])
-    _, s, Vt = np.linalg.svd(Jr, full_matrices=True)
+    _, s, Vt = np.linalg.svd(Jr, full_matrices=Jr.shape[0] < Jr.shape[1])  # all of Vt
     rank = numerical_rank(s, rtol)
     N = np.zeros((len(free), Vt.shape[0] - rank))
     N[free] = Vt[rank:].T

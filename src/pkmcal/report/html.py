@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import re
 from collections.abc import Mapping
 
@@ -253,16 +252,10 @@ def plot_axes(fig) -> list[dict]:
 def _png(fig) -> str:
     """The figure as an embedded PNG; its ``alt`` text and ``data-axes`` say what its axes
     show (:func:`plot_axes`)."""
-    import matplotlib.pyplot as plt
+    from .plots import png_bytes
 
     axes = plot_axes(fig)
-    buf = io.BytesIO()
-    # a figure with a layout engine is laid out as it is drawn: cropping it to its tight box
-    # as well would draw it twice
-    fig.savefig(buf, format="png", dpi=100,
-                bbox_inches=None if fig.get_layout_engine() is not None else "tight")
-    plt.close(fig)
-    data = base64.b64encode(buf.getvalue()).decode("ascii")
+    data = base64.b64encode(png_bytes(fig, 100)).decode("ascii")
     alt = "; ".join(f"colour: {a['colour']}" if "colour" in a else f"x: {a['x']}, y: {a['y']}"
                     for a in axes)
     # one panel per " | ", its axes as "x=...; y=..." ("x#=" a categorical axis)

@@ -11,21 +11,36 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 
-def _save(fig, path: Path) -> Path:
-    """Render ``fig`` as PNG and write it atomically (staged with the command's other
-    outputs: :func:`pkmcal.io.atomic.atomic_write_bytes`)."""
-    import io
+def png_bytes(fig, dpi: int) -> bytes:
+    """``fig`` rendered as PNG at ``dpi``, the figure closed.
 
-    from ..io.atomic import atomic_write_bytes
+    A figure with a layout engine is laid out here once, at ``dpi``, then drawn once:
+    ``savefig`` would lay it out in a draw of its own (rendering nothing) before the drawing,
+    for the same pixels (~12 % of a report's time). One without is cropped to its tight box.
+    """
+    import io
 
     buf = io.BytesIO()
     try:
-        # laid out by its engine as it is drawn, or cropped to its tight box (a second draw)
-        fig.savefig(buf, format="png", dpi=120,
-                    bbox_inches=None if fig.get_layout_engine() is not None else "tight")
+        engine = fig.get_layout_engine()
+        if engine is None:
+            fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+        else:
+            fig.set_dpi(dpi)
+            engine.execute(fig)
+            fig.set_layout_engine(None)
+            fig.savefig(buf, format="png", dpi=dpi, bbox_inches=None)
     finally:
         plt.close(fig)
-    return atomic_write_bytes(Path(path), buf.getvalue())
+    return buf.getvalue()
+
+
+def _save(fig, path: Path) -> Path:
+    """Render ``fig`` as PNG and write it atomically (staged with the command's other
+    outputs: :func:`pkmcal.io.atomic.atomic_write_bytes`)."""
+    from ..io.atomic import atomic_write_bytes
+
+    return atomic_write_bytes(Path(path), png_bytes(fig, 120))
 
 
 def plot_sweep(points, path, xlabel: str, title: str, extra=None, extra_label: str = ""):
