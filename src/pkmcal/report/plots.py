@@ -17,6 +17,18 @@ def png_bytes(fig, dpi: int) -> bytes:
     A figure with a layout engine is laid out here once, at ``dpi``, then drawn once:
     ``savefig`` would lay it out in a draw of its own (rendering nothing) before the drawing,
     for the same pixels (~12 % of a report's time). One without is cropped to its tight box.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure (closed on return).
+    dpi : int
+        Dots per inch.
+
+    Returns
+    -------
+    bytes
+        The PNG file's bytes.
     """
     import io
 
