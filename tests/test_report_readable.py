@@ -31,19 +31,32 @@ CASES = {
 
 @pytest.fixture(scope="module")
 def reports(tmp_path_factory):
-    """``{kind: (report dict, html text)}`` of a real calibration of each machine."""
+    """``{kind: (report dict, html text)}`` of a real calibration of each machine (the
+    pages' figures made, their alt text and axes real, not drawn to pixels: nothing here
+    reads an image's bytes)."""
+    import matplotlib.pyplot as plt
+
+    from pkmcal.report import plots
+
     out = {}
-    for kind, (machine, scenario, options) in CASES.items():
-        d = tmp_path_factory.mktemp(kind)
-        proc = run("simulate", machine, "--scenario", scenario, "--seed", "3", "-o", "d.csv",
-                   cwd=d)
-        assert proc.returncode == 0, proc.stderr
-        proc = run("calibrate", machine, "d.csv", "-o", "cal.yaml", *options, "--report",
-                   "rep", cwd=d)
-        assert proc.returncode == 0, proc.stderr
-        out[kind] = (json.loads((d / "cal.json").read_text()),
-                     (d / "rep" / "report.html").read_text())
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(plots, "png_bytes", lambda fig, dpi: plt.close(fig) or b"")
+        for kind, (machine, scenario, options) in CASES.items():
+            out[kind] = _real_calibration(tmp_path_factory, kind, machine, scenario, options)
     return out
+
+
+def _real_calibration(tmp_path_factory, kind, machine, scenario, options):
+    """simulate + ``calibrate --report``: ``(report dict, html text)``."""
+    d = tmp_path_factory.mktemp(kind)
+    proc = run("simulate", machine, "--scenario", scenario, "--seed", "3", "-o", "d.csv",
+               cwd=d)
+    assert proc.returncode == 0, proc.stderr
+    proc = run("calibrate", machine, "d.csv", "-o", "cal.yaml", *options, "--report", "rep",
+               cwd=d)
+    assert proc.returncode == 0, proc.stderr
+    return (json.loads((d / "cal.json").read_text()),
+            (d / "rep" / "report.html").read_text())
 
 
 class _Tables(HTMLParser):
