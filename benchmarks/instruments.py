@@ -375,8 +375,12 @@ class Case:
         return self._pose_pinv @ diff(Pe, Re)
 
 
-def run(machine: str, instrument: str, runs: int = 100, seed: int = 0) -> dict:
+def run(machine: str, instrument: str, runs: int = 100, seed: int = 0, case=None,
+        bound=None) -> dict:
     """Noise-free recovery and ``runs`` noisy calibrations of one combination.
+
+    ``case`` and ``bound``: the combination's :class:`Case` with this ``seed`` and its
+    :meth:`Case.bound`, when the caller has them already (default: made here).
 
     Returns
     -------
@@ -387,8 +391,8 @@ def run(machine: str, instrument: str, runs: int = 100, seed: int = 0) -> dict:
         calibration), ``success`` (all converged, none weak), ``unidentifiable`` (what the
         library names, with dimensions), ``errors`` and ``C`` (arrays).
     """
-    case = Case(machine, instrument, seed)
-    bound = case.bound()
+    case = Case(machine, instrument, seed) if case is None else case
+    bound = case.bound() if bound is None else bound
     exact = case.fit(case.simulate(None))
     e0 = case.error(exact, bound)
     C_pinv = np.linalg.pinv(bound.C, rcond=1e-10, hermitian=True)

@@ -41,7 +41,19 @@ def _bench():
 
 @pytest.fixture(scope="module")
 def bench():
-    return _bench()
+    module = _bench()
+    # one calibration per (seed, poses): seed 36 of test_rows_left_out_are_named is also a run
+    # of the Monte Carlo (a deterministic function of its arguments; the row is not modified)
+    runs = {}
+    plain = module.one_run
+
+    def one_run(seed, poses=120):
+        if (seed, poses) not in runs:
+            runs[seed, poses] = plain(seed, poses)
+        return dict(runs[seed, poses])
+
+    module.one_run = one_run
+    return module
 
 
 def _reporter_case(bench):

@@ -72,9 +72,25 @@ def apply_gauges(machine, u_machine, gauges: Sequence[Gauge], g) -> np.ndarray:
     ndarray, shape (n_machine,)
         The transformed parameters.
     """
+    return _apply_rotations(machine, u_machine, gauges, g, None)
+
+
+def _apply_rotations(machine, u_machine, gauges, g, memo):
+    """:func:`apply_gauges`; ``memo`` (a dict, or None) keeps each gauge's rotation matrix by
+    the exact bytes of its rotation vector: the finite differences of :func:`align_gauge` and
+    :func:`transport_covariance` rotate most gauges by the same vector again and again."""
     u = np.array(u_machine, float)
     for i, gauge in enumerate(gauges):
-        u = gauge.apply(machine, u, matrix_from_rotvec(np.asarray(g[3 * i:3 * i + 3], float)))
+        v = np.asarray(g[3 * i:3 * i + 3], float)
+        if memo is None:
+            G = matrix_from_rotvec(v)
+        else:
+            key = (i, v.tobytes())
+            G = memo.get(key)
+            if G is None:
+                G = memo[key] = matrix_from_rotvec(v)
+                G.flags.writeable = False       # shared: a transform must not change it
+        u = gauge.apply(machine, u, G)
     return u
 
 
@@ -173,12 +189,13 @@ def align_gauge(machine, u_est, u_ref, gauges: Sequence[Gauge], scales, max_iter
     g = np.zeros(3 * len(gauges))
     scales = np.asarray(scales, float)
     for _ in range(max_iter):
-        u = apply_gauges(machine, u_est, gauges, g)
+        memo = {}       # the rotations at g, shared by the differences along other gauges
+        u = _apply_rotations(machine, u_est, gauges, g, memo)
         r = (u - u_ref) / scales
         # Jacobian by central differences of the transforms at g
         J = np.column_stack([
-            (apply_gauges(machine, u_est, gauges, g + e) - apply_gauges(machine, u_est, gauges,
-                                                                        g - e)) / (2e-7)
+            (_apply_rotations(machine, u_est, gauges, g + e, memo)
+             - _apply_rotations(machine, u_est, gauges, g - e, memo)) / (2e-7)
             for e in np.eye(len(g)) * 1e-7]) / scales[:, None]
         step = np.linalg.lstsq(J, -r, rcond=None)[0]
         g = g + step
@@ -219,9 +236,10 @@ def transport_covariance(machine, u_machine, gauges: Sequence[Gauge], g, covaria
     u = np.asarray(u_machine, float)
     n = len(u)
     T = np.empty((n, n))
+    memo = {}           # g is the same in every difference
     for j in range(n):
         du = np.zeros(n)
         du[j] = eps * max(1.0, abs(u[j]))
-        T[:, j] = (apply_gauges(machine, u + du, gauges, g)
-                   - apply_gauges(machine, u - du, gauges, g)) / (2 * du[j])
+        T[:, j] = (_apply_rotations(machine, u + du, gauges, g, memo)
+                   - _apply_rotations(machine, u - du, gauges, g, memo)) / (2 * du[j])
     return T @ np.asarray(covariance, float) @ T.T

@@ -318,9 +318,10 @@ class LinearDelta(Machine):
 
     def _frames(self, theta):
         c, s = np.cos(theta), np.sin(theta)
-        z = np.zeros_like(c)
-        return (np.stack([c, s, z], -1), np.stack([-s, c, z], -1),
-                np.broadcast_to([0.0, 0.0, 1.0], (len(c), 3)))
+        er, et = np.zeros((len(c), 3)), np.zeros((len(c), 3))   # filled: cheaper than stacks
+        er[:, 0], er[:, 1] = c, s
+        et[:, 0], et[:, 1] = -s, c
+        return er, et, np.broadcast_to([0.0, 0.0, 1.0], (len(c), 3))
 
     def _geometry(self, u=None):
         """``c = a0 - b`` (3, 3), ``a`` (3, 3), ``l`` (3,) and intermediate values."""
