@@ -162,6 +162,8 @@ def print_summary(summary) -> int:
 
     out = console()
     for block in summary.blocks:
+        if out.quiet and not isinstance(block, RawText):
+            continue            # a quiet console drops it: not rendered for nothing
         if isinstance(block, SummaryTable):
             # titles and headings are plain text as the cells are ("changes side at [deg]")
             title = None if block.title is None else Text(block.title, style="table.title")

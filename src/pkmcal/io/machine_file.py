@@ -85,6 +85,7 @@ a few ulp, and writes atomically (:func:`~pkmcal.io.atomic.atomic_write_text`).
 from __future__ import annotations
 
 import contextlib
+import copy
 import dataclasses
 import datetime as _dt
 import functools
@@ -251,7 +252,19 @@ def _line_map(node, path=(), out=None) -> dict[tuple, int]:
 
 
 def _parse_yaml(text: str, source: str):
-    """``(document, line_map)``; YAML syntax errors become :class:`InputError` with a line."""
+    """``(document, line_map)``; YAML syntax errors become :class:`InputError` with a line.
+
+    A text parsed again (the same file loaded again in one process: a library's loop, the
+    commands of a session) is not scanned again: the document of one of the last texts
+    parsed is returned as a deep copy, so nothing a caller changes is seen by the next one
+    (a file that fails is parsed, and refused, every time)."""
+    data, lines = _parsed_yaml(text, source)
+    return copy.deepcopy(data), dict(lines)
+
+
+@functools.lru_cache(maxsize=16)
+def _parsed_yaml(text: str, source: str):
+    """:func:`_parse_yaml`'s parse (its result shared: only ever copied)."""
     try:
         loader = _Loader(text)
     except yaml.YAMLError as exc:       # e.g. a control character: the reader refuses it

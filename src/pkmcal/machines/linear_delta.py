@@ -120,6 +120,7 @@ is not exactly the design's (a calibrated file). ``print_radius`` and ``probe_ra
 
 from __future__ import annotations
 
+import functools
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -195,6 +196,15 @@ def linear_delta_parameters(delta_radius, arm_length, tower_angles, endstops, ra
     names = ["delta_radius", "arm_length"] + [f"tower{i + 1}.{f}" for i in range(3)
                                               for f in TOWER_FIELDS]
     return ParameterSet(names, ("length", "length") + TOWER_KINDS * 3, values)
+
+
+@functools.cache
+def _up(n: int) -> np.ndarray:
+    """``n`` rows of the vertical (0, 0, 1), read-only (shared)."""
+    up = np.zeros((n, 3))
+    up[:, 2] = 1.0
+    up.flags.writeable = False
+    return up
 
 
 class LinearDelta(Machine):
@@ -317,11 +327,13 @@ class LinearDelta(Machine):
                 e[:, 5])
 
     def _frames(self, theta):
+        # filled in place, not np.stack / np.broadcast_to: this runs at every evaluation
+        # of a fit, and their overhead was most of its time (the same values)
         c, s = np.cos(theta), np.sin(theta)
-        er, et = np.zeros((len(c), 3)), np.zeros((len(c), 3))   # filled: cheaper than stacks
+        er, et = np.zeros((len(c), 3)), np.zeros((len(c), 3))
         er[:, 0], er[:, 1] = c, s
         et[:, 0], et[:, 1] = -s, c
-        return er, et, np.broadcast_to([0.0, 0.0, 1.0], (len(c), 3))
+        return er, et, _up(len(c))
 
     def _geometry(self, u=None):
         """``c = a0 - b`` (3, 3), ``a`` (3, 3), ``l`` (3,) and intermediate values."""

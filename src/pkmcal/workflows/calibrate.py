@@ -12,7 +12,7 @@ from ..io.atomic import is_stream
 from ..paths import path_text
 from ..report.calibration_summary import calibrate_summary
 from ..report.summary import Summary
-from .common import check_outputs, load_machine_arg, load_setups_arg, machine_inputs, wrote
+from .common import check_outputs, load_machine_setups_arg, machine_inputs, wrote
 
 __all__ = ["calibrate_files"]
 
@@ -69,7 +69,7 @@ def calibrate_files(machine_spec: str, data_path, output: Path, noise=None,
                          "the calibrated machine is a YAML file; choose a name "
                          "ending in .yaml (the JSON report is written beside it)")
     report_path = output.with_suffix(".json")
-    machine = load_machine_arg(machine_spec)
+    machine, file_setups = load_machine_setups_arg(machine_spec)
     outputs = [output] + ([] if is_stream(output) else [report_path])
     if report_dir is not None:
         report_dir = Path(report_dir)
@@ -80,11 +80,11 @@ def calibrate_files(machine_spec: str, data_path, output: Path, noise=None,
                   [report_dir] if report_dir is not None else [])
     calibration = calibrate(machine, data_path, noise=noise, robust=robust, holdout=holdout,
                             seed=seed, parameters=parameters, options=options,
-                            setups=load_setups_arg(machine_spec))
+                            setups=file_setups)
     # the answer (verdict, accuracy before and after, what changed, what next): the report's
     # first section, and the summary's first rows
     calibration.report["outcome"] = calibration_outcome(calibration, path_text(output),
-                                                        setups=load_setups_arg(machine_spec))
+                                                        setups=file_setups)
     # staged first: a calibrated geometry that cannot be written is the one message (exit 2)
     json_text = calibration.write(output, report_dir)
     if json_output:

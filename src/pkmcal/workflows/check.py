@@ -13,8 +13,7 @@ from ..units import format_um
 from .common import (
     check_outputs,
     commit_outputs,
-    load_machine_arg,
-    load_setups_arg,
+    load_machine_setups_arg,
     machine_inputs,
 )
 
@@ -57,10 +56,10 @@ def check(machine_spec: str, data_paths, noise=None, output: Path | None = None)
     noise = noise_per_file_arg(noise, paths) if noise else None
     if isinstance(noise, str):
         raise InputError("--noise: give FILE=VALUE per file (e.g. --noise probe.csv=20um)")
-    machine = load_machine_arg(machine_spec)
+    machine, file_setups = load_machine_setups_arg(machine_spec)
     if output is not None:
         check_outputs([output], paths + machine_inputs(machine_spec))
-    result = score(machine, paths, noise=noise, setups=load_setups_arg(machine_spec))
+    result = score(machine, paths, noise=noise, setups=file_setups)
     if output is not None:
         text = report_json(json_safe(result.report))
         atomic_write_text(output, text if text.endswith("\n") else text + "\n")

@@ -9,13 +9,14 @@ from pathlib import Path
 
 from ..errors import stop_if_signalled
 from ..instruments.setups import Setups
-from ..io import load_machine, load_machine_file, read_groups
+from ..io import load_machine_file, read_groups
 from ..io.atomic import OutputSet, active_output_set, is_stream
 from ..io.machine_file import DEFAULT_UNITS
 from ..paths import path_text
 
-__all__ = ["load_machine_arg", "load_setups_arg", "machine_inputs", "check_outputs",
-           "commit_outputs", "in_output_set", "wrote", "no_progress", "group_numbers"]
+__all__ = ["load_machine_arg", "load_setups_arg", "load_machine_setups_arg", "machine_inputs",
+           "check_outputs", "commit_outputs", "in_output_set", "wrote", "no_progress",
+           "group_numbers"]
 
 
 def load_machine_arg(spec: str):
@@ -31,15 +32,7 @@ def load_machine_arg(spec: str):
     Machine
         With ``file_units``, ``source`` and ``calibration_info`` set.
     """
-    if spec == "default":
-        from ..machines import default_hexaslide
-
-        machine = default_hexaslide()
-        machine.file_units = dict(DEFAULT_UNITS)
-        machine.source = "default"
-        machine.calibration_info = None
-        return machine
-    return load_machine(spec)
+    return load_machine_setups_arg(spec)[0]
 
 
 def load_setups_arg(spec: str) -> Setups:
@@ -56,6 +49,33 @@ def load_setups_arg(spec: str) -> Setups:
         The set-ups of its instrument sections (:func:`~pkmcal.io.load_machine_file`).
     """
     return Setups() if spec == "default" else load_machine_file(spec)[1]
+
+
+def load_machine_setups_arg(spec: str):
+    """The machine a command names and its instruments' set-ups, from one reading of the
+    file (a new machine each call: nothing is cached).
+
+    Parameters
+    ----------
+    spec : str
+        A path, or ``"default"`` (the embedded Hexa Slide, no set-ups).
+
+    Returns
+    -------
+    machine : Machine
+        As :func:`load_machine_arg`.
+    setups : Setups
+        As :func:`load_setups_arg`.
+    """
+    if spec == "default":
+        from ..machines import default_hexaslide
+
+        machine = default_hexaslide()
+        machine.file_units = dict(DEFAULT_UNITS)
+        machine.source = "default"
+        machine.calibration_info = None
+        return machine, Setups()
+    return load_machine_file(spec)
 
 
 def machine_inputs(spec: str) -> list[Path]:

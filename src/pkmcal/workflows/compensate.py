@@ -32,6 +32,7 @@ from .common import (
     group_numbers,
     in_output_set,
     load_machine_arg,
+    load_machine_setups_arg,
     load_setups_arg,
     machine_inputs,
 )
@@ -93,9 +94,10 @@ def read_covariance(path: Path, machine, with_frames: bool = False):
     return C, N, (all_names, C_all)
 
 
-def choose_frame(machine, machine_spec: str, instrument: str | None):
+def choose_frame(machine, machine_spec: str, instrument: str | None, setups=None):
     """The instrument frame of ``--frame instrument``: the one ``instrument`` names, or the
-    only one the calibrated file carries (a tracker's or motion capture's).
+    only one the calibrated file carries (a tracker's or motion capture's). ``setups``: the
+    file's set-ups when already read (read from ``machine_spec`` otherwise).
 
     Returns
     -------
@@ -108,7 +110,7 @@ def choose_frame(machine, machine_spec: str, instrument: str | None):
         The file carries no frame, not the one named, or several and none is named.
     """
     where = getattr(machine, "source", machine_spec)
-    setups = load_setups_arg(machine_spec)
+    setups = load_setups_arg(machine_spec) if setups is None else setups
     frames = instrument_frames(machine, setups)
     if not frames:
         ballbar = (" (its ballbar section gives distances, not a frame to place targets in)"
@@ -226,10 +228,10 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
         Unreadable or unreachable targets, joint values outside the limits, a report that
         does not fit (nothing is written).
     """
-    machine = load_machine_arg(machine_spec)
+    machine, file_setups = load_machine_setups_arg(machine_spec)
     frame = None
     if frame_name == "instrument":
-        frame = choose_frame(machine, machine_spec, instrument)
+        frame = choose_frame(machine, machine_spec, instrument, file_setups)
     elif instrument is not None:
         raise InputError(f"--instrument {instrument}: only with --frame instrument (targets in "
                          "that instrument's frame)")
@@ -252,7 +254,7 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
         raise InputError(f"{path_text(targets)}: no target rows")
     try:
         comp = compensate(machine, P, R, C, nominal, N, frame=frame, names=names,
-                          setups=load_setups_arg(machine_spec))
+                          setups=file_setups)
     except ValueError as exc:
         raise InputError(f"{path_text(report_path)}: {exc}") from None
     refuse_unreachable(machine, comp.reach, f"{path_text(targets)}: {{n}} target(s) cannot be "
@@ -306,8 +308,7 @@ def run_compensate(machine_spec: str, targets: Path, output: Path, report: Path 
         return summary
     _table(summary, record, machine, frame, columns, report_path, nominal_spec)
     unseen = (getattr(machine, "calibration_info", None) or {}).get("unidentifiable") or []
-    if frame is None and unseen and target_frame(machine,
-                                                 load_setups_arg(machine_spec)) is not None:
+    if frame is None and unseen and target_frame(machine, file_setups) is not None:
         summary.line(
             f"note: the calibration data did not fix {'; '.join(map(str, unseen))[:300]}: "
             "base-frame targets land off by that unknown motion (often millimetres). Give the "

@@ -38,8 +38,7 @@ from .common import (
     check_outputs,
     commit_outputs,
     in_output_set,
-    load_machine_arg,
-    load_setups_arg,
+    load_machine_setups_arg,
     machine_inputs,
 )
 
@@ -212,7 +211,7 @@ def _machine_and_inputs(machine_spec: str, nominal: str | None, workspace: str |
     inputs = machine_inputs(machine_spec) + (machine_inputs(nominal) if nominal else [])
     if workspace is not None and Path(workspace).exists():
         inputs.append(Path(workspace))
-    machine, setups = load_machine_arg(machine_spec), load_setups_arg(machine_spec)
+    machine, setups = load_machine_setups_arg(machine_spec)
     # the calibration's report, which the calibrated file pins, is an input too
     pinned = _pinned_report(machine, machine_spec)
     if pinned is not None:
@@ -247,7 +246,7 @@ def _checked_machines(fmt, machine, machine_spec: str, nominal: str | None):
         raise InputError(f"--to {fmt.name}: {path_text(machine_spec)}: {why}")
     before = before_setups = None
     if nominal is not None:
-        before, before_setups = load_machine_arg(nominal), load_setups_arg(nominal)
+        before, before_setups = load_machine_setups_arg(nominal)
         why = fmt.applies(before)
         if why is not None:
             raise InputError(f"--nominal {nominal}: {why}")
@@ -361,14 +360,14 @@ def run_import(path: Path, source_format: str, output: Path, like: str | None = 
     path = Path(path)
     check_outputs([output], [path] + (machine_inputs(like) if like else []))
     params, home, name = fmt.read_controller_file(path)
-    model = load_machine_arg(like) if like is not None else None
+    model, like_setups = load_machine_setups_arg(like) if like is not None else (None, None)
     if model is not None and fmt.machine_kind and model.kind != fmt.machine_kind:
         raise InputError(f"--like {like}: a {model.kind} machine; {fmt.name} files describe a "
                          f"{fmt.machine_words} (machine: {fmt.machine_kind})")
     machine = carry_like(fmt.to_machine(params, model), model)
     # what --like carried (a tracker's set-up) and the set-ups the values state (a
     # printer's bed)
-    setups = carry_like_setups(machine, load_setups_arg(like) if like is not None else None)
+    setups = carry_like_setups(machine, like_setups)
     setups = setups.merged(fmt.imported_setups(params))
     if model is None and home is not None:      # a configuration's own
         machine.home = home

@@ -27,8 +27,7 @@ from .common import (
     check_outputs,
     commit_outputs,
     group_numbers,
-    load_machine_arg,
-    load_setups_arg,
+    load_machine_setups_arg,
     machine_inputs,
 )
 from .poses import (
@@ -80,7 +79,7 @@ def fk(machine_spec: str, joints: Path, output: Path, frame: str = "base",
     if instrument is not None:
         raise InputError(f"--instrument {instrument}: only with --frame instrument (the "
                          "instrument's predicted measurements); --frame base writes poses")
-    machine, setups = load_machine_arg(machine_spec), load_setups_arg(machine_spec)
+    machine, setups = load_machine_setups_arg(machine_spec)
     check_outputs([output], [joints] + machine_inputs(machine_spec))
     if getattr(machine, "reading_unit", None) is not None:   # readings in their own unit
         q, rows = read_readings(joints, machine)
@@ -118,7 +117,7 @@ def _fk_instrument(machine_spec: str, joints: Path, output: Path,
     from ..instruments.registry import instrument as entry
     from ..io.csv_io import machine_readings
 
-    machine, setups = load_machine_arg(machine_spec), load_setups_arg(machine_spec)
+    machine, setups = load_machine_setups_arg(machine_spec)
     name = choose_instrument(machine, setups, instrument, option="--instrument")
     inst = entry(name)
     check_outputs([output], [joints] + machine_inputs(machine_spec))
@@ -164,7 +163,7 @@ def ik(machine_spec: str, poses: Path, output: Path) -> Summary:
         A pose the machine cannot take (no real inverse kinematics, outside the working mode
         or the joint limits), named by its rows; nothing is written then.
     """
-    machine, setups = load_machine_arg(machine_spec), load_setups_arg(machine_spec)
+    machine, setups = load_machine_setups_arg(machine_spec)
     check_outputs([output], [poses] + machine_inputs(machine_spec))
     P, R, rows, given = read_targets_of(poses, machine, setups)   # a printer's: above its bed
     q = machine.ik(P, R)

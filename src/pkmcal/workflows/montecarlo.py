@@ -29,8 +29,7 @@ from .common import (
     check_outputs,
     commit_outputs,
     in_output_set,
-    load_machine_arg,
-    load_setups_arg,
+    load_machine_setups_arg,
     no_progress,
 )
 
@@ -151,7 +150,7 @@ def montecarlo(machine_spec: str, vary: str, output: Path, *, runs: int = 20,
     from ..instruments.registry import INSTRUMENTS, instrument
     from ..planning import scenario_for
 
-    machine = load_machine_arg(machine_spec)
+    machine, file_setups = load_machine_setups_arg(machine_spec)
     resolved = scenario_for(machine, scenario)      # the reason when it does not apply
     inst = instrument(resolved)
     words = tuple(w for i in INSTRUMENTS.values() for w in i.montecarlo_noise_words)
@@ -171,7 +170,7 @@ def montecarlo(machine_spec: str, vary: str, output: Path, *, runs: int = 20,
         machine, resolved, poses=poses, noise=noise_value,
         lc_error=_length_option(lc_error, "--lc-error") or 0.0,
         deviations=deviations, tolerance=_length_option(tolerance, "--tolerance"),
-        estimate_lc=estimate_lc, setups=load_setups_arg(machine_spec))
+        estimate_lc=estimate_lc, setups=file_setups)
     if lc_error is not None and "lc-error" not in \
             settings.resolved().instrument().montecarlo_variables:     # checks the settings
         raise InputError(f"--lc-error: applies to {scenarios_varying('lc-error')}, not "

@@ -36,8 +36,7 @@ from .common import (
     check_outputs,
     commit_outputs,
     in_output_set,
-    load_machine_arg,
-    load_setups_arg,
+    load_machine_setups_arg,
     no_progress,
 )
 from .poses import (
@@ -278,12 +277,13 @@ def identifiability(machine_spec: str, data_path: Path | None = None, *,
     from ..calibration.run import measurement_kind
     from ..planning import assess_identifiability, scenario_for
 
-    machine = _with_set(load_machine_arg(machine_spec), parameters)
+    machine, file_setups = load_machine_setups_arg(machine_spec)
+    machine = _with_set(machine, parameters)
     ws_file = [Path(workspace)] if workspace is not None and Path(workspace).exists() else []
     if map_path is not None or ws_file:
         check_outputs([map_path] if map_path is not None else [],
                       [p for p in (data_path,) if p is not None] + ws_file)
-    ws = workspace_arg(workspace, machine, seed, setups=load_setups_arg(machine_spec))
+    ws = workspace_arg(workspace, machine, seed, setups=file_setups)
     if data_path is None and planned:
         raise InputError("--planned: give the plan file (DATA) with the planned poses")
     if data_path is not None and poses is not None:
@@ -303,15 +303,15 @@ def identifiability(machine_spec: str, data_path: Path | None = None, *,
             if value is not None:
                 raise InputError(f"{option}: applies to planned measurements; the "
                                  f"measurements of {path_text(data_path)} have their own")
-        setup = load_setups_arg(machine_spec).get(kind)
+        setup = file_setups.get(kind)
     else:
         kind = scenario_for(machine, scenario)
         setup = planning_setup(machine, kind, setups, radius, targets,
-                               load_setups_arg(machine_spec).get(kind))
+                               file_setups.get(kind))
     model = noise_model(kind, noise, pose_noise, machine)
     plan = rows = groups = None
     if data_path is not None and not measured:
-        *plan, rows, _ = read_targets_of(data_path, machine, load_setups_arg(machine_spec))
+        *plan, rows, _ = read_targets_of(data_path, machine, file_setups)
         groups = plan_groups(data_path, kind, rows)
     result = assess_identifiability(machine, kind, data=data_path if measured else None,
                                     poses=plan, rows=rows, groups=groups,
@@ -476,21 +476,21 @@ targets, parameters
 
     if n < 1:
         raise InputError(f"-n/--poses: give the number of poses to choose (>= 1), got {n}")
-    machine = _with_set(load_machine_arg(machine_spec), parameters)
+    machine, file_setups = load_machine_setups_arg(machine_spec)
+    machine = _with_set(machine, parameters)
     inputs = [p for p in (candidates_path,) if p is not None]
     if workspace is not None and Path(workspace).exists():
         inputs.append(Path(workspace))
     check_outputs([output] + ([map_path] if map_path else []), inputs)
-    ws = workspace_arg(workspace, machine, seed, setups=load_setups_arg(machine_spec))
+    ws = workspace_arg(workspace, machine, seed, setups=file_setups)
     if random_sets < 0:
         raise InputError(f"--random-sets: must be >= 0, got {random_sets}")
     kind = scenario_for(machine, scenario)
     setup = planning_setup(machine, kind, setups, radius, targets,
-                           load_setups_arg(machine_spec).get(kind))
+                           file_setups.get(kind))
     model = noise_model(kind, noise, pose_noise, machine)
     step = progress("select-poses: candidate poses", 5)
     given = rows = groups = None
-    file_setups = load_setups_arg(machine_spec)
     if candidates_path is not None:
         # positions in the working frame (a printer's: above its bed), computed in the base's
         P, R, rows, shown = read_targets_of(candidates_path, machine, file_setups)

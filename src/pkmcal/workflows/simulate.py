@@ -22,8 +22,7 @@ from ..report.summary import Summary
 from .common import (
     check_outputs,
     commit_outputs,
-    load_machine_arg,
-    load_setups_arg,
+    load_machine_setups_arg,
     machine_inputs,
 )
 from .poses import refuse_outside_limits, refuse_unreachable
@@ -135,7 +134,7 @@ def simulate(machine_spec: str, output: Path, scenario: str | None = None,
     from ..instruments.registry import INSTRUMENTS, instrument
     from ..planning import scenario_for
 
-    machine = load_machine_arg(machine_spec)
+    machine, file_setups = load_machine_setups_arg(machine_spec)
     kind = machine.kind
     requested = scenario
     try:
@@ -169,10 +168,10 @@ def simulate(machine_spec: str, output: Path, scenario: str | None = None,
                              "translates) measures a grid (--grid NXxNYxNZ, seed 001)")
         return _simulate_tracker(machine, output, noise, seed, deviations, truth,
                                  parse_grid(grid or "3x3x3"), outliers,
-                                 load_setups_arg(machine_spec))
+                                 file_setups)
     return _simulate_scenario(machine, scenario, output, poses, noise, pose_noise, lc_error,
                               seed, deviations, truth, targets, setups, radius, circles,
-                              load_setups_arg(machine_spec))
+                              file_setups)
 
 
 def _truth_text(machine, true, truth: Path | None, setups) -> str | None:
