@@ -60,15 +60,15 @@ def test_the_exports_read_the_bed_from_the_set_ups_not_from_the_machine(tmp_path
     older code read): the files are byte for byte those of the plain machine; without the
     bed section they differ (the bed is read from the set-ups)."""
     plain = _exports(tmp_path / "plain")
-    loader = export_workflow.load_machine_arg
+    loader = export_workflow.load_machine_setups_arg
 
     def decoy(spec):
-        machine = loader(spec)
+        machine, setups = loader(spec)
         machine.probe_bed = (0.003, -0.004, 0.005)          # what nothing may read
         machine.bed_surface = None
-        return machine
+        return machine, setups
 
-    monkeypatch.setattr(export_workflow, "load_machine_arg", decoy)
+    monkeypatch.setattr(export_workflow, "load_machine_setups_arg", decoy)
     assert _exports(tmp_path / "decoy") == plain
     monkeypatch.undo()
     flat = _exports(tmp_path / "flat", bed=False)
