@@ -30,7 +30,7 @@ def _text(value) -> str:
     return repr(float(value))
 
 
-def write_table(path, header: list[str], columns: list) -> Path:
+def write_table(path, header: list[str], columns: list, extra: dict | None = None) -> Path:
     """Write columns (equal-length sequences) under ``header`` as CSV, atomically.
 
     Floats are written with ``repr`` (full precision), booleans as 0/1.
@@ -43,6 +43,8 @@ def write_table(path, header: list[str], columns: list) -> Path:
         Column names.
     columns : list of sequence
         One sequence per column.
+    extra : dict, optional
+        Further columns after them, name -> sequence.
 
     Returns
     -------
@@ -54,6 +56,9 @@ def write_table(path, header: list[str], columns: list) -> Path:
     ValueError
         When the columns have different lengths.
     """
+    if extra:
+        header = list(header) + list(extra)
+        columns = list(columns) + [list(v) for v in extra.values()]
     n = {len(c) for c in columns}
     if len(n) > 1:
         raise ValueError("all columns must have the same length")
@@ -126,10 +131,7 @@ def write_joints(path, q, unit: str = "mm", extra: dict | None = None,
     f = _unit_factor(unit, quantity)
     header = [f"q{j + 1}_{unit}" for j in range(q.shape[1])]
     columns = [q[:, j] / f for j in range(q.shape[1])]
-    for name, values in (extra or {}).items():
-        header.append(name)
-        columns.append(list(values))
-    return write_table(path, header, columns)
+    return write_table(path, header, columns, extra)
 
 
 def write_positions(path, P, length_unit: str = "mm", extra: dict | None = None) -> Path:
@@ -160,10 +162,7 @@ def write_positions(path, P, length_unit: str = "mm", extra: dict | None = None)
     fl = _unit_factor(length_unit, "length")
     header = [f"{c}_{length_unit}" for c in "xyz"]
     columns = [P[:, j] / fl for j in range(3)]
-    for name, values in (extra or {}).items():
-        header.append(name)
-        columns.append(list(values))
-    return write_table(path, header, columns)
+    return write_table(path, header, columns, extra)
 
 
 def write_tracker(path, q, m, joint_unit: str = "deg", length_unit: str = "mm",
@@ -203,10 +202,7 @@ def write_tracker(path, q, m, joint_unit: str = "deg", length_unit: str = "mm",
     header = [f"q{j + 1}_{joint_unit}" for j in range(q.shape[1])] + \
              [f"m{c}_{length_unit}" for c in "xyz"]
     columns = [q[:, j] / fq for j in range(q.shape[1])] + [m[:, j] / fl for j in range(3)]
-    for name, values in (extra or {}).items():
-        header.append(name)
-        columns.append(list(values))
-    return write_table(path, header, columns)
+    return write_table(path, header, columns, extra)
 
 
 def write_poses(path, P, R, length_unit: str = "mm", angle_unit: str = "deg",
@@ -244,10 +240,7 @@ def write_poses(path, P, R, length_unit: str = "mm", angle_unit: str = "deg",
     header = [f"{c}_{length_unit}" for c in "xyz"] + \
              [f"{c}_{angle_unit}" for c in ("psi", "theta", "phi")]
     columns = [P[:, j] / fl for j in range(3)] + [angles[:, j] for j in range(3)]
-    for name, values in (extra or {}).items():
-        header.append(name)
-        columns.append(list(values))
-    return write_table(path, header, columns)
+    return write_table(path, header, columns, extra)
 
 
 def write_readings(path, q, machine, extra: dict | None = None) -> Path:
@@ -274,10 +267,7 @@ def write_readings(path, q, machine, extra: dict | None = None) -> Path:
     unit, f = machine.joint_unit()
     header = [f"q{j + 1}_{unit}" for j in range(q.shape[1])]
     columns = [q[:, j] / f for j in range(q.shape[1])]
-    for name, values in (extra or {}).items():
-        header.append(name)
-        columns.append(list(values))
-    return write_table(path, header, columns)
+    return write_table(path, header, columns, extra)
 
 
 def write_full_pose(path, data: FullPoseData, machine, length_unit: str = "mm") -> Path:
