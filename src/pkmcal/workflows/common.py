@@ -14,7 +14,7 @@ from ..io.atomic import OutputSet, active_output_set, is_stream
 from ..io.machine_file import DEFAULT_UNITS
 from ..paths import path_text
 
-__all__ = ["load_machine_arg", "load_setups_arg", "load_machine_setups_arg", "machine_inputs",
+__all__ = ["load_machine_arg", "load_machine_setups_arg", "machine_inputs",
            "check_outputs", "commit_outputs", "in_output_set", "wrote", "no_progress",
            "group_numbers"]
 
@@ -35,25 +35,9 @@ def load_machine_arg(spec: str):
     return load_machine_setups_arg(spec)[0]
 
 
-def load_setups_arg(spec: str) -> Setups:
-    """The instruments' set-ups of the machine a command names (none for ``default``).
-
-    Parameters
-    ----------
-    spec : str
-        A path, or ``"default"``.
-
-    Returns
-    -------
-    Setups
-        The set-ups of its instrument sections (:func:`~pkmcal.io.load_machine_file`).
-    """
-    return Setups() if spec == "default" else load_machine_file(spec)[1]
-
-
 def load_machine_setups_arg(spec: str):
     """The machine a command names and its instruments' set-ups, from one reading of the
-    file (a new machine each call: nothing is cached).
+    file (a new machine each call).
 
     Parameters
     ----------
@@ -65,7 +49,7 @@ def load_machine_setups_arg(spec: str):
     machine : Machine
         As :func:`load_machine_arg`.
     setups : Setups
-        As :func:`load_setups_arg`.
+        The set-ups of its instrument sections (:func:`~pkmcal.io.load_machine_file`).
     """
     if spec == "default":
         from ..machines import default_hexaslide

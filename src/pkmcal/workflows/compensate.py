@@ -33,7 +33,6 @@ from .common import (
     in_output_set,
     load_machine_arg,
     load_machine_setups_arg,
-    load_setups_arg,
     machine_inputs,
 )
 from .poses import joint_columns, read_poses_of, refuse_outside_limits, refuse_unreachable
@@ -94,10 +93,10 @@ def read_covariance(path: Path, machine, with_frames: bool = False):
     return C, N, (all_names, C_all)
 
 
-def choose_frame(machine, machine_spec: str, instrument: str | None, setups=None):
+def choose_frame(machine, machine_spec: str, instrument: str | None, setups):
     """The instrument frame of ``--frame instrument``: the one ``instrument`` names, or the
-    only one the calibrated file carries (a tracker's or motion capture's). ``setups``: the
-    file's set-ups when already read (read from ``machine_spec`` otherwise).
+    only one the calibrated file carries (a tracker's or motion capture's) among its set-ups
+    ``setups``.
 
     Returns
     -------
@@ -110,7 +109,6 @@ def choose_frame(machine, machine_spec: str, instrument: str | None, setups=None
         The file carries no frame, not the one named, or several and none is named.
     """
     where = getattr(machine, "source", machine_spec)
-    setups = load_setups_arg(machine_spec) if setups is None else setups
     frames = instrument_frames(machine, setups)
     if not frames:
         ballbar = (" (its ballbar section gives distances, not a frame to place targets in)"
