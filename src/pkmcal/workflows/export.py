@@ -235,7 +235,7 @@ def _workspace(machine, workspace: str | None, seed: int, setups):
 
     own = getattr(machine, "print_workspace", None)
     return (own(rng=seed, bed=bed_plane(setups)) if workspace is None and callable(own)
-            else workspace_arg(workspace, machine, seed, bed_plane(setups), setups))
+            else workspace_arg(workspace, machine, seed, setups))
 
 
 def _checked_machines(fmt, machine, machine_spec: str, nominal: str | None):

@@ -94,13 +94,13 @@ def planning_setup(machine, kind: str, setups: int | None, radius: str | None,
                                                  if v is not None})
 
 
-def workspace_arg(text: str | None, machine, seed: int = 0, bed=None, setups=None):
+def workspace_arg(text: str | None, machine, seed: int = 0, setups=None):
     """The workspace of the predicted accuracy: ``--workspace`` (a box
     ``X0,X1,Y0,Y1,Z0,Z1`` with units, or a CSV of points) or, without it, the SPEC 5 cube
     around home. Every pose must be reachable from home's working mode and within the
-    machine file's joint limits (and above a printer's bed, the plane ``bed`` of its
-    set-ups: :meth:`~pkmcal.machines.Machine.reachability`). The box and the points are in
-    the machine's working frame with the set-ups ``setups`` (a printer's: z the height above
+    machine file's joint limits (and above a printer's bed, the plane of its set-ups
+    ``setups``: :meth:`~pkmcal.machines.Machine.reachability`). The box and the points are in
+    the machine's working frame with those set-ups (a printer's: z the height above
     its bed, :meth:`~pkmcal.instruments.setups.Setups.targets_in_base`); the workspace
     returned is in the base frame."""
     from ..analysis.accuracy import box_workspace, default_workspace
@@ -132,8 +132,7 @@ def workspace_arg(text: str | None, machine, seed: int = 0, bed=None, setups=Non
     given = ws.P
     if setups is not None and not setups.working_frame_is_base(machine):
         ws = replace(ws, P=setups.targets_in_base(machine, ws.P))     # above a printer's bed
-        bed = bed_plane(setups) if bed is None else bed
-    _check_workspace(machine, ws, text, rows, bed, given)
+    _check_workspace(machine, ws, text, rows, bed_plane(setups), given)
     return ws
 
 
